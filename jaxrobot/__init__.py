@@ -1,0 +1,34 @@
+"""jaxrobot: differentiable models of elastic-joint industrial robots (thesis ch. 2, app. A)."""
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+from ._description import RobotFileError as RobotFileError  # noqa: E402
+from ._description import load_robot as load_robot  # noqa: E402
+from ._description import racer7 as racer7  # noqa: E402
+from ._description import read_description as read_description  # noqa: E402
+from ._description import save_robot as save_robot  # noqa: E402
+from ._dynamics import coriolis_matrix as coriolis_matrix  # noqa: E402
+from ._dynamics import coriolis_vector as coriolis_vector  # noqa: E402
+from ._dynamics import gravity_torque as gravity_torque  # noqa: E402
+from ._dynamics import inverse_dynamics as inverse_dynamics  # noqa: E402
+from ._dynamics import link_acceleration as link_acceleration  # noqa: E402
+from ._dynamics import mass_matrix as mass_matrix  # noqa: E402
+from ._dynamics import motor_torque as motor_torque  # noqa: E402
+from ._dynamics import planning_dynamics as planning_dynamics  # noqa: E402
+from ._dynamics import static_equilibrium as static_equilibrium  # noqa: E402
+from ._elasticity import elastic_deflection as elastic_deflection  # noqa: E402
+from ._elasticity import elastic_torque as elastic_torque  # noqa: E402
+from ._gear import gear_output as gear_output  # noqa: E402
+from ._gear import gear_ratio as gear_ratio  # noqa: E402
+from ._gear import motor_angle as motor_angle  # noqa: E402
+from ._kinematics import analytic_jacobian as analytic_jacobian  # noqa: E402
+from ._kinematics import forward_kinematics as forward_kinematics  # noqa: E402
+from ._kinematics import geometric_jacobian as geometric_jacobian  # noqa: E402
+from ._kinematics import link_frames as link_frames  # noqa: E402
+from ._kinematics import point_position as point_position  # noqa: E402
+from ._kinematics import rpy as rpy  # noqa: E402
+from ._kinematics import tool_pose as tool_pose  # noqa: E402
+from ._robot import Ripple as Ripple  # noqa: E402
+from ._robot import Robot as Robot  # noqa: E402

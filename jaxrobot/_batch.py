@@ -1,0 +1,26 @@
+"""Leading batch axes for functions written for one robot and one state."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._robot import Robot
+
+
+def unbatched(robot: Robot, q: Float[Array, "*b n"], fn: Callable, *args):
+    """Map `fn(robot, q, *args)`, written for one robot and one `q` of shape (n,), over the
+    broadcast leading axes of `robot`, `q` and `args` (each `args[i]` has `q`'s core rank 1)."""
+    rb = robot.a.shape[:-1]
+    batch = jnp.broadcast_shapes(q.shape[:-1], rb, *(x.shape[:-1] for x in args))
+    if not batch:
+        return fn(robot, q, *args)
+    n = len(batch)
+    robot = jax.tree.map(lambda x: jnp.broadcast_to(x, batch + x.shape[len(rb):]), robot)
+    vecs = [jnp.broadcast_to(x, batch + x.shape[-1:]) for x in (q, *args)]
+    flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[n:]), (robot, vecs))
+    out = jax.vmap(lambda r, v: fn(r, *v))(*flat)
+    return jax.tree.map(lambda y: y.reshape(batch + y.shape[1:]), out)

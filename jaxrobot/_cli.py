@@ -1,0 +1,79 @@
+"""The `jaxrobot` command line.
+
+Subcommands are modules with `HELP: str`, `configure(parser)` and `run(args, echo) -> dict`
+(the JSON summary). `jaxrobot` ships `info` and `demo`; other packages add theirs through the
+entry-point group `jaxrobot.commands`, and stages of `jaxrobot demo` through `jaxrobot.demo`
+(a function `stage(out: Path, echo) -> dict`, run in the order of the entry-point names), so
+that `jaxrobot` never imports the packages built on it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from importlib.metadata import entry_points
+from pathlib import Path
+from types import ModuleType
+from typing import Callable
+
+Echo = Callable[[str], None]
+
+
+def _commands() -> dict[str, ModuleType]:
+    from . import _cli_demo, _cli_info
+
+    found = {"info": _cli_info, "demo": _cli_demo}
+    for ep in entry_points(group="jaxrobot.commands"):
+        found[ep.name] = ep.load()
+    return found
+
+
+def demo_stages() -> list[tuple[str, Callable]]:
+    """The registered stages of `jaxrobot demo`, in order."""
+    return sorted(((ep.name, ep.load()) for ep in entry_points(group="jaxrobot.demo")),
+                  key=lambda item: item[0])
+
+
+def _jsonable(obj):
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if hasattr(obj, "tolist"):
+        return _jsonable(np.asarray(obj).tolist())
+    return obj
+
+
+def main(argv: list[str] | None = None) -> int:
+    commands = _commands()
+    parser = argparse.ArgumentParser(
+        prog="jaxrobot", description="Calibrated elastic-joint robot models and accurate offline planning.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, module in commands.items():
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        p.add_argument("--json", action="store_true", help="print a machine-readable summary on stdout")
+        p.add_argument("--out", type=Path, default=None, help="folder for tables, plots and files")
+        module.configure(p)
+    args = parser.parse_args(argv)
+    stream = sys.stderr if args.json else sys.stdout
+
+    def echo(text: str) -> None:
+        print(text, file=stream, flush=True)
+
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+    try:
+        summary = commands[args.command].run(args, echo)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"jaxrobot {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(_jsonable(summary), indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,330 @@
+"""Robot description files (the format of `racer7.toml`): validating loader and saver."""
+
+from __future__ import annotations
+
+import difflib
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+import tomli_w
+
+from ._robot import N_JOINTS, Ripple, Robot
+
+
+class RobotFileError(ValueError):
+    """A robot description that does not validate; the message names the field."""
+
+
+_V6 = (N_JOINTS,)
+# Schema: key -> shape tuple (numbers), "str", or a nested dict. Keys starting with "?" are optional.
+_RIPPLE = {"orders": (None,), "a": (None,), "b": (None,)}
+_SCHEMA: dict[str, Any] = {
+    "name": "str",
+    "gravity": (3,),
+    "kinematics": {"a": _V6, "d": _V6, "alpha": _V6, "beta": _V6, "offset": _V6},
+    "limits": {"position_deg": (N_JOINTS, 2), "velocity_deg_s": _V6, "acceleration_deg_s2": _V6},
+    "gear": {"u0": _V6, **{f"?joint{i}": {"cw": _RIPPLE, "ccw": _RIPPLE} for i in range(1, 7)}},
+    "stiffness": {"k1": _V6, "k3": _V6},
+    "links": {"mass": _V6, "com": (N_JOINTS, 3), "inertia": (N_JOINTS, 6)},
+    "motors": {"inertia": _V6},
+    "?tool": {"transform": (4, 4)},
+    "?base": {"transform": (4, 4)},
+    "?as_built": {
+        "delta_a": _V6, "delta_d": _V6, "delta_alpha": _V6, "delta_beta": _V6,
+        "u0_wrist": (3,),
+    },
+    "?sensors": {
+        "tracker_position_noise_m": (), "tracker_marker_offset_m": (3,), "gyro_noise_deg_s": (),
+        "gyro_misalignment_rad": (2,), "encoder_counts_per_rev": (), "sample_time_s": (),
+        "filter_cutoff_hz": (3,),
+    },
+    "?poses": {"motor_deg": (None, N_JOINTS)},
+    "?trajectories": {
+        "orientation_q": _V6, "sample_time_s": (), "duration_s": (),
+        "line": {"x_m": (), "z_m": (), "y_start_m": (), "y_end_m": ()},
+        "spiral": {
+            "centre_xy_m": (2,), "r_max_m": (), "turns": (), "mu_start_rad": (),
+            "z_start_m": (), "z_end_m": (),
+        },
+        "weighting": {"nu": (None,)},
+    },
+}
+
+
+def _fail(field: str, expected: str, found: Any) -> None:
+    raise RobotFileError(f"{field}: expected {expected}, found {found!r}")
+
+
+def _check(data: Any, schema: dict[str, Any], where: str) -> None:
+    if not isinstance(data, dict):
+        _fail(where or "file", "a table", data)
+    names = {k.lstrip("?"): k for k in schema}
+    for key in data:
+        if key not in names:
+            hint = difflib.get_close_matches(key, list(names), n=1)
+            extra = f" (did you mean '{hint[0]}'?)" if hint else ""
+            raise RobotFileError(
+                f"{where + '.' if where else ''}{key}: unknown key{extra}; "
+                f"known keys here: {', '.join(sorted(names))}"
+            )
+    for name, key in names.items():
+        field = f"{where}.{name}" if where else name
+        spec = schema[key]
+        if name not in data:
+            if not key.startswith("?"):
+                raise RobotFileError(f"{field}: missing (required {_describe(spec)})")
+            continue
+        value = data[name]
+        if spec == "str":
+            if not isinstance(value, str):
+                _fail(field, "a string", value)
+        elif isinstance(spec, dict):
+            _check(value, spec, field)
+        else:
+            _check_array(value, spec, field)
+
+
+def _describe(spec: Any) -> str:
+    if spec == "str":
+        return "a string"
+    if isinstance(spec, dict):
+        return "a table"
+    return "a number" if spec == () else f"an array of shape {_shape_text(spec)}"
+
+
+def _shape_text(shape: tuple) -> str:
+    return "(" + ", ".join("n" if s is None else str(s) for s in shape) + ")"
+
+
+def _check_array(value: Any, shape: tuple, field: str) -> None:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        _fail(field, f"numbers of shape {_shape_text(shape)}", value)
+    if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
+        _fail(field, f"shape {_shape_text(shape)}", f"shape {arr.shape}: {value}")
+    if not np.all(np.isfinite(arr)):
+        _fail(field, "finite numbers", value)
+
+
+def _check_physics(data: dict) -> None:
+    lim = np.asarray(data["limits"]["position_deg"], float)
+    for i, (lo, hi) in enumerate(lim):
+        if lo >= hi:
+            _fail(f"limits.position_deg[{i}] (joint {i + 1})", "lower < upper", [lo, hi])
+    for key in ("velocity_deg_s", "acceleration_deg_s2"):
+        _positive(data["limits"][key], f"limits.{key}")
+    _positive(data["gear"]["u0"], "gear.u0")
+    for j in range(1, N_JOINTS + 1):
+        for direction in ("cw", "ccw"):
+            rip = data["gear"].get(f"joint{j}", {}).get(direction)
+            if rip is not None:
+                _check_ripple(rip, f"gear.joint{j}.{direction}")
+    k1 = np.asarray(data["stiffness"]["k1"], float)
+    k3 = np.asarray(data["stiffness"]["k3"], float)
+    for i in range(N_JOINTS):
+        if k1[i] <= 0 or k3[i] < 0:
+            _fail(
+                f"stiffness (joint {i + 1})",
+                "a monotone kappa(x) = k1 x + k3 x^3: k1 > 0 N m/rad and k3 >= 0 N m/rad^3",
+                {"k1": k1[i], "k3": k3[i]},
+            )
+    _positive(data["links"]["mass"], "links.mass", "kg")
+    for i, row in enumerate(np.asarray(data["links"]["inertia"], float)):
+        _check_inertia(row, f"links.inertia[{i}] (link {i + 1})")
+    _positive(data["motors"]["inertia"], "motors.inertia", "kg m^2")
+    for key in ("tool", "base"):
+        if key in data:
+            _check_transform(np.asarray(data[key]["transform"], float), f"{key}.transform")
+
+
+def _positive(values: Any, field: str, unit: str = "") -> None:
+    for i, v in enumerate(np.atleast_1d(np.asarray(values, float))):
+        if v <= 0:
+            _fail(f"{field}[{i}] (joint {i + 1})", f"a positive value{' in ' + unit if unit else ''}", v)
+
+
+def _check_ripple(rip: dict, field: str) -> None:
+    n, a, b = (np.asarray(rip[k], float) for k in ("orders", "a", "b"))
+    if not (len(n) == len(a) == len(b)):
+        _fail(field, "orders, a and b of equal length", (len(n), len(a), len(b)))
+    if np.any(n < 1) or np.any(n != np.round(n)):
+        _fail(f"{field}.orders", "positive integers (cycles per output revolution)", rip["orders"])
+    if np.sum(np.abs(a) + np.abs(b)) >= 1.0:
+        _fail(field, "relative ripple sum(|a| + |b|) < 1 so that the ratio stays positive",
+              float(np.sum(np.abs(a) + np.abs(b))))
+
+
+def _inertia_matrix(row: np.ndarray) -> np.ndarray:
+    ixx, iyy, izz, ixy, ixz, iyz = row
+    return np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+
+
+def _check_inertia(row: np.ndarray, field: str) -> None:
+    eig = np.linalg.eigvalsh(_inertia_matrix(row))
+    if eig[0] <= 0:
+        _fail(field, "a positive definite inertia [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] in kg m^2",
+              f"{row.tolist()} with principal moments {eig.tolist()}")
+    tol = 1e-12 * eig.sum()
+    if eig[0] + eig[1] < eig[2] - tol:
+        _fail(field, "principal moments obeying the triangle inequality (I1 + I2 >= I3)",
+              f"{row.tolist()} with principal moments {eig.tolist()}")
+
+
+def _check_transform(t: np.ndarray, field: str) -> None:
+    r = t[:3, :3]
+    if not (np.allclose(r @ r.T, np.eye(3), atol=1e-9) and np.linalg.det(r) > 0
+            and np.allclose(t[3], [0, 0, 0, 1])):
+        _fail(field, "a homogeneous transform (rotation block orthonormal, det +1, last row 0 0 0 1)",
+              t.tolist())
+
+
+def validate(data: dict) -> dict:
+    """Check a parsed description against the format; raise `RobotFileError` naming the field."""
+    _check(data, _SCHEMA, "")
+    _check_physics(data)
+    return data
+
+
+def read_description(path: str | Path | None = None) -> dict:
+    """Read and validate a robot description file; `None` reads the embedded Racer-7-1.4."""
+    if path is None:
+        text = resources.files("jaxrobot").joinpath("data/racer7.toml").read_text()
+        source = "racer7.toml (package data)"
+    else:
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"robot description {path}: no such file")
+        text, source = path.read_text(), str(path)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise RobotFileError(f"{source}: not valid TOML: {err}") from None
+    try:
+        return validate(data)
+    except RobotFileError as err:
+        raise RobotFileError(f"{source}: {err}") from None
+
+
+def _ripples(gear: dict) -> tuple[Ripple, Ripple]:
+    m = max([len(gear.get(f"joint{j}", {}).get(d, {}).get("orders", []))
+             for j in range(1, 7) for d in ("cw", "ccw")] + [1])
+    out = []
+    for direction in ("cw", "ccw"):
+        arr = {k: np.zeros((N_JOINTS, m)) for k in ("orders", "a", "b")}
+        for j in range(N_JOINTS):
+            rip = gear.get(f"joint{j + 1}", {}).get(direction)
+            if rip is not None:
+                for k in arr:
+                    arr[k][j, : len(rip[k])] = rip[k]
+        out.append(Ripple(**{k: jnp.asarray(v) for k, v in arr.items()}))
+    return out[0], out[1]
+
+
+def robot_from_description(data: dict, as_built: bool = False) -> Robot:
+    """Build the `Robot` pytree from a validated description (`as_built` adds `[as_built]`)."""
+    kin = {k: np.asarray(v, float) for k, v in data["kinematics"].items()}
+    u0 = np.asarray(data["gear"]["u0"], float)
+    if as_built:
+        if "as_built" not in data:
+            raise RobotFileError("as_built=True needs an [as_built] section in the description")
+        dev = data["as_built"]
+        for k in ("a", "d", "alpha", "beta"):
+            kin[k] = kin[k] + np.asarray(dev[f"delta_{k}"], float)
+        u0 = u0.copy()
+        u0[3:] = dev["u0_wrist"]
+    lim = np.deg2rad(np.asarray(data["limits"]["position_deg"], float))
+    cw, ccw = _ripples(data["gear"])
+    eye = np.eye(4)
+    return Robot(
+        a=jnp.asarray(kin["a"]), d=jnp.asarray(kin["d"]), alpha=jnp.asarray(kin["alpha"]),
+        beta=jnp.asarray(kin["beta"]), offset=jnp.asarray(kin["offset"]),
+        base=jnp.asarray(data.get("base", {}).get("transform", eye), float),
+        tool=jnp.asarray(data.get("tool", {}).get("transform", eye), float),
+        q_min=jnp.asarray(lim[:, 0]), q_max=jnp.asarray(lim[:, 1]),
+        qd_max=jnp.deg2rad(jnp.asarray(data["limits"]["velocity_deg_s"], float)),
+        qdd_max=jnp.deg2rad(jnp.asarray(data["limits"]["acceleration_deg_s2"], float)),
+        u0=jnp.asarray(u0), cw=cw, ccw=ccw,
+        k1=jnp.asarray(data["stiffness"]["k1"], float), k3=jnp.asarray(data["stiffness"]["k3"], float),
+        mass=jnp.asarray(data["links"]["mass"], float),
+        com=jnp.asarray(data["links"]["com"], float),
+        inertia=jnp.asarray(np.stack([_inertia_matrix(np.asarray(r, float))
+                                      for r in data["links"]["inertia"]])),
+        motor_inertia=jnp.asarray(data["motors"]["inertia"], float),
+        gravity=jnp.asarray(data["gravity"], float),
+        name=data["name"],
+    )
+
+
+def load_robot(path: str | Path, as_built: bool = False) -> Robot:
+    """Load a robot from a description file in the format of `racer7.toml` (validated)."""
+    return robot_from_description(read_description(path), as_built=as_built)
+
+
+def racer7(as_built: bool = False) -> Robot:
+    """The embedded COMAU Racer-7-1.4; `as_built=True` gives the test bench's true robot
+    (nominal + thesis Table 3.8 deviations + true wrist ratios)."""
+    return robot_from_description(read_description(None), as_built=as_built)
+
+
+def description_of(robot: Robot) -> dict:
+    """The robot as a description dict (inverse of `robot_from_description`)."""
+    if np.ndim(robot.a) != 1:
+        raise ValueError(f"description_of: expected one robot (a of shape (6,)), found a batch "
+                         f"of shape {np.shape(robot.a)}; index the fleet first")
+    f = lambda x: np.asarray(x, float).tolist()  # noqa: E731
+    gear: dict[str, Any] = {"u0": f(robot.u0)}
+    for j in range(N_JOINTS):
+        sets = {}
+        for direction, rip in (("cw", robot.cw), ("ccw", robot.ccw)):
+            used = np.asarray(rip.orders[j]) > 0
+            if used.any():
+                sets[direction] = {"orders": [int(n) for n in np.asarray(rip.orders[j])[used]],
+                                   "a": f(np.asarray(rip.a[j])[used]), "b": f(np.asarray(rip.b[j])[used])}
+        if len(sets) == 2:
+            gear[f"joint{j + 1}"] = sets
+        elif sets:  # one direction only: the same set applies both ways
+            gear[f"joint{j + 1}"] = {"cw": next(iter(sets.values())), "ccw": next(iter(sets.values()))}
+    inertia = np.asarray(robot.inertia, float)
+    data: dict[str, Any] = {
+        "name": robot.name,
+        "gravity": f(robot.gravity),
+        "kinematics": {k: f(getattr(robot, k)) for k in ("a", "d", "alpha", "beta", "offset")},
+        "limits": {
+            "position_deg": f(np.rad2deg(np.stack([robot.q_min, robot.q_max], -1))),
+            "velocity_deg_s": f(np.rad2deg(robot.qd_max)),
+            "acceleration_deg_s2": f(np.rad2deg(robot.qdd_max)),
+        },
+        "gear": gear,
+        "stiffness": {"k1": f(robot.k1), "k3": f(robot.k3)},
+        "links": {
+            "mass": f(robot.mass), "com": f(robot.com),
+            "inertia": [[float(i[0, 0]), float(i[1, 1]), float(i[2, 2]), float(i[0, 1]),
+                         float(i[0, 2]), float(i[1, 2])] for i in inertia],
+        },
+        "motors": {"inertia": f(robot.motor_inertia)},
+    }
+    for key in ("tool", "base"):
+        t = np.asarray(getattr(robot, key), float)
+        if not np.array_equal(t, np.eye(4)):
+            data[key] = {"transform": t.tolist()}
+    return validate(data)
+
+
+def save_robot(robot: Robot, path: str | Path) -> None:
+    """Write the robot in the format of `racer7.toml` (loadable by `load_robot`)."""
+    text = "# written by jaxrobot.save_robot; format: racer7.toml (SI units, rad unless _deg)\n"
+    Path(path).write_text(text + tomli_w.dumps(description_of(robot)))
+
+
+def check_finite(value: Any, field: str) -> None:
+    """Raise if `value` (a concrete array) holds NaN or inf, naming the field and the rows."""
+    arr = np.asarray(value)
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        rows = np.unique(np.nonzero(bad)[0])[:10].tolist()
+        raise ValueError(f"{field}: expected finite numbers, found NaN/inf at index {rows}")

@@ -1,0 +1,36 @@
+"""Nonlinear joint stiffness `kappa(x) = k1 x + k3 x^3` (eq. 2.17-2.18, SPEC.md "Elasticity").
+
+The gear applies `kappa(phi - q)` to the link and `-kappa(phi - q)` to the motor.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._robot import Robot
+
+NEWTON_STEPS = 8
+"""Newton steps of `elastic_deflection`; started above the root of the convex branch, the
+iteration decreases monotonically and quadratically (tested to 1e-12 relative)."""
+
+
+def elastic_torque(robot: Robot, x: Float[Array, "*b 6"]) -> Float[Array, "*b 6"]:
+    """`kappa(x) = k1 x + k3 x^3` [N m] for a deflection `x = phi - q` [rad]."""
+    return robot.k1 * x + robot.k3 * x**3
+
+
+def elastic_deflection(robot: Robot, tau: Float[Array, "*b 6"]) -> Float[Array, "*b 6"]:
+    """`kappa^{-1}(tau)`: the deflection [rad] at which the joint transmits `tau` [N m].
+
+    Solved for `|x|` on the convex branch by Newton from `min(|tau|/k1, cbrt(|tau|/k3))`,
+    which lies above the root; the last step carries the implicit derivative `1/kappa'(x)`.
+    """
+    k1, k3 = jax.lax.stop_gradient((robot.k1, robot.k3))
+    t = jnp.abs(jax.lax.stop_gradient(tau))
+    x = jnp.minimum(t / k1, jnp.cbrt(t / jnp.where(k3 > 0, k3, 1.0)) + jnp.where(k3 > 0, 0.0, jnp.inf))
+    for _ in range(NEWTON_STEPS):
+        x = x - (k1 * x + k3 * x**3 - t) / (k1 + 3.0 * k3 * x**2)
+    x = jnp.sign(jax.lax.stop_gradient(tau)) * x
+    return x - (elastic_torque(robot, x) - tau) / (robot.k1 + 3.0 * robot.k3 * x**2)

@@ -1,0 +1,125 @@
+"""Forward kinematics in modified DH (Hayati) parameters, eq. 2.2-2.4, and Jacobians.
+
+All functions broadcast over leading batch axes of `robot` and `q`.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._batch import unbatched
+from ._robot import Robot
+
+
+def rot_x(t: Float[Array, "*b"]) -> Float[Array, "*b 3 3"]:
+    c, s, o, z = jnp.cos(t), jnp.sin(t), jnp.ones_like(t), jnp.zeros_like(t)
+    return jnp.stack([jnp.stack([o, z, z], -1), jnp.stack([z, c, -s], -1), jnp.stack([z, s, c], -1)], -2)
+
+
+def rot_y(t: Float[Array, "*b"]) -> Float[Array, "*b 3 3"]:
+    c, s, o, z = jnp.cos(t), jnp.sin(t), jnp.ones_like(t), jnp.zeros_like(t)
+    return jnp.stack([jnp.stack([c, z, s], -1), jnp.stack([z, o, z], -1), jnp.stack([-s, z, c], -1)], -2)
+
+
+def rot_z(t: Float[Array, "*b"]) -> Float[Array, "*b 3 3"]:
+    c, s, o, z = jnp.cos(t), jnp.sin(t), jnp.ones_like(t), jnp.zeros_like(t)
+    return jnp.stack([jnp.stack([c, -s, z], -1), jnp.stack([s, c, z], -1), jnp.stack([z, z, o], -1)], -2)
+
+
+def homogeneous(r: Float[Array, "*b 3 3"], p: Float[Array, "*b 3"]) -> Float[Array, "*b 4 4"]:
+    """`[[R, p], [0, 1]]` (eq. 2.1)."""
+    r, p = jnp.broadcast_arrays(r, p[..., None])
+    top = jnp.concatenate([r, p[..., :1]], -1)
+    bottom = jnp.broadcast_to(jnp.array([0.0, 0.0, 0.0, 1.0]), top.shape[:-2] + (1, 4))
+    return jnp.concatenate([top, bottom], -2)
+
+
+def joint_rotation_translation(
+    robot: Robot, q: Float[Array, "*b 6"]
+) -> tuple[Float[Array, "*b 6 3 3"], Float[Array, "*b 6 3"]]:
+    """Rotation `R_i` and origin `p_i` of frame i in frame i-1 for all joints (eq. 2.2-2.3).
+
+    `H_{i-1}^i = Rz(q_i + offset_i) Tx(a_i) Tz(d_i) Rx(alpha_i) Ry(beta_i)`.
+    """
+    rz = rot_z(q + robot.offset)
+    r = rz @ rot_x(robot.alpha) @ rot_y(robot.beta)
+    local = jnp.stack(jnp.broadcast_arrays(robot.a, jnp.zeros_like(robot.a), robot.d), -1)
+    p = jnp.einsum("...ij,...j->...i", rz, local)
+    return r, p
+
+
+def joint_transforms(robot: Robot, q: Float[Array, "*b 6"]) -> Float[Array, "*b 6 4 4"]:
+    """Homogeneous transforms `T_{i-1}^i` of the six joints (eq. 2.2-2.3)."""
+    return homogeneous(*joint_rotation_translation(robot, q))
+
+
+def link_frames(robot: Robot, q: Float[Array, "*b 6"]) -> Float[Array, "*b 6 4 4"]:
+    """World poses of the DH frames 1..6 (eq. 2.4); the flange is frame 6."""
+    t = joint_transforms(robot, q)
+    base = jnp.broadcast_to(robot.base, t.shape[:-3] + (4, 4))
+
+    def step(carry, t_i):
+        pose = carry @ t_i
+        return pose, pose
+
+    _, frames = jax.lax.scan(step, base, jnp.moveaxis(t, -3, 0))
+    return jnp.moveaxis(frames, 0, -3)
+
+
+def forward_kinematics(robot: Robot, q: Float[Array, "*b 6"]) -> Float[Array, "*b 4 4"]:
+    """Flange pose `T_0^6 = [[R_e, p_e], [0, 1]]` (eq. 2.4) in the world frame."""
+    return link_frames(robot, q)[..., -1, :, :]
+
+
+def tool_pose(robot: Robot, q: Float[Array, "*b 6"]) -> Float[Array, "*b 4 4"]:
+    """Pose of the tool frame: flange pose times `robot.tool`."""
+    return forward_kinematics(robot, q) @ robot.tool
+
+
+def point_position(
+    robot: Robot, q: Float[Array, "*b 6"], point: Float[Array, "*b 3"]
+) -> Float[Array, "*b 3"]:
+    """World position of a point fixed in the flange frame (e.g. a tracker marker)."""
+    t = forward_kinematics(robot, q)
+    return t[..., :3, 3] + jnp.einsum("...ij,...j->...i", t[..., :3, :3], point)
+
+
+def _vee(w: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
+    return 0.5 * jnp.stack([w[..., 2, 1] - w[..., 1, 2], w[..., 0, 2] - w[..., 2, 0],
+                            w[..., 1, 0] - w[..., 0, 1]], -1)
+
+
+def geometric_jacobian(robot: Robot, q: Float[Array, "*b 6"]) -> Float[Array, "*b 6 6"]:
+    """Geometric Jacobian `[v; omega] = J qd` of the tool frame, world axes (autodiff)."""
+    return unbatched(robot, q, _geometric_jacobian)
+
+
+def _geometric_jacobian(robot: Robot, q: Float[Array, "6"]) -> Float[Array, "6 6"]:
+    pose = lambda q: tool_pose(robot, q)  # noqa: E731
+    t, dt = pose(q), jax.jacfwd(pose)(q)  # dt: (4, 4, 6)
+    jv = dt[:3, 3, :]
+    jw = _vee(jnp.einsum("ijk,lj->kil", dt[:3, :3, :], t[:3, :3]))  # (6, 3)
+    return jnp.concatenate([jv, jw.T], 0)
+
+
+def rpy(r: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
+    """Roll-pitch-yaw angles (`R = Rz(yaw) Ry(pitch) Rx(roll)`) of a rotation matrix."""
+    roll = jnp.arctan2(r[..., 2, 1], r[..., 2, 2])
+    pitch = jnp.arctan2(-r[..., 2, 0], jnp.hypot(r[..., 2, 1], r[..., 2, 2]))
+    yaw = jnp.arctan2(r[..., 1, 0], r[..., 0, 0])
+    return jnp.stack([roll, pitch, yaw], -1)
+
+
+def analytic_jacobian(robot: Robot, q: Float[Array, "*b 6"]) -> Float[Array, "*b 6 6"]:
+    """Analytic Jacobian `d[p; rpy]/dq` of the tool frame (roll-pitch-yaw; autodiff)."""
+
+    def fn(robot, q):
+        def pose(q):
+            t = tool_pose(robot, q)
+            return jnp.concatenate([t[:3, 3], rpy(t[:3, :3])])
+
+        return jax.jacfwd(pose)(q)
+
+    return unbatched(robot, q, fn)

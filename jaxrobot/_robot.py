@@ -1,0 +1,83 @@
+"""The robot description: one pytree of arrays (SPEC.md, "Model")."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+N_JOINTS = 6
+
+
+class Ripple(eqx.Module):
+    """Fourier ripple of the six gear ratios for one direction of rotation (eq. 2.10).
+
+    `u(phi) = u0 (1 + sum_j a_j cos(n_j phi) - b_j sin(n_j phi))` per joint; every joint holds
+    `M` harmonics, padded with order 0 (unused, `a = b = 0`) where a joint has fewer.
+    """
+
+    orders: Float[Array, "*batch 6 M"]
+    """`n_j`, integer cycles per output revolution; 0 marks padding."""
+    a: Float[Array, "*batch 6 M"]
+    """Dimensionless cosine coefficients (relative to `u0`)."""
+    b: Float[Array, "*batch 6 M"]
+    """Dimensionless sine coefficients (relative to `u0`)."""
+
+    @staticmethod
+    def none(m: int = 1) -> Ripple:
+        """A constant gear ratio: no harmonics."""
+        z = jnp.zeros((N_JOINTS, m))
+        return Ripple(orders=z, a=z, b=z)
+
+
+class Robot(eqx.Module):
+    """An elastic-joint serial robot with six revolute joints.
+
+    Every field is an array (SI units, radians), so a fleet of robots is the same pytree
+    with a leading batch axis. Kinematics follow eq. 2.2-2.4 with the Hayati angle `beta`
+    (eq. 2.3); the joint transform is `Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`.
+    """
+
+    a: Float[Array, "*batch 6"]
+    """mDH link lengths `a_i` [m]."""
+    d: Float[Array, "*batch 6"]
+    """mDH offsets `d_i` [m]."""
+    alpha: Float[Array, "*batch 6"]
+    """mDH twists `alpha_i` [rad]."""
+    beta: Float[Array, "*batch 6"]
+    """Hayati angles `beta_i` [rad] (eq. 2.3)."""
+    offset: Float[Array, "*batch 6"]
+    """DH angle minus joint coordinate [rad]."""
+    base: Float[Array, "*batch 4 4"]
+    """Pose of the DH base frame 0 in the world frame."""
+    tool: Float[Array, "*batch 4 4"]
+    """Tool frame in the flange frame 6."""
+    q_min: Float[Array, "*batch 6"]
+    """Lower joint-coordinate limits [rad] (Table A.1)."""
+    q_max: Float[Array, "*batch 6"]
+    """Upper joint-coordinate limits [rad]."""
+    qd_max: Float[Array, "*batch 6"]
+    """Link velocity limits [rad/s] (Table A.2)."""
+    qdd_max: Float[Array, "*batch 6"]
+    """Link acceleration limits [rad/s^2] (Table A.3)."""
+    u0: Float[Array, "*batch 6"]
+    """Basic gear ratios `u0` (Table A.5)."""
+    cw: Ripple
+    """Ripple while the joint turns in its positive direction (`phid > 0`)."""
+    ccw: Ripple
+    """Ripple while the joint turns in its negative direction."""
+    k1: Float[Array, "*batch 6"]
+    """Linear joint stiffness [N m/rad] (eq. 2.18)."""
+    k3: Float[Array, "*batch 6"]
+    """Cubic joint stiffness [N m/rad^3]."""
+    mass: Float[Array, "*batch 6"]
+    """Link masses [kg] (motors lumped in)."""
+    com: Float[Array, "*batch 6 3"]
+    """Centres of mass in the link frames [m]."""
+    inertia: Float[Array, "*batch 6 3 3"]
+    """Inertia tensors about the centres of mass, link-frame axes [kg m^2]."""
+    motor_inertia: Float[Array, "*batch 6"]
+    """Rotor inertias, motor side [kg m^2]."""
+    gravity: Float[Array, "*batch 3"]
+    """Gravity acceleration in the world frame [m/s^2]."""
+    name: str = eqx.field(static=True, default="robot")
