@@ -32,3 +32,11 @@ from ._kinematics import rpy as rpy  # noqa: E402
 from ._kinematics import tool_pose as tool_pose  # noqa: E402
 from ._robot import Ripple as Ripple  # noqa: E402
 from ._robot import Robot as Robot  # noqa: E402
+from ._urdf import save_urdf as save_urdf  # noqa: E402
+from ._urdf import to_urdf as to_urdf  # noqa: E402
+from ._flat import flat_inverse as flat_inverse  # noqa: E402
+from ._simulate import simulate as simulate  # noqa: E402
+from ._bench_trajectory import read_csv_columns as read_csv_columns  # noqa: E402
+from ._bench_trajectory import read_trajectory_csv as read_trajectory_csv  # noqa: E402
+from ._bench_trajectory import trajectory_run as trajectory_run  # noqa: E402
+from ._bench_trajectory import write_trajectory_csv as write_trajectory_csv  # noqa: E402

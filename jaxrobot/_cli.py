@@ -25,7 +25,10 @@ def _commands() -> dict[str, ModuleType]:
 
     found = {"info": _cli_info, "demo": _cli_demo}
     for ep in entry_points(group="jaxrobot.commands"):
-        found[ep.name] = ep.load()
+        try:
+            found[ep.name] = ep.load()
+        except ImportError as err:  # a broken plugin must not take the other commands down
+            print(f"jaxrobot: command '{ep.name}' unavailable ({err})", file=sys.stderr)
     return found
 
 

@@ -21,16 +21,30 @@ def elastic_torque(robot: Robot, x: Float[Array, "*b 6"]) -> Float[Array, "*b 6"
     return robot.k1 * x + robot.k3 * x**3
 
 
+@jax.custom_jvp
+def _deflection(k1, k3, tau):
+    t = jnp.abs(tau)
+    x = jnp.minimum(t / k1, jnp.where(k3 > 0, jnp.cbrt(t / jnp.where(k3 > 0, k3, 1.0)), jnp.inf))
+    for _ in range(NEWTON_STEPS):
+        x = x - (k1 * x + k3 * x**3 - t) / (k1 + 3.0 * k3 * x**2)
+    return jnp.sign(tau) * x
+
+
+@_deflection.defjvp
+def _deflection_jvp(primals, tangents):
+    # kappa(x; k1, k3) = tau  =>  kappa'(x) dx = dtau - x dk1 - x^3 dk3
+    k1, k3, tau = primals
+    dk1, dk3, dtau = tangents
+    x = _deflection(k1, k3, tau)
+    return x, (dtau - x * dk1 - x**3 * dk3) / (k1 + 3.0 * k3 * x**2)
+
+
 def elastic_deflection(robot: Robot, tau: Float[Array, "*b 6"]) -> Float[Array, "*b 6"]:
     """`kappa^{-1}(tau)`: the deflection [rad] at which the joint transmits `tau` [N m].
 
-    Solved for `|x|` on the convex branch by Newton from `min(|tau|/k1, cbrt(|tau|/k3))`,
-    which lies above the root; the last step carries the implicit derivative `1/kappa'(x)`.
+    Newton on `|x|` from `min(|tau|/k1, cbrt(|tau|/k3))`, which lies above the root of the
+    convex branch; derivatives of every order follow the implicit function.
     """
-    k1, k3 = jax.lax.stop_gradient((robot.k1, robot.k3))
-    t = jnp.abs(jax.lax.stop_gradient(tau))
-    x = jnp.minimum(t / k1, jnp.cbrt(t / jnp.where(k3 > 0, k3, 1.0)) + jnp.where(k3 > 0, 0.0, jnp.inf))
-    for _ in range(NEWTON_STEPS):
-        x = x - (k1 * x + k3 * x**3 - t) / (k1 + 3.0 * k3 * x**2)
-    x = jnp.sign(jax.lax.stop_gradient(tau)) * x
-    return x - (elastic_torque(robot, x) - tau) / (robot.k1 + 3.0 * robot.k3 * x**2)
+    shape = jnp.broadcast_shapes(tau.shape, robot.k1.shape)
+    k1, k3, tau = (jnp.broadcast_to(x, shape) for x in (robot.k1, robot.k3, tau))
+    return _deflection(k1, k3, tau)

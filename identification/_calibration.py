@@ -1,0 +1,283 @@
+"""Kinematic calibration by Levenberg-Marquardt (thesis 3.2.3, eq. 3.12).
+
+`min_v sum_i ||p_e(v, theta_i) - p_{e,m,i}||^2` over the free parameters `v`, with the forward
+model of `predict_pose` (motor angles -> `Xi^{-1}` -> plus gravity deflection -> marker), solved
+with `optx.least_squares` + `optx.LevenbergMarquardt` in scaled variables (1 mm, 1 mrad, 1e-3
+of a gear ratio). The parameter covariance is `s^2 (J^T J)^{-1}` with the noise estimate
+`s^2 = ||r||^2 / (n - m)` (n residuals, m parameters).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jaxrobot as jr
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, Bool, Float
+
+from ._identifiability import analyse
+from ._parameters import THESIS_PARAMETERS, ParameterMap, predict_pose, rest_deflection, rotation_error
+from ._pose_selection import default_marker
+
+DEFAULT_PARAMETERS = THESIS_PARAMETERS + ("offset1", "offset2", "offset4", "offset5", "offset6", "d1",
+                                          "d6", "a6")
+"""The thesis' 17 (Table 3.5) plus what else the identifiability analysis finds identifiable
+from marker positions with the bench's marker offset (25): offsets 1, 2, 4, 5, 6 (offset 3 is
+`beta3 - a3 d4`), d1 (the base frame is known), d6 and a6 (the marker sits off the joint-6
+axis; `alpha6` is then a combination of d6, a6 and offset6)."""
+
+RESIDUAL_UNIT = 1e-3
+"""Residuals are solved in mm (and orientation in units of the position/orientation noise ratio)."""
+
+
+def error_stats(err: Float[Array, "*b K"]) -> dict[str, float]:
+    """max/min/mean/std of position errors [m] (thesis Tables 3.6-3.7; std with 1/(K-1))."""
+    e = np.asarray(err, float)
+    return {"max": float(e.max()), "min": float(e.min()), "mean": float(e.mean()),
+            "std": float(e.std(ddof=1)) if e.size > 1 else 0.0}
+
+
+def position_errors(
+    robot: jr.Robot, motor_angles, positions, deflection, marker, ccw=False
+) -> np.ndarray:
+    """Euclidean distance [m] between model and measured marker positions, per pose."""
+    p, _ = _predict(robot, jnp.asarray(motor_angles), jnp.asarray(deflection), jnp.asarray(marker), ccw)
+    return np.linalg.norm(np.asarray(p) - np.asarray(positions), axis=-1)
+
+
+@eqx.filter_jit
+def _predict(robot, theta, deflection, marker, ccw):
+    return predict_pose(robot, theta, deflection, marker, ccw)
+
+
+@eqx.filter_jit
+def _deflection(robot, theta, ccw):
+    return rest_deflection(robot, theta, ccw)
+
+
+def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflection, marker, weight_r, ccw):
+    v0 = params.get(robot0)
+    scale = params.scales(robot0)
+
+    def fn(x, _):
+        p, r = predict_pose(params.set(robot0, v0 + scale * x), theta, deflection, marker, ccw)
+        res = ((p - target_p) / RESIDUAL_UNIT).ravel()
+        if target_r is not None:
+            res = jnp.concatenate([res, (weight_r * rotation_error(target_r, r) / RESIDUAL_UNIT).ravel()])
+        return res
+
+    return fn, v0, scale
+
+
+def solve(
+    robot0: jr.Robot,
+    params: ParameterMap,
+    theta: Float[Array, "K 6"],
+    positions: Float[Array, "K 3"],
+    deflection: Float[Array, "K 6"],
+    marker: Float[Array, "3"],
+    rotations: Float[Array, "K 3 3"] | None = None,
+    weight_r: float | Float[Array, ""] = 1.0,
+    ccw: bool | Bool[Array, "K 6"] = False,
+    rtol: float = 1e-10,
+    atol: float = 1e-10,
+    max_steps: int = 100,
+) -> dict[str, Array]:
+    """LM solve for one robot; pure and jit/vmap-safe (the fleet maps it over robots).
+
+    **Returns:** `value` (m,) parameters, `std` (m,) standard errors, `cov` (m, m), `result`
+    (optimistix RESULTS index), `steps`, `residuals` (n,) at the solution in m (orientation rows
+    in m-equivalent units), `rank` of the scaled Jacobian, `sigma2` the noise estimate [m^2].
+    """
+    fn, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r, ccw)
+    x0 = jnp.zeros(len(params))
+    sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=rtol, atol=atol), x0, max_steps=max_steps,
+                             throw=False)
+    x = sol.value
+    r = fn(x, None)
+    jx = jax.jacfwd(fn)(x, None)  # (n, m), in mm per scaled unit
+    n, m = r.shape[0], x.shape[0]
+    sigma2 = jnp.sum(r**2) / jnp.maximum(n - m, 1)
+    s = jnp.linalg.svd(jx, compute_uv=False)
+    rank = jnp.sum(s > 1e-10 * s[0])
+    cov_x = sigma2 * jnp.linalg.inv(jx.T @ jx)
+    cov = cov_x * scale[:, None] * scale[None, :]
+    ok = (sol.result == optx.RESULTS.successful) & (rank == m) & jnp.all(jnp.isfinite(x))
+    return {"value": v0 + scale * x, "std": jnp.sqrt(jnp.diag(cov)), "cov": cov,
+            "result": sol.result._value, "converged": ok, "steps": sol.stats["num_steps"],
+            "residuals": r * RESIDUAL_UNIT, "rank": rank, "sigma2": sigma2 * RESIDUAL_UNIT**2}
+
+
+_solve_jit = eqx.filter_jit(solve)
+
+
+@eqx.filter_jit
+def _jacobian(robot0, params, theta, positions, deflection, marker, rotations, weight_r, ccw):
+    fn, _, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r, ccw)
+    return jax.jacfwd(fn)(jnp.zeros(len(params)), None) / scale
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationResult:
+    """Result of `calibrate`: the calibrated robot and a report (plain numbers).
+
+    `report`: `parameters` {name: {value, delta, std, unit}}, `identification` and (with
+    validation data) `validation` {before_m, after_m: {max, min, mean, std}}, `status`,
+    `converged`, `iterations`, `noise_estimate_m`, `residual_rms_m`, `n_poses`, `beyond_limits`.
+    """
+
+    robot: jr.Robot
+    report: dict
+    value: np.ndarray
+    std: np.ndarray
+    covariance: np.ndarray
+    residuals: np.ndarray
+    names: tuple[str, ...]
+
+
+def _check_array(x, shape_tail: tuple, field: str, unit: str) -> np.ndarray:
+    a = np.asarray(x, float)
+    if a.ndim != 1 + len(shape_tail) or a.shape[1:] != shape_tail:
+        raise ValueError(f"{field}: expected shape (K, {', '.join(map(str, shape_tail))}) in {unit}, "
+                         f"found {a.shape}")
+    bad = np.nonzero(~np.isfinite(a.reshape(a.shape[0], -1)).all(1))[0]
+    if bad.size:
+        raise ValueError(f"{field}: NaN/inf in rows {bad.tolist()} (0-based pose index); remove these poses")
+    return a
+
+
+def check_inputs(
+    robot0: jr.Robot, params: ParameterMap, theta, positions, quaternions=None, limits: str = "flag",
+    ccw=False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list]:
+    """Validate shapes, NaN rows, counts and joint limits before any solve (see `calibrate`)."""
+    theta = _check_array(theta, (6,), "motor_angles", "rad")
+    positions = _check_array(positions, (3,), "positions", "m")
+    if positions.shape[0] != theta.shape[0]:
+        raise ValueError(f"positions: expected one row per pose ({theta.shape[0]}), found {positions.shape[0]}")
+    if quaternions is not None:
+        quaternions = _check_array(quaternions, (4,), "quaternions", "(qx, qy, qz, qw)")
+        if quaternions.shape[0] != theta.shape[0]:
+            raise ValueError(f"quaternions: expected {theta.shape[0]} rows, found {quaternions.shape[0]}")
+    rows = 3 + (3 if quaternions is not None else 0)
+    if theta.shape[0] * rows < len(params):
+        raise ValueError(f"motor_angles: {theta.shape[0]} poses give {theta.shape[0] * rows} equations for "
+                         f"{len(params)} parameters {list(params.names)}; need at least "
+                         f"{-(-len(params) // rows)} poses (better several times more)")
+    if limits not in ("flag", "raise"):
+        raise ValueError(f"limits: expected 'flag' or 'raise', found {limits!r}")
+    q = np.asarray(jr.gear_output(robot0, jnp.asarray(theta), ccw))
+    lo, hi = np.asarray(robot0.q_min), np.asarray(robot0.q_max)
+    out = []
+    for k, j in zip(*np.nonzero((q < lo) | (q > hi))):
+        out.append({"row": int(k), "joint": int(j) + 1, "q_deg": float(np.rad2deg(q[k, j])),
+                    "limits_deg": [float(np.rad2deg(lo[j])), float(np.rad2deg(hi[j]))]})
+    if out and limits == "raise":
+        txt = "; ".join(f"row {o['row']}: joint {o['joint']} at {o['q_deg']:.2f} deg outside "
+                        f"[{o['limits_deg'][0]:.0f}, {o['limits_deg'][1]:.0f}]" for o in out[:20])
+        raise ValueError(f"motor_angles: poses beyond the joint limits (0-based rows): {txt}")
+    return theta, positions, quaternions, out
+
+
+def check_rank(jac: np.ndarray, params: ParameterMap) -> None:
+    """Raise if the pose set cannot identify all parameters, naming the unidentifiable
+    directions (SVD + pivoted QR of the column-scaled Jacobian)."""
+    res = analyse(np.asarray(jac)[None], params.names)
+    if res.rank < len(params):
+        deps = "; ".join(
+            f"{n} ~ " + (" + ".join(f"{c:+.3g}*{k}" for k, c in d.items()) if d else "no effect")
+            for n, d in res.dependencies.items())
+        raise ValueError(f"pose set is rank deficient: rank {res.rank} for {len(params)} parameters; "
+                         f"unidentifiable directions: {deps}. Remove these parameters or add poses "
+                         f"that move the joints involved")
+
+
+def calibrate(
+    robot: jr.Robot,
+    motor_angles: Float[Array, "K 6"],
+    positions: Float[Array, "K 3"],
+    quaternions: Float[Array, "K 4"] | None = None,
+    *,
+    parameters: Sequence[str] = DEFAULT_PARAMETERS,
+    marker: Float[Array, "3"] | None = None,
+    position_noise: float | None = None,
+    orientation_noise: float | None = None,
+    ccw: bool | Bool[Array, "K 6"] = False,
+    validation: tuple | None = None,
+    limits: str = "flag",
+    max_steps: int = 100,
+) -> CalibrationResult:
+    """Calibrate the kinematic parameters from tracker measurements (thesis 3.2.3, eq. 3.12).
+
+    **Arguments:**
+    - `robot`: the initial (nominal) robot; also supplies the gravity deflection model.
+    - `motor_angles` (K, 6) rad at rest; `positions` (K, 3) m measured marker positions;
+      `quaternions` (K, 4) optional measured orientation (qx, qy, qz, qw).
+    - `parameters`: free parameter names (default `DEFAULT_PARAMETERS`).
+    - `marker`: marker offset in the tool frame [m] (default: the toml `[sensors]`).
+    - `position_noise`, `orientation_noise`: stds that weight orientation rows against
+      position rows (defaults: the toml tracker noise and 0.05 deg); positions alone need none.
+    - `ccw`: gear set of the approach direction. `validation`: `(motor_angles, positions)`.
+    - `limits`: `"flag"` lists poses beyond the joint limits in `report["beyond_limits"]`,
+      `"raise"` rejects them.
+
+    Raises `ValueError` before solving for wrong shapes, NaN rows (named), fewer equations than
+    parameters, a rank-deficient pose set (naming the unidentifiable directions) and, with
+    `limits="raise"`, poses beyond the joint limits (by row). A solve that does not converge is
+    reported with `converged: False` and its optimistix status, never as success.
+    """
+    from jaxrobot._bench_poses import ORIENTATION_NOISE_RAD, quaternion_to_rotation
+
+    params = ParameterMap(parameters)
+    theta, pos, quat, beyond = check_inputs(robot, params, motor_angles, positions, quaternions, limits, ccw)
+    marker = jnp.asarray(default_marker() if marker is None else marker, float)
+    sensors = jr.read_description(None)["sensors"]
+    s_p = sensors["tracker_position_noise_m"] if position_noise is None else position_noise
+    s_r = ORIENTATION_NOISE_RAD if orientation_noise is None else orientation_noise
+    rot = None if quat is None else quaternion_to_rotation(jnp.asarray(quat))
+    w_r = jnp.asarray(s_p / s_r)
+    th = jnp.asarray(theta)
+    defl = _deflection(robot, th, ccw)
+    check_rank(_jacobian(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw), params)
+    out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw, max_steps=max_steps)
+    out = jax.tree.map(np.asarray, out)
+    calibrated = params.set(robot, jnp.asarray(out["value"]))
+    v0 = np.asarray(params.get(robot))
+    report: dict = {
+        "parameters": {n: {"value": float(out["value"][i]), "delta": float(out["value"][i] - v0[i]),
+                           "std": float(out["std"][i])} for i, n in enumerate(params.names)},
+        "identification": {
+            "before_m": error_stats(position_errors(robot, th, pos, defl, marker, ccw)),
+            "after_m": error_stats(position_errors(calibrated, th, pos, defl, marker, ccw)),
+        },
+        "converged": bool(out["converged"]),
+        "status": status_text(int(out["result"]), bool(out["rank"] == len(params))),
+        "iterations": int(out["steps"]),
+        "noise_estimate_m": float(np.sqrt(out["sigma2"])),
+        "residual_rms_m": float(np.sqrt(np.mean(out["residuals"] ** 2))),
+        "n_poses": int(theta.shape[0]),
+        "beyond_limits": beyond,
+    }
+    if validation is not None:
+        vt = _check_array(validation[0], (6,), "validation motor_angles", "rad")
+        vp = _check_array(validation[1], (3,), "validation positions", "m")
+        vd = _deflection(robot, jnp.asarray(vt), False)
+        report["validation"] = {
+            "before_m": error_stats(position_errors(robot, vt, vp, vd, marker)),
+            "after_m": error_stats(position_errors(calibrated, vt, vp, vd, marker)),
+            "n_poses": int(vt.shape[0]),
+        }
+    return CalibrationResult(robot=calibrated, report=report, value=out["value"], std=out["std"],
+                             covariance=out["cov"], residuals=out["residuals"], names=params.names)
+
+
+def status_text(result: int, full_rank: bool = True) -> str:
+    """Name of an optimistix result index (`successful`, `max_steps_reached`, ...)."""
+    names = list(optx.RESULTS._name_to_item)
+    text = names[result] if 0 <= result < len(names) else f"status {result}"
+    return text if full_rank else text + "; Jacobian rank deficient at the solution"

@@ -1,0 +1,168 @@
+"""Free kinematic parameters: robot pytree <-> flat vector (thesis 3.2.1, vector `v`).
+
+Names: `a1`…`a6`, `d1`…, `alpha1`…, `beta1`…, `offset1`… (the joint angle offset, i.e. the
+zero of the joint coordinate, `Delta q_j` of eq. 3.7), `u0_1`…`u0_6` (basic gear ratios),
+`tool_x`, `tool_y`, `tool_z`, `tool_rx`, `tool_ry`, `tool_rz` and the same for `base_`
+(translation [m] and roll-pitch-yaw `R = Rz(rz) Ry(ry) Rx(rx)` [rad] of the transform).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax.numpy as jnp
+import jaxrobot as jr
+from jaxrobot._kinematics import homogeneous, rot_x, rot_y, rot_z
+from jaxtyping import Array, Float
+
+JOINT_FIELDS = ("a", "d", "alpha", "beta", "offset")
+FRAME_FIELDS = ("x", "y", "z", "rx", "ry", "rz")
+ALL_PARAMETERS = (
+    tuple(f"{f}{j}" for f in JOINT_FIELDS for j in range(1, 7))
+    + tuple(f"u0_{j}" for j in range(1, 7))
+    + tuple(f"{t}_{c}" for t in ("tool", "base") for c in FRAME_FIELDS)
+)
+"""Every parameter name the mapping knows."""
+
+THESIS_PARAMETERS = ("d2", "d4", "d5", "a1", "a2", "a3", "a4", "a5", "alpha1", "alpha2", "alpha3",
+                     "alpha4", "alpha5", "beta3", "u0_4", "u0_5", "u0_6")
+"""The 17 parameters the thesis identifies (Table 3.5, eq. 3.12)."""
+
+UNITS = {"a": "m", "d": "m", "alpha": "rad", "beta": "rad", "offset": "rad", "u0": "1",
+         "x": "m", "y": "m", "z": "m", "rx": "rad", "ry": "rad", "rz": "rad"}
+
+
+def parse_name(name: str) -> tuple[str, int | str]:
+    """`"a2" -> ("a", 1)`, `"u0_5" -> ("u0", 4)`, `"tool_x" -> ("tool", "x")` (0-based joints)."""
+    if name not in ALL_PARAMETERS:
+        raise ValueError(f"parameter {name!r}: unknown; expected one of a1..a6, d1.., alpha1.., beta1.., "
+                         f"offset1.., u0_1..u0_6, tool_x/y/z/rx/ry/rz, base_x/y/z/rx/ry/rz")
+    if name.startswith(("tool_", "base_")):
+        frame, comp = name.split("_", 1)
+        return frame, comp
+    if name.startswith("u0_"):
+        return "u0", int(name[3:]) - 1
+    return name[:-1], int(name[-1]) - 1
+
+
+def unit(name: str) -> str:
+    """Unit of a parameter's value."""
+    field, comp = parse_name(name)
+    return UNITS[comp if isinstance(comp, str) else field]
+
+
+def _frame_vector(t: Float[Array, "*b 4 4"]) -> Float[Array, "*b 6"]:
+    return jnp.concatenate([t[..., :3, 3], jr.rpy(t[..., :3, :3])], -1)
+
+
+def _frame_matrix(v: Float[Array, "*b 6"]) -> Float[Array, "*b 4 4"]:
+    r = rot_z(v[..., 5]) @ rot_y(v[..., 4]) @ rot_x(v[..., 3])
+    return homogeneous(r, v[..., :3])
+
+
+class ParameterMap(eqx.Module):
+    """Which parameters are free, and their order in the flat vector (static: safe under jit).
+
+    `get(robot)` -> `(*b, n)`; `set(robot, v)` -> robot with those parameters replaced (the
+    batch axes of `v` and `robot` must match). Tool/base entries not in the set keep their
+    values; the transform is rebuilt from translation + rpy only when one of them is free.
+    """
+
+    names: tuple[str, ...] = eqx.field(static=True)
+
+    def __init__(self, names: Sequence[str]):
+        names = tuple(names)
+        for n in names:
+            parse_name(n)
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"parameters: each name once, found duplicates {dup}")
+        if not names:
+            raise ValueError("parameters: expected at least one free parameter, found none")
+        self.names = names
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def index(self, name: str) -> int:
+        return self.names.index(name)
+
+    def get(self, robot: jr.Robot) -> Float[Array, "*b n"]:
+        frames = {k: _frame_vector(getattr(robot, k)) for k in ("tool", "base")}
+        out = []
+        for n in self.names:
+            field, comp = parse_name(n)
+            if field in frames:
+                out.append(frames[field][..., FRAME_FIELDS.index(comp)])
+            else:
+                out.append(getattr(robot, field)[..., comp])
+        return jnp.stack(out, -1)
+
+    def set(self, robot: jr.Robot, v: Float[Array, "*b n"]) -> jr.Robot:
+        upd: dict[str, Array] = {}
+        for k, n in enumerate(self.names):
+            field, comp = parse_name(n)
+            if field in ("tool", "base"):
+                if field not in upd:
+                    upd[field] = _frame_vector(getattr(robot, field))
+                upd[field] = upd[field].at[..., FRAME_FIELDS.index(comp)].set(v[..., k])
+            else:
+                if field not in upd:
+                    upd[field] = jnp.broadcast_to(getattr(robot, field), v.shape[:-1] + (6,))
+                upd[field] = upd[field].at[..., comp].set(v[..., k])
+        for field in ("tool", "base"):
+            if field in upd:
+                upd[field] = _frame_matrix(upd[field])
+        keys = tuple(upd)
+        return eqx.tree_at(lambda r: tuple(getattr(r, k) for k in keys), robot, tuple(upd[k] for k in keys))
+
+    def scales(self, robot: jr.Robot) -> Float[Array, "n"]:
+        """Typical size of one unit of deviation: 1 mm, 1 mrad, 1e-3 of the gear ratio."""
+        s = []
+        for n in self.names:
+            field, comp = parse_name(n)
+            s.append(1e-3 * (jnp.mean(robot.u0[..., comp]) if field == "u0" else 1.0))
+        return jnp.stack(s)
+
+
+# --- forward model of a pose measurement (thesis 3.2.3) ---------------------------------------
+
+
+def rest_deflection(
+    robot: jr.Robot, theta: Float[Array, "*b 6"], ccw: bool | Array = False
+) -> Float[Array, "*b 6"]:
+    """Gravity deflection `q - Xi^{-1}(theta)` of the robot at rest (thesis 3.2.3, `Delta phi_g`).
+
+    The calibration evaluates it once with the initial robot and keeps it fixed: it depends on
+    the kinematic deviations only through `g(q)`, a relative effect of ~1e-4 on a deflection of
+    ~1e-4 rad (~1e-8 rad, far below the tracker noise).
+    """
+    from jaxrobot._statics import rest_link_angles
+
+    return rest_link_angles(robot, theta, ccw) - jr.gear_output(robot, theta, ccw)
+
+
+def predict_pose(
+    robot: jr.Robot,
+    theta: Float[Array, "*b 6"],
+    deflection: Float[Array, "*b 6"],
+    marker: Float[Array, "3"],
+    ccw: bool | Array = False,
+) -> tuple[Float[Array, "*b 3"], Float[Array, "*b 3 3"]]:
+    """Marker position and rotation at motor angles `theta` (thesis 3.2.3).
+
+    `phi = Xi^{-1}(theta)` (ripple on gears 1-3, `theta/u0` on 4-6 when they carry no ripple),
+    `q = phi + deflection`, then the direct kinematics (eq. 2.4) and the marker offset.
+    """
+    from jaxrobot._bench_poses import marker_pose
+
+    q = jr.gear_output(robot, theta, ccw) + deflection
+    return marker_pose(robot, q, marker)
+
+
+def rotation_error(r_meas: Float[Array, "*b 3 3"], r_model: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
+    """Small-angle rotation vector of `r_meas^T r_model` (rad; exact to second order)."""
+    e = jnp.einsum("...ji,...jk->...ik", r_meas, r_model)
+    return 0.5 * jnp.stack([e[..., 2, 1] - e[..., 1, 2], e[..., 0, 2] - e[..., 2, 0],
+                            e[..., 1, 0] - e[..., 0, 1]], -1)

@@ -1,0 +1,228 @@
+"""Feasible random poses, identification Jacobians of pose sets, and the extended DETMAX pose
+selection of Daney et al. (thesis 3.2.2).
+
+A pose is feasible if its joint coordinates lie inside the limits (Table A.1) by a margin, the
+marker is above the floor (`z >= z_min`, thesis: `z >= 0`), and the geometric Jacobian keeps a
+distance from singularities (smallest singular value >= `min_sigma`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jaxrobot as jr
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from ._observability import observability_indices, singular_values_from_gram
+from ._parameters import ParameterMap, predict_pose, rotation_error
+
+
+@dataclasses.dataclass(frozen=True)
+class PoseConstraints:
+    """Constraints on random poses (thesis 3.2.2)."""
+
+    limit_margin: float = float(np.deg2rad(5.0))
+    """Distance from the joint limits [rad]."""
+    z_min: float = 0.0
+    """Lowest marker height [m] (thesis: the robot's workspace setting z >= 0)."""
+    min_sigma: float = 0.05
+    """Smallest admissible singular value of the 6x6 geometric Jacobian (m/rad and rad/rad):
+    a margin from the wrist, elbow and shoulder singularities."""
+
+
+def default_marker() -> np.ndarray:
+    """The tracker marker offset of the embedded description (`[sensors]`)."""
+    return np.asarray(jr.read_description(None)["sensors"]["tracker_marker_offset_m"], float)
+
+
+@eqx.filter_jit
+def _feasible(robot: jr.Robot, q: Float[Array, "N 6"], marker, margin, z_min, min_sigma):
+    from jaxrobot._bench_poses import marker_pose
+
+    inside = jnp.all((q >= robot.q_min + margin) & (q <= robot.q_max - margin), -1)
+    z = marker_pose(robot, q, marker)[0][..., 2]
+    smin = jnp.linalg.svd(jr.geometric_jacobian(robot, q), compute_uv=False)[..., -1]
+    return inside & (z >= z_min) & (smin >= min_sigma)
+
+
+def feasible(
+    robot: jr.Robot, q: Float[Array, "N 6"], marker=None, constraints: PoseConstraints = PoseConstraints()
+) -> np.ndarray:
+    """Boolean mask (N,) of the feasible poses among `q` (joint coordinates, rad)."""
+    marker = default_marker() if marker is None else np.asarray(marker, float)
+    c = constraints
+    return np.asarray(_feasible(robot, jnp.asarray(q, float), jnp.asarray(marker), c.limit_margin, c.z_min,
+                                c.min_sigma))
+
+
+def random_feasible_poses(
+    robot: jr.Robot, n: int, seed: int = 0, marker=None, constraints: PoseConstraints = PoseConstraints(),
+    batch: int = 2048,
+) -> np.ndarray:
+    """`n` random feasible joint coordinates (n, 6), uniform inside the limits, by rejection."""
+    rng = np.random.default_rng(seed)
+    lo = np.asarray(robot.q_min) + constraints.limit_margin
+    hi = np.asarray(robot.q_max) - constraints.limit_margin
+    out, got = [], 0
+    for _ in range(200):
+        q = rng.uniform(lo, hi, (batch, 6))
+        ok = feasible(robot, q, marker, constraints)
+        out.append(q[ok])
+        got += int(ok.sum())
+        if got >= n:
+            return np.concatenate(out)[:n]
+    raise ValueError(f"random_feasible_poses: found only {got} of {n} feasible poses; relax the constraints "
+                     f"{constraints}")
+
+
+@eqx.filter_jit
+def _pose_jacobians(robot, params: ParameterMap, q, marker, orientation: bool, ccw):
+    theta = jr.static_equilibrium(robot, q, ccw)
+    defl = q - jr.gear_output(robot, theta, ccw)
+    v0 = params.get(robot)
+
+    def model(v, th, de):
+        p, r = predict_pose(params.set(robot, v), th, de, marker, ccw)
+        if not orientation:
+            return p
+        r0 = jax.lax.stop_gradient(predict_pose(robot, th, de, marker, ccw)[1])
+        return jnp.concatenate([p, rotation_error(r0, r)])
+
+    return jax.vmap(jax.jacfwd(model), in_axes=(None, 0, 0))(v0, theta, defl)
+
+
+def pose_jacobians(
+    robot: jr.Robot, params: ParameterMap, q: Float[Array, "N 6"], marker=None, orientation: bool = False,
+    ccw: bool = False,
+) -> np.ndarray:
+    """Identification Jacobian blocks `d y_i / d v` (N, 3 or 6, m) at joint coordinates `q`
+    (eq. 3.8), the robot resting there (motor angles from the static equilibrium). Orientation
+    rows are rotation angles [rad] in the marker frame."""
+    marker = default_marker() if marker is None else np.asarray(marker, float)
+    return np.asarray(_pose_jacobians(robot, params, jnp.asarray(q, float), jnp.asarray(marker),
+                                      orientation, ccw))
+
+
+def column_scale(blocks: Float[Array, "N d m"]) -> np.ndarray:
+    """Column norms of the stacked Jacobian per pose (rms over poses): scaling that makes the
+    indices independent of units (m, rad, gear ratio)."""
+    b = np.asarray(blocks)
+    return np.sqrt(np.mean(np.sum(b**2, 1), 0))
+
+
+def set_indices(blocks: Float[Array, "K d m"], scale: Float[Array, "m"]) -> dict[str, float]:
+    """O1-O5 of a pose set from its Jacobian blocks, columns divided by `scale`."""
+    b = np.asarray(blocks) / np.asarray(scale)
+    j = b.reshape(-1, b.shape[-1])
+    sigma = np.linalg.svd(j, compute_uv=False)
+    return {k: float(v) for k, v in observability_indices(jnp.asarray(sigma), b.shape[0]).items()}
+
+
+@dataclasses.dataclass(frozen=True)
+class DetmaxResult:
+    """Selected pose set of `detmax`."""
+
+    q: np.ndarray
+    """Joint coordinates (K, 6) [rad]."""
+    motor_angles: np.ndarray
+    """Motor angles (K, 6) [rad] that hold `q` at rest (static equilibrium, cw set)."""
+    indices: dict
+    """O1-O5 of the final set."""
+    history: np.ndarray
+    """(iterations, 2): O1 and O4 after each iteration."""
+    iterations: int
+
+
+def _gram(b):
+    return jnp.einsum("...kdi,...kdj->...ij", b, b)
+
+
+@eqx.filter_jit
+def _detmax_loop(pool, start, key, n_draw, n_admit, max_iter, tol, patience):
+    """Exchange loop on a pool of candidate blocks (P, d, m), set = indices (K,)."""
+    n_pool, k = pool.shape[0], start.shape[0]
+
+    def o1_o4(gram, n):
+        idx = observability_indices(singular_values_from_gram(gram), n)
+        return idx["O1"], idx["O4"]
+
+    def body(state):
+        sel, key, it, stall, hist = state
+        key, sub = jax.random.split(key)
+        in_set = jnp.zeros(n_pool, bool).at[sel].set(True)
+        cand = jax.random.choice(sub, n_pool, (n_draw,), replace=False)
+        g = _gram(pool[sel])
+        o1_now, _ = o1_o4(g, k)
+        gc = g + _gram(pool[cand][:, None])
+        o1_c, o4_c = o1_o4(gc, k + 1)
+        # part 1: the first n_admit random candidates that raise O1; add the one with the best O4
+        ok = (o1_c > o1_now) & ~in_set[cand]
+        admitted = ok & (jnp.cumsum(ok) <= n_admit)
+        best = jnp.argmax(jnp.where(admitted, o4_c, -jnp.inf))
+        grown = jnp.concatenate([sel, cand[best][None]])
+        # part 2: remove the pose whose removal leaves the largest O1 (least influence)
+        gg = g + _gram(pool[cand[best]][None])
+        gr = gg - _gram(pool[grown][:, None])
+        o1_r, _ = o1_o4(gr, k)
+        drop = jnp.argmax(o1_r)
+        new = jnp.where(jnp.arange(k) < drop, grown[:-1], grown[1:])
+        new = jnp.where(jnp.any(admitted), new, sel)
+        o1_new, o4_new = o1_o4(_gram(pool[new]), k)
+        gain = (o1_new - o1_now) / o1_now
+        stall = jnp.where(gain > tol, 0, stall + 1)
+        hist = hist.at[it].set(jnp.stack([o1_new, o4_new]))
+        return new, key, it + 1, stall, hist
+
+    def cond(state):
+        _, _, it, stall, _ = state
+        return (it < max_iter) & (stall < patience)
+
+    hist0 = jnp.full((max_iter, 2), jnp.nan)
+    sel, _, it, _, hist = jax.lax.while_loop(cond, body, (start, key, 0, 0, hist0))
+    return sel, it, hist
+
+
+def detmax(
+    robot: jr.Robot,
+    params: ParameterMap,
+    n_poses: int = 50,
+    seed: int = 0,
+    *,
+    marker=None,
+    orientation: bool = False,
+    constraints: PoseConstraints = PoseConstraints(),
+    pool_size: int = 4000,
+    n_draw: int = 64,
+    n_admit: int = 10,
+    max_iter: int = 400,
+    tol: float = 1e-4,
+    patience: int = 40,
+    scale: Float[Array, "m"] | None = None,
+) -> DetmaxResult:
+    """Extended DETMAX (Daney et al., thesis 3.2.2): start from `n_poses` random feasible poses;
+    per iteration draw `n_draw` random candidates, admit the first `n_admit` that raise O1
+    (eq. 3.10), add the admitted one that maximises O4 (eq. 3.11), then remove the pose with the
+    least influence on O1. Stops when O1 has not grown by more than `tol` (relative) for
+    `patience` iterations, or after `max_iter`. Candidates come from a pool of `pool_size`
+    random feasible poses whose Jacobian blocks are evaluated in one batch. `scale`: column scaling (default: rms column norms of the pool).
+    """
+    if n_poses < 1 or pool_size < n_poses + n_draw:
+        raise ValueError(f"detmax: expected 1 <= n_poses and pool_size >= n_poses + n_draw, found "
+                         f"n_poses={n_poses}, pool_size={pool_size}, n_draw={n_draw}")
+    q_pool = random_feasible_poses(robot, pool_size, seed, marker, constraints)
+    blocks = pose_jacobians(robot, params, q_pool, marker, orientation)
+    scale = column_scale(blocks) if scale is None else np.asarray(scale)
+    pool = jnp.asarray(blocks / scale)
+    start = jnp.arange(n_poses)
+    sel, it, hist = _detmax_loop(pool, start, jax.random.PRNGKey(seed), n_draw, n_admit, max_iter, tol,
+                                 patience)
+    sel = np.asarray(sel)
+    q = q_pool[sel]
+    theta = np.asarray(jr.static_equilibrium(robot, jnp.asarray(q)))
+    it = int(it)
+    return DetmaxResult(q=q, motor_angles=theta, indices=set_indices(blocks[sel], scale),
+                        history=np.asarray(hist)[:it], iterations=it)

@@ -1,0 +1,373 @@
+"""Virtual test bench for gear-ratio identification: encoder + gyroscope runs (thesis 3.1.1,
+SPEC.md "The default robot and the virtual test bench").
+
+One joint turns at a constant motor speed over its usable range, with cycloidal acceleration
+ramps at both ends and short rests before and after; the other joints hold a fixed
+configuration. The motor follows the commanded angle exactly; the link angles are the
+quasi-static rest angles of the as-built robot, `q = phi - kappa^{-1}(g(q))` with
+`phi = Xi^{-1}(theta)` (as `rest_link_angles`), where the moving gear uses the ripple set of its
+direction (`cw` for a positive, `ccw` for a negative motor speed). The 20-bit motor encoders
+are sampled at 1 kHz; a 3-axis gyroscope on the moving link measures the link's angular
+velocity in a frame misaligned from the joint axis by `Rx(alpha) Ry(beta)` (eq. 3.3), with
+white noise and a small constant bias. Also: the gear-run CSV format of SPEC.md.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+
+from ._description import read_description
+from ._dynamics import gravity_torque
+from ._elasticity import elastic_deflection
+from ._gear import gear_output, gear_ratio
+from ._kinematics import link_frames, rot_x, rot_y, rot_z
+from ._robot import Robot
+
+GEAR_RUN_COLUMNS = (
+    ("t_s",) + tuple(f"theta{i}_deg" for i in range(1, 7)) + ("gyro_x_deg_s", "gyro_y_deg_s", "gyro_z_deg_s")
+)
+"""Columns of a gear-run file (SPEC.md): time [s], motor angles [deg], gyroscope [deg/s]."""
+
+GEAR_RUN_DEFAULTS = {
+    1: {"motor_speed_deg_s": 7468.0, "range_deg": 220.0, "centre_deg": 0.0, "validation_speed_deg_s": 3734.0},
+    2: {"motor_speed_deg_s": 8300.0, "range_deg": 100.0, "centre_deg": 35.0, "validation_speed_deg_s": 6213.0},
+    3: {"motor_speed_deg_s": 4192.0, "range_deg": 53.49, "centre_deg": -85.0, "validation_speed_deg_s": 2096.0},
+}
+"""Thesis 3.1.2 experiments per joint (1-based): constant motor speed, link range covered at that
+speed, centre of that range (joint coordinate) and the slower validation speed. Joint 1: 40 %
+and 20 % of its maximum motor speed; joint 2: 40 % and 30 %; joint 3: 20 % as in the thesis,
+validated at 10 % (half the identification speed; the thesis did not validate joint 3 at another
+speed)."""
+
+HOLD_Q_DEG = (0.0, 0.0, -90.0, 0.0, 90.0, 0.0)
+"""Default configuration [deg, joint coordinates] of the joints that do not move."""
+
+GYRO_BIAS_DEG_S = 0.005
+"""Default std of the constant gyroscope bias per axis and run [deg/s] (assumed, small)."""
+
+REST_S = 0.2
+"""Rest before and after the motion [s]; lets the processing estimate the gyroscope bias."""
+
+
+@dataclasses.dataclass(frozen=True)
+class GearRuns:
+    """Plain arrays of `R` runs of one joint, all of `N` samples.
+
+    `t` (N,) s; `theta` (R, N, 6) measured (quantised) motor angles [rad]; `gyro` (R, N, 3)
+    measured angular velocity [rad/s] in the gyroscope frame; `ccw` (R,) direction of each run.
+    Noise-free truth: `link_angles` (R, N, 6) [rad], `link_rate` (R, N) rate of the moving joint
+    about its axis [rad/s], `gyro_true` (R, N, 3). `metadata` holds joint (1-based), speeds,
+    ranges, seed, noise, bias and misalignment.
+    """
+
+    t: np.ndarray
+    theta: np.ndarray
+    gyro: np.ndarray
+    ccw: np.ndarray
+    link_angles: np.ndarray
+    link_rate: np.ndarray
+    gyro_true: np.ndarray
+    metadata: dict
+
+
+def mount_rotation(robot: Robot, q: Float[Array, "6"], joint: Int[Array, ""] | int) -> Float[Array, "3 3"]:
+    """World rotation of the ideal gyroscope frame on the link after `joint` (0-based): frame
+    `joint - 1` (the base frame for joint 0) turned by `Rz(q_joint + offset_joint)`, so that its
+    z-axis is the joint axis. Works with a traced `joint`."""
+    frames = link_frames(robot, q)[:, :3, :3]
+    prev = jnp.concatenate([robot.base[None, :3, :3], frames[:-1]], 0)
+    return prev[joint] @ rot_z(q[joint] + robot.offset[joint])
+
+
+def sensor_rotation(misalignment: Float[Array, "2"]) -> Float[Array, "3 3"]:
+    """`Rx(alpha) Ry(beta)`: maps gyroscope-frame vectors into the ideal frame (eq. 3.3)."""
+    return rot_x(misalignment[0]) @ rot_y(misalignment[1])
+
+
+def motion_profile(
+    t: Float[Array, "N"], speed: float, travel: float, ramp: float, rest: float
+) -> Float[Array, "N"]:
+    """Motor displacement [rad] from the start: rest, a cycloidal ramp (zero acceleration at its
+    ends) to `speed` [rad/s] over `ramp` s, constant speed for `travel` rad, the mirrored ramp,
+    rest. Smooth to second order; the sign of `speed` gives the direction."""
+    v = jnp.abs(speed)
+    cruise = travel / v
+    ramp_len = v * ramp / 2.0
+
+    def up(s):  # displacement after s seconds of the up ramp
+        tau = jnp.clip(s / ramp, 0.0, 1.0)
+        return v * ramp * (tau**2 / 2.0 + (jnp.cos(2.0 * jnp.pi * tau) - 1.0) / (4.0 * jnp.pi**2))
+
+    s = t - rest
+    total = 2.0 * ramp_len + travel
+    x = jnp.where(s < ramp, up(s), ramp_len + v * (s - ramp))
+    x = jnp.where(s < ramp + cruise, x, total - up(2.0 * ramp + cruise - s))
+    x = jnp.where(s <= 0.0, 0.0, jnp.where(s >= 2.0 * ramp + cruise, total, x))
+    return jnp.sign(speed) * x
+
+
+FIXED_POINT_STEPS = 6
+"""Iterations of `q = phi - kappa^{-1}(g(q))` from `q = phi`; the map contracts by
+`|dg/dq| / kappa' < 3e-3` per step on the Racer-7, so 6 steps reach float64 precision (the
+same fixed point as `rest_link_angles`, unrolled so that `jvp` through it stays cheap)."""
+
+CHUNK = 2048
+"""Samples per compiled call of the bench (one compilation serves every run length)."""
+
+
+def quasi_static_link_angles(
+    robot: Robot, theta: Float[Array, "6"], ccw: Bool[Array, "6"]
+) -> Float[Array, "6"]:
+    """Link angles at rest at motor angles `theta`: the fixed point of
+    `q = Xi^{-1}(theta) - kappa^{-1}(g(q))` (SPEC.md "Static equilibrium"), differentiable."""
+    phi = gear_output(robot, theta, ccw)
+
+    def step(_, q):
+        return phi - elastic_deflection(robot, gravity_torque(robot, q))
+
+    return jax.lax.fori_loop(0, FIXED_POINT_STEPS, step, phi)
+
+
+KNOT_STEP = 16
+"""The gravity deflection `kappa^{-1}(g(q))` (smooth in time) is solved exactly every
+`KNOT_STEP` samples, with its rate by `jvp`, and interpolated by cubic Hermite in between
+(error < 1e-9 rad/s here); it leaves out the ~1e-5 rad/s that the ripple itself adds to it."""
+
+
+def _theta_fn(profile, joint):
+    start, speed, travel, ramp, rest = profile
+    onehot = jax.nn.one_hot(joint, 6)
+    return lambda ti: start + onehot * motion_profile(ti, speed, travel, ramp, rest)
+
+
+@jax.jit
+def _deflection_knots(robot, profile, t, joint, ccw_vec):
+    """Gravity deflection `phi - q` (6,) and its time derivative at times `t`."""
+    theta_of = _theta_fn(profile, joint)
+
+    def deflection(ti):
+        theta = theta_of(ti)
+        return gear_output(robot, theta, ccw_vec) - quasi_static_link_angles(robot, theta, ccw_vec)
+
+    return jax.vmap(lambda ti: jax.jvp(deflection, (ti,), (jnp.ones_like(ti),)))(t)
+
+
+@jax.jit
+def _bench_samples(robot, profile, t, joint, ccw_vec, rot_s, delta, delta_dot):
+    """Motor angles, link angles, joint rate about its axis and gyroscope-frame angular velocity
+    per sample: `q = phi - delta`, `qd = thetad / u(phi) - delta_dot`, `omega = sum_{j <= i} qd_j z_{j-1}`."""
+    theta_of = _theta_fn(profile, joint)
+
+    def one(ti, d, dd):
+        theta, thetad = jax.jvp(theta_of, (ti,), (jnp.ones_like(ti),))
+        phi = gear_output(robot, theta, ccw_vec)
+        q = phi - d
+        qd = thetad / gear_ratio(robot, phi, ccw_vec) - dd
+        frames = link_frames(robot, q)[:, :3, :3]
+        prev = jnp.concatenate([robot.base[None, :3, :3], frames[:-1]], 0)
+        qd_moving = jnp.where(jnp.arange(6) <= joint, qd, 0.0)
+        omega_world = jnp.sum(qd_moving[:, None] * prev[:, :, 2], 0)
+        rot = prev[joint] @ rot_z(q[joint] + robot.offset[joint])
+        omega = rot.T @ omega_world
+        return theta, q, omega[2], rot_s.T @ omega
+
+    return jax.vmap(one)(t, delta, delta_dot)
+
+
+def _chunked(fn, t, robot, profile, *args, per_sample=()):
+    """`fn(robot, profile, t, *args, *per_sample)` over the samples `t` in fixed chunks, so that
+    one compilation serves every run length."""
+    n = t.shape[0]
+    pad = -n % CHUNK
+    padded = [np.concatenate([x, np.repeat(x[-1:], pad, 0)]) for x in (t, *per_sample)]
+    parts = [fn(robot, profile, jnp.asarray(padded[0][k:k + CHUNK]), *args,
+                *(jnp.asarray(x[k:k + CHUNK]) for x in padded[1:]))
+             for k in range(0, n + pad, CHUNK)]
+    return [np.concatenate([np.asarray(p[m]) for p in parts])[:n] for m in range(len(parts[0]))]
+
+
+def _hermite(t, tk, y, yd):
+    """Cubic Hermite interpolation of knots `(tk, y, yd)` on a uniform grid at times `t`."""
+    h = tk[1] - tk[0]
+    k = np.clip(np.floor((t - tk[0]) / h).astype(int), 0, len(tk) - 2)
+    s = ((t - tk[k]) / h)[:, None]
+    h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+    return (h00 * y[k] + h10 * h * yd[k] + h01 * y[k + 1] + h11 * h * yd[k + 1],
+            (6 * s**2 - 6 * s) / h * y[k] + (3 * s**2 - 4 * s + 1) * yd[k]
+            + (-6 * s**2 + 6 * s) / h * y[k + 1] + (3 * s**2 - 2 * s) * yd[k + 1])
+
+
+def gear_runs(
+    robot: Robot,
+    joint: int,
+    *,
+    motor_speed_deg_s: float | None = None,
+    range_deg: float | None = None,
+    centre_deg: float | None = None,
+    repetitions: int = 6,
+    directions: tuple[str, ...] = ("cw", "ccw"),
+    hold_q_deg: tuple[float, ...] = HOLD_Q_DEG,
+    seed: int | jax.Array = 0,
+    gyro_noise_deg_s: float | None = None,
+    gyro_bias_deg_s: float = GYRO_BIAS_DEG_S,
+    misalignment_rad: tuple[float, float] | None = None,
+    rest_s: float = REST_S,
+    description: dict | None = None,
+) -> GearRuns:
+    """Bench runs of one joint (thesis 3.1.1): `repetitions` runs per direction.
+
+    **Arguments:**
+    - `robot`: the as-built robot (`racer7(as_built=True)`).
+    - `joint`: 1-based joint index (1..6).
+    - `motor_speed_deg_s`, `range_deg`, `centre_deg`: constant motor speed, link range covered
+      at that speed and its centre (joint coordinate); defaults `GEAR_RUN_DEFAULTS` (joints 1-3).
+      Ramps use the joint's acceleration limit (cycloidal, peak = limit).
+    - `directions`: "cw" (positive motor speed) and/or "ccw"; runs alternate between them.
+    - `hold_q_deg`: joint coordinates of the joints that do not move.
+    - `seed`: int or `jax.random` key for noise and bias.
+    - `gyro_noise_deg_s`, `misalignment_rad`: default `description["sensors"]`.
+    - `gyro_bias_deg_s`: std of the constant bias per axis and run.
+
+    **Returns:** `GearRuns`.
+    """
+    desc = read_description(None) if description is None else description
+    sensors = desc["sensors"]
+    if joint not in range(1, 7):
+        raise ValueError(f"joint: expected an integer 1..6, found {joint!r}")
+    dflt = GEAR_RUN_DEFAULTS.get(joint, {})
+    if any(v is None for v in (motor_speed_deg_s, range_deg, centre_deg)) and not dflt:
+        raise ValueError(f"motor_speed_deg_s, range_deg, centre_deg: no defaults for joint {joint}; pass them")
+    speed_deg = float(dflt["motor_speed_deg_s"] if motor_speed_deg_s is None else motor_speed_deg_s)
+    rng_deg = float(dflt["range_deg"] if range_deg is None else range_deg)
+    centre = float(dflt["centre_deg"] if centre_deg is None else centre_deg)
+    if not speed_deg > 0:
+        raise ValueError(f"motor_speed_deg_s: expected > 0 deg/s, found {speed_deg}")
+    if not rng_deg > 0:
+        raise ValueError(f"range_deg: expected > 0 deg, found {rng_deg}")
+    if repetitions < 1:
+        raise ValueError(f"repetitions: expected >= 1, found {repetitions}")
+    bad = [d for d in directions if d not in ("cw", "ccw")]
+    if bad or not directions:
+        raise ValueError(f"directions: expected a non-empty tuple of 'cw'/'ccw', found {directions!r}")
+    if len(hold_q_deg) != 6:
+        raise ValueError(f"hold_q_deg: expected 6 joint coordinates [deg], found {len(hold_q_deg)}")
+    noise = float(sensors["gyro_noise_deg_s"] if gyro_noise_deg_s is None else gyro_noise_deg_s)
+    mis = np.asarray(sensors["gyro_misalignment_rad"] if misalignment_rad is None else misalignment_rad, float)
+    ts = float(sensors["sample_time_s"])
+    counts = float(sensors["encoder_counts_per_rev"])
+    if np.ndim(robot.a) != 1:
+        raise ValueError(f"robot: expected a single robot (a of shape (6,)), found a fleet {np.shape(robot.a)}")
+
+    i = joint - 1
+    u0 = float(robot.u0[i])
+    v_link = math.radians(speed_deg) / u0
+    ramp = 2.0 * v_link / float(robot.qdd_max[i])
+    lo_link = math.radians(centre - rng_deg / 2.0) - v_link * ramp / 2.0
+    hi_link = math.radians(centre + rng_deg / 2.0) + v_link * ramp / 2.0
+    q_lo, q_hi = float(robot.q_min[i]), float(robot.q_max[i])
+    if lo_link < q_lo or hi_link > q_hi:
+        raise ValueError(
+            f"range_deg/centre_deg: joint {joint} would move over [{math.degrees(lo_link):.1f}, "
+            f"{math.degrees(hi_link):.1f}] deg incl. ramps, beyond its limits [{math.degrees(q_lo):.1f}, "
+            f"{math.degrees(q_hi):.1f}] deg; shorten the range or move its centre")
+    travel = math.radians(rng_deg) * u0  # motor travel at constant speed
+    duration = 2 * rest_s + 2 * ramp + travel / math.radians(speed_deg)
+    n = int(math.ceil(duration / ts)) + 1
+    t = jnp.arange(n) * ts
+
+    hold = np.deg2rad(np.asarray(hold_q_deg, float)) * np.asarray(robot.u0)
+    dirs = [directions[k % len(directions)] for k in range(repetitions * len(directions))]
+    dirs = sorted(dirs, key=lambda d: directions.index(d))
+    key = jax.random.PRNGKey(seed) if isinstance(seed, int) else seed
+    rot_s = sensor_rotation(jnp.asarray(mis))
+    out = {k: [] for k in ("theta", "gyro", "q", "rate", "gyro_true", "bias")}
+    for k, d in enumerate(dirs):
+        sign = 1.0 if d == "cw" else -1.0
+        start = jnp.asarray(hold).at[i].set((lo_link if d == "cw" else hi_link) * u0)
+        ccw_vec = jnp.zeros(6, bool).at[i].set(d == "ccw")
+        args = (start, sign * math.radians(speed_deg), travel, ramp, rest_s)
+        tk = np.arange(0.0, float(t[-1]) + 2 * KNOT_STEP * ts, KNOT_STEP * ts)
+        dk, ddk = _chunked(_deflection_knots, tk, robot, args, jnp.asarray(i), ccw_vec)
+        delta, delta_dot = _hermite(np.asarray(t), tk, dk, ddk)
+        theta, q, rate, g_true = _chunked(_bench_samples, np.asarray(t), robot, args, jnp.asarray(i), ccw_vec,
+                                          rot_s, per_sample=(delta, delta_dot))
+        if not np.all(np.isfinite(q)):
+            raise ValueError(f"robot: the rest link angles are not finite for joint {joint}, run {k}")
+        k_noise, k_bias = jax.random.split(jax.random.fold_in(key, k))
+        bias = jnp.deg2rad(gyro_bias_deg_s) * jax.random.normal(k_bias, (3,))
+        gyro = g_true + np.asarray(bias) + np.deg2rad(noise) * np.asarray(jax.random.normal(k_noise, g_true.shape))
+        quant = 2.0 * np.pi / counts
+        out["theta"].append(np.round(np.asarray(theta) / quant) * quant)
+        out["gyro"].append(np.asarray(gyro))
+        out["q"].append(np.asarray(q))
+        out["rate"].append(np.asarray(rate))
+        out["gyro_true"].append(np.asarray(g_true))
+        out["bias"].append(np.asarray(bias))
+    meta = {
+        "joint": joint, "motor_speed_deg_s": speed_deg, "range_deg": rng_deg, "centre_deg": centre,
+        "ramp_s": ramp, "rest_s": rest_s, "sample_time_s": ts, "encoder_counts_per_rev": counts,
+        "gyro_noise_deg_s": noise, "gyro_bias_deg_s": np.rad2deg(np.stack(out["bias"])),
+        "misalignment_rad": mis, "hold_q_deg": tuple(hold_q_deg), "directions": tuple(dirs),
+        "seed": seed if isinstance(seed, int) else None,
+    }
+    return GearRuns(
+        t=np.asarray(t), theta=np.stack(out["theta"]), gyro=np.stack(out["gyro"]),
+        ccw=np.array([d == "ccw" for d in dirs]), link_angles=np.stack(out["q"]),
+        link_rate=np.stack(out["rate"]), gyro_true=np.stack(out["gyro_true"]), metadata=meta)
+
+
+def write_gear_run(
+    path: str | Path, t: np.ndarray, theta: np.ndarray, gyro: np.ndarray
+) -> None:
+    """Write one run in the gear-run format of SPEC.md: `t` (N,) s, `theta` (N, 6) rad,
+    `gyro` (N, 3) rad/s; the file holds degrees as its column names say."""
+    t, theta, gyro = np.asarray(t, float), np.asarray(theta, float), np.asarray(gyro, float)
+    n = t.shape[0] if t.ndim == 1 else -1
+    if t.ndim != 1 or theta.shape != (n, 6) or gyro.shape != (n, 3):
+        raise ValueError(f"write_gear_run: expected t (N,), theta (N, 6), gyro (N, 3), found "
+                         f"{t.shape}, {theta.shape}, {gyro.shape}")
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(GEAR_RUN_COLUMNS)
+        th, gy = np.rad2deg(theta), np.rad2deg(gyro)
+        for k in range(n):
+            w.writerow([f"{t[k]:.6f}", *(f"{x:.12g}" for x in th[k]), *(f"{x:.9g}" for x in gy[k])])
+
+
+def read_gear_run(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Read one gear-run file (SPEC.md; extra columns are ignored).
+
+    **Returns:** `t` (N,) s, `theta` (N, 6) rad, `gyro` (N, 3) rad/s. Empty cells and `nan`
+    come back as NaN (the processing rejects them with the row named).
+    """
+    path = Path(path)
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows:
+        raise ValueError(f"{path}: empty file; expected a header with columns {', '.join(GEAR_RUN_COLUMNS)}")
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in GEAR_RUN_COLUMNS if c not in header]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; a gear-run file needs "
+                         f"{', '.join(GEAR_RUN_COLUMNS)}")
+    idx = [header.index(c) for c in GEAR_RUN_COLUMNS]
+    data = np.empty((len(rows) - 1, len(idx)))
+    for r, row in enumerate(rows[1:]):
+        for j, c in enumerate(idx):
+            cell = row[c].strip() if c < len(row) else ""
+            try:
+                data[r, j] = float(cell) if cell else np.nan
+            except ValueError:
+                raise ValueError(f"{path}: row {r + 2}, column {GEAR_RUN_COLUMNS[j]}: expected a number, "
+                                 f"found {cell!r}") from None
+    if data.shape[0] < 2:
+        raise ValueError(f"{path}: expected at least 2 samples, found {data.shape[0]}")
+    return data[:, 0], np.deg2rad(data[:, 1:7]), np.deg2rad(data[:, 7:10])

@@ -1,0 +1,291 @@
+"""Virtual test bench for kinematic calibration: pose measurements with an optical tracker
+(thesis 3.2, SPEC.md "The default robot and the virtual test bench").
+
+The as-built robot rests at commanded motor angles `theta`; its link angles are
+`Xi^{-1}(theta)` plus the gravity deflection (`rest_link_angles`, thesis 3.2.3); the tracker
+reports the world position of a marker body fixed in the tool frame (the flange frame for the
+identity tool) with Gaussian noise, and optionally its orientation as a unit quaternion.
+Also: random fleets of as-built robots, and the pose CSV format of SPEC.md.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from ._description import read_description
+from ._kinematics import tool_pose
+from ._robot import Robot
+from ._statics import rest_link_angles
+
+ORIENTATION_NOISE_RAD = float(np.deg2rad(0.05))
+"""Default std per axis of the tracker's orientation error [rad]: the 0.05 deg camera
+specification quoted in thesis 3.2.1 (the thesis found its real orientation data unusable)."""
+
+POSE_COLUMNS = tuple(f"theta{i}_deg" for i in range(1, 7)) + ("x_m", "y_m", "z_m")
+"""Required columns of a pose file (SPEC.md): motor angles [deg], marker position [m]."""
+QUAT_COLUMNS = ("qx", "qy", "qz", "qw")
+"""Optional columns: measured marker orientation as a unit quaternion (scalar last)."""
+
+# Parameters that deviate in the as-built robot (the entries of thesis Table 3.8) and the
+# std of the random deviations of `draw_fleet` (the rms of the Table 3.8 entries of each kind).
+_FLEET_MASK = {
+    "a": np.array([1, 1, 1, 1, 1, 0], bool),
+    "d": np.array([0, 1, 0, 1, 0, 0], bool),
+    "alpha": np.array([1, 1, 1, 1, 1, 0], bool),
+    "beta": np.array([0, 0, 1, 0, 0, 0], bool),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class PoseMeasurements:
+    """Plain arrays of one bench session (leading axes `*b` = robots of a fleet, if any).
+
+    `motor_angles` (*b, K, 6) rad, `positions` (*b, K, 3) m (measured, noisy),
+    `quaternions` (*b, K, 4) (qx, qy, qz, qw) or None; `link_angles` and `true_positions` are
+    the noise-free truth; `metadata` holds the seed, noise levels, marker offset and `ccw`.
+    """
+
+    motor_angles: np.ndarray
+    positions: np.ndarray
+    quaternions: np.ndarray | None
+    link_angles: np.ndarray
+    true_positions: np.ndarray
+    metadata: dict
+
+
+def marker_pose(
+    robot: Robot, q: Float[Array, "*b 6"], marker: Float[Array, "*b 3"]
+) -> tuple[Float[Array, "*b 3"], Float[Array, "*b 3 3"]]:
+    """World position and rotation of a marker body at `marker` in the tool frame (eq. 2.4).
+
+    With the identity tool this is `jr.point_position(robot, q, marker)` and the flange rotation.
+    """
+    t = tool_pose(robot, q)
+    r = t[..., :3, :3]
+    return t[..., :3, 3] + jnp.einsum("...ij,...j->...i", r, marker), r
+
+
+def rotation_to_quaternion(r: Float[Array, "*b 3 3"]) -> Float[Array, "*b 4"]:
+    """Unit quaternion (qx, qy, qz, qw), qw >= 0, of a rotation matrix (branch-free Shepperd)."""
+    tr = r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2]
+    cands = jnp.stack([
+        jnp.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1],
+                   1.0 + tr], -1),
+        jnp.stack([1.0 + 2 * r[..., 0, 0] - tr, r[..., 0, 1] + r[..., 1, 0], r[..., 0, 2] + r[..., 2, 0],
+                   r[..., 2, 1] - r[..., 1, 2]], -1),
+        jnp.stack([r[..., 0, 1] + r[..., 1, 0], 1.0 + 2 * r[..., 1, 1] - tr, r[..., 1, 2] + r[..., 2, 1],
+                   r[..., 0, 2] - r[..., 2, 0]], -1),
+        jnp.stack([r[..., 0, 2] + r[..., 2, 0], r[..., 1, 2] + r[..., 2, 1], 1.0 + 2 * r[..., 2, 2] - tr,
+                   r[..., 1, 0] - r[..., 0, 1]], -1),
+    ], -2)  # each row is 4 * q_k * q, largest for the largest |q_k|
+    diag = jnp.stack([1.0 + tr, 1.0 + 2 * r[..., 0, 0] - tr, 1.0 + 2 * r[..., 1, 1] - tr,
+                      1.0 + 2 * r[..., 2, 2] - tr], -1)
+    best = jnp.argmax(diag, -1)
+    q = jnp.take_along_axis(cands, best[..., None, None], -2)[..., 0, :]
+    q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+    return q * jnp.where(q[..., 3:] < 0, -1.0, 1.0)
+
+
+def quaternion_to_rotation(quat: Float[Array, "*b 4"]) -> Float[Array, "*b 3 3"]:
+    """Rotation matrix of a quaternion (qx, qy, qz, qw); the quaternion is normalised first."""
+    quat = quat / jnp.linalg.norm(quat, axis=-1, keepdims=True)
+    x, y, z, w = (quat[..., i] for i in range(4))
+    return jnp.stack([
+        jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        jnp.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        jnp.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
+
+
+def _rotvec_to_matrix(w: Float[Array, "*b 3"]) -> Float[Array, "*b 3 3"]:
+    angle = jnp.linalg.norm(w, axis=-1)
+    half = 0.5 * angle
+    scale = jnp.where(angle > 0, jnp.sin(half) / jnp.where(angle > 0, angle, 1.0), 0.5)
+    return quaternion_to_rotation(jnp.concatenate([w * scale[..., None], jnp.cos(half)[..., None]], -1))
+
+
+def _fleet_axes(robot: Robot) -> tuple[int, ...]:
+    return tuple(np.shape(robot.a)[:-1])
+
+
+def measure_poses(
+    truth: Robot,
+    motor_angles: Float[Array, "*b K 6"],
+    *,
+    seed: int = 0,
+    marker: Float[Array, "3"] | None = None,
+    position_noise: float | None = None,
+    orientation: bool = False,
+    orientation_noise: float = ORIENTATION_NOISE_RAD,
+    ccw: bool | Bool[Array, "*b K 6"] = False,
+) -> PoseMeasurements:
+    """Tracker measurements of `truth` resting at `motor_angles` (thesis 3.2.3, SPEC.md).
+
+    **Arguments:**
+    - `truth`: the as-built robot, or a fleet with leading axes `*b`.
+    - `motor_angles`: commanded motor angles [rad], (K, 6) (shared by the fleet) or (*b, K, 6).
+    - `seed`: seed of the Gaussian noise.
+    - `marker`: marker offset in the tool frame [m]; default `[sensors] tracker_marker_offset_m`.
+    - `position_noise`: std per axis [m]; default `[sensors] tracker_position_noise_m`.
+    - `orientation`, `orientation_noise`: also report the marker orientation as a quaternion,
+      rotated by a random rotation vector with this std per axis [rad].
+    - `ccw`: gear set of the last approach direction (default `cw`, SPEC.md).
+
+    **Returns:** `PoseMeasurements` (plain numpy arrays plus metadata). Link angles are NaN where
+    the rest fixed point failed (never for the default robot).
+    """
+    sensors = read_description(None)["sensors"]
+    marker = np.asarray(sensors["tracker_marker_offset_m"] if marker is None else marker, float)
+    sigma = float(sensors["tracker_position_noise_m"] if position_noise is None else position_noise)
+    theta = jnp.asarray(motor_angles, float)
+    fleet = _fleet_axes(truth)
+    if theta.ndim < 2 or theta.shape[-1] != 6:
+        raise ValueError(f"motor_angles: expected shape (K, 6) or (*fleet, K, 6) in rad, found {theta.shape}")
+    if sigma < 0 or orientation_noise < 0:
+        raise ValueError(f"noise: expected std >= 0, found position {sigma}, orientation {orientation_noise}")
+    theta = jnp.broadcast_to(theta, fleet + theta.shape[-2:])
+    # the robot's fleet axes broadcast against the pose axis K
+    robot = jax.tree.map(lambda x: jnp.expand_dims(x, len(fleet)), truth) if fleet else truth
+    q, p, r = _measure(robot, theta, jnp.asarray(marker), ccw)
+    key_p, key_r = jax.random.split(jax.random.PRNGKey(seed))
+    noisy = p + sigma * jax.random.normal(key_p, p.shape)
+    quat = None
+    if orientation:
+        err = orientation_noise * jax.random.normal(key_r, p.shape)
+        quat = np.asarray(rotation_to_quaternion(r @ _rotvec_to_matrix(err)))
+    meta = {"seed": seed, "position_noise_m": sigma,
+            "orientation_noise_rad": orientation_noise if orientation else None,
+            "marker_offset_m": marker.tolist(), "ccw": np.asarray(ccw).tolist(),
+            "robot": truth.name}
+    return PoseMeasurements(np.asarray(theta), np.asarray(noisy), quat, np.asarray(q), np.asarray(p), meta)
+
+
+@eqx.filter_jit
+def _measure(robot, theta, marker, ccw):
+    q = rest_link_angles(robot, theta, ccw)
+    p, r = marker_pose(robot, q, marker)
+    return q, p, r
+
+
+def draw_fleet(
+    n: int,
+    seed: int = 0,
+    robot: Robot | None = None,
+    *,
+    length_std: float | None = None,
+    angle_std: float | None = None,
+    ratio_std: float | None = None,
+    offset_std: float = 0.0,
+) -> Robot:
+    """`n` random as-built robots: `robot` (default nominal Racer-7) plus Gaussian deviations.
+
+    Deviations go on the parameters of thesis Table 3.8 (a1..a5, d2, d4, alpha1..alpha5, beta3,
+    u0 of gears 4-6), optionally also on the joint offsets. Default stds are the rms of the
+    Table 3.8 entries (`[as_built]` of the embedded description): lengths, angles, and the
+    relative wrist-ratio errors. Returns the robot pytree with a leading axis `n`.
+    """
+    data = read_description(None)
+    if robot is None:
+        from ._description import racer7
+
+        robot = racer7()
+    dev = data["as_built"]
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    ls = rms([v for k in ("a", "d") for v, m in zip(dev[f"delta_{k}"], _FLEET_MASK[k]) if m])
+    ang = rms([v for k in ("alpha", "beta") for v, m in zip(dev[f"delta_{k}"], _FLEET_MASK[k]) if m])
+    rel = rms(np.asarray(dev["u0_wrist"]) / np.asarray(data["gear"]["u0"][3:]) - 1.0)
+    length_std = ls if length_std is None else length_std
+    angle_std = ang if angle_std is None else angle_std
+    ratio_std = rel if ratio_std is None else ratio_std
+    if n < 1:
+        raise ValueError(f"n: expected a fleet size >= 1, found {n}")
+    rng = np.random.default_rng(seed)
+    fleet = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + jnp.shape(x)), robot)
+    upd = {}
+    for k, std in (("a", length_std), ("d", length_std), ("alpha", angle_std), ("beta", angle_std)):
+        upd[k] = np.asarray(getattr(robot, k)) + std * rng.standard_normal((n, 6)) * _FLEET_MASK[k]
+    wrist = np.array([0, 0, 0, 1, 1, 1], bool)
+    upd["u0"] = np.asarray(robot.u0) * (1.0 + ratio_std * rng.standard_normal((n, 6)) * wrist)
+    upd["offset"] = np.asarray(robot.offset) + offset_std * rng.standard_normal((n, 6))
+    names = tuple(upd)
+    return eqx.tree_at(lambda r: tuple(getattr(r, k) for k in names), fleet,
+                       tuple(jnp.asarray(upd[k]) for k in names))
+
+
+def write_pose_csv(
+    path: str | Path,
+    motor_angles: Float[Array, "K 6"],
+    positions: Float[Array, "K 3"],
+    quaternions: Float[Array, "K 4"] | None = None,
+) -> None:
+    """Write a pose file (SPEC.md): `theta1_deg … theta6_deg, x_m, y_m, z_m[, qx, qy, qz, qw]`."""
+    theta = np.rad2deg(np.asarray(motor_angles, float))
+    pos = np.asarray(positions, float)
+    if theta.ndim != 2 or theta.shape[1] != 6 or pos.shape != (theta.shape[0], 3):
+        raise ValueError(f"write_pose_csv: expected motor_angles (K, 6) and positions (K, 3), "
+                         f"found {theta.shape} and {pos.shape}")
+    cols = [theta, pos]
+    header = list(POSE_COLUMNS)
+    if quaternions is not None:
+        cols.append(np.asarray(quaternions, float).reshape(-1, 4))
+        header += list(QUAT_COLUMNS)
+    table = np.concatenate(cols, 1)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows([[repr(float(v)) for v in row] for row in table])
+
+
+def read_pose_csv(path: str | Path) -> dict:
+    """Read a pose file (SPEC.md); extra columns are ignored.
+
+    **Returns:** `{"motor_angles": (K, 6) rad, "positions": (K, 3) m, "quaternions": (K, 4) or None}`.
+    Raises `ValueError` naming missing columns, non-numeric cells and NaN rows (data rows are
+    numbered from 1; line = row + 1 because of the header).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"pose file {path} does not exist")
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows:
+        raise ValueError(f"{path}: empty file; expected a header with {', '.join(POSE_COLUMNS)}")
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in POSE_COLUMNS if c not in header]
+    if missing:
+        raise ValueError(f"{path}: missing columns {missing}; expected {list(POSE_COLUMNS)} "
+                         f"(optional {list(QUAT_COLUMNS)}), found {header}")
+    has_quat = all(c in header for c in QUAT_COLUMNS)
+    partial = [c for c in QUAT_COLUMNS if c in header]
+    if partial and not has_quat:
+        raise ValueError(f"{path}: orientation needs all of {list(QUAT_COLUMNS)}, found only {partial}")
+    wanted = list(POSE_COLUMNS) + (list(QUAT_COLUMNS) if has_quat else [])
+    idx = [header.index(c) for c in wanted]
+    data = np.full((len(rows) - 1, len(wanted)), np.nan)
+    for r, row in enumerate(rows[1:]):
+        for j, i in enumerate(idx):
+            cell = row[i].strip() if i < len(row) else ""
+            if cell == "":
+                continue  # an empty cell counts as NaN
+            try:
+                data[r, j] = float(cell)
+            except ValueError:
+                raise ValueError(f"{path}: row {r + 1} (line {r + 2}), column {wanted[j]}: expected a "
+                                 f"number, found {cell!r}") from None
+    if data.shape[0] == 0:
+        raise ValueError(f"{path}: no data rows after the header")
+    bad = np.nonzero(~np.isfinite(data).all(1))[0]
+    if bad.size:
+        rows_txt = ", ".join(str(b + 1) for b in bad[:20]) + (" …" if bad.size > 20 else "")
+        raise ValueError(f"{path}: NaN or empty cells in data rows {rows_txt} (row 1 = line 2); "
+                         "remove or re-measure these poses")
+    return {"motor_angles": np.deg2rad(data[:, :6]), "positions": data[:, 6:9],
+            "quaternions": data[:, 9:13] if has_quat else None}

@@ -1,0 +1,84 @@
+"""Virtual test bench, trajectory runs (SPEC.md): the motor follows a commanded `theta(t)`
+exactly, the elastic model of the as-built robot is integrated finely, and the optical tracker
+reports the marker position along the path with Gaussian noise."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from ._description import read_description
+from ._kinematics import point_position
+from ._robot import Robot
+from ._simulate import simulate
+
+THETA_COLUMNS = [f"theta{i}_deg" for i in range(1, 7)]
+TRAJECTORY_COLUMNS = ["t_s", *THETA_COLUMNS, "x_m", "y_m", "z_m"]
+
+
+def tracker_defaults() -> tuple[np.ndarray, float]:
+    """Marker offset in the flange frame [m] and tracker noise std per axis [m] of `racer7.toml`."""
+    sensors = read_description()["sensors"]
+    return np.asarray(sensors["tracker_marker_offset_m"]), float(sensors["tracker_position_noise_m"])
+
+
+def trajectory_run(
+    robot: Robot,
+    key: PRNGKeyArray,
+    t: Float[Array, "N"],
+    theta: Float[Array, "N 6"],
+    thetad: Float[Array, "N 6"],
+    thetadd: Float[Array, "N 6"],
+    marker: Float[Array, "3"],
+    noise_m: float,
+    substeps: int = 10,
+) -> tuple[Float[Array, "N 3"], Float[Array, "N 6"]]:
+    """Tracker positions (N, 3) [m] of the marker and the true link angles (N, 6) of `robot`
+    following the commanded motor trajectory (direction-dependent gear sets, rest at start)."""
+    q, _ = simulate(robot, t, theta, thetad, thetadd, substeps=substeps, directional=True)
+    p = point_position(robot, q, jnp.asarray(marker))
+    return p + noise_m * jax.random.normal(key, p.shape), q
+
+
+def write_trajectory_csv(path: str | Path, t, theta, positions) -> None:
+    """Write a trajectory run: `t_s, theta1_deg … theta6_deg, x_m, y_m, z_m`."""
+    data = np.column_stack([np.asarray(t), np.rad2deg(np.asarray(theta)), np.asarray(positions)])
+    np.savetxt(path, data, delimiter=",", header=",".join(TRAJECTORY_COLUMNS), comments="", fmt="%.12g")
+
+
+def read_csv_columns(path: str | Path, required: list[str]) -> dict[str, np.ndarray]:
+    """Read a measurement CSV with a header; return the `required` columns (extra ones ignored).
+
+    Raises a ValueError naming the file, missing columns, or rows with non-numeric/NaN values."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    with path.open() as f:
+        header = [h.strip() for h in f.readline().strip().split(",")]
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {missing}; found {header}; expected {required}")
+    raw = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float, ndmin=2)
+    if raw.shape[0] == 0:
+        raise ValueError(f"{path}: no data rows")
+    data = raw[:, [header.index(c) for c in required]]
+    bad = np.nonzero(~np.all(np.isfinite(data), axis=1))[0]
+    if bad.size:
+        rows = (bad + 2).tolist()[:10]  # 1-based file lines, header is line 1
+        raise ValueError(f"{path}: non-numeric or NaN values in line(s) {rows} of columns {required}")
+    return {c: data[:, i] for i, c in enumerate(required)}
+
+
+def read_trajectory_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Read a trajectory run: times [s] (N,), motor angles [rad] (N, 6), positions [m] (N, 3)."""
+    cols = read_csv_columns(path, TRAJECTORY_COLUMNS)
+    t = cols["t_s"]
+    if np.any(np.diff(t) <= 0):
+        line = int(np.nonzero(np.diff(t) <= 0)[0][0]) + 3
+        raise ValueError(f"{path}: t_s must increase strictly; it does not at line {line}")
+    theta = np.deg2rad(np.column_stack([cols[c] for c in THETA_COLUMNS]))
+    return t, theta, np.column_stack([cols["x_m"], cols["y_m"], cols["z_m"]])

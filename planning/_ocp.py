@@ -1,0 +1,169 @@
+"""`solve_ocp`: the optimal control problem of eq. 4.3 solved by the augmented-Lagrangian
+method of `_al_solver` on its block-tridiagonal structure."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import jaxrobot as jr
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+
+from ._al_solver import (
+    STATUS_INNER_FAILED,
+    STATUS_MAX_ITERATIONS,
+    STATUS_NONFINITE,
+    STATUS_SUCCESSFUL,
+    ALConfig,
+    augmented_lagrangian,
+)
+from ._transcription import Cost, boundary_states, max_violation, objective, ocp_problem, variable_scale
+from ._transcription import warm_start as default_warm_start
+
+
+class _Results:
+    """Status codes of `OCPSolution.status`; `RESULTS[code]` is the message (as `optx.RESULTS`)."""
+
+    successful = STATUS_SUCCESSFUL
+    max_iterations = STATUS_MAX_ITERATIONS
+    inner_failed = STATUS_INNER_FAILED
+    nonfinite = STATUS_NONFINITE
+    _messages = {
+        STATUS_SUCCESSFUL: "converged: constraint violation and stationarity below their tolerances",
+        STATUS_MAX_ITERATIONS: "not converged: the most outer iterations were reached "
+        "(raise ALConfig.max_outer_iterations or loosen the tolerances)",
+        STATUS_INNER_FAILED: "not converged: the Gauss-Newton/LM inner solve found no descent step even at the "
+        "largest damping (check the warm start and the limits)",
+        STATUS_NONFINITE: "not converged: NaN or inf in the iterates (check the robot and q_d)",
+    }
+
+    def __getitem__(self, code) -> str:
+        return self._messages[int(code)]
+
+    def __repr__(self) -> str:
+        return f"RESULTS({self._messages})"
+
+
+RESULTS = _Results()
+"""Status codes and messages of `solve_ocp`."""
+
+
+class OCPSolution(eqx.Module):
+    """Result of `solve_ocp`; every field gains the leading axes of a `vmap`."""
+
+    x: Float[Array, "N 24"]
+    """Optimal states `[q, qd, theta, thetad]` [rad, rad/s]."""
+    u: Float[Array, "N 6"]
+    """Optimal motor accelerations `thetadd` [rad/s^2]."""
+    status: Int[Array, ""]
+    """`RESULTS` code; 0 (`RESULTS.successful`) only when converged."""
+    iterations: Int[Array, ""]
+    """Outer (multiplier/penalty) iterations."""
+    inner_iterations: Int[Array, ""]
+    """Gauss-Newton/LM steps in total."""
+    objective: Float[Array, ""]
+    """Cost of eq. 4.3a (or the chosen variant) [rad^2]."""
+    max_constraint_violation: Float[Array, ""]
+    """Largest violation of eq. 4.3b-j in scaled units (`_transcription` docstring)."""
+    max_constraint_violation_unscaled: Float[Array, ""]
+    """The same in SI units (rad, rad/s, rad/s^2)."""
+    stationarity: Float[Array, ""]
+    """Largest scaled gradient of the Lagrangian."""
+    multipliers: Float[Array, "Nm1 24"]
+    """Multipliers of the scaled defects."""
+    history_objective: Float[Array, " M"]
+    """Cost after each outer iteration (NaN after the last)."""
+    history_violation: Float[Array, " M"]
+    """Largest scaled violation after each outer iteration."""
+    history_penalty: Float[Array, " M"]
+    """Penalty `rho` used in each outer iteration."""
+    history_stationarity: Float[Array, " M"]
+    """Stationarity after each outer iteration."""
+
+    @property
+    def converged(self) -> Bool[Array, "..."]:
+        """True where the solve converged (`status == RESULTS.successful`)."""
+        return self.status == RESULTS.successful
+
+    @property
+    def q(self) -> Float[Array, "N 6"]:
+        """Link angles [rad]."""
+        return self.x[..., :6]
+
+    @property
+    def theta(self) -> Float[Array, "N 6"]:
+        """Motor angles [rad]."""
+        return self.x[..., 12:18]
+
+    @property
+    def thetad(self) -> Float[Array, "N 6"]:
+        """Motor rates [rad/s]."""
+        return self.x[..., 18:24]
+
+
+@eqx.filter_jit
+def _solve(problem, x0, u0, config: ALConfig) -> OCPSolution:
+    sz = variable_scale(problem)
+    res = augmented_lagrangian(problem, jnp.concatenate([x0, u0], -1) / sz, config)
+    z = res.y * sz
+    x, u = z[:, :24], z[:, 24:]
+    return OCPSolution(
+        x=x, u=u, status=res.status, iterations=res.iterations, inner_iterations=res.inner_iterations,
+        objective=objective(problem, x, u), max_constraint_violation=max_violation(problem, x, u),
+        max_constraint_violation_unscaled=max_violation(problem, x, u, scaled=False),
+        stationarity=res.stationarity, multipliers=res.multipliers, history_objective=res.history_objective,
+        history_violation=res.history_violation, history_penalty=res.history_penalty,
+        history_stationarity=res.history_stationarity,
+    )
+
+
+def solve_ocp(
+    robot: jr.Robot,
+    q_d: Float[Array, "N 6"],
+    ts: float | Float[Array, ""],
+    nu: float | Float[Array, ""] = 1e-14,
+    cost: Cost = "thesis",
+    config: ALConfig = ALConfig(),
+    warm_start: tuple[Float[Array, "N 24"], Float[Array, "N 6"]] | None = None,
+    u_ref: Float[Array, "N 6"] | None = None,
+) -> OCPSolution:
+    """Optimal motor accelerations that make the elastic robot follow `q_d` (eq. 4.3).
+
+    **Arguments:**
+    - `robot`: planning model (cw gear set, eq. 4.1).
+    - `q_d`: desired link angles (N, 6) [rad] at `t_k = k T_s` (e.g. the IK of eq. 4.5).
+    - `ts`: sample time `T_s` [s].
+    - `nu`: weighting factor of eq. 4.3a (> 0).
+    - `cost`: `"thesis"` (eq. 4.3a), `"jerk"` (`nu ||u_{k+1} - u_k||^2`) or `"flat"`
+      (`nu ||u - u_ref||^2`).
+    - `config`: `ALConfig` (static).
+    - `warm_start`: `(x (N, 24), u (N, 6))`, e.g. from `jr.flat_inverse`; default: the flat
+      relation on finite differences of `q_d` (`_transcription.warm_start`). Its end nodes
+      are replaced by the boundary values of eq. 4.3e-j.
+    - `u_ref`: reference of the `"flat"` cost; default the warm start's `u`.
+
+    **Returns:** `OCPSolution`; check `status`/`converged` (a solve that did not converge is
+    never reported as successful). `jit`/`vmap` over `nu`, `q_d` or `robot` work (range
+    checks then apply only to concrete inputs).
+
+    **Raises:** `ValueError` naming the field for bad inputs (shapes, NaN, `ts <= 0`, `nu <= 0`).
+    """
+    if not isinstance(config, ALConfig):
+        raise ValueError(f"config: expected an ALConfig, found {type(config).__name__}")
+    problem = ocp_problem(robot, q_d, ts, nu, cost, u_ref)
+    n = problem.n_nodes
+    if warm_start is None:
+        x0, u0 = default_warm_start(problem)
+    else:
+        x0, u0 = warm_start
+        if np.shape(x0) != (n, 24) or np.shape(u0) != (n, 6):
+            raise ValueError(f"warm_start: expected (x, u) of shapes ({n}, 24), ({n}, 6), "
+                             f"found {np.shape(x0)}, {np.shape(u0)}")
+        x0, u0 = jnp.asarray(x0, float), jnp.asarray(u0, float)
+        xa, xb = boundary_states(problem)
+        x0 = x0.at[0].set(xa).at[-1].set(xb)
+        u0 = u0.at[0].set(0.0).at[-1].set(0.0)
+    if cost == "flat" and u_ref is None:
+        problem = eqx.tree_at(lambda p: p.u_ref, problem, u0)
+    return _solve(problem, x0, u0, config)
+

@@ -1,0 +1,265 @@
+"""Transcription of the optimal control problem, thesis eq. 4.3, and its scaling.
+
+Decision variables: one node `z_k = [x_k, u_k]` (30) per sample, `x = [q, qd, theta, thetad]`
+(eq. 4.1), `u = thetadd` [motor rad/s^2], k = 0 ... N-1.
+
+- cost (eq. 4.3a) `sum_k ||q_k - q_d,k||^2 + nu ||u_k||^2` over all N nodes (no T_s factor);
+  variants `"jerk"` `sum_k ||q_k - q_d,k||^2 + nu sum_k ||u_{k+1} - u_k||^2` and `"flat"`
+  `sum_k ||q_k - q_d,k||^2 + nu ||u_k - u_ref,k||^2` (SPEC.md "Facts": ν on the whole `u`
+  biases the tracking, these two do not);
+- trapezoidal defects (eq. 4.3b) `x_{k+1} - x_k - T_s/2 (f_k + f_{k+1})` of
+  `jr.planning_dynamics`;
+- bounds (eq. 4.3c-d): link angles `[q_min, q_max]`, link rates `|qd| <= qd_max`, motor
+  angles `u0 [q_min, q_max]`, motor rates `|thetad| <= u0 qd_max`, motor accelerations
+  `|u| <= u0 qdd_max`;
+- boundary conditions (eq. 4.3e-j): both end nodes are fixed, `q = q_d`, `qd = 0`,
+  `theta = Xi(q + kappa^{-1}(g(q)))` (SPEC.md "Static equilibrium", `jr.static_equilibrium`),
+  `thetad = 0`, `u = 0`.
+
+Scaling (what the solver sees). Angles are measured in mrad of link angle and time in
+samples: `q / s`, `qd T_s / s`, `theta / (u0 s)`, `thetad T_s / (u0 s)`, `u T_s^2 / (u0 s)`
+with `s = ANGLE_SCALE`; each defect row is scaled like its state and the cost is divided by
+`s^2`. Then every defect coefficient is O(1) (1, 1/2, or the stiffness term
+`T_s^2 k / D << 1`) and the weight of the control is `nu u0^2 / T_s^4` (64 at ν = 1e-14,
+u0 = 80), so the alternating control mode, which the defects see only through
+`u_k + u_{k+1}`, is held by an O(10-100) weight instead of 1e-14. "Scaled" violations are
+in these units (1e-9 scaled = 1e-12 rad on a link-angle defect).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jaxrobot as jr
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+ANGLE_SCALE = 1e-3
+"""Angle unit of the scaled problem [rad] (mrad)."""
+
+COSTS = ("thesis", "jerk", "flat")
+"""Cost variants: eq. 4.3a, a jerk penalty, a penalty on the deviation from `u_ref`."""
+
+Cost = Literal["thesis", "jerk", "flat"]
+
+
+class OCPProblem(eqx.Module):
+    """One instance of eq. 4.3: robot, sampled reference, sample time, weight and cost."""
+
+    robot: jr.Robot
+    """The planning model (cw gear set, eq. 4.1)."""
+    q_d: Float[Array, "N 6"]
+    """Desired link angles at the N nodes [rad]."""
+    ts: Float[Array, ""]
+    """Sample time `T_s` [s]."""
+    nu: Float[Array, ""]
+    """Weighting factor `nu` [rad^2 / (rad/s^2)^2 of the motor]."""
+    u_ref: Float[Array, "N 6"]
+    """Reference motor acceleration of the `"flat"` cost [rad/s^2] (zeros otherwise)."""
+    cost: str = eqx.field(static=True, default="thesis")
+    """One of `COSTS`."""
+
+    @property
+    def n_nodes(self) -> int:
+        return self.q_d.shape[-2]
+
+
+def _concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def ocp_problem(
+    robot: jr.Robot,
+    q_d: Float[Array, "N 6"],
+    ts: float | Float[Array, ""],
+    nu: float | Float[Array, ""] = 1e-14,
+    cost: Cost = "thesis",
+    u_ref: Float[Array, "N 6"] | None = None,
+) -> OCPProblem:
+    """Validate the inputs of eq. 4.3 and bundle them (before any compute).
+
+    **Arguments:** `q_d` (N, 6) desired link angles [rad] sampled every `ts` [s] (N >= 3);
+    `nu > 0`; `cost` in `COSTS`; `u_ref` (N, 6) [motor rad/s^2] for `cost="flat"`
+    (default: the quasi-static/flat warm start's `u`, see `warm_start`).
+
+    **Raises:** `ValueError` naming the field for wrong shapes, non-finite values, `ts <= 0`,
+    `nu <= 0` or an unknown cost. Traced values (under `jit`/`vmap`) are not range-checked.
+    """
+    if cost not in COSTS:
+        raise ValueError(f"cost: expected one of {COSTS}, found {cost!r}")
+    q_shape = np.shape(q_d)
+    if len(q_shape) != 2 or q_shape[1] != 6 or q_shape[0] < 3:
+        raise ValueError(f"q_d: expected desired link angles of shape (N, 6) with N >= 3 [rad], found shape {q_shape}")
+    if _concrete(q_d) and not np.all(np.isfinite(np.asarray(q_d))):
+        bad = np.argwhere(~np.isfinite(np.asarray(q_d)))[0]
+        raise ValueError(f"q_d: expected finite link angles [rad], found {np.asarray(q_d)[tuple(bad)]} at sample "
+                         f"{bad[0]}, joint {bad[1] + 1}")
+    for name, val in (("ts", ts), ("nu", nu)):
+        if np.shape(val) != ():
+            raise ValueError(f"{name}: expected a scalar, found shape {np.shape(val)} (vmap over it instead)")
+        if _concrete(val) and not (np.isfinite(val) and float(val) > 0):
+            unit = " [s]" if name == "ts" else ""
+            raise ValueError(f"{name}: expected a finite value > 0{unit}, found {float(val)}")
+    n = q_shape[0]
+    if u_ref is None:
+        u_ref = jnp.zeros((n, 6))
+    elif np.shape(u_ref) != (n, 6):
+        raise ValueError(f"u_ref: expected motor accelerations of shape ({n}, 6) [rad/s^2], found {np.shape(u_ref)}")
+    elif _concrete(u_ref) and not np.all(np.isfinite(np.asarray(u_ref))):
+        raise ValueError("u_ref: expected finite motor accelerations [rad/s^2], found NaN or inf")
+    return OCPProblem(robot=robot, q_d=jnp.asarray(q_d, float), ts=jnp.asarray(ts, float),
+                      nu=jnp.asarray(nu, float), u_ref=jnp.asarray(u_ref, float), cost=cost)
+
+
+# ----------------------------------------------------------------------------- eq. 4.3 as written
+
+
+def boundary_states(problem: OCPProblem) -> tuple[Float[Array, "24"], Float[Array, "24"]]:
+    """Fixed states of the first and last node (eq. 4.3e-i); `u` is 0 there (eq. 4.3j)."""
+
+    def rest(q):
+        z = jnp.zeros(6)
+        return jnp.concatenate([q, z, jr.static_equilibrium(problem.robot, q), z])
+
+    return rest(problem.q_d[0]), rest(problem.q_d[-1])
+
+
+def bounds(problem: OCPProblem) -> tuple[Float[Array, "30"], Float[Array, "30"]]:
+    """Lower and upper bounds of one node `[q, qd, theta, thetad, u]` (eq. 4.3c-d)."""
+    r = problem.robot
+    lower = jnp.concatenate([r.q_min, -r.qd_max, r.u0 * r.q_min, -r.u0 * r.qd_max, -r.u0 * r.qdd_max])
+    upper = jnp.concatenate([r.q_max, r.qd_max, r.u0 * r.q_max, r.u0 * r.qd_max, r.u0 * r.qdd_max])
+    return lower, upper
+
+
+def objective(problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6"]) -> Float[Array, ""]:
+    """The cost of eq. 4.3a (or its variant `problem.cost`), unscaled [rad^2]."""
+    track = jnp.sum((x[:, :6] - problem.q_d) ** 2)
+    if problem.cost == "jerk":
+        return track + problem.nu * jnp.sum((u[1:] - u[:-1]) ** 2)
+    if problem.cost == "flat":
+        return track + problem.nu * jnp.sum((u - problem.u_ref) ** 2)
+    return track + problem.nu * jnp.sum(u**2)
+
+
+def defects(problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6"]) -> Float[Array, "Nm1 24"]:
+    """Trapezoidal collocation defects `x_{k+1} - x_k - T_s/2 (f_k + f_{k+1})` (eq. 4.3b), unscaled."""
+    f = jr.planning_dynamics(problem.robot, x, u)
+    return x[1:] - x[:-1] - 0.5 * problem.ts * (f[1:] + f[:-1])
+
+
+def boundary_defects(problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6"]) -> Float[Array, "2 30"]:
+    """`[x, u]` of the first and last node minus their fixed values (eq. 4.3e-j), unscaled."""
+    x0, x1 = boundary_states(problem)
+    z = jnp.zeros(6)
+    return jnp.stack([jnp.concatenate([x[0] - x0, u[0] - z]), jnp.concatenate([x[-1] - x1, u[-1] - z])])
+
+
+def bound_violation(problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6"]) -> Float[Array, "N 30"]:
+    """Distance of every variable to its bounds (eq. 4.3c-d, 0 inside), unscaled."""
+    lower, upper = bounds(problem)
+    z = jnp.concatenate([x, u], -1)
+    return jnp.maximum(lower - z, 0.0) + jnp.maximum(z - upper, 0.0)
+
+
+# ----------------------------------------------------------------------------- scaling
+
+
+def variable_scale(problem: OCPProblem) -> Float[Array, "30"]:
+    """Unit of each scaled node variable: `[s, s/T_s, u0 s, u0 s/T_s, u0 s/T_s^2]`."""
+    s, ts, u0 = ANGLE_SCALE, problem.ts, problem.robot.u0
+    one = jnp.ones(6)
+    return jnp.concatenate([s * one, s / ts * one, s * u0, s * u0 / ts, s * u0 / ts**2])
+
+
+def defect_scale(problem: OCPProblem) -> Float[Array, "24"]:
+    """Unit of each scaled defect row (the unit of its state)."""
+    return variable_scale(problem)[:24]
+
+
+def max_violation(
+    problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6"], scaled: bool = True
+) -> Float[Array, ""]:
+    """Largest violation of eq. 4.3b-j (defects, bounds, boundary conditions), in scaled units
+    (module docstring) or unscaled (mixed SI units: rad, rad/s, rad/s^2)."""
+    sz = variable_scale(problem) if scaled else jnp.ones(30)
+    c = defects(problem, x, u) / sz[:24]
+    b = bound_violation(problem, x, u) / sz
+    e = boundary_defects(problem, x, u) / sz
+    return jnp.maximum(jnp.max(jnp.abs(c)), jnp.maximum(jnp.max(b), jnp.max(jnp.abs(e))))
+
+
+class ScaledQuadratic(eqx.Module):
+    """The cost in scaled variables `y` (N, 30): `sum_k w . (y_k - t_k)^2 + sum_k e . (y_{k+1} - y_k)^2`
+    equals `objective / ANGLE_SCALE^2`."""
+
+    node_weight: Float[Array, "30"]
+    node_target: Float[Array, "N 30"]
+    edge_weight: Float[Array, "30"]
+
+
+def scaled_cost(problem: OCPProblem) -> ScaledQuadratic:
+    """Weights and targets of the cost in scaled variables (see `ScaledQuadratic`)."""
+    sz = variable_scale(problem)
+    n = problem.n_nodes
+    w_u = problem.nu * sz[24:] ** 2 / ANGLE_SCALE**2  # nu u0^2 / T_s^4
+    zero6, zero18 = jnp.zeros(6), jnp.zeros(18)
+    target = jnp.zeros((n, 30)).at[:, :6].set(problem.q_d / sz[:6])
+    if problem.cost == "jerk":
+        node_w = jnp.concatenate([jnp.ones(6), zero18, zero6])
+        edge_w = jnp.concatenate([zero6, zero18, w_u])
+    else:
+        node_w = jnp.concatenate([jnp.ones(6), zero18, w_u])
+        edge_w = jnp.zeros(30)
+        if problem.cost == "flat":
+            target = target.at[:, 24:].set(problem.u_ref / sz[24:])
+    return ScaledQuadratic(node_weight=node_w, node_target=target, edge_weight=edge_w)
+
+
+def half_step_dynamics(problem: OCPProblem, y: Float[Array, "*n 30"]) -> Float[Array, "*n 24"]:
+    """`T_s/2 f(x, u)` in scaled units, so that a scaled defect is
+    `[I 0](y_{k+1} - y_k) - g_k - g_{k+1}`."""
+    sz = variable_scale(problem)
+    z = y * sz
+    f = jr.planning_dynamics(problem.robot, z[..., :24], z[..., 24:])
+    return 0.5 * problem.ts * f / sz[:24]
+
+
+def fixed_mask(problem: OCPProblem) -> Bool[Array, "N 30"]:
+    """True for the variables fixed by the boundary conditions (all of nodes 0 and N-1)."""
+    n = problem.n_nodes
+    return jnp.zeros((n, 30), bool).at[0].set(True).at[-1].set(True)
+
+
+# ----------------------------------------------------------------------------- warm start
+
+
+def _time_derivative(v: Float[Array, "N m"], ts: Float[Array, ""]) -> Float[Array, "N m"]:
+    """Second-order finite differences: central inside, one-sided at the ends."""
+    inner = (v[2:] - v[:-2]) / (2 * ts)
+    first = (-3 * v[0] + 4 * v[1] - v[2]) / (2 * ts)
+    last = (3 * v[-1] - 4 * v[-2] + v[-3]) / (2 * ts)
+    return jnp.concatenate([first[None], inner, last[None]])
+
+
+def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 24"], Float[Array, "N 6"]]:
+    """Initial guess from the samples `q_d` by the flat relation (SPEC.md, "Flat inverse"):
+    `theta = Xi(q_d + kappa^{-1}(D qdd_d + C qd_d + g))`, with `qd_d`, `qdd_d`, `thetad` and
+    `u = thetadd` from second-order finite differences of the samples (error O(T_s^2)); the two
+    end nodes take their boundary values (eq. 4.3e-j). For an exact warm start from a smooth
+    `q_d(t)`, pass `jr.flat_inverse` results to `solve_ocp(warm_start=...)` instead."""
+    r, q, ts = problem.robot, problem.q_d, problem.ts
+    qd = _time_derivative(q, ts)
+    qdd = _time_derivative(qd, ts)
+    tau = jr.inverse_dynamics(r, q, qd, qdd)
+    theta = jr.motor_angle(r, q + jr.elastic_deflection(r, tau))
+    thetad = _time_derivative(theta, ts)
+    u = _time_derivative(thetad, ts)
+    x = jnp.concatenate([q, qd, theta, thetad], -1)
+    x0, x1 = boundary_states(problem)
+    x = x.at[0].set(x0).at[-1].set(x1)
+    u = u.at[0].set(0.0).at[-1].set(0.0)
+    return x, u

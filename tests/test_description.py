@@ -1,0 +1,102 @@
+"""Robot description files: validation errors name the field; save/load round trip."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+import tomli_w
+
+import jaxrobot as jr
+
+BASE = jr.read_description()
+
+
+def _write(tmp_path, data):
+    path = tmp_path / "robot.toml"
+    path.write_text(tomli_w.dumps(data))
+    return path
+
+
+def _edit(path_keys, value):
+    data = copy.deepcopy(BASE)
+    node = data
+    for k in path_keys[:-1]:
+        node = node[k]
+    if value is _DELETE:
+        del node[path_keys[-1]]
+    else:
+        node[path_keys[-1]] = value
+    return data
+
+
+_DELETE = object()
+NAN = float("nan")
+
+CASES = {
+    "wrong length": (("kinematics", "a"), [0.15, 0.59, 0.13], r"kinematics\.a: expected shape \(6\)"),
+    "non-finite": (("kinematics", "d"), [0.43, NAN, 0, 0.684, 0, 0.1], r"kinematics\.d: expected finite numbers"),
+    "non-positive mass": (("links", "mass"), [40.0, 25.0, 0.0, 8.0, 3.0, 1.0],
+                          r"links\.mass\[2\] \(joint 3\): expected a positive value in kg"),
+    "inertia not positive definite": (("links", "inertia"),
+                                      [[1.2, 1.0, 1.0, 0.0, 0.0, 0.0], [0.3, 1.5, 1.5, 2.0, 0.0, 0.0]]
+                                      + BASE["links"]["inertia"][2:],
+                                      r"links\.inertia\[1\] \(link 2\): expected a positive definite inertia"),
+    "triangle inequality": (("links", "inertia"),
+                            [[1.2, 1.0, 1.0, 0.0, 0.0, 0.0], [0.1, 0.1, 1.5, 0.0, 0.0, 0.0]]
+                            + BASE["links"]["inertia"][2:],
+                            r"links\.inertia\[1\] \(link 2\): expected principal moments obeying the triangle"),
+    "non-monotone stiffness": (("stiffness", "k3"), [0.0, -4e10, 3e10, 0, 0, 0],
+                               r"stiffness \(joint 2\): expected a monotone kappa"),
+    "lower limit above upper": (("limits", "position_deg"),
+                                [[-165, 165], [155, -85], [-170, 0], [-210, 210], [-135, 135], [-270, 270]],
+                                r"limits\.position_deg\[1\] \(joint 2\): expected lower < upper"),
+    "missing section": (("motors",), _DELETE, r"motors: missing"),
+    "ripple lengths": (("gear", "joint2", "cw", "a"), [0.001], r"gear\.joint2\.cw: expected orders, a and b of equal"),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES), ids=list(CASES))
+def test_invalid_descriptions_are_rejected_with_the_field_named(tmp_path, case):
+    keys, value, message = CASES[case]
+    with pytest.raises(jr.RobotFileError, match=message):
+        jr.load_robot(_write(tmp_path, _edit(keys, value)))
+
+
+def test_unknown_key_gets_a_did_you_mean_hint(tmp_path):
+    data = copy.deepcopy(BASE)
+    data["kinematics"]["alfa"] = data["kinematics"].pop("alpha")
+    with pytest.raises(jr.RobotFileError, match=r"kinematics\.alfa: unknown key \(did you mean 'alpha'\?\)"):
+        jr.load_robot(_write(tmp_path, data))
+
+
+def test_invalid_toml_and_missing_file(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = \n")
+    with pytest.raises(jr.RobotFileError, match="not valid TOML"):
+        jr.load_robot(bad)
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        jr.load_robot(tmp_path / "absent.toml")
+
+
+@pytest.mark.parametrize("as_built", [False, True])
+def test_save_and_load_round_trip(tmp_path, as_built):
+    robot = jr.racer7(as_built=as_built)
+    path = tmp_path / "out.toml"
+    jr.save_robot(robot, path)
+    again = jr.load_robot(path)
+    for ours, theirs in zip(jax.tree.leaves(robot), jax.tree.leaves(again)):
+        np.testing.assert_allclose(ours, theirs, rtol=1e-15, atol=1e-15)
+    assert again.name == robot.name
+
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "racer7" / "racer7.toml"
+
+
+@pytest.mark.skipif(not SHARED.is_file(), reason="shared/racer7/racer7.toml is not beside the checkout")
+def test_package_data_equals_the_shared_racer7_file():
+    for ours, theirs in zip(jax.tree.leaves(jr.racer7()), jax.tree.leaves(jr.load_robot(SHARED))):
+        np.testing.assert_array_equal(ours, theirs)
