@@ -29,7 +29,7 @@ def tracker_defaults() -> tuple[np.ndarray, float]:
 def trajectory_run(
     robot: Robot,
     key: PRNGKeyArray,
-    t: Float[Array, "N"],
+    t: Float[Array, " N"],
     theta: Float[Array, "N 6"],
     thetad: Float[Array, "N 6"],
     thetadd: Float[Array, "N 6"],

@@ -25,23 +25,26 @@ def configure(parser) -> None:
     parser.add_argument("--as-built", action="store_true", help="the test bench's as-built robot")
 
 
-def summary(robot) -> dict:
-    """Numbers shown by `jaxrobot info` (SI units, deflections in µm)."""
+def _numbers(robot, q):
     from ._dynamics import gravity_torque, mass_matrix
     from ._elasticity import elastic_deflection
     from ._gear import motor_angle
     from ._kinematics import forward_kinematics
     from ._statics import rest_link_angles
 
-    q = jnp.deg2rad(jnp.asarray(list(POSES_DEG.values()), float))
     q_rest = rest_link_angles(robot, motor_angle(robot, q))  # rigid command theta = Xi(q)
-    sag = jnp.linalg.norm(forward_kinematics(robot, q_rest)[..., :3, 3] - forward_kinematics(robot, q)[..., :3, 3], axis=-1)
+    p = forward_kinematics(robot, jnp.concatenate([q_rest, q]))[..., :3, 3]
+    sag = jnp.linalg.norm(p[: len(q)] - p[len(q):], axis=-1)
     x = elastic_deflection(robot, gravity_torque(robot, q))
-    stiffness = robot.k1 + 3 * robot.k3 * x**2
-    d = mass_matrix(robot, q)
-    lam = jnp.linalg.eigvals(jnp.linalg.solve(d, jax.vmap(jnp.diag)(stiffness))).real
-    freq = jnp.sqrt(jnp.sort(lam, -1)) / (2 * jnp.pi)
-    home = forward_kinematics(robot, jnp.zeros(6))
+    stiffness = jax.vmap(jnp.diag)(robot.k1 + 3 * robot.k3 * x**2)
+    lam = jnp.linalg.eigvals(jnp.linalg.solve(mass_matrix(robot, q), stiffness)).real
+    return sag, jnp.sqrt(jnp.sort(lam, -1)) / (2 * jnp.pi), forward_kinematics(robot, jnp.zeros(6))
+
+
+def summary(robot) -> dict:
+    """Numbers shown by `jaxrobot info` (SI units, deflections in µm)."""
+    q = jnp.deg2rad(jnp.asarray(list(POSES_DEG.values()), float))
+    sag, freq, home = jax.jit(_numbers)(robot, q)
     return {
         "name": robot.name,
         "home_flange_position_m": np.asarray(home[:3, 3]),

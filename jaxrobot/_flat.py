@@ -8,7 +8,7 @@ the warm start of the optimal control problem.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -25,7 +25,7 @@ def _derivative(fn: Callable) -> Callable:
 
 
 def flat_inverse(
-    robot: Robot, q_d: Callable[[Float[Array, ""]], Float[Array, "6"]], t: Float[Array, "N"]
+    robot: Robot, q_d: Callable[[Float[Array, ""]], Float[Array, "6"]], t: Float[Array, " N"]
 ) -> tuple[Float[Array, "N 6"], Float[Array, "N 6"], Float[Array, "N 6"]]:
     """Motor angles, rates and accelerations `(theta, thetad, thetadd)` at times `t` that make
     the elastic model follow `q_d` exactly (cw gear set, as the planning model).

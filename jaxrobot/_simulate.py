@@ -44,7 +44,7 @@ def _hermite_weights(s: np.ndarray) -> np.ndarray:
 
 def simulate(
     robot: Robot,
-    t: Float[Array, "N"],
+    t: Float[Array, " N"],
     theta: Float[Array, "N 6"],
     thetad: Float[Array, "N 6"],
     thetadd: Float[Array, "N 6"],

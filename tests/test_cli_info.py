@@ -1,0 +1,43 @@
+"""`jaxrobot info`: the numbers it prints, checked against a linearised computation."""
+
+from __future__ import annotations
+
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxrobot as jr
+from jaxrobot._cli import main
+
+
+def test_info_json_summary(capsys):
+    assert main(["info", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    robot = jr.racer7()
+    np.testing.assert_allclose(out["home_flange_position_m"], [0.02, 0.0, 1.804], atol=1e-12)
+    for name, row in out["poses"].items():
+        q = jnp.deg2rad(jnp.asarray(row["q_deg"], float))
+        # first order: the flange moves by J_v dq with dq = -kappa^-1(g(q)) (the gravity deflection)
+        dq = -jr.elastic_deflection(robot, jr.gravity_torque(robot, q))
+        linear = float(jnp.linalg.norm(jr.geometric_jacobian(robot, q)[:3] @ dq)) * 1e6
+        assert row["static_deflection_um"] == pytest.approx(linear, rel=0.01), name
+        assert 1.0 < row["lowest_eigenfrequency_hz"] < row["highest_eigenfrequency_hz"] < 2000.0
+
+
+def test_every_command_has_help(capsys):
+    from jaxrobot._cli import _commands
+
+    for name in _commands():
+        with pytest.raises(SystemExit) as exit_info:
+            main([name, "--help"])
+        assert exit_info.value.code == 0
+        assert "--json" in capsys.readouterr().out
+
+
+def test_info_reports_a_bad_model_file(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "x"\n')
+    assert main(["info", "--model", str(bad)]) == 2
+    assert "gravity: missing" in capsys.readouterr().err
