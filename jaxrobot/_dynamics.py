@@ -7,6 +7,8 @@ All functions broadcast over leading batch axes of `robot` and the states.
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
@@ -14,91 +16,193 @@ from jaxtyping import Array, Bool, Float
 from ._batch import unbatched
 from ._elasticity import elastic_deflection, elastic_torque
 from ._gear import gear_output, gear_ratio, motor_angle
-from ._kinematics import joint_rotation_translation, link_frames
 from ._robot import Robot
 
+# Batch-last internals: the rigid-body terms below keep the state batch as the LAST axis
+# ((6, 3, N) etc.), so XLA's CPU loops run over contiguous states and vectorise, and they
+# process large batches in chunks of `_CHUNK` states (lax.map) so that the intermediates of a
+# chunk stay in cache. Small products are written out as sums of elementwise products: they
+# fuse into one loop also under `vmap`, where tiny batched `matmul`/`einsum` become separate dot
+# kernels and `jnp.sum` over a size-3 axis becomes a slow reduction.
+_CHUNK = 256
+"""States per chunk of the batched rigid-body terms (measured best at 125-500 on CPU)."""
 
-def _com_jacobians(robot: Robot, q: Float[Array, "*b 6"]):
-    """Translational `Jv` (..., 6 links, 3, 6 joints) and rotational `Jw` Jacobians of the
-    link centres of mass and the link rotations `R` (..., 6, 3, 3), world axes."""
-    frames = link_frames(robot, q)
-    rot, org = frames[..., :3, :3], frames[..., :3, 3]
-    base = jnp.broadcast_to(robot.base, frames.shape[:-3] + (4, 4))
-    # joint j turns about z of frame j-1 through its origin
-    axes = jnp.concatenate([base[..., None, :3, 2], rot[..., :-1, :, 2]], -2)  # (..., 6, 3)
-    pivots = jnp.concatenate([base[..., None, :3, 3], org[..., :-1, :]], -2)
-    com = org + jnp.einsum("...ij,...j->...i", rot, robot.com)  # (..., 6, 3)
-    lever = com[..., :, None, :] - pivots[..., None, :, :]  # (..., link, joint, 3)
-    moves = jnp.tril(jnp.ones((6, 6)))[..., None]  # joint j moves link i if j <= i
-    jv = jnp.cross(axes[..., None, :, :], lever) * moves
-    jw = jnp.broadcast_to(axes[..., None, :, :], jv.shape) * moves
-    return jnp.swapaxes(jv, -1, -2), jnp.swapaxes(jw, -1, -2), rot
+
+def _mm(a, b):  # (..., 3, 3, N) @ (..., 3, 3, N)
+    return sum(a[..., :, k, None, :] * b[..., None, k, :, :] for k in range(3))
+
+
+def _mv(a, v):  # (..., 3, 3, N) @ (..., 3, N)
+    return sum(a[..., :, k, :] * v[..., None, k, :] for k in range(3))
+
+
+def _mtv(a, v):  # (..., 3, 3, N)^T @ (..., 3, N)
+    return sum(a[..., k, :, :] * v[..., None, k, :] for k in range(3))
+
+
+def _cross(u, v):  # (..., 3, N) x (..., 3, N)
+    u0, u1, u2 = u[..., 0, :], u[..., 1, :], u[..., 2, :]
+    v0, v1, v2 = v[..., 0, :], v[..., 1, :], v[..., 2, :]
+    return jnp.stack([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0], -2)
+
+
+def _dot(u, v):  # (..., 3, N) . (..., 3, N)
+    return u[..., 0, :] * v[..., 0, :] + u[..., 1, :] * v[..., 1, :] + u[..., 2, :] * v[..., 2, :]
+
+
+def _rot(t, axis: int):  # (..., N) angles -> (..., 3, 3, N) rotations about x, y or z
+    c, s = jnp.cos(t), jnp.sin(t)
+    o, z = jnp.ones_like(c), jnp.zeros_like(c)
+    rows = ([[o, z, z], [z, c, -s], [z, s, c]], [[c, z, s], [z, o, z], [-s, z, c]],
+            [[c, -s, z], [s, c, z], [z, z, o]])[axis]
+    return jnp.stack([jnp.stack(r, -2) for r in rows], -3)
+
+
+def _suffix(x):  # sum over links k >= j (leading link axis)
+    return jnp.flip(jnp.cumsum(jnp.flip(x, 0), 0), 0)
+
+
+def _batch_last(fn, robot: Robot, *vecs):
+    """`fn(robot_t, *vecs_t)` over the broadcast batch of `robot` and `vecs` (..., 6), with every
+    array batch-last (robot fields (core..., 1) for one robot, (core..., n) for a fleet; vectors
+    (6, n)), in chunks of `_CHUNK` states. `fn` returns a tuple of (core..., n) arrays; the
+    result is that tuple with the batch moved back to the front."""
+    rb = robot.a.shape[:-1]
+    batch = jnp.broadcast_shapes(rb, *(v.shape[:-1] for v in vecs))
+    n = math.prod(batch)
+    flat = lambda x, core: jnp.broadcast_to(x, batch + core).reshape((n,) + core)  # noqa: E731
+    vecs_t = [flat(v, v.shape[-1:]).T for v in vecs]
+    fleet = bool(rb)
+    robot_t = jax.tree.map(lambda x: jnp.moveaxis(flat(x, x.shape[len(rb):]), 0, -1) if fleet else x[..., None],
+                           robot)
+    if n <= _CHUNK:
+        out = fn(robot_t, *vecs_t)
+    else:
+        m = -(-n // _CHUNK)
+        split = lambda x: jnp.moveaxis(  # noqa: E731
+            jnp.pad(x, [(0, 0)] * (x.ndim - 1) + [(0, m * _CHUNK - n)], mode="edge")
+            .reshape(x.shape[:-1] + (m, _CHUNK)), -2, 0)
+        chunks = (jax.tree.map(split, robot_t) if fleet else None, [split(v) for v in vecs_t])
+        out = jax.lax.map(lambda c: fn(c[0] if fleet else robot_t, *c[1]), chunks)
+        out = tuple(jnp.moveaxis(o, 0, -2).reshape(o.shape[1:-1] + (m * _CHUNK,))[..., :n] for o in out)
+    return tuple(jnp.moveaxis(o, -1, 0).reshape(batch + o.shape[:-1]) for o in out)
+
+
+def _joints_t(robot, q_t):
+    """Rotation (6, 3, 3, N) and origin (6, 3, N) of frame i in frame i-1 (eq. 2.2-2.3), batch last."""
+    rz = _rot(q_t + robot.offset, 2)
+    r_loc = _mm(rz, _mm(_rot(robot.alpha, 0), _rot(robot.beta, 1)))
+    p_loc = _mv(rz, jnp.stack([robot.a, jnp.zeros_like(robot.a), robot.d], -2))
+    return r_loc, p_loc
+
+
+def _frames_t(robot, q_t):
+    """World rotations (6, 3, 3, N) and origins (6, 3, N) of frames 1..6, and the joint axes and
+    pivots (6, 3, N) (z axis and origin of frames 0..5), batch last."""
+    r_loc, p_loc = _joints_t(robot, q_t)
+    shape = q_t.shape[-1:]
+    base_r = jnp.broadcast_to(robot.base[:3, :3], (3, 3) + jnp.broadcast_shapes(robot.base.shape[-1:], shape))
+    base_p = jnp.broadcast_to(robot.base[:3, 3], base_r.shape[1:])
+
+    def step(carry, x):
+        r, p = carry
+        r_new, p_new = _mm(r, x[0]), p + _mv(r, x[1])
+        return (r_new, p_new), (r_new, p_new)
+
+    _, (rot, org) = jax.lax.scan(step, (base_r, base_p), (r_loc, p_loc))
+    axes = jnp.concatenate([base_r[None, :, 2], rot[:-1, :, 2]], 0)
+    pivots = jnp.concatenate([base_p[None], org[:-1]], 0)
+    return rot, org, axes, pivots
+
+
+def _subtrees_t(robot, q_t):
+    """Joint axes `a_j`, pivots `p_j`, and per subtree j (links j..6): total mass `M_j` (6, N),
+    first moment `s_j = sum m_k c_k` (6, 3, N) and inertia about the world origin (6, 3, 3, N)."""
+    rot, org, axes, pivots = _frames_t(robot, q_t)
+    com = org + _mv(rot, robot.com)
+    mass = robot.mass[:, None]
+    i_world = _mm(_mm(rot, robot.inertia), jnp.swapaxes(rot, -3, -2))
+    j_origin = i_world + mass[:, None] * (
+        _dot(com, com)[:, None, None] * jnp.eye(3)[..., None] - com[:, :, None] * com[:, None, :])
+    return axes, pivots, _suffix(robot.mass), _suffix(mass * com), _suffix(j_origin)
+
+
+def _mass_matrix_t(robot, q_t):
+    """`D(q)` (6, 6, N) by composite rigid bodies in world axes: column j is the momentum of
+    subtree j turning at unit rate about joint j, `D_ij = a_i . (h_j - p_i x l_j)` for i <= j,
+    with `l_j = a_j x (s_j - M_j p_j)`, `h_j = J_j a_j - s_j x (a_j x p_j)` (equals eq. 2.16)."""
+    a, p, m, s, j = _subtrees_t(robot, q_t)
+    lin = _cross(a, s - m[:, None] * p)
+    ang = _mv(j, a) - _cross(s, _cross(a, p))
+    t = _dot(a[:, None], ang[None] - _cross(p[:, None], lin[None]))
+    d = jnp.where(jnp.triu(jnp.ones((6, 6), bool))[..., None], t, jnp.swapaxes(t, 0, 1))
+    return (d,)
+
+
+def _gravity_t(robot, q_t):
+    """`g_i = -a_i . ((s_i - M_i p_i) x gravity)` (eq. 2.19-2.20 summed over the subtree of joint i)."""
+    a, p, m, s, _ = _subtrees_t(robot, q_t)
+    lever = s - m[:, None] * p
+    return (-_dot(a, _cross(lever, jnp.broadcast_to(robot.gravity, lever.shape[1:]))),)
+
+
+def _rnea_t(robot, q_t, qd_t, qdd_t, with_gravity: bool):
+    """Recursive Newton-Euler in the link frames, batch last: `D qdd + C qd` (+ `g` if asked)."""
+    r_loc, p_loc = _joints_t(robot, q_t)
+    shape = (3,) + jnp.broadcast_shapes(q_t.shape[-1:], qd_t.shape[-1:], qdd_t.shape[-1:])
+    ez = jnp.array([0.0, 0.0, 1.0])[:, None]
+    zero = jnp.zeros(shape)
+    acc0 = -_mtv(robot.base[:3, :3], robot.gravity) if with_gravity else jnp.zeros((3, 1))
+
+    def forward(carry, x):
+        w, dw, acc = carry  # of link i-1 in frame i-1
+        r_i, p_i, qd_i, qdd_i, c_i, i_i, m_i = x
+        w_par = w + qd_i * ez
+        dw_par = dw + qdd_i * ez + _cross(w, qd_i * ez)
+        acc_par = acc + _cross(dw_par, p_i) + _cross(w_par, _cross(w_par, p_i))
+        w_i, dw_i, acc_i = _mtv(r_i, w_par), _mtv(r_i, dw_par), _mtv(r_i, acc_par)
+        acc_c = acc_i + _cross(dw_i, c_i) + _cross(w_i, _cross(w_i, c_i))
+        moment = _mv(i_i, dw_i) + _cross(w_i, _mv(i_i, w_i))
+        return (w_i, dw_i, acc_i), (m_i * acc_c, moment)
+
+    xs = (r_loc, p_loc, qd_t[:, None], qdd_t[:, None], robot.com, robot.inertia, robot.mass[:, None])
+    _, (force, moment) = jax.lax.scan(forward, (zero, zero, zero + acc0), xs)
+
+    def backward(carry, x):
+        f_next, m_next, r_next = carry  # link i+1 in frame i+1; r_next = R_{i+1}
+        f_i, n_i, c_i, rl_i, r_i = x
+        f = f_i + _mv(r_next, f_next)
+        m = n_i + _cross(c_i, f_i) + _mv(r_next, m_next) + _cross(rl_i, f)  # about o_{i-1}, frame i
+        return (f, m, r_i), _dot(r_i[2], m)  # row 2 of R_i: z_{i-1} in frame i
+
+    eye = jnp.broadcast_to(jnp.eye(3)[..., None], (3,) + shape)
+    com = jnp.broadcast_to(robot.com, force.shape[:1] + jnp.broadcast_shapes(robot.com.shape[1:], shape))
+    _, tau = jax.lax.scan(backward, (zero, zero, eye), (force, moment, com, _mtv(r_loc, p_loc), r_loc),
+                          reverse=True)
+    return (tau,)
 
 
 def mass_matrix(robot: Robot, q: Float[Array, "*b 6"]) -> Float[Array, "*b 6 6"]:
-    """Link mass matrix `D(q) = sum_i m_i Jv_i^T Jv_i + Jw_i^T R_i I_i R_i^T Jw_i` (eq. 2.15-2.16)."""
-    jv, jw, rot = _com_jacobians(robot, q)
-    inertia_world = rot @ robot.inertia @ jnp.swapaxes(rot, -1, -2)
-    d_trans = jnp.einsum("...l,...lai,...laj->...ij", robot.mass, jv, jv)
-    d_rot = jnp.einsum("...lai,...lab,...lbj->...ij", jw, inertia_world, jw)
-    return d_trans + d_rot
+    """Link mass matrix `D(q) = sum_i m_i Jv_i^T Jv_i + Jw_i^T R_i I_i R_i^T Jw_i` (eq. 2.15-2.16),
+    computed by composite rigid bodies."""
+    return _batch_last(_mass_matrix_t, robot, q)[0]
 
 
 def gravity_torque(robot: Robot, q: Float[Array, "*b 6"]) -> Float[Array, "*b 6"]:
     """`g(q) = dV/dq` with `V = -sum_i m_i gravity . c_i` (eq. 2.19-2.20)."""
-    jv, _, _ = _com_jacobians(robot, q)
-    return -jnp.einsum("...l,...lai,...a->...i", robot.mass, jv, robot.gravity)
+    return _batch_last(_gravity_t, robot, q)[0]
 
 
-def _rnea(robot: Robot, q, qd, qdd, gravity) -> Float[Array, "*b 6"]:
-    """Recursive Newton-Euler: `D qdd + C qd` plus the gravity term of `gravity`."""
-    rot, pos = joint_rotation_translation(robot, q)  # frame i in frame i-1
-    rt = jnp.swapaxes(rot, -1, -2)
-    r_loc = jnp.einsum("...ij,...j->...i", rt, pos)  # o_{i-1} -> o_i in frame i
-    ez = jnp.array([0.0, 0.0, 1.0])
-    batch = jnp.broadcast_shapes(rot.shape[:-3], qd.shape[:-1], qdd.shape[:-1])
-    g0 = jnp.einsum("...ji,...j->...i", robot.base[..., :3, :3], gravity)
-    zero = jnp.zeros(batch + (3,))
-    front = lambda x, k: jnp.moveaxis(jnp.broadcast_to(x, batch + x.shape[x.ndim - k - 1:]), -k - 1, 0)  # noqa: E731
-    xs = (front(rt, 2), front(pos, 1), front(qd, 0), front(qdd, 0), front(robot.com, 1),
-          front(robot.inertia, 2), front(robot.mass, 0))
-
-    def forward(carry, x):
-        w, dw, acc = carry  # of link i-1 in frame i-1
-        rt_i, p_i, qd_i, qdd_i, c_i, i_i, m_i = x
-        w_par = w + qd_i[..., None] * ez
-        dw_par = dw + qdd_i[..., None] * ez + jnp.cross(w, qd_i[..., None] * ez)
-        acc_par = acc + jnp.cross(dw_par, p_i) + jnp.cross(w_par, jnp.cross(w_par, p_i))
-        rot_in = lambda v: jnp.einsum("...ij,...j->...i", rt_i, v)  # noqa: E731
-        w_i, dw_i, acc_i = rot_in(w_par), rot_in(dw_par), rot_in(acc_par)
-        acc_c = acc_i + jnp.cross(dw_i, c_i) + jnp.cross(w_i, jnp.cross(w_i, c_i))
-        force = m_i[..., None] * acc_c
-        iw = jnp.einsum("...ij,...j->...i", i_i, w_i)
-        moment = jnp.einsum("...ij,...j->...i", i_i, dw_i) + jnp.cross(w_i, iw)
-        return (w_i, dw_i, acc_i), (force, moment)
-
-    _, (force, moment) = jax.lax.scan(forward, (zero, zero, zero - g0), xs)
-    rot_f, rl_f, com_f = front(rot, 2), front(r_loc, 1), front(robot.com, 1)
-
-    def backward(carry, x):
-        f_next, m_next, rot_next = carry  # link i+1 in frame i+1; rot_next = R_{i+1}
-        f_i, n_i, c_i, r_i, rot_i = x
-        f = f_i + jnp.einsum("...ij,...j->...i", rot_next, f_next)
-        about_oi = n_i + jnp.cross(c_i, f_i) + jnp.einsum("...ij,...j->...i", rot_next, m_next)
-        m = about_oi + jnp.cross(r_i, f)  # about o_{i-1}, frame i
-        tau = jnp.einsum("...j,...j->...", rot_i[..., 2, :], m)
-        return (f, m, rot_i), tau
-
-    eye = jnp.broadcast_to(jnp.eye(3), batch + (3, 3))
-    _, tau = jax.lax.scan(backward, (zero, zero, eye), (force, moment, com_f, rl_f, rot_f), reverse=True)
-    return jnp.moveaxis(tau, 0, -1)
+def _rnea(robot: Robot, q, qd, qdd, with_gravity: bool) -> Float[Array, "*b 6"]:
+    """Recursive Newton-Euler: `D qdd + C qd`, plus `g` if `with_gravity`."""
+    return _batch_last(lambda r, *v: _rnea_t(r, *v, with_gravity), robot, q, qd, qdd)[0]
 
 
 def coriolis_vector(
     robot: Robot, q: Float[Array, "*b 6"], qd: Float[Array, "*b 6"]
 ) -> Float[Array, "*b 6"]:
     """Coriolis and centrifugal torques `C(q, qd) qd` (eq. 2.7), by Newton-Euler."""
-    return _rnea(robot, q, qd, jnp.zeros_like(qd), jnp.zeros(3))
+    return _rnea(robot, q, qd, jnp.zeros_like(qd), False)
 
 
 def coriolis_matrix(
@@ -119,7 +223,7 @@ def inverse_dynamics(
     robot: Robot, q: Float[Array, "*b 6"], qd: Float[Array, "*b 6"], qdd: Float[Array, "*b 6"]
 ) -> Float[Array, "*b 6"]:
     """Link torques `D(q) qdd + C(q, qd) qd + g(q)` (eq. 2.23a), by Newton-Euler."""
-    return _rnea(robot, q, qd, qdd, robot.gravity)
+    return _rnea(robot, q, qd, qdd, True)
 
 
 def planning_dynamics(
@@ -135,7 +239,7 @@ def link_acceleration(
     robot: Robot, q: Float[Array, "*b 6"], qd: Float[Array, "*b 6"], phi: Float[Array, "*b 6"]
 ) -> Float[Array, "*b 6"]:
     """`qdd = D(q)^{-1} (kappa(phi - q) - g(q) - C(q, qd) qd)` (eq. 2.23a)."""
-    rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), robot.gravity)
+    rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
     return jnp.linalg.solve(mass_matrix(robot, q), rhs[..., None])[..., 0]
 
 

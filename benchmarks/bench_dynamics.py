@@ -1,0 +1,412 @@
+"""Batched mass matrix + gravity + Coriolis vector: jaxrobot (JAX) vs pinocchio (issue 2, "Measure").
+
+Times, over the same random states of the default robot:
+- jaxrobot, jit-compiled: the public functions on (N, 6) arrays (their native broadcasting),
+  `jit(vmap(...))` of the per-state call, and `lax.map(..., batch_size=--chunk)` of it (vmapped
+  chunks that stay in cache); compile time apart from run time, best of `--repeats` runs with
+  `block_until_ready`;
+- pinocchio (model from our URDF export): (a) a Python loop over the states calling
+  `crba`, `computeGeneralizedGravity`, `nle` (C qd = nle - g); (b) a tight Python loop of one
+  call at one state (`timeit`, C++ cost plus the Python binding overhead); (c) its C++ per
+  state, from a small C++ program compiled here against pinocchio's headers (header-only
+  build, -O3 -march=native) that loops the same three calls over the same states and copies
+  the results out; skipped with a reason when no compiler or headers are found.
+
+Prints a table and writes it as markdown to `benchmarks/results_dynamics.md` (`--out`).
+Run: `python benchmarks/bench_dynamics.py [--states 100000]`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import timeit
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxrobot as jr
+
+CPP_SOURCE = r"""
+// Pinocchio C++ per state: crba + computeGeneralizedGravity + nonLinearEffects over N states.
+#include <pinocchio/multibody.hpp>
+#include <pinocchio/algorithm/crba.hpp>
+#include <pinocchio/algorithm/rnea.hpp>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <vector>
+int main(int argc, char** argv) {
+  // argv: model.txt states.bin n repeats
+  std::ifstream f(argv[1]);
+  pinocchio::Model model;
+  double gx, gy, gz;
+  f >> gx >> gy >> gz;
+  model.gravity.linear() << gx, gy, gz;
+  pinocchio::JointIndex parent = 0;
+  for (int j = 0; j < 6; ++j) {
+    Eigen::Matrix4d h;
+    for (int r = 0; r < 4; ++r) for (int c = 0; c < 4; ++c) f >> h(r, c);
+    double m;
+    Eigen::Vector3d lever;
+    Eigen::Matrix3d inertia;
+    f >> m >> lever(0) >> lever(1) >> lever(2);
+    for (int r = 0; r < 3; ++r) for (int c = 0; c < 3; ++c) f >> inertia(r, c);
+    pinocchio::SE3 placement(h.topLeftCorner<3, 3>(), h.topRightCorner<3, 1>());
+    parent = model.addJoint(parent, pinocchio::JointModelRZ(), placement, "joint_" + std::to_string(j + 1));
+    model.appendBodyToJoint(parent, pinocchio::Inertia(m, lever, inertia), pinocchio::SE3::Identity());
+  }
+  pinocchio::Data data(model);
+  const long n = std::atol(argv[3]);
+  const int repeats = std::atoi(argv[4]);
+  std::vector<double> x(12 * n);
+  FILE* fs = std::fopen(argv[2], "rb");
+  if (std::fread(x.data(), sizeof(double), x.size(), fs) != x.size()) return 2;
+  std::fclose(fs);
+  std::vector<Eigen::VectorXd> q(n), v(n);
+  for (long i = 0; i < n; ++i) {
+    q[i] = Eigen::Map<Eigen::VectorXd>(&x[12 * i], 6);
+    v[i] = Eigen::Map<Eigen::VectorXd>(&x[12 * i + 6], 6);
+  }
+  std::vector<double> out_m(36 * n), out_g(6 * n), out_c(6 * n);
+  double best[4] = {1e300, 1e300, 1e300, 1e300};
+  double sink = 0;
+  for (int rep = 0; rep < repeats; ++rep) {
+    auto t0 = std::chrono::steady_clock::now();
+    for (long i = 0; i < n; ++i) {
+      pinocchio::crba(model, data, q[i]);
+      Eigen::Map<Eigen::Matrix<double, 6, 6>> m(&out_m[36 * i]);
+      Eigen::Map<Eigen::Matrix<double, 6, 1>> g(&out_g[6 * i]), c(&out_c[6 * i]);
+      m = data.M;
+      g = pinocchio::computeGeneralizedGravity(model, data, q[i]);
+      c = pinocchio::nonLinearEffects(model, data, q[i], v[i]) - g;
+    }
+    auto t1 = std::chrono::steady_clock::now();
+    for (long i = 0; i < n; ++i) sink += pinocchio::crba(model, data, q[i])(0, 5);
+    auto t2 = std::chrono::steady_clock::now();
+    for (long i = 0; i < n; ++i) sink += pinocchio::computeGeneralizedGravity(model, data, q[i])(0);
+    auto t3 = std::chrono::steady_clock::now();
+    for (long i = 0; i < n; ++i) sink += pinocchio::nonLinearEffects(model, data, q[i], v[i])(0);
+    auto t4 = std::chrono::steady_clock::now();
+    auto s = [&](auto a, auto b) { return std::chrono::duration<double>(b - a).count(); };
+    double t[4] = {s(t0, t1), s(t1, t2), s(t2, t3), s(t3, t4)};
+    for (int k = 0; k < 4; ++k) best[k] = t[k] < best[k] ? t[k] : best[k];
+  }
+  // seconds for all n states: combined, crba, gravity, nle; then a checksum of the outputs
+  std::printf("%.9e %.9e %.9e %.9e %.17g %.17g\n", best[0], best[1], best[2], best[3],
+              out_m[36 * (n - 1) + 5] + out_g[6 * (n - 1)] + out_c[6 * (n - 1) + 2], sink);
+  return 0;
+}
+"""
+
+
+def machine() -> dict[str, str]:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
+    import pinocchio as pin
+
+    return {
+        "CPU": cpu,
+        "cores": f"{os.cpu_count()} logical, {usable} usable by this process",
+        "load average (1, 5, 15 min) at start": load,
+        "JAX devices": ", ".join(str(d) for d in jax.devices()),
+        "versions": f"python {platform.python_version()}, jax {jax.__version__}, "
+                    f"pinocchio {pin.__version__}, numpy {np.__version__}",
+    }
+
+
+def random_states(robot: jr.Robot, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(np.asarray(robot.q_min), np.asarray(robot.q_max), (n, 6))
+    qd = rng.uniform(-1.0, 1.0, (n, 6)) * np.asarray(robot.qd_max)
+    return q, qd
+
+
+def _terms(robot, q, qd):
+    return jr.mass_matrix(robot, q), jr.gravity_torque(robot, q), jr.coriolis_vector(robot, q, qd)
+
+
+def jax_variants(chunk: int) -> dict:
+    """The timed JAX functions of (robot, q, qd); the first three compute D, g and C qd."""
+    return {
+        "broadcasting": _terms,
+        "jit(vmap)": jax.vmap(_terms, in_axes=(None, 0, 0)),
+        f"lax.map(batch_size={chunk})": lambda r, q, qd: jax.lax.map(lambda x: _terms(r, *x), (q, qd),
+                                                                    batch_size=chunk),
+        "mass_matrix only": lambda r, q, qd: jr.mass_matrix(r, q),
+        "gravity_torque only": lambda r, q, qd: jr.gravity_torque(r, q),
+        "coriolis_vector only": lambda r, q, qd: jr.coriolis_vector(r, q, qd),
+    }
+
+
+def time_jax(fn, args, repeats: int) -> dict[str, float]:
+    """Trace+lower, compile, first call and best-of-`repeats` run time [s] of `jit(fn)(*args)`."""
+    t0 = time.perf_counter()
+    lowered = jax.jit(fn).lower(*args)
+    t1 = time.perf_counter()
+    compiled = lowered.compile()
+    t2 = time.perf_counter()
+    out = jax.block_until_ready(compiled(*args))
+    t3 = time.perf_counter()
+    runs = []
+    for _ in range(repeats):
+        s = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        runs.append(time.perf_counter() - s)
+    return {"lower": t1 - t0, "compile": t2 - t1, "first": t3 - t2, "run": min(runs), "out": out}
+
+
+def pinocchio_model(robot: jr.Robot):
+    import pinocchio as pin
+
+    model = pin.buildModelFromXML(jr.to_urdf(robot))
+    model.gravity.linear = np.asarray(robot.gravity)
+    return model
+
+
+def time_pin_loop(model, q, qd, repeats: int) -> tuple[float, tuple[np.ndarray, ...]]:
+    """Best-of-`repeats` seconds of a Python loop over all states (outputs copied out)."""
+    import pinocchio as pin
+
+    data = model.createData()
+    n = len(q)
+    m_out, g_out, c_out = np.empty((n, 6, 6)), np.empty((n, 6)), np.empty((n, 6))
+    crba, grav, nle = pin.crba, pin.computeGeneralizedGravity, pin.nle
+    best = np.inf
+    for _ in range(repeats):
+        s = time.perf_counter()
+        for i in range(n):
+            m_out[i] = crba(model, data, q[i])
+            g_out[i] = grav(model, data, q[i])
+            c_out[i] = nle(model, data, q[i], qd[i]) - g_out[i]
+        best = min(best, time.perf_counter() - s)
+    m_out = np.triu(m_out) + np.swapaxes(np.triu(m_out, 1), -1, -2)  # crba fills the upper triangle
+    return best, (m_out, g_out, c_out)
+
+
+def time_pin_single_calls(model, q, qd, number: int) -> dict[str, float]:
+    """Seconds per call of one call at one state in a tight Python loop (best of 5 `timeit`s)."""
+    import pinocchio as pin
+
+    data = model.createData()
+    env = {"pin": pin, "m": model, "d": data, "q": q[0].copy(), "v": qd[0].copy()}
+    stmts = {"crba": "pin.crba(m, d, q)",
+             "computeGeneralizedGravity": "pin.computeGeneralizedGravity(m, d, q)",
+             "nle": "pin.nle(m, d, q, v)"}
+    return {k: min(timeit.repeat(s, globals=env, number=number, repeat=5)) / number for k, s in stmts.items()}
+
+
+def _cpp_paths() -> tuple[list[str], str] | str:
+    """Compiler command prefix and include flags, or the reason why the C++ timing is skipped."""
+    import pinocchio as pin
+
+    cxx = shutil.which("g++") or shutil.which("c++") or shutil.which("clang++")
+    if cxx is None:
+        return "no C++ compiler on PATH"
+    inc = next((p / "include" for p in Path(pin.__file__).resolve().parents
+                if (p / "include" / "pinocchio" / "multibody.hpp").is_file()), None)
+    if inc is None:
+        return "pinocchio's C++ headers not found next to the Python package"
+    eigen = [inc / "eigen3", Path("/usr/include/eigen3"), Path("/usr/local/include/eigen3")]
+    try:
+        import casadi
+
+        eigen.append(Path(casadi.__file__).parent / "include" / "eigen3")
+    except ImportError:
+        pass
+    eigen_dir = next((p for p in eigen if (p / "Eigen" / "Core").is_file()), None)
+    if eigen_dir is None:
+        return "Eigen headers not found (looked in " + ", ".join(map(str, eigen)) + ")"
+    flags = [cxx, "-O3", "-march=native", "-DNDEBUG", "-std=c++17", "-w",
+             "-DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS", "-DBOOST_MPL_LIMIT_LIST_SIZE=30",
+             "-DBOOST_MPL_LIMIT_VECTOR_SIZE=30", f"-I{inc}", f"-I{eigen_dir}"]
+    return flags, " ".join(flags[1:5])
+
+
+def build_cpp(cache: Path) -> tuple[Path, str] | str:
+    """Compile `CPP_SOURCE` (cached by hash of source and flags); binary and flags, or a reason."""
+    paths = _cpp_paths()
+    if isinstance(paths, str):
+        return paths
+    flags, shown = paths
+    key = hashlib.sha256((CPP_SOURCE + " ".join(flags)).encode()).hexdigest()[:16]
+    binary = cache / f"pin_dynamics_{key}"
+    if binary.is_file():
+        return binary, shown
+    cache.mkdir(parents=True, exist_ok=True)
+    src = cache / f"pin_dynamics_{key}.cpp"
+    src.write_text(CPP_SOURCE)
+    print(f"compiling the pinocchio C++ timing program (header-only, a few minutes) into {binary} ...",
+          flush=True)
+    proc = subprocess.run([*flags, str(src), "-o", str(binary)], capture_output=True, text=True, timeout=1200)
+    if proc.returncode != 0:
+        first = next((ln for ln in proc.stderr.splitlines() if "error" in ln), proc.stderr.strip()[:200])
+        return f"C++ build failed ({' '.join(flags)}): {first.strip()}"
+    return binary, shown
+
+
+def time_pin_cpp(binary: Path, model, robot, q, qd, repeats: int) -> dict[str, float]:
+    """Seconds for all states: combined loop (with copies out), crba, gravity, nle alone."""
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = [" ".join(repr(float(x)) for x in np.asarray(robot.gravity))]
+        for j in range(1, 7):
+            inertia = model.inertias[j]
+            rows.append(" ".join(repr(float(x)) for x in np.concatenate(
+                [model.jointPlacements[j].homogeneous.ravel(), [inertia.mass], inertia.lever,
+                 inertia.inertia.ravel()])))
+        (Path(tmp) / "model.txt").write_text("\n".join(rows) + "\n")
+        np.ascontiguousarray(np.concatenate([q, qd], 1), dtype=np.float64).tofile(Path(tmp) / "states.bin")
+        proc = subprocess.run([str(binary), str(Path(tmp) / "model.txt"), str(Path(tmp) / "states.bin"),
+                               str(len(q)), str(repeats)], capture_output=True, text=True, check=True)
+    combined, crba, grav, nle = (float(x) for x in proc.stdout.split()[:4])
+    return {"combined": combined, "crba": crba, "computeGeneralizedGravity": grav, "nle": nle}
+
+
+def _rel_err(a, b) -> float:
+    a, b = np.asarray(a).reshape(len(a), -1), np.asarray(b).reshape(len(b), -1)
+    return float(np.max(np.linalg.norm(a - b, axis=1) / np.linalg.norm(b, axis=1)))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--states", type=int, default=100_000, help="number of random states (default 1e5)")
+    parser.add_argument("--repeats", type=int, default=5, help="timed repeats, best is reported (default 5)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--chunk", type=int, default=128,
+                        help="states per chunk of the lax.map variant (default 128)")
+    parser.add_argument("--no-cpp", action="store_true", help="skip the compiled pinocchio C++ timing")
+    parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "jaxrobot-bench",
+                        help="where the C++ timing program is built and kept")
+    parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results_dynamics.md"),
+                        help="markdown results file ('-' to skip)")
+    args = parser.parse_args(argv)
+    cli = sys.argv[1:] if argv is None else argv
+    if min(args.states, args.repeats, args.chunk) < 1:
+        parser.error(f"--states, --repeats and --chunk must be >= 1, found {args.states}, {args.repeats}, "
+                     f"{args.chunk}")
+
+    info = machine()
+    robot = jr.racer7()
+    n = args.states
+    q_np, qd_np = random_states(robot, n, args.seed)
+    q, qd = jnp.asarray(q_np), jnp.asarray(qd_np)
+
+    jax_rows = {}
+    variants = jax_variants(args.chunk)
+    combined = list(variants)[:3]
+    for name, fn in variants.items():
+        print(f"jax: {name} ...", flush=True)
+        jax_rows[name] = time_jax(fn, (robot, q, qd), args.repeats)
+
+    model = pinocchio_model(robot)
+    print("pinocchio: Python loop ...", flush=True)
+    loop_s, pin_out = time_pin_loop(model, q_np, qd_np, min(args.repeats, 3))
+    ours = jax_rows["broadcasting"]["out"]
+    errors = {k: _rel_err(o, p) for k, o, p in zip(("D", "g", "C qd"), ours, pin_out, strict=True)}
+    print("pinocchio: single-call tight loops ...", flush=True)
+    single = time_pin_single_calls(model, q_np, qd_np, number=20_000)
+    cpp: dict[str, float] | None = None
+    cpp_note = "skipped (--no-cpp)"
+    if not args.no_cpp:
+        built = build_cpp(args.cache)
+        if isinstance(built, str):
+            cpp_note = "skipped: " + built
+        else:
+            print("pinocchio: C++ loop ...", flush=True)
+            cpp = time_pin_cpp(built[0], model, robot, q_np, qd_np, args.repeats)
+            cpp_note = f"g++ {built[1]}, header-only pinocchio"
+
+    # per-state times [s]
+    best_jax_name = min(combined, key=lambda k: jax_rows[k]["run"])
+    best_jax = jax_rows[best_jax_name]["run"] / n
+    refs = {"pinocchio Python loop": loop_s / n, "pinocchio one-call tight loop": sum(single.values())}
+    if cpp is not None:
+        refs["pinocchio C++ loop"] = cpp["combined"] / n
+
+    def row(impl, what, compile_s, per_state):
+        ratio = f"{best_jax / per_state:.2f}" if per_state > 0 else "n/a"
+        return f"| {impl} | {what} | {compile_s} | {per_state * 1e6:.3f} | {1.0 / per_state:,.0f} | {ratio} |"
+
+    lines = [
+        "# Dynamics benchmark: D(q), g(q), C(q, qd) qd over a batch of states",
+        "",
+        "Command: `" + " ".join(["python benchmarks/bench_dynamics.py", *cli]) + "`  ",
+        f"Date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M UTC}; "
+        f"{n:,} random states of `jr.racer7()` (q uniform in the limits, qd uniform in +-qd_max), "
+        f"seed {args.seed}; best of {args.repeats} runs "
+        f"(pinocchio Python loop: best of {min(args.repeats, 3)}).",
+        "",
+        *[f"- {k}: {v}" for k, v in info.items()],
+        *(["", f"Note: the 1-minute load average ({os.getloadavg()[0]:.1f}) exceeded the core count, so other "
+           "processes shared the CPU during this run: absolute times are inflated and noisy, the ratios "
+           "less so."] if hasattr(os, "getloadavg") and os.getloadavg()[0] > (os.cpu_count() or 1) else []),
+        "",
+        "| implementation | what is timed | compile [s] | time per state [us] | states/s | best jax / this |",
+        "|---|---|---|---|---|---|",
+    ]
+    whats = ["`jit` of the public functions on (N, 6) arrays", "`jit(vmap)` of the per-state public calls",
+             f"`jit(lax.map(..., batch_size={args.chunk}))` of the per-state public calls (vmapped chunks)"]
+    for name, what in zip(combined, whats, strict=True):
+        r = jax_rows[name]
+        lines.append(row(f"jaxrobot {name}", what + ", D + g + C qd", f"{r['lower'] + r['compile']:.2f}",
+                         r["run"] / n))
+    lines.append(row("pinocchio Python loop", "for-loop over states: crba, computeGeneralizedGravity, "
+                     "nle - g; results copied to arrays", "-", refs["pinocchio Python loop"]))
+    lines.append(row("pinocchio one-call tight loop", "sum over the 3 calls of `timeit` of one call at one "
+                     "state (C++ + Python binding overhead)", "-", refs["pinocchio one-call tight loop"]))
+    if cpp is not None:
+        lines.append(row("pinocchio C++ loop", "C++ for-loop over the same states: crba, "
+                         "computeGeneralizedGravity, nonLinearEffects - g, results copied out", "-",
+                         refs["pinocchio C++ loop"]))
+    lines += [
+        "",
+        f"Ratio column: best jaxrobot variant ({best_jax_name}, {best_jax * 1e6:.3f} us/state) divided by "
+        "the row's time per state (< 1: jaxrobot faster). JAX runs on the listed device with XLA's CPU "
+        "thread pool (all usable cores); pinocchio runs on one core.",
+        f"Compile column: trace + lower + XLA compile of the whole batched function. C++ timing: {cpp_note}.",
+        "Agreement on these states (max over states of relative 2-norm error, jaxrobot vs pinocchio): "
+        + ", ".join(f"{k} {v:.1e}" for k, v in errors.items()) + ".",
+        "",
+        "Breakdown (per state, us):",
+        "",
+        "| part | jaxrobot (broadcasting, alone) | pinocchio one-call tight loop | pinocchio C++ |",
+        "|---|---|---|---|",
+    ]
+    parts = [("D(q): mass_matrix / crba", "mass_matrix only", "crba"),
+             ("g(q): gravity_torque / computeGeneralizedGravity", "gravity_torque only",
+              "computeGeneralizedGravity"),
+             ("C qd: coriolis_vector / nle", "coriolis_vector only", "nle")]
+    for label, jkey, pkey in parts:
+        c = f"{cpp[pkey] / n * 1e6:.3f}" if cpp is not None else "-"
+        lines.append(f"| {label} | {jax_rows[jkey]['run'] / n * 1e6:.3f} | {single[pkey] * 1e6:.3f} | {c} |")
+    lines.append("")
+    text = "\n".join(lines)
+    print(text)
+    if str(args.out) != "-":
+        args.out.write_text(text, encoding="utf-8")
+        print(f"written to {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
