@@ -15,10 +15,11 @@ from collections.abc import Sequence
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import jaxrobot as jr
 import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float
+
+import jaxrobot as jr
 
 from ._identifiability import analyse
 from ._parameters import THESIS_PARAMETERS, ParameterMap, predict_pose, rest_deflection, rotation_error
@@ -61,17 +62,40 @@ def _deflection(robot, theta, ccw):
 
 
 def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflection, marker, weight_r, ccw):
+    """Residual `fn(x, _)` in scaled variables `v = v0 + scale x`, its start `v0` and `scale`.
+
+    Its derivative is supplied per pose by reverse mode (3 or 6 outputs against m parameters),
+    so that the LM's Jacobian costs a few model evaluations instead of m forward passes.
+    """
     v0 = params.get(robot0)
     scale = params.scales(robot0)
+    orient = target_r is not None
 
-    def fn(x, _):
-        p, r = predict_pose(params.set(robot0, v0 + scale * x), theta, deflection, marker, ccw)
-        res = ((p - target_p) / RESIDUAL_UNIT).ravel()
-        if target_r is not None:
-            res = jnp.concatenate([res, (weight_r * rotation_error(target_r, r) / RESIDUAL_UNIT).ravel()])
+    static_cw = ccw is False
+
+    def one_pose(x, th, de, tp, tr, cw):
+        p, r = predict_pose(params.set(robot0, v0 + scale * x), th, de, marker, False if static_cw else cw)
+        res = (p - tp) / RESIDUAL_UNIT
+        if orient:
+            res = jnp.concatenate([res, weight_r * rotation_error(tr, r) / RESIDUAL_UNIT])
         return res
 
-    return fn, v0, scale
+    ccw_b = jnp.broadcast_to(jnp.asarray(ccw), theta.shape)
+    tr = target_r if orient else jnp.zeros(theta.shape[:-1] + (3, 3))
+    axes = (None, 0, 0, 0, 0, 0)
+
+    @jax.custom_jvp
+    def resid(x):
+        return jax.vmap(one_pose, axes)(x, theta, deflection, target_p, tr, ccw_b).ravel()
+
+    @resid.defjvp
+    def _resid_jvp(primals, tangents):
+        (x,), (t,) = primals, tangents
+        jac = jax.vmap(jax.jacrev(one_pose), axes)(x, theta, deflection, target_p, tr, ccw_b)
+        jac = jac.reshape(-1, x.shape[0])
+        return resid(x), jac @ t
+
+    return (lambda x, _: resid(x)), v0, scale
 
 
 def solve(
@@ -84,15 +108,16 @@ def solve(
     rotations: Float[Array, "K 3 3"] | None = None,
     weight_r: float | Float[Array, ""] = 1.0,
     ccw: bool | Bool[Array, "K 6"] = False,
-    rtol: float = 1e-10,
-    atol: float = 1e-10,
+    rtol: float = 1e-8,
+    atol: float = 1e-8,
     max_steps: int = 100,
 ) -> dict[str, Array]:
     """LM solve for one robot; pure and jit/vmap-safe (the fleet maps it over robots).
 
     **Returns:** `value` (m,) parameters, `std` (m,) standard errors, `cov` (m, m), `result`
     (optimistix RESULTS index), `steps`, `residuals` (n,) at the solution in m (orientation rows
-    in m-equivalent units), `rank` of the scaled Jacobian, `sigma2` the noise estimate [m^2].
+    in m-equivalent units), `rank` of the scaled Jacobian, `sigma2` the noise estimate [m^2],
+    `jacobian` (n, m) at the solution (residual mm per parameter unit).
     """
     fn, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r, ccw)
     x0 = jnp.zeros(len(params))
@@ -110,16 +135,11 @@ def solve(
     ok = (sol.result == optx.RESULTS.successful) & (rank == m) & jnp.all(jnp.isfinite(x))
     return {"value": v0 + scale * x, "std": jnp.sqrt(jnp.diag(cov)), "cov": cov,
             "result": sol.result._value, "converged": ok, "steps": sol.stats["num_steps"],
-            "residuals": r * RESIDUAL_UNIT, "rank": rank, "sigma2": sigma2 * RESIDUAL_UNIT**2}
+            "residuals": r * RESIDUAL_UNIT, "rank": rank, "sigma2": sigma2 * RESIDUAL_UNIT**2,
+            "jacobian": jx / scale}
 
 
 _solve_jit = eqx.filter_jit(solve)
-
-
-@eqx.filter_jit
-def _jacobian(robot0, params, theta, positions, deflection, marker, rotations, weight_r, ccw):
-    fn, _, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r, ccw)
-    return jax.jacfwd(fn)(jnp.zeros(len(params)), None) / scale
 
 
 @dataclasses.dataclass(frozen=True)
@@ -227,8 +247,9 @@ def calibrate(
       `"raise"` rejects them.
 
     Raises `ValueError` before solving for wrong shapes, NaN rows (named), fewer equations than
-    parameters, a rank-deficient pose set (naming the unidentifiable directions) and, with
-    `limits="raise"`, poses beyond the joint limits (by row). A solve that does not converge is
+    parameters, and, with
+    `limits="raise"`, poses beyond the joint limits (by row); after the solve, for a
+    rank-deficient pose set (naming the unidentifiable directions). A solve that does not converge is
     reported with `converged: False` and its optimistix status, never as success.
     """
     from jaxrobot._bench_poses import ORIENTATION_NOISE_RAD, quaternion_to_rotation
@@ -241,37 +262,45 @@ def calibrate(
     s_r = ORIENTATION_NOISE_RAD if orientation_noise is None else orientation_noise
     rot = None if quat is None else quaternion_to_rotation(jnp.asarray(quat))
     w_r = jnp.asarray(s_p / s_r)
-    th = jnp.asarray(theta)
-    defl = _deflection(robot, th, ccw)
-    check_rank(_jacobian(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw), params)
-    out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw, max_steps=max_steps)
+    if validation is not None:
+        vt = _check_array(validation[0], (6,), "validation motor_angles", "rad")
+        vp = _check_array(validation[1], (3,), "validation positions", "m")
+        if vp.shape[0] != vt.shape[0]:
+            raise ValueError(f"validation positions: expected {vt.shape[0]} rows, found {vp.shape[0]}")
+    else:
+        vt, vp = np.zeros((0, 6)), np.zeros((0, 3))
+    k = theta.shape[0]
+    ccw_all = ccw if np.ndim(ccw) == 0 else np.concatenate([np.broadcast_to(ccw, theta.shape),
+                                                             np.zeros(vt.shape, bool)])
+    th_all = jnp.asarray(np.concatenate([theta, vt]))
+    defl_all = _deflection(robot, th_all, ccw_all)  # one evaluation for both sets
+    th, defl = th_all[:k], defl_all[:k]
+    ccw_id = ccw if np.ndim(ccw) == 0 else ccw_all[:k]
+    out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw_id, max_steps=max_steps)
     out = jax.tree.map(np.asarray, out)
+    check_rank(out["jacobian"], params)
     calibrated = params.set(robot, jnp.asarray(out["value"]))
     v0 = np.asarray(params.get(robot))
+    p_all = np.concatenate([pos, vp])
+    err0 = position_errors(robot, th_all, p_all, defl_all, marker, ccw_all)
+    err1 = position_errors(calibrated, th_all, p_all, defl_all, marker, ccw_all)
     report: dict = {
         "parameters": {n: {"value": float(out["value"][i]), "delta": float(out["value"][i] - v0[i]),
                            "std": float(out["std"][i])} for i, n in enumerate(params.names)},
-        "identification": {
-            "before_m": error_stats(position_errors(robot, th, pos, defl, marker, ccw)),
-            "after_m": error_stats(position_errors(calibrated, th, pos, defl, marker, ccw)),
-        },
+        "identification": {"before_m": error_stats(err0[:k]), "after_m": error_stats(err1[:k])},
         "converged": bool(out["converged"]),
         "status": status_text(int(out["result"]), bool(out["rank"] == len(params))),
         "iterations": int(out["steps"]),
         "noise_estimate_m": float(np.sqrt(out["sigma2"])),
         "residual_rms_m": float(np.sqrt(np.mean(out["residuals"] ** 2))),
-        "n_poses": int(theta.shape[0]),
+        "n_poses": int(k),
         "beyond_limits": beyond,
+        "errors_m": {"identification": {"before": err0[:k], "after": err1[:k]}},
     }
     if validation is not None:
-        vt = _check_array(validation[0], (6,), "validation motor_angles", "rad")
-        vp = _check_array(validation[1], (3,), "validation positions", "m")
-        vd = _deflection(robot, jnp.asarray(vt), False)
-        report["validation"] = {
-            "before_m": error_stats(position_errors(robot, vt, vp, vd, marker)),
-            "after_m": error_stats(position_errors(calibrated, vt, vp, vd, marker)),
-            "n_poses": int(vt.shape[0]),
-        }
+        report["validation"] = {"before_m": error_stats(err0[k:]), "after_m": error_stats(err1[k:]),
+                                "n_poses": int(vt.shape[0])}
+        report["errors_m"]["validation"] = {"before": err0[k:], "after": err1[k:]}
     return CalibrationResult(robot=calibrated, report=report, value=out["value"], std=out["std"],
                              covariance=out["cov"], residuals=out["residuals"], names=params.names)
 

@@ -12,19 +12,25 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
-import jaxrobot as jr
 import numpy as np
 
-from ._parameters import ParameterMap
-from ._pose_selection import PoseConstraints, pose_jacobians, random_feasible_poses
+import jaxrobot as jr
+
+from ._parameters import THESIS_PARAMETERS, ParameterMap
+from ._pose_selection import DEFAULT_CONSTRAINTS, PoseConstraints, pose_jacobians, random_feasible_poses
 
 KINEMATIC_PARAMETERS = (
-    tuple(f"{f}{j}" for j in range(1, 7) for f in ("d", "a", "alpha", "beta"))
+    tuple(f"{f}{j}" for j in range(1, 7) for f in ("d", "a", "alpha"))
+    + ("beta3",)
     + tuple(f"offset{j}" for j in range(1, 7))
     + ("u0_4", "u0_5", "u0_6")
 )
-"""The thesis' 24 mDH parameters, the six joint offsets (its `Delta q`) and the wrist gear
-ratios, in the preference order used to pick which of a dependent group stays."""
+"""The parameters of the thesis' model (Table 3.5: d, a, alpha per joint, the Hayati beta3,
+the joint offsets = its `Delta q`, and the wrist gear ratios; `beta_i`, i != 3, do not exist)."""
+
+THESIS_PREFERENCE = THESIS_PARAMETERS + tuple(f"offset{j}" for j in range(1, 7)) + (
+    "d1", "d6", "a6", "alpha6", "d3")
+"""Pivot order: of a dependent group, the earlier names stay identifiable (the thesis' 17 first)."""
 
 DEFAULT_RTOL = 1e-8
 """Singular values below `rtol * sigma_max` of the column-scaled Jacobian count as zero; exact
@@ -153,15 +159,14 @@ def identifiability(
     seed: int = 0,
     marker=None,
     rtol: float = DEFAULT_RTOL,
-    prefer: Sequence[str] | None = KINEMATIC_PARAMETERS,
-    constraints: PoseConstraints = PoseConstraints(),
+    prefer: Sequence[str] | None = THESIS_PREFERENCE,
+    constraints: PoseConstraints = DEFAULT_CONSTRAINTS,
 ) -> IdentifiabilityResult:
     """Which of `names` can be identified from marker positions (and orientations) of the
     robot at rest, from `n_poses` random feasible poses (thesis 3.2.1: K = 1000).
 
     `prefer` orders the pivoting: of a dependent group the earlier names stay identifiable
-    (default: the thesis' order d, a, alpha, beta per joint, then offsets and wrist ratios;
-    `None` = classic largest-norm pivoting). `marker`: marker offset in the flange frame
+    (default `THESIS_PREFERENCE`; `None` = classic largest-norm pivoting). `marker`: marker offset in the flange frame
     (default `[sensors] tracker_marker_offset_m`; zeros = the flange origin `p_e` of eq. 3.6).
     """
     robot = jr.racer7() if robot is None else robot

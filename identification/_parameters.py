@@ -12,9 +12,10 @@ from collections.abc import Sequence
 
 import equinox as eqx
 import jax.numpy as jnp
+from jaxtyping import Array, Float
+
 import jaxrobot as jr
 from jaxrobot._kinematics import homogeneous, rot_x, rot_y, rot_z
-from jaxtyping import Array, Float
 
 JOINT_FIELDS = ("a", "d", "alpha", "beta", "offset")
 FRAME_FIELDS = ("x", "y", "z", "rx", "ry", "rz")
@@ -89,7 +90,8 @@ class ParameterMap(eqx.Module):
         return self.names.index(name)
 
     def get(self, robot: jr.Robot) -> Float[Array, "*b n"]:
-        frames = {k: _frame_vector(getattr(robot, k)) for k in ("tool", "base")}
+        used = {parse_name(n)[0] for n in self.names}
+        frames = {k: _frame_vector(getattr(robot, k)) for k in ("tool", "base") if k in used}
         out = []
         for n in self.names:
             field, comp = parse_name(n)
@@ -117,7 +119,7 @@ class ParameterMap(eqx.Module):
         keys = tuple(upd)
         return eqx.tree_at(lambda r: tuple(getattr(r, k) for k in keys), robot, tuple(upd[k] for k in keys))
 
-    def scales(self, robot: jr.Robot) -> Float[Array, "n"]:
+    def scales(self, robot: jr.Robot) -> Float[Array, " n"]:
         """Typical size of one unit of deviation: 1 mm, 1 mrad, 1e-3 of the gear ratio."""
         s = []
         for n in self.names:

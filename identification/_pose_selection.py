@@ -13,9 +13,10 @@ import dataclasses
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import jaxrobot as jr
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Float
+
+import jaxrobot as jr
 
 from ._observability import observability_indices, singular_values_from_gram
 from ._parameters import ParameterMap, predict_pose, rotation_error
@@ -34,6 +35,9 @@ class PoseConstraints:
     a margin from the wrist, elbow and shoulder singularities."""
 
 
+DEFAULT_CONSTRAINTS = PoseConstraints()
+
+
 def default_marker() -> np.ndarray:
     """The tracker marker offset of the embedded description (`[sensors]`)."""
     return np.asarray(jr.read_description(None)["sensors"]["tracker_marker_offset_m"], float)
@@ -50,7 +54,7 @@ def _feasible(robot: jr.Robot, q: Float[Array, "N 6"], marker, margin, z_min, mi
 
 
 def feasible(
-    robot: jr.Robot, q: Float[Array, "N 6"], marker=None, constraints: PoseConstraints = PoseConstraints()
+    robot: jr.Robot, q: Float[Array, "N 6"], marker=None, constraints: PoseConstraints = DEFAULT_CONSTRAINTS
 ) -> np.ndarray:
     """Boolean mask (N,) of the feasible poses among `q` (joint coordinates, rad)."""
     marker = default_marker() if marker is None else np.asarray(marker, float)
@@ -59,8 +63,18 @@ def feasible(
                                 c.min_sigma))
 
 
+@eqx.filter_jit
+def _static_equilibrium(robot, q):
+    return jr.static_equilibrium(robot, q)
+
+
+def rest_motor_angles(robot: jr.Robot, q: Float[Array, "N 6"]) -> np.ndarray:
+    """Motor angles (N, 6) that hold joint coordinates `q` at rest (cw set; eq. 4.3f-g)."""
+    return np.asarray(_static_equilibrium(robot, jnp.asarray(q, float)))
+
+
 def random_feasible_poses(
-    robot: jr.Robot, n: int, seed: int = 0, marker=None, constraints: PoseConstraints = PoseConstraints(),
+    robot: jr.Robot, n: int, seed: int = 0, marker=None, constraints: PoseConstraints = DEFAULT_CONSTRAINTS,
     batch: int = 2048,
 ) -> np.ndarray:
     """`n` random feasible joint coordinates (n, 6), uniform inside the limits, by rejection."""
@@ -79,16 +93,18 @@ def random_feasible_poses(
                      f"{constraints}")
 
 
+CHUNK = 1000
+"""Poses per batch of `pose_jacobians` (one compiled shape for every pose-set size)."""
+
+
 @eqx.filter_jit
-def _pose_jacobians(robot, params: ParameterMap, q, marker, orientation: bool, ccw):
+def _pose_jacobians(robot, params: ParameterMap, q, marker, ccw):
     theta = jr.static_equilibrium(robot, q, ccw)
     defl = q - jr.gear_output(robot, theta, ccw)
     v0 = params.get(robot)
 
     def model(v, th, de):
         p, r = predict_pose(params.set(robot, v), th, de, marker, ccw)
-        if not orientation:
-            return p
         r0 = jax.lax.stop_gradient(predict_pose(robot, th, de, marker, ccw)[1])
         return jnp.concatenate([p, rotation_error(r0, r)])
 
@@ -102,9 +118,14 @@ def pose_jacobians(
     """Identification Jacobian blocks `d y_i / d v` (N, 3 or 6, m) at joint coordinates `q`
     (eq. 3.8), the robot resting there (motor angles from the static equilibrium). Orientation
     rows are rotation angles [rad] in the marker frame."""
-    marker = default_marker() if marker is None else np.asarray(marker, float)
-    return np.asarray(_pose_jacobians(robot, params, jnp.asarray(q, float), jnp.asarray(marker),
-                                      orientation, ccw))
+    marker = jnp.asarray(default_marker() if marker is None else marker, float)
+    q = np.asarray(q, float).reshape(-1, 6)
+    n = q.shape[0]
+    pad = np.concatenate([q, np.zeros((-n % CHUNK, 6))])
+    out = [np.asarray(_pose_jacobians(robot, params, jnp.asarray(c), marker, ccw))
+           for c in pad.reshape(-1, CHUNK, 6)]
+    blocks = np.concatenate(out)[:n]
+    return blocks if orientation else blocks[:, :3]
 
 
 def column_scale(blocks: Float[Array, "N d m"]) -> np.ndarray:
@@ -114,7 +135,7 @@ def column_scale(blocks: Float[Array, "N d m"]) -> np.ndarray:
     return np.sqrt(np.mean(np.sum(b**2, 1), 0))
 
 
-def set_indices(blocks: Float[Array, "K d m"], scale: Float[Array, "m"]) -> dict[str, float]:
+def set_indices(blocks: Float[Array, "K d m"], scale: Float[Array, " m"]) -> dict[str, float]:
     """O1-O5 of a pose set from its Jacobian blocks, columns divided by `scale`."""
     b = np.asarray(blocks) / np.asarray(scale)
     j = b.reshape(-1, b.shape[-1])
@@ -135,6 +156,8 @@ class DetmaxResult:
     history: np.ndarray
     """(iterations, 2): O1 and O4 after each iteration."""
     iterations: int
+    scale: np.ndarray
+    """Column scaling used for the indices (compare other sets with `set_indices(..., scale)`)."""
 
 
 def _gram(b):
@@ -194,27 +217,37 @@ def detmax(
     *,
     marker=None,
     orientation: bool = False,
-    constraints: PoseConstraints = PoseConstraints(),
+    constraints: PoseConstraints = DEFAULT_CONSTRAINTS,
     pool_size: int = 4000,
     n_draw: int = 64,
     n_admit: int = 10,
     max_iter: int = 400,
     tol: float = 1e-4,
     patience: int = 40,
-    scale: Float[Array, "m"] | None = None,
+    scale: Float[Array, " m"] | None = None,
+    pool: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> DetmaxResult:
     """Extended DETMAX (Daney et al., thesis 3.2.2): start from `n_poses` random feasible poses;
     per iteration draw `n_draw` random candidates, admit the first `n_admit` that raise O1
     (eq. 3.10), add the admitted one that maximises O4 (eq. 3.11), then remove the pose with the
     least influence on O1. Stops when O1 has not grown by more than `tol` (relative) for
     `patience` iterations, or after `max_iter`. Candidates come from a pool of `pool_size`
-    random feasible poses whose Jacobian blocks are evaluated in one batch. `scale`: column scaling (default: rms column norms of the pool).
+    random feasible poses whose Jacobian blocks are evaluated in one batch. `scale`: column
+    scaling (default: rms column norms of the pool).
     """
-    if n_poses < 1 or pool_size < n_poses + n_draw:
-        raise ValueError(f"detmax: expected 1 <= n_poses and pool_size >= n_poses + n_draw, found "
-                         f"n_poses={n_poses}, pool_size={pool_size}, n_draw={n_draw}")
-    q_pool = random_feasible_poses(robot, pool_size, seed, marker, constraints)
-    blocks = pose_jacobians(robot, params, q_pool, marker, orientation)
+    if n_poses < 1:
+        raise ValueError(f"detmax: expected n_poses >= 1, found {n_poses}")
+    if pool is None:
+        q_pool = random_feasible_poses(robot, pool_size, seed, marker, constraints)
+        blocks = pose_jacobians(robot, params, q_pool, marker, orientation)
+    else:
+        q_pool, blocks = (np.asarray(x, float) for x in pool)
+        if blocks.shape[0] != q_pool.shape[0] or blocks.shape[-1] != len(params):
+            raise ValueError(f"pool: expected q (P, 6) and blocks (P, d, {len(params)}), found "
+                             f"{q_pool.shape} and {blocks.shape}")
+    if q_pool.shape[0] < n_poses + n_draw:
+        raise ValueError(f"detmax: the pool holds {q_pool.shape[0]} poses; need n_poses + n_draw = "
+                         f"{n_poses + n_draw}")
     scale = column_scale(blocks) if scale is None else np.asarray(scale)
     pool = jnp.asarray(blocks / scale)
     start = jnp.arange(n_poses)
@@ -222,7 +255,7 @@ def detmax(
                                  patience)
     sel = np.asarray(sel)
     q = q_pool[sel]
-    theta = np.asarray(jr.static_equilibrium(robot, jnp.asarray(q)))
+    theta = rest_motor_angles(robot, q)
     it = int(it)
     return DetmaxResult(q=q, motor_angles=theta, indices=set_indices(blocks[sel], scale),
-                        history=np.asarray(hist)[:it], iterations=it)
+                        history=np.asarray(hist)[:it], iterations=it, scale=scale)

@@ -4,6 +4,22 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+from ._bench_gear import GEAR_RUN_COLUMNS as GEAR_RUN_COLUMNS  # noqa: E402
+from ._bench_gear import GEAR_RUN_DEFAULTS as GEAR_RUN_DEFAULTS  # noqa: E402
+from ._bench_gear import GearRuns as GearRuns  # noqa: E402
+from ._bench_gear import gear_runs as gear_runs  # noqa: E402
+from ._bench_gear import read_gear_run as read_gear_run  # noqa: E402
+from ._bench_gear import write_gear_run as write_gear_run  # noqa: E402
+from ._bench_poses import PoseMeasurements as PoseMeasurements  # noqa: E402
+from ._bench_poses import draw_fleet as draw_fleet  # noqa: E402
+from ._bench_poses import marker_pose as marker_pose  # noqa: E402
+from ._bench_poses import measure_poses as measure_poses  # noqa: E402
+from ._bench_poses import read_pose_csv as read_pose_csv  # noqa: E402
+from ._bench_poses import write_pose_csv as write_pose_csv  # noqa: E402
+from ._bench_trajectory import read_csv_columns as read_csv_columns  # noqa: E402
+from ._bench_trajectory import read_trajectory_csv as read_trajectory_csv  # noqa: E402
+from ._bench_trajectory import trajectory_run as trajectory_run  # noqa: E402
+from ._bench_trajectory import write_trajectory_csv as write_trajectory_csv  # noqa: E402
 from ._description import RobotFileError as RobotFileError  # noqa: E402
 from ._description import load_robot as load_robot  # noqa: E402
 from ._description import racer7 as racer7  # noqa: E402
@@ -20,6 +36,7 @@ from ._dynamics import planning_dynamics as planning_dynamics  # noqa: E402
 from ._dynamics import static_equilibrium as static_equilibrium  # noqa: E402
 from ._elasticity import elastic_deflection as elastic_deflection  # noqa: E402
 from ._elasticity import elastic_torque as elastic_torque  # noqa: E402
+from ._flat import flat_inverse as flat_inverse  # noqa: E402
 from ._gear import gear_output as gear_output  # noqa: E402
 from ._gear import gear_ratio as gear_ratio  # noqa: E402
 from ._gear import motor_angle as motor_angle  # noqa: E402
@@ -32,11 +49,6 @@ from ._kinematics import rpy as rpy  # noqa: E402
 from ._kinematics import tool_pose as tool_pose  # noqa: E402
 from ._robot import Ripple as Ripple  # noqa: E402
 from ._robot import Robot as Robot  # noqa: E402
+from ._simulate import simulate as simulate  # noqa: E402
 from ._urdf import save_urdf as save_urdf  # noqa: E402
 from ._urdf import to_urdf as to_urdf  # noqa: E402
-from ._flat import flat_inverse as flat_inverse  # noqa: E402
-from ._simulate import simulate as simulate  # noqa: E402
-from ._bench_trajectory import read_csv_columns as read_csv_columns  # noqa: E402
-from ._bench_trajectory import read_trajectory_csv as read_trajectory_csv  # noqa: E402
-from ._bench_trajectory import trajectory_run as trajectory_run  # noqa: E402
-from ._bench_trajectory import write_trajectory_csv as write_trajectory_csv  # noqa: E402

@@ -1,0 +1,104 @@
+"""Tables and plots of a kinematic calibration (edge module: formats text, writes figures).
+
+Tables in the format of thesis Tables 3.6-3.7 (position errors before/after, in m) and
+Table 3.8 (identified deviations per frame, with standard errors); plots like Fig. 3.11
+(marker positions of the pose set over the workspace) and Fig. 3.12 (distance between model and
+measurement per validation pose, before and after).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ._parameters import parse_name, unit
+
+
+def error_table(report_part: dict, title: str) -> str:
+    """Thesis Tables 3.6/3.7: max/min/mean/std error before and after calibration, in m."""
+    b, a = report_part["before_m"], report_part["after_m"]
+    rows = [("max error in m", "max"), ("min error in m", "min"), ("mean error in m", "mean"),
+            ("standard deviation in m", "std")]
+    lines = [title, f"{'':26s}{'before':>14s}{'after':>14s}{'change':>9s}"]
+    for label, k in rows:
+        change = 100.0 * (a[k] - b[k]) / b[k] if b[k] else float("nan")
+        lines.append(f"{label:26s}{b[k]:14.4e}{a[k]:14.4e}{change:8.0f}%")
+    return "\n".join(lines)
+
+
+def parameter_table(parameters: dict, truth: dict | None = None) -> str:
+    """Thesis Table 3.8: identified deviations per frame (d, a, alpha, beta, offset) and gear
+    ratios, each as `delta ± std`; other identified names (tool, base) listed below.
+    `truth`: optional {name: true delta} printed beside (bench data)."""
+    cols = ("d", "a", "alpha", "beta", "offset")
+    head = ["Frame j", "Δd_j in m", "Δa_j in m", "Δα_j in rad", "Δβ_j in rad", "Δoffset_j in rad", "u0_j"]
+    lines = ["  ".join(f"{h:>22s}" if i else f"{h:7s}" for i, h in enumerate(head))]
+    fmt = lambda p: f"{p['delta']:+.4e}±{p['std']:.1e}"  # noqa: E731
+    for j in range(1, 7):
+        cells = [f"{j:<7d}"]
+        for c in cols:
+            p = parameters.get(f"{c}{j}")
+            cells.append(f"{fmt(p) if p else 'x':>22s}")
+        p = parameters.get(f"u0_{j}")
+        cells.append(f"{p['value']:.4f}±{p['std']:.1e}".rjust(22) if p else f"{'x':>22s}")
+        lines.append("  ".join(cells))
+    extra = [n for n in parameters if parse_name(n)[0] in ("tool", "base")]
+    for n in extra:
+        lines.append(f"{n:7s}  {fmt(parameters[n]):>22s} {unit(n)}")
+    if truth:
+        lines.append("")
+        lines.append(f"{'parameter':10s}{'identified':>14s}{'std':>11s}{'true':>14s}{'(id-true)/std':>15s}")
+        for n, p in parameters.items():
+            if n in truth:
+                t = truth[n]
+                lines.append(f"{n:10s}{p['delta']:14.4e}{p['std']:11.2e}{t:14.4e}"
+                             f"{(p['delta'] - t) / p['std']:15.2f}")
+    return "\n".join(lines)
+
+
+def plot_pose_set(path: str | Path, positions: np.ndarray, workspace: np.ndarray | None = None,
+                  title: str = "Pose set") -> None:
+    """Like thesis Fig. 3.11: marker positions of a pose set (yellow, black border) over random
+    reachable positions (blue)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(6, 5))
+    ax = fig.add_subplot(projection="3d")
+    if workspace is not None:
+        ax.scatter(*np.asarray(workspace).T, s=2, c="tab:blue", alpha=0.25, label="random reachable")
+    ax.scatter(*np.asarray(positions).T, s=30, c="yellow", edgecolors="black", label="pose set")
+    ax.set_xlabel("x in m")
+    ax.set_ylabel("y in m")
+    ax.set_zlabel("z in m")
+    ax.set_title(title)
+    ax.legend(loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_errors(path: str | Path, before: np.ndarray, after: np.ndarray,
+                title: str = "Validation set") -> None:
+    """Like thesis Fig. 3.12: distance between model and measured marker position per pose,
+    before (red) and after (blue) calibration, in mm."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    k = np.arange(1, len(before) + 1)
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.bar(k - 0.2, 1e3 * np.asarray(before), 0.4, color="tab:red", label="before calibration")
+    ax.bar(k + 0.2, 1e3 * np.asarray(after), 0.4, color="tab:blue", label="after calibration")
+    ax.set_xlabel("pose")
+    ax.set_ylabel("position error in mm")
+    ax.set_xticks(k)
+    ax.set_title(title)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,153 @@
+"""`jaxrobot calibrate POSES.csv`: kinematic calibration from tracker measurements (thesis 3.2),
+and the calibration stage of `jaxrobot demo` on bench data."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+HELP = "calibrate the kinematic parameters from a pose file (thesis 3.2, LM)"
+
+
+def configure(parser) -> None:
+    parser.add_argument("poses", type=Path, help="pose CSV: theta1_deg..theta6_deg, x_m, y_m, z_m [, qx..qw]")
+    parser.add_argument("--validate", type=Path, default=None, help="validation pose CSV (same format)")
+    parser.add_argument("--save-model", type=Path, default=None, help="write the calibrated robot (TOML)")
+    parser.add_argument("--robot", type=Path, default=None,
+                        help="initial robot description (default: the embedded Racer-7, nominal)")
+    parser.add_argument("--parameters", default=None,
+                        help="comma-separated free parameters, e.g. a2,beta3,u0_5 (default: identifiable set)")
+    parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                        help="marker offset in the flange frame in m (default: the robot file's [sensors])")
+    parser.add_argument("--limits", choices=("flag", "raise"), default="flag",
+                        help="poses beyond the joint limits: list them (flag) or reject the file (raise)")
+
+
+def _mm(stats: dict) -> dict:
+    return {k: 1e3 * v for k, v in stats.items()}
+
+
+def summary(report: dict) -> dict:
+    """The JSON summary of issue 4 from a calibration report."""
+    out = {
+        "parameters": {n: {"value": p["value"], "delta": p["delta"], "std": p["std"]}
+                       for n, p in report["parameters"].items()},
+        "identification": {"before_mm": _mm(report["identification"]["before_m"]),
+                           "after_mm": _mm(report["identification"]["after_m"])},
+        "validation": None,
+    }
+    if "validation" in report:
+        out["validation"] = {"before_mm": _mm(report["validation"]["before_m"]),
+                             "after_mm": _mm(report["validation"]["after_m"])}
+    return out
+
+
+def _echo_report(report: dict, echo, truth: dict | None = None) -> None:
+    from ._calibration_report import error_table, parameter_table
+
+    echo(f"LM: {report['status']}, {report['iterations']} iterations, noise estimate "
+         f"{1e3 * report['noise_estimate_m']:.4f} mm per axis")
+    for b in report["beyond_limits"]:
+        echo(f"warning: pose row {b['row'] + 1} (data row, 1-based): joint {b['joint']} at {b['q_deg']:.2f} deg "
+             f"outside [{b['limits_deg'][0]:.0f}, {b['limits_deg'][1]:.0f}] deg")
+    echo(error_table(report["identification"], "Position errors of the identification set (Table 3.6 format)"))
+    if "validation" in report:
+        echo(error_table(report["validation"], "Position errors of the validation set (Table 3.7 format)"))
+    echo("Identified deviations ± standard error (Table 3.8 format)")
+    echo(parameter_table(report["parameters"], truth))
+
+
+def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions=None) -> list[str]:
+    from ._calibration_report import error_table, parameter_table, plot_errors, plot_pose_set
+
+    files = []
+    parts = [error_table(report["identification"], "Identification set (Table 3.6 format)")]
+    if "validation" in report:
+        parts.append(error_table(report["validation"], "Validation set (Table 3.7 format)"))
+    parts.append("Identified deviations ± standard error (Table 3.8 format)\n"
+                 + parameter_table(report["parameters"], truth))
+    (out / "calibration_tables.txt").write_text("\n\n".join(parts) + "\n")
+    files.append("calibration_tables.txt")
+    set_name = "validation" if "validation" in report else "identification"
+    e = report["errors_m"][set_name]
+    plot_errors(out / "calibration_errors.png", e["before"], e["after"], title=f"{set_name} set")
+    files.append("calibration_errors.png")
+    if positions is not None:
+        plot_pose_set(out / "calibration_poses.png", positions, title="identification poses")
+        files.append("calibration_poses.png")
+    return files
+
+
+def run(args, echo) -> dict:
+    import jaxrobot as jr
+    from jaxrobot._bench_poses import read_pose_csv
+
+    from ._calibration import DEFAULT_PARAMETERS, calibrate
+
+    robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
+    data = read_pose_csv(args.poses)
+    val = None
+    if args.validate is not None:
+        v = read_pose_csv(args.validate)
+        val = (v["motor_angles"], v["positions"])
+    names = DEFAULT_PARAMETERS if args.parameters is None else [
+        n.strip() for n in args.parameters.split(",") if n.strip()]
+    marker = args.marker
+    if marker is None and args.robot is not None:
+        marker = jr.read_description(args.robot).get("sensors", {}).get("tracker_marker_offset_m")
+    res = calibrate(robot, data["motor_angles"], data["positions"], data["quaternions"], parameters=names,
+                    marker=marker, validation=val, limits=args.limits)
+    _echo_report(res.report, echo)
+    if not res.report["converged"]:
+        raise ValueError(f"calibration did not converge ({res.report['status']}); the model was not saved")
+    if args.out is not None:
+        for f in _write_outputs(args.out, res.report, positions=data["positions"]):
+            echo(f"wrote {args.out / f}")
+    if args.save_model is not None:
+        jr.save_robot(res.robot, args.save_model)
+        echo(f"wrote {args.save_model}")
+    return summary(res.report)
+
+
+def demo_stage(out: Path, echo) -> dict:
+    """Bench data of the as-built Racer-7 at the 50 thesis poses (toml `[poses]`), 13
+    validation poses chosen by our DETMAX, calibration, tables and plots."""
+    import jaxrobot as jr
+    from jaxrobot._bench_poses import measure_poses, write_pose_csv
+
+    from ._calibration import DEFAULT_PARAMETERS, calibrate
+    from ._calibration_report import plot_pose_set
+    from ._parameters import ParameterMap
+    from ._pose_selection import detmax, random_feasible_poses
+
+    start = time.perf_counter()
+    truth, nominal = jr.racer7(as_built=True), jr.racer7()
+    theta = np.deg2rad(np.asarray(jr.read_description(None)["poses"]["motor_deg"], float))
+    params = ParameterMap(DEFAULT_PARAMETERS)
+    sel = detmax(nominal, params, n_poses=13, seed=7, pool_size=1000, max_iter=200)
+    echo(f"DETMAX: 13 validation poses, {sel.iterations} iterations, O1 {sel.indices['O1']:.4g}, "
+         f"O4 {sel.indices['O4']:.4g}")
+    both = measure_poses(truth, np.concatenate([theta, sel.motor_angles]), seed=1)  # one bench session
+    k = theta.shape[0]
+    write_pose_csv(out / "bench_poses.csv", both.motor_angles[:k], both.positions[:k])
+    write_pose_csv(out / "bench_validation.csv", both.motor_angles[k:], both.positions[k:])
+    echo(f"bench: as-built Racer-7, {k} thesis poses + {len(sel.q)} validation poses, tracker noise "
+         f"{1e3 * both.metadata['position_noise_m']:.3f} mm per axis")
+    res = calibrate(nominal, both.motor_angles[:k], both.positions[:k],
+                    validation=(both.motor_angles[k:], both.positions[k:]))
+    truth_delta = dict(zip(params.names, np.asarray(params.get(truth) - params.get(nominal)).tolist()))
+    _echo_report(res.report, echo, truth_delta)
+    files = _write_outputs(out, res.report, truth_delta, positions=None)
+    workspace = np.asarray(jr.point_position(nominal, random_feasible_poses(nominal, 1000, seed=3),
+                                             np.asarray(both.metadata["marker_offset_m"])))
+    plot_pose_set(out / "calibration_poses.png", both.true_positions[:k], workspace,
+                  title="thesis identification poses (Fig. 3.11)")
+    files += ["calibration_poses.png", "bench_poses.csv", "bench_validation.csv"]
+    jr.save_robot(res.robot, out / "calibrated_robot.toml")
+    files.append("calibrated_robot.toml")
+    s = summary(res.report)
+    s["files"] = files
+    s["seconds"] = time.perf_counter() - start
+    return s

@@ -1,0 +1,132 @@
+"""`jaxrobot identify-gear`: gear-ratio identification from gear-run CSV files (thesis 3.1), and
+the demo stage that runs it on the virtual test bench."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+HELP = "identify the gear ratios (u0 + Fourier ripple, cw/ccw) from encoder + gyroscope runs"
+
+DEMO_REPETITIONS = {"identification": 2, "validation": 1, "other_speed": 1}
+"""Runs per direction and joint in the demo: identification, validation at the same speed and at
+the other speed (`GEAR_RUN_DEFAULTS`)."""
+
+
+def configure(parser) -> None:
+    parser.add_argument("runs", nargs="+", type=Path, help="gear-run CSV files used for identification")
+    parser.add_argument("--validate", nargs="+", type=Path, default=[], metavar="RUNS",
+                        help="gear-run CSV files used for validation only")
+    parser.add_argument("--robot", type=Path, default=None,
+                        help="robot description (TOML, racer7.toml format); default: the embedded Racer-7")
+    parser.add_argument("--method", choices=("sparse", "fft"), default="sparse",
+                        help="order search for the fit: sparse selection (ours, default) or the thesis' FFT")
+
+
+def _cutoffs(desc: dict) -> dict[int, float]:
+    sensors = desc.get("sensors")
+    if not sensors or "filter_cutoff_hz" not in sensors:
+        raise ValueError("robot description: [sensors] filter_cutoff_hz (Gaussian filter cut-off of joints 1-3, "
+                         "Hz) is needed for gear identification")
+    return {i + 1: float(c) for i, c in enumerate(sensors["filter_cutoff_hz"])}
+
+
+def _echo_result(res, echo) -> None:
+    from ._gear_report import order_table, rms_table, test_table
+
+    joints = sorted({j for j, _ in res.groups})
+    for j in joints:
+        a, b = res.misalignment[j - 1]
+        echo(f"joint {j}: gyroscope misalignment alpha = {a:.4e} rad, beta = {b:.4e} rad")
+    for j in joints:
+        echo("")
+        echo(rms_table(res, j))
+    echo("")
+    echo(order_table(res))
+    echo("")
+    echo(test_table(res))
+
+
+def run(args, echo) -> dict:
+    import jaxrobot as jr
+
+    from ._gear_fit import identify_gear
+    from ._gear_report import summary, write_report
+
+    desc = jr.read_description(args.robot)
+    robot = jr.load_robot(args.robot) if args.robot is not None else jr.racer7()
+    for p in [*args.runs, *args.validate]:
+        if not p.is_file():
+            raise FileNotFoundError(f"gear-run file not found: {p}")
+    runs = [jr.read_gear_run(p) for p in args.runs]
+    val = [jr.read_gear_run(p) for p in args.validate]
+    res = identify_gear(robot, runs, val, _cutoffs(desc), method=args.method,
+                        names=[str(p) for p in args.runs], validation_names=[str(p) for p in args.validate])
+    _echo_result(res, echo)
+    if args.out is not None:
+        for f in write_report(res, args.out):
+            echo(f"wrote {f}")
+    return summary(res)
+
+
+def bench_runs(seed: int = 0, repetitions: dict | None = None) -> tuple[list, list, list, list]:
+    """Bench runs of joints 1-3 of the as-built Racer-7: identification runs and validation runs
+    (same speed, then the other speed), as `(t, theta, gyro)` tuples, with names."""
+    import jaxrobot as jr
+
+    reps = dict(DEMO_REPETITIONS, **(repetitions or {}))
+    truth = jr.racer7(as_built=True)
+    ident, val, ident_names, val_names = [], [], [], []
+    for joint in (1, 2, 3):
+        speed = jr.GEAR_RUN_DEFAULTS[joint]["motor_speed_deg_s"]
+        slow = jr.GEAR_RUN_DEFAULTS[joint]["validation_speed_deg_s"]
+        same = jr.gear_runs(truth, joint, repetitions=reps["identification"] + reps["validation"],
+                            seed=seed * 100 + joint)
+        for k, ccw in enumerate(same.ccw):
+            rep = k % (reps["identification"] + reps["validation"])
+            name = f"joint{joint}_{'ccw' if ccw else 'cw'}_{speed:.0f}_{rep + 1}"
+            target = (ident, ident_names) if rep < reps["identification"] else (val, val_names)
+            target[0].append((same.t, same.theta[k], same.gyro[k]))
+            target[1].append(name)
+        if reps["other_speed"] > 0:
+            other = jr.gear_runs(truth, joint, repetitions=reps["other_speed"], motor_speed_deg_s=slow,
+                                 seed=seed * 100 + 10 + joint)
+            for k, ccw in enumerate(other.ccw):
+                val.append((other.t, other.theta[k], other.gyro[k]))
+                val_names.append(f"joint{joint}_{'ccw' if ccw else 'cw'}_{slow:.0f}_{k + 1}")
+    return ident, val, ident_names, val_names
+
+
+def demo_stage(out: Path, echo) -> dict:
+    """Bench runs of joints 1-3 -> identification -> validation -> tables and plots in `out`."""
+    import jaxrobot as jr
+
+    from ._gear_fit import identify_gear
+    from ._gear_report import summary, write_report
+
+    start = time.perf_counter()
+    ident, val, ident_names, val_names = bench_runs(seed=0)
+    echo(f"bench: {len(ident)} identification and {len(val)} validation runs of joints 1-3 "
+         f"({time.perf_counter() - start:.1f} s)")
+    sample = out / "gear_run_example.csv"
+    jr.write_gear_run(sample, *ident[0])
+    res = identify_gear(jr.racer7(), ident, val, names=ident_names, validation_names=val_names)
+    _echo_result(res, echo)
+    files = write_report(res, out)
+    echo("wrote " + ", ".join(str(f) for f in [sample, *files]))
+    truth = jr.racer7(as_built=True)
+    result = summary(res)
+    result["u0_relative_error"] = {
+        f"{j}_{'ccw' if ccw else 'cw'}": float(res.fit.u0[g]) / float(truth.u0[j - 1]) - 1.0
+        for g, (j, ccw) in enumerate(res.groups)}
+    result["direction_tests"] = {str(t.joint): {"p_value": t.p_value, "significant": t.significant}
+                                 for t in res.tests}
+    result["misalignment_error_rad"] = float(np.max(np.abs(
+        res.misalignment[:3] - np.asarray(jr.read_description()["sensors"]["gyro_misalignment_rad"]))))
+    result["seconds"] = time.perf_counter() - start
+    echo(f"misalignment error {result['misalignment_error_rad']:.1e} rad; "
+         f"max |u0 error| {max(abs(v) for v in result['u0_relative_error'].values()):.1e} (relative); "
+         f"{result['seconds']:.1f} s")
+    return result

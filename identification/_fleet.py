@@ -1,0 +1,129 @@
+"""Kinematic calibration of a fleet: thousands of robots in one call (thesis 3.2.3 at scale).
+
+Every robot has its own poses and measurements; the LM solve of `_calibration.solve` is
+`vmap`ped over robots and the fleet axis is sharded across all devices with `jax.sharding`
+(a 1-D mesh named `"fleet"`), so that the same call uses one CPU, several GPUs, or several
+hosts under `jax.distributed` (every process passes the full arrays; each device computes its
+shard; results are gathered).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jaxtyping import Array, Float
+
+import jaxrobot as jr
+
+from ._calibration import DEFAULT_PARAMETERS, _check_array, solve
+from ._parameters import ParameterMap, rest_deflection
+from ._pose_selection import default_marker
+
+
+@dataclasses.dataclass(frozen=True)
+class FleetResult:
+    """Per-robot results (leading axis R): `robot` (calibrated fleet pytree), `value`, `std`
+    (R, m), `converged`, `iterations`, `rank` (R,), `rms_m` residual rms (R,), `names`."""
+
+    robot: jr.Robot
+    value: np.ndarray
+    std: np.ndarray
+    converged: np.ndarray
+    iterations: np.ndarray
+    rank: np.ndarray
+    rms_m: np.ndarray
+    names: tuple[str, ...]
+    n_devices: int
+
+
+def fleet_mesh(devices: Sequence | None = None) -> Mesh:
+    """1-D device mesh over all (global) devices, axis name `"fleet"`."""
+    return Mesh(np.asarray(jax.devices() if devices is None else devices), ("fleet",))
+
+
+def _to_global(x: np.ndarray, sharding: NamedSharding) -> Array:
+    x = np.asarray(x)
+    return jax.make_array_from_callback(x.shape, sharding, lambda idx: x[idx])
+
+
+def _gather(x: Array) -> np.ndarray:
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        return np.asarray(multihost_utils.process_allgather(x, tiled=True))
+    return np.asarray(x)
+
+
+def _local_solve(robots, params, theta, positions, marker, max_steps):
+    """The fleet solve on the robots of one device: vmap of `solve`."""
+    defl = jax.vmap(rest_deflection)(robots, theta)
+
+    def one(robot, th, p, de):
+        out = solve(robot, params, th, p, de, marker, max_steps=max_steps)
+        return {k: out[k] for k in ("value", "std", "converged", "steps", "rank", "residuals")}
+
+    return jax.vmap(one)(robots, theta, positions, defl)
+
+
+_fleet_solve = eqx.filter_jit(_local_solve)
+"""Jitted fleet solve; with inputs sharded along the fleet axis, XLA partitions the vmapped
+solve so that every device works on its own robots."""
+
+
+def calibrate_fleet(
+    robots: jr.Robot,
+    motor_angles: Float[Array, "R K 6"],
+    positions: Float[Array, "R K 3"],
+    *,
+    parameters: Sequence[str] = DEFAULT_PARAMETERS,
+    marker: Float[Array, "3"] | None = None,
+    max_steps: int = 100,
+    mesh: Mesh | None = None,
+) -> FleetResult:
+    """Calibrate R robots at once, each from its own K poses (positions only, `cw` gear set).
+
+    `robots`: the initial robots, a fleet pytree with leading axis R, or one robot used for all.
+    The fleet axis is padded to a multiple of the device count and sharded over `mesh`
+    (default: all devices). Robots whose solve failed or whose pose set is rank deficient have
+    `converged = False`.
+    """
+    params = ParameterMap(parameters)
+    theta = np.asarray(motor_angles, float)
+    pos = np.asarray(positions, float)
+    if theta.ndim != 3 or theta.shape[-1] != 6:
+        raise ValueError(f"motor_angles: expected shape (R, K, 6) in rad, found {theta.shape}")
+    if pos.shape != theta.shape[:2] + (3,):
+        raise ValueError(f"positions: expected shape {theta.shape[:2] + (3,)} in m, found {pos.shape}")
+    for r in range(theta.shape[0]):  # NaN rows, named by robot and pose (cheap host check)
+        _check_array(theta[r], (6,), f"motor_angles[robot {r}]", "rad")
+        _check_array(pos[r], (3,), f"positions[robot {r}]", "m")
+    n_rob, k = theta.shape[:2]
+    if 3 * k < len(params):
+        raise ValueError(f"motor_angles: {k} poses per robot give {3 * k} equations for {len(params)} "
+                         f"parameters; need at least {-(-len(params) // 3)} poses")
+    if np.ndim(robots.a) == 1:
+        robots = jax.tree.map(lambda x: jnp.broadcast_to(x, (n_rob,) + jnp.shape(x)), robots)
+    elif robots.a.shape[0] != n_rob:
+        raise ValueError(f"robots: expected one robot or a fleet of {n_rob}, found {robots.a.shape[0]}")
+    mesh = fleet_mesh() if mesh is None else mesh
+    n_dev = mesh.devices.size
+    pad = -n_rob % n_dev
+    take = np.concatenate([np.arange(n_rob), np.zeros(pad, int)])  # pad with copies of robot 0
+    sharding = NamedSharding(mesh, PartitionSpec("fleet"))
+    leaves, tree = jax.tree.flatten(robots)
+    g_robots = jax.tree.unflatten(tree, [_to_global(np.asarray(x)[take], sharding) for x in leaves])
+    marker = jnp.asarray(default_marker() if marker is None else marker, float)
+    out = _fleet_solve(g_robots, params, _to_global(theta[take], sharding), _to_global(pos[take], sharding),
+                       marker, max_steps)
+    out = {key: _gather(v)[:n_rob] for key, v in out.items()}
+    value = out["value"]
+    return FleetResult(
+        robot=params.set(robots, jnp.asarray(value)), value=value, std=out["std"],
+        converged=out["converged"], iterations=out["steps"], rank=out["rank"],
+        rms_m=np.sqrt(np.mean(out["residuals"] ** 2, -1)), names=params.names, n_devices=n_dev)

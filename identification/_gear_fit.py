@@ -1,0 +1,410 @@
+"""Gear-ratio fit of eq. 3.5: `u0` and the Fourier coefficients by linear least squares, one set
+per (joint, direction), with standard errors and a test of cw against ccw.
+
+Model (eq. 2.10-2.11, SPEC.md): `thetad = u0 (1 + sum_j a_j cos(n_j phi) - b_j sin(n_j phi)) phid`.
+It is linear in `p = (u0, u0 a, u0 b)`; because both measured signals are filtered (eq. 3.1),
+the regressors are filtered with the same kernel, so that the filter's attenuation of high
+orders does not bias the coefficients. `phi = Xi^{-1}(theta)` needs the ratio itself, so the
+fit is repeated `ITERATIONS` times from `phi = theta / u0`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jax.scipy.special import betainc, gammaincc
+from jaxtyping import Array, Bool, Float, Int
+
+from jaxrobot import Robot, read_description
+
+from ._gear_frequencies import fft_orders, group_samples, sparse_orders
+from ._gear_processing import (
+    GearBatch,
+    ProcessedRuns,
+    gaussian_filter,
+    gaussian_kernel,
+    pinv_psd,
+    prepare_gear_runs,
+    process_gear_runs,
+)
+
+ITERATIONS = 3
+"""Fits, each with `phi = Xi^{-1}(theta)` of the previous one (the phase error of `theta / u0` is
+about the relative ripple, ~1e-2; each pass shrinks it by about that factor)."""
+NEWTON_STEPS = 4
+"""Newton steps of `Xi^{-1}` for one joint from `theta / u0`: the phase error n*dphi starts at about
+the relative ripple (< 0.03) and squares each step, so 4 steps reach float64 precision."""
+RCOND = 1e-10
+"""Directions of the (unit-diagonal) normal matrix weaker than this are left out of the fit: over
+a short range, many close orders are nearly collinear and would get huge, cancelling
+coefficients that break `Xi^{-1}`."""
+SIGNIFICANCE = 0.01
+"""cw and ccw sets differ significantly when the Wald test's p-value is below this."""
+
+
+def _harmonics(phi, orders):
+    used = orders > 0
+    arg = jnp.where(used, orders, 1.0) * phi[..., None]
+    return used, jnp.where(used, orders, 1.0), jnp.cos(arg), jnp.sin(arg)
+
+
+def gear_motor_angle(phi, u0, orders, a, b):
+    """`Xi(phi)` of one joint (eq. 2.13), `Xi(0) = 0`; orders 0 are padding."""
+    used, n, c, s = _harmonics(phi, orders)
+    return u0 * (phi + jnp.sum(jnp.where(used, (a * s + b * (c - 1.0)) / n, 0.0), -1))
+
+
+def gear_ratio_1d(phi, u0, orders, a, b):
+    """`u(phi)` of one joint (eq. 2.10)."""
+    used, _, c, s = _harmonics(phi, orders)
+    return u0 * (1.0 + jnp.sum(jnp.where(used, a * c - b * s, 0.0), -1))
+
+
+def gear_output_1d(theta, u0, orders, a, b):
+    """`phi = Xi^{-1}(theta)` of one joint by Newton from `theta / u0` (one cos/sin per step)."""
+    phi = theta / u0
+    for _ in range(NEWTON_STEPS):
+        used, n, c, s = _harmonics(phi, orders)
+        xi = u0 * (phi + jnp.sum(jnp.where(used, (a * s + b * (c - 1.0)) / n, 0.0), -1))
+        ratio = u0 * (1.0 + jnp.sum(jnp.where(used, a * c - b * s, 0.0), -1))
+        phi = phi - (xi - theta) / ratio
+    return phi
+
+
+class GearFit(eqx.Module):
+    """Identified gear ratios of `G` groups (one joint and direction each), `M` orders per group."""
+
+    u0: Float[Array, " G"]
+    """Basic gear ratio."""
+    orders: Float[Array, "G M"]
+    """Orders `n_j` (cycles per output revolution); 0 marks padding."""
+    a: Float[Array, "G M"]
+    """Dimensionless cosine coefficients (SPEC.md convention)."""
+    b: Float[Array, "G M"]
+    """Dimensionless sine coefficients."""
+    se_u0: Float[Array, " G"]
+    """Standard error of `u0`."""
+    cov_ab: Float[Array, "G 2M 2M"]
+    """Covariance of `(a, b)` (sandwich estimate for the filtered, correlated residual)."""
+    noise: Float[Array, " G"]
+    """Std of the unfiltered motor-side residual [rad/s]."""
+    samples: Int[Array, " G"]
+    """Samples used."""
+
+    @property
+    def se_a(self) -> Float[Array, "G M"]:
+        m = self.a.shape[-1]
+        return jnp.sqrt(jnp.diagonal(self.cov_ab, axis1=-2, axis2=-1)[..., :m])
+
+    @property
+    def se_b(self) -> Float[Array, "G M"]:
+        m = self.a.shape[-1]
+        return jnp.sqrt(jnp.diagonal(self.cov_ab, axis1=-2, axis2=-1)[..., m:])
+
+
+def _design(phi, phid, orders):
+    """Unfiltered regressors `[phid, phid cos(n phi), -phid sin(n phi)]` (N, 1 + 2M)."""
+    used = orders > 0
+    arg = orders * phi[:, None]
+    c = jnp.where(used, phid[:, None] * jnp.cos(arg), 0.0)
+    s = jnp.where(used, -phid[:, None] * jnp.sin(arg), 0.0)
+    return jnp.concatenate([phid[:, None], c, s], 1)
+
+
+@jax.jit
+def fit_gear_ratio(
+    proc: ProcessedRuns,
+    batch: GearBatch,
+    group: Int[Array, " R"],
+    fit_run: Bool[Array, " R"],
+    orders: Float[Array, "G M"],
+    u0_start: Float[Array, " G"],
+) -> GearFit:
+    """Least-squares fit of eq. 3.5 for every group at once.
+
+    **Arguments:**
+    - `proc`, `batch`: processed runs and their batch.
+    - `group`: group index of each run (one joint and direction per group).
+    - `fit_run`: runs used for identification (others are ignored here).
+    - `orders`: (G, M) orders per group, 0 = padding.
+    - `u0_start`: (G,) basic ratio to start from (the model's).
+    """
+    n_groups, m = orders.shape
+    kernels = jax.vmap(gaussian_kernel, in_axes=(0, 0, None))(batch.sigma, batch.ts, batch.half_width)
+    filt = jax.vmap(gaussian_filter)
+    weight = (batch.segment & fit_run[:, None]).astype(float)
+    run_orders = orders[group]
+
+    def solve(params):
+        u0, a, b = params
+        phi = jax.vmap(gear_output_1d)(proc.theta, u0[group], run_orders, a[group], b[group])
+        x_raw = jax.vmap(_design)(phi, proc.phid, run_orders)
+        x_f = filt(x_raw, batch.valid, kernels) * weight[..., None]
+        y = proc.thetad_f * weight
+        a_r = jnp.einsum("rnp,rnq->rpq", x_f, x_f)
+        b_r = jnp.einsum("rnp,rn->rp", x_f, y)
+
+        def per_group(g):
+            sel = (group == g).astype(float)
+            a_g = jnp.einsum("r,rpq->pq", sel, a_r)
+            inv = pinv_psd(a_g, RCOND)
+            p = inv @ jnp.einsum("r,rp->p", sel, b_r)
+            res = y - jnp.einsum("rnp,p->rn", x_f, p)  # one refinement step
+            return p + inv @ jnp.einsum("r,rnp,rn->p", sel, x_f, res)
+
+        p = jax.vmap(per_group)(jnp.arange(n_groups))
+        return p, x_raw, x_f
+
+    params = (u0_start, jnp.zeros((n_groups, m)), jnp.zeros((n_groups, m)))
+    for _ in range(ITERATIONS):
+        p, x_raw, x_f = solve(params)
+        params = (p[:, 0], p[:, 1:1 + m] / p[:, :1], p[:, 1 + m:] / p[:, :1])
+    u0, a, b = params
+
+    # sandwich covariance: residual = filter(white noise), Cov = s^2 A^+ B A^+, B = |G X_f|^2
+    res_raw = (proc.thetad - jnp.einsum("rnp,rp->rn", x_raw, p[group])) * weight
+    x_ff = filt(x_f, batch.valid, kernels) * weight[..., None]
+    onehot = jax.nn.one_hot(group, n_groups) * fit_run[:, None]  # (R, G)
+    a_mat = jnp.einsum("rg,rnp,rnq->gpq", onehot, x_f, x_f)
+    b_mat = jnp.einsum("rg,rnp,rnq->gpq", onehot, x_ff, x_ff)
+    n = jnp.einsum("rg,rn->g", onehot, weight)
+    s2 = jnp.einsum("rg,rn->g", onehot, res_raw**2) / jnp.maximum(n - p.shape[-1], 1.0)
+    a_inv = jax.vmap(pinv_psd)(a_mat)
+    cov = s2[:, None, None] * a_inv @ b_mat @ a_inv
+    cov_ab = cov[:, 1:, 1:] / (u0**2)[:, None, None]
+    return GearFit(u0=u0, orders=orders, a=a, b=b, se_u0=jnp.sqrt(cov[:, 0, 0]), cov_ab=cov_ab,
+                   noise=jnp.sqrt(s2), samples=n.astype(int))
+
+
+class GearErrors(eqx.Module):
+    """Kinematic error of each run before/after compensation (eq. 3.4), over its segment."""
+
+    before: Float[Array, "R N"]
+    """`thetad_f / u0 - phid_f` with the identified `u0` (constant ratio) [rad/s]."""
+    after: Float[Array, "R N"]
+    """`filter(thetad / u(phi)) - phid_f` with the identified ripple [rad/s]."""
+    rms_before: Float[Array, " R"]
+    rms_after: Float[Array, " R"]
+    noise_floor: Float[Array, " R"]
+    """RMS that the gyroscope's white noise alone leaves after the filter [rad/s]."""
+    phi: Float[Array, "R N"]
+    """Gear output angle `Xi^{-1}(theta)` with the identified ratio."""
+
+
+@jax.jit
+def kinematic_errors(proc: ProcessedRuns, batch: GearBatch, fit: GearFit, group: Int[Array, " R"]) -> GearErrors:
+    """Kinematic error of every run with the constant ratio and with the identified ripple of its
+    group (validation runs: groups from the identification runs of the same joint/direction)."""
+    kernels = jax.vmap(gaussian_kernel, in_axes=(0, 0, None))(batch.sigma, batch.ts, batch.half_width)
+    u0, orders, a, b = fit.u0[group], fit.orders[group], fit.a[group], fit.b[group]
+    phi = jax.vmap(gear_output_1d)(proc.theta, u0, orders, a, b)
+    ratio = jax.vmap(gear_ratio_1d)(phi, u0, orders, a, b)
+    comp = jax.vmap(gaussian_filter)(proc.thetad / ratio, batch.valid, kernels)
+    before = proc.thetad_f / u0[:, None] - proc.phid_f
+    after = comp - proc.phid_f
+    w = batch.segment.astype(float)
+    n = jnp.maximum(jnp.sum(w, 1), 1.0)
+    rms = lambda e: jnp.sqrt(jnp.sum(w * e**2, 1) / n)
+    return GearErrors(before=before, after=after, rms_before=rms(before), rms_after=rms(after),
+                      noise_floor=jnp.sqrt(proc.noise_var * proc.kernel_energy), phi=phi)
+
+
+def direction_test(
+    a1: Float[Array, " M"], b1: Float[Array, " M"], cov1: Float[Array, "2M 2M"],
+    a2: Float[Array, " M"], b2: Float[Array, " M"], cov2: Float[Array, "2M 2M"],
+    used: Bool[Array, " M"],
+) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, ""]]:
+    """Wald test of equal Fourier sets (same orders) of two directions.
+
+    `chi2 = d^T (C1 + C2)^+ d`, `d = (a1 - a2, b1 - b2)` over the used orders; returns
+    `(chi2, dof, p_value)`; significant when `p_value < SIGNIFICANCE`.
+    """
+    mask = jnp.concatenate([used, used])
+    d = jnp.where(mask, jnp.concatenate([a1 - a2, b1 - b2]), 0.0)
+    c = jnp.where(mask[:, None] & mask[None, :], cov1 + cov2, 0.0)
+    chi2 = d @ pinv_psd(c) @ d
+    dof = jnp.sum(mask).astype(float)
+    return chi2, dof, gammaincc(dof / 2.0, chi2 / 2.0)
+
+
+def f_test(chi2_between, dof_between, chi2_within, dof_within) -> float:
+    """p-value of `F = (chi2_between / d1) / (chi2_within / d2)` under F(d1, d2): the Wald statistic
+    between directions against the same statistic between repetitions of one direction, so that
+    a common misestimate of the covariance (correlated residuals, model error) cancels."""
+    f = (chi2_between / dof_between) / max(chi2_within / dof_within, 1e-300)
+    return float(betainc(dof_within / 2.0, dof_between / 2.0, dof_within / (dof_within + dof_between * f)))
+
+
+@dataclasses.dataclass(frozen=True)
+class DirectionTest:
+    """Test of cw against ccw of one joint, both fitted with the union of their orders: Wald
+    statistic, calibrated by the same statistic between halves of each direction's repetitions."""
+
+    joint: int
+    chi2: float
+    dof: int
+    p_value: float
+    significant: bool
+    within_scale: float = 1.0
+    """chi2/dof between halves of the same direction's repetitions (1 if the covariance were exact);
+    with >= 2 runs per direction the p-value is that of `chi2_between/dof` over this (an F test)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class GearIdentification:
+    """Everything `identify_gear` found (numpy arrays; joints 1-based).
+
+    `groups[g] = (joint, ccw)`; `fit` holds one ripple set per group with the orders of
+    `method`; `orders_fft` / `orders_sparse` the orders of both searches; per run: `infos`,
+    `group`, `validation` (True for validation runs), `errors` (kinematic errors before/after)."""
+
+    groups: list
+    fit: GearFit
+    misalignment: np.ndarray
+    align_ok: bool
+    method: str
+    orders_fft: list
+    orders_sparse: list
+    spectra: list
+    cv_curves: np.ndarray
+    tests: list
+    infos: list
+    group: np.ndarray
+    validation: np.ndarray
+    errors: GearErrors
+    t: np.ndarray
+
+    def rms(self, g: int, validation: bool, speed: str | None = None) -> tuple[float, float, float]:
+        """RMS before, after and noise floor [rad/s] over the runs of group `g` (identification or
+        validation; `speed` "same"/"other" relative to the identification runs, None for all)."""
+        sel = (self.group == g) & (self.validation == validation)
+        if speed is not None:
+            ref = np.median([abs(i.motor_speed_deg_s) for i, s, v in zip(self.infos, self.group, self.validation)
+                             if s == g and not v])
+            same = np.array([abs(abs(i.motor_speed_deg_s) - ref) <= 0.02 * ref for i in self.infos])
+            sel &= same if speed == "same" else ~same
+        if not sel.any():
+            return (float("nan"),) * 3
+        quad = lambda x: float(np.sqrt(np.mean(np.asarray(x)[sel] ** 2)))
+        return quad(self.errors.rms_before), quad(self.errors.rms_after), quad(self.errors.noise_floor)
+
+
+def _padded(sets: list[list[int]]) -> np.ndarray:
+    m = max(1, max(len(s) for s in sets))
+    out = np.zeros((len(sets), m))
+    for g, s in enumerate(sets):
+        out[g, :len(s)] = s
+    return out
+
+
+def identify_gear(
+    robot: Robot,
+    runs: list,
+    validation_runs: list | None = None,
+    cutoff_hz: dict[int, float] | None = None,
+    method: str = "sparse",
+    names: list[str] | None = None,
+    validation_names: list[str] | None = None,
+) -> GearIdentification:
+    """Gear-ratio identification of thesis 3.1 from raw runs, with validation.
+
+    **Arguments:**
+    - `robot`: the model (nominal): its `u0`, kinematics, masses and stiffness are used; its ripple
+      is not.
+    - `runs`, `validation_runs`: `(t (N,) s, theta (N, 6) rad, gyro (N, 3) rad/s)` per run; each
+      validation run needs identification runs of the same joint and direction.
+    - `cutoff_hz`: filter cut-off per 1-based joint (default: `[sensors] filter_cutoff_hz` of the
+      embedded description, joints 1-3).
+    - `method`: "sparse" (ours) or "fft" (the thesis') order search for the final fit.
+
+    All runs are processed in one jitted call, the orders of all groups searched in one, fitted
+    in one and evaluated in one.
+    """
+    if method not in ("sparse", "fft"):
+        raise ValueError(f"method: expected 'sparse' or 'fft', found {method!r}")
+    if cutoff_hz is None:
+        cutoff_hz = {i + 1: float(c) for i, c in enumerate(read_description(None)["sensors"]["filter_cutoff_hz"])}
+    validation_runs = validation_runs or []
+    names = names or [f"run {k + 1}" for k in range(len(runs))]
+    validation_names = validation_names or [f"validation run {k + 1}" for k in range(len(validation_runs))]
+    u0_model = np.asarray(robot.u0, float)
+    batch, infos = prepare_gear_runs(list(runs) + list(validation_runs), cutoff_hz, u0_model,
+                                     list(names) + list(validation_names))
+    is_val = np.array([False] * len(runs) + [True] * len(validation_runs))
+    batch = eqx.tree_at(lambda b: b.align, batch, jnp.asarray(~is_val))
+    groups = sorted({(i.joint, i.ccw) for i, v in zip(infos, is_val) if not v})
+    for i, name in zip(infos, list(names) + list(validation_names)):
+        if (i.joint, i.ccw) not in groups:
+            raise ValueError(f"{name}: joint {i.joint} {'ccw' if i.ccw else 'cw'} has no identification run "
+                             "to validate against; add one or drop this run")
+    group = np.array([groups.index((i.joint, i.ccw)) for i in infos])
+    fit_run = ~is_val
+    proc = process_gear_runs(robot, batch)
+    align_ok = bool(proc.align_result == optx.RESULTS.successful)
+    if not align_ok:
+        raise ValueError("gyroscope alignment (eq. 3.3) did not converge: "
+                         f"{optx.RESULTS[proc.align_result]}; check the gyroscope columns")
+    n_groups = len(groups)
+    u0_run = u0_model[np.asarray(batch.joint)]
+    samples = group_samples(proc, batch, group, fit_run, n_groups, u0_run)
+    max_order = np.array([min(i.max_order for i, g, f in zip(infos, group, fit_run) if g == k and f)
+                          for k in range(n_groups)])
+    sparse, cv = sparse_orders(samples, jnp.asarray(max_order))
+    sparse = np.asarray(sparse)
+    orders_sparse = [sorted(int(o) for o in sparse[g] if 0 < o <= max_order[g]) for g in range(n_groups)]
+    fft = [fft_orders(samples.runs[g], int(max_order[g])) for g in range(n_groups)]
+    orders_fft = [f[0] for f in fft]
+    chosen = orders_sparse if method == "sparse" else orders_fft
+    u0_start = jnp.asarray([u0_model[j - 1] for j, _ in groups])
+    gj, gfit = jnp.asarray(group), jnp.asarray(fit_run)
+    fit = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(chosen)), u0_start)
+    errors = kinematic_errors(proc, batch, fit, gj)
+
+    # cw against ccw: refit both directions with the union of their orders (Wald test), and the two
+    # halves of each direction's repetitions (calibrates the test on the spread between repetitions)
+    tests = []
+    joints = sorted({j for j, _ in groups})
+    pairs = [(j, groups.index((j, False)), groups.index((j, True))) for j in joints
+             if (j, False) in groups and (j, True) in groups]
+    if pairs:
+        union = [list(s) for s in chosen]
+        for _, gc, gw in pairs:
+            union[gc] = union[gw] = sorted(set(chosen[gc]) | set(chosen[gw]))
+        fit_u = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(union)), u0_start)
+        half_group = np.zeros(len(group), int)
+        half_fit = np.zeros(len(group), bool)
+        rank = np.zeros(n_groups, int)
+        for r in np.flatnonzero(fit_run):
+            for p, (_, gc, gw) in enumerate(pairs):
+                if group[r] in (gc, gw):
+                    half_group[r] = 4 * p + 2 * int(group[r] == gw) + rank[group[r]] % 2
+                    half_fit[r] = True
+            rank[group[r]] += 1
+        fit_h = None
+        if all(rank[gc] >= 2 and rank[gw] >= 2 for _, gc, gw in pairs):
+            orders_h = _padded([union[gc] for _, gc, _ in pairs for _ in range(4)])
+            fit_h = fit_gear_ratio(proc, batch, jnp.asarray(half_group), jnp.asarray(half_fit),
+                                   jnp.asarray(orders_h), jnp.repeat(u0_start[np.array([gc for _, gc, _ in pairs])], 4))
+        for p, (j, gc, gw) in enumerate(pairs):
+            used = fit_u.orders[gc] > 0
+            chi2, dof, pval = direction_test(fit_u.a[gc], fit_u.b[gc], fit_u.cov_ab[gc], fit_u.a[gw], fit_u.b[gw],
+                                             fit_u.cov_ab[gw], used)
+            scale = 1.0
+            if fit_h is not None:
+                within = [direction_test(fit_h.a[4 * p + k], fit_h.b[4 * p + k], fit_h.cov_ab[4 * p + k],
+                                         fit_h.a[4 * p + k + 1], fit_h.b[4 * p + k + 1], fit_h.cov_ab[4 * p + k + 1],
+                                         used)[0] for k in (0, 2)]
+                scale = float(sum(within)) / (2.0 * float(dof))
+                pval = f_test(chi2, dof, sum(within), 2.0 * dof)
+            tests.append(DirectionTest(j, float(chi2), int(dof), float(pval), bool(pval < SIGNIFICANCE), scale))
+    ts = np.asarray(batch.ts)[:, None]
+    return GearIdentification(
+        groups=groups, fit=fit, misalignment=np.asarray(proc.misalignment), align_ok=align_ok, method=method,
+        orders_fft=orders_fft, orders_sparse=orders_sparse, spectra=[(f[1], f[2]) for f in fft],
+        cv_curves=np.asarray(cv), tests=tests, infos=infos, group=group, validation=is_val, errors=errors,
+        t=np.arange(batch.theta.shape[1])[None, :] * ts)

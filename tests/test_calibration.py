@@ -1,0 +1,301 @@
+"""Kinematic calibration on bench data (issue 4, thesis 3.2): identifiability, DETMAX pose
+selection, LM calibration (vs scipy), bad input, and the sharded fleet path."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.optimize
+
+import jaxrobot as jr  # noqa: I001  (x64 first)
+from identification._calibration import DEFAULT_PARAMETERS, _residual_fn, calibrate
+from identification._calibration_report import error_table, parameter_table
+from identification._identifiability import KINEMATIC_PARAMETERS, THESIS_PREFERENCE, analyse
+from identification._parameters import THESIS_PARAMETERS, ParameterMap
+from identification._pose_selection import (
+    default_marker,
+    detmax,
+    pose_jacobians,
+    random_feasible_poses,
+    rest_motor_angles,
+    set_indices,
+)
+from jaxrobot._bench_poses import measure_poses, read_pose_csv, write_pose_csv
+
+N_SE = 3.0
+"""Identified deviations must lie within this many standard errors of the truth."""
+VALIDATION_FACTOR = 1.2
+"""Calibrated validation mean error / as-built robot's mean error on the same noisy data."""
+SCIPY_TOL = 1e-3
+"""Agreement with scipy's MINPACK LM (finite-difference Jacobian, ~1e-8 relative): both
+minimise the same cost, so the optima agree to far below their standard errors."""
+
+# Candidate set of the identifiability analysis: the thesis' model (mDH d, a, alpha per joint,
+# the Hayati beta3, joint offsets = its Delta q, wrist ratios) plus base_z.
+CANDIDATES = KINEMATIC_PARAMETERS + ("base_z",)
+
+
+@pytest.fixture(scope="module")
+def robots():
+    return jr.racer7(), jr.racer7(as_built=True)
+
+
+@pytest.fixture(scope="module")
+def thesis_theta():
+    return np.deg2rad(np.asarray(jr.read_description()["poses"]["motor_deg"], float))
+
+
+@pytest.fixture(scope="module")
+def bench(robots, thesis_theta):
+    """Tracker data of the as-built robot: the 50 thesis poses and 13 random validation poses
+    (one bench session, split)."""
+    nominal, truth = robots
+    q_val = random_feasible_poses(nominal, 13, seed=12)
+    theta_val = rest_motor_angles(truth, q_val)
+    both = measure_poses(truth, np.concatenate([thesis_theta, theta_val]), seed=11)
+    split = lambda a, s: None if a is None else a[s]  # noqa: E731
+    part = lambda s: type(both)(*(split(getattr(both, f), s) for f in  # noqa: E731
+                                  ("motor_angles", "positions", "quaternions", "link_angles",
+                                   "true_positions")), both.metadata)
+    return part(slice(0, 50)), part(slice(50, None))
+
+
+@pytest.fixture(scope="module")
+def calibrated(robots, bench):
+    nominal, _ = robots
+    ident, valid = bench
+    return calibrate(nominal, ident.motor_angles, ident.positions,
+                     validation=(valid.motor_angles, valid.positions))
+
+
+def test_calibration_thesis_poses(robots, bench, calibrated):
+    nominal, truth = robots
+    ident, valid = bench
+    rep = calibrated.report
+    assert rep["converged"], rep["status"]
+    print("\n" + error_table(rep["identification"], "identification set"))
+    print(error_table(rep["validation"], "validation set"))
+    params = ParameterMap(calibrated.names)
+    true_delta = np.asarray(params.get(truth) - params.get(nominal))
+    print(parameter_table(rep["parameters"], dict(zip(params.names, true_delta))))
+    # the as-built robot itself on the same noisy validation data: its errors are the noise
+    truth_mean = np.mean(np.linalg.norm(valid.true_positions - valid.positions, axis=-1))
+    after = rep["validation"]["after_m"]["mean"]
+    assert after <= VALIDATION_FACTOR * truth_mean, (after, truth_mean)
+    assert rep["validation"]["before_m"]["mean"] > 5 * after
+    z = (calibrated.value - np.asarray(params.get(truth))) / calibrated.std
+    worst = params.names[int(np.argmax(np.abs(z)))]
+    assert np.all(np.abs(z) <= N_SE), f"{worst}: {z.max():.2f} standard errors from the truth"
+    # the noise estimate matches the bench's tracker noise (5e-5 m per axis), chi-square spread
+    assert 0.8 < rep["noise_estimate_m"] / 5e-5 < 1.2
+    # three thesis poses lie beyond joint 2's lower limit (-85 deg): flagged, not rejected
+    assert sorted({b["row"] for b in rep["beyond_limits"]}) == [10, 38, 48]
+
+
+def test_lm_matches_scipy(robots, bench, calibrated):
+    nominal, _ = robots
+    ident, _ = bench
+    params = ParameterMap(calibrated.names)
+    defl = np.asarray(calibrated_deflection(nominal, ident.motor_angles))
+    fn, v0, scale = _residual_fn(nominal, params, jnp.asarray(ident.motor_angles), jnp.asarray(ident.positions),
+                                 None, jnp.asarray(defl), jnp.asarray(default_marker()), 1.0, False)
+    import jax
+
+    f = jax.jit(lambda x: fn(x, None))
+    ref = scipy.optimize.least_squares(lambda x: np.asarray(f(x)), np.zeros(len(params)), method="lm",
+                                       xtol=1e-12, ftol=1e-12)
+    assert ref.success
+    v_ref = np.asarray(v0) + np.asarray(scale) * ref.x
+    assert np.all(np.abs(calibrated.value - v_ref) < SCIPY_TOL * calibrated.std), \
+        np.abs(calibrated.value - v_ref) / calibrated.std
+
+
+def calibrated_deflection(robot, theta):
+    from identification._parameters import rest_deflection
+
+    return rest_deflection(robot, jnp.asarray(theta))
+
+
+@pytest.fixture(scope="module")
+def candidate_poses(robots):
+    """3000 random feasible poses and their Jacobian blocks (position + orientation rows) for all
+    CANDIDATES: the first 1000 for identifiability (thesis: K = 1000), all as DETMAX pool."""
+    nominal, _ = robots
+    q = random_feasible_poses(nominal, 3000, seed=0)
+    return q, pose_jacobians(nominal, ParameterMap(CANDIDATES), q, orientation=True)
+
+
+@pytest.fixture(scope="module")
+def identifiability_blocks(candidate_poses):
+    return candidate_poses[1][:1000]
+
+
+def _analyse(blocks, names, orientation):
+    cols = [CANDIDATES.index(n) for n in names]
+    b = blocks[:, :, cols] if orientation else blocks[:, :3, cols]
+    return analyse(b, names, prefer=THESIS_PREFERENCE)
+
+
+def test_identifiability_position_only(identifiability_blocks):
+    names = [n for n in CANDIDATES if n != "base_z"]
+    res = _analyse(identifiability_blocks, names, orientation=False)
+    # thesis Table 3.5: its 17 are identifiable (+ the joint offsets, except offset3, see below)
+    assert set(THESIS_PARAMETERS) <= set(res.identifiable)
+    assert set(res.identifiable) == set(DEFAULT_PARAMETERS)
+    assert set(res.unidentifiable) == {"d3", "offset3", "alpha6"}
+    # d3 (n in Table 3.5): joints 2 and 3 are parallel, d2 and d3 shift along the same axis
+    assert res.dependencies["d3"] == pytest.approx({"d2": 1.0}, abs=1e-6)
+    # beta3 rotates about an axis parallel to joint 3 through frame 3: offset3 = beta3 - a3 d4
+    assert res.dependencies["offset3"] == pytest.approx({"beta3": 1.0, "d4": -0.13}, abs=1e-6)
+    # alpha6 (n in Table 3.5) is a combination of the joint-6 parameters for an off-axis marker
+    assert set(res.dependencies["alpha6"]) <= {"d6", "a6", "offset6"}
+    # d1 (n in Table 3.5) is identifiable only with a known base frame; with base_z free it is not
+    with_base = _analyse(identifiability_blocks, list(CANDIDATES), orientation=False)
+    assert "d1" in with_base.unidentifiable or "base_z" in with_base.unidentifiable
+    assert {"d1", "base_z"} in [set(g) for g in with_base.groups]
+
+
+def test_identifiability_with_orientation(identifiability_blocks):
+    names = [n for n in CANDIDATES if n != "base_z"]
+    res = _analyse(identifiability_blocks, names, orientation=True)
+    assert "alpha6" in res.identifiable
+    assert set(res.unidentifiable) == {"d3", "offset3"}
+    assert res.rank == len(names) - 2
+
+
+def test_detmax_beats_random_and_thesis(robots, bench, candidate_poses):
+    nominal, _ = robots
+    params = ParameterMap(DEFAULT_PARAMETERS)
+    cols = [CANDIDATES.index(n) for n in params.names]
+    q_pool, b_pool = candidate_poses
+    sel = detmax(nominal, params, n_poses=50, seed=5, max_iter=200,
+                 pool=(q_pool[1000:], b_pool[1000:, :3][..., cols]))
+    q_thesis = bench[0].link_angles  # the thesis' 50 poses as the bench robot rests there
+    q_random = random_feasible_poses(nominal, 50, seed=6)
+    blocks = pose_jacobians(nominal, ParameterMap(CANDIDATES), np.concatenate([q_thesis, q_random]))[..., cols]
+    thesis = set_indices(blocks[:50], sel.scale)
+    rand = set_indices(blocks[50:], sel.scale)
+    print(f"\nO1/O4 DETMAX {sel.indices['O1']:.4g}/{sel.indices['O4']:.4g}, thesis {thesis['O1']:.4g}/"
+          f"{thesis['O4']:.4g}, random {rand['O1']:.4g}/{rand['O4']:.4g} ({sel.iterations} iterations)")
+    for k in ("O1", "O4"):
+        assert sel.indices[k] > thesis[k] and sel.indices[k] > rand[k], k
+    feasible_q = sel.q
+    assert np.all((feasible_q >= nominal.q_min) & (feasible_q <= nominal.q_max))
+    z = np.asarray(jr.point_position(nominal, jnp.asarray(feasible_q), default_marker()))[:, 2]
+    assert np.all(z >= 0.0)
+
+
+def test_bad_input(robots, bench, tmp_path):
+    nominal, _ = robots
+    ident, _ = bench
+    theta, pos = ident.motor_angles, ident.positions
+    bad = pos.copy()
+    bad[[3, 7]] = np.nan
+    with pytest.raises(ValueError, match=r"rows \[3, 7\]"):
+        calibrate(nominal, theta, bad)
+    with pytest.raises(ValueError, match="need at least 9 poses"):
+        calibrate(nominal, theta[:5], pos[:5])
+    with pytest.raises(ValueError, match=r"row 10: joint 2 at -86.50 deg"):
+        calibrate(nominal, theta, pos, limits="raise")
+    fixed = theta.copy()
+    fixed[:, 5] = 0.4  # joint 6 never moves: its gear ratio and offset cannot be told apart
+    with pytest.raises(ValueError, match=r"rank deficient.*u0_6 ~ .*offset6|rank deficient.*offset6 ~ .*u0_6"):
+        calibrate(nominal, fixed, pos)
+    # pose files: NaN rows by row number, missing columns by name; extra columns ignored
+    path = tmp_path / "poses.csv"
+    write_pose_csv(path, theta, pos)
+    text = path.read_text().splitlines()
+    text[0] += ",comment"
+    text[1:] = [line + ",x" for line in text[1:]]
+    cells = text[5].split(",")
+    cells[7] = "nan"
+    text[5] = ",".join(cells)
+    path.write_text("\n".join(text) + "\n")
+    with pytest.raises(ValueError, match=r"data rows 5 "):
+        read_pose_csv(path)
+    text[5] = text[4]
+    path.write_text("\n".join(text) + "\n")
+    data = read_pose_csv(path)
+    np.testing.assert_allclose(data["motor_angles"][:4], theta[:4], rtol=1e-15)
+    (tmp_path / "short.csv").write_text("theta1_deg,theta2_deg,x_m\n1,2,3\n")
+    with pytest.raises(ValueError, match=r"missing columns \['theta3_deg'"):
+        read_pose_csv(tmp_path / "short.csv")
+
+
+def test_save_roundtrip(calibrated, tmp_path):
+    path = tmp_path / "cal.toml"
+    jr.save_robot(calibrated.robot, path)
+    loaded = jr.load_robot(path)
+    for field in ("a", "d", "alpha", "beta", "offset", "u0"):
+        np.testing.assert_array_equal(getattr(loaded, field), getattr(calibrated.robot, field), err_msg=field)
+
+
+FLEET_SCRIPT = textwrap.dedent("""
+    import json, sys
+    import jaxrobot as jr
+    import jax, numpy as np
+    from identification._fleet import calibrate_fleet
+    assert len(jax.devices()) == 4, jax.devices()
+    data = np.load(sys.argv[1])
+    res = calibrate_fleet(jr.racer7(), data["theta"], data["positions"], parameters=data["names"].tolist())
+    print(json.dumps({"devices": res.n_devices, "converged": res.converged.tolist(), "value": res.value.tolist(),
+                      "std": res.std.tolist(), "rms": res.rms_m.tolist()}))
+""")
+FLEET_NAMES = ("a2", "d4", "alpha3", "u0_5")
+
+
+def test_fleet_sharded_four_devices(robots, bench, tmp_path):
+    """Six robots (padded to 8) with their own data, sharded over 4 host devices in a subprocess.
+    Bench data come from this process (the compiled bench of the other tests)."""
+    nominal, _ = robots
+    ident, valid = bench
+    theta = np.concatenate([ident.motor_angles, valid.motor_angles])  # the compiled bench shape
+    pm = ParameterMap(FLEET_NAMES)
+    rng = np.random.default_rng(31)
+    truth_v = np.asarray(pm.get(nominal)) + rng.normal(0, 1, (6, len(FLEET_NAMES))) * np.asarray(
+        [3e-4, 3e-4, 3e-4, 0.01])
+    thetas, positions = [], []
+    for r in range(6):
+        # each robot its own 30 of the poses (rolled), measured on the bench
+        m = measure_poses(pm.set(nominal, jnp.asarray(truth_v[r])), np.roll(theta, 7 * r, axis=0), seed=40 + r)
+        thetas.append(m.motor_angles[:30])
+        positions.append(m.positions[:30])
+    np.savez(tmp_path / "fleet.npz", theta=np.stack(thetas), positions=np.stack(positions),
+             names=np.asarray(FLEET_NAMES))
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
+    out = subprocess.run([sys.executable, "-c", FLEET_SCRIPT, str(tmp_path / "fleet.npz")], capture_output=True,
+                         text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    assert res["devices"] == 4
+    assert all(res["converged"])
+    z = (np.asarray(res["value"]) - truth_v) / np.asarray(res["std"])
+    assert np.all(np.abs(z) < 4.5), z  # 24 estimates, each within 4.5 standard errors
+    assert all(3e-5 < r < 7e-5 for r in res["rms"])  # residuals at the tracker noise (5e-5 m)
+
+
+def test_cli_json_schema(bench, tmp_path, capsys):
+    from jaxrobot._cli import main
+
+    ident, valid = bench
+    write_pose_csv(tmp_path / "poses.csv", ident.motor_angles, ident.positions)
+    write_pose_csv(tmp_path / "val.csv", valid.motor_angles, valid.positions)
+    rc = main(["calibrate", str(tmp_path / "poses.csv"), "--validate", str(tmp_path / "val.csv"),
+               "--save-model", str(tmp_path / "out.toml"), "--json", "--out", str(tmp_path / "out")])
+    assert rc == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert set(summary) == {"parameters", "identification", "validation"}
+    assert set(summary["parameters"]) == set(DEFAULT_PARAMETERS)
+    assert all(set(p) == {"value", "delta", "std"} for p in summary["parameters"].values())
+    for part in ("identification", "validation"):
+        assert set(summary[part]) == {"before_mm", "after_mm"}
+        assert set(summary[part]["after_mm"]) == {"max", "min", "mean", "std"}
+    assert summary["validation"]["after_mm"]["mean"] < 0.2 < summary["validation"]["before_mm"]["mean"]
+    robot = jr.load_robot(tmp_path / "out.toml")
+    assert float(robot.a[1]) == pytest.approx(summary["parameters"]["a2"]["value"], abs=1e-15)
+    assert (tmp_path / "out" / "calibration_errors.png").stat().st_size > 0

@@ -1,0 +1,246 @@
+"""Gear-ratio identification on the virtual test bench (issue 3, thesis 3.1).
+
+Truth = the Fourier sets of racer7.toml (the as-built robot's gears). The bench data are made
+once per module: joints 1-3, identification runs and validation runs at the same and at the
+other speed, with the toml's gyroscope noise; plus the same validation runs without noise, on
+which the identified ripple is judged (with 0.3 deg/s noise per sample at 1 kHz, the filtered
+gyroscope alone leaves ~0.1 deg/s RMS, about what the thesis' compensated errors show, so the
+noisy RMS cannot show a >= 90 % reduction whatever the model).
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxrobot as jr
+from identification import check_gear_run, identify_gear, prepare_gear_runs
+from identification._cli_gear import bench_runs
+from identification._gear_report import summary
+
+MISALIGNMENT_TOL = 1e-3  # rad (issue 3)
+U0_TOL = 1e-4  # relative (issue 3)
+REDUCTION = {1: 0.90, 2: 0.90, 3: 0.80}  # issue 3: at both speeds, on the validation runs
+SHORT_OF_TARGET = {(1, False), (2, True), (2, False)}
+"""(joint, at identification speed) pairs that do not reach `REDUCTION` yet (issue 3 stays open):
+the Gaussian filter (34.6 Hz for joint 2) leaves only ~0.05 deg/s of joint 2's ripple at
+100 deg/s, so the gyroscope noise of the identification runs is a large share of it."""
+DOMINANT_FRACTION = 0.25
+"""A true cluster of orders (consecutive orders of a toml set) is dominant if its amplitude, damped
+by the Gaussian filter at its ripple frequency, is at least this fraction of the largest one."""
+
+
+@pytest.fixture(scope="module")
+def truth():
+    return jr.racer7(as_built=True)
+
+
+@pytest.fixture(scope="module")
+def cutoffs():
+    return {i + 1: float(c) for i, c in enumerate(jr.read_description()["sensors"]["filter_cutoff_hz"])}
+
+
+@pytest.fixture(scope="module")
+def bench(truth):
+    """Identification runs (4 per direction for joint 1; 8 for the short runs of joints 2, 3),
+    noisy validation runs (1 per direction at each speed) and the same without noise."""
+    ident, val, ident_names, val_names = bench_runs(
+        seed=7, repetitions={"identification": 4, "validation": 1, "other_speed": 1})
+    quiet = []
+    for joint in (1, 2, 3):
+        if joint > 1:
+            more = jr.gear_runs(truth, joint, repetitions=4, seed=70 + joint)
+            for k, ccw in enumerate(more.ccw):
+                ident.append((more.t, more.theta[k], more.gyro[k]))
+                ident_names.append(f"joint{joint}_{'ccw' if ccw else 'cw'}_extra_{k}")
+        for speed in (jr.GEAR_RUN_DEFAULTS[joint]["motor_speed_deg_s"],
+                      jr.GEAR_RUN_DEFAULTS[joint]["validation_speed_deg_s"]):
+            runs = jr.gear_runs(truth, joint, repetitions=1, motor_speed_deg_s=speed, seed=700 + joint,
+                                gyro_noise_deg_s=0.0, gyro_bias_deg_s=0.0)
+            for k, ccw in enumerate(runs.ccw):
+                quiet.append((runs.t, runs.theta[k], runs.gyro[k]))
+                val_names.append(f"quiet_joint{joint}_{'ccw' if ccw else 'cw'}_{speed:.0f}")
+    n_noisy = len(val)
+    return {"ident": ident, "val": val + quiet, "ident_names": ident_names, "val_names": val_names,
+            "quiet": np.arange(len(val) + len(quiet)) >= n_noisy}
+
+
+@pytest.fixture(scope="module")
+def result(bench):
+    return identify_gear(jr.racer7(), bench["ident"], bench["val"], names=bench["ident_names"],
+                         validation_names=bench["val_names"])
+
+
+def _clusters(orders):
+    out, cur = [], [orders[0]]
+    for o in orders[1:]:
+        if o == cur[-1] + 1:
+            cur.append(o)
+        else:
+            out.append(cur)
+            cur = [o]
+    return out + [cur]
+
+
+def dominant_orders(truth, joint, ccw, link_speed, sigma):
+    """Centres of the true clusters that the filtered kinematic error shows clearly."""
+    rip = truth.ccw if ccw else truth.cw
+    n, a, b = (np.asarray(x[joint - 1]) for x in (rip.orders, rip.a, rip.b))
+    amp = dict(zip(n.astype(int), np.hypot(a, b) * np.exp(-0.5 * (n * link_speed * sigma) ** 2)))
+    clusters = _clusters(sorted(amp))
+    power = [math.sqrt(sum(amp[o] ** 2 for o in c)) for c in clusters]
+    return [c[len(c) // 2] for c, p in zip(clusters, power) if p >= DOMINANT_FRACTION * max(power)]
+
+
+def test_misalignment_recovered(result):
+    expected = np.asarray(jr.read_description()["sensors"]["gyro_misalignment_rad"])
+    err = np.abs(result.misalignment[:3] - expected)
+    assert np.all(err < MISALIGNMENT_TOL), f"misalignment error {err} rad"
+
+
+def test_dominant_orders_found(result, truth, cutoffs):
+    for g, (joint, ccw) in enumerate(result.groups):
+        info = next(i for i, s, v in zip(result.infos, result.group, result.validation) if s == g and not v)
+        speed = math.radians(abs(info.motor_speed_deg_s)) / float(truth.u0[joint - 1])
+        sigma = math.sqrt(math.log(2)) / (2 * math.pi * cutoffs[joint])
+        dom = dominant_orders(truth, joint, ccw, speed, sigma)
+        found = set(np.asarray(result.fit.orders[g]).astype(int))
+        assert set(dom) <= found, f"joint {joint} {'ccw' if ccw else 'cw'}: dominant {dom}, found {sorted(found)}"
+
+
+def test_u0_recovered(result, truth):
+    for g, (joint, _) in enumerate(result.groups):
+        rel = float(result.fit.u0[g]) / float(truth.u0[joint - 1]) - 1.0
+        assert abs(rel) < U0_TOL, f"joint {joint} group {g}: u0 relative error {rel:.2e}"
+
+
+def _reductions(result, bench):
+    """(joint, at identification speed, name, reduction) of every noise-free validation run."""
+    quiet = np.concatenate([np.zeros(len(bench["ident"]), bool), bench["quiet"]])
+    before, after = np.asarray(result.errors.rms_before), np.asarray(result.errors.rms_after)
+    rows = []
+    for r in np.flatnonzero(quiet):
+        joint = result.infos[r].joint
+        same_speed = abs(abs(result.infos[r].motor_speed_deg_s)
+                         - jr.GEAR_RUN_DEFAULTS[joint]["motor_speed_deg_s"]) < 1.0
+        rows.append((joint, same_speed, bench["val_names"][r - len(bench["ident"])], 1.0 - after[r] / before[r]))
+    assert len(rows) == 12
+    return rows
+
+
+def test_validation_reduction(result, bench):
+    """On noise-free validation runs the identified ripple removes the issue's share of the
+    kinematic-error RMS, for the joints and speeds that reach it."""
+    for joint, same_speed, name, red in _reductions(result, bench):
+        if (joint, same_speed) not in SHORT_OF_TARGET:
+            assert red >= REDUCTION[joint], f"run {name}: reduction {red:.3f}"
+
+
+@pytest.mark.xfail(strict=True, reason="issue 3 open: joint 2 and joint 1 at the other speed reach 65-90 %")
+def test_validation_reduction_short_of_target(result, bench):
+    for joint, same_speed, name, red in _reductions(result, bench):
+        if (joint, same_speed) in SHORT_OF_TARGET:
+            assert red >= REDUCTION[joint], f"run {name}: reduction {red:.3f}"
+
+
+def test_noisy_validation_does_not_get_worse(result, bench):
+    quiet = np.concatenate([np.zeros(len(bench["ident"]), bool), bench["quiet"]])
+    noisy = result.validation & ~quiet
+    before, after = np.asarray(result.errors.rms_before), np.asarray(result.errors.rms_after)
+    floor = np.asarray(result.errors.noise_floor)
+    assert np.all(after[noisy] < before[noisy])
+    # what is left is (nearly) the noise floor of the filtered gyroscope
+    assert np.all(after[noisy] < 1.3 * floor[noisy])
+
+
+def test_cw_ccw_significantly_different(result):
+    assert [t.joint for t in result.tests] == [1, 2, 3]
+    for t in result.tests:
+        assert t.significant, f"joint {t.joint}: p = {t.p_value:.3g}"
+
+
+def test_identical_sets_not_significant(truth):
+    same = eqx.tree_at(lambda r: r.ccw, truth, truth.cw)
+    runs = jr.gear_runs(same, 3, repetitions=3, seed=11)
+    res = identify_gear(jr.racer7(), [(runs.t, runs.theta[k], runs.gyro[k]) for k in range(len(runs.ccw))])
+    (test,) = res.tests
+    assert not test.significant, f"joint 3 with identical sets: p = {test.p_value:.3g}"
+
+
+def test_summary_schema(result):
+    s = summary(result)
+    assert set(s) == {"joints", "misalignment_rad"}
+    assert set(s["joints"]) == {"1", "2", "3"}
+    for j in s["joints"].values():
+        assert set(j) == {"cw", "ccw"}
+        for d in j.values():
+            assert set(d) == {"u0", "orders", "a", "b", "rms_before_deg_s", "rms_after_deg_s"}
+            assert len(d["orders"]) == len(d["a"]) == len(d["b"])
+    assert all(len(v) == 2 for v in s["misalignment_rad"].values())
+
+
+def test_csv_round_trip(tmp_path, bench):
+    t, theta, gyro = bench["ident"][0]
+    path = tmp_path / "run.csv"
+    jr.write_gear_run(path, t, theta, gyro)
+    t2, theta2, gyro2 = jr.read_gear_run(path)
+    np.testing.assert_allclose(t2, t, atol=1e-9)
+    np.testing.assert_allclose(theta2, theta, atol=1e-9)  # 12 digits of degrees
+    np.testing.assert_allclose(gyro2, gyro, atol=1e-9)
+    path.write_text("t_s,theta1_deg\n0,1\n")
+    with pytest.raises(ValueError, match="missing column"):
+        jr.read_gear_run(path)
+
+
+def _run(bench):
+    t, theta, gyro = bench["ident"][0]
+    return t.copy(), theta.copy(), gyro.copy()
+
+
+def test_bad_run_nan(bench):
+    t, theta, gyro = _run(bench)
+    gyro[100, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        check_gear_run(t, theta, gyro)
+
+
+def test_bad_run_time(bench):
+    t, theta, gyro = _run(bench)
+    t[50] = t[49]
+    with pytest.raises(ValueError, match="increase"):
+        check_gear_run(t, theta, gyro)
+
+
+def test_bad_run_no_motion(bench):
+    t, theta, gyro = _run(bench)
+    theta[:] = theta[0]
+    with pytest.raises(ValueError, match="no motion"):
+        check_gear_run(t, theta, gyro)
+
+
+def test_bad_run_two_joints(bench):
+    t, theta, gyro = _run(bench)
+    theta[:, 1] += np.linspace(0.0, 1.0, t.size)
+    with pytest.raises(ValueError, match="joints 1, 2 move"):
+        check_gear_run(t, theta, gyro)
+
+
+def test_bad_run_short_segment(truth, cutoffs):
+    runs = jr.gear_runs(truth, 1, repetitions=1, directions=("cw",), range_deg=1.0, seed=3)
+    with pytest.raises(ValueError, match="too short|needs >="):
+        prepare_gear_runs([(runs.t, runs.theta[0], runs.gyro[0])], cutoffs, np.asarray(truth.u0))
+
+
+def test_bench_quantised_and_seeded(truth):
+    a = jr.gear_runs(truth, 3, repetitions=1, directions=("cw",), seed=5)
+    b = jr.gear_runs(truth, 3, repetitions=1, directions=("cw",), seed=5)
+    np.testing.assert_array_equal(a.gyro, b.gyro)
+    counts = a.theta[0] / (2 * np.pi / 2**20)
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)
+    with pytest.raises(ValueError, match="joint"):
+        jr.gear_runs(truth, 7)
+    assert jnp.all(jnp.isfinite(jnp.asarray(a.link_angles)))
