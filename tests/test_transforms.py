@@ -40,20 +40,35 @@ FUNCTIONS = {
 }
 
 
+ACCELERATIONS = {"link_acceleration", "planning_dynamics"}
+
+
 @pytest.mark.parametrize("name", list(FUNCTIONS))
 def test_jit_vmap_grad(name):
     fn, states = FUNCTIONS[name]
-    batched = jax.jit(jax.vmap(fn, in_axes=(None, 0)))(ROBOT, states)
+    batched, broadcast = jax.jit(lambda r, s: (jax.vmap(fn, in_axes=(None, 0))(r, s), fn(r, s)))(ROBOT, states)
     assert batched.shape[0] == 1000 and bool(jnp.all(jnp.isfinite(batched)))
-    broadcast = jax.jit(fn)(ROBOT, states)  # native leading batch axes
-    np.testing.assert_allclose(batched, broadcast, rtol=1e-12, atol=1e-12, err_msg=f"{name}: vmap vs batch axes")
-    # grad w.r.t. the state and the robot's parameters, checked against central differences
+    # accelerations solve D qdd = kappa(phi - q) - g - C qd: phi = Xi^-1(theta) is resolved to
+    # eps |theta| / u0 ~ 1e-15 rad, i.e. 2e-11 N m through k1, which the wrist's ~3e-3 kg m^2 turns
+    # into ~1e-8 rad/s^2; vmap and batch axes round differently within that
+    atol = 1e-8 if name in ACCELERATIONS else 1e-12
+    np.testing.assert_allclose(batched, broadcast, rtol=1e-12, atol=atol, err_msg=f"{name}: vmap vs batch axes")
+    # grad of a random linear functional w.r.t. the state and the robot, vs central differences
+    rng = np.random.default_rng(12)
     x0 = states[3]
-    direction = jnp.asarray(np.random.default_rng(12).normal(size=x0.shape))
-    scalar = jax.jit(lambda x: jnp.sum(jnp.sin(fn(ROBOT, x))))
-    g = jax.jit(jax.grad(scalar))(x0)
+    direction = jnp.asarray(rng.normal(size=x0.shape))
+    weights = jnp.asarray(rng.normal(size=batched.shape[1:]))
+    scalar = lambda r, x: jnp.sum(weights * fn(r, x))  # noqa: E731
     h = 1e-6
-    fd = (scalar(x0 + h * direction) - scalar(x0 - h * direction)) / (2 * h)
-    np.testing.assert_allclose(g @ direction, fd, rtol=1e-5, atol=1e-6, err_msg=f"{name}: grad vs differences")
-    g_robot = jax.jit(jax.grad(lambda r: jnp.sum(jnp.sin(fn(r, x0)))))(ROBOT)
-    assert all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in jax.tree.leaves(g_robot)), f"{name}: grad wrt robot"
+
+    @jax.jit
+    def check(r, x):
+        g_robot, g_state = jax.grad(scalar, argnums=(0, 1))(r, x)
+        fd = (scalar(r, x + h * direction) - scalar(r, x - h * direction)) / (2 * h)
+        return g_robot, g_state @ direction, fd
+
+    g_robot, g_dir, fd = check(ROBOT, x0)
+    np.testing.assert_allclose(g_dir, fd, rtol=1e-5, atol=1e-6 * float(jnp.abs(fd)) + 1e-9,
+                               err_msg=f"{name}: grad vs differences")
+    finite = all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in jax.tree.leaves(g_robot))
+    assert finite, f"{name}: grad wrt robot"
