@@ -7,15 +7,21 @@ docstring). The merit of the Powell-Hestenes-Rockafellar augmented Lagrangian is
 
 `J` the scaled quadratic cost, `c` the trapezoidal defects (each couples nodes k and k+1),
 `v = y + gam/rho`, `P` the projection on the box bounds. The inner problem `min Phi` is solved
-by Gauss-Newton/Levenberg-Marquardt steps: `J` is quadratic (exact Hessian), the penalty
-terms contribute `rho Jc^T Jc` (constraint curvature dropped, it is `O(lam + rho c)`) and
-`rho` on the diagonal of bound-active variables, so the normal matrix is block-tridiagonal
-with 30x30 blocks and is factorised by `_block_tridiagonal.block_cholesky`. Steps are
-accepted by the gain ratio of the merit; the damping `mu I` grows on rejection or on a
-factorisation that is not positive definite. After each inner solve the multipliers are
-updated (`lam += rho c`, `gam = rho (v - P(v))`) and `rho` grows when the violation did not fall
-by `violation_decrease`. Stops when the largest scaled violation and the largest scaled
-gradient of the Lagrangian (stationarity) are below their tolerances.
+by Gauss-Newton/Levenberg-Marquardt steps: the gradient of `Phi` is exact (one reverse-mode
+pass through the dynamics); the matrix is `J`'s exact Hessian plus `rho Jc^T Jc` (constraint
+curvature dropped, it is `O(lam + rho c)`), `rho` on the diagonal of bound-active variables
+and `mu I`. It is block-tridiagonal with 30x30 blocks, factorised by
+`_block_tridiagonal.block_cholesky`, and reused for `refresh_every` steps while `rho` and `mu`
+stay put (the iterates move by micro-radians, so a factor from a few steps back is as good).
+Steps are accepted by the gain ratio of the merit; `mu` grows on rejection or on a matrix
+that is not positive definite. After each inner solve the multipliers are updated
+(`lam += rho c`, `gam = rho (v - P(v))`) and `rho` grows when the violation did not fall by
+`violation_decrease`. Stops when the largest scaled violation and the largest scaled gradient
+of the Lagrangian (stationarity) are below their tolerances.
+
+Numbers (nu = 1e-14): in the scaled units the control weight is O(10-100) and a defect is
+exact to ~1e-12 (roundoff of `phi - q` amplified by the stiff wrist joints); defects are
+accumulated from those of the warm start so that their roundoff scales with the correction.
 """
 
 from __future__ import annotations
@@ -27,13 +33,14 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._block_tridiagonal import block_cholesky, block_cholesky_solve
+from ._block_tridiagonal import BlockCholesky, block_cholesky, block_cholesky_solve
 from ._transcription import (
     ANGLE_SCALE,
     OCPProblem,
     bounds,
     fixed_mask,
     half_step_dynamics,
+    half_step_jacobian,
     scaled_cost,
     variable_scale,
 )
@@ -45,40 +52,45 @@ class ALConfig:
 
     max_outer_iterations: int = 30
     """Most multiplier/penalty updates before giving up (`RESULTS.max_iterations`)."""
-    max_inner_iterations: int = 8
+    max_inner_iterations: int = 1
     """Most Gauss-Newton/LM steps (accepted or not) per outer iteration."""
-    penalty_init: float = 1e2
+    penalty_init: float = 1e6
     """Initial penalty `rho`."""
     penalty_growth: float = 10.0
     """Factor on `rho` when the violation did not fall enough."""
-    penalty_max: float = 1e8
+    penalty_max: float = 1e7
     """Upper limit of `rho` (keeps the normal matrix factorisable)."""
     violation_decrease: float = 0.1
     """Required ratio of new to previous violation; above it `rho` grows."""
     tol_violation: float = 1e-9
     """Stop when the largest scaled violation (defects, bounds) is at most this."""
-    tol_stationarity: float = 1e-8
-    """... and the largest scaled gradient of the Lagrangian at most this."""
+    tol_stationarity: float = 1e-6
+    """... and the largest scaled gradient of the Lagrangian at most this plus `rho defect_noise`."""
+    defect_noise: float = 1e-11
+    """Roundoff of a scaled defect (stiff wrist joints amplify that of `phi - q`); the multiplier
+    update `lam += rho c` carries `rho` times it into the gradient of the Lagrangian."""
     inner_tol: float = 1e-9
     """An inner solve ends when the largest scaled gradient of `Phi` is at most this."""
     damping_init: float = 1e-9
     """Initial Levenberg-Marquardt damping `mu` (multiplies the identity)."""
-    damping_min: float = 1e-12
-    """Smallest damping."""
     damping_max: float = 1e6
     """A damping above this means the inner solve failed (`RESULTS.inner_failed`)."""
     damping_up: float = 10.0
     """Factor on `mu` after a rejected step or a failed factorisation."""
-    damping_down: float = 0.1
-    """Factor on `mu` after an accepted step."""
     accept_ratio: float = 1e-4
     """Smallest ratio of actual to predicted merit decrease that accepts a step."""
+    refresh_every: int = 4
+    """Steps after which the Gauss-Newton matrix is re-linearised and re-factorised (also when
+    `rho` or `mu` changed, and after a step from a reused factor was rejected)."""
 
 
 STATUS_SUCCESSFUL = 0
 STATUS_MAX_ITERATIONS = 1
 STATUS_INNER_FAILED = 2
 STATUS_NONFINITE = 3
+HISTORY_CHUNK = 32
+"""History arrays hold a multiple of this many outer iterations (one compilation serves all
+`max_outer_iterations` up to it)."""
 
 
 class ALResult(eqx.Module):
@@ -109,114 +121,87 @@ class _Parts(eqx.Module):
     lower: Float[Array, "N 30"]
     upper: Float[Array, "N 30"]
     free: Float[Array, "N 30"]
+    y0: Float[Array, "N 30"]
+    g0: Float[Array, "N 24"]
+    c0: Float[Array, "Nm1 24"]
 
 
-def _parts(problem: OCPProblem) -> _Parts:
+def _parts(problem: OCPProblem, y0) -> _Parts:
     cost = scaled_cost(problem)
     sz = variable_scale(problem)
     lo, hi = bounds(problem)
     fixed = fixed_mask(problem)
     lower = jnp.where(fixed, -jnp.inf, lo / sz)
     upper = jnp.where(fixed, jnp.inf, hi / sz)
-    return _Parts(problem, cost.node_weight, cost.node_target, cost.edge_weight, lower, upper,
-                  (~fixed).astype(float))
+    g0 = half_step_dynamics(problem, y0)
+    c0 = y0[1:, :24] - y0[:-1, :24] - g0[1:] - g0[:-1]
+    return _Parts(problem, cost.node_weight, cost.node_target - y0, cost.edge_weight, lower - y0, upper - y0,
+                  (~fixed).astype(float), y0, g0, c0)
 
 
 def _cost(p: _Parts, y):
-    d = y[1:] - y[:-1]
+    d = (p.y0[1:] - p.y0[:-1]) + (y[1:] - y[:-1])
     return jnp.sum(p.weight * (y - p.target) ** 2) + jnp.sum(p.edge * d**2)
 
 
 def _defects(p: _Parts, y, g=None):
-    g = half_step_dynamics(p.problem, y) if g is None else g
-    return y[1:, :24] - y[:-1, :24] - g[1:] - g[:-1]
+    """Scaled defects at `y0 + y`, accumulated from those of `y0` so that roundoff scales with
+    the correction `y`, not with the angles (it would cap the reachable stationarity at `rho eps`)."""
+    dg = (half_step_dynamics(p.problem, p.y0 + y) if g is None else g) - p.g0
+    return p.c0 + (y[1:, :24] - y[:-1, :24]) - dg[1:] - dg[:-1]
 
 
-def _merit(p: _Parts, y, lam, gam, rho):
-    c = _defects(p, y)
+def _box_violation(p: _Parts, y):
+    return jnp.max(jnp.maximum(p.lower - y, 0.0) + jnp.maximum(y - p.upper, 0.0))
+
+
+def _gradient(p: _Parts, y, lam, gam, rho):
+    """Scaled defects at `y` and the exact gradient of `Phi` (one reverse-mode pass through the
+    dynamics), zero on fixed variables."""
+    c, vjp = jax.vjp(lambda y: _defects(p, y), y)
+    d = (p.y0[1:] - p.y0[:-1]) + (y[1:] - y[:-1])
+    zero = jnp.zeros((1, 30))
+    grad = 2 * p.weight * (y - p.target) + vjp(lam + rho * c)[0]
+    grad = grad + jnp.concatenate([-2 * p.edge * d, zero]) + jnp.concatenate([zero, 2 * p.edge * d])
     v = y + gam / rho
-    out = v - jnp.clip(v, p.lower, p.upper)
-    return _cost(p, y) + jnp.sum(lam * c) + 0.5 * rho * (jnp.sum(c**2) + jnp.sum(out**2)) - jnp.sum(gam**2) / (2 * rho)
+    grad = grad + rho * (v - jnp.clip(v, p.lower, p.upper))
+    return c, grad * p.free
 
 
-def _lagrangian(p: _Parts, y, lam, gam):
-    return _cost(p, y) + jnp.sum(lam * _defects(p, y)) + jnp.sum(gam * y)
-
-
-def _normal_equations(p: _Parts, y, lam, gam, rho):
-    """Gradient `(N, 30)` of `Phi` and its Gauss-Newton matrix (diagonal and sub-diagonal blocks)."""
+def _normal_matrix(p: _Parts, y, gam, rho, mu) -> BlockCholesky:
+    """Factor of the Gauss-Newton matrix of `Phi` plus `mu I` (block-tridiagonal, 30x30 blocks),
+    fixed variables replaced by identity rows. The exact defect Jacobian is needed: dropping the
+    gravity/Coriolis/inertia derivatives (~1e-3 of the stiffness terms) slows the iteration from
+    ~100x to ~2x per step at nu = 1e-14 (the conditioning amplifies the error)."""
     n = y.shape[0]
-    def node(yk):
-        gk = half_step_dynamics(p.problem, yk)
-        return gk, gk
-
-    jac, g = jax.vmap(jax.jacfwd(node, has_aux=True))(y)
-    c = y[1:, :24] - y[:-1, :24] - g[1:] - g[:-1]
+    _, jac = half_step_jacobian(p.problem, p.y0 + y)
     e = jnp.eye(24, 30)
     ja = -e - jac[:-1]  # d c_k / d y_k
     jb = e - jac[1:]  # d c_k / d y_{k+1}
-    w = lam + rho * c
-    grad = 2 * p.weight * (y - p.target)
-    grad = grad.at[:-1].add(jnp.einsum("kij,ki->kj", ja, w)).at[1:].add(jnp.einsum("kij,ki->kj", jb, w))
-    diag = rho * jnp.zeros((n, 30, 30)).at[:-1].add(jnp.einsum("kij,kil->kjl", ja, ja))
-    diag = diag.at[1:].add(rho * jnp.einsum("kij,kil->kjl", jb, jb))
-    lower = rho * jnp.einsum("kij,kil->kjl", jb, ja)
-    # quadratic cost: node and edge terms
-    d = y[1:] - y[:-1]
-    grad = grad.at[:-1].add(-2 * p.edge * d).at[1:].add(2 * p.edge * d)
+    jat, jbt = jnp.swapaxes(ja, 1, 2), jnp.swapaxes(jb, 1, 2)
+    zero = jnp.zeros((1, 30, 30))
+    diag = rho * (jnp.concatenate([jat @ ja, zero]) + jnp.concatenate([zero, jbt @ jb]))
+    lower = rho * (jbt @ ja) - jnp.eye(30) * 2 * p.edge
     hdiag = jnp.broadcast_to(2 * p.weight, (n, 30))
     hdiag = hdiag.at[:-1].add(2 * p.edge).at[1:].add(2 * p.edge)
-    lower = lower - jnp.eye(30) * 2 * p.edge
-    # box bounds (PHR)
     v = y + gam / rho
-    proj = jnp.clip(v, p.lower, p.upper)
-    grad = grad + rho * (v - proj)
-    hdiag = hdiag + rho * (v != proj)
+    hdiag = hdiag + rho * (v != jnp.clip(v, p.lower, p.upper)) + mu
     diag = diag + jax.vmap(jnp.diag)(hdiag)
-    # fixed variables: identity rows, zero gradient
     f = p.free
     diag = f[:, :, None] * diag * f[:, None, :] + jax.vmap(jnp.diag)(1.0 - f)
     lower = f[1:, :, None] * lower * f[:-1, None, :]
-    return grad * f, diag, lower
+    return block_cholesky(diag, lower)
 
 
-class _Inner(eqx.Module):
-    y: Float[Array, "N 30"]
-    mu: Float[Array, ""]
-    steps: Int[Array, ""]
-    done: Bool[Array, ""]
-    failed: Bool[Array, ""]
+def _merit_from(p: _Parts, y, c, lam, gam, rho):
+    """`Phi` at `y` with its defects `c` already known."""
+    v = y + gam / rho
+    out = v - jnp.clip(v, p.lower, p.upper)
+    penalty = 0.5 * rho * (jnp.sum(c**2) + jnp.sum(out**2)) - jnp.sum(gam**2) / (2 * rho)
+    return _cost(p, y) + jnp.sum(lam * c) + penalty
 
 
-def _inner_solve(p: _Parts, y, lam, gam, rho, mu, config: ALConfig) -> _Inner:
-    """Gauss-Newton/LM iterations on `Phi` (module docstring)."""
-
-    def body(s: _Inner) -> _Inner:
-        grad, diag, lower = _normal_equations(p, s.y, lam, gam, rho)
-        small = jnp.max(jnp.abs(grad)) <= config.inner_tol
-        factor = block_cholesky(diag + s.mu * jax.vmap(jnp.diag)(p.free), lower)
-        dy = -block_cholesky_solve(factor, grad)
-        phi = _merit(p, s.y, lam, gam, rho)
-        phi_new = _merit(p, s.y + dy, lam, gam, rho)
-        predicted = 0.5 * (-jnp.sum(grad * dy) + s.mu * jnp.sum(dy**2))
-        actual = phi - phi_new
-        noise = 1e-13 * (jnp.abs(phi) + 1.0)  # merit differences below roundoff: accept GN step
-        ok = factor.positive_definite & jnp.isfinite(phi_new) & jnp.all(jnp.isfinite(dy))
-        accept = ~small & ok & ((actual >= config.accept_ratio * predicted) | (jnp.abs(actual) <= noise))
-        y = jnp.where(accept, s.y + dy, s.y)
-        mu = jnp.where(accept, jnp.maximum(s.mu * config.damping_down, config.damping_min),
-                       jnp.where(small, s.mu, s.mu * config.damping_up))
-        failed = mu > config.damping_max
-        return _Inner(y, mu, s.steps + (~small).astype(int), small | failed, failed)
-
-    def cond(s: _Inner):
-        return ~s.done & (s.steps < config.max_inner_iterations)
-
-    init = _Inner(y, mu, jnp.array(0), jnp.array(False), jnp.array(False))
-    return jax.lax.while_loop(cond, body, init)
-
-
-class _Outer(eqx.Module):
+class _State(eqx.Module):
     y: Float[Array, "N 30"]
     lam: Float[Array, "Nm1 24"]
     gam: Float[Array, "N 30"]
@@ -224,58 +209,99 @@ class _Outer(eqx.Module):
     mu: Float[Array, ""]
     it: Int[Array, ""]
     inner: Int[Array, ""]
+    steps: Int[Array, ""]
     violation: Float[Array, ""]
     stationarity: Float[Array, ""]
     status: Int[Array, ""]
     stop: Bool[Array, ""]
     hist: Float[Array, "4 M"]
+    factor: BlockCholesky
+    factor_key: Float[Array, "2"]
+    factor_age: Int[Array, ""]
 
 
-def augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 30"], config: ALConfig = ALConfig()) -> ALResult:
+def history_length(config: ALConfig) -> int:
+    """Static length of the history arrays for `config`."""
+    return HISTORY_CHUNK * max(1, -(-int(config.max_outer_iterations) // HISTORY_CHUNK))
+
+
+def augmented_lagrangian(
+    problem: OCPProblem, y0: Float[Array, "N 30"], config: ALConfig = ALConfig(), history: int | None = None
+) -> ALResult:
     """Solve eq. 4.3 from the scaled initial guess `y0` (its fixed nodes must hold the boundary
-    values). Pure; `jit`/`vmap` over `problem` and `y0` (`config` is static)."""
-    p = _parts(problem)
-    m = config.max_outer_iterations
+    values). Pure; `jit`/`vmap` over `problem` and `y0`. `config`'s numbers may be traced;
+    `history` (static, default `history_length(config)`) must then be given.
+
+    One flat loop: each pass assembles the normal equations at `y`; when the inner solve is
+    done (gradient of `Phi` at most `inner_tol`, or `max_inner_iterations` steps) it updates
+    the multipliers and the penalty and checks convergence, otherwise it takes one LM step.
+    """
+    p = _parts(problem, y0)
+    m = history_length(config) if history is None else history
     n = y0.shape[0]
 
-    def violation(y):
-        box = jnp.maximum(p.lower - y, 0.0) + jnp.maximum(y - p.upper, 0.0)
-        return jnp.maximum(jnp.max(jnp.abs(_defects(p, y))), jnp.max(box))
-
-    def body(s: _Outer) -> _Outer:
-        inner = _inner_solve(p, s.y, s.lam, s.gam, s.rho, s.mu, config)
-        y = inner.y
-        c = _defects(p, y)
-        viol = violation(y)
-        lam = s.lam + s.rho * c
-        v = y + s.gam / s.rho
+    def outer_update(s: _State, c_y, grad) -> _State:
+        viol = jnp.maximum(jnp.max(jnp.abs(c_y)), _box_violation(p, s.y))
+        stat = jnp.max(jnp.abs(grad))  # = gradient of the Lagrangian at the updated multipliers
+        lam = s.lam + s.rho * c_y
+        v = s.y + s.gam / s.rho
         gam = s.rho * (v - jnp.clip(v, p.lower, p.upper))
-        stat = jnp.max(jnp.abs(p.free * jax.grad(_lagrangian, argnums=1)(p, y, lam, gam)))
-        rho = jnp.where(viol > config.violation_decrease * s.violation,
+        rho = jnp.where((viol > config.violation_decrease * s.violation) & (viol > config.tol_violation),
                         jnp.minimum(s.rho * config.penalty_growth, config.penalty_max), s.rho)
-        converged = (viol <= config.tol_violation) & (stat <= config.tol_stationarity)
-        finite = jnp.isfinite(viol) & jnp.isfinite(stat) & jnp.all(jnp.isfinite(y))
+        converged = (viol <= config.tol_violation) & (stat <= config.tol_stationarity + s.rho * config.defect_noise)
+        finite = jnp.isfinite(viol) & jnp.isfinite(stat)
         it = s.it + 1
-        status = jnp.select(
-            [converged, ~finite, inner.failed, it >= m],
-            [STATUS_SUCCESSFUL, STATUS_NONFINITE, STATUS_INNER_FAILED, STATUS_MAX_ITERATIONS],
-            STATUS_MAX_ITERATIONS,
-        )
-        stop = converged | ~finite | inner.failed | (it >= m)
-        record = jnp.stack([_cost(p, y) * ANGLE_SCALE**2, viol, s.rho, stat])
-        hist = s.hist.at[:, s.it].set(record)
-        return _Outer(y, lam, gam, rho, inner.mu, it, s.inner + inner.steps, viol, stat, status, stop, hist)
+        out_of_iterations = it >= config.max_outer_iterations
+        status = jnp.where(converged, STATUS_SUCCESSFUL,
+                           jnp.where(finite, STATUS_MAX_ITERATIONS, STATUS_NONFINITE))
+        record = jnp.stack([_cost(p, s.y) * ANGLE_SCALE**2, viol, s.rho, stat])
+        hist = s.hist.at[:, jnp.minimum(s.it, m - 1)].set(record)
+        return eqx.tree_at(
+            lambda t: (t.lam, t.gam, t.rho, t.it, t.inner, t.violation, t.stationarity, t.status, t.stop, t.hist),
+            s, (lam, gam, rho, it, jnp.array(0), viol, stat, status, converged | ~finite | out_of_iterations, hist))
 
-    init = _Outer(
-        y=y0, lam=jnp.zeros((n - 1, 24)), gam=jnp.zeros((n, 30)), rho=jnp.asarray(config.penalty_init, float),
-        mu=jnp.asarray(config.damping_init, float), it=jnp.array(0), inner=jnp.array(0),
-        violation=violation(y0), stationarity=jnp.array(jnp.inf), status=jnp.array(STATUS_MAX_ITERATIONS),
-        stop=jnp.array(False), hist=jnp.full((4, m), jnp.nan),
+    def lm_step(s: _State, c_y, grad) -> _State:
+        key = jnp.stack([s.rho, s.mu])
+        fresh = jnp.any(key != s.factor_key) | (s.factor_age >= config.refresh_every)
+        factor = jax.lax.cond(fresh, lambda: _normal_matrix(p, s.y, s.gam, s.rho, s.mu), lambda: s.factor)
+        dy = -block_cholesky_solve(factor, grad)
+        phi = _merit_from(p, s.y, c_y, s.lam, s.gam, s.rho)
+        phi_new = _merit_from(p, s.y + dy, _defects(p, s.y + dy), s.lam, s.gam, s.rho)
+        predicted = 0.5 * (-jnp.sum(grad * dy) + s.mu * jnp.sum(dy**2))
+        actual = phi - phi_new
+        noise = 1e-13 * (jnp.abs(phi) + 1.0)  # merit differences at roundoff: take the GN step
+        ok = factor.positive_definite & jnp.isfinite(phi_new) & jnp.all(jnp.isfinite(dy))
+        accept = ok & ((actual >= config.accept_ratio * predicted) | (jnp.abs(actual) <= noise))
+        # a rejected step from a reused factor is retried with a fresh one at the same damping
+        retry = ~accept & ~fresh
+        y = jnp.where(accept, s.y + dy, s.y)
+        mu = jnp.where(accept | retry, s.mu, s.mu * config.damping_up)
+        failed = mu > config.damping_max
+        status = jnp.where(failed, STATUS_INNER_FAILED, s.status)
+        age = jnp.where(retry, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))
+        return eqx.tree_at(
+            lambda t: (t.y, t.mu, t.inner, t.steps, t.status, t.stop, t.factor, t.factor_key, t.factor_age),
+            s, (y, mu, s.inner + 1, s.steps + 1, status, failed, factor, key, age))
+
+    def body(s: _State) -> _State:
+        c_y, grad = _gradient(p, s.y, s.lam, s.gam, s.rho)
+        inner_done = (jnp.max(jnp.abs(grad)) <= config.inner_tol) | (s.inner >= config.max_inner_iterations)
+        return jax.lax.cond(inner_done, lambda s: outer_update(s, c_y, grad), lambda s: lm_step(s, c_y, grad), s)
+
+    y_init = jnp.zeros_like(y0)
+    rho0 = jnp.asarray(config.penalty_init, float)
+    mu0 = jnp.asarray(config.damping_init, float)
+    init = _State(
+        y=y_init, lam=jnp.zeros((n - 1, 24)), gam=jnp.zeros((n, 30)), rho=rho0, mu=mu0, it=jnp.array(0),
+        inner=jnp.array(0), steps=jnp.array(0), violation=jnp.array(jnp.inf), stationarity=jnp.array(jnp.inf),
+        status=jnp.array(STATUS_MAX_ITERATIONS), stop=jnp.array(False), hist=jnp.full((4, m), jnp.nan),
+        factor=_normal_matrix(p, y_init, jnp.zeros((n, 30)), rho0, mu0), factor_key=jnp.stack([rho0, mu0]),
+        factor_age=jnp.array(0),
     )
     s = jax.lax.while_loop(lambda s: ~s.stop, body, init)
     return ALResult(
-        y=s.y, multipliers=s.lam, bound_multipliers=s.gam, status=s.status, iterations=s.it,
-        inner_iterations=s.inner, objective=_cost(p, s.y) * ANGLE_SCALE**2, violation=s.violation,
+        y=p.y0 + s.y, multipliers=s.lam, bound_multipliers=s.gam, status=s.status, iterations=s.it,
+        inner_iterations=s.steps, objective=_cost(p, s.y) * ANGLE_SCALE**2, violation=s.violation,
         stationarity=s.stationarity, history_objective=s.hist[0], history_violation=s.hist[1],
         history_penalty=s.hist[2], history_stationarity=s.hist[3],
     )

@@ -3,11 +3,14 @@ method of `_al_solver` on its block-tridiagonal structure."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax.numpy as jnp
-import jaxrobot as jr
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
+
+import jaxrobot as jr
 
 from ._al_solver import (
     STATUS_INNER_FAILED,
@@ -16,6 +19,7 @@ from ._al_solver import (
     STATUS_SUCCESSFUL,
     ALConfig,
     augmented_lagrangian,
+    history_length,
 )
 from ._transcription import Cost, boundary_states, max_violation, objective, ocp_problem, variable_scale
 from ._transcription import warm_start as default_warm_start
@@ -102,11 +106,22 @@ class OCPSolution(eqx.Module):
 
 
 @eqx.filter_jit
-def _solve(problem, x0, u0, config: ALConfig) -> OCPSolution:
+def _solve(problem, start, settings: dict, history: int, reference_from_start: bool) -> OCPSolution:
+    if start is None:
+        x0, u0 = default_warm_start(problem)
+    else:
+        x0, u0 = start
+        xa, xb = boundary_states(problem)
+        x0 = x0.at[0].set(xa).at[-1].set(xb)
+        u0 = u0.at[0].set(0.0).at[-1].set(0.0)
+    if reference_from_start:
+        problem = eqx.tree_at(lambda p: p.u_ref, problem, u0)
     sz = variable_scale(problem)
-    res = augmented_lagrangian(problem, jnp.concatenate([x0, u0], -1) / sz, config)
+    res = augmented_lagrangian(problem, jnp.concatenate([x0, u0], -1) / sz, ALConfig(**settings), history)
     z = res.y * sz
-    x, u = z[:, :24], z[:, 24:]
+    # the end nodes are fixed (eq. 4.3e-j): restore them exactly after the scaling round trip
+    x = z[:, :24].at[0].set(x0[0]).at[-1].set(x0[-1])
+    u = z[:, 24:].at[0].set(0.0).at[-1].set(0.0)
     return OCPSolution(
         x=x, u=u, status=res.status, iterations=res.iterations, inner_iterations=res.inner_iterations,
         objective=objective(problem, x, u), max_constraint_violation=max_violation(problem, x, u),
@@ -123,7 +138,7 @@ def solve_ocp(
     ts: float | Float[Array, ""],
     nu: float | Float[Array, ""] = 1e-14,
     cost: Cost = "thesis",
-    config: ALConfig = ALConfig(),
+    config: ALConfig | None = None,
     warm_start: tuple[Float[Array, "N 24"], Float[Array, "N 6"]] | None = None,
     u_ref: Float[Array, "N 6"] | None = None,
 ) -> OCPSolution:
@@ -136,7 +151,8 @@ def solve_ocp(
     - `nu`: weighting factor of eq. 4.3a (> 0).
     - `cost`: `"thesis"` (eq. 4.3a), `"jerk"` (`nu ||u_{k+1} - u_k||^2`) or `"flat"`
       (`nu ||u - u_ref||^2`).
-    - `config`: `ALConfig` (static).
+    - `config`: `ALConfig` (default `ALConfig()`); its numbers are traced, so changing them
+      does not recompile (only `max_outer_iterations` beyond a multiple of 32 does).
     - `warm_start`: `(x (N, 24), u (N, 6))`, e.g. from `jr.flat_inverse`; default: the flat
       relation on finite differences of `q_d` (`_transcription.warm_start`). Its end nodes
       are replaced by the boundary values of eq. 4.3e-j.
@@ -148,22 +164,18 @@ def solve_ocp(
 
     **Raises:** `ValueError` naming the field for bad inputs (shapes, NaN, `ts <= 0`, `nu <= 0`).
     """
+    config = ALConfig() if config is None else config
     if not isinstance(config, ALConfig):
         raise ValueError(f"config: expected an ALConfig, found {type(config).__name__}")
     problem = ocp_problem(robot, q_d, ts, nu, cost, u_ref)
     n = problem.n_nodes
-    if warm_start is None:
-        x0, u0 = default_warm_start(problem)
-    else:
+    start = None
+    if warm_start is not None:
         x0, u0 = warm_start
         if np.shape(x0) != (n, 24) or np.shape(u0) != (n, 6):
             raise ValueError(f"warm_start: expected (x, u) of shapes ({n}, 24), ({n}, 6), "
                              f"found {np.shape(x0)}, {np.shape(u0)}")
-        x0, u0 = jnp.asarray(x0, float), jnp.asarray(u0, float)
-        xa, xb = boundary_states(problem)
-        x0 = x0.at[0].set(xa).at[-1].set(xb)
-        u0 = u0.at[0].set(0.0).at[-1].set(0.0)
-    if cost == "flat" and u_ref is None:
-        problem = eqx.tree_at(lambda p: p.u_ref, problem, u0)
-    return _solve(problem, x0, u0, config)
-
+        start = (jnp.asarray(x0, float), jnp.asarray(u0, float))
+    # the settings are traced: one compilation serves every ALConfig of the same history length
+    settings = {k: jnp.asarray(v) for k, v in dataclasses.asdict(config).items()}
+    return _solve(problem, start, settings, history_length(config), cost == "flat" and u_ref is None)

@@ -12,8 +12,10 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import jaxrobot as jr
+import numpy as np
 from jaxtyping import Array, Float, Real
+
+import jaxrobot as jr
 
 
 class Path(NamedTuple):
@@ -107,7 +109,7 @@ def reference_path(name: str, description: dict[str, Any] | None = None) -> Path
     return makers[name](description)
 
 
-def time_grid(path: Path) -> Float[Array, "N"]:
+def time_grid(path: Path) -> Float[Array, " N"]:
     """The planning grid `t_k = k T_s`, `k = 0 .. N-1`, `N = t_e / T_s + 1` (2501 for the reference tasks)."""
     if not (path.duration > 0 and path.sample_time > 0):
         raise ValueError(f"path duration and sample_time must be > 0 s, got {path.duration}, {path.sample_time}")
@@ -118,24 +120,80 @@ def time_grid(path: Path) -> Float[Array, "N"]:
     return jnp.arange(n + 1) * path.sample_time
 
 
-def sample_path(path: Path, t: Real[Array, "N"]) -> tuple[Float[Array, "N 3"], Float[Array, "N 3 3"]]:
+def sample_path(path: Path, t: Real[Array, " N"]) -> tuple[Float[Array, "N 3"], Float[Array, "N 3 3"]]:
     """`p_d(t_k)` (N, 3) and `R_d(t_k)` (N, 3, 3) at the times `t`."""
     t = jnp.asarray(t, dtype=float)
     return jax.vmap(path.position)(t), jax.vmap(path.orientation)(t)
 
 
 def path_derivatives(
-    fn: Callable[[Real[Array, ""]], Float[Array, "*s"]], t: Real[Array, "N"], order: int
-) -> list[Float[Array, "N *s"]]:
+    fn: Callable[[Real[Array, ""]], Float[Array, "*s"]], t: Real[Array, " N"], order: int
+) -> list[Float[Array, "N ..."]]:
     """`[fn(t), fn'(t), ..., fn^(order)(t)]` at every `t` by nested `jax.jvp` (exact, no differencing)."""
     if order < 0:
         raise ValueError(f"order must be >= 0, got {order}")
 
-    def nested(k):
+    def nested(k):  # s -> (fn(s), ..., fn^(k)(s)) in one trace
         if k == 0:
-            return fn
+            return lambda s: (fn(s),)
         inner = nested(k - 1)
-        return lambda s: jax.jvp(inner, (s,), (jnp.ones_like(s),))[1]
+
+        def outer(s):
+            primal, tangent = jax.jvp(inner, (s,), (jnp.ones_like(s),))
+            return (*primal, tangent[-1])
+
+        return outer
 
     t = jnp.asarray(t, dtype=float)
-    return [jax.vmap(nested(k))(t) for k in range(order + 1)]
+    return list(jax.vmap(nested(order))(t))
+
+
+STENCIL = 9
+"""Samples per local interpolating polynomial of `sampled_path` (degree 8: four derivatives to O(T_s^5))."""
+
+
+def _local_polynomial(t_grid: Float[Array, " N"], values: Float[Array, "N ..."]):
+    """`s -> ` the polynomial through the `STENCIL` samples nearest `s` (Lagrange; one-sided at the ends)."""
+    n = t_grid.shape[0]
+    half = STENCIL // 2
+    h = t_grid[1] - t_grid[0]
+
+    def fn(s):
+        k = jnp.round((jax.lax.stop_gradient(s) - t_grid[0]) / h).astype(int)
+        start = jnp.clip(k - half, 0, n - STENCIL)
+        x = (s - t_grid[start]) / h  # position within the stencil, in samples
+        nodes = jnp.arange(STENCIL, dtype=float)
+        off = ~np.eye(STENCIL, dtype=bool)
+        denom = np.where(off, np.arange(STENCIL)[:, None] - np.arange(STENCIL)[None, :], 1.0)
+        weights = jnp.prod(jnp.where(off, (x - nodes)[None, :] / denom, 1.0), axis=1)  # Lagrange basis
+        block = jax.lax.dynamic_slice_in_dim(values, start, STENCIL, 0)
+        return jnp.tensordot(weights, block, axes=1)
+
+    return fn
+
+
+def sampled_path(
+    t: Real[Array, " N"], p_d: Float[Array, "N 3"], r_d: Float[Array, "N 3 3"] | None = None,
+    name: str = "samples", description: dict[str, Any] | None = None,
+) -> Path:
+    """A `Path` through task-space samples on a uniform grid `t` (from 0): between samples, the local
+    degree-8 interpolating polynomial of the 9 nearest samples (derivatives to 4th order on the grid).
+    `r_d` (N, 3, 3) defaults to the constant task orientation of eq. 4.6."""
+    t = jnp.asarray(t, dtype=float)
+    p_d = jnp.asarray(p_d, dtype=float)
+    if t.ndim != 1 or t.shape[0] < STENCIL:
+        raise ValueError(f"t must be 1-D with at least {STENCIL} samples [s], got shape {t.shape}")
+    steps = jnp.diff(t)
+    if abs(float(t[0])) > 1e-12 or float(jnp.max(jnp.abs(steps - steps[0]))) > 1e-9 * float(steps[0]) or steps[0] <= 0:
+        raise ValueError("t must start at 0 s and be uniformly increasing (one sample time T_s)")
+    if p_d.shape != t.shape + (3,):
+        raise ValueError(f"p_d must have shape ({t.shape[0]}, 3) [m], got {p_d.shape}")
+    if r_d is None:
+        orientation = _constant(task_orientation(description))
+    else:
+        r_d = jnp.asarray(r_d, dtype=float)
+        if r_d.shape != t.shape + (3, 3):
+            raise ValueError(f"r_d must have shape ({t.shape[0]}, 3, 3), got {r_d.shape}")
+        orientation = _local_polynomial(t, r_d)
+    ts = float(steps[0])
+    return Path(_local_polynomial(t, p_d), orientation, ts * (t.shape[0] - 1), ts, name)

@@ -33,9 +33,10 @@ from typing import Literal
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import jaxrobot as jr
 import numpy as np
 from jaxtyping import Array, Bool, Float
+
+import jaxrobot as jr
 
 ANGLE_SCALE = 1e-3
 """Angle unit of the scaled problem [rad] (mrad)."""
@@ -226,6 +227,49 @@ def half_step_dynamics(problem: OCPProblem, y: Float[Array, "*n 30"]) -> Float[A
     z = y * sz
     f = jr.planning_dynamics(problem.robot, z[..., :24], z[..., 24:])
     return 0.5 * problem.ts * f / sz[:24]
+
+
+def half_step_jacobian(
+    problem: OCPProblem, y: Float[Array, "N 30"], exact: bool = True
+) -> tuple[Float[Array, "N 24"], Float[Array, "N 24 30"]]:
+    """`g_k` of `half_step_dynamics` and its Jacobian `d g_k / d y_k` from the structure of
+    eq. 4.1; with `exact=False` the terms `dID/d(q, qd)` (gravity, Coriolis and inertia
+    derivatives, ~1e-3 of the joint stiffness for the Racer-7) are dropped.
+
+    With `ID(q, qd, qdd) = D qdd + C qd + g = kappa(phi - q)` at the model's `qdd`:
+    `dqdd/dq = -D^{-1} (dID/dq + kappa')`, `dqdd/dqd = -D^{-1} dID/dqd`,
+    `dqdd/dtheta = D^{-1} kappa' / u(phi)`; the other rows are identities. `dID/d(q, qd)` by
+    forward-mode autodiff of Newton-Euler (12 tangents), the rest in closed form.
+    """
+    r = problem.robot
+    sz = variable_scale(problem)
+    z = y * sz
+    q, qd, theta = z[:, :6], z[:, 6:12], z[:, 12:18]
+    phi = jr.gear_output(r, theta)
+    d = jr.mass_matrix(r, q)
+    qdd = jnp.linalg.solve(d, (jr.elastic_torque(r, phi - q) - jr.inverse_dynamics(r, q, qd, jnp.zeros_like(q)))
+                           [..., None])[..., 0]
+    stiff = r.k1 + 3.0 * r.k3 * (phi - q) ** 2
+    if exact:
+        one = lambda a, b, c: jr.inverse_dynamics(r, a, b, c)  # noqa: E731
+        id_q, id_qd = jax.vmap(jax.jacfwd(one, argnums=(0, 1)))(q, qd, qdd)
+    else:
+        id_q = id_qd = jnp.zeros_like(d)
+    rhs = jnp.concatenate([-(id_q + jax.vmap(jnp.diag)(stiff)), -id_qd,
+                           jax.vmap(jnp.diag)(stiff / jr.gear_ratio(r, phi))], -1)
+    dqdd = jnp.linalg.solve(d, rhs)  # (N, 6, 18): d qdd / d (q, qd, theta)
+    n = y.shape[0]
+    eye = jnp.broadcast_to(jnp.eye(6), (n, 6, 6))
+    zero = jnp.zeros((n, 6, 6))
+    jac = jnp.concatenate([
+        jnp.concatenate([zero, eye, zero, zero, zero], -1),
+        jnp.concatenate([dqdd, zero, zero], -1),
+        jnp.concatenate([zero, zero, zero, eye, zero], -1),
+        jnp.concatenate([zero, zero, zero, zero, eye], -1),
+    ], -2)
+    f = jnp.concatenate([qd, qdd, z[:, 18:24], z[:, 24:]], -1)
+    half = 0.5 * problem.ts / sz[:24]
+    return half * f, half[:, None] * jac * sz
 
 
 def fixed_mask(problem: OCPProblem) -> Bool[Array, "N 30"]:

@@ -1,0 +1,268 @@
+"""Benchmark: the OCP of eq. 4.3 in CasADi + IPOPT (exact Hessian, MUMPS) vs our augmented Lagrangian.
+
+Both solve the same scaled NLP (`planning._transcription`: angles in mrad, time in samples) from the
+same warm start (the flat inverse) for the line and the spiral at nu = 1e-14 and 1e-10, N = 2501.
+The CasADi model is written anew with casadi symbols: mDH kinematics and Newton-Euler for the mass
+matrix (unit accelerations) and `C qd + g`, the gear inverse `Xi^-1` by the same Newton steps, and
+`kappa`. `cross_check` evaluates our objective and constraints at IPOPT's solution.
+
+Run: `python benchmarks/bench_ocp.py [--quick]` (writes benchmarks/results_ocp.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+from pathlib import Path
+
+import casadi as ca
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxrobot as jr
+import planning as pl
+from jaxrobot._gear import NEWTON_STEPS
+from planning._ocp import RESULTS, solve_ocp
+from planning._transcription import (
+    ANGLE_SCALE,
+    bound_violation,
+    boundary_defects,
+    boundary_states,
+    bounds,
+    defects,
+    objective,
+    ocp_problem,
+    variable_scale,
+)
+
+NUS = (1e-14, 1e-10)
+TASKS = ("line", "spiral")
+SWEEP = np.logspace(-15, -9, 16)
+
+
+# ----------------------------------------------------------------------------- CasADi model
+
+
+def _rot(axis: str, t):
+    c, s = ca.cos(t), ca.sin(t)
+    if axis == "x":
+        return ca.vertcat(ca.horzcat(1, 0, 0), ca.horzcat(0, c, -s), ca.horzcat(0, s, c))
+    if axis == "y":
+        return ca.vertcat(ca.horzcat(c, 0, s), ca.horzcat(0, 1, 0), ca.horzcat(-s, 0, c))
+    return ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
+
+
+def _rnea(r, q, qd, qdd, gravity):
+    """Recursive Newton-Euler `D qdd + C qd + g` in casadi SX (as jaxrobot's, written anew)."""
+    ez = ca.DM([0.0, 0.0, 1.0])
+    w, dw, acc = ca.SX.zeros(3), ca.SX.zeros(3), -ca.DM(r.base[:3, :3]).T @ ca.DM(gravity)
+    rots, locs, forces, moments = [], [], [], []
+    for i in range(6):
+        rz = _rot("z", q[i] + r.offset[i])
+        rot = rz @ _rot("x", r.alpha[i]) @ _rot("y", r.beta[i])  # frame i in frame i-1
+        p = rz @ ca.DM([r.a[i], 0.0, r.d[i]])
+        w_par = w + qd[i] * ez
+        dw_par = dw + qdd[i] * ez + ca.cross(w, qd[i] * ez)
+        acc_par = acc + ca.cross(dw_par, p) + ca.cross(w_par, ca.cross(w_par, p))
+        w, dw, acc = rot.T @ w_par, rot.T @ dw_par, rot.T @ acc_par
+        c, inertia = ca.DM(r.com[i]), ca.DM(r.inertia[i])
+        acc_c = acc + ca.cross(dw, c) + ca.cross(w, ca.cross(w, c))
+        forces.append(r.mass[i] * acc_c)
+        moments.append(inertia @ dw + ca.cross(w, inertia @ w))
+        rots.append(rot)
+        locs.append(rot.T @ p)
+    f_next, m_next, rot_next = ca.SX.zeros(3), ca.SX.zeros(3), ca.DM.eye(3)
+    tau = [None] * 6
+    for i in reversed(range(6)):
+        f = forces[i] + rot_next @ f_next
+        m = moments[i] + ca.cross(ca.DM(r.com[i]), forces[i]) + rot_next @ m_next + ca.cross(locs[i], f)
+        tau[i] = ca.dot(rots[i][2, :].T, m)
+        f_next, m_next, rot_next = f, m, rots[i]
+    return ca.vertcat(*tau)
+
+
+def casadi_dynamics(robot: jr.Robot) -> ca.Function:
+    """`f(x, u)` of eq. 4.1 in casadi SX, replicating jaxrobot's model (cw gear set): Newton-Euler for
+    `C qd + g` and for the columns of `D`, `Xi^-1` by the same Newton steps, `kappa`."""
+    r = jax.tree.map(np.asarray, robot)
+    q, qd, theta, thetad, u = (ca.SX.sym(n, 6) for n in ("q", "qd", "theta", "thetad", "u"))
+    zero, no_gravity = ca.SX.zeros(6), np.zeros(3)
+    big_d = ca.horzcat(*[_rnea(r, q, zero, ca.DM.eye(6)[:, j], no_gravity) for j in range(6)])
+    bias = _rnea(r, q, qd, zero, r.gravity)  # C qd + g
+    # gear: Xi and u of eq. 2.10/2.13 with the cw ripple, Xi^-1 by the same Newton steps as jaxrobot
+    n, a, b = r.cw.orders, r.cw.a, r.cw.b
+
+    def xi(phi, j):
+        w = sum((a[j, m] * ca.sin(n[j, m] * phi) + b[j, m] * (ca.cos(n[j, m] * phi) - 1)) / n[j, m]
+                for m in range(n.shape[1]) if n[j, m] > 0)
+        return r.u0[j] * (phi + w)
+
+    def ratio(phi, j):
+        w = sum(a[j, m] * ca.cos(n[j, m] * phi) - b[j, m] * ca.sin(n[j, m] * phi)
+                for m in range(n.shape[1]) if n[j, m] > 0)
+        return r.u0[j] * (1 + w)
+
+    phi = []
+    for j in range(6):
+        p = theta[j] / r.u0[j]
+        for _ in range(NEWTON_STEPS + 1):
+            p = p - (xi(p, j) - theta[j]) / ratio(p, j)
+        phi.append(p)
+    dx = ca.vertcat(*phi) - q
+    kappa = ca.DM(r.k1) * dx + ca.DM(r.k3) * dx**3
+    qdd = ca.solve(big_d, kappa - bias)
+    x = ca.vertcat(q, qd, theta, thetad)
+    return ca.Function("f", [x, u], [ca.vertcat(qd, qdd, thetad, u)])
+
+
+def solve_ipopt(robot, q_d, ts, nu, warm, f=None, max_iter=100, print_level=0):
+    """Eq. 4.3 (thesis cost) in the scaled variables of `planning._transcription`, by IPOPT."""
+    problem = ocp_problem(robot, q_d, ts, nu)
+    n = q_d.shape[0]
+    sz = np.asarray(variable_scale(problem))
+    f = casadi_dynamics(robot) if f is None else f
+    fmap = f.map(n, "thread", os.cpu_count() or 1)
+    y = ca.MX.sym("y", 30, n)  # scaled [x; u] per node (column)
+    z = y * ca.DM(sz)
+    xs, us = z[:24, :], z[24:, :]
+    fx = fmap(xs, us)
+    dfx = (xs[:, 1:] - xs[:, :-1] - 0.5 * ts * (fx[:, 1:] + fx[:, :-1])) / ca.DM(sz[:24])
+    track = (xs[:6, :] - ca.DM(np.asarray(q_d).T)) / ANGLE_SCALE
+    cost = ca.sumsqr(track) + nu / ANGLE_SCALE**2 * ca.sumsqr(us)
+    lo, hi = (np.asarray(b) / sz for b in bounds(problem))
+    lbx, ubx = np.tile(lo[:, None], (1, n)), np.tile(hi[:, None], (1, n))
+    xa, xb = (np.asarray(b) for b in boundary_states(problem))
+    for k, xe in ((0, xa), (n - 1, xb)):
+        fixed = np.concatenate([xe, np.zeros(6)]) / sz
+        lbx[:, k], ubx[:, k] = fixed, fixed
+    nlp = {"x": ca.vec(y), "f": cost, "g": ca.vec(dfx)}
+    opts = {"ipopt.hessian_approximation": "exact", "ipopt.linear_solver": "mumps", "ipopt.mumps_pivtol": 1e-4,
+            "ipopt.mumps_pivtolmax": 0.1, "ipopt.tol": 1e-10, "ipopt.constr_viol_tol": 1e-10,
+            "ipopt.max_iter": max_iter, "ipopt.print_level": print_level, "print_time": False}
+    solver = ca.nlpsol("ipopt", "ipopt", nlp, opts)
+    y0 = (np.concatenate([np.asarray(warm[0]), np.asarray(warm[1])], -1) / sz).T
+    start = time.perf_counter()
+    res = solver(x0=ca.vec(ca.DM(y0)), lbx=ca.vec(ca.DM(lbx)), ubx=ca.vec(ca.DM(ubx)), lbg=0, ubg=0)
+    wall = time.perf_counter() - start
+    stats = solver.stats()
+    zs = np.asarray(res["x"]).reshape(n, 30) * sz  # vec() stacks columns: node-major
+    return {"x": zs[:, :24], "u": zs[:, 24:], "wall_s": wall, "iterations": int(stats["iter_count"]),
+            "status": stats["return_status"], "success": bool(stats["success"])}
+
+
+def cross_check(robot, q_d, ts, nu, x, u) -> dict:
+    """Our objective and constraint violations (scaled, `planning._transcription`) at a given solution."""
+    problem = ocp_problem(robot, q_d, ts, nu)
+    x, u = jnp.asarray(x), jnp.asarray(u)
+    sz = variable_scale(problem)
+    return {"objective": float(objective(problem, x, u)),
+            "max_defect": float(jnp.max(jnp.abs(defects(problem, x, u) / sz[:24]))),
+            "max_bound": float(jnp.max(bound_violation(problem, x, u) / sz)),
+            "max_boundary": float(jnp.max(jnp.abs(boundary_defects(problem, x, u) / sz)))}
+
+
+def path_error_um(robot, path, t, q) -> float:
+    p_d, _ = pl.sample_path(path, t)
+    return 1e6 * float(jnp.max(jnp.linalg.norm(jr.tool_pose(robot, jnp.asarray(q))[:, :3, 3] - p_d, axis=-1)))
+
+
+# ----------------------------------------------------------------------------- benchmark
+
+
+def _timed(fn, repeat: int = 1):
+    start = time.perf_counter()
+    out = jax.block_until_ready(fn())
+    first = time.perf_counter() - start
+    best = np.inf
+    for _ in range(repeat):
+        start = time.perf_counter()
+        out = jax.block_until_ready(fn())
+        best = min(best, time.perf_counter() - start)
+    return out, first, best
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="the line at nu = 1e-14 only, no sweep")
+    parser.add_argument("--no-ipopt", action="store_true", help="skip IPOPT (our solver only)")
+    parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results_ocp.md"))
+    args = parser.parse_args()
+    robot = jr.racer7()
+    device = f"{jax.devices()[0].platform} ({jax.devices()[0].device_kind})"
+    machine = (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}, "
+               f"load average at start {os.getloadavg()[0]:.1f}")
+    tasks = TASKS[:1] if args.quick else TASKS
+    nus = NUS[:1] if args.quick else NUS
+    f = None if args.no_ipopt else casadi_dynamics(robot)
+    rows, notes = [], []
+    for task in tasks:
+        path = pl.reference_path(task)
+        jp = pl.joint_path(robot, path)
+        flat = pl.flat_motor_trajectory(robot, jp)
+        warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+        ts = float(path.sample_time)
+        for nu in nus:
+            sol, first, ours_s = _timed(lambda nu=nu: solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm))
+            ours = {"wall_s": ours_s, "compile_s": max(first - ours_s, 0.0), "iterations": int(sol.iterations),
+                    "objective": float(sol.objective), "violation": float(sol.max_constraint_violation),
+                    "status": "converged" if bool(sol.converged) else RESULTS[sol.status].split(" (")[0],
+                    "path_um": path_error_um(robot, path, jp.t, sol.x[:, :6])}
+            row = {"task": task, "nu": nu, "ours": ours}
+            print(f"{task} nu={nu:g} ours: {ours}", flush=True)
+            if f is not None:
+                ip = solve_ipopt(robot, jp.q, ts, nu, warm, f)
+                chk = cross_check(robot, jp.q, ts, nu, ip["x"], ip["u"])
+                row["ipopt"] = {"wall_s": ip["wall_s"], "iterations": ip["iterations"], "objective": chk["objective"],
+                                "violation": max(chk["max_defect"], chk["max_bound"], chk["max_boundary"]),
+                                "status": ip["status"], "path_um": path_error_um(robot, path, jp.t, ip["x"][:, :6])}
+                print(f"{task} nu={nu:g} ipopt: {row['ipopt']}", flush=True)
+            rows.append(row)
+            write_markdown(args.out, rows, None, machine, device, notes)  # keep partial results
+    sweep = None
+    if not args.quick:
+        path = pl.reference_path("line")
+        jp = pl.joint_path(robot, path)
+        flat = pl.flat_motor_trajectory(robot, jp)
+        warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+        batched = jax.jit(jax.vmap(lambda nu: solve_ocp(robot, jp.q, 1e-3, nu=nu, warm_start=warm)))
+        sols, first, many = _timed(lambda: batched(jnp.asarray(SWEEP)))
+        _, _, one = _timed(lambda: solve_ocp(robot, jp.q, 1e-3, nu=float(SWEEP[0]), warm_start=warm))
+        sweep = {"n": len(SWEEP), "batched_s": many, "compile_s": max(first - many, 0.0), "single_s": one,
+                 "converged": int(np.sum(np.asarray(sols.converged)))}
+        print(f"sweep: {sweep}", flush=True)
+    write_markdown(args.out, rows, sweep, machine, device, notes)
+    print(f"wrote {args.out}")
+
+
+def write_markdown(out: Path, rows, sweep, machine, device, notes) -> None:
+    lines = ["# OCP benchmark: CasADi + IPOPT vs our augmented Lagrangian", "",
+             f"Machine: {machine}; JAX device: {device}; N = 2501, T_s = 1 ms; same scaled NLP and warm start "
+             "(flat inverse). Wall times exclude compilation (ours: second call; IPOPT: solver call only).", "",
+             "| task | nu | solver | status | iterations | wall [s] | objective [rad²] | max violation (scaled) "
+             "| path error [µm] |", "|---|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        for name in ("ours", "ipopt"):
+            if name in row:
+                r = row[name]
+                lines.append(f"| {row['task']} | {row['nu']:.0e} | {name} | {r['status']} | {r['iterations']} | "
+                             f"{r['wall_s']:.2f} | {r['objective']:.10e} | {r['violation']:.1e} | {r['path_um']:.3f} |")
+    if any("ipopt" in row for row in rows):
+        lines += ["", "| task | nu | speed-up (IPOPT / ours) | objective rel. difference |", "|---|---|---|---|"]
+        for row in rows:
+            if "ipopt" in row:
+                o, i = row["ours"], row["ipopt"]
+                rel = abs(o["objective"] - i["objective"]) / abs(i["objective"])
+                lines.append(f"| {row['task']} | {row['nu']:.0e} | {i['wall_s'] / o['wall_s']:.1f}x | {rel:.1e} |")
+    if sweep is not None:
+        lines += ["", f"nu sweep (line, {sweep['n']} values 1e-15..1e-9, one vmapped call): {sweep['batched_s']:.2f} s "
+                  f"vs one solve {sweep['single_s']:.2f} s (ratio {sweep['batched_s'] / sweep['single_s']:.1f}); "
+                  f"{sweep['converged']}/{sweep['n']} converged; compile {sweep['compile_s']:.1f} s."]
+    lines += ["", f"Load average at the end: {os.getloadavg()[0]:.1f} (other jobs shared the cores)."] + notes
+    out.write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,214 @@
+"""`jaxrobot plan {line,spiral,FILE.csv}`: plan one task with the OCP of eq. 4.3 and evaluate it on the plant.
+
+FILE.csv holds task-space samples on a uniform grid from t = 0: columns `t_s, x_m, y_m, z_m`, optionally
+`qx, qy, qz, qw` (tool orientation quaternion; default the constant orientation of eq. 4.6).
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxrobot as jr
+
+from . import _plots
+from ._bandwidth import bandwidth, control_spectrum
+from ._evaluation import (
+    METHODS,
+    baseline_trajectories,
+    ocp_motor_trajectory,
+    simulate_plans,
+    summarize,
+)
+from ._ik import joint_path
+from ._trajectories import reference_path, sample_path, sampled_path
+
+HELP = "plan a task (line, spiral or a CSV of tool positions) with the OCP and evaluate it on the plant"
+COSTS = ("thesis", "jerk", "flat")
+
+
+def configure(parser) -> None:
+    parser.add_argument("task", help="'line', 'spiral' (racer7.toml [trajectories]) or FILE.csv "
+                        "(columns t_s, x_m, y_m, z_m[, qx, qy, qz, qw])")
+    parser.add_argument("--nu", type=float, default=1e-14, help="weighting factor nu of eq. 4.3a (default 1e-14)")
+    parser.add_argument("--cost", choices=COSTS, default="thesis",
+                        help="thesis: nu||u||^2; jerk: nu||u_k+1 - u_k||^2; flat: nu||u - u_flat||^2")
+    parser.add_argument("--model", type=Path, default=None, help="planning model TOML (default: the embedded Racer-7)")
+    parser.add_argument("--plant", choices=("model", "as-built"), default="model",
+                        help="robot the plans are simulated on: the planning model or the test bench's as-built robot")
+    parser.add_argument("--save-trajectory", type=Path, default=None, metavar="OUT.csv",
+                        help="write t_s, theta1_deg..theta6_deg, motor rates [deg/s] and accelerations [deg/s^2]")
+
+
+def read_task_csv(path: Path):
+    """A `Path` from a CSV of tool positions (see the module docstring)."""
+    if not path.exists():
+        raise FileNotFoundError(f"task file {path} not found")
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        raise ValueError(f"{path}: no data rows")
+    missing = [c for c in ("t_s", "x_m", "y_m", "z_m") if c not in rows[0]]
+    if missing:
+        raise ValueError(f"{path}: missing columns {missing}; expected t_s, x_m, y_m, z_m[, qx, qy, qz, qw]")
+    col = lambda c: np.array([float(r[c]) for r in rows])  # noqa: E731
+    t, p = col("t_s"), np.stack([col("x_m"), col("y_m"), col("z_m")], -1)
+    r = None
+    if all(c in rows[0] for c in ("qx", "qy", "qz", "qw")):
+        x, y, z, w = (col(c) for c in ("qx", "qy", "qz", "qw"))
+        norm = np.sqrt(x * x + y * y + z * z + w * w)
+        x, y, z, w = x / norm, y / norm, z / norm, w / norm
+        r = np.stack([
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
+    return sampled_path(jnp.asarray(t), jnp.asarray(p), None if r is None else jnp.asarray(r), name=path.stem)
+
+
+def task_path(task: str):
+    if task in ("line", "spiral"):
+        return reference_path(task)
+    return read_task_csv(Path(task))
+
+
+def _status_name(code: int) -> str:
+    from ._ocp import RESULTS
+
+    return {RESULTS.successful: "successful", RESULTS.max_iterations: "max_iterations",
+            RESULTS.inner_failed: "inner_failed", RESULTS.nonfinite: "nonfinite"}.get(int(code), str(int(code)))
+
+
+def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, directional: bool = False) -> dict:
+    """IK, flat-inverse warm start, OCP and plant evaluation of one task; returns every intermediate."""
+    from ._ocp import solve_ocp
+
+    if not nu > 0:
+        raise ValueError(f"--nu must be > 0, got {nu}")
+    start = time.perf_counter()
+    jp = joint_path(robot, path)
+    echo(f"  inverse kinematics: {jp.t.shape[0]} samples, max residual "
+         f"{float(jp.ik.position_residual.max()):.1e} m, limits ok ({time.perf_counter() - start:.1f} s)")
+    start = time.perf_counter()
+    base = baseline_trajectories(robot, jp)
+    flat = base["flat_inverse"]
+    jax.block_until_ready(flat)
+    echo(f"  flat inverse (warm start): {time.perf_counter() - start:.1f} s")
+    warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+    ts = float(path.sample_time)
+    echo(f"  solving the OCP (N = {jp.t.shape[0]}, nu = {nu:g}, cost {cost}) ...")
+    start = time.perf_counter()
+    sol = solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm)
+    jax.block_until_ready(sol.u)
+    first = time.perf_counter() - start
+    solve_s, compile_s = first, None  # one call: compile and solve together
+    if timing:  # a second, compiled call separates compile and solve time
+        start = time.perf_counter()
+        jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm).u)
+        solve_s = time.perf_counter() - start
+        compile_s = max(first - solve_s, 0.0)
+    it = int(sol.iterations)
+    hv, ho, hp = (np.asarray(a) for a in (sol.history_violation, sol.history_objective, sol.history_penalty))
+    for k in range(min(it, hv.shape[0])):
+        echo(f"    outer {k + 1:3d}: objective {ho[k]:.6e}  violation {hv[k]:.2e}  penalty {hp[k]:.0e}")
+    status = _status_name(sol.status)
+    timed = f"solve {solve_s:.2f} s, compile {compile_s:.1f} s" if timing else f"{solve_s:.1f} s incl. compile"
+    echo(f"  OCP: {status} after {it} outer iterations, objective {float(sol.objective):.6e}, max violation "
+         f"{float(sol.max_constraint_violation):.1e} (scaled), {timed}")
+    p_d, r_d = sample_path(path, jp.t)
+    p_plan = jr.tool_pose(robot, sol.x[:, :6])[:, :3, 3]
+    plan_err = np.linalg.norm(np.asarray(p_plan - p_d), axis=-1)
+    trajectories = {**base, "ocp": ocp_motor_trajectory(sol.x, sol.u)}
+    start = time.perf_counter()
+    names, run = simulate_plans(plant, jp, trajectories, directional=directional)
+    errors = summarize(run)
+    echo(f"  plant simulation ({plant.name}{', as built' if directional else ''}): "
+         f"{time.perf_counter() - start:.1f} s")
+    for i, k in enumerate(names):
+        um = [1e6 * float(a[i]) for a in (errors.position_max, errors.position_rms, errors.settle_position_max)]
+        echo(f"    {k:13s} max {um[0]:10.3f} µm   rms {um[1]:10.3f} µm   after t_e {um[2]:9.3f} µm")
+    return {"jp": jp, "sol": sol, "trajectories": trajectories, "names": names, "run": run, "errors": errors,
+            "status": status, "solve_s": solve_s, "compile_s": compile_s, "plan_error": plan_err, "p_d": p_d,
+            "plant": plant}
+
+
+def summary(result: dict) -> dict:
+    """The JSON summary of issue 6 (`plan --json`)."""
+    sol, err, names = result["sol"], result["errors"], result["names"]
+    plant = {k: {"max_um": 1e6 * float(err.position_max[names.index(k)]),
+                 "rms_um": 1e6 * float(err.position_rms[names.index(k)])} for k in METHODS}
+    e = result["plan_error"]
+    return {
+        "status": result["status"], "iterations": int(sol.iterations), "solve_time_s": result["solve_s"],
+        "compile_time_s": result["compile_s"], "objective": float(sol.objective),
+        "max_constraint_violation": float(sol.max_constraint_violation),
+        "path_error_um": {"max": 1e6 * float(e.max()), "rms": 1e6 * float(np.sqrt(np.mean(e**2)))},
+        "plant": plant,
+    }
+
+
+def save_trajectory(path: Path, t, theta, thetad, thetadd) -> None:
+    """CSV `t_s, theta1_deg..theta6_deg, thetad1_deg_s.., thetadd1_deg_s2..` of a motor trajectory."""
+    header = (["t_s"] + [f"theta{i}_deg" for i in range(1, 7)] + [f"thetad{i}_deg_s" for i in range(1, 7)]
+              + [f"thetadd{i}_deg_s2" for i in range(1, 7)])
+    data = np.column_stack([np.asarray(t)] + [np.degrees(np.asarray(a)) for a in (theta, thetad, thetadd)])
+    np.savetxt(path, data, delimiter=",", header=",".join(header), comments="", fmt="%.12g")
+
+
+def write_plots(result: dict, out: Path, label: str) -> list[Path]:
+    """Figures in the spirit of thesis Figs. 4.1-4.8 for one planned task."""
+    jp, sol, run, names = result["jp"], result["sol"], result["run"], result["names"]
+    t, n = np.asarray(jp.t), run.n
+    files = [_plots.position_errors(t, {k: np.asarray(run.position[i, :n]) for i, k in enumerate(names)},
+                                    out / f"{label}_position_error.png", f"{label}: tool position error on the plant")]
+    i_ocp = names.index("ocp")
+    q_sim = np.asarray(run.q[i_ocp, :n])
+    files.append(_plots.joint_errors(t, q_sim - np.asarray(jp.q), np.asarray(run.orientation[i_ocp, :n]),
+                                     np.asarray(run.position[i_ocp, :n]), out / f"{label}_ocp_errors.png",
+                                     f"{label}: OCP on the plant"))
+    files.append(_plots.motor_signals(t, np.asarray(sol.u), np.asarray(sol.x[:, 18:24]), np.asarray(sol.x[:, 6:12]),
+                                      out / f"{label}_ocp_signals.png", f"{label}: OCP control and rates"))
+    p_d = np.asarray(result["p_d"])
+    robot_p = np.asarray(jr.tool_pose(result["plant"], jnp.asarray(q_sim))[:, :3, 3])
+    speed = lambda p: np.linalg.norm(np.gradient(p, t, axis=0), axis=-1)  # noqa: E731
+    files.append(_plots.path_velocity(t, speed(p_d), speed(robot_p), out / f"{label}_path_speed.png",
+                                      f"{label}: path speed"))
+    files.append(_plots.trajectory_3d(p_d, robot_p, out / f"{label}_path_3d.png", f"{label}: tool path"))
+    freq, spec = control_spectrum(sol.u, float(jp.path.sample_time))
+    files.append(_plots.spectra(np.asarray(freq), {"OCP": np.asarray(spec)},
+                                {"OCP": np.asarray(bandwidth(sol.u, float(jp.path.sample_time)))},
+                                out / f"{label}_spectrum.png", f"{label}: spectrum of u"))
+    return files
+
+
+def run(args, echo) -> dict:
+    if args.cost not in COSTS:
+        raise ValueError(f"--cost must be one of {COSTS}, got {args.cost!r}")
+    robot = jr.racer7() if args.model is None else jr.load_robot(args.model)
+    plant = jr.racer7(as_built=True) if args.plant == "as-built" else robot
+    path = task_path(args.task)
+    echo(f"planning {path.name} ({path.duration:g} s at T_s = {1e3 * path.sample_time:g} ms) on {robot.name}")
+    result = plan(robot, plant, path, args.nu, args.cost, echo, directional=args.plant == "as-built")
+    if args.save_trajectory is not None:
+        tr = result["trajectories"]["ocp"]
+        save_trajectory(args.save_trajectory, result["jp"].t, tr.theta, tr.thetad, tr.thetadd)
+        echo(f"  motor trajectory written to {args.save_trajectory}")
+    if args.out is not None:
+        for f in write_plots(result, args.out, path.name):
+            echo(f"  wrote {f}")
+    return summary(result)
+
+
+def demo_stage(out: Path, echo) -> dict:
+    """Planning stage of `jaxrobot demo`: the line at nu = 1e-14, evaluated on the planning model
+    (`jaxrobot plan line --plant as-built` evaluates on the test bench's robot)."""
+    robot = jr.racer7()
+    echo("line, nu = 1e-14, evaluated on the planning model")
+    result = plan(robot, robot, reference_path("line"), 1e-14, "thesis", echo, timing=False)
+    write_plots(result, out, "planning_line")
+    save_trajectory(out / "planning_line_motor.csv", result["jp"].t, *result["trajectories"]["ocp"])
+    return summary(result)

@@ -1,0 +1,121 @@
+"""`jaxrobot sweep`: the nu study of thesis 4.3 (Figs. 4.2-4.4, 4.10-4.12) in one vmapped OCP call per cost
+variant, with control bandwidths, plant errors and the Pareto front of error vs bandwidth."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxrobot as jr
+
+from . import _plots
+from ._bandwidth import bandwidth, control_spectrum
+from ._cli_plan import COSTS, task_path
+from ._evaluation import baseline_trajectories, ocp_motor_trajectory, simulate_plans, summarize
+from ._ik import joint_path
+
+HELP = "sweep the weighting factor nu (one vmapped OCP call per cost variant): table, plots, Pareto front"
+DEFAULT_NUS = tuple(float(v) for v in np.logspace(-16, -9, 8))
+
+
+def configure(parser) -> None:
+    parser.add_argument("task", nargs="?", default="line", help="'line' (default), 'spiral' or FILE.csv")
+    parser.add_argument("--nu", type=float, nargs="+", default=list(DEFAULT_NUS),
+                        help="weighting factors (default 1e-16 ... 1e-9, one per decade)")
+    parser.add_argument("--costs", nargs="+", choices=COSTS, default=list(COSTS), help="cost variants to compare")
+    parser.add_argument("--plant", choices=("model", "as-built"), default="model",
+                        help="robot the plans are simulated on")
+
+
+def sweep(robot, plant, path, nus, costs, echo, directional: bool = False) -> dict:
+    """Solve the OCP for every nu (vmapped) and cost, then bandwidths and plant errors of every solution."""
+    from ._ocp import solve_ocp
+
+    nus = np.asarray(nus, dtype=float)
+    if nus.ndim != 1 or nus.size < 1 or not np.all(nus > 0):
+        raise ValueError(f"--nu must be one or more values > 0, got {nus}")
+    jp = joint_path(robot, path)
+    flat = baseline_trajectories(robot, jp)["flat_inverse"]
+    warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+    ts = float(path.sample_time)
+    results = {}
+    for cost in costs:
+        start = time.perf_counter()
+        solve = jax.vmap(lambda nu, cost=cost: solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm))
+        sols = jax.block_until_ready(solve(jnp.asarray(nus)))
+        elapsed = time.perf_counter() - start
+        echo(f"  {cost}: {nus.size} OCPs in one call, {elapsed:.1f} s (incl. compile); "
+             f"{int(np.sum(np.asarray(sols.converged)))}/{nus.size} converged")
+        bw = np.asarray(bandwidth(sols.u, ts))
+        trajs = {f"{nu:.0e}": ocp_motor_trajectory(sols.x[i], sols.u[i]) for i, nu in enumerate(nus)}
+        names, run = simulate_plans(plant, jp, trajs, directional=directional)
+        err = summarize(run)
+        results[cost] = {"solutions": sols, "bandwidth": bw, "errors": err, "run": run, "names": names}
+        for i, nu in enumerate(nus):
+            echo(f"    nu {nu:.0e}: status {int(sols.status[i])}, {int(sols.iterations[i]):3d} it, bandwidth "
+                 f"{np.nanmax(bw[i]):7.1f} Hz, plant max {1e6 * float(err.position_max[i]):10.3f} µm, "
+                 f"rms {1e6 * float(err.position_rms[i]):10.3f} µm")
+    return {"jp": jp, "nus": nus, "results": results, "ts": ts}
+
+
+def table(res: dict) -> list[dict]:
+    rows = []
+    for cost, r in res["results"].items():
+        for i, nu in enumerate(res["nus"]):
+            rows.append({"cost": cost, "nu": float(nu), "status": int(r["solutions"].status[i]),
+                         "converged": bool(r["solutions"].converged[i]),
+                         "iterations": int(r["solutions"].iterations[i]),
+                         "objective": float(r["solutions"].objective[i]),
+                         "bandwidth_hz": [None if np.isnan(b) else float(b) for b in r["bandwidth"][i]],
+                         "max_bandwidth_hz": float(np.nanmax(r["bandwidth"][i])),
+                         "plant_max_um": 1e6 * float(r["errors"].position_max[i]),
+                         "plant_rms_um": 1e6 * float(r["errors"].position_rms[i])})
+    return rows
+
+
+def write_outputs(res: dict, rows: list[dict], out: Path, label: str) -> list[Path]:
+    header = "cost,nu,converged,iterations,objective,max_bandwidth_hz,plant_max_um,plant_rms_um"
+    lines = [header] + [f"{r['cost']},{r['nu']:.3e},{r['converged']},{r['iterations']},{r['objective']:.10e},"
+                        f"{r['max_bandwidth_hz']:.3f},{r['plant_max_um']:.6f},{r['plant_rms_um']:.6f}" for r in rows]
+    files = [out / f"{label}_sweep.csv"]
+    files[0].write_text("\n".join(lines) + "\n")
+    t, ts = np.asarray(res["jp"].t), res["ts"]
+    points = {c: (np.nanmax(r["bandwidth"], axis=-1), 1e6 * np.asarray(r["errors"].position_max), res["nus"])
+              for c, r in res["results"].items()}
+    files.append(_plots.pareto_front(points, out / f"{label}_pareto.png", f"{label}: plant error vs bandwidth"))
+    if "thesis" in res["results"]:
+        r = res["results"]["thesis"]
+        n = r["run"].n
+        pick = [int(np.argmin(np.abs(np.log10(res["nus"]) - np.log10(v)))) for v in (1e-14, 1e-10)]
+        pick = sorted(set(pick))
+        lab = [f"nu = {res['nus'][i]:.0e}" for i in pick]
+        curves = {lab[j]: np.asarray(r["run"].position[i, :n]) for j, i in enumerate(pick)}
+        files.append(_plots.position_errors(t, curves, out / f"{label}_nu_position_error.png",
+                                            f"{label}: position error vs nu"))
+        freq, spec = control_spectrum(r["solutions"].u, ts)
+        files.append(_plots.spectra(np.asarray(freq), {lab[j]: np.asarray(spec[i]) for j, i in enumerate(pick)},
+                                    {lab[j]: r["bandwidth"][i] for j, i in enumerate(pick)},
+                                    out / f"{label}_nu_spectra.png", f"{label}: spectra of u vs nu"))
+        sols = r["solutions"]
+        files.append(_plots.axis_comparison(
+            t, {lab[j]: (np.asarray(sols.u[i]), np.asarray(sols.x[i, :, 18:24]),
+                         np.asarray(sols.x[i, :, 6:12])) for j, i in enumerate(pick)},
+            out / f"{label}_nu_axis2.png", f"{label}: axis 2 vs nu", axis=1))
+    return files
+
+
+def run(args, echo) -> dict:
+    robot = jr.racer7()
+    plant = jr.racer7(as_built=True) if args.plant == "as-built" else robot
+    path = task_path(args.task)
+    echo(f"nu sweep on {path.name}: {len(args.nu)} values x costs {args.costs}, plant {args.plant}")
+    res = sweep(robot, plant, path, args.nu, args.costs, echo, directional=args.plant == "as-built")
+    rows = table(res)
+    if args.out is not None:
+        for f in write_outputs(res, rows, args.out, path.name):
+            echo(f"  wrote {f}")
+    return {"task": path.name, "plant": args.plant, "rows": rows}

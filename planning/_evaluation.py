@@ -1,0 +1,195 @@
+"""Evaluation of motor trajectories on the plant (issue 6, item 7; SPEC.md "Facts").
+
+Four motor trajectories for one joint path `q_d`:
+(a) rigid planning `theta = Xi(q_d)`, (b) quasi-static `theta = Xi(q_d + kappa^{-1}(g(q_d)))`,
+(c) the flat inverse, (d) the OCP (`x[:, 12:18]`, `x[:, 18:24]`, `u`). Each is simulated finely on
+a plant (`jr.simulate`, the motor follows the command exactly) - the planning model itself or the
+test bench's as-built robot - and the tool pose is compared with the task `p_d(t)`, `R_d(t)` along
+the path and during a rest after `t_e`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+import jaxrobot as jr
+
+from ._ik import JointPath, taylor_joint_path
+from ._trajectories import sample_path
+
+METHODS = ("rigid", "quasi_static", "flat_inverse", "ocp")
+"""Names of the compared motor trajectories, in the order of issue 6, item 7."""
+SUBSTEPS = 10
+"""RK4 steps per 1 ms sample of `jr.simulate` (h = 0.1 ms; see its module docstring)."""
+SETTLE_S = 0.5
+"""Rest after `t_e` over which the residual error is reported [s]."""
+
+
+class MotorTrajectory(NamedTuple):
+    """Commanded motor angles, rates and accelerations on the grid: each (..., N, 6) [rad, rad/s, rad/s^2]."""
+
+    theta: Float[Array, "*b N 6"]
+    thetad: Float[Array, "*b N 6"]
+    thetadd: Float[Array, "*b N 6"]
+
+
+class PlantError(NamedTuple):
+    """Tool-pose error of a simulated run against the task (each (...,)).
+
+    `position_max`, `position_rms` [m] and `orientation_max`, `orientation_rms` [rad] over
+    `[0, t_e]`; `settle_position_max` [m], `settle_orientation_max` [rad] over `(t_e, t_e + settle]`.
+    """
+
+    position_max: Float[Array, "*b"]
+    position_rms: Float[Array, "*b"]
+    orientation_max: Float[Array, "*b"]
+    orientation_rms: Float[Array, "*b"]
+    settle_position_max: Float[Array, "*b"]
+    settle_orientation_max: Float[Array, "*b"]
+
+
+def _along(fn: Callable, q: Float[Array, "N 6"], qd: Float[Array, "N 6"], qdd: Float[Array, "N 6"]):
+    """`h(q(t))` and its first two time derivatives from `(q, qd, qdd)` (exact chain rule by jvp)."""
+
+    def single(q, qd, qdd):
+        g = lambda s: fn(q + s * qd + 0.5 * s**2 * qdd)  # noqa: E731
+        dg = lambda s: jax.jvp(g, (s,), (jnp.ones_like(s),))[1]  # noqa: E731
+        value, first = jax.jvp(g, (0.0,), (1.0,))
+        return value, first, jax.jvp(dg, (0.0,), (1.0,))[1]
+
+    return MotorTrajectory(*jax.vmap(single)(q, qd, qdd))
+
+
+@jax.jit
+def rigid_motor_trajectory(robot: jr.Robot, q: Float[Array, "N 6"], qd: Float[Array, "N 6"],
+                           qdd: Float[Array, "N 6"]) -> MotorTrajectory:
+    """(a) Rigid planning: `theta = Xi(q_d)` (gear ripple, no elasticity)."""
+    return _along(lambda q: jr.motor_angle(robot, q), q, qd, qdd)
+
+
+@jax.jit
+def quasi_static_motor_trajectory(robot: jr.Robot, q: Float[Array, "N 6"], qd: Float[Array, "N 6"],
+                                  qdd: Float[Array, "N 6"]) -> MotorTrajectory:
+    """(b) Quasi-static planning: `theta = Xi(q_d + kappa^{-1}(g(q_d)))` (gravity deflection only)."""
+    return _along(lambda q: jr.static_equilibrium(robot, q), q, qd, qdd)
+
+
+@jax.jit
+def _flat(robot, t, derivatives):
+    return MotorTrajectory(*jr.flat_inverse(robot, taylor_joint_path(t, derivatives), t))
+
+
+def flat_motor_trajectory(robot: jr.Robot, jp: JointPath) -> MotorTrajectory:
+    """(c) The flat inverse of the planning model along the smooth `q_d(t)` (`jr.flat_inverse` of
+    `jp.fn`; compiled once per grid size, whatever the path)."""
+    return _flat(robot, jp.t, jp.derivatives)
+
+
+def ocp_motor_trajectory(x: Float[Array, "*b N 24"], u: Float[Array, "*b N 6"]) -> MotorTrajectory:
+    """(d) The motor part of an OCP solution `x = [q, qd, theta, thetad]`, `u = thetadd`."""
+    return MotorTrajectory(x[..., 12:18], x[..., 18:24], u)
+
+
+def baseline_trajectories(robot: jr.Robot, jp: JointPath) -> dict[str, MotorTrajectory]:
+    """Motor trajectories (a)-(c) planned with `robot` for the joint path `jp`."""
+    return {
+        "rigid": rigid_motor_trajectory(robot, jp.q, jp.qd, jp.qdd),
+        "quasi_static": quasi_static_motor_trajectory(robot, jp.q, jp.qd, jp.qdd),
+        "flat_inverse": flat_motor_trajectory(robot, jp),
+    }
+
+
+def _orientation_angle(r_d: Float[Array, "*b 3 3"], r: Float[Array, "*b 3 3"]) -> Float[Array, "*b"]:
+    """Angle of `R_d^T R` [rad], accurate for small angles (atan2 of sine and cosine)."""
+    w = jnp.swapaxes(r_d, -1, -2) @ r
+    s = 0.5 * jnp.stack([w[..., 2, 1] - w[..., 1, 2], w[..., 0, 2] - w[..., 2, 0], w[..., 1, 0] - w[..., 0, 1]], -1)
+    return jnp.arctan2(jnp.linalg.norm(s, axis=-1), 0.5 * (jnp.trace(w, axis1=-2, axis2=-1) - 1.0))
+
+
+def _extend(traj: MotorTrajectory, settle_samples: int) -> MotorTrajectory:
+    """Hold the last motor angle at rest for `settle_samples` more samples."""
+    hold = lambda a, v: jnp.concatenate([a, jnp.broadcast_to(v, (settle_samples,) + a.shape[-1:])], -2)  # noqa: E731
+    return MotorTrajectory(hold(traj.theta, traj.theta[-1]), hold(traj.thetad, 0.0), hold(traj.thetadd, 0.0))
+
+
+class PlantRun(NamedTuple):
+    """Simulated runs of stacked motor trajectories: `t` (T,) [s] (the path grid plus the rest after
+    `t_e`), link angles `q` (K, T, 6), tool position error `position` (K, T) [m] and orientation error
+    `orientation` (K, T) [rad] against the task; `n` samples lie on the path."""
+
+    t: Float[Array, " T"]
+    q: Float[Array, "K T 6"]
+    position: Float[Array, "K T"]
+    orientation: Float[Array, "K T"]
+    n: int
+
+
+def _run(plant, t, p_d, r_d, traj, substeps, directional):
+    q, _ = jr.simulate(plant, t, traj.theta, traj.thetad, traj.thetadd, substeps=substeps, directional=directional)
+    pose = jr.tool_pose(plant, q)
+    return q, jnp.linalg.norm(pose[:, :3, 3] - p_d, axis=-1), _orientation_angle(r_d, pose[:, :3, :3])
+
+
+_run_jit = jax.jit(_run, static_argnums=(5, 6))
+
+
+def simulate_plans(
+    plant: jr.Robot,
+    jp: JointPath,
+    trajectories: dict[str, MotorTrajectory],
+    substeps: int = SUBSTEPS,
+    settle_s: float = SETTLE_S,
+    directional: bool = False,
+) -> tuple[list[str], PlantRun]:
+    """Simulate every motor trajectory on `plant` (one compiled simulation serves all), holding the last command at rest
+    for `settle_s` after `t_e`, and measure the tool-pose error against the task of `jp`.
+
+    `directional=True` selects the gear set by direction of motion, as the test bench's as-built robot
+    does (pass it for `jr.racer7(as_built=True)`); the planning model uses the cw set throughout.
+    Returns the names in stacking order and the `PlantRun`.
+    """
+    if not trajectories:
+        raise ValueError("trajectories must hold at least one motor trajectory")
+    n = jp.t.shape[0]
+    for name, tr in trajectories.items():
+        if tr.theta.shape != (n, 6):
+            raise ValueError(f"motor trajectory {name!r}: theta must have shape ({n}, 6) [rad], got {tr.theta.shape}")
+    if settle_s < 0:
+        raise ValueError(f"settle_s must be >= 0 s, got {settle_s}")
+    ts = float(jp.path.sample_time)
+    extra = int(round(settle_s / ts))
+    t = jnp.arange(n + extra) * ts
+    p_d, r_d = sample_path(jp.path, jnp.minimum(t, jp.t[-1]))
+    names = list(trajectories)
+    runs = [_run_jit(plant, t, p_d, r_d, _extend(trajectories[k], extra), substeps, bool(directional))
+            for k in names]
+    q, dp, da = (jnp.stack(a) for a in zip(*runs, strict=True))
+    return names, PlantRun(t, q, dp, da, n)
+
+
+def summarize(run: PlantRun) -> PlantError:
+    """Max/RMS errors along the path and the max after `t_e` of every run (leading axis K)."""
+    n = run.n
+    rms = lambda e: jnp.sqrt(jnp.mean(e[:, :n] ** 2, axis=-1))  # noqa: E731
+    after = lambda e: e[:, n:].max(axis=-1, initial=0.0)  # noqa: E731
+    return PlantError(run.position[:, :n].max(-1), rms(run.position), run.orientation[:, :n].max(-1),
+                      rms(run.orientation), after(run.position), after(run.orientation))
+
+
+def evaluate_on_plant(
+    plant: jr.Robot,
+    jp: JointPath,
+    trajectories: dict[str, MotorTrajectory],
+    substeps: int = SUBSTEPS,
+    settle_s: float = SETTLE_S,
+    directional: bool = False,
+) -> dict[str, PlantError]:
+    """`simulate_plans` summarised: the `PlantError` of every motor trajectory by name."""
+    names, run = simulate_plans(plant, jp, trajectories, substeps, settle_s, directional)
+    err = summarize(run)
+    return {k: jax.tree.map(lambda a, i=i: a[i], err) for i, k in enumerate(names)}

@@ -1,0 +1,151 @@
+"""Plots of planning results in the spirit of thesis Figs. 4.1-4.15 and the Pareto front (edge module).
+
+Every function takes plain arrays, writes one PNG and returns its path.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+AXES = [f"axis {i}" for i in range(1, 7)]
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def position_errors(t: np.ndarray, errors: dict[str, np.ndarray], path: Path, title: str) -> Path:
+    """Norm of the tool position error `||p_d - p_e||` over time per method/nu (Figs. 4.2, 4.12), log scale."""
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for label, e in errors.items():
+        ax.semilogy(t, np.maximum(np.asarray(e) * 1e6, 1e-9), label=label, lw=1)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("||p_d - p_e|| [µm]")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    return _save(fig, path)
+
+
+def path_velocity(t: np.ndarray, v_desired: np.ndarray, v_actual: np.ndarray, path: Path, title: str) -> Path:
+    """Tool path speed, desired vs achieved (Figs. 4.1, 4.9)."""
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    ax.plot(t, v_desired, label="desired", lw=2)
+    ax.plot(t, v_actual, "--", label="plant", lw=1)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("path speed [m/s]")
+    ax.set_title(title)
+    ax.legend()
+    ax.grid(True, alpha=0.3)
+    return _save(fig, path)
+
+
+def joint_errors(t: np.ndarray, dq: np.ndarray, d_orient: np.ndarray, d_pos: np.ndarray, path: Path,
+                 title: str) -> Path:
+    """Link-angle errors per axis (a), orientation error (b), position error (c) (Figs. 4.5, 4.13)."""
+    fig, axs = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+    for i in range(6):
+        axs[0].plot(t, np.degrees(dq[:, i]) * 3600, label=AXES[i], lw=1)
+    axs[0].set_ylabel("q - q_d [arcsec]")
+    axs[0].legend(ncol=3, fontsize=8)
+    axs[1].plot(t, np.degrees(d_orient) * 3600, lw=1)
+    axs[1].set_ylabel("orientation error [arcsec]")
+    axs[2].plot(t, d_pos * 1e6, lw=1)
+    axs[2].set_ylabel("position error [µm]")
+    axs[2].set_xlabel("t [s]")
+    axs[0].set_title(title)
+    for ax in axs:
+        ax.grid(True, alpha=0.3)
+    return _save(fig, path)
+
+
+def motor_signals(t: np.ndarray, u: np.ndarray, thetad: np.ndarray, qd: np.ndarray, path: Path, title: str) -> Path:
+    """Control input `u = thetadd` (a), motor rates (b) and link rates (c) per axis (Figs. 4.6, 4.7, 4.14, 4.15)."""
+    fig, axs = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+    for i in range(6):
+        axs[0].plot(t, u[:, i], label=AXES[i], lw=0.8)
+        axs[1].plot(t, thetad[:, i], lw=0.8)
+        axs[2].plot(t, qd[:, i], lw=0.8)
+    axs[0].set_ylabel("u [rad/s²]")
+    axs[1].set_ylabel("motor rate [rad/s]")
+    axs[2].set_ylabel("link rate [rad/s]")
+    axs[2].set_xlabel("t [s]")
+    axs[0].legend(ncol=3, fontsize=8)
+    axs[0].set_title(title)
+    for ax in axs:
+        ax.grid(True, alpha=0.3)
+    return _save(fig, path)
+
+
+def axis_comparison(t: np.ndarray, series: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], path: Path,
+                    title: str, axis: int = 1) -> Path:
+    """`u`, motor rate and link rate of one axis for several nu (Figs. 4.4, 4.11); `series[label] = (u, thetad, qd)`."""
+    fig, axs = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    for label, (u, thd, qd) in series.items():
+        axs[0].plot(t, u[:, axis], label=label, lw=0.8)
+        axs[1].plot(t, thd[:, axis], lw=0.8)
+        axs[2].plot(t, qd[:, axis], lw=0.8)
+    axs[0].set_ylabel(f"u_{axis + 1} [rad/s²]")
+    axs[1].set_ylabel(f"motor rate {axis + 1} [rad/s]")
+    axs[2].set_ylabel(f"link rate {axis + 1} [rad/s]")
+    axs[2].set_xlabel("t [s]")
+    axs[0].legend()
+    axs[0].set_title(title)
+    return _save(fig, path)
+
+
+def spectra(freq: np.ndarray, spectra_by_label: dict[str, np.ndarray], bandwidths: dict[str, np.ndarray],
+            path: Path, title: str) -> Path:
+    """Energy spectra of `u` per axis for several nu with the 99 % bandwidths marked (Figs. 4.3, 4.10)."""
+    fig, axs = plt.subplots(2, 3, figsize=(11, 6), sharex=True)
+    for i, ax in enumerate(axs.reshape(-1)):
+        for label, spec in spectra_by_label.items():
+            line, = ax.loglog(freq[1:], np.maximum(spec[1:, i], 1e-30), label=label, lw=0.8)
+            bw = bandwidths[label][i]
+            if np.isfinite(bw):
+                ax.axvline(bw, color=line.get_color(), ls="--", lw=0.8)
+        ax.set_title(AXES[i])
+        ax.set_xlabel("f [Hz]")
+    axs[0, 0].set_ylabel("|U(f)|²")
+    axs[0, 0].legend(fontsize=8)
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def trajectory_3d(p_d: np.ndarray, p_e: np.ndarray, path: Path, title: str) -> Path:
+    """Desired and achieved tool path in 3-D (Fig. 4.8)."""
+    fig = plt.figure(figsize=(6, 6))
+    ax = fig.add_subplot(projection="3d")
+    ax.plot(*p_d.T, label="desired", lw=2)
+    ax.plot(*p_e.T, "--", label="plant", lw=1)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    ax.set_title(title)
+    ax.legend()
+    return _save(fig, path)
+
+
+def pareto_front(points: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], path: Path, title: str) -> Path:
+    """Path error on the plant vs control bandwidth over a nu sweep, one curve per cost variant;
+    `points[cost] = (bandwidth_hz, error_um, nu)`."""
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for label, (bw, err, nu) in points.items():
+        ax.loglog(bw, err, "o-", label=label)
+        for b, e, n in zip(bw, err, nu, strict=True):
+            ax.annotate(f"{n:.0e}", (b, e), fontsize=6, alpha=0.7)
+    ax.set_xlabel("control bandwidth (99 % energy, max over axes) [Hz]")
+    ax.set_ylabel("max position error on the plant [µm]")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    return _save(fig, path)
