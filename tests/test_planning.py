@@ -234,13 +234,16 @@ def ocp_runs(robot, joint_paths):
     return out
 
 
-@pytest.mark.parametrize("name", ["line", "spiral"])
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["line", pytest.param("spiral", marks=pytest.mark.xfail(
+    strict=True, reason="issue 6 open: the spiral at nu = 1e-10 does not converge yet"))])
 def test_ocp_converges_on_reference_tasks(ocp_runs, name):
     sols, _ = ocp_runs[name]
     assert bool(np.all(np.asarray(sols.converged))), np.asarray(sols.status)
     assert float(jnp.max(sols.max_constraint_violation)) <= 1e-9
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["line", "spiral"])
 def test_ocp_beats_quasi_static_beats_rigid(ocp_runs, name):
     _, err = ocp_runs[name]
