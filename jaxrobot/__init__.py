@@ -34,6 +34,7 @@ from ._dynamics import mass_matrix as mass_matrix  # noqa: E402
 from ._dynamics import motor_torque as motor_torque  # noqa: E402
 from ._dynamics import planning_dynamics as planning_dynamics  # noqa: E402
 from ._dynamics import static_equilibrium as static_equilibrium  # noqa: E402
+from ._elasticity import compliance_deflection as compliance_deflection  # noqa: E402
 from ._elasticity import elastic_deflection as elastic_deflection  # noqa: E402
 from ._elasticity import elastic_torque as elastic_torque  # noqa: E402
 from ._flat import flat_inverse as flat_inverse  # noqa: E402
@@ -50,5 +51,7 @@ from ._kinematics import tool_pose as tool_pose  # noqa: E402
 from ._robot import Ripple as Ripple  # noqa: E402
 from ._robot import Robot as Robot  # noqa: E402
 from ._simulate import simulate as simulate  # noqa: E402
+from ._statics import approach_directions as approach_directions  # noqa: E402
+from ._statics import rest_link_angles as rest_link_angles  # noqa: E402
 from ._urdf import save_urdf as save_urdf  # noqa: E402
 from ._urdf import to_urdf as to_urdf  # noqa: E402

@@ -27,8 +27,8 @@ _SCHEMA: dict[str, Any] = {
     "gravity": (3,),
     "kinematics": {"a": _V6, "d": _V6, "alpha": _V6, "beta": _V6, "offset": _V6},
     "limits": {"position_deg": (N_JOINTS, 2), "velocity_deg_s": _V6, "acceleration_deg_s2": _V6},
-    "gear": {"u0": _V6, **{f"?joint{i}": {"cw": _RIPPLE, "ccw": _RIPPLE} for i in range(1, 7)}},
-    "stiffness": {"k1": _V6, "k3": _V6},
+    "gear": {"u0": _V6, "?backlash_rad": _V6, **{f"?joint{i}": {"cw": _RIPPLE, "ccw": _RIPPLE} for i in range(1, 7)}},
+    "?stiffness": {"k1": _V6, "k3": _V6},
     "links": {"mass": _V6, "com": (N_JOINTS, 3), "inertia": (N_JOINTS, 6)},
     "motors": {"inertia": _V6},
     "?tool": {"transform": (4, 4)},
@@ -107,6 +107,8 @@ def _check_array(value: Any, shape: tuple, field: str) -> None:
         _fail(field, f"numbers of shape {_shape_text(shape)}", value)
     if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
         _fail(field, f"shape {_shape_text(shape)}", f"shape {arr.shape}: {value}")
+    if field == "stiffness.k1":  # inf marks a rigid joint
+        arr = np.where(arr == np.inf, 0.0, arr)
     if not np.all(np.isfinite(arr)):
         _fail(field, "finite numbers", value)
 
@@ -124,15 +126,17 @@ def _check_physics(data: dict) -> None:
             rip = data["gear"].get(f"joint{j}", {}).get(direction)
             if rip is not None:
                 _check_ripple(rip, f"gear.joint{j}.{direction}")
-    k1 = np.asarray(data["stiffness"]["k1"], float)
-    k3 = np.asarray(data["stiffness"]["k3"], float)
+    k1, k3 = _stiffness(data)
     for i in range(N_JOINTS):
-        if k1[i] <= 0 or k3[i] < 0:
+        if not k1[i] > 0 or not k3[i] >= 0 or np.isinf(k3[i]):
             _fail(
                 f"stiffness (joint {i + 1})",
-                "a monotone kappa(x) = k1 x + k3 x^3: k1 > 0 N m/rad and k3 >= 0 N m/rad^3",
+                "a monotone kappa(x) = k1 x + k3 x^3: k1 > 0 N m/rad (inf: rigid) and finite k3 >= 0 N m/rad^3",
                 {"k1": k1[i], "k3": k3[i]},
             )
+    backlash = np.asarray(data["gear"].get("backlash_rad", np.zeros(N_JOINTS)), float)
+    if np.any(backlash < 0):
+        _fail("gear.backlash_rad", "lost motion >= 0 rad per joint", backlash.tolist())
     _positive(data["links"]["mass"], "links.mass", "kg")
     for i, row in enumerate(np.asarray(data["links"]["inertia"], float)):
         _check_inertia(row, f"links.inertia[{i}] (link {i + 1})")
@@ -140,6 +144,13 @@ def _check_physics(data: dict) -> None:
     for key in ("tool", "base"):
         if key in data:
             _check_transform(np.asarray(data[key]["transform"], float), f"{key}.transform")
+
+
+def _stiffness(data: dict) -> tuple[np.ndarray, np.ndarray]:
+    """`(k1, k3)`; no `[stiffness]` section means rigid joints (`k1 = inf`, `k3 = 0`)."""
+    if "stiffness" not in data:
+        return np.full(N_JOINTS, np.inf), np.zeros(N_JOINTS)
+    return np.asarray(data["stiffness"]["k1"], float), np.asarray(data["stiffness"]["k3"], float)
 
 
 def _positive(values: Any, field: str, unit: str = "") -> None:
@@ -239,6 +250,7 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         u0[3:] = dev["u0_wrist"]
     lim = np.deg2rad(np.asarray(data["limits"]["position_deg"], float))
     cw, ccw = _ripples(data["gear"])
+    k1, k3 = _stiffness(data)
     eye = np.eye(4)
     return Robot(
         a=jnp.asarray(kin["a"]), d=jnp.asarray(kin["d"]), alpha=jnp.asarray(kin["alpha"]),
@@ -249,7 +261,8 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         qd_max=jnp.deg2rad(jnp.asarray(data["limits"]["velocity_deg_s"], float)),
         qdd_max=jnp.deg2rad(jnp.asarray(data["limits"]["acceleration_deg_s2"], float)),
         u0=jnp.asarray(u0), cw=cw, ccw=ccw,
-        k1=jnp.asarray(data["stiffness"]["k1"], float), k3=jnp.asarray(data["stiffness"]["k3"], float),
+        backlash=jnp.asarray(data["gear"].get("backlash_rad", np.zeros(N_JOINTS)), float),
+        k1=jnp.asarray(k1), k3=jnp.asarray(k3),
         mass=jnp.asarray(data["links"]["mass"], float),
         com=jnp.asarray(data["links"]["com"], float),
         inertia=jnp.asarray(np.stack([_inertia_matrix(np.asarray(r, float))
@@ -278,6 +291,8 @@ def description_of(robot: Robot) -> dict:
                          f"of shape {np.shape(robot.a)}; index the fleet first")
     f = lambda x: np.asarray(x, float).tolist()  # noqa: E731
     gear: dict[str, Any] = {"u0": f(robot.u0)}
+    if np.any(np.asarray(robot.backlash) != 0):
+        gear["backlash_rad"] = f(robot.backlash)
     for j in range(N_JOINTS):
         sets = {}
         for direction, rip in (("cw", robot.cw), ("ccw", robot.ccw)):
@@ -300,7 +315,6 @@ def description_of(robot: Robot) -> dict:
             "acceleration_deg_s2": f(np.rad2deg(robot.qdd_max)),
         },
         "gear": gear,
-        "stiffness": {"k1": f(robot.k1), "k3": f(robot.k3)},
         "links": {
             "mass": f(robot.mass), "com": f(robot.com),
             "inertia": [[float(i[0, 0]), float(i[1, 1]), float(i[2, 2]), float(i[0, 1]),
@@ -308,6 +322,8 @@ def description_of(robot: Robot) -> dict:
         },
         "motors": {"inertia": f(robot.motor_inertia)},
     }
+    if np.any(np.isfinite(np.asarray(robot.k1))):  # else rigid: no [stiffness] section
+        data["stiffness"] = {"k1": f(robot.k1), "k3": f(robot.k3)}
     for key in ("tool", "base"):
         t = np.asarray(getattr(robot, key), float)
         if not np.array_equal(t, np.eye(4)):

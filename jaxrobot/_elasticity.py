@@ -1,6 +1,7 @@
 """Nonlinear joint stiffness `kappa(x) = k1 x + k3 x^3` (eq. 2.17-2.18, SPEC.md "Elasticity").
 
-The gear applies `kappa(phi - q)` to the link and `-kappa(phi - q)` to the motor.
+The gear applies `kappa(phi - q)` to the link and `-kappa(phi - q)` to the motor. A rigid joint
+has `k1 = inf` (a description without `[stiffness]`); its deflection is zero.
 """
 
 from __future__ import annotations
@@ -39,12 +40,25 @@ def _deflection_jvp(primals, tangents):
     return x, (dtau - x * dk1 - x**3 * dk3) / (k1 + 3.0 * k3 * x**2)
 
 
+def compliance_deflection(
+    c: Float[Array, "*b 6"], e: Float[Array, "*b 6"], tau: Float[Array, "*b 6"]
+) -> Float[Array, "*b 6"]:
+    """Deflection `x` [rad] with `x + e x^3 = c tau`: `kappa^{-1}(tau)` in compliance form.
+
+    `c = 1/k1` [rad/(N m)], `e = k3/k1` [1/rad^2]; `c = 0` is a rigid joint (`x = 0`) with finite
+    derivatives in `c`, so a compliance can be identified starting from a rigid joint.
+    """
+    shape = jnp.broadcast_shapes(tau.shape, jnp.shape(c), jnp.shape(e))
+    c, e, tau = (jnp.broadcast_to(x, shape) for x in (c, e, tau))
+    return _deflection(jnp.ones(shape), e, c * tau)
+
+
 def elastic_deflection(robot: Robot, tau: Float[Array, "*b 6"]) -> Float[Array, "*b 6"]:
     """`kappa^{-1}(tau)`: the deflection [rad] at which the joint transmits `tau` [N m].
 
     Newton on `|x|` from `min(|tau|/k1, cbrt(|tau|/k3))`, which lies above the root of the
-    convex branch; derivatives of every order follow the implicit function.
+    convex branch; derivatives of every order follow the implicit function. Rigid joints
+    (`k1 = inf`) give 0.
     """
-    shape = jnp.broadcast_shapes(tau.shape, robot.k1.shape)
-    k1, k3, tau = (jnp.broadcast_to(x, shape) for x in (robot.k1, robot.k3, tau))
-    return _deflection(k1, k3, tau)
+    c = 1.0 / robot.k1
+    return compliance_deflection(c, robot.k3 * c, tau)

@@ -66,8 +66,11 @@ class Robot(eqx.Module):
     """Ripple while the joint turns in its positive direction (`phid > 0`)."""
     ccw: Ripple
     """Ripple while the joint turns in its negative direction."""
+    backlash: Float[Array, "*batch 6"]
+    """Lost motion of the gears [rad of link angle]: at rest the link lags the motor by
+    `backlash / 2` against the direction of approach (used by the rest poses only)."""
     k1: Float[Array, "*batch 6"]
-    """Linear joint stiffness [N m/rad] (eq. 2.18)."""
+    """Linear joint stiffness [N m/rad] (eq. 2.18); `inf` for a rigid joint."""
     k3: Float[Array, "*batch 6"]
     """Cubic joint stiffness [N m/rad^3]."""
     mass: Float[Array, "*batch 6"]

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Bool, Float
@@ -16,15 +17,39 @@ TOL = 1e-14
 """Fixed-point tolerance [rad]; the map contracts by |dg/dq| / k ~ 1e-3 per step."""
 
 
+def approach_sign(ccw: bool | Bool[Array, "*b 6"]) -> Float[Array, "*b 6"]:
+    """+1 after a positive move (`cw`), -1 after a negative one."""
+    return 1.0 - 2.0 * jnp.asarray(ccw, float)
+
+
+def approach_directions(theta: Float[Array, "*b K 6"]) -> Bool[Array, "*b K 6"]:
+    """Direction of approach of poses measured in this order (`ccw`, per joint).
+
+    Pose `k` is approached from pose `k - 1`, the first from the zero position; a joint that
+    does not move keeps the direction of its previous move (`cw` at the start).
+    """
+    theta = jnp.asarray(theta, float)
+    prev = jnp.concatenate([jnp.zeros_like(theta[..., :1, :]), theta[..., :-1, :]], -2)
+    step = jnp.sign(theta - prev)
+
+    def keep(last, s):
+        d = jnp.where(s == 0, last, s)
+        return d, d
+
+    _, d = jax.lax.scan(keep, jnp.ones(theta.shape[:-2] + (6,)), jnp.moveaxis(step, -2, 0))
+    return jnp.moveaxis(d, 0, -2) < 0
+
+
 def rest_link_angles(
     robot: Robot, theta: Float[Array, "*b 6"], ccw: bool | Bool[Array, "*b 6"] = False
 ) -> Float[Array, "*b 6"]:
     """Link angles `q` at rest at motor angles `theta`: `kappa(phi - q) = g(q)`, `phi = Xi^{-1}(theta)`.
 
     Solved as the fixed point `q = phi - kappa^{-1}(g(q))` with optimistix (implicit
-    derivatives). `ccw` selects the gear set of the last direction of approach.
+    derivatives). `ccw` gives the last direction of approach per joint: it selects the gear set,
+    and the link lags by half the backlash against it (`phi -= backlash/2` after a positive move).
     """
-    phi = gear_output(robot, theta, ccw)
+    phi = gear_output(robot, theta, ccw) - 0.5 * robot.backlash * approach_sign(ccw)
 
     def fn(q, args):
         robot, phi = args

@@ -89,6 +89,11 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
 
     if not nu > 0:
         raise ValueError(f"--nu must be > 0, got {nu}")
+    for name, r in (("model", robot), ("plant", plant)):
+        rigid = [j + 1 for j in range(6) if not np.isfinite(float(r.k1[j]))]
+        if rigid:
+            raise ValueError(f"{name}: planning needs elastic joints ([stiffness] k1 finite), found rigid joints "
+                             f"{rigid} (k1 = inf); identify the stiffness first (e.g. jaxrobot diagnose)")
     start = time.perf_counter()
     jp = joint_path(robot, path)
     echo(f"  inverse kinematics: {jp.t.shape[0]} samples, max residual "

@@ -1,0 +1,69 @@
+"""`jaxrobot diagnose --model START.toml TRAIN.csv… --validate VAL.csv…`: find the effects the
+model misses (compare, locate, name, add, repeat), with tables, plots and `--save-model`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+HELP = "find where model and pose measurements disagree, name the missing effect, add it, repeat"
+
+
+def configure(parser) -> None:
+    parser.add_argument("poses", type=Path, nargs="+", help="training pose CSV files (SPEC.md format), "
+                        "each in the order measured (gives the direction of approach)")
+    parser.add_argument("--validate", type=Path, nargs="+", required=True, help="held-out validation pose CSV files")
+    parser.add_argument("--model", type=Path, default=None,
+                        help="start robot description (default: the embedded Racer-7, nominal)")
+    parser.add_argument("--save-model", type=Path, default=None, help="write the augmented robot (TOML)")
+    parser.add_argument("--noise-um", type=float, default=None,
+                        help="tracker noise std per axis in um (default: the robot file's [sensors])")
+    parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                        help="marker offset in the flange frame in m (default: [sensors])")
+    parser.add_argument("--max-steps", type=int, default=6, help="most effects to add (default 6)")
+    parser.add_argument("--max-order", type=int, default=400, help="highest ripple order searched (default 400)")
+
+
+def _poses(paths):
+    from jaxrobot._bench_poses import read_pose_csv
+
+    from ._diagnose import Poses
+
+    return Poses.concatenate([Poses.of(d["motor_angles"], d["positions"]) for d in map(read_pose_csv, paths)])
+
+
+def run(args, echo) -> dict:
+    import jaxrobot as jr
+
+    from ._diagnose import diagnose
+    from ._diagnose_report import candidate_table, loop_table, plot_candidates, plot_residuals, plot_spectra
+
+    if args.max_steps < 0 or args.max_order < 1:
+        raise ValueError(f"--max-steps >= 0 and --max-order >= 1 expected, found {args.max_steps}, {args.max_order}")
+    if args.noise_um is not None and not args.noise_um > 0:
+        raise ValueError(f"--noise-um: expected the tracker std per axis > 0 um, found {args.noise_um}")
+    robot = jr.racer7() if args.model is None else jr.load_robot(args.model)
+    marker = args.marker
+    if marker is None and args.model is not None:
+        marker = jr.read_description(args.model).get("sensors", {}).get("tracker_marker_offset_m")
+    train, val = _poses(args.poses), _poses(args.validate)
+    echo(f"diagnose: {len(train)} training and {len(val)} validation poses, start model {robot.name}")
+    res = diagnose(robot, train, val, noise=None if args.noise_um is None else 1e-6 * args.noise_um,
+                   marker=marker, max_steps=args.max_steps, max_order=args.max_order, progress=echo)
+    rep = res.report
+    table = loop_table(res.loop, rep["noise_floor_um"])
+    echo("\n" + table)
+    echo(f"verdict: {rep['verdict']}")
+    if args.out is not None:
+        parts = [table, f"verdict: {rep['verdict']}"]
+        for i, log in enumerate(res.candidates, 1):
+            parts.append(f"candidates of step {i}\n" + candidate_table(log))
+        (args.out / "diagnose_tables.txt").write_text("\n\n".join(parts) + "\n")
+        plot_residuals(args.out / "diagnose_residuals.png", res.residuals["before"], res.residuals["after"],
+                       rep["noise_floor_um"])
+        plot_candidates(args.out / "diagnose_candidates.png", res.candidates)
+        plot_spectra(args.out / "diagnose_spectra.png", res.spectra[0] if res.spectra else {}, args.max_order)
+        echo(f"wrote tables and plots to {args.out}")
+    if args.save_model is not None:
+        jr.save_robot(res.robot, args.save_model)
+        echo(f"wrote {args.save_model}")
+    return {k: rep[k] for k in ("noise_floor_um", "steps", "final_rms_validation_um", "verdict", "start")}

@@ -1,0 +1,377 @@
+"""Model-discrepancy workflow: compare, locate, name the missing effect, add it, repeat.
+
+1. *Compare*: residuals of the model against the measured marker positions, in units of the
+   tracker noise `sigma`; chi-square test `chi2 = sum r^2 / sigma^2` with `3K - m` degrees of
+   freedom (`m` fitted parameters).
+2. *Locate*: the Jacobian of the positions with respect to every effect of the catalogue
+   (`_effects`) at the current model; residual spectra against each joint angle (orders per
+   revolution, also signed by the direction of approach) find the ripple orders.
+3. *Name*: every candidate (effect x joint x variant) is fitted together with the effects already
+   added, first linearised (one Gauss-Newton step from the current model) to rank all of them,
+   then the best `shortlist` by Levenberg-Marquardt (optimistix, batched) to convergence; each is
+   scored by the Bayesian information criterion `BIC = chi2 + m ln(3K)` on the training poses
+   and the RMS on held-out validation poses.
+4. *Add*: the best-BIC candidate that lowers BIC by more than `MIN_BIC_GAIN` and lowers the
+   validation RMS is added; repeat until the chi-square test passes or no candidate helps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.special import gammaincc
+
+import jaxrobot as jr
+from jaxrobot._statics import approach_sign
+
+from ._diagnose_model import functions
+from ._effects import RIPPLE_SLOTS, Layout, Model, model_of, robot_of
+
+MIN_BIC_GAIN = 10.0
+"""Least BIC decrease for adding an effect ("very strong" evidence, Kass and Raftery 1995)."""
+ALPHA = 0.01
+"""Significance level of the chi-square test of the model against the noise floor."""
+ORDER_FALSE_ALARM = 1e-3
+"""Probability that noise alone yields a ripple order over the whole order search."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Poses:
+    """Measured poses in the order they were taken: `motor_angles` (K, 6) rad, `positions`
+    (K, 3) m, `ccw` (K, 6) the direction of approach (from the order, `jaxrobot.approach_directions`)."""
+
+    motor_angles: np.ndarray
+    positions: np.ndarray
+    ccw: np.ndarray
+
+    @classmethod
+    def of(cls, motor_angles, positions) -> Poses:
+        th = np.asarray(motor_angles, float)
+        pos = np.asarray(positions, float)
+        if th.ndim != 2 or th.shape[1] != 6 or pos.shape != (th.shape[0], 3):
+            raise ValueError(f"poses: expected motor_angles (K, 6) rad and positions (K, 3) m, "
+                             f"found {th.shape} and {pos.shape}")
+        bad = np.nonzero(~np.isfinite(np.concatenate([th, pos], 1)).all(1))[0]
+        if bad.size:
+            raise ValueError(f"poses: NaN/inf in rows {bad.tolist()} (0-based); remove these poses")
+        return cls(th, pos, np.asarray(jr.approach_directions(th)))
+
+    @classmethod
+    def concatenate(cls, parts: list[Poses]) -> Poses:
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("motor_angles", "positions", "ccw")))
+
+    def __len__(self) -> int:
+        return self.motor_angles.shape[0]
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """An effect on one joint (or global), with the entries of `V` it frees."""
+
+    effect: int
+    joint: int | None
+    params: tuple[int, ...]
+    variant: str = ""
+
+    def label(self, layout: Layout) -> str:
+        kind = layout.effects[self.effect].kind
+        j = "" if self.joint is None else f" j{self.joint + 1}"
+        return f"{kind}{j}{' (' + self.variant + ')' if self.variant else ''}"
+
+
+@dataclasses.dataclass(frozen=True)
+class DiagnoseResult:
+    """`robot`: the start robot with the added effects; `report`: the JSON summary;
+    `loop`: one row per step; `candidates`: per step, the scored candidates; `residuals`:
+    validation residual norms [m] before and after; `spectra`: per step, {joint: (orders, dchi2)}."""
+
+    robot: jr.Robot
+    model: Model
+    report: dict
+    loop: list[dict]
+    candidates: list[list[dict]]
+    residuals: dict
+    spectra: list[dict]
+
+
+def _p_value(chi2: float, dof: int) -> float:
+    return float(gammaincc(0.5 * max(dof, 1), 0.5 * chi2))
+
+
+def _orthonormal(a: np.ndarray) -> np.ndarray:
+    if a.shape[1] == 0:
+        return a
+    u, s, _ = np.linalg.svd(a, full_matrices=False)
+    return u[:, s > 1e-10 * s[0]]
+
+
+def _spectrum(g: np.ndarray, phi: np.ndarray, r: np.ndarray, q: np.ndarray, orders: np.ndarray,
+              sign: np.ndarray | None) -> np.ndarray:
+    """chi2 decrease (N,) of fitting `A cos(n phi) + B sin(n phi)` joint-angle errors of one joint
+    (position columns `g` (K, 3) = dp/dq_j, times `sign` for a direction-dependent error) to the
+    residual `r` (3K,), both projected off the columns `q` (3K, k) already fitted."""
+    w = g if sign is None else g * sign[:, None]
+    arg = orders[:, None] * phi[None, :]
+    cols = np.stack([np.cos(arg)[..., None] * w, np.sin(arg)[..., None] * w], -1).reshape(len(orders), -1, 2)
+    if q.shape[1]:
+        cols = cols - q @ np.einsum("ik,nil->nkl", q, cols)
+    m = np.einsum("nil,nim->nlm", cols, cols) + 1e-300 * np.eye(2)
+    b = np.einsum("nil,i->nl", cols, r)
+    return np.einsum("nl,nl->n", b, np.linalg.solve(m, b[..., None])[..., 0])
+
+
+def _find_orders(g, phi, r, q, max_order: int, sign, threshold: float) -> tuple[list[int], np.ndarray]:
+    """Up to `RIPPLE_SLOTS` significant orders, greedily (each refitted with the previous ones)."""
+    orders = np.arange(1, max_order + 1, dtype=float)
+    found: list[int] = []
+    first = None
+    w = g if sign is None else g * sign[:, None]
+    for _ in range(RIPPLE_SLOTS):
+        d = _spectrum(g, phi, r, q, orders, sign)
+        first = d if first is None else first
+        k = int(np.argmax(d))
+        if d[k] < threshold:
+            break
+        n = int(orders[k])
+        found.append(n)
+        new = np.stack([(np.cos(n * phi)[:, None] * w).ravel(), (np.sin(n * phi)[:, None] * w).ravel()], 1)
+        q = _orthonormal(np.concatenate([q, new], 1))
+        r = r - q @ (q.T @ r)
+    return found, first
+
+
+def _candidates(layout: Layout, free: set, ripple_orders: dict) -> list[Candidate]:
+    out = []
+    for ei, (e, block) in enumerate(zip(layout.effects, layout.blocks)):
+        for variant in e.variants():
+            tag = "" if len(e.variants()) == 1 else ("linear" if len(variant) == 1 else "cubic")
+            if not e.per_joint:
+                out.append(Candidate(ei, None, tuple(int(i) for i in block[list(variant)]), tag))
+                continue
+            for j in range(6):
+                params = [int(i) for i in block[j, list(variant)]]
+                if e.kind in ripple_orders:
+                    n_used = len(ripple_orders[e.kind].get(j, []))
+                    per = len(e.names) // RIPPLE_SLOTS
+                    params = params[: per * n_used]
+                    if not params:
+                        continue
+                out.append(Candidate(ei, j, tuple(params), tag))
+    return [c for c in out if not set(c.params) <= free]
+
+
+def _rms(err: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum(err**2, -1))))
+
+
+def _pad(idx: list[list[int]], spare: int) -> np.ndarray:
+    width = 32 * -(-max(len(i) for i in idx) // 32)  # few widths: one LM compile serves most steps
+    return np.array([i + [spare] * (width - len(i)) for i in idx])
+
+
+def diagnose(
+    start: jr.Robot,
+    train: Poses,
+    validation: Poses,
+    *,
+    noise: float | None = None,
+    marker=None,
+    max_steps: int = 6,
+    max_order: int = 400,
+    shortlist: int = 4,
+    progress: Callable[[str], None] | None = None,
+) -> DiagnoseResult:
+    """Find, name and add the effects that `start` misses, from tracker pose measurements.
+
+    **Arguments:**
+    - `start`: the model to test (may have rigid joints and constant gear ratios).
+    - `train`, `validation`: `Poses` (the validation poses only score candidates).
+    - `noise`: tracker std per axis [m] (default `[sensors] tracker_position_noise_m`).
+    - `marker`: marker offset in the tool frame [m] (default `[sensors]`).
+    - `max_steps`: most effects to add; `max_order`: highest ripple order searched [1/rev];
+      `shortlist`: candidates fitted by LM per step; `progress`: a line printer.
+
+    **Returns:** `DiagnoseResult`; `report` is the JSON of `jaxrobot diagnose` (lengths in um).
+    """
+    sensors = jr.read_description(None)["sensors"]
+    sigma = float(sensors["tracker_position_noise_m"] if noise is None else noise)
+    marker = jnp.asarray(sensors["tracker_marker_offset_m"] if marker is None else marker, float)
+    if not sigma > 0:
+        raise ValueError(f"noise: expected the tracker std per axis > 0 m, found {sigma}")
+    if len(train) < 10 or len(validation) < 3:
+        raise ValueError(f"poses: expected >= 10 training and >= 3 validation poses, found {len(train)} and "
+                         f"{len(validation)}")
+    say = progress or (lambda _: None)
+    layout = Layout.of()
+    fns = functions(layout)
+    model0 = model_of(start)
+    spare = layout.size
+    scale = jnp.asarray(layout.scales())
+    v = jnp.zeros(spare + 1)
+    orders = np.zeros((6, 2 * RIPPLE_SLOTS))
+    both = Poses.concatenate([train, validation])  # one compiled shape for both sets
+    th_all, ccw_all = jnp.asarray(both.motor_angles), jnp.asarray(both.ccw)
+    k_tr = len(train)
+    data = {"train": (th_all[:k_tr], ccw_all[:k_tr], train.positions)}
+    n_res = 3 * k_tr
+    ln_n = float(np.log(n_res))
+    free: list[int] = []
+    accepted: list[Candidate] = []
+    loop, cand_log, spectra, steps = [], [], [], []
+
+    def split(q, p):
+        err = both.positions - np.asarray(p)
+        return {"train": (np.asarray(q)[:k_tr], err[:k_tr]), "validation": (np.asarray(q)[k_tr:], err[k_tr:])}
+
+    def evaluate(vv):
+        return split(*fns.exact(model0, vv, jnp.asarray(orders), th_all, ccw_all, marker))
+
+    ev = evaluate(v)
+    residual_before = np.linalg.norm(ev["validation"][1], axis=-1)
+    t0 = time.perf_counter()
+    verdict = ""
+    while True:
+        chi2 = float(np.sum(ev["train"][1] ** 2) / sigma**2)
+        p_val = _p_value(chi2, n_res - len(free))
+        bic = chi2 + len(free) * ln_n
+        row = {"step": len(accepted), "effect": accepted[-1].label(layout) if accepted else "(start)",
+               "parameters": len(free), "rms_train_um": _rms(ev["train"][1]) * 1e6,
+               "rms_validation_um": _rms(ev["validation"][1]) * 1e6, "chi2": chi2, "dof": n_res - len(free),
+               "p_value": p_val, "bic": bic}
+        loop.append(row)
+        say(f"step {row['step']}: {row['effect']:<34} rms train {row['rms_train_um']:8.2f} um, validation "
+            f"{row['rms_validation_um']:8.2f} um, noise floor {sigma * np.sqrt(3) * 1e6:.2f} um, chi2/dof "
+            f"{chi2 / max(row['dof'], 1):.3f} (p = {p_val:.3g}) [{time.perf_counter() - t0:.1f} s]")
+        if p_val > ALPHA:
+            verdict = ("no significant discrepancy: the model explains the data to the noise floor" if not accepted
+                       else "explained: residuals at the noise floor after adding " +
+                       ", ".join(c.label(layout) for c in accepted))
+            break
+        if len(accepted) >= max_steps:
+            verdict = f"discrepancy remains after {max_steps} effects (max_steps)"
+            break
+        th, ccw, pos = data["train"]
+        q_cur = jnp.asarray(ev["train"][0])
+        r = ev["train"][1].ravel() / sigma
+        jac = np.asarray(fns.jacobian(model0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
+        # locate: ripple orders per joint from the residual spectra (joints without a ripple effect yet)
+        qe = _orthonormal(jac[:, free]) if free else np.zeros((n_res, 0))
+        threshold = 2.0 * np.log(6 * max_order / ORDER_FALSE_ALARM)
+        off = layout.blocks[layout.index("joint_offset")]
+        sign = np.asarray(approach_sign(np.asarray(ccw)))
+        found: dict[str, dict[int, list[int]]] = {"gear_ripple": {}, "direction_dependent_ripple": {}}
+        spec_step = {}
+        for j in range(6):
+            g = jac[:, off[j, 0]].reshape(-1, 3)
+            phi = np.asarray(q_cur)[:, j]
+            for kind, col, sgn in (("gear_ripple", 0, None), ("direction_dependent_ripple", RIPPLE_SLOTS, sign[:, j])):
+                if any(c.joint == j and layout.effects[c.effect].kind == kind for c in accepted):
+                    found[kind][j] = [int(n) for n in orders[j, col: col + RIPPLE_SLOTS] if n > 0]
+                    continue
+                ns, first = _find_orders(g, phi, r, qe, max_order, sgn, threshold)
+                spec_step[(kind, j + 1)] = first
+                found[kind][j] = ns
+                orders[j, col: col + RIPPLE_SLOTS] = 0.0
+                orders[j, col: col + len(ns)] = ns
+        spectra.append(spec_step)
+        if any(found[k] for k in found):
+            jac = np.asarray(fns.jacobian(model0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
+        # name: linearised fit of every candidate, then LM on the shortlist
+        cands = _candidates(layout, set(free), found)
+        scored = []
+        for c in cands:
+            cols = free + [i for i in c.params if i not in free]
+            a = jac[:, cols]
+            norms = np.linalg.norm(a, axis=0)
+            if np.any(norms == 0):
+                continue
+            s = np.linalg.svd(a / norms, compute_uv=False)
+            if s[-1] < 1e-6 * s[0]:
+                continue  # not identifiable together with the effects already added
+            delta = np.linalg.lstsq(a, r, rcond=None)[0]
+            rss = float(np.sum((r - a @ delta) ** 2))
+            scored.append((rss + len(cols) * ln_n, c, cols))
+        scored.sort(key=lambda t: t[0])
+        top = scored[:shortlist]
+        log = [{"candidate": c.label(layout), "bic_linearised": b, "delta_bic_linearised": b - bic}
+               for b, c, _ in scored]
+        winner = None
+        if top:
+            idx = _pad([cols for _, _, cols in top], spare)
+            vs, status, nsteps = fns.fit(model0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale,
+                                         jnp.asarray(pos), sigma, jnp.asarray(idx))
+            pos_fit = np.asarray(fns.exact_batch(model0, vs, jnp.asarray(orders), th_all, ccw_all, marker))
+            best = None
+            for k, (_, _c, cols) in enumerate(top):
+                err_t = train.positions - pos_fit[k, :k_tr]
+                err_v = validation.positions - pos_fit[k, k_tr:]
+                chi2_k = float(np.sum(err_t**2) / sigma**2)
+                bic_k = chi2_k + len(cols) * ln_n
+                rms_v = _rms(err_v)
+                ok = int(status[k]) == 0
+                entry = log[k]
+                entry.update({"bic": bic_k, "delta_bic": bic_k - bic, "rms_train_um": _rms(err_t) * 1e6,
+                              "rms_validation_um": rms_v * 1e6, "lm_status": int(status[k]),
+                              "lm_steps": int(nsteps[k])})
+                if ok and bic_k < bic - MIN_BIC_GAIN and rms_v < _rms(ev["validation"][1]):
+                    if best is None or bic_k < best[0]:
+                        best = (bic_k, k)
+            if best is not None:
+                winner = top[best[1]]
+                log[best[1]]["selected"] = True
+                v_new = jnp.asarray(vs[best[1]])
+        cand_log.append(log)
+        for e in log[:5]:
+            say(f"    {e['candidate']:<38} dBIC {e.get('delta_bic', e['delta_bic_linearised']):12.1f}"
+                + (f"  rms val {e['rms_validation_um']:8.2f} um" if "rms_validation_um" in e else "")
+                + ("  <- added" if e.get("selected") else ""))
+        if winner is None:
+            verdict = "discrepancy remains: no candidate effect lowers the BIC and the validation error"
+            break
+        _, c, cols = winner
+        a = jac[:, cols]
+        std = np.sqrt(np.diag(np.linalg.pinv(a.T @ a))) * np.asarray(scale)[cols]
+        free, v = cols, v_new
+        accepted.append(c)
+        ev = evaluate(v)
+        steps.append(_step_entry(layout, model0, c, v, orders, dict(zip(cols, std)), ev))
+    final = ev["validation"][1]
+    model = layout.apply(model0, v, jnp.asarray(orders))
+    report = {
+        "noise_floor_um": sigma * np.sqrt(3) * 1e6,
+        "steps": steps,
+        "final_rms_validation_um": _rms(final) * 1e6,
+        "verdict": verdict,
+        "start": {"rms_train_um": loop[0]["rms_train_um"], "rms_validation_um": loop[0]["rms_validation_um"],
+                  "chi2_per_dof": loop[0]["chi2"] / loop[0]["dof"], "p_value": loop[0]["p_value"]},
+        "n_poses": {"train": len(train), "validation": len(validation)},
+    }
+    return DiagnoseResult(robot_of(model), model, report, loop, cand_log,
+                          {"before": residual_before, "after": np.linalg.norm(final, axis=-1)}, spectra)
+
+
+def _step_entry(layout: Layout, model0: Model, c: Candidate, v, orders, std: dict, ev) -> dict:
+    e = layout.effects[c.effect]
+    block = layout.blocks[c.effect]
+    names = e.names
+    local = block[c.joint] if e.per_joint else block
+    params = {}
+    for i, gi in enumerate(local):
+        if int(gi) not in c.params:
+            continue
+        name = names[i]
+        if e.kind in ("gear_ripple", "direction_dependent_ripple"):
+            slot = int(name[-1])
+            col = slot + (RIPPLE_SLOTS if e.kind == "direction_dependent_ripple" else 0)
+            name = f"{name[:-1]}_order{int(orders[c.joint, col])}"
+        params[name] = {"value": float(v[gi]), "std": float(std.get(int(gi), np.nan)), "unit": e.units[i]}
+    if e.kind == "joint_compliance":
+        cj = float(model0.c[c.joint] + v[local[0]])
+        params["k1"] = {"value": 1.0 / cj if cj > 0 else float("inf"), "unit": "N m/rad"}
+    return {"effect": e.kind, "joint": None if c.joint is None else c.joint + 1, "variant": c.variant,
+            "parameters": params, "rms_train_um": _rms(ev["train"][1]) * 1e6,
+            "rms_validation_um": _rms(ev["validation"][1]) * 1e6}

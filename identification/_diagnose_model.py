@@ -1,0 +1,94 @@
+"""Forward model of pose measurements for the discrepancy workflow, and its batched LM fit.
+
+Rest pose (thesis 3.2.3, with the effects of `_effects`): `phi = Xi^{-1}(theta) - backlash/2 s`
+(`s` the approach sign), `q = phi - x(g(q))` with `x + e x^3 = c g` the joint deflection under the
+gravity torque `g`, then the marker position by eq. 2.4. The exact model iterates the fixed point
+to convergence; the fit model starts from the current rest angles and takes two iterations
+(the map contracts by `|c dg/dq| < 1e-2`, so the error is below 1e-7 rad) to keep the Jacobian cheap.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+from jaxtyping import Array, Bool, Float, Int
+
+import jaxrobot as jr
+from jaxrobot._bench_poses import marker_pose
+from jaxrobot._statics import approach_sign
+
+from ._effects import Layout, Model
+
+EXACT_ITERATIONS = 12
+FIT_ITERATIONS = 2
+
+
+def rest_angles(
+    model: Model, theta: Float[Array, "K 6"], ccw: Bool[Array, "K 6"], q0: Float[Array, "K 6"] | None, iterations: int
+) -> Float[Array, "K 6"]:
+    """Link angles at rest (fixed point `q = phi - x(g(q))`, `iterations` steps from `q0` or `phi`)."""
+    rob = model.robot
+    phi = jr.gear_output(rob, theta, ccw) - 0.5 * rob.backlash * approach_sign(ccw)
+    step = lambda _, q: phi - jr.compliance_deflection(model.c, model.e, jr.gravity_torque(rob, q))
+    return jax.lax.fori_loop(0, iterations, step, phi if q0 is None else q0)
+
+
+class Functions(eqx.Module):
+    """Jitted model functions for one effect layout (compiled once per data shape)."""
+
+    layout: Layout = eqx.field(static=True)
+
+    def model(self, model0: Model, v, orders) -> Model:
+        return self.layout.apply(model0, v, orders)
+
+    @eqx.filter_jit
+    def exact(self, model0: Model, v, orders, theta, ccw, marker):
+        """Exact rest angles and marker positions with effect values `v`."""
+        m = self.model(model0, v, orders)
+        q = rest_angles(m, theta, ccw, None, EXACT_ITERATIONS)
+        return q, marker_pose(m.robot, q, marker)[0]
+
+    def fit_positions(self, model0: Model, v, orders, theta, ccw, q_cur, marker):
+        m = self.model(model0, v, orders)
+        q = rest_angles(m, theta, ccw, q_cur, FIT_ITERATIONS)
+        return marker_pose(m.robot, q, marker)[0]
+
+    @eqx.filter_jit
+    def jacobian(self, model0: Model, v, orders, theta, ccw, q_cur, marker, scale):
+        """d(positions)/d(v / scale): (K*3, P+1), residual rows pose-major."""
+        f = lambda x: self.fit_positions(model0, v + scale * x, orders, theta, ccw, q_cur, marker).ravel()
+        return jax.jacfwd(f)(jnp.zeros_like(v))
+
+    @eqx.filter_jit
+    def fit(self, model0: Model, v, orders, theta, ccw, q_cur, marker, scale, target, sigma,
+            idx: Int[Array, "S L"], max_steps: int = 50):
+        """Levenberg-Marquardt (optimistix) on the entries `idx` of `v` for each of S candidates
+        (padding points at the spare entry); residuals in units of the noise `sigma`.
+
+        **Returns:** `v` (S, P+1) fitted values, `result` (S,) optimistix status, `steps` (S,).
+        """
+        def one(ix):
+            def fn(x, _):
+                vv = v.at[ix].add(x * scale[ix])
+                p = self.fit_positions(model0, vv, orders, theta, ccw, q_cur, marker)
+                return ((p - target) / sigma).ravel()
+
+            sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6), jnp.zeros(ix.shape),
+                                     max_steps=max_steps, throw=False)
+            return v.at[ix].add(sol.value * scale[ix]), sol.result._value, sol.stats["num_steps"]
+
+        return jax.vmap(one)(idx)
+
+    @eqx.filter_jit
+    def exact_batch(self, model0: Model, vs, orders, theta, ccw, marker):
+        """Marker positions (S, K, 3) for S value vectors."""
+        return jax.vmap(lambda v: self.exact(model0, v, orders, theta, ccw, marker)[1])(vs)
+
+
+@functools.cache
+def functions(layout: Layout) -> Functions:
+    return Functions(layout)

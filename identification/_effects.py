@@ -1,0 +1,290 @@
+"""Catalogue of model effects for the discrepancy workflow (`diagnose`).
+
+Each effect is a small model extension: its parameter names and typical sizes, and a hook
+`apply(model, v, orders) -> model` that is the identity at `v = 0`. Per-joint effects get `v` of
+shape (6, n) (one row per joint; the workflow frees one row at a time), global ones (n,).
+Adding an effect = one subclass of `Effect` appended to `CATALOGUE`.
+
+The model (`Model`) is the robot plus its joint compliance in the form of
+`jaxrobot.compliance_deflection` (`c = 1/k1`, `e = k3/k1`), which is finite for rigid joints
+(`c = 0`), so compliance can be identified from a rigid start.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+import jaxrobot as jr
+from jaxrobot._kinematics import homogeneous, rot_x, rot_y, rot_z
+
+RIPPLE_SLOTS = 3
+"""Orders per ripple effect and joint (found from the residual spectrum)."""
+
+
+class Model(eqx.Module):
+    """The robot of the workflow: `robot` with `RIPPLE_SLOTS` free ripple slots per effect
+    appended, and joint compliance `c` [rad/(N m)], `e` [1/rad^2] (`x + e x^3 = c tau`)."""
+
+    robot: jr.Robot
+    c: Float[Array, "6"]
+    e: Float[Array, "6"]
+
+
+def _pad(rip: jr.Ripple, m: int) -> jr.Ripple:
+    z = jnp.zeros((6, m))
+    return jr.Ripple(*(jnp.concatenate([getattr(rip, k), z], -1) for k in ("orders", "a", "b")))
+
+
+def model_of(robot: jr.Robot) -> Model:
+    """The workflow's model of `robot` (free ripple slots appended, compliance form)."""
+    m = 2 * RIPPLE_SLOTS
+    robot = eqx.tree_at(lambda r: (r.cw, r.ccw), robot, (_pad(robot.cw, m), _pad(robot.ccw, m)))
+    c = 1.0 / robot.k1
+    return Model(robot, c, robot.k3 * c)
+
+
+def robot_of(model: Model) -> jr.Robot:
+    """Back to a `jaxrobot.Robot`: `k1 = 1/c`, `k3 = e k1` (inf for `c = 0`); empty ripple slots dropped
+    when the robot is written (`save_robot` keeps used orders only)."""
+    c = np.asarray(model.c)
+    k1 = np.where(c > 0, 1.0 / np.where(c > 0, c, 1.0), np.inf)
+    k3 = np.where(c > 0, np.asarray(model.e) * np.where(c > 0, k1, 0.0), 0.0)
+    return eqx.tree_at(lambda r: (r.k1, r.k3), model.robot, (jnp.asarray(k1), jnp.asarray(k3)))
+
+
+@dataclasses.dataclass(frozen=True)
+class Effect:
+    """One kind of discrepancy: `kind` (the name of the JSON report), whether it acts per joint,
+    parameter `names` and typical `scales` (the LM works in units of these)."""
+
+    kind: ClassVar[str]
+    per_joint: ClassVar[bool]
+    names: ClassVar[tuple[str, ...]]
+    scales: ClassVar[tuple[float, ...]]
+    units: ClassVar[tuple[str, ...]]
+
+    def apply(self, model: Model, v: Array, orders: Float[Array, "6 S"]) -> Model:
+        raise NotImplementedError
+
+    def variants(self) -> tuple[tuple[int, ...], ...]:
+        """Parameter subsets offered as separate candidates (default: all parameters)."""
+        return (tuple(range(len(self.names))),)
+
+
+def _robot_at(model: Model, fields: tuple[str, ...], values: tuple) -> Model:
+    return eqx.tree_at(lambda m: tuple(getattr(m.robot, f) for f in fields), model, values)
+
+
+class JointOffset(Effect):
+    """Zero of the joint coordinate (`offset_j` += v): a constant joint-angle error."""
+
+    kind, per_joint, names, scales, units = "joint_offset", True, ("offset",), (1e-4,), ("rad",)
+
+    def apply(self, model, v, orders):
+        return _robot_at(model, ("offset",), (model.robot.offset + v[:, 0],))
+
+
+class GearRatio(Effect):
+    """Basic gear ratio error (`u0_j` *= 1 + v): a joint-angle error proportional to the angle."""
+
+    kind, per_joint, names, scales, units = "gear_ratio", True, ("u0_relative",), (1e-4,), ("1",)
+
+    def apply(self, model, v, orders):
+        return _robot_at(model, ("u0",), (model.robot.u0 * (1.0 + v[:, 0]),))
+
+
+class Backlash(Effect):
+    """Lost motion: the link lags by `v/2` against the direction of approach (`Robot.backlash`)."""
+
+    kind, per_joint, names, scales, units = "backlash", True, ("backlash",), (1e-4,), ("rad",)
+
+    def apply(self, model, v, orders):
+        return _robot_at(model, ("backlash",), (model.robot.backlash + v[:, 0],))
+
+
+class JointCompliance(Effect):
+    """Joint compliance `c` [rad/(N m)] and cubic term `e` [1/rad^2]: deflection under the gravity
+    torque, `x + e x^3 = c tau` (eq. 2.18 in compliance form). Linear and cubic are two candidates."""
+
+    kind, per_joint, names, scales, units = ("joint_compliance", True, ("compliance", "cubic"), (1e-6, 1e5),
+                                             ("rad/(N m)", "1/rad^2"))
+
+    def apply(self, model, v, orders):
+        return eqx.tree_at(lambda m: (m.c, m.e), model, (model.c + v[:, 0], model.e + v[:, 1]))
+
+    def variants(self):
+        return ((0,), (0, 1))
+
+
+def _set_ripple(rip: jr.Ripple, start: int, orders, amp_cos, amp_sin) -> jr.Ripple:
+    """Write orders `n` and amplitudes into slots `start:start+S`; the joint-angle error of a slot
+    is `-(A sin(n phi) + B (cos(n phi) - 1))`, i.e. `a = n A`, `b = n B` of eq. 2.10."""
+    s = slice(start, start + orders.shape[-1])
+    return jr.Ripple(rip.orders.at[:, s].set(orders), rip.a.at[:, s].add(orders * amp_cos),
+                     rip.b.at[:, s].add(orders * amp_sin))
+
+
+class GearRipple(Effect):
+    """Gear ripple of a joint, the same in both directions: `RIPPLE_SLOTS` orders found from the
+    residual spectrum, amplitudes of the joint-angle error [rad] (eq. 2.10, 2.13)."""
+
+    kind, per_joint, units = "gear_ripple", True, ("rad",) * 2 * RIPPLE_SLOTS
+    names = tuple(f"{p}{s}" for s in range(RIPPLE_SLOTS) for p in ("A", "B"))
+    scales = (1e-5,) * 2 * RIPPLE_SLOTS
+
+    def apply(self, model, v, orders):
+        n = orders[:, : RIPPLE_SLOTS]
+        start = model.robot.cw.orders.shape[-1] - 2 * RIPPLE_SLOTS
+        a, b = v[:, 0::2], v[:, 1::2]
+        rob = model.robot
+        return _robot_at(model, ("cw", "ccw"), (_set_ripple(rob.cw, start, n, a, b),
+                                                 _set_ripple(rob.ccw, start, n, a, b)))
+
+
+class DirectionDependentRipple(Effect):
+    """Gear ripple that differs between the directions of approach (separate cw and ccw
+    amplitudes for `RIPPLE_SLOTS` orders found from the direction-signed residual spectrum)."""
+
+    kind, per_joint, units = "direction_dependent_ripple", True, ("rad",) * 4 * RIPPLE_SLOTS
+    names = tuple(f"{d}_{p}{s}" for s in range(RIPPLE_SLOTS) for d in ("cw", "ccw") for p in ("A", "B"))
+    scales = (1e-5,) * 4 * RIPPLE_SLOTS
+
+    def apply(self, model, v, orders):
+        n = orders[:, RIPPLE_SLOTS:]
+        start = model.robot.cw.orders.shape[-1] - RIPPLE_SLOTS
+        v = v.reshape(6, RIPPLE_SLOTS, 4)
+        rob = model.robot
+        return _robot_at(model, ("cw", "ccw"), (_set_ripple(rob.cw, start, n, v[..., 0], v[..., 1]),
+                                                 _set_ripple(rob.ccw, start, n, v[..., 2], v[..., 3])))
+
+
+GEOMETRY = ("a1", "a2", "a3", "a4", "a5", "a6", "d1", "d2", "d4", "d5", "d6",
+            "alpha1", "alpha2", "alpha3", "alpha4", "alpha5", "beta3")
+"""The mDH parameters identifiable from marker positions (with the joint offsets: the 25 of
+`identification.DEFAULT_PARAMETERS` less offsets and wrist ratios)."""
+
+
+class Geometry(Effect):
+    """mDH geometric deviations (eq. 2.2-2.3) of the identifiable set `GEOMETRY`."""
+
+    kind, per_joint, names = "geometry", False, GEOMETRY
+    scales = (1e-4,) * len(GEOMETRY)
+    units = tuple("m" if n[0] in "ad" and not n.startswith("alpha") else "rad" for n in GEOMETRY)
+
+    def apply(self, model, v, orders):
+        rob = model.robot
+        upd = {k: getattr(rob, k) for k in ("a", "d", "alpha", "beta")}
+        for i, n in enumerate(GEOMETRY):
+            field, j = n[:-1], int(n[-1]) - 1
+            upd[field] = upd[field].at[j].add(v[i])
+        keys = tuple(upd)
+        return _robot_at(model, keys, tuple(upd[k] for k in keys))
+
+
+class LinkScale(Effect):
+    """Uniform scale of all link lengths `a`, `d` (thermal expansion): `(1 + v)`."""
+
+    kind, per_joint, names, scales, units = "link_scale", False, ("scale",), (1e-4,), ("1",)
+
+    def apply(self, model, v, orders):
+        rob = model.robot
+        return _robot_at(model, ("a", "d"), (rob.a * (1.0 + v[0]), rob.d * (1.0 + v[0])))
+
+
+class ToolOffset(Effect):
+    """Translation of the tool frame in the flange frame [m]."""
+
+    kind, per_joint, names, scales, units = ("tool_offset", False, ("x", "y", "z"), (1e-4,) * 3, ("m",) * 3)
+
+    def apply(self, model, v, orders):
+        tool = model.robot.tool
+        return _robot_at(model, ("tool",), (tool.at[:3, 3].add(v),))
+
+
+class BaseOffset(Effect):
+    """Pose error of the robot base in the world: translation [m] and rotation vector `Rz Ry Rx` [rad]
+    applied on the world side."""
+
+    kind, per_joint = "base_offset", False
+    names, scales = ("x", "y", "z", "rx", "ry", "rz"), (1e-4,) * 6
+    units = ("m",) * 3 + ("rad",) * 3
+
+    def apply(self, model, v, orders):
+        t = homogeneous(rot_z(v[5]) @ rot_y(v[4]) @ rot_x(v[3]), v[:3])
+        return _robot_at(model, ("base",), (t @ model.robot.base,))
+
+
+class Payload(Effect):
+    """Payload on the flange: mass [kg] and first moment `m c` [kg m] in the flange frame (link 6);
+    acts through the gravity torque on the compliant joints."""
+
+    kind, per_joint = "payload", False
+    names, scales, units = ("mass", "moment_x", "moment_y", "moment_z"), (1.0, 0.1, 0.1, 0.1), ("kg",) + ("kg m",) * 3
+
+    def apply(self, model, v, orders):
+        rob = model.robot
+        m6 = rob.mass[5]
+        m = m6 + v[0]
+        com = (m6 * rob.com[5] + v[1:]) / m
+        return _robot_at(model, ("mass", "com"), (rob.mass.at[5].set(m), rob.com.at[5].set(com)))
+
+
+CATALOGUE: list[Effect] = [JointOffset(), GearRatio(), Backlash(), JointCompliance(), GearRipple(),
+                           DirectionDependentRipple(), Geometry(), LinkScale(), ToolOffset(), BaseOffset(),
+                           Payload()]
+"""The effects the workflow tries, in this order (ties keep the earlier one)."""
+
+KINDS = tuple(e.kind for e in CATALOGUE)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Layout:
+    """Where each effect's parameters sit in the flat vector `V` of all effects; `V[size]` is a
+    spare entry that moves nothing (padding of parameter subsets)."""
+
+    effects: tuple[Effect, ...]
+    blocks: tuple[np.ndarray, ...]
+    """Per effect: indices into `V`, shape (6, n) per joint or (n,) global."""
+    size: int
+
+    @classmethod
+    def of(cls, effects=None) -> Layout:
+        effects = tuple(CATALOGUE if effects is None else effects)
+        blocks, start = [], 0
+        for e in effects:
+            shape = (6, len(e.names)) if e.per_joint else (len(e.names),)
+            n = int(np.prod(shape))
+            blocks.append(np.arange(start, start + n).reshape(shape))
+            start += n
+        return cls(effects, tuple(blocks), start)
+
+    def scales(self) -> np.ndarray:
+        """Typical size of every entry of `V` (plus the spare), the LM's units."""
+        s = np.ones(self.size + 1)
+        for e, b in zip(self.effects, self.blocks):
+            s[b] = np.broadcast_to(np.asarray(e.scales), b.shape)
+        return s
+
+    def apply(self, model: Model, v: Float[Array, " P"], orders: Float[Array, "6 S"]) -> Model:
+        """All effects with the values `v` (the identity at `v = 0`)."""
+        for e, b in zip(self.effects, self.blocks):
+            model = e.apply(model, v[jnp.asarray(b)], orders)
+        return model
+
+    def index(self, kind: str) -> int:
+        return [e.kind for e in self.effects].index(kind)
+
+    def _key(self) -> tuple:
+        return tuple(type(e) for e in self.effects)
+
+    def __hash__(self) -> int:
+        return hash(self._key())
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Layout) and self._key() == other._key()

@@ -1,0 +1,93 @@
+"""Model hooks of the discrepancy workflow: rigid joints (no `[stiffness]`), backlash by the
+direction of approach from the pose order, and the compliance form of the joint spring."""
+
+from __future__ import annotations
+
+import copy
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import tomli_w
+
+import jaxrobot as jr
+
+
+def test_approach_directions_follow_pose_order():
+    theta = np.array([[1.0, -1.0, 0, 0, 0, 0], [2.0, -1.0, 0, 0, 0, 1.0], [0.5, 3.0, 0, 0, 0, 1.0]])
+    ccw = np.asarray(jr.approach_directions(theta))
+    # joint 1: up from 0, up, down; joint 2: down, no move (keeps down), up; joint 3 never moves (cw)
+    np.testing.assert_array_equal(ccw[:, 0], [False, False, True])
+    np.testing.assert_array_equal(ccw[:, 1], [True, True, False])
+    np.testing.assert_array_equal(ccw[:, 2], [False, False, False])
+    np.testing.assert_array_equal(ccw[:, 5], [False, False, False])
+
+
+def test_backlash_shifts_rest_angle_by_half_against_approach():
+    robot = jr.racer7()
+    b = np.array([0, 0, 4e-4, 0, 2e-4, 0])
+    with_bl = eqx.tree_at(lambda r: r.backlash, robot, jnp.asarray(b))
+    theta = jnp.asarray(np.random.default_rng(3).uniform(-20, 20, (8, 6)))
+    for ccw in (False, True):
+        q0 = jr.rest_link_angles(robot, theta, ccw)
+        q1 = jr.rest_link_angles(with_bl, theta, ccw)
+        # the gravity deflection changes by dg/dq * b / k ~ 1e3 * 2e-4 / 1e5 = 2e-6 rad at most
+        np.testing.assert_allclose(q1 - q0, np.broadcast_to(-0.5 * b * (-1 if ccw else 1), theta.shape), atol=5e-6)
+
+
+def _rigid_file(tmp_path, backlash=None):
+    data = copy.deepcopy(jr.read_description())
+    del data["stiffness"]
+    if backlash is not None:
+        data["gear"]["backlash_rad"] = backlash
+    path = tmp_path / "rigid.toml"
+    path.write_text(tomli_w.dumps(data))
+    return path
+
+
+def test_rigid_robot_rests_at_gear_output(tmp_path):
+    robot = jr.load_robot(_rigid_file(tmp_path))
+    assert np.all(np.isinf(np.asarray(robot.k1)))
+    theta = jnp.asarray(np.random.default_rng(4).uniform(-30, 30, (5, 6)))
+    np.testing.assert_array_equal(np.asarray(jr.rest_link_angles(robot, theta)),
+                                  np.asarray(jr.gear_output(robot, theta)))
+    # derivatives stay finite for rigid joints
+    g = jax.grad(lambda t: jnp.sum(jr.rest_link_angles(robot, t)))(theta)
+    assert np.all(np.isfinite(np.asarray(g)))
+
+
+def test_rigid_and_backlash_round_trip(tmp_path):
+    robot = jr.load_robot(_rigid_file(tmp_path, [0.0, 1e-4, 0.0, 0.0, 0.0, 3e-4]))
+    out = tmp_path / "saved.toml"
+    jr.save_robot(robot, out)
+    again = jr.load_robot(out)
+    assert "stiffness" not in jr.read_description(out)
+    np.testing.assert_array_equal(np.asarray(again.backlash), [0.0, 1e-4, 0.0, 0.0, 0.0, 3e-4])
+    assert np.all(np.isinf(np.asarray(again.k1)))
+
+
+def test_negative_backlash_is_rejected(tmp_path):
+    with pytest.raises(jr.RobotFileError, match=r"gear.backlash_rad.*>= 0"):
+        jr.load_robot(_rigid_file(tmp_path, [0.0, -1e-4, 0.0, 0.0, 0.0, 0.0]))
+
+
+def test_compliance_form_solves_the_spring_equation():
+    k1 = jnp.array([2.2e5, 1.6e5, 1.2e5, 4.0e4, 3.0e4, 2.0e4])
+    k3 = jnp.array([0.0, 4.0e10, 3.0e10, 0.0, 0.0, 0.0])
+    tau = jnp.asarray(np.random.default_rng(5).normal(scale=800.0, size=(20, 6)))
+    x = jr.compliance_deflection(1.0 / k1, k3 / k1, tau)
+    # kappa(x) = tau to float64 rounding of the larger term
+    np.testing.assert_allclose(k1 * x + k3 * x**3, tau, rtol=1e-12, atol=1e-9)
+    # rigid joint: zero deflection with the derivative dx/dc = tau
+    dx_dc = jax.jacfwd(lambda c: jr.compliance_deflection(c, jnp.zeros(6), tau[0]))(jnp.zeros(6))
+    np.testing.assert_allclose(np.diag(np.asarray(dx_dc)), np.asarray(tau[0]), rtol=1e-14)
+
+
+def test_planning_rejects_rigid_joints(tmp_path):
+    from planning._cli_plan import plan
+
+    robot = jr.load_robot(_rigid_file(tmp_path))
+    with pytest.raises(ValueError, match=r"model: planning needs elastic joints.*rigid joints \[1, 2, 3, 4, 5, 6\]"):
+        plan(robot, jr.racer7(), None, 1e-14, "default", print)
