@@ -21,8 +21,15 @@ from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
 
+from ._calibration_model import (
+    analytic_names,
+    joint_angle_model,
+    marker_pose_one,
+    position_jacobian_one,
+    rippled_joints,
+)
 from ._identifiability import analyse
-from ._parameters import THESIS_PARAMETERS, ParameterMap, predict_pose, rest_deflection, rotation_error
+from ._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection, rotation_error
 from ._pose_selection import default_marker
 
 DEFAULT_PARAMETERS = THESIS_PARAMETERS + ("offset1", "offset2", "offset4", "offset5", "offset6", "d1",
@@ -61,20 +68,34 @@ def _deflection(robot, theta, ccw):
     return rest_deflection(robot, theta, ccw)
 
 
-def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflection, marker, weight_r, ccw):
+def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflection, marker, weight_r, ccw,
+                 rippled: tuple[int, ...] | None = None, q0=None):
     """Residual `fn(x, _)` in scaled variables `v = v0 + scale x`, its start `v0` and `scale`.
 
-    Its derivative is supplied per pose by reverse mode (3 or 6 outputs against m parameters),
-    so that the LM's Jacobian costs a few model evaluations instead of m forward passes.
+    The model is `predict_pose` with its per-pose constants hoisted (`_calibration_model`; `q0`,
+    the initial joint angles, may be given). Its Jacobian is supplied per pose: for position rows
+    and joint parameters from the joint screws (`position_jacobian_one`), else by reverse mode
+    (3 or 6 outputs against the robot fields that `params` touches) chained with
+    `d fields / d x`; either costs a few model evaluations instead of m forward passes.
     """
     v0 = params.get(robot0)
     scale = params.scales(robot0)
     orient = target_r is not None
+    rippled = rippled_joints(robot0) if rippled is None else rippled
+    full_ratio = any(f"u0_{j + 1}" in params.names for j in rippled)
+    q0, q_pose = joint_angle_model(robot0, params, theta, deflection, ccw, rippled, q0)
+    keys = tuple(dict.fromkeys(parse_name(n)[0] for n in params.names))
 
-    static_cw = ccw is False
+    def robot_of(fields):
+        return eqx.tree_at(lambda r: tuple(getattr(r, k) for k in keys), robot0, tuple(fields[k] for k in keys))
 
-    def one_pose(x, th, de, tp, tr, cw):
-        p, r = predict_pose(params.set(robot0, v0 + scale * x), th, de, marker, False if static_cw else cw)
+    def fields_of(x):
+        robot = params.set(robot0, v0 + scale * x)
+        return {k: getattr(robot, k) for k in keys}
+
+    def one_pose(fields, th, q0k, de, tp, tr, cw):
+        robot = robot_of(fields)
+        p, r = marker_pose_one(robot, q_pose(robot, th, q0k, de, cw), marker)
         res = (p - tp) / RESIDUAL_UNIT
         if orient:
             res = jnp.concatenate([res, weight_r * rotation_error(tr, r) / RESIDUAL_UNIT])
@@ -82,18 +103,30 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
 
     ccw_b = jnp.broadcast_to(jnp.asarray(ccw), theta.shape)
     tr = target_r if orient else jnp.zeros(theta.shape[:-1] + (3, 3))
-    axes = (None, 0, 0, 0, 0, 0)
+    axes = (None, 0, 0, 0, 0, 0, 0)
+    data = (theta, q0, deflection, target_p, tr, ccw_b)
 
     @jax.custom_jvp
     def resid(x):
-        return jax.vmap(one_pose, axes)(x, theta, deflection, target_p, tr, ccw_b).ravel()
+        return jax.vmap(one_pose, axes)(fields_of(x), *data).ravel()
+
+    def one_jacobian(fields, th, q0k, de, tp, tr, cw):
+        robot = robot_of(fields)
+        q = q_pose(robot, th, q0k, de, cw)
+        ratio = jr.gear_ratio(robot, q - de, cw) if full_ratio else robot.u0
+        return position_jacobian_one(robot, params, q, th, ratio, marker)[1] * (scale / RESIDUAL_UNIT)
 
     @resid.defjvp
     def _resid_jvp(primals, tangents):
         (x,), (t,) = primals, tangents
-        jac = jax.vmap(jax.jacrev(one_pose), axes)(x, theta, deflection, target_p, tr, ccw_b)
-        jac = jac.reshape(-1, x.shape[0])
-        return resid(x), jac @ t
+        if orient or not analytic_names(params.names):  # autodiff: per pose, by the touched robot fields
+            fields, dfields = jax.jvp(fields_of, (x,), (t,))
+            jac = jax.vmap(jax.jacrev(one_pose), axes)(fields, *data)  # {key: (K, rows, *field)}
+            out = sum(jnp.sum((jac[k] * dfields[k][None, None]).reshape(jac[k].shape[:2] + (-1,)), -1)
+                      for k in keys)
+            return resid(x), out.ravel()
+        jac = jax.vmap(one_jacobian, axes)(fields_of(x), *data)  # (K, 3, m), joint screws
+        return resid(x), (jac @ t).ravel()
 
     return (lambda x, _: resid(x)), v0, scale
 
@@ -111,15 +144,21 @@ def solve(
     rtol: float = 1e-8,
     atol: float = 1e-8,
     max_steps: int = 100,
+    rippled: tuple[int, ...] | None = None,
 ) -> dict[str, Array]:
     """LM solve for one robot; pure and jit/vmap-safe (the fleet maps it over robots).
+
+    `rippled`: the joints whose gears have ripple (`rippled_joints`; static), needed when `robot0`
+    is traced (e.g. under `vmap`), else found from `robot0`; a free `u0` of a ripple-free gear then
+    skips the Newton inversion.
 
     **Returns:** `value` (m,) parameters, `std` (m,) standard errors, `cov` (m, m), `result`
     (optimistix RESULTS index), `steps`, `residuals` (n,) at the solution in m (orientation rows
     in m-equivalent units), `rank` of the scaled Jacobian, `sigma2` the noise estimate [m^2],
     `jacobian` (n, m) at the solution (residual mm per parameter unit).
     """
-    fn, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r, ccw)
+    fn, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r, ccw,
+                                 rippled)
     x0 = jnp.zeros(len(params))
     sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=rtol, atol=atol), x0, max_steps=max_steps,
                              throw=False)
@@ -276,7 +315,8 @@ def calibrate(
     defl_all = _deflection(robot, th_all, ccw_all)  # one evaluation for both sets
     th, defl = th_all[:k], defl_all[:k]
     ccw_id = ccw if np.ndim(ccw) == 0 else ccw_all[:k]
-    out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw_id, max_steps=max_steps)
+    out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw_id, max_steps=max_steps,
+                     rippled=rippled_joints(robot))
     out = jax.tree.map(np.asarray, out)
     check_rank(out["jacobian"], params)
     calibrated = params.set(robot, jnp.asarray(out["value"]))

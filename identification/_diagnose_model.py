@@ -67,7 +67,9 @@ class Functions(eqx.Module):
     def fit(self, model0: Model, v, orders, theta, ccw, q_cur, marker, scale, target, sigma,
             idx: Int[Array, "S L"], max_steps: int = 50):
         """Levenberg-Marquardt (optimistix) on the entries `idx` of `v` for each of S candidates
-        (padding points at the spare entry); residuals in units of the noise `sigma`.
+        (padding points at the spare entry); residuals in units of the noise `sigma`. The
+        candidates run one after another (`lax.map`): each stops at its own step count, and no
+        LAPACK call is batched (batched LAPACK calls can deadlock XLA's CPU thread pool in jaxlib 0.10).
 
         **Returns:** `v` (S, P+1) fitted values, `result` (S,) optimistix status, `steps` (S,).
         """
@@ -77,11 +79,11 @@ class Functions(eqx.Module):
                 p = self.fit_positions(model0, vv, orders, theta, ccw, q_cur, marker)
                 return ((p - target) / sigma).ravel()
 
-            sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6), jnp.zeros(ix.shape),
+            sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=1e-5, atol=1e-5), jnp.zeros(ix.shape),
                                      max_steps=max_steps, throw=False)
             return v.at[ix].add(sol.value * scale[ix]), sol.result._value, sol.stats["num_steps"]
 
-        return jax.vmap(one)(idx)
+        return jax.lax.map(one, idx)
 
     @eqx.filter_jit
     def exact_batch(self, model0: Model, vs, orders, theta, ccw, marker):

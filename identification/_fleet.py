@@ -22,6 +22,7 @@ from jaxtyping import Array, Float
 import jaxrobot as jr
 
 from ._calibration import DEFAULT_PARAMETERS, _check_array, solve
+from ._calibration_model import rippled_joints
 from ._parameters import ParameterMap, rest_deflection
 from ._pose_selection import default_marker
 
@@ -60,12 +61,12 @@ def _gather(x: Array) -> np.ndarray:
     return np.asarray(x)
 
 
-def _local_solve(robots, params, theta, positions, marker, max_steps):
+def _local_solve(robots, params, theta, positions, marker, max_steps, rippled):
     """The fleet solve on the robots of one device: vmap of `solve`."""
     defl = jax.vmap(rest_deflection)(robots, theta)
 
     def one(robot, th, p, de):
-        out = solve(robot, params, th, p, de, marker, max_steps=max_steps)
+        out = solve(robot, params, th, p, de, marker, max_steps=max_steps, rippled=rippled)
         return {k: out[k] for k in ("value", "std", "converged", "steps", "rank", "residuals")}
 
     return jax.vmap(one)(robots, theta, positions, defl)
@@ -120,7 +121,7 @@ def calibrate_fleet(
     g_robots = jax.tree.unflatten(tree, [_to_global(np.asarray(x)[take], sharding) for x in leaves])
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     out = _fleet_solve(g_robots, params, _to_global(theta[take], sharding), _to_global(pos[take], sharding),
-                       marker, max_steps)
+                       marker, max_steps, rippled_joints(robots))
     out = {key: _gather(v)[:n_rob] for key, v in out.items()}
     value = out["value"]
     return FleetResult(

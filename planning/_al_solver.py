@@ -14,10 +14,13 @@ and `mu I`. It is block-tridiagonal with 30x30 blocks, factorised by
 `_block_tridiagonal.block_cholesky`, and reused for `refresh_every` steps while `rho` and `mu`
 stay put (the iterates move by micro-radians, so a factor from a few steps back is as good).
 Steps are accepted by the gain ratio of the merit; `mu` grows on rejection or on a matrix
-that is not positive definite. After each inner solve the multipliers are updated
+that is not positive definite and falls back towards `damping_init` after good steps. After
+each inner solve, which ends only at an accepted step, the multipliers are updated
 (`lam += rho c`, `gam = rho (v - P(v))`) and `rho` grows when the violation did not fall by
-`violation_decrease`. Stops when the largest scaled violation and the largest scaled gradient
-of the Lagrangian (stationarity) are below their tolerances.
+`violation_decrease` (updating them from a rejected iterate repeats the same `rho c` and drives
+the multipliers away: the spiral at nu = 1e-10 failed that way). `rho` starts in proportion to
+the control weight (`penalty_per_weight`). Stops when the largest scaled violation and the
+largest scaled gradient of the Lagrangian (stationarity) are below their tolerances.
 
 Numbers (nu = 1e-14): in the scaled units the control weight is O(10-100) and a defect is
 exact to ~1e-12 (roundoff of `phi - q` amplified by the stiff wrist joints); defects are
@@ -53,13 +56,19 @@ class ALConfig:
     max_outer_iterations: int = 30
     """Most multiplier/penalty updates before giving up (`RESULTS.max_iterations`)."""
     max_inner_iterations: int = 1
-    """Most Gauss-Newton/LM steps (accepted or not) per outer iteration."""
+    """Gauss-Newton/LM steps per outer iteration; more follow while steps are rejected (the
+    multipliers move only from an accepted iterate), until the damping exceeds `damping_max`."""
     penalty_init: float = 1e6
-    """Initial penalty `rho`."""
+    """Initial penalty `rho` (at least; see `penalty_per_weight`)."""
+    penalty_per_weight: float = 10.0
+    """`rho` starts at `max(penalty_init, penalty_per_weight w_u)`, `w_u` the largest scaled control
+    weight (`nu u0^2 / T_s^4`): the multiplier update contracts the dual error by about
+    `w_u / (w_u + rho)` per outer iteration, so a fixed `rho` gets slow at large `nu`."""
     penalty_growth: float = 10.0
     """Factor on `rho` when the violation did not fall enough."""
     penalty_max: float = 1e7
-    """Upper limit of `rho` (keeps the normal matrix factorisable)."""
+    """Upper limit of `rho` (keeps the normal matrix factorisable), scaled by the same factor as
+    the initial penalty."""
     violation_decrease: float = 0.1
     """Required ratio of new to previous violation; above it `rho` grows."""
     tol_violation: float = 1e-9
@@ -77,6 +86,11 @@ class ALConfig:
     """A damping above this means the inner solve failed (`RESULTS.inner_failed`)."""
     damping_up: float = 10.0
     """Factor on `mu` after a rejected step or a failed factorisation."""
+    damping_down: float = 10.0
+    """Divisor of `mu` after a step whose merit decrease matched the prediction (gain ratio above
+    `good_ratio`); `mu` never falls below `damping_init`."""
+    good_ratio: float = 0.5
+    """Gain ratio above which a step counts as good."""
     accept_ratio: float = 1e-4
     """Smallest ratio of actual to predicted merit decrease that accepts a step."""
     refresh_every: int = 4
@@ -218,6 +232,7 @@ class _State(eqx.Module):
     factor: BlockCholesky
     factor_key: Float[Array, "2"]
     factor_age: Int[Array, ""]
+    accepted: Bool[Array, ""]
 
 
 def history_length(config: ALConfig) -> int:
@@ -235,9 +250,45 @@ def augmented_lagrangian(
     One flat loop: each pass assembles the normal equations at `y`; when the inner solve is
     done (gradient of `Phi` at most `inner_tol`, or `max_inner_iterations` steps) it updates
     the multipliers and the penalty and checks convergence, otherwise it takes one LM step.
+
+    Under `vmap` the batch is solved one member after the other (`lax.map`, a custom batching
+    rule): each solve keeps its real conditionals (factor reuse, no evaluation of both branches)
+    and stops at its own iteration count, and no LAPACK call is batched. A batched LAPACK call
+    in jaxlib 0.10 fans out into XLA's CPU intra-op thread pool and blocks waiting for it; two of
+    them at once (the vmapped loop runs independent branches concurrently) deadlocked the pool of
+    a 2-core machine with zero CPU use (gdb: both pool threads in `lapack_dtrsm_ffi` ->
+    `ParallelBatchMap` -> `BlockingCounter::Wait`).
     """
-    p = _parts(problem, y0)
     m = history_length(config) if history is None else history
+    settings = {f.name: jnp.asarray(getattr(config, f.name)) for f in dataclasses.fields(ALConfig)}
+
+    arrays, static = eqx.partition(problem, eqx.is_array)
+
+    @jax.custom_batching.custom_vmap
+    def solve(arrays, y0, settings):
+        return _augmented_lagrangian(eqx.combine(arrays, static), y0, ALConfig(**settings), m)
+
+    @solve.def_vmap
+    def _solve_batch(axis_size, in_batched, arrays, y0, settings):
+        args = (arrays, y0, settings)
+        leaves, treedef = jax.tree.flatten(args)
+        batched = jax.tree.leaves(list(in_batched))
+        xs = [leaf for leaf, b in zip(leaves, batched, strict=True) if b]
+
+        def one(x):
+            it = iter(x)
+            return solve(*jax.tree.unflatten(treedef, [next(it) if b else leaf
+                                                        for leaf, b in zip(leaves, batched, strict=True)]))
+
+        out = jax.lax.map(one, xs)
+        return out, jax.tree.map(lambda _: True, out)
+
+    return solve(arrays, y0, settings)
+
+
+def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 30"], config: ALConfig, m: int) -> ALResult:
+    """`augmented_lagrangian` for one problem (`m` the static history length)."""
+    p = _parts(problem, y0)
     n = y0.shape[0]
 
     def outer_update(s: _State, c_y, grad) -> _State:
@@ -247,7 +298,7 @@ def augmented_lagrangian(
         v = s.y + s.gam / s.rho
         gam = s.rho * (v - jnp.clip(v, p.lower, p.upper))
         rho = jnp.where((viol > config.violation_decrease * s.violation) & (viol > config.tol_violation),
-                        jnp.minimum(s.rho * config.penalty_growth, config.penalty_max), s.rho)
+                        jnp.minimum(s.rho * config.penalty_growth, rho_max), s.rho)
         converged = (viol <= config.tol_violation) & (stat <= config.tol_stationarity + s.rho * config.defect_noise)
         finite = jnp.isfinite(viol) & jnp.isfinite(stat)
         it = s.it + 1
@@ -272,31 +323,39 @@ def augmented_lagrangian(
         noise = 1e-13 * (jnp.abs(phi) + 1.0)  # merit differences at roundoff: take the GN step
         ok = factor.positive_definite & jnp.isfinite(phi_new) & jnp.all(jnp.isfinite(dy))
         accept = ok & ((actual >= config.accept_ratio * predicted) | (jnp.abs(actual) <= noise))
+        good = accept & ((actual >= config.good_ratio * predicted) | (jnp.abs(actual) <= noise))
         # a rejected step from a reused factor is retried with a fresh one at the same damping
         retry = ~accept & ~fresh
         y = jnp.where(accept, s.y + dy, s.y)
-        mu = jnp.where(accept | retry, s.mu, s.mu * config.damping_up)
+        mu_down = jnp.maximum(s.mu / config.damping_down, config.damping_init)
+        mu = jnp.where(good, mu_down, jnp.where(accept | retry, s.mu, s.mu * config.damping_up))
         failed = mu > config.damping_max
         status = jnp.where(failed, STATUS_INNER_FAILED, s.status)
         age = jnp.where(retry, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))
         return eqx.tree_at(
-            lambda t: (t.y, t.mu, t.inner, t.steps, t.status, t.stop, t.factor, t.factor_key, t.factor_age),
-            s, (y, mu, s.inner + 1, s.steps + 1, status, failed, factor, key, age))
+            lambda t: (t.y, t.mu, t.inner, t.steps, t.status, t.stop, t.factor, t.factor_key, t.factor_age, t.accepted),
+            s, (y, mu, s.inner + 1, s.steps + 1, status, failed, factor, key, age, accept))
 
     def body(s: _State) -> _State:
         c_y, grad = _gradient(p, s.y, s.lam, s.gam, s.rho)
-        inner_done = (jnp.max(jnp.abs(grad)) <= config.inner_tol) | (s.inner >= config.max_inner_iterations)
+        # the multipliers move only from an iterate the inner solve accepted (never after a rejection)
+        inner_done = (jnp.max(jnp.abs(grad)) <= config.inner_tol) | (
+            (s.inner >= config.max_inner_iterations) & s.accepted)
         return jax.lax.cond(inner_done, lambda s: outer_update(s, c_y, grad), lambda s: lm_step(s, c_y, grad), s)
 
     y_init = jnp.zeros_like(y0)
-    rho0 = jnp.asarray(config.penalty_init, float)
+    w_u = jnp.max(jnp.maximum(p.weight, p.edge)[24:])
+    rho0 = jnp.maximum(jnp.asarray(config.penalty_init, float), config.penalty_per_weight * w_u)
+    rho_max = config.penalty_max * rho0 / config.penalty_init
     mu0 = jnp.asarray(config.damping_init, float)
     init = _State(
         y=y_init, lam=jnp.zeros((n - 1, 24)), gam=jnp.zeros((n, 30)), rho=rho0, mu=mu0, it=jnp.array(0),
         inner=jnp.array(0), steps=jnp.array(0), violation=jnp.array(jnp.inf), stationarity=jnp.array(jnp.inf),
         status=jnp.array(STATUS_MAX_ITERATIONS), stop=jnp.array(False), hist=jnp.full((4, m), jnp.nan),
-        factor=_normal_matrix(p, y_init, jnp.zeros((n, 30)), rho0, mu0), factor_key=jnp.stack([rho0, mu0]),
-        factor_age=jnp.array(0),
+        # placeholder factor; the NaN key makes the first step factorise (one copy of the
+        # Jacobian code in the program: compile time)
+        factor=BlockCholesky(jnp.zeros((n, 30, 30)), jnp.zeros((n - 1, 30, 30))), factor_key=jnp.full(2, jnp.nan),
+        factor_age=jnp.array(0), accepted=jnp.array(True),
     )
     s = jax.lax.while_loop(lambda s: ~s.stop, body, init)
     return ALResult(

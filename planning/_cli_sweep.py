@@ -32,7 +32,8 @@ def configure(parser) -> None:
 
 
 def sweep(robot, plant, path, nus, costs, echo, directional: bool = False) -> dict:
-    """Solve the OCP for every nu (vmapped) and cost, then bandwidths and plant errors of every solution."""
+    """Solve the OCP for every nu (one `vmap` call per cost; its batching rule runs the solves one after
+    the other, see `augmented_lagrangian`), then bandwidths and plant errors of every solution."""
     from ._ocp import solve_ocp
 
     nus = np.asarray(nus, dtype=float)

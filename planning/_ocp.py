@@ -21,7 +21,7 @@ from ._al_solver import (
     augmented_lagrangian,
     history_length,
 )
-from ._transcription import Cost, boundary_states, max_violation, objective, ocp_problem, variable_scale
+from ._transcription import Cost, boundary_states, max_violations, objective, ocp_problem, variable_scale
 from ._transcription import warm_start as default_warm_start
 
 
@@ -122,10 +122,11 @@ def _solve(problem, start, settings: dict, history: int, reference_from_start: b
     # the end nodes are fixed (eq. 4.3e-j): restore them exactly after the scaling round trip
     x = z[:, :24].at[0].set(x0[0]).at[-1].set(x0[-1])
     u = z[:, 24:].at[0].set(0.0).at[-1].set(0.0)
+    violation, violation_unscaled = max_violations(problem, x, u)
     return OCPSolution(
         x=x, u=u, status=res.status, iterations=res.iterations, inner_iterations=res.inner_iterations,
-        objective=objective(problem, x, u), max_constraint_violation=max_violation(problem, x, u),
-        max_constraint_violation_unscaled=max_violation(problem, x, u, scaled=False),
+        objective=objective(problem, x, u), max_constraint_violation=violation,
+        max_constraint_violation_unscaled=violation_unscaled,
         stationarity=res.stationarity, multipliers=res.multipliers, history_objective=res.history_objective,
         history_violation=res.history_violation, history_penalty=res.history_penalty,
         history_stationarity=res.history_stationarity,

@@ -181,16 +181,23 @@ def defect_scale(problem: OCPProblem) -> Float[Array, "24"]:
     return variable_scale(problem)[:24]
 
 
+def max_violations(problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6"]
+                   ) -> tuple[Float[Array, ""], Float[Array, ""]]:
+    """Largest violation of eq. 4.3b-j (defects, bounds, boundary conditions) in scaled units
+    (module docstring) and unscaled (mixed SI units: rad, rad/s, rad/s^2), from one evaluation
+    of the defects."""
+    sz = variable_scale(problem)
+    parts = (jnp.abs(defects(problem, x, u)), bound_violation(problem, x, u), jnp.abs(boundary_defects(problem, x, u)))
+    scaled = jnp.max(jnp.stack([jnp.max(parts[0] / sz[:24]), jnp.max(parts[1] / sz), jnp.max(parts[2] / sz)]))
+    unscaled = jnp.max(jnp.stack([jnp.max(a) for a in parts]))
+    return scaled, unscaled
+
+
 def max_violation(
     problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6"], scaled: bool = True
 ) -> Float[Array, ""]:
-    """Largest violation of eq. 4.3b-j (defects, bounds, boundary conditions), in scaled units
-    (module docstring) or unscaled (mixed SI units: rad, rad/s, rad/s^2)."""
-    sz = variable_scale(problem) if scaled else jnp.ones(30)
-    c = defects(problem, x, u) / sz[:24]
-    b = bound_violation(problem, x, u) / sz
-    e = boundary_defects(problem, x, u) / sz
-    return jnp.maximum(jnp.max(jnp.abs(c)), jnp.maximum(jnp.max(b), jnp.max(jnp.abs(e))))
+    """Largest violation of eq. 4.3b-j, scaled or unscaled (`max_violations`)."""
+    return max_violations(problem, x, u)[0 if scaled else 1]
 
 
 class ScaledQuadratic(eqx.Module):
@@ -220,12 +227,44 @@ def scaled_cost(problem: OCPProblem) -> ScaledQuadratic:
     return ScaledQuadratic(node_weight=node_w, node_target=target, edge_weight=edge_w)
 
 
+def _spd_solve(a: Float[Array, "*n m m"], b: Float[Array, "*n m k"]) -> Float[Array, "*n m k"]:
+    """`a^{-1} b` for small SPD `a` (the 6x6 mass matrix) by an unrolled Cholesky factorisation in
+    plain array operations, vectorised over the nodes. No LAPACK call: jaxlib 0.10's batched
+    LAPACK kernels fan their batch out into XLA's intra-op thread pool and block on it, which
+    deadlocks the pool when as many of them run at once as it has threads (2 on a 2-core CPU)."""
+    m = a.shape[-1]
+    cols: list = []
+    for j in range(m):
+        col = a[..., :, j] - sum(c * c[..., j:j + 1] for c in cols) if cols else a[..., :, j]
+        pivot = jnp.sqrt(col[..., j])
+        cols.append(jnp.where(jnp.arange(m) >= j, col / pivot[..., None], 0.0))
+    low = jnp.stack(cols, -1)  # L, a = L L^T
+    rows: list = []
+    for i in range(m):  # forward: L w = b
+        acc = b[..., i, :] - sum(low[..., i, k, None] * rows[k] for k in range(i)) if i else b[..., i, :]
+        rows.append(acc / low[..., i, i, None])
+    out: list = [None] * m
+    for i in reversed(range(m)):  # backward: L^T x = w
+        acc = rows[i] - sum(low[..., k, i, None] * out[k] for k in range(i + 1, m)) if i < m - 1 else rows[i]
+        out[i] = acc / low[..., i, i, None]
+    return jnp.stack(out, -2)
+
+
+def _link_acceleration(robot: jr.Robot, q, qd, phi, d) -> Float[Array, "N 6"]:
+    """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`) with `_spd_solve`."""
+    rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
+    return _spd_solve(d, rhs[..., None])[..., 0]
+
+
 def half_step_dynamics(problem: OCPProblem, y: Float[Array, "*n 30"]) -> Float[Array, "*n 24"]:
     """`T_s/2 f(x, u)` in scaled units, so that a scaled defect is
-    `[I 0](y_{k+1} - y_k) - g_k - g_{k+1}`."""
+    `[I 0](y_{k+1} - y_k) - g_k - g_{k+1}` (`f` of `jr.planning_dynamics`, LAPACK-free)."""
+    r = problem.robot
     sz = variable_scale(problem)
     z = y * sz
-    f = jr.planning_dynamics(problem.robot, z[..., :24], z[..., 24:])
+    q, qd, theta = z[..., :6], z[..., 6:12], z[..., 12:18]
+    qdd = _link_acceleration(r, q, qd, jr.gear_output(r, theta), jr.mass_matrix(r, q))
+    f = jnp.concatenate([qd, qdd, z[..., 18:24], z[..., 24:]], -1)
     return 0.5 * problem.ts * f / sz[:24]
 
 
@@ -247,8 +286,7 @@ def half_step_jacobian(
     q, qd, theta = z[:, :6], z[:, 6:12], z[:, 12:18]
     phi = jr.gear_output(r, theta)
     d = jr.mass_matrix(r, q)
-    qdd = jnp.linalg.solve(d, (jr.elastic_torque(r, phi - q) - jr.inverse_dynamics(r, q, qd, jnp.zeros_like(q)))
-                           [..., None])[..., 0]
+    qdd = _link_acceleration(r, q, qd, phi, d)
     stiff = r.k1 + 3.0 * r.k3 * (phi - q) ** 2
     if exact:
         one = lambda a, b, c: jr.inverse_dynamics(r, a, b, c)  # noqa: E731
@@ -257,7 +295,7 @@ def half_step_jacobian(
         id_q = id_qd = jnp.zeros_like(d)
     rhs = jnp.concatenate([-(id_q + jax.vmap(jnp.diag)(stiff)), -id_qd,
                            jax.vmap(jnp.diag)(stiff / jr.gear_ratio(r, phi))], -1)
-    dqdd = jnp.linalg.solve(d, rhs)  # (N, 6, 18): d qdd / d (q, qd, theta)
+    dqdd = _spd_solve(d, rhs)  # (N, 6, 18): d qdd / d (q, qd, theta)
     n = y.shape[0]
     eye = jnp.broadcast_to(jnp.eye(6), (n, 6, 6))
     zero = jnp.zeros((n, 6, 6))

@@ -49,21 +49,39 @@ def solution(robot, q_d):
     return pl.solve_ocp(robot, q_d, TS, NU)
 
 
+def _node_f(p, z):
+    return jr.planning_dynamics(p.robot, z[:24], z[24:])
+
+
+def _obj(p, z):
+    return tr.objective(p, z[:, :24], z[:, 24:]) / tr.ANGLE_SCALE**2
+
+
+_KKT_PARTS = (
+    jax.jit(jax.vmap(jax.jacfwd(_node_f, argnums=1), in_axes=(None, 0))),
+    jax.jit(jax.vmap(jax.hessian(lambda p, z, v: jnp.dot(v, _node_f(p, z)), argnums=1), in_axes=(None, 0, 0))),
+    jax.jit(jax.grad(_obj, argnums=1)),
+    jax.jit(jax.hessian(_obj, argnums=1)),
+    jax.jit(lambda p, z: tr.defects(p, z[:, :24], z[:, 24:])),
+)
+"""Derivatives for `_dense_newton_kkt`, jitted once with the problem as an argument (one compilation
+serves every nu)."""
+
+
 def _dense_newton_kkt(problem, x0, u0, iterations=8):
     """Independent reference: Newton's method on the KKT conditions of eq. 4.3 with the exact
     Hessian of the Lagrangian, dense numpy solves, end nodes fixed. Derivatives come from
     `jax.jacfwd`/`jax.hessian` of `jr.planning_dynamics` per node and of the public
     `objective`; the defects are checked with the public `defects`. Variables and rows are
     scaled by `variable_scale` (a diagonal change of units, no effect on the optimum)."""
-    robot, ts, n = problem.robot, float(problem.ts), problem.n_nodes
+    ts, n = float(problem.ts), problem.n_nodes
     sz = np.asarray(tr.variable_scale(problem))
     sc = sz[:24]
-    node_f = lambda z: jr.planning_dynamics(robot, z[:24], z[24:])  # noqa: E731
-    jac_f = jax.jit(jax.vmap(jax.jacfwd(node_f)))
-    hess_f = jax.jit(jax.vmap(jax.hessian(lambda z, v: jnp.dot(v, node_f(z)))))
-    obj = jax.jit(lambda z: tr.objective(problem, z[:, :24], z[:, 24:]) / tr.ANGLE_SCALE**2)
-    grad_obj, hess_obj = jax.jit(jax.grad(obj)), jax.jit(jax.hessian(obj))
-    defects = jax.jit(lambda z: tr.defects(problem, z[:, :24], z[:, 24:]) / sc)
+    jac_f = lambda z: _KKT_PARTS[0](problem, z)  # noqa: E731
+    hess_f = lambda z, v: _KKT_PARTS[1](problem, z, v)  # noqa: E731
+    grad_obj = lambda z: _KKT_PARTS[2](problem, z)  # noqa: E731
+    hess_obj = lambda z: _KKT_PARTS[3](problem, z)  # noqa: E731
+    defects = lambda z: _KKT_PARTS[4](problem, z) / sc  # noqa: E731
     z = np.array(jnp.concatenate([x0, u0], -1))
     lam = np.zeros((n - 1, 24))
     nf, m = 30 * (n - 2), 24 * (n - 1)
@@ -158,22 +176,31 @@ def test_solution_converges_and_satisfies_constraints(robot, q_d, solution):
                                                                       rel=0.5, abs=1e-12)
 
 
-def test_same_optimum_as_dense_newton_kkt(robot, q_d, solution):
-    problem = tr.ocp_problem(robot, q_d, TS, NU)
+@pytest.mark.parametrize("nu", [NU, 1e-10])
+def test_same_optimum_as_dense_newton_kkt(robot, q_d, solution, nu):
+    # nu = 1e-10: the control weight is 1e4 times larger, far from the warm start (the spiral at this
+    # nu failed when the multipliers were updated after rejected steps)
+    sol = solution if nu == NU else pl.solve_ocp(robot, q_d, TS, nu)
+    assert bool(sol.converged), pl.RESULTS[sol.status]
+    assert float(sol.max_constraint_violation) <= DEFECT_TOL
+    problem = tr.ocp_problem(robot, q_d, TS, nu)
     x0, u0 = jax.jit(tr.warm_start)(problem)
     x_ref, u_ref, c_ref = _dense_newton_kkt(problem, x0, u0)
     assert c_ref <= DEFECT_TOL
     f_ref = float(tr.objective(problem, x_ref, u_ref))
-    f = float(solution.objective)
-    assert f == pytest.approx(f_ref, rel=OBJECTIVE_RTOL), (f, f_ref)
-    # the cost is dominated by nu ||u||^2; the optimal link angles agree far below a µrad
-    np.testing.assert_allclose(np.asarray(solution.x[:, :6]), np.asarray(x_ref[:, :6]), rtol=0, atol=1e-9)
+    f = float(sol.objective)
+    # a residual defect c moves the optimal cost by -lam . c to first order (scaled units, cost / s^2);
+    # at nu = 1e-10 the multipliers are ~1e4 times larger, so defects within DEFECT_TOL matter there
+    c = jax.jit(lambda p, x, u: tr.defects(p, x, u) / tr.defect_scale(p))(problem, sol.x, sol.u)
+    sensitivity = float(jnp.sum(jnp.abs(sol.multipliers * c))) * tr.ANGLE_SCALE**2
+    assert abs(f - f_ref) <= OBJECTIVE_RTOL * f_ref + 2 * sensitivity, (f, f_ref, sensitivity)
+    # the optimal link angles agree far below a µrad
+    np.testing.assert_allclose(np.asarray(sol.x[:, :6]), np.asarray(x_ref[:, :6]), rtol=0, atol=1e-9)
 
 
-@pytest.mark.slow  # a vmap over solves has been seen to hang on a loaded CPU (issue 6 open)
+@pytest.mark.slow  # compiles the batched program (about a minute on 2 cores)
 def test_vmap_over_nu_matches_separate_solves(robot, q_d):
-    # (at nu >= 1e-11 on this short move the AL needs > 20 outer iterations; see the report)
-    nus = jnp.logspace(-14, -12, 8)
+    nus = jnp.logspace(-14, -10, 8)
     batched = jax.vmap(lambda nu: pl.solve_ocp(robot, q_d, TS, nu))(nus)
     assert batched.u.shape == (8, N, 6)
     for i, nu in enumerate(nus):

@@ -235,8 +235,7 @@ def ocp_runs(robot, joint_paths):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["line", pytest.param("spiral", marks=pytest.mark.xfail(
-    strict=True, reason="issue 6 open: the spiral at nu = 1e-10 does not converge yet"))])
+@pytest.mark.parametrize("name", ["line", "spiral"])
 def test_ocp_converges_on_reference_tasks(ocp_runs, name):
     sols, _ = ocp_runs[name]
     assert bool(np.all(np.asarray(sols.converged))), np.asarray(sols.status)
