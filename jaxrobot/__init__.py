@@ -48,6 +48,7 @@ from ._kinematics import link_frames as link_frames  # noqa: E402
 from ._kinematics import point_position as point_position  # noqa: E402
 from ._kinematics import rpy as rpy  # noqa: E402
 from ._kinematics import tool_pose as tool_pose  # noqa: E402
+from ._linalg import spd_solve as spd_solve  # noqa: E402
 from ._robot import Ripple as Ripple  # noqa: E402
 from ._robot import Robot as Robot  # noqa: E402
 from ._simulate import simulate as simulate  # noqa: E402

@@ -348,26 +348,8 @@ def read_gear_run(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     **Returns:** `t` (N,) s, `theta` (N, 6) rad, `gyro` (N, 3) rad/s. Empty cells and `nan`
     come back as NaN (the processing rejects them with the row named).
     """
-    path = Path(path)
-    with open(path, newline="") as f:
-        rows = list(csv.reader(f))
-    if not rows:
-        raise ValueError(f"{path}: empty file; expected a header with columns {', '.join(GEAR_RUN_COLUMNS)}")
-    header = [h.strip() for h in rows[0]]
-    missing = [c for c in GEAR_RUN_COLUMNS if c not in header]
-    if missing:
-        raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; a gear-run file needs "
-                         f"{', '.join(GEAR_RUN_COLUMNS)}")
-    idx = [header.index(c) for c in GEAR_RUN_COLUMNS]
-    data = np.empty((len(rows) - 1, len(idx)))
-    for r, row in enumerate(rows[1:]):
-        for j, c in enumerate(idx):
-            cell = row[c].strip() if c < len(row) else ""
-            try:
-                data[r, j] = float(cell) if cell else np.nan
-            except ValueError:
-                raise ValueError(f"{path}: row {r + 2}, column {GEAR_RUN_COLUMNS[j]}: expected a number, "
-                                 f"found {cell!r}") from None
-    if data.shape[0] < 2:
-        raise ValueError(f"{path}: expected at least 2 samples, found {data.shape[0]}")
+    from ._bench_trajectory import read_csv_columns
+
+    cols = read_csv_columns(path, list(GEAR_RUN_COLUMNS), reject_nan=False, min_rows=2)
+    data = np.column_stack([cols[c] for c in GEAR_RUN_COLUMNS])
     return data[:, 0], np.deg2rad(data[:, 1:7]), np.deg2rad(data[:, 7:10])

@@ -248,44 +248,14 @@ def read_pose_csv(path: str | Path) -> dict:
     """Read a pose file (SPEC.md); extra columns are ignored.
 
     **Returns:** `{"motor_angles": (K, 6) rad, "positions": (K, 3) m, "quaternions": (K, 4) or None}`.
-    Raises `ValueError` naming missing columns, non-numeric cells and NaN rows (data rows are
-    numbered from 1; line = row + 1 because of the header).
+    Raises `ValueError` naming missing columns, non-numeric cells and NaN rows (`read_csv_columns`).
     """
+    from ._bench_trajectory import read_csv_columns
+
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"pose file {path} does not exist")
-    with open(path, newline="") as f:
-        rows = list(csv.reader(f))
-    if not rows:
-        raise ValueError(f"{path}: empty file; expected a header with {', '.join(POSE_COLUMNS)}")
-    header = [h.strip() for h in rows[0]]
-    missing = [c for c in POSE_COLUMNS if c not in header]
-    if missing:
-        raise ValueError(f"{path}: missing columns {missing}; expected {list(POSE_COLUMNS)} "
-                         f"(optional {list(QUAT_COLUMNS)}), found {header}")
-    has_quat = all(c in header for c in QUAT_COLUMNS)
-    partial = [c for c in QUAT_COLUMNS if c in header]
-    if partial and not has_quat:
-        raise ValueError(f"{path}: orientation needs all of {list(QUAT_COLUMNS)}, found only {partial}")
-    wanted = list(POSE_COLUMNS) + (list(QUAT_COLUMNS) if has_quat else [])
-    idx = [header.index(c) for c in wanted]
-    data = np.full((len(rows) - 1, len(wanted)), np.nan)
-    for r, row in enumerate(rows[1:]):
-        for j, i in enumerate(idx):
-            cell = row[i].strip() if i < len(row) else ""
-            if cell == "":
-                continue  # an empty cell counts as NaN
-            try:
-                data[r, j] = float(cell)
-            except ValueError:
-                raise ValueError(f"{path}: row {r + 1} (line {r + 2}), column {wanted[j]}: expected a "
-                                 f"number, found {cell!r}") from None
-    if data.shape[0] == 0:
-        raise ValueError(f"{path}: no data rows after the header")
-    bad = np.nonzero(~np.isfinite(data).all(1))[0]
-    if bad.size:
-        rows_txt = ", ".join(str(b + 1) for b in bad[:20]) + (" …" if bad.size > 20 else "")
-        raise ValueError(f"{path}: NaN or empty cells in data rows {rows_txt} (row 1 = line 2); "
-                         "remove or re-measure these poses")
-    return {"motor_angles": np.deg2rad(data[:, :6]), "positions": data[:, 6:9],
-            "quaternions": data[:, 9:13] if has_quat else None}
+    cols = read_csv_columns(path, list(POSE_COLUMNS), list(QUAT_COLUMNS))
+    quat = np.column_stack([cols[c] for c in QUAT_COLUMNS]) if QUAT_COLUMNS[0] in cols else None
+    return {"motor_angles": np.deg2rad(np.column_stack([cols[c] for c in POSE_COLUMNS[:6]])),
+            "positions": np.column_stack([cols[c] for c in POSE_COLUMNS[6:]]), "quaternions": quat}

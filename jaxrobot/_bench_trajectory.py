@@ -4,6 +4,7 @@ reports the marker position along the path with Gaussian noise."""
 
 from __future__ import annotations
 
+import csv
 from pathlib import Path
 
 import jax
@@ -50,27 +51,49 @@ def write_trajectory_csv(path: str | Path, t, theta, positions) -> None:
     np.savetxt(path, data, delimiter=",", header=",".join(TRAJECTORY_COLUMNS), comments="", fmt="%.12g")
 
 
-def read_csv_columns(path: str | Path, required: list[str]) -> dict[str, np.ndarray]:
-    """Read a measurement CSV with a header; return the `required` columns (extra ones ignored).
+def read_csv_columns(
+    path: str | Path, required: list[str], optional: list[str] = (), *, reject_nan: bool = True,
+    min_rows: int = 1,
+) -> dict[str, np.ndarray]:
+    """Read a measurement CSV with a header (the formats of SPEC.md; extra columns are ignored).
 
-    Raises a ValueError naming the file, missing columns, or rows with non-numeric/NaN values."""
+    Returns the `required` columns, and the `optional` ones if the file has all of them. Empty
+    cells and `nan` are NaN; with `reject_nan` rows holding them are rejected. Raises naming the
+    file, the missing columns, a non-numeric cell (line and column) or the NaN lines (the header
+    is line 1, so data row k is line k + 1)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
-    with path.open() as f:
-        header = [h.strip() for h in f.readline().strip().split(",")]
+    with path.open(newline="") as f:
+        rows = list(csv.reader(f))
+    header = [h.strip() for h in rows[0]] if rows else []
     missing = [c for c in required if c not in header]
     if missing:
-        raise ValueError(f"{path}: missing column(s) {missing}; found {header}; expected {required}")
-    raw = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float, ndmin=2)
-    if raw.shape[0] == 0:
-        raise ValueError(f"{path}: no data rows")
-    data = raw[:, [header.index(c) for c in required]]
+        raise ValueError(f"{path}: missing columns {missing}; expected {list(required)}"
+                         f"{f' (optional {list(optional)})' if optional else ''}, found {header}")
+    partial = [c for c in optional if c in header]
+    if partial and len(partial) < len(optional):
+        raise ValueError(f"{path}: the optional columns {list(optional)} come together, found only {partial}")
+    wanted = list(required) + (list(optional) if partial else [])
+    idx = [header.index(c) for c in wanted]
+    data = np.full((len(rows) - 1, len(wanted)), np.nan)
+    for r, row in enumerate(rows[1:]):
+        for j, i in enumerate(idx):
+            cell = row[i].strip() if i < len(row) else ""
+            if cell:
+                try:
+                    data[r, j] = float(cell)
+                except ValueError:
+                    raise ValueError(f"{path}: line {r + 2}, column {wanted[j]}: expected a number, found "
+                                     f"{cell!r}") from None
+    if data.shape[0] < min_rows:
+        raise ValueError(f"{path}: expected at least {min_rows} data row(s), found {data.shape[0]}")
     bad = np.nonzero(~np.all(np.isfinite(data), axis=1))[0]
-    if bad.size:
-        rows = (bad + 2).tolist()[:10]  # 1-based file lines, header is line 1
-        raise ValueError(f"{path}: non-numeric or NaN values in line(s) {rows} of columns {required}")
-    return {c: data[:, i] for i, c in enumerate(required)}
+    if reject_nan and bad.size:
+        lines = (bad + 2).tolist()
+        raise ValueError(f"{path}: NaN or empty cells in line(s) {lines[:20]}{' …' if len(lines) > 20 else ''} "
+                         f"(data row k is line k + 1); remove or re-measure these rows")
+    return {c: data[:, i] for i, c in enumerate(wanted)}
 
 
 def read_trajectory_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -16,6 +16,7 @@ from jaxtyping import Array, Bool, Float
 from ._batch import unbatched
 from ._elasticity import elastic_deflection, elastic_torque
 from ._gear import gear_output, gear_ratio, motor_angle
+from ._linalg import spd_solve
 from ._robot import Robot
 
 # Batch-last internals: the rigid-body terms below keep the state batch as the LAST axis
@@ -240,7 +241,7 @@ def link_acceleration(
 ) -> Float[Array, "*b 6"]:
     """`qdd = D(q)^{-1} (kappa(phi - q) - g(q) - C(q, qd) qd)` (eq. 2.23a)."""
     rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
-    return jnp.linalg.solve(mass_matrix(robot, q), rhs[..., None])[..., 0]
+    return spd_solve(mass_matrix(robot, q), rhs[..., None])[..., 0]
 
 
 def motor_torque(

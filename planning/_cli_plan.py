@@ -6,7 +6,6 @@ FILE.csv holds task-space samples on a uniform grid from t = 0: columns `t_s, x_
 
 from __future__ import annotations
 
-import csv
 import time
 from pathlib import Path
 
@@ -47,20 +46,11 @@ def configure(parser) -> None:
 
 def read_task_csv(path: Path):
     """A `Path` from a CSV of tool positions (see the module docstring)."""
-    if not path.exists():
-        raise FileNotFoundError(f"task file {path} not found")
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    if not rows:
-        raise ValueError(f"{path}: no data rows")
-    missing = [c for c in ("t_s", "x_m", "y_m", "z_m") if c not in rows[0]]
-    if missing:
-        raise ValueError(f"{path}: missing columns {missing}; expected t_s, x_m, y_m, z_m[, qx, qy, qz, qw]")
-    col = lambda c: np.array([float(r[c]) for r in rows])  # noqa: E731
-    t, p = col("t_s"), np.stack([col("x_m"), col("y_m"), col("z_m")], -1)
+    cols = jr.read_csv_columns(path, ["t_s", "x_m", "y_m", "z_m"], ["qx", "qy", "qz", "qw"], min_rows=2)
+    t, p = cols["t_s"], np.stack([cols["x_m"], cols["y_m"], cols["z_m"]], -1)
     r = None
-    if all(c in rows[0] for c in ("qx", "qy", "qz", "qw")):
-        x, y, z, w = (col(c) for c in ("qx", "qy", "qz", "qw"))
+    if "qx" in cols:
+        x, y, z, w = (cols[c] for c in ("qx", "qy", "qz", "qw"))
         norm = np.sqrt(x * x + y * y + z * z + w * w)
         x, y, z, w = x / norm, y / norm, z / norm, w / norm
         r = np.stack([

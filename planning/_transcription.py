@@ -227,33 +227,10 @@ def scaled_cost(problem: OCPProblem) -> ScaledQuadratic:
     return ScaledQuadratic(node_weight=node_w, node_target=target, edge_weight=edge_w)
 
 
-def _spd_solve(a: Float[Array, "*n m m"], b: Float[Array, "*n m k"]) -> Float[Array, "*n m k"]:
-    """`a^{-1} b` for small SPD `a` (the 6x6 mass matrix) by an unrolled Cholesky factorisation in
-    plain array operations, vectorised over the nodes. No LAPACK call: jaxlib 0.10's batched
-    LAPACK kernels fan their batch out into XLA's intra-op thread pool and block on it, which
-    deadlocks the pool when as many of them run at once as it has threads (2 on a 2-core CPU)."""
-    m = a.shape[-1]
-    cols: list = []
-    for j in range(m):
-        col = a[..., :, j] - sum(c * c[..., j:j + 1] for c in cols) if cols else a[..., :, j]
-        pivot = jnp.sqrt(col[..., j])
-        cols.append(jnp.where(jnp.arange(m) >= j, col / pivot[..., None], 0.0))
-    low = jnp.stack(cols, -1)  # L, a = L L^T
-    rows: list = []
-    for i in range(m):  # forward: L w = b
-        acc = b[..., i, :] - sum(low[..., i, k, None] * rows[k] for k in range(i)) if i else b[..., i, :]
-        rows.append(acc / low[..., i, i, None])
-    out: list = [None] * m
-    for i in reversed(range(m)):  # backward: L^T x = w
-        acc = rows[i] - sum(low[..., k, i, None] * out[k] for k in range(i + 1, m)) if i < m - 1 else rows[i]
-        out[i] = acc / low[..., i, i, None]
-    return jnp.stack(out, -2)
-
-
 def _link_acceleration(robot: jr.Robot, q, qd, phi, d) -> Float[Array, "N 6"]:
-    """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`) with `_spd_solve`."""
+    """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`)."""
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
-    return _spd_solve(d, rhs[..., None])[..., 0]
+    return jr.spd_solve(d, rhs[..., None])[..., 0]
 
 
 def half_step_dynamics(problem: OCPProblem, y: Float[Array, "*n 30"]) -> Float[Array, "*n 24"]:
@@ -295,7 +272,7 @@ def half_step_jacobian(
         id_q = id_qd = jnp.zeros_like(d)
     rhs = jnp.concatenate([-(id_q + jax.vmap(jnp.diag)(stiff)), -id_qd,
                            jax.vmap(jnp.diag)(stiff / jr.gear_ratio(r, phi))], -1)
-    dqdd = _spd_solve(d, rhs)  # (N, 6, 18): d qdd / d (q, qd, theta)
+    dqdd = jr.spd_solve(d, rhs)  # (N, 6, 18): d qdd / d (q, qd, theta)
     n = y.shape[0]
     eye = jnp.broadcast_to(jnp.eye(6), (n, 6, 6))
     zero = jnp.zeros((n, 6, 6))

@@ -82,8 +82,8 @@ def test_trajectory_run_and_csv_round_trip(tmp_path, flat):
     lines = path.read_text().splitlines()
     lines[5] = lines[5].replace(lines[5].split(",")[3], "nan", 1)
     path.write_text("\n".join(lines))
-    with pytest.raises(ValueError, match=r"NaN values in line\(s\) \[6\]"):
+    with pytest.raises(ValueError, match=r"NaN or empty cells in line\(s\) \[6\]"):
         jr.read_trajectory_csv(path)
     path.write_text("t_s,theta1_deg\n0,1\n")
-    with pytest.raises(ValueError, match=r"missing column\(s\)"):
+    with pytest.raises(ValueError, match=r"missing columns \['theta2_deg'"):
         jr.read_trajectory_csv(path)
