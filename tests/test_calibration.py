@@ -247,7 +247,7 @@ def test_bad_input(robots, bench, tmp_path):
     cells[7] = "nan"
     text[5] = ",".join(cells)
     path.write_text("\n".join(text) + "\n")
-    with pytest.raises(ValueError, match=r"data rows 5 "):
+    with pytest.raises(ValueError, match=r"NaN or empty cells in line\(s\) \[6\]"):
         read_pose_csv(path)
     text[5] = text[4]
     path.write_text("\n".join(text) + "\n")
