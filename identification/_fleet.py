@@ -1,7 +1,9 @@
 """Kinematic calibration of a fleet: thousands of robots in one call (thesis 3.2.3 at scale).
 
-Every robot has its own poses and measurements; the LM solve of `_calibration.solve` is
-`vmap`ped over robots and the fleet axis is sharded across all devices with `jax.sharding`
+Every robot has its own poses and measurements; all robots are solved together by one
+batch-first Levenberg-Marquardt loop (`_batched_lm`, on the residual and joint-screw Jacobian of
+`_calibration._residual_fn`), each robot stopping on its own tolerances. The fleet axis is
+sharded across all devices with `jax.sharding`
 (a 1-D mesh named `"fleet"`), so that the same call uses one CPU, several GPUs, or several
 hosts under `jax.distributed` (every process passes the full arrays; each device computes its
 shard; results are gathered).
@@ -21,8 +23,9 @@ from jaxtyping import Array, Float
 
 import jaxrobot as jr
 
-from ._calibration import DEFAULT_PARAMETERS, _check_array, solve
-from ._calibration_model import rippled_joints
+from ._batched_lm import STATUS, batched_lm, covariance
+from ._calibration import DEFAULT_PARAMETERS, RESIDUAL_UNIT, _check_array, _residual_fn
+from ._calibration_model import joint_angle_model, rippled_joints
 from ._parameters import ParameterMap, rest_deflection
 from ._pose_selection import default_marker
 
@@ -30,15 +33,21 @@ from ._pose_selection import default_marker
 @dataclasses.dataclass(frozen=True)
 class FleetResult:
     """Per-robot results (leading axis R): `robot` (calibrated fleet pytree), `value`, `std`
-    (R, m), `converged`, `iterations`, `rank` (R,), `rms_m` residual rms (R,), `names`."""
+    (R, m), `covariance` (R, m, m), `converged` (status converged and full rank), `status`
+    (R,) name from `_batched_lm.STATUS` (`converged`, `max_steps`, `non_finite`, or
+    `rank_deficient`), `iterations` LM steps, `rank` (R,), `rms_m` residual rms (R,),
+    `residuals` (R, 3K) [m], `names`."""
 
     robot: jr.Robot
     value: np.ndarray
     std: np.ndarray
+    covariance: np.ndarray
     converged: np.ndarray
+    status: np.ndarray
     iterations: np.ndarray
     rank: np.ndarray
     rms_m: np.ndarray
+    residuals: np.ndarray
     names: tuple[str, ...]
     n_devices: int
 
@@ -61,20 +70,41 @@ def _gather(x: Array) -> np.ndarray:
     return np.asarray(x)
 
 
+def _robot_residual_jacobian(robot, params, theta, positions, deflection, q0, marker, rippled, x):
+    """Residual (n,) [mm] and Jacobian (n, m) of one robot at scaled parameters `x` (`_residual_fn`)."""
+    fn, _, _ = _residual_fn(robot, params, theta, positions, None, deflection, marker, 1.0, False, rippled, q0)
+    basis = jnp.eye(x.shape[0])
+    r, cols = jax.vmap(lambda t: jax.jvp(lambda y: fn(y, None), (x,), (t,)), out_axes=(None, -1))(basis)
+    return r, cols
+
+
 def _local_solve(robots, params, theta, positions, marker, max_steps, rippled):
-    """The fleet solve on the robots of one device: vmap of `solve`."""
+    """The fleet solve, batch-first: the per-pose constants (gravity deflection, gear inversion
+    of the joints with fixed `u0`) once, then one `batched_lm` over all robots."""
     defl = jax.vmap(rest_deflection)(robots, theta)
+    q0 = jax.vmap(lambda rb, th, de: joint_angle_model(rb, params, th, de, False, rippled)[0])(robots, theta, defl)
+    v0 = jax.vmap(params.get)(robots)
+    scale = jax.vmap(params.scales)(robots)
 
-    def one(robot, th, p, de):
-        out = solve(robot, params, th, p, de, marker, max_steps=max_steps, rippled=rippled)
-        return {k: out[k] for k in ("value", "std", "converged", "steps", "rank", "residuals")}
+    def residual_jacobian(x):
+        return jax.vmap(lambda rb, th, p, de, q, y: _robot_residual_jacobian(rb, params, th, p, de, q, marker,
+                                                                             rippled, y))(
+            robots, theta, positions, defl, q0, x)
 
-    return jax.vmap(one)(robots, theta, positions, defl)
+    out = batched_lm(residual_jacobian, jnp.zeros_like(v0), max_steps=max_steps)
+    n, m = out["residuals"].shape[1], v0.shape[1]
+    sigma2 = 2 * out["cost"] / max(n - m, 1)  # [mm^2]
+    cov_x, rank, full = covariance(out["normal"], sigma2)
+    cov = cov_x * scale[:, :, None] * scale[:, None, :]
+    finite = jnp.all(jnp.isfinite(out["x"]), 1) & jnp.all(jnp.isfinite(cov), (1, 2))
+    return {"value": v0 + scale * out["x"], "std": jnp.sqrt(jnp.diagonal(cov, 0, 1, 2)), "cov": cov,
+            "converged": (out["status"] == 0) & full & finite, "status": out["status"], "steps": out["steps"],
+            "rank": rank, "residuals": out["residuals"] * RESIDUAL_UNIT}
 
 
 _fleet_solve = eqx.filter_jit(_local_solve)
-"""Jitted fleet solve; with inputs sharded along the fleet axis, XLA partitions the vmapped
-solve so that every device works on its own robots."""
+"""Jitted fleet solve; with inputs sharded along the fleet axis, XLA partitions the batched
+arrays so that every device works on its own robots."""
 
 
 def calibrate_fleet(
@@ -124,7 +154,10 @@ def calibrate_fleet(
                        marker, max_steps, rippled_joints(robots))
     out = {key: _gather(v)[:n_rob] for key, v in out.items()}
     value = out["value"]
+    status = np.asarray(STATUS + ("rank_deficient",))[np.where(
+        (out["status"] == 0) & (out["rank"] < len(params)), len(STATUS), out["status"])]
     return FleetResult(
-        robot=params.set(robots, jnp.asarray(value)), value=value, std=out["std"],
-        converged=out["converged"], iterations=out["steps"], rank=out["rank"],
-        rms_m=np.sqrt(np.mean(out["residuals"] ** 2, -1)), names=params.names, n_devices=n_dev)
+        robot=params.set(robots, jnp.asarray(value)), value=value, std=out["std"], covariance=out["cov"],
+        converged=out["converged"], status=status, iterations=out["steps"], rank=out["rank"],
+        rms_m=np.sqrt(np.mean(out["residuals"] ** 2, -1)), residuals=out["residuals"], names=params.names,
+        n_devices=n_dev)

@@ -330,3 +330,123 @@ def test_cli_json_schema(bench, tmp_path, capsys):
     robot = jr.load_robot(tmp_path / "out.toml")
     assert float(robot.a[1]) == pytest.approx(summary["parameters"]["a2"]["value"], abs=1e-15)
     assert (tmp_path / "out" / "calibration_errors.png").stat().st_size > 0
+
+
+# --- fleet: batched Levenberg-Marquardt (identification._batched_lm) --------------------------------
+
+FLEET_OPTIMUM_TOL = 1e-6
+"""Batched LM vs the optimum (scipy's MINPACK LM polished by three Gauss-Newton steps), in
+standard errors: the last steps are Gauss-Newton steps and converge quadratically."""
+FLEET_SCIPY_TOL = 1e-5
+"""Batched LM vs scipy's LM itself (jax Jacobian, xtol = ftol = 1e-12), in standard errors:
+scipy's ftol test stops up to ~4e-6 standard errors short of the optimum (measured)."""
+
+
+@pytest.fixture(scope="module")
+def fleet_problem(robots, bench):
+    """Three as-built robots (draw_fleet), each with its own 50 of the bench poses (rolled), and
+    the fleet solve with DEFAULT_PARAMETERS."""
+    from identification._fleet import calibrate_fleet
+
+    nominal, _ = robots
+    ident, valid = bench
+    theta_all = np.concatenate([ident.motor_angles, valid.motor_angles])
+    theta = np.stack([np.roll(theta_all, 7 * r, axis=0)[:50] for r in range(3)])
+    truth = jr.draw_fleet(3, seed=5)
+    meas = measure_poses(truth, theta, seed=6)
+    return theta, meas, calibrate_fleet(nominal, theta, meas.positions)
+
+
+def test_batched_lm_matches_scipy(robots, fleet_problem):
+    import jax
+
+    nominal, _ = robots
+    theta, meas, res = fleet_problem
+    params = ParameterMap(DEFAULT_PARAMETERS)
+    assert list(res.status) == ["converged"] * 3 and res.converged.all() and (res.rank == len(params)).all()
+    assert (res.iterations <= 20).all(), res.iterations  # measured: 4-5 steps from the nominal robot
+    def residual(x, th, pos):  # one compilation for the three robots
+        fn, _, _ = _residual_fn(nominal, params, th, pos, None, calibrated_deflection(nominal, th),
+                                jnp.asarray(default_marker()), 1.0, False)
+        return fn(x, None)
+
+    f_all, jac_all = jax.jit(residual), jax.jit(jax.jacfwd(residual))
+    v0, scale = params.get(nominal), params.scales(nominal)
+    for r in range(3):
+        data = (jnp.asarray(theta[r]), jnp.asarray(meas.positions[r]))
+        f = lambda x: f_all(x, *data)  # noqa: E731
+        jac = lambda x: jac_all(x, *data)  # noqa: E731
+        ref = scipy.optimize.least_squares(lambda x: np.asarray(f(x)), np.zeros(len(params)), method="lm",
+                                           jac=lambda x: np.asarray(jac(x)), xtol=1e-12, ftol=1e-12)
+        assert ref.success
+        v_ref = np.asarray(v0) + np.asarray(scale) * ref.x
+        dev = np.abs(res.value[r] - v_ref) / res.std[r]
+        assert np.all(dev < FLEET_SCIPY_TOL), (r, dev.max())
+        x = ref.x
+        for _ in range(3):
+            x = x - np.linalg.lstsq(np.asarray(jac(x)), np.asarray(f(x)), rcond=None)[0]
+        dev = np.abs(res.value[r] - (np.asarray(v0) + np.asarray(scale) * x)) / res.std[r]
+        assert np.all(dev < FLEET_OPTIMUM_TOL), (r, dev.max())
+        # covariance s^2 (J^T J)^{-1} from scipy's Jacobian at its optimum
+        j_ref = np.asarray(ref.jac) / np.asarray(scale)
+        s2 = np.sum(ref.fun**2) / (ref.fun.size - len(params))  # [mm^2]; j_ref in mm per unit
+        std_ref = np.sqrt(np.diag(s2 * np.linalg.inv(j_ref.T @ j_ref)))
+        np.testing.assert_allclose(res.std[r], std_ref, rtol=1e-6, err_msg=f"std, robot {r}")
+        # residuals [m]: scipy stops ~1e-5 standard errors short, 1e-5 x 5e-5 m noise = 5e-10 m
+        np.testing.assert_allclose(res.residuals[r], ref.fun * 1e-3, rtol=0, atol=2e-9, err_msg=f"residuals, robot {r}")
+
+
+def test_batched_lm_reports_failures(robots, fleet_problem):
+    """NaN data (past the host check) stop as `non_finite`, never as converged; the solve compiled
+    by `calibrate_fleet` (same shapes, shardings and statics)."""
+    import jax
+    from jax.sharding import NamedSharding, PartitionSpec
+
+    from identification._calibration_model import rippled_joints
+    from identification._fleet import _fleet_solve, _to_global, fleet_mesh
+
+    nominal, _ = robots
+    theta, meas, _ = fleet_problem
+    pos = meas.positions.copy()
+    pos[1, 4, 0] = np.nan
+    sharding = NamedSharding(fleet_mesh(), PartitionSpec("fleet"))
+    fleet = jax.tree.map(lambda x: _to_global(np.broadcast_to(x, (3,) + np.shape(x)), sharding), nominal)
+    out = _fleet_solve(fleet, ParameterMap(DEFAULT_PARAMETERS), _to_global(theta, sharding),
+                       _to_global(pos, sharding), jnp.asarray(default_marker(), float), 100,
+                       rippled_joints(nominal))
+    assert np.asarray(out["status"]).tolist() == [0, 2, 0]
+    assert np.asarray(out["converged"]).tolist() == [True, False, True]
+    with pytest.raises(ValueError, match=r"positions\[robot 1\]: NaN/inf in rows \[4\]"):
+        from identification._fleet import calibrate_fleet
+
+        calibrate_fleet(nominal, theta, pos)
+
+
+def test_batched_lm_kernel():
+    """Rosenbrock residuals `(10 (x2 - x1^2), 1 - x1)` (minimum (1, 1)), batch of starts: converged to
+    the minimum, `max_steps` when cut short, `non_finite` from a NaN start; Cholesky vs numpy."""
+    import jax
+
+    from identification._batched_lm import STATUS, batched_lm, cholesky, cholesky_solve
+
+    def rj(x):
+        r = jnp.stack([10 * (x[:, 1] - x[:, 0] ** 2), 1 - x[:, 0]], 1)
+        jac = jnp.stack([jnp.stack([-20 * x[:, 0], 10 * jnp.ones_like(x[:, 0])], 1),
+                         jnp.stack([-jnp.ones_like(x[:, 0]), jnp.zeros_like(x[:, 0])], 1)], 1)
+        return r, jac
+
+    x0 = jnp.asarray([[-1.2, 1.0], [3.0, -2.0], [jnp.nan, 0.0]])
+    run = jax.jit(batched_lm, static_argnums=0, static_argnames="max_steps")
+    out = run(rj, x0, max_steps=200)
+    assert [STATUS[s] for s in np.asarray(out["status"])] == ["converged", "converged", "non_finite"]
+    np.testing.assert_allclose(np.asarray(out["x"][:2]), 1.0, atol=1e-9)
+    short = run(rj, x0[:2], max_steps=3)
+    assert [STATUS[s] for s in np.asarray(short["status"])] == ["max_steps"] * 2
+    assert np.asarray(short["steps"]).tolist() == [3, 3]
+    rng = np.random.default_rng(3)
+    b = rng.normal(size=(4, 7, 7))
+    a = b @ np.swapaxes(b, 1, 2) + 0.1 * np.eye(7)
+    np.testing.assert_allclose(np.asarray(cholesky(jnp.asarray(a))), np.linalg.cholesky(a), rtol=1e-12, atol=1e-12)
+    rhs = rng.normal(size=(4, 7, 2))
+    np.testing.assert_allclose(np.asarray(cholesky_solve(cholesky(jnp.asarray(a)), jnp.asarray(rhs))),
+                               np.linalg.solve(a, rhs), rtol=1e-9, atol=1e-10)

@@ -1,0 +1,177 @@
+"""Levenberg-Marquardt over a batch of independent least-squares problems, batch-first.
+
+Why not `vmap(optx.least_squares)`: measured on the fleet benchmark (1000 robots x 50 poses, 25
+parameters, `benchmarks/results_calibration.md`), the vmapped optimistix LM ran every robot for
+as many steps as the slowest one needed (median 11-14, max 28-34: its trust region rejects steps
+near the optimum) at ~1 ms per robot and step, five times the cost of the joint-screw Jacobian.
+Here one `lax.while_loop` carries the whole batch: per step one evaluation of the residual `r`
+(R, n) and Jacobian `J` (R, n, m) at the trial points, the normal equations `A = J^T J`,
+`g = J^T r` and a Cholesky solve written as array operations over the batch (no LAPACK call:
+jaxlib 0.10's batched LAPACK kernels can deadlock XLA's CPU thread pool when two run at once).
+
+The step `(A + mu D) h = -g` uses Marquardt's scaling `D = diag(A)` (kept at its running
+maximum, as in MINPACK, so a vanishing column cannot make it singular); the gain ratio
+`rho = (F(x) - F(x + h)) / (L(0) - L(h))`, `L(0) - L(h) = h^T (mu D h - g) / 2`, accepts the
+step if `rho > 1e-3` (or if it is flat, see below: there rounding decides rho) and updates the
+damping as Nielsen (1999): `mu *= max(1/3, 1 - (2 rho - 1)^3)`, `nu = 2` on acceptance, else
+`mu *= nu`, `nu *= 2`; `mu_0 = tau`, relative to `D` (K. Madsen, H. B. Nielsen, O. Tingleff,
+"Methods for non-linear least squares problems", 2nd ed., IMM DTU 2004, Algorithm 3.16 and
+eq. 3.13-3.15; their `mu_0 = tau max(A_ii)` is for the unscaled `A + mu I`).
+Each problem stops on its own (then frozen) when a step is small (`||h|| <= xtol (||x|| + xtol)`),
+the step is flat (actual and predicted reduction `<= ftol F`), or the gradient is orthogonal to
+the residual (`max_j |g_j| / (||J_j|| ||r||) <= gtol`); the loop ends when all have stopped or
+after `max_steps`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+STATUS = ("converged", "max_steps", "non_finite")
+"""Status names by index: stopped by a tolerance; still running after `max_steps`; the residual
+or Jacobian at the current point is not finite (then the problem is stopped there)."""
+
+ResidualJacobian = Callable[[Float[Array, "R m"]], tuple[Float[Array, "R n"], Float[Array, "R n m"]]]
+
+
+def cholesky(a: Float[Array, "R m m"]) -> Float[Array, "R m m"]:
+    """Lower Cholesky factor of a batch of SPD matrices, one column per `fori_loop` step (each a
+    batched matrix-vector product); NaN where a pivot is not positive."""
+    m = a.shape[-1]
+    rows = jnp.arange(m)
+
+    def column(j, low):
+        col = jnp.take(a, j, 2) - jnp.einsum("rik,rk->ri", low, jnp.take(low, j, 1))
+        d = jnp.take(col, j, 1)
+        pivot = jnp.sqrt(jnp.where(d > 0, d, jnp.nan))
+        return jax.lax.dynamic_update_index_in_dim(low, jnp.where(rows >= j, col / pivot[:, None], 0.0), j, 2)
+
+    return jax.lax.fori_loop(0, m, column, jnp.zeros_like(a))
+
+
+def cholesky_solve(low: Float[Array, "R m m"], b: Float[Array, "R m k"]) -> Float[Array, "R m k"]:
+    """`(L L^T)^{-1} b` by forward and back substitution, one row per `fori_loop` step."""
+    m = low.shape[-1]
+    diag = jnp.diagonal(low, 0, 1, 2)
+
+    def forward(i, y):  # L y = b
+        row = (jnp.take(b, i, 1) - jnp.einsum("rk,rkc->rc", jnp.take(low, i, 1), y)) / jnp.take(diag, i, 1)[:, None]
+        return jax.lax.dynamic_update_index_in_dim(y, row, i, 1)
+
+    def backward(k, x):  # L^T x = y
+        i = m - 1 - k
+        row = (jnp.take(y, i, 1) - jnp.einsum("rk,rkc->rc", jnp.take(low, i, 2), x)) / jnp.take(diag, i, 1)[:, None]
+        return jax.lax.dynamic_update_index_in_dim(x, row, i, 1)
+
+    y = jax.lax.fori_loop(0, m, forward, jnp.zeros_like(b))
+    return jax.lax.fori_loop(0, m, backward, jnp.zeros_like(b))
+
+
+def _normal(r, jac):
+    a = jnp.einsum("rni,rnj->rij", jac, jac)
+    g = jnp.einsum("rni,rn->ri", jac, r)
+    cost = 0.5 * jnp.sum(r**2, -1)
+    finite = jnp.isfinite(cost) & jnp.all(jnp.isfinite(a), (1, 2)) & jnp.all(jnp.isfinite(g), 1)
+    return a, g, cost, finite
+
+
+def _where(mask, new, old):
+    return jax.tree.map(lambda u, v: jnp.where(mask.reshape(mask.shape + (1,) * (u.ndim - 1)), u, v), new, old)
+
+
+def batched_lm(
+    residual_jacobian: ResidualJacobian,
+    x0: Float[Array, "R m"],
+    *,
+    max_steps: int = 100,
+    xtol: float = 1e-10,
+    ftol: float = 1e-10,
+    gtol: float = 1e-10,
+    tau: float = 1e-3,
+) -> dict[str, Array]:
+    """Minimise `||r_i(x_i)||^2 / 2` for every problem `i` of the batch (see the module docstring).
+
+    **Arguments:**
+    - `residual_jacobian`: `x (R, m) -> (r (R, n), J (R, n, m))`, batch-first, row `i` only from `x_i`.
+    - `x0` (R, m) start; `max_steps` LM steps at most; `xtol`, `ftol`, `gtol` tolerances as above;
+      `tau` initial damping relative to `diag(J^T J)`.
+
+    **Returns:** `x` (R, m), `residuals` (R, n) and `normal` `J^T J` (R, m, m) at `x`, `cost`
+    `||r||^2 / 2` (R,), `status` (R,) index into `STATUS`, `steps` (R,) LM steps taken (accepted
+    or not), `accepted` (R,) accepted steps.
+    """
+    n_rob, m = x0.shape
+    n = jax.eval_shape(residual_jacobian, x0)[0].shape[1]
+    # step 0 evaluates x0 (h = 0 from A = I, g = 0): one trace of `residual_jacobian`
+    state = {
+        "x": x0, "r": jnp.zeros((n_rob, n)), "a": jnp.broadcast_to(jnp.eye(m), (n_rob, m, m)),
+        "g": jnp.zeros((n_rob, m)), "cost": jnp.full(n_rob, jnp.inf), "d": jnp.ones((n_rob, m)),
+        "mu": jnp.ones(n_rob), "nu": jnp.full(n_rob, 2.0), "done": jnp.zeros(n_rob, bool),
+        "status": jnp.ones(n_rob, int), "steps": jnp.zeros(n_rob, int), "accepted": jnp.zeros(n_rob, int),
+        "k": jnp.asarray(0),
+    }
+
+    def cond(s):
+        return (s["k"] <= max_steps) & ~jnp.all(s["done"])
+
+    def body(s):
+        first = s["k"] == 0
+        active = ~s["done"]
+        damped = s["a"] + (s["mu"][:, None] * s["d"])[:, :, None] * jnp.eye(m)
+        h = cholesky_solve(cholesky(damped), -s["g"][:, :, None])[:, :, 0]
+        h = jnp.where(active[:, None], h, 0.0)  # frozen problems stay put (and finite)
+        x_new = s["x"] + h
+        r_new, j_new = residual_jacobian(x_new)
+        a_new, g_new, cost_new, finite_new = _normal(r_new, j_new)
+        diag_new = jnp.diagonal(a_new, 0, 1, 2)
+        actual = s["cost"] - cost_new
+        predicted = 0.5 * jnp.sum(h * (s["mu"][:, None] * s["d"] * h - s["g"]), -1)
+        rho = actual / predicted
+        ok_step = ~first & jnp.all(jnp.isfinite(h), 1) & (predicted > 0)
+        # stopping tests (Madsen et al. 2004, eq. 3.15; MINPACK's ftol and gtol)
+        flat = ok_step & (jnp.abs(actual) <= ftol * s["cost"]) & (predicted <= ftol * s["cost"])
+        # a flat step is taken even if rounding makes rho < 1e-3: the cost cannot rank it any more
+        accept = active & finite_new & (first | (ok_step & ((rho > 1e-3) | flat)))
+        mu_acc = jnp.where(first, tau, s["mu"] * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3))
+        small_step = ok_step & accept & (jnp.linalg.norm(h, axis=1) <= xtol * (jnp.linalg.norm(x_new, axis=1) + xtol))
+        norm_g = jnp.maximum(jnp.sqrt(diag_new) * jnp.sqrt(2 * cost_new)[:, None], 1e-300)
+        small_grad = ok_step & accept & (jnp.max(jnp.abs(g_new) / norm_g, 1) <= gtol)
+        out = dict(s)
+        out.update(_where(accept, {"x": x_new, "r": r_new, "a": a_new, "g": g_new, "cost": cost_new,
+                                   "d": jnp.where(first[None, None], diag_new, jnp.maximum(s["d"], diag_new)),
+                                   "mu": mu_acc, "nu": jnp.full(n_rob, 2.0)},
+                          {"x": s["x"], "r": s["r"], "a": s["a"], "g": s["g"], "cost": s["cost"], "d": s["d"],
+                           "mu": s["mu"] * s["nu"], "nu": 2 * s["nu"]}))
+        bad_start = first & ~finite_new
+        stop = active & (small_step | flat | small_grad)
+        out["status"] = jnp.where(bad_start, 2, jnp.where(stop, 0, s["status"]))
+        out["done"] = s["done"] | stop | bad_start
+        out["steps"] = s["steps"] + (active & ~first)
+        out["accepted"] = s["accepted"] + (accept & ~first)
+        out["k"] = s["k"] + 1
+        return out
+
+    s = jax.lax.while_loop(cond, body, state)
+    return {"x": s["x"], "residuals": s["r"], "normal": s["a"], "cost": s["cost"], "status": s["status"],
+            "steps": s["steps"], "accepted": s["accepted"]}
+
+
+def covariance(normal: Float[Array, "R m m"], sigma2: Float[Array, " R"]
+               ) -> tuple[Float[Array, "R m m"], Int[Array, " R"], Bool[Array, " R"]]:
+    """`sigma2 (J^T J)^{-1}` per problem, the numerical rank of `J` and whether it is full.
+
+    The rank counts the Cholesky pivots of the correlation matrix `C = S^{-1} J^T J S^{-1}`,
+    `S = diag(||J_j||)`, whose square exceeds `1e-12`: column `j` has a component orthogonal to
+    the previous columns of more than 1e-6 of its norm."""
+    m = normal.shape[-1]
+    s = jnp.sqrt(jnp.diagonal(normal, 0, 1, 2))
+    corr = normal / (s[:, :, None] * s[:, None, :])
+    low = cholesky(corr)
+    piv2 = jnp.diagonal(low, 0, 1, 2) ** 2
+    rank = jnp.sum(piv2 > 1e-12, -1)
+    inv = cholesky_solve(low, jnp.broadcast_to(jnp.eye(m), normal.shape)) / (s[:, :, None] * s[:, None, :])
+    return sigma2[:, None, None] * inv, rank, rank == m
