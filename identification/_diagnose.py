@@ -8,7 +8,7 @@
    revolution, also signed by the direction of approach) find the ripple orders.
 3. *Name*: every candidate (effect x joint x variant) is fitted together with the effects already
    added, first linearised (one Gauss-Newton step from the current model) to rank all of them,
-   then the best `shortlist` by Levenberg-Marquardt (optimistix, batched) to convergence; each is
+   then the best `shortlist` by Levenberg-Marquardt (optimistix, one after another) to convergence; each is
    scored by the Bayesian information criterion `BIC = chi2 + m ln(3K)` on the training poses
    and the RMS on held-out validation poses.
 4. *Add*: the best-BIC candidate that lowers BIC by more than `MIN_BIC_GAIN` and lowers the
