@@ -35,9 +35,11 @@ SPEED_TOLERANCE = 0.01
 """Constant-speed segment: smoothed motor speed within this fraction of the cruise speed."""
 TRIM_SIGMAS = 4.0
 """The segment is shortened by this many filter widths `sigma_q` at each end (filter edge)."""
-PASSBAND = 1.5
+PASSBAND = 2.0
 """Orders whose ripple frequency `n |phid| / 2 pi` exceeds `PASSBAND * f_c` count as filtered out
-(the Gaussian keeps `exp(-ln 2 * 1.5^2) = 21 %` there)."""
+(the Gaussian's amplitude gain `2^(-(f/f_c)^2 / 2)` is 25 % there). Orders between 1.5 and 2 f_c
+still carry ripple that a slower run sees almost unfiltered (joint 1's 302-304 at the validation
+speed), so they are candidates."""
 MIN_CYCLES = 2.0
 """The segment must hold this many cycles of the highest order in the passband."""
 MIN_REST_SAMPLES = 50
