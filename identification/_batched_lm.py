@@ -4,7 +4,8 @@ Why not `vmap(optx.least_squares)`: measured on the fleet benchmark (1000 robots
 parameters, `benchmarks/results_calibration.md`), the vmapped optimistix LM ran every robot for
 as many steps as the slowest one needed (median 11-14, max 28-34: its trust region rejects steps
 near the optimum) at ~1 ms per robot and step, five times the cost of the joint-screw Jacobian.
-Here one `lax.while_loop` carries the whole batch: per step one evaluation of the residual `r`
+Here one `lax.while_loop` carries the whole batch (optionally in chunks, each step a `lax.map`
+over them so that a chunk's arrays stay in cache): per step one evaluation of the residual `r`
 (R, n) and Jacobian `J` (R, n, m) at the trial points, the normal equations `A = J^T J`,
 `g = J^T r` and a Cholesky solve written as array operations over the batch (no LAPACK call:
 jaxlib 0.10's batched LAPACK kernels can deadlock XLA's CPU thread pool when two run at once).
@@ -16,7 +17,11 @@ step if `rho > 1e-3` (or if it is flat, see below: there rounding decides rho) a
 damping as Nielsen (1999): `mu *= max(1/3, 1 - (2 rho - 1)^3)`, `nu = 2` on acceptance, else
 `mu *= nu`, `nu *= 2`; `mu_0 = tau`, relative to `D` (K. Madsen, H. B. Nielsen, O. Tingleff,
 "Methods for non-linear least squares problems", 2nd ed., IMM DTU 2004, Algorithm 3.16 and
-eq. 3.13-3.15; their `mu_0 = tau max(A_ii)` is for the unscaled `A + mu I`).
+eq. 3.13-3.15; their `mu_0 = tau max(A_ii)` is for the unscaled `A + mu I`). The default
+`tau = 1e-6` is their choice for a start close to the optimum (a calibration starts from the
+nominal robot): on the fleet benchmark every robot then stops after 3 steps instead of 4-5 with
+`tau = 1e-3`, at the same optimum (4e-7 standard errors apart); a start far off only costs
+rejected steps, each raising `mu` by `nu`.
 Each problem stops on its own (then frozen) when a step is small (`||h|| <= xtol (||x|| + xtol)`),
 the step is flat (actual and predicted reduction `<= ftol F`), or the gradient is orthogonal to
 the residual (`max_j |g_j| / (||J_j|| ||r||) <= gtol`); the loop ends when all have stopped or
@@ -29,13 +34,13 @@ from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Bool, Float, Int, PyTree
 
 STATUS = ("converged", "max_steps", "non_finite")
 """Status names by index: stopped by a tolerance; still running after `max_steps`; the residual
 or Jacobian at the current point is not finite (then the problem is stopped there)."""
 
-ResidualJacobian = Callable[[Float[Array, "R m"]], tuple[Float[Array, "R n"], Float[Array, "R n m"]]]
+ResidualJacobian = Callable[[Float[Array, "B m"], PyTree], tuple[Float[Array, "B n"], Float[Array, "B n m"]]]
 
 
 def cholesky(a: Float[Array, "R m m"]) -> Float[Array, "R m m"]:
@@ -83,79 +88,114 @@ def _where(mask, new, old):
     return jax.tree.map(lambda u, v: jnp.where(mask.reshape(mask.shape + (1,) * (u.ndim - 1)), u, v), new, old)
 
 
+def _chunks(tree: PyTree, chunk: int) -> PyTree:
+    """Leading axis R -> (ceil(R / chunk), chunk), padded with copies of the last row."""
+    def split(v):
+        pad = -v.shape[0] % chunk
+        v = jnp.concatenate([v, jnp.repeat(v[-1:], pad, 0)]) if pad else v
+        return v.reshape((-1, chunk) + v.shape[1:])
+    return jax.tree.map(split, tree)
+
+
+def _unchunk(tree: PyTree, n: int) -> PyTree:
+    return jax.tree.map(lambda v: v.reshape((-1,) + v.shape[2:])[:n], tree)
+
+
+def map_chunks(fn: Callable, args: PyTree, chunk: int) -> PyTree:
+    """`fn(args)` of a batch-first `fn` (row `i` of the result only from row `i` of `args`), in
+    chunks of `chunk` rows one after another (`lax.map`), so that each chunk's arrays stay in cache."""
+    n = jax.tree.leaves(args)[0].shape[0]
+    return _unchunk(jax.lax.map(fn, _chunks(args, min(chunk, n))), n)
+
+
+def _step(residual_jacobian, s, data, first, tols):
+    """One LM step of a chunk of problems: solve for `h`, evaluate at `x + h`, accept or reject."""
+    xtol, ftol, gtol, tau = tols
+    n_rob, m = s["x"].shape
+    active = ~s["done"]
+    damped = s["a"] + (s["mu"][:, None] * s["d"])[:, :, None] * jnp.eye(m)
+    h = cholesky_solve(cholesky(damped), -s["g"][:, :, None])[:, :, 0]
+    h = jnp.where(active[:, None], h, 0.0)  # frozen problems stay put (and finite)
+    x_new = s["x"] + h
+    r_new, j_new = residual_jacobian(x_new, data)
+    a_new, g_new, cost_new, finite_new = _normal(r_new, j_new)
+    diag_new = jnp.diagonal(a_new, 0, 1, 2)
+    actual = s["cost"] - cost_new
+    predicted = 0.5 * jnp.sum(h * (s["mu"][:, None] * s["d"] * h - s["g"]), -1)
+    rho = actual / predicted
+    ok_step = ~first & jnp.all(jnp.isfinite(h), 1) & (predicted > 0)
+    # stopping tests (Madsen et al. 2004, eq. 3.15; MINPACK's ftol and gtol)
+    flat = ok_step & (jnp.abs(actual) <= ftol * s["cost"]) & (predicted <= ftol * s["cost"])
+    # a flat step is taken even if rounding makes rho < 1e-3: the cost cannot rank it any more
+    accept = active & finite_new & (first | (ok_step & ((rho > 1e-3) | flat)))
+    mu_acc = jnp.where(first, tau, s["mu"] * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3))
+    small_step = ok_step & accept & (jnp.linalg.norm(h, axis=1) <= xtol * (jnp.linalg.norm(x_new, axis=1) + xtol))
+    norm_g = jnp.maximum(jnp.sqrt(diag_new) * jnp.sqrt(2 * cost_new)[:, None], 1e-300)
+    small_grad = ok_step & accept & (jnp.max(jnp.abs(g_new) / norm_g, 1) <= gtol)
+    out = dict(s)
+    out.update(_where(accept, {"x": x_new, "r": r_new, "a": a_new, "g": g_new, "cost": cost_new,
+                               "d": jnp.where(first, diag_new, jnp.maximum(s["d"], diag_new)),
+                               "mu": mu_acc, "nu": jnp.full(n_rob, 2.0)},
+                      {"x": s["x"], "r": s["r"], "a": s["a"], "g": s["g"], "cost": s["cost"], "d": s["d"],
+                       "mu": s["mu"] * s["nu"], "nu": 2 * s["nu"]}))
+    bad_start = first & ~finite_new
+    stop = active & (small_step | flat | small_grad)
+    out["status"] = jnp.where(bad_start, 2, jnp.where(stop, 0, s["status"]))
+    out["done"] = s["done"] | stop | bad_start
+    out["steps"] = s["steps"] + (active & ~first)
+    out["accepted"] = s["accepted"] + (accept & ~first)
+    return out
+
+
 def batched_lm(
     residual_jacobian: ResidualJacobian,
     x0: Float[Array, "R m"],
+    data: PyTree = None,
     *,
     max_steps: int = 100,
     xtol: float = 1e-10,
     ftol: float = 1e-10,
     gtol: float = 1e-10,
-    tau: float = 1e-3,
+    tau: float = 1e-6,
+    chunk: int | None = None,
 ) -> dict[str, Array]:
     """Minimise `||r_i(x_i)||^2 / 2` for every problem `i` of the batch (see the module docstring).
 
     **Arguments:**
-    - `residual_jacobian`: `x (R, m) -> (r (R, n), J (R, n, m))`, batch-first, row `i` only from `x_i`.
+    - `residual_jacobian`: `(x (B, m), data) -> (r (B, n), J (B, n, m))`, batch-first, row `i` only
+      from `x_i` and row `i` of `data` (a pytree of arrays with leading axis R, or None).
     - `x0` (R, m) start; `max_steps` LM steps at most; `xtol`, `ftol`, `gtol` tolerances as above;
       `tau` initial damping relative to `diag(J^T J)`.
+    - `chunk`: problems per chunk (B); each step runs over the chunks in turn (`lax.map`), so that a
+      chunk's Jacobian and normal equations stay in cache (R is padded to a multiple with copies of
+      the last problem). None: all at once.
 
     **Returns:** `x` (R, m), `residuals` (R, n) and `normal` `J^T J` (R, m, m) at `x`, `cost`
     `||r||^2 / 2` (R,), `status` (R,) index into `STATUS`, `steps` (R,) LM steps taken (accepted
     or not), `accepted` (R,) accepted steps.
     """
     n_rob, m = x0.shape
-    n = jax.eval_shape(residual_jacobian, x0)[0].shape[1]
+    chunk = n_rob if chunk is None else max(1, min(chunk, n_rob))
+    n = jax.eval_shape(residual_jacobian, x0[:chunk], jax.tree.map(lambda v: v[:chunk], data))[0].shape[1]
     # step 0 evaluates x0 (h = 0 from A = I, g = 0): one trace of `residual_jacobian`
-    state = {
+    state = _chunks({
         "x": x0, "r": jnp.zeros((n_rob, n)), "a": jnp.broadcast_to(jnp.eye(m), (n_rob, m, m)),
         "g": jnp.zeros((n_rob, m)), "cost": jnp.full(n_rob, jnp.inf), "d": jnp.ones((n_rob, m)),
         "mu": jnp.ones(n_rob), "nu": jnp.full(n_rob, 2.0), "done": jnp.zeros(n_rob, bool),
-        "status": jnp.ones(n_rob, int), "steps": jnp.zeros(n_rob, int), "accepted": jnp.zeros(n_rob, int),
-        "k": jnp.asarray(0),
-    }
+        "status": jnp.ones(n_rob, int), "steps": jnp.zeros(n_rob, int), "accepted": jnp.zeros(n_rob, int)}, chunk)
+    data = _chunks(data, chunk)
+    tols = (xtol, ftol, gtol, tau)
 
-    def cond(s):
-        return (s["k"] <= max_steps) & ~jnp.all(s["done"])
+    def cond(carry):
+        k, s = carry
+        return (k <= max_steps) & ~jnp.all(s["done"])
 
-    def body(s):
-        first = s["k"] == 0
-        active = ~s["done"]
-        damped = s["a"] + (s["mu"][:, None] * s["d"])[:, :, None] * jnp.eye(m)
-        h = cholesky_solve(cholesky(damped), -s["g"][:, :, None])[:, :, 0]
-        h = jnp.where(active[:, None], h, 0.0)  # frozen problems stay put (and finite)
-        x_new = s["x"] + h
-        r_new, j_new = residual_jacobian(x_new)
-        a_new, g_new, cost_new, finite_new = _normal(r_new, j_new)
-        diag_new = jnp.diagonal(a_new, 0, 1, 2)
-        actual = s["cost"] - cost_new
-        predicted = 0.5 * jnp.sum(h * (s["mu"][:, None] * s["d"] * h - s["g"]), -1)
-        rho = actual / predicted
-        ok_step = ~first & jnp.all(jnp.isfinite(h), 1) & (predicted > 0)
-        # stopping tests (Madsen et al. 2004, eq. 3.15; MINPACK's ftol and gtol)
-        flat = ok_step & (jnp.abs(actual) <= ftol * s["cost"]) & (predicted <= ftol * s["cost"])
-        # a flat step is taken even if rounding makes rho < 1e-3: the cost cannot rank it any more
-        accept = active & finite_new & (first | (ok_step & ((rho > 1e-3) | flat)))
-        mu_acc = jnp.where(first, tau, s["mu"] * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3))
-        small_step = ok_step & accept & (jnp.linalg.norm(h, axis=1) <= xtol * (jnp.linalg.norm(x_new, axis=1) + xtol))
-        norm_g = jnp.maximum(jnp.sqrt(diag_new) * jnp.sqrt(2 * cost_new)[:, None], 1e-300)
-        small_grad = ok_step & accept & (jnp.max(jnp.abs(g_new) / norm_g, 1) <= gtol)
-        out = dict(s)
-        out.update(_where(accept, {"x": x_new, "r": r_new, "a": a_new, "g": g_new, "cost": cost_new,
-                                   "d": jnp.where(first[None, None], diag_new, jnp.maximum(s["d"], diag_new)),
-                                   "mu": mu_acc, "nu": jnp.full(n_rob, 2.0)},
-                          {"x": s["x"], "r": s["r"], "a": s["a"], "g": s["g"], "cost": s["cost"], "d": s["d"],
-                           "mu": s["mu"] * s["nu"], "nu": 2 * s["nu"]}))
-        bad_start = first & ~finite_new
-        stop = active & (small_step | flat | small_grad)
-        out["status"] = jnp.where(bad_start, 2, jnp.where(stop, 0, s["status"]))
-        out["done"] = s["done"] | stop | bad_start
-        out["steps"] = s["steps"] + (active & ~first)
-        out["accepted"] = s["accepted"] + (accept & ~first)
-        out["k"] = s["k"] + 1
-        return out
+    def body(carry):
+        k, s = carry
+        return k + 1, jax.lax.map(lambda c: _step(residual_jacobian, c[0], c[1], k == 0, tols), (s, data))
 
-    s = jax.lax.while_loop(cond, body, state)
+    _, s = jax.lax.while_loop(cond, body, (jnp.asarray(0), state))
+    s = _unchunk(s, n_rob)
     return {"x": s["x"], "residuals": s["r"], "normal": s["a"], "cost": s["cost"], "status": s["status"],
             "steps": s["steps"], "accepted": s["accepted"]}
 

@@ -7,7 +7,10 @@ In the LM only the free parameters change, so here
   a free `u0_j` of a ripple-free gear gives `phi_j = theta_j / u0_j` exactly; a free `u0_j` of
   a rippled gear keeps the full inversion (`jr.gear_output`);
 - the kinematics run as elementwise 3x3 products of one pose (vmapped over poses), which XLA
-  fuses into a few loops instead of many tiny batched matrix products.
+  fuses into a few loops instead of many tiny batched matrix products;
+- the joint-screw Jacobian (`position_jacobian`) runs batch-last over any batch of robots and
+  poses, its frame chain as a `lax.scan` over the joints (each frame computed once, not once per
+  Jacobian column).
 `pose_model` agrees with `predict_pose` to rounding (tested).
 """
 
@@ -117,47 +120,70 @@ def position_jacobian_one(
     robot: jr.Robot, params: ParameterMap, q: Float[Array, " 6"], theta: Float[Array, " 6"],
     ratio: Float[Array, " 6"], marker: Float[Array, " 3"],
 ) -> tuple[Float[Array, " 3"], Float[Array, "3 m"]]:
-    """Marker position of one pose and its derivative by the free joint parameters, from the
-    joint screws (thesis 3.2.2): with `z`, `x'` the z axis of frame i-1 and the x axis after
-    `Rz(q_i + offset_i)`, `y''` the y axis after `Rx(alpha_i)`, `o_{i-1}`, `o_i` the frame origins,
+    """`position_jacobian` of one pose: marker position (3,) and its Jacobian (3, m)."""
+    p, jac = position_jacobian(robot, params, q, theta, ratio, marker)
+    return p, jac.T
+
+
+def position_jacobian(
+    robot: jr.Robot, params: ParameterMap, q: Float[Array, "*b 6"], theta: Float[Array, "*b 6"],
+    ratio: Float[Array, "*b 6"], marker: Float[Array, " 3"],
+) -> tuple[Float[Array, "3 ..."], Float[Array, "m 3 ..."]]:
+    """Marker position and its derivative by the free joint parameters, from the joint screws
+    (thesis 3.2.2), batch-last: the robot's fields broadcast against the batch `*b` of `q` (a fleet
+    as fields (R, 1, ...) against poses (R, K, 6)); results have the batch on the trailing axes.
+
+    With `z`, `x'` the z axis of frame i-1 and the x axis after `Rz(q_i + offset_i)`, `y''` the y
+    axis after `Rx(alpha_i)`, `o_{i-1}`, `o_i` the frame origins (eq. 2.2-2.4):
     `dp/d offset_i = z x (p - o_{i-1})`, `dp/da_i = x'`, `dp/dd_i = z`, `dp/dalpha_i = x' x (p - o_i)`,
     `dp/dbeta_i = y'' x (p - o_i)` and `dp/du0_i = dp/d offset_i * dq_i/du0_i`, `dq_i/du0_i = -theta_i /
-    (u0_i u_i(phi_i))` (`ratio` = `u_i(phi_i)`, implicit function of eq. 2.13)."""
-    rot, pos = _rows(robot.base[:3, :3]), [robot.base[i, 3] for i in range(3)]
-    c, s = jnp.cos(q + robot.offset), jnp.sin(q + robot.offset)
-    screws = []
-    for i in range(6):
-        ca, sa = jnp.cos(robot.alpha[i]), jnp.sin(robot.alpha[i])
-        xy = _rows(rot_x(robot.alpha[i]) @ rot_y(robot.beta[i]))
+    (u0_i u_i(phi_i))` (`ratio` = `u_i(phi_i)`, implicit function of eq. 2.13).
+    The chain runs as a `lax.scan` over the joints on elementwise (batch-shaped) arrays: unrolled,
+    XLA CPU fuses the whole chain into every Jacobian column and evaluates it m times.
+    """
+    batch = jnp.broadcast_shapes(q.shape[:-1], robot.a.shape[:-1])
+    joint_first = lambda f: jnp.moveaxis(f, -1, 0)  # noqa: E731  (*b, 6) -> (6, *b)
+    ang = joint_first(q + robot.offset)
+    ca, sa, cb, sb = (joint_first(f(x)) for x in (robot.alpha, robot.beta) for f in (jnp.cos, jnp.sin))
+    # Rx(alpha) Ry(beta) entries, row by row
+    xy = [[cb, jnp.zeros_like(cb), sb], [sa * sb, ca, -sa * cb], [-ca * sb, sa, ca * cb]]
+    xs = (jnp.cos(ang), jnp.sin(ang), joint_first(robot.a), joint_first(robot.d), xy)
+
+    def step(frame, x):
+        rot, pos = frame
+        c, s, a, d, xy = x
         z = [rot[k][2] for k in range(3)]
-        x1 = [c[i] * rot[k][0] + s[i] * rot[k][1] for k in range(3)]
-        y2 = _mv(rot, [-s[i] * ca, c[i] * ca, sa])
-        o_prev = pos
-        pos = [pos[k] + robot.a[i] * x1[k] + robot.d[i] * z[k] for k in range(3)]
-        screws.append((z, x1, y2, o_prev, pos))
-        rz_xy = [[c[i] * xy[0][k] - s[i] * xy[1][k] for k in range(3)],
-                 [s[i] * xy[0][k] + c[i] * xy[1][k] for k in range(3)], xy[2]]
-        rot = _mm(rot, rz_xy)
-    pos = _add(pos, _mv(rot, [robot.tool[i, 3] for i in range(3)]))
-    rot = _mm(rot, _rows(robot.tool[:3, :3]))
+        x1 = [c * rot[k][0] + s * rot[k][1] for k in range(3)]
+        y2 = _mv(rot, [-s * xy[1][1], c * xy[1][1], xy[2][1]])  # Rz (0, cos alpha, sin alpha)
+        pos_new = [pos[k] + a * x1[k] + d * z[k] for k in range(3)]
+        rz_xy = [[c * xy[0][k] - s * xy[1][k] for k in range(3)],
+                 [s * xy[0][k] + c * xy[1][k] for k in range(3)], xy[2]]
+        return (_mm(rot, rz_xy), pos_new), (z, x1, y2, pos, pos_new)
+
+    full = lambda x: jnp.broadcast_to(x, batch)  # noqa: E731
+    frame0 = ([[full(robot.base[..., i, k]) for k in range(3)] for i in range(3)],
+              [full(robot.base[..., i, 3]) for i in range(3)])
+    (rot, pos), (z, x1, y2, o_prev, o) = jax.lax.scan(step, frame0, xs)
+    pos = _add(pos, _mv(rot, [robot.tool[..., i, 3] for i in range(3)]))
+    rot = _mm(rot, [[robot.tool[..., i, k] for k in range(3)] for i in range(3)])
     p = _add(pos, _mv(rot, [marker[i] for i in range(3)]))
     cols = []
     for name in params.names:
         field, j = parse_name(name)
-        z, x1, y2, o_prev, o = screws[j]
-        rel_prev, rel = [p[k] - o_prev[k] for k in range(3)], [p[k] - o[k] for k in range(3)]
+        at = lambda v: [e[j] for e in v]  # noqa: E731
+        rel_prev, rel = [p[k] - o_prev[k][j] for k in range(3)], [p[k] - o[k][j] for k in range(3)]
         if field == "a":
-            col = x1
+            col = at(x1)
         elif field == "d":
-            col = z
+            col = at(z)
         elif field == "alpha":
-            col = _cross(x1, rel)
+            col = _cross(at(x1), rel)
         elif field == "beta":
-            col = _cross(y2, rel)
+            col = _cross(at(y2), rel)
         elif field == "offset":
-            col = _cross(z, rel_prev)
+            col = _cross(at(z), rel_prev)
         else:  # u0
-            dq = -theta[j] / (robot.u0[j] * ratio[j])
-            col = [dq * e for e in _cross(z, rel_prev)]
-        cols.append(jnp.stack(col))
-    return jnp.stack(p), jnp.stack(cols, -1)
+            dq = -theta[..., j] / (robot.u0[..., j] * ratio[..., j])
+            col = [dq * e for e in _cross(at(z), rel_prev)]
+        cols.append(jnp.stack([full(e) for e in col]))
+    return jnp.stack(p), jnp.stack(cols)
