@@ -231,7 +231,8 @@ def main() -> None:
         sols, first, many = _timed(lambda: batched(jnp.asarray(SWEEP)))
         _, _, one = _timed(lambda: solve_ocp(robot, jp.q, 1e-3, nu=float(SWEEP[0]), warm_start=warm))
         sweep = {"n": len(SWEEP), "batched_s": many, "compile_s": max(first - many, 0.0), "single_s": one,
-                 "converged": int(np.sum(np.asarray(sols.converged)))}
+                 "converged": int(np.sum(np.asarray(sols.converged))),
+                 "iterations": int(np.sum(np.asarray(sols.iterations)))}
         print(f"sweep: {sweep}", flush=True)
     write_markdown(args.out, rows, sweep, machine, device, notes)
     print(f"wrote {args.out}")
@@ -259,7 +260,8 @@ def write_markdown(out: Path, rows, sweep, machine, device, notes) -> None:
     if sweep is not None:
         lines += ["", f"nu sweep (line, {sweep['n']} values 1e-15..1e-9, one vmapped call): {sweep['batched_s']:.2f} s "
                   f"vs one solve {sweep['single_s']:.2f} s (ratio {sweep['batched_s'] / sweep['single_s']:.1f}); "
-                  f"{sweep['converged']}/{sweep['n']} converged; compile {sweep['compile_s']:.1f} s."]
+                  f"{sweep['converged']}/{sweep['n']} converged, {sweep['iterations']} outer iterations in all "
+                  f"(continuation in increasing nu); compile {sweep['compile_s']:.1f} s."]
     lines += ["", f"Load average at the end: {os.getloadavg()[0]:.1f} (other jobs shared the cores)."] + notes
     out.write_text("\n".join(lines) + "\n")
 

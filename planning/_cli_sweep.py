@@ -32,8 +32,9 @@ def configure(parser) -> None:
 
 
 def sweep(robot, plant, path, nus, costs, echo, directional: bool = False) -> dict:
-    """Solve the OCP for every nu (one `vmap` call per cost; its batching rule runs the solves one after
-    the other, see `augmented_lagrangian`), then bandwidths and plant errors of every solution."""
+    """Solve the OCP for every nu (one `vmap` call per cost; its batching rule solves them one after the
+    other in increasing nu, each warm-started from the previous ones, see `augmented_lagrangian`), then
+    bandwidths and plant errors of every solution."""
     from ._ocp import solve_ocp
 
     nus = np.asarray(nus, dtype=float)

@@ -19,11 +19,15 @@ OBJECTIVE_RTOL = 1e-8
 """Required agreement of the objective with the independent solver (issue 6)."""
 DEFECT_TOL = 1e-9
 """Largest scaled defect of a converged solve (issue 6)."""
-VMAP_RTOL = 1e-9
-"""Batched and single solves run the same arithmetic up to reassociation in batched kernels;
-their objectives agree to this relative tolerance and their motor accelerations to
-`VMAP_UTOL` relative to max |u|."""
-VMAP_UTOL = 1e-6
+VMAP_QTOL = 1e-9
+"""Agreement of the link angles [rad] of a batched and a separate solve. Under `vmap` over nu the
+members are solved by continuation (`augmented_lagrangian`), from another start than the separate
+solve, so both are the optimum only to the solver's tolerances (scaled violation 1e-9 = 1e-12 rad
+on a link-angle defect, stationarity 1e-6); the link angles then agree as well as with the dense
+Newton-KKT reference (`test_same_optimum_as_dense_newton_kkt`)."""
+VMAP_UTOL = 1e-5
+"""... and the motor accelerations to this fraction of max |u| (`u` is held only by the weight nu,
+the loosest direction of the optimum; measured differences up to 2.2e-6)."""
 
 
 def _move():
@@ -198,17 +202,39 @@ def test_same_optimum_as_dense_newton_kkt(robot, q_d, solution, nu):
     np.testing.assert_allclose(np.asarray(sol.x[:, :6]), np.asarray(x_ref[:, :6]), rtol=0, atol=1e-9)
 
 
-@pytest.mark.slow  # compiles the batched program (about a minute on 2 cores)
+def _sensitivity(problem, sol) -> float:
+    """First-order change of the optimal cost by the residual defects of `sol`, `sum |lam c|` [rad^2]."""
+    c = jax.jit(lambda p, x, u: tr.defects(p, x, u) / tr.defect_scale(p))(problem, sol.x, sol.u)
+    return float(jnp.sum(jnp.abs(sol.multipliers * c))) * tr.ANGLE_SCALE**2
+
+
+@pytest.mark.slow  # compiles the batched program (4 min on 2 shared cores)
 def test_vmap_over_nu_matches_separate_solves(robot, q_d):
-    nus = jnp.logspace(-14, -10, 8)
+    # the caller's order is not nu's: the continuation sorts and must return in the caller's order
+    nus = jnp.logspace(-14, -10, 8)[jnp.array([3, 0, 7, 1, 6, 2, 5, 4])]
     batched = jax.vmap(lambda nu: pl.solve_ocp(robot, q_d, TS, nu))(nus)
     assert batched.u.shape == (8, N, 6)
+    separate_iterations = 0
     for i, nu in enumerate(nus):
         single = pl.solve_ocp(robot, q_d, TS, nu)
+        separate_iterations += int(single.iterations)
         assert bool(single.converged) and bool(batched.converged[i])
-        assert float(batched.objective[i]) == pytest.approx(float(single.objective), rel=VMAP_RTOL)
+        assert float(batched.max_constraint_violation[i]) <= DEFECT_TOL
+        member = jax.tree.map(lambda a, i=i: a[i], batched)
+        problem = tr.ocp_problem(robot, q_d, TS, nu)
+        # both are optima to the solver's tolerance: each one's residual defects move its cost by
+        # at most its own `sum |lam c|` (first order, as in test_same_optimum_as_dense_newton_kkt)
+        bound = OBJECTIVE_RTOL * float(single.objective) + 2 * (_sensitivity(problem, member)
+                                                                + _sensitivity(problem, single))
+        assert abs(float(member.objective) - float(single.objective)) <= bound, (float(nu), bound)
+        np.testing.assert_allclose(np.asarray(member.q), np.asarray(single.q), rtol=0, atol=VMAP_QTOL)
         scale = float(jnp.max(jnp.abs(single.u)))
-        np.testing.assert_allclose(np.asarray(batched.u[i]), np.asarray(single.u), rtol=0, atol=VMAP_UTOL * scale)
+        np.testing.assert_allclose(np.asarray(member.u), np.asarray(single.u), rtol=0, atol=VMAP_UTOL * scale)
+        k = int(member.iterations)
+        assert np.all(np.isfinite(np.asarray(member.history_violation[:k])))
+        assert np.all(np.isnan(np.asarray(member.history_violation[k:])))
+    # the continuation (warm primal and multipliers) saves outer iterations over the separate cold solves
+    assert int(jnp.sum(batched.iterations)) < 0.8 * separate_iterations, (batched.iterations, separate_iterations)
 
 
 def test_non_converged_solve_is_not_success(robot, q_d):
