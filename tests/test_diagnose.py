@@ -83,15 +83,15 @@ SINGLE = {
     # hidden effect: (truth, start or None, expected step)
     "joint_offset_j5": (lambda s: _at(s, "offset", 4, s.offset[4] + 5e-4), None, ("joint_offset", 5)),
     "backlash_j3": (lambda s: _at(s, "backlash", 2, 4e-4), None, ("backlash", 3)),
-    "gear_ratio_j4": (lambda s: _at(s, "u0", 3, s.u0[3] * (1 + 4e-4)), None, ("gear_ratio", 4)),
     "compliance_j2": (lambda s: s, lambda s: _rigid(s, 1), ("joint_compliance", 2)),
     "gear_ripple_j1": (lambda s: _with_ripple(s, 0, [2, 85], [1.2e-4, 6e-5], [1.2e-4, 6e-5]), None,
                        ("gear_ripple", 1)),
-    "link_scale": (lambda s: eqx.tree_at(lambda r: (r.a, r.d), s, (s.a * (1 + 2e-4), s.d * (1 + 2e-4))), None,
-                   ("link_scale", None)),
-    "payload": (lambda s: _payload(s, 6.0, [0.0, 0.0, 0.12]), None, ("payload", None)),
 }
 SLOW = {
+    "payload": (lambda s: _payload(s, 6.0, [0.0, 0.0, 0.12]), None, ("payload", None)),
+    "link_scale": (lambda s: eqx.tree_at(lambda r: (r.a, r.d), s, (s.a * (1 + 2e-4), s.d * (1 + 2e-4))), None,
+                   ("link_scale", None)),
+    "gear_ratio_j4": (lambda s: _at(s, "u0", 3, s.u0[3] * (1 + 4e-4)), None, ("gear_ratio", 4)),
     "direction_dependent_ripple_j3": (lambda s: _with_ripple(s, 2, [3], [2e-4], [0.0]), None,
                                       ("direction_dependent_ripple", 3)),
     "base_offset": (lambda s: eqx.tree_at(lambda r: r.base, s, s.base.at[:3, 3].add(jnp.array([2e-4, -3e-4, 1e-4]))),
