@@ -31,7 +31,7 @@ SHORT_OF_TARGET = {2}
 """Joints that do not reach `REDUCTION` yet (issue 3 stays open): joint 2's filtered ripple
 (~0.05 deg/s RMS at 100 deg/s, 34.6 Hz filter) is below the filtered gyroscope noise
 (~0.085 deg/s), and the coefficient error that noise leaves falls only as 1/sqrt(runs): measured
-0.80-0.87 with 8 runs per direction, 0.88-0.92 with 32; at the slower validation speed the
+0.80-0.87 with 8 runs per direction, 0.88-0.94 with 32; at the slower validation speed the
 332-334 cluster (8 % filter gain at identification speed, not identifiable) alone caps it at ~0.95."""
 DOMINANT_FRACTION = 0.25
 """A true cluster of orders (consecutive orders of a toml set) is dominant if its amplitude, damped
