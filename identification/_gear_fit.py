@@ -21,6 +21,8 @@ from jax.scipy.special import betainc, gammaincc
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxrobot import Robot, read_description
+from jaxrobot._gear import ratio as gear_ratio
+from jaxrobot._gear import xi_inverse
 
 from ._gear_frequencies import fft_orders, group_samples, sparse_orders
 from ._gear_processing import (
@@ -36,9 +38,6 @@ from ._gear_processing import (
 ITERATIONS = 3
 """Fits, each with `phi = Xi^{-1}(theta)` of the previous one (the phase error of `theta / u0` is
 about the relative ripple, ~1e-2; each pass shrinks it by about that factor)."""
-NEWTON_STEPS = 4
-"""Newton steps of `Xi^{-1}` for one joint from `theta / u0`: the phase error n*dphi starts at about
-the relative ripple (< 0.03) and squares each step, so 4 steps reach float64 precision."""
 RCOND = 1e-10
 """Directions of the (unit-diagonal) normal matrix weaker than this are left out of the fit: over
 a short range, many close orders are nearly collinear and would get huge, cancelling
@@ -50,35 +49,6 @@ modulates each order and shows sum and difference orders (e.g. 70 + 140 = 210) t
 does not have."""
 SIGNIFICANCE = 0.01
 """cw and ccw sets differ significantly when the Wald test's p-value is below this."""
-
-
-def _harmonics(phi, orders):
-    used = orders > 0
-    arg = jnp.where(used, orders, 1.0) * phi[..., None]
-    return used, jnp.where(used, orders, 1.0), jnp.cos(arg), jnp.sin(arg)
-
-
-def gear_motor_angle(phi, u0, orders, a, b):
-    """`Xi(phi)` of one joint (eq. 2.13), `Xi(0) = 0`; orders 0 are padding."""
-    used, n, c, s = _harmonics(phi, orders)
-    return u0 * (phi + jnp.sum(jnp.where(used, (a * s + b * (c - 1.0)) / n, 0.0), -1))
-
-
-def gear_ratio_1d(phi, u0, orders, a, b):
-    """`u(phi)` of one joint (eq. 2.10)."""
-    used, _, c, s = _harmonics(phi, orders)
-    return u0 * (1.0 + jnp.sum(jnp.where(used, a * c - b * s, 0.0), -1))
-
-
-def gear_output_1d(theta, u0, orders, a, b):
-    """`phi = Xi^{-1}(theta)` of one joint by Newton from `theta / u0` (one cos/sin per step)."""
-    phi = theta / u0
-    for _ in range(NEWTON_STEPS):
-        used, n, c, s = _harmonics(phi, orders)
-        xi = u0 * (phi + jnp.sum(jnp.where(used, (a * s + b * (c - 1.0)) / n, 0.0), -1))
-        ratio = u0 * (1.0 + jnp.sum(jnp.where(used, a * c - b * s, 0.0), -1))
-        phi = phi - (xi - theta) / ratio
-    return phi
 
 
 class GearFit(eqx.Module):
@@ -147,7 +117,7 @@ def fit_gear_ratio(
 
     def solve(params):
         u0, a, b = params
-        phi = jax.vmap(gear_output_1d)(proc.theta, u0[group], run_orders, a[group], b[group])
+        phi = xi_inverse(u0[group][:, None], run_orders[:, None], a[group][:, None], b[group][:, None], proc.theta)
         x_raw = jax.vmap(_design)(phi, proc.phid, run_orders)
         x_f = filt(x_raw, batch.valid, kernels) * weight[..., None]
         y = proc.thetad_f * weight
@@ -206,9 +176,10 @@ def kinematic_errors(proc: ProcessedRuns, batch: GearBatch, fit: GearFit, group:
     """Kinematic error of every run with the constant ratio and with the identified ripple of its
     group (validation runs: groups from the identification runs of the same joint/direction)."""
     kernels = jax.vmap(gaussian_kernel, in_axes=(0, 0, None))(batch.sigma, batch.ts, batch.half_width)
-    u0, orders, a, b = fit.u0[group], fit.orders[group], fit.a[group], fit.b[group]
-    phi = jax.vmap(gear_output_1d)(proc.theta, u0, orders, a, b)
-    ratio = jax.vmap(gear_ratio_1d)(phi, u0, orders, a, b)
+    fourier = [v[group][:, None] for v in (fit.u0, fit.orders, fit.a, fit.b)]  # broadcast over the samples
+    phi = xi_inverse(*fourier, proc.theta)
+    ratio = gear_ratio(*fourier, phi)
+    u0 = fit.u0[group]
     comp = jax.vmap(gaussian_filter)(proc.thetad / ratio, batch.valid, kernels)
     before = proc.thetad_f / u0[:, None] - proc.phid_f
     after = comp - proc.phid_f
@@ -365,7 +336,7 @@ def identify_gear(
     for _ in range(SEARCH_PASSES):
         if orders_sparse is not None:  # search again on phi = Xi^{-1}(theta) of the orders found
             first = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(orders_sparse)), u0_start)
-            phi = jax.vmap(gear_output_1d)(proc.theta, first.u0[gj], first.orders[gj], first.a[gj], first.b[gj])
+            phi = xi_inverse(*(v[gj][:, None] for v in (first.u0, first.orders, first.a, first.b)), proc.theta)
             samples = group_samples(proc, batch, group, fit_run, n_groups, u0_run, phi)
         sparse, cv = sparse_orders(samples, jnp.asarray(max_order))
         sparse = np.asarray(sparse)

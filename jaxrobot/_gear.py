@@ -45,7 +45,7 @@ def _horner(coef, z):
 def _sincos(x):
     """`(sin x, cos x)` with one shared reduction `x = k pi/2 + r`, within 2.3e-16 for `|x| < 1e6` (the gear
     arguments `n_j phi` stay below 2e3); 4x faster than `jnp.sin` plus `jnp.cos` in float64 on CPU. Jitted,
-    like `_xi_inverse`, so that eager calls run as one op."""
+    like `xi_inverse`, so that eager calls run as one op."""
     k = jnp.round(x * (2 / np.pi))
     r = ((x - k * _PIO2[0]) - k * _PIO2[1]) - k * _PIO2[2]
     z = r * r
@@ -78,19 +78,22 @@ def _harmonics(orders, a, b, phi):
     return n, jnp.where(used, a, 0.0), jnp.where(used, b, 0.0), s, c
 
 
-def _ratio(u0, orders, a, b, phi):
+def ratio(u0, orders, a, b, phi):
+    """`u(phi)` (eq. 2.10) of one Fourier set: `u0` (...), `orders`, `a`, `b` (..., M), 0 = padding."""
     _, a, b, s, c = _harmonics(orders, a, b, phi)
     return u0 * (1.0 + jnp.sum(a * c - b * s, -1))
 
 
-def _xi(u0, orders, a, b, phi):
+def xi(u0, orders, a, b, phi):
+    """`Xi(phi)` (eq. 2.13, `Xi(0) = 0`) of one Fourier set (arguments as `ratio`)."""
     n, a, b, s, c = _harmonics(orders, a, b, phi)
     return u0 * (phi + jnp.sum((a * s + b * (c - 1.0)) / n, -1))
 
 
 @jax.custom_jvp
 @jax.jit
-def _xi_inverse(u0, orders, a, b, theta):
+def xi_inverse(u0, orders, a, b, theta):
+    """`phi = Xi^{-1}(theta)` of one Fourier set (arguments as `ratio`), exact derivatives (custom JVP)."""
     # NEWTON_STEPS steps from theta / u0 on Xi / u0; one sin/cos per harmonic and step, shared by Xi and u.
     # Padded orders are masked (their sin/cos are still computed: shapes stay static).
     used = orders > 0
@@ -101,18 +104,18 @@ def _xi_inverse(u0, orders, a, b, theta):
     phi = target
     for _ in range(NEWTON_STEPS):
         s, c = _sincos(n * phi[..., None])
-        xi = phi + jnp.sum(a_n * s + b_n * (c - 1.0), -1)
-        phi = phi - (xi - target) / (1.0 + jnp.sum(a * c - b * s, -1))
+        xi_u0 = phi + jnp.sum(a_n * s + b_n * (c - 1.0), -1)
+        phi = phi - (xi_u0 - target) / (1.0 + jnp.sum(a * c - b * s, -1))
     return phi
 
 
-@_xi_inverse.defjvp
+@xi_inverse.defjvp
 def _xi_inverse_jvp(primals, tangents):
     # implicit function theorem on Xi(phi; p) = theta: u(phi) dphi = dtheta - dXi/dp dp
     u0, orders, a, b, theta = primals
-    phi = _xi_inverse(*primals)
-    _, dxi_params = jax.jvp(lambda *p: _xi(*p, phi), (u0, orders, a, b), tuple(tangents[:4]))
-    return phi, (tangents[4] - dxi_params) / _ratio(u0, orders, a, b, phi)
+    phi = xi_inverse(*primals)
+    _, dxi_params = jax.jvp(lambda *p: xi(*p, phi), (u0, orders, a, b), tuple(tangents[:4]))
+    return phi, (tangents[4] - dxi_params) / ratio(u0, orders, a, b, phi)
 
 
 def gear_ratio(
@@ -120,7 +123,7 @@ def gear_ratio(
 ) -> Float[Array, "*b 6"]:
     """Gear ratio `u(phi) = dtheta/dphi` (eq. 2.10)."""
     rip = _ripple(robot, ccw)
-    return _ratio(robot.u0, rip.orders, rip.a, rip.b, phi)
+    return ratio(robot.u0, rip.orders, rip.a, rip.b, phi)
 
 
 def motor_angle(
@@ -128,7 +131,7 @@ def motor_angle(
 ) -> Float[Array, "*b 6"]:
     """Motor angle `theta = Xi(phi)` of gear output angle `phi` (eq. 2.13), `Xi(0) = 0`."""
     rip = _ripple(robot, ccw)
-    return _xi(robot.u0, rip.orders, rip.a, rip.b, phi)
+    return xi(robot.u0, rip.orders, rip.a, rip.b, phi)
 
 
 def gear_output(
@@ -142,4 +145,4 @@ def gear_output(
     shape = jnp.broadcast_shapes(theta.shape, robot.u0.shape, rip.orders.shape[:-1])
     u0 = jnp.broadcast_to(robot.u0, shape)
     orders, a, b = (jnp.broadcast_to(x, shape + x.shape[-1:]) for x in (rip.orders, rip.a, rip.b))
-    return _xi_inverse(u0, orders, a, b, jnp.broadcast_to(theta, shape))
+    return xi_inverse(u0, orders, a, b, jnp.broadcast_to(theta, shape))
