@@ -63,7 +63,6 @@ def _obj(p, z):
 
 _KKT_PARTS = (
     jax.jit(jax.vmap(jax.jacfwd(_node_f, argnums=1), in_axes=(None, 0))),
-    jax.jit(jax.vmap(jax.hessian(lambda p, z, v: jnp.dot(v, _node_f(p, z)), argnums=1), in_axes=(None, 0, 0))),
     jax.jit(jax.grad(_obj, argnums=1)),
     jax.jit(jax.hessian(_obj, argnums=1)),
     jax.jit(lambda p, z: tr.defects(p, z[:, :24], z[:, 24:])),
@@ -72,20 +71,34 @@ _KKT_PARTS = (
 serves every nu)."""
 
 
+def _node_curvature(problem, z, v):
+    """`d^2 (v_k . f(z_k)) / dz_k^2` per node (N, 30, 30) by central differences of the exact Jacobian
+    (`jax.hessian` of the dynamics took ~50 s to compile). Steps `eps^(1/3)` of each variable's scale
+    leave ~1e-10 relative error: it only slows Newton's convergence, the KKT point is exact."""
+    sz = np.asarray(tr.variable_scale(problem))
+    cols = []
+    for i in range(30):
+        h = 6e-6 * sz[i]
+        plus, minus = (np.asarray(_KKT_PARTS[0](problem, jnp.asarray(z).at[:, i].add(s * h))) for s in (1, -1))
+        cols.append(np.einsum("nr,nrj->nj", v, plus - minus) / (2 * h))
+    hess = np.stack(cols, 2)
+    return 0.5 * (hess + np.swapaxes(hess, 1, 2))
+
+
 def _dense_newton_kkt(problem, x0, u0, iterations=8):
-    """Independent reference: Newton's method on the KKT conditions of eq. 4.3 with the exact
-    Hessian of the Lagrangian, dense numpy solves, end nodes fixed. Derivatives come from
-    `jax.jacfwd`/`jax.hessian` of `jr.planning_dynamics` per node and of the public
-    `objective`; the defects are checked with the public `defects`. Variables and rows are
+    """Independent reference: Newton's method on the KKT conditions of eq. 4.3 with the Hessian of
+    the Lagrangian, dense numpy solves, end nodes fixed. Derivatives come from `jax.jacfwd` of
+    `jr.planning_dynamics` per node (its curvature by `_node_curvature`) and `jax.hessian` of the
+    public `objective`; the defects are checked with the public `defects`. Variables and rows are
     scaled by `variable_scale` (a diagonal change of units, no effect on the optimum)."""
     ts, n = float(problem.ts), problem.n_nodes
     sz = np.asarray(tr.variable_scale(problem))
     sc = sz[:24]
     jac_f = lambda z: _KKT_PARTS[0](problem, z)  # noqa: E731
-    hess_f = lambda z, v: _KKT_PARTS[1](problem, z, v)  # noqa: E731
-    grad_obj = lambda z: _KKT_PARTS[2](problem, z)  # noqa: E731
-    hess_obj = lambda z: _KKT_PARTS[3](problem, z)  # noqa: E731
-    defects = lambda z: _KKT_PARTS[4](problem, z) / sc  # noqa: E731
+    hess_f = lambda z, v: _node_curvature(problem, z, v)  # noqa: E731
+    grad_obj = lambda z: _KKT_PARTS[1](problem, z)  # noqa: E731
+    hess_obj = lambda z: _KKT_PARTS[2](problem, z)  # noqa: E731
+    defects = lambda z: _KKT_PARTS[3](problem, z) / sc  # noqa: E731
     z = np.array(jnp.concatenate([x0, u0], -1))
     lam = np.zeros((n - 1, 24))
     nf, m = 30 * (n - 2), 24 * (n - 1)
@@ -99,7 +112,7 @@ def _dense_newton_kkt(problem, x0, u0, iterations=8):
         w = np.zeros((n, 24))
         w[:-1] -= lam
         w[1:] -= lam
-        h_nodes = np.asarray(hess_f(jnp.asarray(z), jnp.asarray(0.5 * ts * w / sc))) * np.outer(sz, sz)
+        h_nodes = hess_f(z, 0.5 * ts * w / sc) * np.outer(sz, sz)
         h_full = np.asarray(hess_obj(jnp.asarray(z))).reshape(30 * n, 30 * n) * np.outer(np.tile(sz, n),
                                                                                       np.tile(sz, n))
         for k in range(n):
