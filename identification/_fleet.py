@@ -108,13 +108,15 @@ for 50 poses, 1 MB) stay in cache. Residuals and Jacobians of 1000 robots x 50 p
 in one piece."""
 
 
-def _constants(robots, theta):
+def _constants(robots, theta, rippled):
     """Per-pose constants of the solve, from the initial robots (thesis 3.2.3): the joint angles at
     rest `q0` (R, K, 6) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, 6) (`rest_deflection`;
-    XLA evaluates the gear inversion once for both)."""
-    fleet = jax.tree.map(lambda f: f[:, None], robots)  # fields broadcast over the poses
-    q0 = rest_link_angles(fleet, theta)
-    return q0, q0 - jr.gear_output(fleet, theta)
+    XLA evaluates the gear inversion once for both). `robots`: a fleet (R, ...) or one robot for all
+    (then its fields are not broadcast over the poses: 2x faster); the gear inversion runs on the
+    `rippled` joints only (the others are `theta / u0`)."""
+    fleet = robots if robots.a.ndim == 1 else jax.tree.map(lambda f: f[:, None], robots)
+    q0 = rest_link_angles(fleet, theta, rippled=rippled)
+    return q0, q0 - jr.gear_output(fleet, theta, rippled=rippled)
 
 
 def _local_solve(robots, theta, positions, marker, q0, defl, *, params, max_steps, rippled):
@@ -146,10 +148,12 @@ def _local_solve(robots, theta, positions, marker, q0, defl, *, params, max_step
 
 
 @eqx.filter_jit
-def _fleet_constants(robots, theta, mesh):
-    """`_constants`, every device on its own robots (`shard_map` over the `"fleet"` axis)."""
+def _fleet_constants(robots, theta, rippled, mesh):
+    """`_constants`, every device on its own robots (`shard_map` over the `"fleet"` axis; one robot
+    for all is replicated)."""
     fleet = PartitionSpec("fleet")
-    return jax.shard_map(_constants, mesh=mesh, in_specs=(fleet, fleet),
+    spec = PartitionSpec() if robots.a.ndim == 1 else fleet
+    return jax.shard_map(functools.partial(_constants, rippled=rippled), mesh=mesh, in_specs=(spec, fleet),
                          out_specs=fleet, check_vma=False)(robots, theta)
 
 
@@ -161,6 +165,9 @@ def _fleet_solve(robots, params, theta, positions, marker, q0, defl, max_steps, 
     local = functools.partial(_local_solve, params=params, max_steps=max_steps, rippled=rippled)
     return jax.shard_map(local, mesh=mesh, in_specs=(fleet, fleet, fleet, PartitionSpec(), fleet, fleet),
                          out_specs=fleet, check_vma=False)(robots, theta, positions, marker, q0, defl)
+
+
+_set_parameters = eqx.filter_jit(ParameterMap.set)  # one compiled call instead of ~m eager scatters
 
 
 def calibrate_fleet(
@@ -187,13 +194,15 @@ def calibrate_fleet(
         raise ValueError(f"motor_angles: expected shape (R, K, 6) in rad, found {theta.shape}")
     if pos.shape != theta.shape[:2] + (3,):
         raise ValueError(f"positions: expected shape {theta.shape[:2] + (3,)} in m, found {pos.shape}")
-    for r in range(theta.shape[0]):  # NaN rows, named by robot and pose (cheap host check)
-        _check_array(theta[r], (6,), f"motor_angles[robot {r}]", "rad")
-        _check_array(pos[r], (3,), f"positions[robot {r}]", "m")
+    if not (np.isfinite(theta).all() and np.isfinite(pos).all()):  # NaN rows, named by robot and pose
+        for r in range(theta.shape[0]):
+            _check_array(theta[r], (6,), f"motor_angles[robot {r}]", "rad")
+            _check_array(pos[r], (3,), f"positions[robot {r}]", "m")
     n_rob, k = theta.shape[:2]
     if 3 * k < len(params):
         raise ValueError(f"motor_angles: {k} poses per robot give {3 * k} equations for {len(params)} "
                          f"parameters; need at least {-(-len(params) // 3)} poses")
+    initial = robots  # one robot for all, or the fleet
     if np.ndim(robots.a) == 1:
         robots = jax.tree.map(lambda x: jnp.broadcast_to(x, (n_rob,) + jnp.shape(x)), robots)
     elif robots.a.shape[0] != n_rob:
@@ -208,7 +217,10 @@ def calibrate_fleet(
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     g_theta = _to_global(theta[take], sharding)
     rippled = rippled_joints(robots)
-    q0, defl = _fleet_constants(g_robots, g_theta, mesh)
+    if np.ndim(initial.a) == 1:
+        q0, defl = _fleet_constants(jax.tree.map(jnp.asarray, initial), g_theta, rippled, mesh)
+    else:
+        q0, defl = _fleet_constants(g_robots, g_theta, rippled, mesh)
     out = _fleet_solve(g_robots, params, g_theta, _to_global(pos[take], sharding), marker, q0, defl, max_steps,
                        rippled, mesh)
     out = {key: _gather(v)[:n_rob] for key, v in out.items()}
@@ -216,7 +228,7 @@ def calibrate_fleet(
     status = np.asarray(STATUS + ("rank_deficient",))[np.where(
         (out["status"] == 0) & (out["rank"] < len(params)), len(STATUS), out["status"])]
     return FleetResult(
-        robot=params.set(robots, jnp.asarray(value)), value=value, std=out["std"], covariance=out["cov"],
+        robot=_set_parameters(params, robots, jnp.asarray(value)), value=value, std=out["std"], covariance=out["cov"],
         converged=out["converged"], status=status, iterations=out["steps"], rank=out["rank"],
         rms_m=np.sqrt(np.mean(out["residuals"] ** 2, -1)), residuals=out["residuals"], names=params.names,
         n_devices=n_dev)

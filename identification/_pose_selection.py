@@ -9,6 +9,7 @@ distance from singularities (smallest singular value >= `min_sigma`).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax
@@ -38,9 +39,14 @@ class PoseConstraints:
 DEFAULT_CONSTRAINTS = PoseConstraints()
 
 
+@functools.cache
+def _embedded_marker() -> tuple[float, ...]:
+    return tuple(float(v) for v in jr.read_description(None)["sensors"]["tracker_marker_offset_m"])
+
+
 def default_marker() -> np.ndarray:
-    """The tracker marker offset of the embedded description (`[sensors]`)."""
-    return np.asarray(jr.read_description(None)["sensors"]["tracker_marker_offset_m"], float)
+    """The tracker marker offset of the embedded description (`[sensors]`; read once)."""
+    return np.asarray(_embedded_marker(), float)
 
 
 @eqx.filter_jit

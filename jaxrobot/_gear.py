@@ -135,14 +135,28 @@ def motor_angle(
 
 
 def gear_output(
-    robot: Robot, theta: Float[Array, "*b 6"], ccw: bool | Bool[Array, "*b 6"] = False
+    robot: Robot,
+    theta: Float[Array, "*b 6"],
+    ccw: bool | Bool[Array, "*b 6"] = False,
+    rippled: tuple[int, ...] | None = None,
 ) -> Float[Array, "*b 6"]:
     """Gear output angle `phi = Xi^{-1}(theta)`: `NEWTON_STEPS` Newton steps from `theta / u0`.
 
     Derivatives of every order follow the implicit function (`dphi/dtheta = 1/u(phi)`), not the steps.
+    `rippled` (static): the joints (0-based) whose gear may have ripple; the others get `theta / u0`, which
+    is exact for a gear without ripple and skips their Newton steps. None: all six.
     """
     rip = _ripple(robot, ccw)
     shape = jnp.broadcast_shapes(theta.shape, robot.u0.shape, rip.orders.shape[:-1])
     u0 = jnp.broadcast_to(robot.u0, shape)
+    theta = jnp.broadcast_to(theta, shape)
+    if rippled is not None and tuple(rippled) != tuple(range(6)):
+        idx = np.asarray(sorted(rippled), int)
+        plain = theta / u0
+        if idx.size == 0:
+            return plain
+        sub = shape[:-1] + (idx.size,)
+        orders, a, b = (jnp.broadcast_to(x[..., idx, :], sub + x.shape[-1:]) for x in (rip.orders, rip.a, rip.b))
+        return plain.at[..., idx].set(xi_inverse(u0[..., idx], orders, a, b, theta[..., idx]))
     orders, a, b = (jnp.broadcast_to(x, shape + x.shape[-1:]) for x in (rip.orders, rip.a, rip.b))
-    return xi_inverse(u0, orders, a, b, jnp.broadcast_to(theta, shape))
+    return xi_inverse(u0, orders, a, b, theta)

@@ -398,6 +398,29 @@ def test_batched_lm_matches_scipy(robots, fleet_problem):
         np.testing.assert_allclose(res.residuals[r], ref.fun * 1e-3, rtol=0, atol=2e-9, err_msg=f"residuals, robot {r}")
 
 
+def test_fleet_constants_one_robot_and_fleet_agree_and_hold_statics(robots, fleet_problem):
+    """The per-pose constants from one robot for all (rippled joints only) equal those of the broadcast
+    fleet with the full gear inversion to 1e-15 rad, and are the static equilibrium: `kappa(phi - q0) =
+    g(q0)` to 1e-8 N m (tangent stiffness <= 4e5 N m/rad x (2e-14 rad, the fixed point's error bound
+    `jaxrobot._statics.TOL`, + 7e-16 rad rounding of `phi - q`)), `phi = Xi^{-1}(theta)` from Xi."""
+    import jax
+
+    from identification._calibration_model import rippled_joints
+    from identification._fleet import _constants
+
+    nominal, _ = robots
+    theta = jnp.asarray(fleet_problem[0])
+    fleet = jax.tree.map(lambda x: jnp.broadcast_to(x, (3,) + jnp.shape(x)), nominal)
+    q_one, de_one = _constants(nominal, theta, rippled_joints(nominal))
+    q_all, de_all = _constants(fleet, theta, None)
+    np.testing.assert_allclose(q_one, q_all, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(de_one, de_all, rtol=0, atol=1e-15)
+    phi = q_one - de_one
+    assert float(jnp.max(jnp.abs(jr.motor_angle(nominal, phi) - theta))) < 1e-11
+    np.testing.assert_allclose(jr.elastic_torque(nominal, phi - q_one), jr.gravity_torque(nominal, q_one),
+                               rtol=0, atol=1e-8)
+
+
 def test_batched_lm_reports_failures(robots, fleet_problem):
     """NaN data (past the host check) stop as `non_finite`, never as converged; the solve compiled
     by `calibrate_fleet` (same shapes, shardings and statics)."""
@@ -415,7 +438,7 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
     sharding = NamedSharding(mesh, PartitionSpec("fleet"))
     fleet = jax.tree.map(lambda x: _to_global(np.broadcast_to(x, (3,) + np.shape(x)), sharding), nominal)
     params, g_theta, rippled = ParameterMap(DEFAULT_PARAMETERS), _to_global(theta, sharding), rippled_joints(nominal)
-    q0, defl = _fleet_constants(fleet, g_theta, mesh)
+    q0, defl = _fleet_constants(fleet, g_theta, rippled, mesh)
     out = _fleet_solve(fleet, params, g_theta, _to_global(pos, sharding), jnp.asarray(default_marker(), float), q0,
                        defl, 100, rippled, mesh)
     assert np.asarray(out["status"]).tolist() == [0, 2, 0]

@@ -59,6 +59,24 @@ def test_gear_inverse_is_exact_over_the_joint_ranges(ccw):
     assert float(jnp.max(jnp.abs(jr.motor_angle(ROBOT, phi, ccw) - theta))) < 1e-12
 
 
+@pytest.mark.parametrize("ccw", [False, True], ids=["cw", "ccw"])
+def test_gear_inverse_on_the_rippled_joints_only(ccw):
+    """`rippled=(0, 1, 2)` (the Racer-7's rippled gears; the wrist has none): Xi of the result is theta
+    to 1e-12 rad on every joint, the wrist is exactly theta / u0, and derivatives are 1/u(phi); also
+    for a fleet of robots (fields (R, 1, ...)) against poses (R, K, 6)."""
+    assert np.all(np.asarray(ROBOT.cw.orders)[3:] == 0) and np.all(np.asarray(ROBOT.ccw.orders)[3:] == 0)
+    rng = np.random.default_rng(11)
+    theta = jnp.asarray(rng.uniform(ROBOT.q_min, ROBOT.q_max, (4, 7, 6)) * np.asarray(ROBOT.u0))
+    fleet = jax.tree.map(lambda x: jnp.stack([x, x * (1 + 1e-4 * isinstance(x, jax.Array))] * 2)[:, None], TRUTH)
+    for robot in (ROBOT, TRUTH, fleet):
+        phi = jr.gear_output(robot, theta, ccw, rippled=(0, 1, 2))
+        assert float(jnp.max(jnp.abs(jr.motor_angle(robot, phi, ccw) - theta))) < 1e-12
+        np.testing.assert_array_equal(phi[..., 3:], theta[..., 3:] / jnp.broadcast_to(robot.u0, theta.shape)[..., 3:])
+    dphi = jax.vmap(lambda t: jnp.diag(jax.jacfwd(lambda s: jr.gear_output(ROBOT, s, ccw, (0, 1, 2)))(t)))(theta[0])
+    np.testing.assert_allclose(dphi, 1 / jr.gear_ratio(ROBOT, jr.gear_output(ROBOT, theta[0], ccw), ccw), rtol=1e-12)
+    np.testing.assert_allclose(jr.gear_output(ROBOT, theta, ccw, rippled=()), theta / ROBOT.u0, rtol=1e-15)
+
+
 def test_gear_ratio_is_the_derivative_of_xi_and_xi_of_zero_is_zero():
     phi = jnp.asarray(np.random.default_rng(3).uniform(-2, 2, (50, 6)))
     for ccw in (False, True):
