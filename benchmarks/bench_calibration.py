@@ -113,8 +113,8 @@ def main() -> None:
     f(x0, theta[0], meas.positions[0], de_0, q0_0).block_until_ready()
     jac(x0, theta[0], meas.positions[0], de_0, q0_0).block_until_ready()
     sp = {}
+    n_loop = n_sp
     for label, use_jac in (("scipy lm, jax Jacobian", True), ("scipy lm, finite differences", False)):
-        n_loop = n_sp
         times = []
         for _ in range(args.repeat if use_jac else 1):  # finite differences: slow, once
             vals, ok, t_c = [], [], 0.0

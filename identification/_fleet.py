@@ -112,7 +112,7 @@ def _constants(robots, theta, rippled):
     """Per-pose constants of the solve, from the initial robots (thesis 3.2.3): the joint angles at
     rest `q0` (R, K, 6) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, 6) (`rest_deflection`;
     XLA evaluates the gear inversion once for both). `robots`: a fleet (R, ...) or one robot for all
-    (then its fields are not broadcast over the poses: 2x faster); the gear inversion runs on the
+    (then its fields are not broadcast over the poses: ~2x faster); the gear inversion runs on the
     `rippled` joints only (the others are `theta / u0`)."""
     fleet = robots if robots.a.ndim == 1 else jax.tree.map(lambda f: f[:, None], robots)
     q0 = rest_link_angles(fleet, theta, rippled=rippled)
@@ -202,7 +202,7 @@ def calibrate_fleet(
     if 3 * k < len(params):
         raise ValueError(f"motor_angles: {k} poses per robot give {3 * k} equations for {len(params)} "
                          f"parameters; need at least {-(-len(params) // 3)} poses")
-    initial = robots  # one robot for all, or the fleet
+    initial = robots  # one robot for all (its constants need no copy per robot), or the fleet
     if np.ndim(robots.a) == 1:
         robots = jax.tree.map(lambda x: jnp.broadcast_to(x, (n_rob,) + jnp.shape(x)), robots)
     elif robots.a.shape[0] != n_rob:
@@ -217,10 +217,7 @@ def calibrate_fleet(
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     g_theta = _to_global(theta[take], sharding)
     rippled = rippled_joints(robots)
-    if np.ndim(initial.a) == 1:
-        q0, defl = _fleet_constants(jax.tree.map(jnp.asarray, initial), g_theta, rippled, mesh)
-    else:
-        q0, defl = _fleet_constants(g_robots, g_theta, rippled, mesh)
+    q0, defl = _fleet_constants(initial if np.ndim(initial.a) == 1 else g_robots, g_theta, rippled, mesh)
     out = _fleet_solve(g_robots, params, g_theta, _to_global(pos[take], sharding), marker, q0, defl, max_steps,
                        rippled, mesh)
     out = {key: _gather(v)[:n_rob] for key, v in out.items()}
