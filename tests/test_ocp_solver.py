@@ -173,6 +173,53 @@ def test_block_cholesky_flags_indefinite_matrix():
 # ----------------------------------------------------------------------------- AL solver
 
 
+LINEARISATION_RTOL = 1e-11
+"""Agreement of the structured linearisation with autodiff, relative to the largest entry: both are
+sums of O(1) terms in the scaled units, so they differ by roundoff (measured 4e-13 on the spiral)."""
+
+
+def test_structured_linearisation_matches_autodiff(robot, q_d):
+    """`half_step_vjp` and the Gauss-Newton blocks of the solver (from `half_step_jacobian`), which use the
+    structure of eq. 4.1, against forward-mode autodiff of `half_step_dynamics` and dense products."""
+    from planning._al_solver import _normal_blocks, _parts
+
+    problem = tr.ocp_problem(robot, q_d, TS, 1e-12, cost="jerk")
+    y0 = jnp.concatenate(jax.jit(tr.warm_start)(problem), -1) / tr.variable_scale(problem)
+    key = jax.random.split(jax.random.PRNGKey(6), 3)
+    y = y0 + 1e-2 * jax.random.normal(key[0], y0.shape)  # 10 µrad off the warm start
+    w = jax.random.normal(key[1], (N, 24))
+    close = lambda a, b: float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))) <= LINEARISATION_RTOL  # noqa: E731
+
+    jac = jax.jit(jax.vmap(jax.jacfwd(lambda p, yk: tr.half_step_dynamics(p, yk[None])[0], argnums=1),
+                           in_axes=(None, 0)))(problem, y)  # (N, 24, 30) by forward-mode autodiff
+    g, gw = jax.jit(lambda p, y, w: (lambda g, vjp: (g, vjp(w)))(*tr.half_step_vjp(p, y)))(problem, y, w)
+    assert close(g, jax.jit(tr.half_step_dynamics)(problem, y)) and close(gw, jnp.einsum("kij,ki->kj", jac, w))
+
+    p = jax.jit(_parts)(problem, y0)
+    gam = jax.random.normal(key[2], (N, 30))
+    rho, mu = 3e6, 1e-3
+    diag, lower = jax.jit(_normal_blocks)(p, y - y0, gam, rho, mu)
+    ja, jb = -jnp.eye(24, 30) - jac[:-1], jnp.eye(24, 30) - jac[1:]  # d c_k / d y_k, d c_k / d y_{k+1}
+    big = np.zeros((30 * N, 30 * N))
+    for k in range(N - 1):
+        rows = np.zeros((24, 30 * N))
+        rows[:, 30 * k:30 * k + 30], rows[:, 30 * k + 30:30 * k + 60] = ja[k], jb[k]
+        big += rho * rows.T @ rows
+    edge = np.zeros((30 * N, 30 * N))  # jerk cost: sum_k e (y_{k+1} - y_k)^2
+    for k in range(N - 1):
+        d = np.zeros((30, 30 * N))
+        d[:, 30 * k:30 * k + 30], d[:, 30 * k + 30:30 * k + 60] = -np.eye(30), np.eye(30)
+        edge += 2 * d.T @ np.diag(np.asarray(p.edge)) @ d
+    v = (y - y0) + gam / rho
+    active = rho * (v != jnp.clip(v, p.lower, p.upper))
+    big += edge + np.diag(np.ravel(2 * p.weight + active + mu))
+    free = np.ravel(np.asarray(p.free)).astype(bool)
+    big = np.where(np.outer(free, free), big, 0.0) + np.diag(~free)
+    assert close(diag, jnp.stack([big[30 * k:30 * k + 30, 30 * k:30 * k + 30] for k in range(N)]))
+    assert close(lower, jnp.stack([big[30 * k + 30:30 * k + 60, 30 * k:30 * k + 30] for k in range(N - 1)]))
+
+
+
 def test_solution_converges_and_satisfies_constraints(robot, q_d, solution):
     assert bool(solution.converged), pl.RESULTS[solution.status]
     assert int(solution.status) == pl.RESULTS.successful
