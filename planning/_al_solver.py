@@ -211,29 +211,30 @@ def _normal_blocks(p: _Parts, y, gam, rho, mu) -> tuple[Float[Array, "N 30 30"],
     `K_b = E - S`, `E = [I 0]`, `S = HALF_STEP_SHIFT`, `P_k` the 6x18 block of `half_step_jacobian` in
     rows 6:12): the cross terms of `P` with `K_a` and `K_b` cancel on interior diagonal blocks, which
     are `K_a^T K_a + K_b^T K_b + 2 P_k^T P_k`, and the sub-diagonal block is
-    `K_b^T K_a - [P_k]_(6:12, 0:18) + [P_{k+1}^T]_(0:18, 6:12) + P_{k+1}^T P_k`; 16x fewer flops
-    than the products of the 24x30 blocks."""
+    `K_b^T K_a - [P_k]_(6:12, 0:18) + [P_{k+1}^T]_(0:18, 6:12) + P_{k+1}^T P_k`: 17x fewer flops
+    than products of the 24x30 blocks."""
     n = y.shape[0]
     _, pk = half_step_jacobian(p.problem, p.y0 + y)
     e = np.eye(24, 30)
     ka, kb = -e - HALF_STEP_SHIFT, e - HALF_STEP_SHIFT
-    first, last = np.arange(n) < n - 1, np.arange(n) > 0  # node k has c_k, c_{k-1}
-    const = first[:, None, None] * (ka.T @ ka) + last[:, None, None] * (kb.T @ kb)
-    sign = (first.astype(float) - last)[:, None, None]  # the cross terms cancel inside
-    ptp = jnp.einsum("kri,krj->kij", pk, pk) * (first.astype(float) + last)[:, None, None]
-    diag = jnp.asarray(const).at[:, :18, :18].add(ptp)
-    diag = diag.at[:, 6:12, :18].add(sign * pk).at[:, :18, 6:12].add(sign * jnp.swapaxes(pk, 1, 2))
-    lower = jnp.broadcast_to(kb.T @ ka, (n - 1, 30, 30)).at[:, :18, :18].add(
-        jnp.einsum("kri,krj->kij", pk[1:], pk[:-1]))
-    lower = lower.at[:, 6:12, :18].add(-pk[:-1]).at[:, :18, 6:12].add(jnp.swapaxes(pk[1:], 1, 2))
+    k = np.arange(n)[:, None, None]
+    first, last = (k < n - 1) * 1.0, (k > 0) * 1.0  # node k enters c_k, c_{k-1}
+    place = lambda a, r, c: jnp.pad(a, ((0, 0), (r, 30 - r - a.shape[1]), (c, 30 - c - a.shape[2])))  # noqa: E731
+    pkt = jnp.swapaxes(pk, 1, 2)
+    ptp = jnp.einsum("kri,krj->kij", pk, pk)
+    # the cross terms of P with K_a and K_b cancel on interior nodes
+    diag = (first * (ka.T @ ka) + last * (kb.T @ kb) + (first + last) * place(ptp, 0, 0)
+            + (first - last) * (place(pk, 6, 0) + place(pkt, 0, 6)))
+    lower = (kb.T @ ka + place(jnp.einsum("kri,krj->kij", pk[1:], pk[:-1]), 0, 0)
+             - place(pk[:-1], 6, 0) + place(pkt[1:], 0, 6))
     lower = rho * lower - jnp.eye(30) * 2 * p.edge
     hdiag = jnp.broadcast_to(2 * p.weight, (n, 30))
     hdiag = hdiag.at[:-1].add(2 * p.edge).at[1:].add(2 * p.edge)
     v = y + gam / rho
     hdiag = hdiag + rho * (v != jnp.clip(v, p.lower, p.upper)) + mu
-    diag = rho * diag + jax.vmap(jnp.diag)(hdiag)
+    eye = jnp.eye(30)
     f = p.free
-    diag = f[:, :, None] * diag * f[:, None, :] + jax.vmap(jnp.diag)(1.0 - f)
+    diag = f[:, :, None] * (rho * diag + hdiag[:, :, None] * eye) * f[:, None, :] + (1.0 - f)[:, :, None] * eye
     lower = f[1:, :, None] * lower * f[:-1, None, :]
     return diag, lower
 
