@@ -262,11 +262,13 @@ def write_markdown(out: Path, rows, sweep, machine, device, notes) -> None:
                 lines.append(f"| {row['task']} | {row['nu']:.0e} | {i['wall_s'] / o['wall_s']:.1f}x | {rel:.1e} |")
     if sweep is not None:
         mean = sweep["singles_total_s"] / sweep["n"]
-        lines += ["", f"nu sweep (line, {sweep['n']} values 1e-15..1e-9, one vmapped call): {sweep['batched_s']:.2f} s, "
+        lines += ["", f"nu sweep (line, {sweep['n']} values 1e-15..1e-9, one vmapped call): "
+                  f"{sweep['batched_s']:.2f} s, "
                   f"{sweep['converged']}/{sweep['n']} converged, {sweep['iterations']} outer iterations in all "
                   f"(continuation in increasing nu); compile {sweep['compile_s']:.1f} s. The same {sweep['n']} "
                   f"problems solved separately: {sweep['singles_total_s']:.2f} s, {sweep['separate_iterations']} "
-                  f"outer iterations (mean {mean:.2f} s per solve; nu = 1e-15, the fastest: {sweep['single_s']:.2f} s). "
+                  f"outer iterations (mean {mean:.2f} s per solve; nu = 1e-15, the fastest: "
+                  f"{sweep['single_s']:.2f} s). "
                   f"Ratio of the sweep to one solve: {sweep['batched_s'] / sweep['single_s']:.1f}x the fastest, "
                   f"{sweep['batched_s'] / mean:.1f}x the mean; {sweep['singles_total_s'] / sweep['batched_s']:.2f}x "
                   f"faster than the loop of separate solves."]

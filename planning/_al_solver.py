@@ -20,9 +20,9 @@ each inner solve, which ends only at an accepted step, the multipliers are updat
 (`lam += rho c`, `gam = rho (v - P(v))`) and `rho` grows when the violation did not fall by
 `violation_decrease` (updating them from a rejected iterate repeats the same `rho c` and drives
 the multipliers away: the spiral at nu = 1e-10 failed that way). `rho` starts in proportion to
-the control weight (`penalty_per_weight`). A multiplier update and the LM step after it share one
-linearisation of the defects (one forward pass through the dynamics, a reverse pass for each set
-of multipliers): 15-21 % less time per solve on the reference tasks than a fresh gradient.
+the control weight (`penalty_per_weight`). One forward pass through the dynamics (`half_step`) per
+trial point serves its merit and, once the step is accepted, the multiplier update, the gradient
+and the Gauss-Newton matrix there (reverse passes through Newton-Euler for each set of multipliers).
 Stops when the largest scaled violation and the largest scaled gradient of the Lagrangian
 (stationarity) are below their tolerances.
 
@@ -45,10 +45,11 @@ from ._block_tridiagonal import BlockCholesky, block_cholesky, block_cholesky_so
 from ._transcription import (
     ANGLE_SCALE,
     HALF_STEP_SHIFT,
+    HalfStep,
     OCPProblem,
     bounds,
     fixed_mask,
-    half_step_dynamics,
+    half_step,
     half_step_jacobian,
     half_step_vjp,
     scaled_cost,
@@ -143,7 +144,7 @@ class _Parts(eqx.Module):
     upper: Float[Array, "N 30"]
     free: Float[Array, "N 30"]
     y0: Float[Array, "N 30"]
-    g0: Float[Array, "N 24"]
+    start: HalfStep
     c0: Float[Array, "Nm1 24"]
 
 
@@ -154,10 +155,10 @@ def _parts(problem: OCPProblem, y0) -> _Parts:
     fixed = fixed_mask(problem)
     lower = jnp.where(fixed, -jnp.inf, lo / sz)
     upper = jnp.where(fixed, jnp.inf, hi / sz)
-    g0 = half_step_dynamics(problem, y0)
-    c0 = y0[1:, :24] - y0[:-1, :24] - g0[1:] - g0[:-1]
+    start = half_step(problem, y0)
+    c0 = y0[1:, :24] - y0[:-1, :24] - start.g[1:] - start.g[:-1]
     return _Parts(problem, cost.node_weight, cost.node_target - y0, cost.edge_weight, lower - y0, upper - y0,
-                  (~fixed).astype(float), y0, g0, c0)
+                  (~fixed).astype(float), y0, start, c0)
 
 
 def _cost(p: _Parts, y):
@@ -165,17 +166,19 @@ def _cost(p: _Parts, y):
     return jnp.sum(p.weight * (y - p.target) ** 2) + jnp.sum(p.edge * d**2)
 
 
-def _defects(p: _Parts, y, g=None):
-    """Scaled defects at `y0 + y`, accumulated from those of `y0` so that roundoff scales with
-    the correction `y`, not with the angles (it would cap the reachable stationarity at `rho eps`)."""
-    dg = (half_step_dynamics(p.problem, p.y0 + y) if g is None else g) - p.g0
+def _defects(p: _Parts, y, g):
+    """Scaled defects at `y0 + y` (`g` its `half_step(...).g`), accumulated from those of `y0` so
+    that roundoff scales with the correction `y`, not with the angles (it would cap the reachable
+    stationarity at `rho eps`)."""
+    dg = g - p.start.g
     return p.c0 + (y[1:, :24] - y[:-1, :24]) - dg[1:] - dg[:-1]
 
 
-def _linearise(p: _Parts, y):
-    """Defects at `y` and the map `v -> (dc/dy)^T v` (structured reverse pass, `half_step_vjp`)."""
-    g, g_vjp = half_step_vjp(p.problem, p.y0 + y)
-    c = _defects(p, y, g)
+def _linearise(p: _Parts, y, h: HalfStep):
+    """Defects at `y` and the map `v -> (dc/dy)^T v` (structured reverse pass, `half_step_vjp`),
+    from `h = half_step` at `y0 + y`, which the step that was accepted has already evaluated."""
+    g_vjp = half_step_vjp(p.problem, h)
+    c = _defects(p, y, h.g)
 
     def vjp(v):
         w = jnp.concatenate([v, jnp.zeros((1, 24))]) + jnp.concatenate([jnp.zeros((1, 24)), v])
@@ -201,9 +204,12 @@ def _gradient(p: _Parts, y, c, vjp, lam, gam, rho):
     return grad * p.free
 
 
-def _normal_blocks(p: _Parts, y, gam, rho, mu) -> tuple[Float[Array, "N 30 30"], Float[Array, "Nm1 30 30"]]:
-    """Diagonal and sub-diagonal blocks of the Gauss-Newton matrix of `Phi` plus `mu I`, fixed
-    variables replaced by identity rows. The exact defect Jacobian is needed: dropping the
+def _normal_blocks(
+    p: _Parts, y, h: HalfStep, gam, rho, mu
+) -> tuple[Float[Array, "N 30 30"], Float[Array, "Nm1 30 30"]]:
+    """Diagonal and sub-diagonal blocks of the Gauss-Newton matrix of `Phi` plus `mu I` at `y` (`h`:
+    `half_step` there), fixed variables replaced by identity rows. The exact defect Jacobian is
+    needed: dropping the
     gravity/Coriolis/inertia derivatives (~1e-3 of the stiffness terms) slows the iteration from
     ~100x to ~2x per step at nu = 1e-14 (the conditioning amplifies the error).
 
@@ -214,7 +220,7 @@ def _normal_blocks(p: _Parts, y, gam, rho, mu) -> tuple[Float[Array, "N 30 30"],
     `K_b^T K_a - [P_k]_(6:12, 0:18) + [P_{k+1}^T]_(0:18, 6:12) + P_{k+1}^T P_k`: 17x fewer flops
     than products of the 24x30 blocks."""
     n = y.shape[0]
-    _, pk = half_step_jacobian(p.problem, p.y0 + y)
+    pk = half_step_jacobian(p.problem, h)
     e = np.eye(24, 30)
     ka, kb = -e - HALF_STEP_SHIFT, e - HALF_STEP_SHIFT
     k = np.arange(n)[:, None, None]
@@ -239,9 +245,9 @@ def _normal_blocks(p: _Parts, y, gam, rho, mu) -> tuple[Float[Array, "N 30 30"],
     return diag, lower
 
 
-def _normal_matrix(p: _Parts, y, gam, rho, mu) -> BlockCholesky:
-    """Factor of the Gauss-Newton matrix of `Phi` plus `mu I` (`_normal_blocks`)."""
-    return block_cholesky(*_normal_blocks(p, y, gam, rho, mu))
+def _normal_matrix(p: _Parts, y, h: HalfStep, gam, rho, mu) -> BlockCholesky:
+    """Factor of the Gauss-Newton matrix of `Phi` plus `mu I` at `y` (`_normal_blocks`)."""
+    return block_cholesky(*_normal_blocks(p, y, h, gam, rho, mu))
 
 
 def _merit_from(p: _Parts, y, c, lam, gam, rho):
@@ -270,6 +276,8 @@ class _State(eqx.Module):
     factor_key: Float[Array, "2"]
     factor_age: Int[Array, ""]
     accepted: Bool[Array, ""]
+    forward: HalfStep
+    """`half_step` at `y0 + y`."""
 
 
 def history_length(config: ALConfig) -> int:
@@ -425,10 +433,13 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 30"], config:
     def lm_step(s: _State, c_y, grad) -> _State:
         key = jnp.stack([s.rho, s.mu])
         fresh = jnp.any(key != s.factor_key) | (s.factor_age >= config.refresh_every)
-        factor = jax.lax.cond(fresh, lambda: _normal_matrix(p, s.y, s.gam, s.rho, s.mu), lambda: s.factor)
+        factor = jax.lax.cond(fresh, lambda: _normal_matrix(p, s.y, s.forward, s.gam, s.rho, s.mu),
+                              lambda: s.factor)
         dy = -block_cholesky_solve(factor, grad)
         phi = _merit_from(p, s.y, c_y, s.lam, s.gam, s.rho)
-        phi_new = _merit_from(p, s.y + dy, _defects(p, s.y + dy), s.lam, s.gam, s.rho)
+        y_try = s.y + dy
+        h_new = half_step(p.problem, p.y0 + y_try)
+        phi_new = _merit_from(p, y_try, _defects(p, y_try, h_new.g), s.lam, s.gam, s.rho)
         predicted = 0.5 * (-jnp.sum(grad * dy) + s.mu * jnp.sum(dy**2))
         actual = phi - phi_new
         noise = 1e-13 * (jnp.abs(phi) + 1.0)  # merit differences at roundoff: take the GN step
@@ -437,15 +448,17 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 30"], config:
         good = accept & ((actual >= config.good_ratio * predicted) | (jnp.abs(actual) <= noise))
         # a rejected step from a reused factor is retried with a fresh one at the same damping
         retry = ~accept & ~fresh
-        y = jnp.where(accept, s.y + dy, s.y)
+        y = jnp.where(accept, y_try, s.y)
+        forward = jax.tree.map(lambda new, old: jnp.where(accept, new, old), h_new, s.forward)
         mu_down = jnp.maximum(s.mu / config.damping_down, config.damping_init)
         mu = jnp.where(good, mu_down, jnp.where(accept | retry, s.mu, s.mu * config.damping_up))
         failed = mu > config.damping_max
         status = jnp.where(failed, STATUS_INNER_FAILED, s.status)
         age = jnp.where(retry, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))
         return eqx.tree_at(
-            lambda t: (t.y, t.mu, t.inner, t.steps, t.status, t.stop, t.factor, t.factor_key, t.factor_age, t.accepted),
-            s, (y, mu, s.inner + 1, s.steps + 1, status, failed, factor, key, age, accept))
+            lambda t: (t.y, t.mu, t.inner, t.steps, t.status, t.stop, t.factor, t.factor_key, t.factor_age, t.accepted,
+                       t.forward),
+            s, (y, mu, s.inner + 1, s.steps + 1, status, failed, factor, key, age, accept, forward))
 
     def inner_done(s: _State, grad):
         # the multipliers move only from an iterate the inner solve accepted (never after a rejection)
@@ -453,7 +466,7 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 30"], config:
 
     def body(s: _State) -> _State:
         # one linearisation at `y` serves the multiplier update and the LM step that follows it
-        c_y, vjp = _linearise(p, s.y)
+        c_y, vjp = _linearise(p, s.y, s.forward)
         grad = _gradient(p, s.y, c_y, vjp, s.lam, s.gam, s.rho)
 
         def update(s):
@@ -475,8 +488,8 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 30"], config:
         status=jnp.array(STATUS_MAX_ITERATIONS), stop=jnp.array(False), hist=jnp.full((4, m), jnp.nan),
         # placeholder factor; the NaN key makes the first step factorise (one copy of the
         # Jacobian code in the program: compile time)
-        factor=BlockCholesky(jnp.zeros((n, 30, 30)), jnp.zeros((n - 1, 30, 30))), factor_key=jnp.full(2, jnp.nan),
-        factor_age=jnp.array(0), accepted=jnp.array(True),
+        factor=BlockCholesky(jnp.zeros((n, 30, 30)), *2 * [jnp.zeros((n - 1, 30, 30))]),
+        factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), forward=p.start,
     )
     s = jax.lax.while_loop(lambda s: ~s.stop, body, init)
     return ALResult(

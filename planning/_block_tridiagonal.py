@@ -5,6 +5,13 @@ The matrix has diagonal blocks `A_k` (N, n, n) and sub-diagonal blocks `B_k = M[
 (N-1, n, n). The factor `M = L L^T` is lower block-bidiagonal: diagonal Cholesky factors
 `L_k` and sub-diagonal blocks `C_k = B_k L_k^{-T}` with `L_{k+1} L_{k+1}^T = A_{k+1} - C_k C_k^T`
 (the Riccati recursion of the normal equations). Cost O(N n^3), memory O(N n^2).
+
+The factor is stored as `W_k = L_k^{-1}`, `F_k = W_{k+1} C_k` and `E_k = C_k W_k`, so that the
+substitutions `y_{k+1} = W_{k+1} b_{k+1} - F_k y_k` and `x_k = W_k^T y_k - E_k^T x_{k+1}` take one
+matrix-vector product per sequential step, the products with `W` being batched over all
+nodes. On the CPU a scan step costs its call overheads more than its flops: for N = 2501,
+n = 30 the solve takes 7 ms instead of 28 ms with two triangular solves per step, the factor
+~70 ms instead of 41 ms (the AL solver takes several solves per factor).
 """
 
 from __future__ import annotations
@@ -17,56 +24,62 @@ from jaxtyping import Array, Bool, Float
 
 
 class BlockCholesky(eqx.Module):
-    """Factor `M = L L^T` of a block-tridiagonal SPD matrix."""
+    """Factor `M = L L^T` of a block-tridiagonal SPD matrix (module docstring)."""
 
-    diag: Float[Array, "N n n"]
-    """Lower-triangular Cholesky factors `L_k` of the Schur complements."""
-    lower: Float[Array, "Nm1 n n"]
-    """Sub-diagonal blocks `C_k` of `L`."""
+    inverse: Float[Array, "N n n"]
+    """`W_k = L_k^{-1}`, inverses of the lower-triangular Cholesky factors of the Schur complements."""
+    forward: Float[Array, "Nm1 n n"]
+    """`F_k = W_{k+1} C_k` (forward substitution)."""
+    backward: Float[Array, "Nm1 n n"]
+    """`E_k = C_k W_k` (backward substitution)."""
 
     @property
     def positive_definite(self) -> Bool[Array, ""]:
         """True when every Schur complement had a Cholesky factor (finite, positive pivots)."""
-        d = jnp.diagonal(self.diag, axis1=-2, axis2=-1)
-        return jnp.all(jnp.isfinite(self.diag)) & jnp.all(d > 0)
+        d = jnp.diagonal(self.inverse, axis1=-2, axis2=-1)
+        return jnp.all(jnp.isfinite(self.inverse)) & jnp.all(d > 0)
 
 
 def block_cholesky(diag: Float[Array, "N n n"], lower: Float[Array, "Nm1 n n"]) -> BlockCholesky:
     """Factorise the SPD block-tridiagonal matrix with diagonal blocks `diag` and sub-diagonal
     blocks `lower[k] = M[k+1, k]`. A matrix that is not SPD gives NaN blocks (check
     `BlockCholesky.positive_definite`)."""
-    l0 = jnp.linalg.cholesky(diag[0])
+    eye = jnp.eye(diag.shape[-1])
 
-    def step(l_k, x):
+    def inverse_factor(a):
+        return solve_triangular(jnp.linalg.cholesky(a), eye, lower=True)
+
+    w0 = inverse_factor(diag[0])
+
+    def step(w_k, x):
         b_k, a_next = x
-        c_k = solve_triangular(l_k, b_k.T, lower=True).T  # B_k L_k^{-T}
-        l_next = jnp.linalg.cholesky(a_next - c_k @ c_k.T)
-        return l_next, (l_next, c_k)
+        c_k = b_k @ w_k.T  # B_k L_k^{-T}
+        w_next = inverse_factor(a_next - c_k @ c_k.T)
+        return w_next, (w_next, w_next @ c_k, c_k @ w_k)
 
-    _, (ls, cs) = jax.lax.scan(step, l0, (lower, diag[1:]))
-    return BlockCholesky(diag=jnp.concatenate([l0[None], ls]), lower=cs)
+    _, (ws, fs, es) = jax.lax.scan(step, w0, (lower, diag[1:]))
+    return BlockCholesky(inverse=jnp.concatenate([w0[None], ws]), forward=fs, backward=es)
 
 
 def block_cholesky_solve(factor: BlockCholesky, rhs: Float[Array, "N n"]) -> Float[Array, "N n"]:
     """Solve `L L^T x = rhs` by a forward and a backward block substitution."""
-    y0 = solve_triangular(factor.diag[0], rhs[0], lower=True)
+    h = jnp.einsum("kij,kj->ki", factor.inverse, rhs)
 
     def forward(y_k, x):
-        c_k, l_next, b_next = x
-        y_next = solve_triangular(l_next, b_next - c_k @ y_k, lower=True)
+        f_k, h_next = x
+        y_next = h_next - f_k @ y_k
         return y_next, y_next
 
-    _, ys = jax.lax.scan(forward, y0, (factor.lower, factor.diag[1:], rhs[1:]))
-    y = jnp.concatenate([y0[None], ys])
-    x_last = solve_triangular(factor.diag[-1], y[-1], lower=True, trans="T")
+    _, ys = jax.lax.scan(forward, h[0], (factor.forward, h[1:]))
+    g = jnp.einsum("kji,kj->ki", factor.inverse, jnp.concatenate([h[:1], ys]))
 
     def backward(x_next, x):
-        c_k, l_k, y_k = x
-        x_k = solve_triangular(l_k, y_k - c_k.T @ x_next, lower=True, trans="T")
+        e_k, g_k = x
+        x_k = g_k - e_k.T @ x_next
         return x_k, x_k
 
-    _, xs = jax.lax.scan(backward, x_last, (factor.lower, factor.diag[:-1], y[:-1]), reverse=True)
-    return jnp.concatenate([xs, x_last[None]])
+    _, xs = jax.lax.scan(backward, g[-1], (factor.backward, g[:-1]), reverse=True)
+    return jnp.concatenate([xs, g[-1:]])
 
 
 def block_tridiagonal_solve(

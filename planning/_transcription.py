@@ -234,45 +234,53 @@ def _link_acceleration(robot: jr.Robot, q, qd, phi, d) -> Float[Array, "N 6"]:
     return jr.spd_solve(d, rhs[..., None])[..., 0]
 
 
-def half_step_dynamics(problem: OCPProblem, y: Float[Array, "*n 30"]) -> Float[Array, "*n 24"]:
+class HalfStep(eqx.Module):
+    """`g = T_s/2 f(x, u)` (scaled) at the scaled nodes `y`, with the intermediates that its
+    derivatives reuse (`half_step_vjp`)."""
+
+    y: Float[Array, "*n 30"]
+    g: Float[Array, "*n 24"]
+    phi: Float[Array, "*n 6"]
+    """Gear output angles `Xi^-1(theta)` [rad]."""
+    mass: Float[Array, "*n 6 6"]
+    qdd: Float[Array, "*n 6"]
+
+
+def half_step(problem: OCPProblem, y: Float[Array, "*n 30"]) -> HalfStep:
     """`T_s/2 f(x, u)` in scaled units, so that a scaled defect is
     `[I 0](y_{k+1} - y_k) - g_k - g_{k+1}` (`f` of `jr.planning_dynamics`, LAPACK-free)."""
     r = problem.robot
     sz = variable_scale(problem)
     z = y * sz
     q, qd, theta = z[..., :6], z[..., 6:12], z[..., 12:18]
-    qdd = _link_acceleration(r, q, qd, jr.gear_output(r, theta), jr.mass_matrix(r, q))
+    phi, d = jr.gear_output(r, theta), jr.mass_matrix(r, q)
+    qdd = _link_acceleration(r, q, qd, phi, d)
     f = jnp.concatenate([qd, qdd, z[..., 18:24], z[..., 24:]], -1)
-    return 0.5 * problem.ts * f / sz[:24]
+    return HalfStep(y=y, g=0.5 * problem.ts * f / sz[:24], phi=phi, mass=d, qdd=qdd)
 
 
-def half_step_vjp(
-    problem: OCPProblem, y: Float[Array, "N 30"]
-) -> tuple[Float[Array, "N 24"], Callable[[Float[Array, "N 24"]], Float[Array, "N 30"]]]:
-    """`g_k` of `half_step_dynamics` and the map `w -> (d g_k / d y_k)^T w_k` from the structure of
+def half_step_vjp(problem: OCPProblem, h: HalfStep) -> Callable[[Float[Array, "N 24"]], Float[Array, "N 30"]]:
+    """The map `w -> (d g_k / d y_k)^T w_k` at `h = half_step(problem, y)`, from the structure of
     eq. 4.1 (as `half_step_jacobian`): with `s = D^{-1} w_qdd`,
     `(dqdd/dq)^T w_qdd = -(dID/dq)^T s - kappa' s`, `(dqdd/dqd)^T w_qdd = -(dID/dqd)^T s`,
     `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; `(dID/d(q, qd))^T s` is one reverse pass through
-    Newton-Euler alone (~7x cheaper than reversing the mass matrix, its solve and `Xi^-1` too)."""
+    Newton-Euler alone (4.8x faster than reversing the mass matrix, its solve and `Xi^-1` too)."""
     r = problem.robot
     sz = variable_scale(problem)
-    z = y * sz
-    q, qd, theta = z[:, :6], z[:, 6:12], z[:, 12:18]
-    phi = jr.gear_output(r, theta)
-    d = jr.mass_matrix(r, q)
-    qdd = _link_acceleration(r, q, qd, phi, d)
+    z = h.y * sz
+    q, qd = z[:, :6], z[:, 6:12]
     half = 0.5 * problem.ts / sz[:24]
 
     def vjp(w):
         wf = half * w  # cotangent of f = [qd, qdd, thetad, u]
-        s = jr.spd_solve(d, wf[:, 6:12, None])[..., 0]
-        _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, qdd), q, qd)
+        s = jr.spd_solve(h.mass, wf[:, 6:12, None])[..., 0]
+        _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, h.qdd), q, qd)
         id_q, id_qd = id_vjp(s)
-        stiff = (r.k1 + 3.0 * r.k3 * (phi - q) ** 2) * s
-        out = jnp.concatenate([-id_q - stiff, wf[:, :6] - id_qd, stiff / jr.gear_ratio(r, phi), wf[:, 12:]], -1)
+        stiff = (r.k1 + 3.0 * r.k3 * (h.phi - q) ** 2) * s
+        out = jnp.concatenate([-id_q - stiff, wf[:, :6] - id_qd, stiff / jr.gear_ratio(r, h.phi), wf[:, 12:]], -1)
         return out * sz
 
-    return half * jnp.concatenate([qd, qdd, z[:, 18:24], z[:, 24:]], -1), vjp
+    return vjp
 
 
 HALF_STEP_SHIFT = 0.5 * np.eye(24, 30, 6) * (np.arange(24) // 6 != 1)[:, None]
@@ -280,10 +288,8 @@ HALF_STEP_SHIFT = 0.5 * np.eye(24, 30, 6) * (np.arange(24) // 6 != 1)[:, None]
 rows `q' = qd`, `theta' = thetad`, `thetad' = u` is exactly 1/2 on the shifted identity (24, 30)."""
 
 
-def half_step_jacobian(
-    problem: OCPProblem, y: Float[Array, "N 30"]
-) -> tuple[Float[Array, "N 24"], Float[Array, "N 6 18"]]:
-    """`g_k` of `half_step_dynamics` and the only state-dependent block of its Jacobian,
+def half_step_jacobian(problem: OCPProblem, h: HalfStep) -> Float[Array, "N 6 18"]:
+    """The only state-dependent block of the Jacobian of `g` at `h = half_step(problem, y)`,
     `p_k = d g_k[qd rows] / d y_k[q, qd, theta]` (scaled); `d g_k / d y_k` is `HALF_STEP_SHIFT` with
     `p_k` in rows 6:12, columns 0:18.
 
@@ -294,21 +300,16 @@ def half_step_jacobian(
     """
     r = problem.robot
     sz = variable_scale(problem)
-    z = y * sz
-    q, qd, theta = z[:, :6], z[:, 6:12], z[:, 12:18]
-    phi = jr.gear_output(r, theta)
-    d = jr.mass_matrix(r, q)
-    qdd = _link_acceleration(r, q, qd, phi, d)
-    stiff = r.k1 + 3.0 * r.k3 * (phi - q) ** 2
-    _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, qdd), q, qd)
+    z = h.y * sz
+    q, qd = z[:, :6], z[:, 6:12]
+    stiff = r.k1 + 3.0 * r.k3 * (h.phi - q) ** 2
+    _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, h.qdd), q, qd)
     rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(6)[:, None, :], (6, *q.shape)))  # row i of dID
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
     rhs = jnp.concatenate([-(id_q + jax.vmap(jnp.diag)(stiff)), -id_qd,
-                           jax.vmap(jnp.diag)(stiff / jr.gear_ratio(r, phi))], -1)
-    dqdd = jr.spd_solve(d, rhs)  # (N, 6, 18): d qdd / d (q, qd, theta)
-    f = jnp.concatenate([qd, qdd, z[:, 18:24], z[:, 24:]], -1)
-    half = 0.5 * problem.ts / sz[:24]
-    return half * f, half[6:12, None] * dqdd * sz[:18]
+                           jax.vmap(jnp.diag)(stiff / jr.gear_ratio(r, h.phi))], -1)
+    dqdd = jr.spd_solve(h.mass, rhs)  # (N, 6, 18): d qdd / d (q, qd, theta)
+    return (0.5 * problem.ts / sz[6:12, None]) * dqdd * sz[:18]
 
 
 def fixed_mask(problem: OCPProblem) -> Bool[Array, "N 30"]:

@@ -179,8 +179,9 @@ sums of O(1) terms in the scaled units, so they differ by roundoff (measured 4e-
 
 
 def test_structured_linearisation_matches_autodiff(robot, q_d):
-    """`half_step_vjp` and the Gauss-Newton blocks of the solver (from `half_step_jacobian`), which use the
-    structure of eq. 4.1, against forward-mode autodiff of `half_step_dynamics` and dense products."""
+    """`half_step`, `half_step_vjp` and the Gauss-Newton blocks of the solver (from `half_step_jacobian`),
+    which use the structure of eq. 4.1, against forward-mode autodiff of the public
+    `jr.planning_dynamics` and dense products."""
     from planning._al_solver import _normal_blocks, _parts
 
     problem = tr.ocp_problem(robot, q_d, TS, 1e-12, cost="jerk")
@@ -190,15 +191,20 @@ def test_structured_linearisation_matches_autodiff(robot, q_d):
     w = jax.random.normal(key[1], (N, 24))
     close = lambda a, b: float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))) <= LINEARISATION_RTOL  # noqa: E731
 
-    jac = jax.jit(jax.vmap(jax.jacfwd(lambda p, yk: tr.half_step_dynamics(p, yk[None])[0], argnums=1),
-                           in_axes=(None, 0)))(problem, y)  # (N, 24, 30) by forward-mode autodiff
-    g, gw = jax.jit(lambda p, y, w: (lambda g, vjp: (g, vjp(w)))(*tr.half_step_vjp(p, y)))(problem, y, w)
-    assert close(g, jax.jit(tr.half_step_dynamics)(problem, y)) and close(gw, jnp.einsum("kij,ki->kj", jac, w))
+    node_f = lambda p, yk: jr.planning_dynamics(p.robot, yk[:24] * tr.variable_scale(p)[:24],  # noqa: E731
+                                                yk[24:] * tr.variable_scale(p)[24:])
+    f, jac = jax.jit(jax.vmap(lambda p, yk: (node_f(p, yk), jax.jacfwd(node_f, argnums=1)(p, yk)),
+                              in_axes=(None, 0)))(problem, y)  # f (N, 24), df/dy (N, 24, 30): forward-mode
+    half = 0.5 * TS / tr.variable_scale(problem)[:24]  # g = T_s/2 f in the scaled units
+    jac = half[:, None] * jac
+    h = jax.jit(tr.half_step)(problem, y)
+    gw = jax.jit(lambda p, h, w: tr.half_step_vjp(p, h)(w))(problem, h, w)
+    assert close(h.g, half * f) and close(gw, jnp.einsum("kij,ki->kj", jac, w))
 
     p = jax.jit(_parts)(problem, y0)
     gam = jax.random.normal(key[2], (N, 30))
     rho, mu = 3e6, 1e-3
-    diag, lower = jax.jit(_normal_blocks)(p, y - y0, gam, rho, mu)
+    diag, lower = jax.jit(_normal_blocks)(p, y - y0, h, gam, rho, mu)
     ja, jb = -jnp.eye(24, 30) - jac[:-1], jnp.eye(24, 30) - jac[1:]  # d c_k / d y_k, d c_k / d y_{k+1}
     big = np.zeros((30 * N, 30 * N))
     for k in range(N - 1):
