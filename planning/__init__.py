@@ -29,6 +29,7 @@ from ._ik import taylor_joint_path as taylor_joint_path
 from ._ocp import RESULTS as RESULTS
 from ._ocp import OCPSolution as OCPSolution
 from ._ocp import solve_ocp as solve_ocp
+from ._sweep import solve_ocp_sweep as solve_ocp_sweep
 from ._trajectories import Path as Path
 from ._trajectories import line_path as line_path
 from ._trajectories import path_derivatives as path_derivatives

@@ -17,8 +17,9 @@ from ._bandwidth import bandwidth, control_spectrum
 from ._cli_plan import COSTS, task_path
 from ._evaluation import baseline_trajectories, ocp_motor_trajectory, simulate_plans, summarize
 from ._ik import joint_path
+from ._sweep import solve_ocp_sweep
 
-HELP = "sweep the weighting factor nu (one vmapped OCP call per cost variant): table, plots, Pareto front"
+HELP = "sweep the weighting factor nu (one OCP sweep call per cost variant): table, plots, Pareto front"
 DEFAULT_NUS = tuple(float(v) for v in np.logspace(-16, -9, 8))
 
 
@@ -32,10 +33,9 @@ def configure(parser) -> None:
 
 
 def sweep(robot, plant, path, nus, costs, echo, directional: bool = False) -> dict:
-    """Solve the OCP for every nu (one `vmap` call per cost; its batching rule solves them one after the
-    other in increasing nu, each warm-started from the previous ones, see `augmented_lagrangian`), then
-    bandwidths and plant errors of every solution."""
-    from ._ocp import solve_ocp
+    """Solve the OCP for every nu (one `solve_ocp_sweep` call per cost: continuation chains in increasing
+    nu, each member warm-started from the previous ones, one chain per CPU core), then bandwidths and
+    plant errors of every solution."""
 
     nus = np.asarray(nus, dtype=float)
     if nus.ndim != 1 or nus.size < 1 or not np.all(nus > 0):
@@ -47,8 +47,7 @@ def sweep(robot, plant, path, nus, costs, echo, directional: bool = False) -> di
     results = {}
     for cost in costs:
         start = time.perf_counter()
-        solve = jax.vmap(lambda nu, cost=cost: solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm))
-        sols = jax.block_until_ready(solve(jnp.asarray(nus)))
+        sols = jax.block_until_ready(solve_ocp_sweep(robot, jp.q, ts, nus, cost=cost, warm_start=warm))
         elapsed = time.perf_counter() - start
         echo(f"  {cost}: {nus.size} OCPs in one call, {elapsed:.1f} s (incl. compile); "
              f"{int(np.sum(np.asarray(sols.converged)))}/{nus.size} converged")

@@ -303,6 +303,39 @@ def test_vmap_over_nu_matches_separate_solves(robot, q_d):
     assert int(jnp.sum(batched.iterations)) < 0.8 * separate_iterations, (batched.iterations, separate_iterations)
 
 
+def test_sweep_in_chains_matches_separate_solves(robot, q_d):
+    # 5 members in 2 chains (one repeats its last member), given out of nu's order
+    nus = np.logspace(-14, -11, 5)[[3, 0, 4, 1, 2]]
+    sweep = pl.solve_ocp_sweep(robot, q_d, TS, nus, workers=2)
+    assert sweep.u.shape == (5, N, 6)
+    for i, nu in enumerate(nus):
+        single = pl.solve_ocp(robot, q_d, TS, float(nu))
+        member = jax.tree.map(lambda a, i=i: a[i], sweep)
+        assert bool(single.converged) and bool(member.converged)
+        assert float(member.max_constraint_violation) <= DEFECT_TOL
+        problem = tr.ocp_problem(robot, q_d, TS, float(nu))
+        bound = OBJECTIVE_RTOL * float(single.objective) + 2 * (_sensitivity(problem, member)
+                                                                + _sensitivity(problem, single))
+        assert abs(float(member.objective) - float(single.objective)) <= bound, (float(nu), bound)
+        np.testing.assert_allclose(np.asarray(member.q), np.asarray(single.q), rtol=0, atol=VMAP_QTOL)
+        scale = float(jnp.max(jnp.abs(single.u)))
+        np.testing.assert_allclose(np.asarray(member.u), np.asarray(single.u), rtol=0, atol=VMAP_UTOL * scale)
+
+
+@pytest.mark.parametrize("kwargs,field", [
+    (dict(nus=[1e-14, -1e-12]), "nus"),
+    (dict(nus=[[1e-14]]), "nus"),
+    (dict(workers=0), "workers"),
+    (dict(workers=1.5), "workers"),
+    (dict(ts=0.0), "ts"),
+])
+def test_sweep_bad_input_names_the_field(robot, q_d, kwargs, field):
+    args = dict(q_d=q_d, ts=TS, nus=[1e-14, 1e-12])
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=field):
+        pl.solve_ocp_sweep(robot, **args)
+
+
 def test_non_converged_solve_is_not_success(robot, q_d):
     sol = pl.solve_ocp(robot, q_d, TS, NU, config=pl.ALConfig(max_outer_iterations=1))
     assert int(sol.iterations) == 1
