@@ -274,6 +274,20 @@ def _sensitivity(problem, sol) -> float:
     return float(jnp.sum(jnp.abs(sol.multipliers * c))) * tr.ANGLE_SCALE**2
 
 
+def _assert_same_optimum(problem, member, single) -> None:
+    """A member of a batched solve and the separate solve of the same problem are the same optimum."""
+    assert bool(single.converged) and bool(member.converged)
+    assert float(member.max_constraint_violation) <= DEFECT_TOL
+    # both are optima to the solver's tolerance: each one's residual defects move its cost by
+    # at most its own `sum |lam c|` (first order, as in test_same_optimum_as_dense_newton_kkt)
+    bound = OBJECTIVE_RTOL * float(single.objective) + 2 * (_sensitivity(problem, member)
+                                                            + _sensitivity(problem, single))
+    assert abs(float(member.objective) - float(single.objective)) <= bound, (float(problem.nu), bound)
+    np.testing.assert_allclose(np.asarray(member.q), np.asarray(single.q), rtol=0, atol=VMAP_QTOL)
+    scale = float(jnp.max(jnp.abs(single.u)))
+    np.testing.assert_allclose(np.asarray(member.u), np.asarray(single.u), rtol=0, atol=VMAP_UTOL * scale)
+
+
 @pytest.mark.slow  # compiles the batched program (4 min on 2 shared cores)
 def test_vmap_over_nu_matches_separate_solves(robot, q_d):
     # the caller's order is not nu's: the continuation sorts and must return in the caller's order
@@ -284,18 +298,8 @@ def test_vmap_over_nu_matches_separate_solves(robot, q_d):
     for i, nu in enumerate(nus):
         single = pl.solve_ocp(robot, q_d, TS, nu)
         separate_iterations += int(single.iterations)
-        assert bool(single.converged) and bool(batched.converged[i])
-        assert float(batched.max_constraint_violation[i]) <= DEFECT_TOL
         member = jax.tree.map(lambda a, i=i: a[i], batched)
-        problem = tr.ocp_problem(robot, q_d, TS, nu)
-        # both are optima to the solver's tolerance: each one's residual defects move its cost by
-        # at most its own `sum |lam c|` (first order, as in test_same_optimum_as_dense_newton_kkt)
-        bound = OBJECTIVE_RTOL * float(single.objective) + 2 * (_sensitivity(problem, member)
-                                                                + _sensitivity(problem, single))
-        assert abs(float(member.objective) - float(single.objective)) <= bound, (float(nu), bound)
-        np.testing.assert_allclose(np.asarray(member.q), np.asarray(single.q), rtol=0, atol=VMAP_QTOL)
-        scale = float(jnp.max(jnp.abs(single.u)))
-        np.testing.assert_allclose(np.asarray(member.u), np.asarray(single.u), rtol=0, atol=VMAP_UTOL * scale)
+        _assert_same_optimum(tr.ocp_problem(robot, q_d, TS, nu), member, single)
         k = int(member.iterations)
         assert np.all(np.isfinite(np.asarray(member.history_violation[:k])))
         assert np.all(np.isnan(np.asarray(member.history_violation[k:])))
@@ -309,17 +313,8 @@ def test_sweep_in_chains_matches_separate_solves(robot, q_d):
     sweep = pl.solve_ocp_sweep(robot, q_d, TS, nus, workers=2)
     assert sweep.u.shape == (5, N, 6)
     for i, nu in enumerate(nus):
-        single = pl.solve_ocp(robot, q_d, TS, float(nu))
         member = jax.tree.map(lambda a, i=i: a[i], sweep)
-        assert bool(single.converged) and bool(member.converged)
-        assert float(member.max_constraint_violation) <= DEFECT_TOL
-        problem = tr.ocp_problem(robot, q_d, TS, float(nu))
-        bound = OBJECTIVE_RTOL * float(single.objective) + 2 * (_sensitivity(problem, member)
-                                                                + _sensitivity(problem, single))
-        assert abs(float(member.objective) - float(single.objective)) <= bound, (float(nu), bound)
-        np.testing.assert_allclose(np.asarray(member.q), np.asarray(single.q), rtol=0, atol=VMAP_QTOL)
-        scale = float(jnp.max(jnp.abs(single.u)))
-        np.testing.assert_allclose(np.asarray(member.u), np.asarray(single.u), rtol=0, atol=VMAP_UTOL * scale)
+        _assert_same_optimum(tr.ocp_problem(robot, q_d, TS, float(nu)), member, pl.solve_ocp(robot, q_d, TS, float(nu)))
 
 
 @pytest.mark.parametrize("kwargs,field", [
