@@ -180,10 +180,9 @@ def _linearise(p: _Parts, y, h: HalfStep):
     g_vjp = half_step_vjp(p.problem, h)
     c = _defects(p, y, h.g)
 
-    def vjp(v):
-        w = jnp.concatenate([v, jnp.zeros((1, 24))]) + jnp.concatenate([jnp.zeros((1, 24)), v])
-        diff = jnp.concatenate([-v, jnp.zeros((1, 24))]) + jnp.concatenate([jnp.zeros((1, 24)), v])
-        return jnp.pad(diff, ((0, 0), (0, 6))) - g_vjp(w)
+    def vjp(v):  # node k enters c_k with -E - J_k and c_{k-1} with E - J_k
+        before, after = jnp.pad(v, ((1, 0), (0, 0))), jnp.pad(v, ((0, 1), (0, 0)))
+        return jnp.pad(before - after, ((0, 0), (0, 6))) - g_vjp(before + after)
 
     return c, vjp
 
@@ -209,9 +208,8 @@ def _normal_blocks(
 ) -> tuple[Float[Array, "N 30 30"], Float[Array, "Nm1 30 30"]]:
     """Diagonal and sub-diagonal blocks of the Gauss-Newton matrix of `Phi` plus `mu I` at `y` (`h`:
     `half_step` there), fixed variables replaced by identity rows. The exact defect Jacobian is
-    needed: dropping the
-    gravity/Coriolis/inertia derivatives (~1e-3 of the stiffness terms) slows the iteration from
-    ~100x to ~2x per step at nu = 1e-14 (the conditioning amplifies the error).
+    needed: dropping the gravity/Coriolis/inertia derivatives (~1e-3 of the stiffness terms) slows
+    the iteration from ~100x to ~2x per step at nu = 1e-14 (the conditioning amplifies the error).
 
     From the structure `d c_k / d y_k = K_a - P_k`, `d c_k / d y_{k+1} = K_b - P_{k+1}` (`K_a = -E - S`,
     `K_b = E - S`, `E = [I 0]`, `S = HALF_STEP_SHIFT`, `P_k` the 6x18 block of `half_step_jacobian` in

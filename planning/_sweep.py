@@ -9,7 +9,7 @@ but two programs called from two host threads at once use both cores (two line s
 each chain by one compiled `vmap` call in its own thread, and merges the results in the caller's
 order. Each chain still warm-starts its members from the previous ones (their `nu` are `workers`
 times further apart, so they take a few more iterations: line, 16 nu, 2 chains: 55 outer
-iterations against 44 in one chain, 2.96 s against 3.91 s on 2 cores).
+iterations against 44 in one chain, 2.77 s against 3.82 s on 2 cores, `benchmarks/bench_ocp.py`).
 """
 
 from __future__ import annotations
@@ -81,8 +81,5 @@ def solve_ocp_sweep(
     compiled = _chain.lower(*args[0], cost=cost, config=config).compile()  # cached after the first call
     with ThreadPoolExecutor(chains) as pool:
         parts = list(pool.map(lambda a: jax.block_until_ready(compiled(*a)), args))
-    first = np.full(nus.size, -1)  # the first place of every member in the chains
-    flat = index.reshape(-1)
-    for place in range(flat.size - 1, -1, -1):
-        first[flat[place]] = place
+    first = np.unique(index.reshape(-1), return_index=True)[1]  # each member's first place in the chains
     return jax.tree.map(lambda *leaves: jnp.concatenate(leaves)[first], *parts)

@@ -228,6 +228,11 @@ def scaled_cost(problem: OCPProblem) -> ScaledQuadratic:
     return ScaledQuadratic(node_weight=node_w, node_target=target, edge_weight=edge_w)
 
 
+def _stiffness(robot: jr.Robot, x: Float[Array, "*n 6"]) -> Float[Array, "*n 6"]:
+    """`kappa'(x) = k1 + 3 k3 x^2` [N m/rad] at the deflection `x = phi - q` (eq. 2.17)."""
+    return robot.k1 + 3.0 * robot.k3 * x**2
+
+
 def _link_acceleration(robot: jr.Robot, q, qd, phi, d) -> Float[Array, "N 6"]:
     """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`)."""
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
@@ -276,7 +281,7 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep) -> Callable[[Float[Array, "N
         s = jr.spd_solve(h.mass, wf[:, 6:12, None])[..., 0]
         _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, h.qdd), q, qd)
         id_q, id_qd = id_vjp(s)
-        stiff = (r.k1 + 3.0 * r.k3 * (h.phi - q) ** 2) * s
+        stiff = _stiffness(r, h.phi - q) * s
         out = jnp.concatenate([-id_q - stiff, wf[:, :6] - id_qd, stiff / jr.gear_ratio(r, h.phi), wf[:, 12:]], -1)
         return out * sz
 
@@ -302,7 +307,7 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep) -> Float[Array, "N 6 18
     sz = variable_scale(problem)
     z = h.y * sz
     q, qd = z[:, :6], z[:, 6:12]
-    stiff = r.k1 + 3.0 * r.k3 * (h.phi - q) ** 2
+    stiff = _stiffness(r, h.phi - q)
     _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, h.qdd), q, qd)
     rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(6)[:, None, :], (6, *q.shape)))  # row i of dID
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
