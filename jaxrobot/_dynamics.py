@@ -136,7 +136,7 @@ def _mass_matrix_t(robot, q_t):
     lin = _cross(a, s - m[:, None] * p)
     ang = _mv(j, a) - _cross(s, _cross(a, p))
     t = _dot(a[:, None], ang[None] - _cross(p[:, None], lin[None]))
-    d = jnp.where(jnp.triu(jnp.ones((6, 6), bool))[..., None], t, jnp.swapaxes(t, 0, 1))
+    d = jnp.where(jnp.triu(jnp.ones((len(a),) * 2, bool))[..., None], t, jnp.swapaxes(t, 0, 1))
     return (d,)
 
 
