@@ -94,11 +94,13 @@ def run(args, echo) -> dict:
         val = (v["motor_angles"], v["positions"])
     names = None if args.parameters is None else [
         n.strip() for n in args.parameters.split(",") if n.strip()]
-    marker = args.marker
-    if marker is None and args.robot is not None:
-        marker = jr.read_description(args.robot).get("sensors", {}).get("tracker_marker_offset_m")
+    marker, noise = args.marker, None
+    if args.robot is not None:
+        sensors = jr.read_description(args.robot).get("sensors", {})
+        marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
+        noise = sensors.get("tracker_position_noise_m")
     res = calibrate(robot, data["motor_angles"], data["positions"], data["quaternions"], parameters=names,
-                    marker=marker, validation=val, limits=args.limits)
+                    marker=marker, position_noise=noise, validation=val, limits=args.limits)
     _echo_report(res.report, echo)
     if not res.report["converged"]:
         raise ValueError(f"calibration did not converge ({res.report['status']}); the model was not saved")

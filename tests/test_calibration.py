@@ -262,8 +262,10 @@ def test_bad_input(robots, bench, tmp_path):
     data = read_pose_csv(path)
     np.testing.assert_allclose(data["motor_angles"][:4], theta[:4], rtol=1e-15)
     (tmp_path / "short.csv").write_text("theta1_deg,theta2_deg,x_m\n1,2,3\n")
-    with pytest.raises(ValueError, match=r"missing columns \['theta3_deg'"):
+    with pytest.raises(ValueError, match=r"missing columns \['y_m', 'z_m'\]"):
         read_pose_csv(tmp_path / "short.csv")
+    with pytest.raises(ValueError, match=r"motor_angles: expected shape \(K, 6\) in rad, found \(4, 5\)"):
+        calibrate(nominal, theta[:4, :5], pos[:4])
 
 
 def test_save_roundtrip(calibrated, tmp_path):
