@@ -125,6 +125,26 @@ def test_seven_joint_description_and_optional_sections(tmp_path):
         jr.load_robot(_write(tmp_path, bad))
 
 
+def test_seven_joint_gear_run_on_the_bench(tmp_path):
+    """A constant-speed run of joint 7 (thesis 3.1.1): the other joints hold, the link rate integrates
+    to the link travel (trapezoid at 1 kHz on a cycloidal profile: < 1e-6 rad), and the gear-run
+    file carries seven motor-angle columns."""
+    desc = jr.read_description(ARM7)
+    runs = jr.gear_runs(jr.load_robot(ARM7, as_built=True), 7, motor_speed_deg_s=3000.0, range_deg=20.0,
+                        centre_deg=0.0, repetitions=1, directions=("cw",), description=desc)
+    assert runs.theta.shape[2] == runs.link_angles.shape[2] == 7
+    moved = np.ptp(runs.theta[0], axis=0)
+    assert moved[6] > np.deg2rad(20.0) * 50.0 * 0.99 and np.all(moved[:6] == 0.0)
+    travel = runs.link_angles[0, -1, 6] - runs.link_angles[0, 0, 6]
+    rate = runs.link_rate[0]
+    integral = np.sum(0.5 * (rate[1:] + rate[:-1]) * np.diff(runs.t))
+    assert abs(integral - travel) < 1e-6
+    jr.write_gear_run(tmp_path / "run.csv", runs.t, runs.theta[0], runs.gyro[0])
+    assert (tmp_path / "run.csv").read_text().splitlines()[0] == ",".join(jr.gear_run_columns(7))
+    t, theta, gyro = jr.read_gear_run(tmp_path / "run.csv")
+    np.testing.assert_allclose(theta, runs.theta[0], rtol=1e-11, atol=1e-12)
+
+
 @pytest.fixture(scope="module")
 def arm7():
     return jr.load_robot(ARM7), jr.load_robot(ARM7, as_built=True)
