@@ -60,7 +60,7 @@ def _rows(m: Float[Array, "3 3"]) -> Mat:
     return [[m[i, k] for k in range(3)] for i in range(3)]
 
 
-def marker_pose_one(robot: jr.Robot, q: Float[Array, " 6"], marker: Float[Array, " 3"]
+def marker_pose_one(robot: jr.Robot, q: Float[Array, " n"], marker: Float[Array, " 3"]
                     ) -> tuple[Float[Array, " 3"], Float[Array, "3 3"]]:
     """Marker position and rotation of one pose (eq. 2.2-2.4, `H = Rz(q + offset) Tx(a) Tz(d) Rx(alpha)
     Ry(beta)`), the same as `jaxrobot._bench_poses.marker_pose`."""
@@ -81,12 +81,12 @@ def marker_pose_one(robot: jr.Robot, q: Float[Array, " 6"], marker: Float[Array,
 def joint_angle_model(
     robot0: jr.Robot,
     params: ParameterMap,
-    theta: Float[Array, "K 6"],
-    deflection: Float[Array, "K 6"],
-    ccw: bool | Bool[Array, "K 6"] = False,
+    theta: Float[Array, "K n"],
+    deflection: Float[Array, "K n"],
+    ccw: bool | Bool[Array, "K n"] = False,
     rippled: tuple[int, ...] | None = None,
-    q0: Float[Array, "K 6"] | None = None,
-) -> tuple[Float[Array, "K 6"], Callable]:
+    q0: Float[Array, "K n"] | None = None,
+) -> tuple[Float[Array, "K n"], Callable]:
     """Joint angles `q = Xi^{-1}(theta) + deflection` of robots that differ from `robot0` only in
     `params`: `q0` (K, 6) of `robot0` (the gear inversion of joints with fixed `u0` is done here,
     once, unless given) and `q_pose(robot, theta_k, q0_k, deflection_k, ccw_k)` for one pose."""
@@ -117,8 +117,8 @@ def analytic_names(names: tuple[str, ...]) -> bool:
 
 
 def position_jacobian_one(
-    robot: jr.Robot, params: ParameterMap, q: Float[Array, " 6"], theta: Float[Array, " 6"],
-    ratio: Float[Array, " 6"], marker: Float[Array, " 3"],
+    robot: jr.Robot, params: ParameterMap, q: Float[Array, " n"], theta: Float[Array, " n"],
+    ratio: Float[Array, " n"], marker: Float[Array, " 3"],
 ) -> tuple[Float[Array, " 3"], Float[Array, "3 m"]]:
     """`position_jacobian` of one pose: marker position (3,) and its Jacobian (3, m)."""
     p, jac = position_jacobian(robot, params, q, theta, ratio, marker)
@@ -126,8 +126,8 @@ def position_jacobian_one(
 
 
 def position_jacobian(
-    robot: jr.Robot, params: ParameterMap, q: Float[Array, "*b 6"], theta: Float[Array, "*b 6"],
-    ratio: Float[Array, "*b 6"], marker: Float[Array, " 3"],
+    robot: jr.Robot, params: ParameterMap, q: Float[Array, "*b n"], theta: Float[Array, "*b n"],
+    ratio: Float[Array, "*b n"], marker: Float[Array, " 3"],
 ) -> tuple[Float[Array, "3 ..."], Float[Array, "m 3 ..."]]:
     """Marker position and its derivative by the free joint parameters, from the joint screws
     (thesis 3.2.2), batch-last: the robot's fields broadcast against the batch `*b` of `q` (a fleet

@@ -32,8 +32,8 @@ class Model(eqx.Module):
     appended, and joint compliance `c` [rad/(N m)], `e` [1/rad^2] (`x + e x^3 = c tau`)."""
 
     robot: jr.Robot
-    c: Float[Array, "6"]
-    e: Float[Array, "6"]
+    c: Float[Array, " n"]
+    e: Float[Array, " n"]
 
 
 def _pad(rip: jr.Ripple, m: int) -> jr.Ripple:
@@ -69,7 +69,7 @@ class Effect:
     scales: ClassVar[tuple[float, ...]]
     units: ClassVar[tuple[str, ...]]
 
-    def apply(self, model: Model, v: Array, orders: Float[Array, "6 S"]) -> Model:
+    def apply(self, model: Model, v: Array, orders: Float[Array, "n S"]) -> Model:
         raise NotImplementedError
 
     def variants(self) -> tuple[tuple[int, ...], ...]:
@@ -271,7 +271,7 @@ class Layout:
             s[b] = np.broadcast_to(np.asarray(e.scales), b.shape)
         return s
 
-    def apply(self, model: Model, v: Float[Array, " P"], orders: Float[Array, "6 S"]) -> Model:
+    def apply(self, model: Model, v: Float[Array, " P"], orders: Float[Array, "n S"]) -> Model:
         """All effects with the values `v` (the identity at `v = 0`)."""
         for e, b in zip(self.effects, self.blocks):
             model = e.apply(model, v[jnp.asarray(b)], orders)

@@ -172,7 +172,7 @@ _set_parameters = eqx.filter_jit(ParameterMap.set)  # one compiled call instead 
 
 def calibrate_fleet(
     robots: jr.Robot,
-    motor_angles: Float[Array, "R K 6"],
+    motor_angles: Float[Array, "R K n"],
     positions: Float[Array, "R K 3"],
     *,
     parameters: Sequence[str] = DEFAULT_PARAMETERS,

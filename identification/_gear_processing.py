@@ -60,7 +60,7 @@ ALIGN_DECIMATION = 4
 class GearBatch(eqx.Module):
     """`R` gear runs padded to `N` samples (arrays; SI units, radians)."""
 
-    theta: Float[Array, "R N 6"]
+    theta: Float[Array, "R N n"]
     """Motor angles [rad]."""
     gyro: Float[Array, "R N 3"]
     """Gyroscope angular velocity, sensor frame [rad/s]."""
@@ -295,7 +295,7 @@ def alignment_rotation(angles: Float[Array, "*b 2"]) -> Float[Array, "*b 3 3"]:
     return rot_x(angles[..., 0]) @ rot_y(angles[..., 1])
 
 
-def _link_rate_factor(robot: Robot, theta: Float[Array, "6"], joint: Int[Array, ""]) -> Float[Array, ""]:
+def _link_rate_factor(robot: Robot, theta: Float[Array, " n"], joint: Int[Array, ""]) -> Float[Array, ""]:
     """Angular velocity of the moving link about its joint axis per unit motor rate of that joint,
     for the quasi-static model (gravity deflection of all joints included, no ripple)."""
     onehot = jax.nn.one_hot(joint, 6)
@@ -319,7 +319,7 @@ class ProcessedRuns(eqx.Module):
     """Filtered gear-output rate."""
     kinematic_error: Float[Array, "R N"]
     """`omega_e = thetad_f / u0 - phid_f` (eq. 3.4) with the model's `u0`."""
-    misalignment: Float[Array, "6 2"]
+    misalignment: Float[Array, "n 2"]
     """Alignment angles `(alpha, beta)` per joint (eq. 3.3); zero for joints without runs."""
     align_result: Array
     """optimistix result of the alignment."""

@@ -132,8 +132,8 @@ class ParameterMap(eqx.Module):
 
 
 def rest_deflection(
-    robot: jr.Robot, theta: Float[Array, "*b 6"], ccw: bool | Array = False
-) -> Float[Array, "*b 6"]:
+    robot: jr.Robot, theta: Float[Array, "*b n"], ccw: bool | Array = False
+) -> Float[Array, "*b n"]:
     """Gravity deflection `q - Xi^{-1}(theta)` of the robot at rest (thesis 3.2.3, `Delta phi_g`).
 
     The calibration evaluates it once with the initial robot and keeps it fixed: it depends on
@@ -147,8 +147,8 @@ def rest_deflection(
 
 def predict_pose(
     robot: jr.Robot,
-    theta: Float[Array, "*b 6"],
-    deflection: Float[Array, "*b 6"],
+    theta: Float[Array, "*b n"],
+    deflection: Float[Array, "*b n"],
     marker: Float[Array, "3"],
     ccw: bool | Array = False,
 ) -> tuple[Float[Array, "*b 3"], Float[Array, "*b 3 3"]]:

@@ -50,7 +50,7 @@ def default_marker() -> np.ndarray:
 
 
 @eqx.filter_jit
-def _feasible(robot: jr.Robot, q: Float[Array, "N 6"], marker, margin, z_min, min_sigma):
+def _feasible(robot: jr.Robot, q: Float[Array, "N n"], marker, margin, z_min, min_sigma):
     from jaxrobot._bench_poses import marker_pose
 
     inside = jnp.all((q >= robot.q_min + margin) & (q <= robot.q_max - margin), -1)
@@ -60,7 +60,7 @@ def _feasible(robot: jr.Robot, q: Float[Array, "N 6"], marker, margin, z_min, mi
 
 
 def feasible(
-    robot: jr.Robot, q: Float[Array, "N 6"], marker=None, constraints: PoseConstraints = DEFAULT_CONSTRAINTS
+    robot: jr.Robot, q: Float[Array, "N n"], marker=None, constraints: PoseConstraints = DEFAULT_CONSTRAINTS
 ) -> np.ndarray:
     """Boolean mask (N,) of the feasible poses among `q` (joint coordinates, rad)."""
     marker = default_marker() if marker is None else np.asarray(marker, float)
@@ -74,7 +74,7 @@ def _static_equilibrium(robot, q):
     return jr.static_equilibrium(robot, q)
 
 
-def rest_motor_angles(robot: jr.Robot, q: Float[Array, "N 6"]) -> np.ndarray:
+def rest_motor_angles(robot: jr.Robot, q: Float[Array, "N n"]) -> np.ndarray:
     """Motor angles (N, 6) that hold joint coordinates `q` at rest (cw set; eq. 4.3f-g)."""
     return np.asarray(_static_equilibrium(robot, jnp.asarray(q, float)))
 
@@ -118,7 +118,7 @@ def _pose_jacobians(robot, params: ParameterMap, q, marker, ccw):
 
 
 def pose_jacobians(
-    robot: jr.Robot, params: ParameterMap, q: Float[Array, "N 6"], marker=None, orientation: bool = False,
+    robot: jr.Robot, params: ParameterMap, q: Float[Array, "N n"], marker=None, orientation: bool = False,
     ccw: bool = False,
 ) -> np.ndarray:
     """Identification Jacobian blocks `d y_i / d v` (N, 3 or 6, m) at joint coordinates `q`

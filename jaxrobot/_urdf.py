@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._robot import N_JOINTS, Robot
+from ._robot import Robot
 
 EFFORT_LIMIT = 1.0e4
 """URDF `<limit effort>` [N m] of every joint. The model has no torque limits, so this is a
@@ -110,7 +110,7 @@ def to_urdf(robot: Robot) -> str:
     ET.SubElement(root, "link", name="base_link")
     _fixed(root, "base_joint", "world", "base_link", num["base"])
     parent, placement = "base_link", np.eye(4)
-    for i in range(N_JOINTS):
+    for i in range(robot.n_joints):
         link = f"link_{i + 1}"
         joint = ET.SubElement(root, "joint", name=f"joint_{i + 1}", type="revolute")
         _origin(joint, placement)
