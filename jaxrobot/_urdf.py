@@ -456,6 +456,13 @@ def _body(frame: np.ndarray, members: list[str], pose: dict, links: dict, joint:
     return mass, com, inertia
 
 
+def urdf_chain(text: str, base: str | None = None, tip: str | None = None) -> tuple[str, str, list[str]]:
+    """The base link, the tip link and the names of the URDF joints that become joints 1..n."""
+    _, links, joints, _ = _parse(text)
+    _, base, tip, path = _chain(links, joints, base, tip)
+    return base, tip, [j.name for j in path if j.type in _REVOLUTE]
+
+
 def description_from_urdf(text: str, base: str | None = None, tip: str | None = None) -> dict:
     """The rigid-body description (format of `racer7.toml`, validated) of the chain of a URDF text.
 

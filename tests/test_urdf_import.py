@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.metadata
+import json
 import math
 import xml.etree.ElementTree as ET
 
@@ -172,7 +173,7 @@ def terms():
     errors = {}
     for n in range(1, 10):
         keys = [k for k, r in robots.items() if r.n_joints == n]
-        fleet = jax.tree.map(lambda *x: jnp.stack(x)[:, None], *(robots[k] for k in keys))
+        fleet = jax.tree.map(lambda *x: np.stack(x)[:, None], *(robots[k] for k in keys))
         q, qd, qdd = (jnp.asarray(np.stack([refs[k][0][i] for k in keys])) for i in range(3))
         ours = _ours(fleet, q, qd, qdd)
         for i, k in enumerate(keys):
@@ -286,3 +287,31 @@ def test_missing_velocity_limit(tmp_path):
 def test_base_and_tip_only_for_urdf():
     with pytest.raises(ValueError, match=r"base and tip select the chain of a URDF file"):
         jr.load_robot("arm.toml", tip="flange")
+
+
+# ---------------------------------------------------------------------------------------------
+# jaxrobot import-urdf
+
+def test_import_urdf_command_writes_a_loadable_description(tmp_path, capsys):
+    from jaxrobot._cli import main
+
+    urdf, out = _example_urdf("panda.urdf"), tmp_path / "robots" / "panda.toml"
+    assert main(["import-urdf", str(urdf), "--tip", "panda_link8", "--out", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["joints"] == [f"panda_joint{i}" for i in range(1, 8)]
+    assert (summary["base"], summary["tip"]) == ("panda_link0", "panda_link8")
+    text = out.read_text()
+    assert text.startswith("# imported by `jaxrobot import-urdf` from panda.urdf") and "panda_joint7" in text
+    ours, direct = jr.load_robot(out), jr.load_robot(urdf, tip="panda_link8")
+    for a, b in zip(jax.tree.leaves(ours), jax.tree.leaves(direct), strict=True):
+        np.testing.assert_array_equal(a, b)  # TOML keeps every float64 exactly
+
+
+def test_import_urdf_command_reports_bad_input(tmp_path, capsys):
+    from jaxrobot._cli import main
+
+    assert main(["import-urdf", str(_example_urdf("panda.urdf")), "--out", str(tmp_path / "p.toml")]) == 2
+    assert "branches at link 'panda_hand'" in capsys.readouterr().err
+    assert main(["import-urdf", str(_example_urdf("panda.urdf"))]) == 2
+    assert "--out ARM.toml is required" in capsys.readouterr().err
+    assert not (tmp_path / "p.toml").exists()
