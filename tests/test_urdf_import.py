@@ -315,3 +315,16 @@ def test_import_urdf_command_reports_bad_input(tmp_path, capsys):
     assert main(["import-urdf", str(_example_urdf("panda.urdf"))]) == 2
     assert "--out ARM.toml is required" in capsys.readouterr().err
     assert not (tmp_path / "p.toml").exists()
+
+
+def test_base_link_sets_the_world_frame(tmp_path):
+    """With base='base_link' (DH frame 0 of our export) the base transform becomes the identity,
+    the DH parameters and tool stay, and gravity turns into the base link's axes."""
+    robot = _random_chain(3, 4)
+    (tmp_path / "arm.urdf").write_text(jr.to_urdf(robot))
+    moved = jr.load_robot(tmp_path / "arm.urdf", base="base_link")
+    np.testing.assert_allclose(moved.base, np.eye(4), rtol=0, atol=1e-15)
+    for field in ("a", "d", "alpha", "beta", "tool", "mass", "com", "inertia"):
+        np.testing.assert_allclose(getattr(moved, field), getattr(robot, field), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(moved.gravity, np.asarray(robot.base)[:3, :3].T @ [0.0, 0.0, -9.81],
+                               rtol=0, atol=1e-14)
