@@ -27,7 +27,9 @@ axes parallel within `PARALLEL_TOL`, Hayati's frame: origin where axis i+1 cross
 of frame i-1 (`d_i = 0`), the misalignment in `beta_i`. Where a choice of sign or of the x axis
 remains, the x axis closest to the URDF frame's is taken. DH frame n is the frame of the first
 URDF joint after joint n on the way to the tip (the tip link itself if none) when expressible,
-else its projection onto axis n (`a_n = alpha_n = beta_n = 0`). The base transform is DH frame 0
+else its projection onto axis n (`a_n = alpha_n = beta_n = 0`). The conversion is exact up to
+one approximation: an origin within 1e-12 m of the previous axis is put on it (`a_i = 0`; URDF
+angles rounded to 11 digits leave such offsets). The base transform is DH frame 0
 and the tool transform the tip link in DH frame n, so that `tool_pose` is the tip link's pose in
 the base link's frame. Each body i lumps the links rigidly attached to the child link of joint i
 at the zero configuration: fixed children and branches off the chain (fingers, grippers), as
@@ -192,7 +194,7 @@ STANDARD_GRAVITY = 9.81
 """Gravity [m/s^2] along -z of the URDF root link (the ROS convention; URDF has no gravity)."""
 
 _EXACT = 1e-9  # residual of a URDF frame expressed by the DH transform, relative to its size
-_ON_AXIS = 1e-12  # [m]: a point this close to a joint axis lies on it
+_ON_AXIS = 1e-12  # [m]: a point this close to a joint axis lies on it (URDF angles are often rounded to 1e-11)
 _REVOLUTE = ("revolute", "continuous")
 
 
@@ -397,12 +399,12 @@ def _through(o: np.ndarray, u: np.ndarray, x_ref: np.ndarray) -> tuple[float, ..
 def _exact(t: np.ndarray) -> tuple[float, ...] | None:
     """Parameters with `_dh(*p) == t` and `|beta| <= BETA_MAX`, or None if there are none."""
     o = t[:3, 3]
-    if math.hypot(o[0], o[1]) < _ON_AXIS:
+    tol = _EXACT * (1.0 + np.linalg.norm(o))
+    p = _through(o, t[:3, 2], t[:3, 0])  # on axis i: the beta = 0 frame, if it is t
+    if math.hypot(o[0], o[1]) < _ON_AXIS and np.max(np.abs(_dh(*p) - t)) > tol:
         theta, alpha, beta = _zxy(t[:3, :3])
         p = (theta, 0.0, o[2], alpha, beta)
-    else:
-        p = _through(o, t[:3, 2], t[:3, 0])
-    if abs(p[4]) > BETA_MAX or np.max(np.abs(_dh(*p) - t)) > _EXACT * (1.0 + np.linalg.norm(o)):
+    if abs(p[4]) > BETA_MAX or np.max(np.abs(_dh(*p) - t)) > tol:
         return None
     return p
 
