@@ -217,7 +217,10 @@ def test_generated_chains_round_trip(tmp_path):
             err = np.max(np.abs(diff)) / max(np.max(np.abs(want)), 1.0)
             if not err <= 1e-12:
                 failures.append((robot.name, field, err))
-        assert back.name == robot.name and np.all(np.isinf(np.asarray(back.qdd_max)))
+        assert back.name == robot.name and np.all(np.isinf(np.asarray(back.qdd_max)))  # URDF: no accelerations
+    jr.save_robot(back, tmp_path / "again.toml")  # without acceleration limits the file has none
+    assert "acceleration_deg_s2" not in (tmp_path / "again.toml").read_text()
+    assert np.all(np.isinf(np.asarray(jr.load_robot(tmp_path / "again.toml").qdd_max)))
     assert not failures, f"parameters not recovered to 1e-12 (chain, field, relative error): {failures}"
 
 
