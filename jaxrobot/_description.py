@@ -249,8 +249,15 @@ def filter_cutoffs(data: dict) -> dict[int, float]:
     return {i + 1: float(c) for i, c in enumerate(data.get("sensors", {}).get("filter_cutoff_hz", []))}
 
 
-def read_description(path: str | Path | None = None) -> dict:
-    """Read and validate a robot description file; `None` reads the embedded Racer-7-1.4."""
+def read_description(path: str | Path | None = None, base: str | None = None, tip: str | None = None) -> dict:
+    """Read and validate a robot description file; `None` reads the embedded Racer-7-1.4. A URDF file
+    (suffix `.urdf`) is imported: the chain from link `base` to link `tip` (see `_urdf.read_urdf`)."""
+    if path is not None and Path(path).suffix.lower() == ".urdf":
+        from ._urdf import read_urdf  # _urdf builds on this module
+
+        return read_urdf(path, base, tip)
+    if base is not None or tip is not None:
+        raise ValueError(f"base and tip select the chain of a URDF file (suffix .urdf), found {path}")
     if path is None:
         text = resources.files("jaxrobot").joinpath("data/racer7.toml").read_text()
         source = "racer7.toml (package data)"
@@ -328,14 +335,8 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
 
 def load_robot(path: str | Path, as_built: bool = False, base: str | None = None, tip: str | None = None) -> Robot:
     """Load a robot from a description file in the format of `racer7.toml` (validated), or import
-    the chain from link `base` to link `tip` of a URDF file (suffix `.urdf`; see `read_urdf`)."""
-    if Path(path).suffix.lower() == ".urdf":
-        from ._urdf import read_urdf  # _urdf builds on this module
-
-        return robot_from_description(read_urdf(path, base, tip), as_built=as_built)
-    if base is not None or tip is not None:
-        raise ValueError(f"load_robot: base and tip select the chain of a URDF file (suffix .urdf), found {path}")
-    return robot_from_description(read_description(path), as_built=as_built)
+    the chain from link `base` to link `tip` of a URDF file (suffix `.urdf`; see `read_description`)."""
+    return robot_from_description(read_description(path, base, tip), as_built=as_built)
 
 
 def racer7(as_built: bool = False) -> Robot:

@@ -228,6 +228,8 @@ def test_example_robot_data_limits_and_gears():
     """Limits and velocities from <limit>, gear ratios from <transmission>, continuous joints +-2 pi."""
     kinova = jr.load_robot(_example_urdf("kinova.urdf"), tip="j2s6s200_end_effector")
     np.testing.assert_array_equal(kinova.u0, np.full(6, 160.0))
+    # the commands read sensors and tasks with read_description: a URDF goes through it as well
+    assert jr.read_description(_example_urdf("kinova.urdf"), tip="j2s6s200_end_effector")["gear"] == {"u0": [160.0] * 6}
     continuous = np.array([0, 3, 5])
     np.testing.assert_allclose(np.asarray(kinova.q_max)[continuous], 2 * np.pi, rtol=1e-15)
     np.testing.assert_allclose(np.asarray(kinova.q_min)[continuous], -2 * np.pi, rtol=1e-15)
