@@ -8,9 +8,9 @@ from ._compilation_cache import enable as _enable_compilation_cache  # noqa: E40
 
 _enable_compilation_cache()
 
-from ._bench_gear import GEAR_RUN_COLUMNS as GEAR_RUN_COLUMNS  # noqa: E402
 from ._bench_gear import GEAR_RUN_DEFAULTS as GEAR_RUN_DEFAULTS  # noqa: E402
 from ._bench_gear import GearRuns as GearRuns  # noqa: E402
+from ._bench_gear import gear_run_columns as gear_run_columns  # noqa: E402
 from ._bench_gear import gear_runs as gear_runs  # noqa: E402
 from ._bench_gear import read_gear_run as read_gear_run  # noqa: E402
 from ._bench_gear import write_gear_run as write_gear_run  # noqa: E402
