@@ -16,6 +16,7 @@ from ._bench_poses import marker_pose as marker_pose  # noqa: E402
 from ._bench_poses import measure_poses as measure_poses  # noqa: E402
 from ._bench_poses import read_pose_csv as read_pose_csv  # noqa: E402
 from ._bench_poses import write_pose_csv as write_pose_csv  # noqa: E402
+from ._bench_trajectory import NOT_CONVERGED as NOT_CONVERGED  # noqa: E402
 from ._bench_trajectory import read_csv_columns as read_csv_columns  # noqa: E402
 from ._bench_trajectory import read_trajectory_csv as read_trajectory_csv  # noqa: E402
 from ._bench_trajectory import trajectory_run as trajectory_run  # noqa: E402

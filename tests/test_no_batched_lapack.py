@@ -71,14 +71,14 @@ def _cases():
     yield "gear normal equations", normal_solve, (jnp.ones((3, 40, 5)), jnp.ones((3, 40)), jnp.ones((3, 40)))
     yield "OCP, vmap over nu", lambda r, q: jax.vmap(lambda nu: pl.solve_ocp(r, q, 0.01, nu=nu).u)(
         jnp.array([1e-14, 1e-12])), (ROBOT, Q[:1].repeat(8, 0))
-    yield "OCP, vmap over q_d", lambda r, q: jax.vmap(lambda q: pl.solve_ocp(r, q, 0.01).u)(q), (
-        ROBOT, Q[:1].repeat(8, 0)[None].repeat(2, 0))
+    yield pytest.param("OCP, vmap over q_d", lambda r, q: jax.vmap(lambda q: pl.solve_ocp(r, q, 0.01).u)(q), (
+        ROBOT, Q[:1].repeat(8, 0)[None].repeat(2, 0)), marks=pytest.mark.slow, id="OCP, vmap over q_d")
 
 
-CASES = list(_cases())
+CASES = [c if hasattr(c, "marks") else pytest.param(*c, id=c[0]) for c in _cases()]
 
 
-@pytest.mark.parametrize("name,fn,args", CASES, ids=[c[0] for c in CASES])
+@pytest.mark.parametrize("name,fn,args", CASES)
 def test_no_batched_lapack(name, fn, args):
     assert batched_lapack_calls(fn, *args) == [], name
 
