@@ -90,18 +90,30 @@ def main() -> None:
     for item in args.runs_for:
         name, _, n = item.partition("=")
         counts[name] = int(n)
-    rows = []
+    if not args.out.exists():
+        args.out.write_text("# Hang test (`benchmarks/hang_test.py`)\n\nEvery CLI command on bench data, each run "
+                            "under a timeout; a run past it is a hang.\n")
+    with args.out.open("a") as f:  # one row per command as soon as it is done
+        f.write("\n".join([
+            f"\n## {args.label or 'run'} ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})", "",
+            f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python "
+            f"{platform.python_version()}; timeout {args.timeout:.0f} s per run; code: {args.source or ROOT}; "
+            f"data: {args.data}", "",
+            "| command | runs | hangs | failed (rc != 0) | time per run [s] median (min-max) | load average |"
+            + (" batched LAPACK calls |" if args.lapack else ""),
+            "|---|---|---|---|---|---|" + ("---|" if args.lapack else "")]) + "\n")
     for name in names:
-        times, hangs, failures, lapack, last = [], 0, 0, None, []
+        times, loads, hangs, failures, lapack, last = [], [], 0, 0, [], []
         for i in range(counts[name]):
             with tempfile.TemporaryDirectory() as tmp:
                 dump = Path(tmp) / "ir" if args.lapack and i == 0 else None
                 elapsed, rc, last_line = run_once(cmds[name], args.timeout, args.source, dump, Path(tmp))
                 if dump is not None:
                     lapack = batched_lapack(dump)
+            loads.append(os.getloadavg()[0])
             status = "HANG" if rc is None else f"rc={rc}"
             print(f"[{time.strftime('%H:%M:%S')}] {name} run {i + 1}/{counts[name]}: {status}, {elapsed:.1f} s "
-                  f"(load {os.getloadavg()[0]:.1f})", file=sys.stderr, flush=True)
+                  f"(load {loads[-1]:.1f})", file=sys.stderr, flush=True)
             if rc is None:
                 hangs += 1
             elif rc != 0:
@@ -109,27 +121,14 @@ def main() -> None:
                 last = last_line
             else:
                 times.append(elapsed)
-        rows.append((name, counts[name], hangs, failures, times, lapack, last))
-    lines = [f"\n## {args.label or 'run'} ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})", "",
-             f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
-             f"; timeout {args.timeout:.0f} s per run; code: {args.source or ROOT}; data: {args.data}", "",
-             "| command | runs | hangs | failed (rc != 0) | time per run [s] median (min-max) |"
-             + (" batched LAPACK calls |" if args.lapack else ""),
-             "|---|---|---|---|---|" + ("---|" if args.lapack else "")]
-    for name, n, hangs, failures, times, lapack, last in rows:
         t = sorted(times)
         stat = f"{t[len(t) // 2]:.1f} ({t[0]:.1f}-{t[-1]:.1f})" if t else "-"
-        lines.append(f"| `{name}` | {n} | {hangs} | {failures}{' ' + repr(last[0][:80]) if last else ''} | {stat} |"
-                     + (f" {len(lapack)}{': ' + '; '.join(lapack[:4]) if lapack else ''} |" if args.lapack else ""))
-    lines.append(f"\nLoad average at the end: {os.getloadavg()[0]:.1f} (2 cores shared with other jobs: times "
-                 "are inflated and noisy).")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if not args.out.exists():
-        args.out.write_text("# Hang test (`benchmarks/hang_test.py`)\n\nEvery CLI command on bench data, each run "
-                            "under a timeout; a run past it is a hang.\n")
-    with args.out.open("a") as f:
-        f.write(text)
+        row = (f"| `{name}` | {counts[name]} | {hangs} | {failures}{' ' + repr(last[0][:80]) if last else ''} | "
+               f"{stat} | {min(loads):.1f}-{max(loads):.1f} |"
+               + (f" {len(lapack)}{': ' + '; '.join(lapack[:4]) if lapack else ''} |" if args.lapack else ""))
+        print(row)
+        with args.out.open("a") as f:
+            f.write(row + "\n")
 
 
 if __name__ == "__main__":
