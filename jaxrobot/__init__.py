@@ -4,6 +4,10 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+from ._compilation_cache import enable as _enable_compilation_cache  # noqa: E402
+
+_enable_compilation_cache()
+
 from ._bench_gear import GEAR_RUN_COLUMNS as GEAR_RUN_COLUMNS  # noqa: E402
 from ._bench_gear import GEAR_RUN_DEFAULTS as GEAR_RUN_DEFAULTS  # noqa: E402
 from ._bench_gear import GearRuns as GearRuns  # noqa: E402
