@@ -88,11 +88,10 @@ def shard_rows(local, mesh: Mesh):
     origin = np.where(np.arange(length) < n_local, offset + np.arange(length), -1)
     sharding = NamedSharding(mesh, PartitionSpec(mesh.axis_names[0]))
 
-    def place(x):
-        x = np.asarray(x)[take]
+    def place(x):  # x: this process's padded rows
         return jax.make_array_from_process_local_data(sharding, x, (len(counts) * length,) + x.shape[1:])
 
-    return jax.tree.unflatten(tree, [place(x) for x in leaves]), gather_array(place(origin))
+    return jax.tree.unflatten(tree, [place(np.asarray(x)[take]) for x in leaves]), gather_array(place(origin))
 
 
 def gather_array(x) -> np.ndarray:
