@@ -11,6 +11,8 @@ import resource
 import time
 from pathlib import Path
 
+import equinox as eqx
+import jax
 import numpy as np
 
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
@@ -40,18 +42,32 @@ def configure(parser) -> None:
                         "$JAX_PROCESS_ID)")
 
 
+@eqx.filter_jit
+def _rest_poses(nominal, truth, q, marker):
+    """Per robot (`lax.map`: its fixed-point iterations are its own, so its data do not depend on the
+    batch): the nominal robot's motor angles (R, K, 6) holding `q` at rest (`static_equilibrium`) and
+    the true marker positions (R, K, 3) of `truth` resting at them (`rest_link_angles`)."""
+    import jaxrobot as jr
+
+    def one(args):
+        robot, q_r = args
+        theta = jr.static_equilibrium(nominal, q_r)
+        return theta, jr.marker_pose(robot, jr.rest_link_angles(robot, theta), marker)[0]
+
+    return jax.lax.map(one, (truth, q))
+
+
 def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0) -> list[Path]:
     """Bench data of a fleet, this process's share (`process_share`): robots of `draw_fleet(n_robots,
     seed)`, each at its own `n_poses` random feasible poses (one pool, `random_feasible_poses`) held at
-    the nominal robot's static equilibrium, measured by the tracker with noise of its own seed, so that
-    the data do not depend on the process count. Writes `robot_{r:05d}.csv` of this share; returns
-    all R paths."""
-    import jax
+    the nominal robot's static equilibrium, measured by the tracker (`_rest_poses`, each robot on its
+    own) with noise of its own seed, so that the data do not depend on the process count. Writes
+    `robot_{r:05d}.csv` of this share; returns all R paths."""
     import jax.numpy as jnp
 
     import jaxrobot as jr
 
-    from ._pose_selection import random_feasible_poses
+    from ._pose_selection import default_marker, random_feasible_poses
 
     if n_robots < 1 or n_poses < 1:
         raise ValueError(f"--bench/--poses: expected >= 1 robots and poses, found {n_robots} and {n_poses}")
@@ -63,8 +79,7 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0) -> lis
     pool = random_feasible_poses(nominal, 20 * n_poses, seed=seed)
     rows = range(share.start, share.stop)
     q = np.stack([pool[np.random.default_rng([seed, r]).choice(len(pool), n_poses, replace=False)] for r in rows])
-    theta = np.asarray(jr.static_equilibrium(nominal, jnp.asarray(q)))
-    exact = jr.measure_poses(truth, theta, position_noise=0.0).true_positions
+    theta, exact = (np.asarray(x) for x in _rest_poses(nominal, truth, jnp.asarray(q), jnp.asarray(default_marker())))
     sigma = float(jr.read_description(None)["sensors"]["tracker_position_noise_m"])
     for i, r in enumerate(rows):
         noise = sigma * np.random.default_rng([seed, r, 1]).standard_normal((n_poses, 3))
