@@ -1,15 +1,16 @@
-"""Fleet calibration on 1 and on 2 processes of this machine (issue 19): `jaxrobot calibrate-fleet`
-launched as a user would, once per process, coordinator on 127.0.0.1 (a free port).
+"""Fleet calibration on 1 and on 2 processes of this machine (issue 19), started as a user would:
+once per process, coordinator on 127.0.0.1 (a free port).
 
     python benchmarks/bench_distributed.py [--robots 4000] [--poses 50]
 
-Four jobs: bench data + calibration (`--bench R`) on 1 process, then on 2 (each writes its own share
-of the robot files); then calibration of the 1-process files on 1 and on 2 processes (each reads its
-share), with the XLA programs from the persistent compilation cache of the first two jobs, so that
-their calibrate time is the run (plus loading the program). Per process: the phases' wall times
-from its JSON summary, its whole wall time and its peak resident memory (`getrusage`). Checks that
-the 2-process bench files equal the 1-process ones byte for byte and the 2-process tables the
-1-process ones. Writes benchmarks/results_distributed.md (or --out).
+Four jobs: `jaxrobot calibrate-fleet --bench R` (bench data, then calibration) on 1 process, then on
+2 (each writes its own share of the robot files; flags `--coordinator/--num-processes/--process-id`);
+then the Python API on the 1-process files, on 1 and on 2 processes (launched through the variables
+`JAX_COORDINATOR_ADDRESS/JAX_NUM_PROCESSES/JAX_PROCESS_ID`): each process reads its share and calls
+`calibrate_fleet` twice (the first call compiles, the second is the run). Per process: the phases'
+wall times, its whole wall time and its peak resident memory (`getrusage`). Checks that the
+2-process bench files equal the 1-process ones byte for byte and every job's parameters and statuses
+the first job's. Writes benchmarks/results_distributed.md (or --out).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import csv
 import json
 import os
 import platform
+import resource
 import socket
 import subprocess
 import sys
@@ -29,6 +31,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
+import jaxrobot as jr
+
 TIMEOUT_S = 1800
 
 
@@ -36,8 +40,9 @@ def log(text: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
 
 
-def job(n: int, args: list[str], env: dict, logs: Path) -> list[dict]:
-    """`jaxrobot calibrate-fleet ARGS --json` on `n` processes; returns each one's summary plus `wall_s`."""
+def job(n: int, argv: list[str], env: dict, logs: Path, flags: bool) -> list[dict]:
+    """`argv` (printing a JSON summary) on `n` processes, told their place by flags or by the
+    environment; returns each one's summary plus `wall_s`."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         address = f"127.0.0.1:{s.getsockname()[1]}"
@@ -45,10 +50,11 @@ def job(n: int, args: list[str], env: dict, logs: Path) -> list[dict]:
     for p in range(n):
         out, err = logs.with_name(f"{logs.name}.{p}.out"), logs.with_name(f"{logs.name}.{p}.err")
         files.append((out, err))
-        dist = ["--coordinator", address, "--num-processes", str(n), "--process-id", str(p)] if n > 1 else []
+        place = ["--coordinator", address, "--num-processes", str(n), "--process-id", str(p)]
+        env_p = dict(env, **dict(zip(jr.PROCESS_ENV, (address, str(n), str(p))))) if n > 1 and not flags else env
         with out.open("w") as fo, err.open("w") as fe:
-            procs.append((subprocess.Popen([sys.executable, "-m", "jaxrobot._cli", "calibrate-fleet", *args, "--json",
-                                            *dist], stdout=fo, stderr=fe, env=env), time.perf_counter()))
+            procs.append((subprocess.Popen(argv + (place if n > 1 and flags else []), stdout=fo, stderr=fe,
+                                           env=env_p), time.perf_counter()))
     walls = [None] * n
     deadline = time.monotonic() + TIMEOUT_S
     while None in walls and time.monotonic() < deadline:
@@ -72,6 +78,28 @@ def job(n: int, args: list[str], env: dict, logs: Path) -> list[dict]:
     return summaries
 
 
+def worker(folder: Path, result: Path) -> None:
+    """One process of the Python-API jobs: its share of the files, `calibrate_fleet` twice; process 0
+    saves the parameters and statuses."""
+    jr.initialize_processes()  # from PROCESS_ENV
+    from identification import calibrate_fleet
+
+    files = sorted(folder.glob("*.csv"))
+    share = jr.process_share(len(files))
+    t = time.perf_counter()
+    data = [jr.read_pose_csv(f) for f in files[share]]
+    theta, pos = np.stack([d["motor_angles"] for d in data]), np.stack([d["positions"] for d in data])
+    seconds = {"read": time.perf_counter() - t}
+    for call in ("first call", "second call"):
+        t = time.perf_counter()
+        res = calibrate_fleet(jr.racer7(), theta, pos)
+        seconds[call] = time.perf_counter() - t
+    if jax.process_index() == 0:
+        np.savez(result, value=res.value, status=res.status)
+    print(json.dumps({"process_id": jax.process_index(), "local_robots": share.stop - share.start, "seconds": seconds,
+                      "peak_memory_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}, indent=2))
+
+
 def read_table(path: Path) -> list[dict]:
     with path.open() as f:
         return list(csv.DictReader(f))
@@ -82,22 +110,26 @@ def main() -> None:
     ap.add_argument("--robots", type=int, default=4000)
     ap.add_argument("--poses", type=int, default=50)
     ap.add_argument("--out", type=Path, default=Path(__file__).with_name("results_distributed.md"))
+    ap.add_argument("--worker", type=Path, nargs=2, default=None, metavar=("FOLDER", "RESULT"),
+                    help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.worker is not None:
+        return worker(*args.worker)
     load_start = os.getloadavg()
     work = Path(tempfile.mkdtemp(prefix="bench_distributed_"))
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_") and k != "XLA_FLAGS"}
-    env.update(JAX_COMPILATION_CACHE_DIR=str(work / "xla_cache"), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
-               JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
-    bench = ["--bench", str(args.robots), "--poses", str(args.poses)]
+    cli = [sys.executable, "-m", "jaxrobot._cli", "calibrate-fleet", "--json", "--bench", str(args.robots),
+           "--poses", str(args.poses)]
+    api = [sys.executable, __file__, "--worker", str(work / "data1")]
     runs = {}
-    for label, n, argv in (
-        ("bench data + calibration", 1, [str(work / "data1"), *bench, "--out", str(work / "out1")]),
-        ("bench data + calibration", 2, [str(work / "data2"), *bench, "--out", str(work / "out2")]),
-        ("calibration of the files (cached program)", 1, [str(work / "data1"), "--out", str(work / "out3")]),
-        ("calibration of the files (cached program)", 2, [str(work / "data1"), "--out", str(work / "out4")]),
+    for label, n, argv, flags in (
+        ("`calibrate-fleet --bench`", 1, cli + [str(work / "data1"), "--out", str(work / "out1")], True),
+        ("`calibrate-fleet --bench`", 2, cli + [str(work / "data2"), "--out", str(work / "out2")], True),
+        ("`calibrate_fleet` (Python API)", 1, api + [str(work / "api1.npz")], False),
+        ("`calibrate_fleet` (Python API)", 2, api + [str(work / "api2.npz")], False),
     ):
         t = time.perf_counter()
-        runs[(label, n)] = job(n, argv, env, work / f"job{len(runs)}")
+        runs[(label, n)] = job(n, argv, env, work / f"job{len(runs)}", flags)
         log(f"{label}, {n} process(es): {time.perf_counter() - t:.1f} s")
 
     names1 = sorted(p.name for p in (work / "data1").glob("*.csv"))
@@ -106,12 +138,16 @@ def main() -> None:
     ref = read_table(work / "out1" / "fleet_calibration.csv")
     params = [c for c in ref[0] if c not in ("file", "status", "converged", "iterations", "rank", "rms_mm")
               and not c.startswith("std_")]
-    compare = {}
-    for out in ("out2", "out3", "out4"):
-        rows = read_table(work / out / "fleet_calibration.csv")
-        dv = max(abs(float(a[c]) - float(b[c])) for a, b in zip(ref, rows) for c in params)
-        compare[out] = (dv, [r["status"] for r in rows] == [r["status"] for r in ref] and len(rows) == len(ref))
-    status = runs[("bench data + calibration", 1)][0]["status"]
+    v_ref = np.asarray([[float(r[c]) for c in params] for r in ref])
+    s_ref = [r["status"] for r in ref]
+    rows = read_table(work / "out2" / "fleet_calibration.csv")
+    others = {"2 processes, `--bench`": (np.asarray([[float(r[c]) for c in params] for r in rows]),
+                                          [r["status"] for r in rows])}
+    for n in (1, 2):
+        d = np.load(work / f"api{n}.npz")
+        others[f"Python API, {n} process(es)"] = (d["value"], d["status"].tolist())
+    compare = {k: (float(np.max(np.abs(v - v_ref))), st == s_ref) for k, (v, st) in others.items()}
+    status = runs[("`calibrate-fleet --bench`", 1)][0]["status"]
 
     lines = [
         "# Fleet calibration on several processes (jax.distributed)",
@@ -126,29 +162,29 @@ def main() -> None:
         f"Problem: {args.robots} random as-built robots (`draw_fleet`), each with its own {args.poses} random feasible "
         f"poses and tracker noise, {len(params)} free parameters; status of every robot: {status}.",
         "",
-        "Each job is `jaxrobot calibrate-fleet FOLDER ... --json` started once per process (`--coordinator "
-        "127.0.0.1:PORT --num-processes 2 --process-id P`). Times per process [s]: bench = writing its share of "
-        "the robot files (`--bench`), read = reading its share, calibrate = the `calibrate_fleet` call (first two "
-        "jobs: including XLA compilation; last two: the program from the persistent cache of the first two), "
-        "process = the whole command (Python start, imports, `jax.distributed` start-up, writing the table).",
+        "Times per process [s]: bench = computing and writing its share of the robot files, read = reading its "
+        "share, calibrate = the `calibrate_fleet` call of the command (including XLA compilation), first / second "
+        "call = the two calls of the Python-API jobs (the first compiles), process = the whole process (Python "
+        "start, imports, `jax.distributed` start-up, writing the table).",
         "",
-        "| job | processes | process | robots | bench | read | calibrate | process | peak memory [MB] |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| job | processes | process | robots | bench | read | calibrate / first call | second call | process "
+        "| peak memory [MB] |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for (label, n), summaries in runs.items():
-        for s in summaries:
-            sec = s["seconds"]
-            bench_cell = f"{sec['bench']:.1f}" if "bench" in sec else ""
-            lines.append(f"| {label} | {n} | {s['process_id']} | {s['local_robots']} | {bench_cell} | "
-                         f"{sec['read']:.2f} | {sec['calibrate']:.2f} | {s['wall_s']:.1f} | "
-                         f"{s['peak_memory_mb']:.0f} |")
+        for r in summaries:
+            sec = r["seconds"]
+            cells = [label, n, r["process_id"], r["local_robots"], f"{sec['bench']:.1f}" if "bench" in sec else "",
+                     f"{sec['read']:.2f}", f"{sec.get('calibrate', sec.get('first call')):.2f}",
+                     f"{sec['second call']:.2f}" if "second call" in sec else "", f"{r['wall_s']:.1f}",
+                     f"{r['peak_memory_mb']:.0f}"]
+            lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     lines += [
         "",
         f"Correctness: the 2-process bench files {'equal' if same_files else 'DIFFER FROM'} the 1-process ones byte "
-        f"for byte; largest parameter difference from the 1-process table [m, rad, relative ratio]: 2 processes "
-        f"with bench {compare['out2'][0]:.1e}, 1 process on the files {compare['out3'][0]:.1e}, 2 processes on the "
-        f"files {compare['out4'][0]:.1e}; statuses "
-        + ("identical in all." if all(c[1] for c in compare.values()) else "NOT identical."),
+        "for byte; against the 1-process command's table, largest parameter difference [m, rad, ratio] and "
+        "statuses: " + "; ".join(f"{k}: {dv:.1e}, statuses {'identical' if ok else 'DIFFERENT'}"
+                                 for k, (dv, ok) in compare.items()) + ".",
         "",
         f"Expected on 2 shared cores: no speed-up (one CPU device per process; the rows show the launch path "
         f"and the memory of each process). The fleet's input arrays (motor angles and positions) are "

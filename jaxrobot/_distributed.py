@@ -94,11 +94,11 @@ def shard_rows(local, mesh: Mesh):
     return jax.tree.unflatten(tree, [place(np.asarray(x)[take]) for x in leaves]), gather_array(place(origin))
 
 
-def gather_array(x) -> np.ndarray:
-    """The whole of a global array on every process (`process_allgather`), as numpy."""
+def gather_array(tree):
+    """The whole of every global array of a pytree on every process (one `process_allgather`), as numpy."""
     if jax.process_count() > 1:
-        return np.asarray(multihost_utils.process_allgather(x, tiled=True))
-    return np.asarray(x)
+        tree = multihost_utils.process_allgather(tree, tiled=True)
+    return jax.tree.map(np.asarray, tree)
 
 
 def gather_rows(tree, origin: np.ndarray):
@@ -106,4 +106,4 @@ def gather_rows(tree, origin: np.ndarray):
     process (numpy)."""
     keep = np.flatnonzero(origin >= 0)
     order = keep[np.argsort(origin[keep])]
-    return jax.tree.map(lambda x: gather_array(x)[order], tree)
+    return jax.tree.map(lambda x: x[order], gather_array(tree))

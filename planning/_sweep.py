@@ -109,7 +109,7 @@ def solve_ocp_sweep(
                                              lambda idx: nus[index][idx])
         out = _sharded_chains(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), g_nus, warm_start, u_ref,
                               cost, config, mesh)
-        return jax.tree.map(lambda leaf: jnp.asarray(gather_array(leaf)[_first_places(index)]), out)
+        return jax.tree.map(lambda leaf: jnp.asarray(leaf[_first_places(index)]), gather_array(out))
     chains = max(1, min(int(workers), nus.size // 2))
     index = _chain_index(order, chains)
     args = [(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), jnp.asarray(nus[idx]), warm_start, u_ref)
