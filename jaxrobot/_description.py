@@ -30,7 +30,7 @@ def _schema(n: int) -> dict[str, Any]:
         "name": "str",
         "gravity": (3,),
         "kinematics": {"a": vn, "d": vn, "alpha": vn, "beta": vn, "offset": vn},
-        "limits": {"position_deg": (n, 2), "velocity_deg_s": vn, "acceleration_deg_s2": vn},
+        "limits": {"position_deg": (n, 2), "velocity_deg_s": vn, "?acceleration_deg_s2": vn},
         "?gear": {"u0": vn, "?backlash_rad": vn,
                   **{f"?joint{i}": {"cw": _RIPPLE, "ccw": _RIPPLE} for i in range(1, n + 1)}},
         "?stiffness": {"k1": vn, "k3": vn},
@@ -136,7 +136,8 @@ def _check_physics(data: dict, n: int) -> None:
         if lo >= hi:
             _fail(f"limits.position_deg[{i}] (joint {i + 1})", "lower < upper", [lo, hi])
     for key in ("velocity_deg_s", "acceleration_deg_s2"):
-        _positive(data["limits"][key], f"limits.{key}")
+        if key in data["limits"]:
+            _positive(data["limits"][key], f"limits.{key}")
     gear = data.get("gear", {})
     if "u0" in gear:
         _positive(gear["u0"], "gear.u0")
@@ -248,8 +249,15 @@ def filter_cutoffs(data: dict) -> dict[int, float]:
     return {i + 1: float(c) for i, c in enumerate(data.get("sensors", {}).get("filter_cutoff_hz", []))}
 
 
-def read_description(path: str | Path | None = None) -> dict:
-    """Read and validate a robot description file; `None` reads the embedded Racer-7-1.4."""
+def read_description(path: str | Path | None = None, base: str | None = None, tip: str | None = None) -> dict:
+    """Read and validate a robot description file; `None` reads the embedded Racer-7-1.4. A URDF file
+    (suffix `.urdf`) is imported: the chain from link `base` to link `tip` (see `_urdf.read_urdf`)."""
+    if path is not None and Path(path).suffix.lower() == ".urdf":
+        from ._urdf import read_urdf  # _urdf builds on this module
+
+        return read_urdf(path, base, tip)
+    if base is not None or tip is not None:
+        raise ValueError(f"base and tip select the chain of a URDF file (suffix .urdf), found {path}")
     if path is None:
         text = resources.files("jaxrobot").joinpath("data/racer7.toml").read_text()
         source = "racer7.toml (package data)"
@@ -311,7 +319,7 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         tool=jnp.asarray(data.get("tool", {}).get("transform", eye), float),
         q_min=jnp.asarray(lim[:, 0]), q_max=jnp.asarray(lim[:, 1]),
         qd_max=jnp.deg2rad(jnp.asarray(data["limits"]["velocity_deg_s"], float)),
-        qdd_max=jnp.deg2rad(jnp.asarray(data["limits"]["acceleration_deg_s2"], float)),
+        qdd_max=jnp.deg2rad(jnp.asarray(data["limits"].get("acceleration_deg_s2", np.full(n, np.inf)), float)),
         u0=jnp.asarray(u0), cw=cw, ccw=ccw,
         backlash=jnp.asarray(gear.get("backlash_rad", np.zeros(n)), float),
         k1=jnp.asarray(k1), k3=jnp.asarray(k3),
@@ -325,9 +333,10 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
     )
 
 
-def load_robot(path: str | Path, as_built: bool = False) -> Robot:
-    """Load a robot from a description file in the format of `racer7.toml` (validated)."""
-    return robot_from_description(read_description(path), as_built=as_built)
+def load_robot(path: str | Path, as_built: bool = False, base: str | None = None, tip: str | None = None) -> Robot:
+    """Load a robot from a description file in the format of `racer7.toml` (validated), or import
+    the chain from link `base` to link `tip` of a URDF file (suffix `.urdf`; see `read_description`)."""
+    return robot_from_description(read_description(path, base, tip), as_built=as_built)
 
 
 def racer7(as_built: bool = False) -> Robot:
@@ -364,7 +373,6 @@ def description_of(robot: Robot) -> dict:
         "limits": {
             "position_deg": f(np.rad2deg(np.stack([robot.q_min, robot.q_max], -1))),
             "velocity_deg_s": f(np.rad2deg(robot.qd_max)),
-            "acceleration_deg_s2": f(np.rad2deg(robot.qdd_max)),
         },
         "links": {
             "mass": f(robot.mass), "com": f(robot.com),
@@ -372,6 +380,8 @@ def description_of(robot: Robot) -> dict:
                          float(i[0, 2]), float(i[1, 2])] for i in inertia],
         },
     }
+    if np.all(np.isfinite(np.asarray(robot.qdd_max))):  # else no acceleration limits
+        data["limits"]["acceleration_deg_s2"] = f(np.rad2deg(robot.qdd_max))
     if gear.keys() != {"u0"} or np.any(np.asarray(robot.u0) != 1.0):  # else no gears: no [gear] section
         data["gear"] = gear
     if np.any(np.asarray(robot.motor_inertia) != 0):  # else no [motors] section

@@ -33,16 +33,16 @@ class Robot(eqx.Module):
 
     Every field is an array (SI units, radians) whose joint axis has length `n`
     (`n_joints`), so a fleet of robots is the same pytree with a leading batch axis. Kinematics
-    follow eq. 2.2-2.4 with the Hayati angle `beta` (eq. 2.3);
+    follow eq. 2.2-2.4: standard DH plus the Hayati angle `beta` (eq. 2.3), not Craig's modified DH;
     the joint transform is `Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`.
     """
 
     a: Float[Array, "*batch n"]
-    """mDH link lengths `a_i` [m]."""
+    """DH link lengths `a_i` [m]."""
     d: Float[Array, "*batch n"]
-    """mDH offsets `d_i` [m]."""
+    """DH offsets `d_i` [m]."""
     alpha: Float[Array, "*batch n"]
-    """mDH twists `alpha_i` [rad]."""
+    """DH twists `alpha_i` [rad]."""
     beta: Float[Array, "*batch n"]
     """Hayati angles `beta_i` [rad] (eq. 2.3)."""
     offset: Float[Array, "*batch n"]
@@ -58,7 +58,7 @@ class Robot(eqx.Module):
     qd_max: Float[Array, "*batch n"]
     """Link velocity limits [rad/s] (Table A.2)."""
     qdd_max: Float[Array, "*batch n"]
-    """Link acceleration limits [rad/s^2] (Table A.3)."""
+    """Link acceleration limits [rad/s^2] (Table A.3); `inf` where the description has none."""
     u0: Float[Array, "*batch n"]
     """Basic gear ratios `u0` (Table A.5)."""
     cw: Ripple
