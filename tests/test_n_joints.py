@@ -125,6 +125,7 @@ def test_seven_joint_description_and_optional_sections(tmp_path):
         jr.load_robot(_write(tmp_path, bad))
 
 
+@pytest.mark.slow  # keeps the added default-suite time near its 60 s budget
 def test_seven_joint_gear_run_on_the_bench(tmp_path):
     """A constant-speed run of joint 7 (thesis 3.1.1): the other joints hold, the link rate integrates
     to the link travel (trapezoid at 1 kHz on a cycloidal profile: < 1e-6 rad), and the gear-run
@@ -179,6 +180,7 @@ def test_seven_joint_calibration_recovers_the_as_built_arm(arm7):
     assert rep["validation"]["after_m"]["mean"] <= 1.2 * floor.mean()
 
 
+@pytest.mark.slow  # keeps the added default-suite time near its 60 s budget
 def test_diagnose_names_a_hidden_offset_on_joint_seven(arm7):
     """Joint 7 turns the marker (5.4 cm off its axis) by 2e-3 rad: ~0.1 mm at 50 um tracker noise."""
     _, start = arm7
@@ -225,6 +227,7 @@ def _plan_line(desc: dict, on_plant: bool):
     return plan_err, None
 
 
+@pytest.mark.slow  # keeps the added default-suite time near its 60 s budget
 def test_seven_joint_elastic_arm_plans_a_short_line():
     """The straight line of eq. 4.7 shortened to 0.2 s and 2 cm (the full task: the slow test): the
     OCP's link angles put the tool on the path to well below a micrometre, as on the Racer-7."""
