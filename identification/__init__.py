@@ -1,3 +1,5 @@
+from jaxrobot._checks import check_public as _check_public
+
 from ._calibration import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
 from ._calibration import CalibrationResult as CalibrationResult
 from ._calibration import calibrate as calibrate
@@ -25,3 +27,5 @@ from ._parameters import ParameterMap as ParameterMap
 from ._pose_selection import PoseConstraints as PoseConstraints
 from ._pose_selection import detmax as detmax
 from ._pose_selection import random_feasible_poses as random_feasible_poses
+
+_check_public(globals())

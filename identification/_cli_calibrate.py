@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxrobot._cli import SolveFailed
+
 HELP = "calibrate the kinematic parameters from a pose file (thesis 3.2, LM)"
 
 
@@ -101,7 +103,7 @@ def run(args, echo) -> dict:
                     marker=marker, validation=val, limits=args.limits)
     _echo_report(res.report, echo)
     if not res.report["converged"]:
-        raise ValueError(f"calibration did not converge ({res.report['status']}); the model was not saved")
+        raise SolveFailed(f"calibration did not converge ({res.report['status']}); the model was not saved")
     if args.out is not None:
         for f in _write_outputs(args.out, res.report, positions=data["positions"]):
             echo(f"wrote {args.out / f}")

@@ -24,6 +24,7 @@ from jaxrobot import Robot, read_description
 from jaxrobot._description import filter_cutoffs
 from jaxrobot._gear import ratio as gear_ratio
 from jaxrobot._gear import xi_inverse
+from jaxrobot._linalg import map_matrices
 
 from ._gear_frequencies import fft_orders, group_samples, sparse_orders
 from ._gear_processing import (
@@ -133,7 +134,7 @@ def fit_gear_ratio(
             res = y - jnp.einsum("rnp,p->rn", x_f, p)  # one refinement step
             return p + inv @ jnp.einsum("r,rnp,rn->p", sel, x_f, res)
 
-        p = jax.vmap(per_group)(jnp.arange(n_groups))
+        p = jax.lax.map(per_group, jnp.arange(n_groups))  # one eigendecomposition per call (jaxrobot._linalg)
         return p, x_raw, x_f
 
     params = (u0_start, jnp.zeros((n_groups, m)), jnp.zeros((n_groups, m)))
@@ -150,7 +151,7 @@ def fit_gear_ratio(
     b_mat = jnp.einsum("rg,rnp,rnq->gpq", onehot, x_ff, x_ff)
     n = jnp.einsum("rg,rn->g", onehot, weight)
     s2 = jnp.einsum("rg,rn->g", onehot, res_raw**2) / jnp.maximum(n - p.shape[-1], 1.0)
-    a_inv = jax.vmap(pinv_psd)(a_mat)
+    a_inv = map_matrices(pinv_psd, a_mat)
     cov = s2[:, None, None] * a_inv @ b_mat @ a_inv
     cov_ab = cov[:, 1:, 1:] / (u0**2)[:, None, None]
     return GearFit(u0=u0, orders=orders, a=a, b=b, se_u0=jnp.sqrt(cov[:, 0, 0]), cov_ab=cov_ab,

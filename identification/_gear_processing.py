@@ -28,6 +28,7 @@ from jaxtyping import Array, Bool, Float, Int
 from jaxrobot import Ripple, Robot
 from jaxrobot._bench_gear import mount_angular_velocity, quasi_static_link_angles
 from jaxrobot._kinematics import rot_x, rot_y
+from jaxrobot._linalg import map_matrices
 
 MOVE_THRESHOLD_RAD = math.radians(1.0)
 """A joint moves in a run if its motor angle spans more than this [rad, motor side]."""
@@ -281,7 +282,7 @@ def normal_solve(x: Float[Array, "*b N P"], y: Float[Array, "*b N"], w: Float[Ar
     """Weighted least squares `min sum w (y - x p)^2` by the normal equations with one step of
     iterative refinement (the tall QR/SVD of the CPU backend is orders of magnitude slower)."""
     a = jnp.einsum("...np,...n,...nq->...pq", x, w, x)
-    inv = jnp.vectorize(pinv_psd, signature="(p,p)->(p,p)")(a)
+    inv = map_matrices(pinv_psd, a)
     p = jnp.einsum("...pq,...q->...p", inv, jnp.einsum("...np,...n->...p", x, w * y))
     r = y - jnp.einsum("...np,...p->...n", x, p)
     return p + jnp.einsum("...pq,...q->...p", inv, jnp.einsum("...np,...n->...p", x, w * r))

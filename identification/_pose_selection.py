@@ -18,6 +18,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
+from jaxrobot._linalg import map_matrices
 
 from ._observability import observability_indices, singular_values_from_gram
 from ._parameters import ParameterMap, predict_pose, rotation_error
@@ -55,7 +56,7 @@ def _feasible(robot: jr.Robot, q: Float[Array, "N n"], marker, margin, z_min, mi
 
     inside = jnp.all((q >= robot.q_min + margin) & (q <= robot.q_max - margin), -1)
     z = marker_pose(robot, q, marker)[0][..., 2]
-    smin = jnp.linalg.svd(jr.geometric_jacobian(robot, q), compute_uv=False)[..., -1]
+    smin = map_matrices(lambda j: jnp.linalg.svd(j, compute_uv=False), jr.geometric_jacobian(robot, q))[..., -1]
     return inside & (z >= z_min) & (smin >= min_sigma)
 
 

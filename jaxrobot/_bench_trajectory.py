@@ -68,6 +68,11 @@ def write_trajectory_csv(path: str | Path, t, theta, positions) -> None:
     np.savetxt(path, data, delimiter=",", header=",".join(columns), comments="", fmt="%.12g")
 
 
+NOT_CONVERGED = "# NOT CONVERGED"
+"""First line of a result file written from a solve that did not converge (`plan --save-failed`);
+`read_csv_columns` refuses such a file."""
+
+
 def read_csv_columns(
     path: str | Path, required: list[str], optional: list[str] = (), *, reject_nan: bool = True,
     min_rows: int = 1,
@@ -83,6 +88,9 @@ def read_csv_columns(
         raise FileNotFoundError(f"{path}: no such file")
     with path.open(newline="") as f:
         rows = list(csv.reader(f))
+    if rows and rows[0] and rows[0][0].startswith(NOT_CONVERGED):
+        raise ValueError(f"{path}: written from a solve that did not converge ({','.join(rows[0])}); "
+                         "not a result")
     header = [h.strip() for h in rows[0]] if rows else []
     missing = [c for c in required if c not in header]
     if missing:

@@ -40,6 +40,7 @@ def _numbers(robot, q):
     from ._elasticity import elastic_deflection
     from ._gear import motor_angle
     from ._kinematics import forward_kinematics
+    from ._linalg import map_matrices
     from ._statics import rest_link_angles
 
     q_rest = rest_link_angles(robot, motor_angle(robot, q))  # rigid command theta = Xi(q)
@@ -47,7 +48,7 @@ def _numbers(robot, q):
     sag = jnp.linalg.norm(p[: len(q)] - p[len(q):], axis=-1)
     x = elastic_deflection(robot, gravity_torque(robot, q))
     stiffness = jax.vmap(jnp.diag)(robot.k1 + 3 * robot.k3 * x**2)
-    lam = jnp.linalg.eigvals(jnp.linalg.solve(mass_matrix(robot, q), stiffness)).real
+    lam = map_matrices(lambda m, k: jnp.linalg.eigvals(jnp.linalg.solve(m, k)).real, mass_matrix(robot, q), stiffness)
     return sag, jnp.sqrt(jnp.sort(lam, -1)) / (2 * jnp.pi), forward_kinematics(robot, jnp.zeros(robot.n_joints))
 
 

@@ -1,3 +1,5 @@
+from jaxrobot._checks import check_public as _check_public
+
 from ._al_solver import ALConfig as ALConfig
 from ._bandwidth import bandwidth as bandwidth
 from ._bandwidth import control_spectrum as control_spectrum
@@ -50,3 +52,5 @@ from ._transcription import objective as objective
 from ._transcription import ocp_problem as ocp_problem
 from ._transcription import variable_scale as variable_scale
 from ._transcription import warm_start as warm_start
+
+_check_public(globals())

@@ -23,6 +23,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, Real
 
 import jaxrobot as jr
+from jaxrobot._linalg import map_matrices, solve
 
 from ._trajectories import Path, sample_path, time_grid
 
@@ -163,10 +164,9 @@ def smooth_joint_path(
         return task_residual(robot, q, path.position(t), path.orientation(t), redundancy)
 
     def chord(q, t, steps):
-        lu = jax.scipy.linalg.lu_factor(jax.jacfwd(residual)(q, jax.lax.stop_gradient(t)))
-        lu = jax.lax.stop_gradient(lu)
+        j_inv = jax.lax.stop_gradient(solve(jax.jacfwd(residual)(q, jax.lax.stop_gradient(t)), jnp.eye(q.shape[-1])))
         for _ in range(steps):
-            q = q - jax.scipy.linalg.lu_solve(lu, residual(q, t))
+            q = q - j_inv @ residual(q, t)
         return q
 
     def q_d(t):
@@ -256,7 +256,7 @@ def joint_derivatives(
 
     def single(q, t):
         residual = lambda q, t: task_residual(robot, q, path.position(t), path.orientation(t), redundancy)  # noqa: E731
-        lu = jax.scipy.linalg.lu_factor(jax.jacfwd(residual)(q, t))
+        j_inv = solve(jax.jacfwd(residual)(q, t), jnp.eye(q.shape[-1]))  # LAPACK-free: vmapped over the samples
         coeffs = [q]
         for k in range(1, order + 1):
             def h(s, cs=tuple(coeffs)):
@@ -264,7 +264,7 @@ def joint_derivatives(
 
             for _ in range(k):
                 h = (lambda f: lambda s: jax.jvp(f, (s,), (jnp.ones_like(s),))[1])(h)
-            coeffs.append(-jax.scipy.linalg.lu_solve(lu, h(jnp.zeros_like(t))))
+            coeffs.append(-j_inv @ h(jnp.zeros_like(t)))
         return coeffs
 
     return list(jax.vmap(single)(jnp.asarray(q, dtype=float), jnp.asarray(t, dtype=float)))
@@ -273,7 +273,7 @@ def joint_derivatives(
 @jax.jit
 def singular_values(robot: jr.Robot, q: Float[Array, "*b n"]) -> Float[Array, "*b 6"]:
     """Singular values of the geometric Jacobian, descending (m/rad rows, then rad/rad rows)."""
-    return jnp.linalg.svd(jr.geometric_jacobian(robot, q), compute_uv=False)
+    return map_matrices(lambda j: jnp.linalg.svd(j, compute_uv=False), jr.geometric_jacobian(robot, q))
 
 
 def check_inverse_kinematics(t: Real[Array, " N"], ik: IKResult) -> None:
