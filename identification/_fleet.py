@@ -6,8 +6,9 @@ batch-first Levenberg-Marquardt loop (`_batched_lm`, in chunks of `CHUNK` robots
 poses, `_calibration_model.position_jacobian`), each robot stopping on its own tolerances. The
 fleet axis is sharded across all devices with `jax.sharding` (a 1-D mesh named `"fleet"`,
 `shard_map`: each device runs its own LM loop on its own robots, no communication), so that the
-same call uses one CPU, several GPUs, or several hosts under `jax.distributed` (every process
-passes the full arrays; each device computes its shard; results are gathered).
+same call uses one CPU, several GPUs, or several processes and hosts under `jax.distributed`
+(`jaxrobot.initialize_processes`): each process passes only its own robots, the global arrays
+are assembled from the processes' rows (`jaxrobot.shard_rows`) and the results gathered back.
 """
 
 from __future__ import annotations
@@ -20,10 +21,11 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
+from jaxrobot._distributed import gather_rows, shard_rows
 from jaxrobot._statics import rest_link_angles
 
 from ._batched_lm import STATUS, batched_lm, covariance, map_chunks
@@ -59,19 +61,6 @@ class FleetResult:
 def fleet_mesh(devices: Sequence | None = None) -> Mesh:
     """1-D device mesh over all (global) devices, axis name `"fleet"`."""
     return Mesh(np.asarray(jax.devices() if devices is None else devices), ("fleet",))
-
-
-def _to_global(x: np.ndarray, sharding: NamedSharding) -> Array:
-    x = np.asarray(x)
-    return jax.make_array_from_callback(x.shape, sharding, lambda idx: x[idx])
-
-
-def _gather(x: Array) -> np.ndarray:
-    if jax.process_count() > 1:
-        from jax.experimental import multihost_utils
-
-        return np.asarray(multihost_utils.process_allgather(x, tiled=True))
-    return np.asarray(x)
 
 
 def _robot_residual_jacobian(robot, params, theta, positions, deflection, q0, marker, rippled, x):
@@ -186,7 +175,10 @@ def calibrate_fleet(
     `robots`: the initial robots, a fleet pytree with leading axis R, or one robot used for all.
     The fleet axis is padded to a multiple of the device count and sharded over `mesh`
     (default: all devices). Robots whose solve failed or whose pose set is rank deficient have
-    `converged = False`. `parameters`: default `default_parameters` of the first robot.
+    `converged = False`. `parameters`: default `default_parameters` of the first robot. Under
+    several processes (`jaxrobot.initialize_processes`) each process passes only its own robots
+    (e.g. rows `jaxrobot.process_share(R)`, one robot or its own fleet rows in `robots`) and every
+    process receives the whole fleet in process order.
     """
     joints = robots.n_joints
     theta = np.asarray(motor_angles, float)
@@ -214,18 +206,12 @@ def calibrate_fleet(
         raise ValueError(f"robots: expected one robot or a fleet of {n_rob}, found {robots.a.shape[0]}")
     mesh = fleet_mesh() if mesh is None else mesh
     n_dev = mesh.devices.size
-    pad = -n_rob % n_dev
-    take = np.concatenate([np.arange(n_rob), np.zeros(pad, int)])  # pad with copies of robot 0
-    sharding = NamedSharding(mesh, PartitionSpec("fleet"))
-    leaves, tree = jax.tree.flatten(robots)
-    g_robots = jax.tree.unflatten(tree, [_to_global(np.asarray(x)[take], sharding) for x in leaves])
+    (g_robots, g_theta, g_pos), origin = shard_rows((robots, theta, pos), mesh)  # padded with robot 0
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
-    g_theta = _to_global(theta[take], sharding)
     rippled = rippled_joints(robots)
     q0, defl = _fleet_constants(initial if np.ndim(initial.a) == 1 else g_robots, g_theta, rippled, mesh)
-    out = _fleet_solve(g_robots, params, g_theta, _to_global(pos[take], sharding), marker, q0, defl, max_steps,
-                       rippled, mesh)
-    out = {key: _gather(v)[:n_rob] for key, v in out.items()}
+    out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, max_steps, rippled, mesh)
+    out, robots = gather_rows((out, g_robots), origin)
     value = out["value"]
     status = np.asarray(STATUS + ("rank_deficient",))[np.where(
         (out["status"] == 0) & (out["rank"] < len(params)), len(STATUS), out["status"])]

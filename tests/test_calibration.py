@@ -431,22 +431,21 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
     """NaN data (past the host check) stop as `non_finite`, never as converged; the solve compiled
     by `calibrate_fleet` (same shapes, shardings and statics)."""
     import jax
-    from jax.sharding import NamedSharding, PartitionSpec
 
     from identification._calibration_model import rippled_joints
-    from identification._fleet import _fleet_constants, _fleet_solve, _to_global, fleet_mesh
+    from identification._fleet import _fleet_constants, _fleet_solve, fleet_mesh
 
     nominal, _ = robots
     theta, meas, _ = fleet_problem
     pos = meas.positions.copy()
     pos[1, 4, 0] = np.nan
     mesh = fleet_mesh()
-    sharding = NamedSharding(mesh, PartitionSpec("fleet"))
-    fleet = jax.tree.map(lambda x: _to_global(np.broadcast_to(x, (3,) + np.shape(x)), sharding), nominal)
-    params, g_theta, rippled = ParameterMap(DEFAULT_PARAMETERS), _to_global(theta, sharding), rippled_joints(nominal)
+    fleet = jax.tree.map(lambda x: np.broadcast_to(x, (3,) + np.shape(x)), nominal)
+    (fleet, g_theta, g_pos), _ = jr.shard_rows((fleet, theta, pos), mesh)
+    params, rippled = ParameterMap(DEFAULT_PARAMETERS), rippled_joints(nominal)
     q0, defl = _fleet_constants(fleet, g_theta, rippled, mesh)
-    out = _fleet_solve(fleet, params, g_theta, _to_global(pos, sharding), jnp.asarray(default_marker(), float), q0,
-                       defl, 100, rippled, mesh)
+    out = _fleet_solve(fleet, params, g_theta, g_pos, jnp.asarray(default_marker(), float), q0, defl, 100, rippled,
+                       mesh)
     assert np.asarray(out["status"]).tolist() == [0, 2, 0]
     assert np.asarray(out["converged"]).tolist() == [True, False, True]
     with pytest.raises(ValueError, match=r"positions\[robot 1\]: NaN/inf in rows \[4\]"):
