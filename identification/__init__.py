@@ -18,7 +18,9 @@ from ._gear_processing import check_gear_run as check_gear_run
 from ._gear_processing import prepare_gear_runs as prepare_gear_runs
 from ._gear_processing import process_gear_runs as process_gear_runs
 from ._identifiability import IdentifiabilityResult as IdentifiabilityResult
+from ._identifiability import default_parameters as default_parameters
 from ._identifiability import identifiability as identifiability
+from ._identifiability import kinematic_parameters as kinematic_parameters
 from ._observability import observability_indices as observability_indices
 from ._parameters import THESIS_PARAMETERS as THESIS_PARAMETERS
 from ._parameters import ParameterMap as ParameterMap

@@ -21,6 +21,7 @@ from jax.scipy.special import betainc, gammaincc
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxrobot import Robot, read_description
+from jaxrobot._description import filter_cutoffs
 from jaxrobot._gear import ratio as gear_ratio
 from jaxrobot._gear import xi_inverse
 from jaxrobot._linalg import map_matrices
@@ -293,7 +294,7 @@ def identify_gear(
     **Arguments:**
     - `robot`: the model (nominal): its `u0`, kinematics, masses and stiffness are used; its ripple
       is not.
-    - `runs`, `validation_runs`: `(t (N,) s, theta (N, 6) rad, gyro (N, 3) rad/s)` per run; each
+    - `runs`, `validation_runs`: `(t (N,) s, theta (N, n) rad, gyro (N, 3) rad/s)` per run; each
       validation run needs identification runs of the same joint and direction.
     - `cutoff_hz`: filter cut-off per 1-based joint (default: `[sensors] filter_cutoff_hz` of the
       embedded description, joints 1-3).
@@ -305,7 +306,7 @@ def identify_gear(
     if method not in ("sparse", "fft"):
         raise ValueError(f"method: expected 'sparse' or 'fft', found {method!r}")
     if cutoff_hz is None:
-        cutoff_hz = {i + 1: float(c) for i, c in enumerate(read_description(None)["sensors"]["filter_cutoff_hz"])}
+        cutoff_hz = filter_cutoffs(read_description(None))
     validation_runs = validation_runs or []
     names = names or [f"run {k + 1}" for k in range(len(runs))]
     validation_names = validation_names or [f"validation run {k + 1}" for k in range(len(validation_runs))]

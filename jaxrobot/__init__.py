@@ -8,9 +8,9 @@ from ._compilation_cache import enable as _enable_compilation_cache  # noqa: E40
 
 _enable_compilation_cache()
 
-from ._bench_gear import GEAR_RUN_COLUMNS as GEAR_RUN_COLUMNS  # noqa: E402
 from ._bench_gear import GEAR_RUN_DEFAULTS as GEAR_RUN_DEFAULTS  # noqa: E402
 from ._bench_gear import GearRuns as GearRuns  # noqa: E402
+from ._bench_gear import gear_run_columns as gear_run_columns  # noqa: E402
 from ._bench_gear import gear_runs as gear_runs  # noqa: E402
 from ._bench_gear import read_gear_run as read_gear_run  # noqa: E402
 from ._bench_gear import write_gear_run as write_gear_run  # noqa: E402
@@ -31,6 +31,12 @@ from ._description import load_robot as load_robot  # noqa: E402
 from ._description import racer7 as racer7  # noqa: E402
 from ._description import read_description as read_description  # noqa: E402
 from ._description import save_robot as save_robot  # noqa: E402
+from ._distributed import PROCESS_ENV as PROCESS_ENV  # noqa: E402
+from ._distributed import gather_array as gather_array  # noqa: E402
+from ._distributed import gather_rows as gather_rows  # noqa: E402
+from ._distributed import initialize_processes as initialize_processes  # noqa: E402
+from ._distributed import process_share as process_share  # noqa: E402
+from ._distributed import shard_rows as shard_rows  # noqa: E402
 from ._dynamics import coriolis_matrix as coriolis_matrix  # noqa: E402
 from ._dynamics import coriolis_vector as coriolis_vector  # noqa: E402
 from ._dynamics import gravity_torque as gravity_torque  # noqa: E402

@@ -1,7 +1,8 @@
 """The `jaxrobot` command line.
 
 Subcommands are modules with `HELP: str`, `configure(parser)` and `run(args, echo) -> dict`
-(the JSON summary). `jaxrobot` ships `info` and `demo`; other packages add theirs through the
+(the JSON summary); `--out` is a folder, or the file described by the module's `OUT_FILE: str`.
+`jaxrobot` ships `info`, `demo` and `import-urdf`; other packages add theirs through the
 entry-point group `jaxrobot.commands`, and stages of `jaxrobot demo` through `jaxrobot.demo`
 (a function `stage(out: Path, echo) -> dict`, run in the order of the entry-point names), so
 that `jaxrobot` never imports the packages built on it.
@@ -38,9 +39,9 @@ def suggestion(word: str, choices) -> str:
 
 
 def _commands() -> dict[str, ModuleType]:
-    from . import _cli_demo, _cli_info
+    from . import _cli_demo, _cli_import_urdf, _cli_info
 
-    found = {"info": _cli_info, "demo": _cli_demo}
+    found = {"info": _cli_info, "demo": _cli_demo, "import-urdf": _cli_import_urdf}
     for ep in entry_points(group="jaxrobot.commands"):
         try:
             found[ep.name] = ep.load()
@@ -81,7 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     for name, module in commands.items():
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
         p.add_argument("--json", action="store_true", help="print a machine-readable summary on stdout")
-        p.add_argument("--out", type=Path, default=None, help="folder for tables, plots and files")
+        p.add_argument("--out", type=Path, default=None,
+                       help=getattr(module, "OUT_FILE", "folder for tables, plots and files"))
         module.configure(p)
     args = parser.parse_args(argv)
     stream = sys.stderr if args.json else sys.stdout
@@ -93,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"jaxrobot {args.command}: error: {message}", file=sys.stderr)
         return code
 
-    if args.out is not None:
+    if args.out is not None and not hasattr(commands[args.command], "OUT_FILE"):
         if args.out.exists() and not args.out.is_dir():
             return fail(f"--out {args.out}: is an existing file; --out names a folder (it is created if missing)", 2)
         args.out.mkdir(parents=True, exist_ok=True)

@@ -43,6 +43,7 @@ from ._trajectories import spiral_path as spiral_path
 from ._trajectories import task_orientation as task_orientation
 from ._trajectories import time_grid as time_grid
 from ._transcription import OCPProblem as OCPProblem
+from ._transcription import State as State
 from ._transcription import boundary_states as boundary_states
 from ._transcription import bounds as bounds
 from ._transcription import defects as defects

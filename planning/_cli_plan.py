@@ -25,8 +25,9 @@ from ._evaluation import (
     simulate_plans,
     summarize,
 )
-from ._ik import joint_path
+from ._ik import default_start, joint_path
 from ._trajectories import check_task, reference_path, sample_path, sampled_path
+from ._transcription import State
 
 HELP = "plan a task (line, spiral or a CSV of tool positions) with the OCP and evaluate it on the plant"
 COSTS = ("thesis", "jerk", "flat")
@@ -64,11 +65,11 @@ def read_task_csv(path: Path):
     return sampled_path(jnp.asarray(t), jnp.asarray(p), None if r is None else jnp.asarray(r), name=path.stem)
 
 
-def task_path(task: str):
-    """The reference task `line`/`spiral` or a task CSV, checked for rest at both ends and smoothness
-    (`check_task`)."""
+def task_path(task: str, description: dict | None = None):
+    """A reference task of the description (`line`/`spiral`) or a task CSV, checked for rest at both ends
+    and smoothness (`check_task`)."""
     if task in ("line", "spiral"):
-        return reference_path(task)
+        return reference_path(task, description)
     if not Path(task).is_file():
         raise ValueError(f"task {task!r}: expected 'line', 'spiral' or an existing CSV file"
                          f"{suggestion(task, ('line', 'spiral'))}")
@@ -99,8 +100,9 @@ def failure_report(robot, jp, sol, nu: float) -> str:
 
 
 def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, directional: bool = False,
-         keep_failed: bool = False) -> dict:
-    """IK, flat-inverse warm start, OCP and plant evaluation of one task; returns every intermediate.
+         q_init=None, keep_failed: bool = False) -> dict:
+    """IK (from `q_init`, default the embedded description's start), flat-inverse warm start, OCP and
+    plant evaluation of one task; returns every intermediate.
     A solve that did not converge raises `SolveFailed`, or with `keep_failed` returns only `jp`,
     `sol` and its trajectory (no plant evaluation)."""
     from ._ocp import solve_ocp
@@ -108,12 +110,12 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
     if not (np.isfinite(nu) and nu > 0):
         raise ValueError(f"--nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
     for name, r in (("model", robot), ("plant", plant)):
-        rigid = [j + 1 for j in range(6) if not np.isfinite(float(r.k1[j]))]
+        rigid = [j + 1 for j in range(r.n_joints) if not np.isfinite(float(r.k1[j]))]
         if rigid:
             raise ValueError(f"{name}: planning needs elastic joints ([stiffness] k1 finite), found rigid joints "
                              f"{rigid} (k1 = inf); identify the stiffness first (e.g. jaxrobot diagnose)")
     start = time.perf_counter()
-    jp = joint_path(robot, path)
+    jp = joint_path(robot, path, q_init)
     echo(f"  inverse kinematics: {jp.t.shape[0]} samples, max residual "
          f"{float(jp.ik.position_residual.max()):.1e} m, limits ok ({time.perf_counter() - start:.1f} s)")
     start = time.perf_counter()
@@ -121,7 +123,7 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
     flat = base["flat_inverse"]
     jax.block_until_ready(flat)
     echo(f"  flat inverse (warm start): {time.perf_counter() - start:.1f} s")
-    warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+    warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
     ts = float(path.sample_time)
     echo(f"  solving the OCP (N = {jp.t.shape[0]}, nu = {nu:g}, cost {cost}) ...")
     start = time.perf_counter()
@@ -148,7 +150,7 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
                               "trajectory, marked as not converged)")
         return {"jp": jp, "sol": sol, "trajectories": {"ocp": ocp_motor_trajectory(sol.x, sol.u)}}
     p_d, r_d = sample_path(path, jp.t)
-    p_plan = jr.tool_pose(robot, sol.x[:, :6])[:, :3, 3]
+    p_plan = jr.tool_pose(robot, sol.q)[:, :3, 3]
     plan_err = np.linalg.norm(np.asarray(p_plan - p_d), axis=-1)
     trajectories = {**base, "ocp": ocp_motor_trajectory(sol.x, sol.u)}
     start = time.perf_counter()
@@ -201,7 +203,7 @@ def write_plots(result: dict, out: Path, label: str) -> list[Path]:
     files.append(_plots.joint_errors(t, q_sim - np.asarray(jp.q), np.asarray(run.orientation[i_ocp, :n]),
                                      np.asarray(run.position[i_ocp, :n]), out / f"{label}_ocp_errors.png",
                                      f"{label}: OCP on the plant"))
-    files.append(_plots.motor_signals(t, np.asarray(sol.u), np.asarray(sol.x[:, 18:24]), np.asarray(sol.x[:, 6:12]),
+    files.append(_plots.motor_signals(t, np.asarray(sol.u), np.asarray(sol.thetad), np.asarray(sol.state.qd),
                                       out / f"{label}_ocp_signals.png", f"{label}: OCP control and rates"))
     p_d = np.asarray(result["p_d"])
     robot_p = np.asarray(jr.tool_pose(result["plant"], jnp.asarray(q_sim))[:, :3, 3])
@@ -219,12 +221,16 @@ def write_plots(result: dict, out: Path, label: str) -> list[Path]:
 def run(args, echo) -> dict:
     if args.cost not in COSTS:
         raise ValueError(f"--cost must be one of {COSTS}, got {args.cost!r}")
-    robot = jr.racer7() if args.model is None else jr.load_robot(args.model)
-    plant = jr.racer7(as_built=True) if args.plant == "as-built" else robot
-    path = task_path(args.task)
+    from jaxrobot._description import robot_from_description
+
+    desc = jr.read_description(args.model)
+    robot = robot_from_description(desc)
+    plant = robot_from_description(desc, as_built=True) if args.plant == "as-built" else robot
+    path = task_path(args.task, desc)
+    q_init = default_start(desc) if "trajectories" in desc else 0.5 * (robot.q_min + robot.q_max)
     echo(f"planning {path.name} ({path.duration:g} s at T_s = {1e3 * path.sample_time:g} ms) on {robot.name}")
     result = plan(robot, plant, path, args.nu, args.cost, echo, directional=args.plant == "as-built",
-                  keep_failed=args.save_failed)
+                  q_init=q_init, keep_failed=args.save_failed)
     sol = result["sol"]
     failed = None if bool(sol.converged) else failure_report(robot, result["jp"], sol, args.nu)
     if args.save_trajectory is not None:

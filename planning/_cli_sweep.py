@@ -7,7 +7,6 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
@@ -17,8 +16,9 @@ from . import _plots
 from ._bandwidth import bandwidth, control_spectrum
 from ._cli_plan import COSTS, _status_name, task_path
 from ._evaluation import baseline_trajectories, ocp_motor_trajectory, simulate_plans, summarize
-from ._ik import joint_path
+from ._ik import default_start, joint_path
 from ._sweep import solve_ocp_sweep
+from ._transcription import State
 
 HELP = "sweep the weighting factor nu (one OCP sweep call per cost variant): table, plots, Pareto front"
 DEFAULT_NUS = tuple(float(v) for v in np.logspace(-16, -9, 8))
@@ -31,6 +31,7 @@ def configure(parser) -> None:
     parser.add_argument("--costs", nargs="+", choices=COSTS, default=list(COSTS), help="cost variants to compare")
     parser.add_argument("--plant", choices=("model", "as-built"), default="model",
                         help="robot the plans are simulated on")
+    parser.add_argument("--model", type=Path, default=None, help="planning model TOML (default: the embedded Racer-7)")
     parser.add_argument("--save-failed", action="store_true",
                         help="also write the outputs when a solve did not converge (the table's first line then "
                         "marks it; the exit code is 3 either way)")
@@ -45,7 +46,8 @@ def failures(nus, cost: str, sols) -> list[str]:
             for i, nu in enumerate(nus) if not bool(sols.converged[i])]
 
 
-def sweep(robot, plant, path, nus, costs, echo, directional: bool = False, keep_failed: bool = False) -> dict:
+def sweep(robot, plant, path, nus, costs, echo, directional: bool = False, q_init=None,
+          keep_failed: bool = False) -> dict:
     """Solve the OCP for every nu (one `solve_ocp_sweep` call per cost: continuation chains in increasing
     nu, each member warm-started from the previous ones, one chain per CPU core), then bandwidths and
     plant errors of every solution. A member that did not converge raises `SolveFailed` unless
@@ -54,9 +56,9 @@ def sweep(robot, plant, path, nus, costs, echo, directional: bool = False, keep_
     nus = np.asarray(nus, dtype=float)
     if nus.ndim != 1 or nus.size < 1 or not np.all(np.isfinite(nus) & (nus > 0)):
         raise ValueError(f"--nu must be one or more values > 0, got {nus}")
-    jp = joint_path(robot, path)
+    jp = joint_path(robot, path, q_init)
     flat = baseline_trajectories(robot, jp)["flat_inverse"]
-    warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+    warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
     ts = float(path.sample_time)
     results = {}
     for cost in costs:
@@ -125,18 +127,22 @@ def write_outputs(res: dict, rows: list[dict], out: Path, label: str) -> list[Pa
                                     out / f"{label}_nu_spectra.png", f"{label}: spectra of u vs nu"))
         sols = r["solutions"]
         files.append(_plots.axis_comparison(
-            t, {lab[j]: (np.asarray(sols.u[i]), np.asarray(sols.x[i, :, 18:24]),
-                         np.asarray(sols.x[i, :, 6:12])) for j, i in enumerate(pick)},
+            t, {lab[j]: (np.asarray(sols.u[i]), np.asarray(sols.thetad[i]),
+                         np.asarray(sols.state.qd[i])) for j, i in enumerate(pick)},
             out / f"{label}_nu_axis2.png", f"{label}: axis 2 vs nu", axis=1))
     return files
 
 
 def run(args, echo) -> dict:
-    robot = jr.racer7()
-    plant = jr.racer7(as_built=True) if args.plant == "as-built" else robot
-    path = task_path(args.task)
+    from jaxrobot._description import robot_from_description
+
+    desc = jr.read_description(args.model)
+    robot = robot_from_description(desc)
+    plant = robot_from_description(desc, as_built=True) if args.plant == "as-built" else robot
+    path = task_path(args.task, desc)
+    q_init = default_start(desc) if "trajectories" in desc else 0.5 * (robot.q_min + robot.q_max)
     echo(f"nu sweep on {path.name}: {len(args.nu)} values x costs {args.costs}, plant {args.plant}")
-    res = sweep(robot, plant, path, args.nu, args.costs, echo, directional=args.plant == "as-built",
+    res = sweep(robot, plant, path, args.nu, args.costs, echo, directional=args.plant == "as-built", q_init=q_init,
                 keep_failed=args.save_failed)
     rows = table(res)
     if args.out is not None:
