@@ -1,3 +1,5 @@
+from jaxrobot._checks import check_public as _check_public
+
 from ._calibration import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
 from ._calibration import CalibrationResult as CalibrationResult
 from ._calibration import calibrate as calibrate
@@ -16,10 +18,14 @@ from ._gear_processing import check_gear_run as check_gear_run
 from ._gear_processing import prepare_gear_runs as prepare_gear_runs
 from ._gear_processing import process_gear_runs as process_gear_runs
 from ._identifiability import IdentifiabilityResult as IdentifiabilityResult
+from ._identifiability import default_parameters as default_parameters
 from ._identifiability import identifiability as identifiability
+from ._identifiability import kinematic_parameters as kinematic_parameters
 from ._observability import observability_indices as observability_indices
 from ._parameters import THESIS_PARAMETERS as THESIS_PARAMETERS
 from ._parameters import ParameterMap as ParameterMap
 from ._pose_selection import PoseConstraints as PoseConstraints
 from ._pose_selection import detmax as detmax
 from ._pose_selection import random_feasible_poses as random_feasible_poses
+
+_check_public(globals())

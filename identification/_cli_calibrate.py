@@ -8,11 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxrobot._cli import SolveFailed
+
 HELP = "calibrate the kinematic parameters from a pose file (thesis 3.2, LM)"
 
 
 def configure(parser) -> None:
-    parser.add_argument("poses", type=Path, help="pose CSV: theta1_deg..theta6_deg, x_m, y_m, z_m [, qx..qw]")
+    parser.add_argument("poses", type=Path, help="pose CSV: theta1_deg..thetan_deg, x_m, y_m, z_m [, qx..qw]")
     parser.add_argument("--validate", type=Path, default=None, help="validation pose CSV (same format)")
     parser.add_argument("--save-model", type=Path, default=None, help="write the calibrated robot (TOML)")
     parser.add_argument("--robot", type=Path, default=None,
@@ -84,7 +86,7 @@ def run(args, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot._bench_poses import read_pose_csv
 
-    from ._calibration import DEFAULT_PARAMETERS, calibrate
+    from ._calibration import calibrate
 
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
     data = read_pose_csv(args.poses)
@@ -92,7 +94,7 @@ def run(args, echo) -> dict:
     if args.validate is not None:
         v = read_pose_csv(args.validate)
         val = (v["motor_angles"], v["positions"])
-    names = DEFAULT_PARAMETERS if args.parameters is None else [
+    names = None if args.parameters is None else [
         n.strip() for n in args.parameters.split(",") if n.strip()]
     marker = args.marker
     if marker is None and args.robot is not None:
@@ -101,7 +103,7 @@ def run(args, echo) -> dict:
                     marker=marker, validation=val, limits=args.limits)
     _echo_report(res.report, echo)
     if not res.report["converged"]:
-        raise ValueError(f"calibration did not converge ({res.report['status']}); the model was not saved")
+        raise SolveFailed(f"calibration did not converge ({res.report['status']}); the model was not saved")
     if args.out is not None:
         for f in _write_outputs(args.out, res.report, positions=data["positions"]):
             echo(f"wrote {args.out / f}")

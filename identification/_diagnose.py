@@ -29,7 +29,7 @@ import jaxrobot as jr
 from jaxrobot._statics import approach_sign
 
 from ._diagnose_model import functions
-from ._effects import RIPPLE_SLOTS, Layout, Model, model_of, robot_of
+from ._effects import RIPPLE_SLOTS, Layout, Model, catalogue, model_of, robot_of
 
 MIN_BIC_GAIN = 10.0
 """Least BIC decrease for adding an effect ("very strong" evidence, Kass and Raftery 1995)."""
@@ -41,8 +41,8 @@ ORDER_FALSE_ALARM = 1e-3
 
 @dataclasses.dataclass(frozen=True)
 class Poses:
-    """Measured poses in the order they were taken: `motor_angles` (K, 6) rad, `positions`
-    (K, 3) m, `ccw` (K, 6) the direction of approach (from the order, `jaxrobot.approach_directions`)."""
+    """Measured poses in the order they were taken: `motor_angles` (K, n) rad, `positions`
+    (K, 3) m, `ccw` (K, n) the direction of approach (from the order, `jaxrobot.approach_directions`)."""
 
     motor_angles: np.ndarray
     positions: np.ndarray
@@ -52,8 +52,8 @@ class Poses:
     def of(cls, motor_angles, positions) -> Poses:
         th = np.asarray(motor_angles, float)
         pos = np.asarray(positions, float)
-        if th.ndim != 2 or th.shape[1] != 6 or pos.shape != (th.shape[0], 3):
-            raise ValueError(f"poses: expected motor_angles (K, 6) rad and positions (K, 3) m, "
+        if th.ndim != 2 or pos.shape != (th.shape[0], 3):
+            raise ValueError(f"poses: expected motor_angles (K, n) rad and positions (K, 3) m, "
                              f"found {th.shape} and {pos.shape}")
         bad = np.nonzero(~np.isfinite(np.concatenate([th, pos], 1)).all(1))[0]
         if bad.size:
@@ -152,7 +152,7 @@ def _candidates(layout: Layout, free: set, ripple_orders: dict) -> list[Candidat
             if not e.per_joint:
                 out.append(Candidate(ei, None, tuple(int(i) for i in block[list(variant)]), tag))
                 continue
-            for j in range(6):
+            for j in range(block.shape[0]):
                 params = [int(i) for i in block[j, list(variant)]]
                 if e.kind in ripple_orders:
                     n_used = len(ripple_orders[e.kind].get(j, []))
@@ -205,14 +205,19 @@ def diagnose(
     if len(train) < 10 or len(validation) < 3:
         raise ValueError(f"poses: expected >= 10 training and >= 3 validation poses, found {len(train)} and "
                          f"{len(validation)}")
+    joints = start.n_joints
+    for name, poses in (("train", train), ("validation", validation)):
+        if poses.motor_angles.shape[1] != joints:
+            raise ValueError(f"{name}: expected motor_angles (K, {joints}) rad for the {joints}-joint start robot, "
+                             f"found {poses.motor_angles.shape}")
     say = progress or (lambda _: None)
-    layout = Layout.of()
+    layout = Layout.of(catalogue(start), joints)
     fns = functions(layout)
     model0 = model_of(start)
     spare = layout.size
     scale = jnp.asarray(layout.scales())
     v = jnp.zeros(spare + 1)
-    orders = np.zeros((6, 2 * RIPPLE_SLOTS))
+    orders = np.zeros((joints, 2 * RIPPLE_SLOTS))
     both = Poses.concatenate([train, validation])  # one compiled shape for both sets
     th_all, ccw_all = jnp.asarray(both.motor_angles), jnp.asarray(both.ccw)
     k_tr = len(train)
@@ -260,12 +265,12 @@ def diagnose(
         jac = np.asarray(fns.jacobian(model0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
         # locate: ripple orders per joint from the residual spectra (joints without a ripple effect yet)
         qe = _orthonormal(jac[:, free]) if free else np.zeros((n_res, 0))
-        threshold = 2.0 * np.log(6 * max_order / ORDER_FALSE_ALARM)
+        threshold = 2.0 * np.log(joints * max_order / ORDER_FALSE_ALARM)
         off = layout.blocks[layout.index("joint_offset")]
         sign = np.asarray(approach_sign(np.asarray(ccw)))
         found: dict[str, dict[int, list[int]]] = {"gear_ripple": {}, "direction_dependent_ripple": {}}
         spec_step = {}
-        for j in range(6):
+        for j in range(joints):
             g = jac[:, off[j, 0]].reshape(-1, 3)
             phi = np.asarray(q_cur)[:, j]
             for kind, col, sgn in (("gear_ripple", 0, None), ("direction_dependent_ripple", RIPPLE_SLOTS, sign[:, j])):

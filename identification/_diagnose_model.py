@@ -28,8 +28,8 @@ FIT_ITERATIONS = 2
 
 
 def rest_angles(
-    model: Model, theta: Float[Array, "K 6"], ccw: Bool[Array, "K 6"], q0: Float[Array, "K 6"] | None, iterations: int
-) -> Float[Array, "K 6"]:
+    model: Model, theta: Float[Array, "K n"], ccw: Bool[Array, "K n"], q0: Float[Array, "K n"] | None, iterations: int
+) -> Float[Array, "K n"]:
     """Link angles at rest (fixed point `q = phi - x(g(q))`, `iterations` steps from `q0` or `phi`)."""
     rob = model.robot
     phi = jr.gear_output(rob, theta, ccw) - 0.5 * rob.backlash * approach_sign(ccw)

@@ -29,8 +29,9 @@ from jaxrobot._distributed import gather_rows, shard_rows
 from jaxrobot._statics import rest_link_angles
 
 from ._batched_lm import STATUS, batched_lm, covariance, map_chunks
-from ._calibration import DEFAULT_PARAMETERS, RESIDUAL_UNIT, _check_array, _residual_fn
+from ._calibration import RESIDUAL_UNIT, _check_array, _residual_fn
 from ._calibration_model import analytic_names, joint_angle_model, position_jacobian, rippled_joints
+from ._identifiability import default_parameters
 from ._parameters import ParameterMap
 from ._pose_selection import default_marker
 
@@ -99,7 +100,7 @@ in one piece."""
 
 def _constants(robots, theta, rippled):
     """Per-pose constants of the solve, from the initial robots (thesis 3.2.3): the joint angles at
-    rest `q0` (R, K, 6) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, 6) (`rest_deflection`;
+    rest `q0` (R, K, n) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, n) (`rest_deflection`;
     XLA evaluates the gear inversion once for both). `robots`: a fleet (R, ...) or one robot for all
     (then its fields are not broadcast over the poses: ~2x faster); the gear inversion runs on the
     `rippled` joints only (the others are `theta / u0`)."""
@@ -161,10 +162,10 @@ _set_parameters = eqx.filter_jit(ParameterMap.set)  # one compiled call instead 
 
 def calibrate_fleet(
     robots: jr.Robot,
-    motor_angles: Float[Array, "R K 6"],
+    motor_angles: Float[Array, "R K n"],
     positions: Float[Array, "R K 3"],
     *,
-    parameters: Sequence[str] = DEFAULT_PARAMETERS,
+    parameters: Sequence[str] | None = None,
     marker: Float[Array, "3"] | None = None,
     max_steps: int = 100,
     mesh: Mesh | None = None,
@@ -174,22 +175,27 @@ def calibrate_fleet(
     `robots`: the initial robots, a fleet pytree with leading axis R, or one robot used for all.
     The fleet axis is padded to a multiple of the device count and sharded over `mesh`
     (default: all devices). Robots whose solve failed or whose pose set is rank deficient have
-    `converged = False`. Under several processes (`jaxrobot.initialize_processes`) each process
-    passes only its own robots (e.g. rows `jaxrobot.process_share(R)`, one robot or its own fleet
-    rows in `robots`) and every process receives the whole fleet in process order.
+    `converged = False`. `parameters`: default `default_parameters` of the first robot. Under
+    several processes (`jaxrobot.initialize_processes`) each process passes only its own robots
+    (e.g. rows `jaxrobot.process_share(R)`, one robot or its own fleet rows in `robots`) and every
+    process receives the whole fleet in process order.
     """
-    params = ParameterMap(parameters)
+    joints = robots.n_joints
     theta = np.asarray(motor_angles, float)
     pos = np.asarray(positions, float)
-    if theta.ndim != 3 or theta.shape[-1] != 6:
-        raise ValueError(f"motor_angles: expected shape (R, K, 6) in rad, found {theta.shape}")
+    if theta.ndim != 3 or theta.shape[-1] != joints:
+        raise ValueError(f"motor_angles: expected shape (R, K, {joints}) in rad, found {theta.shape}")
     if pos.shape != theta.shape[:2] + (3,):
         raise ValueError(f"positions: expected shape {theta.shape[:2] + (3,)} in m, found {pos.shape}")
     if not (np.isfinite(theta).all() and np.isfinite(pos).all()):  # NaN rows, named by robot and pose
         for r in range(theta.shape[0]):
-            _check_array(theta[r], (6,), f"motor_angles[robot {r}]", "rad")
+            _check_array(theta[r], (joints,), f"motor_angles[robot {r}]", "rad")
             _check_array(pos[r], (3,), f"positions[robot {r}]", "m")
     n_rob, k = theta.shape[:2]
+    if parameters is None:
+        first = robots if np.ndim(robots.a) == 1 else jax.tree.map(lambda x: x[0], robots)
+        parameters = default_parameters(first, marker=marker)
+    params = ParameterMap(parameters)
     if 3 * k < len(params):
         raise ValueError(f"motor_angles: {k} poses per robot give {3 * k} equations for {len(params)} "
                          f"parameters; need at least {-(-len(params) // 3)} poses")

@@ -71,13 +71,13 @@ def _sharded_chains(robot, q_d, ts, nus, warm_start, u_ref, cost, config, mesh) 
 
 def solve_ocp_sweep(
     robot: jr.Robot,
-    q_d: Float[Array, "N 6"],
+    q_d: Float[Array, "N n"],
     ts: float,
     nus,
     cost: Cost = "thesis",
     config: ALConfig | None = None,
-    warm_start: tuple[Float[Array, "N 24"], Float[Array, "N 6"]] | None = None,
-    u_ref: Float[Array, "N 6"] | None = None,
+    warm_start: tuple[Float[Array, "N 4*n"], Float[Array, "N n"]] | None = None,
+    u_ref: Float[Array, "N n"] | None = None,
     workers: int | None = None,
 ) -> OCPSolution:
     """`solve_ocp` for every `nu` in `nus` (B values > 0, any order); returns an `OCPSolution` with a
