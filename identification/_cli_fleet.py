@@ -105,7 +105,8 @@ def run(args, echo) -> dict:
     count = jr.initialize_processes(args.coordinator, args.num_processes, args.process_id)
     import jax
 
-    from ._calibration import DEFAULT_PARAMETERS
+    from jaxrobot._cli import SolveFailed
+
     from ._fleet import calibrate_fleet
 
     pid = jax.process_index()
@@ -130,8 +131,7 @@ def run(args, echo) -> dict:
             raise ValueError(f"{f}: expected {k} poses as {files[share][0].name}, found {d['motor_angles'].shape[0]}")
     seconds["read"] = time.perf_counter() - t
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
-    names = DEFAULT_PARAMETERS if args.parameters is None else [
-        n.strip() for n in args.parameters.split(",") if n.strip()]
+    names = None if args.parameters is None else [n.strip() for n in args.parameters.split(",") if n.strip()]
     marker = None if args.robot is None else jr.read_description(args.robot).get("sensors", {}).get(
         "tracker_marker_offset_m")
     echo(f"process {pid} of {count}: robots {share.start}..{share.stop - 1} of {len(files)}, {k} poses each")
@@ -149,7 +149,7 @@ def run(args, echo) -> dict:
             echo(f"wrote {args.out / TABLE}")
     failed = int(np.sum(~res.converged))
     if failed:
-        raise ValueError(f"{failed} of {len(files)} robots did not converge or are rank deficient ({status}); "
+        raise SolveFailed(f"{failed} of {len(files)} robots did not converge or are rank deficient ({status}); "
                          f"see the status column of {TABLE}")
     return {"robots": len(files), "poses": k, "processes": count, "process_id": pid,
             "local_robots": share.stop - share.start, "devices": res.n_devices, "parameters": list(res.names),
