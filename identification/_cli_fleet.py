@@ -141,11 +141,11 @@ def run(args, echo) -> dict:
     res = calibrate_fleet(robot, np.stack([d["motor_angles"] for d in data]), np.stack([d["positions"] for d in data]),
                           parameters=names, marker=marker, max_steps=args.max_steps)
     seconds["calibrate"] = time.perf_counter() - t
-    status = {s: int(np.sum(res.status == s)) for s in np.unique(res.status)}
+    status = {str(s): int(np.sum(res.status == s)) for s in np.unique(res.status)}
     if pid == 0:
         echo(f"fleet of {len(files)} robots on {res.n_devices} device(s): {status}; LM steps median "
              f"{np.median(res.iterations):.0f}, max {res.iterations.max()}; residual rms median "
-             f"{1e3 * np.median(res.rms_m):.4f} mm ({seconds['calibrate']:.1f} s incl. compile)")
+             f"{1e3 * np.median(res.rms_m):.4f} mm; {seconds['calibrate']:.1f} s")
         if args.out is not None:
             (args.out / TABLE).write_text(_table(res, files))
             echo(f"wrote {args.out / TABLE}")
