@@ -281,7 +281,8 @@ def calibrate(
     - `marker`: marker offset in the tool frame [m] (default: the toml `[sensors]`).
     - `position_noise`, `orientation_noise`: stds that weight orientation rows against
       position rows (defaults: the toml tracker noise and 0.05 deg); positions alone need none.
-    - `ccw`: gear set of the approach direction. `validation`: `(motor_angles, positions)`.
+    - `ccw`: gear set of the approach direction. `validation`: `(motor_angles, positions)` or
+      `(motor_angles, positions, ccw)`.
     - `limits`: `"flag"` lists poses beyond the joint limits in `report["beyond_limits"]`,
       `"raise"` rejects them.
 
@@ -306,11 +307,13 @@ def calibrate(
         vp = _check_array(validation[1], (3,), "validation positions", "m")
         if vp.shape[0] != vt.shape[0]:
             raise ValueError(f"validation positions: expected {vt.shape[0]} rows, found {vp.shape[0]}")
+        vccw = np.broadcast_to(np.asarray(validation[2], bool) if len(validation) > 2 else False, vt.shape)
     else:
         vt, vp = np.zeros((0, 6)), np.zeros((0, 3))
+        vccw = np.zeros(vt.shape, bool)
     k = theta.shape[0]
-    ccw_all = ccw if np.ndim(ccw) == 0 else np.concatenate([np.broadcast_to(ccw, theta.shape),
-                                                             np.zeros(vt.shape, bool)])
+    ccw_all = ccw if np.ndim(ccw) == 0 and not vccw.any() else np.concatenate(
+        [np.broadcast_to(ccw, theta.shape), vccw])
     th_all = jnp.asarray(np.concatenate([theta, vt]))
     defl_all = _deflection(robot, th_all, ccw_all)  # one evaluation for both sets
     th, defl = th_all[:k], defl_all[:k]

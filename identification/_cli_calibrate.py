@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._pose_files import add_approach_option
+
 HELP = "calibrate the kinematic parameters from a pose file (thesis 3.2, LM)"
 
 
@@ -23,6 +25,7 @@ def configure(parser) -> None:
                         help="marker offset in the flange frame in m (default: the robot file's [sensors])")
     parser.add_argument("--limits", choices=("flag", "raise"), default="flag",
                         help="poses beyond the joint limits: list them (flag) or reject the file (raise)")
+    add_approach_option(parser)
 
 
 def _mm(stats: dict) -> dict:
@@ -82,23 +85,23 @@ def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions
 
 def run(args, echo) -> dict:
     import jaxrobot as jr
-    from jaxrobot._bench_poses import read_pose_csv
 
     from ._calibration import DEFAULT_PARAMETERS, calibrate
+    from ._pose_files import read_poses
 
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
-    data = read_pose_csv(args.poses)
+    data = read_poses(args.poses, args.approach)
     val = None
     if args.validate is not None:
-        v = read_pose_csv(args.validate)
-        val = (v["motor_angles"], v["positions"])
+        v = read_poses(args.validate, args.approach)
+        val = (v["motor_angles"], v["positions"], v["ccw"])
     names = DEFAULT_PARAMETERS if args.parameters is None else [
         n.strip() for n in args.parameters.split(",") if n.strip()]
     marker = args.marker
     if marker is None and args.robot is not None:
         marker = jr.read_description(args.robot).get("sensors", {}).get("tracker_marker_offset_m")
     res = calibrate(robot, data["motor_angles"], data["positions"], data["quaternions"], parameters=names,
-                    marker=marker, validation=val, limits=args.limits)
+                    marker=marker, ccw=data["ccw"], validation=val, limits=args.limits)
     _echo_report(res.report, echo)
     if not res.report["converged"]:
         raise ValueError(f"calibration did not converge ({res.report['status']}); the model was not saved")
