@@ -37,6 +37,7 @@ from jaxrobot._statics import approach_sign
 
 from ._diagnose_model import functions
 from ._effects import RIPPLE_SLOTS, Layout, Model, model_of, robot_of
+from ._pose_files import check_pose_units
 
 MIN_BIC_GAIN = 10.0
 """Least BIC decrease for adding an effect ("very strong" evidence, Kass and Raftery 1995)."""
@@ -241,6 +242,8 @@ def diagnose(
     if len(train) < 10 or len(validation) < 3:
         raise ValueError(f"poses: expected >= 10 training and >= 3 validation poses, found {len(train)} and "
                          f"{len(validation)}")
+    for poses, label in ((train, "train"), (validation, "validation")):
+        check_pose_units(start, poses.motor_angles, poses.positions, marker, f"{label} poses")
     say = progress or (lambda _: None)
     layout = Layout.of()
     fns = functions(layout)

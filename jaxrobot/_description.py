@@ -43,6 +43,8 @@ _SCHEMA: dict[str, Any] = {
         "filter_cutoff_hz": (3,),
     },
     "?poses": {"motor_deg": (None, N_JOINTS)},
+    "?calibration": {"prior_std": {f"?{k}": () for k in ("a_m", "d_m", "alpha_rad", "beta_rad", "offset_rad",
+                                                          "u0_relative", "tool_m", "tool_rad", "base_m", "base_rad")}},
     "?trajectories": {
         "orientation_q": _V6, "sample_time_s": (), "duration_s": (),
         "line": {"x_m": (), "z_m": (), "y_start_m": (), "y_end_m": ()},

@@ -237,8 +237,9 @@ def test_bad_input(robots, bench, tmp_path):
         calibrate(nominal, theta, pos, limits="raise")
     fixed = theta.copy()
     fixed[:, 5] = 0.4  # joint 6 never moves: its gear ratio and offset cannot be told apart
+    fixed_pos = jr.measure_poses(robots[1], fixed, seed=3).positions  # consistent data (else: unit check)
     with pytest.raises(ValueError, match=r"rank deficient.*u0_6 ~ .*offset6|rank deficient.*offset6 ~ .*u0_6"):
-        calibrate(nominal, fixed, pos)
+        calibrate(nominal, fixed, fixed_pos)
     # pose files: NaN rows by row number, missing columns by name; extra columns ignored
     path = tmp_path / "poses.csv"
     write_pose_csv(path, theta, pos)

@@ -187,8 +187,9 @@ def test_summary_schema(result):
     for j in s["joints"].values():
         assert set(j) == {"cw", "ccw"}
         for d in j.values():
-            assert set(d) == {"u0", "orders", "a", "b", "rms_before_deg_s", "rms_after_deg_s"}
-            assert len(d["orders"]) == len(d["a"]) == len(d["b"])
+            assert set(d) == {"u0", "orders", "a", "b", "rms_before_deg_s", "rms_after_deg_s", "u0_std", "a_std",
+                              "b_std", "ripple"}
+            assert len(d["orders"]) == len(d["a"]) == len(d["b"]) == len(d["a_std"]) == len(d["b_std"])
     assert all(len(v) == 2 for v in s["misalignment_rad"].values())
 
 
