@@ -121,6 +121,14 @@ def test_u0_recovered(result, truth):
         assert abs(rel) < U0_TOL, f"joint {joint} group {g}: u0 relative error {rel:.2e}"
 
 
+def test_u0_within_three_reported_sigma(result, truth):
+    """The reported std (fit, bias left after its removal, run-to-run spread) covers the error."""
+    for g, (joint, _) in enumerate(result.groups):
+        err = float(result.fit.u0[g]) - float(truth.u0[joint - 1])
+        assert abs(err) <= 3 * float(result.fit.se_u0[g]), f"joint {joint} group {g}: {err:.2e}"
+    assert all(r.resolved for r in result.resolution)  # the bench's ripple is far above its noise
+
+
 def _reductions(result, bench):
     """(joint, at identification speed, name, reduction) of every noise-free validation run."""
     quiet = np.concatenate([np.zeros(len(bench["ident"]), bool), bench["quiet"]])
