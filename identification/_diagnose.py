@@ -30,13 +30,13 @@ from collections.abc import Callable
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import gammaincc
-from jax.scipy.stats import norm
 
 import jaxrobot as jr
 from jaxrobot._statics import approach_sign
 
 from ._diagnose_model import functions
 from ._effects import RIPPLE_SLOTS, Layout, Model, model_of, robot_of
+from ._gear_fit import chi2_quantile
 from ._pose_files import check_pose_units
 
 MIN_BIC_GAIN = 10.0
@@ -127,9 +127,7 @@ def validation_bound(sigma: float, k_val: int, m: int, n_res: int) -> float:
     """Largest validation RMS [m] that noise alone explains at level `ALPHA`: `K RMS^2 / sigma^2`
     is chi-square with `3K` dof (Wilson-Hilferty quantile), inflated by `1 + m / (n - m)` for the
     error of `m` parameters fitted to `n` residuals."""
-    dof = 3.0 * k_val
-    h = 2.0 / (9.0 * dof)
-    q = dof * (1.0 - h + float(norm.ppf(1.0 - ALPHA)) * np.sqrt(h)) ** 3
+    q = chi2_quantile(ALPHA, 3.0 * k_val)
     return sigma * float(np.sqrt(q / k_val * (1.0 + m / max(n_res - m, 1))))
 
 

@@ -328,8 +328,9 @@ class Resolution:
                 "resolve it")
 
 
-def _chi2_quantile(p: float, dof: float) -> float:
-    """Upper `p` quantile of chi-square (Wilson-Hilferty)."""
+def chi2_quantile(p: float, dof: float) -> float:
+    """Upper `p` quantile of chi-square with `dof` degrees of freedom (Wilson-Hilferty; 1e-3
+    relative for dof >= 6)."""
     from jax.scipy.stats import norm
 
     h = 2.0 / (9.0 * dof)
@@ -397,7 +398,7 @@ def _with_scatter(fit: GearFit, proc, batch, group, fit_run, joints, u0_model, i
         chi2 = float(coef @ np.linalg.pinv(cov) @ coef)
         dof = 2 * m
         p = float(gammaincc(dof / 2.0, chi2 / 2.0))
-        lam, need = chi2 - dof, _chi2_quantile(SIGNIFICANCE, dof) - dof
+        lam, need = chi2 - dof, chi2_quantile(SIGNIFICANCE, dof) - dof
         lam = max(lam, math.sqrt(2.0 * dof))  # no trace of it: one noise std at most
         more = max(1, math.ceil(len(members) * need / lam) - len(members))
         resolution.append(Resolution(chi2, dof, p, len(members), scale, more))
