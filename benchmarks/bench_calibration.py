@@ -22,12 +22,11 @@ import jax.numpy as jnp
 import numpy as np
 import scipy
 import scipy.optimize
-from jax.sharding import NamedSharding, PartitionSpec
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
 from identification._calibration import DEFAULT_PARAMETERS, _residual_fn
 from identification._calibration_model import rippled_joints
-from identification._fleet import _constants, _fleet_constants, _fleet_solve, _to_global, calibrate_fleet, fleet_mesh
+from identification._fleet import _constants, _fleet_constants, _fleet_solve, calibrate_fleet, fleet_mesh
 from identification._parameters import ParameterMap
 from identification._pose_selection import default_marker, random_feasible_poses
 from jaxrobot._bench_poses import draw_fleet, measure_poses
@@ -80,9 +79,8 @@ def main() -> None:
     # its two parts (compiled above): the per-pose constants (rest joint angles, gravity deflection),
     # then the LM solve with covariances
     mesh = fleet_mesh()
-    sharding = NamedSharding(mesh, PartitionSpec("fleet"))
-    g_robots = jax.tree.map(lambda x: _to_global(np.broadcast_to(x, (n_rob,) + np.shape(x)), sharding), nominal)
-    g_theta, g_pos = _to_global(theta, sharding), _to_global(meas.positions, sharding)
+    g_robots = jax.tree.map(lambda x: np.broadcast_to(x, (n_rob,) + np.shape(x)), nominal)
+    (g_robots, g_theta, g_pos), _ = jr.shard_rows((g_robots, theta, meas.positions), mesh)
     rippled = rippled_joints(nominal)
     t_const, t_solve = [], []
     for _ in range(args.repeat):

@@ -1,7 +1,9 @@
-"""Batched mass matrix + gravity + Coriolis vector: jaxrobot (JAX) vs pinocchio (issue 2, "Measure").
+"""Batched mass matrix + gravity + Coriolis vector: jaxrobot (JAX) vs pinocchio (issues 2 and 14, "Measure").
 
-Times, over the same random states of the default robot:
-- jaxrobot, jit-compiled: the public functions on (N, 6) arrays (their native broadcasting),
+For n = 6, 7 and 12 joints (the default Racer-7; the Panda imported from example-robot-data, or
+a seeded random 7-joint chain without it; a seeded random 12-joint chain), times over the same
+random states:
+- jaxrobot, jit-compiled: the public functions on (N, n) arrays (their native broadcasting),
   `jit(vmap(...))` of the per-state call, and `lax.map(..., batch_size=--chunk)` of it (vmapped
   chunks that stay in cache); compile time apart from run time, best of `--repeats` runs with
   `block_until_ready`;
@@ -12,8 +14,8 @@ Times, over the same random states of the default robot:
   build, -O3 -march=native) that loops the same three calls over the same states and copies
   the results out; skipped with a reason when no compiler or headers are found.
 
-Prints a table and writes it as markdown to `benchmarks/results_dynamics.md` (`--out`).
-Run: `python benchmarks/bench_dynamics.py [--states 100000]`.
+Prints the tables and writes them as markdown to `benchmarks/results_dynamics.md` (`--out`).
+Run: `python benchmarks/bench_dynamics.py [--states 100000] [--joints 6 7 12]`.
 """
 
 from __future__ import annotations
@@ -49,14 +51,15 @@ CPP_SOURCE = r"""
 #include <iostream>
 #include <vector>
 int main(int argc, char** argv) {
-  // argv: model.txt states.bin n repeats
+  // argv: model.txt states.bin n repeats; model.txt: gravity, joint count, one block per joint
   std::ifstream f(argv[1]);
   pinocchio::Model model;
   double gx, gy, gz;
-  f >> gx >> gy >> gz;
+  int nj;
+  f >> gx >> gy >> gz >> nj;
   model.gravity.linear() << gx, gy, gz;
   pinocchio::JointIndex parent = 0;
-  for (int j = 0; j < 6; ++j) {
+  for (int j = 0; j < nj; ++j) {
     Eigen::Matrix4d h;
     for (int r = 0; r < 4; ++r) for (int c = 0; c < 4; ++c) f >> h(r, c);
     double m;
@@ -71,30 +74,30 @@ int main(int argc, char** argv) {
   pinocchio::Data data(model);
   const long n = std::atol(argv[3]);
   const int repeats = std::atoi(argv[4]);
-  std::vector<double> x(12 * n);
+  std::vector<double> x(2 * nj * n);
   FILE* fs = std::fopen(argv[2], "rb");
   if (std::fread(x.data(), sizeof(double), x.size(), fs) != x.size()) return 2;
   std::fclose(fs);
   std::vector<Eigen::VectorXd> q(n), v(n);
   for (long i = 0; i < n; ++i) {
-    q[i] = Eigen::Map<Eigen::VectorXd>(&x[12 * i], 6);
-    v[i] = Eigen::Map<Eigen::VectorXd>(&x[12 * i + 6], 6);
+    q[i] = Eigen::Map<Eigen::VectorXd>(&x[2 * nj * i], nj);
+    v[i] = Eigen::Map<Eigen::VectorXd>(&x[2 * nj * i + nj], nj);
   }
-  std::vector<double> out_m(36 * n), out_g(6 * n), out_c(6 * n);
+  std::vector<double> out_m(nj * nj * n), out_g(nj * n), out_c(nj * n);
   double best[4] = {1e300, 1e300, 1e300, 1e300};
   double sink = 0;
   for (int rep = 0; rep < repeats; ++rep) {
     auto t0 = std::chrono::steady_clock::now();
     for (long i = 0; i < n; ++i) {
       pinocchio::crba(model, data, q[i]);
-      Eigen::Map<Eigen::Matrix<double, 6, 6>> m(&out_m[36 * i]);
-      Eigen::Map<Eigen::Matrix<double, 6, 1>> g(&out_g[6 * i]), c(&out_c[6 * i]);
+      Eigen::Map<Eigen::MatrixXd> m(&out_m[nj * nj * i], nj, nj);
+      Eigen::Map<Eigen::VectorXd> g(&out_g[nj * i], nj), c(&out_c[nj * i], nj);
       m = data.M;
       g = pinocchio::computeGeneralizedGravity(model, data, q[i]);
       c = pinocchio::nonLinearEffects(model, data, q[i], v[i]) - g;
     }
     auto t1 = std::chrono::steady_clock::now();
-    for (long i = 0; i < n; ++i) sink += pinocchio::crba(model, data, q[i])(0, 5);
+    for (long i = 0; i < n; ++i) sink += pinocchio::crba(model, data, q[i])(0, nj - 1);
     auto t2 = std::chrono::steady_clock::now();
     for (long i = 0; i < n; ++i) sink += pinocchio::computeGeneralizedGravity(model, data, q[i])(0);
     auto t3 = std::chrono::steady_clock::now();
@@ -106,7 +109,7 @@ int main(int argc, char** argv) {
   }
   // seconds for all n states: combined, crba, gravity, nle; then a checksum of the outputs
   std::printf("%.9e %.9e %.9e %.9e %.17g %.17g\n", best[0], best[1], best[2], best[3],
-              out_m[36 * (n - 1) + 5] + out_g[6 * (n - 1)] + out_c[6 * (n - 1) + 2], sink);
+              out_m[nj * nj * (n - 1) + nj - 1] + out_g[nj * (n - 1)] + out_c[nj * (n - 1)], sink);
   return 0;
 }
 """
@@ -135,10 +138,49 @@ def machine() -> dict[str, str]:
     }
 
 
-def random_states(robot: jr.Robot, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def random_chain(n: int, seed: int) -> jr.Robot:
+    """A seeded random rigid chain of `n` joints: DH lengths in +-0.5 m, any twist and offset, Hayati
+    angles in +-0.5 rad, 0.5-10 kg links with the inertias of random boxes in random axes."""
+    from scipy.spatial.transform import Rotation
+
     rng = np.random.default_rng(seed)
-    q = rng.uniform(np.asarray(robot.q_min), np.asarray(robot.q_max), (n, 6))
-    qd = rng.uniform(-1.0, 1.0, (n, 6)) * np.asarray(robot.qd_max)
+    mass = rng.uniform(0.5, 10.0, n)
+    sides = rng.uniform(0.05, 0.5, (n, 3)) ** 2
+    moments = mass[:, None] / 12.0 * (sides.sum(1, keepdims=True) - sides)
+    rots = Rotation.random(n, random_state=seed).as_matrix()
+    u = lambda lo, hi, shape=(n,): jnp.asarray(rng.uniform(lo, hi, shape))  # noqa: E731
+    return jr.Robot(
+        a=u(-0.5, 0.5), d=u(-0.5, 0.5), alpha=u(-np.pi, np.pi), beta=u(-0.5, 0.5), offset=u(-np.pi, np.pi),
+        base=jnp.eye(4), tool=jnp.eye(4), q_min=jnp.full(n, -np.pi), q_max=jnp.full(n, np.pi),
+        qd_max=u(1.0, 5.0), qdd_max=u(5.0, 20.0), u0=jnp.ones(n), cw=jr.Ripple.none(n), ccw=jr.Ripple.none(n),
+        backlash=jnp.zeros(n), k1=jnp.full(n, jnp.inf), k3=jnp.zeros(n), mass=jnp.asarray(mass),
+        com=u(-0.2, 0.2, (n, 3)), inertia=jnp.asarray(np.einsum("lij,lj,lkj->lik", rots, moments, rots)),
+        motor_inertia=jnp.zeros(n), gravity=jnp.array([0.0, 0.0, -9.81]), name=f"random {n}-joint chain",
+    )
+
+
+def benchmark_robot(n: int, seed: int) -> tuple[jr.Robot, str]:
+    """The robot timed for `n` joints and how it was made."""
+    if n == 6:
+        return jr.racer7(), "`jr.racer7()`"
+    if n == 7:
+        from importlib.metadata import PackageNotFoundError, files
+
+        try:
+            panda = [f.locate() for f in files("example-robot-data") or [] if f.name == "panda.urdf"]
+        except PackageNotFoundError:
+            panda = []
+        if panda:
+            made = "Panda (example-robot-data `panda.urdf`, tip `panda_link8`)"
+            return jr.load_robot(panda[0], tip="panda_link8"), made
+    return random_chain(n, seed), f"`random_chain({n}, seed={seed})` (random DH + beta and inertials)"
+
+
+def random_states(robot: jr.Robot, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """`n` states: q uniform in the limits, qd uniform in +-qd_max."""
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(np.asarray(robot.q_min), np.asarray(robot.q_max), (n, robot.n_joints))
+    qd = rng.uniform(-1.0, 1.0, (n, robot.n_joints)) * np.asarray(robot.qd_max)
     return q, qd
 
 
@@ -190,7 +232,8 @@ def time_pin_loop(model, q, qd, repeats: int) -> tuple[float, tuple[np.ndarray, 
 
     data = model.createData()
     n = len(q)
-    m_out, g_out, c_out = np.empty((n, 6, 6)), np.empty((n, 6)), np.empty((n, 6))
+    nj = q.shape[1]
+    m_out, g_out, c_out = np.empty((n, nj, nj)), np.empty((n, nj)), np.empty((n, nj))
     crba, grav, nle = pin.crba, pin.computeGeneralizedGravity, pin.nle
     best = np.inf
     for _ in range(repeats):
@@ -268,8 +311,8 @@ def build_cpp(cache: Path) -> tuple[Path, str] | str:
 def time_pin_cpp(binary: Path, model, robot, q, qd, repeats: int) -> dict[str, float]:
     """Seconds for all states: combined loop (with copies out), crba, gravity, nle alone."""
     with tempfile.TemporaryDirectory() as tmp:
-        rows = [" ".join(repr(float(x)) for x in np.asarray(robot.gravity))]
-        for j in range(1, 7):
+        rows = [" ".join(repr(float(x)) for x in np.asarray(robot.gravity)), str(robot.n_joints)]
+        for j in range(1, robot.n_joints + 1):
             inertia = model.inertias[j]
             rows.append(" ".join(repr(float(x)) for x in np.concatenate(
                 [model.jointPlacements[j].homogeneous.ravel(), [inertia.mass], inertia.lever,
@@ -287,9 +330,76 @@ def _rel_err(a, b) -> float:
     return float(np.max(np.linalg.norm(a - b, axis=1) / np.linalg.norm(b, axis=1)))
 
 
+def bench_one(robot: jr.Robot, args, binary: tuple[Path, str] | str) -> dict:
+    """Every timing of one robot over `args.states` random states; per-state times [s]."""
+    n = args.states
+    q_np, qd_np = random_states(robot, n, args.seed)
+    q, qd = jnp.asarray(q_np), jnp.asarray(qd_np)
+    jax_rows = {}
+    for name, fn in jax_variants(args.chunk).items():
+        print(f"  jax: {name} ...", flush=True)
+        jax_rows[name] = time_jax(fn, (robot, q, qd), args.repeats)
+    model = pinocchio_model(robot)
+    print("  pinocchio: Python loop ...", flush=True)
+    loop_s, pin_out = time_pin_loop(model, q_np, qd_np, min(args.repeats, 3))
+    ours = jax_rows["broadcasting"]["out"]
+    errors = {k: _rel_err(o, p) for k, o, p in zip(("D", "g", "C qd"), ours, pin_out, strict=True)}
+    print("  pinocchio: single-call tight loops ...", flush=True)
+    single = time_pin_single_calls(model, q_np, qd_np, number=20_000)
+    cpp = None
+    if not isinstance(binary, str):
+        print("  pinocchio: C++ loop ...", flush=True)
+        cpp = time_pin_cpp(binary[0], model, robot, q_np, qd_np, args.repeats)
+    combined = list(jax_rows)[:3]
+    best = min(combined, key=lambda k: jax_rows[k]["run"])
+    refs = {"pinocchio Python loop": loop_s / n, "pinocchio one-call tight loop": sum(single.values())}
+    if cpp is not None:
+        refs["pinocchio C++ loop"] = cpp["combined"] / n
+    return {"jax": jax_rows, "best": best, "best_s": jax_rows[best]["run"] / n, "refs": refs, "single": single,
+            "cpp": cpp, "errors": errors}
+
+
+def detail_lines(r: dict, args) -> list[str]:
+    """The per-robot table (every variant and peer) and the breakdown by term."""
+    n, best = args.states, r["best_s"]
+
+    def row(impl, what, compile_s, per_state):
+        ratio = f"{best / per_state:.2f}" if per_state > 0 else "n/a"
+        return f"| {impl} | {what} | {compile_s} | {per_state * 1e6:.3f} | {1.0 / per_state:,.0f} | {ratio} |"
+
+    lines = ["| implementation | what is timed | compile [s] | time per state [us] | states/s | best jax / this |",
+             "|---|---|---|---|---|---|"]
+    whats = ["`jit` of the public functions on (N, n) arrays", "`jit(vmap)` of the per-state public calls",
+             f"`jit(lax.map(..., batch_size={args.chunk}))` of the per-state public calls (vmapped chunks)"]
+    for name, what in zip(list(r["jax"])[:3], whats, strict=True):
+        j = r["jax"][name]
+        lines.append(row(f"jaxrobot {name}", what + ", D + g + C qd", f"{j['lower'] + j['compile']:.2f}", j["run"] / n))
+    lines.append(row("pinocchio Python loop", "for-loop over states: crba, computeGeneralizedGravity, "
+                     "nle - g; results copied to arrays", "-", r["refs"]["pinocchio Python loop"]))
+    lines.append(row("pinocchio one-call tight loop", "sum over the 3 calls of `timeit` of one call at one "
+                     "state (C++ + Python binding overhead)", "-", r["refs"]["pinocchio one-call tight loop"]))
+    if r["cpp"] is not None:
+        lines.append(row("pinocchio C++ loop", "C++ for-loop over the same states: crba, "
+                         "computeGeneralizedGravity, nonLinearEffects - g, results copied out", "-",
+                         r["refs"]["pinocchio C++ loop"]))
+    lines += ["", "Agreement on these states (max over states of relative 2-norm error, jaxrobot vs pinocchio): "
+              + ", ".join(f"{k} {v:.1e}" for k, v in r["errors"].items()) + ".", "",
+              "| part (per state, us) | jaxrobot (broadcasting, alone) | pinocchio one-call tight loop "
+              "| pinocchio C++ |",
+              "|---|---|---|---|"]
+    parts = [("D(q): mass_matrix / crba", "mass_matrix only", "crba"),
+             ("g(q): gravity_torque / computeGeneralizedGravity", "gravity_torque only", "computeGeneralizedGravity"),
+             ("C qd: coriolis_vector / nle", "coriolis_vector only", "nle")]
+    for label, jkey, pkey in parts:
+        c = f"{r['cpp'][pkey] / n * 1e6:.3f}" if r["cpp"] is not None else "-"
+        lines.append(f"| {label} | {r['jax'][jkey]['run'] / n * 1e6:.3f} | {r['single'][pkey] * 1e6:.3f} | {c} |")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--states", type=int, default=100_000, help="number of random states (default 1e5)")
+    parser.add_argument("--joints", type=int, nargs="+", default=[6, 7, 12], help="joint counts (default 6 7 12)")
     parser.add_argument("--repeats", type=int, default=5, help="timed repeats, best is reported (default 5)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--chunk", type=int, default=128,
@@ -301,104 +411,58 @@ def main(argv: list[str] | None = None) -> int:
                         help="markdown results file ('-' to skip)")
     args = parser.parse_args(argv)
     cli = sys.argv[1:] if argv is None else argv
-    if min(args.states, args.repeats, args.chunk) < 1:
-        parser.error(f"--states, --repeats and --chunk must be >= 1, found {args.states}, {args.repeats}, "
-                     f"{args.chunk}")
+    if min(args.states, args.repeats, args.chunk, *args.joints) < 1:
+        parser.error(f"--states, --repeats, --chunk and --joints must be >= 1, found {args.states}, {args.repeats}, "
+                     f"{args.chunk}, {args.joints}")
 
     info = machine()
-    robot = jr.racer7()
-    n = args.states
-    q_np, qd_np = random_states(robot, n, args.seed)
-    q, qd = jnp.asarray(q_np), jnp.asarray(qd_np)
-
-    jax_rows = {}
-    variants = jax_variants(args.chunk)
-    combined = list(variants)[:3]
-    for name, fn in variants.items():
-        print(f"jax: {name} ...", flush=True)
-        jax_rows[name] = time_jax(fn, (robot, q, qd), args.repeats)
-
-    model = pinocchio_model(robot)
-    print("pinocchio: Python loop ...", flush=True)
-    loop_s, pin_out = time_pin_loop(model, q_np, qd_np, min(args.repeats, 3))
-    ours = jax_rows["broadcasting"]["out"]
-    errors = {k: _rel_err(o, p) for k, o, p in zip(("D", "g", "C qd"), ours, pin_out, strict=True)}
-    print("pinocchio: single-call tight loops ...", flush=True)
-    single = time_pin_single_calls(model, q_np, qd_np, number=20_000)
-    cpp: dict[str, float] | None = None
-    cpp_note = "skipped (--no-cpp)"
-    if not args.no_cpp:
-        built = build_cpp(args.cache)
-        if isinstance(built, str):
-            cpp_note = "skipped: " + built
-        else:
-            print("pinocchio: C++ loop ...", flush=True)
-            cpp = time_pin_cpp(built[0], model, robot, q_np, qd_np, args.repeats)
-            cpp_note = f"g++ {built[1]}, header-only pinocchio"
-
-    # per-state times [s]
-    best_jax_name = min(combined, key=lambda k: jax_rows[k]["run"])
-    best_jax = jax_rows[best_jax_name]["run"] / n
-    refs = {"pinocchio Python loop": loop_s / n, "pinocchio one-call tight loop": sum(single.values())}
-    if cpp is not None:
-        refs["pinocchio C++ loop"] = cpp["combined"] / n
-
-    def row(impl, what, compile_s, per_state):
-        ratio = f"{best_jax / per_state:.2f}" if per_state > 0 else "n/a"
-        return f"| {impl} | {what} | {compile_s} | {per_state * 1e6:.3f} | {1.0 / per_state:,.0f} | {ratio} |"
+    binary: tuple[Path, str] | str = "skipped (--no-cpp)" if args.no_cpp else build_cpp(args.cache)
+    cpp_note = binary if isinstance(binary, str) else f"g++ {binary[1]}, header-only pinocchio"
+    results = {}
+    for nj in args.joints:
+        robot, made = benchmark_robot(nj, args.seed)
+        print(f"n = {nj}: {robot.name}", flush=True)
+        results[nj] = (made, bench_one(robot, args, binary))
+    load_end = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
 
     lines = [
-        "# Dynamics benchmark: D(q), g(q), C(q, qd) qd over a batch of states",
+        "# Dynamics benchmark: D(q), g(q), C(q, qd) qd over a batch of states, n = "
+        + ", ".join(map(str, args.joints)) + " joints",
         "",
         "Command: `" + " ".join(["python benchmarks/bench_dynamics.py", *cli]) + "`  ",
-        f"Date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M UTC}; "
-        f"{n:,} random states of `jr.racer7()` (q uniform in the limits, qd uniform in +-qd_max), "
-        f"seed {args.seed}; best of {args.repeats} runs "
-        f"(pinocchio Python loop: best of {min(args.repeats, 3)}).",
+        f"Date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M UTC}; {args.states:,} random states "
+        f"per robot (q uniform in the limits, qd uniform in +-qd_max), seed {args.seed}; best of {args.repeats} "
+        f"runs (pinocchio Python loop: best of {min(args.repeats, 3)}).",
         "",
         *[f"- {k}: {v}" for k, v in info.items()],
-        *(["", f"Note: the 1-minute load average ({os.getloadavg()[0]:.1f}) exceeded the core count, so other "
-           "processes shared the CPU during this run: absolute times are inflated and noisy, the ratios "
-           "less so."] if hasattr(os, "getloadavg") and os.getloadavg()[0] > (os.cpu_count() or 1) else []),
+        f"- load average (1, 5, 15 min) at the end: {load_end}",
+        *(["", f"Note: the 1-minute load average exceeded the core count ({os.cpu_count()}) during this run "
+           "(other jobs shared the CPU): absolute times are inflated and noisy, the ratios less so, since every "
+           "peer ran in the same run."] if hasattr(os, "getloadavg") and max(
+            float(info["load average (1, 5, 15 min) at start"].split(",")[0]), os.getloadavg()[0])
+            > (os.cpu_count() or 1) else []),
         "",
-        "| implementation | what is timed | compile [s] | time per state [us] | states/s | best jax / this |",
-        "|---|---|---|---|---|---|",
+        "## Ratio per joint count",
+        "",
+        "| n | robot | best jaxrobot [us/state] | its compile [s] | pinocchio C++ loop [us/state] | jaxrobot / C++ "
+        "| pinocchio Python loop [us/state] | jaxrobot / Python loop |",
+        "|---|---|---|---|---|---|---|---|",
     ]
-    whats = ["`jit` of the public functions on (N, 6) arrays", "`jit(vmap)` of the per-state public calls",
-             f"`jit(lax.map(..., batch_size={args.chunk}))` of the per-state public calls (vmapped chunks)"]
-    for name, what in zip(combined, whats, strict=True):
-        r = jax_rows[name]
-        lines.append(row(f"jaxrobot {name}", what + ", D + g + C qd", f"{r['lower'] + r['compile']:.2f}",
-                         r["run"] / n))
-    lines.append(row("pinocchio Python loop", "for-loop over states: crba, computeGeneralizedGravity, "
-                     "nle - g; results copied to arrays", "-", refs["pinocchio Python loop"]))
-    lines.append(row("pinocchio one-call tight loop", "sum over the 3 calls of `timeit` of one call at one "
-                     "state (C++ + Python binding overhead)", "-", refs["pinocchio one-call tight loop"]))
-    if cpp is not None:
-        lines.append(row("pinocchio C++ loop", "C++ for-loop over the same states: crba, "
-                         "computeGeneralizedGravity, nonLinearEffects - g, results copied out", "-",
-                         refs["pinocchio C++ loop"]))
+    for nj, (made, r) in results.items():
+        j = r["jax"][r["best"]]
+        cpp = r["refs"].get("pinocchio C++ loop")
+        loop = r["refs"]["pinocchio Python loop"]
+        lines.append(f"| {nj} | {made} | {r['best_s'] * 1e6:.3f} ({r['best']}) | {j['lower'] + j['compile']:.1f} | "
+                     + (f"{cpp * 1e6:.3f} | {r['best_s'] / cpp:.2f} | " if cpp else "- | - | ")
+                     + f"{loop * 1e6:.3f} | {r['best_s'] / loop:.2f} |")
     lines += [
         "",
-        f"Ratio column: best jaxrobot variant ({best_jax_name}, {best_jax * 1e6:.3f} us/state) divided by "
-        "the row's time per state (< 1: jaxrobot faster). JAX runs on the listed device with XLA's CPU "
-        "thread pool (all usable cores); pinocchio runs on one core.",
-        f"Compile column: trace + lower + XLA compile of the whole batched function. C++ timing: {cpp_note}.",
-        "Agreement on these states (max over states of relative 2-norm error, jaxrobot vs pinocchio): "
-        + ", ".join(f"{k} {v:.1e}" for k, v in errors.items()) + ".",
-        "",
-        "Breakdown (per state, us):",
-        "",
-        "| part | jaxrobot (broadcasting, alone) | pinocchio one-call tight loop | pinocchio C++ |",
-        "|---|---|---|---|",
+        "Ratios: jaxrobot's time per state divided by the peer's (< 1: jaxrobot faster). JAX runs with XLA's CPU "
+        "thread pool (all usable cores); pinocchio runs on one core. Compile: trace + lower + XLA compile of the "
+        f"whole batched function. C++ timing: {cpp_note}. Pinocchio's models are loaded from our URDF export.",
     ]
-    parts = [("D(q): mass_matrix / crba", "mass_matrix only", "crba"),
-             ("g(q): gravity_torque / computeGeneralizedGravity", "gravity_torque only",
-              "computeGeneralizedGravity"),
-             ("C qd: coriolis_vector / nle", "coriolis_vector only", "nle")]
-    for label, jkey, pkey in parts:
-        c = f"{cpp[pkey] / n * 1e6:.3f}" if cpp is not None else "-"
-        lines.append(f"| {label} | {jax_rows[jkey]['run'] / n * 1e6:.3f} | {single[pkey] * 1e6:.3f} | {c} |")
+    for nj, (made, r) in results.items():
+        lines += ["", f"## n = {nj}: {made}", "", *detail_lines(r, args)]
     lines.append("")
     text = "\n".join(lines)
     print(text)

@@ -1,3 +1,5 @@
+from jaxrobot._checks import check_public as _check_public
+
 from ._calibration import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
 from ._calibration import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
 from ._calibration import CalibrationResult as CalibrationResult
@@ -20,7 +22,9 @@ from ._gear_processing import check_gear_units as check_gear_units
 from ._gear_processing import prepare_gear_runs as prepare_gear_runs
 from ._gear_processing import process_gear_runs as process_gear_runs
 from ._identifiability import IdentifiabilityResult as IdentifiabilityResult
+from ._identifiability import default_parameters as default_parameters
 from ._identifiability import identifiability as identifiability
+from ._identifiability import kinematic_parameters as kinematic_parameters
 from ._observability import observability_indices as observability_indices
 from ._parameters import THESIS_PARAMETERS as THESIS_PARAMETERS
 from ._parameters import ParameterMap as ParameterMap
@@ -30,3 +34,5 @@ from ._pose_files import read_poses as read_poses
 from ._pose_selection import PoseConstraints as PoseConstraints
 from ._pose_selection import detmax as detmax
 from ._pose_selection import random_feasible_poses as random_feasible_poses
+
+_check_public(globals())

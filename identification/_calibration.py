@@ -28,14 +28,15 @@ from ._calibration_model import (
     position_jacobian_one,
     rippled_joints,
 )
-from ._identifiability import analyse
+from ._identifiability import analyse, default_parameters
 from ._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection, rotation_error
 from ._pose_files import check_pose_units
 from ._pose_selection import default_marker
 
 DEFAULT_PARAMETERS = THESIS_PARAMETERS + ("offset1", "offset2", "offset4", "offset5", "offset6", "d1",
                                           "d6", "a6")
-"""The thesis' 17 (Table 3.5) plus what else the identifiability analysis finds identifiable
+"""The Racer-7's default set, what `default_parameters` computes for it from marker positions:
+the thesis' 17 (Table 3.5) plus what else the identifiability analysis finds identifiable
 from marker positions with the bench's marker offset (25): offsets 1, 2, 4, 5, 6 (offset 3 is
 `beta3 - a3 d4`), d1 (the base frame is known), d6 and a6 (the marker sits off the joint-6
 axis; `alpha6` is then a combination of d6, a6 and offset6)."""
@@ -152,13 +153,13 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
 def solve(
     robot0: jr.Robot,
     params: ParameterMap,
-    theta: Float[Array, "K 6"],
+    theta: Float[Array, "K n"],
     positions: Float[Array, "K 3"],
-    deflection: Float[Array, "K 6"],
+    deflection: Float[Array, "K n"],
     marker: Float[Array, "3"],
     rotations: Float[Array, "K 3 3"] | None = None,
     weight_r: float | Float[Array, ""] = 1.0,
-    ccw: bool | Bool[Array, "K 6"] = False,
+    ccw: bool | Bool[Array, "K n"] = False,
     rtol: float = 1e-8,
     atol: float = 1e-8,
     max_steps: int = 100,
@@ -240,7 +241,7 @@ def check_inputs(
     ccw=False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list]:
     """Validate shapes, NaN rows, counts and joint limits before any solve (see `calibrate`)."""
-    theta = _check_array(theta, (6,), "motor_angles", "rad")
+    theta = _check_array(theta, (robot0.n_joints,), "motor_angles", "rad")
     positions = _check_array(positions, (3,), "positions", "m")
     if positions.shape[0] != theta.shape[0]:
         raise ValueError(f"positions: expected one row per pose ({theta.shape[0]}), found {positions.shape[0]}")
@@ -283,15 +284,15 @@ def check_rank(jac: np.ndarray, params: ParameterMap) -> None:
 
 def calibrate(
     robot: jr.Robot,
-    motor_angles: Float[Array, "K 6"],
+    motor_angles: Float[Array, "K n"],
     positions: Float[Array, "K 3"],
     quaternions: Float[Array, "K 4"] | None = None,
     *,
-    parameters: Sequence[str] = DEFAULT_PARAMETERS,
+    parameters: Sequence[str] | None = None,
     marker: Float[Array, "3"] | None = None,
     position_noise: float | None = None,
     orientation_noise: float | None = None,
-    ccw: bool | Bool[Array, "K 6"] = False,
+    ccw: bool | Bool[Array, "K n"] = False,
     validation: tuple | None = None,
     limits: str = "flag",
     max_steps: int = 100,
@@ -302,9 +303,10 @@ def calibrate(
 
     **Arguments:**
     - `robot`: the initial (nominal) robot; also supplies the gravity deflection model.
-    - `motor_angles` (K, 6) rad at rest; `positions` (K, 3) m measured marker positions;
+    - `motor_angles` (K, n) rad at rest; `positions` (K, 3) m measured marker positions;
       `quaternions` (K, 4) optional measured orientation (qx, qy, qz, qw).
-    - `parameters`: free parameter names (default `DEFAULT_PARAMETERS`).
+    - `parameters`: free parameter names (default `default_parameters(robot)` for the measurement
+      type: positions, or positions and orientations when `quaternions` are given).
     - `marker`: marker offset in the tool frame [m] (default: the toml `[sensors]`).
     - `position_noise`, `orientation_noise`: stds that weight orientation rows against
       position rows (defaults: the toml tracker noise and 0.05 deg); positions alone need none.
@@ -325,6 +327,11 @@ def calibrate(
     """
     from jaxrobot._bench_poses import ORIENTATION_NOISE_RAD, quaternion_to_rotation
 
+    marker = jnp.asarray(default_marker() if marker is None else marker, float)
+    if parameters is None:
+        _check_array(motor_angles, (robot.n_joints,), "motor_angles", "rad")
+        _check_array(positions, (3,), "positions", "m")
+        parameters = default_parameters(robot, orientation=quaternions is not None, marker=marker)
     params = ParameterMap(parameters)
     if method not in ("lm", "map"):
         raise ValueError(f"method: expected 'lm' or 'map', found {method!r}")
@@ -332,7 +339,6 @@ def calibrate(
     if method == "map":
         prior = prior_stds(robot, params, prior_std)
     theta, pos, quat, beyond = check_inputs(robot, params, motor_angles, positions, quaternions, limits, ccw)
-    marker = jnp.asarray(default_marker() if marker is None else marker, float)
     check_pose_units(robot, theta, pos, marker, "motor_angles/positions")
     sensors = jr.read_description(None)["sensors"]
     s_p = sensors["tracker_position_noise_m"] if position_noise is None else position_noise
@@ -340,13 +346,13 @@ def calibrate(
     rot = None if quat is None else quaternion_to_rotation(jnp.asarray(quat))
     w_r = jnp.asarray(s_p / s_r)
     if validation is not None:
-        vt = _check_array(validation[0], (6,), "validation motor_angles", "rad")
+        vt = _check_array(validation[0], (robot.n_joints,), "validation motor_angles", "rad")
         vp = _check_array(validation[1], (3,), "validation positions", "m")
         if vp.shape[0] != vt.shape[0]:
             raise ValueError(f"validation positions: expected {vt.shape[0]} rows, found {vp.shape[0]}")
         vccw = np.broadcast_to(np.asarray(validation[2], bool) if len(validation) > 2 else False, vt.shape)
     else:
-        vt, vp = np.zeros((0, 6)), np.zeros((0, 3))
+        vt, vp = np.zeros((0, robot.n_joints)), np.zeros((0, 3))
         vccw = np.zeros(vt.shape, bool)
     k = theta.shape[0]
     ccw_all = ccw if np.ndim(ccw) == 0 and not vccw.any() else np.concatenate(

@@ -31,11 +31,12 @@ from ._parameters import ParameterMap, parse_name
 
 def rippled_joints(robot: jr.Robot) -> tuple[int, ...]:
     """Joints (0-based) whose gear has ripple in either set, for any robot of a (fleet) pytree;
-    all six when the robot is traced (then nothing can be skipped)."""
+    all of them when the robot is traced (then nothing can be skipped)."""
     orders = (robot.cw.orders, robot.ccw.orders)
+    n = robot.n_joints
     if any(isinstance(o, jax.core.Tracer) for o in orders):
-        return tuple(range(6))
-    used = np.concatenate([np.asarray(o).reshape(-1, 6, np.shape(o)[-1]) for o in orders], -1) > 0
+        return tuple(range(n))
+    used = np.concatenate([np.asarray(o).reshape(-1, n, np.shape(o)[-1]) for o in orders], -1) > 0
     return tuple(int(j) for j in np.nonzero(used.any((0, 2)))[0])
 
 
@@ -60,13 +61,13 @@ def _rows(m: Float[Array, "3 3"]) -> Mat:
     return [[m[i, k] for k in range(3)] for i in range(3)]
 
 
-def marker_pose_one(robot: jr.Robot, q: Float[Array, " 6"], marker: Float[Array, " 3"]
+def marker_pose_one(robot: jr.Robot, q: Float[Array, " n"], marker: Float[Array, " 3"]
                     ) -> tuple[Float[Array, " 3"], Float[Array, "3 3"]]:
     """Marker position and rotation of one pose (eq. 2.2-2.4, `H = Rz(q + offset) Tx(a) Tz(d) Rx(alpha)
     Ry(beta)`), the same as `jaxrobot._bench_poses.marker_pose`."""
     rot, pos = _rows(robot.base[:3, :3]), [robot.base[i, 3] for i in range(3)]
     c, s = jnp.cos(q + robot.offset), jnp.sin(q + robot.offset)
-    for i in range(6):
+    for i in range(robot.n_joints):
         xy = _rows(rot_x(robot.alpha[i]) @ rot_y(robot.beta[i]))  # per robot, not per pose
         rz_xy = [[c[i] * xy[0][k] - s[i] * xy[1][k] for k in range(3)],
                  [s[i] * xy[0][k] + c[i] * xy[1][k] for k in range(3)], xy[2]]
@@ -81,17 +82,18 @@ def marker_pose_one(robot: jr.Robot, q: Float[Array, " 6"], marker: Float[Array,
 def joint_angle_model(
     robot0: jr.Robot,
     params: ParameterMap,
-    theta: Float[Array, "K 6"],
-    deflection: Float[Array, "K 6"],
-    ccw: bool | Bool[Array, "K 6"] = False,
+    theta: Float[Array, "K n"],
+    deflection: Float[Array, "K n"],
+    ccw: bool | Bool[Array, "K n"] = False,
     rippled: tuple[int, ...] | None = None,
-    q0: Float[Array, "K 6"] | None = None,
-) -> tuple[Float[Array, "K 6"], Callable]:
+    q0: Float[Array, "K n"] | None = None,
+) -> tuple[Float[Array, "K n"], Callable]:
     """Joint angles `q = Xi^{-1}(theta) + deflection` of robots that differ from `robot0` only in
-    `params`: `q0` (K, 6) of `robot0` (the gear inversion of joints with fixed `u0` is done here,
+    `params`: `q0` (K, n) of `robot0` (the gear inversion of joints with fixed `u0` is done here,
     once, unless given) and `q_pose(robot, theta_k, q0_k, deflection_k, ccw_k)` for one pose."""
     rippled = rippled_joints(robot0) if rippled is None else rippled
-    free_u0 = {j for j in range(6) if f"u0_{j + 1}" in params.names}
+    joints = range(robot0.n_joints)
+    free_u0 = {j for j in joints if f"u0_{j + 1}" in params.names}
     q0 = jr.gear_output(robot0, theta, ccw) + deflection if q0 is None else q0
     full = bool(free_u0 & set(rippled))
 
@@ -100,7 +102,7 @@ def joint_angle_model(
             return q0k
         phi = jr.gear_output(robot, th, ccwk) if full else None
         cols = [q0k[j] if j not in free_u0 else (phi[j] if j in rippled else th[j] / robot.u0[j]) + dek[j]
-                for j in range(6)]
+                for j in joints]
         return jnp.stack(cols)
 
     return q0, q_pose
@@ -117,8 +119,8 @@ def analytic_names(names: tuple[str, ...]) -> bool:
 
 
 def position_jacobian_one(
-    robot: jr.Robot, params: ParameterMap, q: Float[Array, " 6"], theta: Float[Array, " 6"],
-    ratio: Float[Array, " 6"], marker: Float[Array, " 3"],
+    robot: jr.Robot, params: ParameterMap, q: Float[Array, " n"], theta: Float[Array, " n"],
+    ratio: Float[Array, " n"], marker: Float[Array, " 3"],
 ) -> tuple[Float[Array, " 3"], Float[Array, "3 m"]]:
     """`position_jacobian` of one pose: marker position (3,) and its Jacobian (3, m)."""
     p, jac = position_jacobian(robot, params, q, theta, ratio, marker)
@@ -126,8 +128,8 @@ def position_jacobian_one(
 
 
 def position_jacobian(
-    robot: jr.Robot, params: ParameterMap, q: Float[Array, "*b 6"], theta: Float[Array, "*b 6"],
-    ratio: Float[Array, "*b 6"], marker: Float[Array, " 3"],
+    robot: jr.Robot, params: ParameterMap, q: Float[Array, "*b n"], theta: Float[Array, "*b n"],
+    ratio: Float[Array, "*b n"], marker: Float[Array, " 3"],
 ) -> tuple[Float[Array, "3 ..."], Float[Array, "m 3 ..."]]:
     """Marker position and its derivative by the free joint parameters, from the joint screws
     (thesis 3.2.2), batch-last: the robot's fields broadcast against the batch `*b` of `q` (a fleet
@@ -142,7 +144,7 @@ def position_jacobian(
     XLA CPU fuses the whole chain into every Jacobian column and evaluates it m times.
     """
     batch = jnp.broadcast_shapes(q.shape[:-1], robot.a.shape[:-1])
-    joint_first = lambda f: jnp.moveaxis(f, -1, 0)  # noqa: E731  (*b, 6) -> (6, *b)
+    joint_first = lambda f: jnp.moveaxis(f, -1, 0)  # noqa: E731  (*b, n) -> (n, *b)
     ang = joint_first(q + robot.offset)
     ca, sa, cb, sb = (joint_first(f(x)) for x in (robot.alpha, robot.beta) for f in (jnp.cos, jnp.sin))
     # Rx(alpha) Ry(beta) entries, row by row

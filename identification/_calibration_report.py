@@ -35,7 +35,8 @@ def parameter_table(parameters: dict, truth: dict | None = None) -> str:
     head = ["Frame j", "Δd_j in m", "Δa_j in m", "Δα_j in rad", "Δβ_j in rad", "Δoffset_j in rad", "u0_j"]
     lines = ["  ".join(f"{h:>22s}" if i else f"{h:7s}" for i, h in enumerate(head))]
     fmt = lambda p: f"{p['delta']:+.4e}±{p['std']:.1e}"  # noqa: E731
-    for j in range(1, 7):
+    joints = max([parse_name(n)[1] + 1 for n in parameters if isinstance(parse_name(n)[1], int)], default=0)
+    for j in range(1, joints + 1):
         cells = [f"{j:<7d}"]
         for c in cols:
             p = parameters.get(f"{c}{j}")

@@ -8,13 +8,15 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxrobot._cli import SolveFailed
+
 from ._pose_files import add_approach_option
 
 HELP = "calibrate the kinematic parameters from a pose file (thesis 3.2, LM)"
 
 
 def configure(parser) -> None:
-    parser.add_argument("poses", type=Path, help="pose CSV: theta1_deg..theta6_deg, x_m, y_m, z_m [, qx..qw]")
+    parser.add_argument("poses", type=Path, help="pose CSV: theta1_deg..thetan_deg, x_m, y_m, z_m [, qx..qw]")
     parser.add_argument("--validate", type=Path, default=None, help="validation pose CSV (same format)")
     parser.add_argument("--save-model", type=Path, default=None, help="write the calibrated robot (TOML)")
     parser.add_argument("--robot", type=Path, default=None,
@@ -94,8 +96,10 @@ def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions
 def run(args, echo) -> dict:
     import jaxrobot as jr
 
-    from ._calibration import DEFAULT_PARAMETERS, PRIOR_KEYS, calibrate, map_parameters
+    from ._calibration import PRIOR_KEYS, calibrate, map_parameters
+    from ._identifiability import default_parameters
     from ._pose_files import read_poses
+    from ._pose_selection import default_marker
 
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
     data = read_poses(args.poses, args.approach)
@@ -103,21 +107,23 @@ def run(args, echo) -> dict:
     if args.validate is not None:
         v = read_poses(args.validate, args.approach)
         val = (v["motor_angles"], v["positions"], v["ccw"])
-    names = DEFAULT_PARAMETERS if args.parameters is None else [
+    names = None if args.parameters is None else [
         n.strip() for n in args.parameters.split(",") if n.strip()]
-    if args.method == "map" and args.parameters is None:
-        names = map_parameters(names, robot.u0.shape[0])
     desc = jr.read_description(args.robot)
     prior = {PRIOR_KEYS[k]: v for k, v in desc.get("calibration", {}).get("prior_std", {}).items()}
     marker = args.marker
     if marker is None and args.robot is not None:
-        marker = jr.read_description(args.robot).get("sensors", {}).get("tracker_marker_offset_m")
+        marker = desc.get("sensors", {}).get("tracker_marker_offset_m")
+    if args.method == "map" and args.parameters is None:
+        names = map_parameters(default_parameters(robot, orientation=data["quaternions"] is not None,
+                                                  marker=default_marker() if marker is None else marker),
+                               robot.n_joints)
     res = calibrate(robot, data["motor_angles"], data["positions"], data["quaternions"], parameters=names,
                     marker=marker, ccw=data["ccw"], validation=val, limits=args.limits, method=args.method,
                     prior_std=prior)
     _echo_report(res.report, echo)
     if not res.report["converged"]:
-        raise ValueError(f"calibration did not converge ({res.report['status']}); the model was not saved")
+        raise SolveFailed(f"calibration did not converge ({res.report['status']}); the model was not saved")
     if args.out is not None:
         for f in _write_outputs(args.out, res.report, positions=data["positions"]):
             echo(f"wrote {args.out / f}")

@@ -44,12 +44,14 @@ def run(args, echo) -> dict:
     if args.noise_um is not None and not args.noise_um > 0:
         raise ValueError(f"--noise-um: expected the tracker std per axis > 0 um, found {args.noise_um}")
     robot = jr.racer7() if args.model is None else jr.load_robot(args.model)
-    marker = args.marker
-    if marker is None and args.model is not None:
-        marker = jr.read_description(args.model).get("sensors", {}).get("tracker_marker_offset_m")
+    marker, noise = args.marker, None if args.noise_um is None else 1e-6 * args.noise_um
+    if args.model is not None:
+        sensors = jr.read_description(args.model).get("sensors", {})
+        marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
+        noise = sensors.get("tracker_position_noise_m") if noise is None else noise
     train, val = _poses(args.poses, args.approach), _poses(args.validate, args.approach)
     echo(f"diagnose: {len(train)} training and {len(val)} validation poses, start model {robot.name}")
-    res = diagnose(robot, train, val, noise=None if args.noise_um is None else 1e-6 * args.noise_um,
+    res = diagnose(robot, train, val, noise=noise,
                    marker=marker, max_steps=args.max_steps, max_order=args.max_order, progress=echo)
     rep = res.report
     table = loop_table(res.loop, rep["noise_floor_um"])

@@ -29,11 +29,15 @@ def configure(parser) -> None:
 
 
 def _cutoffs(desc: dict) -> dict[int, float]:
-    sensors = desc.get("sensors")
-    if not sensors or "filter_cutoff_hz" not in sensors:
-        raise ValueError("robot description: [sensors] filter_cutoff_hz (Gaussian filter cut-off of joints 1-3, "
-                         "Hz) is needed for gear identification")
-    return {i + 1: float(c) for i, c in enumerate(sensors["filter_cutoff_hz"])}
+    from jaxrobot._description import filter_cutoffs
+
+    if "gear" not in desc:
+        raise ValueError("robot description: a [gear] section (basic ratios u0) is needed for gear identification")
+    cutoffs = filter_cutoffs(desc)
+    if not cutoffs:
+        raise ValueError("robot description: [sensors] filter_cutoff_hz (Gaussian filter cut-off per joint, Hz) "
+                         "is needed for gear identification")
+    return cutoffs
 
 
 def _echo_result(res, echo) -> None:

@@ -35,7 +35,7 @@ import jaxrobot as jr
 from jaxrobot._statics import approach_sign
 
 from ._diagnose_model import functions
-from ._effects import RIPPLE_SLOTS, Layout, Model, model_of, robot_of
+from ._effects import RIPPLE_SLOTS, Layout, Model, catalogue, model_of, robot_of
 from ._gear_fit import chi2_quantile
 from ._pose_files import check_pose_units
 
@@ -49,9 +49,9 @@ ORDER_FALSE_ALARM = 1e-3
 
 @dataclasses.dataclass(frozen=True)
 class Poses:
-    """Measured poses: `motor_angles` (K, 6) rad, `positions` (K, 3) m, `ccw` (K, 6) the direction
+    """Measured poses: `motor_angles` (K, n) rad, `positions` (K, 3) m, `ccw` (K, n) the direction
     of approach of the stated convention (`_pose_files.APPROACHES`, SPEC.md's `cw` by default) and
-    `ccw_order` (K, 6) the one the row order would give (`jaxrobot.approach_directions`), which the
+    `ccw_order` (K, n) the one the row order would give (`jaxrobot.approach_directions`), which the
     hypothesis `approach_dependent_gear_set` tests."""
 
     motor_angles: np.ndarray
@@ -61,13 +61,13 @@ class Poses:
 
     @classmethod
     def of(cls, motor_angles, positions, approach: str = "cw", ccw=None) -> Poses:
-        """`approach`: "cw", "order" or "column" (then `ccw` (K, 6) bool, e.g. `read_poses`'s)."""
+        """`approach`: "cw", "order" or "column" (then `ccw` (K, n) bool, e.g. `read_poses`'s)."""
         from ._pose_files import approach_ccw
 
         th = np.asarray(motor_angles, float)
         pos = np.asarray(positions, float)
-        if th.ndim != 2 or th.shape[1] != 6 or pos.shape != (th.shape[0], 3):
-            raise ValueError(f"poses: expected motor_angles (K, 6) rad and positions (K, 3) m, "
+        if th.ndim != 2 or pos.shape != (th.shape[0], 3):
+            raise ValueError(f"poses: expected motor_angles (K, n) rad and positions (K, 3) m, "
                              f"found {th.shape} and {pos.shape}")
         bad = np.nonzero(~np.isfinite(np.concatenate([th, pos], 1)).all(1))[0]
         if bad.size:
@@ -185,7 +185,7 @@ def _candidates(layout: Layout, free: set, ripple_orders: dict, varying: np.ndar
             if not e.per_joint:
                 out.append(Candidate(ei, None, tuple(int(i) for i in block[list(variant)]), tag))
                 continue
-            for j in range(6):
+            for j in range(block.shape[0]):
                 if e.kind in DIRECTIONAL and not varying[j]:
                     continue
                 params = [int(i) for i in block[j, list(variant)]]
@@ -240,16 +240,20 @@ def diagnose(
     if len(train) < 10 or len(validation) < 3:
         raise ValueError(f"poses: expected >= 10 training and >= 3 validation poses, found {len(train)} and "
                          f"{len(validation)}")
-    for poses, label in ((train, "train"), (validation, "validation")):
-        check_pose_units(start, poses.motor_angles, poses.positions, marker, f"{label} poses")
+    joints = start.n_joints
+    for name, poses in (("train", train), ("validation", validation)):
+        if poses.motor_angles.shape[1] != joints:
+            raise ValueError(f"{name}: expected motor_angles (K, {joints}) rad for the {joints}-joint start robot, "
+                             f"found {poses.motor_angles.shape}")
+        check_pose_units(start, poses.motor_angles, poses.positions, marker, f"{name} poses")
     say = progress or (lambda _: None)
-    layout = Layout.of()
+    layout = Layout.of(catalogue(start), joints)
     fns = functions(layout)
     model0 = model_of(start)
     spare = layout.size
     scale = jnp.asarray(layout.scales())
     v = jnp.zeros(spare + 1)
-    orders = np.zeros((6, 2 * RIPPLE_SLOTS))
+    orders = np.zeros((joints, 2 * RIPPLE_SLOTS))
     both = Poses.concatenate([train, validation])  # one compiled shape for both sets
     th_all, ccw_all = jnp.asarray(both.motor_angles), (jnp.asarray(both.ccw), jnp.asarray(both.ccw_order))
     k_tr = len(train)
@@ -306,12 +310,12 @@ def diagnose(
         jac = np.asarray(fns.jacobian(model0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
         # locate: ripple orders per joint from the residual spectra (joints without a ripple effect yet)
         qe = _orthonormal(jac[:, free]) if free else np.zeros((n_res, 0))
-        threshold = 2.0 * np.log(6 * max_order / ORDER_FALSE_ALARM)
+        threshold = 2.0 * np.log(joints * max_order / ORDER_FALSE_ALARM)
         off = layout.blocks[layout.index("joint_offset")]
         sign = np.asarray(approach_sign(np.asarray(ccw[0])))
         found: dict[str, dict[int, list[int]]] = {"gear_ripple": {}, "direction_dependent_ripple": {}}
         spec_step = {}
-        for j in range(6):
+        for j in range(joints):
             g = jac[:, off[j, 0]].reshape(-1, 3)
             phi = np.asarray(q_cur)[:, j]
             for kind, col, sgn in (("gear_ripple", 0, None), ("direction_dependent_ripple", RIPPLE_SLOTS, sign[:, j])):

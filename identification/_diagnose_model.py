@@ -30,9 +30,9 @@ FIT_ITERATIONS = 2
 
 
 def rest_angles(
-    model: Model, theta: Float[Array, "K 6"], ccw: tuple[Bool[Array, "K 6"], Bool[Array, "K 6"]],
-    q0: Float[Array, "K 6"] | None, iterations: int
-) -> Float[Array, "K 6"]:
+    model: Model, theta: Float[Array, "K n"], ccw: tuple[Bool[Array, "K n"], Bool[Array, "K n"]],
+    q0: Float[Array, "K n"] | None, iterations: int
+) -> Float[Array, "K n"]:
     """Link angles at rest (fixed point `q = phi - x(g(q))`, `iterations` steps from `q0` or `phi`);
     `ccw`: the direction of approach of the poses' convention and the one from their order."""
     rob = model.robot

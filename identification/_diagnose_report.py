@@ -88,7 +88,9 @@ def plot_spectra(path: Path, spectra: dict, max_order: int) -> None:
 
     if not spectra:
         return
-    fig, axes = plt.subplots(6, 1, figsize=(8, 10), sharex=True)
+    joints = max(joint for _, joint in spectra)
+    fig, axes = plt.subplots(joints, 1, figsize=(8, 10 * joints / 6), sharex=True, squeeze=False)
+    axes = axes[:, 0]
     orders = np.arange(1, max_order + 1)
     for (kind, joint), d in spectra.items():
         axes[joint - 1].plot(orders, d, lw=0.8, label="same both ways" if kind == "gear_ripple"

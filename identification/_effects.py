@@ -2,7 +2,7 @@
 
 Each effect is a small model extension: its parameter names and typical sizes, and a hook
 `apply(model, v, orders) -> model` that is the identity at `v = 0`. Per-joint effects get `v` of
-shape (6, n) (one row per joint; the workflow frees one row at a time), global ones (n,).
+shape (joints, p) (one row per joint; the workflow frees one row at a time), global ones (p,).
 Adding an effect = one subclass of `Effect` appended to `CATALOGUE`.
 
 The model (`Model`) is the robot plus its joint compliance in the form of
@@ -23,6 +23,8 @@ from jaxtyping import Array, Float
 import jaxrobot as jr
 from jaxrobot._kinematics import homogeneous, rot_x, rot_y, rot_z
 
+from ._parameters import parse_name
+
 RIPPLE_SLOTS = 3
 """Orders per ripple effect and joint (found from the residual spectrum)."""
 
@@ -32,15 +34,15 @@ class Model(eqx.Module):
     appended, and joint compliance `c` [rad/(N m)], `e` [1/rad^2] (`x + e x^3 = c tau`)."""
 
     robot: jr.Robot
-    c: Float[Array, "6"]
-    e: Float[Array, "6"]
-    approach: Float[Array, "6"]
+    c: Float[Array, " n"]
+    e: Float[Array, " n"]
+    approach: Float[Array, " n"]
     """Weight of the gear set of the direction of approach from the order at rest (0: the set of
     the poses' convention; `ApproachDependentGearSet`)."""
 
 
 def _pad(rip: jr.Ripple, m: int) -> jr.Ripple:
-    z = jnp.zeros((6, m))
+    z = jnp.zeros(rip.orders.shape[:-1] + (m,))
     return jr.Ripple(*(jnp.concatenate([getattr(rip, k), z], -1) for k in ("orders", "a", "b")))
 
 
@@ -72,7 +74,7 @@ class Effect:
     scales: ClassVar[tuple[float, ...]]
     units: ClassVar[tuple[str, ...]]
 
-    def apply(self, model: Model, v: Array, orders: Float[Array, "6 S"]) -> Model:
+    def apply(self, model: Model, v: Array, orders: Float[Array, "n S"]) -> Model:
         raise NotImplementedError
 
     def variants(self) -> tuple[tuple[int, ...], ...]:
@@ -162,7 +164,7 @@ class DirectionDependentRipple(Effect):
     def apply(self, model, v, orders):
         n = orders[:, RIPPLE_SLOTS:]
         start = model.robot.cw.orders.shape[-1] - RIPPLE_SLOTS
-        v = v.reshape(6, RIPPLE_SLOTS, 4)
+        v = v.reshape(v.shape[0], RIPPLE_SLOTS, 4)
         rob = model.robot
         return _robot_at(model, ("cw", "ccw"), (_set_ripple(rob.cw, start, n, v[..., 0], v[..., 1]),
                                                  _set_ripple(rob.ccw, start, n, v[..., 2], v[..., 3])))
@@ -170,22 +172,41 @@ class DirectionDependentRipple(Effect):
 
 GEOMETRY = ("a1", "a2", "a3", "a4", "a5", "a6", "d1", "d2", "d4", "d5", "d6",
             "alpha1", "alpha2", "alpha3", "alpha4", "alpha5", "beta3")
-"""The mDH parameters identifiable from marker positions (with the joint offsets: the 25 of
-`identification.DEFAULT_PARAMETERS` less offsets and wrist ratios)."""
+"""The mDH parameters of the Racer-7 identifiable from marker positions (with the joint offsets:
+the 25 of `identification.DEFAULT_PARAMETERS` less offsets and wrist ratios)."""
 
 
+def geometry_names(robot: jr.Robot) -> tuple[str, ...]:
+    """The mDH parameters (a, d, alpha, beta) of `default_parameters(robot)`, by field then joint
+    (`GEOMETRY` for the Racer-7)."""
+    from ._identifiability import default_parameters
+
+    fields = ("a", "d", "alpha", "beta")
+    geo = [parse_name(n) for n in default_parameters(robot) if parse_name(n)[0] in fields]
+    return tuple(f"{f}{j + 1}" for f, j in sorted(geo, key=lambda fj: (fields.index(fj[0]), fj[1])))
+
+
+@dataclasses.dataclass(frozen=True)
 class Geometry(Effect):
-    """mDH geometric deviations (eq. 2.2-2.3) of the identifiable set `GEOMETRY`."""
+    """mDH geometric deviations (eq. 2.2-2.3) of an identifiable set (default `GEOMETRY`)."""
 
-    kind, per_joint, names = "geometry", False, GEOMETRY
-    scales = (1e-4,) * len(GEOMETRY)
-    units = tuple("m" if n[0] in "ad" and not n.startswith("alpha") else "rad" for n in GEOMETRY)
+    kind: ClassVar[str] = "geometry"
+    per_joint: ClassVar[bool] = False
+    names: tuple[str, ...] = GEOMETRY  # type: ignore[misc]
+
+    @property
+    def scales(self) -> tuple[float, ...]:  # type: ignore[override]
+        return (1e-4,) * len(self.names)
+
+    @property
+    def units(self) -> tuple[str, ...]:  # type: ignore[override]
+        return tuple("m" if parse_name(n)[0] in ("a", "d") else "rad" for n in self.names)
 
     def apply(self, model, v, orders):
         rob = model.robot
         upd = {k: getattr(rob, k) for k in ("a", "d", "alpha", "beta")}
-        for i, n in enumerate(GEOMETRY):
-            field, j = n[:-1], int(n[-1]) - 1
+        for i, n in enumerate(self.names):
+            field, j = parse_name(n)
             upd[field] = upd[field].at[j].add(v[i])
         keys = tuple(upd)
         return _robot_at(model, keys, tuple(upd[k] for k in keys))
@@ -225,18 +246,18 @@ class BaseOffset(Effect):
 
 
 class Payload(Effect):
-    """Payload on the flange: mass [kg] and first moment `m c` [kg m] in the flange frame (link 6);
-    acts through the gravity torque on the compliant joints."""
+    """Payload on the flange: mass [kg] and first moment `m c` [kg m] in the flange frame (the last
+    link); acts through the gravity torque on the compliant joints."""
 
     kind, per_joint = "payload", False
     names, scales, units = ("mass", "moment_x", "moment_y", "moment_z"), (1.0, 0.1, 0.1, 0.1), ("kg",) + ("kg m",) * 3
 
     def apply(self, model, v, orders):
         rob = model.robot
-        m6 = rob.mass[5]
-        m = m6 + v[0]
-        com = (m6 * rob.com[5] + v[1:]) / m
-        return _robot_at(model, ("mass", "com"), (rob.mass.at[5].set(m), rob.com.at[5].set(com)))
+        m_last = rob.mass[-1]
+        m = m_last + v[0]
+        com = (m_last * rob.com[-1] + v[1:]) / m
+        return _robot_at(model, ("mass", "com"), (rob.mass.at[-1].set(m), rob.com.at[-1].set(com)))
 
 
 class ApproachDependentGearSet(Effect):
@@ -255,9 +276,15 @@ class ApproachDependentGearSet(Effect):
 CATALOGUE: list[Effect] = [JointOffset(), GearRatio(), Backlash(), JointCompliance(), GearRipple(),
                            DirectionDependentRipple(), Geometry(), LinkScale(), ToolOffset(), BaseOffset(),
                            Payload(), ApproachDependentGearSet()]
-"""The effects the workflow tries, in this order (ties keep the earlier one)."""
+"""The effects the workflow tries, in this order (ties keep the earlier one); `catalogue(robot)`
+sizes the geometry effect for a robot."""
 
 KINDS = tuple(e.kind for e in CATALOGUE)
+
+
+def catalogue(robot: jr.Robot) -> list[Effect]:
+    """`CATALOGUE` with the geometry effect on the identifiable mDH parameters of `robot`."""
+    return [Geometry(geometry_names(robot)) if isinstance(e, Geometry) else e for e in CATALOGUE]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -267,15 +294,15 @@ class Layout:
 
     effects: tuple[Effect, ...]
     blocks: tuple[np.ndarray, ...]
-    """Per effect: indices into `V`, shape (6, n) per joint or (n,) global."""
+    """Per effect: indices into `V`, shape (joints, p) per joint or (p,) global."""
     size: int
 
     @classmethod
-    def of(cls, effects=None) -> Layout:
+    def of(cls, effects=None, joints: int = 6) -> Layout:
         effects = tuple(CATALOGUE if effects is None else effects)
         blocks, start = [], 0
         for e in effects:
-            shape = (6, len(e.names)) if e.per_joint else (len(e.names),)
+            shape = (joints, len(e.names)) if e.per_joint else (len(e.names),)
             n = int(np.prod(shape))
             blocks.append(np.arange(start, start + n).reshape(shape))
             start += n
@@ -288,7 +315,7 @@ class Layout:
             s[b] = np.broadcast_to(np.asarray(e.scales), b.shape)
         return s
 
-    def apply(self, model: Model, v: Float[Array, " P"], orders: Float[Array, "6 S"]) -> Model:
+    def apply(self, model: Model, v: Float[Array, " P"], orders: Float[Array, "n S"]) -> Model:
         """All effects with the values `v` (the identity at `v = 0`)."""
         for e, b in zip(self.effects, self.blocks):
             model = e.apply(model, v[jnp.asarray(b)], orders)
@@ -298,7 +325,7 @@ class Layout:
         return [e.kind for e in self.effects].index(kind)
 
     def _key(self) -> tuple:
-        return tuple(type(e) for e in self.effects)
+        return (*self.effects, self.size)
 
     def __hash__(self) -> int:
         return hash(self._key())

@@ -6,8 +6,9 @@ batch-first Levenberg-Marquardt loop (`_batched_lm`, in chunks of `CHUNK` robots
 poses, `_calibration_model.position_jacobian`), each robot stopping on its own tolerances. The
 fleet axis is sharded across all devices with `jax.sharding` (a 1-D mesh named `"fleet"`,
 `shard_map`: each device runs its own LM loop on its own robots, no communication), so that the
-same call uses one CPU, several GPUs, or several hosts under `jax.distributed` (every process
-passes the full arrays; each device computes its shard; results are gathered).
+same call uses one CPU, several GPUs, or several processes and hosts under `jax.distributed`
+(`jaxrobot.initialize_processes`): each process passes only its own robots, the global arrays
+are assembled from the processes' rows (`jaxrobot.shard_rows`) and the results gathered back.
 """
 
 from __future__ import annotations
@@ -20,15 +21,17 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
+from jaxrobot._distributed import gather_rows, shard_rows
 from jaxrobot._statics import rest_link_angles
 
 from ._batched_lm import STATUS, batched_lm, covariance, map_chunks
-from ._calibration import DEFAULT_PARAMETERS, RESIDUAL_UNIT, _check_array, _residual_fn
+from ._calibration import RESIDUAL_UNIT, _check_array, _residual_fn
 from ._calibration_model import analytic_names, joint_angle_model, position_jacobian, rippled_joints
+from ._identifiability import default_parameters
 from ._parameters import ParameterMap
 from ._pose_selection import default_marker
 
@@ -58,19 +61,6 @@ class FleetResult:
 def fleet_mesh(devices: Sequence | None = None) -> Mesh:
     """1-D device mesh over all (global) devices, axis name `"fleet"`."""
     return Mesh(np.asarray(jax.devices() if devices is None else devices), ("fleet",))
-
-
-def _to_global(x: np.ndarray, sharding: NamedSharding) -> Array:
-    x = np.asarray(x)
-    return jax.make_array_from_callback(x.shape, sharding, lambda idx: x[idx])
-
-
-def _gather(x: Array) -> np.ndarray:
-    if jax.process_count() > 1:
-        from jax.experimental import multihost_utils
-
-        return np.asarray(multihost_utils.process_allgather(x, tiled=True))
-    return np.asarray(x)
 
 
 def _robot_residual_jacobian(robot, params, theta, positions, deflection, q0, marker, rippled, x):
@@ -110,7 +100,7 @@ in one piece."""
 
 def _constants(robots, theta, rippled):
     """Per-pose constants of the solve, from the initial robots (thesis 3.2.3): the joint angles at
-    rest `q0` (R, K, 6) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, 6) (`rest_deflection`;
+    rest `q0` (R, K, n) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, n) (`rest_deflection`;
     XLA evaluates the gear inversion once for both). `robots`: a fleet (R, ...) or one robot for all
     (then its fields are not broadcast over the poses: ~2x faster); the gear inversion runs on the
     `rippled` joints only (the others are `theta / u0`)."""
@@ -172,10 +162,10 @@ _set_parameters = eqx.filter_jit(ParameterMap.set)  # one compiled call instead 
 
 def calibrate_fleet(
     robots: jr.Robot,
-    motor_angles: Float[Array, "R K 6"],
+    motor_angles: Float[Array, "R K n"],
     positions: Float[Array, "R K 3"],
     *,
-    parameters: Sequence[str] = DEFAULT_PARAMETERS,
+    parameters: Sequence[str] | None = None,
     marker: Float[Array, "3"] | None = None,
     max_steps: int = 100,
     mesh: Mesh | None = None,
@@ -185,20 +175,27 @@ def calibrate_fleet(
     `robots`: the initial robots, a fleet pytree with leading axis R, or one robot used for all.
     The fleet axis is padded to a multiple of the device count and sharded over `mesh`
     (default: all devices). Robots whose solve failed or whose pose set is rank deficient have
-    `converged = False`.
+    `converged = False`. `parameters`: default `default_parameters` of the first robot. Under
+    several processes (`jaxrobot.initialize_processes`) each process passes only its own robots
+    (e.g. rows `jaxrobot.process_share(R)`, one robot or its own fleet rows in `robots`) and every
+    process receives the whole fleet in process order.
     """
-    params = ParameterMap(parameters)
+    joints = robots.n_joints
     theta = np.asarray(motor_angles, float)
     pos = np.asarray(positions, float)
-    if theta.ndim != 3 or theta.shape[-1] != 6:
-        raise ValueError(f"motor_angles: expected shape (R, K, 6) in rad, found {theta.shape}")
+    if theta.ndim != 3 or theta.shape[-1] != joints:
+        raise ValueError(f"motor_angles: expected shape (R, K, {joints}) in rad, found {theta.shape}")
     if pos.shape != theta.shape[:2] + (3,):
         raise ValueError(f"positions: expected shape {theta.shape[:2] + (3,)} in m, found {pos.shape}")
     if not (np.isfinite(theta).all() and np.isfinite(pos).all()):  # NaN rows, named by robot and pose
         for r in range(theta.shape[0]):
-            _check_array(theta[r], (6,), f"motor_angles[robot {r}]", "rad")
+            _check_array(theta[r], (joints,), f"motor_angles[robot {r}]", "rad")
             _check_array(pos[r], (3,), f"positions[robot {r}]", "m")
     n_rob, k = theta.shape[:2]
+    if parameters is None:
+        first = robots if np.ndim(robots.a) == 1 else jax.tree.map(lambda x: x[0], robots)
+        parameters = default_parameters(first, marker=marker)
+    params = ParameterMap(parameters)
     if 3 * k < len(params):
         raise ValueError(f"motor_angles: {k} poses per robot give {3 * k} equations for {len(params)} "
                          f"parameters; need at least {-(-len(params) // 3)} poses")
@@ -209,18 +206,12 @@ def calibrate_fleet(
         raise ValueError(f"robots: expected one robot or a fleet of {n_rob}, found {robots.a.shape[0]}")
     mesh = fleet_mesh() if mesh is None else mesh
     n_dev = mesh.devices.size
-    pad = -n_rob % n_dev
-    take = np.concatenate([np.arange(n_rob), np.zeros(pad, int)])  # pad with copies of robot 0
-    sharding = NamedSharding(mesh, PartitionSpec("fleet"))
-    leaves, tree = jax.tree.flatten(robots)
-    g_robots = jax.tree.unflatten(tree, [_to_global(np.asarray(x)[take], sharding) for x in leaves])
+    (g_robots, g_theta, g_pos), origin = shard_rows((robots, theta, pos), mesh)  # padded with robot 0
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
-    g_theta = _to_global(theta[take], sharding)
     rippled = rippled_joints(robots)
     q0, defl = _fleet_constants(initial if np.ndim(initial.a) == 1 else g_robots, g_theta, rippled, mesh)
-    out = _fleet_solve(g_robots, params, g_theta, _to_global(pos[take], sharding), marker, q0, defl, max_steps,
-                       rippled, mesh)
-    out = {key: _gather(v)[:n_rob] for key, v in out.items()}
+    out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, max_steps, rippled, mesh)
+    out, robots = gather_rows((out, g_robots), origin)
     value = out["value"]
     status = np.asarray(STATUS + ("rank_deficient",))[np.where(
         (out["status"] == 0) & (out["rank"] < len(params)), len(STATUS), out["status"])]

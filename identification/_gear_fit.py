@@ -22,8 +22,10 @@ from jax.scipy.special import betainc, gammaincc
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxrobot import Ripple, Robot, read_description
+from jaxrobot._description import filter_cutoffs
 from jaxrobot._gear import ratio as gear_ratio
 from jaxrobot._gear import xi_inverse
+from jaxrobot._linalg import map_matrices
 
 from ._gear_frequencies import fft_orders, group_samples, sparse_orders
 from ._gear_processing import (
@@ -134,7 +136,7 @@ def fit_gear_ratio(
             res = y - jnp.einsum("rnp,p->rn", x_f, p)  # one refinement step
             return p + inv @ jnp.einsum("r,rnp,rn->p", sel, x_f, res)
 
-        p = jax.vmap(per_group)(jnp.arange(n_groups))
+        p = jax.lax.map(per_group, jnp.arange(n_groups))  # one eigendecomposition per call (jaxrobot._linalg)
         return p, x_raw, x_f
 
     params = (u0_start, jnp.zeros((n_groups, m)), jnp.zeros((n_groups, m)))
@@ -151,7 +153,7 @@ def fit_gear_ratio(
     b_mat = jnp.einsum("rg,rnp,rnq->gpq", onehot, x_ff, x_ff)
     n = jnp.einsum("rg,rn->g", onehot, weight)
     s2 = jnp.einsum("rg,rn->g", onehot, res_raw**2) / jnp.maximum(n - p.shape[-1], 1.0)
-    a_inv = jax.vmap(pinv_psd)(a_mat)
+    a_inv = map_matrices(pinv_psd, a_mat)
     cov = s2[:, None, None] * a_inv @ b_mat @ a_inv
     cov_ab = cov[:, 1:, 1:] / (u0**2)[:, None, None]
     return GearFit(u0=u0, orders=orders, a=a, b=b, se_u0=jnp.sqrt(cov[:, 0, 0]), cov_ab=cov_ab,
@@ -421,7 +423,7 @@ def identify_gear(
     **Arguments:**
     - `robot`: the model (nominal): its `u0`, kinematics, masses and stiffness are used; its ripple
       is not.
-    - `runs`, `validation_runs`: `(t (N,) s, theta (N, 6) rad, gyro (N, 3) rad/s)` per run; each
+    - `runs`, `validation_runs`: `(t (N,) s, theta (N, n) rad, gyro (N, 3) rad/s)` per run; each
       validation run needs identification runs of the same joint and direction.
     - `cutoff_hz`: filter cut-off per 1-based joint (default: `[sensors] filter_cutoff_hz` of the
       embedded description, joints 1-3).
@@ -433,7 +435,7 @@ def identify_gear(
     if method not in ("sparse", "fft"):
         raise ValueError(f"method: expected 'sparse' or 'fft', found {method!r}")
     if cutoff_hz is None:
-        cutoff_hz = {i + 1: float(c) for i, c in enumerate(read_description(None)["sensors"]["filter_cutoff_hz"])}
+        cutoff_hz = filter_cutoffs(read_description(None))
     validation_runs = validation_runs or []
     names = names or [f"run {k + 1}" for k in range(len(runs))]
     validation_names = validation_names or [f"validation run {k + 1}" for k in range(len(validation_runs))]

@@ -28,6 +28,7 @@ from jaxtyping import Array, Bool, Float, Int
 from jaxrobot import Ripple, Robot
 from jaxrobot._bench_gear import mount_angular_velocity, quasi_static_link_angles
 from jaxrobot._kinematics import rot_x, rot_y
+from jaxrobot._linalg import map_matrices
 
 MOVE_THRESHOLD_RAD = math.radians(1.0)
 """A joint moves in a run if its motor angle spans more than this [rad, motor side]."""
@@ -58,7 +59,7 @@ ALIGN_DECIMATION = 4
 class GearBatch(eqx.Module):
     """`R` gear runs padded to `N` samples (arrays; SI units, radians)."""
 
-    theta: Float[Array, "R N 6"]
+    theta: Float[Array, "R N n"]
     """Motor angles [rad]."""
     gyro: Float[Array, "R N 3"]
     """Gyroscope angular velocity, sensor frame [rad/s]."""
@@ -107,8 +108,8 @@ def check_gear_run(t: np.ndarray, theta: np.ndarray, gyro: np.ndarray, name: str
     """
     t, theta, gyro = np.asarray(t, float), np.asarray(theta, float), np.asarray(gyro, float)
     n = t.shape[0] if t.ndim == 1 else -1
-    if t.ndim != 1 or theta.shape != (n, 6) or gyro.shape != (n, 3):
-        raise ValueError(f"{name}: expected t (N,), theta (N, 6), gyro (N, 3), found {t.shape}, "
+    if t.ndim != 1 or theta.ndim != 2 or theta.shape[0] != n or gyro.shape != (n, 3):
+        raise ValueError(f"{name}: expected t (N,), theta (N, n), gyro (N, 3), found {t.shape}, "
                          f"{theta.shape}, {gyro.shape}")
     if n < 16:
         raise ValueError(f"{name}: expected at least 16 samples, found {n}")
@@ -207,9 +208,9 @@ def prepare_gear_runs(
     """Check raw runs and pack them into a padded `GearBatch`.
 
     **Arguments:**
-    - `runs`: `(t (N,) s, theta (N, 6) rad, gyro (N, 3) rad/s)` per run, lengths may differ.
+    - `runs`: `(t (N,) s, theta (N, n) rad, gyro (N, 3) rad/s)` per run, lengths may differ.
     - `cutoff_hz`: 3 dB cut-off of the Gaussian filter per 1-based joint (eq. 3.2, Table A.4).
-    - `u0`: (6,) basic ratios of the model, to express segment lengths on the link side.
+    - `u0`: (n,) basic ratios of the model, to express segment lengths on the link side.
     - `names`: labels for error messages (file names).
 
     Raises `ValueError` (naming the run) for bad runs, unit mistakes (`check_gear_units`), and for a
@@ -223,6 +224,9 @@ def prepare_gear_runs(
     infos, packed = [], []
     for (t, theta, gyro), name in zip(runs, names):
         joint, ts = check_gear_run(t, theta, gyro, name)
+        if np.shape(theta)[1] != u0.shape[0]:
+            raise ValueError(f"{name}: expected motor angles of {u0.shape[0]} joints (theta (N, {u0.shape[0]})), "
+                             f"found {np.shape(theta)[1]}")
         check_gear_units(theta, gyro, joint, float(u0[joint]), ts, name)
         if joint + 1 not in cutoff_hz:
             raise ValueError(f"{name}: joint {joint + 1} moves, but no filter cut-off is given for it "
@@ -247,7 +251,7 @@ def prepare_gear_runs(
         packed.append((th, np.asarray(gyro, float), seg, rest, joint, ts, sigma))
     n = max(p[0].shape[0] for p in packed)
     r = len(packed)
-    theta = np.zeros((r, n, 6))
+    theta = np.zeros((r, n, u0.shape[0]))
     gyro = np.zeros((r, n, 3))
     valid, segment, rest = (np.zeros((r, n), bool) for _ in range(3))
     for k, (th, gy, seg, rs, _, _, _) in enumerate(packed):
@@ -308,7 +312,7 @@ def normal_solve(x: Float[Array, "*b N P"], y: Float[Array, "*b N"], w: Float[Ar
     """Weighted least squares `min sum w (y - x p)^2` by the normal equations with one step of
     iterative refinement (the tall QR/SVD of the CPU backend is orders of magnitude slower)."""
     a = jnp.einsum("...np,...n,...nq->...pq", x, w, x)
-    inv = jnp.vectorize(pinv_psd, signature="(p,p)->(p,p)")(a)
+    inv = map_matrices(pinv_psd, a)
     p = jnp.einsum("...pq,...q->...p", inv, jnp.einsum("...np,...n->...p", x, w * y))
     r = y - jnp.einsum("...np,...p->...n", x, p)
     return p + jnp.einsum("...pq,...q->...p", inv, jnp.einsum("...np,...n->...p", x, w * r))
@@ -325,11 +329,11 @@ def alignment_rotation(angles: Float[Array, "*b 2"]) -> Float[Array, "*b 3 3"]:
     return rot_x(angles[..., 0]) @ rot_y(angles[..., 1])
 
 
-def _link_rate_factor(robot: Robot, theta: Float[Array, "6"], joint: Int[Array, ""]) -> Float[Array, ""]:
+def _link_rate_factor(robot: Robot, theta: Float[Array, " n"], joint: Int[Array, ""]) -> Float[Array, ""]:
     """Angular velocity of the moving link about its joint axis per unit motor rate of that joint,
     for the quasi-static model (gravity deflection of all joints included, no ripple)."""
-    onehot = jax.nn.one_hot(joint, 6)
-    ccw = jnp.zeros(6, bool)
+    onehot = jax.nn.one_hot(joint, theta.shape[-1])
+    ccw = jnp.zeros(theta.shape[-1], bool)
     q, qd = jax.jvp(lambda th: quasi_static_link_angles(robot, th, ccw), (theta,), (onehot,))
     return mount_angular_velocity(robot, q, qd, joint)[2]
 
@@ -349,7 +353,7 @@ class ProcessedRuns(eqx.Module):
     """Filtered gear-output rate."""
     kinematic_error: Float[Array, "R N"]
     """`omega_e = thetad_f / u0 - phid_f` (eq. 3.4) with the model's `u0`."""
-    misalignment: Float[Array, "6 2"]
+    misalignment: Float[Array, "n 2"]
     """Alignment angles `(alpha, beta)` per joint (eq. 3.3); zero for joints without runs."""
     align_result: Array
     """optimistix result of the alignment."""
@@ -375,7 +379,7 @@ def process_gear_runs(robot: Robot, batch: GearBatch) -> ProcessedRuns:
     `robot` is the model (nominal); its ripple is ignored, its `u0`, kinematics, masses and
     stiffness give the gravity-deflection rate that is subtracted.
     """
-    robot = eqx.tree_at(lambda r: (r.cw, r.ccw), robot, (Ripple.none(), Ripple.none()))
+    robot = eqx.tree_at(lambda r: (r.cw, r.ccw), robot, (Ripple.none(robot.n_joints), Ripple.none(robot.n_joints)))
     r_idx = jnp.arange(batch.theta.shape[0])
     theta = batch.theta[r_idx, :, batch.joint]
     u0 = robot.u0[batch.joint]
@@ -417,7 +421,7 @@ def process_gear_runs(robot: Robot, batch: GearBatch) -> ProcessedRuns:
         return res, 1e-9 * angles
 
     solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12, linear_solver=lx.Normal(lx.Cholesky()))
-    sol = optx.least_squares(residual, solver, jnp.zeros((6, 2)), max_steps=64, throw=False)
+    sol = optx.least_squares(residual, solver, jnp.zeros((robot.n_joints, 2)), max_steps=64, throw=False)
     angles = sol.value
     rot = alignment_rotation(angles)[joint]
     gyro_z = jnp.einsum("rj,rnj->rn", rot[:, 2, :], gyro)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
+import jax
 import numpy as np
 
 import jaxrobot as jr
@@ -19,18 +20,35 @@ import jaxrobot as jr
 from ._parameters import THESIS_PARAMETERS, ParameterMap
 from ._pose_selection import DEFAULT_CONSTRAINTS, PoseConstraints, pose_jacobians, random_feasible_poses
 
-KINEMATIC_PARAMETERS = (
-    tuple(f"{f}{j}" for j in range(1, 7) for f in ("d", "a", "alpha"))
-    + ("beta3",)
-    + tuple(f"offset{j}" for j in range(1, 7))
-    + ("u0_4", "u0_5", "u0_6")
-)
-"""The parameters of the thesis' model (Table 3.5: d, a, alpha per joint, the Hayati beta3,
-the joint offsets = its `Delta q`, and the wrist gear ratios; `beta_i`, i != 3, do not exist)."""
+PARALLEL_TOL = 1e-2
+"""Axes whose twist `alpha` is within this of 0 or pi [rad] count as nominally parallel (an
+as-built robot deviates by ~1e-3 rad; the DH common normal is ill-defined long before parallel)."""
+
+
+def kinematic_parameters(robot: jr.Robot) -> tuple[str, ...]:
+    """The parameters of the thesis' model for any robot (Table 3.5): d, a, alpha per joint, a
+    Hayati angle `beta_{j+1}` after each pair of nominally parallel axes `j, j+1` (the thesis'
+    numbering: `beta3` for the Racer-7's joints 2 and 3), the joint offsets (its `Delta q`) and the
+    basic ratios of the gears without ripple (those with ripple are identified on the gear bench)."""
+    n = robot.n_joints
+    alpha = np.asarray(robot.alpha, float).reshape(-1, n)[0]
+    rippled = np.any(np.asarray(robot.cw.orders).reshape(-1, n, np.shape(robot.cw.orders)[-1]) > 0, (0, 2)) | np.any(
+        np.asarray(robot.ccw.orders).reshape(-1, n, np.shape(robot.ccw.orders)[-1]) > 0, (0, 2))
+    parallel = [j + 1 for j in range(1, n) if abs(np.sin(alpha[j - 1])) < PARALLEL_TOL]
+    return (tuple(f"{f}{j}" for j in range(1, n + 1) for f in ("d", "a", "alpha"))
+            + tuple(f"beta{j}" for j in parallel)
+            + tuple(f"offset{j}" for j in range(1, n + 1))
+            + tuple(f"u0_{j}" for j in range(1, n + 1) if not rippled[j - 1]))
+
 
 THESIS_PREFERENCE = THESIS_PARAMETERS + tuple(f"offset{j}" for j in range(1, 7)) + (
     "d1", "d6", "a6", "alpha6", "d3")
-"""Pivot order: of a dependent group, the earlier names stay identifiable (the thesis' 17 first)."""
+"""Pivot order: of a dependent group, the earlier names stay identifiable (the thesis' 17 first,
+by their Racer-7 names; other names follow in the order of `kinematic_parameters`)."""
+
+DEFAULT_POSES = 300
+"""Random feasible poses of `default_parameters`: the rank and the selection of the Racer-7 are
+the same from 200 poses as from the thesis' 1000 (tested)."""
 
 DEFAULT_RTOL = 1e-8
 """Singular values below `rtol * sigma_max` of the column-scaled Jacobian count as zero; exact
@@ -152,7 +170,7 @@ def analyse(
 
 def identifiability(
     robot: jr.Robot | None = None,
-    names: Sequence[str] = KINEMATIC_PARAMETERS,
+    names: Sequence[str] | None = None,
     *,
     orientation: bool = False,
     n_poses: int = 1000,
@@ -168,9 +186,37 @@ def identifiability(
     `prefer` orders the pivoting: of a dependent group the earlier names stay identifiable
     (default `THESIS_PREFERENCE`; `None` = classic largest-norm pivoting). `marker`: marker offset in the flange frame
     (default `[sensors] tracker_marker_offset_m`; zeros = the flange origin `p_e` of eq. 3.6).
+    `names`: default `kinematic_parameters(robot)`.
     """
     robot = jr.racer7() if robot is None else robot
-    params = ParameterMap(names)
+    params = ParameterMap(kinematic_parameters(robot) if names is None else names)
     q = random_feasible_poses(robot, n_poses, seed, marker, constraints)
     blocks = pose_jacobians(robot, params, q, marker, orientation)
     return analyse(blocks, params.names, rtol, prefer, orientation)
+
+
+def default_parameters(
+    robot: jr.Robot, *, orientation: bool = False, marker=None, n_poses: int = DEFAULT_POSES, seed: int = 0
+) -> tuple[str, ...]:
+    """The default free parameters of a calibration: the identifiable subset of
+    `kinematic_parameters(robot)` for marker positions (and orientations) at random feasible
+    poses, in the pivot order of `THESIS_PREFERENCE` followed by every joint offset (for the
+    Racer-7 from positions: the 25 of `DEFAULT_PARAMETERS`)."""
+    marker = None if marker is None else tuple(np.asarray(marker, float).tolist())
+    key = (tuple(np.asarray(x).tobytes() for x in jax.tree.leaves(robot)), orientation, marker, n_poses, seed)
+    if key not in _DEFAULTS:
+        _DEFAULTS[key] = _default_parameters(robot, orientation, marker, n_poses, seed)
+    return _DEFAULTS[key]
+
+
+_DEFAULTS: dict[tuple, tuple[str, ...]] = {}
+"""`default_parameters` per robot (its array bytes) and settings: computed once per process."""
+
+
+def _default_parameters(robot, orientation, marker, n_poses, seed) -> tuple[str, ...]:
+    prefer = THESIS_PREFERENCE + tuple(f"offset{j}" for j in range(1, robot.n_joints + 1))
+    res = identifiability(robot, orientation=orientation, n_poses=n_poses, seed=seed, marker=marker, prefer=prefer)
+    rank: dict[str, int] = {}
+    for k, name in enumerate(prefer + res.names):
+        rank.setdefault(name, k)
+    return tuple(sorted(res.identifiable, key=rank.__getitem__))

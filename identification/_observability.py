@@ -10,6 +10,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from jaxrobot._linalg import map_matrices
+
 
 def observability_indices(
     sigma: Float[Array, "*b m"], n_poses: int | Float[Array, "*b"]
@@ -29,5 +31,5 @@ def observability_indices(
 
 def singular_values_from_gram(gram: Float[Array, "*b m m"]) -> Float[Array, "*b m"]:
     """Singular values of `J` from `J^T J` (descending); batched, cheap for many candidate sets."""
-    ev = jnp.linalg.eigvalsh(gram)[..., ::-1]
+    ev = map_matrices(jnp.linalg.eigvalsh, gram)[..., ::-1]
     return jnp.sqrt(jnp.maximum(ev, 0.0))

@@ -1,13 +1,14 @@
 """Free kinematic parameters: robot pytree <-> flat vector (thesis 3.2.1, vector `v`).
 
-Names: `a1`…`a6`, `d1`…, `alpha1`…, `beta1`…, `offset1`… (the joint angle offset, i.e. the
-zero of the joint coordinate, `Delta q_j` of eq. 3.7), `u0_1`…`u0_6` (basic gear ratios),
+Names: `a1`…`an`, `d1`…, `alpha1`…, `beta1`…, `offset1`… (the joint angle offset, i.e. the
+zero of the joint coordinate, `Delta q_j` of eq. 3.7), `u0_1`…`u0_n` (basic gear ratios),
 `tool_x`, `tool_y`, `tool_z`, `tool_rx`, `tool_ry`, `tool_rz` and the same for `base_`
 (translation [m] and roll-pitch-yaw `R = Rz(rz) Ry(ry) Rx(rx)` [rad] of the transform).
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -19,12 +20,14 @@ from jaxrobot._kinematics import homogeneous, rot_x, rot_y, rot_z
 
 JOINT_FIELDS = ("a", "d", "alpha", "beta", "offset")
 FRAME_FIELDS = ("x", "y", "z", "rx", "ry", "rz")
-ALL_PARAMETERS = (
-    tuple(f"{f}{j}" for f in JOINT_FIELDS for j in range(1, 7))
-    + tuple(f"u0_{j}" for j in range(1, 7))
-    + tuple(f"{t}_{c}" for t in ("tool", "base") for c in FRAME_FIELDS)
-)
-"""Every parameter name the mapping knows."""
+_JOINT_NAME = re.compile(r"^(a|d|alpha|beta|offset|u0_)([1-9][0-9]*)$")
+
+
+def all_parameters(n: int) -> tuple[str, ...]:
+    """Every parameter name of an `n`-joint robot."""
+    return (tuple(f"{f}{j}" for f in JOINT_FIELDS for j in range(1, n + 1))
+            + tuple(f"u0_{j}" for j in range(1, n + 1))
+            + tuple(f"{t}_{c}" for t in ("tool", "base") for c in FRAME_FIELDS))
 
 THESIS_PARAMETERS = ("d2", "d4", "d5", "a1", "a2", "a3", "a4", "a5", "alpha1", "alpha2", "alpha3",
                      "alpha4", "alpha5", "beta3", "u0_4", "u0_5", "u0_6")
@@ -36,15 +39,22 @@ UNITS = {"a": "m", "d": "m", "alpha": "rad", "beta": "rad", "offset": "rad", "u0
 
 def parse_name(name: str) -> tuple[str, int | str]:
     """`"a2" -> ("a", 1)`, `"u0_5" -> ("u0", 4)`, `"tool_x" -> ("tool", "x")` (0-based joints)."""
-    if name not in ALL_PARAMETERS:
-        raise ValueError(f"parameter {name!r}: unknown; expected one of a1..a6, d1.., alpha1.., beta1.., "
-                         f"offset1.., u0_1..u0_6, tool_x/y/z/rx/ry/rz, base_x/y/z/rx/ry/rz")
-    if name.startswith(("tool_", "base_")):
+    if name.startswith(("tool_", "base_")) and name.split("_", 1)[1] in FRAME_FIELDS:
         frame, comp = name.split("_", 1)
         return frame, comp
-    if name.startswith("u0_"):
-        return "u0", int(name[3:]) - 1
-    return name[:-1], int(name[-1]) - 1
+    m = _JOINT_NAME.match(name)
+    if m is None:
+        raise ValueError(f"parameter {name!r}: unknown; expected one of a1..an, d1.., alpha1.., beta1.., "
+                         f"offset1.., u0_1..u0_n (n joints), tool_x/y/z/rx/ry/rz, base_x/y/z/rx/ry/rz")
+    return m.group(1).rstrip("_"), int(m.group(2)) - 1
+
+
+def check_joints(names: Sequence[str], robot: jr.Robot) -> None:
+    """Raise if a parameter names a joint the robot does not have."""
+    n = robot.n_joints
+    bad = [name for name in names if isinstance(parse_name(name)[1], int) and parse_name(name)[1] >= n]
+    if bad:
+        raise ValueError(f"parameters {bad}: the robot has {n} joints (names a1..a{n}, u0_1..u0_{n}, ...)")
 
 
 def unit(name: str) -> str:
@@ -65,7 +75,7 @@ def _frame_matrix(v: Float[Array, "*b 6"]) -> Float[Array, "*b 4 4"]:
 class ParameterMap(eqx.Module):
     """Which parameters are free, and their order in the flat vector (static: safe under jit).
 
-    `get(robot)` -> `(*b, n)`; `set(robot, v)` -> robot with those parameters replaced (the
+    `get(robot)` -> `(*b, m)` for `m` names; `set(robot, v)` -> robot with those parameters replaced (the
     batch axes of `v` and `robot` must match). Tool/base entries not in the set keep their
     values; the transform is rebuilt from translation + rpy only when one of them is free.
     """
@@ -89,7 +99,8 @@ class ParameterMap(eqx.Module):
     def index(self, name: str) -> int:
         return self.names.index(name)
 
-    def get(self, robot: jr.Robot) -> Float[Array, "*b n"]:
+    def get(self, robot: jr.Robot) -> Float[Array, "*b m"]:
+        check_joints(self.names, robot)
         used = {parse_name(n)[0] for n in self.names}
         frames = {k: _frame_vector(getattr(robot, k)) for k in ("tool", "base") if k in used}
         out = []
@@ -101,7 +112,8 @@ class ParameterMap(eqx.Module):
                 out.append(getattr(robot, field)[..., comp])
         return jnp.stack(out, -1)
 
-    def set(self, robot: jr.Robot, v: Float[Array, "*b n"]) -> jr.Robot:
+    def set(self, robot: jr.Robot, v: Float[Array, "*b m"]) -> jr.Robot:
+        check_joints(self.names, robot)
         upd: dict[str, Array] = {}
         for k, n in enumerate(self.names):
             field, comp = parse_name(n)
@@ -111,7 +123,7 @@ class ParameterMap(eqx.Module):
                 upd[field] = upd[field].at[..., FRAME_FIELDS.index(comp)].set(v[..., k])
             else:
                 if field not in upd:
-                    upd[field] = jnp.broadcast_to(getattr(robot, field), v.shape[:-1] + (6,))
+                    upd[field] = jnp.broadcast_to(getattr(robot, field), v.shape[:-1] + (robot.n_joints,))
                 upd[field] = upd[field].at[..., comp].set(v[..., k])
         for field in ("tool", "base"):
             if field in upd:
@@ -119,7 +131,7 @@ class ParameterMap(eqx.Module):
         keys = tuple(upd)
         return eqx.tree_at(lambda r: tuple(getattr(r, k) for k in keys), robot, tuple(upd[k] for k in keys))
 
-    def scales(self, robot: jr.Robot) -> Float[Array, " n"]:
+    def scales(self, robot: jr.Robot) -> Float[Array, " m"]:
         """Typical size of one unit of deviation: 1 mm, 1 mrad, 1e-3 of the gear ratio."""
         s = []
         for n in self.names:
@@ -132,8 +144,8 @@ class ParameterMap(eqx.Module):
 
 
 def rest_deflection(
-    robot: jr.Robot, theta: Float[Array, "*b 6"], ccw: bool | Array = False
-) -> Float[Array, "*b 6"]:
+    robot: jr.Robot, theta: Float[Array, "*b n"], ccw: bool | Array = False
+) -> Float[Array, "*b n"]:
     """Gravity deflection `q - Xi^{-1}(theta)` of the robot at rest (thesis 3.2.3, `Delta phi_g`).
 
     The calibration evaluates it once with the initial robot and keeps it fixed: it depends on
@@ -147,14 +159,14 @@ def rest_deflection(
 
 def predict_pose(
     robot: jr.Robot,
-    theta: Float[Array, "*b 6"],
-    deflection: Float[Array, "*b 6"],
+    theta: Float[Array, "*b n"],
+    deflection: Float[Array, "*b n"],
     marker: Float[Array, "3"],
     ccw: bool | Array = False,
 ) -> tuple[Float[Array, "*b 3"], Float[Array, "*b 3 3"]]:
     """Marker position and rotation at motor angles `theta` (thesis 3.2.3).
 
-    `phi = Xi^{-1}(theta)` (ripple on gears 1-3, `theta/u0` on 4-6 when they carry no ripple),
+    `phi = Xi^{-1}(theta)` (`theta/u0` on the gears without ripple),
     `q = phi + deflection`, then the direct kinematics (eq. 2.4) and the marker offset.
     """
     from jaxrobot._bench_poses import marker_pose

@@ -18,6 +18,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
+from jaxrobot._linalg import map_matrices
 
 from ._observability import observability_indices, singular_values_from_gram
 from ._parameters import ParameterMap, predict_pose, rotation_error
@@ -50,17 +51,17 @@ def default_marker() -> np.ndarray:
 
 
 @eqx.filter_jit
-def _feasible(robot: jr.Robot, q: Float[Array, "N 6"], marker, margin, z_min, min_sigma):
+def _feasible(robot: jr.Robot, q: Float[Array, "N n"], marker, margin, z_min, min_sigma):
     from jaxrobot._bench_poses import marker_pose
 
     inside = jnp.all((q >= robot.q_min + margin) & (q <= robot.q_max - margin), -1)
     z = marker_pose(robot, q, marker)[0][..., 2]
-    smin = jnp.linalg.svd(jr.geometric_jacobian(robot, q), compute_uv=False)[..., -1]
+    smin = map_matrices(lambda j: jnp.linalg.svd(j, compute_uv=False), jr.geometric_jacobian(robot, q))[..., -1]
     return inside & (z >= z_min) & (smin >= min_sigma)
 
 
 def feasible(
-    robot: jr.Robot, q: Float[Array, "N 6"], marker=None, constraints: PoseConstraints = DEFAULT_CONSTRAINTS
+    robot: jr.Robot, q: Float[Array, "N n"], marker=None, constraints: PoseConstraints = DEFAULT_CONSTRAINTS
 ) -> np.ndarray:
     """Boolean mask (N,) of the feasible poses among `q` (joint coordinates, rad)."""
     marker = default_marker() if marker is None else np.asarray(marker, float)
@@ -74,8 +75,8 @@ def _static_equilibrium(robot, q):
     return jr.static_equilibrium(robot, q)
 
 
-def rest_motor_angles(robot: jr.Robot, q: Float[Array, "N 6"]) -> np.ndarray:
-    """Motor angles (N, 6) that hold joint coordinates `q` at rest (cw set; eq. 4.3f-g)."""
+def rest_motor_angles(robot: jr.Robot, q: Float[Array, "N n"]) -> np.ndarray:
+    """Motor angles (N, n) that hold joint coordinates `q` at rest (cw set; eq. 4.3f-g)."""
     return np.asarray(_static_equilibrium(robot, jnp.asarray(q, float)))
 
 
@@ -83,13 +84,13 @@ def random_feasible_poses(
     robot: jr.Robot, n: int, seed: int = 0, marker=None, constraints: PoseConstraints = DEFAULT_CONSTRAINTS,
     batch: int = 2048,
 ) -> np.ndarray:
-    """`n` random feasible joint coordinates (n, 6), uniform inside the limits, by rejection."""
+    """`n` random feasible joint coordinates (n, joints), uniform inside the limits, by rejection."""
     rng = np.random.default_rng(seed)
     lo = np.asarray(robot.q_min) + constraints.limit_margin
     hi = np.asarray(robot.q_max) - constraints.limit_margin
     out, got = [], 0
     for _ in range(200):
-        q = rng.uniform(lo, hi, (batch, 6))
+        q = rng.uniform(lo, hi, (batch, robot.n_joints))
         ok = feasible(robot, q, marker, constraints)
         out.append(q[ok])
         got += int(ok.sum())
@@ -118,18 +119,19 @@ def _pose_jacobians(robot, params: ParameterMap, q, marker, ccw):
 
 
 def pose_jacobians(
-    robot: jr.Robot, params: ParameterMap, q: Float[Array, "N 6"], marker=None, orientation: bool = False,
+    robot: jr.Robot, params: ParameterMap, q: Float[Array, "N n"], marker=None, orientation: bool = False,
     ccw: bool = False,
 ) -> np.ndarray:
     """Identification Jacobian blocks `d y_i / d v` (N, 3 or 6, m) at joint coordinates `q`
     (eq. 3.8), the robot resting there (motor angles from the static equilibrium). Orientation
     rows are rotation angles [rad] in the marker frame."""
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
-    q = np.asarray(q, float).reshape(-1, 6)
+    joints = robot.n_joints
+    q = np.asarray(q, float).reshape(-1, joints)
     n = q.shape[0]
-    pad = np.concatenate([q, np.zeros((-n % CHUNK, 6))])
+    pad = np.concatenate([q, np.zeros((-n % CHUNK, joints))])
     out = [np.asarray(_pose_jacobians(robot, params, jnp.asarray(c), marker, ccw))
-           for c in pad.reshape(-1, CHUNK, 6)]
+           for c in pad.reshape(-1, CHUNK, joints)]
     blocks = np.concatenate(out)[:n]
     return blocks if orientation else blocks[:, :3]
 
@@ -154,9 +156,9 @@ class DetmaxResult:
     """Selected pose set of `detmax`."""
 
     q: np.ndarray
-    """Joint coordinates (K, 6) [rad]."""
+    """Joint coordinates (K, n) [rad]."""
     motor_angles: np.ndarray
-    """Motor angles (K, 6) [rad] that hold `q` at rest (static equilibrium, cw set)."""
+    """Motor angles (K, n) [rad] that hold `q` at rest (static equilibrium, cw set)."""
     indices: dict
     """O1-O5 of the final set."""
     history: np.ndarray
@@ -249,7 +251,7 @@ def detmax(
     else:
         q_pool, blocks = (np.asarray(x, float) for x in pool)
         if blocks.shape[0] != q_pool.shape[0] or blocks.shape[-1] != len(params):
-            raise ValueError(f"pool: expected q (P, 6) and blocks (P, d, {len(params)}), found "
+            raise ValueError(f"pool: expected q (P, n) and blocks (P, d, {len(params)}), found "
                              f"{q_pool.shape} and {blocks.shape}")
     if q_pool.shape[0] < n_poses + n_draw:
         raise ValueError(f"detmax: the pool holds {q_pool.shape[0]} poses; need n_poses + n_draw = "

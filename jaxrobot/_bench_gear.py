@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ._bench_trajectory import file_joint_count, read_csv_columns, theta_columns
 from ._description import read_description
 from ._dynamics import gravity_torque
 from ._elasticity import elastic_deflection
@@ -31,10 +32,12 @@ from ._gear import gear_output, gear_ratio
 from ._kinematics import link_frames, rot_x, rot_y, rot_z
 from ._robot import Robot
 
-GEAR_RUN_COLUMNS = (
-    ("t_s",) + tuple(f"theta{i}_deg" for i in range(1, 7)) + ("gyro_x_deg_s", "gyro_y_deg_s", "gyro_z_deg_s")
-)
-"""Columns of a gear-run file (SPEC.md): time [s], motor angles [deg], gyroscope [deg/s]."""
+
+def gear_run_columns(n: int) -> tuple[str, ...]:
+    """Columns of a gear-run file of an `n`-joint robot (SPEC.md): time [s], motor angles [deg],
+    gyroscope [deg/s]."""
+    return ("t_s", *theta_columns(n), "gyro_x_deg_s", "gyro_y_deg_s", "gyro_z_deg_s")
+
 
 GEAR_RUN_DEFAULTS = {
     1: {"motor_speed_deg_s": 7468.0, "range_deg": 220.0, "centre_deg": 0.0, "validation_speed_deg_s": 3734.0},
@@ -48,7 +51,8 @@ validated at 10 % (half the identification speed; the thesis did not validate jo
 speed)."""
 
 HOLD_Q_DEG = (0.0, 0.0, -90.0, 0.0, 90.0, 0.0)
-"""Default configuration [deg, joint coordinates] of the joints that do not move."""
+"""Racer-7 configuration [deg, joint coordinates] of the joints that do not move; the default for a
+six-joint robot, other robots hold the zero pose clipped into their limits."""
 
 GYRO_BIAS_DEG_S = 0.005
 """Default std of the constant gyroscope bias per axis and run [deg/s] (assumed, small)."""
@@ -79,7 +83,7 @@ class GearRuns:
 
 
 def mount_angular_velocity(
-    robot: Robot, q: Float[Array, "6"], qd: Float[Array, "6"], joint: Int[Array, ""] | int
+    robot: Robot, q: Float[Array, " n"], qd: Float[Array, " n"], joint: Int[Array, ""] | int
 ) -> Float[Array, "3"]:
     """Angular velocity of the link after `joint` (0-based) in its ideal gyroscope frame: frame
     `joint - 1` (the base frame for joint 0) turned by `Rz(q_joint + offset_joint)`, whose z-axis is
@@ -87,7 +91,7 @@ def mount_angular_velocity(
     Works with a traced `joint`."""
     frames = link_frames(robot, q)[:, :3, :3]
     prev = jnp.concatenate([robot.base[None, :3, :3], frames[:-1]], 0)
-    omega_world = jnp.sum(jnp.where(jnp.arange(6) <= joint, qd, 0.0)[:, None] * prev[:, :, 2], 0)
+    omega_world = jnp.sum(jnp.where(jnp.arange(qd.shape[-1]) <= joint, qd, 0.0)[:, None] * prev[:, :, 2], 0)
     return (prev[joint] @ rot_z(q[joint] + robot.offset[joint])).T @ omega_world
 
 
@@ -128,8 +132,8 @@ CHUNK = 2048
 
 
 def quasi_static_link_angles(
-    robot: Robot, theta: Float[Array, "6"], ccw: Bool[Array, "6"]
-) -> Float[Array, "6"]:
+    robot: Robot, theta: Float[Array, " n"], ccw: Bool[Array, " n"]
+) -> Float[Array, " n"]:
     """Link angles at rest at motor angles `theta`: the fixed point of
     `q = Xi^{-1}(theta) - kappa^{-1}(g(q))` (SPEC.md "Static equilibrium"), differentiable."""
     phi = gear_output(robot, theta, ccw)
@@ -149,13 +153,13 @@ the exact fixed point on every sample, the kinematic-error RMS of joints 1-3 mov
 
 def _theta_fn(profile, joint):
     start, speed, travel, ramp, rest = profile
-    onehot = jax.nn.one_hot(joint, 6)
+    onehot = jax.nn.one_hot(joint, start.shape[-1])
     return lambda ti: start + onehot * motion_profile(ti, speed, travel, ramp, rest)
 
 
 @jax.jit
 def _deflection_knots(robot, profile, t, joint, ccw_vec):
-    """Gravity deflection `phi - q` (6,) and its time derivative at times `t`."""
+    """Gravity deflection `phi - q` (n,) and its time derivative at times `t`."""
     theta_of = _theta_fn(profile, joint)
 
     def deflection(ti):
@@ -214,7 +218,7 @@ def gear_runs(
     centre_deg: float | None = None,
     repetitions: int = 6,
     directions: tuple[str, ...] = ("cw", "ccw"),
-    hold_q_deg: tuple[float, ...] = HOLD_Q_DEG,
+    hold_q_deg: tuple[float, ...] | None = None,
     seed: int | jax.Array = 0,
     gyro_noise_deg_s: float | None = None,
     gyro_bias_deg_s: float = GYRO_BIAS_DEG_S,
@@ -226,12 +230,12 @@ def gear_runs(
 
     **Arguments:**
     - `robot`: the as-built robot (`racer7(as_built=True)`).
-    - `joint`: 1-based joint index (1..6).
+    - `joint`: 1-based joint index (1..n).
     - `motor_speed_deg_s`, `range_deg`, `centre_deg`: constant motor speed, link range covered
       at that speed and its centre (joint coordinate); defaults `GEAR_RUN_DEFAULTS` (joints 1-3).
       Ramps use the joint's acceleration limit (cycloidal, peak = limit).
     - `directions`: "cw" (positive motor speed) and/or "ccw"; runs alternate between them.
-    - `hold_q_deg`: joint coordinates of the joints that do not move.
+    - `hold_q_deg`: joint coordinates of the joints that do not move (default `HOLD_Q_DEG`).
     - `seed`: int or `jax.random` key for noise and bias.
     - `gyro_noise_deg_s`, `misalignment_rad`: default `description["sensors"]`.
     - `gyro_bias_deg_s`: std of the constant bias per axis and run.
@@ -240,8 +244,12 @@ def gear_runs(
     """
     desc = read_description(None) if description is None else description
     sensors = desc["sensors"]
-    if joint not in range(1, 7):
-        raise ValueError(f"joint: expected an integer 1..6, found {joint!r}")
+    n_joints = robot.n_joints
+    if joint not in range(1, n_joints + 1):
+        raise ValueError(f"joint: expected an integer 1..{n_joints}, found {joint!r}")
+    if hold_q_deg is None:
+        hold_q_deg = HOLD_Q_DEG if n_joints == len(HOLD_Q_DEG) else tuple(
+            np.clip(0.0, np.rad2deg(robot.q_min), np.rad2deg(robot.q_max)).tolist())
     dflt = GEAR_RUN_DEFAULTS.get(joint, {})
     if any(v is None for v in (motor_speed_deg_s, range_deg, centre_deg)) and not dflt:
         raise ValueError(f"motor_speed_deg_s, range_deg, centre_deg: no defaults for joint {joint}; pass them")
@@ -257,14 +265,14 @@ def gear_runs(
     bad = [d for d in directions if d not in ("cw", "ccw")]
     if bad or not directions:
         raise ValueError(f"directions: expected a non-empty tuple of 'cw'/'ccw', found {directions!r}")
-    if len(hold_q_deg) != 6:
-        raise ValueError(f"hold_q_deg: expected 6 joint coordinates [deg], found {len(hold_q_deg)}")
+    if len(hold_q_deg) != n_joints:
+        raise ValueError(f"hold_q_deg: expected {n_joints} joint coordinates [deg], found {len(hold_q_deg)}")
     noise = float(sensors["gyro_noise_deg_s"] if gyro_noise_deg_s is None else gyro_noise_deg_s)
     mis = np.asarray(sensors["gyro_misalignment_rad"] if misalignment_rad is None else misalignment_rad, float)
     ts = float(sensors["sample_time_s"])
     counts = float(sensors["encoder_counts_per_rev"])
     if np.ndim(robot.a) != 1:
-        raise ValueError(f"robot: expected a single robot (a of shape (6,)), found a fleet {np.shape(robot.a)}")
+        raise ValueError(f"robot: expected a single robot (a of shape (n,)), found a fleet {np.shape(robot.a)}")
 
     i = joint - 1
     u0 = float(robot.u0[i])
@@ -294,7 +302,7 @@ def gear_runs(
         if d not in motion:
             sign = 1.0 if d == "cw" else -1.0
             start = jnp.asarray(hold).at[i].set((lo_link if d == "cw" else hi_link) * u0)
-            ccw_vec = jnp.zeros(6, bool).at[i].set(d == "ccw")
+            ccw_vec = jnp.zeros(n_joints, bool).at[i].set(d == "ccw")
             args = (start, sign * math.radians(speed_deg), travel, ramp, rest_s)
             tk = np.arange(0.0, float(t[-1]) + 2 * KNOT_STEP * ts, KNOT_STEP * ts)
             dk, ddk = _chunked(_deflection_knots, tk, robot, args, jnp.asarray(i), ccw_vec)
@@ -330,16 +338,16 @@ def gear_runs(
 def write_gear_run(
     path: str | Path, t: np.ndarray, theta: np.ndarray, gyro: np.ndarray
 ) -> None:
-    """Write one run in the gear-run format of SPEC.md: `t` (N,) s, `theta` (N, 6) rad,
+    """Write one run in the gear-run format of SPEC.md: `t` (N,) s, `theta` (N, n) rad,
     `gyro` (N, 3) rad/s; the file holds degrees as its column names say."""
     t, theta, gyro = np.asarray(t, float), np.asarray(theta, float), np.asarray(gyro, float)
     n = t.shape[0] if t.ndim == 1 else -1
-    if t.ndim != 1 or theta.shape != (n, 6) or gyro.shape != (n, 3):
-        raise ValueError(f"write_gear_run: expected t (N,), theta (N, 6), gyro (N, 3), found "
+    if t.ndim != 1 or theta.ndim != 2 or theta.shape[0] != n or gyro.shape != (n, 3):
+        raise ValueError(f"write_gear_run: expected t (N,), theta (N, n), gyro (N, 3), found "
                          f"{t.shape}, {theta.shape}, {gyro.shape}")
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(GEAR_RUN_COLUMNS)
+        w.writerow(gear_run_columns(theta.shape[1]))
         th, gy = np.rad2deg(theta), np.rad2deg(gyro)
         for k in range(n):
             w.writerow([f"{t[k]:.6f}", *(f"{x:.12g}" for x in th[k]), *(f"{x:.9g}" for x in gy[k])])
@@ -348,11 +356,10 @@ def write_gear_run(
 def read_gear_run(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Read one gear-run file (SPEC.md; extra columns are ignored).
 
-    **Returns:** `t` (N,) s, `theta` (N, 6) rad, `gyro` (N, 3) rad/s. Empty cells and `nan`
+    **Returns:** `t` (N,) s, `theta` (N, n) rad, `gyro` (N, 3) rad/s. Empty cells and `nan`
     come back as NaN (the processing rejects them with the row named).
     """
-    from ._bench_trajectory import read_csv_columns
-
-    cols = read_csv_columns(path, list(GEAR_RUN_COLUMNS), reject_nan=False, min_rows=2)
-    data = np.column_stack([cols[c] for c in GEAR_RUN_COLUMNS])
-    return data[:, 0], np.deg2rad(data[:, 1:7]), np.deg2rad(data[:, 7:10])
+    columns = gear_run_columns(file_joint_count(path))
+    cols = read_csv_columns(path, list(columns), reject_nan=False, min_rows=2)
+    data = np.column_stack([cols[c] for c in columns])
+    return data[:, 0], np.deg2rad(data[:, 1:-3]), np.deg2rad(data[:, -3:])

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from ._bench_trajectory import file_joint_count, read_csv_columns, theta_columns
 from ._description import read_description
 from ._kinematics import tool_pose
 from ._robot import Robot
@@ -29,13 +30,14 @@ ORIENTATION_NOISE_RAD = float(np.deg2rad(0.05))
 """Default std per axis of the tracker's orientation error [rad]: the 0.05 deg camera
 specification quoted in thesis 3.2.1 (the thesis found its real orientation data unusable)."""
 
-POSE_COLUMNS = tuple(f"theta{i}_deg" for i in range(1, 7)) + ("x_m", "y_m", "z_m")
-"""Required columns of a pose file (SPEC.md): motor angles [deg], marker position [m]."""
+POSITION_COLUMNS = ("x_m", "y_m", "z_m")
+"""Required columns of a pose file (SPEC.md) after the motor angles `theta1_deg … thetan_deg` [deg]:
+marker position [m]."""
 QUAT_COLUMNS = ("qx", "qy", "qz", "qw")
 """Optional columns: measured marker orientation as a unit quaternion (scalar last)."""
 
-# Parameters that deviate in the as-built robot (the entries of thesis Table 3.8) and the
-# std of the random deviations of `draw_fleet` (the rms of the Table 3.8 entries of each kind).
+# Parameters of the Racer-7 that deviate in the as-built robot (the entries of thesis Table 3.8);
+# `draw_fleet` puts random deviations on them (on all but the last joint for other robots).
 _FLEET_MASK = {
     "a": np.array([1, 1, 1, 1, 1, 0], bool),
     "d": np.array([0, 1, 0, 1, 0, 0], bool),
@@ -48,7 +50,7 @@ _FLEET_MASK = {
 class PoseMeasurements:
     """Plain arrays of one bench session (leading axes `*b` = robots of a fleet, if any).
 
-    `motor_angles` (*b, K, 6) rad, `positions` (*b, K, 3) m (measured, noisy),
+    `motor_angles` (*b, K, n) rad, `positions` (*b, K, 3) m (measured, noisy),
     `quaternions` (*b, K, 4) (qx, qy, qz, qw) or None; `link_angles` and `true_positions` are
     the noise-free truth; `metadata` holds the seed, noise levels, marker offset and `ccw`.
     """
@@ -62,7 +64,7 @@ class PoseMeasurements:
 
 
 def marker_pose(
-    robot: Robot, q: Float[Array, "*b 6"], marker: Float[Array, "*b 3"]
+    robot: Robot, q: Float[Array, "*b n"], marker: Float[Array, "*b 3"]
 ) -> tuple[Float[Array, "*b 3"], Float[Array, "*b 3 3"]]:
     """World position and rotation of a marker body at `marker` in the tool frame (eq. 2.4).
 
@@ -118,20 +120,20 @@ def _fleet_axes(robot: Robot) -> tuple[int, ...]:
 
 def measure_poses(
     truth: Robot,
-    motor_angles: Float[Array, "*b K 6"],
+    motor_angles: Float[Array, "*b K n"],
     *,
     seed: int = 0,
     marker: Float[Array, "3"] | None = None,
     position_noise: float | None = None,
     orientation: bool = False,
     orientation_noise: float = ORIENTATION_NOISE_RAD,
-    ccw: bool | Bool[Array, "*b K 6"] = False,
+    ccw: bool | Bool[Array, "*b K n"] = False,
 ) -> PoseMeasurements:
     """Tracker measurements of `truth` resting at `motor_angles` (thesis 3.2.3, SPEC.md).
 
     **Arguments:**
     - `truth`: the as-built robot, or a fleet with leading axes `*b`.
-    - `motor_angles`: commanded motor angles [rad], (K, 6) (shared by the fleet) or (*b, K, 6).
+    - `motor_angles`: commanded motor angles [rad], (K, n) (shared by the fleet) or (*b, K, n).
     - `seed`: seed of the Gaussian noise.
     - `marker`: marker offset in the tool frame [m]; default `[sensors] tracker_marker_offset_m`.
     - `position_noise`: std per axis [m]; default `[sensors] tracker_position_noise_m`.
@@ -147,8 +149,9 @@ def measure_poses(
     sigma = float(sensors["tracker_position_noise_m"] if position_noise is None else position_noise)
     theta = jnp.asarray(motor_angles, float)
     fleet = _fleet_axes(truth)
-    if theta.ndim < 2 or theta.shape[-1] != 6:
-        raise ValueError(f"motor_angles: expected shape (K, 6) or (*fleet, K, 6) in rad, found {theta.shape}")
+    n = truth.n_joints
+    if theta.ndim < 2 or theta.shape[-1] != n:
+        raise ValueError(f"motor_angles: expected shape (K, {n}) or (*fleet, K, {n}) in rad, found {theta.shape}")
     if sigma < 0 or orientation_noise < 0:
         raise ValueError(f"noise: expected std >= 0, found position {sigma}, orientation {orientation_noise}")
     theta = jnp.broadcast_to(theta, fleet + theta.shape[-2:])
@@ -188,8 +191,9 @@ def draw_fleet(
     """`n` random as-built robots: `robot` (default nominal Racer-7) plus Gaussian deviations.
 
     Deviations go on the parameters of thesis Table 3.8 (a1..a5, d2, d4, alpha1..alpha5, beta3,
-    u0 of gears 4-6), optionally also on the joint offsets. Default stds are the rms of the
-    Table 3.8 entries (`[as_built]` of the embedded description): lengths, angles, and the
+    u0 of gears 4-6) for a six-joint robot, on a, d, alpha, beta of all joints but the last and
+    on every u0 for other robots, optionally also on the joint offsets. Default stds are the rms
+    of the Table 3.8 entries (`[as_built]` of the embedded description): lengths, angles, and the
     relative wrist-ratio errors. Returns the robot pytree with a leading axis `n`.
     """
     data = read_description(None)
@@ -202,6 +206,10 @@ def draw_fleet(
     ls = rms([v for k in ("a", "d") for v, m in zip(dev[f"delta_{k}"], _FLEET_MASK[k]) if m])
     ang = rms([v for k in ("alpha", "beta") for v, m in zip(dev[f"delta_{k}"], _FLEET_MASK[k]) if m])
     rel = rms(np.asarray(dev["u0_wrist"]) / np.asarray(data["gear"]["u0"][3:]) - 1.0)
+    joints = robot.n_joints
+    six = joints == len(_FLEET_MASK["a"])
+    mask = {k: m if six else np.arange(joints) < joints - 1 for k, m in _FLEET_MASK.items()}
+    ratio_mask = np.arange(joints) >= 3 if six else np.ones(joints, bool)
     length_std = ls if length_std is None else length_std
     angle_std = ang if angle_std is None else angle_std
     ratio_std = rel if ratio_std is None else ratio_std
@@ -211,10 +219,9 @@ def draw_fleet(
     fleet = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + jnp.shape(x)), robot)
     upd = {}
     for k, std in (("a", length_std), ("d", length_std), ("alpha", angle_std), ("beta", angle_std)):
-        upd[k] = np.asarray(getattr(robot, k)) + std * rng.standard_normal((n, 6)) * _FLEET_MASK[k]
-    wrist = np.array([0, 0, 0, 1, 1, 1], bool)
-    upd["u0"] = np.asarray(robot.u0) * (1.0 + ratio_std * rng.standard_normal((n, 6)) * wrist)
-    upd["offset"] = np.asarray(robot.offset) + offset_std * rng.standard_normal((n, 6))
+        upd[k] = np.asarray(getattr(robot, k)) + std * rng.standard_normal((n, joints)) * mask[k]
+    upd["u0"] = np.asarray(robot.u0) * (1.0 + ratio_std * rng.standard_normal((n, joints)) * ratio_mask)
+    upd["offset"] = np.asarray(robot.offset) + offset_std * rng.standard_normal((n, joints))
     names = tuple(upd)
     return eqx.tree_at(lambda r: tuple(getattr(r, k) for k in names), fleet,
                        tuple(jnp.asarray(upd[k]) for k in names))
@@ -222,18 +229,18 @@ def draw_fleet(
 
 def write_pose_csv(
     path: str | Path,
-    motor_angles: Float[Array, "K 6"],
+    motor_angles: Float[Array, "K n"],
     positions: Float[Array, "K 3"],
     quaternions: Float[Array, "K 4"] | None = None,
 ) -> None:
-    """Write a pose file (SPEC.md): `theta1_deg … theta6_deg, x_m, y_m, z_m[, qx, qy, qz, qw]`."""
+    """Write a pose file (SPEC.md): `theta1_deg … thetan_deg, x_m, y_m, z_m[, qx, qy, qz, qw]`."""
     theta = np.rad2deg(np.asarray(motor_angles, float))
     pos = np.asarray(positions, float)
-    if theta.ndim != 2 or theta.shape[1] != 6 or pos.shape != (theta.shape[0], 3):
-        raise ValueError(f"write_pose_csv: expected motor_angles (K, 6) and positions (K, 3), "
+    if theta.ndim != 2 or pos.shape != (theta.shape[0], 3):
+        raise ValueError(f"write_pose_csv: expected motor_angles (K, n) and positions (K, 3), "
                          f"found {theta.shape} and {pos.shape}")
     cols = [theta, pos]
-    header = list(POSE_COLUMNS)
+    header = [*theta_columns(theta.shape[1]), *POSITION_COLUMNS]
     if quaternions is not None:
         cols.append(np.asarray(quaternions, float).reshape(-1, 4))
         header += list(QUAT_COLUMNS)
@@ -247,15 +254,14 @@ def write_pose_csv(
 def read_pose_csv(path: str | Path) -> dict:
     """Read a pose file (SPEC.md); extra columns are ignored.
 
-    **Returns:** `{"motor_angles": (K, 6) rad, "positions": (K, 3) m, "quaternions": (K, 4) or None}`.
+    **Returns:** `{"motor_angles": (K, n) rad, "positions": (K, 3) m, "quaternions": (K, 4) or None}`.
     Raises `ValueError` naming missing columns, non-numeric cells and NaN rows (`read_csv_columns`).
     """
-    from ._bench_trajectory import read_csv_columns
-
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"pose file {path} does not exist")
-    cols = read_csv_columns(path, list(POSE_COLUMNS), list(QUAT_COLUMNS))
+    thetas = theta_columns(file_joint_count(path))
+    cols = read_csv_columns(path, [*thetas, *POSITION_COLUMNS], list(QUAT_COLUMNS))
     quat = np.column_stack([cols[c] for c in QUAT_COLUMNS]) if QUAT_COLUMNS[0] in cols else None
-    return {"motor_angles": np.deg2rad(np.column_stack([cols[c] for c in POSE_COLUMNS[:6]])),
-            "positions": np.column_stack([cols[c] for c in POSE_COLUMNS[6:]]), "quaternions": quat}
+    return {"motor_angles": np.deg2rad(np.column_stack([cols[c] for c in thetas])),
+            "positions": np.column_stack([cols[c] for c in POSITION_COLUMNS]), "quaternions": quat}

@@ -17,8 +17,24 @@ from ._kinematics import point_position
 from ._robot import Robot
 from ._simulate import simulate
 
-THETA_COLUMNS = [f"theta{i}_deg" for i in range(1, 7)]
-TRAJECTORY_COLUMNS = ["t_s", *THETA_COLUMNS, "x_m", "y_m", "z_m"]
+
+def theta_columns(n: int) -> list[str]:
+    """Motor-angle columns `theta1_deg ... thetan_deg` [deg] of the bench files of an `n`-joint robot."""
+    return [f"theta{i}_deg" for i in range(1, n + 1)]
+
+
+def file_joint_count(path: str | Path) -> int:
+    """Joints of a bench file: its consecutive columns `theta1_deg, theta2_deg, ...` (1 if it has none,
+    so that a reader names `theta1_deg` as missing)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    with path.open(newline="") as f:
+        header = {h.strip() for h in next(csv.reader(f), [])}
+    n = 0
+    while f"theta{n + 1}_deg" in header:
+        n += 1
+    return max(n, 1)
 
 
 def tracker_defaults() -> tuple[np.ndarray, float]:
@@ -31,14 +47,14 @@ def trajectory_run(
     robot: Robot,
     key: PRNGKeyArray,
     t: Float[Array, " N"],
-    theta: Float[Array, "N 6"],
-    thetad: Float[Array, "N 6"],
-    thetadd: Float[Array, "N 6"],
+    theta: Float[Array, "N n"],
+    thetad: Float[Array, "N n"],
+    thetadd: Float[Array, "N n"],
     marker: Float[Array, "3"],
     noise_m: float,
     substeps: int = 10,
-) -> tuple[Float[Array, "N 3"], Float[Array, "N 6"]]:
-    """Tracker positions (N, 3) [m] of the marker and the true link angles (N, 6) of `robot`
+) -> tuple[Float[Array, "N 3"], Float[Array, "N n"]]:
+    """Tracker positions (N, 3) [m] of the marker and the true link angles (N, n) of `robot`
     following the commanded motor trajectory (direction-dependent gear sets, rest at start)."""
     q, _ = simulate(robot, t, theta, thetad, thetadd, substeps=substeps, directional=True)
     p = point_position(robot, q, jnp.asarray(marker))
@@ -46,9 +62,15 @@ def trajectory_run(
 
 
 def write_trajectory_csv(path: str | Path, t, theta, positions) -> None:
-    """Write a trajectory run: `t_s, theta1_deg … theta6_deg, x_m, y_m, z_m`."""
+    """Write a trajectory run: `t_s, theta1_deg … thetan_deg, x_m, y_m, z_m`."""
     data = np.column_stack([np.asarray(t), np.rad2deg(np.asarray(theta)), np.asarray(positions)])
-    np.savetxt(path, data, delimiter=",", header=",".join(TRAJECTORY_COLUMNS), comments="", fmt="%.12g")
+    columns = ["t_s", *theta_columns(np.shape(theta)[-1]), "x_m", "y_m", "z_m"]
+    np.savetxt(path, data, delimiter=",", header=",".join(columns), comments="", fmt="%.12g")
+
+
+NOT_CONVERGED = "# NOT CONVERGED"
+"""First line of a result file written from a solve that did not converge (`plan --save-failed`);
+`read_csv_columns` refuses such a file."""
 
 
 def read_csv_columns(
@@ -66,6 +88,9 @@ def read_csv_columns(
         raise FileNotFoundError(f"{path}: no such file")
     with path.open(newline="") as f:
         rows = list(csv.reader(f))
+    if rows and rows[0] and rows[0][0].startswith(NOT_CONVERGED):
+        raise ValueError(f"{path}: written from a solve that did not converge ({','.join(rows[0])}); "
+                         "not a result")
     header = [h.strip() for h in rows[0]] if rows else []
     missing = [c for c in required if c not in header]
     if missing:
@@ -97,11 +122,12 @@ def read_csv_columns(
 
 
 def read_trajectory_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Read a trajectory run: times [s] (N,), motor angles [rad] (N, 6), positions [m] (N, 3)."""
-    cols = read_csv_columns(path, TRAJECTORY_COLUMNS)
+    """Read a trajectory run: times [s] (N,), motor angles [rad] (N, n), positions [m] (N, 3)."""
+    thetas = theta_columns(file_joint_count(path))
+    cols = read_csv_columns(path, ["t_s", *thetas, "x_m", "y_m", "z_m"])
     t = cols["t_s"]
     if np.any(np.diff(t) <= 0):
         line = int(np.nonzero(np.diff(t) <= 0)[0][0]) + 3
         raise ValueError(f"{path}: t_s must increase strictly; it does not at line {line}")
-    theta = np.deg2rad(np.column_stack([cols[c] for c in THETA_COLUMNS]))
+    theta = np.deg2rad(np.column_stack([cols[c] for c in thetas]))
     return t, theta, np.column_stack([cols["x_m"], cols["y_m"], cols["z_m"]])

@@ -1,15 +1,20 @@
 """The `jaxrobot` command line.
 
 Subcommands are modules with `HELP: str`, `configure(parser)` and `run(args, echo) -> dict`
-(the JSON summary). `jaxrobot` ships `info` and `demo`; other packages add theirs through the
+(the JSON summary); `--out` is a folder, or the file described by the module's `OUT_FILE: str`.
+`jaxrobot` ships `info`, `demo` and `import-urdf`; other packages add theirs through the
 entry-point group `jaxrobot.commands`, and stages of `jaxrobot demo` through `jaxrobot.demo`
 (a function `stage(out: Path, echo) -> dict`, run in the order of the entry-point names), so
 that `jaxrobot` never imports the packages built on it.
+
+Exit codes (`EXIT_CODES`): 0 success, 1 internal error, 2 bad input or usage, 3 a solve did not
+converge (`SolveFailed`; nothing is saved as a result). No traceback reaches the user.
 """
 
 from __future__ import annotations
 
 import argparse
+import difflib
 import json
 import sys
 from collections.abc import Callable
@@ -19,11 +24,24 @@ from types import ModuleType
 
 Echo = Callable[[str], None]
 
+EXIT_CODES = {0: "success", 1: "internal error (a bug: please report it)", 2: "bad input or usage",
+              3: "a solve did not converge (no result saved unless --save-failed)"}
+
+
+class SolveFailed(Exception):
+    """A solve that did not converge: `main` prints the message and exits with code 3."""
+
+
+def suggestion(word: str, choices) -> str:
+    """`"; did you mean 'x'?"` for the closest of `choices`, or `""`."""
+    close = difflib.get_close_matches(word, list(choices), n=1)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
 
 def _commands() -> dict[str, ModuleType]:
-    from . import _cli_demo, _cli_info
+    from . import _cli_demo, _cli_import_urdf, _cli_info
 
-    found = {"info": _cli_info, "demo": _cli_demo}
+    found = {"info": _cli_info, "demo": _cli_demo, "import-urdf": _cli_import_urdf}
     for ep in entry_points(group="jaxrobot.commands"):
         try:
             found[ep.name] = ep.load()
@@ -52,13 +70,20 @@ def _jsonable(obj):
 
 def main(argv: list[str] | None = None) -> int:
     commands = _commands()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and not argv[0].startswith("-") and argv[0] not in commands:
+        print(f"jaxrobot: error: unknown command {argv[0]!r} (commands: {', '.join(commands)})"
+              f"{suggestion(argv[0], commands)}", file=sys.stderr)
+        return 2
     parser = argparse.ArgumentParser(
-        prog="jaxrobot", description="Calibrated elastic-joint robot models and accurate offline planning.")
+        prog="jaxrobot", description="Calibrated elastic-joint robot models and accurate offline planning.",
+        epilog="exit codes: " + "; ".join(f"{k} {v}" for k, v in EXIT_CODES.items()))
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, module in commands.items():
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
         p.add_argument("--json", action="store_true", help="print a machine-readable summary on stdout")
-        p.add_argument("--out", type=Path, default=None, help="folder for tables, plots and files")
+        p.add_argument("--out", type=Path, default=None,
+                       help=getattr(module, "OUT_FILE", "folder for tables, plots and files"))
         module.configure(p)
     args = parser.parse_args(argv)
     stream = sys.stderr if args.json else sys.stdout
@@ -66,13 +91,24 @@ def main(argv: list[str] | None = None) -> int:
     def echo(text: str) -> None:
         print(text, file=stream, flush=True)
 
-    if args.out is not None:
+    def fail(message: str, code: int) -> int:
+        print(f"jaxrobot {args.command}: error: {message}", file=sys.stderr)
+        return code
+
+    if args.out is not None and not hasattr(commands[args.command], "OUT_FILE"):
+        if args.out.exists() and not args.out.is_dir():
+            return fail(f"--out {args.out}: is an existing file; --out names a folder (it is created if missing)", 2)
         args.out.mkdir(parents=True, exist_ok=True)
     try:
         summary = commands[args.command].run(args, echo)
-    except (ValueError, FileNotFoundError) as err:
-        print(f"jaxrobot {args.command}: error: {err}", file=sys.stderr)
-        return 2
+    except SolveFailed as err:
+        return fail(str(err), 3)
+    except (ValueError, OSError) as err:
+        return fail(str(err), 2)
+    except KeyboardInterrupt:
+        return fail("interrupted", 130)
+    except Exception as err:  # noqa: BLE001 - a bug: one line for the user, never a traceback
+        return fail(f"internal error ({type(err).__name__}: {err}); please report it with the command line", 1)
     if args.json:
         print(json.dumps(_jsonable(summary), indent=2))
     return 0

@@ -17,6 +17,16 @@ POSES_DEG = {
     "reach forward": [0, 60, -60, 0, 45, 0],
     "reach up": [30, -20, -80, 0, 30, 0],
 }
+"""Poses of a six-joint robot (the Racer-7's); other robots show the zero pose clipped into their
+limits and the middle of their limits."""
+
+
+def poses_deg(robot) -> dict[str, list[float]]:
+    """The poses `jaxrobot info` evaluates [deg]."""
+    if robot.n_joints == len(POSES_DEG["home"]):
+        return POSES_DEG
+    lo, hi = np.rad2deg(np.asarray(robot.q_min)), np.rad2deg(np.asarray(robot.q_max))
+    return {"home": np.clip(0.0, lo, hi).round(3).tolist(), "mid-range": ((lo + hi) / 2).round(3).tolist()}
 
 
 def configure(parser) -> None:
@@ -30,6 +40,7 @@ def _numbers(robot, q):
     from ._elasticity import elastic_deflection
     from ._gear import motor_angle
     from ._kinematics import forward_kinematics
+    from ._linalg import map_matrices
     from ._statics import rest_link_angles
 
     q_rest = rest_link_angles(robot, motor_angle(robot, q))  # rigid command theta = Xi(q)
@@ -37,13 +48,14 @@ def _numbers(robot, q):
     sag = jnp.linalg.norm(p[: len(q)] - p[len(q):], axis=-1)
     x = elastic_deflection(robot, gravity_torque(robot, q))
     stiffness = jax.vmap(jnp.diag)(robot.k1 + 3 * robot.k3 * x**2)
-    lam = jnp.linalg.eigvals(jnp.linalg.solve(mass_matrix(robot, q), stiffness)).real
-    return sag, jnp.sqrt(jnp.sort(lam, -1)) / (2 * jnp.pi), forward_kinematics(robot, jnp.zeros(6))
+    lam = map_matrices(lambda m, k: jnp.linalg.eigvals(jnp.linalg.solve(m, k)).real, mass_matrix(robot, q), stiffness)
+    return sag, jnp.sqrt(jnp.sort(lam, -1)) / (2 * jnp.pi), forward_kinematics(robot, jnp.zeros(robot.n_joints))
 
 
 def summary(robot) -> dict:
     """Numbers shown by `jaxrobot info` (SI units, deflections in µm)."""
-    q = jnp.deg2rad(jnp.asarray(list(POSES_DEG.values()), float))
+    poses = poses_deg(robot)
+    q = jnp.deg2rad(jnp.asarray(list(poses.values()), float))
     sag, freq, home = jax.jit(_numbers)(robot, q)
     return {
         "name": robot.name,
@@ -52,14 +64,14 @@ def summary(robot) -> dict:
         "poses": {name: {"q_deg": v, "static_deflection_um": float(1e6 * sag[i]),
                          "lowest_eigenfrequency_hz": float(freq[i, 0]),
                          "highest_eigenfrequency_hz": float(freq[i, -1])}
-                  for i, (name, v) in enumerate(POSES_DEG.items())},
+                  for i, (name, v) in enumerate(poses.items())},
     }
 
 
 def _table(robot) -> list[str]:
     rows = [f"{'joint':>5} {'a [m]':>9} {'d [m]':>9} {'alpha':>9} {'beta':>9} {'offset':>8} {'limits [deg]':>16}"
             f" {'u0':>8} {'k1 [Nm/rad]':>12} {'k3 [Nm/rad3]':>12} {'mass [kg]':>9}"]
-    for i in range(6):
+    for i in range(robot.n_joints):
         lim = f"[{np.rad2deg(robot.q_min[i]):.0f}, {np.rad2deg(robot.q_max[i]):.0f}]"
         rows.append(f"{i + 1:>5} {robot.a[i]:>9.5f} {robot.d[i]:>9.5f} {np.rad2deg(robot.alpha[i]):>9.4f}"
                     f" {np.rad2deg(robot.beta[i]):>9.4f} {np.rad2deg(robot.offset[i]):>8.2f} {lim:>16}"

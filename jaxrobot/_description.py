@@ -12,49 +12,67 @@ import numpy as np
 import tomli_w
 import tomllib
 
-from ._robot import N_JOINTS, Ripple, Robot
+from ._robot import Ripple, Robot
 
 
 class RobotFileError(ValueError):
     """A robot description that does not validate; the message names the field."""
 
 
-_V6 = (N_JOINTS,)
-# Schema: key -> shape tuple (numbers), "str", or a nested dict. Keys starting with "?" are optional.
+# Schema: key -> shape tuple (numbers; "n" is the number of joints, None any length), "str", or a
+# nested dict. Keys starting with "?" are optional.
 _RIPPLE = {"orders": (None,), "a": (None,), "b": (None,)}
-_SCHEMA: dict[str, Any] = {
-    "name": "str",
-    "gravity": (3,),
-    "kinematics": {"a": _V6, "d": _V6, "alpha": _V6, "beta": _V6, "offset": _V6},
-    "limits": {"position_deg": (N_JOINTS, 2), "velocity_deg_s": _V6, "acceleration_deg_s2": _V6},
-    "gear": {"u0": _V6, "?backlash_rad": _V6, **{f"?joint{i}": {"cw": _RIPPLE, "ccw": _RIPPLE} for i in range(1, 7)}},
-    "?stiffness": {"k1": _V6, "k3": _V6},
-    "links": {"mass": _V6, "com": (N_JOINTS, 3), "inertia": (N_JOINTS, 6)},
-    "motors": {"inertia": _V6},
-    "?tool": {"transform": (4, 4)},
-    "?base": {"transform": (4, 4)},
-    "?as_built": {
-        "delta_a": _V6, "delta_d": _V6, "delta_alpha": _V6, "delta_beta": _V6,
-        "u0_wrist": (3,),
-    },
-    "?sensors": {
-        "tracker_position_noise_m": (), "tracker_marker_offset_m": (3,), "gyro_noise_deg_s": (),
-        "gyro_misalignment_rad": (2,), "encoder_counts_per_rev": (), "sample_time_s": (),
-        "filter_cutoff_hz": (3,),
-    },
-    "?poses": {"motor_deg": (None, N_JOINTS)},
-    "?calibration": {"prior_std": {f"?{k}": () for k in ("a_m", "d_m", "alpha_rad", "beta_rad", "offset_rad",
-                                                          "u0_relative", "tool_m", "tool_rad", "base_m", "base_rad")}},
-    "?trajectories": {
-        "orientation_q": _V6, "sample_time_s": (), "duration_s": (),
-        "line": {"x_m": (), "z_m": (), "y_start_m": (), "y_end_m": ()},
-        "spiral": {
-            "centre_xy_m": (2,), "r_max_m": (), "turns": (), "mu_start_rad": (),
-            "z_start_m": (), "z_end_m": (),
+
+
+def _schema(n: int) -> dict[str, Any]:
+    vn = (n,)
+    return {
+        "name": "str",
+        "gravity": (3,),
+        "kinematics": {"a": vn, "d": vn, "alpha": vn, "beta": vn, "offset": vn},
+        "limits": {"position_deg": (n, 2), "velocity_deg_s": vn, "?acceleration_deg_s2": vn},
+        "?gear": {"u0": vn, "?backlash_rad": vn,
+                  **{f"?joint{i}": {"cw": _RIPPLE, "ccw": _RIPPLE} for i in range(1, n + 1)}},
+        "?stiffness": {"k1": vn, "k3": vn},
+        "links": {"mass": vn, "com": (n, 3), "inertia": (n, 6)},
+        "?motors": {"inertia": vn},
+        "?tool": {"transform": (4, 4)},
+        "?base": {"transform": (4, 4)},
+        "?as_built": {
+            "delta_a": vn, "delta_d": vn, "delta_alpha": vn, "delta_beta": vn,
+            "?u0": vn, "?u0_wrist": (3,),
         },
-        "weighting": {"nu": (None,)},
-    },
-}
+        "?sensors": {
+            "tracker_position_noise_m": (), "tracker_marker_offset_m": (3,), "gyro_noise_deg_s": (),
+            "gyro_misalignment_rad": (2,), "encoder_counts_per_rev": (), "sample_time_s": (),
+            "?filter_cutoff_hz": (None,),
+        },
+        "?poses": {"motor_deg": (None, n)},
+        "?calibration": {"prior_std": {f"?{k}": () for k in ("a_m", "d_m", "alpha_rad", "beta_rad", "offset_rad",
+                                                              "u0_relative", "tool_m", "tool_rad", "base_m",
+                                                              "base_rad")}},
+        "?trajectories": {
+            "orientation_q": vn, "sample_time_s": (), "duration_s": (),
+            "line": {"x_m": (), "z_m": (), "y_start_m": (), "y_end_m": ()},
+            "spiral": {
+                "centre_xy_m": (2,), "r_max_m": (), "turns": (), "mu_start_rad": (),
+                "z_start_m": (), "z_end_m": (),
+            },
+            "weighting": {"nu": (None,)},
+        },
+    }
+
+
+def joint_count(data: dict) -> int:
+    """The number of joints `n` of a parsed description: the length of `kinematics.a`."""
+    kin = data.get("kinematics") if isinstance(data, dict) else None
+    if not isinstance(kin, dict) or "a" not in kin:
+        raise RobotFileError("kinematics.a: missing (required: the link lengths, one per joint; "
+                             "their number sets the number of joints n)")
+    a = kin["a"]
+    if not isinstance(a, list) or not a or any(isinstance(x, list) for x in a):
+        _fail("kinematics.a", "a non-empty list of numbers, one per joint", a)
+    return len(a)
 
 
 def _fail(field: str, expected: str, found: Any) -> None:
@@ -115,43 +133,63 @@ def _check_array(value: Any, shape: tuple, field: str) -> None:
         _fail(field, "finite numbers", value)
 
 
-def _check_physics(data: dict) -> None:
+def _check_physics(data: dict, n: int) -> None:
     lim = np.asarray(data["limits"]["position_deg"], float)
     for i, (lo, hi) in enumerate(lim):
         if lo >= hi:
             _fail(f"limits.position_deg[{i}] (joint {i + 1})", "lower < upper", [lo, hi])
     for key in ("velocity_deg_s", "acceleration_deg_s2"):
-        _positive(data["limits"][key], f"limits.{key}")
-    _positive(data["gear"]["u0"], "gear.u0")
-    for j in range(1, N_JOINTS + 1):
+        if key in data["limits"]:
+            _positive(data["limits"][key], f"limits.{key}")
+    gear = data.get("gear", {})
+    if "u0" in gear:
+        _positive(gear["u0"], "gear.u0")
+    for j in range(1, n + 1):
         for direction in ("cw", "ccw"):
-            rip = data["gear"].get(f"joint{j}", {}).get(direction)
+            rip = gear.get(f"joint{j}", {}).get(direction)
             if rip is not None:
                 _check_ripple(rip, f"gear.joint{j}.{direction}")
-    k1, k3 = _stiffness(data)
-    for i in range(N_JOINTS):
+    k1, k3 = _stiffness(data, n)
+    for i in range(n):
         if not k1[i] > 0 or not k3[i] >= 0 or np.isinf(k3[i]):
             _fail(
                 f"stiffness (joint {i + 1})",
                 "a monotone kappa(x) = k1 x + k3 x^3: k1 > 0 N m/rad (inf: rigid) and finite k3 >= 0 N m/rad^3",
                 {"k1": k1[i], "k3": k3[i]},
             )
-    backlash = np.asarray(data["gear"].get("backlash_rad", np.zeros(N_JOINTS)), float)
+    backlash = np.asarray(gear.get("backlash_rad", np.zeros(n)), float)
     if np.any(backlash < 0):
         _fail("gear.backlash_rad", "lost motion >= 0 rad per joint", backlash.tolist())
     _positive(data["links"]["mass"], "links.mass", "kg")
     for i, row in enumerate(np.asarray(data["links"]["inertia"], float)):
         _check_inertia(row, f"links.inertia[{i}] (link {i + 1})")
-    _positive(data["motors"]["inertia"], "motors.inertia", "kg m^2")
+    if "motors" in data and np.any(np.asarray(data["motors"]["inertia"], float) < 0):
+        _fail("motors.inertia", "rotor inertias >= 0 kg m^2", data["motors"]["inertia"])
+    dev = data.get("as_built", {})
+    if "u0" in dev and "u0_wrist" in dev:
+        _fail("as_built", "either u0 (all joints) or the older u0_wrist (joints 4-6), not both",
+              sorted(dev))
+    if "u0_wrist" in dev and n != 6:
+        _fail("as_built.u0_wrist", "a six-joint robot (gears 4-6); use as_built.u0 with one ratio per joint",
+              f"{n} joints")
+    for key in ("u0", "u0_wrist"):
+        if key in dev:
+            _positive(dev[key], f"as_built.{key}")
+    cutoff = data.get("sensors", {}).get("filter_cutoff_hz")
+    if cutoff is not None:
+        if len(cutoff) not in (n, 3):
+            _fail("sensors.filter_cutoff_hz", f"one cut-off per joint (shape ({n})) or the older three "
+                  "values of joints 1-3", f"shape ({len(cutoff)},)")
+        _positive(cutoff, "sensors.filter_cutoff_hz", "Hz")
     for key in ("tool", "base"):
         if key in data:
             _check_transform(np.asarray(data[key]["transform"], float), f"{key}.transform")
 
 
-def _stiffness(data: dict) -> tuple[np.ndarray, np.ndarray]:
+def _stiffness(data: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
     """`(k1, k3)`; no `[stiffness]` section means rigid joints (`k1 = inf`, `k3 = 0`)."""
     if "stiffness" not in data:
-        return np.full(N_JOINTS, np.inf), np.zeros(N_JOINTS)
+        return np.full(n, np.inf), np.zeros(n)
     return np.asarray(data["stiffness"]["k1"], float), np.asarray(data["stiffness"]["k3"], float)
 
 
@@ -197,14 +235,32 @@ def _check_transform(t: np.ndarray, field: str) -> None:
 
 
 def validate(data: dict) -> dict:
-    """Check a parsed description against the format; raise `RobotFileError` naming the field."""
-    _check(data, _SCHEMA, "")
-    _check_physics(data)
+    """Check a parsed description against the format; raise `RobotFileError` naming the field.
+
+    The number of joints `n` is the length of `kinematics.a`; every per-joint field has `n` rows.
+    Kinematics, limits and links are required; without `[gear]` the ratios are 1 with no ripple,
+    without `[stiffness]` the joints are rigid, without `[motors]` the rotors have no inertia."""
+    n = joint_count(data)
+    _check(data, _schema(n), "")
+    _check_physics(data, n)
     return data
 
 
-def read_description(path: str | Path | None = None) -> dict:
-    """Read and validate a robot description file; `None` reads the embedded Racer-7-1.4."""
+def filter_cutoffs(data: dict) -> dict[int, float]:
+    """Gaussian filter cut-offs [Hz] per 1-based joint from `[sensors] filter_cutoff_hz`: one value
+    per joint, or the older three values of joints 1-3; empty if the key is absent."""
+    return {i + 1: float(c) for i, c in enumerate(data.get("sensors", {}).get("filter_cutoff_hz", []))}
+
+
+def read_description(path: str | Path | None = None, base: str | None = None, tip: str | None = None) -> dict:
+    """Read and validate a robot description file; `None` reads the embedded Racer-7-1.4. A URDF file
+    (suffix `.urdf`) is imported: the chain from link `base` to link `tip` (see `_urdf.read_urdf`)."""
+    if path is not None and Path(path).suffix.lower() == ".urdf":
+        from ._urdf import read_urdf  # _urdf builds on this module
+
+        return read_urdf(path, base, tip)
+    if base is not None or tip is not None:
+        raise ValueError(f"base and tip select the chain of a URDF file (suffix .urdf), found {path}")
     if path is None:
         text = resources.files("jaxrobot").joinpath("data/racer7.toml").read_text()
         source = "racer7.toml (package data)"
@@ -223,13 +279,13 @@ def read_description(path: str | Path | None = None) -> dict:
         raise RobotFileError(f"{source}: {err}") from None
 
 
-def _ripples(gear: dict) -> tuple[Ripple, Ripple]:
+def _ripples(gear: dict, n: int) -> tuple[Ripple, Ripple]:
     m = max([len(gear.get(f"joint{j}", {}).get(d, {}).get("orders", []))
-             for j in range(1, 7) for d in ("cw", "ccw")] + [1])
+             for j in range(1, n + 1) for d in ("cw", "ccw")] + [1])
     out = []
     for direction in ("cw", "ccw"):
-        arr = {k: np.zeros((N_JOINTS, m)) for k in ("orders", "a", "b")}
-        for j in range(N_JOINTS):
+        arr = {k: np.zeros((n, m)) for k in ("orders", "a", "b")}
+        for j in range(n):
             rip = gear.get(f"joint{j + 1}", {}).get(direction)
             if rip is not None:
                 for k in arr:
@@ -240,8 +296,10 @@ def _ripples(gear: dict) -> tuple[Ripple, Ripple]:
 
 def robot_from_description(data: dict, as_built: bool = False) -> Robot:
     """Build the `Robot` pytree from a validated description (`as_built` adds `[as_built]`)."""
+    n = joint_count(data)
     kin = {k: np.asarray(v, float) for k, v in data["kinematics"].items()}
-    u0 = np.asarray(data["gear"]["u0"], float)
+    gear = data.get("gear", {})
+    u0 = np.asarray(gear.get("u0", np.ones(n)), float)
     if as_built:
         if "as_built" not in data:
             raise RobotFileError("as_built=True needs an [as_built] section in the description")
@@ -249,10 +307,13 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         for k in ("a", "d", "alpha", "beta"):
             kin[k] = kin[k] + np.asarray(dev[f"delta_{k}"], float)
         u0 = u0.copy()
-        u0[3:] = dev["u0_wrist"]
+        if "u0" in dev:
+            u0[:] = dev["u0"]
+        elif "u0_wrist" in dev:
+            u0[3:] = dev["u0_wrist"]
     lim = np.deg2rad(np.asarray(data["limits"]["position_deg"], float))
-    cw, ccw = _ripples(data["gear"])
-    k1, k3 = _stiffness(data)
+    cw, ccw = _ripples(gear, n)
+    k1, k3 = _stiffness(data, n)
     eye = np.eye(4)
     return Robot(
         a=jnp.asarray(kin["a"]), d=jnp.asarray(kin["d"]), alpha=jnp.asarray(kin["alpha"]),
@@ -261,23 +322,24 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         tool=jnp.asarray(data.get("tool", {}).get("transform", eye), float),
         q_min=jnp.asarray(lim[:, 0]), q_max=jnp.asarray(lim[:, 1]),
         qd_max=jnp.deg2rad(jnp.asarray(data["limits"]["velocity_deg_s"], float)),
-        qdd_max=jnp.deg2rad(jnp.asarray(data["limits"]["acceleration_deg_s2"], float)),
+        qdd_max=jnp.deg2rad(jnp.asarray(data["limits"].get("acceleration_deg_s2", np.full(n, np.inf)), float)),
         u0=jnp.asarray(u0), cw=cw, ccw=ccw,
-        backlash=jnp.asarray(data["gear"].get("backlash_rad", np.zeros(N_JOINTS)), float),
+        backlash=jnp.asarray(gear.get("backlash_rad", np.zeros(n)), float),
         k1=jnp.asarray(k1), k3=jnp.asarray(k3),
         mass=jnp.asarray(data["links"]["mass"], float),
         com=jnp.asarray(data["links"]["com"], float),
         inertia=jnp.asarray(np.stack([_inertia_matrix(np.asarray(r, float))
                                       for r in data["links"]["inertia"]])),
-        motor_inertia=jnp.asarray(data["motors"]["inertia"], float),
+        motor_inertia=jnp.asarray(data.get("motors", {}).get("inertia", np.zeros(n)), float),
         gravity=jnp.asarray(data["gravity"], float),
         name=data["name"],
     )
 
 
-def load_robot(path: str | Path, as_built: bool = False) -> Robot:
-    """Load a robot from a description file in the format of `racer7.toml` (validated)."""
-    return robot_from_description(read_description(path), as_built=as_built)
+def load_robot(path: str | Path, as_built: bool = False, base: str | None = None, tip: str | None = None) -> Robot:
+    """Load a robot from a description file in the format of `racer7.toml` (validated), or import
+    the chain from link `base` to link `tip` of a URDF file (suffix `.urdf`; see `read_description`)."""
+    return robot_from_description(read_description(path, base, tip), as_built=as_built)
 
 
 def racer7(as_built: bool = False) -> Robot:
@@ -289,13 +351,13 @@ def racer7(as_built: bool = False) -> Robot:
 def description_of(robot: Robot) -> dict:
     """The robot as a description dict (inverse of `robot_from_description`)."""
     if np.ndim(robot.a) != 1:
-        raise ValueError(f"description_of: expected one robot (a of shape (6,)), found a batch "
+        raise ValueError(f"description_of: expected one robot (a of shape (n,)), found a batch "
                          f"of shape {np.shape(robot.a)}; index the fleet first")
     f = lambda x: np.asarray(x, float).tolist()  # noqa: E731
     gear: dict[str, Any] = {"u0": f(robot.u0)}
     if np.any(np.asarray(robot.backlash) != 0):
         gear["backlash_rad"] = f(robot.backlash)
-    for j in range(N_JOINTS):
+    for j in range(robot.n_joints):
         sets = {}
         for direction, rip in (("cw", robot.cw), ("ccw", robot.ccw)):
             used = np.asarray(rip.orders[j]) > 0
@@ -314,16 +376,19 @@ def description_of(robot: Robot) -> dict:
         "limits": {
             "position_deg": f(np.rad2deg(np.stack([robot.q_min, robot.q_max], -1))),
             "velocity_deg_s": f(np.rad2deg(robot.qd_max)),
-            "acceleration_deg_s2": f(np.rad2deg(robot.qdd_max)),
         },
-        "gear": gear,
         "links": {
             "mass": f(robot.mass), "com": f(robot.com),
             "inertia": [[float(i[0, 0]), float(i[1, 1]), float(i[2, 2]), float(i[0, 1]),
                          float(i[0, 2]), float(i[1, 2])] for i in inertia],
         },
-        "motors": {"inertia": f(robot.motor_inertia)},
     }
+    if np.all(np.isfinite(np.asarray(robot.qdd_max))):  # else no acceleration limits
+        data["limits"]["acceleration_deg_s2"] = f(np.rad2deg(robot.qdd_max))
+    if gear.keys() != {"u0"} or np.any(np.asarray(robot.u0) != 1.0):  # else no gears: no [gear] section
+        data["gear"] = gear
+    if np.any(np.asarray(robot.motor_inertia) != 0):  # else no [motors] section
+        data["motors"] = {"inertia": f(robot.motor_inertia)}
     if np.any(np.isfinite(np.asarray(robot.k1))):  # else rigid: no [stiffness] section
         data["stiffness"] = {"k1": f(robot.k1), "k3": f(robot.k3)}
     for key in ("tool", "base"):

@@ -20,7 +20,7 @@ from ._linalg import spd_solve
 from ._robot import Robot
 
 # Batch-last internals: the rigid-body terms below keep the state batch as the LAST axis
-# ((6, 3, N) etc.), so XLA's CPU loops run over contiguous states and vectorise, and they
+# ((n, 3, N) etc.), so XLA's CPU loops run over contiguous states and vectorise, and they
 # process large batches in chunks of `_CHUNK` states (lax.map) so that the intermediates of a
 # chunk stay in cache. Small products are written out as sums of elementwise products: they
 # fuse into one loop also under `vmap`, where tiny batched `matmul`/`einsum` become separate dot
@@ -64,9 +64,9 @@ def _suffix(x):  # sum over links k >= j (leading link axis)
 
 
 def _batch_last(fn, robot: Robot, *vecs):
-    """`fn(robot_t, *vecs_t)` over the broadcast batch of `robot` and `vecs` (..., 6), with every
-    array batch-last (robot fields (core..., 1) for one robot, (core..., n) for a fleet; vectors
-    (6, n)), in chunks of `_CHUNK` states. `fn` returns a tuple of (core..., n) arrays; the
+    """`fn(robot_t, *vecs_t)` over the broadcast batch of `robot` and `vecs` (..., n), with every
+    array batch-last (robot fields (core..., 1) for one robot, (core..., N) for a fleet; vectors
+    (n, N)), in chunks of `_CHUNK` states. `fn` returns a tuple of (core..., N) arrays; the
     result is that tuple with the batch moved back to the front."""
     rb = robot.a.shape[:-1]
     batch = jnp.broadcast_shapes(rb, *(v.shape[:-1] for v in vecs))
@@ -90,7 +90,7 @@ def _batch_last(fn, robot: Robot, *vecs):
 
 
 def _joints_t(robot, q_t):
-    """Rotation (6, 3, 3, N) and origin (6, 3, N) of frame i in frame i-1 (eq. 2.2-2.3), batch last."""
+    """Rotation (n, 3, 3, N) and origin (n, 3, N) of frame i in frame i-1 (eq. 2.2-2.3), batch last."""
     rz = _rot(q_t + robot.offset, 2)
     r_loc = _mm(rz, _mm(_rot(robot.alpha, 0), _rot(robot.beta, 1)))
     p_loc = _mv(rz, jnp.stack([robot.a, jnp.zeros_like(robot.a), robot.d], -2))
@@ -98,8 +98,8 @@ def _joints_t(robot, q_t):
 
 
 def _frames_t(robot, q_t):
-    """World rotations (6, 3, 3, N) and origins (6, 3, N) of frames 1..6, and the joint axes and
-    pivots (6, 3, N) (z axis and origin of frames 0..5), batch last."""
+    """World rotations (n, 3, 3, N) and origins (n, 3, N) of frames 1..n, and the joint axes and
+    pivots (n, 3, N) (z axis and origin of frames 0..n-1), batch last."""
     r_loc, p_loc = _joints_t(robot, q_t)
     shape = q_t.shape[-1:]
     base_r = jnp.broadcast_to(robot.base[:3, :3], (3, 3) + jnp.broadcast_shapes(robot.base.shape[-1:], shape))
@@ -117,8 +117,8 @@ def _frames_t(robot, q_t):
 
 
 def _subtrees_t(robot, q_t):
-    """Joint axes `a_j`, pivots `p_j`, and per subtree j (links j..6): total mass `M_j` (6, N),
-    first moment `s_j = sum m_k c_k` (6, 3, N) and inertia about the world origin (6, 3, 3, N)."""
+    """Joint axes `a_j`, pivots `p_j`, and per subtree j (links j..n): total mass `M_j` (n, N),
+    first moment `s_j = sum m_k c_k` (n, 3, N) and inertia about the world origin (n, 3, 3, N)."""
     rot, org, axes, pivots = _frames_t(robot, q_t)
     com = org + _mv(rot, robot.com)
     mass = robot.mass[:, None]
@@ -129,14 +129,14 @@ def _subtrees_t(robot, q_t):
 
 
 def _mass_matrix_t(robot, q_t):
-    """`D(q)` (6, 6, N) by composite rigid bodies in world axes: column j is the momentum of
+    """`D(q)` (n, n, N) by composite rigid bodies in world axes: column j is the momentum of
     subtree j turning at unit rate about joint j, `D_ij = a_i . (h_j - p_i x l_j)` for i <= j,
     with `l_j = a_j x (s_j - M_j p_j)`, `h_j = J_j a_j - s_j x (a_j x p_j)` (equals eq. 2.16)."""
     a, p, m, s, j = _subtrees_t(robot, q_t)
     lin = _cross(a, s - m[:, None] * p)
     ang = _mv(j, a) - _cross(s, _cross(a, p))
     t = _dot(a[:, None], ang[None] - _cross(p[:, None], lin[None]))
-    d = jnp.where(jnp.triu(jnp.ones((6, 6), bool))[..., None], t, jnp.swapaxes(t, 0, 1))
+    d = jnp.where(jnp.triu(jnp.ones((len(a),) * 2, bool))[..., None], t, jnp.swapaxes(t, 0, 1))
     return (d,)
 
 
@@ -183,32 +183,32 @@ def _rnea_t(robot, q_t, qd_t, qdd_t, with_gravity: bool):
     return (tau,)
 
 
-def mass_matrix(robot: Robot, q: Float[Array, "*b 6"]) -> Float[Array, "*b 6 6"]:
+def mass_matrix(robot: Robot, q: Float[Array, "*b n"]) -> Float[Array, "*b n n"]:
     """Link mass matrix `D(q) = sum_i m_i Jv_i^T Jv_i + Jw_i^T R_i I_i R_i^T Jw_i` (eq. 2.15-2.16),
     computed by composite rigid bodies."""
     return _batch_last(_mass_matrix_t, robot, q)[0]
 
 
-def gravity_torque(robot: Robot, q: Float[Array, "*b 6"]) -> Float[Array, "*b 6"]:
+def gravity_torque(robot: Robot, q: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
     """`g(q) = dV/dq` with `V = -sum_i m_i gravity . c_i` (eq. 2.19-2.20)."""
     return _batch_last(_gravity_t, robot, q)[0]
 
 
-def _rnea(robot: Robot, q, qd, qdd, with_gravity: bool) -> Float[Array, "*b 6"]:
+def _rnea(robot: Robot, q, qd, qdd, with_gravity: bool) -> Float[Array, "*b n"]:
     """Recursive Newton-Euler: `D qdd + C qd`, plus `g` if `with_gravity`."""
     return _batch_last(lambda r, *v: _rnea_t(r, *v, with_gravity), robot, q, qd, qdd)[0]
 
 
 def coriolis_vector(
-    robot: Robot, q: Float[Array, "*b 6"], qd: Float[Array, "*b 6"]
-) -> Float[Array, "*b 6"]:
+    robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"]
+) -> Float[Array, "*b n"]:
     """Coriolis and centrifugal torques `C(q, qd) qd` (eq. 2.7), by Newton-Euler."""
     return _rnea(robot, q, qd, jnp.zeros_like(qd), False)
 
 
 def coriolis_matrix(
-    robot: Robot, q: Float[Array, "*b 6"], qd: Float[Array, "*b 6"]
-) -> Float[Array, "*b 6 6"]:
+    robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"]
+) -> Float[Array, "*b n n"]:
     """`C(q, qd)` from the Christoffel symbols of `D` (eq. 2.7-2.8), by autodiff."""
 
     def single(robot, q, qd):
@@ -221,15 +221,15 @@ def coriolis_matrix(
 
 
 def inverse_dynamics(
-    robot: Robot, q: Float[Array, "*b 6"], qd: Float[Array, "*b 6"], qdd: Float[Array, "*b 6"]
-) -> Float[Array, "*b 6"]:
+    robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"], qdd: Float[Array, "*b n"]
+) -> Float[Array, "*b n"]:
     """Link torques `D(q) qdd + C(q, qd) qd + g(q)` (eq. 2.23a), by Newton-Euler."""
     return _rnea(robot, q, qd, qdd, True)
 
 
 def planning_dynamics(
-    robot: Robot, x: Float[Array, "*b 24"], u: Float[Array, "*b 6"]
-) -> Float[Array, "*b 24"]:
+    robot: Robot, x: Float[Array, "*b 4*n"], u: Float[Array, "*b n"]
+) -> Float[Array, "*b 4*n"]:
     """`xd = f(x, u)` of eq. 4.1, `x = [q, qd, theta, thetad]`, `u = thetadd`; cw gear set."""
     q, qd, theta, thetad = jnp.split(x, 4, axis=-1)
     qdd = link_acceleration(robot, q, qd, gear_output(robot, theta))
@@ -237,8 +237,8 @@ def planning_dynamics(
 
 
 def link_acceleration(
-    robot: Robot, q: Float[Array, "*b 6"], qd: Float[Array, "*b 6"], phi: Float[Array, "*b 6"]
-) -> Float[Array, "*b 6"]:
+    robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"], phi: Float[Array, "*b n"]
+) -> Float[Array, "*b n"]:
     """`qdd = D(q)^{-1} (kappa(phi - q) - g(q) - C(q, qd) qd)` (eq. 2.23a)."""
     rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
     return spd_solve(mass_matrix(robot, q), rhs[..., None])[..., 0]
@@ -246,18 +246,18 @@ def link_acceleration(
 
 def motor_torque(
     robot: Robot,
-    q: Float[Array, "*b 6"],
-    theta: Float[Array, "*b 6"],
-    thetadd: Float[Array, "*b 6"],
-    ccw: bool | Bool[Array, "*b 6"] = False,
-) -> Float[Array, "*b 6"]:
+    q: Float[Array, "*b n"],
+    theta: Float[Array, "*b n"],
+    thetadd: Float[Array, "*b n"],
+    ccw: bool | Bool[Array, "*b n"] = False,
+) -> Float[Array, "*b n"]:
     """Motor torques `tau_m = J_m thetadd + kappa(phi - q) / u(phi)` (eq. 2.23b, reflected)."""
     phi = gear_output(robot, theta, ccw)
     return robot.motor_inertia * thetadd + elastic_torque(robot, phi - q) / gear_ratio(robot, phi, ccw)
 
 
 def static_equilibrium(
-    robot: Robot, q: Float[Array, "*b 6"], ccw: bool | Bool[Array, "*b 6"] = False
-) -> Float[Array, "*b 6"]:
+    robot: Robot, q: Float[Array, "*b n"], ccw: bool | Bool[Array, "*b n"] = False
+) -> Float[Array, "*b n"]:
     """Motor angles that hold `q` at rest: `theta = Xi(q + kappa^{-1}(g(q)))` (eq. 4.3f-g)."""
     return motor_angle(robot, q + elastic_deflection(robot, gravity_torque(robot, q)), ccw)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from ._robot import Robot
@@ -17,7 +18,7 @@ NEWTON_STEPS = 8
 iteration decreases monotonically and quadratically (tested to 1e-12 relative)."""
 
 
-def elastic_torque(robot: Robot, x: Float[Array, "*b 6"]) -> Float[Array, "*b 6"]:
+def elastic_torque(robot: Robot, x: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
     """`kappa(x) = k1 x + k3 x^3` [N m] for a deflection `x = phi - q` [rad]."""
     return robot.k1 * x + robot.k3 * x**3
 
@@ -41,8 +42,8 @@ def _deflection_jvp(primals, tangents):
 
 
 def compliance_deflection(
-    c: Float[Array, "*b 6"], e: Float[Array, "*b 6"], tau: Float[Array, "*b 6"]
-) -> Float[Array, "*b 6"]:
+    c: Float[Array, "*b n"], e: Float[Array, "*b n"], tau: Float[Array, "*b n"]
+) -> Float[Array, "*b n"]:
     """Deflection `x` [rad] with `x + e x^3 = c tau`: `kappa^{-1}(tau)` in compliance form.
 
     `c = 1/k1` [rad/(N m)], `e = k3/k1` [1/rad^2]; `c = 0` is a rigid joint (`x = 0`) with finite
@@ -53,7 +54,7 @@ def compliance_deflection(
     return _deflection(jnp.ones(shape), e, c * tau)
 
 
-def elastic_deflection(robot: Robot, tau: Float[Array, "*b 6"]) -> Float[Array, "*b 6"]:
+def elastic_deflection(robot: Robot, tau: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
     """`kappa^{-1}(tau)`: the deflection [rad] at which the joint transmits `tau` [N m].
 
     Newton on `|x|` from `min(|tau|/k1, cbrt(|tau|/k3))`, which lies above the root of the
@@ -62,3 +63,14 @@ def elastic_deflection(robot: Robot, tau: Float[Array, "*b 6"]) -> Float[Array, 
     """
     c = 1.0 / robot.k1
     return compliance_deflection(c, robot.k3 * c, tau)
+
+
+def require_elastic(robot: Robot, user: str) -> None:
+    """Raise if a concrete `robot` has rigid joints (`k1 = inf`): `user` integrates the elastic model."""
+    k1 = robot.k1
+    if isinstance(k1, jax.core.Tracer):
+        return
+    rigid = np.flatnonzero(np.any(~np.isfinite(np.reshape(np.asarray(k1), (-1, robot.n_joints))), 0))
+    if rigid.size:
+        raise ValueError(f"{user}: needs elastic joints (finite k1 [N m/rad], the [stiffness] section of the robot "
+                         f"file); found rigid joints {(rigid + 1).tolist()} (k1 = inf)")

@@ -25,8 +25,8 @@ def _derivative(fn: Callable) -> Callable:
 
 
 def flat_inverse(
-    robot: Robot, q_d: Callable[[Float[Array, ""]], Float[Array, "6"]], t: Float[Array, " N"]
-) -> tuple[Float[Array, "N 6"], Float[Array, "N 6"], Float[Array, "N 6"]]:
+    robot: Robot, q_d: Callable[[Float[Array, ""]], Float[Array, " n"]], t: Float[Array, " N"]
+) -> tuple[Float[Array, "N n"], Float[Array, "N n"], Float[Array, "N n"]]:
     """Motor angles, rates and accelerations `(theta, thetad, thetadd)` at times `t` that make
     the elastic model follow `q_d` exactly (cw gear set, as the planning model).
 

@@ -3,7 +3,7 @@
 `u(phi) = u0 (1 + sum_j a_j cos(n_j phi) - b_j sin(n_j phi))` (eq. 2.10),
 `Xi(phi) = u0 (phi + sum_j (a_j sin(n_j phi) + b_j cos(n_j phi)) / n_j) + U_C` (eq. 2.13)
 with `U_C` such that `Xi(0) = 0` (eq. 2.14). `ccw` selects the set of the negative direction;
-it broadcasts against the joint axis (a bool or a bool array of shape (..., 6)).
+it broadcasts against the joint axis (a bool or a bool array of shape (..., n)).
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ def _sincos_jvp(primals, tangents):
     return (s, c), (c * tangents[0], -s * tangents[0])
 
 
-def _ripple(robot: Robot, ccw: bool | Bool[Array, "*b 6"]) -> Ripple:
+def _ripple(robot: Robot, ccw: bool | Bool[Array, "*b n"]) -> Ripple:
     if ccw is False:
         return robot.cw
     sel = jnp.asarray(ccw)[..., None]
@@ -119,16 +119,16 @@ def _xi_inverse_jvp(primals, tangents):
 
 
 def gear_ratio(
-    robot: Robot, phi: Float[Array, "*b 6"], ccw: bool | Bool[Array, "*b 6"] = False
-) -> Float[Array, "*b 6"]:
+    robot: Robot, phi: Float[Array, "*b n"], ccw: bool | Bool[Array, "*b n"] = False
+) -> Float[Array, "*b n"]:
     """Gear ratio `u(phi) = dtheta/dphi` (eq. 2.10)."""
     rip = _ripple(robot, ccw)
     return ratio(robot.u0, rip.orders, rip.a, rip.b, phi)
 
 
 def motor_angle(
-    robot: Robot, phi: Float[Array, "*b 6"], ccw: bool | Bool[Array, "*b 6"] = False
-) -> Float[Array, "*b 6"]:
+    robot: Robot, phi: Float[Array, "*b n"], ccw: bool | Bool[Array, "*b n"] = False
+) -> Float[Array, "*b n"]:
     """Motor angle `theta = Xi(phi)` of gear output angle `phi` (eq. 2.13), `Xi(0) = 0`."""
     rip = _ripple(robot, ccw)
     return xi(robot.u0, rip.orders, rip.a, rip.b, phi)
@@ -136,21 +136,21 @@ def motor_angle(
 
 def gear_output(
     robot: Robot,
-    theta: Float[Array, "*b 6"],
-    ccw: bool | Bool[Array, "*b 6"] = False,
+    theta: Float[Array, "*b n"],
+    ccw: bool | Bool[Array, "*b n"] = False,
     rippled: tuple[int, ...] | None = None,
-) -> Float[Array, "*b 6"]:
+) -> Float[Array, "*b n"]:
     """Gear output angle `phi = Xi^{-1}(theta)`: `NEWTON_STEPS` Newton steps from `theta / u0`.
 
     Derivatives of every order follow the implicit function (`dphi/dtheta = 1/u(phi)`), not the steps.
     `rippled` (static): the joints (0-based) whose gear may have ripple; the others get `theta / u0`, which
-    is exact for a gear without ripple and skips their Newton steps. None: all six.
+    is exact for a gear without ripple and skips their Newton steps. None: all joints.
     """
     rip = _ripple(robot, ccw)
     shape = jnp.broadcast_shapes(theta.shape, robot.u0.shape, rip.orders.shape[:-1])
     u0 = jnp.broadcast_to(robot.u0, shape)
     theta = jnp.broadcast_to(theta, shape)
-    if rippled is not None and tuple(rippled) != tuple(range(6)):
+    if rippled is not None and tuple(rippled) != tuple(range(shape[-1])):
         idx = np.asarray(sorted(rippled), int)
         plain = theta / u0
         if idx.size == 0:

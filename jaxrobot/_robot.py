@@ -6,81 +6,85 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-N_JOINTS = 6
-
 
 class Ripple(eqx.Module):
-    """Fourier ripple of the six gear ratios for one direction of rotation (eq. 2.10).
+    """Fourier ripple of the `n` gear ratios for one direction of rotation (eq. 2.10).
 
     `u(phi) = u0 (1 + sum_j a_j cos(n_j phi) - b_j sin(n_j phi))` per joint; every joint holds
     `M` harmonics, padded with order 0 (unused, `a = b = 0`) where a joint has fewer.
     """
 
-    orders: Float[Array, "*batch 6 M"]
+    orders: Float[Array, "*batch n M"]
     """`n_j`, integer cycles per output revolution; 0 marks padding."""
-    a: Float[Array, "*batch 6 M"]
+    a: Float[Array, "*batch n M"]
     """Dimensionless cosine coefficients (relative to `u0`)."""
-    b: Float[Array, "*batch 6 M"]
+    b: Float[Array, "*batch n M"]
     """Dimensionless sine coefficients (relative to `u0`)."""
 
     @staticmethod
-    def none(m: int = 1) -> Ripple:
-        """A constant gear ratio: no harmonics."""
-        z = jnp.zeros((N_JOINTS, m))
+    def none(n: int, m: int = 1) -> Ripple:
+        """Constant gear ratios of `n` joints: no harmonics."""
+        z = jnp.zeros((n, m))
         return Ripple(orders=z, a=z, b=z)
 
 
 class Robot(eqx.Module):
-    """An elastic-joint serial robot with six revolute joints.
+    """An elastic-joint serial robot with `n` revolute joints.
 
-    Every field is an array (SI units, radians), so a fleet of robots is the same pytree
-    with a leading batch axis. Kinematics follow eq. 2.2-2.4 with the Hayati angle `beta`
-    (eq. 2.3); the joint transform is `Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`.
+    Every field is an array (SI units, radians) whose joint axis has length `n`
+    (`n_joints`), so a fleet of robots is the same pytree with a leading batch axis. Kinematics
+    follow eq. 2.2-2.4: standard DH plus the Hayati angle `beta` (eq. 2.3), not Craig's modified DH;
+    the joint transform is `Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`.
     """
 
-    a: Float[Array, "*batch 6"]
-    """mDH link lengths `a_i` [m]."""
-    d: Float[Array, "*batch 6"]
-    """mDH offsets `d_i` [m]."""
-    alpha: Float[Array, "*batch 6"]
-    """mDH twists `alpha_i` [rad]."""
-    beta: Float[Array, "*batch 6"]
+    a: Float[Array, "*batch n"]
+    """DH link lengths `a_i` [m]."""
+    d: Float[Array, "*batch n"]
+    """DH offsets `d_i` [m]."""
+    alpha: Float[Array, "*batch n"]
+    """DH twists `alpha_i` [rad]."""
+    beta: Float[Array, "*batch n"]
     """Hayati angles `beta_i` [rad] (eq. 2.3)."""
-    offset: Float[Array, "*batch 6"]
+    offset: Float[Array, "*batch n"]
     """DH angle minus joint coordinate [rad]."""
     base: Float[Array, "*batch 4 4"]
     """Pose of the DH base frame 0 in the world frame."""
     tool: Float[Array, "*batch 4 4"]
-    """Tool frame in the flange frame 6."""
-    q_min: Float[Array, "*batch 6"]
+    """Tool frame in the flange frame `n`."""
+    q_min: Float[Array, "*batch n"]
     """Lower joint-coordinate limits [rad] (Table A.1)."""
-    q_max: Float[Array, "*batch 6"]
+    q_max: Float[Array, "*batch n"]
     """Upper joint-coordinate limits [rad]."""
-    qd_max: Float[Array, "*batch 6"]
+    qd_max: Float[Array, "*batch n"]
     """Link velocity limits [rad/s] (Table A.2)."""
-    qdd_max: Float[Array, "*batch 6"]
-    """Link acceleration limits [rad/s^2] (Table A.3)."""
-    u0: Float[Array, "*batch 6"]
+    qdd_max: Float[Array, "*batch n"]
+    """Link acceleration limits [rad/s^2] (Table A.3); `inf` where the description has none."""
+    u0: Float[Array, "*batch n"]
     """Basic gear ratios `u0` (Table A.5)."""
     cw: Ripple
     """Ripple while the joint turns in its positive direction (`phid > 0`)."""
     ccw: Ripple
     """Ripple while the joint turns in its negative direction."""
-    backlash: Float[Array, "*batch 6"]
+    backlash: Float[Array, "*batch n"]
     """Lost motion of the gears [rad of link angle]: at rest the link lags the motor by
     `backlash / 2` against the direction of approach (used by the rest poses only)."""
-    k1: Float[Array, "*batch 6"]
+    k1: Float[Array, "*batch n"]
     """Linear joint stiffness [N m/rad] (eq. 2.18); `inf` for a rigid joint."""
-    k3: Float[Array, "*batch 6"]
+    k3: Float[Array, "*batch n"]
     """Cubic joint stiffness [N m/rad^3]."""
-    mass: Float[Array, "*batch 6"]
+    mass: Float[Array, "*batch n"]
     """Link masses [kg] (motors lumped in)."""
-    com: Float[Array, "*batch 6 3"]
+    com: Float[Array, "*batch n 3"]
     """Centres of mass in the link frames [m]."""
-    inertia: Float[Array, "*batch 6 3 3"]
+    inertia: Float[Array, "*batch n 3 3"]
     """Inertia tensors about the centres of mass, link-frame axes [kg m^2]."""
-    motor_inertia: Float[Array, "*batch 6"]
+    motor_inertia: Float[Array, "*batch n"]
     """Rotor inertias, motor side [kg m^2]."""
     gravity: Float[Array, "*batch 3"]
     """Gravity acceleration in the world frame [m/s^2]."""
     name: str = eqx.field(static=True, default="robot")
+
+    @property
+    def n_joints(self) -> int:
+        """Number of joints `n` (the length of the joint axis)."""
+        return self.a.shape[-1]

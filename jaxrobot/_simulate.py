@@ -22,6 +22,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._dynamics import link_acceleration
+from ._elasticity import require_elastic
 from ._gear import gear_output
 from ._robot import Robot
 from ._statics import rest_link_angles
@@ -45,14 +46,14 @@ def _hermite_weights(s: np.ndarray) -> np.ndarray:
 def simulate(
     robot: Robot,
     t: Float[Array, " N"],
-    theta: Float[Array, "N 6"],
-    thetad: Float[Array, "N 6"],
-    thetadd: Float[Array, "N 6"],
+    theta: Float[Array, "N n"],
+    thetad: Float[Array, "N n"],
+    thetadd: Float[Array, "N n"],
     substeps: int = 10,
-    q0: Float[Array, "6"] | None = None,
-    qd0: Float[Array, "6"] | None = None,
+    q0: Float[Array, " n"] | None = None,
+    qd0: Float[Array, " n"] | None = None,
     directional: bool = False,
-) -> tuple[Float[Array, "N 6"], Float[Array, "N 6"]]:
+) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
     """Link angles and rates `(q, qd)` at the sample times `t` (uniform) for a commanded motor
     trajectory, integrated by RK4 with `substeps` steps per sample (see module docstring).
 
@@ -61,14 +62,16 @@ def simulate(
     as-built robot); the default uses the cw set throughout (the planning model).
     """
     t = jnp.asarray(t, float)
-    if t.ndim != 1 or theta.shape != t.shape + (6,) or thetad.shape != theta.shape or thetadd.shape != theta.shape:
-        raise ValueError(f"simulate: expected t (N,) and theta, thetad, thetadd (N, 6), found t {t.shape}, "
+    n = robot.n_joints
+    if t.ndim != 1 or theta.shape != t.shape + (n,) or thetad.shape != theta.shape or thetadd.shape != theta.shape:
+        raise ValueError(f"simulate: expected t (N,) and theta, thetad, thetadd (N, {n}), found t {t.shape}, "
                          f"theta {theta.shape}, thetad {thetad.shape}, thetadd {thetadd.shape}")
+    require_elastic(robot, "simulate")
     if substeps < 1:
         raise ValueError(f"simulate: substeps must be >= 1, found {substeps}")
     h = t[1] - t[0]
     q0 = rest_link_angles(robot, theta[0]) if q0 is None else q0
-    qd0 = jnp.zeros(6) if qd0 is None else qd0
+    qd0 = jnp.zeros(n) if qd0 is None else qd0
     w = jnp.asarray(_hermite_weights(np.arange(2 * substeps + 1) / (2 * substeps)))  # (S, 6, 3)
 
     def accel(q, qd, th, thd):
@@ -77,7 +80,7 @@ def simulate(
 
     def interval(state, k):
         knots = jnp.stack([theta[k], thetad[k] * h, thetadd[k] * h**2,
-                           theta[k + 1], thetad[k + 1] * h, thetadd[k + 1] * h**2])  # (6 knots, 6 joints)
+                           theta[k + 1], thetad[k + 1] * h, thetadd[k + 1] * h**2])  # (6 knots, n joints)
         th_s = jnp.einsum("si,ij->sj", w[..., 0], knots)
         thd_s = jnp.einsum("si,ij->sj", w[..., 1], knots) / h
         dt = h / substeps

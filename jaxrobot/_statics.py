@@ -19,12 +19,12 @@ TOL = 1e-11
 (2e-14 rad); four steps from `phi` (deflections up to 1.4e-3 rad), one fewer than a test on the error itself."""
 
 
-def approach_sign(ccw: bool | Bool[Array, "*b 6"]) -> Float[Array, "*b 6"]:
+def approach_sign(ccw: bool | Bool[Array, "*b n"]) -> Float[Array, "*b n"]:
     """+1 after a positive move (`cw`), -1 after a negative one."""
     return 1.0 - 2.0 * jnp.asarray(ccw, float)
 
 
-def approach_directions(theta: Float[Array, "*b K 6"]) -> Bool[Array, "*b K 6"]:
+def approach_directions(theta: Float[Array, "*b K n"]) -> Bool[Array, "*b K n"]:
     """Direction of approach of poses measured in this order (`ccw`, per joint).
 
     Pose `k` is approached from pose `k - 1`, the first from the zero position; a joint that
@@ -38,16 +38,16 @@ def approach_directions(theta: Float[Array, "*b K 6"]) -> Bool[Array, "*b K 6"]:
         d = jnp.where(s == 0, last, s)
         return d, d
 
-    _, d = jax.lax.scan(keep, jnp.ones(theta.shape[:-2] + (6,)), jnp.moveaxis(step, -2, 0))
+    _, d = jax.lax.scan(keep, jnp.ones(theta.shape[:-2] + theta.shape[-1:]), jnp.moveaxis(step, -2, 0))
     return jnp.moveaxis(d, 0, -2) < 0
 
 
 def rest_link_angles(
     robot: Robot,
-    theta: Float[Array, "*b 6"],
-    ccw: bool | Bool[Array, "*b 6"] = False,
+    theta: Float[Array, "*b n"],
+    ccw: bool | Bool[Array, "*b n"] = False,
     rippled: tuple[int, ...] | None = None,
-) -> Float[Array, "*b 6"]:
+) -> Float[Array, "*b n"]:
     """Link angles `q` at rest at motor angles `theta`: `kappa(phi - q) = g(q)`, `phi = Xi^{-1}(theta)`.
 
     Solved as the fixed point `q = phi - kappa^{-1}(g(q))` with optimistix (implicit

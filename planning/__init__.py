@@ -1,3 +1,5 @@
+from jaxrobot._checks import check_public as _check_public
+
 from ._al_solver import ALConfig as ALConfig
 from ._bandwidth import bandwidth as bandwidth
 from ._bandwidth import control_spectrum as control_spectrum
@@ -41,6 +43,7 @@ from ._trajectories import spiral_path as spiral_path
 from ._trajectories import task_orientation as task_orientation
 from ._trajectories import time_grid as time_grid
 from ._transcription import OCPProblem as OCPProblem
+from ._transcription import State as State
 from ._transcription import boundary_states as boundary_states
 from ._transcription import bounds as bounds
 from ._transcription import defects as defects
@@ -49,3 +52,5 @@ from ._transcription import objective as objective
 from ._transcription import ocp_problem as ocp_problem
 from ._transcription import variable_scale as variable_scale
 from ._transcription import warm_start as warm_start
+
+_check_public(globals())

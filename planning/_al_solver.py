@@ -1,6 +1,6 @@
 """Augmented-Lagrangian solver of the transcribed OCP (eq. 4.3) on its block structure.
 
-Scaled variables `y` (N, 30), one block `[x_k, u_k]` per node (`_transcription` module
+Scaled variables `y` (N, 5n), one block `[x_k, u_k]` per node (`_transcription` module
 docstring). The merit of the Powell-Hestenes-Rockafellar augmented Lagrangian is
 
     Phi(y) = J(y) + lam . c(y) + rho/2 ||c(y)||^2 + rho/2 ||v - P(v)||^2 - ||gam||^2 / (2 rho),
@@ -11,7 +11,7 @@ by Gauss-Newton/Levenberg-Marquardt steps: the gradient of `Phi` is exact (a rev
 Newton-Euler alone, `half_step_vjp`); the matrix is `J`'s exact Hessian plus `rho Jc^T Jc`
 (constraint curvature dropped, it is `O(lam + rho c)`), `rho` on the diagonal of bound-active
 variables and `mu I`, assembled from the one dense 6x18 block per node of the defect Jacobian
-(`_normal_blocks`). It is block-tridiagonal with 30x30 blocks, factorised by
+(`_normal_blocks`). It is block-tridiagonal with 5n x 5n blocks, factorised by
 `_block_tridiagonal.block_cholesky`, and reused for `refresh_every` steps while `rho` and `mu`
 stay put (the iterates move by micro-radians, so a factor from a few steps back is as good).
 Steps are accepted by the gain ratio of the merit; `mu` grows on rejection or on a matrix
@@ -44,13 +44,13 @@ from jaxtyping import Array, Bool, Float, Int
 from ._block_tridiagonal import BlockCholesky, block_cholesky, block_cholesky_solve
 from ._transcription import (
     ANGLE_SCALE,
-    HALF_STEP_SHIFT,
     HalfStep,
     OCPProblem,
     bounds,
     fixed_mask,
     half_step,
     half_step_jacobian,
+    half_step_shift,
     half_step_vjp,
     scaled_cost,
     variable_scale,
@@ -118,9 +118,9 @@ HISTORY_CHUNK = 32
 class ALResult(eqx.Module):
     """Raw output of `augmented_lagrangian` in scaled units."""
 
-    y: Float[Array, "N 30"]
-    multipliers: Float[Array, "Nm1 24"]
-    bound_multipliers: Float[Array, "N 30"]
+    y: Float[Array, "N 5*n"]
+    multipliers: Float[Array, "Nm1 4*n"]
+    bound_multipliers: Float[Array, "N 5*n"]
     status: Int[Array, ""]
     iterations: Int[Array, ""]
     inner_iterations: Int[Array, ""]
@@ -137,15 +137,15 @@ class _Parts(eqx.Module):
     """Problem data the iterations need, in scaled units."""
 
     problem: OCPProblem
-    weight: Float[Array, "30"]
-    target: Float[Array, "N 30"]
-    edge: Float[Array, "30"]
-    lower: Float[Array, "N 30"]
-    upper: Float[Array, "N 30"]
-    free: Float[Array, "N 30"]
-    y0: Float[Array, "N 30"]
+    weight: Float[Array, " 5*n"]
+    target: Float[Array, "N 5*n"]
+    edge: Float[Array, " 5*n"]
+    lower: Float[Array, "N 5*n"]
+    upper: Float[Array, "N 5*n"]
+    free: Float[Array, "N 5*n"]
+    y0: Float[Array, "N 5*n"]
     start: HalfStep
-    c0: Float[Array, "Nm1 24"]
+    c0: Float[Array, "Nm1 4*n"]
 
 
 def _parts(problem: OCPProblem, y0) -> _Parts:
@@ -156,7 +156,8 @@ def _parts(problem: OCPProblem, y0) -> _Parts:
     lower = jnp.where(fixed, -jnp.inf, lo / sz)
     upper = jnp.where(fixed, jnp.inf, hi / sz)
     start = half_step(problem, y0)
-    c0 = y0[1:, :24] - y0[:-1, :24] - start.g[1:] - start.g[:-1]
+    nx = 4 * problem.n_joints
+    c0 = y0[1:, :nx] - y0[:-1, :nx] - start.g[1:] - start.g[:-1]
     return _Parts(problem, cost.node_weight, cost.node_target - y0, cost.edge_weight, lower - y0, upper - y0,
                   (~fixed).astype(float), y0, start, c0)
 
@@ -171,7 +172,8 @@ def _defects(p: _Parts, y, g):
     that roundoff scales with the correction `y`, not with the angles (it would cap the reachable
     stationarity at `rho eps`)."""
     dg = g - p.start.g
-    return p.c0 + (y[1:, :24] - y[:-1, :24]) - dg[1:] - dg[:-1]
+    nx = p.c0.shape[-1]
+    return p.c0 + (y[1:, :nx] - y[:-1, :nx]) - dg[1:] - dg[:-1]
 
 
 def _linearise(p: _Parts, y, h: HalfStep):
@@ -182,7 +184,7 @@ def _linearise(p: _Parts, y, h: HalfStep):
 
     def vjp(v):  # node k enters c_k with -E - J_k and c_{k-1} with E - J_k
         before, after = jnp.pad(v, ((1, 0), (0, 0))), jnp.pad(v, ((0, 1), (0, 0)))
-        return jnp.pad(before - after, ((0, 0), (0, 6))) - g_vjp(before + after)
+        return jnp.pad(before - after, ((0, 0), (0, p.problem.n_joints))) - g_vjp(before + after)
 
     return c, vjp
 
@@ -195,7 +197,7 @@ def _gradient(p: _Parts, y, c, vjp, lam, gam, rho):
     """The exact gradient of `Phi` at `y` (`vjp` of `_linearise` at `y`, with defects `c`), zero on
     fixed variables."""
     d = (p.y0[1:] - p.y0[:-1]) + (y[1:] - y[:-1])
-    zero = jnp.zeros((1, 30))
+    zero = jnp.zeros((1, y.shape[-1]))
     grad = 2 * p.weight * (y - p.target) + vjp(lam + rho * c)
     grad = grad + jnp.concatenate([-2 * p.edge * d, zero]) + jnp.concatenate([zero, 2 * p.edge * d])
     v = y + gam / rho
@@ -205,38 +207,39 @@ def _gradient(p: _Parts, y, c, vjp, lam, gam, rho):
 
 def _normal_blocks(
     p: _Parts, y, h: HalfStep, gam, rho, mu
-) -> tuple[Float[Array, "N 30 30"], Float[Array, "Nm1 30 30"]]:
+) -> tuple[Float[Array, "N 5*n 5*n"], Float[Array, "Nm1 5*n 5*n"]]:
     """Diagonal and sub-diagonal blocks of the Gauss-Newton matrix of `Phi` plus `mu I` at `y` (`h`:
     `half_step` there), fixed variables replaced by identity rows. The exact defect Jacobian is
     needed: dropping the gravity/Coriolis/inertia derivatives (~1e-3 of the stiffness terms) slows
     the iteration from ~100x to ~2x per step at nu = 1e-14 (the conditioning amplifies the error).
 
     From the structure `d c_k / d y_k = K_a - P_k`, `d c_k / d y_{k+1} = K_b - P_{k+1}` (`K_a = -E - S`,
-    `K_b = E - S`, `E = [I 0]`, `S = HALF_STEP_SHIFT`, `P_k` the 6x18 block of `half_step_jacobian` in
-    rows 6:12): the cross terms of `P` with `K_a` and `K_b` cancel on interior diagonal blocks, which
-    are `K_a^T K_a + K_b^T K_b + 2 P_k^T P_k`, and the sub-diagonal block is
-    `K_b^T K_a - [P_k]_(6:12, 0:18) + [P_{k+1}^T]_(0:18, 6:12) + P_{k+1}^T P_k`: 17x fewer flops
-    than products of the 24x30 blocks."""
-    n = y.shape[0]
+    `K_b = E - S`, `E = [I 0]`, `S = half_step_shift(j)`, `P_k` the j x 3j block of `half_step_jacobian`
+    in rows j:2j, for j joints): the cross terms of `P` with `K_a` and `K_b` cancel on interior diagonal
+    blocks, which are `K_a^T K_a + K_b^T K_b + 2 P_k^T P_k`, and the sub-diagonal block is
+    `K_b^T K_a - [P_k]_(j:2j, 0:3j) + [P_{k+1}^T]_(0:3j, j:2j) + P_{k+1}^T P_k`: 17x fewer flops
+    than products of the 4j x 5j blocks."""
+    n, nz = y.shape
+    j = p.problem.n_joints
     pk = half_step_jacobian(p.problem, h)
-    e = np.eye(24, 30)
-    ka, kb = -e - HALF_STEP_SHIFT, e - HALF_STEP_SHIFT
+    e, shift = np.eye(4 * j, nz), half_step_shift(j)
+    ka, kb = -e - shift, e - shift
     k = np.arange(n)[:, None, None]
     first, last = (k < n - 1) * 1.0, (k > 0) * 1.0  # node k enters c_k, c_{k-1}
-    place = lambda a, r, c: jnp.pad(a, ((0, 0), (r, 30 - r - a.shape[1]), (c, 30 - c - a.shape[2])))  # noqa: E731
+    place = lambda a, r, c: jnp.pad(a, ((0, 0), (r, nz - r - a.shape[1]), (c, nz - c - a.shape[2])))  # noqa: E731
     pkt = jnp.swapaxes(pk, 1, 2)
     ptp = jnp.einsum("kri,krj->kij", pk, pk)
     # the cross terms of P with K_a and K_b cancel on interior nodes
     diag = (first * (ka.T @ ka) + last * (kb.T @ kb) + (first + last) * place(ptp, 0, 0)
-            + (first - last) * (place(pk, 6, 0) + place(pkt, 0, 6)))
+            + (first - last) * (place(pk, j, 0) + place(pkt, 0, j)))
     lower = (kb.T @ ka + place(jnp.einsum("kri,krj->kij", pk[1:], pk[:-1]), 0, 0)
-             - place(pk[:-1], 6, 0) + place(pkt[1:], 0, 6))
-    lower = rho * lower - jnp.eye(30) * 2 * p.edge
-    hdiag = jnp.broadcast_to(2 * p.weight, (n, 30))
+             - place(pk[:-1], j, 0) + place(pkt[1:], 0, j))
+    lower = rho * lower - jnp.eye(nz) * 2 * p.edge
+    hdiag = jnp.broadcast_to(2 * p.weight, (n, nz))
     hdiag = hdiag.at[:-1].add(2 * p.edge).at[1:].add(2 * p.edge)
     v = y + gam / rho
     hdiag = hdiag + rho * (v != jnp.clip(v, p.lower, p.upper)) + mu
-    eye = jnp.eye(30)
+    eye = jnp.eye(nz)
     f = p.free
     diag = f[:, :, None] * (rho * diag + hdiag[:, :, None] * eye) * f[:, None, :] + (1.0 - f)[:, :, None] * eye
     lower = f[1:, :, None] * lower * f[:-1, None, :]
@@ -257,9 +260,9 @@ def _merit_from(p: _Parts, y, c, lam, gam, rho):
 
 
 class _State(eqx.Module):
-    y: Float[Array, "N 30"]
-    lam: Float[Array, "Nm1 24"]
-    gam: Float[Array, "N 30"]
+    y: Float[Array, "N 5*n"]
+    lam: Float[Array, "Nm1 4*n"]
+    gam: Float[Array, "N 5*n"]
     rho: Float[Array, ""]
     mu: Float[Array, ""]
     it: Int[Array, ""]
@@ -284,7 +287,7 @@ def history_length(config: ALConfig) -> int:
 
 
 def augmented_lagrangian(
-    problem: OCPProblem, y0: Float[Array, "N 30"], config: ALConfig = ALConfig(), history: int | None = None
+    problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig = ALConfig(), history: int | None = None
 ) -> ALResult:
     """Solve eq. 4.3 from the scaled initial guess `y0` (its fixed nodes must hold the boundary
     values), multipliers starting at zero. Pure; `jit`/`vmap` over `problem` and `y0`.
@@ -317,8 +320,8 @@ def augmented_lagrangian(
     """
     m = history_length(config) if history is None else history
     settings = {f.name: jnp.asarray(getattr(config, f.name)) for f in dataclasses.fields(ALConfig)}
-    n = y0.shape[-2]
-    dual = (jnp.zeros((n - 1, 24)), jnp.zeros((n, 30)))
+    n, nz = y0.shape[-2:]
+    dual = (jnp.zeros((n - 1, 4 * nz // 5)), jnp.zeros((n, nz)))
 
     arrays, static = eqx.partition(problem, eqx.is_array)
 
@@ -351,8 +354,8 @@ def augmented_lagrangian(
     return solve(arrays, y0, settings, dual)
 
 
-def _continuation(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[Array, "N 30"],
-                  dual: tuple[Float[Array, "Nm1 24"], Float[Array, "N 30"]], m: int) -> ALResult:
+def _continuation(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[Array, "N 5*n"],
+                  dual: tuple[Float[Array, "Nm1 4*n"], Float[Array, "N 5*n"]], m: int) -> ALResult:
     """Solve the members of a batch that differs only in the cost weights in increasing `nu`, one
     `solve(x, y_start, dual_start)` per pass of a `while_loop` (`xs`: the batched leaves, member `k`
     is `[x[k] for x in xs]`; `m`: the history length). The start of a member is predicted from the
@@ -365,9 +368,9 @@ def _continuation(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[
     inverse = jnp.argsort(order)
     log_nu = jnp.log(nu[order])
     xs = [x[order] for x in xs]
-    n = y0.shape[0]
+    n, nz = y0.shape
     z = lambda *shape, dtype=float: jnp.zeros((size, *shape), dtype)  # noqa: E731
-    out = ALResult(y=z(n, 30), multipliers=z(n - 1, 24), bound_multipliers=z(n, 30), status=z(dtype=int),
+    out = ALResult(y=z(n, nz), multipliers=z(n - 1, 4 * nz // 5), bound_multipliers=z(n, nz), status=z(dtype=int),
                    iterations=z(dtype=int), inner_iterations=z(dtype=int), objective=z(), violation=z(),
                    stationarity=z(), history_objective=z(m), history_violation=z(m), history_penalty=z(m),
                    history_stationarity=z(m))
@@ -401,8 +404,8 @@ def _continuation(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[
     return jax.tree.map(lambda a: a[inverse], out)
 
 
-def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 30"], config: ALConfig, m: int,
-                          dual: tuple[Float[Array, "Nm1 24"], Float[Array, "N 30"]]) -> ALResult:
+def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig, m: int,
+                          dual: tuple[Float[Array, "Nm1 4*n"], Float[Array, "N 5*n"]]) -> ALResult:
     """`augmented_lagrangian` for one problem from `y0` and the multipliers `dual = (lam, gam)`
     (zeros: a cold start; `m` the static history length)."""
     p = _parts(problem, y0)
@@ -476,7 +479,7 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 30"], config:
         return jax.lax.cond(step, lambda s: lm_step(s, c_y, grad), lambda s: s, s)
 
     y_init = jnp.zeros_like(y0)
-    w_u = jnp.max(jnp.maximum(p.weight, p.edge)[24:])
+    w_u = jnp.max(jnp.maximum(p.weight, p.edge)[4 * problem.n_joints:])
     rho0 = jnp.maximum(jnp.asarray(config.penalty_init, float), config.penalty_per_weight * w_u)
     rho_max = config.penalty_max * rho0 / config.penalty_init
     mu0 = jnp.asarray(config.damping_init, float)
@@ -486,7 +489,7 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 30"], config:
         status=jnp.array(STATUS_MAX_ITERATIONS), stop=jnp.array(False), hist=jnp.full((4, m), jnp.nan),
         # placeholder factor; the NaN key makes the first step factorise (one copy of the
         # Jacobian code in the program: compile time)
-        factor=BlockCholesky(jnp.zeros((n, 30, 30)), *2 * [jnp.zeros((n - 1, 30, 30))]),
+        factor=BlockCholesky(jnp.zeros((n,) + 2 * y0.shape[-1:]), *2 * [jnp.zeros((n - 1,) + 2 * y0.shape[-1:])]),
         factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), forward=p.start,
     )
     s = jax.lax.while_loop(lambda s: ~s.stop, body, init)

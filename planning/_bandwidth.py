@@ -16,13 +16,13 @@ bandwidth (NaN): it barely moves (axis 4 on the line, as axes 5-6 in the thesis'
 
 
 def control_spectrum(
-    u: Float[Array, "*b N 6"], ts: float
-) -> tuple[Float[Array, " M"], Float[Array, "*b M 6"]]:
+    u: Float[Array, "*b N n"], ts: float
+) -> tuple[Float[Array, " M"], Float[Array, "*b M n"]]:
     """Frequencies [Hz] (M = N // 2 + 1) and one-sided energy spectrum `|U(f)|^2` per axis of `u`
     sampled at `ts` [s] (interior bins doubled, so the spectrum sums to the total energy)."""
     u = jnp.asarray(u, dtype=float)
-    if u.ndim < 2 or u.shape[-1] != 6:
-        raise ValueError(f"u must have shape (..., N, 6) [rad/s^2], got {u.shape}")
+    if u.ndim < 2:
+        raise ValueError(f"u must have shape (..., N, n) [rad/s^2], got {u.shape}")
     if not ts > 0:
         raise ValueError(f"ts must be > 0 s, got {ts}")
     n = u.shape[-2]
@@ -33,7 +33,7 @@ def control_spectrum(
     return jnp.fft.rfftfreq(n, ts), spec * weight[:, None] / n
 
 
-def bandwidth(u: Float[Array, "*b N 6"], ts: float, fraction: float = 0.99) -> Float[Array, "*b 6"]:
+def bandwidth(u: Float[Array, "*b N n"], ts: float, fraction: float = 0.99) -> Float[Array, "*b n"]:
     """Per axis, the lowest frequency [Hz] below which `fraction` of the energy of `u` lies; NaN for an
     axis with negligible energy (see `NEGLIGIBLE`)."""
     if not 0.0 < fraction <= 1.0:

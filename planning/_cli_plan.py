@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
+from jaxrobot._cli import SolveFailed, suggestion
 
 from . import _plots
 from ._bandwidth import bandwidth, control_spectrum
@@ -24,8 +25,9 @@ from ._evaluation import (
     simulate_plans,
     summarize,
 )
-from ._ik import joint_path
-from ._trajectories import reference_path, sample_path, sampled_path
+from ._ik import default_start, joint_path
+from ._trajectories import check_task, reference_path, sample_path, sampled_path
+from ._transcription import State
 
 HELP = "plan a task (line, spiral or a CSV of tool positions) with the OCP and evaluate it on the plant"
 COSTS = ("thesis", "jerk", "flat")
@@ -42,6 +44,9 @@ def configure(parser) -> None:
                         help="robot the plans are simulated on: the planning model or the test bench's as-built robot")
     parser.add_argument("--save-trajectory", type=Path, default=None, metavar="OUT.csv",
                         help="write t_s, theta1_deg..theta6_deg, motor rates [deg/s] and accelerations [deg/s^2]")
+    parser.add_argument("--save-failed", action="store_true",
+                        help="also write the trajectory of a solve that did not converge, the file's first line "
+                        "marking it as not converged (no plant evaluation; the exit code is 3 either way)")
 
 
 def read_task_csv(path: Path):
@@ -60,10 +65,17 @@ def read_task_csv(path: Path):
     return sampled_path(jnp.asarray(t), jnp.asarray(p), None if r is None else jnp.asarray(r), name=path.stem)
 
 
-def task_path(task: str):
+def task_path(task: str, description: dict | None = None):
+    """A reference task of the description (`line`/`spiral`) or a task CSV, checked for rest at both ends
+    and smoothness (`check_task`)."""
     if task in ("line", "spiral"):
-        return reference_path(task)
-    return read_task_csv(Path(task))
+        return reference_path(task, description)
+    if not Path(task).is_file():
+        raise ValueError(f"task {task!r}: expected 'line', 'spiral' or an existing CSV file"
+                         f"{suggestion(task, ('line', 'spiral'))}")
+    path = read_task_csv(Path(task))
+    check_task(path)
+    return path
 
 
 def _status_name(code: int) -> str:
@@ -73,19 +85,37 @@ def _status_name(code: int) -> str:
             RESULTS.inner_failed: "inner_failed", RESULTS.nonfinite: "nonfinite"}.get(int(code), str(int(code)))
 
 
-def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, directional: bool = False) -> dict:
-    """IK, flat-inverse warm start, OCP and plant evaluation of one task; returns every intermediate."""
+def failure_report(robot, jp, sol, nu: float) -> str:
+    """Why a solve did not converge: status, its meaning and the likely cause."""
+    from ._ocp import RESULTS
+
+    qd = np.max(np.abs(np.asarray(jp.qd)) / np.asarray(robot.qd_max), 0)
+    qdd = np.max(np.abs(np.asarray(jp.qdd)) / np.asarray(robot.qdd_max), 0)
+    j, k = int(np.argmax(qd)), int(np.argmax(qdd))
+    cause = (f"the task passed the rest, smoothness, limit and singularity checks; it uses up to {100 * qd[j]:.0f} % "
+             f"of joint {j + 1}'s speed limit and {100 * qdd[k]:.0f} % of joint {k + 1}'s acceleration limit. "
+             f"A task close to the limits, or nu = {nu:g} far from the studied 1e-16 ... 1e-9, is the likely cause")
+    return (f"the OCP did not converge: status {_status_name(sol.status)} after {int(sol.iterations)} outer "
+            f"iterations ({RESULTS[sol.status]}); {cause}")
+
+
+def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, directional: bool = False,
+         q_init=None, keep_failed: bool = False) -> dict:
+    """IK (from `q_init`, default the embedded description's start), flat-inverse warm start, OCP and
+    plant evaluation of one task; returns every intermediate.
+    A solve that did not converge raises `SolveFailed`, or with `keep_failed` returns only `jp`,
+    `sol` and its trajectory (no plant evaluation)."""
     from ._ocp import solve_ocp
 
-    if not nu > 0:
-        raise ValueError(f"--nu must be > 0, got {nu}")
+    if not (np.isfinite(nu) and nu > 0):
+        raise ValueError(f"--nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
     for name, r in (("model", robot), ("plant", plant)):
-        rigid = [j + 1 for j in range(6) if not np.isfinite(float(r.k1[j]))]
+        rigid = [j + 1 for j in range(r.n_joints) if not np.isfinite(float(r.k1[j]))]
         if rigid:
             raise ValueError(f"{name}: planning needs elastic joints ([stiffness] k1 finite), found rigid joints "
                              f"{rigid} (k1 = inf); identify the stiffness first (e.g. jaxrobot diagnose)")
     start = time.perf_counter()
-    jp = joint_path(robot, path)
+    jp = joint_path(robot, path, q_init)
     echo(f"  inverse kinematics: {jp.t.shape[0]} samples, max residual "
          f"{float(jp.ik.position_residual.max()):.1e} m, limits ok ({time.perf_counter() - start:.1f} s)")
     start = time.perf_counter()
@@ -93,7 +123,7 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
     flat = base["flat_inverse"]
     jax.block_until_ready(flat)
     echo(f"  flat inverse (warm start): {time.perf_counter() - start:.1f} s")
-    warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+    warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
     ts = float(path.sample_time)
     echo(f"  solving the OCP (N = {jp.t.shape[0]}, nu = {nu:g}, cost {cost}) ...")
     start = time.perf_counter()
@@ -114,8 +144,13 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
     timed = f"solve {solve_s:.2f} s, compile {compile_s:.1f} s" if timing else f"{solve_s:.1f} s incl. compile"
     echo(f"  OCP: {status} after {it} outer iterations, objective {float(sol.objective):.6e}, max violation "
          f"{float(sol.max_constraint_violation):.1e} (scaled), {timed}")
+    if not bool(sol.converged):
+        if not keep_failed:
+            raise SolveFailed(failure_report(robot, jp, sol, nu) + "; nothing written (--save-failed writes the "
+                              "trajectory, marked as not converged)")
+        return {"jp": jp, "sol": sol, "trajectories": {"ocp": ocp_motor_trajectory(sol.x, sol.u)}}
     p_d, r_d = sample_path(path, jp.t)
-    p_plan = jr.tool_pose(robot, sol.x[:, :6])[:, :3, 3]
+    p_plan = jr.tool_pose(robot, sol.q)[:, :3, 3]
     plan_err = np.linalg.norm(np.asarray(p_plan - p_d), axis=-1)
     trajectories = {**base, "ocp": ocp_motor_trajectory(sol.x, sol.u)}
     start = time.perf_counter()
@@ -146,12 +181,15 @@ def summary(result: dict) -> dict:
     }
 
 
-def save_trajectory(path: Path, t, theta, thetad, thetadd) -> None:
-    """CSV `t_s, theta1_deg..theta6_deg, thetad1_deg_s.., thetadd1_deg_s2..` of a motor trajectory."""
+def save_trajectory(path: Path, t, theta, thetad, thetadd, failed: str | None = None) -> None:
+    """CSV `t_s, theta1_deg..theta6_deg, thetad1_deg_s.., thetadd1_deg_s2..` of a motor trajectory;
+    `failed` (the status of a solve that did not converge) puts `jr.NOT_CONVERGED` and it in a first
+    line, which the CSV readers refuse."""
     header = (["t_s"] + [f"theta{i}_deg" for i in range(1, 7)] + [f"thetad{i}_deg_s" for i in range(1, 7)]
               + [f"thetadd{i}_deg_s2" for i in range(1, 7)])
+    header = ",".join(header) if failed is None else f"{jr.NOT_CONVERGED}: {failed}\n" + ",".join(header)
     data = np.column_stack([np.asarray(t)] + [np.degrees(np.asarray(a)) for a in (theta, thetad, thetadd)])
-    np.savetxt(path, data, delimiter=",", header=",".join(header), comments="", fmt="%.12g")
+    np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.12g")
 
 
 def write_plots(result: dict, out: Path, label: str) -> list[Path]:
@@ -165,7 +203,7 @@ def write_plots(result: dict, out: Path, label: str) -> list[Path]:
     files.append(_plots.joint_errors(t, q_sim - np.asarray(jp.q), np.asarray(run.orientation[i_ocp, :n]),
                                      np.asarray(run.position[i_ocp, :n]), out / f"{label}_ocp_errors.png",
                                      f"{label}: OCP on the plant"))
-    files.append(_plots.motor_signals(t, np.asarray(sol.u), np.asarray(sol.x[:, 18:24]), np.asarray(sol.x[:, 6:12]),
+    files.append(_plots.motor_signals(t, np.asarray(sol.u), np.asarray(sol.thetad), np.asarray(sol.state.qd),
                                       out / f"{label}_ocp_signals.png", f"{label}: OCP control and rates"))
     p_d = np.asarray(result["p_d"])
     robot_p = np.asarray(jr.tool_pose(result["plant"], jnp.asarray(q_sim))[:, :3, 3])
@@ -183,15 +221,25 @@ def write_plots(result: dict, out: Path, label: str) -> list[Path]:
 def run(args, echo) -> dict:
     if args.cost not in COSTS:
         raise ValueError(f"--cost must be one of {COSTS}, got {args.cost!r}")
-    robot = jr.racer7() if args.model is None else jr.load_robot(args.model)
-    plant = jr.racer7(as_built=True) if args.plant == "as-built" else robot
-    path = task_path(args.task)
+    from jaxrobot._description import robot_from_description
+
+    desc = jr.read_description(args.model)
+    robot = robot_from_description(desc)
+    plant = robot_from_description(desc, as_built=True) if args.plant == "as-built" else robot
+    path = task_path(args.task, desc)
+    q_init = default_start(desc) if "trajectories" in desc else 0.5 * (robot.q_min + robot.q_max)
     echo(f"planning {path.name} ({path.duration:g} s at T_s = {1e3 * path.sample_time:g} ms) on {robot.name}")
-    result = plan(robot, plant, path, args.nu, args.cost, echo, directional=args.plant == "as-built")
+    result = plan(robot, plant, path, args.nu, args.cost, echo, directional=args.plant == "as-built",
+                  q_init=q_init, keep_failed=args.save_failed)
+    sol = result["sol"]
+    failed = None if bool(sol.converged) else failure_report(robot, result["jp"], sol, args.nu)
     if args.save_trajectory is not None:
         tr = result["trajectories"]["ocp"]
-        save_trajectory(args.save_trajectory, result["jp"].t, tr.theta, tr.thetad, tr.thetadd)
-        echo(f"  motor trajectory written to {args.save_trajectory}")
+        save_trajectory(args.save_trajectory, result["jp"].t, tr.theta, tr.thetad, tr.thetadd, failed=failed)
+        echo(f"  motor trajectory written to {args.save_trajectory}{' (NOT CONVERGED)' if failed else ''}")
+    if failed:
+        raise SolveFailed(failed + (f"; trajectory written to {args.save_trajectory}, marked as not converged"
+                                    if args.save_trajectory is not None else ""))
     if args.out is not None:
         for f in write_plots(result, args.out, path.name):
             echo(f"  wrote {f}")

@@ -7,17 +7,18 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
+from jaxrobot._cli import SolveFailed
 
 from . import _plots
 from ._bandwidth import bandwidth, control_spectrum
-from ._cli_plan import COSTS, task_path
+from ._cli_plan import COSTS, _status_name, task_path
 from ._evaluation import baseline_trajectories, ocp_motor_trajectory, simulate_plans, summarize
-from ._ik import joint_path
+from ._ik import default_start, joint_path
 from ._sweep import solve_ocp_sweep
+from ._transcription import State
 
 HELP = "sweep the weighting factor nu (one OCP sweep call per cost variant): table, plots, Pareto front"
 DEFAULT_NUS = tuple(float(v) for v in np.logspace(-16, -9, 8))
@@ -30,19 +31,34 @@ def configure(parser) -> None:
     parser.add_argument("--costs", nargs="+", choices=COSTS, default=list(COSTS), help="cost variants to compare")
     parser.add_argument("--plant", choices=("model", "as-built"), default="model",
                         help="robot the plans are simulated on")
+    parser.add_argument("--model", type=Path, default=None, help="planning model TOML (default: the embedded Racer-7)")
+    parser.add_argument("--save-failed", action="store_true",
+                        help="also write the outputs when a solve did not converge (the table's first line then "
+                        "marks it; the exit code is 3 either way)")
 
 
-def sweep(robot, plant, path, nus, costs, echo, directional: bool = False) -> dict:
+def failures(nus, cost: str, sols) -> list[str]:
+    """One line per member of a sweep that did not converge: nu, status and its meaning."""
+    from ._ocp import RESULTS
+
+    return [f"cost {cost}, nu {nu:.0e}: status {_status_name(sols.status[i])} after {int(sols.iterations[i])} "
+            f"outer iterations ({RESULTS[sols.status[i]]})"
+            for i, nu in enumerate(nus) if not bool(sols.converged[i])]
+
+
+def sweep(robot, plant, path, nus, costs, echo, directional: bool = False, q_init=None,
+          keep_failed: bool = False) -> dict:
     """Solve the OCP for every nu (one `solve_ocp_sweep` call per cost: continuation chains in increasing
     nu, each member warm-started from the previous ones, one chain per CPU core), then bandwidths and
-    plant errors of every solution."""
+    plant errors of every solution. A member that did not converge raises `SolveFailed` unless
+    `keep_failed`."""
 
     nus = np.asarray(nus, dtype=float)
-    if nus.ndim != 1 or nus.size < 1 or not np.all(nus > 0):
+    if nus.ndim != 1 or nus.size < 1 or not np.all(np.isfinite(nus) & (nus > 0)):
         raise ValueError(f"--nu must be one or more values > 0, got {nus}")
-    jp = joint_path(robot, path)
+    jp = joint_path(robot, path, q_init)
     flat = baseline_trajectories(robot, jp)["flat_inverse"]
-    warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+    warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
     ts = float(path.sample_time)
     results = {}
     for cost in costs:
@@ -51,6 +67,11 @@ def sweep(robot, plant, path, nus, costs, echo, directional: bool = False) -> di
         elapsed = time.perf_counter() - start
         echo(f"  {cost}: {nus.size} OCPs in one call, {elapsed:.1f} s (incl. compile); "
              f"{int(np.sum(np.asarray(sols.converged)))}/{nus.size} converged")
+        failed = failures(nus, cost, sols)
+        if failed and not keep_failed:
+            raise SolveFailed("the OCP did not converge for " + "; ".join(failed) + ". nu far from the studied "
+                              "1e-16 ... 1e-9 or a task close to the joint limits is the likely cause; nothing "
+                              "written (--save-failed writes the outputs, marked as not converged)")
         bw = np.asarray(bandwidth(sols.u, ts))
         trajs = {f"{nu:.0e}": ocp_motor_trajectory(sols.x[i], sols.u[i]) for i, nu in enumerate(nus)}
         names, run = simulate_plans(plant, jp, trajs, directional=directional)
@@ -80,6 +101,9 @@ def table(res: dict) -> list[dict]:
 
 def write_outputs(res: dict, rows: list[dict], out: Path, label: str) -> list[Path]:
     header = "cost,nu,converged,iterations,objective,max_bandwidth_hz,plant_max_um,plant_rms_um"
+    failed = [f"cost {r['cost']} nu {r['nu']:.0e}" for r in rows if not r["converged"]]
+    if failed:
+        header = f"{jr.NOT_CONVERGED}: {'; '.join(failed)}\n{header}"
     lines = [header] + [f"{r['cost']},{r['nu']:.3e},{r['converged']},{r['iterations']},{r['objective']:.10e},"
                         f"{r['max_bandwidth_hz']:.3f},{r['plant_max_um']:.6f},{r['plant_rms_um']:.6f}" for r in rows]
     files = [out / f"{label}_sweep.csv"]
@@ -103,20 +127,29 @@ def write_outputs(res: dict, rows: list[dict], out: Path, label: str) -> list[Pa
                                     out / f"{label}_nu_spectra.png", f"{label}: spectra of u vs nu"))
         sols = r["solutions"]
         files.append(_plots.axis_comparison(
-            t, {lab[j]: (np.asarray(sols.u[i]), np.asarray(sols.x[i, :, 18:24]),
-                         np.asarray(sols.x[i, :, 6:12])) for j, i in enumerate(pick)},
+            t, {lab[j]: (np.asarray(sols.u[i]), np.asarray(sols.thetad[i]),
+                         np.asarray(sols.state.qd[i])) for j, i in enumerate(pick)},
             out / f"{label}_nu_axis2.png", f"{label}: axis 2 vs nu", axis=1))
     return files
 
 
 def run(args, echo) -> dict:
-    robot = jr.racer7()
-    plant = jr.racer7(as_built=True) if args.plant == "as-built" else robot
-    path = task_path(args.task)
+    from jaxrobot._description import robot_from_description
+
+    desc = jr.read_description(args.model)
+    robot = robot_from_description(desc)
+    plant = robot_from_description(desc, as_built=True) if args.plant == "as-built" else robot
+    path = task_path(args.task, desc)
+    q_init = default_start(desc) if "trajectories" in desc else 0.5 * (robot.q_min + robot.q_max)
     echo(f"nu sweep on {path.name}: {len(args.nu)} values x costs {args.costs}, plant {args.plant}")
-    res = sweep(robot, plant, path, args.nu, args.costs, echo, directional=args.plant == "as-built")
+    res = sweep(robot, plant, path, args.nu, args.costs, echo, directional=args.plant == "as-built", q_init=q_init,
+                keep_failed=args.save_failed)
     rows = table(res)
     if args.out is not None:
         for f in write_outputs(res, rows, args.out, path.name):
             echo(f"  wrote {f}")
+    failed = [line for cost, r in res["results"].items() for line in failures(res["nus"], cost, r["solutions"])]
+    if failed:
+        raise SolveFailed("the OCP did not converge for " + "; ".join(failed) + " (outputs written with --save-failed, "
+                          "marked as not converged)")
     return {"task": path.name, "plant": args.plant, "rows": rows}

@@ -2,7 +2,7 @@
 
 Four motor trajectories for one joint path `q_d`:
 (a) rigid planning `theta = Xi(q_d)`, (b) quasi-static `theta = Xi(q_d + kappa^{-1}(g(q_d)))`,
-(c) the flat inverse, (d) the OCP (`x[:, 12:18]`, `x[:, 18:24]`, `u`). Each is simulated finely on
+(c) the flat inverse, (d) the OCP (`State.of(x).theta`, `.thetad`, `u`). Each is simulated finely on
 a plant (`jr.simulate`, the motor follows the command exactly) - the planning model itself or the
 test bench's as-built robot - and the tool pose is compared with the task `p_d(t)`, `R_d(t)` along
 the path and during a rest after `t_e`.
@@ -21,6 +21,7 @@ import jaxrobot as jr
 
 from ._ik import JointPath, taylor_joint_path
 from ._trajectories import sample_path
+from ._transcription import State
 
 METHODS = ("rigid", "quasi_static", "flat_inverse", "ocp")
 """Names of the compared motor trajectories, in the order of issue 6, item 7."""
@@ -31,11 +32,11 @@ SETTLE_S = 0.5
 
 
 class MotorTrajectory(NamedTuple):
-    """Commanded motor angles, rates and accelerations on the grid: each (..., N, 6) [rad, rad/s, rad/s^2]."""
+    """Commanded motor angles, rates and accelerations on the grid: each (..., N, n) [rad, rad/s, rad/s^2]."""
 
-    theta: Float[Array, "*b N 6"]
-    thetad: Float[Array, "*b N 6"]
-    thetadd: Float[Array, "*b N 6"]
+    theta: Float[Array, "*b N n"]
+    thetad: Float[Array, "*b N n"]
+    thetadd: Float[Array, "*b N n"]
 
 
 class PlantError(NamedTuple):
@@ -53,7 +54,7 @@ class PlantError(NamedTuple):
     settle_orientation_max: Float[Array, "*b"]
 
 
-def _along(fn: Callable, q: Float[Array, "N 6"], qd: Float[Array, "N 6"], qdd: Float[Array, "N 6"]):
+def _along(fn: Callable, q: Float[Array, "N n"], qd: Float[Array, "N n"], qdd: Float[Array, "N n"]):
     """`h(q(t))` and its first two time derivatives from `(q, qd, qdd)` (exact chain rule by jvp)."""
 
     def single(q, qd, qdd):
@@ -66,15 +67,15 @@ def _along(fn: Callable, q: Float[Array, "N 6"], qd: Float[Array, "N 6"], qdd: F
 
 
 @jax.jit
-def rigid_motor_trajectory(robot: jr.Robot, q: Float[Array, "N 6"], qd: Float[Array, "N 6"],
-                           qdd: Float[Array, "N 6"]) -> MotorTrajectory:
+def rigid_motor_trajectory(robot: jr.Robot, q: Float[Array, "N n"], qd: Float[Array, "N n"],
+                           qdd: Float[Array, "N n"]) -> MotorTrajectory:
     """(a) Rigid planning: `theta = Xi(q_d)` (gear ripple, no elasticity)."""
     return _along(lambda q: jr.motor_angle(robot, q), q, qd, qdd)
 
 
 @jax.jit
-def quasi_static_motor_trajectory(robot: jr.Robot, q: Float[Array, "N 6"], qd: Float[Array, "N 6"],
-                                  qdd: Float[Array, "N 6"]) -> MotorTrajectory:
+def quasi_static_motor_trajectory(robot: jr.Robot, q: Float[Array, "N n"], qd: Float[Array, "N n"],
+                                  qdd: Float[Array, "N n"]) -> MotorTrajectory:
     """(b) Quasi-static planning: `theta = Xi(q_d + kappa^{-1}(g(q_d)))` (gravity deflection only)."""
     return _along(lambda q: jr.static_equilibrium(robot, q), q, qd, qdd)
 
@@ -90,9 +91,10 @@ def flat_motor_trajectory(robot: jr.Robot, jp: JointPath) -> MotorTrajectory:
     return _flat(robot, jp.t, jp.derivatives)
 
 
-def ocp_motor_trajectory(x: Float[Array, "*b N 24"], u: Float[Array, "*b N 6"]) -> MotorTrajectory:
+def ocp_motor_trajectory(x: Float[Array, "*b N 4*n"], u: Float[Array, "*b N n"]) -> MotorTrajectory:
     """(d) The motor part of an OCP solution `x = [q, qd, theta, thetad]`, `u = thetadd`."""
-    return MotorTrajectory(x[..., 12:18], x[..., 18:24], u)
+    state = State.of(x)
+    return MotorTrajectory(state.theta, state.thetad, u)
 
 
 def baseline_trajectories(robot: jr.Robot, jp: JointPath) -> dict[str, MotorTrajectory]:
@@ -119,11 +121,11 @@ def _extend(traj: MotorTrajectory, settle_samples: int) -> MotorTrajectory:
 
 class PlantRun(NamedTuple):
     """Simulated runs of stacked motor trajectories: `t` (T,) [s] (the path grid plus the rest after
-    `t_e`), link angles `q` (K, T, 6), tool position error `position` (K, T) [m] and orientation error
+    `t_e`), link angles `q` (K, T, n), tool position error `position` (K, T) [m] and orientation error
     `orientation` (K, T) [rad] against the task; `n` samples lie on the path."""
 
     t: Float[Array, " T"]
-    q: Float[Array, "K T 6"]
+    q: Float[Array, "K T n"]
     position: Float[Array, "K T"]
     orientation: Float[Array, "K T"]
     n: int
@@ -157,8 +159,9 @@ def simulate_plans(
         raise ValueError("trajectories must hold at least one motor trajectory")
     n = jp.t.shape[0]
     for name, tr in trajectories.items():
-        if tr.theta.shape != (n, 6):
-            raise ValueError(f"motor trajectory {name!r}: theta must have shape ({n}, 6) [rad], got {tr.theta.shape}")
+        if tr.theta.shape != (n, plant.n_joints):
+            raise ValueError(f"motor trajectory {name!r}: theta must have shape ({n}, {plant.n_joints}) [rad], "
+                             f"got {tr.theta.shape}")
     if settle_s < 0:
         raise ValueError(f"settle_s must be >= 0 s, got {settle_s}")
     ts = float(jp.path.sample_time)

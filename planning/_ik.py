@@ -2,9 +2,11 @@
 
 With six joints and a full pose (eq. 4.5b-c) the constraints fix `q` locally; the minimum-distance
 objective of eq. 4.5a selects the branch nearest the start, which a warm-started Newton iteration
-follows sample to sample (`lax.scan`). `smooth_joint_path` turns the samples into a smooth `q_d(t)`
-(Newton inside a function of `t`), whose derivatives of every order are exact (the flat inverse
-needs four).
+follows sample to sample (`lax.scan`). A redundant robot (n > 6 joints) also holds the `n - 6`
+null-space coordinates of its Jacobian at the first sample, `N^T (q - q_0) = 0`: the square system
+of the six-joint case, whose solution is the smooth continuation of the first one.
+`smooth_joint_path` turns the samples into a smooth `q_d(t)` (Newton inside a function of `t`),
+whose derivatives of every order are exact (the flat inverse needs four).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, Real
 
 import jaxrobot as jr
+from jaxrobot._linalg import map_matrices, solve
 
 from ._trajectories import Path, sample_path, time_grid
 
@@ -37,7 +40,7 @@ sample counts as too close to a singularity; the reference paths keep > 0.2."""
 
 
 def pose_residual(
-    robot: jr.Robot, q: Float[Array, "6"], p_d: Float[Array, "3"], r_d: Float[Array, "3 3"]
+    robot: jr.Robot, q: Float[Array, " n"], p_d: Float[Array, "3"], r_d: Float[Array, "3 3"]
 ) -> Float[Array, "6"]:
     """`[p_e(q) - p_d; vee(R_d^T R_e - R_e^T R_d) / 2]` of eq. 4.5b-c (tool frame); zero iff the pose
     matches (the rotation part is `sin(angle) * axis` of the error rotation)."""
@@ -47,21 +50,48 @@ def pose_residual(
     return jnp.concatenate([t[:3, 3] - p_d, jnp.stack([w[2, 1], w[0, 2], w[1, 0]])])
 
 
+class Redundancy(NamedTuple):
+    """The `n - 6` extra equations `null (q - q_ref) = 0` of a redundant robot: `null` (n - 6, n)
+    orthonormal rows spanning the null space of the Jacobian at `q_ref` (n,); empty for six joints."""
+
+    null: Float[Array, "m n"]
+    q_ref: Float[Array, " n"]
+
+
 class IKResult(NamedTuple):
     """Inverse kinematics on a grid.
 
-    **Fields:** `q` (N, 6) joint coordinates [rad]; `position_residual` (N,) [m] and
-    `orientation_residual` (N,) [rad] of eq. 4.5b-c; `converged` (N,) per-sample Newton status.
+    **Fields:** `q` (N, n) joint coordinates [rad]; `position_residual` (N,) [m] and
+    `orientation_residual` (N,) [rad] of eq. 4.5b-c; `converged` (N,) per-sample Newton status;
+    `redundancy` the null-space equations held along the path (`Redundancy`).
     """
 
-    q: Float[Array, "N 6"]
+    q: Float[Array, "N n"]
     position_residual: Float[Array, " N"]
     orientation_residual: Float[Array, " N"]
     converged: Bool[Array, " N"]
+    redundancy: Redundancy
 
 
-def _newton(robot, p_d, r_d, q0):
-    fn = lambda q, args: pose_residual(robot, q, *args)  # noqa: E731
+def task_residual(
+    robot: jr.Robot, q: Float[Array, " n"], p_d: Float[Array, "3"], r_d: Float[Array, "3 3"], redundancy: Redundancy
+) -> Float[Array, " n"]:
+    """`pose_residual` followed by the null-space equations of `redundancy`: n equations in n unknowns."""
+    return jnp.concatenate([pose_residual(robot, q, p_d, r_d), redundancy.null @ (q - redundancy.q_ref)])
+
+
+def redundancy_at(robot: jr.Robot, q: Float[Array, " n"], p_d: Float[Array, "3"], r_d: Float[Array, "3 3"]
+                  ) -> Redundancy:
+    """The null space of the pose Jacobian at `q` (`Redundancy`; no rows for six joints)."""
+    n = q.shape[-1]
+    if n <= 6:
+        return Redundancy(jnp.zeros((0, n)), q)
+    jac = jax.jacfwd(pose_residual, 1)(robot, q, p_d, r_d)
+    return Redundancy(jnp.linalg.svd(jac, full_matrices=True)[2][6:], q)
+
+
+def _newton(robot, p_d, r_d, q0, redundancy):
+    fn = lambda q, args: task_residual(robot, q, *args, redundancy)  # noqa: E731
     sol = optx.root_find(fn, optx.Newton(rtol=TOL, atol=TOL), q0, args=(p_d, r_d),
                          max_steps=MAX_STEPS, throw=False)
     return sol.value, sol.result == optx.RESULTS.successful
@@ -72,19 +102,21 @@ def _first_sample(robot, p_d, r_d, q_init):
     fn = lambda q, args: pose_residual(robot, q, *args)  # noqa: E731
     sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=1e-10, atol=1e-10), q_init,
                              args=(p_d, r_d), max_steps=256, throw=False)
-    return _newton(robot, p_d, r_d, sol.value)
+    redundancy = redundancy_at(robot, sol.value, p_d, r_d)
+    return (*_newton(robot, p_d, r_d, sol.value, redundancy), redundancy)
 
 
 @jax.jit
 def inverse_kinematics(
-    robot: jr.Robot, p_d: Float[Array, "N 3"], r_d: Float[Array, "N 3 3"], q_init: Float[Array, "6"]
+    robot: jr.Robot, p_d: Float[Array, "N 3"], r_d: Float[Array, "N 3 3"], q_init: Float[Array, " n"]
 ) -> IKResult:
     """Joint coordinates that reach the poses `(p_d[k], R_d[k])` (eq. 4.5), warm-started sample to
-    sample from the solution nearest `q_init` at the first sample."""
-    q_first, ok_first = _first_sample(robot, p_d[0], r_d[0], q_init)
+    sample from the solution nearest `q_init` at the first sample (n >= 6 joints; a redundant robot
+    keeps its null-space coordinates of the first sample, see the module docstring)."""
+    q_first, ok_first, redundancy = _first_sample(robot, p_d[0], r_d[0], q_init)
 
     def step(q_prev, pose):
-        q, ok = _newton(robot, pose[0], pose[1], q_prev)
+        q, ok = _newton(robot, pose[0], pose[1], q_prev, redundancy)
         return q, (q, ok)
 
     _, (q_rest, ok_rest) = jax.lax.scan(step, q_first, (p_d[1:], r_d[1:]))
@@ -92,37 +124,49 @@ def inverse_kinematics(
     ok = jnp.concatenate([ok_first[None], ok_rest])
     res = jax.vmap(pose_residual, (None, 0, 0, 0))(robot, q, p_d, r_d)
     return IKResult(q, jnp.linalg.norm(res[:, :3], axis=-1),
-                    jnp.arcsin(jnp.minimum(jnp.linalg.norm(res[:, 3:], axis=-1), 1.0)), ok)
+                    jnp.arcsin(jnp.minimum(jnp.linalg.norm(res[:, 3:], axis=-1), 1.0)), ok, redundancy)
 
 
-def default_start(description: dict[str, Any] | None = None) -> Float[Array, "6"]:
+def _redundancy_or_none(redundancy: Redundancy | None, q: Float[Array, "N n"]) -> Redundancy:
+    n = q.shape[-1]
+    if redundancy is None:
+        if n > 6:
+            raise ValueError(f"redundancy: a {n}-joint robot needs the IK's null-space equations "
+                             "(IKResult.redundancy)")
+        return Redundancy(jnp.zeros((0, n)), jnp.zeros(n))
+    return redundancy
+
+
+def default_start(description: dict[str, Any] | None = None) -> Float[Array, " n"]:
     """The IK start of the reference tasks: the description's `trajectories.orientation_q`."""
     desc = jr.read_description() if description is None else description
     return jnp.asarray(desc["trajectories"]["orientation_q"], dtype=float)
 
 
 def smooth_joint_path(
-    robot: jr.Robot, path: Path, t_samples: Real[Array, " N"], q_samples: Float[Array, "N 6"]
-) -> Callable[[Real[Array, ""]], Float[Array, "6"]]:
+    robot: jr.Robot, path: Path, t_samples: Real[Array, " N"], q_samples: Float[Array, "N n"],
+    redundancy: Redundancy | None = None,
+) -> Callable[[Real[Array, ""]], Float[Array, " n"]]:
     """A smooth `q_d(t)`: the IK solution as an implicit function of `t` (eq. 4.5).
 
     Chord steps from the interpolated samples to convergence (not differentiated), then `SMOOTH_STEPS`
     differentiated chord steps `q <- q - J^{-1} F(q, t)` with `J` frozen at the converged point: each
     step makes one more derivative exact (error `O(dt^{k+1})` after `k` steps), so derivatives up to
     order `SMOOTH_STEPS` equal those of the implicit function; only `F` is differentiated, which keeps
-    nested `jvp` cheap. Works under `jit`, `vmap` and nested `jvp`.
+    nested `jvp` cheap. Works under `jit`, `vmap` and nested `jvp`. `redundancy`: that of the IK
+    (`IKResult.redundancy`; required for more than six joints).
     """
     t_samples = jnp.asarray(t_samples, dtype=float)
     q_samples = jnp.asarray(q_samples, dtype=float)
+    redundancy = _redundancy_or_none(redundancy, q_samples)
 
     def residual(q, t):
-        return pose_residual(robot, q, path.position(t), path.orientation(t))
+        return task_residual(robot, q, path.position(t), path.orientation(t), redundancy)
 
     def chord(q, t, steps):
-        lu = jax.scipy.linalg.lu_factor(jax.jacfwd(residual)(q, jax.lax.stop_gradient(t)))
-        lu = jax.lax.stop_gradient(lu)
+        j_inv = jax.lax.stop_gradient(solve(jax.jacfwd(residual)(q, jax.lax.stop_gradient(t)), jnp.eye(q.shape[-1])))
         for _ in range(steps):
-            q = q - jax.scipy.linalg.lu_solve(lu, residual(q, t))
+            q = q - j_inv @ residual(q, t)
         return q
 
     def q_d(t):
@@ -135,8 +179,8 @@ def smooth_joint_path(
 
 
 def taylor_joint_path(
-    t: Real[Array, " N"], derivatives: list[Float[Array, "N 6"]] | Float[Array, "M N 6"]
-) -> Callable[[Real[Array, ""]], Float[Array, "6"]]:
+    t: Real[Array, " N"], derivatives: list[Float[Array, "N n"]] | Float[Array, "M N n"]
+) -> Callable[[Real[Array, ""]], Float[Array, " n"]]:
     """`q_d(t)` as the Taylor polynomial about the nearest grid sample of the derivatives
     `[q, q', ..., q^(m)]` there (from `joint_derivatives`): its derivatives up to order m equal the
     implicit function's on the grid, and off the grid it errs by `O(T_s^(m+1))` (~1e-16 rad for
@@ -161,34 +205,37 @@ class JointPath(NamedTuple):
     `q_d(t)` (`fn`, the `taylor_joint_path` of `derivatives`)."""
 
     t: Float[Array, " N"]
-    q: Float[Array, "N 6"]
-    qd: Float[Array, "N 6"]
-    qdd: Float[Array, "N 6"]
-    derivatives: Float[Array, "5 N 6"]
+    q: Float[Array, "N n"]
+    qd: Float[Array, "N n"]
+    qdd: Float[Array, "N n"]
+    derivatives: Float[Array, "5 N n"]
     ik: IKResult
-    fn: Callable[[Real[Array, ""]], Float[Array, "6"]]
+    fn: Callable[[Real[Array, ""]], Float[Array, " n"]]
     path: Path
 
 
 def joint_path(
     robot: jr.Robot,
     path: Path,
-    q_init: Float[Array, "6"] | None = None,
+    q_init: Float[Array, " n"] | None = None,
     check: bool = True,
     singularity_margin: float = SINGULARITY_MARGIN,
 ) -> JointPath:
     """IK of a whole path on its grid (eq. 4.5), its derivatives up to order 4 and the smooth `q_d(t)`;
     with `check`, raises a `ValueError` naming the sample and joint that breaks a limit
-    (see `check_joint_path`)."""
+    (see `check_joint_path`). A full pose needs n >= 6 joints."""
+    n = robot.n_joints
+    if n < 6:
+        raise ValueError(f"robot: a tool pose task (3 positions, 3 angles) needs at least 6 joints, found {n}")
     t = time_grid(path)
     p_d, r_d = sample_path(path, t)
     q0 = default_start() if q_init is None else jnp.asarray(q_init, dtype=float)
-    if q0.shape != (6,):
-        raise ValueError(f"q_init must have shape (6,) [rad], got {q0.shape}")
+    if q0.shape != (n,):
+        raise ValueError(f"q_init must have shape ({n},) [rad], got {q0.shape}")
     ik = inverse_kinematics(robot, p_d, r_d, q0)
     if check:
         check_inverse_kinematics(t, ik)
-    derivatives = joint_derivatives(robot, path, ik.q, t, 4)
+    derivatives = joint_derivatives(robot, path, ik.q, t, 4, ik.redundancy)
     jp = JointPath(t, ik.q, derivatives[1], derivatives[2], jnp.stack(derivatives), ik,
                    taylor_joint_path(t, derivatives), path)
     if check:
@@ -198,15 +245,18 @@ def joint_path(
 
 @partial(jax.jit, static_argnames=("path", "order"))
 def joint_derivatives(
-    robot: jr.Robot, path: Path, q: Float[Array, "N 6"], t: Real[Array, " N"], order: int = 2
-) -> list[Float[Array, "N 6"]]:
+    robot: jr.Robot, path: Path, q: Float[Array, "N n"], t: Real[Array, " N"], order: int = 2,
+    redundancy: Redundancy | None = None,
+) -> list[Float[Array, "N n"]]:
     """`[q, q', ..., q^(order)]` of the IK solution at converged samples `q` (eq. 4.5) by the Taylor
     recursion of the implicit function: `J q_k = -d^k/ds^k F(sum_{j<k} q_j s^j / j!, t + s)` at `s = 0`
-    (`F` = `pose_residual`). Exact, and far cheaper to compile than differentiating `q_d(t)`."""
+    (`F` = `task_residual` with the IK's `redundancy`, required for more than six joints). Exact, and
+    far cheaper to compile than differentiating `q_d(t)`."""
+    redundancy = _redundancy_or_none(redundancy, q)
 
     def single(q, t):
-        residual = lambda q, t: pose_residual(robot, q, path.position(t), path.orientation(t))  # noqa: E731
-        lu = jax.scipy.linalg.lu_factor(jax.jacfwd(residual)(q, t))
+        residual = lambda q, t: task_residual(robot, q, path.position(t), path.orientation(t), redundancy)  # noqa: E731
+        j_inv = solve(jax.jacfwd(residual)(q, t), jnp.eye(q.shape[-1]))  # LAPACK-free: vmapped over the samples
         coeffs = [q]
         for k in range(1, order + 1):
             def h(s, cs=tuple(coeffs)):
@@ -214,16 +264,16 @@ def joint_derivatives(
 
             for _ in range(k):
                 h = (lambda f: lambda s: jax.jvp(f, (s,), (jnp.ones_like(s),))[1])(h)
-            coeffs.append(-jax.scipy.linalg.lu_solve(lu, h(jnp.zeros_like(t))))
+            coeffs.append(-j_inv @ h(jnp.zeros_like(t)))
         return coeffs
 
     return list(jax.vmap(single)(jnp.asarray(q, dtype=float), jnp.asarray(t, dtype=float)))
 
 
 @jax.jit
-def singular_values(robot: jr.Robot, q: Float[Array, "*b 6"]) -> Float[Array, "*b 6"]:
+def singular_values(robot: jr.Robot, q: Float[Array, "*b n"]) -> Float[Array, "*b 6"]:
     """Singular values of the geometric Jacobian, descending (m/rad rows, then rad/rad rows)."""
-    return jnp.linalg.svd(jr.geometric_jacobian(robot, q), compute_uv=False)
+    return map_matrices(lambda j: jnp.linalg.svd(j, compute_uv=False), jr.geometric_jacobian(robot, q))
 
 
 def check_inverse_kinematics(t: Real[Array, " N"], ik: IKResult) -> None:

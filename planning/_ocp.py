@@ -11,6 +11,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 import jaxrobot as jr
+from jaxrobot._elasticity import require_elastic
 
 from ._al_solver import (
     STATUS_INNER_FAILED,
@@ -21,7 +22,7 @@ from ._al_solver import (
     augmented_lagrangian,
     history_length,
 )
-from ._transcription import Cost, boundary_states, max_violations, objective, ocp_problem, variable_scale
+from ._transcription import Cost, State, boundary_states, max_violations, objective, ocp_problem, variable_scale
 from ._transcription import warm_start as default_warm_start
 
 
@@ -55,9 +56,9 @@ RESULTS = _Results()
 class OCPSolution(eqx.Module):
     """Result of `solve_ocp`; every field gains the leading axes of a `vmap`."""
 
-    x: Float[Array, "N 24"]
-    """Optimal states `[q, qd, theta, thetad]` [rad, rad/s]."""
-    u: Float[Array, "N 6"]
+    x: Float[Array, "N 4*n"]
+    """Optimal states `[q, qd, theta, thetad]` [rad, rad/s] (packed `State`)."""
+    u: Float[Array, "N n"]
     """Optimal motor accelerations `thetadd` [rad/s^2]."""
     status: Int[Array, ""]
     """`RESULTS` code; 0 (`RESULTS.successful`) only when converged."""
@@ -73,7 +74,7 @@ class OCPSolution(eqx.Module):
     """The same in SI units (rad, rad/s, rad/s^2)."""
     stationarity: Float[Array, ""]
     """Largest scaled gradient of the Lagrangian."""
-    multipliers: Float[Array, "Nm1 24"]
+    multipliers: Float[Array, "Nm1 4*n"]
     """Multipliers of the scaled defects."""
     history_objective: Float[Array, " M"]
     """Cost after each outer iteration (NaN after the last)."""
@@ -90,19 +91,24 @@ class OCPSolution(eqx.Module):
         return self.status == RESULTS.successful
 
     @property
-    def q(self) -> Float[Array, "N 6"]:
+    def state(self) -> State:
+        """The states as a `State` (`q`, `qd`, `theta`, `thetad`)."""
+        return State.of(self.x)
+
+    @property
+    def q(self) -> Float[Array, "N n"]:
         """Link angles [rad]."""
-        return self.x[..., :6]
+        return self.state.q
 
     @property
-    def theta(self) -> Float[Array, "N 6"]:
+    def theta(self) -> Float[Array, "N n"]:
         """Motor angles [rad]."""
-        return self.x[..., 12:18]
+        return self.state.theta
 
     @property
-    def thetad(self) -> Float[Array, "N 6"]:
+    def thetad(self) -> Float[Array, "N n"]:
         """Motor rates [rad/s]."""
-        return self.x[..., 18:24]
+        return self.state.thetad
 
 
 @eqx.filter_jit
@@ -120,8 +126,9 @@ def _solve(problem, start, settings: dict, history: int, reference_from_start: b
     res = augmented_lagrangian(problem, jnp.concatenate([x0, u0], -1) / sz, ALConfig(**settings), history)
     z = res.y * sz
     # the end nodes are fixed (eq. 4.3e-j): restore them exactly after the scaling round trip
-    x = z[:, :24].at[0].set(x0[0]).at[-1].set(x0[-1])
-    u = z[:, 24:].at[0].set(0.0).at[-1].set(0.0)
+    nx = x0.shape[-1]
+    x = z[:, :nx].at[0].set(x0[0]).at[-1].set(x0[-1])
+    u = z[:, nx:].at[0].set(0.0).at[-1].set(0.0)
     violation, violation_unscaled = max_violations(problem, x, u)
     return OCPSolution(
         x=x, u=u, status=res.status, iterations=res.iterations, inner_iterations=res.inner_iterations,
@@ -135,26 +142,26 @@ def _solve(problem, start, settings: dict, history: int, reference_from_start: b
 
 def solve_ocp(
     robot: jr.Robot,
-    q_d: Float[Array, "N 6"],
+    q_d: Float[Array, "N n"],
     ts: float | Float[Array, ""],
     nu: float | Float[Array, ""] = 1e-14,
     cost: Cost = "thesis",
     config: ALConfig | None = None,
-    warm_start: tuple[Float[Array, "N 24"], Float[Array, "N 6"]] | None = None,
-    u_ref: Float[Array, "N 6"] | None = None,
+    warm_start: tuple[Float[Array, "N 4*n"], Float[Array, "N n"]] | None = None,
+    u_ref: Float[Array, "N n"] | None = None,
 ) -> OCPSolution:
     """Optimal motor accelerations that make the elastic robot follow `q_d` (eq. 4.3).
 
     **Arguments:**
-    - `robot`: planning model (cw gear set, eq. 4.1).
-    - `q_d`: desired link angles (N, 6) [rad] at `t_k = k T_s` (e.g. the IK of eq. 4.5).
+    - `robot`: planning model (cw gear set, eq. 4.1), elastic joints (a `[stiffness]` section).
+    - `q_d`: desired link angles (N, n) [rad] at `t_k = k T_s` (e.g. the IK of eq. 4.5).
     - `ts`: sample time `T_s` [s].
     - `nu`: weighting factor of eq. 4.3a (> 0).
     - `cost`: `"thesis"` (eq. 4.3a), `"jerk"` (`nu ||u_{k+1} - u_k||^2`) or `"flat"`
       (`nu ||u - u_ref||^2`).
     - `config`: `ALConfig` (default `ALConfig()`); its numbers are traced, so changing them
       does not recompile (only `max_outer_iterations` beyond a multiple of 32 does).
-    - `warm_start`: `(x (N, 24), u (N, 6))`, e.g. from `jr.flat_inverse`; default: the flat
+    - `warm_start`: `(x (N, 4n), u (N, n))`, e.g. from `jr.flat_inverse`; default: the flat
       relation on finite differences of `q_d` (`_transcription.warm_start`). Its end nodes
       are replaced by the boundary values of eq. 4.3e-j.
     - `u_ref`: reference of the `"flat"` cost; default the warm start's `u`.
@@ -170,12 +177,13 @@ def solve_ocp(
     if not isinstance(config, ALConfig):
         raise ValueError(f"config: expected an ALConfig, found {type(config).__name__}")
     problem = ocp_problem(robot, q_d, ts, nu, cost, u_ref)
-    n = problem.n_nodes
+    require_elastic(robot, "solve_ocp")
+    n, j = problem.n_nodes, problem.n_joints
     start = None
     if warm_start is not None:
         x0, u0 = warm_start
-        if np.shape(x0) != (n, 24) or np.shape(u0) != (n, 6):
-            raise ValueError(f"warm_start: expected (x, u) of shapes ({n}, 24), ({n}, 6), "
+        if np.shape(x0) != (n, 4 * j) or np.shape(u0) != (n, j):
+            raise ValueError(f"warm_start: expected (x, u) of shapes ({n}, {4 * j}), ({n}, {j}), "
                              f"found {np.shape(x0)}, {np.shape(u0)}")
         start = (jnp.asarray(x0, float), jnp.asarray(u0, float))
     # the settings are traced: one compilation serves every ALConfig of the same history length

@@ -13,7 +13,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-AXES = [f"axis {i}" for i in range(1, 7)]
+
+def _axis(i: int) -> str:
+    return f"axis {i + 1}"
 
 
 def _save(fig, path: Path) -> Path:
@@ -53,8 +55,8 @@ def joint_errors(t: np.ndarray, dq: np.ndarray, d_orient: np.ndarray, d_pos: np.
                  title: str) -> Path:
     """Link-angle errors per axis (a), orientation error (b), position error (c) (Figs. 4.5, 4.13)."""
     fig, axs = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
-    for i in range(6):
-        axs[0].plot(t, np.degrees(dq[:, i]) * 3600, label=AXES[i], lw=1)
+    for i in range(dq.shape[1]):
+        axs[0].plot(t, np.degrees(dq[:, i]) * 3600, label=_axis(i), lw=1)
     axs[0].set_ylabel("q - q_d [arcsec]")
     axs[0].legend(ncol=3, fontsize=8)
     axs[1].plot(t, np.degrees(d_orient) * 3600, lw=1)
@@ -71,8 +73,8 @@ def joint_errors(t: np.ndarray, dq: np.ndarray, d_orient: np.ndarray, d_pos: np.
 def motor_signals(t: np.ndarray, u: np.ndarray, thetad: np.ndarray, qd: np.ndarray, path: Path, title: str) -> Path:
     """Control input `u = thetadd` (a), motor rates (b) and link rates (c) per axis (Figs. 4.6, 4.7, 4.14, 4.15)."""
     fig, axs = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
-    for i in range(6):
-        axs[0].plot(t, u[:, i], label=AXES[i], lw=0.8)
+    for i in range(u.shape[1]):
+        axs[0].plot(t, u[:, i], label=_axis(i), lw=0.8)
         axs[1].plot(t, thetad[:, i], lw=0.8)
         axs[2].plot(t, qd[:, i], lw=0.8)
     axs[0].set_ylabel("u [rad/s²]")
@@ -106,14 +108,18 @@ def axis_comparison(t: np.ndarray, series: dict[str, tuple[np.ndarray, np.ndarra
 def spectra(freq: np.ndarray, spectra_by_label: dict[str, np.ndarray], bandwidths: dict[str, np.ndarray],
             path: Path, title: str) -> Path:
     """Energy spectra of `u` per axis for several nu with the 99 % bandwidths marked (Figs. 4.3, 4.10)."""
-    fig, axs = plt.subplots(2, 3, figsize=(11, 6), sharex=True)
-    for i, ax in enumerate(axs.reshape(-1)):
+    joints = next(iter(spectra_by_label.values())).shape[1]
+    rows = -(-joints // 3)
+    fig, axs = plt.subplots(rows, 3, figsize=(11, 3 * rows), sharex=True, squeeze=False)
+    for ax in axs.reshape(-1)[joints:]:
+        ax.set_visible(False)
+    for i, ax in enumerate(axs.reshape(-1)[:joints]):
         for label, spec in spectra_by_label.items():
             line, = ax.loglog(freq[1:], np.maximum(spec[1:, i], 1e-30), label=label, lw=0.8)
             bw = bandwidths[label][i]
             if np.isfinite(bw):
                 ax.axvline(bw, color=line.get_color(), ls="--", lw=0.8)
-        ax.set_title(AXES[i])
+        ax.set_title(_axis(i))
         ax.set_xlabel("f [Hz]")
     axs[0, 0].set_ylabel("|U(f)|²")
     axs[0, 0].legend(fontsize=8)

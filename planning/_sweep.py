@@ -10,6 +10,8 @@ each chain by one compiled `vmap` call in its own thread, and merges the results
 order. Each chain still warm-starts its members from the previous ones (their `nu` are `workers`
 times further apart, so they take a few more iterations: line, 16 nu, 2 chains: 55 outer
 iterations against 44 in one chain, 2.77 s against 3.82 s on 2 cores, `benchmarks/bench_ocp.py`).
+Under several processes (`jax.distributed`, `jaxrobot.initialize_processes`) the chains are one per
+device of all processes instead: one `shard_map` over the global mesh, the results gathered.
 """
 
 from __future__ import annotations
@@ -21,9 +23,11 @@ from concurrent.futures import ThreadPoolExecutor
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
+from jaxrobot._distributed import gather_array
 
 from ._al_solver import ALConfig
 from ._ocp import OCPSolution, solve_ocp
@@ -42,15 +46,38 @@ def _padded(positions: np.ndarray, length: int) -> np.ndarray:
     return np.concatenate([positions, np.full(length - positions.size, positions[-1])])
 
 
+def _chain_index(order: np.ndarray, chains: int) -> np.ndarray:
+    """(chains, length) members of each chain: chain `c` holds the sorted members `c, c + chains, ...`;
+    a short chain repeats its last member (a chain beyond the members, the largest `nu`)."""
+    b = order.size
+    length = -(-b // chains)
+    return np.stack([order[_padded(np.arange(min(c, b - 1), b, chains), length)] for c in range(chains)])
+
+
+def _first_places(index: np.ndarray) -> np.ndarray:
+    """Each member's first place in the chains, flattened."""
+    return np.unique(index.reshape(-1), return_index=True)[1]
+
+
+@functools.partial(jax.jit, static_argnames=("cost", "config", "mesh"))
+def _sharded_chains(robot, q_d, ts, nus, warm_start, u_ref, cost, config, mesh) -> OCPSolution:
+    """`_chain` on every device of `mesh` for its own members (`shard_map`, no communication); the
+    other arguments are replicated."""
+    one, rep = PartitionSpec("sweep"), PartitionSpec()
+    return jax.shard_map(functools.partial(_chain, cost=cost, config=config), mesh=mesh,
+                         in_specs=(rep, rep, rep, one, rep, rep), out_specs=one, check_vma=False)(
+        robot, q_d, ts, nus, warm_start, u_ref)
+
+
 def solve_ocp_sweep(
     robot: jr.Robot,
-    q_d: Float[Array, "N 6"],
+    q_d: Float[Array, "N n"],
     ts: float,
     nus,
     cost: Cost = "thesis",
     config: ALConfig | None = None,
-    warm_start: tuple[Float[Array, "N 24"], Float[Array, "N 6"]] | None = None,
-    u_ref: Float[Array, "N 6"] | None = None,
+    warm_start: tuple[Float[Array, "N 4*n"], Float[Array, "N n"]] | None = None,
+    u_ref: Float[Array, "N n"] | None = None,
     workers: int | None = None,
 ) -> OCPSolution:
     """`solve_ocp` for every `nu` in `nus` (B values > 0, any order); returns an `OCPSolution` with a
@@ -60,6 +87,9 @@ def solve_ocp_sweep(
     every chain has a member to warm-start; 1 gives `jax.vmap(solve_ocp)` itself). A chain shorter
     than the others repeats its largest `nu` (one more warm member, solved in an iteration or two),
     so all chains share one compiled program. Not jittable: it is a driver of compiled calls.
+    Under several processes (`jaxrobot.initialize_processes`) every process passes the same
+    arguments and receives all members; the chains are one per device of all processes (`workers`
+    is not used).
 
     **Raises:** `ValueError` naming the field for bad values, before any compute (`nus`, `workers`;
     the others as `solve_ocp`).
@@ -71,15 +101,20 @@ def solve_ocp_sweep(
     if not isinstance(workers, int | np.integer) or workers < 1:
         raise ValueError(f"workers: expected an integer >= 1, found {workers!r}")
     ocp_problem(robot, q_d, ts, float(nus[0]), cost, u_ref)  # range checks on the concrete inputs
-    chains = max(1, min(int(workers), nus.size // 2))
     order = np.argsort(nus)
-    length = -(-nus.size // chains)
-    # chain c holds the sorted members c, c + chains, ...; a short chain repeats its last member
-    index = np.stack([order[_padded(np.arange(c, nus.size, chains), length)] for c in range(chains)])
+    if jax.process_count() > 1:
+        mesh = Mesh(np.asarray(jax.devices()), ("sweep",))
+        index = _chain_index(order, mesh.size).reshape(-1)
+        g_nus = jax.make_array_from_callback(index.shape, NamedSharding(mesh, PartitionSpec("sweep")),
+                                             lambda idx: nus[index][idx])
+        out = _sharded_chains(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), g_nus, warm_start, u_ref,
+                              cost, config, mesh)
+        return jax.tree.map(lambda leaf: jnp.asarray(leaf[_first_places(index)]), gather_array(out))
+    chains = max(1, min(int(workers), nus.size // 2))
+    index = _chain_index(order, chains)
     args = [(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), jnp.asarray(nus[idx]), warm_start, u_ref)
             for idx in index]
     compiled = _chain.lower(*args[0], cost=cost, config=config).compile()  # cached after the first call
     with ThreadPoolExecutor(chains) as pool:
         parts = list(pool.map(lambda a: jax.block_until_ready(compiled(*a)), args))
-    first = np.unique(index.reshape(-1), return_index=True)[1]  # each member's first place in the chains
-    return jax.tree.map(lambda *leaves: jnp.concatenate(leaves)[first], *parts)
+    return jax.tree.map(lambda *leaves: jnp.concatenate(leaves)[_first_places(index)], *parts)

@@ -58,11 +58,15 @@ def _section(description: dict[str, Any] | None) -> dict[str, Any]:
 
 
 def task_orientation(description: dict[str, Any] | None = None) -> Float[Array, "3 3"]:
-    """Constant desired orientation `R_d` of eq. 4.6: the nominal forward kinematics at the
-    description's `trajectories.orientation_q` (joint coordinates), `diag(-1, -1, 1)` for the Racer-7."""
+    """Constant desired orientation `R_d` of eq. 4.6: the forward kinematics of the description's
+    nominal robot at its `trajectories.orientation_q` (joint coordinates), `diag(-1, -1, 1)` for
+    the Racer-7 (the default description)."""
+    from jaxrobot._description import robot_from_description
+
     sec = _section(description)
+    robot = jr.racer7() if description is None else robot_from_description(description)
     q = jnp.asarray(sec["orientation_q"], dtype=float)
-    return jr.forward_kinematics(jr.racer7(), q)[:3, :3]
+    return jr.forward_kinematics(robot, q)[:3, :3]
 
 
 def _constant(r: Float[Array, "3 3"]) -> Callable[[Real[Array, ""]], Float[Array, "3 3"]]:
@@ -197,3 +201,40 @@ def sampled_path(
         orientation = _local_polynomial(t, r_d)
     ts = float(steps[0])
     return Path(_local_polynomial(t, p_d), orientation, ts * (t.shape[0] - 1), ts, name)
+
+
+REST_SPEED = 1e-3
+"""Largest tool speed [m/s] (and angular speed [rad/s]) at t = 0 and t_e for a task "at rest":
+eq. 4.3e-j hold the robot still at both ends, so a task that moves there cannot be followed."""
+REST_ACCELERATION = 0.1
+"""Largest tool acceleration [m/s^2] at t = 0 and t_e for a task "at rest"."""
+MAX_ACCELERATION = 20.0
+"""Largest tool acceleration [m/s^2] of a smooth task: twice what the joint acceleration limits
+allow at full reach (7 rad/s^2 at 1.4 m), six times the spiral's peak (3.1 m/s^2); above it the
+samples hold a jump or noise, which the fourth derivatives of the OCP cannot follow."""
+
+
+def check_task(path: Path) -> None:
+    """Raise a `ValueError` naming the quantity, time and limit unless the task starts and ends at
+    rest (tool speed, angular speed and acceleration, `REST_*`) and its tool acceleration on the
+    planning grid stays below `MAX_ACCELERATION`."""
+    te = path.duration
+    ends = jnp.array([0.0, te])
+    pos = path_derivatives(path.position, ends, 2)
+    rot = path_derivatives(path.orientation, ends, 1)
+    where = ("t = 0", f"t = {te:g} s (the end)")
+    checks = (("velocity", np.linalg.norm(np.asarray(pos[1]), axis=-1), REST_SPEED, "m/s"),
+              ("angular velocity", np.linalg.norm(np.asarray(rot[1]), axis=(-2, -1)) / np.sqrt(2), REST_SPEED,
+               "rad/s"),
+              ("acceleration", np.linalg.norm(np.asarray(pos[2]), axis=-1), REST_ACCELERATION, "m/s^2"))
+    for name, value, limit, unit in checks:
+        for i in range(2):
+            if not value[i] <= limit:
+                raise ValueError(f"the task must start and end at rest: {name} at {where[i]} is {value[i]:.3g} "
+                                 f"{unit} (at most {limit:g} {unit}); add rest-to-rest segments at both ends")
+    t = time_grid(path)
+    acc = np.linalg.norm(np.asarray(path_derivatives(path.position, t, 2)[2]), axis=-1)
+    k = int(np.argmax(np.where(np.isfinite(acc), acc, np.inf)))
+    if not acc[k] <= MAX_ACCELERATION:
+        raise ValueError(f"the task is not smooth: tool acceleration {acc[k]:.3g} m/s^2 at t = {float(t[k]):.4g} s "
+                         f"(at most {MAX_ACCELERATION:g} m/s^2); a jump or noise in the samples?")

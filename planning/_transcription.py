@@ -1,7 +1,7 @@
 """Transcription of the optimal control problem, thesis eq. 4.3, and its scaling.
 
-Decision variables: one node `z_k = [x_k, u_k]` (30) per sample, `x = [q, qd, theta, thetad]`
-(eq. 4.1), `u = thetadd` [motor rad/s^2], k = 0 ... N-1.
+Decision variables: one node `z_k = [x_k, u_k]` (5n for n joints) per sample, the state
+`x = [q, qd, theta, thetad]` (4n, `State`, eq. 4.1), `u = thetadd` [motor rad/s^2], k = 0 ... N-1.
 
 - cost (eq. 4.3a) `sum_k ||q_k - q_d,k||^2 + nu ||u_k||^2` over all N nodes (no T_s factor);
   variants `"jerk"` `sum_k ||q_k - q_d,k||^2 + nu sum_k ||u_{k+1} - u_k||^2` and `"flat"`
@@ -48,18 +48,37 @@ COSTS = ("thesis", "jerk", "flat")
 Cost = Literal["thesis", "jerk", "flat"]
 
 
+class State(eqx.Module):
+    """The state `x = [q, qd, theta, thetad]` of eq. 4.1 [rad, rad/s]: link angles and rates, motor
+    angles and rates, each (..., n); `State.of(x)` splits a packed (..., 4n) array, `pack` joins it."""
+
+    q: Float[Array, "*b n"]
+    qd: Float[Array, "*b n"]
+    theta: Float[Array, "*b n"]
+    thetad: Float[Array, "*b n"]
+
+    @classmethod
+    def of(cls, x: Float[Array, "*b 4*n"]) -> State:
+        if x.shape[-1] % 4:
+            raise ValueError(f"x: expected a packed state [q, qd, theta, thetad] of size 4n, found {x.shape}")
+        return cls(*jnp.split(x, 4, -1))
+
+    def pack(self) -> Float[Array, "*b 4*n"]:
+        return jnp.concatenate([self.q, self.qd, self.theta, self.thetad], -1)
+
+
 class OCPProblem(eqx.Module):
     """One instance of eq. 4.3: robot, sampled reference, sample time, weight and cost."""
 
     robot: jr.Robot
     """The planning model (cw gear set, eq. 4.1)."""
-    q_d: Float[Array, "N 6"]
+    q_d: Float[Array, "N n"]
     """Desired link angles at the N nodes [rad]."""
     ts: Float[Array, ""]
     """Sample time `T_s` [s]."""
     nu: Float[Array, ""]
     """Weighting factor `nu` [rad^2 / (rad/s^2)^2 of the motor]."""
-    u_ref: Float[Array, "N 6"]
+    u_ref: Float[Array, "N n"]
     """Reference motor acceleration of the `"flat"` cost [rad/s^2] (zeros otherwise)."""
     cost: str = eqx.field(static=True, default="thesis")
     """One of `COSTS`."""
@@ -68,6 +87,10 @@ class OCPProblem(eqx.Module):
     def n_nodes(self) -> int:
         return self.q_d.shape[-2]
 
+    @property
+    def n_joints(self) -> int:
+        return self.q_d.shape[-1]
+
 
 def _concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
@@ -75,16 +98,16 @@ def _concrete(x) -> bool:
 
 def ocp_problem(
     robot: jr.Robot,
-    q_d: Float[Array, "N 6"],
+    q_d: Float[Array, "N n"],
     ts: float | Float[Array, ""],
     nu: float | Float[Array, ""] = 1e-14,
     cost: Cost = "thesis",
-    u_ref: Float[Array, "N 6"] | None = None,
+    u_ref: Float[Array, "N n"] | None = None,
 ) -> OCPProblem:
     """Validate the inputs of eq. 4.3 and bundle them (before any compute).
 
-    **Arguments:** `q_d` (N, 6) desired link angles [rad] sampled every `ts` [s] (N >= 3);
-    `nu > 0`; `cost` in `COSTS`; `u_ref` (N, 6) [motor rad/s^2] for `cost="flat"`
+    **Arguments:** `q_d` (N, n) desired link angles [rad] sampled every `ts` [s] (N >= 3);
+    `nu > 0`; `cost` in `COSTS`; `u_ref` (N, n) [motor rad/s^2] for `cost="flat"`
     (default: the quasi-static/flat warm start's `u`, see `warm_start`).
 
     **Raises:** `ValueError` naming the field for wrong shapes, non-finite values, `ts <= 0`,
@@ -92,9 +115,10 @@ def ocp_problem(
     """
     if cost not in COSTS:
         raise ValueError(f"cost: expected one of {COSTS}, found {cost!r}")
-    q_shape = np.shape(q_d)
-    if len(q_shape) != 2 or q_shape[1] != 6 or q_shape[0] < 3:
-        raise ValueError(f"q_d: expected desired link angles of shape (N, 6) with N >= 3 [rad], found shape {q_shape}")
+    q_shape, joints = np.shape(q_d), robot.n_joints
+    if len(q_shape) != 2 or q_shape[1] != joints or q_shape[0] < 3:
+        raise ValueError(f"q_d: expected desired link angles of shape (N, {joints}) with N >= 3 [rad], "
+                         f"found shape {q_shape}")
     if _concrete(q_d) and not np.all(np.isfinite(np.asarray(q_d))):
         bad = np.argwhere(~np.isfinite(np.asarray(q_d)))[0]
         raise ValueError(f"q_d: expected finite link angles [rad], found {np.asarray(q_d)[tuple(bad)]} at sample "
@@ -107,9 +131,10 @@ def ocp_problem(
             raise ValueError(f"{name}: expected a finite value > 0{unit}, found {float(val)}")
     n = q_shape[0]
     if u_ref is None:
-        u_ref = jnp.zeros((n, 6))
-    elif np.shape(u_ref) != (n, 6):
-        raise ValueError(f"u_ref: expected motor accelerations of shape ({n}, 6) [rad/s^2], found {np.shape(u_ref)}")
+        u_ref = jnp.zeros((n, joints))
+    elif np.shape(u_ref) != (n, joints):
+        raise ValueError(f"u_ref: expected motor accelerations of shape ({n}, {joints}) [rad/s^2], "
+                         f"found {np.shape(u_ref)}")
     elif _concrete(u_ref) and not np.all(np.isfinite(np.asarray(u_ref))):
         raise ValueError("u_ref: expected finite motor accelerations [rad/s^2], found NaN or inf")
     return OCPProblem(robot=robot, q_d=jnp.asarray(q_d, float), ts=jnp.asarray(ts, float),
@@ -119,17 +144,17 @@ def ocp_problem(
 # ----------------------------------------------------------------------------- eq. 4.3 as written
 
 
-def boundary_states(problem: OCPProblem) -> tuple[Float[Array, "24"], Float[Array, "24"]]:
+def boundary_states(problem: OCPProblem) -> tuple[Float[Array, " 4*n"], Float[Array, " 4*n"]]:
     """Fixed states of the first and last node (eq. 4.3e-i); `u` is 0 there (eq. 4.3j)."""
 
     def rest(q):
-        z = jnp.zeros(6)
-        return jnp.concatenate([q, z, jr.static_equilibrium(problem.robot, q), z])
+        z = jnp.zeros_like(q)
+        return State(q, z, jr.static_equilibrium(problem.robot, q), z).pack()
 
     return rest(problem.q_d[0]), rest(problem.q_d[-1])
 
 
-def bounds(problem: OCPProblem) -> tuple[Float[Array, "30"], Float[Array, "30"]]:
+def bounds(problem: OCPProblem) -> tuple[Float[Array, " 5*n"], Float[Array, " 5*n"]]:
     """Lower and upper bounds of one node `[q, qd, theta, thetad, u]` (eq. 4.3c-d)."""
     r = problem.robot
     lower = jnp.concatenate([r.q_min, -r.qd_max, r.u0 * r.q_min, -r.u0 * r.qd_max, -r.u0 * r.qdd_max])
@@ -137,9 +162,9 @@ def bounds(problem: OCPProblem) -> tuple[Float[Array, "30"], Float[Array, "30"]]
     return lower, upper
 
 
-def objective(problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6"]) -> Float[Array, ""]:
+def objective(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, ""]:
     """The cost of eq. 4.3a (or its variant `problem.cost`), unscaled [rad^2]."""
-    track = jnp.sum((x[:, :6] - problem.q_d) ** 2)
+    track = jnp.sum((State.of(x).q - problem.q_d) ** 2)
     if problem.cost == "jerk":
         return track + problem.nu * jnp.sum((u[1:] - u[:-1]) ** 2)
     if problem.cost == "flat":
@@ -147,20 +172,20 @@ def objective(problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6
     return track + problem.nu * jnp.sum(u**2)
 
 
-def defects(problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6"]) -> Float[Array, "Nm1 24"]:
+def defects(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, "Nm1 4*n"]:
     """Trapezoidal collocation defects `x_{k+1} - x_k - T_s/2 (f_k + f_{k+1})` (eq. 4.3b), unscaled."""
     f = jr.planning_dynamics(problem.robot, x, u)
     return x[1:] - x[:-1] - 0.5 * problem.ts * (f[1:] + f[:-1])
 
 
-def boundary_defects(problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6"]) -> Float[Array, "2 30"]:
+def boundary_defects(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]
+                     ) -> Float[Array, "2 5*n"]:
     """`[x, u]` of the first and last node minus their fixed values (eq. 4.3e-j), unscaled."""
     x0, x1 = boundary_states(problem)
-    z = jnp.zeros(6)
-    return jnp.stack([jnp.concatenate([x[0] - x0, u[0] - z]), jnp.concatenate([x[-1] - x1, u[-1] - z])])
+    return jnp.stack([jnp.concatenate([x[0] - x0, u[0]]), jnp.concatenate([x[-1] - x1, u[-1]])])
 
 
-def bound_violation(problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6"]) -> Float[Array, "N 30"]:
+def bound_violation(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, "N 5*n"]:
     """Distance of every variable to its bounds (eq. 4.3c-d, 0 inside), unscaled."""
     lower, upper = bounds(problem)
     z = jnp.concatenate([x, u], -1)
@@ -170,70 +195,71 @@ def bound_violation(problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array
 # ----------------------------------------------------------------------------- scaling
 
 
-def variable_scale(problem: OCPProblem) -> Float[Array, "30"]:
+def variable_scale(problem: OCPProblem) -> Float[Array, " 5*n"]:
     """Unit of each scaled node variable: `[s, s/T_s, u0 s, u0 s/T_s, u0 s/T_s^2]`."""
     s, ts, u0 = ANGLE_SCALE, problem.ts, problem.robot.u0
-    one = jnp.ones(6)
+    one = jnp.ones_like(u0)
     return jnp.concatenate([s * one, s / ts * one, s * u0, s * u0 / ts, s * u0 / ts**2])
 
 
-def defect_scale(problem: OCPProblem) -> Float[Array, "24"]:
+def defect_scale(problem: OCPProblem) -> Float[Array, " 4*n"]:
     """Unit of each scaled defect row (the unit of its state)."""
-    return variable_scale(problem)[:24]
+    return variable_scale(problem)[: 4 * problem.n_joints]
 
 
-def max_violations(problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6"]
+def max_violations(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]
                    ) -> tuple[Float[Array, ""], Float[Array, ""]]:
     """Largest violation of eq. 4.3b-j (defects, bounds, boundary conditions) in scaled units
     (module docstring) and unscaled (mixed SI units: rad, rad/s, rad/s^2), from one evaluation
     of the defects."""
     sz = variable_scale(problem)
     parts = (jnp.abs(defects(problem, x, u)), bound_violation(problem, x, u), jnp.abs(boundary_defects(problem, x, u)))
-    scaled = jnp.max(jnp.stack([jnp.max(parts[0] / sz[:24]), jnp.max(parts[1] / sz), jnp.max(parts[2] / sz)]))
+    scaled = jnp.max(jnp.stack([jnp.max(parts[0] / defect_scale(problem)), jnp.max(parts[1] / sz),
+                                jnp.max(parts[2] / sz)]))
     unscaled = jnp.max(jnp.stack([jnp.max(a) for a in parts]))
     return scaled, unscaled
 
 
 def max_violation(
-    problem: OCPProblem, x: Float[Array, "N 24"], u: Float[Array, "N 6"], scaled: bool = True
+    problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"], scaled: bool = True
 ) -> Float[Array, ""]:
     """Largest violation of eq. 4.3b-j, scaled or unscaled (`max_violations`)."""
     return max_violations(problem, x, u)[0 if scaled else 1]
 
 
 class ScaledQuadratic(eqx.Module):
-    """The cost in scaled variables `y` (N, 30): `sum_k w . (y_k - t_k)^2 + sum_k e . (y_{k+1} - y_k)^2`
+    """The cost in scaled variables `y` (N, 5n): `sum_k w . (y_k - t_k)^2 + sum_k e . (y_{k+1} - y_k)^2`
     equals `objective / ANGLE_SCALE^2`."""
 
-    node_weight: Float[Array, "30"]
-    node_target: Float[Array, "N 30"]
-    edge_weight: Float[Array, "30"]
+    node_weight: Float[Array, " 5*n"]
+    node_target: Float[Array, "N 5*n"]
+    edge_weight: Float[Array, " 5*n"]
 
 
 def scaled_cost(problem: OCPProblem) -> ScaledQuadratic:
     """Weights and targets of the cost in scaled variables (see `ScaledQuadratic`)."""
     sz = variable_scale(problem)
-    n = problem.n_nodes
-    w_u = problem.nu * sz[24:] ** 2 / ANGLE_SCALE**2  # nu u0^2 / T_s^4
-    zero6, zero18 = jnp.zeros(6), jnp.zeros(18)
-    target = jnp.zeros((n, 30)).at[:, :6].set(problem.q_d / sz[:6])
+    n, j = problem.n_nodes, problem.n_joints
+    w_u = problem.nu * sz[4 * j:] ** 2 / ANGLE_SCALE**2  # nu u0^2 / T_s^4
+    zero, zero3 = jnp.zeros(j), jnp.zeros(3 * j)
+    target = jnp.zeros((n, 5 * j)).at[:, :j].set(problem.q_d / sz[:j])
     if problem.cost == "jerk":
-        node_w = jnp.concatenate([jnp.ones(6), zero18, zero6])
-        edge_w = jnp.concatenate([zero6, zero18, w_u])
+        node_w = jnp.concatenate([jnp.ones(j), zero3, zero])
+        edge_w = jnp.concatenate([zero, zero3, w_u])
     else:
-        node_w = jnp.concatenate([jnp.ones(6), zero18, w_u])
-        edge_w = jnp.zeros(30)
+        node_w = jnp.concatenate([jnp.ones(j), zero3, w_u])
+        edge_w = jnp.zeros(5 * j)
         if problem.cost == "flat":
-            target = target.at[:, 24:].set(problem.u_ref / sz[24:])
+            target = target.at[:, 4 * j:].set(problem.u_ref / sz[4 * j:])
     return ScaledQuadratic(node_weight=node_w, node_target=target, edge_weight=edge_w)
 
 
-def _stiffness(robot: jr.Robot, x: Float[Array, "*n 6"]) -> Float[Array, "*n 6"]:
+def _stiffness(robot: jr.Robot, x: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
     """`kappa'(x) = k1 + 3 k3 x^2` [N m/rad] at the deflection `x = phi - q` (eq. 2.17)."""
     return robot.k1 + 3.0 * robot.k3 * x**2
 
 
-def _link_acceleration(robot: jr.Robot, q, qd, phi, d) -> Float[Array, "N 6"]:
+def _link_acceleration(robot: jr.Robot, q, qd, phi, d) -> Float[Array, "N n"]:
     """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`)."""
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
     return jr.spd_solve(d, rhs[..., None])[..., 0]
@@ -243,28 +269,29 @@ class HalfStep(eqx.Module):
     """`g = T_s/2 f(x, u)` (scaled) at the scaled nodes `y`, with the intermediates that its
     derivatives reuse (`half_step_vjp`)."""
 
-    y: Float[Array, "*n 30"]
-    g: Float[Array, "*n 24"]
-    phi: Float[Array, "*n 6"]
+    y: Float[Array, "*b 5*n"]
+    g: Float[Array, "*b 4*n"]
+    phi: Float[Array, "*b n"]
     """Gear output angles `Xi^-1(theta)` [rad]."""
-    mass: Float[Array, "*n 6 6"]
-    qdd: Float[Array, "*n 6"]
+    mass: Float[Array, "*b n n"]
+    qdd: Float[Array, "*b n"]
 
 
-def half_step(problem: OCPProblem, y: Float[Array, "*n 30"]) -> HalfStep:
+def half_step(problem: OCPProblem, y: Float[Array, "*b 5*n"]) -> HalfStep:
     """`T_s/2 f(x, u)` in scaled units, so that a scaled defect is
     `[I 0](y_{k+1} - y_k) - g_k - g_{k+1}` (`f` of `jr.planning_dynamics`, LAPACK-free)."""
     r = problem.robot
     sz = variable_scale(problem)
     z = y * sz
-    q, qd, theta = z[..., :6], z[..., 6:12], z[..., 12:18]
-    phi, d = jr.gear_output(r, theta), jr.mass_matrix(r, q)
-    qdd = _link_acceleration(r, q, qd, phi, d)
-    f = jnp.concatenate([qd, qdd, z[..., 18:24], z[..., 24:]], -1)
-    return HalfStep(y=y, g=0.5 * problem.ts * f / sz[:24], phi=phi, mass=d, qdd=qdd)
+    nx = 4 * problem.n_joints
+    x, u = State.of(z[..., :nx]), z[..., nx:]
+    phi, d = jr.gear_output(r, x.theta), jr.mass_matrix(r, x.q)
+    qdd = _link_acceleration(r, x.q, x.qd, phi, d)
+    f = State(x.qd, qdd, x.thetad, u).pack()
+    return HalfStep(y=y, g=0.5 * problem.ts * f / sz[:nx], phi=phi, mass=d, qdd=qdd)
 
 
-def half_step_vjp(problem: OCPProblem, h: HalfStep) -> Callable[[Float[Array, "N 24"]], Float[Array, "N 30"]]:
+def half_step_vjp(problem: OCPProblem, h: HalfStep) -> Callable[[Float[Array, "N 4*n"]], Float[Array, "N 5*n"]]:
     """The map `w -> (d g_k / d y_k)^T w_k` at `h = half_step(problem, y)`, from the structure of
     eq. 4.1 (as `half_step_jacobian`): with `s = D^{-1} w_qdd`,
     `(dqdd/dq)^T w_qdd = -(dID/dq)^T s - kappa' s`, `(dqdd/dqd)^T w_qdd = -(dID/dqd)^T s`,
@@ -272,55 +299,59 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep) -> Callable[[Float[Array, "N
     Newton-Euler alone (4.8x faster than reversing the mass matrix, its solve and `Xi^-1` too)."""
     r = problem.robot
     sz = variable_scale(problem)
-    z = h.y * sz
-    q, qd = z[:, :6], z[:, 6:12]
-    half = 0.5 * problem.ts / sz[:24]
+    nx = 4 * problem.n_joints
+    x = State.of((h.y * sz)[:, :nx])
+    half = 0.5 * problem.ts / sz[:nx]
 
     def vjp(w):
-        wf = half * w  # cotangent of f = [qd, qdd, thetad, u]
-        s = jr.spd_solve(h.mass, wf[:, 6:12, None])[..., 0]
-        _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, h.qdd), q, qd)
+        wf = State.of(half * w)  # cotangent of f = [qd, qdd, thetad, u]
+        s = jr.spd_solve(h.mass, wf.qd[..., None])[..., 0]
+        _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, h.qdd), x.q, x.qd)
         id_q, id_qd = id_vjp(s)
-        stiff = _stiffness(r, h.phi - q) * s
-        out = jnp.concatenate([-id_q - stiff, wf[:, :6] - id_qd, stiff / jr.gear_ratio(r, h.phi), wf[:, 12:]], -1)
+        stiff = _stiffness(r, h.phi - x.q) * s
+        out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / jr.gear_ratio(r, h.phi), wf.theta, wf.thetad],
+                              -1)
         return out * sz
 
     return vjp
 
 
-HALF_STEP_SHIFT = 0.5 * np.eye(24, 30, 6) * (np.arange(24) // 6 != 1)[:, None]
-"""The constant part of `d g_k / d y_k` (`half_step_jacobian`): in the scaled units `T_s/2` times the
-rows `q' = qd`, `theta' = thetad`, `thetad' = u` is exactly 1/2 on the shifted identity (24, 30)."""
+def half_step_shift(n: int) -> np.ndarray:
+    """The constant part (4n, 5n) of `d g_k / d y_k` (`half_step_jacobian`) for `n` joints: in the
+    scaled units `T_s/2` times the rows `q' = qd`, `theta' = thetad`, `thetad' = u` is exactly 1/2
+    on the identity shifted by `n` columns."""
+    return 0.5 * np.eye(4 * n, 5 * n, n) * (np.arange(4 * n) // n != 1)[:, None]
 
 
-def half_step_jacobian(problem: OCPProblem, h: HalfStep) -> Float[Array, "N 6 18"]:
+def half_step_jacobian(problem: OCPProblem, h: HalfStep) -> Float[Array, "N n 3*n"]:
     """The only state-dependent block of the Jacobian of `g` at `h = half_step(problem, y)`,
-    `p_k = d g_k[qd rows] / d y_k[q, qd, theta]` (scaled); `d g_k / d y_k` is `HALF_STEP_SHIFT` with
-    `p_k` in rows 6:12, columns 0:18.
+    `p_k = d g_k[qd rows] / d y_k[q, qd, theta]` (scaled); `d g_k / d y_k` is `half_step_shift(n)` with
+    `p_k` in rows n:2n, columns 0:3n.
 
     With `ID(q, qd, qdd) = D qdd + C qd + g = kappa(phi - q)` at the model's `qdd`:
     `dqdd/dq = -D^{-1} (dID/dq + kappa')`, `dqdd/dqd = -D^{-1} dID/dqd`,
-    `dqdd/dtheta = D^{-1} kappa' / u(phi)`. The rows of `dID/d(q, qd)` come from six reverse passes
-    through Newton-Euler (1.7x faster than twelve forward tangents), the rest in closed form.
+    `dqdd/dtheta = D^{-1} kappa' / u(phi)`. The rows of `dID/d(q, qd)` come from n reverse passes
+    through Newton-Euler (1.7x faster than 2n forward tangents), the rest in closed form.
     """
     r = problem.robot
     sz = variable_scale(problem)
-    z = h.y * sz
-    q, qd = z[:, :6], z[:, 6:12]
+    j = problem.n_joints
+    x = State.of((h.y * sz)[:, :4 * j])
+    q, qd = x.q, x.qd
     stiff = _stiffness(r, h.phi - q)
     _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, h.qdd), q, qd)
-    rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(6)[:, None, :], (6, *q.shape)))  # row i of dID
+    rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(j)[:, None, :], (j, *q.shape)))  # row i of dID
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
     rhs = jnp.concatenate([-(id_q + jax.vmap(jnp.diag)(stiff)), -id_qd,
                            jax.vmap(jnp.diag)(stiff / jr.gear_ratio(r, h.phi))], -1)
-    dqdd = jr.spd_solve(h.mass, rhs)  # (N, 6, 18): d qdd / d (q, qd, theta)
-    return (0.5 * problem.ts / sz[6:12, None]) * dqdd * sz[:18]
+    dqdd = jr.spd_solve(h.mass, rhs)  # (N, n, 3n): d qdd / d (q, qd, theta)
+    return (0.5 * problem.ts / sz[j:2 * j, None]) * dqdd * sz[:3 * j]
 
 
-def fixed_mask(problem: OCPProblem) -> Bool[Array, "N 30"]:
+def fixed_mask(problem: OCPProblem) -> Bool[Array, "N 5*n"]:
     """True for the variables fixed by the boundary conditions (all of nodes 0 and N-1)."""
     n = problem.n_nodes
-    return jnp.zeros((n, 30), bool).at[0].set(True).at[-1].set(True)
+    return jnp.zeros((n, 5 * problem.n_joints), bool).at[0].set(True).at[-1].set(True)
 
 
 # ----------------------------------------------------------------------------- warm start
@@ -334,7 +365,7 @@ def _time_derivative(v: Float[Array, "N m"], ts: Float[Array, ""]) -> Float[Arra
     return jnp.concatenate([first[None], inner, last[None]])
 
 
-def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 24"], Float[Array, "N 6"]]:
+def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 4*n"], Float[Array, "N n"]]:
     """Initial guess from the samples `q_d` by the flat relation (SPEC.md, "Flat inverse"):
     `theta = Xi(q_d + kappa^{-1}(D qdd_d + C qd_d + g))`, with `qd_d`, `qdd_d`, `thetad` and
     `u = thetadd` from second-order finite differences of the samples (error O(T_s^2)); the two
@@ -347,7 +378,7 @@ def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 24"], Float[Array, 
     theta = jr.motor_angle(r, q + jr.elastic_deflection(r, tau))
     thetad = _time_derivative(theta, ts)
     u = _time_derivative(thetad, ts)
-    x = jnp.concatenate([q, qd, theta, thetad], -1)
+    x = State(q, qd, theta, thetad).pack()
     x0, x1 = boundary_states(problem)
     x = x.at[0].set(x0).at[-1].set(x1)
     u = u.at[0].set(0.0).at[-1].set(0.0)

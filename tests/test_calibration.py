@@ -15,8 +15,8 @@ import scipy.optimize
 import jaxrobot as jr  # noqa: I001  (x64 first)
 from identification._calibration import DEFAULT_PARAMETERS, _residual_fn, calibrate
 from identification._calibration_report import error_table, parameter_table
-from identification._identifiability import KINEMATIC_PARAMETERS, THESIS_PREFERENCE, analyse
-from identification._parameters import ALL_PARAMETERS, THESIS_PARAMETERS, ParameterMap
+from identification._identifiability import THESIS_PREFERENCE, analyse, default_parameters, kinematic_parameters
+from identification._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters
 from identification._pose_selection import (
     default_marker,
     detmax,
@@ -37,7 +37,7 @@ minimise the same cost, so the optima agree to far below their standard errors."
 
 # Candidate set of the identifiability analysis: the thesis' model (mDH d, a, alpha per joint,
 # the Hayati beta3, joint offsets = its Delta q, wrist ratios) plus base_z.
-CANDIDATES = KINEMATIC_PARAMETERS + ("base_z",)
+CANDIDATES = kinematic_parameters(jr.racer7()) + ("base_z",)
 
 
 @pytest.fixture(scope="module")
@@ -139,7 +139,7 @@ def test_lm_matches_scipy(robots, bench, calibrated):
 @pytest.mark.parametrize("names, orient", [
     (DEFAULT_PARAMETERS, False),  # joint screws, u0 of ripple-free wrist gears
     # + rippled u0_1..3 (the fleet's screw Jacobian with a rippled u0 is checked by default, below)
-    pytest.param(tuple(n for n in ALL_PARAMETERS if not n.startswith(("tool_", "base_"))), False,
+    pytest.param(tuple(n for n in all_parameters(6) if not n.startswith(("tool_", "base_"))), False,
                  marks=pytest.mark.slow),
     (DEFAULT_PARAMETERS + ("tool_x", "base_rz"), True),  # autodiff path, orientation rows
 ])
@@ -212,6 +212,12 @@ def test_identifiability_position_only(identifiability_blocks):
     with_base = _analyse(identifiability_blocks, list(CANDIDATES), orientation=False)
     assert "d1" in with_base.unidentifiable or "base_z" in with_base.unidentifiable
     assert {"d1", "base_z"} in [set(g) for g in with_base.groups]
+
+
+def test_default_parameters_of_the_racer7_are_the_thesis_set():
+    """The default calibration set is computed by the identifiability analysis; for the Racer-7 it
+    is the fixed set of the thesis' figures, in the same order (so the solves are unchanged)."""
+    assert default_parameters(jr.racer7()) == DEFAULT_PARAMETERS
 
 
 def test_identifiability_with_orientation(identifiability_blocks):
@@ -447,22 +453,21 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
     """NaN data (past the host check) stop as `non_finite`, never as converged; the solve compiled
     by `calibrate_fleet` (same shapes, shardings and statics)."""
     import jax
-    from jax.sharding import NamedSharding, PartitionSpec
 
     from identification._calibration_model import rippled_joints
-    from identification._fleet import _fleet_constants, _fleet_solve, _to_global, fleet_mesh
+    from identification._fleet import _fleet_constants, _fleet_solve, fleet_mesh
 
     nominal, _ = robots
     theta, meas, _ = fleet_problem
     pos = meas.positions.copy()
     pos[1, 4, 0] = np.nan
     mesh = fleet_mesh()
-    sharding = NamedSharding(mesh, PartitionSpec("fleet"))
-    fleet = jax.tree.map(lambda x: _to_global(np.broadcast_to(x, (3,) + np.shape(x)), sharding), nominal)
-    params, g_theta, rippled = ParameterMap(DEFAULT_PARAMETERS), _to_global(theta, sharding), rippled_joints(nominal)
+    fleet = jax.tree.map(lambda x: np.broadcast_to(x, (3,) + np.shape(x)), nominal)
+    (fleet, g_theta, g_pos), _ = jr.shard_rows((fleet, theta, pos), mesh)
+    params, rippled = ParameterMap(DEFAULT_PARAMETERS), rippled_joints(nominal)
     q0, defl = _fleet_constants(fleet, g_theta, rippled, mesh)
-    out = _fleet_solve(fleet, params, g_theta, _to_global(pos, sharding), jnp.asarray(default_marker(), float), q0,
-                       defl, 100, rippled, mesh)
+    out = _fleet_solve(fleet, params, g_theta, g_pos, jnp.asarray(default_marker(), float), q0, defl, 100, rippled,
+                       mesh)
     assert np.asarray(out["status"]).tolist() == [0, 2, 0]
     assert np.asarray(out["converged"]).tolist() == [True, False, True]
     with pytest.raises(ValueError, match=r"positions\[robot 1\]: NaN/inf in rows \[4\]"):

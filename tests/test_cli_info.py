@@ -40,4 +40,4 @@ def test_info_reports_a_bad_model_file(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text('name = "x"\n')
     assert main(["info", "--model", str(bad)]) == 2
-    assert "gravity: missing" in capsys.readouterr().err
+    assert "kinematics.a: missing" in capsys.readouterr().err

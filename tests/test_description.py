@@ -37,7 +37,7 @@ _DELETE = object()
 NAN = float("nan")
 
 CASES = {
-    "wrong length": (("kinematics", "a"), [0.15, 0.59, 0.13], r"kinematics\.a: expected shape \(6\)"),
+    "wrong length": (("kinematics", "d"), [0.43, 0.0, 0.0], r"kinematics\.d: expected shape \(6\)"),
     "non-finite": (("kinematics", "d"), [0.43, NAN, 0, 0.684, 0, 0.1], r"kinematics\.d: expected finite numbers"),
     "non-positive mass": (("links", "mass"), [40.0, 25.0, 0.0, 8.0, 3.0, 1.0],
                           r"links\.mass\[2\] \(joint 3\): expected a positive value in kg"),
@@ -54,7 +54,12 @@ CASES = {
     "lower limit above upper": (("limits", "position_deg"),
                                 [[-165, 165], [155, -85], [-170, 0], [-210, 210], [-135, 135], [-270, 270]],
                                 r"limits\.position_deg\[1\] \(joint 2\): expected lower < upper"),
-    "missing section": (("motors",), _DELETE, r"motors: missing"),
+    "missing section": (("links",), _DELETE, r"links: missing"),
+    "no joints": (("kinematics", "a"), [], r"kinematics\.a: expected a non-empty list"),
+    "cut-offs neither n nor 3": (("sensors", "filter_cutoff_hz"), [40.0, 30.0],
+                                 r"sensors\.filter_cutoff_hz: expected one cut-off per joint"),
+    "both as-built ratio keys": (("as_built", "u0"), [84.0, 82.0, 69.0, 51.0, 46.0, 50.0],
+                                 r"as_built: expected either u0 \(all joints\) or the older u0_wrist"),
     "ripple lengths": (("gear", "joint2", "cw", "a"), [0.001], r"gear\.joint2\.cw: expected orders, a and b of equal"),
 }
 

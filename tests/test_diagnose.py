@@ -186,8 +186,11 @@ def test_order_dependent_approach_is_named_under_the_cw_convention(bench):
 def test_bad_input_is_named():
     with pytest.raises(ValueError, match=r"NaN/inf in rows \[1\]"):
         Poses.of(np.array([[0.0] * 6, [np.nan] + [0.0] * 5]), np.zeros((2, 3)))
-    with pytest.raises(ValueError, match=r"motor_angles \(K, 6\).*found \(3, 5\)"):
-        Poses.of(np.zeros((3, 5)), np.zeros((3, 3)))
+    with pytest.raises(ValueError, match=r"positions \(K, 3\) m, found \(3, 5\) and \(3, 2\)"):
+        Poses.of(np.zeros((3, 5)), np.zeros((3, 2)))
+    five = Poses.of(np.zeros((12, 5)), np.zeros((12, 3)))
+    with pytest.raises(ValueError, match=r"train: expected motor_angles \(K, 6\) rad for the 6-joint start"):
+        diagnose(AS_BUILT, five, five)
 
 
 def test_catalogue_is_extensible_by_one_class():

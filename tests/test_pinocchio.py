@@ -151,7 +151,7 @@ def test_save_urdf_writes_the_export(tmp_path):
 
 def test_to_urdf_rejects_a_fleet():
     fleet = jax.tree.map(lambda x: jnp.stack([x, x]), jr.racer7())
-    with pytest.raises(ValueError, match=r"robot\.a must have shape \(6,\).*found \(2, 6\)"):
+    with pytest.raises(ValueError, match=r"robot\.a must have shape \(n,\).*found \(2, 6\)"):
         jr.to_urdf(fleet)
 
 

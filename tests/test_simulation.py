@@ -85,5 +85,5 @@ def test_trajectory_run_and_csv_round_trip(tmp_path, flat):
     with pytest.raises(ValueError, match=r"NaN or empty cells in line\(s\) \[6\]"):
         jr.read_trajectory_csv(path)
     path.write_text("t_s,theta1_deg\n0,1\n")
-    with pytest.raises(ValueError, match=r"missing columns \['theta2_deg'"):
+    with pytest.raises(ValueError, match=r"missing columns \['x_m', 'y_m', 'z_m'\]"):
         jr.read_trajectory_csv(path)

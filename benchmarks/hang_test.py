@@ -1,0 +1,135 @@
+"""Hang test (issue 16): every CLI command on bench data, N times each, each run under a timeout.
+
+    python benchmarks/hang_test.py [--runs 20] [--runs-for plan=2 ...] [--timeout 900]
+                                   [--data DIR] [--source DIR] [--lapack] [--out results_hang.md]
+
+A run that exceeds the timeout is a hang (a deadlocked process sits at 0 % CPU forever; a slow one
+would also show up here, so the timeout is several times a normal run). `--source DIR` runs the
+code in DIR instead (e.g. an export of an older commit, for the time per run before a fix).
+`--lapack` dumps every module the commands lower (`JAX_DUMP_IR_TO`) and counts LAPACK custom
+calls with batch dimensions (the deadlock hazard; `tests/test_no_batched_lapack.py`).
+Bench data: the independent implementation's files (`shared/independent`, README there).
+Appends a markdown table (command, runs, hangs, failures, time per run) to `--out`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+LAPACK_CALL = re.compile(r"custom_call @(lapack_\w+)\(.*\} : \(tensor<([0-9x]*?)x?[a-z]+\d*>")
+
+
+def commands(data: Path) -> dict[str, list[str]]:
+    gear = sorted(str(p) for p in (data / "gear").glob("j*_r[01].csv"))
+    gear_val = sorted(str(p) for p in (data / "gear").glob("j*_r2.csv"))
+    cal, case = data / "calibration", data / "poses" / "p1_joint5_offset"
+    return {
+        "info": ["info"],
+        "identify-gear": ["identify-gear", *gear, "--validate", *gear_val],
+        "calibrate": ["calibrate", str(cal / "train.csv"), "--validate", str(cal / "val.csv")],
+        "plan": ["plan", "line"],
+        "sweep": ["sweep", "line", "--nu", "1e-14", "1e-12", "--costs", "thesis"],
+        "diagnose": ["diagnose", "--model", str(case / "start.toml"), str(case / "train.csv"),
+                     "--validate", str(case / "val.csv")],
+        "demo": ["demo"],
+    }
+
+
+def batched_lapack(folder: Path) -> list[str]:
+    found = set()
+    for f in folder.glob("*.mlir"):
+        for line in f.read_text().splitlines():
+            m = LAPACK_CALL.search(line)
+            if m and len(m.group(2).split("x")) > 2:
+                found.add(f"{f.name.split('_', 2)[-1].removesuffix('_compile.mlir')}: {m.group(1)} {m.group(2)}")
+    return sorted(found)
+
+
+def run_once(argv: list[str], timeout: float, source: Path | None, dump: Path | None, cwd: Path):
+    env = dict(os.environ)
+    if source is not None:
+        env["PYTHONPATH"] = str(source) + os.pathsep + env.get("PYTHONPATH", "")
+    if dump is not None:
+        env["JAX_DUMP_IR_TO"] = str(dump)
+    start = time.perf_counter()
+    try:
+        proc = subprocess.run([sys.executable, "-m", "jaxrobot._cli", *argv, "--json", "--out", str(cwd / "out")],
+                              cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+        return time.perf_counter() - start, proc.returncode, proc.stderr.strip().splitlines()[-1:]
+    except subprocess.TimeoutExpired:
+        return time.perf_counter() - start, None, []
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=20, help="runs per command (default 20)")
+    ap.add_argument("--runs-for", nargs="*", default=[], metavar="CMD=N", help="other run counts, e.g. plan=2")
+    ap.add_argument("--commands", nargs="*", default=None, help="commands to run (default: all)")
+    ap.add_argument("--timeout", type=float, default=900.0, help="seconds before a run counts as hung")
+    ap.add_argument("--data", type=Path, default=ROOT.parent.parent / "shared" / "independent")
+    ap.add_argument("--source", type=Path, default=None, help="run the packages in this folder instead")
+    ap.add_argument("--lapack", action="store_true", help="also count batched LAPACK calls (first run of each)")
+    ap.add_argument("--label", default="", help="label of this run in the table (e.g. the commit)")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results_hang.md")
+    args = ap.parse_args()
+    cmds = commands(args.data)
+    names = args.commands or list(cmds)
+    unknown = [c for c in names if c not in cmds]
+    if unknown:
+        ap.error(f"unknown commands {unknown}; choose from {list(cmds)}")
+    counts = {name: args.runs for name in names}
+    for item in args.runs_for:
+        name, _, n = item.partition("=")
+        counts[name] = int(n)
+    if not args.out.exists():
+        args.out.write_text("# Hang test (`benchmarks/hang_test.py`)\n\nEvery CLI command on bench data, each run "
+                            "under a timeout; a run past it is a hang.\n")
+    with args.out.open("a") as f:  # one row per command as soon as it is done
+        f.write("\n".join([
+            f"\n## {args.label or 'run'} ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})", "",
+            f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python "
+            f"{platform.python_version()}; timeout {args.timeout:.0f} s per run; code: {args.source or ROOT}; "
+            f"data: {args.data}", "",
+            "| command | runs | hangs | failed (rc != 0) | time per run [s] median (min-max) | load average |"
+            + (" batched LAPACK calls |" if args.lapack else ""),
+            "|---|---|---|---|---|---|" + ("---|" if args.lapack else "")]) + "\n")
+    for name in names:
+        times, loads, hangs, failures, lapack, last = [], [], 0, 0, [], []
+        for i in range(counts[name]):
+            with tempfile.TemporaryDirectory() as tmp:
+                dump = Path(tmp) / "ir" if args.lapack and i == 0 else None
+                elapsed, rc, last_line = run_once(cmds[name], args.timeout, args.source, dump, Path(tmp))
+                if dump is not None:
+                    lapack = batched_lapack(dump)
+            loads.append(os.getloadavg()[0])
+            status = "HANG" if rc is None else f"rc={rc}"
+            print(f"[{time.strftime('%H:%M:%S')}] {name} run {i + 1}/{counts[name]}: {status}, {elapsed:.1f} s "
+                  f"(load {loads[-1]:.1f})", file=sys.stderr, flush=True)
+            if rc is None:
+                hangs += 1
+            elif rc != 0:
+                failures += 1
+                last = last_line
+            else:
+                times.append(elapsed)
+        t = sorted(times)
+        stat = f"{t[len(t) // 2]:.1f} ({t[0]:.1f}-{t[-1]:.1f})" if t else "-"
+        row = (f"| `{name}` | {counts[name]} | {hangs} | {failures}{' ' + repr(last[0][:80]) if last else ''} | "
+               f"{stat} | {min(loads):.1f}-{max(loads):.1f} |"
+               + (f" {len(lapack)}{': ' + '; '.join(lapack[:4]) if lapack else ''} |" if args.lapack else ""))
+        print(row)
+        with args.out.open("a") as f:
+            f.write(row + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,157 @@
+"""`jaxrobot calibrate-fleet FOLDER`: kinematic calibration of a fleet, one pose file per robot, on
+one process or on several (`jax.distributed`): started once per process with the same arguments
+and the coordinator address, process count and id (flags or `jaxrobot.PROCESS_ENV`); each process
+reads only its share of the files (`jaxrobot.process_share`), the fleet call runs on the global
+mesh, and process 0 writes the gathered table once. `--bench R` first writes bench data of R random
+as-built robots, each process its own share."""
+
+from __future__ import annotations
+
+import resource
+import time
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import numpy as np
+
+HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
+TABLE = "fleet_calibration.csv"
+
+
+def configure(parser) -> None:
+    parser.add_argument("folder", type=Path,
+                        help="folder of pose CSVs (SPEC.md format), one per robot, all with the same poses count; "
+                             "robots in file-name order")
+    parser.add_argument("--bench", type=int, default=None, metavar="R",
+                        help="first write bench data of R random as-built robots into FOLDER (robot_00000.csv, ...) "
+                             "and calibrate those")
+    parser.add_argument("--poses", type=int, default=50, help="poses per robot of --bench (default 50)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of --bench (default 0)")
+    parser.add_argument("--robot", type=Path, default=None,
+                        help="initial robot description for all robots (default: the embedded Racer-7, nominal)")
+    parser.add_argument("--parameters", default=None,
+                        help="comma-separated free parameters, e.g. a2,beta3,u0_5 (default: identifiable set)")
+    parser.add_argument("--max-steps", type=int, default=100, help="LM steps per robot at most (default 100)")
+    parser.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                        help="coordinator of a job of several processes: process 0's host and a free port "
+                             "(default $JAX_COORDINATOR_ADDRESS; none: one process)")
+    parser.add_argument("--num-processes", type=int, default=None, help="processes of the job (default "
+                        "$JAX_NUM_PROCESSES)")
+    parser.add_argument("--process-id", type=int, default=None, help="this process, 0 .. count - 1 (default "
+                        "$JAX_PROCESS_ID)")
+
+
+@eqx.filter_jit
+def _rest_poses(nominal, truth, q, marker):
+    """Per robot (`lax.map`: its fixed-point iterations are its own, so its data do not depend on the
+    batch): the nominal robot's motor angles (R, K, 6) holding `q` at rest (`static_equilibrium`) and
+    the true marker positions (R, K, 3) of `truth` resting at them (`rest_link_angles`)."""
+    import jaxrobot as jr
+
+    def one(args):
+        robot, q_r = args
+        theta = jr.static_equilibrium(nominal, q_r)
+        return theta, jr.marker_pose(robot, jr.rest_link_angles(robot, theta), marker)[0]
+
+    return jax.lax.map(one, (truth, q))
+
+
+def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0) -> list[Path]:
+    """Bench data of a fleet, this process's share (`process_share`): robots of `draw_fleet(n_robots,
+    seed)`, each at its own `n_poses` random feasible poses (one pool, `random_feasible_poses`) held at
+    the nominal robot's static equilibrium, measured by the tracker (`_rest_poses`, each robot on its
+    own) with noise of its own seed, so that the data do not depend on the process count. Writes
+    `robot_{r:05d}.csv` of this share; returns all R paths."""
+    import jax.numpy as jnp
+
+    import jaxrobot as jr
+
+    from ._pose_selection import default_marker, random_feasible_poses
+
+    if n_robots < 1 or n_poses < 1:
+        raise ValueError(f"--bench/--poses: expected >= 1 robots and poses, found {n_robots} and {n_poses}")
+    paths = [folder / f"robot_{r:05d}.csv" for r in range(n_robots)]
+    folder.mkdir(parents=True, exist_ok=True)
+    share = jr.process_share(n_robots)
+    nominal = jr.racer7()
+    truth = jax.tree.map(lambda x: x[share], jr.draw_fleet(n_robots, seed=seed))
+    pool = random_feasible_poses(nominal, 20 * n_poses, seed=seed)
+    rows = range(share.start, share.stop)
+    q = np.stack([pool[np.random.default_rng([seed, r]).choice(len(pool), n_poses, replace=False)] for r in rows])
+    theta, exact = (np.asarray(x) for x in _rest_poses(nominal, truth, jnp.asarray(q), jnp.asarray(default_marker())))
+    sigma = float(jr.read_description(None)["sensors"]["tracker_position_noise_m"])
+    for i, r in enumerate(rows):
+        noise = sigma * np.random.default_rng([seed, r, 1]).standard_normal((n_poses, 3))
+        jr.write_pose_csv(paths[r], theta[i], exact[i] + noise)
+    return paths
+
+
+def _table(res, files: list[Path]) -> str:
+    head = ["file", "status", "converged", "iterations", "rank", "rms_mm"]
+    head += [c for n in res.names for c in (n, f"std_{n}")]
+    lines = [",".join(head)]
+    for r, f in enumerate(files):
+        cells = [f.name, str(res.status[r]), str(bool(res.converged[r])), str(int(res.iterations[r])),
+                 str(int(res.rank[r])), repr(1e3 * float(res.rms_m[r]))]
+        cells += [repr(float(v)) for pair in zip(res.value[r], res.std[r]) for v in pair]
+        lines.append(",".join(cells))
+    return "\n".join(lines) + "\n"
+
+
+def run(args, echo) -> dict:
+    import jaxrobot as jr
+
+    count = jr.initialize_processes(args.coordinator, args.num_processes, args.process_id)
+    import jax
+
+    from ._calibration import DEFAULT_PARAMETERS
+    from ._fleet import calibrate_fleet
+
+    pid = jax.process_index()
+    seconds = {}
+    start = time.perf_counter()
+    if args.bench is not None:
+        files = bench_fleet(args.folder, args.bench, args.poses, args.seed)
+        seconds["bench"] = time.perf_counter() - start
+    else:
+        if not args.folder.is_dir():
+            raise FileNotFoundError(f"folder {args.folder} does not exist")
+        files = sorted(args.folder.glob("*.csv"))
+    if len(files) < count:
+        raise ValueError(f"folder: expected at least one pose file per process ({count}), found {len(files)} "
+                         f"in {args.folder}")
+    share = jr.process_share(len(files))
+    t = time.perf_counter()
+    data = [jr.read_pose_csv(f) for f in files[share]]
+    k = data[0]["motor_angles"].shape[0]
+    for f, d in zip(files[share], data):
+        if d["motor_angles"].shape[0] != k:
+            raise ValueError(f"{f}: expected {k} poses as {files[share][0].name}, found {d['motor_angles'].shape[0]}")
+    seconds["read"] = time.perf_counter() - t
+    robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
+    names = DEFAULT_PARAMETERS if args.parameters is None else [
+        n.strip() for n in args.parameters.split(",") if n.strip()]
+    marker = None if args.robot is None else jr.read_description(args.robot).get("sensors", {}).get(
+        "tracker_marker_offset_m")
+    echo(f"process {pid} of {count}: robots {share.start}..{share.stop - 1} of {len(files)}, {k} poses each")
+    t = time.perf_counter()
+    res = calibrate_fleet(robot, np.stack([d["motor_angles"] for d in data]), np.stack([d["positions"] for d in data]),
+                          parameters=names, marker=marker, max_steps=args.max_steps)
+    seconds["calibrate"] = time.perf_counter() - t
+    status = {s: int(np.sum(res.status == s)) for s in np.unique(res.status)}
+    if pid == 0:
+        echo(f"fleet of {len(files)} robots on {res.n_devices} device(s): {status}; LM steps median "
+             f"{np.median(res.iterations):.0f}, max {res.iterations.max()}; residual rms median "
+             f"{1e3 * np.median(res.rms_m):.4f} mm ({seconds['calibrate']:.1f} s incl. compile)")
+        if args.out is not None:
+            (args.out / TABLE).write_text(_table(res, files))
+            echo(f"wrote {args.out / TABLE}")
+    failed = int(np.sum(~res.converged))
+    if failed:
+        raise ValueError(f"{failed} of {len(files)} robots did not converge or are rank deficient ({status}); "
+                         f"see the status column of {TABLE}")
+    return {"robots": len(files), "poses": k, "processes": count, "process_id": pid,
+            "local_robots": share.stop - share.start, "devices": res.n_devices, "parameters": list(res.names),
+            "status": status, "seconds": seconds,
+            "peak_memory_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
