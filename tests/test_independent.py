@@ -44,6 +44,19 @@ def test_diagnose_names_the_hidden_effect(name):
     assert rep["final_rms_validation_um"] <= rep["validation_bound_um"]
 
 
+def test_not_explained_when_validation_exceeds_its_bound():
+    """p0's training poses pass the chi-square test; validation poses displaced by 0.2 mm (3 noise
+    std per axis, which the training poses do not show) must not give "explained"/"no discrepancy"."""
+    d = independent_data() / "poses" / "p0_clean"
+    train, val = (read_poses(d / f"{s}.csv") for s in ("train", "val"))
+    shifted = val["positions"] + np.array([2e-4, 0.0, 0.0])
+    res = diagnose(jr.load_robot(d / "start.toml"), Poses.of(train["motor_angles"], train["positions"]),
+                   Poses.of(val["motor_angles"], shifted))
+    rep = res.report
+    assert rep["final_rms_validation_um"] > rep["validation_bound_um"]
+    assert rep["verdict"].startswith("not explained"), rep["verdict"]
+
+
 def test_approach_conventions(tmp_path):
     """cw: no ccw at rest; order: `approach_directions` of the rows; column: the file's +-1 columns."""
     from identification._pose_files import approach_ccw, approach_columns
