@@ -116,7 +116,7 @@ def calibration_table(root: Path) -> list[str]:
                         validation=(val["motor_angles"], val["positions"])).report
         dt = time.perf_counter() - t0
         mean = 1e3 * rep["validation"]["after_m"]["mean"]
-        beyond = [n for n, p in rep["parameters"].items() if abs(p["delta"] - true[n]) > 3 * p["std"]]
+        beyond = [n for n, p in rep["parameters"].items() if abs(p["delta"] - true.get(n, 0.0)) > 3 * p["std"]]
         prior = [n for n, p in rep["parameters"].items() if p.get("determined_by") == "prior"]
         rows.append(f"| {'plain LM' if method == 'lm' else 'MAP'} | {len(names)} | {mean:.4f} | "
                     f"{truth['truth_val_mean_mm']:.4f} | {mean / truth['truth_val_mean_mm']:.3f} | "

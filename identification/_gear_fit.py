@@ -318,10 +318,13 @@ class Resolution:
     runs: int
     scatter: float
     more_runs: int
+    probe: bool = False
+    """The orders the cross-validation rejected (the FFT's peaks), tested only to estimate the runs
+    that would resolve them: never resolved."""
 
     @property
     def resolved(self) -> bool:
-        return self.dof > 0 and self.p_value < SIGNIFICANCE
+        return self.dof > 0 and self.p_value < SIGNIFICANCE and not self.probe
 
     def note(self) -> str:
         if self.resolved or self.dof == 0:
@@ -476,11 +479,19 @@ def identify_gear(
     orders_fft = [f[0] for f in fft]
     chosen = orders_sparse if method == "sparse" else orders_fft
     fit = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(chosen)), u0_start)
-    fit, resolution = _with_scatter(fit, proc, batch, group, fit_run, [g[0] for g in groups], u0_model, infos)
+    joint_of = [g[0] for g in groups]
+    fit, resolution = _with_scatter(fit, proc, batch, group, fit_run, joint_of, u0_model, infos)
     if not all(r.resolved or r.dof == 0 for r in resolution):  # unresolved ripple: the constant ratio
         chosen = [c if r.resolved else [] for c, r in zip(chosen, resolution)]
         fit = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(chosen)), u0_start)
-        fit, _ = _with_scatter(fit, proc, batch, group, fit_run, [g[0] for g in groups], u0_model, infos)
+        fit, _ = _with_scatter(fit, proc, batch, group, fit_run, joint_of, u0_model, infos)
+    empty = [g for g, r in enumerate(resolution) if r.dof == 0 and orders_fft[g]]
+    if empty:  # nothing kept: how many runs would resolve the FFT's peaks?
+        probe = [orders_fft[g] if g in empty else [] for g in range(n_groups)]
+        fit_p = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(probe)), u0_start)
+        _, res_p = _with_scatter(fit_p, proc, batch, group, fit_run, joint_of, u0_model, infos)
+        resolution = [dataclasses.replace(res_p[g], probe=True, more_runs=max(res_p[g].more_runs, 1))
+                      if g in empty else r for g, r in enumerate(resolution)]
     errors = kinematic_errors(proc, batch, fit, gj)
 
     # cw against ccw: refit both directions with the union of their orders (Wald test), and the two

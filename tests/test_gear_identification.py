@@ -262,3 +262,17 @@ def test_bench_quantised_and_seeded(truth):
     with pytest.raises(ValueError, match="joint"):
         jr.gear_runs(truth, 7)
     assert jnp.all(jnp.isfinite(jnp.asarray(a.link_angles)))
+
+
+@pytest.mark.slow
+def test_ripple_below_the_noise_gives_the_constant_ratio(truth):
+    """Joint 2 with 30x the gyroscope noise and two runs per direction (other seeds than the
+    fixture's): the runs cannot resolve its ripple, so the result is the constant ratio and the
+    report says how many more runs would resolve it; u0 still within 3 reported sigma."""
+    runs = jr.gear_runs(truth, 2, repetitions=2, seed=901, gyro_noise_deg_s=9.0)
+    res = identify_gear(jr.racer7(), [(runs.t, runs.theta[k], runs.gyro[k]) for k in range(len(runs.ccw))])
+    for g, r in enumerate(res.resolution):
+        assert not r.resolved
+        assert np.all(np.asarray(res.fit.orders[g]) == 0)
+        assert r.more_runs >= 1 and f"{r.more_runs} more runs per direction would resolve it" in r.note()
+        assert abs(float(res.fit.u0[g]) - float(truth.u0[1])) <= 3 * float(res.fit.se_u0[g])
