@@ -62,22 +62,15 @@ def _ratio(u0, orders, a, b, phi):
 
 
 def gear_table(root: Path) -> list[str]:
-    import identification._gear_frequencies as gf
-
     files = lambda r: [root / "gear" / f"j{j}_{s}_r{r}.csv" for j in (1, 2, 3) for s in ("pos", "neg")]
     ident = [jr.read_gear_run(f) for r in (0, 1) for f in files(r)]
     val = [jr.read_gear_run(f) for f in files(2)]
     truth = jr.racer7(as_built=True)
     rows = ["| orders | joint | dir | orders kept | ripple removed | vs constant ratio | u0 error / sigma | "
             "ripple | time [s] |", "|---|---|---|---|---|---|---|---|---|"]
-    select = gf.one_standard_error
-    for label in ("CV-selected", "all picked"):
-        if label == "all picked":  # keep every cluster the greedy search picks
-            gf.one_standard_error = lambda held, w, block=gf.CV_BLOCK: (held.shape[0] - 1, select(held, w, block)[1])
-            jitted = gf._sparse_jit
-            gf._sparse_jit = gf.jax.jit(gf._sparse_jit.__wrapped__, static_argnames=("n_max", "k_max"))
+    for label, select in (("CV-selected", "cv"), ("all picked", "all")):
         t0 = time.perf_counter()
-        res = identify_gear(jr.racer7(), ident, val)
+        res = identify_gear(jr.racer7(), ident, val, select=select)
         dt = time.perf_counter() - t0
         f = res.fit
         for g, (j, ccw) in enumerate(res.groups):
@@ -96,7 +89,6 @@ def gear_table(root: Path) -> list[str]:
                         f"{1 - rms(u_i - u_t) / rms(u_t - float(truth.u0[j - 1])):.3f} | "
                         f"{rms(u_i - u_t) / rms(float(f.u0[g]) - u_t):.3f} | {z:+.2f} | {note} | "
                         f"{dt:.1f} |")
-    gf.one_standard_error, gf._sparse_jit = select, jitted
     return rows
 
 

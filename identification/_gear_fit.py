@@ -419,6 +419,7 @@ def identify_gear(
     cutoff_hz: dict[int, float] | None = None,
     method: str = "sparse",
     names: list[str] | None = None,
+    select: str = "cv",
     validation_names: list[str] | None = None,
 ) -> GearIdentification:
     """Gear-ratio identification of thesis 3.1 from raw runs, with validation.
@@ -431,10 +432,14 @@ def identify_gear(
     - `cutoff_hz`: filter cut-off per 1-based joint (default: `[sensors] filter_cutoff_hz` of the
       embedded description, joints 1-3).
     - `method`: "sparse" (ours) or "fft" (the thesis') order search for the final fit.
+    - `select`: "cv" keeps the clusters the cross-validation supports, "all" every cluster the
+      sparse search picks (a comparison); either way the resolution test follows.
 
     All runs are processed in one jitted call, the orders of all groups searched in one, fitted
     in one and evaluated in one.
     """
+    if select not in ("cv", "all"):
+        raise ValueError(f"select: expected 'cv' or 'all', found {select!r}")
     if method not in ("sparse", "fft"):
         raise ValueError(f"method: expected 'sparse' or 'fft', found {method!r}")
     if cutoff_hz is None:
@@ -472,7 +477,7 @@ def identify_gear(
             first = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(orders_sparse)), u0_start)
             phi = xi_inverse(*(v[gj][:, None] for v in (first.u0, first.orders, first.a, first.b)), proc.theta)
             samples = group_samples(proc, batch, group, fit_run, n_groups, u0_run, phi)
-        sparse, cv = sparse_orders(samples, jnp.asarray(max_order))
+        sparse, cv = sparse_orders(samples, jnp.asarray(max_order), keep_all=select == "all")
         sparse = np.asarray(sparse)
         orders_sparse = [sorted(int(o) for o in sparse[g] if 0 < o <= max_order[g]) for g in range(n_groups)]
     fft = [fft_orders(samples.runs[g], int(max_order[g])) for g in range(n_groups)]
