@@ -29,7 +29,11 @@ def _diagnose_case(name: str):
     return res.report, json.loads((d / "truth.json").read_text())
 
 
-@pytest.mark.parametrize("name", list(CASES))
+FAST = ("p0_clean", "p2_joint2_softer")
+"""In the default suite (nothing hidden, one hidden effect); the others with `--runslow`."""
+
+
+@pytest.mark.parametrize("name", [n if n in FAST else pytest.param(n, marks=pytest.mark.slow) for n in CASES])
 def test_diagnose_names_the_hidden_effect(name):
     rep, truth = _diagnose_case(name)
     steps = [(s["effect"], s["joint"]) for s in rep["steps"]]
@@ -224,6 +228,7 @@ def _true_deviations(truth: dict) -> dict:
     return out
 
 
+@pytest.mark.slow
 def test_map_calibration_holds_on_independent_poses():
     """50 thesis poses of a robot with random deviations: MAP (default set plus every offset and ratio)
     validates within 1.15x the true robot's mean error and no worse than plain LM (by more than one
