@@ -1,6 +1,6 @@
 """Robot files written by the identification commands (`--save-model`), so that each stage's
-output is the next one's `--robot`/`--model`: the identified robot plus the `[sensors]` section
-and `[calibration]` of the file it started from (marker offset, filter cut-offs, noise, priors)."""
+output is the next one's `--robot`/`--model`: the identified robot plus the sections of the file it
+started from that describe the cell (`KEPT_SECTIONS`)."""
 
 from __future__ import annotations
 
@@ -10,15 +10,18 @@ import tomli_w
 
 import jaxrobot as jr
 
+KEPT_SECTIONS = ("sensors", "calibration", "poses", "trajectories")
+"""Sections of the start file that describe the cell, not the robot: carried over unchanged."""
+
 
 def save_model(robot: jr.Robot, path: str | Path, start: str | Path | None = None) -> None:
-    """Write `robot` (format of `racer7.toml`) keeping `[sensors]` and `[calibration]` of the start
-    file `start` (default: the embedded description)."""
+    """Write `robot` (format of `racer7.toml`) keeping `KEPT_SECTIONS` of the start file `start`
+    (default: the embedded description)."""
     from jaxrobot._description import description_of
 
     data = description_of(robot)
     desc = jr.read_description(start)
-    for section in ("sensors", "calibration"):
+    for section in KEPT_SECTIONS:
         if section in desc:
             data[section] = desc[section]
     text = "# written by jaxrobot (identification --save-model); format: racer7.toml (SI units, rad unless _deg)\n"
