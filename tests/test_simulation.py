@@ -62,7 +62,8 @@ def test_simulator_holds_rest_and_rejects_bad_shapes():
     zeros = jnp.zeros_like(theta)
     q, qd = SIMULATE(ROBOT, T[:200], theta, zeros, zeros, substeps=2)
     assert float(jnp.max(jnp.abs(q - QA))) < 1e-12 and float(jnp.max(jnp.abs(qd))) < 1e-10
-    with pytest.raises(ValueError, match=r"theta, thetad, thetadd \(N, 6\)"):
+    with pytest.raises(ValueError, match=r"theta: expected shape \(N, n\) with n = 6 joints of this robot, "
+                       r"found \(200, 5\)"):
         jr.simulate(ROBOT, T[:200], theta[:, :5], zeros, zeros)
 
 
