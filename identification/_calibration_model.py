@@ -133,7 +133,7 @@ def position_jacobian(
 ) -> tuple[Float[Array, "3 ..."], Float[Array, "m 3 ..."]]:
     """Marker position and its derivative by the free joint parameters, from the joint screws
     (thesis 3.2.2), batch-last: the robot's fields broadcast against the batch `*b` of `q` (a fleet
-    as fields (R, 1, ...) against poses (R, K, 6)); results have the batch on the trailing axes.
+    as fields (R, 1, ...) against poses (R, K, n)); results have the batch on the trailing axes.
 
     With `z`, `x'` the z axis of frame i-1 and the x axis after `Rz(q_i + offset_i)`, `y''` the y
     axis after `Rx(alpha_i)`, `o_{i-1}`, `o_i` the frame origins (eq. 2.2-2.4):

@@ -65,9 +65,9 @@ REST_S = 0.2
 class GearRuns:
     """Plain arrays of `R` runs of one joint, all of `N` samples.
 
-    `t` (N,) s; `theta` (R, N, 6) measured (quantised) motor angles [rad]; `gyro` (R, N, 3)
+    `t` (N,) s; `theta` (R, N, n) measured (quantised) motor angles [rad]; `gyro` (R, N, 3)
     measured angular velocity [rad/s] in the gyroscope frame; `ccw` (R,) direction of each run.
-    Noise-free truth: `link_angles` (R, N, 6) [rad], `link_rate` (R, N) rate of the moving joint
+    Noise-free truth: `link_angles` (R, N, n) [rad], `link_rate` (R, N) rate of the moving joint
     about its axis [rad/s], `gyro_true` (R, N, 3). `metadata` holds joint (1-based), speeds,
     ranges, seed, noise, bias and misalignment.
     """

@@ -30,7 +30,7 @@ def flat_inverse(
     """Motor angles, rates and accelerations `(theta, thetad, thetadd)` at times `t` that make
     the elastic model follow `q_d` exactly (cw gear set, as the planning model).
 
-    **Arguments:** `q_d` maps a scalar time [s] to link angles (6,) and must be four times
+    **Arguments:** `q_d` maps a scalar time [s] to link angles (n,) and must be four times
     differentiable (derivatives are taken by nested `jax.jvp`); `t` (N,) sample times [s].
     """
 

@@ -186,7 +186,7 @@ def taylor_joint_path(
     implicit function's on the grid, and off the grid it errs by `O(T_s^(m+1))` (~1e-16 rad for
     m = 4 at 1 ms). A polynomial, so the flat inverse differentiates it cheaply."""
     t = jnp.asarray(t, dtype=float)
-    coeffs = jnp.stack(list(derivatives))  # (m+1, N, 6)
+    coeffs = jnp.stack(list(derivatives))  # (m+1, N, n)
 
     def q_d(s):
         k = jnp.clip(jnp.round((jax.lax.stop_gradient(s) - t[0]) / (t[1] - t[0])), 0, t.shape[0] - 1).astype(int)
@@ -200,8 +200,8 @@ def taylor_joint_path(
 
 
 class JointPath(NamedTuple):
-    """A planned joint path: grid `t` (N,), IK samples `q` (N, 6) with their residuals, their exact
-    derivatives `qd`, `qdd` (N, 6) and `derivatives` `[q, ..., q^(4)]` (5, N, 6), and the smooth
+    """A planned joint path: grid `t` (N,), IK samples `q` (N, n) with their residuals, their exact
+    derivatives `qd`, `qdd` (N, n) and `derivatives` `[q, ..., q^(4)]` (5, N, n), and the smooth
     `q_d(t)` (`fn`, the `taylor_joint_path` of `derivatives`)."""
 
     t: Float[Array, " N"]
