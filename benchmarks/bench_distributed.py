@@ -118,6 +118,7 @@ def main() -> None:
     load_start = os.getloadavg()
     work = Path(tempfile.mkdtemp(prefix="bench_distributed_"))
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_") and k != "XLA_FLAGS"}
+    env["JAXROBOT_CACHE_DIR"] = "off"  # every first call compiles
     cli = [sys.executable, "-m", "jaxrobot._cli", "calibrate-fleet", "--json", "--bench", str(args.robots),
            "--poses", str(args.poses)]
     api = [sys.executable, __file__, "--worker", str(work / "data1")]

@@ -133,6 +133,7 @@ def machine() -> dict[str, str]:
         "cores": f"{os.cpu_count()} logical, {usable} usable by this process",
         "load average (1, 5, 15 min) at start": load,
         "JAX devices": ", ".join(str(d) for d in jax.devices()),
+        "persistent compilation cache": jax.config.jax_compilation_cache_dir or "off (compile times are cold)",
         "versions": f"python {platform.python_version()}, jax {jax.__version__}, "
                     f"pinocchio {pin.__version__}, numpy {np.__version__}",
     }

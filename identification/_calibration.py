@@ -30,6 +30,7 @@ from ._calibration_model import (
 )
 from ._identifiability import analyse, default_parameters
 from ._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection, rotation_error
+from ._pose_files import check_pose_units
 from ._pose_selection import default_marker
 
 DEFAULT_PARAMETERS = THESIS_PARAMETERS + ("offset1", "offset2", "offset4", "offset5", "offset6", "d1",
@@ -39,6 +40,23 @@ the thesis' 17 (Table 3.5) plus what else the identifiability analysis finds ide
 from marker positions with the bench's marker offset (25): offsets 1, 2, 4, 5, 6 (offset 3 is
 `beta3 - a3 d4`), d1 (the base frame is known), d6 and a6 (the marker sits off the joint-6
 axis; `alpha6` is then a combination of d6, a6 and offset6)."""
+
+DEFAULT_PRIOR_STD = {"a": 1e-3, "d": 1e-3, "alpha": 1e-3, "beta": 1e-3, "offset": 2e-3, "u0": 1e-3,
+                     "tool_xyz": 1e-3, "tool_rpy": 1e-3, "base_xyz": 1e-3, "base_rpy": 1e-3}
+"""Tolerance priors of the maximum-a-posteriori calibration (std of a deviation from the start
+robot): lengths 1 mm, link angles 1 mrad, joint zero offsets 2 mrad, gear ratios 1e-3 relative,
+tool/base 1 mm and 1 mrad. A few times the manufacturing deviations the thesis identifies for
+the Racer-7 (Table 3.8: up to 0.64 mm, 0.84 mrad, wrist ratios 5e-4 relative), so the data
+override them where they can. Overridden per field by the robot file's `[calibration] prior_std`
+(`a_m`, `d_m`, `alpha_rad`, `beta_rad`, `offset_rad`, `u0_relative`, `tool_m`, `tool_rad`,
+`base_m`, `base_rad`)."""
+PRIOR_KEYS = {"a_m": "a", "d_m": "d", "alpha_rad": "alpha", "beta_rad": "beta", "offset_rad": "offset",
+              "u0_relative": "u0", "tool_m": "tool_xyz", "tool_rad": "tool_rpy", "base_m": "base_xyz",
+              "base_rad": "base_rpy"}
+"""Keys of `[calibration] prior_std` in a robot file -> keys of `DEFAULT_PRIOR_STD`."""
+DATA_FRACTION = 0.5
+"""A parameter counts as determined by the data when they remove more than this fraction of its
+prior variance (`1 - posterior / prior variance`), else by the prior."""
 
 RESIDUAL_UNIT = 1e-3
 """Residuals are solved in mm (and orientation in units of the position/orientation noise ratio)."""
@@ -146,8 +164,13 @@ def solve(
     atol: float = 1e-8,
     max_steps: int = 100,
     rippled: tuple[int, ...] | None = None,
+    prior_weight: Float[Array, " m"] | None = None,
 ) -> dict[str, Array]:
     """LM solve for one robot; pure and jit/vmap-safe (the fleet maps it over robots).
+
+    `prior_weight`: maximum a posteriori with independent Gaussian priors on the deviations,
+    entered as rows `prior_weight * x` (x: scaled deviation; weight = noise / prior std, in the
+    residual's mm); `None` is plain least squares.
 
     `rippled`: the joints whose gears have ripple (`rippled_joints`; static), needed when `robot0`
     is traced (e.g. under `vmap`), else found from `robot0`; a free `u0` of a ripple-free gear then
@@ -158,19 +181,21 @@ def solve(
     in m-equivalent units), `rank` of the scaled Jacobian, `sigma2` the noise estimate [m^2],
     `jacobian` (n, m) at the solution (residual mm per parameter unit).
     """
-    fn, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r, ccw,
-                                 rippled)
+    fn_data, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r,
+                                      ccw, rippled)
+    fn = fn_data if prior_weight is None else (lambda x, a: jnp.concatenate([fn_data(x, a), prior_weight * x]))
     x0 = jnp.zeros(len(params))
     sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=rtol, atol=atol), x0, max_steps=max_steps,
                              throw=False)
     x = sol.value
-    r = fn(x, None)
-    jx = jax.jacfwd(fn)(x, None)  # (n, m), in mm per scaled unit
+    r = fn_data(x, None)
+    jx = jax.jacfwd(fn_data)(x, None)  # (n, m), in mm per scaled unit
     n, m = r.shape[0], x.shape[0]
     sigma2 = jnp.sum(r**2) / jnp.maximum(n - m, 1)
-    s = jnp.linalg.svd(jx, compute_uv=False)
+    j_all = jx if prior_weight is None else jnp.concatenate([jx, jnp.diag(prior_weight)])
+    s = jnp.linalg.svd(j_all, compute_uv=False)
     rank = jnp.sum(s > 1e-10 * s[0])
-    cov_x = sigma2 * jnp.linalg.inv(jx.T @ jx)
+    cov_x = sigma2 * jnp.linalg.inv(j_all.T @ j_all)
     cov = cov_x * scale[:, None] * scale[None, :]
     ok = (sol.result == optx.RESULTS.successful) & (rank == m) & jnp.all(jnp.isfinite(x))
     return {"value": v0 + scale * x, "std": jnp.sqrt(jnp.diag(cov)), "cov": cov,
@@ -271,6 +296,8 @@ def calibrate(
     validation: tuple | None = None,
     limits: str = "flag",
     max_steps: int = 100,
+    method: str = "lm",
+    prior_std: dict | None = None,
 ) -> CalibrationResult:
     """Calibrate the kinematic parameters from tracker measurements (thesis 3.2.3, eq. 3.12).
 
@@ -283,12 +310,17 @@ def calibrate(
     - `marker`: marker offset in the tool frame [m] (default: the toml `[sensors]`).
     - `position_noise`, `orientation_noise`: stds that weight orientation rows against
       position rows (defaults: the toml tracker noise and 0.05 deg); positions alone need none.
-    - `ccw`: gear set of the approach direction. `validation`: `(motor_angles, positions)`.
+    - `ccw`: gear set of the approach direction. `validation`: `(motor_angles, positions)` or
+      `(motor_angles, positions, ccw)`.
     - `limits`: `"flag"` lists poses beyond the joint limits in `report["beyond_limits"]`,
       `"raise"` rejects them.
+    - `method`: `"lm"` plain least squares, or `"map"` maximum a posteriori with the tolerance
+      priors `DEFAULT_PRIOR_STD` updated by `prior_std` (same keys); the report then gives each
+      parameter's prior std, the fraction of its prior variance the data remove and whether the
+      data or the prior determine it (`DATA_FRACTION`).
 
     Raises `ValueError` before solving for wrong shapes, NaN rows (named), fewer equations than
-    parameters, and, with
+    parameters, unit mistakes (`check_pose_units`), and, with
     `limits="raise"`, poses beyond the joint limits (by row); after the solve, for a
     rank-deficient pose set (naming the unidentifiable directions). A solve that does not converge is
     reported with `converged: False` and its optimistix status, never as success.
@@ -301,7 +333,13 @@ def calibrate(
         _check_array(positions, (3,), "positions", "m")
         parameters = default_parameters(robot, orientation=quaternions is not None, marker=marker)
     params = ParameterMap(parameters)
+    if method not in ("lm", "map"):
+        raise ValueError(f"method: expected 'lm' or 'map', found {method!r}")
+    prior = None
+    if method == "map":
+        prior = prior_stds(robot, params, prior_std)
     theta, pos, quat, beyond = check_inputs(robot, params, motor_angles, positions, quaternions, limits, ccw)
+    check_pose_units(robot, theta, pos, marker, "motor_angles/positions")
     sensors = jr.read_description(None)["sensors"]
     s_p = sensors["tracker_position_noise_m"] if position_noise is None else position_noise
     s_r = ORIENTATION_NOISE_RAD if orientation_noise is None else orientation_noise
@@ -312,19 +350,23 @@ def calibrate(
         vp = _check_array(validation[1], (3,), "validation positions", "m")
         if vp.shape[0] != vt.shape[0]:
             raise ValueError(f"validation positions: expected {vt.shape[0]} rows, found {vp.shape[0]}")
+        vccw = np.broadcast_to(np.asarray(validation[2], bool) if len(validation) > 2 else False, vt.shape)
     else:
         vt, vp = np.zeros((0, robot.n_joints)), np.zeros((0, 3))
+        vccw = np.zeros(vt.shape, bool)
     k = theta.shape[0]
-    ccw_all = ccw if np.ndim(ccw) == 0 else np.concatenate([np.broadcast_to(ccw, theta.shape),
-                                                             np.zeros(vt.shape, bool)])
+    ccw_all = ccw if np.ndim(ccw) == 0 and not vccw.any() else np.concatenate(
+        [np.broadcast_to(ccw, theta.shape), vccw])
     th_all = jnp.asarray(np.concatenate([theta, vt]))
     defl_all = _deflection(robot, th_all, ccw_all)  # one evaluation for both sets
     th, defl = th_all[:k], defl_all[:k]
     ccw_id = ccw if np.ndim(ccw) == 0 else ccw_all[:k]
+    weight = None if prior is None else jnp.asarray(s_p / RESIDUAL_UNIT * np.asarray(params.scales(robot)) / prior)
     out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw_id, max_steps=max_steps,
-                     rippled=rippled_joints(robot))
+                     rippled=rippled_joints(robot), prior_weight=weight)
     out = jax.tree.map(np.asarray, out)
-    check_rank(out["jacobian"], params)
+    if prior is None:
+        check_rank(out["jacobian"], params)
     calibrated = params.set(robot, jnp.asarray(out["value"]))
     v0 = np.asarray(params.get(robot))
     p_all = np.concatenate([pos, vp])
@@ -342,13 +384,48 @@ def calibrate(
         "n_poses": int(k),
         "beyond_limits": beyond,
         "errors_m": {"identification": {"before": err0[:k], "after": err1[:k]}},
+        "method": method,
     }
+    if prior is not None:
+        for i, n in enumerate(params.names):
+            fraction = float(1.0 - out["std"][i] ** 2 / prior[i] ** 2)
+            report["parameters"][n].update({"prior_std": float(prior[i]), "data_fraction": fraction,
+                                            "determined_by": "data" if fraction > DATA_FRACTION else "prior"})
     if validation is not None:
         report["validation"] = {"before_m": error_stats(err0[k:]), "after_m": error_stats(err1[k:]),
                                 "n_poses": int(vt.shape[0])}
         report["errors_m"]["validation"] = {"before": err0[k:], "after": err1[k:]}
     return CalibrationResult(robot=calibrated, report=report, value=out["value"], std=out["std"],
                              covariance=out["cov"], residuals=out["residuals"], names=params.names)
+
+
+def map_parameters(parameters: Sequence[str], n_joints: int) -> tuple[str, ...]:
+    """The free set of a MAP calibration: `parameters` plus every joint offset and basic gear ratio,
+    including those identifiable only in combination (offset 3 ~ beta3 - a3 d4; the prior splits
+    the combination) and the ratios a gear identification leaves uncertain to ~1e-4."""
+    extra = [f"{k}{j}" for k in ("offset", "u0_") for j in range(1, n_joints + 1)]
+    return tuple(parameters) + tuple(n for n in extra if n not in parameters)
+
+
+def prior_stds(robot: jr.Robot, params: ParameterMap, overrides: dict | None = None) -> np.ndarray:
+    """Prior std of every free parameter (`DEFAULT_PRIOR_STD` updated by `overrides`; `u0` relative)."""
+    table = dict(DEFAULT_PRIOR_STD)
+    for key, value in (overrides or {}).items():
+        if key not in table:
+            raise ValueError(f"prior_std: unknown key {key!r}; expected one of {sorted(table)}")
+        if not float(value) > 0:
+            raise ValueError(f"prior_std.{key}: expected a std > 0, found {value}")
+        table[key] = float(value)
+    out = []
+    for n in params.names:
+        field, comp = parse_name(n)
+        if field == "u0":
+            out.append(table["u0"] * float(robot.u0[comp]))
+        elif field in ("tool", "base"):
+            out.append(table[f"{field}_{'xyz' if comp in ('x', 'y', 'z') else 'rpy'}"])
+        else:
+            out.append(table[field])
+    return np.asarray(out)
 
 
 def status_text(result: int, full_rank: bool = True) -> str:

@@ -10,6 +10,8 @@ import numpy as np
 
 from jaxrobot._cli import SolveFailed
 
+from ._pose_files import add_approach_option
+
 HELP = "calibrate the kinematic parameters from a pose file (thesis 3.2, LM)"
 
 
@@ -25,6 +27,11 @@ def configure(parser) -> None:
                         help="marker offset in the flange frame in m (default: the robot file's [sensors])")
     parser.add_argument("--limits", choices=("flag", "raise"), default="flag",
                         help="poses beyond the joint limits: list them (flag) or reject the file (raise)")
+    add_approach_option(parser)
+    parser.add_argument("--method", choices=("lm", "map"), default="lm",
+                        help="lm: plain least squares (default); map: maximum a posteriori with tolerance priors "
+                             "(identification.DEFAULT_PRIOR_STD, overridden by the robot file's [calibration] "
+                             "prior_std), default set plus every joint offset and gear ratio")
 
 
 def _mm(stats: dict) -> dict:
@@ -33,9 +40,9 @@ def _mm(stats: dict) -> dict:
 
 def summary(report: dict) -> dict:
     """The JSON summary of issue 4 from a calibration report."""
+    keep = ("value", "delta", "std", "prior_std", "data_fraction", "determined_by")
     out = {
-        "parameters": {n: {"value": p["value"], "delta": p["delta"], "std": p["std"]}
-                       for n, p in report["parameters"].items()},
+        "parameters": {n: {k: p[k] for k in keep if k in p} for n, p in report["parameters"].items()},
         "identification": {"before_mm": _mm(report["identification"]["before_m"]),
                            "after_mm": _mm(report["identification"]["after_m"])},
         "validation": None,
@@ -59,6 +66,10 @@ def _echo_report(report: dict, echo, truth: dict | None = None) -> None:
         echo(error_table(report["validation"], "Position errors of the validation set (Table 3.7 format)"))
     echo("Identified deviations ± standard error (Table 3.8 format)")
     echo(parameter_table(report["parameters"], truth))
+    if report.get("method") == "map":
+        for source in ("data", "prior"):
+            names = [n for n, p in report["parameters"].items() if p["determined_by"] == source]
+            echo(f"determined by the {source}: {', '.join(names) or '(none)'}")
 
 
 def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions=None) -> list[str]:
@@ -84,23 +95,34 @@ def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions
 
 def run(args, echo) -> dict:
     import jaxrobot as jr
-    from jaxrobot._bench_poses import read_pose_csv
 
-    from ._calibration import calibrate
+    from ._calibration import PRIOR_KEYS, calibrate, map_parameters
+    from ._identifiability import default_parameters
+    from ._pose_files import read_poses
+    from ._pose_selection import default_marker
 
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
-    data = read_pose_csv(args.poses)
+    data = read_poses(args.poses, args.approach)
     val = None
     if args.validate is not None:
-        v = read_pose_csv(args.validate)
-        val = (v["motor_angles"], v["positions"])
+        v = read_poses(args.validate, args.approach)
+        val = (v["motor_angles"], v["positions"], v["ccw"])
     names = None if args.parameters is None else [
         n.strip() for n in args.parameters.split(",") if n.strip()]
-    marker = args.marker
-    if marker is None and args.robot is not None:
-        marker = jr.read_description(args.robot).get("sensors", {}).get("tracker_marker_offset_m")
+    desc = jr.read_description(args.robot)
+    prior = {PRIOR_KEYS[k]: v for k, v in desc.get("calibration", {}).get("prior_std", {}).items()}
+    marker, noise = args.marker, None
+    if args.robot is not None:
+        sensors = desc.get("sensors", {})
+        marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
+        noise = sensors.get("tracker_position_noise_m")
+    if args.method == "map" and args.parameters is None:
+        names = map_parameters(default_parameters(robot, orientation=data["quaternions"] is not None,
+                                                  marker=default_marker() if marker is None else marker),
+                               robot.n_joints)
     res = calibrate(robot, data["motor_angles"], data["positions"], data["quaternions"], parameters=names,
-                    marker=marker, validation=val, limits=args.limits)
+                    marker=marker, position_noise=noise, ccw=data["ccw"], validation=val, limits=args.limits,
+                    method=args.method, prior_std=prior)
     _echo_report(res.report, echo)
     if not res.report["converged"]:
         raise SolveFailed(f"calibration did not converge ({res.report['status']}); the model was not saved")
@@ -108,7 +130,9 @@ def run(args, echo) -> dict:
         for f in _write_outputs(args.out, res.report, positions=data["positions"]):
             echo(f"wrote {args.out / f}")
     if args.save_model is not None:
-        jr.save_robot(res.robot, args.save_model)
+        from ._model_files import save_model
+
+        save_model(res.robot, args.save_model, args.robot)
         echo(f"wrote {args.save_model}")
     return summary(res.report)
 

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ._pose_files import add_approach_option
+
 HELP = "find where model and pose measurements disagree, name the missing effect, add it, repeat"
 
 
 def configure(parser) -> None:
-    parser.add_argument("poses", type=Path, nargs="+", help="training pose CSV files (SPEC.md format), "
-                        "each in the order measured (gives the direction of approach)")
+    parser.add_argument("poses", type=Path, nargs="+", help="training pose CSV files (SPEC.md format)")
     parser.add_argument("--validate", type=Path, nargs="+", required=True, help="held-out validation pose CSV files")
     parser.add_argument("--model", type=Path, default=None,
                         help="start robot description (default: the embedded Racer-7, nominal)")
@@ -20,15 +21,16 @@ def configure(parser) -> None:
     parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
                         help="marker offset in the flange frame in m (default: [sensors])")
     parser.add_argument("--max-steps", type=int, default=6, help="most effects to add (default 6)")
+    add_approach_option(parser)
     parser.add_argument("--max-order", type=int, default=400, help="highest ripple order searched (default 400)")
 
 
-def _poses(paths):
-    from jaxrobot._bench_poses import read_pose_csv
-
+def _poses(paths, approach: str):
     from ._diagnose import Poses
+    from ._pose_files import read_poses
 
-    return Poses.concatenate([Poses.of(d["motor_angles"], d["positions"]) for d in map(read_pose_csv, paths)])
+    data = [read_poses(p, approach) for p in paths]
+    return Poses.concatenate([Poses.of(d["motor_angles"], d["positions"], "column", d["ccw"]) for d in data])
 
 
 def run(args, echo) -> dict:
@@ -47,7 +49,7 @@ def run(args, echo) -> dict:
         sensors = jr.read_description(args.model).get("sensors", {})
         marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
         noise = sensors.get("tracker_position_noise_m") if noise is None else noise
-    train, val = _poses(args.poses), _poses(args.validate)
+    train, val = _poses(args.poses, args.approach), _poses(args.validate, args.approach)
     echo(f"diagnose: {len(train)} training and {len(val)} validation poses, start model {robot.name}")
     res = diagnose(robot, train, val, noise=noise,
                    marker=marker, max_steps=args.max_steps, max_order=args.max_order, progress=echo)
@@ -68,4 +70,5 @@ def run(args, echo) -> dict:
     if args.save_model is not None:
         jr.save_robot(res.robot, args.save_model)
         echo(f"wrote {args.save_model}")
-    return {k: rep[k] for k in ("noise_floor_um", "steps", "final_rms_validation_um", "verdict", "start")}
+    return {k: rep[k] for k in ("noise_floor_um", "validation_bound_um", "steps", "final_rms_validation_um",
+                                "verdict", "start")}

@@ -24,8 +24,8 @@ def configure(parser) -> None:
                         help="folder of pose CSVs (SPEC.md format), one per robot, all with the same poses count; "
                              "robots in file-name order")
     parser.add_argument("--bench", type=int, default=None, metavar="R",
-                        help="first write bench data of R random as-built robots into FOLDER (robot_00000.csv, ...) "
-                             "and calibrate those")
+                        help="first write bench data of R random as-built robots (draw_fleet around --robot) into "
+                             "FOLDER (robot_00000.csv, ...) and calibrate those")
     parser.add_argument("--poses", type=int, default=50, help="poses per robot of --bench (default 50)")
     parser.add_argument("--seed", type=int, default=0, help="seed of --bench (default 0)")
     parser.add_argument("--robot", type=Path, default=None,
@@ -45,7 +45,7 @@ def configure(parser) -> None:
 @eqx.filter_jit
 def _rest_poses(nominal, truth, q, marker):
     """Per robot (`lax.map`: its fixed-point iterations are its own, so its data do not depend on the
-    batch): the nominal robot's motor angles (R, K, 6) holding `q` at rest (`static_equilibrium`) and
+    batch): the nominal robot's motor angles (R, K, n) holding `q` at rest (`static_equilibrium`) and
     the true marker positions (R, K, 3) of `truth` resting at them (`rest_link_angles`)."""
     import jaxrobot as jr
 
@@ -57,12 +57,13 @@ def _rest_poses(nominal, truth, q, marker):
     return jax.lax.map(one, (truth, q))
 
 
-def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0) -> list[Path]:
+def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nominal=None, marker=None) -> list[Path]:
     """Bench data of a fleet, this process's share (`process_share`): robots of `draw_fleet(n_robots,
-    seed)`, each at its own `n_poses` random feasible poses (one pool, `random_feasible_poses`) held at
-    the nominal robot's static equilibrium, measured by the tracker (`_rest_poses`, each robot on its
-    own) with noise of its own seed, so that the data do not depend on the process count. Writes
-    `robot_{r:05d}.csv` of this share; returns all R paths."""
+    seed, nominal)` (default the nominal Racer-7), each at its own `n_poses` random feasible poses (one
+    pool, `random_feasible_poses`) held at the nominal robot's static equilibrium, measured by the
+    tracker at `marker` (default `[sensors]`; `_rest_poses`, each robot on its own) with noise of its
+    own seed, so that the data do not depend on the process count. Writes `robot_{r:05d}.csv` of this
+    share; returns all R paths."""
     import jax.numpy as jnp
 
     import jaxrobot as jr
@@ -74,12 +75,13 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0) -> lis
     paths = [folder / f"robot_{r:05d}.csv" for r in range(n_robots)]
     folder.mkdir(parents=True, exist_ok=True)
     share = jr.process_share(n_robots)
-    nominal = jr.racer7()
-    truth = jax.tree.map(lambda x: x[share], jr.draw_fleet(n_robots, seed=seed))
-    pool = random_feasible_poses(nominal, 20 * n_poses, seed=seed)
+    nominal = jr.racer7() if nominal is None else nominal
+    marker = default_marker() if marker is None else np.asarray(marker, float)
+    truth = jax.tree.map(lambda x: x[share], jr.draw_fleet(n_robots, seed=seed, robot=nominal))
+    pool = random_feasible_poses(nominal, 20 * n_poses, seed=seed, marker=marker)
     rows = range(share.start, share.stop)
     q = np.stack([pool[np.random.default_rng([seed, r]).choice(len(pool), n_poses, replace=False)] for r in rows])
-    theta, exact = (np.asarray(x) for x in _rest_poses(nominal, truth, jnp.asarray(q), jnp.asarray(default_marker())))
+    theta, exact = (np.asarray(x) for x in _rest_poses(nominal, truth, jnp.asarray(q), jnp.asarray(marker)))
     sigma = float(jr.read_description(None)["sensors"]["tracker_position_noise_m"])
     for i, r in enumerate(rows):
         noise = sigma * np.random.default_rng([seed, r, 1]).standard_normal((n_poses, 3))
@@ -105,14 +107,19 @@ def run(args, echo) -> dict:
     count = jr.initialize_processes(args.coordinator, args.num_processes, args.process_id)
     import jax
 
-    from ._calibration import DEFAULT_PARAMETERS
+    from jaxrobot._cli import SolveFailed
+
     from ._fleet import calibrate_fleet
 
     pid = jax.process_index()
+    robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
+    names = None if args.parameters is None else [n.strip() for n in args.parameters.split(",") if n.strip()]
+    marker = None if args.robot is None else jr.read_description(args.robot).get("sensors", {}).get(
+        "tracker_marker_offset_m")
     seconds = {}
     start = time.perf_counter()
     if args.bench is not None:
-        files = bench_fleet(args.folder, args.bench, args.poses, args.seed)
+        files = bench_fleet(args.folder, args.bench, args.poses, args.seed, robot, marker)
         seconds["bench"] = time.perf_counter() - start
     else:
         if not args.folder.is_dir():
@@ -129,27 +136,22 @@ def run(args, echo) -> dict:
         if d["motor_angles"].shape[0] != k:
             raise ValueError(f"{f}: expected {k} poses as {files[share][0].name}, found {d['motor_angles'].shape[0]}")
     seconds["read"] = time.perf_counter() - t
-    robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
-    names = DEFAULT_PARAMETERS if args.parameters is None else [
-        n.strip() for n in args.parameters.split(",") if n.strip()]
-    marker = None if args.robot is None else jr.read_description(args.robot).get("sensors", {}).get(
-        "tracker_marker_offset_m")
     echo(f"process {pid} of {count}: robots {share.start}..{share.stop - 1} of {len(files)}, {k} poses each")
     t = time.perf_counter()
     res = calibrate_fleet(robot, np.stack([d["motor_angles"] for d in data]), np.stack([d["positions"] for d in data]),
                           parameters=names, marker=marker, max_steps=args.max_steps)
     seconds["calibrate"] = time.perf_counter() - t
-    status = {s: int(np.sum(res.status == s)) for s in np.unique(res.status)}
+    status = {str(s): int(np.sum(res.status == s)) for s in np.unique(res.status)}
     if pid == 0:
         echo(f"fleet of {len(files)} robots on {res.n_devices} device(s): {status}; LM steps median "
              f"{np.median(res.iterations):.0f}, max {res.iterations.max()}; residual rms median "
-             f"{1e3 * np.median(res.rms_m):.4f} mm ({seconds['calibrate']:.1f} s incl. compile)")
+             f"{1e3 * np.median(res.rms_m):.4f} mm; {seconds['calibrate']:.1f} s")
         if args.out is not None:
             (args.out / TABLE).write_text(_table(res, files))
             echo(f"wrote {args.out / TABLE}")
     failed = int(np.sum(~res.converged))
     if failed:
-        raise ValueError(f"{failed} of {len(files)} robots did not converge or are rank deficient ({status}); "
+        raise SolveFailed(f"{failed} of {len(files)} robots did not converge or are rank deficient ({status}); "
                          f"see the status column of {TABLE}")
     return {"robots": len(files), "poses": k, "processes": count, "process_id": pid,
             "local_robots": share.stop - share.start, "devices": res.n_devices, "parameters": list(res.names),

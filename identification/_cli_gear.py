@@ -23,6 +23,9 @@ def configure(parser) -> None:
                         help="robot description (TOML, racer7.toml format); default: the embedded Racer-7")
     parser.add_argument("--method", choices=("sparse", "fft"), default="sparse",
                         help="order search for the fit: sparse selection (ours, default) or the thesis' FFT")
+    parser.add_argument("--save-model", type=Path, default=None,
+                        help="write the robot (--robot or the embedded one) with the identified u0 and Fourier "
+                             "sets (TOML; the input of calibrate --robot)")
 
 
 def _cutoffs(desc: dict) -> dict[int, float]:
@@ -38,7 +41,7 @@ def _cutoffs(desc: dict) -> dict[int, float]:
 
 
 def _echo_result(res, echo) -> None:
-    from ._gear_report import order_table, rms_table, test_table
+    from ._gear_report import order_table, resolution_table, rms_table, test_table
 
     joints = sorted({j for j, _ in res.groups})
     for j in joints:
@@ -51,6 +54,8 @@ def _echo_result(res, echo) -> None:
     echo(order_table(res))
     echo("")
     echo(test_table(res))
+    echo("")
+    echo(resolution_table(res))
 
 
 def run(args, echo) -> dict:
@@ -72,6 +77,11 @@ def run(args, echo) -> dict:
     if args.out is not None:
         for f in write_report(res, args.out):
             echo(f"wrote {f}")
+    if args.save_model is not None:
+        from ._model_files import save_model
+
+        save_model(res.robot(robot), args.save_model, args.robot)
+        echo(f"wrote {args.save_model}")
     return summary(res)
 
 

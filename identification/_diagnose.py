@@ -12,7 +12,13 @@
    scored by the Bayesian information criterion `BIC = chi2 + m ln(3K)` on the training poses
    and the RMS on held-out validation poses.
 4. *Add*: the best-BIC candidate that lowers BIC by more than `MIN_BIC_GAIN` and lowers the
-   validation RMS is added; repeat until the chi-square test passes or no candidate helps.
+   validation RMS is added; repeat until the chi-square test passes or no candidate helps. The
+   verdict "explained" needs also the validation RMS within its noise-floor bound
+   (`validation_bound`).
+
+Effects that need the direction of approach (backlash, direction-dependent ripple) are offered
+only for joints whose direction varies over the training poses under their convention; whether
+the row order carries the direction is itself a hypothesis (`approach_dependent_gear_set`).
 """
 
 from __future__ import annotations
@@ -30,6 +36,8 @@ from jaxrobot._statics import approach_sign
 
 from ._diagnose_model import functions
 from ._effects import RIPPLE_SLOTS, Layout, Model, catalogue, model_of, robot_of
+from ._gear_fit import chi2_quantile
+from ._pose_files import check_pose_units
 
 MIN_BIC_GAIN = 10.0
 """Least BIC decrease for adding an effect ("very strong" evidence, Kass and Raftery 1995)."""
@@ -41,15 +49,21 @@ ORDER_FALSE_ALARM = 1e-3
 
 @dataclasses.dataclass(frozen=True)
 class Poses:
-    """Measured poses in the order they were taken: `motor_angles` (K, n) rad, `positions`
-    (K, 3) m, `ccw` (K, n) the direction of approach (from the order, `jaxrobot.approach_directions`)."""
+    """Measured poses: `motor_angles` (K, n) rad, `positions` (K, 3) m, `ccw` (K, n) the direction
+    of approach of the stated convention (`_pose_files.APPROACHES`, SPEC.md's `cw` by default) and
+    `ccw_order` (K, n) the one the row order would give (`jaxrobot.approach_directions`), which the
+    hypothesis `approach_dependent_gear_set` tests."""
 
     motor_angles: np.ndarray
     positions: np.ndarray
     ccw: np.ndarray
+    ccw_order: np.ndarray
 
     @classmethod
-    def of(cls, motor_angles, positions) -> Poses:
+    def of(cls, motor_angles, positions, approach: str = "cw", ccw=None) -> Poses:
+        """`approach`: "cw", "order" or "column" (then `ccw` (K, n) bool, e.g. `read_poses`'s)."""
+        from ._pose_files import approach_ccw
+
         th = np.asarray(motor_angles, float)
         pos = np.asarray(positions, float)
         if th.ndim != 2 or pos.shape != (th.shape[0], 3):
@@ -58,11 +72,18 @@ class Poses:
         bad = np.nonzero(~np.isfinite(np.concatenate([th, pos], 1)).all(1))[0]
         if bad.size:
             raise ValueError(f"poses: NaN/inf in rows {bad.tolist()} (0-based); remove these poses")
-        return cls(th, pos, np.asarray(jr.approach_directions(th)))
+        if approach == "column":
+            if ccw is None or np.shape(ccw) != th.shape:
+                raise ValueError(f"ccw: approach 'column' needs the direction per pose and joint, shape {th.shape}, "
+                                 f"found {None if ccw is None else np.shape(ccw)}")
+            ccw = np.asarray(ccw, bool)
+        else:
+            ccw = approach_ccw(th, approach)
+        return cls(th, pos, ccw, np.asarray(jr.approach_directions(th)))
 
     @classmethod
     def concatenate(cls, parts: list[Poses]) -> Poses:
-        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("motor_angles", "positions", "ccw")))
+        return cls(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(cls)))
 
     def __len__(self) -> int:
         return self.motor_angles.shape[0]
@@ -100,6 +121,14 @@ class DiagnoseResult:
 
 def _p_value(chi2: float, dof: int) -> float:
     return float(gammaincc(0.5 * max(dof, 1), 0.5 * chi2))
+
+
+def validation_bound(sigma: float, k_val: int, m: int, n_res: int) -> float:
+    """Largest validation RMS [m] that noise alone explains at level `ALPHA`: `K RMS^2 / sigma^2`
+    is chi-square with `3K` dof (Wilson-Hilferty quantile), inflated by `1 + m / (n - m)` for the
+    error of `m` parameters fitted to `n` residuals."""
+    q = chi2_quantile(ALPHA, 3.0 * k_val)
+    return sigma * float(np.sqrt(q / k_val * (1.0 + m / max(n_res - m, 1))))
 
 
 def _orthonormal(a: np.ndarray) -> np.ndarray:
@@ -144,7 +173,11 @@ def _find_orders(g, phi, r, q, max_order: int, sign, threshold: float) -> tuple[
     return found, first
 
 
-def _candidates(layout: Layout, free: set, ripple_orders: dict) -> list[Candidate]:
+DIRECTIONAL = ("backlash", "direction_dependent_ripple")
+"""Effects that need a varying direction of approach (with a constant one they alias others)."""
+
+
+def _candidates(layout: Layout, free: set, ripple_orders: dict, varying: np.ndarray) -> list[Candidate]:
     out = []
     for ei, (e, block) in enumerate(zip(layout.effects, layout.blocks)):
         for variant in e.variants():
@@ -153,6 +186,8 @@ def _candidates(layout: Layout, free: set, ripple_orders: dict) -> list[Candidat
                 out.append(Candidate(ei, None, tuple(int(i) for i in block[list(variant)]), tag))
                 continue
             for j in range(block.shape[0]):
+                if e.kind in DIRECTIONAL and not varying[j]:
+                    continue
                 params = [int(i) for i in block[j, list(variant)]]
                 if e.kind in ripple_orders:
                     n_used = len(ripple_orders[e.kind].get(j, []))
@@ -210,6 +245,7 @@ def diagnose(
         if poses.motor_angles.shape[1] != joints:
             raise ValueError(f"{name}: expected motor_angles (K, {joints}) rad for the {joints}-joint start robot, "
                              f"found {poses.motor_angles.shape}")
+        check_pose_units(start, poses.motor_angles, poses.positions, marker, f"{name} poses")
     say = progress or (lambda _: None)
     layout = Layout.of(catalogue(start), joints)
     fns = functions(layout)
@@ -219,9 +255,10 @@ def diagnose(
     v = jnp.zeros(spare + 1)
     orders = np.zeros((joints, 2 * RIPPLE_SLOTS))
     both = Poses.concatenate([train, validation])  # one compiled shape for both sets
-    th_all, ccw_all = jnp.asarray(both.motor_angles), jnp.asarray(both.ccw)
+    th_all, ccw_all = jnp.asarray(both.motor_angles), (jnp.asarray(both.ccw), jnp.asarray(both.ccw_order))
     k_tr = len(train)
-    data = {"train": (th_all[:k_tr], ccw_all[:k_tr], train.positions)}
+    data = {"train": (th_all[:k_tr], tuple(c[:k_tr] for c in ccw_all), train.positions)}
+    varying = np.any(train.ccw != train.ccw[:1], axis=0)
     n_res = 3 * k_tr
     ln_n = float(np.log(n_res))
     free: list[int] = []
@@ -251,10 +288,18 @@ def diagnose(
         say(f"step {row['step']}: {row['effect']:<34} rms train {row['rms_train_um']:8.2f} um, validation "
             f"{row['rms_validation_um']:8.2f} um, noise floor {sigma * np.sqrt(3) * 1e6:.2f} um, chi2/dof "
             f"{chi2 / max(row['dof'], 1):.3f} (p = {p_val:.3g}) [{time.perf_counter() - t0:.1f} s]")
+        bound = validation_bound(sigma, len(validation), len(free), n_res)
         if p_val > ALPHA:
-            verdict = ("no significant discrepancy: the model explains the data to the noise floor" if not accepted
-                       else "explained: residuals at the noise floor after adding " +
-                       ", ".join(c.label(layout) for c in accepted))
+            added = ", ".join(c.label(layout) for c in accepted)
+            if _rms(ev["validation"][1]) > bound:
+                after = " after adding " + added if added else ""
+                rms_v = _rms(ev["validation"][1]) * 1e6
+                verdict = (f"not explained: training residuals at the noise floor{after}, but the validation RMS "
+                           f"{rms_v:.2f} um exceeds its noise-floor bound {bound * 1e6:.2f} um (overfit, or an "
+                           "effect the training poses do not excite)")
+            else:
+                verdict = ("no significant discrepancy: the model explains the data to the noise floor" if not accepted
+                           else "explained: residuals at the noise floor after adding " + added)
             break
         if len(accepted) >= max_steps:
             verdict = f"discrepancy remains after {max_steps} effects (max_steps)"
@@ -267,7 +312,7 @@ def diagnose(
         qe = _orthonormal(jac[:, free]) if free else np.zeros((n_res, 0))
         threshold = 2.0 * np.log(joints * max_order / ORDER_FALSE_ALARM)
         off = layout.blocks[layout.index("joint_offset")]
-        sign = np.asarray(approach_sign(np.asarray(ccw)))
+        sign = np.asarray(approach_sign(np.asarray(ccw[0])))
         found: dict[str, dict[int, list[int]]] = {"gear_ripple": {}, "direction_dependent_ripple": {}}
         spec_step = {}
         for j in range(joints):
@@ -276,6 +321,9 @@ def diagnose(
             for kind, col, sgn in (("gear_ripple", 0, None), ("direction_dependent_ripple", RIPPLE_SLOTS, sign[:, j])):
                 if any(c.joint == j and layout.effects[c.effect].kind == kind for c in accepted):
                     found[kind][j] = [int(n) for n in orders[j, col: col + RIPPLE_SLOTS] if n > 0]
+                    continue
+                if kind in DIRECTIONAL and not varying[j]:
+                    found[kind][j] = []
                     continue
                 ns, first = _find_orders(g, phi, r, qe, max_order, sgn, threshold)
                 spec_step[(kind, j + 1)] = first
@@ -286,7 +334,7 @@ def diagnose(
         if any(found[k] for k in found):
             jac = np.asarray(fns.jacobian(model0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
         # name: linearised fit of every candidate, then LM on the shortlist
-        cands = _candidates(layout, set(free), found)
+        cands = _candidates(layout, set(free), found, varying)
         scored = []
         for c in cands:
             cols = free + [i for i in c.params if i not in free]
@@ -348,6 +396,7 @@ def diagnose(
     model = layout.apply(model0, v, jnp.asarray(orders))
     report = {
         "noise_floor_um": sigma * np.sqrt(3) * 1e6,
+        "validation_bound_um": validation_bound(sigma, len(validation), len(free), n_res) * 1e6,
         "steps": steps,
         "final_rms_validation_um": _rms(final) * 1e6,
         "verdict": verdict,
@@ -374,6 +423,9 @@ def _step_entry(layout: Layout, model0: Model, c: Candidate, v, orders, std: dic
             col = slot + (RIPPLE_SLOTS if e.kind == "direction_dependent_ripple" else 0)
             name = f"{name[:-1]}_order{int(orders[c.joint, col])}"
         params[name] = {"value": float(v[gi]), "std": float(std.get(int(gi), np.nan)), "unit": e.units[i]}
+    if e.kind == "approach_dependent_gear_set":
+        params["weight"]["note"] = ("the poses' row order gives the gear set at rest; a robot file cannot hold "
+                                    "this: read the poses with --approach order")
     if e.kind == "joint_compliance":
         cj = float(model0.c[c.joint] + v[local[0]])
         params["k1"] = {"value": 1.0 / cj if cj > 0 else float("inf"), "unit": "N m/rad"}

@@ -1,10 +1,12 @@
 """Forward model of pose measurements for the discrepancy workflow, and its batched LM fit.
 
 Rest pose (thesis 3.2.3, with the effects of `_effects`): `phi = Xi^{-1}(theta) - backlash/2 s`
-(`s` the approach sign), `q = phi - x(g(q))` with `x + e x^3 = c g` the joint deflection under the
-gravity torque `g`, then the marker position by eq. 2.4. The exact model iterates the fixed point
-to convergence; the fit model starts from the current rest angles and takes two iterations
-(the map contracts by `|c dg/dq| < 1e-2`, so the error is below 1e-7 rad) to keep the Jacobian cheap.
+(`s` the approach sign; `Xi^{-1}` with the gear set of the poses' convention, moved towards that of
+the order's direction of approach by `Model.approach`), `q = phi - x(g(q))` with `x + e x^3 = c g`
+the joint deflection under the gravity torque `g`, then the marker position by eq. 2.4. The exact
+model iterates the fixed point to convergence; the fit model starts from the current rest angles and
+takes two iterations (the map contracts by `|c dg/dq| < 1e-2`, so the error is below 1e-7 rad)
+to keep the Jacobian cheap.
 """
 
 from __future__ import annotations
@@ -28,11 +30,16 @@ FIT_ITERATIONS = 2
 
 
 def rest_angles(
-    model: Model, theta: Float[Array, "K n"], ccw: Bool[Array, "K n"], q0: Float[Array, "K n"] | None, iterations: int
+    model: Model, theta: Float[Array, "K n"], ccw: tuple[Bool[Array, "K n"], Bool[Array, "K n"]],
+    q0: Float[Array, "K n"] | None, iterations: int
 ) -> Float[Array, "K n"]:
-    """Link angles at rest (fixed point `q = phi - x(g(q))`, `iterations` steps from `q0` or `phi`)."""
+    """Link angles at rest (fixed point `q = phi - x(g(q))`, `iterations` steps from `q0` or `phi`);
+    `ccw`: the direction of approach of the poses' convention and the one from their order."""
     rob = model.robot
-    phi = jr.gear_output(rob, theta, ccw) - 0.5 * rob.backlash * approach_sign(ccw)
+    ccw, ccw_order = ccw
+    phi = jr.gear_output(rob, theta, ccw)
+    phi = phi + model.approach * (jr.gear_output(rob, theta, ccw_order) - phi)
+    phi = phi - 0.5 * rob.backlash * approach_sign(ccw)
     step = lambda _, q: phi - jr.compliance_deflection(model.c, model.e, jr.gravity_torque(rob, q))
     return jax.lax.fori_loop(0, iterations, step, phi if q0 is None else q0)
 

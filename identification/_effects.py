@@ -36,6 +36,9 @@ class Model(eqx.Module):
     robot: jr.Robot
     c: Float[Array, " n"]
     e: Float[Array, " n"]
+    approach: Float[Array, " n"]
+    """Weight of the gear set of the direction of approach from the order at rest (0: the set of
+    the poses' convention; `ApproachDependentGearSet`)."""
 
 
 def _pad(rip: jr.Ripple, m: int) -> jr.Ripple:
@@ -48,7 +51,7 @@ def model_of(robot: jr.Robot) -> Model:
     m = 2 * RIPPLE_SLOTS
     robot = eqx.tree_at(lambda r: (r.cw, r.ccw), robot, (_pad(robot.cw, m), _pad(robot.ccw, m)))
     c = 1.0 / robot.k1
-    return Model(robot, c, robot.k3 * c)
+    return Model(robot, c, robot.k3 * c, jnp.zeros_like(robot.u0))
 
 
 def robot_of(model: Model) -> jr.Robot:
@@ -102,7 +105,8 @@ class GearRatio(Effect):
 
 
 class Backlash(Effect):
-    """Lost motion: the link lags by `v/2` against the direction of approach (`Robot.backlash`)."""
+    """Lost motion: the link lags by `v/2` against the direction of approach (`Robot.backlash`).
+    Offered only for joints whose direction of approach varies over the poses (else it is an offset)."""
 
     kind, per_joint, names, scales, units = "backlash", True, ("backlash",), (1e-4,), ("rad",)
 
@@ -256,9 +260,22 @@ class Payload(Effect):
         return _robot_at(model, ("mass", "com"), (rob.mass.at[-1].set(m), rob.com.at[-1].set(com)))
 
 
+class ApproachDependentGearSet(Effect):
+    """The convention hypothesis "at rest, each gear uses the set (cw/ccw) of its direction of
+    approach, taken from the order of the poses": the gear output angle moves from the set of the
+    poses' convention towards that of the order by the weight `v` (1: the hypothesis holds). It is
+    the identity when the convention is already the order. A robot file cannot hold it: the
+    remedy is to read the poses with the approach taken from the order."""
+
+    kind, per_joint, names, scales, units = "approach_dependent_gear_set", False, ("weight",), (1.0,), ("1",)
+
+    def apply(self, model, v, orders):
+        return eqx.tree_at(lambda m: m.approach, model, model.approach + v[0])
+
+
 CATALOGUE: list[Effect] = [JointOffset(), GearRatio(), Backlash(), JointCompliance(), GearRipple(),
                            DirectionDependentRipple(), Geometry(), LinkScale(), ToolOffset(), BaseOffset(),
-                           Payload()]
+                           Payload(), ApproachDependentGearSet()]
 """The effects the workflow tries, in this order (ties keep the earlier one); `catalogue(robot)`
 sizes the geometry effect for a robot."""
 

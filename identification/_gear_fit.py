@@ -11,6 +11,7 @@ fit is repeated `ITERATIONS` times from `phi = theta / u0`.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import equinox as eqx
 import jax
@@ -20,7 +21,7 @@ import optimistix as optx
 from jax.scipy.special import betainc, gammaincc
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxrobot import Robot, read_description
+from jaxrobot import Ripple, Robot, read_description
 from jaxrobot._description import filter_cutoffs
 from jaxrobot._gear import ratio as gear_ratio
 from jaxrobot._gear import xi_inverse
@@ -50,7 +51,8 @@ found. With `theta / u0` the phase error of `phi` (ripple / n, ~4e-4 rad for joi
 modulates each order and shows sum and difference orders (e.g. 70 + 140 = 210) that the gear
 does not have."""
 SIGNIFICANCE = 0.01
-"""cw and ccw sets differ significantly when the Wald test's p-value is below this."""
+"""cw and ccw sets differ significantly when the Wald test's p-value is below this; a group's
+ripple is kept only when its Wald test against no ripple (run-to-run scatter included) is below it."""
 
 
 class GearFit(eqx.Module):
@@ -251,11 +253,42 @@ class GearIdentification:
     spectra: list
     cv_curves: np.ndarray
     tests: list
+    resolution: list
+    """Per group: `Resolution` of its ripple (kept, or below the noise and how many more runs)."""
     infos: list
     group: np.ndarray
     validation: np.ndarray
     errors: GearErrors
     t: np.ndarray
+
+    def robot(self, start: Robot) -> Robot:
+        """`start` with the identified gears: per joint `u0` the inverse-variance mean of its
+        directions' (one basic ratio per gear), each identified direction's Fourier set (none where
+        the ripple was not resolved); joints and directions without runs keep `start`'s."""
+        u0 = np.array(start.u0, float)
+        sets = {}
+        for ccw, rip in ((False, start.cw), (True, start.ccw)):
+            sets[ccw] = [[(float(n), float(a), float(b)) for n, a, b in zip(*(np.asarray(x)[j] for x in (
+                rip.orders, rip.a, rip.b))) if n > 0] for j in range(u0.shape[0])]
+        for joint in sorted({j for j, _ in self.groups}):
+            gs = [g for g, (j, _) in enumerate(self.groups) if j == joint]
+            w = np.array([1.0 / float(self.fit.se_u0[g]) ** 2 for g in gs])
+            u0[joint - 1] = float(np.sum(w * np.asarray(self.fit.u0)[gs]) / np.sum(w))
+            for g in gs:
+                used = np.asarray(self.fit.orders[g]) > 0
+                sets[self.groups[g][1]][joint - 1] = list(zip(*(np.asarray(x[g])[used].tolist() for x in (
+                    self.fit.orders, self.fit.a, self.fit.b))))
+        m = max(1, max(len(s) for d in sets.values() for s in d))
+
+        def ripple(per_joint):
+            arr = np.zeros((3, u0.shape[0], m))
+            for j, terms in enumerate(per_joint):
+                if terms:
+                    arr[:, j, :len(terms)] = np.array(terms).T
+            return Ripple(*(jnp.asarray(x) for x in arr))
+
+        return eqx.tree_at(lambda r: (r.u0, r.cw, r.ccw), start,
+                           (jnp.asarray(u0), ripple(sets[False]), ripple(sets[True])))
 
     def rms(self, g: int, validation: bool, speed: str | None = None) -> tuple[float, float, float]:
         """RMS before, after and noise floor [rad/s] over the runs of group `g` (identification or
@@ -272,12 +305,111 @@ class GearIdentification:
         return quad(self.errors.rms_before), quad(self.errors.rms_after), quad(self.errors.noise_floor)
 
 
+@dataclasses.dataclass(frozen=True)
+class Resolution:
+    """Whether the runs resolve a group's ripple: Wald statistic of its coefficients against no
+    ripple (covariance scaled by `scatter`, the run-to-run spread over the model's), the runs it
+    rests on and, if unresolved, the runs per direction that would reach `SIGNIFICANCE`
+    (the non-centrality `chi2 - dof` grows in proportion to the runs)."""
+
+    chi2: float
+    dof: int
+    p_value: float
+    runs: int
+    scatter: float
+    more_runs: int
+    probe: bool = False
+    """The orders the cross-validation rejected (the FFT's peaks), tested only to estimate the runs
+    that would resolve them: never resolved."""
+
+    @property
+    def resolved(self) -> bool:
+        return self.dof > 0 and self.p_value < SIGNIFICANCE and not self.probe
+
+    def note(self) -> str:
+        if self.resolved or self.dof == 0:
+            return ""
+        return (f"ripple below the noise with these runs: {self.more_runs} more runs per direction would "
+                "resolve it")
+
+
+def chi2_quantile(p: float, dof: float) -> float:
+    """Upper `p` quantile of chi-square with `dof` degrees of freedom (Wilson-Hilferty; 1e-3
+    relative for dof >= 6)."""
+    from jax.scipy.stats import norm
+
+    h = 2.0 / (9.0 * dof)
+    return dof * (1.0 - h + float(norm.ppf(1.0 - p)) * math.sqrt(h)) ** 3
+
+
+def _scatter(per_run: GearFit, rows: list[int]) -> tuple[float, float]:
+    """Run-to-run scatter of one group's per-run fits `rows`: (chi2/dof of the coefficient
+    differences of consecutive runs against their model covariance, floored at 1; variance of the
+    mean `u0` from the spread of the runs, 0 with one run)."""
+    if len(rows) < 2:
+        return 1.0, 0.0
+    used = np.asarray(per_run.orders[rows[0]]) > 0
+    chi2, dof = 0.0, 0.0
+    for r1, r2 in zip(rows[:-1], rows[1:]):
+        c, d, _ = direction_test(per_run.a[r1], per_run.b[r1], per_run.cov_ab[r1], per_run.a[r2], per_run.b[r2],
+                                 per_run.cov_ab[r2], jnp.asarray(used))
+        chi2, dof = chi2 + float(c), dof + float(d)
+    u0 = np.asarray(per_run.u0)[rows]
+    return (max(1.0, chi2 / dof) if dof else 1.0), float(np.var(u0, ddof=1) / len(rows))
+
+
 def _padded(sets: list[list[int]]) -> np.ndarray:
     m = max(1, max(len(s) for s in sets))
     out = np.zeros((len(sets), m))
     for g, s in enumerate(sets):
         out[g, :len(s)] = s
     return out
+
+
+def _with_scatter(fit: GearFit, proc, batch, group, fit_run, joints, u0_model, infos) -> tuple[GearFit, list]:
+    """Standard errors with the run-to-run scatter, and the resolution test of every group.
+
+    Each identification run is fitted alone with its group's orders: the spread of the coefficients
+    between runs against the model covariance scales `cov_ab` (floored at 1); `se_u0` adds the
+    variance that the gyroscope bias left after its removal puts on `u0` (`u0 sqrt(var_b) / |phid|`
+    per run), and is at least the spread of the runs' `u0`.
+    """
+    n_groups = fit.u0.shape[0]
+    rows = np.flatnonzero(fit_run)
+    run_group = np.zeros(len(group), int)
+    run_group[rows] = np.arange(len(rows))
+    per_run = fit_gear_ratio(proc, batch, jnp.asarray(run_group), jnp.asarray(fit_run),
+                             jnp.asarray(np.asarray(fit.orders)[group[rows]]), fit.u0[group[rows]])
+    bias_var = np.asarray(proc.bias_var)[:, 2]  # the aligned z axis is within 2e-2 rad of the sensor's
+    scales, se_u0, resolution = [], [], []
+    for g in range(n_groups):
+        members = [int(k) for k in np.flatnonzero(group[rows] == g)]
+        scale, var_emp = _scatter(per_run, members)
+        u0 = float(fit.u0[g])
+        speed = np.array([abs(math.radians(infos[rows[k]].motor_speed_deg_s)) / u0_model[joints[g] - 1]
+                          for k in members])
+        var_bias = float(np.sum(bias_var[rows[members]] * u0**2 / speed**2)) / len(members) ** 2
+        var_model = scale * float(fit.se_u0[g]) ** 2 + var_bias
+        se_u0.append(math.sqrt(max(var_model, var_emp)))
+        scales.append(scale)
+        used = np.asarray(fit.orders[g]) > 0
+        m = int(used.sum())
+        if m == 0:
+            resolution.append(Resolution(0.0, 0, 1.0, len(members), scale, 0))
+            continue
+        mask = np.concatenate([used, used])
+        coef = np.concatenate([np.asarray(fit.a[g]), np.asarray(fit.b[g])])[mask]
+        cov = scale * np.asarray(fit.cov_ab[g])[np.ix_(mask, mask)]
+        chi2 = float(coef @ np.linalg.pinv(cov) @ coef)
+        dof = 2 * m
+        p = float(gammaincc(dof / 2.0, chi2 / 2.0))
+        lam, need = chi2 - dof, chi2_quantile(SIGNIFICANCE, dof) - dof
+        lam = max(lam, math.sqrt(2.0 * dof))  # no trace of it: one noise std at most
+        more = max(1, math.ceil(len(members) * need / lam) - len(members))
+        resolution.append(Resolution(chi2, dof, p, len(members), scale, more))
+    sc = jnp.asarray(scales)
+    fit = eqx.tree_at(lambda f: (f.se_u0, f.cov_ab), fit, (jnp.asarray(se_u0), fit.cov_ab * sc[:, None, None]))
+    return fit, resolution
 
 
 def identify_gear(
@@ -287,6 +419,7 @@ def identify_gear(
     cutoff_hz: dict[int, float] | None = None,
     method: str = "sparse",
     names: list[str] | None = None,
+    select: str = "cv",
     validation_names: list[str] | None = None,
 ) -> GearIdentification:
     """Gear-ratio identification of thesis 3.1 from raw runs, with validation.
@@ -299,10 +432,14 @@ def identify_gear(
     - `cutoff_hz`: filter cut-off per 1-based joint (default: `[sensors] filter_cutoff_hz` of the
       embedded description, joints 1-3).
     - `method`: "sparse" (ours) or "fft" (the thesis') order search for the final fit.
+    - `select`: "cv" keeps the clusters the cross-validation supports, "all" every cluster the
+      sparse search picks (a comparison); either way the resolution test follows.
 
     All runs are processed in one jitted call, the orders of all groups searched in one, fitted
     in one and evaluated in one.
     """
+    if select not in ("cv", "all"):
+        raise ValueError(f"select: expected 'cv' or 'all', found {select!r}")
     if method not in ("sparse", "fft"):
         raise ValueError(f"method: expected 'sparse' or 'fft', found {method!r}")
     if cutoff_hz is None:
@@ -340,13 +477,26 @@ def identify_gear(
             first = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(orders_sparse)), u0_start)
             phi = xi_inverse(*(v[gj][:, None] for v in (first.u0, first.orders, first.a, first.b)), proc.theta)
             samples = group_samples(proc, batch, group, fit_run, n_groups, u0_run, phi)
-        sparse, cv = sparse_orders(samples, jnp.asarray(max_order))
+        sparse, cv = sparse_orders(samples, jnp.asarray(max_order), keep_all=select == "all")
         sparse = np.asarray(sparse)
         orders_sparse = [sorted(int(o) for o in sparse[g] if 0 < o <= max_order[g]) for g in range(n_groups)]
     fft = [fft_orders(samples.runs[g], int(max_order[g])) for g in range(n_groups)]
     orders_fft = [f[0] for f in fft]
     chosen = orders_sparse if method == "sparse" else orders_fft
     fit = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(chosen)), u0_start)
+    joint_of = [g[0] for g in groups]
+    fit, resolution = _with_scatter(fit, proc, batch, group, fit_run, joint_of, u0_model, infos)
+    if not all(r.resolved or r.dof == 0 for r in resolution):  # unresolved ripple: the constant ratio
+        chosen = [c if r.resolved else [] for c, r in zip(chosen, resolution)]
+        fit = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(chosen)), u0_start)
+        fit, _ = _with_scatter(fit, proc, batch, group, fit_run, joint_of, u0_model, infos)
+    empty = [g for g, r in enumerate(resolution) if r.dof == 0 and orders_fft[g]]
+    if empty:  # nothing kept: how many runs would resolve the FFT's peaks?
+        probe = [orders_fft[g] if g in empty else [] for g in range(n_groups)]
+        fit_p = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(probe)), u0_start)
+        _, res_p = _with_scatter(fit_p, proc, batch, group, fit_run, joint_of, u0_model, infos)
+        resolution = [dataclasses.replace(res_p[g], probe=True, more_runs=max(res_p[g].more_runs, 1))
+                      if g in empty else r for g, r in enumerate(resolution)]
     errors = kinematic_errors(proc, batch, fit, gj)
 
     # cw against ccw: refit both directions with the union of their orders (Wald test), and the two
@@ -393,5 +543,6 @@ def identify_gear(
     return GearIdentification(
         groups=groups, fit=fit, misalignment=np.asarray(proc.misalignment), align_ok=align_ok, method=method,
         orders_fft=orders_fft, orders_sparse=orders_sparse, spectra=[(f[1], f[2]) for f in fft],
-        cv_curves=np.asarray(cv), tests=tests, infos=infos, group=group, validation=is_val, errors=errors,
+        cv_curves=np.asarray(cv), tests=tests, resolution=resolution, infos=infos, group=group, validation=is_val,
+        errors=errors,
         t=np.arange(batch.theta.shape[1])[None, :] * ts)

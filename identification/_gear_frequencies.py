@@ -143,7 +143,7 @@ def fft_orders(
     return found, orders, mag
 
 
-def _sparse_one(error, phi, rate, sigma, weight, fold, max_order, n_max: int, k_max: int):
+def _sparse_one(error, phi, rate, sigma, weight, fold, max_order, n_max: int, k_max: int, keep_all: bool):
     n = jnp.arange(1, n_max + 1, dtype=float)
     allowed = n <= max_order
     damp = rate[:, None] * jnp.exp(-0.5 * (n * rate[:, None] * sigma[:, None]) ** 2)
@@ -183,6 +183,7 @@ def _sparse_one(error, phi, rate, sigma, weight, fold, max_order, n_max: int, k_
     held = jnp.zeros((k_max + 1, error.size)).at[0].set(held0)
     sel, _, held = jax.lax.fori_loop(0, k_max, step, (sel0, res0, held))
     keep, cv = one_standard_error(held, weight)
+    keep = k_max if keep_all else keep
     orders = jnp.where((jnp.arange(3 * k_max) < 3 * keep) & (sel >= 0), sel + 1, 0)
     return orders, cv
 
@@ -208,18 +209,20 @@ def one_standard_error(
 
 
 def sparse_orders(
-    samples: GroupSamples, max_order: Int[Array, " G"], n_max: int = N_MAX, k_max: int = K_MAX
+    samples: GroupSamples, max_order: Int[Array, " G"], n_max: int = N_MAX, k_max: int = K_MAX,
+    keep_all: bool = False,
 ) -> tuple[Int[Array, "G K"], Float[Array, "G K+1"]]:
-    """Our order search (module docstring) for all groups in one jitted call.
+    """Our order search (module docstring) for all groups in one jitted call; `keep_all` keeps
+    every cluster picked (`k_max`) instead of the cross-validated number (a comparison).
 
     **Returns:** kept orders per group in order of selection, three per cluster (0 = not kept),
     and the cross-validated RMS after 0..K clusters [rad/s].
     """
     return _sparse_jit(samples.error, samples.phi, samples.rate, samples.sigma, samples.weight,
-                       samples.fold, jnp.asarray(max_order), n_max, k_max)
+                       samples.fold, jnp.asarray(max_order), n_max, k_max, keep_all)
 
 
-@functools.partial(jax.jit, static_argnames=("n_max", "k_max"))
-def _sparse_jit(error, phi, rate, sigma, weight, fold, max_order, n_max, k_max):
-    return jax.lax.map(lambda a: _sparse_one(*a, n_max=n_max, k_max=k_max),
+@functools.partial(jax.jit, static_argnames=("n_max", "k_max", "keep_all"))
+def _sparse_jit(error, phi, rate, sigma, weight, fold, max_order, n_max, k_max, keep_all):
+    return jax.lax.map(lambda a: _sparse_one(*a, n_max=n_max, k_max=k_max, keep_all=keep_all),
                        (error, phi, rate, sigma, weight, fold, max_order))

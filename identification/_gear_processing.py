@@ -45,8 +45,6 @@ MIN_CYCLES = 2.0
 """The segment must hold this many cycles of the highest order in the passband."""
 MIN_REST_SAMPLES = 50
 """Samples at rest needed to estimate the gyroscope bias (else no bias is removed)."""
-BIAS_SIGMAS = 3.0
-"""A bias component is removed only if the rests resolve it to this many standard errors."""
 REST_TOLERANCE_RAD = 1e-4
 """Motor-side angle band around the first/last sample that counts as standing still [rad]."""
 REST_MARGIN_S = 0.05
@@ -144,6 +142,36 @@ def check_gear_run(t: np.ndarray, theta: np.ndarray, gyro: np.ndarray, name: str
     return int(moving[0]), ts
 
 
+UNIT_TOLERANCE = 0.08
+"""Relative agreement of motor rate / u0 with the gyroscope rate that `check_gear_units` demands
+(misalignment, ripple and deflection rates change it by well under 1 %)."""
+RATE_MISTAKES = {
+    "link angles in the motor columns (theta_deg is the motor side: link angle times u0)": "link",
+    "radians in the theta _deg columns": np.pi / 180.0,
+    "degrees x1000 in the theta _deg columns": 1e3,
+    "radians per second in the gyro _deg_s columns": 180.0 / np.pi,
+}
+"""Common mistakes in a gear run: what they make of `(thetad / u0) / |gyro|` ("link": 1 / u0)."""
+
+
+def check_gear_units(theta: np.ndarray, gyro: np.ndarray, joint: int, u0: float, ts: float,
+                     name: str = "run") -> None:
+    """Before any fit: the moving joint's motor rate over `u0` must match the gyroscope's rate
+    (both see the link turn) within `UNIT_TOLERANCE`; else name the mistake that explains the
+    ratio (`RATE_MISTAKES`) or the ratio found."""
+    rate = np.abs(np.gradient(np.asarray(theta, float)[:, joint], ts)) / u0
+    gyro_rate = np.linalg.norm(np.asarray(gyro, float), axis=-1)
+    moving = rate > 0.5 * np.max(rate)
+    ratio = float(np.median(rate[moving]) / max(float(np.median(gyro_rate[moving])), 1e-300))
+    if abs(math.log(ratio)) <= math.log1p(UNIT_TOLERANCE):
+        return
+    found = [text for text, f in RATE_MISTAKES.items()
+             if abs(math.log(ratio / (1.0 / u0 if isinstance(f, str) else f))) <= math.log1p(UNIT_TOLERANCE)]
+    likely = f"; likely {' or '.join(found)}" if found else ""
+    raise ValueError(f"{name}: joint {joint + 1}'s motor rate / u0 is {ratio:.4g} times the gyroscope's rate, "
+                     f"expected 1 (motor-side degrees, gyroscope in deg/s){likely}")
+
+
 def _segment(thetad: np.ndarray, trim: int) -> tuple[slice, float]:
     """Longest run of samples at constant cruise speed, shortened by `trim` at both ends."""
     k = 9
@@ -185,7 +213,8 @@ def prepare_gear_runs(
     - `u0`: (n,) basic ratios of the model, to express segment lengths on the link side.
     - `names`: labels for error messages (file names).
 
-    Raises `ValueError` (naming the run) for bad runs and for a constant-speed segment too short
+    Raises `ValueError` (naming the run) for bad runs, unit mistakes (`check_gear_units`), and for a
+    constant-speed segment too short
     to resolve any gear order (`MIN_CYCLES` cycles of the highest order in the passband).
     """
     if not runs:
@@ -198,6 +227,7 @@ def prepare_gear_runs(
         if np.shape(theta)[1] != u0.shape[0]:
             raise ValueError(f"{name}: expected motor angles of {u0.shape[0]} joints (theta (N, {u0.shape[0]})), "
                              f"found {np.shape(theta)[1]}")
+        check_gear_units(theta, gyro, joint, float(u0[joint]), ts, name)
         if joint + 1 not in cutoff_hz:
             raise ValueError(f"{name}: joint {joint + 1} moves, but no filter cut-off is given for it "
                              f"(have joints {sorted(cutoff_hz)}); add it to [sensors] filter_cutoff_hz")
@@ -330,7 +360,12 @@ class ProcessedRuns(eqx.Module):
     align_steps: Array
     """Levenberg-Marquardt steps of the alignment."""
     bias: Float[Array, "R 3"]
-    """Gyroscope bias estimated from the rests [rad/s]."""
+    """Gyroscope bias removed: the rests' mean shrunk towards 0 by the spread of the biases over
+    the runs (empirical Bayes, `tau^2 / (tau^2 + se^2)`) [rad/s]."""
+    bias_var: Float[Array, "R 3"]
+    """Variance of the bias left after the removal [rad^2/s^2] (`tau^2 se^2 / (tau^2 + se^2)`, or
+    `tau^2` without rests, with `tau^2` at its upper 2-sigma bound): the run-to-run part of the
+    error of `u0`."""
     noise_var: Float[Array, " R"]
     """Variance of the gyroscope's white noise per sample [rad^2/s^2] (from second differences)."""
     kernel_energy: Float[Array, " R"]
@@ -359,10 +394,18 @@ def process_gear_runs(robot: Robot, batch: GearBatch) -> ProcessedRuns:
     bias = jnp.sum(batch.gyro * rest[..., None], 1) / jnp.maximum(n_rest, 1)[:, None]
     spread = jnp.sqrt(jnp.sum((batch.gyro - bias[:, None, :]) ** 2 * rest[..., None], 1)
                       / jnp.maximum(n_rest - 1, 1)[:, None])
-    # subtract only a bias that the rests resolve (else the estimate adds more error than it removes)
-    clear = (n_rest >= MIN_REST_SAMPLES)[:, None] & (jnp.abs(bias) > BIAS_SIGMAS * spread / jnp.sqrt(
-        jnp.maximum(n_rest, 1))[:, None])
-    bias = jnp.where(clear, bias, 0.0)
+    # shrink each rest estimate by the spread tau^2 of the biases over the runs (empirical Bayes): a
+    # small bias is not replaced by the larger error of its estimate, a large one is removed
+    has_rest = (n_rest >= MIN_REST_SAMPLES)[:, None]
+    se2 = spread**2 / jnp.maximum(n_rest, 1)[:, None]
+    w = has_rest.astype(float) * jnp.ones_like(bias)
+    tau2 = jnp.maximum(jnp.sum(w * (bias**2 - se2)) / jnp.maximum(jnp.sum(w), 1.0), 0.0)
+    shrink = tau2 / jnp.maximum(tau2 + se2, 1e-300)
+    bias = jnp.where(has_rest, shrink * bias, 0.0)
+    # error variance with tau^2 at its upper 2-sigma bound (a chi-square mean of sum(w) terms)
+    tau2_hi = tau2 + 2.0 * jnp.sqrt(2.0 / jnp.maximum(jnp.sum(w), 1.0)) * (tau2 + jnp.sum(w * se2) / jnp.maximum(
+        jnp.sum(w), 1.0))
+    bias_var = jnp.where(has_rest, tau2_hi * se2 / jnp.maximum(tau2_hi + se2, 1e-300), tau2_hi)
     gyro = (batch.gyro - bias[:, None, :]) * batch.valid[..., None]
     gyro_f = filt(gyro, batch.valid, kernels)
 
@@ -400,5 +443,5 @@ def process_gear_runs(robot: Robot, batch: GearBatch) -> ProcessedRuns:
     return ProcessedRuns(
         theta=theta, thetad=thetad, phid=phid, thetad_f=thetad_f, phid_f=phid_f,
         kinematic_error=thetad_f / u0[:, None] - phid_f, misalignment=angles, align_result=sol.result,
-        align_steps=sol.stats["num_steps"], bias=bias, noise_var=noise_var,
+        align_steps=sol.stats["num_steps"], bias=bias, bias_var=bias_var, noise_var=noise_var,
         kernel_energy=jnp.sum(kernels**2, 1))

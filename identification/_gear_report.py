@@ -88,6 +88,18 @@ def test_table(res: GearIdentification) -> str:
     return "\n".join(lines)
 
 
+def resolution_table(res: GearIdentification) -> str:
+    """Per joint and direction: `u0` with its standard error (run-to-run scatter included) and
+    whether the runs resolve the ripple (Wald test against no ripple)."""
+    lines = ["| joint | dir | u0 ± std | chi2 / dof | p-value | ripple |", "|---|---|---|---|---|---|"]
+    for g, (joint, ccw) in enumerate(res.groups):
+        r = res.resolution[g]
+        note = r.note() or ("resolved" if r.dof else "none found")
+        lines.append(f"| {joint} | {_dir(ccw)} | {float(res.fit.u0[g]):.5f} ± {float(res.fit.se_u0[g]):.5f} | "
+                     f"{r.chi2:.1f} / {r.dof} | {r.p_value:.2e} | {note} |")
+    return "\n".join(lines)
+
+
 def summary(res: GearIdentification) -> dict:
     """The JSON summary of `identify-gear` (schema of issue 3; RMS on the validation runs where
     there are any, else on the identification runs; `a`, `b`, `orders` as in SPEC.md)."""
@@ -103,6 +115,10 @@ def summary(res: GearIdentification) -> dict:
             "b": [float(x) for x in np.asarray(res.fit.b[g])[used]],
             "rms_before_deg_s": _deg(before),
             "rms_after_deg_s": _deg(after),
+            "u0_std": float(res.fit.se_u0[g]),
+            "a_std": [float(x) for x in np.asarray(res.fit.se_a[g])[used]],
+            "b_std": [float(x) for x in np.asarray(res.fit.se_b[g])[used]],
+            "ripple": res.resolution[g].note() or ("resolved" if used.any() else "none found"),
         }
     mis = {str(j): [float(x) for x in res.misalignment[j - 1]] for j in sorted({j for j, _ in res.groups})}
     return {"joints": joints, "misalignment_rad": mis}
@@ -173,7 +189,8 @@ def write_report(res: GearIdentification, out: Path) -> list[Path]:
     for j in joints:
         parts += [rms_table(res, j), ""]
     parts += ["## Orders (Frequency analysis)", "", order_table(res), "", f"Fit uses: {res.method}.", "",
-              "## cw against ccw", "", test_table(res), "", "## Fourier coefficients (Tables A.6-A.11)", ""]
+              "## cw against ccw", "", test_table(res), "", "## Basic ratios and resolution of the ripple", "",
+              resolution_table(res), "", "## Fourier coefficients (Tables A.6-A.11)", ""]
     for g in range(len(res.groups)):
         parts += [coefficient_table(res, g), ""]
     files = [out / "gear_identification.md", out / "gear_spectrum.png", out / "gear_kinematic_error.png"]

@@ -48,6 +48,9 @@ def _schema(n: int) -> dict[str, Any]:
             "?filter_cutoff_hz": (None,),
         },
         "?poses": {"motor_deg": (None, n)},
+        "?calibration": {"prior_std": {f"?{k}": () for k in ("a_m", "d_m", "alpha_rad", "beta_rad", "offset_rad",
+                                                              "u0_relative", "tool_m", "tool_rad", "base_m",
+                                                              "base_rad")}},
         "?trajectories": {
             "orientation_q": vn, "sample_time_s": (), "duration_s": (),
             "line": {"x_m": (), "z_m": (), "y_start_m": (), "y_end_m": ()},

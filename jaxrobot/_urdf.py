@@ -36,6 +36,7 @@ at the zero configuration: fixed children and branches off the chain (fingers, g
 pinocchio's reduced model does; links fixed to the base are dropped. Meshes and geometry are
 ignored.
 """
+
 from __future__ import annotations
 
 import difflib

@@ -22,6 +22,7 @@ from ._evaluation import summarize as summarize
 from ._ik import IKResult as IKResult
 from ._ik import JointPath as JointPath
 from ._ik import check_joint_path as check_joint_path
+from ._ik import default_start as default_start
 from ._ik import inverse_kinematics as inverse_kinematics
 from ._ik import joint_derivatives as joint_derivatives
 from ._ik import joint_path as joint_path

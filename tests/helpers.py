@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 import jaxrobot as jr
 
@@ -41,3 +45,16 @@ def numpy_flange(robot: jr.Robot, q: np.ndarray) -> np.ndarray:
     for i in range(6):
         pose = pose @ rz(q[i] + off[i]) @ trans(a[i], d[i]) @ rx(al[i]) @ ry(be[i])
     return pose
+
+
+def independent_data() -> Path:
+    """`../shared/independent/` beside the repository (as CI checks it out), else
+    `$JAXROBOT_SHARED/independent`; the test is skipped, saying so, when neither exists."""
+    tried = [Path(__file__).resolve().parents[1].parent / "shared" / "independent"]
+    if os.environ.get("JAXROBOT_SHARED"):
+        tried.append(Path(os.environ["JAXROBOT_SHARED"]) / "independent")
+    for p in tried:
+        if (p / "README.md").is_file():
+            return p
+    pytest.skip(f"independent data not found at {[str(p) for p in tried]} (set JAXROBOT_SHARED to the "
+                "shared folder)")

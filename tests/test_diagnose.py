@@ -1,7 +1,8 @@
 """Discrepancy workflow (issue 5): bench data with a hidden effect, a model without it.
 
 Truth = the as-built Racer-7 (`start`) plus the hidden effect; the poses are measured in a random
-order (directions of approach follow from it) with the toml tracker noise. The workflow must
+order, each gear at rest with the set of its direction of approach from that order (read with
+`approach="order"`), with the toml tracker noise. The workflow must
 name the effect and joint, and end with a validation RMS within 1.3x of the noise floor
 (`sigma sqrt(3)`, the RMS norm of the tracker noise).
 """
@@ -32,7 +33,7 @@ def bench():
 
 def _measure(truth, theta, seed):
     m = jr.measure_poses(truth, theta, seed=seed, ccw=jr.approach_directions(theta))
-    return Poses.of(theta, m.positions)
+    return Poses.of(theta, m.positions, approach="order")
 
 
 def _run(bench, truth, start=None):
@@ -153,8 +154,8 @@ def test_cli_json_and_saved_model(bench, tmp_path, capsys):
     from jaxrobot._cli import main
 
     code = main(["diagnose", "--model", str(tmp_path / "start.toml"), str(tmp_path / "train.csv"),
-                 "--validate", str(tmp_path / "validation.csv"), "--json", "--out", str(tmp_path / "out"),
-                 "--save-model", str(tmp_path / "augmented.toml")])
+                 "--validate", str(tmp_path / "validation.csv"), "--approach", "order", "--json",
+                 "--out", str(tmp_path / "out"), "--save-model", str(tmp_path / "augmented.toml")])
     assert code == 0
     out = json.loads(capsys.readouterr().out)
     assert {"noise_floor_um", "steps", "final_rms_validation_um", "verdict"} <= set(out)
@@ -166,6 +167,20 @@ def test_cli_json_and_saved_model(bench, tmp_path, capsys):
     assert abs(float(saved.offset[4] - start.offset[4]) - 5e-4) < 3 * std
     for f in ("diagnose_tables.txt", "diagnose_residuals.png", "diagnose_candidates.png", "diagnose_spectra.png"):
         assert (tmp_path / "out" / f).stat().st_size > 0
+
+
+def test_order_dependent_approach_is_named_under_the_cw_convention(bench):
+    """Bench poses whose gears rest on the set of the approach from the row order, read with SPEC.md's
+    default (cw at rest): the convention hypothesis must be named, with a weight of 1 within 3 sigma."""
+    start, theta = bench
+    train, val = (_measure(AS_BUILT, theta[k], s) for k, s in (("train", 1), ("validation", 2)))
+    cw = [Poses.of(p.motor_angles, p.positions) for p in (train, val)]
+    res = diagnose(start, *cw)
+    step = res.report["steps"][0]
+    assert (step["effect"], step["joint"]) == ("approach_dependent_gear_set", None), res.report["verdict"]
+    w = step["parameters"]["weight"]
+    assert abs(w["value"] - 1.0) < 3 * w["std"] and w["std"] < 0.2
+    assert res.report["final_rms_validation_um"] <= res.report["validation_bound_um"]
 
 
 def test_bad_input_is_named():

@@ -17,6 +17,7 @@ import pytest
 import jaxrobot as jr  # noqa: I001  (x64 first)
 from identification import calibrate_fleet
 from identification._cli_fleet import TABLE, bench_fleet
+from jaxrobot._cli import main
 
 JOB_TIMEOUT_S = 420
 """Wall-clock bound of a 2-process job (each compiles its program; ~40 s alone on 2 cores)."""
@@ -56,11 +57,11 @@ def _run_job(argv, tmp_path: Path, n: int = 2) -> list[str]:
     return [out.read_text() for out, _ in logs]
 
 
-def test_two_process_fleet_equals_one_process(tmp_path):
+def test_two_process_fleet_equals_one_process(tmp_path, capsys):
     """7 robots (shares 3 and 4, so process 0 pads): the bench data each process wrote are the
     1-process bench data byte for byte, and the table process 0 wrote holds the 1-process call's
     parameters (to 1e-12 in m and rad; the same LM on the same robots, in other batches), statuses and
-    steps."""
+    steps. Cut short, the command fails."""
     n_robots, n_poses = 7, 20
     data = tmp_path / "fleet"
     outs = _run_job(lambda p, address: [
@@ -89,6 +90,12 @@ def test_two_process_fleet_equals_one_process(tmp_path):
     np.testing.assert_allclose(two, one.value, rtol=0, atol=1e-12)
     assert all(one.converged)
 
+    # one LM step is not convergence: exit code 3, every robot marked `max_steps` in the table
+    assert main(["calibrate-fleet", str(data), "--max-steps", "1", "--out", str(tmp_path / "short")]) == 3
+    assert f"{n_robots} of {n_robots} robots did not converge" in capsys.readouterr().err
+    with (tmp_path / "short" / TABLE).open() as f:
+        assert [r["status"] for r in csv.DictReader(f)] == ["max_steps"] * n_robots
+
 
 @pytest.mark.parametrize("kwargs,match", [
     (dict(coordinator_address="127.0.0.1:1234", num_processes=2), "process_id"),
@@ -109,8 +116,6 @@ def test_bad_launch_environment_is_named(monkeypatch):
 
 
 def test_calibrate_fleet_cli_empty_folder(tmp_path, capsys):
-    from jaxrobot._cli import main
-
     assert main(["calibrate-fleet", str(tmp_path)]) == 2
     assert "expected at least one pose file per process (1), found 0" in capsys.readouterr().err
 

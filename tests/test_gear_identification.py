@@ -121,6 +121,14 @@ def test_u0_recovered(result, truth):
         assert abs(rel) < U0_TOL, f"joint {joint} group {g}: u0 relative error {rel:.2e}"
 
 
+def test_u0_within_three_reported_sigma(result, truth):
+    """The reported std (fit, bias left after its removal, run-to-run spread) covers the error."""
+    for g, (joint, _) in enumerate(result.groups):
+        err = float(result.fit.u0[g]) - float(truth.u0[joint - 1])
+        assert abs(err) <= 3 * float(result.fit.se_u0[g]), f"joint {joint} group {g}: {err:.2e}"
+    assert all(r.resolved for r in result.resolution)  # the bench's ripple is far above its noise
+
+
 def _reductions(result, bench):
     """(joint, at identification speed, name, reduction) of every noise-free validation run."""
     quiet = np.concatenate([np.zeros(len(bench["ident"]), bool), bench["quiet"]])
@@ -187,8 +195,9 @@ def test_summary_schema(result):
     for j in s["joints"].values():
         assert set(j) == {"cw", "ccw"}
         for d in j.values():
-            assert set(d) == {"u0", "orders", "a", "b", "rms_before_deg_s", "rms_after_deg_s"}
-            assert len(d["orders"]) == len(d["a"]) == len(d["b"])
+            assert set(d) == {"u0", "orders", "a", "b", "rms_before_deg_s", "rms_after_deg_s", "u0_std", "a_std",
+                              "b_std", "ripple"}
+            assert len(d["orders"]) == len(d["a"]) == len(d["b"]) == len(d["a_std"]) == len(d["b_std"])
     assert all(len(v) == 2 for v in s["misalignment_rad"].values())
 
 
@@ -253,3 +262,17 @@ def test_bench_quantised_and_seeded(truth):
     with pytest.raises(ValueError, match="joint"):
         jr.gear_runs(truth, 7)
     assert jnp.all(jnp.isfinite(jnp.asarray(a.link_angles)))
+
+
+@pytest.mark.slow
+def test_ripple_below_the_noise_gives_the_constant_ratio(truth):
+    """Joint 2 with 30x the gyroscope noise and two runs per direction (other seeds than the
+    fixture's): the runs cannot resolve its ripple, so the result is the constant ratio and the
+    report says how many more runs would resolve it; u0 still within 3 reported sigma."""
+    runs = jr.gear_runs(truth, 2, repetitions=2, seed=901, gyro_noise_deg_s=9.0)
+    res = identify_gear(jr.racer7(), [(runs.t, runs.theta[k], runs.gyro[k]) for k in range(len(runs.ccw))])
+    for g, r in enumerate(res.resolution):
+        assert not r.resolved
+        assert np.all(np.asarray(res.fit.orders[g]) == 0)
+        assert r.more_runs >= 1 and f"{r.more_runs} more runs per direction would resolve it" in r.note()
+        assert abs(float(res.fit.u0[g]) - float(truth.u0[1])) <= 3 * float(res.fit.se_u0[g])

@@ -1,0 +1,285 @@
+"""Identification on data we did not generate (issue 15): `../shared/independent/`, made by a
+separate numpy implementation of SPEC.md (its README states the conventions: `cw` gear set at
+rest, pose rows in random order, gear runs with a per-run gyroscope bias).
+
+Tolerances: diagnose must end within 1.2x the true model's validation RMS (the relative std of
+an RMS over 3 x 30 residuals is 1/sqrt(180) = 7.5 %, so 1.2x is about 2.7 sigma of the noise).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from helpers import independent_data
+
+import jaxrobot as jr
+from identification._diagnose import Poses, diagnose
+from identification._pose_files import read_poses
+
+CASES = {"p0_clean": None, "p1_joint5_offset": ("joint_offset", 5), "p2_joint2_softer": ("joint_compliance", 2),
+         "p3_base_shift": ("base_offset", None), "p4_link_scale": ("link_scale", None)}
+
+
+def _diagnose_case(name: str):
+    d = independent_data() / "poses" / name
+    poses = [read_poses(d / f"{s}.csv") for s in ("train", "val")]
+    res = diagnose(jr.load_robot(d / "start.toml"), *(Poses.of(p["motor_angles"], p["positions"]) for p in poses))
+    return res.report, json.loads((d / "truth.json").read_text())
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_diagnose_names_the_hidden_effect(name):
+    rep, truth = _diagnose_case(name)
+    steps = [(s["effect"], s["joint"]) for s in rep["steps"]]
+    expected = CASES[name]
+    if expected is None:
+        assert steps == [], rep["verdict"]
+        assert rep["verdict"].startswith("no significant discrepancy")
+    else:
+        assert steps[:1] == [expected], rep["verdict"]
+        assert rep["verdict"].startswith("explained"), rep["verdict"]
+    assert rep["final_rms_validation_um"] <= 1.2 * truth["truth_val_rms_um"]
+    assert rep["final_rms_validation_um"] <= rep["validation_bound_um"]
+
+
+def test_not_explained_when_validation_exceeds_its_bound():
+    """p0's training poses pass the chi-square test; validation poses displaced by 0.2 mm (3 noise
+    std per axis, which the training poses do not show) must not give "explained"/"no discrepancy"."""
+    d = independent_data() / "poses" / "p0_clean"
+    train, val = (read_poses(d / f"{s}.csv") for s in ("train", "val"))
+    shifted = val["positions"] + np.array([2e-4, 0.0, 0.0])
+    res = diagnose(jr.load_robot(d / "start.toml"), Poses.of(train["motor_angles"], train["positions"]),
+                   Poses.of(val["motor_angles"], shifted))
+    rep = res.report
+    assert rep["final_rms_validation_um"] > rep["validation_bound_um"]
+    assert rep["verdict"].startswith("not explained"), rep["verdict"]
+
+
+def test_approach_conventions(tmp_path):
+    """cw: no ccw at rest; order: `approach_directions` of the rows; column: the file's +-1 columns."""
+    from identification._pose_files import approach_ccw, approach_columns
+
+    theta = np.deg2rad([[10.0, -5, 3, 0, 1, 2], [4.0, -2, 5, 0, 1, 1], [6.0, -8, 5, 1, 0, 1]])
+    assert not approach_ccw(theta, "cw").any()
+    np.testing.assert_array_equal(approach_ccw(theta, "order"), np.asarray(jr.approach_directions(theta)))
+    sign = np.where(np.asarray(jr.approach_directions(theta)), -1, 1)
+    path = tmp_path / "poses.csv"
+    jr.write_pose_csv(path, theta, np.zeros((3, 3)))
+    lines = path.read_text().splitlines()
+    cols = approach_columns(6)
+    text = [lines[0] + "," + ",".join(cols)] + [ln + "," + ",".join(map(str, s)) for ln, s in zip(lines[1:], sign)]
+    path.write_text("\n".join(text) + "\n")
+    np.testing.assert_array_equal(read_poses(path, "column")["ccw"], sign < 0)
+    assert not read_poses(path)["ccw"].any()
+    path.write_text("\n".join(text).replace(",-1\n", ",0\n", 1) + "\n")
+    with pytest.raises(ValueError, match=r"approach\d in data row \d: expected \+1 \(cw\) or -1 \(ccw\), found 0"):
+        read_poses(path, "column")
+    jr.write_pose_csv(path, theta, np.zeros((3, 3)))
+    with pytest.raises(ValueError, match=r"approach 'column' needs the columns \['approach1'"):
+        read_poses(path, "column")
+    with pytest.raises(ValueError, match=r"approach: expected one of \['cw', 'order', 'column'\], found 'up'"):
+        approach_ccw(theta, "up")
+
+
+def _cli(args, capsys):
+    from jaxrobot._cli import main
+
+    code = main([*args, "--json"])
+    out = capsys.readouterr()
+    assert code == 0, out.err[-2000:]
+    return json.loads(out.out)
+
+
+@pytest.fixture(scope="module")
+def gear_stage(tmp_path_factory):
+    """`identify-gear` on runs r0, r1 of joints 1-3, validated on r2, saving the robot (the chain's
+    first stage; its JSON carries the sets and standard errors)."""
+    from jaxrobot._cli import main
+
+    d = independent_data() / "gear"
+    out = tmp_path_factory.mktemp("gear")
+    files = lambda r: [str(d / f"j{j}_{s}_r{r}.csv") for j in (1, 2, 3) for s in ("pos", "neg")]
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = main(["identify-gear", *files(0), *files(1), "--validate", *files(2), "--json",
+                     "--save-model", str(out / "gear.toml")])
+    assert code == 0
+    runs = {f: jr.read_gear_run(f) for f in files(2)}
+    return json.loads(buf.getvalue()), out / "gear.toml", runs
+
+
+def _ratio(u0, orders, a, b, phi):
+    """SPEC.md's `u(phi) = u0 (1 + sum a cos(n phi) - b sin(n phi))`, in numpy."""
+    n, a, b = (np.asarray(x, float)[:, None] for x in (orders, a, b))
+    return u0 * (1.0 + np.sum(a * np.cos(n * phi) - b * np.sin(n * phi), 0)) if n.size else np.full_like(phi, u0)
+
+
+def _ratio_errors(gear_stage):
+    """Per (joint, direction): RMS of identified minus true ratio, of the true ripple, and of the
+    identified u0 minus the true ratio, over the validation runs' range; u0 error and its std."""
+    summary, _, runs = gear_stage
+    truth = jr.racer7(as_built=True)
+    out = {}
+    rms = lambda x: float(np.sqrt(np.mean(x**2)))
+    for joint, sets in summary["joints"].items():
+        j = int(joint) - 1
+        for direction, s in sets.items():
+            rip = truth.ccw if direction == "ccw" else truth.cw
+            theta = np.concatenate([th[:, j] for f, (_, th, _) in runs.items()
+                                    if f"j{joint}_{'neg' if direction == 'ccw' else 'pos'}" in f])
+            phi = np.linspace(theta.min(), theta.max(), 20001) / float(truth.u0[j])
+            used = np.asarray(rip.orders[j]) > 0
+            u_true = _ratio(float(truth.u0[j]), *(np.asarray(x[j])[used] for x in (rip.orders, rip.a, rip.b)), phi)
+            u_id = _ratio(s["u0"], s["orders"], s["a"], s["b"], phi)
+            out[(int(joint), direction)] = (rms(u_id - u_true), rms(u_true - float(truth.u0[j])),
+                                            rms(s["u0"] - u_true), s["u0"] - float(truth.u0[j]), s["u0_std"])
+    return out
+
+
+def test_gear_u0_within_three_reported_sigma(gear_stage):
+    for key, (*_, err, std) in _ratio_errors(gear_stage).items():
+        assert abs(err) <= 3 * std, key
+
+
+MET = [(1, "cw"), (3, "cw"), (3, "ccw")]
+"""Joints and directions where the identified set removes >= 85 % of the true ripple's RMS."""
+
+
+@pytest.mark.parametrize("key", MET + [pytest.param(
+    (1, "ccw"), marks=pytest.mark.xfail(strict=True, reason="the 302-304 cluster (4.6 % of the ripple energy) is "
+                                        "damped by the filter at the identification speed and not kept: 80 %"))])
+def test_gear_ripple_reduction_against_the_true_set(gear_stage, key):
+    ratio_error, ripple, *_ = _ratio_errors(gear_stage)[key]
+    assert ratio_error <= 0.15 * ripple
+
+
+@pytest.mark.parametrize("direction", ["ccw", pytest.param("cw", marks=pytest.mark.xfail(
+    strict=True, reason="orders 39-41 repeat in runs r0 and r1 but not in r2: 1.02x the constant ratio's error"))])
+def test_gear_joint2_never_worse_than_no_ripple(gear_stage, direction):
+    ratio_error, _, constant, *_ = _ratio_errors(gear_stage)[(2, direction)]
+    assert ratio_error <= constant
+
+
+@pytest.mark.parametrize("mistake, transform, message", [
+    ("link angles", lambda th, p, u0: (th / u0, p), r"link angles in the motor columns"),
+    ("radians", lambda th, p, u0: (np.deg2rad(th), p), r"radians in the _deg columns"),
+    ("x1000", lambda th, p, u0: (1e3 * th, p), r"degrees x1000 in the _deg columns"),
+    ("millimetres", lambda th, p, u0: (th, 1e3 * p), r"millimetres in the _m columns"),
+])
+def test_pose_unit_mistakes_are_named(mistake, transform, message):
+    """Each common mistake, made on the independent calibration poses (motor degrees as in the file)."""
+    from identification._pose_files import check_pose_units
+    from identification._pose_selection import default_marker
+
+    robot = jr.racer7()
+    data = read_poses(independent_data() / "calibration" / "train.csv")
+    check_pose_units(robot, data["motor_angles"], data["positions"], default_marker())  # the file as it is
+    th_deg, pos = transform(np.rad2deg(data["motor_angles"]), data["positions"], np.asarray(robot.u0))
+    with pytest.raises(ValueError, match=message):
+        check_pose_units(robot, np.deg2rad(th_deg), pos, default_marker())
+
+
+@pytest.mark.parametrize("mistake, column, factor, message", [
+    ("link angles", "theta", "link", r"likely link angles in the motor columns"),
+    ("radians", "theta", np.pi / 180, r"likely radians in the theta _deg columns"),
+    ("x1000", "theta", 1e3, r"likely degrees x1000 in the theta _deg columns"),
+    ("gyro radians", "gyro", np.pi / 180, r"likely radians per second in the gyro _deg_s columns"),
+])
+def test_gear_unit_mistakes_are_named(tmp_path, mistake, column, factor, message):
+    """Each mistake written into a copy of an independent gear run, read through the CLI's reader."""
+    from identification._gear_processing import prepare_gear_runs
+
+    t, theta, gyro = jr.read_gear_run(independent_data() / "gear" / "j3_pos_r0.csv")
+    u0 = np.asarray(jr.racer7().u0)
+    cut = {3: 57.5}
+    prepare_gear_runs([(t, theta, gyro)], cut, u0)  # the file as it is
+    if column == "theta":
+        theta = theta / u0 if factor == "link" else theta * factor
+    else:
+        gyro = gyro * factor
+    jr.write_gear_run(tmp_path / "run.csv", t, theta, gyro)
+    with pytest.raises(ValueError, match=message):
+        prepare_gear_runs([jr.read_gear_run(tmp_path / "run.csv")], cut, u0, ["run.csv"])
+
+
+def test_unit_mistake_fails_the_cli_before_fitting(tmp_path, capsys):
+    from jaxrobot._cli import main
+
+    data = read_poses(independent_data() / "calibration" / "train.csv")
+    jr.write_pose_csv(tmp_path / "mm.csv", data["motor_angles"], 1e3 * data["positions"])
+    assert main(["calibrate", str(tmp_path / "mm.csv")]) == 2
+    assert "millimetres in the _m columns" in capsys.readouterr().err
+
+
+def _true_deviations(truth: dict) -> dict:
+    dev = truth["deviations_from_nominal"]
+    out = {f"{f}{j + 1}": v for f in ("a", "d", "alpha", "offset") for j, v in enumerate(dev[f])}
+    out["beta3"] = dev["beta3"]
+    out.update({f"u0_{j + 4}": v for j, v in enumerate(dev["u0w"])})
+    return out
+
+
+def test_map_calibration_holds_on_independent_poses():
+    """50 thesis poses of a robot with random deviations: MAP (default set plus every offset and ratio)
+    validates within 1.15x the true robot's mean error and no worse than plain LM (by more than one
+    standard error of a 30-pose mean), and every true deviation lies within 3 posterior sigma."""
+    from identification import DEFAULT_PARAMETERS, calibrate
+    from identification._calibration import map_parameters
+
+    d = independent_data() / "calibration"
+    train, val = (read_poses(d / f"{s}.csv") for s in ("train", "val"))
+    truth = json.loads((d / "truth.json").read_text())
+    robot = jr.racer7()
+    args = (robot, train["motor_angles"], train["positions"])
+    kw = {"validation": (val["motor_angles"], val["positions"])}
+    lm = calibrate(*args, **kw).report
+    mp = calibrate(*args, **kw, method="map", parameters=map_parameters(DEFAULT_PARAMETERS, 6)).report
+    assert lm["converged"] and mp["converged"]
+    mean_lm, mean_map = (r["validation"]["after_m"]["mean"] for r in (lm, mp))
+    se = lm["validation"]["after_m"]["std"] / np.sqrt(len(val["positions"]))
+    assert mean_map <= 1.15 * 1e-3 * truth["truth_val_mean_mm"]
+    assert mean_map <= mean_lm + se
+    true = _true_deviations(truth)
+    for name, p in mp["parameters"].items():
+        assert abs(p["delta"] - true.get(name, 0.0)) <= 3 * p["std"], name
+        assert p["determined_by"] in ("data", "prior") and 0 <= p["data_fraction"] <= 1
+    assert mp["parameters"]["a2"]["determined_by"] == "data"  # a2 is seen at every pose
+
+
+def test_chained_cli_gear_calibrate(gear_stage, tmp_path, capsys):
+    """identify-gear --save-model -> calibrate --robot gear.toml --method map --save-model: the
+    calibrated file keeps the identified Fourier sets and the start file's [sensors]; MAP moves u0
+    of joints 1-3 within 3 sigma of the gear stage. (Its validation error is not
+    held to the truth's: the thesis poses leave the range the gear runs cover, e.g. 53 deg of
+    joint 3, where an identified Fourier set is an extrapolation.)"""
+    _, gear_toml, _ = gear_stage
+    d = independent_data() / "calibration"
+    out = _cli(["calibrate", str(d / "train.csv"), "--validate", str(d / "val.csv"), "--robot", str(gear_toml),
+                "--method", "map", "--save-model", str(tmp_path / "cal.toml")], capsys)
+    assert out["validation"]["after_mm"]["mean"] < out["validation"]["before_mm"]["mean"]
+    gear, cal = jr.load_robot(gear_toml), jr.load_robot(tmp_path / "cal.toml")
+    for field in ("orders", "a", "b"):
+        for direction in ("cw", "ccw"):
+            np.testing.assert_array_equal(np.asarray(getattr(getattr(cal, direction), field))[:3],
+                                          np.asarray(getattr(getattr(gear, direction), field))[:3])
+    summary = gear_stage[0]["joints"]
+    for j in (1, 2, 3):  # MAP refines u0 within what the gear stage left uncertain
+        std = max(s["u0_std"] for s in summary[str(j)].values())
+        assert abs(float(cal.u0[j - 1]) - float(gear.u0[j - 1])) <= 3 * std
+    assert jr.read_description(tmp_path / "cal.toml")["sensors"] == jr.read_description(None)["sensors"]
+
+
+@pytest.mark.slow
+def test_chained_cli_plan_uses_the_calibrated_model(gear_stage, tmp_path, capsys):
+    """... -> plan --model cal.toml on a short line: the plan runs on the chained model."""
+    _, gear_toml, _ = gear_stage
+    d = independent_data() / "calibration"
+    _cli(["calibrate", str(d / "train.csv"), "--robot", str(gear_toml), "--method", "map", "--save-model",
+          str(tmp_path / "cal.toml")], capsys)
+    out = _cli(["plan", "line", "--model", str(tmp_path / "cal.toml")], capsys)
+    assert out["status"] == "successful"
