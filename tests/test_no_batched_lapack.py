@@ -11,6 +11,7 @@ check to every module the CLI commands lower on bench data.
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -62,6 +63,8 @@ def _cases():
     yield "gear output", jr.gear_output, (ROBOT, Q)
     p_d, r_d = pl.sample_path(path, t)
     yield "inverse kinematics", pl.inverse_kinematics, (ROBOT, p_d, r_d, Q[0])
+    arm7 = jr.load_robot(Path(__file__).with_name("data") / "arm7.toml")
+    yield "inverse kinematics, 7 joints", pl.inverse_kinematics, (arm7, p_d, r_d, jnp.zeros(7))
     q_path = Q[:1].repeat(6, 0)
     yield "joint derivatives", lambda r, q: pl.joint_derivatives(r, path, q, t, 4), (ROBOT, q_path)
     yield "smooth joint path", lambda r, q: jax.vmap(pl.smooth_joint_path(r, path, t, q))(t), (ROBOT, q_path)
