@@ -164,7 +164,8 @@ def test_ik_errors_name_sample_and_joint(robot, paths, joint_paths):
     far = pl.Path(lambda t: jnp.array([3.0, 0.0, 1.0]) + 0 * t, paths["line"].orientation, 2.5, 1e-3, "far")
     with pytest.raises(ValueError, match="inverse kinematics failed at sample 0"):
         pl.joint_path(robot, far)
-    with pytest.raises(ValueError, match=r"q_init: expected shape \(n,\) with n = 6 joints of this robot, found \(5,\)"):
+    q_init_error = r"q_init: expected shape \(n,\) with n = 6 joints of this robot, found \(5,\)"
+    with pytest.raises(ValueError, match=q_init_error):
         pl.joint_path(robot, paths["line"], q_init=jnp.zeros(5))
 
 
