@@ -75,7 +75,7 @@ def main() -> None:
     ap.add_argument("--runs-for", nargs="*", default=[], metavar="CMD=N", help="other run counts, e.g. plan=2")
     ap.add_argument("--commands", nargs="*", default=None, help="commands to run (default: all)")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds before a run counts as hung")
-    ap.add_argument("--data", type=Path, default=ROOT.parent.parent / "shared" / "independent")
+    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "independent")
     ap.add_argument("--source", type=Path, default=None, help="run the packages in this folder instead")
     ap.add_argument("--lapack", action="store_true", help="also count batched LAPACK calls (first run of each)")
     ap.add_argument("--label", default="", help="label of this run in the table (e.g. the commit)")
