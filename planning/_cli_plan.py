@@ -44,7 +44,7 @@ def configure(parser) -> None:
     parser.add_argument("--plant", choices=("model", "as-built"), default="model",
                         help="robot the plans are simulated on: the planning model or the test bench's as-built robot")
     parser.add_argument("--save-trajectory", type=Path, default=None, metavar="OUT.csv",
-                        help="write t_s, theta1_deg..theta6_deg, motor rates [deg/s] and accelerations [deg/s^2]")
+                        help="write t_s, theta1_deg..thetan_deg, motor rates [deg/s] and accelerations [deg/s^2]")
     parser.add_argument("--save-failed", action="store_true",
                         help="also write the trajectory of a solve that did not converge, the file's first line "
                         "marking it as not converged (no plant evaluation; the exit code is 3 either way)")
@@ -187,11 +187,12 @@ def summary(result: dict) -> dict:
 
 
 def save_trajectory(path: Path, t, theta, thetad, thetadd, failed: str | None = None) -> None:
-    """CSV `t_s, theta1_deg..theta6_deg, thetad1_deg_s.., thetadd1_deg_s2..` of a motor trajectory;
+    """CSV `t_s, theta1_deg..thetan_deg, thetad1_deg_s.., thetadd1_deg_s2..` of a motor trajectory;
     `failed` (the status of a solve that did not converge) puts `jr.NOT_CONVERGED` and it in a first
     line, which the CSV readers refuse."""
-    header = (["t_s"] + [f"theta{i}_deg" for i in range(1, 7)] + [f"thetad{i}_deg_s" for i in range(1, 7)]
-              + [f"thetadd{i}_deg_s2" for i in range(1, 7)])
+    joints = range(1, np.shape(theta)[-1] + 1)
+    header = (["t_s"] + [f"theta{i}_deg" for i in joints] + [f"thetad{i}_deg_s" for i in joints]
+              + [f"thetadd{i}_deg_s2" for i in joints])
     header = ",".join(header) if failed is None else f"{jr.NOT_CONVERGED}: {failed}\n" + ",".join(header)
     data = np.column_stack([np.asarray(t)] + [np.degrees(np.asarray(a)) for a in (theta, thetad, thetadd)])
     np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.12g")
