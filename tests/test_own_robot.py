@@ -17,8 +17,11 @@ import tomli_w
 import tomllib
 
 import jaxrobot as jr
+import planning as pl
 from identification._pose_selection import random_feasible_poses, rest_motor_angles
 from jaxrobot._cli import main
+from planning._cli_plan import read_task_csv
+from planning._ik import SINGULARITY_MARGIN, singular_values
 
 SIGMA = 5e-5
 """Tracker noise per axis of the bench pose files [m]."""
@@ -30,14 +33,24 @@ ELASTIC = {  # the README's fragment: Franka's acceleration limits, Racer-like g
 ACCELERATION_DEG_S2 = [860.0, 430.0, 570.0, 715.0, 860.0, 1145.0, 1145.0]
 
 
-def _panda_urdf() -> Path:
+def _urdf(name: str) -> Path:
     try:
         files = importlib.metadata.files("example-robot-data") or []
     except importlib.metadata.PackageNotFoundError:
         pytest.skip("example-robot-data is not installed")
-    found = [f.locate() for f in files if f.name == "panda.urdf"]
-    assert found, "panda.urdf not in example-robot-data"
+    found = [f.locate() for f in files if f.name == name]
+    assert found, f"{name} not in example-robot-data"
     return Path(found[0])
+
+
+def _write_task(file: Path, x: float, z: float) -> None:
+    """3 cm along y in 0.25 s at 1 ms (eq. 4.4's rest-to-rest polynomial) at (x, y, z), flange down."""
+    t = np.arange(251) * 1e-3
+    s = t / t[-1]
+    y = -0.015 + 0.03 * (35 * s**4 - 84 * s**5 + 70 * s**6 - 20 * s**7)
+    one, zero = np.ones_like(t), np.zeros_like(t)
+    np.savetxt(file, np.column_stack([t, x * one, y, z * one, one, zero, zero, zero]),
+               delimiter=",", header="t_s,x_m,y_m,z_m,qx,qy,qz,qw", comments="")
 
 
 def _cli(args: list[str]) -> tuple[int, dict | None]:
@@ -51,7 +64,7 @@ def _cli(args: list[str]) -> tuple[int, dict | None]:
 def chain(tmp_path_factory):
     """import-urdf, the added sections, bench pose files of a perturbed Panda, calibrate."""
     d = tmp_path_factory.mktemp("own_robot")
-    assert main(["import-urdf", str(_panda_urdf()), "--tip", "panda_link8", "--out", str(d / "panda.toml")]) == 0
+    assert main(["import-urdf", str(_urdf("panda.urdf")), "--tip", "panda_link8", "--out", str(d / "panda.toml")]) == 0
     desc = tomllib.loads((d / "panda.toml").read_text())
     assert "stiffness" not in desc and len(desc["kinematics"]["a"]) == 7
     desc["limits"]["acceleration_deg_s2"] = ACCELERATION_DEG_S2
@@ -85,16 +98,11 @@ def test_import_and_calibrate_an_elastic_panda(chain):
 
 @pytest.mark.slow  # ~66 s on one core without the compilation cache (15 s with it)
 def test_plan_a_short_task_on_the_calibrated_panda(chain):
-    """3 cm in 0.25 s at 1 ms, rest to rest, flange pointing down: IK starts from `task_start` (the
+    """`_write_task` at (0.4, y, 0.5) m: IK starts from `task_start` (the
     Panda has no [trajectories]); the OCP's tool path and its simulation on the model sub-micrometre."""
     d, rc, _ = chain
     assert rc == 0
-    t = np.arange(251) * 1e-3
-    s = t / t[-1]
-    y = -0.015 + 0.03 * (35 * s**4 - 84 * s**5 + 70 * s**6 - 20 * s**7)
-    one, zero = np.ones_like(t), np.zeros_like(t)
-    np.savetxt(d / "path.csv", np.column_stack([t, 0.4 * one, y, 0.5 * one, one, zero, zero, zero]),
-               delimiter=",", header="t_s,x_m,y_m,z_m,qx,qy,qz,qw", comments="")
+    _write_task(d / "path.csv", 0.4, 0.5)
     rc, report = _cli(["plan", str(d / "path.csv"), "--model", str(d / "panda-calibrated.toml"), "--nu", "1e-14",
                        "--save-trajectory", str(d / "motor.csv")])
     assert rc == 0 and report["status"] == "successful"
@@ -103,3 +111,17 @@ def test_plan_a_short_task_on_the_calibrated_panda(chain):
     header = (d / "motor.csv").read_text().splitlines()[0].split(",")
     assert [c for c in header if c.startswith("theta") and c.endswith("_deg")] == [
         f"theta{j}_deg" for j in range(1, 8)]
+
+
+def test_ik_start_of_a_robot_without_reference_tasks(tmp_path):
+    """The UR5's middle of the limits (q = 0, arm stretched) is singular: IK from there fails at the
+    first sample; `task_start` finds a start from which the whole path converges, inside the limits
+    and clear of singularities (`joint_path` checks both)."""
+    robot = jr.load_robot(_urdf("ur5_robot.urdf"))
+    _write_task(tmp_path / "path.csv", 0.4, 0.3)
+    path = read_task_csv(tmp_path / "path.csv")
+    with pytest.raises(ValueError, match="inverse kinematics failed at sample 0"):
+        pl.joint_path(robot, path, 0.5 * (robot.q_min + robot.q_max))
+    jp = pl.joint_path(robot, path, pl.task_start(robot, path))
+    assert float(jp.ik.position_residual.max()) <= 1e-12
+    assert float(singular_values(robot, jp.q[0])[-1]) > SINGULARITY_MARGIN
