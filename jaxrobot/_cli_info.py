@@ -104,7 +104,7 @@ def _report(robot, echo) -> dict:
                  f" {row['lowest_eigenfrequency_hz']:>11.2f} {row['highest_eigenfrequency_hz']:>11.1f}")
         echo("(sag: flange displacement at rest when the motors are commanded theta = Xi(q) without"
              " deflection compensation; eigenfrequencies of the linearised elastic joints, motors held"
-             + (f"; rigid joints {', '.join(map(str, rigid))} held)" if len(rigid) else ")"))
+             + (f"; rigid joints held: {', '.join(map(str, rigid))})" if len(rigid) else ")"))
     echo(f"computed in {time.perf_counter() - start:.1f} s")
     return info
 
