@@ -11,6 +11,7 @@ import json
 from pathlib import Path
 
 import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import tomli_w
@@ -25,10 +26,13 @@ from planning._ik import SINGULARITY_MARGIN, singular_values
 
 SIGMA = 5e-5
 """Tracker noise per axis of the bench pose files [m]."""
+MARKER = [0.03, -0.02, 0.05]
+"""Marker offset in the flange frame [m] (told to calibrate by [sensors], not racer7.toml's)."""
 ELASTIC = {  # the README's fragment: Franka's acceleration limits, Racer-like gears and rotors
     "gear": {"u0": [100.0] * 7},
     "stiffness": {"k1": [3.0e4, 3.0e4, 2.0e4, 2.0e4, 1.0e4, 1.0e4, 1.0e4], "k3": [0.0] * 7},
     "motors": {"inertia": [2.0e-4, 2.0e-4, 2.0e-4, 2.0e-4, 5.0e-5, 5.0e-5, 5.0e-5]},
+    "sensors": {"tracker_position_noise_m": SIGMA, "tracker_marker_offset_m": MARKER},
 }
 ACCELERATION_DEG_S2 = [860.0, 430.0, 570.0, 715.0, 860.0, 1145.0, 1145.0]
 
@@ -62,7 +66,8 @@ def _cli(args: list[str]) -> tuple[int, dict | None]:
 
 @pytest.fixture(scope="module")
 def chain(tmp_path_factory):
-    """import-urdf, the added sections, bench pose files of a perturbed Panda, calibrate."""
+    """import-urdf, the added sections (only the tracker's keys of [sensors]), bench pose files of a
+    perturbed Panda, calibrate."""
     d = tmp_path_factory.mktemp("own_robot")
     assert main(["import-urdf", str(_urdf("panda.urdf")), "--tip", "panda_link8", "--out", str(d / "panda.toml")]) == 0
     desc = tomllib.loads((d / "panda.toml").read_text())
@@ -75,7 +80,7 @@ def chain(tmp_path_factory):
                         (nominal.offset + rng.normal(0.0, 5e-4, 7), nominal.a + rng.normal(0.0, 2e-4, 7),
                          nominal.alpha + rng.normal(0.0, 3e-4, 7)))
     theta = rest_motor_angles(truth, random_feasible_poses(nominal, 80, seed=1))
-    meas = jr.measure_poses(truth, theta, seed=2, position_noise=SIGMA)
+    meas = jr.measure_poses(truth, theta, seed=2, marker=jnp.asarray(MARKER), position_noise=SIGMA)
     jr.write_pose_csv(d / "poses.csv", meas.motor_angles[:60], meas.positions[:60])
     jr.write_pose_csv(d / "validation.csv", meas.motor_angles[60:], meas.positions[60:])
     rc, report = _cli(["calibrate", str(d / "poses.csv"), "--validate", str(d / "validation.csv"),
