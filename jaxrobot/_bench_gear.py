@@ -237,13 +237,13 @@ def gear_runs(
     - `directions`: "cw" (positive motor speed) and/or "ccw"; runs alternate between them.
     - `hold_q_deg`: joint coordinates of the joints that do not move (default `HOLD_Q_DEG`).
     - `seed`: int or `jax.random` key for noise and bias.
-    - `gyro_noise_deg_s`, `misalignment_rad`: default `description["sensors"]`.
+    - `gyro_noise_deg_s`, `misalignment_rad`: default `description["sensors"]` (racer7.toml's where absent).
     - `gyro_bias_deg_s`: std of the constant bias per axis and run.
 
     **Returns:** `GearRuns`.
     """
     desc = read_description(None) if description is None else description
-    sensors = desc["sensors"]
+    sensors = {**read_description(None)["sensors"], **desc.get("sensors", {})}  # missing keys: the bench's
     n_joints = robot.n_joints
     if joint not in range(1, n_joints + 1):
         raise ValueError(f"joint: expected an integer 1..{n_joints}, found {joint!r}")

@@ -35,7 +35,7 @@ def configure(parser) -> None:
     parser.add_argument("--as-built", action="store_true", help="the test bench's as-built robot")
 
 
-def _numbers(robot, q):
+def _numbers(robot, q, elastic: tuple[int, ...]):
     from ._dynamics import gravity_torque, mass_matrix
     from ._elasticity import elastic_deflection
     from ._gear import motor_angle
@@ -46,24 +46,31 @@ def _numbers(robot, q):
     q_rest = rest_link_angles(robot, motor_angle(robot, q))  # rigid command theta = Xi(q)
     p = forward_kinematics(robot, jnp.concatenate([q_rest, q]))[..., :3, 3]
     sag = jnp.linalg.norm(p[: len(q)] - p[len(q):], axis=-1)
-    x = elastic_deflection(robot, gravity_torque(robot, q))
-    stiffness = jax.vmap(jnp.diag)(robot.k1 + 3 * robot.k3 * x**2)
-    lam = map_matrices(lambda m, k: jnp.linalg.eigvals(jnp.linalg.solve(m, k)).real, mass_matrix(robot, q), stiffness)
-    return sag, jnp.sqrt(jnp.sort(lam, -1)) / (2 * jnp.pi), forward_kinematics(robot, jnp.zeros(robot.n_joints))
+    home = forward_kinematics(robot, jnp.zeros(robot.n_joints))
+    if not elastic:
+        return sag, None, home
+    e = jnp.asarray(elastic)  # rigid joints held: the eigenproblem of the elastic joints
+    x = elastic_deflection(robot, gravity_torque(robot, q))[:, e]
+    stiffness = jax.vmap(jnp.diag)(robot.k1[e] + 3 * robot.k3[e] * x**2)
+    mass = mass_matrix(robot, q)[:, e][:, :, e]
+    lam = map_matrices(lambda m, k: jnp.linalg.eigvals(jnp.linalg.solve(m, k)).real, mass, stiffness)
+    return sag, jnp.sqrt(jnp.sort(lam, -1)) / (2 * jnp.pi), home
 
 
 def summary(robot) -> dict:
-    """Numbers shown by `jaxrobot info` (SI units, deflections in µm)."""
+    """Numbers shown by `jaxrobot info` (SI units, deflections in µm); eigenfrequencies of the elastic
+    joints with the rigid ones held (`None` where every joint is rigid)."""
     poses = poses_deg(robot)
     q = jnp.deg2rad(jnp.asarray(list(poses.values()), float))
-    sag, freq, home = jax.jit(_numbers)(robot, q)
+    elastic = tuple(int(i) for i in np.flatnonzero(np.isfinite(np.asarray(robot.k1))))
+    sag, freq, home = jax.jit(_numbers, static_argnums=2)(robot, q, elastic)
     return {
         "name": robot.name,
         "home_flange_position_m": np.asarray(home[:3, 3]),
         "home_flange_rotation": np.asarray(home[:3, :3]),
         "poses": {name: {"q_deg": v, "static_deflection_um": float(1e6 * sag[i]),
-                         "lowest_eigenfrequency_hz": float(freq[i, 0]),
-                         "highest_eigenfrequency_hz": float(freq[i, -1])}
+                         "lowest_eigenfrequency_hz": None if freq is None else float(freq[i, 0]),
+                         "highest_eigenfrequency_hz": None if freq is None else float(freq[i, -1])}
                   for i, (name, v) in enumerate(poses.items())},
     }
 
@@ -87,12 +94,17 @@ def _report(robot, echo) -> dict:
         echo(row)
     p = info["home_flange_position_m"]
     echo(f"\nhome pose (q = 0): flange at ({p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}) m")
-    echo(f"\n{'pose':<16} {'q [deg]':<28} {'gravity sag [um]':>16} {'f_min [Hz]':>11} {'f_max [Hz]':>11}")
-    for name, row in info["poses"].items():
-        echo(f"{name:<16} {str(row['q_deg']):<28} {row['static_deflection_um']:>16.1f}"
-             f" {row['lowest_eigenfrequency_hz']:>11.2f} {row['highest_eigenfrequency_hz']:>11.1f}")
-    echo("(sag: flange displacement at rest when the motors are commanded theta = Xi(q) without"
-         " deflection compensation; eigenfrequencies of the linearised elastic joints, motors held)")
+    rigid = np.flatnonzero(np.isinf(np.asarray(robot.k1))) + 1
+    if len(rigid) == robot.n_joints:
+        echo("\nall joints rigid (no [stiffness] section): no gravity sag, no elastic eigenfrequencies")
+    else:
+        echo(f"\n{'pose':<16} {'q [deg]':<28} {'gravity sag [um]':>16} {'f_min [Hz]':>11} {'f_max [Hz]':>11}")
+        for name, row in info["poses"].items():
+            echo(f"{name:<16} {str(row['q_deg']):<28} {row['static_deflection_um']:>16.1f}"
+                 f" {row['lowest_eigenfrequency_hz']:>11.2f} {row['highest_eigenfrequency_hz']:>11.1f}")
+        echo("(sag: flange displacement at rest when the motors are commanded theta = Xi(q) without"
+             " deflection compensation; eigenfrequencies of the linearised elastic joints, motors held"
+             + (f"; rigid joints held: {', '.join(map(str, rigid))})" if len(rigid) else ")"))
     echo(f"computed in {time.perf_counter() - start:.1f} s")
     return info
 

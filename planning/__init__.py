@@ -28,6 +28,7 @@ from ._ik import joint_derivatives as joint_derivatives
 from ._ik import joint_path as joint_path
 from ._ik import pose_residual as pose_residual
 from ._ik import smooth_joint_path as smooth_joint_path
+from ._ik import task_start as task_start
 from ._ik import taylor_joint_path as taylor_joint_path
 from ._ocp import RESULTS as RESULTS
 from ._ocp import OCPSolution as OCPSolution

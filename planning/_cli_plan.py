@@ -1,7 +1,8 @@
 """`jaxrobot plan {line,spiral,FILE.csv}`: plan one task with the OCP of eq. 4.3 and evaluate it on the plant.
 
 FILE.csv holds task-space samples on a uniform grid from t = 0: columns `t_s, x_m, y_m, z_m`, optionally
-`qx, qy, qz, qw` (tool orientation quaternion; default the constant orientation of eq. 4.6).
+`qx, qy, qz, qw` (tool orientation quaternion; default the constant orientation of eq. 4.6, required for a
+robot without `[trajectories]`).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from ._evaluation import (
     simulate_plans,
     summarize,
 )
-from ._ik import default_start, joint_path
+from ._ik import default_start, joint_path, task_start
 from ._trajectories import check_task, reference_path, sample_path, sampled_path
 from ._transcription import State
 
@@ -43,15 +44,19 @@ def configure(parser) -> None:
     parser.add_argument("--plant", choices=("model", "as-built"), default="model",
                         help="robot the plans are simulated on: the planning model or the test bench's as-built robot")
     parser.add_argument("--save-trajectory", type=Path, default=None, metavar="OUT.csv",
-                        help="write t_s, theta1_deg..theta6_deg, motor rates [deg/s] and accelerations [deg/s^2]")
+                        help="write t_s, theta1_deg..thetan_deg, motor rates [deg/s] and accelerations [deg/s^2]")
     parser.add_argument("--save-failed", action="store_true",
                         help="also write the trajectory of a solve that did not converge, the file's first line "
                         "marking it as not converged (no plant evaluation; the exit code is 3 either way)")
 
 
-def read_task_csv(path: Path):
-    """A `Path` from a CSV of tool positions (see the module docstring)."""
+def read_task_csv(path: Path, orientation_required: bool = False):
+    """A `Path` from a CSV of tool positions (see the module docstring); `orientation_required`: the
+    quaternion columns must be there (a robot without `[trajectories]` has no default orientation)."""
     cols = jr.read_csv_columns(path, ["t_s", "x_m", "y_m", "z_m"], ["qx", "qy", "qz", "qw"], min_rows=2)
+    if orientation_required and "qx" not in cols:
+        raise ValueError(f"{path}: columns qx, qy, qz, qw (tool orientation quaternion) missing; they are "
+                         "required for a robot without a [trajectories] section (no default orientation_q)")
     t, p = cols["t_s"], np.stack([cols["x_m"], cols["y_m"], cols["z_m"]], -1)
     r = None
     if "qx" in cols:
@@ -73,7 +78,7 @@ def task_path(task: str, description: dict | None = None):
     if not Path(task).is_file():
         raise ValueError(f"task {task!r}: expected 'line', 'spiral' or an existing CSV file"
                          f"{suggestion(task, ('line', 'spiral'))}")
-    path = read_task_csv(Path(task))
+    path = read_task_csv(Path(task), orientation_required=description is not None and "trajectories" not in description)
     check_task(path)
     return path
 
@@ -228,7 +233,7 @@ def run(args, echo) -> dict:
     robot = robot_from_description(desc)
     plant = robot_from_description(desc, as_built=True) if args.plant == "as-built" else robot
     path = task_path(args.task, desc)
-    q_init = default_start(desc) if "trajectories" in desc else 0.5 * (robot.q_min + robot.q_max)
+    q_init = default_start(desc) if "trajectories" in desc else task_start(robot, path)
     echo(f"planning {path.name} ({path.duration:g} s at T_s = {1e3 * path.sample_time:g} ms) on {robot.name}")
     result = plan(robot, plant, path, args.nu, args.cost, echo, directional=args.plant == "as-built",
                   q_init=q_init, keep_failed=args.save_failed)

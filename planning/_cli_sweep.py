@@ -16,7 +16,7 @@ from . import _plots
 from ._bandwidth import bandwidth, control_spectrum
 from ._cli_plan import COSTS, _status_name, task_path
 from ._evaluation import baseline_trajectories, ocp_motor_trajectory, simulate_plans, summarize
-from ._ik import default_start, joint_path
+from ._ik import default_start, joint_path, task_start
 from ._sweep import solve_ocp_sweep
 from ._transcription import State
 
@@ -140,7 +140,7 @@ def run(args, echo) -> dict:
     robot = robot_from_description(desc)
     plant = robot_from_description(desc, as_built=True) if args.plant == "as-built" else robot
     path = task_path(args.task, desc)
-    q_init = default_start(desc) if "trajectories" in desc else 0.5 * (robot.q_min + robot.q_max)
+    q_init = default_start(desc) if "trajectories" in desc else task_start(robot, path)
     echo(f"nu sweep on {path.name}: {len(args.nu)} values x costs {args.costs}, plant {args.plant}")
     res = sweep(robot, plant, path, args.nu, args.costs, echo, directional=args.plant == "as-built", q_init=q_init,
                 keep_failed=args.save_failed)

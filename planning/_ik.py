@@ -143,6 +143,37 @@ def default_start(description: dict[str, Any] | None = None) -> Float[Array, " n
     return jnp.asarray(desc["trajectories"]["orientation_q"], dtype=float)
 
 
+START_SEEDS = 16
+"""IK seeds of `task_start`: the middle of the joint limits and seeded uniform draws inside them."""
+
+
+@jax.jit
+def _starts(robot, p_d, r_d, seeds):
+    def one(q0):
+        q, ok, _ = _first_sample(robot, p_d, r_d, q0)
+        res = pose_residual(robot, q, p_d, r_d)
+        margin = jnp.min(jnp.minimum(q - robot.q_min, robot.q_max - q) / (robot.q_max - robot.q_min))
+        sigma = jnp.linalg.svd(jr.geometric_jacobian(robot, q), compute_uv=False)[-1]
+        good = ok & (jnp.max(jnp.abs(res)) <= 1e-12) & (margin > 0)
+        return q, jnp.where(good, sigma * margin, -jnp.inf)
+
+    return jax.lax.map(one, seeds)  # one seed after another: no batched LAPACK
+
+
+def task_start(robot: jr.Robot, path: Path, seeds: int = START_SEEDS) -> Float[Array, " n"]:
+    """An IK start for a robot without reference tasks: the first sample's IK solved from `seeds`
+    deterministic points inside the joint limits; of the solutions that converge inside the limits,
+    the one with the largest product of the least Jacobian singular value and the smallest limit
+    margin (as a fraction of each joint's range), i.e. far from singularities and limits. The middle of
+    the limits where none converges (`joint_path` then names the failing sample)."""
+    lo, hi = np.asarray(robot.q_min), np.asarray(robot.q_max)
+    draws = np.random.default_rng(0).uniform(lo, hi, (seeds - 1, robot.n_joints))
+    q0 = jnp.asarray(np.concatenate([0.5 * (lo + hi)[None], draws]))
+    p_d, r_d = sample_path(path, jnp.zeros(1))
+    q, score = _starts(robot, p_d[0], r_d[0], q0)
+    return q[int(jnp.argmax(score))] if bool(jnp.isfinite(jnp.max(score))) else q0[0]
+
+
 def smooth_joint_path(
     robot: jr.Robot, path: Path, t_samples: Real[Array, " N"], q_samples: Float[Array, "N n"],
     redundancy: Redundancy | None = None,

@@ -51,11 +51,11 @@ def _cases():
     from identification._observability import singular_values_from_gram
     from identification._pose_selection import _feasible
     from jaxrobot._cli_info import _numbers
-    from planning._ik import singular_values
+    from planning._ik import _starts, singular_values
 
     path, t = _line()
     spd = jnp.einsum("bij,bkj->bik", jnp.ones((4, 5, 5)) + jnp.eye(5), jnp.ones((4, 5, 5)) + jnp.eye(5))
-    yield "info numbers", _numbers, (ROBOT, Q[:4])
+    yield "info numbers", lambda r, q: _numbers(r, q, tuple(range(6))), (ROBOT, Q[:4])
     x = jnp.concatenate([Q, Q, Q, Q], -1)
     yield "dynamics under vmap", jax.vmap(jr.planning_dynamics, (None, 0, 0)), (ROBOT, x, Q)
     yield "mass matrix solve", jr.spd_solve, (spd, jnp.ones((4, 5, 2)))
@@ -65,6 +65,7 @@ def _cases():
     yield "inverse kinematics", pl.inverse_kinematics, (ROBOT, p_d, r_d, Q[0])
     arm7 = jr.load_robot(Path(__file__).with_name("data") / "arm7.toml")
     yield "inverse kinematics, 7 joints", pl.inverse_kinematics, (arm7, p_d, r_d, jnp.zeros(7))
+    yield "IK start from seeds", _starts, (ROBOT, p_d[0], r_d[0], Q[:3])
     q_path = Q[:1].repeat(6, 0)
     yield "joint derivatives", lambda r, q: pl.joint_derivatives(r, path, q, t, 4), (ROBOT, q_path)
     yield "smooth joint path", lambda r, q: jax.vmap(pl.smooth_joint_path(r, path, t, q))(t), (ROBOT, q_path)

@@ -1,0 +1,132 @@
+"""A user's own robot through every stage, as the README's "Your own robot" commands (issue 14):
+the Panda URDF of example-robot-data imported, gears, stiffness, rotor inertias and acceleration
+limits added, bench poses of a perturbed Panda calibrated, a short task planned on the result."""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.metadata
+import io
+import json
+from pathlib import Path
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import tomli_w
+import tomllib
+
+import jaxrobot as jr
+import planning as pl
+from identification._pose_selection import random_feasible_poses, rest_motor_angles
+from jaxrobot._cli import main
+from planning._cli_plan import read_task_csv
+from planning._ik import SINGULARITY_MARGIN, singular_values
+
+SIGMA = 5e-5
+"""Tracker noise per axis of the bench pose files [m]."""
+MARKER = [0.03, -0.02, 0.05]
+"""Marker offset in the flange frame [m] (told to calibrate by [sensors], not racer7.toml's)."""
+ELASTIC = {  # the README's fragment: Franka's acceleration limits, Racer-like gears and rotors
+    "gear": {"u0": [100.0] * 7},
+    "stiffness": {"k1": [3.0e4, 3.0e4, 2.0e4, 2.0e4, 1.0e4, 1.0e4, 1.0e4], "k3": [0.0] * 7},
+    "motors": {"inertia": [2.0e-4, 2.0e-4, 2.0e-4, 2.0e-4, 5.0e-5, 5.0e-5, 5.0e-5]},
+    "sensors": {"tracker_position_noise_m": SIGMA, "tracker_marker_offset_m": MARKER},
+}
+ACCELERATION_DEG_S2 = [860.0, 430.0, 570.0, 715.0, 860.0, 1145.0, 1145.0]
+
+
+def _urdf(name: str) -> Path:
+    try:
+        files = importlib.metadata.files("example-robot-data") or []
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("example-robot-data is not installed")
+    found = [f.locate() for f in files if f.name == name]
+    assert found, f"{name} not in example-robot-data"
+    return Path(found[0])
+
+
+def _write_task(file: Path, x: float, z: float) -> None:
+    """3 cm along y in 0.25 s at 1 ms (eq. 4.4's rest-to-rest polynomial) at (x, y, z), flange down."""
+    t = np.arange(251) * 1e-3
+    s = t / t[-1]
+    y = -0.015 + 0.03 * (35 * s**4 - 84 * s**5 + 70 * s**6 - 20 * s**7)
+    one, zero = np.ones_like(t), np.zeros_like(t)
+    np.savetxt(file, np.column_stack([t, x * one, y, z * one, one, zero, zero, zero]),
+               delimiter=",", header="t_s,x_m,y_m,z_m,qx,qy,qz,qw", comments="")
+
+
+def _cli(args: list[str]) -> tuple[int, dict | None]:
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        rc = main([*args, "--json"])
+    return rc, json.loads(out.getvalue()) if rc == 0 else None
+
+
+@pytest.fixture(scope="module")
+def chain(tmp_path_factory):
+    """import-urdf, the added sections (only the tracker's keys of [sensors]), bench pose files of a
+    perturbed Panda, calibrate."""
+    d = tmp_path_factory.mktemp("own_robot")
+    assert main(["import-urdf", str(_urdf("panda.urdf")), "--tip", "panda_link8", "--out", str(d / "panda.toml")]) == 0
+    desc = tomllib.loads((d / "panda.toml").read_text())
+    assert "stiffness" not in desc and len(desc["kinematics"]["a"]) == 7
+    desc["limits"]["acceleration_deg_s2"] = ACCELERATION_DEG_S2
+    (d / "panda.toml").write_text(tomli_w.dumps({**desc, **ELASTIC}))
+    nominal = jr.load_robot(d / "panda.toml")
+    rng = np.random.default_rng(0)
+    truth = eqx.tree_at(lambda r: (r.offset, r.a, r.alpha), nominal,
+                        (nominal.offset + rng.normal(0.0, 5e-4, 7), nominal.a + rng.normal(0.0, 2e-4, 7),
+                         nominal.alpha + rng.normal(0.0, 3e-4, 7)))
+    theta = rest_motor_angles(truth, random_feasible_poses(nominal, 80, seed=1))
+    meas = jr.measure_poses(truth, theta, seed=2, marker=jnp.asarray(MARKER), position_noise=SIGMA)
+    jr.write_pose_csv(d / "poses.csv", meas.motor_angles[:60], meas.positions[:60])
+    jr.write_pose_csv(d / "validation.csv", meas.motor_angles[60:], meas.positions[60:])
+    rc, report = _cli(["calibrate", str(d / "poses.csv"), "--validate", str(d / "validation.csv"),
+                       "--robot", str(d / "panda.toml"), "--save-model", str(d / "panda-calibrated.toml")])
+    return d, rc, report
+
+
+def test_import_and_calibrate_an_elastic_panda(chain):
+    """Exit 0 means LM converged; the validation error falls from the geometric-error level to the
+    noise floor: mean marker error of 3-D Gaussian noise, `sigma sqrt(8/pi)`, times 1.2 (as the Racer)."""
+    d, rc, report = chain
+    assert rc == 0
+    floor_mm = 1e3 * SIGMA * np.sqrt(8.0 / np.pi)
+    val = report["validation"]
+    assert val["before_mm"]["mean"] > 5.0 * floor_mm  # the perturbation is visible before calibration
+    assert val["after_mm"]["mean"] <= 1.2 * floor_mm, val
+    calibrated = jr.load_robot(d / "panda-calibrated.toml")
+    assert calibrated.n_joints == 7 and np.all(np.isfinite(np.asarray(calibrated.k1)))
+
+
+@pytest.mark.slow  # ~66 s on one core without the compilation cache (15 s with it)
+def test_plan_a_short_task_on_the_calibrated_panda(chain):
+    """`_write_task` at (0.4, y, 0.5) m: IK starts from `task_start` (the
+    Panda has no [trajectories]); the OCP's tool path and its simulation on the model sub-micrometre."""
+    d, rc, _ = chain
+    assert rc == 0
+    _write_task(d / "path.csv", 0.4, 0.5)
+    rc, report = _cli(["plan", str(d / "path.csv"), "--model", str(d / "panda-calibrated.toml"), "--nu", "1e-14",
+                       "--save-trajectory", str(d / "motor.csv")])
+    assert rc == 0 and report["status"] == "successful"
+    assert report["path_error_um"]["max"] < 1.0
+    assert report["plant"]["ocp"]["max_um"] < 1.0
+    header = (d / "motor.csv").read_text().splitlines()[0].split(",")
+    assert [c for c in header if c.startswith("theta") and c.endswith("_deg")] == [
+        f"theta{j}_deg" for j in range(1, 8)]
+
+
+def test_ik_start_of_a_robot_without_reference_tasks(tmp_path):
+    """The UR5's middle of the limits (q = 0, arm stretched) is singular: IK from there fails at the
+    first sample; `task_start` finds a start from which the whole path converges, inside the limits
+    and clear of singularities (`joint_path` checks both)."""
+    robot = jr.load_robot(_urdf("ur5_robot.urdf"))
+    _write_task(tmp_path / "path.csv", 0.4, 0.3)
+    path = read_task_csv(tmp_path / "path.csv")
+    with pytest.raises(ValueError, match="inverse kinematics failed at sample 0"):
+        pl.joint_path(robot, path, 0.5 * (robot.q_min + robot.q_max))
+    jp = pl.joint_path(robot, path, pl.task_start(robot, path))
+    assert float(jp.ik.position_residual.max()) <= 1e-12
+    assert float(singular_values(robot, jp.q[0])[-1]) > SINGULARITY_MARGIN
