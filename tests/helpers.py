@@ -1,7 +1,9 @@
-"""Shared test helpers: seeded random states and an independent numpy forward kinematics."""
+"""Shared test helpers: seeded random states, an independent numpy forward kinematics, pinocchio's
+rigid-body terms and the example-robot-data URDFs."""
 
 from __future__ import annotations
 
+import importlib.metadata
 import os
 from pathlib import Path
 
@@ -58,3 +60,42 @@ def independent_data() -> Path:
             return p
     pytest.skip(f"independent data not found at {[str(p) for p in tried]} (set JAXROBOT_SHARED to the "
                 "shared folder)")
+
+
+def pinocchio_terms(model, qs, qds, qdds, frames: dict[str, str], jacobian_of: str | None = None,
+                    to_config=lambda q: q) -> dict[str, np.ndarray]:
+    """Pinocchio's M, C qd, g and inverse dynamics at each state, the pose of each `frames` value
+    (stored under its key) and, with `jacobian_of`, that frame's Jacobian (world-aligned) under
+    `"jacobian"`; `to_config` maps joint angles to pinocchio's configuration vector."""
+    import pinocchio as pin
+
+    data = model.createData()
+    fids = {key: model.getFrameId(name) for key, name in frames.items()}
+    out: dict[str, list] = {k: [] for k in ("mass_matrix", "coriolis", "gravity", "inverse_dynamics", *fids)}
+    if jacobian_of is not None:
+        out["jacobian"], jid = [], model.getFrameId(jacobian_of)
+    for q, qd, qdd in zip(qs, qds, qdds, strict=True):
+        x = to_config(q)
+        m = pin.crba(model, data, x)
+        out["mass_matrix"].append(np.triu(m) + np.triu(m, 1).T)  # crba fills the upper triangle
+        g = pin.computeGeneralizedGravity(model, data, x).copy()
+        out["gravity"].append(g)
+        out["coriolis"].append(pin.nle(model, data, x, qd) - g)
+        out["inverse_dynamics"].append(pin.rnea(model, data, x, qd, qdd).copy())
+        pin.framesForwardKinematics(model, data, x)
+        for key, fid in fids.items():
+            out[key].append(data.oMf[fid].homogeneous.copy())
+        if jacobian_of is not None:
+            out["jacobian"].append(pin.computeFrameJacobian(model, data, x, jid, pin.LOCAL_WORLD_ALIGNED).copy())
+    return {k: np.stack(v) for k, v in out.items()}
+
+
+def example_urdf(name: str) -> Path:
+    """The file `name` of the example-robot-data package (skipped, saying so, when not installed)."""
+    try:
+        files = importlib.metadata.files("example-robot-data") or []
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("example-robot-data is not installed")
+    found = [f.locate() for f in files if f.name == name]
+    assert found, f"{name} not in example-robot-data"
+    return Path(found[0])

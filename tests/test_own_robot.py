@@ -5,7 +5,6 @@ limits added, bench poses of a perturbed Panda calibrated, a short task planned 
 from __future__ import annotations
 
 import contextlib
-import importlib.metadata
 import io
 import json
 from pathlib import Path
@@ -16,6 +15,7 @@ import numpy as np
 import pytest
 import tomli_w
 import tomllib
+from helpers import example_urdf
 
 import jaxrobot as jr
 import planning as pl
@@ -35,16 +35,6 @@ ELASTIC = {  # the README's fragment: Franka's acceleration limits, Racer-like g
     "sensors": {"tracker_position_noise_m": SIGMA, "tracker_marker_offset_m": MARKER},
 }
 ACCELERATION_DEG_S2 = [860.0, 430.0, 570.0, 715.0, 860.0, 1145.0, 1145.0]
-
-
-def _urdf(name: str) -> Path:
-    try:
-        files = importlib.metadata.files("example-robot-data") or []
-    except importlib.metadata.PackageNotFoundError:
-        pytest.skip("example-robot-data is not installed")
-    found = [f.locate() for f in files if f.name == name]
-    assert found, f"{name} not in example-robot-data"
-    return Path(found[0])
 
 
 def _write_task(file: Path, x: float, z: float) -> None:
@@ -69,7 +59,8 @@ def chain(tmp_path_factory):
     """import-urdf, the added sections (only the tracker's keys of [sensors]), bench pose files of a
     perturbed Panda, calibrate."""
     d = tmp_path_factory.mktemp("own_robot")
-    assert main(["import-urdf", str(_urdf("panda.urdf")), "--tip", "panda_link8", "--out", str(d / "panda.toml")]) == 0
+    panda = str(example_urdf("panda.urdf"))
+    assert main(["import-urdf", panda, "--tip", "panda_link8", "--out", str(d / "panda.toml")]) == 0
     desc = tomllib.loads((d / "panda.toml").read_text())
     assert "stiffness" not in desc and len(desc["kinematics"]["a"]) == 7
     desc["limits"]["acceleration_deg_s2"] = ACCELERATION_DEG_S2
@@ -122,7 +113,7 @@ def test_ik_start_of_a_robot_without_reference_tasks(tmp_path):
     """The UR5's middle of the limits (q = 0, arm stretched) is singular: IK from there fails at the
     first sample; `task_start` finds a start from which the whole path converges, inside the limits
     and clear of singularities (`joint_path` checks both)."""
-    robot = jr.load_robot(_urdf("ur5_robot.urdf"))
+    robot = jr.load_robot(example_urdf("ur5_robot.urdf"))
     _write_task(tmp_path / "path.csv", 0.4, 0.3)
     path = read_task_csv(tmp_path / "path.csv")
     with pytest.raises(ValueError, match="inverse kinematics failed at sample 0"):

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import pinocchio_terms
 from scipy.spatial.transform import Rotation
 
 import jaxrobot as jr
@@ -77,21 +78,7 @@ def _ours(robot, q, qd, qdd):
 def _pinocchio(robot: jr.Robot, q, qd, qdd) -> dict[str, np.ndarray]:
     model = pin.buildModelFromXML(jr.to_urdf(robot))
     model.gravity.linear = np.asarray(robot.gravity)
-    data = model.createData()
-    flange, tool = model.getFrameId("flange"), model.getFrameId("tool")
-    out: dict[str, list] = {k: [] for k in ("mass_matrix", "coriolis", "gravity", "inverse_dynamics",
-                                            "flange", "tool")}
-    for qi, qdi, qddi in zip(q, qd, qdd, strict=True):
-        m = pin.crba(model, data, qi)
-        out["mass_matrix"].append(np.triu(m) + np.triu(m, 1).T)  # crba fills the upper triangle
-        gravity = pin.computeGeneralizedGravity(model, data, qi).copy()
-        out["gravity"].append(gravity)
-        out["coriolis"].append(pin.nle(model, data, qi, qdi) - gravity)
-        out["inverse_dynamics"].append(pin.rnea(model, data, qi, qdi, qddi).copy())
-        pin.framesForwardKinematics(model, data, qi)
-        out["flange"].append(data.oMf[flange].homogeneous.copy())
-        out["tool"].append(data.oMf[tool].homogeneous.copy())
-    return {k: np.stack(v) for k, v in out.items()}
+    return pinocchio_terms(model, q, qd, qdd, {"flange": "flange", "tool": "tool"})
 
 
 @pytest.fixture(scope="module", params=VARIANTS)

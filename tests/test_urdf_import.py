@@ -10,7 +10,6 @@ must give pinocchio's terms on its own model of the same file (off-chain joints 
 from __future__ import annotations
 
 import dataclasses
-import importlib.metadata
 import json
 import math
 import xml.etree.ElementTree as ET
@@ -19,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import example_urdf, pinocchio_terms
 from scipy.spatial.transform import Rotation
 
 import jaxrobot as jr
@@ -88,23 +88,8 @@ _ours = jax.jit(_ours_fn, compiler_options={"xla_backend_optimization_level": 0}
 
 
 def _pinocchio(model, frame: str, qs, qds, qdds, to_config=lambda q: q) -> dict[str, np.ndarray]:
-    """Pinocchio's terms at each state; `to_config` maps joint angles to its configuration vector."""
-    data = model.createData()
-    fid = model.getFrameId(frame)
-    out: dict[str, list] = {k: [] for k in ("pose", "jacobian", "mass_matrix", "coriolis", "gravity",
-                                            "inverse_dynamics")}
-    for q, qd, qdd in zip(qs, qds, qdds, strict=True):
-        x = to_config(q)
-        m = pin.crba(model, data, x)
-        out["mass_matrix"].append(np.triu(m) + np.triu(m, 1).T)  # crba fills the upper triangle
-        g = pin.computeGeneralizedGravity(model, data, x).copy()
-        out["gravity"].append(g)
-        out["coriolis"].append(pin.nle(model, data, x, qd) - g)
-        out["inverse_dynamics"].append(pin.rnea(model, data, x, qd, qdd).copy())
-        pin.framesForwardKinematics(model, data, x)
-        out["pose"].append(data.oMf[fid].homogeneous.copy())
-        out["jacobian"].append(pin.computeFrameJacobian(model, data, x, fid, pin.LOCAL_WORLD_ALIGNED).copy())
-    return {k: np.stack(v) for k, v in out.items()}
+    """Pinocchio's terms at each state and the pose and Jacobian of `frame`."""
+    return pinocchio_terms(model, qs, qds, qdds, {"pose": frame}, jacobian_of=frame, to_config=to_config)
 
 
 def _worst(ours: dict, ref: dict) -> dict[str, float]:
@@ -120,16 +105,6 @@ def _worst(ours: dict, ref: dict) -> dict[str, float]:
 
 def _states(rng: np.random.Generator, shape: tuple[int, ...]):
     return (rng.uniform(-np.pi, np.pi, shape), rng.uniform(-2.0, 2.0, shape), rng.uniform(-5.0, 5.0, shape))
-
-
-def _example_urdf(name: str):
-    try:
-        files = importlib.metadata.files("example-robot-data") or []
-    except importlib.metadata.PackageNotFoundError:
-        pytest.skip("example-robot-data is not installed")
-    found = [f.locate() for f in files if f.name == name]
-    assert found, f"{name} not in example-robot-data"
-    return found[0]
 
 
 REAL = [  # file, tip passed to load_robot (None: default), the tip link pinocchio's frame must be, n
@@ -155,7 +130,7 @@ def terms():
         assert model.nq == n
         refs[seed] = (q, qd, qdd), _pinocchio(model, "tool", q, qd, qdd)
     for name, tip, tip_link, n in REAL:
-        path = _example_urdf(name)
+        path = example_urdf(name)
         robots[name] = dataclasses.replace(jr.load_robot(path, tip=tip), name="robot")
         assert robots[name].n_joints == n
         full = pin.buildModelFromUrdf(str(path))
@@ -226,17 +201,17 @@ def test_generated_chains_round_trip(tmp_path):
 
 def test_example_robot_data_limits_and_gears():
     """Limits and velocities from <limit>, gear ratios from <transmission>, continuous joints +-2 pi."""
-    kinova = jr.load_robot(_example_urdf("kinova.urdf"), tip="j2s6s200_end_effector")
+    kinova = jr.load_robot(example_urdf("kinova.urdf"), tip="j2s6s200_end_effector")
     np.testing.assert_array_equal(kinova.u0, np.full(6, 160.0))
     # the commands read sensors and tasks with read_description: a URDF goes through it as well
-    assert jr.read_description(_example_urdf("kinova.urdf"), tip="j2s6s200_end_effector")["gear"] == {"u0": [160.0] * 6}
+    assert jr.read_description(example_urdf("kinova.urdf"), tip="j2s6s200_end_effector")["gear"] == {"u0": [160.0] * 6}
     continuous = np.array([0, 3, 5])
     np.testing.assert_allclose(np.asarray(kinova.q_max)[continuous], 2 * np.pi, rtol=1e-15)
     np.testing.assert_allclose(np.asarray(kinova.q_min)[continuous], -2 * np.pi, rtol=1e-15)
     np.testing.assert_allclose(np.asarray(kinova.q_min)[[1, 2, 4]], [0.820304748437, 0.331612557879, 0.523598775598],
                                rtol=1e-14)
     np.testing.assert_allclose(kinova.qd_max, [0.628318530718] * 3 + [0.837758040957] * 3, rtol=1e-14)
-    panda = jr.load_robot(_example_urdf("panda.urdf"), tip="panda_link8")
+    panda = jr.load_robot(example_urdf("panda.urdf"), tip="panda_link8")
     np.testing.assert_allclose(panda.q_min, [-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973],
                                rtol=1e-14)
     np.testing.assert_allclose(panda.qd_max, [2.175] * 4 + [2.61] * 3, rtol=1e-14)
@@ -250,29 +225,29 @@ def test_example_robot_data_limits_and_gears():
 def test_prismatic_joint_on_the_chain():
     with pytest.raises(RobotFileError, match=r"joint 'panda_finger_joint1' \(prismatic, from link 'panda_hand' "
                                               r"to 'panda_leftfinger'\) lies on the chain"):
-        jr.load_robot(_example_urdf("panda.urdf"), tip="panda_leftfinger")
+        jr.load_robot(example_urdf("panda.urdf"), tip="panda_leftfinger")
 
 
 def test_tip_not_below_base():
     with pytest.raises(RobotFileError, match=r"tip 'panda_link1' is not a descendant of base 'panda_link3'; "
                                               r"the links from the root to 'panda_link1' are panda_link0 -> "
                                               r"panda_link1"):
-        jr.load_robot(_example_urdf("panda.urdf"), base="panda_link3", tip="panda_link1")
+        jr.load_robot(example_urdf("panda.urdf"), base="panda_link3", tip="panda_link1")
 
 
 def test_branching_chain_needs_a_tip():
     with pytest.raises(RobotFileError, match=r"branches at link 'panda_hand' into 'panda_leftfinger' \(joint "
                                               r"'panda_finger_joint1', prismatic\), 'panda_rightfinger' .*tip="):
-        jr.load_robot(_example_urdf("panda.urdf"))
+        jr.load_robot(example_urdf("panda.urdf"))
 
 
 def test_unknown_link_names():
     with pytest.raises(RobotFileError, match=r"tip 'panda_link88': no such link \(did you mean .*'panda_link8'"):
-        jr.load_robot(_example_urdf("panda.urdf"), tip="panda_link88")
+        jr.load_robot(example_urdf("panda.urdf"), tip="panda_link88")
 
 
 def test_missing_inertial_on_a_moving_link(tmp_path):
-    tree = ET.parse(_example_urdf("ur5_robot.urdf"))
+    tree = ET.parse(example_urdf("ur5_robot.urdf"))
     link = tree.getroot().find("link[@name='forearm_link']")
     link.remove(link.find("inertial"))
     tree.write(tmp_path / "ur5.urdf")
@@ -282,7 +257,7 @@ def test_missing_inertial_on_a_moving_link(tmp_path):
 
 
 def test_missing_velocity_limit(tmp_path):
-    tree = ET.parse(_example_urdf("ur5_robot.urdf"))
+    tree = ET.parse(example_urdf("ur5_robot.urdf"))
     del tree.getroot().find("joint[@name='elbow_joint']/limit").attrib["velocity"]
     tree.write(tmp_path / "ur5.urdf")
     with pytest.raises(RobotFileError, match=r"joint 'elbow_joint': <limit velocity> must be a positive"):
@@ -300,7 +275,7 @@ def test_base_and_tip_only_for_urdf():
 def test_import_urdf_command_writes_a_loadable_description(tmp_path, capsys):
     from jaxrobot._cli import main
 
-    urdf, out = _example_urdf("panda.urdf"), tmp_path / "robots" / "panda.toml"
+    urdf, out = example_urdf("panda.urdf"), tmp_path / "robots" / "panda.toml"
     assert main(["import-urdf", str(urdf), "--tip", "panda_link8", "--out", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["joints"] == [f"panda_joint{i}" for i in range(1, 8)]
@@ -315,9 +290,9 @@ def test_import_urdf_command_writes_a_loadable_description(tmp_path, capsys):
 def test_import_urdf_command_reports_bad_input(tmp_path, capsys):
     from jaxrobot._cli import main
 
-    assert main(["import-urdf", str(_example_urdf("panda.urdf")), "--out", str(tmp_path / "p.toml")]) == 2
+    assert main(["import-urdf", str(example_urdf("panda.urdf")), "--out", str(tmp_path / "p.toml")]) == 2
     assert "branches at link 'panda_hand'" in capsys.readouterr().err
-    assert main(["import-urdf", str(_example_urdf("panda.urdf"))]) == 2
+    assert main(["import-urdf", str(example_urdf("panda.urdf"))]) == 2
     assert "--out ARM.toml is required" in capsys.readouterr().err
     assert not (tmp_path / "p.toml").exists()
 
