@@ -137,7 +137,8 @@ def fit_gear_ratio(
     params = (u0_start, jnp.zeros((n_groups, m)), jnp.zeros((n_groups, m)))
     for _ in range(ITERATIONS):
         p, x_raw, x_f = solve(params)
-        params = (p[:, 0], p[:, 1:1 + m] / p[:, :1], p[:, 1 + m:] / p[:, :1])
+        u0 = jnp.where(p[:, :1] != 0.0, p[:, :1], 1.0)  # 0: a group without runs
+        params = (u0[:, 0], p[:, 1:1 + m] / u0, p[:, 1 + m:] / u0)
     u0, a, b = params
 
     # sandwich covariance: residual = filter(white noise), Cov = s^2 A^+ B A^+, B = |G X_f|^2
@@ -360,6 +361,28 @@ def _padded(sets: list[list[int]]) -> np.ndarray:
     return out
 
 
+ORDER_PAD = 12
+"""`_fit` pads the orders per group to a multiple of this (four clusters), and the groups to the
+runs' count, so that the fits of one identification share one or two compiled shapes."""
+
+
+def _fit(proc, batch, group, fit_run, orders: np.ndarray, u0_start) -> GearFit:
+    """`fit_gear_ratio` with padded shapes (`ORDER_PAD`; padding groups have no runs), cut back."""
+    n_groups, m = orders.shape
+    runs = int(np.shape(group)[0])
+    padded = np.zeros((max(runs, n_groups), -(-m // ORDER_PAD) * ORDER_PAD))
+    padded[:n_groups, :m] = orders
+    start = jnp.concatenate([jnp.asarray(u0_start), jnp.ones(padded.shape[0] - n_groups)])
+    fit = fit_gear_ratio(proc, batch, jnp.asarray(group), jnp.asarray(fit_run), jnp.asarray(padded), start)
+    mp = padded.shape[1]
+    ab = np.r_[0:m, mp:mp + m]  # (a, b) rows of the used orders
+    cut = lambda x, *idx: jnp.asarray(np.asarray(x)[:n_groups][idx])  # noqa: E731 (numpy: no compiles)
+    return GearFit(u0=cut(fit.u0), orders=cut(fit.orders, slice(None), slice(0, m)),
+                   a=cut(fit.a, slice(None), slice(0, m)), b=cut(fit.b, slice(None), slice(0, m)),
+                   se_u0=cut(fit.se_u0), cov_ab=cut(fit.cov_ab, slice(None), ab[:, None], ab[None, :]),
+                   noise=cut(fit.noise), samples=cut(fit.samples))
+
+
 def _with_scatter(fit: GearFit, proc, batch, group, fit_run, joints, u0_model, infos) -> tuple[GearFit, list]:
     """Standard errors with the run-to-run scatter, and the resolution test of every group.
 
@@ -372,8 +395,7 @@ def _with_scatter(fit: GearFit, proc, batch, group, fit_run, joints, u0_model, i
     rows = np.flatnonzero(fit_run)
     run_group = np.zeros(len(group), int)
     run_group[rows] = np.arange(len(rows))
-    per_run = fit_gear_ratio(proc, batch, jnp.asarray(run_group), jnp.asarray(fit_run),
-                             jnp.asarray(np.asarray(fit.orders)[group[rows]]), fit.u0[group[rows]])
+    per_run = _fit(proc, batch, run_group, fit_run, np.asarray(fit.orders)[group[rows]], fit.u0[group[rows]])
     bias_var = np.asarray(proc.bias_var)[:, 2]  # the aligned z axis is within 2e-2 rad of the sensor's
     scales, se_u0, resolution = [], [], []
     for g in range(n_groups):
@@ -468,14 +490,14 @@ def identify_gear(
     rows = np.flatnonzero(fit_run)  # the fits see the identification runs' segments only
     fproc, fbatch = segment_windows(proc, batch, rows)
     fgroup, finfos = group[rows], [infos[r] for r in rows]
-    fj, fall = jnp.asarray(fgroup), jnp.ones(rows.size, bool)
+    fall = np.ones(rows.size, bool)
     joint_of = [g[0] for g in groups]
 
     def fit_orders(sets):
-        return fit_gear_ratio(fproc, fbatch, fj, fall, jnp.asarray(_padded(sets)), u0_start)
+        return _fit(fproc, fbatch, fgroup, fall, _padded(sets), u0_start)
 
     def with_scatter(f):
-        return _with_scatter(f, fproc, fbatch, fgroup, np.ones(rows.size, bool), joint_of, u0_model, finfos)
+        return _with_scatter(f, fproc, fbatch, fgroup, fall, joint_of, u0_model, finfos)
 
     orders_sparse, cv = None, None
     for _ in range(SEARCH_PASSES):
@@ -524,8 +546,8 @@ def identify_gear(
         fit_h = None
         if all(rank[gc] >= 2 and rank[gw] >= 2 for _, gc, gw in pairs):
             orders_h = _padded([union[gc] for _, gc, _ in pairs for _ in range(4)])
-            fit_h = fit_gear_ratio(fproc, fbatch, jnp.asarray(half_group[rows]), jnp.asarray(half_fit[rows]),
-                                   jnp.asarray(orders_h), jnp.repeat(u0_start[np.array([gc for _, gc, _ in pairs])], 4))
+            fit_h = _fit(fproc, fbatch, half_group[rows], half_fit[rows], orders_h,
+                         jnp.repeat(u0_start[np.array([gc for _, gc, _ in pairs])], 4))
         for p, (j, gc, gw) in enumerate(pairs):
             used = fit_u.orders[gc] > 0
             chi2, dof, pval = direction_test(fit_u.a[gc], fit_u.b[gc], fit_u.cov_ab[gc], fit_u.a[gw], fit_u.b[gw],
