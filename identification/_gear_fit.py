@@ -255,6 +255,14 @@ class GearIdentification:
     validation: np.ndarray
     errors: GearErrors
     t: np.ndarray
+    ranges: list = dataclasses.field(default_factory=list)
+    """Per group: `(lo, hi)` gear output angle [rad] over the identification runs' segments, the
+    range where its Fourier set is measured (outside: an extrapolation)."""
+
+    def identified_ranges(self) -> dict:
+        """`{(joint, "cw"/"ccw"): (lo, hi) deg}` of the groups whose ripple was kept."""
+        return {(j, "ccw" if ccw else "cw"): tuple(math.degrees(x) for x in self.ranges[g])
+                for g, (j, ccw) in enumerate(self.groups) if np.any(np.asarray(self.fit.orders[g]) > 0)}
 
     def robot(self, start: Robot) -> Robot:
         """`start` with the identified gears: per joint `u0` the inverse-variance mean of its
@@ -564,9 +572,12 @@ def identify_gear(
                 pval = f_test(chi2, dof, sum(within), 2.0 * dof)
             tests.append(DirectionTest(j, float(chi2), int(dof), float(pval), bool(pval < SIGNIFICANCE), scale))
     ts = np.asarray(batch.ts)[:, None]
+    phi, seg = np.asarray(errors.phi), np.asarray(batch.segment) & fit_run[:, None]
+    ranges = [(float(phi[(group == g)[:, None] & seg].min()), float(phi[(group == g)[:, None] & seg].max()))
+              for g in range(n_groups)]
     return GearIdentification(
         groups=groups, fit=fit, misalignment=np.asarray(proc.misalignment), align_ok=align_ok, method=method,
         orders_fft=orders_fft, orders_sparse=orders_sparse, spectra=[(f[1], f[2]) for f in fft],
         cv_curves=np.asarray(cv), tests=tests, resolution=resolution, infos=infos, group=group, validation=is_val,
         errors=errors,
-        t=np.arange(batch.theta.shape[1])[None, :] * ts)
+        t=np.arange(batch.theta.shape[1])[None, :] * ts, ranges=ranges)

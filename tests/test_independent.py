@@ -253,9 +253,10 @@ def test_map_calibration_holds_on_independent_poses():
 def test_chained_cli_gear_calibrate(gear_stage, tmp_path, capsys):
     """identify-gear --save-model -> calibrate --robot gear.toml --method map --save-model: the
     calibrated file keeps the identified Fourier sets and the start file's [sensors]; MAP moves u0
-    of joints 1-3 within 3 sigma of the gear stage. (Its validation error is not
-    held to the truth's: the thesis poses leave the range the gear runs cover, e.g. 53 deg of
-    joint 3, where an identified Fourier set is an extrapolation.)"""
+    of joints 1-3 within 3 sigma of the gear stage. The gear file records each set's identified range
+    and calibrate names the poses outside it: the thesis poses leave the 53 deg of joint 3 that the
+    gear runs cover, where an identified Fourier set is an extrapolation (so the validation error is
+    not held to the truth's)."""
     _, gear_toml, _ = gear_stage
     d = independent_data() / "calibration"
     out = _cli(["calibrate", str(d / "train.csv"), "--validate", str(d / "val.csv"), "--robot", str(gear_toml),
@@ -271,6 +272,18 @@ def test_chained_cli_gear_calibrate(gear_stage, tmp_path, capsys):
         std = max(s["u0_std"] for s in summary[str(j)].values())
         assert abs(float(cal.u0[j - 1]) - float(gear.u0[j - 1])) <= 3 * std
     assert jr.read_description(tmp_path / "cal.toml")["sensors"] == jr.read_description(None)["sensors"]
+    # the identified range: inside the motion of the gear runs (motor range / u0), kept by calibrate, and
+    # every thesis pose outside it named (joint 3's runs cover 53 deg of its travel)
+    _, _, runs = gear_stage
+    for desc in (jr.read_description(gear_toml), jr.read_description(tmp_path / "cal.toml")):
+        for direction, key in (("cw", "pos"), ("ccw", "neg")):
+            lo, hi = desc["gear"]["joint3"][direction]["identified_range_deg"]
+            theta = np.concatenate([th[:, 2] for f, (_, th, _) in runs.items() if f"j3_{key}" in f])
+            u0 = float(jr.racer7(as_built=True).u0[2])
+            assert np.rad2deg(theta.min()) / u0 - 1.0 <= lo < hi <= np.rad2deg(theta.max()) / u0 + 1.0
+    phi3 = np.rad2deg(read_poses(d / "train.csv")["motor_angles"][:, 2]) / float(gear.u0[2])
+    lo, hi = jr.read_description(gear_toml)["gear"]["joint3"]["cw"]["identified_range_deg"]
+    assert out["ripple_outside_identified_range"]["3"]["poses"] == int(np.sum((phi3 < lo) | (phi3 > hi))) > 0
 
 
 @pytest.mark.slow
