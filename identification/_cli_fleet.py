@@ -17,6 +17,7 @@ import numpy as np
 
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
 TABLE = "fleet_calibration.csv"
+EXAMPLE = "jaxrobot calibrate-fleet fleet --bench 1000 --out fleet-out"
 
 
 def configure(parser) -> None:
@@ -24,12 +25,14 @@ def configure(parser) -> None:
                         help="folder of pose CSVs (SPEC.md format), one per robot, all with the same poses count; "
                              "robots in file-name order")
     parser.add_argument("--bench", type=int, default=None, metavar="R",
-                        help="first write bench data of R random as-built robots (draw_fleet around --robot) into "
+                        help="first write bench data of R random as-built robots (draw_fleet around --model) into "
                              "FOLDER (robot_00000.csv, ...) and calibrate those")
     parser.add_argument("--poses", type=int, default=50, help="poses per robot of --bench (default 50)")
     parser.add_argument("--seed", type=int, default=0, help="seed of --bench (default 0)")
-    parser.add_argument("--robot", type=Path, default=None,
-                        help="initial robot description for all robots (default: the embedded Racer-7, nominal)")
+    from jaxrobot._cli import add_model_option
+
+    add_model_option(parser, "initial robot description for all robots (default: the embedded Racer-7, nominal)",
+                     dest="robot")
     parser.add_argument("--parameters", default=None,
                         help="comma-separated free parameters, e.g. a2,beta3,u0_5 (default: identifiable set)")
     parser.add_argument("--max-steps", type=int, default=100, help="LM steps per robot at most (default 100)")
@@ -107,7 +110,7 @@ def run(args, echo) -> dict:
     count = jr.initialize_processes(args.coordinator, args.num_processes, args.process_id)
     import jax
 
-    from jaxrobot._cli import SolveFailed
+    from jaxrobot._cli import Progress, SolveFailed
 
     from ._fleet import calibrate_fleet
 
@@ -117,10 +120,12 @@ def run(args, echo) -> dict:
     marker = None if args.robot is None else jr.read_description(args.robot).get("sensors", {}).get(
         "tracker_marker_offset_m")
     seconds = {}
+    progress = Progress(2 if args.bench is not None else 1, "calibrate-fleet")
     start = time.perf_counter()
     if args.bench is not None:
         files = bench_fleet(args.folder, args.bench, args.poses, args.seed, robot, marker)
         seconds["bench"] = time.perf_counter() - start
+        progress.step(f"bench data of {args.bench} robots")
     else:
         if not args.folder.is_dir():
             raise FileNotFoundError(f"folder {args.folder} does not exist")
@@ -141,6 +146,7 @@ def run(args, echo) -> dict:
     res = calibrate_fleet(robot, np.stack([d["motor_angles"] for d in data]), np.stack([d["positions"] for d in data]),
                           parameters=names, marker=marker, max_steps=args.max_steps)
     seconds["calibrate"] = time.perf_counter() - t
+    progress.step("fleet calibration")
     status = {str(s): int(np.sum(res.status == s)) for s in np.unique(res.status)}
     if pid == 0:
         echo(f"fleet of {len(files)} robots on {res.n_devices} device(s): {status}; LM steps median "

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 HELP = "summarise a robot: parameters, home pose, static deflection, eigenfrequencies"
+EXAMPLE = "jaxrobot info --model arm.toml --as-built --out info"
 
 POSES_DEG = {
     "home": [0, 0, 0, 0, 0, 0],
@@ -30,8 +31,9 @@ def poses_deg(robot) -> dict[str, list[float]]:
 
 
 def configure(parser) -> None:
-    parser.add_argument("--model", type=Path, default=None,
-                        help="robot description TOML (default: the embedded Racer-7-1.4)")
+    from ._cli import add_model_option
+
+    add_model_option(parser)
     parser.add_argument("--as-built", action="store_true", help="the test bench's as-built robot")
 
 
