@@ -84,6 +84,11 @@ def task_path(task: str, description: dict | None = None):
     return path
 
 
+@jax.jit
+def _tool_position(robot, q):
+    return jr.tool_pose(robot, q)[:, :3, 3]
+
+
 def _status_name(code: int) -> str:
     from ._ocp import RESULTS
 
@@ -160,8 +165,8 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
             raise SolveFailed(failure_report(robot, jp, sol, nu) + "; nothing written (--save-failed writes the "
                               "trajectory, marked as not converged)")
         return {"jp": jp, "sol": sol, "trajectories": {"ocp": ocp_motor_trajectory(sol.x, sol.u)}}
-    p_d, r_d = sample_path(path, jp.t)
-    p_plan = jr.tool_pose(robot, sol.q)[:, :3, 3]
+    p_d, r_d = jax.jit(lambda t: sample_path(path, t))(jp.t)
+    p_plan = _tool_position(robot, sol.q)
     plan_err = np.linalg.norm(np.asarray(p_plan - p_d), axis=-1)
     trajectories = {**base, "ocp": ocp_motor_trajectory(sol.x, sol.u)}
     start = time.perf_counter()
@@ -228,7 +233,7 @@ def write_plots(result: dict, out: Path, label: str) -> list[Path]:
                                       out / f"{label}_ocp_signals.png",
                                       f"{task}: OCP control input, motor and link rates"))
     p_d = np.asarray(result["p_d"])
-    robot_p = np.asarray(jr.tool_pose(result["plant"], jnp.asarray(q_sim))[:, :3, 3])
+    robot_p = np.asarray(_tool_position(result["plant"], jnp.asarray(q_sim)))
     speed = lambda p: np.linalg.norm(np.gradient(p, t, axis=0), axis=-1)  # noqa: E731
     files.append(_plots.path_velocity(t, speed(p_d), speed(robot_p), out / f"{label}_path_speed.png",
                                       f"{task}: path speed of the OCP plan on the plant"))
