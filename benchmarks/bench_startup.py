@@ -88,7 +88,7 @@ def measure(args) -> None:
             out.write_text(json.dumps(results, indent=1))
 
 
-def table() -> None:
+def table(data: Path) -> None:
     found = {json.loads(p.read_text())["label"]: json.loads(p.read_text())
              for p in sorted((ROOT / "benchmarks").glob("startup_*.json"))}
     labels = [k for k in ("before", "after") if k in found] + [k for k in found if k not in ("before", "after")]
@@ -114,9 +114,9 @@ def table() -> None:
                 cells.append("-" if r is None else f"{r['wall_s']:.1f} / {r['cpu_s']:.1f} ({r['load']:.1f})"
                              + ("" if r["rc"] == 0 else f" rc {r['rc']}"))
         lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
-    cmds = commands(Path("shared/independent"), Path("TMP"))
-    lines += ["", "Command lines (`DATA` = `shared/independent`):", ""]
-    lines += [f"- `{name}`: `jaxrobot {' '.join(a.replace(str(Path('shared/independent')), 'DATA') for a in argv)}`"
+    cmds = commands(data, Path("TMP"))
+    lines += ["", "Command lines (`DATA` = `shared/independent`, `TMP` a temporary folder):", ""]
+    lines += [f"- `{name}`: `jaxrobot {' '.join(a.replace(str(data), 'DATA') for a in argv)}`"
               for name, argv in cmds.items() if name != "import-urdf"]
     lines += ["- `import-urdf`: `jaxrobot import-urdf panda.urdf --tip panda_link8 --out TMP/panda.toml` "
               "(example-robot-data)"]
@@ -133,10 +133,10 @@ def main() -> None:
     ap.add_argument("--source", type=Path, default=None, help="run the packages in this folder instead")
     ap.add_argument("--table", action="store_true", help="write results_startup.md from the measurements")
     args = ap.parse_args()
-    if args.table:
-        return table()
     if not args.data.is_dir():
         args.data = Path("/work/shared/independent")
+    if args.table:
+        return table(args.data)
     if args.commit is None:
         args.commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
                                      capture_output=True, text=True).stdout.strip()
