@@ -72,6 +72,8 @@ def plot_pose_set(path: str | Path, positions: np.ndarray, workspace: np.ndarray
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_zlabel("z [m]")
+    shown = np.concatenate([np.asarray(positions)] + ([] if workspace is None else [np.asarray(workspace)]))
+    ax.set_box_aspect(np.maximum(np.ptp(shown, axis=0), 1e-3))  # equal scale on x, y and z
     ax.set_title(title)
     ax.legend(loc="upper left")
     fig.tight_layout()

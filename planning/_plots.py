@@ -10,6 +10,7 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib import ticker
 
 LEGEND = {"rigid": "rigid model", "quasi_static": "quasi-static", "flat_inverse": "flat inverse", "ocp": "OCP",
           "thesis": "thesis: ν‖u‖²", "jerk": "jerk: ν‖Δu‖²", "flat": "flat: ν‖u − u_flat‖²"}
@@ -189,6 +190,9 @@ def pareto_front(points: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], p
         ax.loglog(bw, err, "o-", label=legend(label))
         for b, e, n in zip(bw, err, nu, strict=True):
             ax.annotate(f"ν = {n:.0e}", (b, e), fontsize=6, alpha=0.7)
+    for axis in (ax.xaxis, ax.yaxis):  # plain numbers, also on the minor ticks of a range within a decade
+        axis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+        axis.set_minor_formatter(ticker.LogFormatter(labelOnlyBase=False, minor_thresholds=(1.5, 0.5)))
     ax.set_xlabel("control bandwidth f_99 (99 % of the energy of u, max over axes) [Hz]")
     ax.set_ylabel("max ‖p_d − p_e‖ on the plant [µm]")
     ax.set_title(title)
