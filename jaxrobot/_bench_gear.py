@@ -289,20 +289,20 @@ def gear_runs(
     travel = math.radians(rng_deg) * u0  # motor travel at constant speed
     duration = 2 * rest_s + 2 * ramp + travel / math.radians(speed_deg)
     n = int(math.ceil(duration / ts)) + 1
-    t = jnp.arange(n) * ts
+    t = np.arange(n) * ts  # host-side set-up: no device op to compile
 
     hold = np.deg2rad(np.asarray(hold_q_deg, float)) * np.asarray(robot.u0)
     dirs = [directions[k % len(directions)] for k in range(repetitions * len(directions))]
     dirs = sorted(dirs, key=lambda d: directions.index(d))
     key = jax.random.PRNGKey(seed) if isinstance(seed, int) else seed
-    rot_s = sensor_rotation(jnp.asarray(mis))
+    rot_s = jax.jit(sensor_rotation)(jnp.asarray(mis))
     out = {k: [] for k in ("theta", "gyro", "q", "rate", "gyro_true", "bias")}
     motion = {}  # the noise-free signals depend on the direction only: computed once per direction
     for k, d in enumerate(dirs):
         if d not in motion:
             sign = 1.0 if d == "cw" else -1.0
-            start = jnp.asarray(hold).at[i].set((lo_link if d == "cw" else hi_link) * u0)
-            ccw_vec = jnp.zeros(n_joints, bool).at[i].set(d == "ccw")
+            start, ccw_vec = hold.copy(), np.zeros(n_joints, bool)
+            start[i], ccw_vec[i] = (lo_link if d == "cw" else hi_link) * u0, d == "ccw"
             args = (start, sign * math.radians(speed_deg), travel, ramp, rest_s)
             tk = np.arange(0.0, float(t[-1]) + 2 * KNOT_STEP * ts, KNOT_STEP * ts)
             dk, ddk = _chunked(_deflection_knots, tk, robot, args, jnp.asarray(i), ccw_vec)
