@@ -5,6 +5,9 @@ from ._calibration import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
 from ._calibration import CalibrationResult as CalibrationResult
 from ._calibration import calibrate as calibrate
 from ._calibration import map_parameters as map_parameters
+from ._diagnose import DiagnoseResult as DiagnoseResult
+from ._diagnose import Poses as Poses
+from ._diagnose import diagnose as diagnose
 from ._fleet import FleetResult as FleetResult
 from ._fleet import calibrate_fleet as calibrate_fleet
 from ._gear_fit import DirectionTest as DirectionTest

@@ -11,7 +11,7 @@ HELP = "find where model and pose measurements disagree, name the missing effect
 
 
 def configure(parser) -> None:
-    parser.add_argument("poses", type=Path, nargs="+", help="training pose CSV files (SPEC.md format)")
+    parser.add_argument("poses", type=Path, nargs="+", help="training pose CSV files (README, 'Measurement files')")
     parser.add_argument("--validate", type=Path, nargs="+", required=True, help="held-out validation pose CSV files")
     parser.add_argument("--model", type=Path, default=None,
                         help="start robot description (default: the embedded Racer-7, nominal)")
