@@ -18,7 +18,7 @@ import tomllib
 from helpers import example_urdf
 
 import jaxrobot as jr
-from identification._effects import CATALOGUE
+from identification import CATALOGUE
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 TEXT = README.read_text()
