@@ -12,7 +12,7 @@ from jaxrobot._cli import SolveFailed, add_model_option
 
 from ._pose_files import add_approach_option
 
-HELP = "calibrate the kinematic parameters from a pose file (thesis 3.2, LM)"
+HELP = "calibrate the kinematic parameters from a pose file (docs/model.md (3.12), LM)"
 EXAMPLE = "jaxrobot calibrate poses.csv --validate validation.csv --out calibration --save-model calibrated.toml"
 
 

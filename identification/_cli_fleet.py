@@ -24,7 +24,8 @@ EXAMPLE = "jaxrobot calibrate-fleet fleet --bench 1000 --out fleet-out"
 
 def configure(parser) -> None:
     parser.add_argument("folder", type=Path,
-                        help="folder of pose CSVs (SPEC.md format), one per robot, all with the same poses count; "
+                        help="folder of pose CSVs (README, 'Measurement files'), one per robot, all with the same "
+                             "poses count; "
                              "robots in file-name order")
     parser.add_argument("--bench", type=int, default=None, metavar="R",
                         help="first write bench data of R random as-built robots (draw_fleet around --model) into "
