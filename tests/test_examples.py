@@ -40,6 +40,7 @@ def test_model_tour(tmp_path, monkeypatch):
     assert s["tracking_error_rad"] < 1e-6
 
 
+@pytest.mark.slow  # ~60 s cold: the gear programs compile (CI runs it in its notebook step, .ci/run)
 def test_gear_identification(tmp_path, monkeypatch):
     """u0 within 4 of its reported standard errors of the bench's true ratio; on runs it did not fit,
     the identified ratio leaves less kinematic error than the constant one."""
