@@ -8,13 +8,16 @@ would also show up here, so the timeout is several times a normal run). `--sourc
 code in DIR instead (e.g. an export of an older commit, for the time per run before a fix).
 `--lapack` dumps every module the commands lower (`JAX_DUMP_IR_TO`) and counts LAPACK custom
 calls with batch dimensions (the deadlock hazard; `tests/test_no_batched_lapack.py`).
-Bench data: the independent implementation's files (`shared/independent`, README there).
+Bench data: the independent implementation's files (`shared/independent`, README there); for
+`import-urdf` the Panda of example-robot-data (else our Racer-7 exported as URDF); `calibrate-fleet`
+writes its own bench fleet (`--bench 200`).
 Appends a markdown table (command, runs, hangs, failures, time per run) to `--out`.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
 import os
 import platform
 import re
@@ -28,7 +31,19 @@ ROOT = Path(__file__).resolve().parents[1]
 LAPACK_CALL = re.compile(r"custom_call @(lapack_\w+)\(.*\} : \(tensor<([0-9x]*?)x?[a-z]+\d*>")
 
 
-def commands(data: Path) -> dict[str, list[str]]:
+def example_urdf(folder: Path) -> tuple[Path, list[str]]:
+    """The Panda URDF of example-robot-data with its tip, else the Racer-7 exported into `folder`."""
+    try:
+        files = importlib.metadata.files("example-robot-data") or []
+        return next(f.locate() for f in files if f.name == "panda.urdf"), ["--tip", "panda_link8"]
+    except (importlib.metadata.PackageNotFoundError, StopIteration):
+        import jaxrobot as jr
+
+        jr.save_urdf(jr.racer7(), folder / "racer7.urdf")
+        return folder / "racer7.urdf", []
+
+
+def commands(data: Path, urdf: tuple[Path, list[str]]) -> dict[str, list[str]]:
     gear = sorted(str(p) for p in (data / "gear").glob("j*_r[01].csv"))
     gear_val = sorted(str(p) for p in (data / "gear").glob("j*_r2.csv"))
     cal, case = data / "calibration", data / "poses" / "p1_joint5_offset"
@@ -41,6 +56,8 @@ def commands(data: Path) -> dict[str, list[str]]:
         "diagnose": ["diagnose", "--model", str(case / "start.toml"), str(case / "train.csv"),
                      "--validate", str(case / "val.csv")],
         "demo": ["demo"],
+        "import-urdf": ["import-urdf", str(urdf[0]), *urdf[1]],
+        "calibrate-fleet": ["calibrate-fleet", "fleet", "--bench", "200"],
     }
 
 
@@ -62,7 +79,8 @@ def run_once(argv: list[str], timeout: float, source: Path | None, dump: Path | 
         env["JAX_DUMP_IR_TO"] = str(dump)
     start = time.perf_counter()
     try:
-        proc = subprocess.run([sys.executable, "-m", "jaxrobot._cli", *argv, "--json", "--out", str(cwd / "out")],
+        out = cwd / ("arm.toml" if argv[0] == "import-urdf" else "out")
+        proc = subprocess.run([sys.executable, "-m", "jaxrobot._cli", *argv, "--json", "--out", str(out)],
                               cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
         return time.perf_counter() - start, proc.returncode, proc.stderr.strip().splitlines()[-1:]
     except subprocess.TimeoutExpired:
@@ -81,7 +99,8 @@ def main() -> None:
     ap.add_argument("--label", default="", help="label of this run in the table (e.g. the commit)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results_hang.md")
     args = ap.parse_args()
-    cmds = commands(args.data)
+    urdf_dir = Path(tempfile.mkdtemp())
+    cmds = commands(args.data, example_urdf(urdf_dir))
     names = args.commands or list(cmds)
     unknown = [c for c in names if c not in cmds]
     if unknown:

@@ -5,6 +5,13 @@ from ._calibration import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
 from ._calibration import CalibrationResult as CalibrationResult
 from ._calibration import calibrate as calibrate
 from ._calibration import map_parameters as map_parameters
+from ._diagnose import DiagnoseResult as DiagnoseResult
+from ._diagnose import Poses as Poses
+from ._diagnose import diagnose as diagnose
+from ._effects import CATALOGUE as CATALOGUE
+from ._effects import Effect as Effect
+from ._effects import Layout as Layout
+from ._effects import catalogue as catalogue
 from ._fleet import FleetResult as FleetResult
 from ._fleet import calibrate_fleet as calibrate_fleet
 from ._gear_fit import DirectionTest as DirectionTest
@@ -34,5 +41,6 @@ from ._pose_files import read_poses as read_poses
 from ._pose_selection import PoseConstraints as PoseConstraints
 from ._pose_selection import detmax as detmax
 from ._pose_selection import random_feasible_poses as random_feasible_poses
+from ._pose_selection import rest_motor_angles as rest_motor_angles
 
 _check_public(globals())

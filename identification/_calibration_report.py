@@ -62,9 +62,6 @@ def plot_pose_set(path: str | Path, positions: np.ndarray, workspace: np.ndarray
                   title: str = "Pose set") -> None:
     """Like thesis Fig. 3.11: marker positions of a pose set (yellow, black border) over random
     reachable positions (blue)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig = plt.figure(figsize=(6, 5))
@@ -72,9 +69,11 @@ def plot_pose_set(path: str | Path, positions: np.ndarray, workspace: np.ndarray
     if workspace is not None:
         ax.scatter(*np.asarray(workspace).T, s=2, c="tab:blue", alpha=0.25, label="random reachable")
     ax.scatter(*np.asarray(positions).T, s=30, c="yellow", edgecolors="black", label="pose set")
-    ax.set_xlabel("x in m")
-    ax.set_ylabel("y in m")
-    ax.set_zlabel("z in m")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    shown = np.concatenate([np.asarray(positions)] + ([] if workspace is None else [np.asarray(workspace)]))
+    ax.set_box_aspect(np.maximum(np.ptp(shown, axis=0), 1e-3))  # equal scale on x, y and z
     ax.set_title(title)
     ax.legend(loc="upper left")
     fig.tight_layout()
@@ -86,9 +85,6 @@ def plot_errors(path: str | Path, before: np.ndarray, after: np.ndarray,
                 title: str = "Validation set") -> None:
     """Like thesis Fig. 3.12: distance between model and measured marker position per pose,
     before (red) and after (blue) calibration, in mm."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     k = np.arange(1, len(before) + 1)
@@ -96,7 +92,7 @@ def plot_errors(path: str | Path, before: np.ndarray, after: np.ndarray,
     ax.bar(k - 0.2, 1e3 * np.asarray(before), 0.4, color="tab:red", label="before calibration")
     ax.bar(k + 0.2, 1e3 * np.asarray(after), 0.4, color="tab:blue", label="after calibration")
     ax.set_xlabel("pose")
-    ax.set_ylabel("position error in mm")
+    ax.set_ylabel("‖p_model − p_measured‖ [mm]")
     ax.set_xticks(k)
     ax.set_title(title)
     ax.legend()

@@ -8,19 +8,19 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxrobot._cli import SolveFailed
+from jaxrobot._cli import SolveFailed, add_model_option
 
 from ._pose_files import add_approach_option
 
-HELP = "calibrate the kinematic parameters from a pose file (thesis 3.2, LM)"
+HELP = "calibrate the kinematic parameters from a pose file (docs/model.md (3.12), LM)"
+EXAMPLE = "jaxrobot calibrate poses.csv --validate validation.csv --out calibration --save-model calibrated.toml"
 
 
 def configure(parser) -> None:
     parser.add_argument("poses", type=Path, help="pose CSV: theta1_deg..thetan_deg, x_m, y_m, z_m [, qx..qw]")
     parser.add_argument("--validate", type=Path, default=None, help="validation pose CSV (same format)")
     parser.add_argument("--save-model", type=Path, default=None, help="write the calibrated robot (TOML)")
-    parser.add_argument("--robot", type=Path, default=None,
-                        help="initial robot description (default: the embedded Racer-7, nominal)")
+    add_model_option(parser, "initial robot description (default: the embedded Racer-7, nominal)", dest="robot")
     parser.add_argument("--parameters", default=None,
                         help="comma-separated free parameters, e.g. a2,beta3,u0_5 (default: identifiable set)")
     parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
@@ -72,7 +72,18 @@ def _echo_report(report: dict, echo, truth: dict | None = None) -> None:
             echo(f"determined by the {source}: {', '.join(names) or '(none)'}")
 
 
-def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions=None) -> list[str]:
+def _workspace(robot, marker) -> np.ndarray:
+    """Marker positions (1000, 3) of random feasible poses: the workspace behind a pose set (Fig. 3.11)."""
+    import jaxrobot as jr
+
+    from ._pose_selection import default_marker, random_feasible_poses
+
+    marker = default_marker() if marker is None else np.asarray(marker, float)
+    return np.asarray(jr.point_position(robot, random_feasible_poses(robot, 1000, seed=3), marker))
+
+
+def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions=None,
+                   workspace=None) -> list[str]:
     from ._calibration_report import error_table, parameter_table, plot_errors, plot_pose_set
 
     files = []
@@ -85,10 +96,12 @@ def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions
     files.append("calibration_tables.txt")
     set_name = "validation" if "validation" in report else "identification"
     e = report["errors_m"][set_name]
-    plot_errors(out / "calibration_errors.png", e["before"], e["after"], title=f"{set_name} set")
+    plot_errors(out / "calibration_errors.png", e["before"], e["after"],
+                title=f"Position error per pose of the {set_name} set, before and after calibration")
     files.append("calibration_errors.png")
     if positions is not None:
-        plot_pose_set(out / "calibration_poses.png", positions, title="identification poses")
+        plot_pose_set(out / "calibration_poses.png", positions, workspace,
+                      title="Marker positions of the identification poses")
         files.append("calibration_poses.png")
     return files
 
@@ -134,7 +147,7 @@ def run(args, echo) -> dict:
     if not res.report["converged"]:
         raise SolveFailed(f"calibration did not converge ({res.report['status']}); the model was not saved")
     if args.out is not None:
-        for f in _write_outputs(args.out, res.report, positions=data["positions"]):
+        for f in _write_outputs(args.out, res.report, positions=data["positions"], workspace=_workspace(robot, marker)):
             echo(f"wrote {args.out / f}")
     if args.save_model is not None:
         from ._model_files import save_model
@@ -153,7 +166,7 @@ def demo_stage(out: Path, echo) -> dict:
     from ._calibration import DEFAULT_PARAMETERS, calibrate
     from ._calibration_report import plot_pose_set
     from ._parameters import ParameterMap
-    from ._pose_selection import detmax, random_feasible_poses
+    from ._pose_selection import detmax
 
     start = time.perf_counter()
     truth, nominal = jr.racer7(as_built=True), jr.racer7()
@@ -173,10 +186,9 @@ def demo_stage(out: Path, echo) -> dict:
     truth_delta = dict(zip(params.names, np.asarray(params.get(truth) - params.get(nominal)).tolist()))
     _echo_report(res.report, echo, truth_delta)
     files = _write_outputs(out, res.report, truth_delta, positions=None)
-    workspace = np.asarray(jr.point_position(nominal, random_feasible_poses(nominal, 1000, seed=3),
-                                             np.asarray(both.metadata["marker_offset_m"])))
-    plot_pose_set(out / "calibration_poses.png", both.true_positions[:k], workspace,
-                  title="thesis identification poses (Fig. 3.11)")
+    plot_pose_set(out / "calibration_poses.png", both.true_positions[:k],
+                  _workspace(nominal, both.metadata["marker_offset_m"]),
+                  title="Marker positions of the thesis' identification poses")
     files += ["calibration_poses.png", "bench_poses.csv", "bench_validation.csv"]
     jr.save_robot(res.robot, out / "calibrated_robot.toml")
     files.append("calibrated_robot.toml")

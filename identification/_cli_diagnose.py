@@ -8,13 +8,15 @@ from pathlib import Path
 from ._pose_files import add_approach_option
 
 HELP = "find where model and pose measurements disagree, name the missing effect, add it, repeat"
+EXAMPLE = "jaxrobot diagnose --model start.toml train.csv --validate val.csv --out diagnose --save-model fixed.toml"
 
 
 def configure(parser) -> None:
-    parser.add_argument("poses", type=Path, nargs="+", help="training pose CSV files (SPEC.md format)")
+    parser.add_argument("poses", type=Path, nargs="+", help="training pose CSV files (README, 'Measurement files')")
     parser.add_argument("--validate", type=Path, nargs="+", required=True, help="held-out validation pose CSV files")
-    parser.add_argument("--model", type=Path, default=None,
-                        help="start robot description (default: the embedded Racer-7, nominal)")
+    from jaxrobot._cli import add_model_option
+
+    add_model_option(parser, "start robot description (default: the embedded Racer-7, nominal)")
     parser.add_argument("--save-model", type=Path, default=None, help="write the augmented robot (TOML)")
     parser.add_argument("--noise-um", type=float, default=None,
                         help="tracker noise std per axis in um (default: the robot file's [sensors])")
@@ -35,6 +37,7 @@ def _poses(paths, approach: str):
 
 def run(args, echo) -> dict:
     import jaxrobot as jr
+    from jaxrobot._cli import Progress
 
     from ._diagnose import diagnose
     from ._diagnose_report import candidate_table, loop_table, plot_candidates, plot_residuals, plot_spectra
@@ -51,8 +54,14 @@ def run(args, echo) -> dict:
         noise = sensors.get("tracker_position_noise_m") if noise is None else noise
     train, val = _poses(args.poses, args.approach), _poses(args.validate, args.approach)
     echo(f"diagnose: {len(train)} training and {len(val)} validation poses, start model {robot.name}")
+    steps = Progress(args.max_steps + 1, "diagnose", at_most=True)
+
+    def progress(line: str) -> None:
+        echo(line)
+        steps.step(line.split(":")[0])
+
     res = diagnose(robot, train, val, noise=noise,
-                   marker=marker, max_steps=args.max_steps, max_order=args.max_order, progress=echo)
+                   marker=marker, max_steps=args.max_steps, max_order=args.max_order, progress=progress)
     rep = res.report
     table = loop_table(res.loop, rep["noise_floor_um"])
     echo("\n" + table)

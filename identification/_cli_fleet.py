@@ -19,19 +19,23 @@ from ._pose_files import add_approach_option
 
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
 TABLE = "fleet_calibration.csv"
+EXAMPLE = "jaxrobot calibrate-fleet fleet --bench 1000 --out fleet-out"
 
 
 def configure(parser) -> None:
     parser.add_argument("folder", type=Path,
-                        help="folder of pose CSVs (SPEC.md format), one per robot, all with the same poses count; "
+                        help="folder of pose CSVs (README, 'Measurement files'), one per robot, all with the same "
+                             "poses count; "
                              "robots in file-name order")
     parser.add_argument("--bench", type=int, default=None, metavar="R",
-                        help="first write bench data of R random as-built robots (draw_fleet around --robot) into "
+                        help="first write bench data of R random as-built robots (draw_fleet around --model) into "
                              "FOLDER (robot_00000.csv, ...) and calibrate those")
     parser.add_argument("--poses", type=int, default=50, help="poses per robot of --bench (default 50)")
     parser.add_argument("--seed", type=int, default=0, help="seed of --bench (default 0)")
-    parser.add_argument("--robot", type=Path, default=None,
-                        help="initial robot description for all robots (default: the embedded Racer-7, nominal)")
+    from jaxrobot._cli import add_model_option
+
+    add_model_option(parser, "initial robot description for all robots (default: the embedded Racer-7, nominal)",
+                     dest="robot")
     parser.add_argument("--parameters", default=None,
                         help="comma-separated free parameters, e.g. a2,beta3,u0_5 (default: identifiable set)")
     parser.add_argument("--max-steps", type=int, default=100, help="LM steps per robot at most (default 100)")
@@ -110,7 +114,7 @@ def run(args, echo) -> dict:
     count = jr.initialize_processes(args.coordinator, args.num_processes, args.process_id)
     import jax
 
-    from jaxrobot._cli import SolveFailed
+    from jaxrobot._cli import Progress, SolveFailed
 
     from ._fleet import calibrate_fleet
     from ._pose_files import read_poses
@@ -121,10 +125,12 @@ def run(args, echo) -> dict:
     marker = None if args.robot is None else jr.read_description(args.robot).get("sensors", {}).get(
         "tracker_marker_offset_m")
     seconds = {}
+    progress = Progress(2 if args.bench is not None else 1, "calibrate-fleet")
     start = time.perf_counter()
     if args.bench is not None:
         files = bench_fleet(args.folder, args.bench, args.poses, args.seed, robot, marker)
         seconds["bench"] = time.perf_counter() - start
+        progress.step(f"bench data of {args.bench} robots")
     else:
         if not args.folder.is_dir():
             raise FileNotFoundError(f"folder {args.folder} does not exist")
@@ -146,6 +152,7 @@ def run(args, echo) -> dict:
                           parameters=names, marker=marker, max_steps=args.max_steps,
                           ccw=np.stack([d["ccw"] for d in data]))
     seconds["calibrate"] = time.perf_counter() - t
+    progress.step("fleet calibration")
     status = {str(s): int(np.sum(res.status == s)) for s in np.unique(res.status)}
     if pid == 0:
         echo(f"fleet of {len(files)} robots on {res.n_devices} device(s): {status}; LM steps median "

@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 
 HELP = "identify the gear ratios (u0 + Fourier ripple, cw/ccw) from encoder + gyroscope runs"
+EXAMPLE = ("jaxrobot identify-gear j1_cw_1.csv j1_ccw_1.csv --validate j1_cw_2.csv j1_ccw_2.csv "
+           "--out gear --save-model gear.toml")
 
 DEMO_REPETITIONS = {"identification": 2, "validation": 1, "other_speed": 1}
 """Runs per direction and joint in the demo: identification, validation at the same speed and at
@@ -19,13 +21,15 @@ def configure(parser) -> None:
     parser.add_argument("runs", nargs="+", type=Path, help="gear-run CSV files used for identification")
     parser.add_argument("--validate", nargs="+", type=Path, default=[], metavar="RUNS",
                         help="gear-run CSV files used for validation only")
-    parser.add_argument("--robot", type=Path, default=None,
-                        help="robot description (TOML, racer7.toml format); default: the embedded Racer-7")
+    from jaxrobot._cli import add_model_option
+
+    add_model_option(parser, "robot description (TOML, racer7.toml format; default: the embedded Racer-7)",
+                     dest="robot")
     parser.add_argument("--method", choices=("sparse", "fft"), default="sparse",
                         help="order search for the fit: sparse selection (ours, default) or the thesis' FFT")
     parser.add_argument("--save-model", type=Path, default=None,
-                        help="write the robot (--robot or the embedded one) with the identified u0 and Fourier "
-                             "sets (TOML; the input of calibrate --robot)")
+                        help="write the robot (--model or the embedded one) with the identified u0 and Fourier "
+                             "sets (TOML; the input of calibrate --model)")
 
 
 def _cutoffs(desc: dict) -> dict[int, float]:

@@ -31,9 +31,6 @@ def candidate_table(log: list[dict], top: int = 12) -> str:
 
 def plot_residuals(path: Path, before: np.ndarray, after: np.ndarray, noise_floor_um: float) -> None:
     """Validation residual norms per pose before and after the loop, with the noise floor."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
@@ -41,12 +38,13 @@ def plot_residuals(path: Path, before: np.ndarray, after: np.ndarray, noise_floo
     ax[0].plot(k, 1e6 * before, "o-", ms=3, label="start model")
     ax[0].plot(k, 1e6 * after, "o-", ms=3, label="after the loop")
     ax[0].axhline(noise_floor_um, color="k", ls="--", lw=1, label="noise floor (rms)")
-    ax[0].set(xlabel="validation pose", ylabel="position residual [um]")
+    ax[0].set(xlabel="validation pose", ylabel="position residual [µm]",
+              title="Validation residuals per pose")
     ax[0].legend(fontsize=8)
     bins = np.linspace(0, 1e6 * max(before.max(), after.max()), 30)
     ax[1].hist(1e6 * before, bins, alpha=0.6, label="start model")
     ax[1].hist(1e6 * after, bins, alpha=0.6, label="after the loop")
-    ax[1].set(xlabel="position residual [um]", ylabel="poses")
+    ax[1].set(xlabel="position residual [µm]", ylabel="poses", title="Distribution")
     ax[1].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -55,9 +53,6 @@ def plot_residuals(path: Path, before: np.ndarray, after: np.ndarray, noise_floo
 
 def plot_candidates(path: Path, candidates: list[list[dict]], top: int = 10) -> None:
     """BIC change of the best candidates of every step (LM where fitted, else linearised)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     steps = [log for log in candidates if log]
@@ -72,7 +67,7 @@ def plot_candidates(path: Path, candidates: list[list[dict]], top: int = 10) -> 
         ax.set_yticks(range(len(rows)), [e["candidate"] for e in rows], fontsize=7)
         ax.invert_yaxis()
         ax.set_xscale("symlog")
-        ax.set_title(f"step {i + 1}: BIC change of the candidates (green: added)", fontsize=9)
+        ax.set_title(f"Step {i + 1}: BIC change of the candidate effects (green: added)", fontsize=9)
     axes[-1, 0].set_xlabel("BIC change (negative = better)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -81,9 +76,6 @@ def plot_candidates(path: Path, candidates: list[list[dict]], top: int = 10) -> 
 
 def plot_spectra(path: Path, spectra: dict, max_order: int) -> None:
     """Residual spectra of the first step: chi-square decrease of a ripple of order n per joint."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     if not spectra:
@@ -95,9 +87,10 @@ def plot_spectra(path: Path, spectra: dict, max_order: int) -> None:
     for (kind, joint), d in spectra.items():
         axes[joint - 1].plot(orders, d, lw=0.8, label="same both ways" if kind == "gear_ripple"
                              else "direction-dependent")
-        axes[joint - 1].set_ylabel(f"joint {joint}\nchi2 drop", fontsize=8)
+        axes[joint - 1].set_ylabel(f"joint {joint}\nχ² decrease", fontsize=8)
     axes[0].legend(fontsize=7)
-    axes[0].set_title("residual spectra vs joint angle (step 1)", fontsize=9)
+    axes[0].set_title("Residual spectra over the joint angle: χ² decrease of a ripple of order n (step 1)",
+                      fontsize=9)
     axes[-1].set_xlabel("order [cycles per output revolution]")
     fig.tight_layout()
     fig.savefig(path, dpi=120)

@@ -92,11 +92,15 @@ def _screw_residual_jacobian(robots, params, theta, positions, deflection, q0, m
     return r, jnp.transpose(jac, (2, 1, 3, 0)).reshape(n_rob, -1, x.shape[1])
 
 
-CHUNK = 32
-"""Robots per chunk of the batched LM (`batched_lm(chunk=...)`): a chunk's Jacobians (32 x 150 x 25
-for 50 poses, 1 MB) stay in cache. Residuals and Jacobians of 1000 robots x 50 poses, measured on
-2 shared CPU cores: 64-92 ms at 20-40 robots per chunk, 81-113 ms at 100-200, 129 ms at 8, 188 ms
-in one piece."""
+CHUNK = {"cpu": 32, "accelerator": 4096}
+"""Robots per chunk of the batched LM (`batched_lm(chunk=...)`), by backend: on the CPU a chunk's
+Jacobians (32 x 150 x 25 for 50 poses, 1 MB) stay in cache; on an accelerator every chunk is a
+sequential step of kernel launches, so chunks are large (`benchmarks/results_calibration.md`,
+`benchmarks/results_gpu.md`)."""
+
+
+def _chunk() -> int:
+    return CHUNK["cpu" if jax.default_backend() == "cpu" else "accelerator"]
 
 
 def _constants(robots, theta, ccw, rippled, directed):
@@ -129,12 +133,12 @@ def _local_solve(robots, theta, positions, marker, q0, defl, ccw, *, params, max
         return jax.vmap(one)(rb, th, pos, de, q, data[-1], x)
 
     out = batched_lm(residual_jacobian, jnp.zeros_like(v0), (robots, theta, positions, q0, defl, v0, scale, ccw),
-                     max_steps=max_steps, chunk=CHUNK)
+                     max_steps=max_steps, chunk=_chunk())
     n_rob, n, m = out["residuals"].shape + v0.shape[1:]
     if screws:  # component-major rows -> pose-major
         out["residuals"] = jnp.swapaxes(out["residuals"].reshape(n_rob, 3, -1), 1, 2).reshape(n_rob, n)
     sigma2 = 2 * out["cost"] / max(n - m, 1)  # [mm^2]
-    cov_x, rank, full = map_chunks(lambda a: covariance(*a), (out["normal"], sigma2), CHUNK)
+    cov_x, rank, full = map_chunks(lambda a: covariance(*a), (out["normal"], sigma2), _chunk())
     cov = cov_x * scale[:, :, None] * scale[:, None, :]
     finite = jnp.all(jnp.isfinite(out["x"]), 1) & jnp.all(jnp.isfinite(cov), (1, 2))
     return {"value": v0 + scale * out["x"], "std": jnp.sqrt(jnp.diagonal(cov, 0, 1, 2)), "cov": cov,

@@ -1,7 +1,7 @@
 """Gear-ratio fit of eq. 3.5: `u0` and the Fourier coefficients by linear least squares, one set
 per (joint, direction), with standard errors and a test of cw against ccw.
 
-Model (eq. 2.10-2.11, SPEC.md): `thetad = u0 (1 + sum_j a_j cos(n_j phi) - b_j sin(n_j phi)) phid`.
+Model (eq. 2.10-2.11, docs/model.md): `thetad = u0 (1 + sum_j a_j cos(n_j phi) - b_j sin(n_j phi)) phid`.
 It is linear in `p = (u0, u0 a, u0 b)`; because both measured signals are filtered (eq. 3.1),
 the regressors are filtered with the same kernel, so that the filter's attenuation of high
 orders does not bias the coefficients. `phi = Xi^{-1}(theta)` needs the ratio itself, so the
@@ -64,7 +64,7 @@ class GearFit(eqx.Module):
     orders: Float[Array, "G M"]
     """Orders `n_j` (cycles per output revolution); 0 marks padding."""
     a: Float[Array, "G M"]
-    """Dimensionless cosine coefficients (SPEC.md convention)."""
+    """Dimensionless cosine coefficients (docs/model.md (2.10))."""
     b: Float[Array, "G M"]
     """Dimensionless sine coefficients."""
     se_u0: Float[Array, " G"]

@@ -7,7 +7,7 @@ the rests, gyroscope alignment (eq. 3.3, two angles per joint, optimistix Levenb
 motor rate by central differences, the gravity-deflection rate of the model subtracted, and the
 kinematic error (eq. 3.4).
 
-Sign convention (SPEC.md, "Gear"): `thetad = u(phi) phid`, so the kinematic error in link
+Sign convention (docs/model.md, section 2): `thetad = u(phi) phid`, so the kinematic error in link
 units is `omega_e = thetad_f / u0 - phid_f` (the thesis' eq. 3.4 writes `u0 thetad_f` for the
 reciprocal ratio).
 """

@@ -102,7 +102,7 @@ def resolution_table(res: GearIdentification) -> str:
 
 def summary(res: GearIdentification) -> dict:
     """The JSON summary of `identify-gear` (schema of issue 3; RMS on the validation runs where
-    there are any, else on the identification runs; `a`, `b`, `orders` as in SPEC.md)."""
+    there are any, else on the identification runs; `a`, `b`, `orders` as in docs/model.md (2.10))."""
     joints: dict = {}
     for g, (joint, ccw) in enumerate(res.groups):
         used = np.asarray(res.fit.orders[g]) > 0
@@ -126,9 +126,6 @@ def summary(res: GearIdentification) -> dict:
 
 def plot_spectra(res: GearIdentification, path: Path) -> None:
     """Fig. 3.3: FFT magnitude of the kinematic error over the order, cw and ccw, per joint."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     joints = sorted({j for j, _ in res.groups})
@@ -139,9 +136,9 @@ def plot_spectra(res: GearIdentification, path: Path) -> None:
                 orders, mag = res.spectra[g]
                 ax.plot(orders, np.rad2deg(mag), "o-" if len(orders) < 80 else "-", ms=3,
                         color="tab:blue" if ccw else "tab:red", label=_dir(ccw))
-        ax.set_title(f"joint {joint}: FFT of the kinematic error")
-        ax.set_xlabel("order (cycles per output revolution)")
-        ax.set_ylabel("magnitude, deg/s")
+        ax.set_title(f"Joint {joint}: spectrum of the kinematic error")
+        ax.set_xlabel("order [cycles per output revolution]")
+        ax.set_ylabel("magnitude [deg/s]")
         ax.set_xlim(0, 400)
         ax.legend()
     fig.tight_layout()
@@ -152,9 +149,6 @@ def plot_spectra(res: GearIdentification, path: Path) -> None:
 def plot_errors(res: GearIdentification, path: Path) -> None:
     """Fig. 3.4: kinematic error before/after compensation of one validation run per joint and
     direction (identification runs where there is none)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(len(res.groups), 1, figsize=(8, 2.2 * len(res.groups)), squeeze=False)
@@ -166,13 +160,13 @@ def plot_errors(res: GearIdentification, path: Path) -> None:
         t = res.t[r, :n]
         ax.plot(t, np.rad2deg(seg_all[r, :n]), color="tab:red", lw=0.7, label="before")
         ax.plot(t, np.rad2deg(np.asarray(res.errors.after)[r, :n]), color="tab:blue", lw=0.7, label="after")
-        ax.set_title(f"joint {joint} {_dir(ccw)}, {'validation' if cand.size else 'identification'} run "
+        ax.set_title(f"Joint {joint} {_dir(ccw)}, {'validation' if cand.size else 'identification'} run "
                      f"at {abs(res.infos[r].motor_speed_deg_s):.0f} deg/s motor")
-        ax.set_ylabel("deg/s")
+        ax.set_ylabel("kin. error [deg/s]")
         lim = 4 * np.std(np.rad2deg(seg_all[r, :n][n // 4: 3 * n // 4]))
         ax.set_ylim(-lim, lim)
         ax.legend(loc="upper right")
-    axes[-1, 0].set_xlabel("time, s")
+    axes[-1, 0].set_xlabel("t [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -1,5 +1,5 @@
 """Virtual test bench for gear-ratio identification: encoder + gyroscope runs (thesis 3.1.1,
-SPEC.md "The default robot and the virtual test bench").
+docs/model.md, section 5).
 
 One joint turns at a constant motor speed over its usable range, with cycloidal acceleration
 ramps at both ends and short rests before and after; the other joints hold a fixed
@@ -9,7 +9,7 @@ quasi-static rest angles of the as-built robot, `q = phi - kappa^{-1}(g(q))` wit
 direction (`cw` for a positive, `ccw` for a negative motor speed). The 20-bit motor encoders
 are sampled at 1 kHz; a 3-axis gyroscope on the moving link measures the link's angular
 velocity in a frame misaligned from the joint axis by `Rx(alpha) Ry(beta)` (eq. 3.3), with
-white noise and a small constant bias. Also: the gear-run CSV format of SPEC.md.
+white noise and a small constant bias. Also: the gear-run CSV format (README, "Measurement files").
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from ._robot import Robot
 
 
 def gear_run_columns(n: int) -> tuple[str, ...]:
-    """Columns of a gear-run file of an `n`-joint robot (SPEC.md): time [s], motor angles [deg],
+    """Columns of a gear-run file of an `n`-joint robot (README, "Measurement files"): time [s], motor angles [deg],
     gyroscope [deg/s]."""
     return ("t_s", *theta_columns(n), "gyro_x_deg_s", "gyro_y_deg_s", "gyro_z_deg_s")
 
@@ -135,7 +135,7 @@ def quasi_static_link_angles(
     robot: Robot, theta: Float[Array, " n"], ccw: Bool[Array, " n"]
 ) -> Float[Array, " n"]:
     """Link angles at rest at motor angles `theta`: the fixed point of
-    `q = Xi^{-1}(theta) - kappa^{-1}(g(q))` (SPEC.md "Static equilibrium"), differentiable."""
+    `q = Xi^{-1}(theta) - kappa^{-1}(g(q))` (docs/model.md (B.2)), differentiable."""
     phi = gear_output(robot, theta, ccw)
 
     def step(_, q):
@@ -289,20 +289,20 @@ def gear_runs(
     travel = math.radians(rng_deg) * u0  # motor travel at constant speed
     duration = 2 * rest_s + 2 * ramp + travel / math.radians(speed_deg)
     n = int(math.ceil(duration / ts)) + 1
-    t = jnp.arange(n) * ts
+    t = np.arange(n) * ts  # host-side set-up: no device op to compile
 
     hold = np.deg2rad(np.asarray(hold_q_deg, float)) * np.asarray(robot.u0)
     dirs = [directions[k % len(directions)] for k in range(repetitions * len(directions))]
     dirs = sorted(dirs, key=lambda d: directions.index(d))
     key = jax.random.PRNGKey(seed) if isinstance(seed, int) else seed
-    rot_s = sensor_rotation(jnp.asarray(mis))
+    rot_s = jax.jit(sensor_rotation)(jnp.asarray(mis))
     out = {k: [] for k in ("theta", "gyro", "q", "rate", "gyro_true", "bias")}
     motion = {}  # the noise-free signals depend on the direction only: computed once per direction
     for k, d in enumerate(dirs):
         if d not in motion:
             sign = 1.0 if d == "cw" else -1.0
-            start = jnp.asarray(hold).at[i].set((lo_link if d == "cw" else hi_link) * u0)
-            ccw_vec = jnp.zeros(n_joints, bool).at[i].set(d == "ccw")
+            start, ccw_vec = hold.copy(), np.zeros(n_joints, bool)
+            start[i], ccw_vec[i] = (lo_link if d == "cw" else hi_link) * u0, d == "ccw"
             args = (start, sign * math.radians(speed_deg), travel, ramp, rest_s)
             tk = np.arange(0.0, float(t[-1]) + 2 * KNOT_STEP * ts, KNOT_STEP * ts)
             dk, ddk = _chunked(_deflection_knots, tk, robot, args, jnp.asarray(i), ccw_vec)
@@ -338,7 +338,7 @@ def gear_runs(
 def write_gear_run(
     path: str | Path, t: np.ndarray, theta: np.ndarray, gyro: np.ndarray
 ) -> None:
-    """Write one run in the gear-run format of SPEC.md: `t` (N,) s, `theta` (N, n) rad,
+    """Write one run in the gear-run format (README, "Measurement files"): `t` (N,) s, `theta` (N, n) rad,
     `gyro` (N, 3) rad/s; the file holds degrees as its column names say."""
     t, theta, gyro = np.asarray(t, float), np.asarray(theta, float), np.asarray(gyro, float)
     n = t.shape[0] if t.ndim == 1 else -1
@@ -354,7 +354,7 @@ def write_gear_run(
 
 
 def read_gear_run(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Read one gear-run file (SPEC.md; extra columns are ignored).
+    """Read one gear-run file (README, "Measurement files"; extra columns are ignored).
 
     **Returns:** `t` (N,) s, `theta` (N, n) rad, `gyro` (N, 3) rad/s. Empty cells and `nan`
     come back as NaN (the processing rejects them with the row named).

@@ -1,7 +1,10 @@
 """The `jaxrobot` command line.
 
-Subcommands are modules with `HELP: str`, `configure(parser)` and `run(args, echo) -> dict`
-(the JSON summary); `--out` is a folder, or the file described by the module's `OUT_FILE: str`.
+Subcommands are modules with `HELP: str`, `EXAMPLE: str` (a command line shown in the help),
+`configure(parser)` and `run(args, echo) -> dict` (the JSON summary); `--out` is a folder, or the
+file described by the module's `OUT_FILE: str`. Help texts show every default (`HelpFormatter`);
+the robot description is `--model` everywhere (`add_model_option`; `--robot` is an alias); long
+runs print elapsed time and ETA on stderr (`Progress`), so that `--json` keeps stdout clean.
 `jaxrobot` ships `info`, `demo` and `import-urdf`; other packages add theirs through the
 entry-point group `jaxrobot.commands`, and stages of `jaxrobot demo` through `jaxrobot.demo`
 (a function `stage(out: Path, echo) -> dict`, run in the order of the entry-point names), so
@@ -16,7 +19,9 @@ from __future__ import annotations
 import argparse
 import difflib
 import json
+import os
 import sys
+import time
 from collections.abc import Callable
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -36,6 +41,48 @@ def suggestion(word: str, choices) -> str:
     """`"; did you mean 'x'?"` for the closest of `choices`, or `""`."""
     close = difflib.get_close_matches(word, list(choices), n=1)
     return f"; did you mean {close[0]!r}?" if close else ""
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Help texts with `(default: X)` appended where an option has a default its text does not state."""
+
+    def _get_help_string(self, action) -> str:
+        text, default = action.help or "", action.default
+        if default is None or default is False or default == [] or default == argparse.SUPPRESS \
+                or "default" in text or not action.option_strings:
+            return text
+        shown = " ".join(map(str, default)) if isinstance(default, (list, tuple)) else str(default)
+        return f"{text} (default: {shown.replace('%', '%%')})"
+
+
+def add_model_option(parser, help: str = "robot description TOML (default: the embedded Racer-7-1.4)",
+                     dest: str = "model") -> None:
+    """`--model TOML` (alias `--robot`): the robot description a command starts from."""
+    parser.add_argument("--model", "--robot", dest=dest, type=Path, default=None, metavar="TOML", help=help)
+
+
+class Progress:
+    """Elapsed time and an ETA after each of `total` steps (at the mean step time so far), on stderr;
+    `at_most`: `total` is an upper bound on the steps (the ETA too)."""
+
+    def __init__(self, total: int, what: str, at_most: bool = False):
+        self.total, self.what, self.at_most, self.done, self.start = total, what, at_most, 0, time.perf_counter()
+
+    def step(self, label: str) -> None:
+        self.done += 1
+        elapsed = time.perf_counter() - self.start
+        left = self.total - self.done
+        eta = (f", ETA {'at most ' if self.at_most else ''}{elapsed / self.done * left:.0f} s" if left > 0
+               else ", done")
+        print(f"[{self.what} {self.done}/{self.total}] {label}: {elapsed:.0f} s elapsed{eta}",
+              file=sys.stderr, flush=True)
+
+
+def use_file_backend() -> None:
+    """Figures of the command line go to files: matplotlib's Agg backend (no window, no display
+    needed) unless the user chose a backend (`MPLBACKEND`) or has pyplot running already."""
+    if "matplotlib.pyplot" not in sys.modules:
+        os.environ.setdefault("MPLBACKEND", "Agg")
 
 
 def _commands() -> dict[str, ModuleType]:
@@ -68,6 +115,23 @@ def _jsonable(obj):
     return obj
 
 
+def parser(commands: dict[str, ModuleType]) -> argparse.ArgumentParser:
+    """The `jaxrobot` argument parser with one subparser per command."""
+    top = argparse.ArgumentParser(
+        prog="jaxrobot", description="Calibrated elastic-joint robot models and accurate offline planning.",
+        epilog="exit codes: " + "; ".join(f"{k} {v}" for k, v in EXIT_CODES.items()))
+    sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, module in commands.items():
+        example = getattr(module, "EXAMPLE", None)
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP, formatter_class=HelpFormatter,
+                           epilog=None if example is None else f"example:\n  {example}")
+        p.add_argument("--json", action="store_true", help="print a machine-readable summary on stdout")
+        p.add_argument("--out", type=Path, default=None,
+                       help=getattr(module, "OUT_FILE", "folder for tables, plots and files"))
+        module.configure(p)
+    return top
+
+
 def main(argv: list[str] | None = None) -> int:
     commands = _commands()
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -75,17 +139,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"jaxrobot: error: unknown command {argv[0]!r} (commands: {', '.join(commands)})"
               f"{suggestion(argv[0], commands)}", file=sys.stderr)
         return 2
-    parser = argparse.ArgumentParser(
-        prog="jaxrobot", description="Calibrated elastic-joint robot models and accurate offline planning.",
-        epilog="exit codes: " + "; ".join(f"{k} {v}" for k, v in EXIT_CODES.items()))
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, module in commands.items():
-        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
-        p.add_argument("--json", action="store_true", help="print a machine-readable summary on stdout")
-        p.add_argument("--out", type=Path, default=None,
-                       help=getattr(module, "OUT_FILE", "folder for tables, plots and files"))
-        module.configure(p)
-    args = parser.parse_args(argv)
+    args = parser(commands).parse_args(argv)
+    use_file_backend()
     stream = sys.stderr if args.json else sys.stdout
 
     def echo(text: str) -> None:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 HELP = "convert the joint chain of a URDF into a robot description TOML (add gears and stiffness to it)"
 OUT_FILE = "the robot description (TOML) to write"
+EXAMPLE = "jaxrobot import-urdf panda.urdf --tip panda_link8 --out panda.toml"
 
 
 def configure(parser) -> None:

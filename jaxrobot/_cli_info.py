@@ -10,10 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 
 HELP = "summarise a robot: parameters, home pose, static deflection, eigenfrequencies"
+EXAMPLE = "jaxrobot info --model arm.toml --as-built --out info"
 
 POSES_DEG = {
     "home": [0, 0, 0, 0, 0, 0],
-    "thesis eq. 4.6": [0, 0, -90, 0, 90, 0],
+    "task orientation (docs/model.md (4.6))": [0, 0, -90, 0, 90, 0],
     "reach forward": [0, 60, -60, 0, 45, 0],
     "reach up": [30, -20, -80, 0, 30, 0],
 }
@@ -30,8 +31,9 @@ def poses_deg(robot) -> dict[str, list[float]]:
 
 
 def configure(parser) -> None:
-    parser.add_argument("--model", type=Path, default=None,
-                        help="robot description TOML (default: the embedded Racer-7-1.4)")
+    from ._cli import add_model_option
+
+    add_model_option(parser)
     parser.add_argument("--as-built", action="store_true", help="the test bench's as-built robot")
 
 
@@ -61,9 +63,10 @@ def summary(robot) -> dict:
     """Numbers shown by `jaxrobot info` (SI units, deflections in µm); eigenfrequencies of the elastic
     joints with the rigid ones held (`None` where every joint is rigid)."""
     poses = poses_deg(robot)
-    q = jnp.deg2rad(jnp.asarray(list(poses.values()), float))
+    q = np.deg2rad(np.asarray(list(poses.values()), float))
     elastic = tuple(int(i) for i in np.flatnonzero(np.isfinite(np.asarray(robot.k1))))
-    sag, freq, home = jax.jit(_numbers, static_argnums=2)(robot, q, elastic)
+    sag, freq, home = (None if a is None else np.asarray(a)
+                       for a in jax.jit(_numbers, static_argnums=2)(robot, q, elastic))
     return {
         "name": robot.name,
         "home_flange_position_m": np.asarray(home[:3, 3]),
@@ -78,6 +81,7 @@ def summary(robot) -> dict:
 def _table(robot) -> list[str]:
     rows = [f"{'joint':>5} {'a [m]':>9} {'d [m]':>9} {'alpha':>9} {'beta':>9} {'offset':>8} {'limits [deg]':>16}"
             f" {'u0':>8} {'k1 [Nm/rad]':>12} {'k3 [Nm/rad3]':>12} {'mass [kg]':>9}"]
+    robot = jax.tree.map(np.asarray, robot)  # numbers on the host: no device op per table cell
     for i in range(robot.n_joints):
         lim = f"[{np.rad2deg(robot.q_min[i]):.0f}, {np.rad2deg(robot.q_max[i]):.0f}]"
         rows.append(f"{i + 1:>5} {robot.a[i]:>9.5f} {robot.d[i]:>9.5f} {np.rad2deg(robot.alpha[i]):>9.4f}"
@@ -143,7 +147,7 @@ def stage(out: Path, echo) -> dict:
     start = time.perf_counter()
     th, thd, thdd = jax.jit(lambda t: flat_inverse(robot, q_d, t))(t)
     q, _ = jax.jit(lambda *a: simulate(robot, *a, substeps=4))(t, th, thd, thdd)
-    err = float(jnp.max(jnp.abs(q - jax.vmap(q_d)(t))))
+    err = float(jax.jit(lambda q, t: jnp.max(jnp.abs(q - jax.vmap(q_d)(t))))(q, t))
     echo(f"\nflat inverse of a {duration} s joint move, simulated with RK4 (0.25 ms): max |q - q_d| = "
          f"{err:.2e} rad ({time.perf_counter() - start:.1f} s incl. compile)")
     info["flat_inverse_tracking_error_rad"] = err

@@ -1,4 +1,4 @@
-"""Rigid-body and elastic-joint dynamics, eq. 2.15-2.23 and 4.1 (SPEC.md, "Dynamics").
+"""Rigid-body and elastic-joint dynamics, eq. 2.15-2.23 and 4.1 (docs/model.md, section 4).
 
 Link side: `D(q) qdd + C(q, qd) qd + g(q) = kappa(phi - q)` (eq. 2.23a, no friction);
 motor side: `J_m thetadd = tau_motor - kappa(phi - q) / u(phi)`.
@@ -21,12 +21,18 @@ from ._robot import Robot
 
 # Batch-last internals: the rigid-body terms below keep the state batch as the LAST axis
 # ((n, 3, N) etc.), so XLA's CPU loops run over contiguous states and vectorise, and they
-# process large batches in chunks of `_CHUNK` states (lax.map) so that the intermediates of a
-# chunk stay in cache. Small products are written out as sums of elementwise products: they
+# process large batches in chunks of `_chunk()` states (lax.map) so that the intermediates of a
+# chunk stay in cache (on the CPU; an accelerator takes far larger chunks, since every chunk is
+# a sequential step of kernel launches there). Small products are written out as sums of elementwise products: they
 # fuse into one loop also under `vmap`, where tiny batched `matmul`/`einsum` become separate dot
 # kernels and `jnp.sum` over a size-3 axis becomes a slow reduction.
-_CHUNK = 256
-"""States per chunk of the batched rigid-body terms (measured best at 125-500 on CPU)."""
+_CHUNK = {"cpu": 256, "accelerator": 65536}
+"""States per chunk of the batched rigid-body terms, by backend (`benchmarks/results_dynamics.md`,
+`benchmarks/results_gpu.md`)."""
+
+
+def _chunk() -> int:
+    return _CHUNK["cpu" if jax.default_backend() == "cpu" else "accelerator"]
 
 
 def _mm(a, b):  # (..., 3, 3, N) @ (..., 3, 3, N)
@@ -66,7 +72,7 @@ def _suffix(x):  # sum over links k >= j (leading link axis)
 def _batch_last(fn, robot: Robot, *vecs):
     """`fn(robot_t, *vecs_t)` over the broadcast batch of `robot` and `vecs` (..., n), with every
     array batch-last (robot fields (core..., 1) for one robot, (core..., N) for a fleet; vectors
-    (n, N)), in chunks of `_CHUNK` states. `fn` returns a tuple of (core..., N) arrays; the
+    (n, N)), in chunks of `_chunk()` states. `fn` returns a tuple of (core..., N) arrays; the
     result is that tuple with the batch moved back to the front."""
     rb = robot.a.shape[:-1]
     batch = jnp.broadcast_shapes(rb, *(v.shape[:-1] for v in vecs))
@@ -76,16 +82,17 @@ def _batch_last(fn, robot: Robot, *vecs):
     fleet = bool(rb)
     robot_t = jax.tree.map(lambda x: jnp.moveaxis(flat(x, x.shape[len(rb):]), 0, -1) if fleet else x[..., None],
                            robot)
-    if n <= _CHUNK:
+    chunk = _chunk()
+    if n <= chunk:
         out = fn(robot_t, *vecs_t)
     else:
-        m = -(-n // _CHUNK)
+        m = -(-n // chunk)
         split = lambda x: jnp.moveaxis(  # noqa: E731
-            jnp.pad(x, [(0, 0)] * (x.ndim - 1) + [(0, m * _CHUNK - n)], mode="edge")
-            .reshape(x.shape[:-1] + (m, _CHUNK)), -2, 0)
+            jnp.pad(x, [(0, 0)] * (x.ndim - 1) + [(0, m * chunk - n)], mode="edge")
+            .reshape(x.shape[:-1] + (m, chunk)), -2, 0)
         chunks = (jax.tree.map(split, robot_t) if fleet else None, [split(v) for v in vecs_t])
         out = jax.lax.map(lambda c: fn(c[0] if fleet else robot_t, *c[1]), chunks)
-        out = tuple(jnp.moveaxis(o, 0, -2).reshape(o.shape[1:-1] + (m * _CHUNK,))[..., :n] for o in out)
+        out = tuple(jnp.moveaxis(o, 0, -2).reshape(o.shape[1:-1] + (m * chunk,))[..., :n] for o in out)
     return tuple(jnp.moveaxis(o, -1, 0).reshape(batch + o.shape[:-1]) for o in out)
 
 

@@ -7,6 +7,9 @@ over `nu`.
 
 from __future__ import annotations
 
+from functools import partial
+
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -25,6 +28,11 @@ def control_spectrum(
         raise ValueError(f"u must have shape (..., N, n) [rad/s^2], got {u.shape}")
     if not ts > 0:
         raise ValueError(f"ts must be > 0 s, got {ts}")
+    return _spectrum(u, ts)
+
+
+@jax.jit
+def _spectrum(u, ts):
     n = u.shape[-2]
     spec = jnp.abs(jnp.fft.rfft(u, axis=-2)) ** 2
     weight = jnp.full(spec.shape[-2], 2.0).at[0].set(1.0)
@@ -38,7 +46,12 @@ def bandwidth(u: Float[Array, "*b N n"], ts: float, fraction: float = 0.99) -> F
     axis with negligible energy (see `NEGLIGIBLE`)."""
     if not 0.0 < fraction <= 1.0:
         raise ValueError(f"fraction must be in (0, 1], got {fraction}")
-    freq, spec = control_spectrum(u, ts)
+    return _bandwidth(control_spectrum(u, ts), fraction)
+
+
+@partial(jax.jit, static_argnums=1)
+def _bandwidth(spectrum, fraction: float):
+    freq, spec = spectrum
     cumulative = jnp.cumsum(spec, axis=-2)
     total = cumulative[..., -1:, :]
     index = jnp.argmax(cumulative >= fraction * total * (1.0 - 1e-12), axis=-2)

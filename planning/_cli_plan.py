@@ -1,7 +1,7 @@
 """`jaxrobot plan {line,spiral,FILE.csv}`: plan one task with the OCP of eq. 4.3 and evaluate it on the plant.
 
 FILE.csv holds task-space samples on a uniform grid from t = 0: columns `t_s, x_m, y_m, z_m`, optionally
-`qx, qy, qz, qw` (tool orientation quaternion; default the constant orientation of eq. 4.6, required for a
+`qx, qy, qz, qw` (tool orientation quaternion; default the constant orientation of docs/model.md (4.6), required for a
 robot without `[trajectories]`).
 """
 
@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot._cli import SolveFailed, suggestion
+from jaxrobot._cli import Progress, SolveFailed, add_model_option, suggestion
 
 from . import _plots
 from ._bandwidth import bandwidth, control_spectrum
@@ -32,15 +32,17 @@ from ._transcription import State
 
 HELP = "plan a task (line, spiral or a CSV of tool positions) with the OCP and evaluate it on the plant"
 COSTS = ("thesis", "jerk", "flat")
+EXAMPLE = "jaxrobot plan line --nu 1e-13 --plant as-built --out plan-line --save-trajectory line.csv"
 
 
 def configure(parser) -> None:
     parser.add_argument("task", help="'line', 'spiral' (racer7.toml [trajectories]) or FILE.csv "
                         "(columns t_s, x_m, y_m, z_m[, qx, qy, qz, qw])")
-    parser.add_argument("--nu", type=float, default=1e-14, help="weighting factor nu of eq. 4.3a (default 1e-14)")
+    parser.add_argument("--nu", type=float, default=1e-14,
+                        help="weighting factor nu of docs/model.md (4.3a) (default 1e-14)")
     parser.add_argument("--cost", choices=COSTS, default="thesis",
                         help="thesis: nu||u||^2; jerk: nu||u_k+1 - u_k||^2; flat: nu||u - u_flat||^2")
-    parser.add_argument("--model", type=Path, default=None, help="planning model TOML (default: the embedded Racer-7)")
+    add_model_option(parser, "planning model TOML (default: the embedded Racer-7)")
     parser.add_argument("--plant", choices=("model", "as-built"), default="model",
                         help="robot the plans are simulated on: the planning model or the test bench's as-built robot")
     parser.add_argument("--save-trajectory", type=Path, default=None, metavar="OUT.csv",
@@ -83,6 +85,11 @@ def task_path(task: str, description: dict | None = None):
     return path
 
 
+@jax.jit
+def _tool_position(robot, q):
+    return jr.tool_pose(robot, q)[:, :3, 3]
+
+
 def _status_name(code: int) -> str:
     from ._ocp import RESULTS
 
@@ -119,15 +126,18 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
         if rigid:
             raise ValueError(f"{name}: planning needs elastic joints ([stiffness] k1 finite), found rigid joints "
                              f"{rigid} (k1 = inf); identify the stiffness first (e.g. jaxrobot diagnose)")
+    progress = Progress(5 if timing else 4, "plan")
     start = time.perf_counter()
     jp = joint_path(robot, path, q_init)
     echo(f"  inverse kinematics: {jp.t.shape[0]} samples, max residual "
          f"{float(jp.ik.position_residual.max()):.1e} m, limits ok ({time.perf_counter() - start:.1f} s)")
+    progress.step("inverse kinematics")
     start = time.perf_counter()
     base = baseline_trajectories(robot, jp)
     flat = base["flat_inverse"]
     jax.block_until_ready(flat)
     echo(f"  flat inverse (warm start): {time.perf_counter() - start:.1f} s")
+    progress.step("flat inverse")
     warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
     ts = float(path.sample_time)
     echo(f"  solving the OCP (N = {jp.t.shape[0]}, nu = {nu:g}, cost {cost}) ...")
@@ -135,12 +145,14 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
     sol = solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm)
     jax.block_until_ready(sol.u)
     first = time.perf_counter() - start
+    progress.step("OCP (incl. compile)")
     solve_s, compile_s = first, None  # one call: compile and solve together
     if timing:  # a second, compiled call separates compile and solve time
         start = time.perf_counter()
         jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm).u)
         solve_s = time.perf_counter() - start
         compile_s = max(first - solve_s, 0.0)
+        progress.step("OCP again (solve time without compile)")
     it = int(sol.iterations)
     hv, ho, hp = (np.asarray(a) for a in (sol.history_violation, sol.history_objective, sol.history_penalty))
     for k in range(min(it, hv.shape[0])):
@@ -154,8 +166,8 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
             raise SolveFailed(failure_report(robot, jp, sol, nu) + "; nothing written (--save-failed writes the "
                               "trajectory, marked as not converged)")
         return {"jp": jp, "sol": sol, "trajectories": {"ocp": ocp_motor_trajectory(sol.x, sol.u)}}
-    p_d, r_d = sample_path(path, jp.t)
-    p_plan = jr.tool_pose(robot, sol.q)[:, :3, 3]
+    p_d, r_d = jax.jit(lambda t: sample_path(path, t))(jp.t)
+    p_plan = _tool_position(robot, sol.q)
     plan_err = np.linalg.norm(np.asarray(p_plan - p_d), axis=-1)
     trajectories = {**base, "ocp": ocp_motor_trajectory(sol.x, sol.u)}
     start = time.perf_counter()
@@ -163,12 +175,13 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
     errors = summarize(run)
     echo(f"  plant simulation ({plant.name}{', as built' if directional else ''}): "
          f"{time.perf_counter() - start:.1f} s")
+    progress.step("plant simulation")
     for i, k in enumerate(names):
         um = [1e6 * float(a[i]) for a in (errors.position_max, errors.position_rms, errors.settle_position_max)]
         echo(f"    {k:13s} max {um[0]:10.3f} µm   rms {um[1]:10.3f} µm   after t_e {um[2]:9.3f} µm")
     return {"jp": jp, "sol": sol, "trajectories": trajectories, "names": names, "run": run, "errors": errors,
             "status": status, "solve_s": solve_s, "compile_s": compile_s, "plan_error": plan_err, "p_d": p_d,
-            "plant": plant}
+            "r_d": r_d, "plant": plant, "nu": nu, "cost": cost}
 
 
 def summary(result: dict) -> dict:
@@ -198,29 +211,40 @@ def save_trajectory(path: Path, t, theta, thetad, thetadd, failed: str | None = 
     np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.12g")
 
 
+def task_title(name: str) -> str:
+    """`line` -> `Line`, a task file's stem -> `Task 'stem'` (figure titles)."""
+    return name.capitalize() if name in ("line", "spiral") else f"Task '{name}'"
+
+
 def write_plots(result: dict, out: Path, label: str) -> list[Path]:
-    """Figures in the spirit of thesis Figs. 4.1-4.8 for one planned task."""
+    """Figures in the spirit of thesis Figs. 4.1 and 4.5-4.9 for one planned task, `out/{label}_*.png`."""
     jp, sol, run, names = result["jp"], result["sol"], result["run"], result["names"]
     t, n = np.asarray(jp.t), run.n
+    task = f"{task_title(jp.path.name)}, ν = {result['nu']:.0e}" + (
+        "" if result["cost"] == "thesis" else f", cost {result['cost']}")
     files = [_plots.position_errors(t, {k: np.asarray(run.position[i, :n]) for i, k in enumerate(names)},
-                                    out / f"{label}_position_error.png", f"{label}: tool position error on the plant")]
+                                    out / f"{label}_position_error.png",
+                                    f"{task}: tool position error on the plant, per motor trajectory")]
     i_ocp = names.index("ocp")
     q_sim = np.asarray(run.q[i_ocp, :n])
     files.append(_plots.joint_errors(t, q_sim - np.asarray(jp.q), np.asarray(run.orientation[i_ocp, :n]),
                                      np.asarray(run.position[i_ocp, :n]), out / f"{label}_ocp_errors.png",
-                                     f"{label}: OCP on the plant"))
+                                     f"{task}: errors of the OCP plan on the plant"))
     files.append(_plots.motor_signals(t, np.asarray(sol.u), np.asarray(sol.thetad), np.asarray(sol.state.qd),
-                                      out / f"{label}_ocp_signals.png", f"{label}: OCP control and rates"))
+                                      out / f"{label}_ocp_signals.png",
+                                      f"{task}: OCP control input, motor and link rates"))
     p_d = np.asarray(result["p_d"])
-    robot_p = np.asarray(jr.tool_pose(result["plant"], jnp.asarray(q_sim))[:, :3, 3])
+    robot_p = np.asarray(_tool_position(result["plant"], jnp.asarray(q_sim)))
     speed = lambda p: np.linalg.norm(np.gradient(p, t, axis=0), axis=-1)  # noqa: E731
     files.append(_plots.path_velocity(t, speed(p_d), speed(robot_p), out / f"{label}_path_speed.png",
-                                      f"{label}: path speed"))
-    files.append(_plots.trajectory_3d(p_d, robot_p, out / f"{label}_path_3d.png", f"{label}: tool path"))
+                                      f"{task}: path speed of the OCP plan on the plant"))
+    files.append(_plots.trajectory_3d(p_d, robot_p, out / f"{label}_path_3d.png",
+                                      f"{task}: tool path of the OCP plan on the plant", np.asarray(result["r_d"])))
     freq, spec = control_spectrum(sol.u, float(jp.path.sample_time))
     files.append(_plots.spectra(np.asarray(freq), {"OCP": np.asarray(spec)},
                                 {"OCP": np.asarray(bandwidth(sol.u, float(jp.path.sample_time)))},
-                                out / f"{label}_spectrum.png", f"{label}: spectrum of u"))
+                                out / f"{label}_spectrum.png",
+                                f"{task}: energy spectrum of u per axis (dashed: 99 % bandwidth)"))
     return files
 
 

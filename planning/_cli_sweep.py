@@ -10,11 +10,11 @@ import jax
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot._cli import SolveFailed
+from jaxrobot._cli import Progress, SolveFailed, add_model_option
 
 from . import _plots
 from ._bandwidth import bandwidth, control_spectrum
-from ._cli_plan import COSTS, _status_name, task_path
+from ._cli_plan import COSTS, _status_name, task_path, task_title
 from ._evaluation import baseline_trajectories, ocp_motor_trajectory, simulate_plans, summarize
 from ._ik import default_start, joint_path, task_start
 from ._sweep import solve_ocp_sweep
@@ -22,6 +22,7 @@ from ._transcription import State
 
 HELP = "sweep the weighting factor nu (one OCP sweep call per cost variant): table, plots, Pareto front"
 DEFAULT_NUS = tuple(float(v) for v in np.logspace(-16, -9, 8))
+EXAMPLE = "jaxrobot sweep line --nu 1e-15 1e-13 1e-11 --costs thesis jerk --out sweep-line"
 
 
 def configure(parser) -> None:
@@ -31,7 +32,7 @@ def configure(parser) -> None:
     parser.add_argument("--costs", nargs="+", choices=COSTS, default=list(COSTS), help="cost variants to compare")
     parser.add_argument("--plant", choices=("model", "as-built"), default="model",
                         help="robot the plans are simulated on")
-    parser.add_argument("--model", type=Path, default=None, help="planning model TOML (default: the embedded Racer-7)")
+    add_model_option(parser, "planning model TOML (default: the embedded Racer-7)")
     parser.add_argument("--save-failed", action="store_true",
                         help="also write the outputs when a solve did not converge (the table's first line then "
                         "marks it; the exit code is 3 either way)")
@@ -61,6 +62,7 @@ def sweep(robot, plant, path, nus, costs, echo, directional: bool = False, q_ini
     warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
     ts = float(path.sample_time)
     results = {}
+    progress = Progress(len(costs), "sweep")
     for cost in costs:
         start = time.perf_counter()
         sols = jax.block_until_ready(solve_ocp_sweep(robot, jp.q, ts, nus, cost=cost, warm_start=warm))
@@ -77,6 +79,7 @@ def sweep(robot, plant, path, nus, costs, echo, directional: bool = False, q_ini
         names, run = simulate_plans(plant, jp, trajs, directional=directional)
         err = summarize(run)
         results[cost] = {"solutions": sols, "bandwidth": bw, "errors": err, "run": run, "names": names}
+        progress.step(f"cost {cost}")
         for i, nu in enumerate(nus):
             echo(f"    nu {nu:.0e}: status {int(sols.status[i])}, {int(sols.iterations[i]):3d} it, bandwidth "
                  f"{np.nanmax(bw[i]):7.1f} Hz, plant max {1e6 * float(err.position_max[i]):10.3f} µm, "
@@ -111,25 +114,28 @@ def write_outputs(res: dict, rows: list[dict], out: Path, label: str) -> list[Pa
     t, ts = np.asarray(res["jp"].t), res["ts"]
     points = {c: (np.nanmax(r["bandwidth"], axis=-1), 1e6 * np.asarray(r["errors"].position_max), res["nus"])
               for c, r in res["results"].items()}
-    files.append(_plots.pareto_front(points, out / f"{label}_pareto.png", f"{label}: plant error vs bandwidth"))
+    task = task_title(res["jp"].path.name)
+    files.append(_plots.pareto_front(points, out / f"{label}_pareto.png",
+                                     f"{task}: plant error vs control bandwidth over ν, per cost"))
     if "thesis" in res["results"]:
         r = res["results"]["thesis"]
         n = r["run"].n
         pick = [int(np.argmin(np.abs(np.log10(res["nus"]) - np.log10(v)))) for v in (1e-14, 1e-10)]
         pick = sorted(set(pick))
-        lab = [f"nu = {res['nus'][i]:.0e}" for i in pick]
+        lab = [f"ν = {res['nus'][i]:.0e}" for i in pick]
         curves = {lab[j]: np.asarray(r["run"].position[i, :n]) for j, i in enumerate(pick)}
         files.append(_plots.position_errors(t, curves, out / f"{label}_nu_position_error.png",
-                                            f"{label}: position error vs nu"))
+                                            f"{task}: tool position error on the plant for two ν"))
         freq, spec = control_spectrum(r["solutions"].u, ts)
         files.append(_plots.spectra(np.asarray(freq), {lab[j]: np.asarray(spec[i]) for j, i in enumerate(pick)},
                                     {lab[j]: r["bandwidth"][i] for j, i in enumerate(pick)},
-                                    out / f"{label}_nu_spectra.png", f"{label}: spectra of u vs nu"))
+                                    out / f"{label}_nu_spectra.png",
+                                    f"{task}: energy spectra of u for two ν (dashed: 99 % bandwidth)"))
         sols = r["solutions"]
         files.append(_plots.axis_comparison(
             t, {lab[j]: (np.asarray(sols.u[i]), np.asarray(sols.thetad[i]),
                          np.asarray(sols.state.qd[i])) for j, i in enumerate(pick)},
-            out / f"{label}_nu_axis2.png", f"{label}: axis 2 vs nu", axis=1))
+            out / f"{label}_nu_axis2.png", f"{task}: axis 2 for two ν", axis=1))
     return files
 
 

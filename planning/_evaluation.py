@@ -1,4 +1,4 @@
-"""Evaluation of motor trajectories on the plant (issue 6, item 7; SPEC.md "Facts").
+"""Evaluation of motor trajectories on the plant (issue 6, item 7; docs/model.md (B.5)).
 
 Four motor trajectories for one joint path `q_d`:
 (a) rigid planning `theta = Xi(q_d)`, (b) quasi-static `theta = Xi(q_d + kappa^{-1}(g(q_d)))`,
@@ -11,10 +11,12 @@ the path and during a rest after `t_e`.
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
@@ -131,13 +133,14 @@ class PlantRun(NamedTuple):
     n: int
 
 
-def _run(plant, t, p_d, r_d, traj, substeps, directional):
+def _run(plant, t, p_d, r_d, traj, extra, substeps, directional):
+    traj = _extend(traj, extra)
     q, _ = jr.simulate(plant, t, traj.theta, traj.thetad, traj.thetadd, substeps=substeps, directional=directional)
     pose = jr.tool_pose(plant, q)
     return q, jnp.linalg.norm(pose[:, :3, 3] - p_d, axis=-1), _orientation_angle(r_d, pose[:, :3, :3])
 
 
-_run_jit = jax.jit(_run, static_argnums=(5, 6))
+_run_jit = jax.jit(_run, static_argnums=(5, 6, 7))
 
 
 def simulate_plans(
@@ -166,22 +169,26 @@ def simulate_plans(
         raise ValueError(f"settle_s must be >= 0 s, got {settle_s}")
     ts = float(jp.path.sample_time)
     extra = int(round(settle_s / ts))
-    t = jnp.arange(n + extra) * ts
-    p_d, r_d = sample_path(jp.path, jnp.minimum(t, jp.t[-1]))
+    t = np.arange(n + extra) * ts
+    p_d, r_d = jax.jit(lambda tk: sample_path(jp.path, tk))(np.minimum(t, np.asarray(jp.t)[-1]))
     names = list(trajectories)
-    runs = [_run_jit(plant, t, p_d, r_d, _extend(trajectories[k], extra), substeps, bool(directional))
+    runs = [_run_jit(plant, jnp.asarray(t), p_d, r_d, trajectories[k], extra, substeps, bool(directional))
             for k in names]
-    q, dp, da = (jnp.stack(a) for a in zip(*runs, strict=True))
-    return names, PlantRun(t, q, dp, da, n)
+    q, dp, da = (np.stack(a) for a in zip(*runs, strict=True))
+    return names, PlantRun(jnp.asarray(t), jnp.asarray(q), jnp.asarray(dp), jnp.asarray(da), n)
 
 
 def summarize(run: PlantRun) -> PlantError:
     """Max/RMS errors along the path and the max after `t_e` of every run (leading axis K)."""
-    n = run.n
+    return _summarize(run.position, run.orientation, run.n)
+
+
+@partial(jax.jit, static_argnums=2)
+def _summarize(position, orientation, n: int) -> PlantError:
     rms = lambda e: jnp.sqrt(jnp.mean(e[:, :n] ** 2, axis=-1))  # noqa: E731
     after = lambda e: e[:, n:].max(axis=-1, initial=0.0)  # noqa: E731
-    return PlantError(run.position[:, :n].max(-1), rms(run.position), run.orientation[:, :n].max(-1),
-                      rms(run.orientation), after(run.position), after(run.orientation))
+    return PlantError(position[:, :n].max(-1), rms(position), orientation[:, :n].max(-1),
+                      rms(orientation), after(position), after(orientation))
 
 
 def evaluate_on_plant(

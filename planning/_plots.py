@@ -1,17 +1,24 @@
 """Plots of planning results in the spirit of thesis Figs. 4.1-4.15 and the Pareto front (edge module).
 
-Every function takes plain arrays, writes one PNG and returns its path.
+Every function takes plain arrays, writes one PNG and returns its path. Curves are labelled with
+`legend()`: human names for the compared motor trajectories and cost variants.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib import ticker
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+LEGEND = {"rigid": "rigid model", "quasi_static": "quasi-static", "flat_inverse": "flat inverse", "ocp": "OCP",
+          "thesis": "thesis: ν‖u‖²", "jerk": "jerk: ν‖Δu‖²", "flat": "flat: ν‖u − u_flat‖²"}
+"""Legend text of the method and cost names of `planning` (others are shown as they are)."""
+
+
+def legend(name: str) -> str:
+    return LEGEND.get(name, name)
 
 
 def _axis(i: int) -> str:
@@ -29,9 +36,9 @@ def position_errors(t: np.ndarray, errors: dict[str, np.ndarray], path: Path, ti
     """Norm of the tool position error `||p_d - p_e||` over time per method/nu (Figs. 4.2, 4.12), log scale."""
     fig, ax = plt.subplots(figsize=(8, 4))
     for label, e in errors.items():
-        ax.semilogy(t, np.maximum(np.asarray(e) * 1e6, 1e-9), label=label, lw=1)
+        ax.semilogy(t, np.maximum(np.asarray(e) * 1e6, 1e-9), label=legend(label), lw=1)
     ax.set_xlabel("t [s]")
-    ax.set_ylabel("||p_d - p_e|| [µm]")
+    ax.set_ylabel("‖p_d − p_e‖ [µm]")
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
@@ -44,7 +51,7 @@ def path_velocity(t: np.ndarray, v_desired: np.ndarray, v_actual: np.ndarray, pa
     ax.plot(t, v_desired, label="desired", lw=2)
     ax.plot(t, v_actual, "--", label="plant", lw=1)
     ax.set_xlabel("t [s]")
-    ax.set_ylabel("path speed [m/s]")
+    ax.set_ylabel("path speed v [m/s]")
     ax.set_title(title)
     ax.legend()
     ax.grid(True, alpha=0.3)
@@ -57,12 +64,12 @@ def joint_errors(t: np.ndarray, dq: np.ndarray, d_orient: np.ndarray, d_pos: np.
     fig, axs = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
     for i in range(dq.shape[1]):
         axs[0].plot(t, np.degrees(dq[:, i]) * 3600, label=_axis(i), lw=1)
-    axs[0].set_ylabel("q - q_d [arcsec]")
+    axs[0].set_ylabel("q − q_d [arcsec]")
     axs[0].legend(ncol=3, fontsize=8)
     axs[1].plot(t, np.degrees(d_orient) * 3600, lw=1)
     axs[1].set_ylabel("orientation error [arcsec]")
     axs[2].plot(t, d_pos * 1e6, lw=1)
-    axs[2].set_ylabel("position error [µm]")
+    axs[2].set_ylabel("‖p_d − p_e‖ [µm]")
     axs[2].set_xlabel("t [s]")
     axs[0].set_title(title)
     for ax in axs:
@@ -77,9 +84,9 @@ def motor_signals(t: np.ndarray, u: np.ndarray, thetad: np.ndarray, qd: np.ndarr
         axs[0].plot(t, u[:, i], label=_axis(i), lw=0.8)
         axs[1].plot(t, thetad[:, i], lw=0.8)
         axs[2].plot(t, qd[:, i], lw=0.8)
-    axs[0].set_ylabel("u [rad/s²]")
-    axs[1].set_ylabel("motor rate [rad/s]")
-    axs[2].set_ylabel("link rate [rad/s]")
+    axs[0].set_ylabel("u = θ̈ [rad/s²]")
+    axs[1].set_ylabel("motor rate θ̇ [rad/s]")
+    axs[2].set_ylabel("link rate q̇ [rad/s]")
     axs[2].set_xlabel("t [s]")
     axs[0].legend(ncol=3, fontsize=8)
     axs[0].set_title(title)
@@ -93,15 +100,17 @@ def axis_comparison(t: np.ndarray, series: dict[str, tuple[np.ndarray, np.ndarra
     """`u`, motor rate and link rate of one axis for several nu (Figs. 4.4, 4.11); `series[label] = (u, thetad, qd)`."""
     fig, axs = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
     for label, (u, thd, qd) in series.items():
-        axs[0].plot(t, u[:, axis], label=label, lw=0.8)
+        axs[0].plot(t, u[:, axis], label=legend(label), lw=0.8)
         axs[1].plot(t, thd[:, axis], lw=0.8)
         axs[2].plot(t, qd[:, axis], lw=0.8)
-    axs[0].set_ylabel(f"u_{axis + 1} [rad/s²]")
-    axs[1].set_ylabel(f"motor rate {axis + 1} [rad/s]")
-    axs[2].set_ylabel(f"link rate {axis + 1} [rad/s]")
+    axs[0].set_ylabel(f"u_{axis + 1} = θ̈_{axis + 1} [rad/s²]")
+    axs[1].set_ylabel(f"θ̇_{axis + 1} [rad/s]")
+    axs[2].set_ylabel(f"q̇_{axis + 1} [rad/s]")
     axs[2].set_xlabel("t [s]")
     axs[0].legend()
     axs[0].set_title(title)
+    for ax in axs:
+        ax.grid(True, alpha=0.3)
     return _save(fig, path)
 
 
@@ -115,24 +124,56 @@ def spectra(freq: np.ndarray, spectra_by_label: dict[str, np.ndarray], bandwidth
         ax.set_visible(False)
     for i, ax in enumerate(axs.reshape(-1)[:joints]):
         for label, spec in spectra_by_label.items():
-            line, = ax.loglog(freq[1:], np.maximum(spec[1:, i], 1e-30), label=label, lw=0.8)
+            line, = ax.loglog(freq[1:], np.maximum(spec[1:, i], 1e-30), label=legend(label), lw=0.8)
             bw = bandwidths[label][i]
             if np.isfinite(bw):
                 ax.axvline(bw, color=line.get_color(), ls="--", lw=0.8)
         ax.set_title(_axis(i))
         ax.set_xlabel("f [Hz]")
-    axs[0, 0].set_ylabel("|U(f)|²")
+    for ax in axs[:, 0]:
+        ax.set_ylabel("|U(f)|² [(rad/s²)²]")
     axs[0, 0].legend(fontsize=8)
     fig.suptitle(title)
     return _save(fig, path)
 
 
-def trajectory_3d(p_d: np.ndarray, p_e: np.ndarray, path: Path, title: str) -> Path:
-    """Desired and achieved tool path in 3-D (Fig. 4.8)."""
-    fig = plt.figure(figsize=(6, 6))
+def deviation_scale(p_d: np.ndarray, p_e: np.ndarray, share: float = 0.1) -> float:
+    """The round factor (1, 2 or 5 times a power of ten, >= 1) that magnifies the largest deviation
+    `|p_e - p_d|` to between 0.4 and 1 times `share` of the path's largest extent, so that a deviation
+    is seen beside the path (1 where it is that large already, or none)."""
+    largest = float(np.max(np.linalg.norm(p_e - p_d, axis=-1)))
+    extent = float(np.max(np.ptp(p_d, axis=0)))
+    if largest == 0.0 or share * extent <= largest:
+        return 1.0
+    raw = share * extent / largest
+    decade = 10.0 ** np.floor(np.log10(raw))
+    return float(max(m * decade for m in (1, 2, 5) if m * decade <= raw))
+
+
+def trajectory_3d(p_d: np.ndarray, p_e: np.ndarray, path: Path, title: str, r_d: np.ndarray | None = None,
+                  frames: int = 7) -> Path:
+    """Desired and achieved tool path in 3-D on equal axes (Fig. 4.8), the deviation `p_e - p_d`
+    magnified by `deviation_scale` (stated in the legend); `r_d` (N, 3, 3): desired tool orientations,
+    drawn as x/y/z frames (red/green/blue) at `frames` samples."""
+    scale = deviation_scale(p_d, p_e)
+    shown = p_d + scale * (p_e - p_d)
+    fig = plt.figure(figsize=(7, 6))
     ax = fig.add_subplot(projection="3d")
     ax.plot(*p_d.T, label="desired", lw=2)
-    ax.plot(*p_e.T, "--", label="plant", lw=1)
+    k = int(np.floor(np.log10(scale)))
+    m = round(scale / 10**k)
+    factor = f"{scale:g}" if k < 3 else (rf"$10^{{{k}}}$" if m == 1 else rf"${m} \cdot 10^{{{k}}}$")
+    ax.plot(*shown.T, "--", label="plant" if scale == 1 else f"plant, deviation magnified ×{factor}", lw=1.2)
+    both = np.concatenate([p_d, shown])
+    centre, half = (both.max(0) + both.min(0)) / 2, max(float(np.max(np.ptp(both, axis=0))), 1e-6) / 2
+    if r_d is not None:
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p_d, axis=0), axis=-1))])
+        for k in np.searchsorted(arc, np.linspace(0.0, arc[-1], frames)).clip(0, len(p_d) - 1):
+            for axis, color in enumerate(("tab:red", "tab:green", "tab:blue")):
+                ax.quiver(*p_d[k], *(0.25 * half * r_d[k][:, axis]), color=color, lw=1)
+    for set_lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+        set_lim(c - 1.05 * half, c + 1.05 * half)
+    ax.set_box_aspect((1, 1, 1))
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_zlabel("z [m]")
@@ -146,11 +187,14 @@ def pareto_front(points: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], p
     `points[cost] = (bandwidth_hz, error_um, nu)`."""
     fig, ax = plt.subplots(figsize=(7, 5))
     for label, (bw, err, nu) in points.items():
-        ax.loglog(bw, err, "o-", label=label)
+        ax.loglog(bw, err, "o-", label=legend(label))
         for b, e, n in zip(bw, err, nu, strict=True):
-            ax.annotate(f"{n:.0e}", (b, e), fontsize=6, alpha=0.7)
-    ax.set_xlabel("control bandwidth (99 % energy, max over axes) [Hz]")
-    ax.set_ylabel("max position error on the plant [µm]")
+            ax.annotate(f"ν = {n:.0e}", (b, e), fontsize=6, alpha=0.7)
+    for axis in (ax.xaxis, ax.yaxis):  # plain numbers, also on the minor ticks of a range within a decade
+        axis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+        axis.set_minor_formatter(ticker.LogFormatter(labelOnlyBase=False, minor_thresholds=(1.5, 0.5)))
+    ax.set_xlabel("control bandwidth f_99 (99 % of the energy of u, max over axes) [Hz]")
+    ax.set_ylabel("max ‖p_d − p_e‖ on the plant [µm]")
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()

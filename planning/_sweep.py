@@ -4,14 +4,15 @@ that run side by side on the CPU cores.
 `jax.vmap(solve_ocp)` over `nu` solves the members one after another by continuation in `nu`
 (`_al_solver.augmented_lagrangian`): every member needs its own factorisation and the scans of
 the block Cholesky run on one core. XLA runs two such solves in one program one after the other,
-but two programs called from two host threads at once use both cores (two line solves: 1.56x on
-2 cores). This splits the sorted `nu` into `workers` interleaved chains of equal length, solves
-each chain by one compiled `vmap` call in its own thread, and merges the results in the caller's
-order. Each chain still warm-starts its members from the previous ones (their `nu` are `workers`
-times further apart, so they take a few more iterations: line, 16 nu, 2 chains: 55 outer
-iterations against 44 in one chain, 2.77 s against 3.82 s on 2 cores, `benchmarks/bench_ocp.py`).
-Under several processes (`jax.distributed`, `jaxrobot.initialize_processes`) the chains are one per
-device of all processes instead: one `shard_map` over the global mesh, the results gathered.
+but two programs called from two host threads at once use both cores. This splits the sorted `nu`
+into `workers` interleaved chains of equal length, solves each chain by one compiled `vmap` call in
+its own thread, and merges the results in the caller's order. Each chain still warm-starts its
+members from the previous ones (their `nu` are `workers` times further apart, so they take a few
+more iterations). On an accelerator the chains of several threads would queue on the one device,
+so there the default is one chain. Under several processes (`jax.distributed`,
+`jaxrobot.initialize_processes`) the chains are one per device of all processes instead: one
+`shard_map` over the global mesh, the results gathered. Timings: `benchmarks/results_ocp.md`,
+`benchmarks/results_gpu.md`.
 """
 
 from __future__ import annotations
@@ -83,8 +84,9 @@ def solve_ocp_sweep(
     """`solve_ocp` for every `nu` in `nus` (B values > 0, any order); returns an `OCPSolution` with a
     leading axis B in the order of `nus`, each member with its own status (as `jax.vmap(solve_ocp)`).
 
-    `workers`: continuation chains run at once, default the CPU count (at most B // 2, so that
-    every chain has a member to warm-start; 1 gives `jax.vmap(solve_ocp)` itself). A chain shorter
+    `workers`: continuation chains run at once, default the CPU count on the CPU and 1 on an
+    accelerator, where chains from several host threads queue on the one device (at most B // 2,
+    so that every chain has a member to warm-start; 1 gives `jax.vmap(solve_ocp)` itself). A chain shorter
     than the others repeats its largest `nu` (one more warm member, solved in an iteration or two),
     so all chains share one compiled program. Not jittable: it is a driver of compiled calls.
     Under several processes (`jaxrobot.initialize_processes`) every process passes the same
@@ -97,7 +99,8 @@ def solve_ocp_sweep(
     nus = np.asarray(nus, dtype=float)
     if nus.ndim != 1 or nus.size < 1 or not np.all(np.isfinite(nus) & (nus > 0)):
         raise ValueError(f"nus: expected a 1-D sequence of finite weighting factors > 0, found {nus}")
-    workers = (os.cpu_count() or 1) if workers is None else workers
+    if workers is None:
+        workers = (os.cpu_count() or 1) if jax.default_backend() == "cpu" else 1
     if not isinstance(workers, int | np.integer) or workers < 1:
         raise ValueError(f"workers: expected an integer >= 1, found {workers!r}")
     ocp_problem(robot, q_d, ts, float(nus[0]), cost, u_ref)  # range checks on the concrete inputs

@@ -38,6 +38,7 @@ CLI = [  # (id, argv (FILE: the file written from `content`), content, exit code
     ("typo of line", ["plan", "lien"], None, 2, "task 'lien': expected 'line', 'spiral' or an existing CSV file; "
      "did you mean 'line'"),
     ("typo of spiral", ["plan", "spirl"], None, 2, "did you mean 'spiral'"),
+    ("prefix of line", ["plan", "lin"], None, 2, "task 'lin': .*did you mean 'line'"),
     ("sweep typo of line", ["sweep", "linee"], None, 2, "did you mean 'line'"),
     ("nu zero", ["plan", "line", "--nu", "0"], None, 2, r"--nu must be a finite number > 0 .*got 0.0"),
     ("nu negative", ["plan", "line", "--nu=-1e-14"], None, 2, "--nu must be a finite number > 0"),

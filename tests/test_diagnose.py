@@ -10,6 +10,7 @@ name the effect and joint, and end with a validation RMS within 1.3x of the nois
 from __future__ import annotations
 
 import json
+import re
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -157,7 +158,9 @@ def test_cli_json_and_saved_model(bench, tmp_path, capsys):
                  "--validate", str(tmp_path / "validation.csv"), "--approach", "order", "--json",
                  "--out", str(tmp_path / "out"), "--save-model", str(tmp_path / "augmented.toml")])
     assert code == 0
-    out = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)  # progress lines go to stderr
+    assert re.search(r"^\[diagnose 1/7\] step 0: \d+ s elapsed, ETA at most \d+ s$", captured.err, re.M)
     assert {"noise_floor_um", "steps", "final_rms_validation_um", "verdict"} <= set(out)
     step = out["steps"][0]
     assert (step["effect"], step["joint"]) == ("joint_offset", 5)

@@ -5,6 +5,7 @@ sweep; the results equal the 1-process call and the separate solves. Bad launch 
 import csv
 import json
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -92,7 +93,9 @@ def test_two_process_fleet_equals_one_process(tmp_path, capsys):
 
     # one LM step is not convergence: exit code 3, every robot marked `max_steps` in the table
     assert main(["calibrate-fleet", str(data), "--max-steps", "1", "--out", str(tmp_path / "short")]) == 3
-    assert f"{n_robots} of {n_robots} robots did not converge" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"{n_robots} of {n_robots} robots did not converge" in err
+    assert re.search(r"^\[calibrate-fleet 1/1\] fleet calibration: \d+ s elapsed, done$", err, re.M), err
     with (tmp_path / "short" / TABLE).open() as f:
         assert [r["status"] for r in csv.DictReader(f)] == ["max_steps"] * n_robots
 
