@@ -30,7 +30,10 @@ RESULTS = ROOT / "benchmarks" / "results_startup.md"
 def commands(data: Path, tmp: Path) -> dict[str, list[str]]:
     import importlib.metadata
 
-    panda = next(f.locate() for f in importlib.metadata.files("example-robot-data") if f.name == "panda.urdf")
+    try:
+        panda = next(f.locate() for f in importlib.metadata.files("example-robot-data") if f.name == "panda.urdf")
+    except importlib.metadata.PackageNotFoundError:  # no example-robot-data: no import-urdf row
+        panda = None
     gear = sorted(str(p) for p in (data / "gear").glob("j*_r[01].csv"))
     gear_val = sorted(str(p) for p in (data / "gear").glob("j*_r2.csv"))
     cal, case = data / "calibration", data / "poses" / "p1_joint5_offset"
@@ -44,7 +47,8 @@ def commands(data: Path, tmp: Path) -> dict[str, list[str]]:
                      "--validate", str(case / "val.csv")],
         "plan line": ["plan", "line"],
         "sweep": ["sweep", "line", "--nu", "1e-14", "1e-12", "--costs", "thesis"],
-        "import-urdf": ["import-urdf", str(panda), "--tip", "panda_link8", "--out", str(tmp / "panda.toml")],
+        **({} if panda is None else
+           {"import-urdf": ["import-urdf", str(panda), "--tip", "panda_link8", "--out", str(tmp / "panda.toml")]}),
     }
 
 
@@ -135,6 +139,7 @@ def main() -> None:
     args = ap.parse_args()
     if not args.data.is_dir():
         args.data = Path("/work/shared/independent")
+    args.data = args.data.resolve()  # the commands run in a temporary folder
     if args.table:
         return table(args.data)
     if args.commit is None:
