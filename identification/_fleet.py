@@ -63,7 +63,7 @@ def fleet_mesh(devices: Sequence | None = None) -> Mesh:
     return Mesh(np.asarray(jax.devices() if devices is None else devices), ("fleet",))
 
 
-def _robot_residual_jacobian(robot, params, theta, positions, deflection, q0, marker, rippled, ccw, x):
+def _robot_residual_jacobian(robot, params, theta, positions, deflection, q0, marker, rippled, x, ccw=False):
     """Residual (n,) [mm] and Jacobian (n, m) of one robot at scaled parameters `x` by forward
     mode on `_residual_fn` (tool and base parameters, which the joint screws do not cover)."""
     fn, _, _ = _residual_fn(robot, params, theta, positions, None, deflection, marker, 1.0, ccw, rippled, q0)
@@ -72,7 +72,8 @@ def _robot_residual_jacobian(robot, params, theta, positions, deflection, q0, ma
     return r, cols
 
 
-def _screw_residual_jacobian(robots, params, theta, positions, deflection, q0, marker, rippled, ccw, v0, scale, x):
+def _screw_residual_jacobian(robots, params, theta, positions, deflection, q0, marker, rippled, v0, scale, x,
+                             ccw=False):
     """Residuals (R, 3K) [mm] and Jacobian (R, 3K, m) of all robots at scaled parameters `x` from the
     joint screws (`position_jacobian`, batch-last over robots and poses); rows are component-major
     (row `c K + k` is component `c` of pose `k`)."""
@@ -82,7 +83,8 @@ def _screw_residual_jacobian(robots, params, theta, positions, deflection, q0, m
     q = jax.vmap(jax.vmap(lambda rb, th, q0k, de, c: q_pose(rb, th, q0k, de, False if ccw is False else c),
                           (None, 0, 0, 0, 0)))(robot, theta, q0, deflection, cc)  # over robots, then poses
     if any(f"u0_{j + 1}" in params.names for j in rippled):
-        ratio = jax.vmap(jr.gear_ratio)(robot, q - deflection, ccw)
+        ratio = jax.vmap(lambda rb, phi, c: jr.gear_ratio(rb, phi, False if ccw is False else c))(
+            robot, q - deflection, cc)
     else:
         ratio = robot.u0[:, None]
     p, jac = position_jacobian(jax.tree.map(lambda f: f[:, None], robot), params, q, theta, ratio, marker)
@@ -103,20 +105,19 @@ def _chunk() -> int:
     return CHUNK["cpu" if jax.default_backend() == "cpu" else "accelerator"]
 
 
-def _constants(robots, theta, ccw, rippled, directed):
+def _constants(robots, theta, rippled, ccw=False):
     """Per-pose constants of the solve, from the initial robots (thesis 3.2.3): the joint angles at
     rest `q0` (R, K, n) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, n) (`rest_deflection`;
     XLA evaluates the gear inversion once for both). `robots`: a fleet (R, ...) or one robot for all
     (then its fields are not broadcast over the poses: ~2x faster); the gear inversion runs on the
-    `rippled` joints only (the others are `theta / u0`); `ccw` (R, K, n) the direction of approach,
-    used only when `directed` (else every gear's `cw` set)."""
+    `rippled` joints only (the others are `theta / u0`); `ccw` (R, K, n) the direction of approach
+    (False: every gear's `cw` set)."""
     fleet = robots if robots.a.ndim == 1 else jax.tree.map(lambda f: f[:, None], robots)
-    ccw = ccw if directed else False
     q0 = rest_link_angles(fleet, theta, ccw, rippled=rippled)
     return q0, q0 - jr.gear_output(fleet, theta, ccw, rippled=rippled)
 
 
-def _local_solve(robots, theta, positions, marker, q0, defl, ccw, *, params, max_steps, rippled, directed):
+def _local_solve(robots, theta, positions, marker, q0, defl, ccw=None, *, params, max_steps, rippled):
     """The fleet solve, batch-first: one `batched_lm` over all robots, then the covariances (`ccw`:
     as in `_constants`)."""
     v0 = jax.vmap(params.get)(robots)
@@ -124,15 +125,15 @@ def _local_solve(robots, theta, positions, marker, q0, defl, ccw, *, params, max
     screws = analytic_names(params.names)
 
     def residual_jacobian(x, data):
-        rb, th, pos, q, de, v, sc, cc = data
-        cc = cc if directed else False
+        rb, th, pos, q, de, v, sc, *cc = data
         if screws:
-            return _screw_residual_jacobian(rb, params, th, pos, de, q, marker, rippled, cc, v, sc, x)
-        one = lambda r_, t_, p_, d_, q_, c_, y_: _robot_residual_jacobian(  # noqa: E731
-            r_, params, t_, p_, d_, q_, marker, rippled, c_ if directed else False, y_)
-        return jax.vmap(one)(rb, th, pos, de, q, data[-1], x)
+            return _screw_residual_jacobian(rb, params, th, pos, de, q, marker, rippled, v, sc, x, *cc)
+        one = lambda r_, t_, p_, d_, q_, y_, *c_: _robot_residual_jacobian(  # noqa: E731
+            r_, params, t_, p_, d_, q_, marker, rippled, y_, *c_)
+        return jax.vmap(one)(rb, th, pos, de, q, x, *cc)
 
-    out = batched_lm(residual_jacobian, jnp.zeros_like(v0), (robots, theta, positions, q0, defl, v0, scale, ccw),
+    directed = () if ccw is None else (ccw,)
+    out = batched_lm(residual_jacobian, jnp.zeros_like(v0), (robots, theta, positions, q0, defl, v0, scale, *directed),
                      max_steps=max_steps, chunk=_chunk())
     n_rob, n, m = out["residuals"].shape + v0.shape[1:]
     if screws:  # component-major rows -> pose-major
@@ -147,23 +148,27 @@ def _local_solve(robots, theta, positions, marker, q0, defl, ccw, *, params, max
 
 
 @eqx.filter_jit
-def _fleet_constants(robots, theta, ccw, rippled, directed, mesh):
+def _fleet_constants(robots, theta, rippled, mesh, ccw=None):
     """`_constants`, every device on its own robots (`shard_map` over the `"fleet"` axis; one robot
-    for all is replicated)."""
+    for all is replicated); `ccw` (R, K, n) or None (every gear's `cw` set)."""
     fleet = PartitionSpec("fleet")
     spec = PartitionSpec() if robots.a.ndim == 1 else fleet
-    return jax.shard_map(functools.partial(_constants, rippled=rippled, directed=directed), mesh=mesh,
-                         in_specs=(spec, fleet, fleet), out_specs=fleet, check_vma=False)(robots, theta, ccw)
+    directed = () if ccw is None else (ccw,)
+    return jax.shard_map(lambda r, t, *c: _constants(r, t, rippled, *c), mesh=mesh,
+                         in_specs=(spec, fleet) + (fleet,) * len(directed), out_specs=fleet,
+                         check_vma=False)(robots, theta, *directed)
 
 
 @eqx.filter_jit
-def _fleet_solve(robots, params, theta, positions, marker, q0, defl, ccw, max_steps, rippled, directed, mesh):
+def _fleet_solve(robots, params, theta, positions, marker, q0, defl, max_steps, rippled, mesh, ccw=None):
     """`_local_solve`, every device on its own robots (`shard_map` over the `"fleet"` axis; each
     device's LM loop runs until its own robots have stopped)."""
     fleet = PartitionSpec("fleet")
-    local = functools.partial(_local_solve, params=params, max_steps=max_steps, rippled=rippled, directed=directed)
-    return jax.shard_map(local, mesh=mesh, in_specs=(fleet, fleet, fleet, PartitionSpec(), fleet, fleet, fleet),
-                         out_specs=fleet, check_vma=False)(robots, theta, positions, marker, q0, defl, ccw)
+    local = functools.partial(_local_solve, params=params, max_steps=max_steps, rippled=rippled)
+    directed = () if ccw is None else (ccw,)
+    return jax.shard_map(local, mesh=mesh, in_specs=(fleet, fleet, fleet, PartitionSpec(), fleet, fleet)
+                         + (fleet,) * len(directed), out_specs=fleet,
+                         check_vma=False)(robots, theta, positions, marker, q0, defl, *directed)
 
 
 _set_parameters = eqx.filter_jit(ParameterMap.set)  # one compiled call instead of ~m eager scatters
@@ -207,7 +212,6 @@ def calibrate_fleet(
     if ccw.shape != theta.shape or ccw.dtype != bool:
         raise ValueError(f"ccw: expected a bool array of shape {theta.shape} (robots, poses, joints), found "
                          f"{ccw.dtype} {ccw.shape}")
-    directed = bool(ccw.any())
     if parameters is None:
         first = robots if np.ndim(robots.a) == 1 else jax.tree.map(lambda x: x[0], robots)
         parameters = default_parameters(first, marker=marker)
@@ -225,9 +229,9 @@ def calibrate_fleet(
     (g_robots, g_theta, g_pos, g_ccw), origin = shard_rows((robots, theta, pos, ccw), mesh)  # padded with robot 0
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     rippled = rippled_joints(robots)
-    q0, defl = _fleet_constants(initial if np.ndim(initial.a) == 1 else g_robots, g_theta, g_ccw, rippled, directed,
-                                mesh)
-    out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, g_ccw, max_steps, rippled, directed, mesh)
+    g_ccw = g_ccw if ccw.any() else None  # none: every gear's cw set, no selection per pose
+    q0, defl = _fleet_constants(initial if np.ndim(initial.a) == 1 else g_robots, g_theta, rippled, mesh, g_ccw)
+    out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, max_steps, rippled, mesh, g_ccw)
     out, robots = gather_rows((out, g_robots), origin)
     value = out["value"]
     status = np.asarray(STATUS + ("rank_deficient",))[np.where(

@@ -8,10 +8,14 @@ Two methods on the kinematic error of the identification runs of one joint and d
 - `sparse_orders`, ours: greedy selection (orthogonal matching pursuit) over every integer
   order in the filter's passband, on a dictionary that models the kinematic error exactly as
   the fit does (`phid (a cos(n phi) - b sin(n phi))`, damped by the Gaussian filter's gain at the
-  ripple frequency). Each pick enters the model with its direct neighbours (the thesis'
-  clusters), so that a cluster's beat over a short range is explained by the cluster and not
-  by spurious side orders; after each pick all chosen orders are refitted, and a two-fold
-  cross-validation over repetitions decides how many clusters to keep: the fewest whose
+  ripple frequency). Each order is scored by its chi-square against the filtered noise at its
+  frequency (explained energy over the filter's power gain there), so that an order the filter
+  damps competes on its significance, not on its damped size. Each pick enters the model with
+  its direct neighbours (the thesis' clusters), so that a cluster's beat over a short range is
+  explained by the cluster and not by spurious side orders; after each pick all chosen orders
+  are refitted. A two-fold cross-validation over repetitions decides how many clusters to keep:
+  the search is repeated on each fold alone and scored on the other (picks made on all the data
+  would favour the held-out fold's own noise), and the kept number is the fewest clusters whose
   held-out mean squared error exceeds the best one's by at most one standard error of that
   (paired) difference, the "one-standard-error rule" (Hastie, Tibshirani, Friedman, The
   Elements of Statistical Learning, 2009, 7.10). The standard error comes from blocks of

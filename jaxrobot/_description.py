@@ -366,10 +366,8 @@ def description_of(robot: Robot) -> dict:
             if used.any():
                 sets[direction] = {"orders": [int(n) for n in np.asarray(rip.orders[j])[used]],
                                    "a": f(np.asarray(rip.a[j])[used]), "b": f(np.asarray(rip.b[j])[used])}
-        if len(sets) == 2:
-            gear[f"joint{j + 1}"] = sets
-        elif sets:  # one direction only: the same set applies both ways
-            gear[f"joint{j + 1}"] = {"cw": next(iter(sets.values())), "ccw": next(iter(sets.values()))}
+        if sets:  # a direction without ripple gets an empty set (a constant ratio that way)
+            gear[f"joint{j + 1}"] = {d: sets.get(d, {"orders": [], "a": [], "b": []}) for d in ("cw", "ccw")}
     inertia = np.asarray(robot.inertia, float)
     data: dict[str, Any] = {
         "name": robot.name,

@@ -282,3 +282,35 @@ def test_ripple_below_the_noise_gives_the_constant_ratio(truth):
         assert np.all(np.asarray(res.fit.orders[g]) == 0)
         assert r.more_runs >= 1 and f"{r.more_runs} more runs per direction would resolve it" in r.note()
         assert abs(float(res.fit.u0[g]) - float(truth.u0[1])) <= 3 * float(res.fit.se_u0[g])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 4])
+def test_high_bias_two_runs_holds_the_independent_criteria(truth, seed):
+    """Our bench with the independent data's conditions (gyroscope bias 0.05 deg/s per run and axis,
+    two identification runs per direction, the third validates): joints 1 and 3 remove >= 85 % of
+    the true ratio ripple over the validation run's range, joint 2 is never worse than the constant
+    ratio (seed 4 kept a spurious cluster before the per-fold search: 1.08x)."""
+    runs, val = [], []
+    for joint in (1, 2, 3):
+        r = jr.gear_runs(truth, joint, repetitions=3, seed=1000 * seed + joint, gyro_bias_deg_s=0.05)
+        ccw = np.asarray(r.ccw)
+        for k in range(ccw.size):
+            last = k == np.flatnonzero(ccw == ccw[k]).max()
+            (val if last else runs).append((r.t, r.theta[k], r.gyro[k]))
+    res = identify_gear(jr.racer7(), runs, val)
+    for g, (joint, ccw) in enumerate(res.groups):
+        rip = truth.ccw if ccw else truth.cw
+        theta = np.concatenate([th[:, joint - 1] for (_, th, _), i in zip(val, res.infos[len(runs):])
+                                if (i.joint, i.ccw) == (joint, ccw)])
+        phi = np.linspace(theta.min(), theta.max(), 20001)[:, None] / float(truth.u0[joint - 1])
+        ratio = lambda u0, n, a, b: u0 * (1.0 + np.sum(np.where(n > 0, a * np.cos(n * phi) - b * np.sin(n * phi), 0),
+                                                        1))
+        u_true = ratio(float(truth.u0[joint - 1]), *(np.asarray(x[joint - 1]) for x in (rip.orders, rip.a, rip.b)))
+        u_id = ratio(float(res.fit.u0[g]), *(np.asarray(x[g]) for x in (res.fit.orders, res.fit.a, res.fit.b)))
+        rms = lambda x: float(np.sqrt(np.mean(x**2)))
+        err, ripple = rms(u_id - u_true), rms(u_true - float(truth.u0[joint - 1]))
+        if joint == 2:
+            assert err <= rms(float(res.fit.u0[g]) - u_true), f"joint 2 ccw={ccw}: {err:.3g}"
+        else:
+            assert err <= 0.15 * ripple, f"joint {joint} ccw={ccw}: reduction {1 - err / ripple:.3f}"

@@ -268,6 +268,10 @@ def test_chained_cli_gear_calibrate(gear_stage, tmp_path, capsys):
             np.testing.assert_array_equal(np.asarray(getattr(getattr(cal, direction), field))[:3],
                                           np.asarray(getattr(getattr(gear, direction), field))[:3])
     summary = gear_stage[0]["joints"]
+    for j in (1, 2, 3):  # the file holds each direction's own set (an empty one stays empty)
+        for direction in ("cw", "ccw"):
+            orders = np.asarray(getattr(gear, direction).orders[j - 1])
+            assert orders[orders > 0].tolist() == summary[str(j)][direction]["orders"], (j, direction)
     for j in (1, 2, 3):  # MAP refines u0 within what the gear stage left uncertain
         std = max(s["u0_std"] for s in summary[str(j)].values())
         assert abs(float(cal.u0[j - 1]) - float(gear.u0[j - 1])) <= 3 * std
