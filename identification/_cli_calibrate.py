@@ -12,7 +12,7 @@ from jaxrobot._cli import SolveFailed, add_model_option
 
 from ._pose_files import add_approach_option
 
-HELP = "calibrate the kinematic parameters from a pose file (thesis 3.2, LM)"
+HELP = "calibrate the kinematic parameters from a pose file (docs/model.md (3.12), LM)"
 EXAMPLE = "jaxrobot calibrate poses.csv --validate validation.csv --out calibration --save-model calibrated.toml"
 
 
@@ -137,6 +137,13 @@ def run(args, echo) -> dict:
                     marker=marker, position_noise=noise, ccw=data["ccw"], validation=val, limits=args.limits,
                     method=args.method, prior_std=prior)
     _echo_report(res.report, echo)
+    from ._model_files import ripple_outside_range
+
+    outside = ripple_outside_range(args.robot, data["motor_angles"], data["ccw"], robot.u0)
+    for j, o in outside.items():
+        echo(f"warning: joint {j}: {o['poses']} poses rest outside the range {o['range_deg']} deg where its "
+             f"gear ripple ({'/'.join(o['direction'])}) was identified; there the Fourier set is an extrapolation "
+             "(identify the gear over the poses' range)")
     if not res.report["converged"]:
         raise SolveFailed(f"calibration did not converge ({res.report['status']}); the model was not saved")
     if args.out is not None:
@@ -147,7 +154,7 @@ def run(args, echo) -> dict:
 
         save_model(res.robot, args.save_model, args.robot)
         echo(f"wrote {args.save_model}")
-    return summary(res.report)
+    return {**summary(res.report), **({"ripple_outside_identified_range": outside} if outside else {})}
 
 
 def demo_stage(out: Path, echo) -> dict:

@@ -12,7 +12,7 @@ EXAMPLE = "jaxrobot diagnose --model start.toml train.csv --validate val.csv --o
 
 
 def configure(parser) -> None:
-    parser.add_argument("poses", type=Path, nargs="+", help="training pose CSV files (SPEC.md format)")
+    parser.add_argument("poses", type=Path, nargs="+", help="training pose CSV files (README, 'Measurement files')")
     parser.add_argument("--validate", type=Path, nargs="+", required=True, help="held-out validation pose CSV files")
     from jaxrobot._cli import add_model_option
 

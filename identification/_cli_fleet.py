@@ -15,6 +15,8 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from ._pose_files import add_approach_option
+
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
 TABLE = "fleet_calibration.csv"
 EXAMPLE = "jaxrobot calibrate-fleet fleet --bench 1000 --out fleet-out"
@@ -22,7 +24,8 @@ EXAMPLE = "jaxrobot calibrate-fleet fleet --bench 1000 --out fleet-out"
 
 def configure(parser) -> None:
     parser.add_argument("folder", type=Path,
-                        help="folder of pose CSVs (SPEC.md format), one per robot, all with the same poses count; "
+                        help="folder of pose CSVs (README, 'Measurement files'), one per robot, all with the same "
+                             "poses count; "
                              "robots in file-name order")
     parser.add_argument("--bench", type=int, default=None, metavar="R",
                         help="first write bench data of R random as-built robots (draw_fleet around --model) into "
@@ -43,6 +46,7 @@ def configure(parser) -> None:
                         "$JAX_NUM_PROCESSES)")
     parser.add_argument("--process-id", type=int, default=None, help="this process, 0 .. count - 1 (default "
                         "$JAX_PROCESS_ID)")
+    add_approach_option(parser)
 
 
 @eqx.filter_jit
@@ -113,6 +117,7 @@ def run(args, echo) -> dict:
     from jaxrobot._cli import Progress, SolveFailed
 
     from ._fleet import calibrate_fleet
+    from ._pose_files import read_poses
 
     pid = jax.process_index()
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
@@ -135,7 +140,7 @@ def run(args, echo) -> dict:
                          f"in {args.folder}")
     share = jr.process_share(len(files))
     t = time.perf_counter()
-    data = [jr.read_pose_csv(f) for f in files[share]]
+    data = [read_poses(f, args.approach) for f in files[share]]
     k = data[0]["motor_angles"].shape[0]
     for f, d in zip(files[share], data):
         if d["motor_angles"].shape[0] != k:
@@ -144,7 +149,8 @@ def run(args, echo) -> dict:
     echo(f"process {pid} of {count}: robots {share.start}..{share.stop - 1} of {len(files)}, {k} poses each")
     t = time.perf_counter()
     res = calibrate_fleet(robot, np.stack([d["motor_angles"] for d in data]), np.stack([d["positions"] for d in data]),
-                          parameters=names, marker=marker, max_steps=args.max_steps)
+                          parameters=names, marker=marker, max_steps=args.max_steps,
+                          ccw=np.stack([d["ccw"] for d in data]))
     seconds["calibrate"] = time.perf_counter() - t
     progress.step("fleet calibration")
     status = {str(s): int(np.sum(res.status == s)) for s in np.unique(res.status)}

@@ -84,7 +84,7 @@ def run(args, echo) -> dict:
     if args.save_model is not None:
         from ._model_files import save_model
 
-        save_model(res.robot(robot), args.save_model, args.robot)
+        save_model(res.robot(robot), args.save_model, args.robot, res.identified_ranges())
         echo(f"wrote {args.save_model}")
     return summary(res)
 

@@ -50,7 +50,7 @@ ORDER_FALSE_ALARM = 1e-3
 @dataclasses.dataclass(frozen=True)
 class Poses:
     """Measured poses: `motor_angles` (K, n) rad, `positions` (K, 3) m, `ccw` (K, n) the direction
-    of approach of the stated convention (`_pose_files.APPROACHES`, SPEC.md's `cw` by default) and
+    of approach of the stated convention (`_pose_files.APPROACHES`, `cw` by default, docs/model.md (B.1)) and
     `ccw_order` (K, n) the one the row order would give (`jaxrobot.approach_directions`), which the
     hypothesis `approach_dependent_gear_set` tests."""
 

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, PartitionSpec
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
 from jaxrobot._distributed import gather_rows, shard_rows
@@ -63,25 +63,26 @@ def fleet_mesh(devices: Sequence | None = None) -> Mesh:
     return Mesh(np.asarray(jax.devices() if devices is None else devices), ("fleet",))
 
 
-def _robot_residual_jacobian(robot, params, theta, positions, deflection, q0, marker, rippled, x):
+def _robot_residual_jacobian(robot, params, theta, positions, deflection, q0, marker, rippled, ccw, x):
     """Residual (n,) [mm] and Jacobian (n, m) of one robot at scaled parameters `x` by forward
     mode on `_residual_fn` (tool and base parameters, which the joint screws do not cover)."""
-    fn, _, _ = _residual_fn(robot, params, theta, positions, None, deflection, marker, 1.0, False, rippled, q0)
+    fn, _, _ = _residual_fn(robot, params, theta, positions, None, deflection, marker, 1.0, ccw, rippled, q0)
     basis = jnp.eye(x.shape[0])
     r, cols = jax.vmap(lambda t: jax.jvp(lambda y: fn(y, None), (x,), (t,)), out_axes=(None, -1))(basis)
     return r, cols
 
 
-def _screw_residual_jacobian(robots, params, theta, positions, deflection, q0, marker, rippled, v0, scale, x):
+def _screw_residual_jacobian(robots, params, theta, positions, deflection, q0, marker, rippled, ccw, v0, scale, x):
     """Residuals (R, 3K) [mm] and Jacobian (R, 3K, m) of all robots at scaled parameters `x` from the
     joint screws (`position_jacobian`, batch-last over robots and poses); rows are component-major
     (row `c K + k` is component `c` of pose `k`)."""
     robot = params.set(robots, v0 + scale * x)
     _, q_pose = joint_angle_model(robots, params, theta, deflection, False, rippled, q0)
-    q = jax.vmap(jax.vmap(lambda rb, th, q0k, de: q_pose(rb, th, q0k, de, False), (None, 0, 0, 0)))(
-        robot, theta, q0, deflection)  # over robots, then poses
+    cc = jnp.zeros(theta.shape, bool) if ccw is False else ccw
+    q = jax.vmap(jax.vmap(lambda rb, th, q0k, de, c: q_pose(rb, th, q0k, de, False if ccw is False else c),
+                          (None, 0, 0, 0, 0)))(robot, theta, q0, deflection, cc)  # over robots, then poses
     if any(f"u0_{j + 1}" in params.names for j in rippled):
-        ratio = jax.vmap(jr.gear_ratio)(robot, q - deflection)
+        ratio = jax.vmap(jr.gear_ratio)(robot, q - deflection, ccw)
     else:
         ratio = robot.u0[:, None]
     p, jac = position_jacobian(jax.tree.map(lambda f: f[:, None], robot), params, q, theta, ratio, marker)
@@ -102,32 +103,36 @@ def _chunk() -> int:
     return CHUNK["cpu" if jax.default_backend() == "cpu" else "accelerator"]
 
 
-def _constants(robots, theta, rippled):
+def _constants(robots, theta, ccw, rippled, directed):
     """Per-pose constants of the solve, from the initial robots (thesis 3.2.3): the joint angles at
     rest `q0` (R, K, n) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, n) (`rest_deflection`;
     XLA evaluates the gear inversion once for both). `robots`: a fleet (R, ...) or one robot for all
     (then its fields are not broadcast over the poses: ~2x faster); the gear inversion runs on the
-    `rippled` joints only (the others are `theta / u0`)."""
+    `rippled` joints only (the others are `theta / u0`); `ccw` (R, K, n) the direction of approach,
+    used only when `directed` (else every gear's `cw` set)."""
     fleet = robots if robots.a.ndim == 1 else jax.tree.map(lambda f: f[:, None], robots)
-    q0 = rest_link_angles(fleet, theta, rippled=rippled)
-    return q0, q0 - jr.gear_output(fleet, theta, rippled=rippled)
+    ccw = ccw if directed else False
+    q0 = rest_link_angles(fleet, theta, ccw, rippled=rippled)
+    return q0, q0 - jr.gear_output(fleet, theta, ccw, rippled=rippled)
 
 
-def _local_solve(robots, theta, positions, marker, q0, defl, *, params, max_steps, rippled):
-    """The fleet solve, batch-first: one `batched_lm` over all robots, then the covariances."""
+def _local_solve(robots, theta, positions, marker, q0, defl, ccw, *, params, max_steps, rippled, directed):
+    """The fleet solve, batch-first: one `batched_lm` over all robots, then the covariances (`ccw`:
+    as in `_constants`)."""
     v0 = jax.vmap(params.get)(robots)
     scale = jax.vmap(params.scales)(robots)
     screws = analytic_names(params.names)
 
     def residual_jacobian(x, data):
-        rb, th, pos, q, de, v, sc = data
+        rb, th, pos, q, de, v, sc, cc = data
+        cc = cc if directed else False
         if screws:
-            return _screw_residual_jacobian(rb, params, th, pos, de, q, marker, rippled, v, sc, x)
-        one = lambda r_, t_, p_, d_, q_, y_: _robot_residual_jacobian(  # noqa: E731
-            r_, params, t_, p_, d_, q_, marker, rippled, y_)
-        return jax.vmap(one)(rb, th, pos, de, q, x)
+            return _screw_residual_jacobian(rb, params, th, pos, de, q, marker, rippled, cc, v, sc, x)
+        one = lambda r_, t_, p_, d_, q_, c_, y_: _robot_residual_jacobian(  # noqa: E731
+            r_, params, t_, p_, d_, q_, marker, rippled, c_ if directed else False, y_)
+        return jax.vmap(one)(rb, th, pos, de, q, data[-1], x)
 
-    out = batched_lm(residual_jacobian, jnp.zeros_like(v0), (robots, theta, positions, q0, defl, v0, scale),
+    out = batched_lm(residual_jacobian, jnp.zeros_like(v0), (robots, theta, positions, q0, defl, v0, scale, ccw),
                      max_steps=max_steps, chunk=_chunk())
     n_rob, n, m = out["residuals"].shape + v0.shape[1:]
     if screws:  # component-major rows -> pose-major
@@ -142,23 +147,23 @@ def _local_solve(robots, theta, positions, marker, q0, defl, *, params, max_step
 
 
 @eqx.filter_jit
-def _fleet_constants(robots, theta, rippled, mesh):
+def _fleet_constants(robots, theta, ccw, rippled, directed, mesh):
     """`_constants`, every device on its own robots (`shard_map` over the `"fleet"` axis; one robot
     for all is replicated)."""
     fleet = PartitionSpec("fleet")
     spec = PartitionSpec() if robots.a.ndim == 1 else fleet
-    return jax.shard_map(functools.partial(_constants, rippled=rippled), mesh=mesh, in_specs=(spec, fleet),
-                         out_specs=fleet, check_vma=False)(robots, theta)
+    return jax.shard_map(functools.partial(_constants, rippled=rippled, directed=directed), mesh=mesh,
+                         in_specs=(spec, fleet, fleet), out_specs=fleet, check_vma=False)(robots, theta, ccw)
 
 
 @eqx.filter_jit
-def _fleet_solve(robots, params, theta, positions, marker, q0, defl, max_steps, rippled, mesh):
+def _fleet_solve(robots, params, theta, positions, marker, q0, defl, ccw, max_steps, rippled, directed, mesh):
     """`_local_solve`, every device on its own robots (`shard_map` over the `"fleet"` axis; each
     device's LM loop runs until its own robots have stopped)."""
     fleet = PartitionSpec("fleet")
-    local = functools.partial(_local_solve, params=params, max_steps=max_steps, rippled=rippled)
-    return jax.shard_map(local, mesh=mesh, in_specs=(fleet, fleet, fleet, PartitionSpec(), fleet, fleet),
-                         out_specs=fleet, check_vma=False)(robots, theta, positions, marker, q0, defl)
+    local = functools.partial(_local_solve, params=params, max_steps=max_steps, rippled=rippled, directed=directed)
+    return jax.shard_map(local, mesh=mesh, in_specs=(fleet, fleet, fleet, PartitionSpec(), fleet, fleet, fleet),
+                         out_specs=fleet, check_vma=False)(robots, theta, positions, marker, q0, defl, ccw)
 
 
 _set_parameters = eqx.filter_jit(ParameterMap.set)  # one compiled call instead of ~m eager scatters
@@ -173,8 +178,10 @@ def calibrate_fleet(
     marker: Float[Array, "3"] | None = None,
     max_steps: int = 100,
     mesh: Mesh | None = None,
+    ccw: Bool[Array, "R K n"] | None = None,
 ) -> FleetResult:
-    """Calibrate R robots at once, each from its own K poses (positions only, `cw` gear set).
+    """Calibrate R robots at once, each from its own K poses (positions only; at rest every gear's
+    `cw` set, or the set of the direction of approach `ccw` (R, K, n) where given).
 
     `robots`: the initial robots, a fleet pytree with leading axis R, or one robot used for all.
     The fleet axis is padded to a multiple of the device count and sharded over `mesh`
@@ -196,6 +203,11 @@ def calibrate_fleet(
             _check_array(theta[r], (joints,), f"motor_angles[robot {r}]", "rad")
             _check_array(pos[r], (3,), f"positions[robot {r}]", "m")
     n_rob, k = theta.shape[:2]
+    ccw = np.zeros(theta.shape, bool) if ccw is None else np.asarray(ccw)
+    if ccw.shape != theta.shape or ccw.dtype != bool:
+        raise ValueError(f"ccw: expected a bool array of shape {theta.shape} (robots, poses, joints), found "
+                         f"{ccw.dtype} {ccw.shape}")
+    directed = bool(ccw.any())
     if parameters is None:
         first = robots if np.ndim(robots.a) == 1 else jax.tree.map(lambda x: x[0], robots)
         parameters = default_parameters(first, marker=marker)
@@ -210,11 +222,12 @@ def calibrate_fleet(
         raise ValueError(f"robots: expected one robot or a fleet of {n_rob}, found {robots.a.shape[0]}")
     mesh = fleet_mesh() if mesh is None else mesh
     n_dev = mesh.devices.size
-    (g_robots, g_theta, g_pos), origin = shard_rows((robots, theta, pos), mesh)  # padded with robot 0
+    (g_robots, g_theta, g_pos, g_ccw), origin = shard_rows((robots, theta, pos, ccw), mesh)  # padded with robot 0
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     rippled = rippled_joints(robots)
-    q0, defl = _fleet_constants(initial if np.ndim(initial.a) == 1 else g_robots, g_theta, rippled, mesh)
-    out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, max_steps, rippled, mesh)
+    q0, defl = _fleet_constants(initial if np.ndim(initial.a) == 1 else g_robots, g_theta, g_ccw, rippled, directed,
+                                mesh)
+    out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, g_ccw, max_steps, rippled, directed, mesh)
     out, robots = gather_rows((out, g_robots), origin)
     value = out["value"]
     status = np.asarray(STATUS + ("rank_deficient",))[np.where(

@@ -1,7 +1,7 @@
 """Gear-ratio fit of eq. 3.5: `u0` and the Fourier coefficients by linear least squares, one set
 per (joint, direction), with standard errors and a test of cw against ccw.
 
-Model (eq. 2.10-2.11, SPEC.md): `thetad = u0 (1 + sum_j a_j cos(n_j phi) - b_j sin(n_j phi)) phid`.
+Model (eq. 2.10-2.11, docs/model.md): `thetad = u0 (1 + sum_j a_j cos(n_j phi) - b_j sin(n_j phi)) phid`.
 It is linear in `p = (u0, u0 a, u0 b)`; because both measured signals are filtered (eq. 3.1),
 the regressors are filtered with the same kernel, so that the filter's attenuation of high
 orders does not bias the coefficients. `phi = Xi^{-1}(theta)` needs the ratio itself, so the
@@ -36,6 +36,7 @@ from ._gear_processing import (
     pinv_psd,
     prepare_gear_runs,
     process_gear_runs,
+    segment_windows,
 )
 
 ITERATIONS = 3
@@ -63,7 +64,7 @@ class GearFit(eqx.Module):
     orders: Float[Array, "G M"]
     """Orders `n_j` (cycles per output revolution); 0 marks padding."""
     a: Float[Array, "G M"]
-    """Dimensionless cosine coefficients (SPEC.md convention)."""
+    """Dimensionless cosine coefficients (docs/model.md (2.10))."""
     b: Float[Array, "G M"]
     """Dimensionless sine coefficients."""
     se_u0: Float[Array, " G"]
@@ -118,6 +119,7 @@ def fit_gear_ratio(
     filt = jax.vmap(gaussian_filter)
     weight = (batch.segment & fit_run[:, None]).astype(float)
     run_orders = orders[group]
+    onehot = jax.nn.one_hot(group, n_groups) * fit_run[:, None]  # (R, G)
 
     def solve(params):
         u0, a, b = params
@@ -125,32 +127,25 @@ def fit_gear_ratio(
         x_raw = jax.vmap(_design)(phi, proc.phid, run_orders)
         x_f = filt(x_raw, batch.valid, kernels) * weight[..., None]
         y = proc.thetad_f * weight
-        a_r = jnp.einsum("rnp,rnq->rpq", x_f, x_f)
-        b_r = jnp.einsum("rnp,rn->rp", x_f, y)
-
-        def per_group(g):
-            sel = (group == g).astype(float)
-            a_g = jnp.einsum("r,rpq->pq", sel, a_r)
-            inv = pinv_psd(a_g, RCOND)
-            p = inv @ jnp.einsum("r,rp->p", sel, b_r)
-            res = y - jnp.einsum("rnp,p->rn", x_f, p)  # one refinement step
-            return p + inv @ jnp.einsum("r,rnp,rn->p", sel, x_f, res)
-
-        p = jax.lax.map(per_group, jnp.arange(n_groups))  # one eigendecomposition per call (jaxrobot._linalg)
+        a_g = jnp.einsum("rg,rpq->gpq", onehot, jnp.einsum("rnp,rnq->rpq", x_f, x_f))
+        inv = map_matrices(lambda a: pinv_psd(a, RCOND), a_g)  # one eigendecomposition per call
+        p = jnp.einsum("gpq,gq->gp", inv, onehot.T @ jnp.einsum("rnp,rn->rp", x_f, y))
+        res = y - jnp.einsum("rnp,rp->rn", x_f, p[group])  # one refinement step, each run with its group's p
+        p = p + jnp.einsum("gpq,gq->gp", inv, onehot.T @ jnp.einsum("rnp,rn->rp", x_f, res))
         return p, x_raw, x_f
 
     params = (u0_start, jnp.zeros((n_groups, m)), jnp.zeros((n_groups, m)))
     for _ in range(ITERATIONS):
         p, x_raw, x_f = solve(params)
-        params = (p[:, 0], p[:, 1:1 + m] / p[:, :1], p[:, 1 + m:] / p[:, :1])
+        u0 = jnp.where(p[:, :1] != 0.0, p[:, :1], 1.0)  # 0: a group without runs
+        params = (u0[:, 0], p[:, 1:1 + m] / u0, p[:, 1 + m:] / u0)
     u0, a, b = params
 
     # sandwich covariance: residual = filter(white noise), Cov = s^2 A^+ B A^+, B = |G X_f|^2
     res_raw = (proc.thetad - jnp.einsum("rnp,rp->rn", x_raw, p[group])) * weight
     x_ff = filt(x_f, batch.valid, kernels) * weight[..., None]
-    onehot = jax.nn.one_hot(group, n_groups) * fit_run[:, None]  # (R, G)
-    a_mat = jnp.einsum("rg,rnp,rnq->gpq", onehot, x_f, x_f)
-    b_mat = jnp.einsum("rg,rnp,rnq->gpq", onehot, x_ff, x_ff)
+    a_mat = jnp.einsum("rg,rpq->gpq", onehot, jnp.einsum("rnp,rnq->rpq", x_f, x_f))
+    b_mat = jnp.einsum("rg,rpq->gpq", onehot, jnp.einsum("rnp,rnq->rpq", x_ff, x_ff))
     n = jnp.einsum("rg,rn->g", onehot, weight)
     s2 = jnp.einsum("rg,rn->g", onehot, res_raw**2) / jnp.maximum(n - p.shape[-1], 1.0)
     a_inv = map_matrices(pinv_psd, a_mat)
@@ -260,6 +255,14 @@ class GearIdentification:
     validation: np.ndarray
     errors: GearErrors
     t: np.ndarray
+    ranges: list = dataclasses.field(default_factory=list)
+    """Per group: `(lo, hi)` gear output angle [rad] over the identification runs' segments, the
+    range where its Fourier set is measured (outside: an extrapolation)."""
+
+    def identified_ranges(self) -> dict:
+        """`{(joint, "cw"/"ccw"): (lo, hi) deg}` of the groups whose ripple was kept."""
+        return {(j, "ccw" if ccw else "cw"): tuple(math.degrees(x) for x in self.ranges[g])
+                for g, (j, ccw) in enumerate(self.groups) if np.any(np.asarray(self.fit.orders[g]) > 0)}
 
     def robot(self, start: Robot) -> Robot:
         """`start` with the identified gears: per joint `u0` the inverse-variance mean of its
@@ -366,6 +369,28 @@ def _padded(sets: list[list[int]]) -> np.ndarray:
     return out
 
 
+ORDER_PAD = 12
+"""`_fit` pads the orders per group to a multiple of this (four clusters), and the groups to the
+runs' count, so that the fits of one identification share one or two compiled shapes."""
+
+
+def _fit(proc, batch, group, fit_run, orders: np.ndarray, u0_start) -> GearFit:
+    """`fit_gear_ratio` with padded shapes (`ORDER_PAD`; padding groups have no runs), cut back."""
+    n_groups, m = orders.shape
+    runs = int(np.shape(group)[0])
+    padded = np.zeros((max(runs, n_groups), -(-m // ORDER_PAD) * ORDER_PAD))
+    padded[:n_groups, :m] = orders
+    start = jnp.concatenate([jnp.asarray(u0_start), jnp.ones(padded.shape[0] - n_groups)])
+    fit = fit_gear_ratio(proc, batch, jnp.asarray(group), jnp.asarray(fit_run), jnp.asarray(padded), start)
+    mp = padded.shape[1]
+    ab = np.r_[0:m, mp:mp + m]  # (a, b) rows of the used orders
+    cut = lambda x, *idx: jnp.asarray(np.asarray(x)[:n_groups][idx])  # noqa: E731 (numpy: no compiles)
+    return GearFit(u0=cut(fit.u0), orders=cut(fit.orders, slice(None), slice(0, m)),
+                   a=cut(fit.a, slice(None), slice(0, m)), b=cut(fit.b, slice(None), slice(0, m)),
+                   se_u0=cut(fit.se_u0), cov_ab=cut(fit.cov_ab, slice(None), ab[:, None], ab[None, :]),
+                   noise=cut(fit.noise), samples=cut(fit.samples))
+
+
 def _with_scatter(fit: GearFit, proc, batch, group, fit_run, joints, u0_model, infos) -> tuple[GearFit, list]:
     """Standard errors with the run-to-run scatter, and the resolution test of every group.
 
@@ -378,8 +403,7 @@ def _with_scatter(fit: GearFit, proc, batch, group, fit_run, joints, u0_model, i
     rows = np.flatnonzero(fit_run)
     run_group = np.zeros(len(group), int)
     run_group[rows] = np.arange(len(rows))
-    per_run = fit_gear_ratio(proc, batch, jnp.asarray(run_group), jnp.asarray(fit_run),
-                             jnp.asarray(np.asarray(fit.orders)[group[rows]]), fit.u0[group[rows]])
+    per_run = _fit(proc, batch, run_group, fit_run, np.asarray(fit.orders)[group[rows]], fit.u0[group[rows]])
     bias_var = np.asarray(proc.bias_var)[:, 2]  # the aligned z axis is within 2e-2 rad of the sensor's
     scales, se_u0, resolution = [], [], []
     for g in range(n_groups):
@@ -470,11 +494,23 @@ def identify_gear(
     max_order = np.array([min(i.max_order for i, g, f in zip(infos, group, fit_run) if g == k and f)
                           for k in range(n_groups)])
     u0_start = jnp.asarray([u0_model[j - 1] for j, _ in groups])
-    gj, gfit = jnp.asarray(group), jnp.asarray(fit_run)
+    gj = jnp.asarray(group)
+    rows = np.flatnonzero(fit_run)  # the fits see the identification runs' segments only
+    fproc, fbatch = segment_windows(proc, batch, rows)
+    fgroup, finfos = group[rows], [infos[r] for r in rows]
+    fall = np.ones(rows.size, bool)
+    joint_of = [g[0] for g in groups]
+
+    def fit_orders(sets):
+        return _fit(fproc, fbatch, fgroup, fall, _padded(sets), u0_start)
+
+    def with_scatter(f):
+        return _with_scatter(f, fproc, fbatch, fgroup, fall, joint_of, u0_model, finfos)
+
     orders_sparse, cv = None, None
     for _ in range(SEARCH_PASSES):
         if orders_sparse is not None:  # search again on phi = Xi^{-1}(theta) of the orders found
-            first = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(orders_sparse)), u0_start)
+            first = fit_orders(orders_sparse)
             phi = xi_inverse(*(v[gj][:, None] for v in (first.u0, first.orders, first.a, first.b)), proc.theta)
             samples = group_samples(proc, batch, group, fit_run, n_groups, u0_run, phi)
         sparse, cv = sparse_orders(samples, jnp.asarray(max_order), keep_all=select == "all")
@@ -483,18 +519,14 @@ def identify_gear(
     fft = [fft_orders(samples.runs[g], int(max_order[g])) for g in range(n_groups)]
     orders_fft = [f[0] for f in fft]
     chosen = orders_sparse if method == "sparse" else orders_fft
-    fit = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(chosen)), u0_start)
-    joint_of = [g[0] for g in groups]
-    fit, resolution = _with_scatter(fit, proc, batch, group, fit_run, joint_of, u0_model, infos)
+    fit, resolution = with_scatter(fit_orders(chosen))
     if not all(r.resolved or r.dof == 0 for r in resolution):  # unresolved ripple: the constant ratio
         chosen = [c if r.resolved else [] for c, r in zip(chosen, resolution)]
-        fit = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(chosen)), u0_start)
-        fit, _ = _with_scatter(fit, proc, batch, group, fit_run, joint_of, u0_model, infos)
+        fit, _ = with_scatter(fit_orders(chosen))
     empty = [g for g, r in enumerate(resolution) if r.dof == 0 and orders_fft[g]]
     if empty:  # nothing kept: how many runs would resolve the FFT's peaks?
         probe = [orders_fft[g] if g in empty else [] for g in range(n_groups)]
-        fit_p = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(probe)), u0_start)
-        _, res_p = _with_scatter(fit_p, proc, batch, group, fit_run, joint_of, u0_model, infos)
+        _, res_p = with_scatter(fit_orders(probe))
         resolution = [dataclasses.replace(res_p[g], probe=True, more_runs=max(res_p[g].more_runs, 1))
                       if g in empty else r for g, r in enumerate(resolution)]
     errors = kinematic_errors(proc, batch, fit, gj)
@@ -509,7 +541,7 @@ def identify_gear(
         union = [list(s) for s in chosen]
         for _, gc, gw in pairs:
             union[gc] = union[gw] = sorted(set(chosen[gc]) | set(chosen[gw]))
-        fit_u = fit_gear_ratio(proc, batch, gj, gfit, jnp.asarray(_padded(union)), u0_start)
+        fit_u = fit_orders(union)
         half_group = np.zeros(len(group), int)
         half_fit = np.zeros(len(group), bool)
         rank = np.zeros(n_groups, int)
@@ -522,8 +554,8 @@ def identify_gear(
         fit_h = None
         if all(rank[gc] >= 2 and rank[gw] >= 2 for _, gc, gw in pairs):
             orders_h = _padded([union[gc] for _, gc, _ in pairs for _ in range(4)])
-            fit_h = fit_gear_ratio(proc, batch, jnp.asarray(half_group), jnp.asarray(half_fit),
-                                   jnp.asarray(orders_h), jnp.repeat(u0_start[np.array([gc for _, gc, _ in pairs])], 4))
+            fit_h = _fit(fproc, fbatch, half_group[rows], half_fit[rows], orders_h,
+                         jnp.repeat(u0_start[np.array([gc for _, gc, _ in pairs])], 4))
         for p, (j, gc, gw) in enumerate(pairs):
             used = fit_u.orders[gc] > 0
             chi2, dof, pval = direction_test(fit_u.a[gc], fit_u.b[gc], fit_u.cov_ab[gc], fit_u.a[gw], fit_u.b[gw],
@@ -540,9 +572,12 @@ def identify_gear(
                 pval = f_test(chi2, dof, sum(within), 2.0 * dof)
             tests.append(DirectionTest(j, float(chi2), int(dof), float(pval), bool(pval < SIGNIFICANCE), scale))
     ts = np.asarray(batch.ts)[:, None]
+    phi, seg = np.asarray(errors.phi), np.asarray(batch.segment) & fit_run[:, None]
+    ranges = [(float(phi[(group == g)[:, None] & seg].min()), float(phi[(group == g)[:, None] & seg].max()))
+              for g in range(n_groups)]
     return GearIdentification(
         groups=groups, fit=fit, misalignment=np.asarray(proc.misalignment), align_ok=align_ok, method=method,
         orders_fft=orders_fft, orders_sparse=orders_sparse, spectra=[(f[1], f[2]) for f in fft],
         cv_curves=np.asarray(cv), tests=tests, resolution=resolution, infos=infos, group=group, validation=is_val,
         errors=errors,
-        t=np.arange(batch.theta.shape[1])[None, :] * ts)
+        t=np.arange(batch.theta.shape[1])[None, :] * ts, ranges=ranges)

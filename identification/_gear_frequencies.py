@@ -146,44 +146,51 @@ def fft_orders(
 def _sparse_one(error, phi, rate, sigma, weight, fold, max_order, n_max: int, k_max: int, keep_all: bool):
     n = jnp.arange(1, n_max + 1, dtype=float)
     allowed = n <= max_order
-    damp = rate[:, None] * jnp.exp(-0.5 * (n * rate[:, None] * sigma[:, None]) ** 2)
-    dc = damp * jnp.cos(phi[:, None] * n)
-    ds = -damp * jnp.sin(phi[:, None] * n)
-    nc = jnp.maximum(jnp.sum(weight[:, None] * dc**2, 0), 1e-300)
-    ns = jnp.maximum(jnp.sum(weight[:, None] * ds**2, 0), 1e-300)
+    gain = jnp.exp(-0.5 * (n * rate[:, None] * sigma[:, None]) ** 2)
+    dc = rate[:, None] * gain * jnp.cos(phi[:, None] * n)
+    ds = -rate[:, None] * gain * jnp.sin(phi[:, None] * n)
     f0, f1 = weight * (fold == 0), weight * (fold == 1)
 
-    def fit(sel):
-        on = (sel >= 0).astype(float)
-        idx = jnp.maximum(sel, 0)
-        x = jnp.concatenate([rate[:, None], dc[:, idx] * on, ds[:, idx] * on], 1)
+    def path(w):
+        """Greedy search on the samples `w`: the orders picked and the residual (on all samples)
+        of the fit on `w` after 0..K clusters."""
+        # the score is the chi-square of each order against the filtered noise, whose power at the
+        # order's frequency is the filter's power gain times the white noise's (`gain**2`)
+        nc = jnp.maximum(w @ (gain * dc) ** 2, 1e-300)
+        ns = jnp.maximum(w @ (gain * ds) ** 2, 1e-300)
 
-        def solve(w):
-            return normal_solve(x, error, w)
+        def fit(sel):
+            on = (sel >= 0).astype(float)
+            idx = jnp.maximum(sel, 0)
+            x = jnp.concatenate([rate[:, None], dc[:, idx] * on, ds[:, idx] * on], 1)
+            return error - x @ normal_solve(x, error, w)
 
-        res = error - x @ solve(weight)
-        e0, e1 = error - x @ solve(f0), error - x @ solve(f1)
-        return res, f1 * e0**2 + f0 * e1**2  # held-out squared error per sample
+        def step(k, carry):
+            sel, res, hist = carry
+            wr = w * res
+            score = (dc.T @ wr) ** 2 / nc + (ds.T @ wr) ** 2 / ns
+            taken = jnp.zeros(n_max, bool).at[jnp.maximum(sel, 0)].set(sel >= 0)
+            j = jnp.argmax(jnp.where(allowed & ~taken, score, -jnp.inf))
+            # the pick enters with its direct neighbours (a cluster, as in the thesis' sets)
+            cluster = j + jnp.array([0, -1, 1])
+            ok = (cluster >= 0) & (cluster < n_max) & ~taken[jnp.clip(cluster, 0, n_max - 1)]
+            sel = jax.lax.dynamic_update_slice(sel, jnp.where(ok, cluster, -1), (3 * k,))
+            res = fit(sel)
+            return sel, res, hist.at[k + 1].set(res)
 
-    def step(k, carry):
-        sel, res, held = carry
-        wr = weight * res
-        score = (dc.T @ wr) ** 2 / nc + (ds.T @ wr) ** 2 / ns
-        taken = jnp.zeros(n_max, bool).at[jnp.maximum(sel, 0)].set(sel >= 0)
-        j = jnp.argmax(jnp.where(allowed & ~taken, score, -jnp.inf))
-        # the pick enters with its direct neighbours (a cluster, as in the thesis' sets)
-        cluster = j + jnp.array([0, -1, 1])
-        ok = (cluster >= 0) & (cluster < n_max) & ~taken[jnp.clip(cluster, 0, n_max - 1)]
-        sel = jax.lax.dynamic_update_slice(sel, jnp.where(ok, cluster, -1), (3 * k,))
-        res, held_k = fit(sel)
-        return sel, res, held.at[k + 1].set(held_k)
+        sel0 = -jnp.ones(3 * k_max, int)
+        res0 = fit(sel0)
+        hist = jnp.zeros((k_max + 1, error.size)).at[0].set(res0)
+        sel, _, hist = jax.lax.fori_loop(0, k_max, step, (sel0, res0, hist))
+        return sel, hist
 
-    sel0 = -jnp.ones(3 * k_max, int)
-    res0, held0 = fit(sel0)
-    held = jnp.zeros((k_max + 1, error.size)).at[0].set(held0)
-    sel, _, held = jax.lax.fori_loop(0, k_max, step, (sel0, res0, held))
+    # the cross-validation repeats the whole search on each fold (the picks of the held-out fold's
+    # data would favour its noise), and scores the other fold's samples
+    sels, hists = jax.lax.map(path, jnp.stack([weight, f0, f1]))
+    held = f1 * hists[1] ** 2 + f0 * hists[2] ** 2  # held-out squared error per sample
     keep, cv = one_standard_error(held, weight)
     keep = k_max if keep_all else keep
+    sel = sels[0]
     orders = jnp.where((jnp.arange(3 * k_max) < 3 * keep) & (sel >= 0), sel + 1, 0)
     return orders, cv
 

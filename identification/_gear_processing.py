@@ -7,7 +7,7 @@ the rests, gyroscope alignment (eq. 3.3, two angles per joint, optimistix Levenb
 motor rate by central differences, the gravity-deflection rate of the model subtracted, and the
 kinematic error (eq. 3.4).
 
-Sign convention (SPEC.md, "Gear"): `thetad = u(phi) phid`, so the kinematic error in link
+Sign convention (docs/model.md, section 2): `thetad = u(phi) phid`, so the kinematic error in link
 units is `omega_e = thetad_f / u0 - phid_f` (the thesis' eq. 3.4 writes `u0 thetad_f` for the
 reciprocal ratio).
 """
@@ -445,3 +445,34 @@ def process_gear_runs(robot: Robot, batch: GearBatch) -> ProcessedRuns:
         kinematic_error=thetad_f / u0[:, None] - phid_f, misalignment=angles, align_result=sol.result,
         align_steps=sol.stats["num_steps"], bias=bias, bias_var=bias_var, noise_var=noise_var,
         kernel_energy=jnp.sum(kernels**2, 1))
+
+
+def segment_windows(proc: ProcessedRuns, batch: GearBatch, rows: np.ndarray) -> tuple[ProcessedRuns, GearBatch]:
+    """Runs `rows` cut to their constant-speed segment plus the filter's half-width at each end
+    (edge helper): a filter output on the segment, of the full run or of the window, is the same,
+    and the fits touch nothing else, so they need not carry the rests, ramps and padding."""
+    rows = np.asarray(rows)
+    seg, valid = np.asarray(batch.segment)[rows], np.asarray(batch.valid)[rows]
+    half = batch.half_width
+    lo = np.maximum(np.argmax(seg, 1) - half, 0)
+    hi = np.minimum(seg.shape[1] - np.argmax(seg[:, ::-1], 1) + half, valid.sum(1))
+    width = int(np.max(hi - lo))
+    idx = np.minimum(lo[:, None] + np.arange(width), seg.shape[1] - 1)
+    inside = np.arange(width)[None, :] < (hi - lo)[:, None]
+
+    def cut(x):
+        x = np.asarray(x)[rows]
+        return jnp.asarray(np.take_along_axis(x, idx.reshape(idx.shape + (1,) * (x.ndim - 2)), 1))
+
+    per_run = lambda x: jnp.asarray(np.asarray(x)[rows])
+    proc = ProcessedRuns(
+        theta=cut(proc.theta), thetad=cut(proc.thetad), phid=cut(proc.phid), thetad_f=cut(proc.thetad_f),
+        phid_f=cut(proc.phid_f), kinematic_error=cut(proc.kinematic_error), misalignment=proc.misalignment,
+        align_result=proc.align_result, align_steps=proc.align_steps, bias=per_run(proc.bias),
+        bias_var=per_run(proc.bias_var), noise_var=per_run(proc.noise_var), kernel_energy=per_run(proc.kernel_energy))
+    batch = GearBatch(
+        theta=cut(batch.theta), gyro=cut(batch.gyro), valid=cut(batch.valid) & inside,
+        segment=cut(batch.segment) & inside, rest=cut(batch.rest) & inside, joint=per_run(batch.joint),
+        ccw=per_run(batch.ccw), align=per_run(batch.align), ts=per_run(batch.ts), sigma=per_run(batch.sigma),
+        half_width=half)
+    return proc, batch

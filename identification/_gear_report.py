@@ -102,7 +102,7 @@ def resolution_table(res: GearIdentification) -> str:
 
 def summary(res: GearIdentification) -> dict:
     """The JSON summary of `identify-gear` (schema of issue 3; RMS on the validation runs where
-    there are any, else on the identification runs; `a`, `b`, `orders` as in SPEC.md)."""
+    there are any, else on the identification runs; `a`, `b`, `orders` as in docs/model.md (2.10))."""
     joints: dict = {}
     for g, (joint, ccw) in enumerate(res.groups):
         used = np.asarray(res.fit.orders[g]) > 0

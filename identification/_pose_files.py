@@ -1,10 +1,10 @@
 """Pose files for identification: the direction of approach as an explicit convention.
 
-SPEC.md: at rest a gear uses its `cw` set unless a direction of approach is given. A pose file
+docs/model.md (B.1): at rest a gear uses its `cw` set unless a direction of approach is given. A pose file
 carries no such information by itself: its rows may be re-sorted, merged, or measured along paths
 that do not move joint by joint. So the direction is a convention the user states (`approach`):
 
-- `cw`: every gear at rest uses its `cw` set (SPEC.md's default);
+- `cw`: every gear at rest uses its `cw` set (the default, docs/model.md (B.1));
 - `order`: the rows are in the order measured, each joint approached from the previous row
   (`jaxrobot.approach_directions`);
 - `column`: the file gives it, one column `approach1…approachn` per joint, +1 (cw) or -1 (ccw).
@@ -51,7 +51,7 @@ def approach_ccw(motor_angles, approach: str = "cw", column=None, name: str = "p
 
 
 def read_poses(path: str | Path, approach: str = "cw") -> dict:
-    """Read a pose file (SPEC.md) with the direction of approach of the convention `approach`.
+    """Read a pose file (README, "Measurement files") with the direction of approach of the convention `approach`.
 
     **Returns:** `jaxrobot.read_pose_csv`'s `motor_angles` (K, n) rad, `positions` (K, 3) m and
     `quaternions`, plus `ccw` (K, n) bool.
@@ -70,7 +70,7 @@ def read_poses(path: str | Path, approach: str = "cw") -> dict:
 def add_approach_option(parser) -> None:
     """`--approach {cw,order,column}` of every command that reads pose files."""
     parser.add_argument("--approach", choices=APPROACHES, default="cw",
-                        help="direction of approach at rest: cw = every gear's cw set (SPEC.md, default); "
+                        help="direction of approach at rest: cw = every gear's cw set (docs/model.md (B.1), default); "
                              "order = from the row order (rows in the order measured); column = the file's "
                              "approach1..approachn columns (+1 cw, -1 ccw)")
 

@@ -1,5 +1,5 @@
 """Virtual test bench for gear-ratio identification: encoder + gyroscope runs (thesis 3.1.1,
-SPEC.md "The default robot and the virtual test bench").
+docs/model.md, section 5).
 
 One joint turns at a constant motor speed over its usable range, with cycloidal acceleration
 ramps at both ends and short rests before and after; the other joints hold a fixed
@@ -9,7 +9,7 @@ quasi-static rest angles of the as-built robot, `q = phi - kappa^{-1}(g(q))` wit
 direction (`cw` for a positive, `ccw` for a negative motor speed). The 20-bit motor encoders
 are sampled at 1 kHz; a 3-axis gyroscope on the moving link measures the link's angular
 velocity in a frame misaligned from the joint axis by `Rx(alpha) Ry(beta)` (eq. 3.3), with
-white noise and a small constant bias. Also: the gear-run CSV format of SPEC.md.
+white noise and a small constant bias. Also: the gear-run CSV format (README, "Measurement files").
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from ._robot import Robot
 
 
 def gear_run_columns(n: int) -> tuple[str, ...]:
-    """Columns of a gear-run file of an `n`-joint robot (SPEC.md): time [s], motor angles [deg],
+    """Columns of a gear-run file of an `n`-joint robot (README, "Measurement files"): time [s], motor angles [deg],
     gyroscope [deg/s]."""
     return ("t_s", *theta_columns(n), "gyro_x_deg_s", "gyro_y_deg_s", "gyro_z_deg_s")
 
@@ -135,7 +135,7 @@ def quasi_static_link_angles(
     robot: Robot, theta: Float[Array, " n"], ccw: Bool[Array, " n"]
 ) -> Float[Array, " n"]:
     """Link angles at rest at motor angles `theta`: the fixed point of
-    `q = Xi^{-1}(theta) - kappa^{-1}(g(q))` (SPEC.md "Static equilibrium"), differentiable."""
+    `q = Xi^{-1}(theta) - kappa^{-1}(g(q))` (docs/model.md (B.2)), differentiable."""
     phi = gear_output(robot, theta, ccw)
 
     def step(_, q):
@@ -338,7 +338,7 @@ def gear_runs(
 def write_gear_run(
     path: str | Path, t: np.ndarray, theta: np.ndarray, gyro: np.ndarray
 ) -> None:
-    """Write one run in the gear-run format of SPEC.md: `t` (N,) s, `theta` (N, n) rad,
+    """Write one run in the gear-run format (README, "Measurement files"): `t` (N,) s, `theta` (N, n) rad,
     `gyro` (N, 3) rad/s; the file holds degrees as its column names say."""
     t, theta, gyro = np.asarray(t, float), np.asarray(theta, float), np.asarray(gyro, float)
     n = t.shape[0] if t.ndim == 1 else -1
@@ -354,7 +354,7 @@ def write_gear_run(
 
 
 def read_gear_run(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Read one gear-run file (SPEC.md; extra columns are ignored).
+    """Read one gear-run file (README, "Measurement files"; extra columns are ignored).
 
     **Returns:** `t` (N,) s, `theta` (N, n) rad, `gyro` (N, 3) rad/s. Empty cells and `nan`
     come back as NaN (the processing rejects them with the row named).

@@ -1,11 +1,11 @@
 """Virtual test bench for kinematic calibration: pose measurements with an optical tracker
-(thesis 3.2, SPEC.md "The default robot and the virtual test bench").
+(thesis 3.2, docs/model.md (3.6)).
 
 The as-built robot rests at commanded motor angles `theta`; its link angles are
 `Xi^{-1}(theta)` plus the gravity deflection (`rest_link_angles`, thesis 3.2.3); the tracker
 reports the world position of a marker body fixed in the tool frame (the flange frame for the
 identity tool) with Gaussian noise, and optionally its orientation as a unit quaternion.
-Also: random fleets of as-built robots, and the pose CSV format of SPEC.md.
+Also: random fleets of as-built robots, and the pose CSV format (README, "Measurement files").
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ ORIENTATION_NOISE_RAD = float(np.deg2rad(0.05))
 specification quoted in thesis 3.2.1 (the thesis found its real orientation data unusable)."""
 
 POSITION_COLUMNS = ("x_m", "y_m", "z_m")
-"""Required columns of a pose file (SPEC.md) after the motor angles `theta1_deg … thetan_deg` [deg]:
+"""Required columns of a pose file (README, "Measurement files") after the motor angles `theta1_deg … thetan_deg` [deg]:
 marker position [m]."""
 QUAT_COLUMNS = ("qx", "qy", "qz", "qw")
 """Optional columns: measured marker orientation as a unit quaternion (scalar last)."""
@@ -129,7 +129,7 @@ def measure_poses(
     orientation_noise: float = ORIENTATION_NOISE_RAD,
     ccw: bool | Bool[Array, "*b K n"] = False,
 ) -> PoseMeasurements:
-    """Tracker measurements of `truth` resting at `motor_angles` (thesis 3.2.3, SPEC.md).
+    """Tracker measurements of `truth` resting at `motor_angles` (thesis 3.2.3, docs/model.md (3.6)).
 
     **Arguments:**
     - `truth`: the as-built robot, or a fleet with leading axes `*b`.
@@ -139,7 +139,7 @@ def measure_poses(
     - `position_noise`: std per axis [m]; default `[sensors] tracker_position_noise_m`.
     - `orientation`, `orientation_noise`: also report the marker orientation as a quaternion,
       rotated by a random rotation vector with this std per axis [rad].
-    - `ccw`: gear set of the last approach direction (default `cw`, SPEC.md).
+    - `ccw`: gear set of the last approach direction (default `cw`, docs/model.md (B.1)).
 
     **Returns:** `PoseMeasurements` (plain numpy arrays plus metadata). Link angles are NaN where
     the rest fixed point failed (never for the default robot).
@@ -233,7 +233,7 @@ def write_pose_csv(
     positions: Float[Array, "K 3"],
     quaternions: Float[Array, "K 4"] | None = None,
 ) -> None:
-    """Write a pose file (SPEC.md): `theta1_deg … thetan_deg, x_m, y_m, z_m[, qx, qy, qz, qw]`."""
+    """Write a pose file (README, "Measurement files"): `theta1_deg … thetan_deg, x_m, y_m, z_m[, qx, qy, qz, qw]`."""
     theta = np.rad2deg(np.asarray(motor_angles, float))
     pos = np.asarray(positions, float)
     if theta.ndim != 2 or pos.shape != (theta.shape[0], 3):
@@ -252,7 +252,7 @@ def write_pose_csv(
 
 
 def read_pose_csv(path: str | Path) -> dict:
-    """Read a pose file (SPEC.md); extra columns are ignored.
+    """Read a pose file (README, "Measurement files"); extra columns are ignored.
 
     **Returns:** `{"motor_angles": (K, n) rad, "positions": (K, 3) m, "quaternions": (K, 4) or None}`.
     Raises `ValueError` naming missing columns, non-numeric cells and NaN rows (`read_csv_columns`).

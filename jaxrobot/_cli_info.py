@@ -14,7 +14,7 @@ EXAMPLE = "jaxrobot info --model arm.toml --as-built --out info"
 
 POSES_DEG = {
     "home": [0, 0, 0, 0, 0, 0],
-    "thesis eq. 4.6": [0, 0, -90, 0, 90, 0],
+    "task orientation (docs/model.md (4.6))": [0, 0, -90, 0, 90, 0],
     "reach forward": [0, 60, -60, 0, 45, 0],
     "reach up": [30, -20, -80, 0, 30, 0],
 }

@@ -21,7 +21,9 @@ class RobotFileError(ValueError):
 
 # Schema: key -> shape tuple (numbers; "n" is the number of joints, None any length), "str", or a
 # nested dict. Keys starting with "?" are optional.
-_RIPPLE = {"orders": (None,), "a": (None,), "b": (None,)}
+_RIPPLE = {"orders": (None,), "a": (None,), "b": (None,), "?identified_range_deg": (2,)}
+"""A Fourier set; `identified_range_deg` (written by `identify-gear --save-model`): the gear output
+angles [deg] the identification runs covered, outside which the set is an extrapolation."""
 
 
 def _schema(n: int) -> dict[str, Any]:

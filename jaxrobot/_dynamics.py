@@ -1,4 +1,4 @@
-"""Rigid-body and elastic-joint dynamics, eq. 2.15-2.23 and 4.1 (SPEC.md, "Dynamics").
+"""Rigid-body and elastic-joint dynamics, eq. 2.15-2.23 and 4.1 (docs/model.md, section 4).
 
 Link side: `D(q) qdd + C(q, qd) qd + g(q) = kappa(phi - q)` (eq. 2.23a, no friction);
 motor side: `J_m thetadd = tau_motor - kappa(phi - q) / u(phi)`.

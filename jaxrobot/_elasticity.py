@@ -1,4 +1,4 @@
-"""Nonlinear joint stiffness `kappa(x) = k1 x + k3 x^3` (eq. 2.17-2.18, SPEC.md "Elasticity").
+"""Nonlinear joint stiffness `kappa(x) = k1 x + k3 x^3` (eq. 2.17-2.18, docs/model.md (2.17)).
 
 The gear applies `kappa(phi - q)` to the link and `-kappa(phi - q)` to the motor. A rigid joint
 has `k1 = inf` (a description without `[stiffness]`); its deflection is zero.

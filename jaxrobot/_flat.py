@@ -1,4 +1,4 @@
-"""The flat inverse of the planning model (SPEC.md, "Flat inverse"; not in the thesis).
+"""The flat inverse of the planning model (docs/model.md (B.4); not in the thesis).
 
 The link angle is a flat output of eq. 4.1: for a smooth `q_d(t)`,
 `phi = q_d + kappa^{-1}(D q̈_d + C q̇_d + g)`, `theta = Xi(phi)`, `u = θ̈`. It tracks exactly in

@@ -1,4 +1,4 @@
-"""Non-constant gear ratio with Fourier ripple, eq. 2.9-2.14 (SPEC.md, "Gear").
+"""Non-constant gear ratio with Fourier ripple, eq. 2.9-2.14 (docs/model.md, section 2).
 
 `u(phi) = u0 (1 + sum_j a_j cos(n_j phi) - b_j sin(n_j phi))` (eq. 2.10),
 `Xi(phi) = u0 (phi + sum_j (a_j sin(n_j phi) + b_j cos(n_j phi)) / n_j) + U_C` (eq. 2.13)

@@ -1,4 +1,4 @@
-"""The robot description: one pytree of arrays (SPEC.md, "Model")."""
+"""The robot description: one pytree of arrays (docs/model.md)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""The robot at rest: link angles held by given motor angles under gravity (SPEC.md,
-"Static equilibrium"; thesis 3.2.3)."""
+"""The robot at rest: link angles held by given motor angles under gravity (docs/model.md
+(B.2); thesis 3.2.3)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """`jaxrobot plan {line,spiral,FILE.csv}`: plan one task with the OCP of eq. 4.3 and evaluate it on the plant.
 
 FILE.csv holds task-space samples on a uniform grid from t = 0: columns `t_s, x_m, y_m, z_m`, optionally
-`qx, qy, qz, qw` (tool orientation quaternion; default the constant orientation of eq. 4.6, required for a
+`qx, qy, qz, qw` (tool orientation quaternion; default the constant orientation of docs/model.md (4.6), required for a
 robot without `[trajectories]`).
 """
 
@@ -38,7 +38,8 @@ EXAMPLE = "jaxrobot plan line --nu 1e-13 --plant as-built --out plan-line --save
 def configure(parser) -> None:
     parser.add_argument("task", help="'line', 'spiral' (racer7.toml [trajectories]) or FILE.csv "
                         "(columns t_s, x_m, y_m, z_m[, qx, qy, qz, qw])")
-    parser.add_argument("--nu", type=float, default=1e-14, help="weighting factor nu of eq. 4.3a (default 1e-14)")
+    parser.add_argument("--nu", type=float, default=1e-14,
+                        help="weighting factor nu of docs/model.md (4.3a) (default 1e-14)")
     parser.add_argument("--cost", choices=COSTS, default="thesis",
                         help="thesis: nu||u||^2; jerk: nu||u_k+1 - u_k||^2; flat: nu||u - u_flat||^2")
     add_model_option(parser, "planning model TOML (default: the embedded Racer-7)")

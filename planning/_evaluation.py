@@ -1,4 +1,4 @@
-"""Evaluation of motor trajectories on the plant (issue 6, item 7; SPEC.md "Facts").
+"""Evaluation of motor trajectories on the plant (issue 6, item 7; docs/model.md (B.5)).
 
 Four motor trajectories for one joint path `q_d`:
 (a) rigid planning `theta = Xi(q_d)`, (b) quasi-static `theta = Xi(q_d + kappa^{-1}(g(q_d)))`,

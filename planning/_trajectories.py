@@ -42,7 +42,7 @@ def polynomial7(
     """The 7th-order transition of eq. 4.4, `lambda(t) = lambda_0 + dlambda (35 s^4 - 84 s^5 + 70 s^6 - 20 s^7)`.
 
     `s = t / t_e`. Velocity, acceleration and jerk vanish at both ends (the thesis prints the
-    coefficients with flipped signs, SPEC.md "Facts"). Valid on `[0, t_e]`; not clipped, so
+    coefficients with flipped signs). Valid on `[0, t_e]`; not clipped, so
     derivatives of every order are exact at the ends.
     """
     s = jnp.asarray(t) / duration

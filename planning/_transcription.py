@@ -5,7 +5,7 @@ Decision variables: one node `z_k = [x_k, u_k]` (5n for n joints) per sample, th
 
 - cost (eq. 4.3a) `sum_k ||q_k - q_d,k||^2 + nu ||u_k||^2` over all N nodes (no T_s factor);
   variants `"jerk"` `sum_k ||q_k - q_d,k||^2 + nu sum_k ||u_{k+1} - u_k||^2` and `"flat"`
-  `sum_k ||q_k - q_d,k||^2 + nu ||u_k - u_ref,k||^2` (SPEC.md "Facts": ν on the whole `u`
+  `sum_k ||q_k - q_d,k||^2 + nu ||u_k - u_ref,k||^2` (docs/model.md (4.3a): ν on the whole `u`
   biases the tracking, these two do not);
 - trapezoidal defects (eq. 4.3b) `x_{k+1} - x_k - T_s/2 (f_k + f_{k+1})` of
   `jr.planning_dynamics`;
@@ -13,7 +13,7 @@ Decision variables: one node `z_k = [x_k, u_k]` (5n for n joints) per sample, th
   angles `u0 [q_min, q_max]`, motor rates `|thetad| <= u0 qd_max`, motor accelerations
   `|u| <= u0 qdd_max`;
 - boundary conditions (eq. 4.3e-j): both end nodes are fixed, `q = q_d`, `qd = 0`,
-  `theta = Xi(q + kappa^{-1}(g(q)))` (SPEC.md "Static equilibrium", `jr.static_equilibrium`),
+  `theta = Xi(q + kappa^{-1}(g(q)))` (docs/model.md (B.2), `jr.static_equilibrium`),
   `thetad = 0`, `u = 0`.
 
 Scaling (what the solver sees). Angles are measured in mrad of link angle and time in
@@ -366,7 +366,7 @@ def _time_derivative(v: Float[Array, "N m"], ts: Float[Array, ""]) -> Float[Arra
 
 
 def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 4*n"], Float[Array, "N n"]]:
-    """Initial guess from the samples `q_d` by the flat relation (SPEC.md, "Flat inverse"):
+    """Initial guess from the samples `q_d` by the flat relation (docs/model.md (B.4)):
     `theta = Xi(q_d + kappa^{-1}(D qdd_d + C qd_d + g))`, with `qd_d`, `qdd_d`, `thetad` and
     `u = thetadd` from second-order finite differences of the samples (error O(T_s^2)); the two
     end nodes take their boundary values (eq. 4.3e-j). For an exact warm start from a smooth

@@ -1,0 +1,91 @@
+"""Every notebook in `examples/` runs top to bottom, small size (`JAXROBOT_EXAMPLES_SMALL=1`), in a
+fresh kernel with a temporary working directory. Each notebook's last cell prints a JSON summary,
+checked here against bounds from physics or the measurement noise."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+nbformat = pytest.importorskip("nbformat")
+nbclient = pytest.importorskip("nbclient")
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+SIGMA_SQRT3 = np.sqrt(3.0)
+"""RMS norm of 3-D Gaussian noise of std `sigma` per axis, in units of `sigma`."""
+
+
+def _run(name: str, tmp_path: Path, monkeypatch) -> dict:
+    monkeypatch.setenv("JAXROBOT_EXAMPLES_SMALL", "1")
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    nb = nbformat.read(EXAMPLES / name, as_version=4)
+    assert not any(c.get("outputs") for c in nb.cells if c.cell_type == "code"), f"{name} is stored with outputs"
+    nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
+                            resources={"metadata": {"path": str(tmp_path)}}).execute()
+    last = [c for c in nb.cells if c.cell_type == "code"][-1]
+    text = "".join(o.get("text", "") for o in last.outputs if o.output_type == "stream")
+    return json.loads(text.strip().splitlines()[-1])
+
+
+def test_every_notebook_is_tested():
+    assert sorted(p.name for p in EXAMPLES.glob("*.ipynb")) == sorted(NOTEBOOKS)
+
+
+def test_model_tour(tmp_path, monkeypatch):
+    """The flat inverse, simulated on the elastic model, tracks to < 1e-6 rad (as tests/test_simulation)."""
+    s = _run("01_model_tour.ipynb", tmp_path, monkeypatch)
+    assert s["tracking_error_rad"] < 1e-6
+
+
+def test_gear_identification(tmp_path, monkeypatch):
+    """u0 within 4 of its reported standard errors of the bench's true ratio; on runs it did not fit,
+    the identified ratio leaves less kinematic error than the constant one."""
+    s = _run("02_gear_identification.ipynb", tmp_path, monkeypatch)
+    for key, err in s["u0_relative_error"].items():
+        assert abs(err) <= 4 * s["u0_relative_std"][key], key
+    assert all(r > 0 for r in s["validation_rms_reduction"].values()), s["validation_rms_reduction"]
+
+
+@pytest.mark.slow  # ~1 min cold on 2 cores: two LM programs and DETMAX compile
+def test_calibration(tmp_path, monkeypatch):
+    """One robot: mean validation error within 1.2x the mean norm of the tracker noise
+    (`sigma sqrt(8/pi)`, as tests/test_own_robot); the fleet: every robot converged and predicts the
+    true robot at the DETMAX poses to better than one tracker measurement (`sigma sqrt(3)`)."""
+    s = _run("03_calibration.ipynb", tmp_path, monkeypatch)
+    assert s["validation_after_mean_m"] <= 1.2 * s["sigma_m"] * np.sqrt(8 / np.pi)
+    assert s["fleet_converged"] == s["fleet_robots"]
+    assert s["fleet_prediction_rms_max_m"] < SIGMA_SQRT3 * s["sigma_m"]
+
+
+@pytest.mark.slow  # two OCP sweep programs compile (minutes on 2 cores)
+def test_nu_study(tmp_path, monkeypatch):
+    """Every OCP of the sweep converged; the smallest nu follows the path more closely than the largest."""
+    s = _run("04_nu_study.ipynb", tmp_path, monkeypatch)
+    assert s["converged"] == s["solves"]
+    assert s["thesis_error_m"][0] < s["thesis_error_m"][-1]
+
+
+@pytest.mark.slow  # the diagnose programs compile (~1 min on 2 cores)
+def test_diagnose(tmp_path, monkeypatch):
+    """The hidden ripple of joint 1 is named, and the validation RMS ends within 1.3x the noise
+    floor (as tests/test_diagnose)."""
+    s = _run("05_diagnose.ipynb", tmp_path, monkeypatch)
+    assert s["steps"] == [["gear_ripple", 1]], s
+    assert s["final_rms_validation_um"] <= 1.3 * s["noise_floor_um"]
+
+
+@pytest.mark.slow  # an OCP program for a new robot compiles (~1 min on 2 cores)
+def test_own_robot(tmp_path, monkeypatch):
+    """The OCP on the imported arm converged and its plan, simulated on the model, stays within 1 µm
+    of the path (as tests/test_own_robot), where the rigid plan misses by more than 100 µm."""
+    s = _run("06_own_robot.ipynb", tmp_path, monkeypatch)
+    assert s["converged"]
+    assert s["ocp_plant_max_m"] < 1e-6
+    assert s["rigid_plant_max_m"] > 1e-4
+
+
+NOTEBOOKS = ["01_model_tour.ipynb", "02_gear_identification.ipynb", "03_calibration.ipynb",
+             "04_nu_study.ipynb", "05_diagnose.ipynb", "06_own_robot.ipynb"]
