@@ -91,7 +91,7 @@ def measure(args) -> None:
 def table(data: Path) -> None:
     found = {json.loads(p.read_text())["label"]: json.loads(p.read_text())
              for p in sorted((ROOT / "benchmarks").glob("startup_*.json"))}
-    labels = [k for k in ("before", "after") if k in found] + [k for k in found if k not in ("before", "after")]
+    labels = sorted(found, key=lambda k: found[k]["when"])  # in the order measured
     lines = ["# Start-up times (`benchmarks/bench_startup.py`)", "",
              "Each command in a new process: **cold** = an empty persistent compilation cache "
              "(`JAXROBOT_CACHE_DIR` a fresh folder), **warm** = a second process on the same cache. "
