@@ -30,7 +30,10 @@ RESULTS = ROOT / "benchmarks" / "results_startup.md"
 def commands(data: Path, tmp: Path) -> dict[str, list[str]]:
     import importlib.metadata
 
-    panda = next(f.locate() for f in importlib.metadata.files("example-robot-data") if f.name == "panda.urdf")
+    try:
+        panda = next(f.locate() for f in importlib.metadata.files("example-robot-data") if f.name == "panda.urdf")
+    except importlib.metadata.PackageNotFoundError:  # no example-robot-data: no import-urdf row
+        panda = None
     gear = sorted(str(p) for p in (data / "gear").glob("j*_r[01].csv"))
     gear_val = sorted(str(p) for p in (data / "gear").glob("j*_r2.csv"))
     cal, case = data / "calibration", data / "poses" / "p1_joint5_offset"
@@ -44,7 +47,8 @@ def commands(data: Path, tmp: Path) -> dict[str, list[str]]:
                      "--validate", str(case / "val.csv")],
         "plan line": ["plan", "line"],
         "sweep": ["sweep", "line", "--nu", "1e-14", "1e-12", "--costs", "thesis"],
-        "import-urdf": ["import-urdf", str(panda), "--tip", "panda_link8", "--out", str(tmp / "panda.toml")],
+        **({} if panda is None else
+           {"import-urdf": ["import-urdf", str(panda), "--tip", "panda_link8", "--out", str(tmp / "panda.toml")]}),
     }
 
 
@@ -88,9 +92,10 @@ def measure(args) -> None:
             out.write_text(json.dumps(results, indent=1))
 
 
-def table(data: Path) -> None:
+def table(data: Path, labels: list[str]) -> None:
     found = {json.loads(p.read_text())["label"]: json.loads(p.read_text())
              for p in sorted((ROOT / "benchmarks").glob("startup_*.json"))}
+    found = {k: v for k, v in found.items() if k in labels}
     labels = sorted(found, key=lambda k: found[k]["when"])  # in the order measured
     lines = ["# Start-up times (`benchmarks/bench_startup.py`)", "",
              "Each command in a new process: **cold** = an empty persistent compilation cache "
@@ -132,11 +137,14 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "independent")
     ap.add_argument("--source", type=Path, default=None, help="run the packages in this folder instead")
     ap.add_argument("--table", action="store_true", help="write results_startup.md from the measurements")
+    ap.add_argument("--labels", nargs="+", default=["before", "own changes", "after"],
+                    help="measurements (startup_*.json labels) in the table of --table")
     args = ap.parse_args()
     if not args.data.is_dir():
         args.data = Path("/work/shared/independent")
+    args.data = args.data.resolve()  # the commands run in a temporary folder
     if args.table:
-        return table(args.data)
+        return table(args.data, args.labels)
     if args.commit is None:
         args.commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
                                      capture_output=True, text=True).stdout.strip()

@@ -53,12 +53,12 @@ def test_model_functions_and_bench_for_n_joints(n, tmp_path):
     q = jnp.asarray(np.random.default_rng(n).uniform(-1.0, 1.0, (4, n)))
     # gear: Xi then Xi^-1 returns the angle (Newton to float64); dphi/dtheta = 1/u(phi) (implicit function)
     theta = jax.jit(jax.vmap(lambda q: jr.motor_angle(robot, q)))(q)
-    np.testing.assert_allclose(jax.vmap(lambda th: jr.gear_output(robot, th))(theta), q, rtol=0, atol=1e-13)
-    dphi = jax.grad(lambda th: jnp.sum(jr.gear_output(robot, th)))(theta[0])
+    np.testing.assert_allclose(jax.jit(jax.vmap(lambda th: jr.gear_output(robot, th)))(theta), q, rtol=0, atol=1e-13)
+    dphi = jax.jit(jax.grad(lambda th: jnp.sum(jr.gear_output(robot, th))))(theta[0])
     np.testing.assert_allclose(dphi * jr.gear_ratio(robot, q[0]), np.ones(n), rtol=1e-12)
     # statics and bench: the motor angles that hold q at rest give back q (fixed point to 1e-11 rad),
     # and the noise-free marker sits where the forward kinematics puts it
-    th_rest = jax.vmap(lambda q: jr.static_equilibrium(robot, q))(q)
+    th_rest = jax.jit(jax.vmap(lambda q: jr.static_equilibrium(robot, q)))(q)
     assert jr.approach_directions(th_rest).shape == (4, n)
     meas = jr.measure_poses(robot, th_rest, seed=0, position_noise=0.0, marker=[0.0, 0.0, 0.1])
     np.testing.assert_allclose(meas.link_angles, q, rtol=0, atol=1e-10)
