@@ -3,7 +3,7 @@ process, cold (an empty persistent compilation cache) and warm (a second process
 
     python benchmarks/bench_startup.py --label before --source /tmp/base --commit 66cc01c [--commands ...]
     python benchmarks/bench_startup.py --label after
-    python benchmarks/bench_startup.py --table      # benchmarks/startup_*.json -> results_startup.md
+    python benchmarks/bench_startup.py --table      # startup_*.json -> the table of results_startup.md
 
 Each run records wall time, the CPU time of the process (user + sys, from `os.wait4`: less
 sensitive than wall time to other load on the machine) and the 1-minute load average before it.
@@ -125,7 +125,9 @@ def table(data: Path, labels: list[str]) -> None:
               for name, argv in cmds.items() if name != "import-urdf"]
     lines += ["- `import-urdf`: `jaxrobot import-urdf panda.urdf --tip panda_link8 --out TMP/panda.toml` "
               "(example-robot-data)"]
-    RESULTS.write_text("\n".join(lines) + "\n")
+    old = RESULTS.read_text() if RESULTS.exists() else ""
+    notes = old[old.index("\n## "):] if "\n## " in old else ""  # the sections after the table stay
+    RESULTS.write_text("\n".join(lines) + "\n" + notes)
     print(RESULTS.read_text())
 
 
