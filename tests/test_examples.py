@@ -40,6 +40,7 @@ def test_model_tour(tmp_path, monkeypatch):
     assert s["tracking_error_rad"] < 1e-6
 
 
+@pytest.mark.slow  # ~60 s cold: the gear programs compile (CI runs it in its notebook step, .ci/run)
 def test_gear_identification(tmp_path, monkeypatch):
     """u0 within 4 of its reported standard errors of the bench's true ratio; on runs it did not fit,
     the identified ratio leaves less kinematic error than the constant one."""
@@ -49,7 +50,7 @@ def test_gear_identification(tmp_path, monkeypatch):
     assert all(r > 0 for r in s["validation_rms_reduction"].values()), s["validation_rms_reduction"]
 
 
-@pytest.mark.slow  # ~1 min cold on 2 cores: two LM programs and DETMAX compile
+@pytest.mark.slow  # 81-84 s cold on the 2 shared cores (load 6-10): two LM programs and DETMAX compile
 def test_calibration(tmp_path, monkeypatch):
     """One robot: mean validation error within 1.2x the mean norm of the tracker noise
     (`sigma sqrt(8/pi)`, as tests/test_own_robot); the fleet: every robot converged and predicts the
@@ -60,7 +61,7 @@ def test_calibration(tmp_path, monkeypatch):
     assert s["fleet_prediction_rms_max_m"] < SIGMA_SQRT3 * s["sigma_m"]
 
 
-@pytest.mark.slow  # two OCP sweep programs compile (minutes on 2 cores)
+@pytest.mark.slow  # 164-246 s cold on the 2 shared cores (load 6-10): two OCP sweep programs compile
 def test_nu_study(tmp_path, monkeypatch):
     """Every OCP of the sweep converged; the smallest nu follows the path more closely than the largest."""
     s = _run("04_nu_study.ipynb", tmp_path, monkeypatch)
@@ -68,7 +69,7 @@ def test_nu_study(tmp_path, monkeypatch):
     assert s["thesis_error_m"][0] < s["thesis_error_m"][-1]
 
 
-@pytest.mark.slow  # the diagnose programs compile (~1 min on 2 cores)
+@pytest.mark.slow  # 82-121 s cold on the 2 shared cores (load 6-10): the diagnose programs compile
 def test_diagnose(tmp_path, monkeypatch):
     """The hidden ripple of joint 1 is named, and the validation RMS ends within 1.3x the noise
     floor (as tests/test_diagnose)."""
@@ -77,7 +78,7 @@ def test_diagnose(tmp_path, monkeypatch):
     assert s["final_rms_validation_um"] <= 1.3 * s["noise_floor_um"]
 
 
-@pytest.mark.slow  # an OCP program for a new robot compiles (~1 min on 2 cores)
+@pytest.mark.slow  # 88-125 s cold on the 2 shared cores (load 6-10): an OCP program for a new robot compiles
 def test_own_robot(tmp_path, monkeypatch):
     """The OCP on the imported arm converged and its plan, simulated on the model, stays within 1 µm
     of the path (as tests/test_own_robot), where the rigid plan misses by more than 100 µm."""

@@ -178,6 +178,8 @@ LINEARISATION_RTOL = 1e-11
 sums of O(1) terms in the scaled units, so they differ by roundoff (measured 4e-13 on the spiral)."""
 
 
+@pytest.mark.slow  # forward-mode autodiff of the dynamics compiles for ~1 min; the solver's optimum is checked
+# against the independent dense Newton-KKT solve in the default suite (test_same_optimum_as_dense_newton_kkt)
 def test_structured_linearisation_matches_autodiff(robot, q_d):
     """`half_step`, `half_step_vjp` and the Gauss-Newton blocks of the solver (from `half_step_jacobian`),
     which use the structure of eq. 4.1, against forward-mode autodiff of the public
@@ -308,10 +310,10 @@ def test_vmap_over_nu_matches_separate_solves(robot, q_d):
 
 
 def test_sweep_in_chains_matches_separate_solves(robot, q_d):
-    # 5 members in 2 chains (one repeats its last member), given out of nu's order
-    nus = np.logspace(-14, -11, 5)[[3, 0, 4, 1, 2]]
+    # 3 members in 2 chains (one repeats its last member), given out of nu's order
+    nus = np.logspace(-14, -11, 3)[[2, 0, 1]]
     sweep = pl.solve_ocp_sweep(robot, q_d, TS, nus, workers=2)
-    assert sweep.u.shape == (5, N, 6)
+    assert sweep.u.shape == (3, N, 6)
     for i, nu in enumerate(nus):
         member = jax.tree.map(lambda a, i=i: a[i], sweep)
         _assert_same_optimum(tr.ocp_problem(robot, q_d, TS, float(nu)), member, pl.solve_ocp(robot, q_d, TS, float(nu)))

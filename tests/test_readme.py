@@ -1,8 +1,8 @@
 """Every ```python block of README.md runs, top to bottom in one namespace (as a reader goes through
 the README), in a temporary working directory. The files a block reads are made first: `panda.toml`
 (example-robot-data's Panda imported, plus the README's own TOML fragment) and `fleet/` (pose files of
-a few bench robots). Blocks that solve full-size OCPs (the thesis' line, minutes of compilation on
-2 cores) run with `--runslow`."""
+a few bench robots). Blocks that solve full-size OCPs (the thesis' line: 179-227 s cold on the 2 shared
+cores under load 6-10) run with `--runslow`."""
 
 from __future__ import annotations
 
