@@ -3,7 +3,7 @@ process, cold (an empty persistent compilation cache) and warm (a second process
 
     python benchmarks/bench_startup.py --label before --source /tmp/base --commit 66cc01c [--commands ...]
     python benchmarks/bench_startup.py --label after
-    python benchmarks/bench_startup.py --table      # benchmarks/startup_*.json -> results_startup.md
+    python benchmarks/bench_startup.py --table      # startup_*.json -> the table of results_startup.md
 
 Each run records wall time, the CPU time of the process (user + sys, from `os.wait4`: less
 sensitive than wall time to other load on the machine) and the 1-minute load average before it.
@@ -92,10 +92,11 @@ def measure(args) -> None:
             out.write_text(json.dumps(results, indent=1))
 
 
-def table(data: Path) -> None:
+def table(data: Path, labels: list[str]) -> None:
     found = {json.loads(p.read_text())["label"]: json.loads(p.read_text())
              for p in sorted((ROOT / "benchmarks").glob("startup_*.json"))}
-    labels = [k for k in ("before", "after") if k in found] + [k for k in found if k not in ("before", "after")]
+    found = {k: v for k, v in found.items() if k in labels}
+    labels = sorted(found, key=lambda k: found[k]["when"])  # in the order measured
     lines = ["# Start-up times (`benchmarks/bench_startup.py`)", "",
              "Each command in a new process: **cold** = an empty persistent compilation cache "
              "(`JAXROBOT_CACHE_DIR` a fresh folder), **warm** = a second process on the same cache. "
@@ -124,7 +125,9 @@ def table(data: Path) -> None:
               for name, argv in cmds.items() if name != "import-urdf"]
     lines += ["- `import-urdf`: `jaxrobot import-urdf panda.urdf --tip panda_link8 --out TMP/panda.toml` "
               "(example-robot-data)"]
-    RESULTS.write_text("\n".join(lines) + "\n")
+    old = RESULTS.read_text() if RESULTS.exists() else ""
+    notes = old[old.index("\n## "):] if "\n## " in old else ""  # the sections after the table stay
+    RESULTS.write_text("\n".join(lines) + "\n" + notes)
     print(RESULTS.read_text())
 
 
@@ -136,12 +139,14 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "independent")
     ap.add_argument("--source", type=Path, default=None, help="run the packages in this folder instead")
     ap.add_argument("--table", action="store_true", help="write results_startup.md from the measurements")
+    ap.add_argument("--labels", nargs="+", default=["before", "own changes", "after"],
+                    help="measurements (startup_*.json labels) in the table of --table")
     args = ap.parse_args()
     if not args.data.is_dir():
         args.data = Path("/work/shared/independent")
     args.data = args.data.resolve()  # the commands run in a temporary folder
     if args.table:
-        return table(args.data)
+        return table(args.data, args.labels)
     if args.commit is None:
         args.commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
                                      capture_output=True, text=True).stdout.strip()

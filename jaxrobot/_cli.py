@@ -55,10 +55,10 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
         return f"{text} (default: {shown.replace('%', '%%')})"
 
 
-def add_model_option(parser, help: str = "robot description TOML (default: the embedded Racer-7-1.4)",
+def add_model_option(parser, help: str = "robot description, TOML or URDF (default: the embedded Racer-7-1.4)",
                      dest: str = "model") -> None:
-    """`--model TOML` (alias `--robot`): the robot description a command starts from."""
-    parser.add_argument("--model", "--robot", dest=dest, type=Path, default=None, metavar="TOML", help=help)
+    """`--model FILE` (alias `--robot`): the robot description (TOML, or a URDF) a command starts from."""
+    parser.add_argument("--model", "--robot", dest=dest, type=Path, default=None, metavar="FILE", help=help)
 
 
 class Progress:

@@ -33,7 +33,7 @@ def test_help_shows_model_option_defaults_and_an_example(name, capsys):
     text = _help(name, capsys)
     assert f"example:\n  jaxrobot {name} " in text
     if name not in WITHOUT_ROBOT:
-        assert "--model TOML, --robot TOML" in text
+        assert "--model FILE, --robot FILE" in text
     formatter = HelpFormatter(prog="jaxrobot")
     for action in _subparsers()[name]._actions:
         shown = formatter._get_help_string(action)
