@@ -24,7 +24,6 @@ import os
 import platform
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -33,24 +32,12 @@ SWEEP = np.logspace(-15, -9, 16)
 NU = 1e-14
 
 
-def _timed(fn, repeat: int):
-    import jax
-
-    start = time.perf_counter()
-    out = jax.block_until_ready(fn())
-    first = time.perf_counter() - start
-    best = np.inf
-    for _ in range(repeat):
-        start = time.perf_counter()
-        out = jax.block_until_ready(fn())
-        best = min(best, time.perf_counter() - start)
-    return out, first, best
-
 
 def worker(states: list[int], robots: list[int], repeat: int, ocp: bool) -> dict:
     """The timings on this process' default backend."""
     import jax
     import jax.numpy as jnp
+    from _timing import timed
 
     import jaxrobot as jr
     import planning as pl
@@ -72,7 +59,7 @@ def worker(states: list[int], robots: list[int], repeat: int, ocp: bool) -> dict
         rng = np.random.default_rng(0)
         q = jnp.asarray(rng.uniform(lo, hi, (n, 6)))
         qd = jnp.asarray(rng.uniform(-1.0, 1.0, (n, 6)))
-        _, first, best = _timed(lambda q=q, qd=qd: dynamics(q, qd), repeat)
+        _, first, best = timed(lambda q=q, qd=qd: dynamics(q, qd), repeat)
         out["rows"].append({"work": f"dynamics M, g, C qd: {n:,} states", "first_s": first, "run_s": best,
                             "rate": f"{n / best:.3g} states/s"})
         print(out["rows"][-1], flush=True)
@@ -83,7 +70,7 @@ def worker(states: list[int], robots: list[int], repeat: int, ocp: bool) -> dict
         q = np.stack([pool[rng.choice(len(pool), 50, replace=False)] for _ in range(r)])
         theta = np.asarray(jr.static_equilibrium(robot, jnp.asarray(q)))
         meas = measure_poses(draw_fleet(r, seed=1), theta, seed=2)
-        res, first, best = _timed(lambda theta=theta, meas=meas: calibrate_fleet(robot, theta, meas.positions),
+        res, first, best = timed(lambda theta=theta, meas=meas: calibrate_fleet(robot, theta, meas.positions),
                                   repeat)
         out["rows"].append({"work": f"calibrate_fleet: {r:,} robots x 50 poses", "first_s": first, "run_s": best,
                             "rate": f"{r / best:.3g} robots/s", "converged": f"{int(np.sum(res.converged))}/{r}"})
@@ -96,20 +83,20 @@ def worker(states: list[int], robots: list[int], repeat: int, ocp: bool) -> dict
         flat = pl.flat_motor_trajectory(robot, jp)
         warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
         ts = float(path.sample_time)
-        sol, first, best = _timed(lambda: pl.solve_ocp(robot, jp.q, ts, nu=NU, warm_start=warm), repeat)
+        sol, first, best = timed(lambda: pl.solve_ocp(robot, jp.q, ts, nu=NU, warm_start=warm), repeat)
         out["rows"].append({"work": f"solve_ocp: line, N = {jp.q.shape[0]}, nu = {NU:g}", "first_s": first,
                             "run_s": best, "rate": f"{int(sol.iterations)} outer iterations",
                             "converged": f"{int(bool(sol.converged))}/1"})
         out["check"]["ocp"] = float(sol.objective)
         print(out["rows"][-1], flush=True)
-        sols, first, best = _timed(lambda: pl.solve_ocp_sweep(robot, jp.q, ts, SWEEP, warm_start=warm), repeat)
+        sols, first, best = timed(lambda: pl.solve_ocp_sweep(robot, jp.q, ts, SWEEP, warm_start=warm), repeat)
         out["rows"].append({"work": f"solve_ocp_sweep: {len(SWEEP)} nu", "first_s": first, "run_s": best,
                             "rate": f"{len(SWEEP) / best:.3g} solves/s",
                             "converged": f"{int(np.sum(np.asarray(sols.converged)))}/{len(SWEEP)}"})
         out["check"]["sweep"] = np.asarray(sols.objective).tolist()
         print(out["rows"][-1], flush=True)
         batched = jax.jit(jax.vmap(lambda nu: pl.solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm)))
-        sols, first, best = _timed(lambda: batched(jnp.asarray(SWEEP)), repeat)
+        sols, first, best = timed(lambda: batched(jnp.asarray(SWEEP)), repeat)
         out["rows"].append({"work": f"jax.vmap(solve_ocp): {len(SWEEP)} nu", "first_s": first, "run_s": best,
                             "rate": f"{len(SWEEP) / best:.3g} solves/s",
                             "converged": f"{int(np.sum(np.asarray(sols.converged)))}/{len(SWEEP)}"})

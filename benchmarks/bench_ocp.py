@@ -21,6 +21,7 @@ import casadi as ca
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _timing import timed  # benchmarks/ is the script's folder
 
 import jaxrobot as jr
 import planning as pl
@@ -172,17 +173,6 @@ def path_error_um(robot, path, t, q) -> float:
 # ----------------------------------------------------------------------------- benchmark
 
 
-def _timed(fn, repeat: int = 1):
-    start = time.perf_counter()
-    out = jax.block_until_ready(fn())
-    first = time.perf_counter() - start
-    best = np.inf
-    for _ in range(repeat):
-        start = time.perf_counter()
-        out = jax.block_until_ready(fn())
-        best = min(best, time.perf_counter() - start)
-    return out, first, best
-
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -205,7 +195,7 @@ def main() -> None:
         warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
         ts = float(path.sample_time)
         for nu in nus:
-            sol, first, ours_s = _timed(lambda nu=nu: solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm))
+            sol, first, ours_s = timed(lambda nu=nu: solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm))
             ours = {"wall_s": ours_s, "compile_s": max(first - ours_s, 0.0), "iterations": int(sol.iterations),
                     "objective": float(sol.objective), "violation": float(sol.max_constraint_violation),
                     "status": "converged" if bool(sol.converged) else RESULTS[sol.status].split(" (")[0],
@@ -228,10 +218,10 @@ def main() -> None:
         flat = pl.flat_motor_trajectory(robot, jp)
         warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
         batched = jax.jit(jax.vmap(lambda nu: solve_ocp(robot, jp.q, 1e-3, nu=nu, warm_start=warm)))
-        sols, first, many = _timed(lambda: batched(jnp.asarray(SWEEP)))
-        chained, chained_first, chained_s = _timed(
+        sols, first, many = timed(lambda: batched(jnp.asarray(SWEEP)))
+        chained, chained_first, chained_s = timed(
             lambda: pl.solve_ocp_sweep(robot, jp.q, 1e-3, SWEEP, warm_start=warm))
-        singles = [_timed(lambda nu=nu: solve_ocp(robot, jp.q, 1e-3, nu=float(nu), warm_start=warm))
+        singles = [timed(lambda nu=nu: solve_ocp(robot, jp.q, 1e-3, nu=float(nu), warm_start=warm))
                    for nu in SWEEP]
         sweep = {"n": len(SWEEP), "batched_s": many, "compile_s": max(first - many, 0.0),
                  "single_s": singles[0][2], "singles_total_s": sum(s[2] for s in singles),
