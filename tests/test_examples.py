@@ -34,6 +34,7 @@ def test_every_notebook_is_tested():
     assert sorted(p.name for p in EXAMPLES.glob("*.ipynb")) == sorted(NOTEBOOKS)
 
 
+@pytest.mark.slow  # ~35 s cold (CI runs every notebook in its notebook step, .ci/run)
 def test_model_tour(tmp_path, monkeypatch):
     """The flat inverse, simulated on the elastic model, tracks to < 1e-6 rad (as tests/test_simulation)."""
     s = _run("01_model_tour.ipynb", tmp_path, monkeypatch)

@@ -1,8 +1,8 @@
 """Every ```python block of README.md runs, top to bottom in one namespace (as a reader goes through
 the README), in a temporary working directory. The files a block reads are made first: `panda.toml`
 (example-robot-data's Panda imported, plus the README's own TOML fragment) and `fleet/` (pose files of
-a few bench robots). Blocks that solve full-size OCPs (the thesis' line: 179-227 s cold on the 2 shared
-cores under load 6-10) run with `--runslow`."""
+a few bench robots). The blocks together compile most of the package's programs (several minutes on
+2 cores): they run with `--runslow`, which CI does after the suite (`.ci/run`)."""
 
 from __future__ import annotations
 
@@ -67,11 +67,8 @@ def _check_python_block(ns: dict) -> None:
 CHECKS = {"jr.flat_inverse": _check_python_block}
 
 
-def _marks(code: str) -> list:
-    return [pytest.mark.slow] if "solve_ocp" in code else []
-
-
-@pytest.mark.parametrize("index", [pytest.param(i, marks=_marks(code), id=f"line{line}")
+@pytest.mark.slow
+@pytest.mark.parametrize("index", [pytest.param(i, id=f"line{line}")
                                    for i, (line, code) in enumerate(BLOCKS)])
 def test_readme_python_block(index, reader, monkeypatch):
     work, ns = reader
