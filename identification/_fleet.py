@@ -25,6 +25,7 @@ from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
+from jaxrobot._batch import backend_kind
 from jaxrobot._distributed import gather_rows, shard_rows
 from jaxrobot._statics import rest_link_angles
 
@@ -102,7 +103,7 @@ sequential step of kernel launches, so chunks are large (`benchmarks/results_cal
 
 
 def _chunk() -> int:
-    return CHUNK["cpu" if jax.default_backend() == "cpu" else "accelerator"]
+    return CHUNK[backend_kind()]
 
 
 def _constants(robots, theta, rippled, ccw=False):

@@ -11,6 +11,12 @@ from jaxtyping import Array, Float
 from ._robot import Robot
 
 
+def backend_kind() -> str:
+    """`"cpu"` or `"accelerator"`: the kind of JAX's default backend, which sizes the batched kernels'
+    chunks (`lax.map` steps are cheap on the CPU and sequential kernel launches on an accelerator)."""
+    return "cpu" if jax.default_backend() == "cpu" else "accelerator"
+
+
 def unbatched(robot: Robot, q: Float[Array, "*b n"], fn: Callable, *args):
     """Map `fn(robot, q, *args)`, written for one robot and one `q` of shape (n,), over the
     broadcast leading axes of `robot`, `q` and `args` (each `args[i]` has `q`'s core rank 1)."""

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from ._batch import unbatched
+from ._batch import backend_kind, unbatched
 from ._elasticity import elastic_deflection, elastic_torque
 from ._gear import gear_output, gear_ratio, motor_angle
 from ._linalg import spd_solve
@@ -32,7 +32,7 @@ _CHUNK = {"cpu": 256, "accelerator": 65536}
 
 
 def _chunk() -> int:
-    return _CHUNK["cpu" if jax.default_backend() == "cpu" else "accelerator"]
+    return _CHUNK[backend_kind()]
 
 
 def _mm(a, b):  # (..., 3, 3, N) @ (..., 3, 3, N)

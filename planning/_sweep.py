@@ -28,6 +28,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
+from jaxrobot._batch import backend_kind
 from jaxrobot._distributed import gather_array
 
 from ._al_solver import ALConfig
@@ -100,7 +101,7 @@ def solve_ocp_sweep(
     if nus.ndim != 1 or nus.size < 1 or not np.all(np.isfinite(nus) & (nus > 0)):
         raise ValueError(f"nus: expected a 1-D sequence of finite weighting factors > 0, found {nus}")
     if workers is None:
-        workers = (os.cpu_count() or 1) if jax.default_backend() == "cpu" else 1
+        workers = (os.cpu_count() or 1) if backend_kind() == "cpu" else 1
     if not isinstance(workers, int | np.integer) or workers < 1:
         raise ValueError(f"workers: expected an integer >= 1, found {workers!r}")
     ocp_problem(robot, q_d, ts, float(nus[0]), cost, u_ref)  # range checks on the concrete inputs
