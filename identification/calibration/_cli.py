@@ -10,7 +10,7 @@ import numpy as np
 
 from jaxrobot._cli import SolveFailed, add_model_option
 
-from ._pose_files import add_approach_option
+from .._pose_files import add_approach_option
 
 HELP = "calibrate the kinematic parameters from a pose file (docs/model.md (3.12), LM)"
 EXAMPLE = "jaxrobot calibrate poses.csv --validate validation.csv --out calibration --save-model calibrated.toml"
@@ -54,7 +54,7 @@ def summary(report: dict) -> dict:
 
 
 def _echo_report(report: dict, echo, truth: dict | None = None) -> None:
-    from ._calibration_report import error_table, parameter_table
+    from ._report import error_table, parameter_table
 
     echo(f"LM: {report['status']}, {report['iterations']} iterations, noise estimate "
          f"{1e3 * report['noise_estimate_m']:.4f} mm per axis")
@@ -84,7 +84,7 @@ def _workspace(robot, marker) -> np.ndarray:
 
 def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions=None,
                    workspace=None) -> list[str]:
-    from ._calibration_report import error_table, parameter_table, plot_errors, plot_pose_set
+    from ._report import error_table, parameter_table, plot_errors, plot_pose_set
 
     files = []
     parts = [error_table(report["identification"], "Identification set (Table 3.6 format)")]
@@ -109,9 +109,9 @@ def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions
 def run(args, echo) -> dict:
     import jaxrobot as jr
 
-    from ._calibration import PRIOR_KEYS, calibrate, map_parameters
+    from .._pose_files import read_poses
+    from ._calibrate import PRIOR_KEYS, calibrate, map_parameters
     from ._identifiability import default_parameters
-    from ._pose_files import read_poses
     from ._pose_selection import default_marker
 
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
@@ -137,7 +137,7 @@ def run(args, echo) -> dict:
                     marker=marker, position_noise=noise, ccw=data["ccw"], validation=val, limits=args.limits,
                     method=args.method, prior_std=prior)
     _echo_report(res.report, echo)
-    from ._model_files import ripple_outside_range
+    from .._model_files import ripple_outside_range
 
     outside = ripple_outside_range(args.robot, data["motor_angles"], data["ccw"], robot.u0)
     for j, o in outside.items():
@@ -150,7 +150,7 @@ def run(args, echo) -> dict:
         for f in _write_outputs(args.out, res.report, positions=data["positions"], workspace=_workspace(robot, marker)):
             echo(f"wrote {args.out / f}")
     if args.save_model is not None:
-        from ._model_files import save_model
+        from .._model_files import save_model
 
         save_model(res.robot, args.save_model, args.robot)
         echo(f"wrote {args.save_model}")
@@ -163,10 +163,10 @@ def demo_stage(out: Path, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot._bench_poses import measure_poses, write_pose_csv
 
-    from ._calibration import DEFAULT_PARAMETERS, calibrate
-    from ._calibration_report import plot_pose_set
+    from ._calibrate import DEFAULT_PARAMETERS, calibrate
     from ._parameters import ParameterMap
     from ._pose_selection import detmax
+    from ._report import plot_pose_set
 
     start = time.perf_counter()
     truth, nominal = jr.racer7(as_built=True), jr.racer7()

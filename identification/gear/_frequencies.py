@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._gear_processing import GearBatch, ProcessedRuns, normal_solve
+from ._processing import GearBatch, ProcessedRuns, normal_solve
 
 N_MAX = 512
 """Highest candidate order of `sparse_orders` (the passband of each group may end lower)."""
