@@ -8,23 +8,7 @@ from ._compilation_cache import enable as _enable_compilation_cache  # noqa: E40
 
 _enable_compilation_cache()
 
-from ._bench_gear import GEAR_RUN_DEFAULTS as GEAR_RUN_DEFAULTS  # noqa: E402
-from ._bench_gear import GearRuns as GearRuns  # noqa: E402
-from ._bench_gear import gear_run_columns as gear_run_columns  # noqa: E402
-from ._bench_gear import gear_runs as gear_runs  # noqa: E402
-from ._bench_gear import read_gear_run as read_gear_run  # noqa: E402
-from ._bench_gear import write_gear_run as write_gear_run  # noqa: E402
-from ._bench_poses import PoseMeasurements as PoseMeasurements  # noqa: E402
-from ._bench_poses import draw_fleet as draw_fleet  # noqa: E402
-from ._bench_poses import marker_pose as marker_pose  # noqa: E402
-from ._bench_poses import measure_poses as measure_poses  # noqa: E402
-from ._bench_poses import read_pose_csv as read_pose_csv  # noqa: E402
-from ._bench_poses import write_pose_csv as write_pose_csv  # noqa: E402
-from ._bench_trajectory import NOT_CONVERGED as NOT_CONVERGED  # noqa: E402
-from ._bench_trajectory import read_csv_columns as read_csv_columns  # noqa: E402
-from ._bench_trajectory import read_trajectory_csv as read_trajectory_csv  # noqa: E402
-from ._bench_trajectory import trajectory_run as trajectory_run  # noqa: E402
-from ._bench_trajectory import write_trajectory_csv as write_trajectory_csv  # noqa: E402
+from . import measurement as measurement  # noqa: E402
 from ._checks import check_public as _check_public  # noqa: E402
 from ._description import RobotFileError as RobotFileError  # noqa: E402
 from ._description import load_robot as load_robot  # noqa: E402
@@ -58,14 +42,21 @@ from ._kinematics import forward_kinematics as forward_kinematics  # noqa: E402
 from ._kinematics import geometric_jacobian as geometric_jacobian  # noqa: E402
 from ._kinematics import link_frames as link_frames  # noqa: E402
 from ._kinematics import point_position as point_position  # noqa: E402
-from ._kinematics import rpy as rpy  # noqa: E402
 from ._kinematics import tool_pose as tool_pose  # noqa: E402
 from ._linalg import spd_solve as spd_solve  # noqa: E402
 from ._robot import Ripple as Ripple  # noqa: E402
 from ._robot import Robot as Robot  # noqa: E402
+from ._rotations import homogeneous as homogeneous  # noqa: E402
+from ._rotations import pose_matrix as pose_matrix  # noqa: E402
+from ._rotations import pose_vector as pose_vector  # noqa: E402
+from ._rotations import quaternion_to_rotation as quaternion_to_rotation  # noqa: E402
+from ._rotations import rot_x as rot_x  # noqa: E402
+from ._rotations import rot_y as rot_y  # noqa: E402
+from ._rotations import rot_z as rot_z  # noqa: E402
+from ._rotations import rotation_to_quaternion as rotation_to_quaternion  # noqa: E402
+from ._rotations import rotvec_to_rotation as rotvec_to_rotation  # noqa: E402
+from ._rotations import rpy as rpy  # noqa: E402
 from ._simulate import simulate as simulate  # noqa: E402
-from ._statics import approach_directions as approach_directions  # noqa: E402
-from ._statics import rest_link_angles as rest_link_angles  # noqa: E402
 from ._urdf import save_urdf as save_urdf  # noqa: E402
 from ._urdf import to_urdf as to_urdf  # noqa: E402
 

@@ -59,7 +59,7 @@ def _cases():
     x = jnp.concatenate([Q, Q, Q, Q], -1)
     yield "dynamics under vmap", jax.vmap(jr.planning_dynamics, (None, 0, 0)), (ROBOT, x, Q)
     yield "mass matrix solve", jr.spd_solve, (spd, jnp.ones((4, 5, 2)))
-    yield "rest link angles", jr.rest_link_angles, (ROBOT, Q)
+    yield "rest link angles", jr.measurement.rest_link_angles, (ROBOT, Q)
     yield "gear output", jr.gear_output, (ROBOT, Q)
     p_d, r_d = pl.sample_path(path, t)
     yield "inverse kinematics", pl.inverse_kinematics, (ROBOT, p_d, r_d, Q[0])

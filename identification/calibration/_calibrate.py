@@ -325,7 +325,7 @@ def calibrate(
     rank-deficient pose set (naming the unidentifiable directions). A solve that does not converge is
     reported with `converged: False` and its optimistix status, never as success.
     """
-    from jaxrobot._bench_poses import ORIENTATION_NOISE_RAD, quaternion_to_rotation
+    from jaxrobot.bench import ORIENTATION_NOISE_RAD
 
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     if parameters is None:
@@ -343,7 +343,7 @@ def calibrate(
     sensors = jr.read_description(None)["sensors"]
     s_p = sensors["tracker_position_noise_m"] if position_noise is None else position_noise
     s_r = ORIENTATION_NOISE_RAD if orientation_noise is None else orientation_noise
-    rot = None if quat is None else quaternion_to_rotation(jnp.asarray(quat))
+    rot = None if quat is None else jr.quaternion_to_rotation(jnp.asarray(quat))
     w_r = jnp.asarray(s_p / s_r)
     if validation is not None:
         vt = _check_array(validation[0], (robot.n_joints,), "validation motor_angles", "rad")

@@ -161,7 +161,7 @@ def demo_stage(out: Path, echo) -> dict:
     """Bench data of the as-built Racer-7 at the 50 thesis poses (toml `[poses]`), 13
     validation poses chosen by our DETMAX, calibration, tables and plots."""
     import jaxrobot as jr
-    from jaxrobot._bench_poses import measure_poses, write_pose_csv
+    from jaxrobot.bench import measure_poses, write_pose_csv
 
     from ._calibrate import DEFAULT_PARAMETERS, calibrate
     from ._parameters import ParameterMap

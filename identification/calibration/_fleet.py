@@ -27,7 +27,7 @@ from jaxtyping import Array, Bool, Float
 import jaxrobot as jr
 from jaxrobot._batch import backend_kind
 from jaxrobot._distributed import gather_rows, shard_rows
-from jaxrobot._statics import rest_link_angles
+from jaxrobot.measurement import rest_link_angles
 
 from .._batched_lm import STATUS, batched_lm, covariance, map_chunks
 from ._calibrate import RESIDUAL_UNIT, _check_array, _residual_fn

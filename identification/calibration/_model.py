@@ -64,7 +64,7 @@ def _rows(m: Float[Array, "3 3"]) -> Mat:
 def marker_pose_one(robot: jr.Robot, q: Float[Array, " n"], marker: Float[Array, " 3"]
                     ) -> tuple[Float[Array, " 3"], Float[Array, "3 3"]]:
     """Marker position and rotation of one pose (eq. 2.2-2.4, `H = Rz(q + offset) Tx(a) Tz(d) Rx(alpha)
-    Ry(beta)`), the same as `jaxrobot._bench_poses.marker_pose`."""
+    Ry(beta)`), the same as `jaxrobot.measurement.marker_pose`."""
     rot, pos = _rows(robot.base[:3, :3]), [robot.base[i, 3] for i in range(3)]
     c, s = jnp.cos(q + robot.offset), jnp.sin(q + robot.offset)
     for i in range(robot.n_joints):

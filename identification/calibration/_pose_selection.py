@@ -19,6 +19,7 @@ from jaxtyping import Array, Float
 
 import jaxrobot as jr
 from jaxrobot._linalg import map_matrices
+from jaxrobot.measurement import marker_pose
 
 from ._observability import observability_indices, singular_values_from_gram
 from ._parameters import ParameterMap, predict_pose, rotation_error
@@ -52,7 +53,6 @@ def default_marker() -> np.ndarray:
 
 @eqx.filter_jit
 def _feasible(robot: jr.Robot, q: Float[Array, "N n"], marker, margin, z_min, min_sigma):
-    from jaxrobot._bench_poses import marker_pose
 
     inside = jnp.all((q >= robot.q_min + margin) & (q <= robot.q_max - margin), -1)
     z = marker_pose(robot, q, marker)[0][..., 2]

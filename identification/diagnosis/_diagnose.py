@@ -32,7 +32,7 @@ import numpy as np
 from jax.scipy.special import gammaincc
 
 import jaxrobot as jr
-from jaxrobot._statics import approach_sign
+from jaxrobot.measurement import approach_directions, approach_sign
 
 from .._pose_files import check_pose_units
 from ..gear._fit import chi2_quantile
@@ -79,7 +79,7 @@ class Poses:
             ccw = np.asarray(ccw, bool)
         else:
             ccw = approach_ccw(th, approach)
-        return cls(th, pos, ccw, np.asarray(jr.approach_directions(th)))
+        return cls(th, pos, ccw, np.asarray(approach_directions(th)))
 
     @classmethod
     def concatenate(cls, parts: list[Poses]) -> Poses:

@@ -20,8 +20,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
 import jaxrobot as jr
-from jaxrobot._bench_poses import marker_pose
-from jaxrobot._statics import approach_sign
+from jaxrobot.measurement import lost_motion, marker_pose, rest_iterations
 
 from ._effects import Layout, Model
 
@@ -39,9 +38,8 @@ def rest_angles(
     ccw, ccw_order = ccw
     phi = jr.gear_output(rob, theta, ccw)
     phi = phi + model.approach * (jr.gear_output(rob, theta, ccw_order) - phi)
-    phi = phi - 0.5 * rob.backlash * approach_sign(ccw)
-    step = lambda _, q: phi - jr.compliance_deflection(model.c, model.e, jr.gravity_torque(rob, q))
-    return jax.lax.fori_loop(0, iterations, step, phi if q0 is None else q0)
+    phi = phi - lost_motion(rob, ccw)
+    return rest_iterations(rob, phi, iterations, q0, (model.c, model.e))
 
 
 class Functions(eqx.Module):
