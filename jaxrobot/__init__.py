@@ -9,11 +9,15 @@ from ._compilation_cache import enable as _enable_compilation_cache  # noqa: E40
 _enable_compilation_cache()
 
 from . import measurement as measurement  # noqa: E402
+from ._batch import backend_kind as backend_kind  # noqa: E402
 from ._checks import check_public as _check_public  # noqa: E402
 from ._description import RobotFileError as RobotFileError  # noqa: E402
+from ._description import description_of as description_of  # noqa: E402
+from ._description import filter_cutoffs as filter_cutoffs  # noqa: E402
 from ._description import load_robot as load_robot  # noqa: E402
 from ._description import racer7 as racer7  # noqa: E402
 from ._description import read_description as read_description  # noqa: E402
+from ._description import robot_from_description as robot_from_description  # noqa: E402
 from ._description import save_robot as save_robot  # noqa: E402
 from ._distributed import PROCESS_ENV as PROCESS_ENV  # noqa: E402
 from ._distributed import gather_array as gather_array  # noqa: E402
@@ -34,6 +38,8 @@ from ._elasticity import compliance_deflection as compliance_deflection  # noqa:
 from ._elasticity import elastic_deflection as elastic_deflection  # noqa: E402
 from ._elasticity import elastic_torque as elastic_torque  # noqa: E402
 from ._flat import flat_inverse as flat_inverse  # noqa: E402
+from ._gear import fourier_ratio as fourier_ratio  # noqa: E402
+from ._gear import fourier_xi_inverse as fourier_xi_inverse  # noqa: E402
 from ._gear import gear_output as gear_output  # noqa: E402
 from ._gear import gear_ratio as gear_ratio  # noqa: E402
 from ._gear import motor_angle as motor_angle  # noqa: E402

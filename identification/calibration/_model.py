@@ -24,7 +24,6 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
-from jaxrobot._kinematics import rot_x, rot_y
 
 from ._parameters import ParameterMap, parse_name
 
@@ -68,7 +67,7 @@ def marker_pose_one(robot: jr.Robot, q: Float[Array, " n"], marker: Float[Array,
     rot, pos = _rows(robot.base[:3, :3]), [robot.base[i, 3] for i in range(3)]
     c, s = jnp.cos(q + robot.offset), jnp.sin(q + robot.offset)
     for i in range(robot.n_joints):
-        xy = _rows(rot_x(robot.alpha[i]) @ rot_y(robot.beta[i]))  # per robot, not per pose
+        xy = _rows(jr.rot_x(robot.alpha[i]) @ jr.rot_y(robot.beta[i]))  # per robot, not per pose
         rz_xy = [[c[i] * xy[0][k] - s[i] * xy[1][k] for k in range(3)],
                  [s[i] * xy[0][k] + c[i] * xy[1][k] for k in range(3)], xy[2]]
         pos = _add(pos, _mv(rot, [c[i] * robot.a[i], s[i] * robot.a[i], robot.d[i]]))

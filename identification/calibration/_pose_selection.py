@@ -18,7 +18,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
-from jaxrobot._linalg import map_matrices
+from jaxrobot.linalg import map_matrices
 from jaxrobot.measurement import marker_pose
 
 from ._observability import observability_indices, singular_values_from_gram

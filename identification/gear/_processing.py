@@ -26,7 +26,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxrobot import Ripple, Robot
-from jaxrobot._linalg import map_matrices
+from jaxrobot.linalg import map_matrices
 from jaxrobot.measurement import mount_angular_velocity, quasi_static_link_angles, sensor_rotation
 
 MOVE_THRESHOLD_RAD = math.radians(1.0)
