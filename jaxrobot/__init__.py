@@ -59,9 +59,11 @@ from ._rotations import quaternion_to_rotation as quaternion_to_rotation  # noqa
 from ._rotations import rot_x as rot_x  # noqa: E402
 from ._rotations import rot_y as rot_y  # noqa: E402
 from ._rotations import rot_z as rot_z  # noqa: E402
+from ._rotations import rotation_error as rotation_error  # noqa: E402
 from ._rotations import rotation_to_quaternion as rotation_to_quaternion  # noqa: E402
 from ._rotations import rotvec_to_rotation as rotvec_to_rotation  # noqa: E402
 from ._rotations import rpy as rpy  # noqa: E402
+from ._rotations import vee as vee  # noqa: E402
 from ._simulate import simulate as simulate  # noqa: E402
 from ._urdf import save_urdf as save_urdf  # noqa: E402
 from ._urdf import to_urdf as to_urdf  # noqa: E402

@@ -11,7 +11,7 @@ from jaxtyping import Array, Float
 
 from ._batch import unbatched
 from ._robot import Robot
-from ._rotations import homogeneous, rot_x, rot_y, rot_z, rpy
+from ._rotations import homogeneous, rot_x, rot_y, rot_z, rpy, vee
 
 
 def joint_rotation_translation(
@@ -64,11 +64,6 @@ def point_position(
     return t[..., :3, 3] + jnp.einsum("...ij,...j->...i", t[..., :3, :3], point)
 
 
-def _vee(w: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
-    return 0.5 * jnp.stack([w[..., 2, 1] - w[..., 1, 2], w[..., 0, 2] - w[..., 2, 0],
-                            w[..., 1, 0] - w[..., 0, 1]], -1)
-
-
 def geometric_jacobian(robot: Robot, q: Float[Array, "*b n"]) -> Float[Array, "*b 6 n"]:
     """Geometric Jacobian `[v; omega] = J qd` of the tool frame, world axes (autodiff)."""
     return unbatched(robot, q, _geometric_jacobian)
@@ -78,7 +73,7 @@ def _geometric_jacobian(robot: Robot, q: Float[Array, " n"]) -> Float[Array, "6 
     pose = lambda q: tool_pose(robot, q)  # noqa: E731
     t, dt = pose(q), jax.jacfwd(pose)(q)  # dt: (4, 4, n)
     jv = dt[:3, 3, :]
-    jw = _vee(jnp.einsum("ijk,lj->kil", dt[:3, :3, :], t[:3, :3]))  # (n, 3)
+    jw = vee(jnp.einsum("ijk,lj->kil", dt[:3, :3, :], t[:3, :3]))  # (n, 3)
     return jnp.concatenate([jv, jw.T], 0)
 
 

@@ -41,6 +41,17 @@ def rpy(r: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
     return jnp.stack([roll, pitch, yaw], -1)
 
 
+def vee(w: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
+    """Axial vector of the antisymmetric part of `w`: `(w32 - w23, w13 - w31, w21 - w12) / 2`."""
+    return 0.5 * jnp.stack([w[..., 2, 1] - w[..., 1, 2], w[..., 0, 2] - w[..., 2, 0],
+                            w[..., 1, 0] - w[..., 0, 1]], -1)
+
+
+def rotation_error(r_meas: Float[Array, "*b 3 3"], r_model: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
+    """Small-angle rotation vector of `r_meas^T r_model` (rad; exact to second order)."""
+    return vee(jnp.einsum("...ji,...jk->...ik", r_meas, r_model))
+
+
 def pose_vector(t: Float[Array, "*b 4 4"]) -> Float[Array, "*b 6"]:
     """Translation [m] and roll-pitch-yaw [rad] `(x, y, z, rx, ry, rz)` of a homogeneous transform."""
     return jnp.concatenate([t[..., :3, 3], rpy(t[..., :3, :3])], -1)

@@ -154,7 +154,7 @@ def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
     differentiated by jax, at a random point: equal to rounding (1e-12 mm, 1e-9 relative)."""
     import jax
 
-    from identification.calibration._parameters import predict_pose, rotation_error
+    from identification.calibration._parameters import predict_pose
 
     nominal, _ = robots
     ident, _ = bench
@@ -167,7 +167,7 @@ def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
     def reference(x):
         p, r = predict_pose(params.set(nominal, v0 + scale * x), th, defl, marker)
         res = (p - pos) / 1e-3
-        return jnp.concatenate([res, 2.0 * rotation_error(rot, r) / 1e-3], -1).ravel() if orient else res.ravel()
+        return jnp.concatenate([res, 2.0 * jr.rotation_error(rot, r) / 1e-3], -1).ravel() if orient else res.ravel()
 
     x = jnp.asarray(np.random.default_rng(5).normal(0, 1, len(params)))
     np.testing.assert_allclose(fn(x, None), reference(x), rtol=0, atol=1e-9)

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
+from jaxrobot import rotation_error as rotation_error  # re-exported until _calibrate imports it from jaxrobot
 from jaxrobot.measurement import marker_pose, rest_link_angles
 
 JOINT_FIELDS = ("a", "d", "alpha", "beta", "offset")
@@ -160,10 +161,3 @@ def predict_pose(
     """
     q = jr.gear_output(robot, theta, ccw) + deflection
     return marker_pose(robot, q, marker)
-
-
-def rotation_error(r_meas: Float[Array, "*b 3 3"], r_model: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
-    """Small-angle rotation vector of `r_meas^T r_model` (rad; exact to second order)."""
-    e = jnp.einsum("...ji,...jk->...ik", r_meas, r_model)
-    return 0.5 * jnp.stack([e[..., 2, 1] - e[..., 1, 2], e[..., 0, 2] - e[..., 2, 0],
-                            e[..., 1, 0] - e[..., 0, 1]], -1)

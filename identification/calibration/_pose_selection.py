@@ -22,7 +22,7 @@ from jaxrobot.linalg import map_matrices
 from jaxrobot.measurement import marker_pose
 
 from ._observability import observability_indices, singular_values_from_gram
-from ._parameters import ParameterMap, predict_pose, rotation_error
+from ._parameters import ParameterMap, predict_pose
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,7 +113,7 @@ def _pose_jacobians(robot, params: ParameterMap, q, marker, ccw):
     def model(v, th, de):
         p, r = predict_pose(params.set(robot, v), th, de, marker, ccw)
         r0 = jax.lax.stop_gradient(predict_pose(robot, th, de, marker, ccw)[1])
-        return jnp.concatenate([p, rotation_error(r0, r)])
+        return jnp.concatenate([p, jr.rotation_error(r0, r)])
 
     return jax.vmap(jax.jacfwd(model), in_axes=(None, 0, 0))(v0, theta, defl)
 
