@@ -6,10 +6,10 @@ ramps at both ends and short rests before and after; the other joints hold a fix
 configuration. The motor follows the commanded angle exactly; the link angles are the
 quasi-static rest angles of the as-built robot, `q = phi - kappa^{-1}(g(q))` with
 `phi = Xi^{-1}(theta)` (`jaxrobot.measurement.quasi_static_link_angles`), where the moving gear
-uses the ripple set of its direction (`cw` for a positive, `ccw` for a negative motor speed). The 20-bit motor encoders
-are sampled at 1 kHz; a 3-axis gyroscope on the moving link measures the link's angular
-velocity in a frame misaligned from the joint axis by `Rx(alpha) Ry(beta)` (eq. 3.3), with
-white noise and a small constant bias. Also: the gear-run CSV format (README, "Measurement files").
+uses the ripple set of its direction (`cw` for a positive, `ccw` for a negative motor speed). The
+20-bit motor encoders are sampled at 1 kHz; a 3-axis gyroscope on the moving link measures the
+link's angular velocity in a frame misaligned from the joint axis by `Rx(alpha) Ry(beta)` (eq. 3.3,
+`jaxrobot.measurement.sensor_rotation`), with white noise and a small constant bias. Also: the gear-run CSV format (README, "Measurement files").
 """
 
 from __future__ import annotations
