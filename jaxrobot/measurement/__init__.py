@@ -1,5 +1,6 @@
-"""The measurement model: the robot at rest at commanded motor angles and the marker pose a tracker
-sees (thesis 3.2.3), the gyroscope on a moving link (eq. 3.3), shared by the bench, calibration and `diagnose`."""
+"""The measurement model, shared by the bench, calibration and `diagnose`: the robot at rest at
+commanded motor angles and the marker pose a tracker sees (thesis 3.2.3), and the gyroscope on a
+moving link (eq. 3.3)."""
 
 from .._checks import check_public as _check_public
 from ._gyroscope import mount_angular_velocity as mount_angular_velocity
