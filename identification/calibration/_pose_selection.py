@@ -53,7 +53,6 @@ def default_marker() -> np.ndarray:
 
 @eqx.filter_jit
 def _feasible(robot: jr.Robot, q: Float[Array, "N n"], marker, margin, z_min, min_sigma):
-
     inside = jnp.all((q >= robot.q_min + margin) & (q <= robot.q_max - margin), -1)
     z = marker_pose(robot, q, marker)[0][..., 2]
     smin = map_matrices(lambda j: jnp.linalg.svd(j, compute_uv=False), jr.geometric_jacobian(robot, q))[..., -1]
