@@ -9,7 +9,8 @@ quasi-static rest angles of the as-built robot, `q = phi - kappa^{-1}(g(q))` wit
 uses the ripple set of its direction (`cw` for a positive, `ccw` for a negative motor speed). The
 20-bit motor encoders are sampled at 1 kHz; a 3-axis gyroscope on the moving link measures the
 link's angular velocity in a frame misaligned from the joint axis by `Rx(alpha) Ry(beta)` (eq. 3.3,
-`jaxrobot.measurement.sensor_rotation`), with white noise and a small constant bias. Also: the gear-run CSV format (README, "Measurement files").
+`jaxrobot.measurement.sensor_rotation`), with white noise and a small constant bias. Also: the
+gear-run CSV format (README, "Measurement files").
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
 from .._dynamics import gravity_torque
-from .._elasticity import compliance_deflection
+from .._elasticity import compliance_deflection, elastic_deflection
 from .._gear import gear_output
 from .._kinematics import tool_pose
 from .._robot import Robot
@@ -57,11 +57,9 @@ def rest_map(
 ) -> Float[Array, "*b n"]:
     """One step of the rest fixed point, `phi - kappa^{-1}(g(q))` (the gears' deflection under the
     gravity torque at `q`). `compliance`: `(c, e)` of `compliance_deflection` in place of the
-    robot's `c = 1/k1`, `e = k3/k1`."""
-    if compliance is None:
-        c = 1.0 / robot.k1
-        compliance = (c, robot.k3 * c)
-    return phi - compliance_deflection(*compliance, gravity_torque(robot, q))
+    robot's stiffness."""
+    tau = gravity_torque(robot, q)
+    return phi - (elastic_deflection(robot, tau) if compliance is None else compliance_deflection(*compliance, tau))
 
 
 def rest_iterations(
