@@ -29,7 +29,7 @@ from identification.calibration._pose_selection import (
     rest_motor_angles,
     set_indices,
 )
-from identification.calibration._report import error_table, parameter_table
+from identification.calibration._report import calibration_report, error_table, parameter_table
 from jaxrobot._bench_poses import measure_poses, read_pose_csv, write_pose_csv
 
 N_SE = 3.0
@@ -81,7 +81,7 @@ def calibrated(robots, bench):
 def test_calibration_thesis_poses(robots, bench, calibrated):
     nominal, truth = robots
     ident, valid = bench
-    rep = calibrated.report
+    rep = calibration_report(calibrated)
     assert rep["converged"], rep["status"]
     print("\n" + error_table(rep["identification"], "identification set"))
     print(error_table(rep["validation"], "validation set"))
@@ -111,7 +111,7 @@ def test_map_covers_the_truth_on_the_bench(robots, thesis_theta, seed):
     nominal, truth = robots
     m = measure_poses(truth, thesis_theta, seed=seed)
     names = map_parameters(DEFAULT_PARAMETERS, 6)
-    rep = calibrate(nominal, m.motor_angles, m.positions, method="map", parameters=names).report
+    rep = calibration_report(calibrate(nominal, m.motor_angles, m.positions, method="map", parameters=names))
     assert rep["converged"]
     params = ParameterMap(names)
     true = dict(zip(names, np.asarray(params.get(truth) - params.get(nominal)).tolist()))

@@ -85,6 +85,43 @@ def test_compliance_form_solves_the_spring_equation():
     np.testing.assert_allclose(np.diag(np.asarray(dx_dc)), np.asarray(tau[0]), rtol=1e-14)
 
 
+def test_rest_angles_differentiable_in_compliance_at_rigid(tmp_path):
+    """Compliance `c` grows from a rigid joint (`c = 0`): `q = phi - c g(q)` gives `dq/dc = -diag(g(phi))`
+    at `c = 0`; a central difference with `h` = 1e-9 rad/(N m) (deflections ~1e-6 rad, fixed point to
+    1e-11 rad) agrees to 1e-4 relative."""
+    robot = jr.load_robot(_rigid_file(tmp_path))
+    theta = jnp.asarray(np.random.default_rng(6).uniform(-30, 30, 6))
+    assert np.all(np.asarray(robot.c) == 0) and np.all(np.isinf(np.asarray(robot.k1)))
+
+    def rest(c):
+        return jr.rest_link_angles(eqx.tree_at(lambda r: r.c, robot, c), theta)
+
+    jac = np.asarray(jax.jacfwd(rest)(robot.c))
+    g = np.asarray(jr.gravity_torque(robot, jr.gear_output(robot, theta)))
+    np.testing.assert_allclose(jac, -np.diag(g), rtol=1e-12, atol=1e-12 * np.abs(g).max())
+    h = 1e-9
+    fd = np.stack([(rest(robot.c.at[j].set(h)) - rest(robot.c.at[j].set(-h))) / (2 * h) for j in range(6)], 1)
+    np.testing.assert_allclose(jac, fd, rtol=0, atol=1e-4 * np.abs(g).max())
+
+
+def test_stiffness_file_round_trip_keeps_k1(tmp_path):
+    """The robot stores `c = 1/k1`, `e = k3/k1`; the file keeps `k1`, `k3` digit for digit (1e5 is a
+    value whose double reciprocal is not 1e5) and a reload gives the same `c`, `e` bit for bit."""
+    data = copy.deepcopy(jr.read_description())
+    data["stiffness"] = {"k1": [1e5, 2.2e5, 3.3e4, float("inf"), 7.7e3, 1.23456789e5],
+                         "k3": [0.0, 4.0e10, 3.1e9, 0.0, 2.5e8, 0.0]}
+    path = tmp_path / "stiff.toml"
+    path.write_text(tomli_w.dumps(data))
+    robot = jr.load_robot(path)
+    assert 1.0 / (1.0 / 1e5) != 1e5 and float(robot.c[3]) == 0.0
+    jr.save_robot(robot, tmp_path / "saved.toml")
+    assert jr.read_description(tmp_path / "saved.toml")["stiffness"] == data["stiffness"]
+    again = jr.load_robot(tmp_path / "saved.toml")
+    for f in ("c", "e"):
+        np.testing.assert_array_equal(np.asarray(getattr(again, f)), np.asarray(getattr(robot, f)))
+    np.testing.assert_allclose(np.asarray(robot.k1), data["stiffness"]["k1"], rtol=2 * np.finfo(float).eps)
+
+
 def test_planning_rejects_rigid_joints(tmp_path):
     from planning._cli_plan import plan
 
