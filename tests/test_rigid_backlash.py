@@ -58,6 +58,24 @@ def test_rigid_robot_rests_at_gear_output(tmp_path):
     assert np.all(np.isfinite(np.asarray(g)))
 
 
+def test_compliance_grows_from_a_rigid_joint(tmp_path):
+    """The robot stores `c = 1/k1`; at `c = 0` the motor angles holding `q` at rest are exactly the rigid
+    ones, `Xi(q)`, and differentiable in `c`: `theta = Xi(q + c g(q))` gives `d theta_i / d c_j =
+    delta_ij u_j(q) g_j(q)`. A central difference with `h` = 1e-9 rad/(N m) (deflections ~1e-6 rad,
+    motor angles ~1e2 rad: round-off 1e-14 rad) matches to 1e-4 of the largest entry."""
+    robot = jr.load_robot(_rigid_file(tmp_path))
+    assert np.all(np.asarray(robot.c) == 0) and np.all(np.asarray(robot.e) == 0)
+    q = jnp.asarray(np.random.default_rng(6).uniform(-1.0, 1.0, 6))
+    hold = jax.jit(lambda c: jr.static_equilibrium(eqx.tree_at(lambda r: r.c, robot, c), q))
+    np.testing.assert_array_equal(np.asarray(jr.static_equilibrium(robot, q)), np.asarray(jr.motor_angle(robot, q)))
+    jac = np.asarray(jax.jacfwd(hold)(robot.c))
+    expected = np.diag(np.asarray(jr.gear_ratio(robot, q) * jr.gravity_torque(robot, q)))
+    np.testing.assert_allclose(jac, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    h = 1e-9
+    fd = np.stack([(hold(robot.c.at[j].set(h)) - hold(robot.c.at[j].set(-h))) / (2 * h) for j in range(6)], 1)
+    np.testing.assert_allclose(jac, fd, rtol=0, atol=1e-4 * np.abs(expected).max())
+
+
 def test_rigid_and_backlash_round_trip(tmp_path):
     robot = jr.load_robot(_rigid_file(tmp_path, [0.0, 1e-4, 0.0, 0.0, 0.0, 3e-4]))
     out = tmp_path / "saved.toml"
@@ -83,25 +101,6 @@ def test_compliance_form_solves_the_spring_equation():
     # rigid joint: zero deflection with the derivative dx/dc = tau
     dx_dc = jax.jacfwd(lambda c: jr.compliance_deflection(c, jnp.zeros(6), tau[0]))(jnp.zeros(6))
     np.testing.assert_allclose(np.diag(np.asarray(dx_dc)), np.asarray(tau[0]), rtol=1e-14)
-
-
-def test_rest_angles_differentiable_in_compliance_at_rigid(tmp_path):
-    """Compliance `c` grows from a rigid joint (`c = 0`): `q = phi - c g(q)` gives `dq/dc = -diag(g(phi))`
-    at `c = 0`; a central difference with `h` = 1e-9 rad/(N m) (deflections ~1e-6 rad, fixed point to
-    1e-11 rad) agrees to 1e-4 relative."""
-    robot = jr.load_robot(_rigid_file(tmp_path))
-    theta = jnp.asarray(np.random.default_rng(6).uniform(-30, 30, 6))
-    assert np.all(np.asarray(robot.c) == 0) and np.all(np.isinf(np.asarray(robot.k1)))
-
-    def rest(c):
-        return jr.rest_link_angles(eqx.tree_at(lambda r: r.c, robot, c), theta)
-
-    jac = np.asarray(jax.jacfwd(rest)(robot.c))
-    g = np.asarray(jr.gravity_torque(robot, jr.gear_output(robot, theta)))
-    np.testing.assert_allclose(jac, -np.diag(g), rtol=1e-12, atol=1e-12 * np.abs(g).max())
-    h = 1e-9
-    fd = np.stack([(rest(robot.c.at[j].set(h)) - rest(robot.c.at[j].set(-h))) / (2 * h) for j in range(6)], 1)
-    np.testing.assert_allclose(jac, fd, rtol=0, atol=1e-4 * np.abs(g).max())
 
 
 def test_stiffness_file_round_trip_keeps_k1(tmp_path):
