@@ -30,6 +30,7 @@ from collections.abc import Callable
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import gammaincc
+from jaxtyping import Array
 
 import jaxrobot as jr
 from jaxrobot._statics import approach_sign
@@ -319,20 +320,8 @@ def diagnose(
 
     **Returns:** `DiagnoseResult` in SI units (`_report.summary`: the JSON of `jaxrobot diagnose`).
     """
-    sensors = jr.read_description(None)["sensors"]
-    sigma = float(sensors["tracker_position_noise_m"] if noise is None else noise)
-    marker = jnp.asarray(sensors["tracker_marker_offset_m"] if marker is None else marker, float)
-    if not sigma > 0:
-        raise ValueError(f"noise: expected the tracker std per axis > 0 m, found {sigma}")
-    if len(train) < 10 or len(validation) < 3:
-        raise ValueError(f"poses: expected >= 10 training and >= 3 validation poses, found {len(train)} and "
-                         f"{len(validation)}")
+    sigma, marker = _checked_inputs(start, train, validation, noise, marker)
     joints = start.n_joints
-    for name, poses in (("train", train), ("validation", validation)):
-        if poses.motor_angles.shape[1] != joints:
-            raise ValueError(f"{name}: expected motor_angles (K, {joints}) rad for the {joints}-joint start robot, "
-                             f"found {poses.motor_angles.shape}")
-        check_pose_units(start, poses.motor_angles, poses.positions, marker, f"{name} poses")
     emit = progress or (lambda _: None)
     layout = Layout.of(catalogue(start), joints)
     fns = functions(layout)
@@ -425,6 +414,26 @@ def diagnose(
         residuals_after=np.linalg.norm(ev["validation"][1], axis=-1), spectra=tuple(spectra), noise=sigma,
         validation_bound=validation_bound(sigma, len(validation), len(free), n_res), n_train=len(train),
         n_validation=len(validation))
+
+
+def _checked_inputs(start: jr.Robot, train: Poses, validation: Poses, noise, marker) -> tuple[float, Array]:
+    """The tracker noise [m] and marker offset [m] (defaults from `[sensors]`), after checking them and
+    the poses against `start` (see `diagnose`)."""
+    sensors = jr.read_description(None)["sensors"]
+    sigma = float(sensors["tracker_position_noise_m"] if noise is None else noise)
+    marker = jnp.asarray(sensors["tracker_marker_offset_m"] if marker is None else marker, float)
+    if not sigma > 0:
+        raise ValueError(f"noise: expected the tracker std per axis > 0 m, found {sigma}")
+    if len(train) < 10 or len(validation) < 3:
+        raise ValueError(f"poses: expected >= 10 training and >= 3 validation poses, found {len(train)} and "
+                         f"{len(validation)}")
+    joints = start.n_joints
+    for name, poses in (("train", train), ("validation", validation)):
+        if poses.motor_angles.shape[1] != joints:
+            raise ValueError(f"{name}: expected motor_angles (K, {joints}) rad for the {joints}-joint start robot, "
+                             f"found {poses.motor_angles.shape}")
+        check_pose_units(start, poses.motor_angles, poses.positions, marker, f"{name} poses")
+    return sigma, marker
 
 
 def _verdict_at_noise_floor(row: LoopRow, bound: float, added: list[str]) -> str:
