@@ -357,6 +357,7 @@ def diagnose(
             idx = _pad([cols for _, _, cols in top], spare)
             vs, status, nsteps = fns.fit(model0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale,
                                          jnp.asarray(pos), sigma, jnp.asarray(idx))
+            ok_fit, status = np.asarray(status == jr.RESULTS.successful), jr.status_name(status)
             pos_fit = np.asarray(fns.exact_batch(model0, vs, jnp.asarray(orders), th_all, ccw_all, marker))
             best = None
             for k, (_, _c, cols) in enumerate(top):
@@ -365,10 +366,10 @@ def diagnose(
                 chi2_k = float(np.sum(err_t**2) / sigma**2)
                 bic_k = chi2_k + len(cols) * ln_n
                 rms_v = _rms(err_v)
-                ok = int(status[k]) == 0
+                ok = bool(ok_fit[k])
                 entry = log[k]
                 entry.update({"bic": bic_k, "delta_bic": bic_k - bic, "rms_train_um": _rms(err_t) * 1e6,
-                              "rms_validation_um": rms_v * 1e6, "lm_status": int(status[k]),
+                              "rms_validation_um": rms_v * 1e6, "lm_status": str(status[k]),
                               "lm_steps": int(nsteps[k])})
                 if ok and bic_k < bic - MIN_BIC_GAIN and rms_v < _rms(ev["validation"][1]):
                     if best is None or bic_k < best[0]:
