@@ -20,6 +20,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
+from jaxrobot._status import RESULTS, check
 
 from .._pose_files import check_pose_units
 from ._identifiability import analyse, default_parameters
@@ -158,6 +159,7 @@ def solve(
     max_steps: int = 100,
     rippled: tuple[int, ...] | None = None,
     prior_weight: Float[Array, " m"] | None = None,
+    throw: bool = False,
 ) -> dict[str, Array]:
     """LM solve for one robot; pure and jit/vmap-safe (the fleet maps it over robots).
 
@@ -172,7 +174,10 @@ def solve(
     **Returns:** `value` (m,) parameters, `std` (m,) standard errors, `cov` (m, m), `result`
     (optimistix RESULTS index), `steps`, `residuals` (n,) at the solution in m (orientation rows
     in m-equivalent units), `rank` of the scaled Jacobian, `sigma2` the noise estimate [m^2],
-    `jacobian` (n, m) at the solution (residual mm per parameter unit).
+    `jacobian` (n, m) at the solution (residual mm per parameter unit). `result` is a `RESULTS`:
+    optimistix's status, `rank_deficient` for a converged solve with a rank-deficient Jacobian,
+    `nonfinite` for a non-finite solution; `converged` is `result == RESULTS.successful`.
+    `throw`: raise its message when it is not `successful` (also under `jit`).
     """
     fn_data, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r,
                                       ccw, rippled)
@@ -190,11 +195,16 @@ def solve(
     rank = jnp.sum(s > 1e-10 * s[0])
     cov_x = sigma2 * jnp.linalg.inv(j_all.T @ j_all)
     cov = cov_x * scale[:, None] * scale[None, :]
-    ok = (sol.result == optx.RESULTS.successful) & (rank == m) & jnp.all(jnp.isfinite(x))
-    return {"value": v0 + scale * x, "std": jnp.sqrt(jnp.diag(cov)), "cov": cov,
-            "result": sol.result._value, "converged": ok, "steps": sol.stats["num_steps"],
-            "residuals": r * RESIDUAL_UNIT, "rank": rank, "sigma2": sigma2 * RESIDUAL_UNIT**2,
-            "jacobian": jx / scale}
+    result = RESULTS.promote(sol.result)
+    result = RESULTS.where(result == RESULTS.successful,
+                           RESULTS.where(jnp.all(jnp.isfinite(x)),
+                                         RESULTS.where(rank == m, RESULTS.successful, RESULTS.rank_deficient),
+                                         RESULTS.nonfinite), result)
+    out = {"value": v0 + scale * x, "std": jnp.sqrt(jnp.diag(cov)), "cov": cov,
+           "result": result, "converged": result == RESULTS.successful, "steps": sol.stats["num_steps"],
+           "residuals": r * RESIDUAL_UNIT, "rank": rank, "sigma2": sigma2 * RESIDUAL_UNIT**2,
+           "jacobian": jx / scale}
+    return check(result, out, throw)
 
 
 _solve_jit = eqx.filter_jit(solve)
@@ -401,7 +411,7 @@ def calibrate(
     return CalibrationResult(
         robot=calibrated, names=params.names, value=out["value"], start=np.asarray(params.get(robot)),
         std=out["std"], covariance=out["cov"], residuals=out["residuals"], converged=bool(out["converged"]),
-        status=status_text(int(out["result"]), bool(out["rank"] == len(params))), iterations=int(out["steps"]),
+        status=jr.status_name(out["result"]), iterations=int(out["steps"]),
         noise_estimate=float(np.sqrt(out["sigma2"])), errors_before=err0[:k], errors_after=err1[:k],
         validation_before=err0[k:] if val else None, validation_after=err1[k:] if val else None,
         beyond_limits=tuple(beyond), method=method, prior_std=prior)
@@ -434,10 +444,3 @@ def prior_stds(robot: jr.Robot, params: ParameterMap, overrides: dict | None = N
         else:
             out.append(table[field])
     return np.asarray(out)
-
-
-def status_text(result: int, full_rank: bool = True) -> str:
-    """Name of an optimistix result index (`successful`, `max_steps_reached`, ...)."""
-    names = list(optx.RESULTS._name_to_item)
-    text = names[result] if 0 <= result < len(names) else f"status {result}"
-    return text if full_rank else text + "; Jacobian rank deficient at the solution"

@@ -133,7 +133,7 @@ class CandidateScore:
     delta_bic: float | None = None
     rms_train: float | None = None
     rms_validation: float | None = None
-    lm_status: int | None = None
+    lm_status: str | None = None
     lm_steps: int | None = None
     selected: bool = False
 
@@ -381,6 +381,7 @@ def diagnose(
             idx = _pad([cols for _, _, cols in top], spare)
             vs, status, nsteps = fns.fit(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale,
                                          pos, sigma, jnp.asarray(idx))
+            ok_fit, status = np.asarray(status == jr.RESULTS.successful), jr.status_name(status)
             pos_fit = np.asarray(fns.exact_batch(robot0, vs, jnp.asarray(orders), th_all, ccw_all, marker))
             best = None
             for k, (_, _c, cols) in enumerate(top):
@@ -388,8 +389,8 @@ def diagnose(
                 bic_k = float(np.sum(err_t**2) / sigma**2) + len(cols) * ln_n
                 rms_v = _rms(validation.positions - pos_fit[k, k_tr:])
                 log[k] = dataclasses.replace(log[k], bic=bic_k, delta_bic=bic_k - row.bic, rms_train=_rms(err_t),
-                                             rms_validation=rms_v, lm_status=int(status[k]), lm_steps=int(nsteps[k]))
-                if int(status[k]) == 0 and bic_k < row.bic - MIN_BIC_GAIN and rms_v < row.rms_validation:
+                                             rms_validation=rms_v, lm_status=str(status[k]), lm_steps=int(nsteps[k]))
+                if bool(ok_fit[k]) and bic_k < row.bic - MIN_BIC_GAIN and rms_v < row.rms_validation:
                     if best is None or bic_k < best[0]:
                         best = (bic_k, k)
             if best is not None:

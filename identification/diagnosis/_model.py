@@ -75,7 +75,7 @@ class Functions(eqx.Module):
         candidates run one after another (`lax.map`): each stops at its own step count, and no
         LAPACK call is batched (batched LAPACK calls can deadlock XLA's CPU thread pool in jaxlib 0.10).
 
-        **Returns:** `v` (S, P+1) fitted values, `result` (S,) optimistix status, `steps` (S,).
+        **Returns:** `v` (S, P+1) fitted values, `result` (S,) `jaxrobot.RESULTS`, `steps` (S,).
         """
         def one(ix):
             def fn(x, _):
@@ -85,7 +85,7 @@ class Functions(eqx.Module):
 
             sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=1e-5, atol=1e-5), jnp.zeros(ix.shape),
                                      max_steps=max_steps, throw=False)
-            return v.at[ix].add(sol.value * scale[ix]), sol.result._value, sol.stats["num_steps"]
+            return v.at[ix].add(sol.value * scale[ix]), jr.RESULTS.promote(sol.result), sol.stats["num_steps"]
 
         return jax.lax.map(one, idx)
 
