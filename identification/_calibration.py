@@ -20,6 +20,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
+from jaxrobot._program_cache import cached_program
 
 from ._calibration_model import (
     analytic_names,
@@ -204,7 +205,7 @@ def solve(
             "jacobian": jx / scale}
 
 
-_solve_jit = eqx.filter_jit(solve)
+_solve_jit = cached_program(solve, filter=True)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -108,18 +108,21 @@ def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions
 
 def run(args, echo) -> dict:
     import jaxrobot as jr
+    from jaxrobot._cli import Progress
 
     from ._calibration import PRIOR_KEYS, calibrate, map_parameters
     from ._identifiability import default_parameters
     from ._pose_files import read_poses
     from ._pose_selection import default_marker
 
+    progress = Progress(3, "calibrate")
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
     data = read_poses(args.poses, args.approach)
     val = None
     if args.validate is not None:
         v = read_poses(args.validate, args.approach)
         val = (v["motor_angles"], v["positions"], v["ccw"])
+    progress.step(f"read {len(data['motor_angles'])} poses" + ("" if val is None else f" + {len(val[0])} validation"))
     names = None if args.parameters is None else [
         n.strip() for n in args.parameters.split(",") if n.strip()]
     desc = jr.read_description(args.robot)
@@ -136,6 +139,7 @@ def run(args, echo) -> dict:
     res = calibrate(robot, data["motor_angles"], data["positions"], data["quaternions"], parameters=names,
                     marker=marker, position_noise=noise, ccw=data["ccw"], validation=val, limits=args.limits,
                     method=args.method, prior_std=prior)
+    progress.step("calibration")
     _echo_report(res.report, echo)
     from ._model_files import ripple_outside_range
 
@@ -154,6 +158,7 @@ def run(args, echo) -> dict:
 
         save_model(res.robot, args.save_model, args.robot)
         echo(f"wrote {args.save_model}")
+    progress.step("report")
     return {**summary(res.report), **({"ripple_outside_identified_range": outside} if outside else {})}
 
 

@@ -20,6 +20,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
+from jaxrobot._program_cache import cached_program
 
 from ._ik import JointPath, taylor_joint_path
 from ._trajectories import sample_path
@@ -82,7 +83,7 @@ def quasi_static_motor_trajectory(robot: jr.Robot, q: Float[Array, "N n"], qd: F
     return _along(lambda q: jr.static_equilibrium(robot, q), q, qd, qdd)
 
 
-@jax.jit
+@cached_program
 def _flat(robot, t, derivatives):
     return MotorTrajectory(*jr.flat_inverse(robot, taylor_joint_path(t, derivatives), t))
 
@@ -140,7 +141,7 @@ def _run(plant, t, p_d, r_d, traj, extra, substeps, directional):
     return q, jnp.linalg.norm(pose[:, :3, 3] - p_d, axis=-1), _orientation_angle(r_d, pose[:, :3, :3])
 
 
-_run_jit = jax.jit(_run, static_argnums=(5, 6, 7))
+_run_jit = cached_program(_run, static_argnames=("extra", "substeps", "directional"))
 
 
 def simulate_plans(
