@@ -69,14 +69,14 @@ def _along(fn: Callable, q: Float[Array, "N n"], qd: Float[Array, "N n"], qdd: F
     return MotorTrajectory(*jax.vmap(single)(q, qd, qdd))
 
 
-@jax.jit
+@cached_program
 def rigid_motor_trajectory(robot: jr.Robot, q: Float[Array, "N n"], qd: Float[Array, "N n"],
                            qdd: Float[Array, "N n"]) -> MotorTrajectory:
     """(a) Rigid planning: `theta = Xi(q_d)` (gear ripple, no elasticity)."""
     return _along(lambda q: jr.motor_angle(robot, q), q, qd, qdd)
 
 
-@jax.jit
+@cached_program
 def quasi_static_motor_trajectory(robot: jr.Robot, q: Float[Array, "N n"], qd: Float[Array, "N n"],
                                   qdd: Float[Array, "N n"]) -> MotorTrajectory:
     """(b) Quasi-static planning: `theta = Xi(q_d + kappa^{-1}(g(q_d)))` (gravity deflection only)."""
