@@ -27,7 +27,6 @@ from __future__ import annotations
 import functools
 import hashlib
 import inspect
-import marshal
 import os
 import pickle
 from collections.abc import Callable
@@ -37,6 +36,7 @@ from pathlib import Path
 import equinox as eqx
 import jax
 import jaxlib
+from jax._src.lax.lax import _convert_element_type
 
 from ._compilation_cache import cache_dir
 
@@ -120,9 +120,27 @@ def _key(fn, tree, static: dict, static_leaves: list, dynamic: list) -> str:
     avals = [str(jax.typeof(x)) for x in dynamic]
     parts = [_source_hash(), jax.__version__, jaxlib.__version__, jax.default_backend(),
              str(jax.config.jax_enable_x64), f"{fn.__module__}.{fn.__qualname__}",
-             hashlib.sha256(marshal.dumps(fn.__code__)).hexdigest(), _shown(tree),
+             _code_digest(fn.__code__), _shown(tree),
              _shown(sorted(static.items())), _shown(static_leaves), ",".join(avals)]
     return _source_hash() + "-" + hashlib.sha256("\n".join(parts).encode()).hexdigest()[:32]
+
+
+def _code_digest(code) -> str:
+    """A digest of a code object that, unlike `marshal`, is the same in every process."""
+    consts = [_code_digest(c) if inspect.iscode(c) else repr(sorted(map(repr, c)) if isinstance(c, frozenset) else c)
+              for c in code.co_consts]
+    text = repr((code.co_code, code.co_names, code.co_varnames, code.co_freevars, code.co_cellvars, consts))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _callable(exported, weak: list[bool]) -> Callable:
+    """The exported program under `jit`; outputs weakly typed where the traced function's were (a
+    deserialized program forgets weak types)."""
+
+    def call(*args):
+        return [_convert_element_type(x, weak_type=True) if w else x for x, w in zip(exported.call(*args), weak)]
+
+    return jax.jit(call)
 
 
 def _export(folder: Path, key: str, fn, sig, tree, static, leaves, traced, dynamic) -> tuple[Callable, object]:
@@ -140,14 +158,16 @@ def _export(folder: Path, key: str, fn, sig, tree, static, leaves, traced, dynam
     try:
         exported = jax.export.export(jax.jit(flat), disabled_checks=_ANY_CUSTOM_CALL)(*dynamic)
         blob = bytes(exported.serialize())
+        weak = [a.weak_type for a in exported.out_avals]
     except (ValueError, NotImplementedError, ImportError):  # e.g. host callbacks; no `flatbuffers`
         _write(folder, f"{key}.program", pickle.dumps(None))
         return _NOT_EXPORTABLE
     out_tree = out_trees[0]
     # the output structure is stored as a tree of integers (a pickled PyTreeDef does not compare equal)
     skeleton = jax.tree_util.tree_unflatten(out_tree, list(range(out_tree.num_leaves)))
-    _write(folder, f"{key}.program", pickle.dumps((blob, skeleton)))
-    return jax.jit(exported.call), out_tree
+    _write(folder, f"{key}.program", pickle.dumps((blob, skeleton, weak)))
+    # the program as a later process reads it, so that every process runs the same
+    return _callable(jax.export.deserialize(bytearray(blob)), weak), out_tree
 
 
 def _write(folder: Path, name: str, data: bytes) -> None:
@@ -168,8 +188,8 @@ def _load(folder: Path, key: str) -> tuple[Callable, object] | object | None:
         stored = pickle.loads((folder / f"{key}.program").read_bytes())
         if stored is None:
             return _NOT_EXPORTABLE
-        blob, skeleton = stored
+        blob, skeleton, weak = stored
         exported = jax.export.deserialize(bytearray(blob))
-    except (OSError, pickle.UnpicklingError, EOFError, ValueError, AttributeError, ImportError):
+    except (OSError, pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, ImportError):
         return None
-    return jax.jit(exported.call), jax.tree_util.tree_structure(skeleton)
+    return _callable(exported, weak), jax.tree_util.tree_structure(skeleton)

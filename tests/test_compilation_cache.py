@@ -53,7 +53,7 @@ def _pose_and_sum(robot, q, scale, mode="plus"):
 
     r = jnp.linalg.qr(jr.geometric_jacobian(robot, q if q.ndim == 1 else q[0]))[1]
     total = jnp.sum(q) if mode == "plus" else -jnp.sum(q)
-    return {"pose": jr.tool_pose(robot, q) * scale, "r": r, "total": total}
+    return {"pose": jr.tool_pose(robot, q) * scale, "r": r, "total": total, "weak": q.shape[-1] * 0.5}
 
 
 def _programs(folder):
@@ -83,6 +83,7 @@ def test_exported_program_hit_miss_and_bitwise(tmp_path, monkeypatch):
     for out in (first, again):
         for k in expected:
             np.testing.assert_array_equal(np.asarray(out[k]), np.asarray(expected[k]), err_msg=k)  # bitwise
+            assert out[k].weak_type == expected[k].weak_type, k
     assert len(_programs(tmp_path)) == 1
 
     cached = cached_program(_pose_and_sum, static_argnames=("mode",))
@@ -120,3 +121,27 @@ def test_exported_program_static_leaves_and_fallbacks(tmp_path, monkeypatch):
     monkeypatch.setenv("JAXROBOT_CACHE_DIR", "off")
     assert cached_program(lambda v: v + 1.0)(x).tolist() == [1.0, 2.0, 3.0]
     assert len(_programs(tmp_path)) == 2 and not (tmp_path / "off").exists()
+
+
+_PROGRAM_PROBE = """
+import sys, jax, jax.numpy as jnp, jaxrobot
+from jaxrobot import _cli_info
+if sys.argv[1] == "load":  # the second process must find the program of the first
+    jax.export.export = None
+q, t = jnp.ones((5, 6)), jnp.linspace(0.0, 1.0, 5)
+err = _cli_info._move_error(jnp.zeros(6), jnp.ones(6), 1.5, q, t)
+print(repr(float(err)), err.weak_type)
+"""
+
+
+def test_exported_program_found_by_a_new_process(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env.update({"JAXROBOT_CACHE_DIR": str(tmp_path), "JAX_PLATFORMS": "cpu"})
+    outs = []
+    for mode in ("export", "load"):
+        done = subprocess.run([sys.executable, "-c", _PROGRAM_PROBE, mode], env=env, capture_output=True,
+                              text=True, timeout=120)
+        assert done.returncode == 0, done.stderr
+        outs.append(done.stdout.strip())
+        assert len(_programs(tmp_path)) == 1
+    assert outs[0] == outs[1]
