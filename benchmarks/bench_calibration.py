@@ -24,11 +24,11 @@ import scipy
 import scipy.optimize
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
-from identification._calibration import DEFAULT_PARAMETERS, _residual_fn
-from identification._calibration_model import rippled_joints
-from identification._fleet import _constants, _fleet_constants, _fleet_solve, calibrate_fleet, fleet_mesh
-from identification._parameters import ParameterMap
-from identification._pose_selection import default_marker, random_feasible_poses
+from identification.calibration._calibrate import DEFAULT_PARAMETERS, _residual_fn
+from identification.calibration._fleet import _constants, _fleet_constants, _fleet_solve, calibrate_fleet, fleet_mesh
+from identification.calibration._model import rippled_joints
+from identification.calibration._parameters import ParameterMap
+from identification.calibration._pose_selection import default_marker, random_feasible_poses
 from jaxrobot._bench_poses import draw_fleet, measure_poses
 
 

@@ -42,7 +42,7 @@ def worker(states: list[int], robots: list[int], repeat: int, ocp: bool) -> dict
     import jaxrobot as jr
     import planning as pl
     from identification import calibrate_fleet
-    from identification._pose_selection import random_feasible_poses
+    from identification.calibration._pose_selection import random_feasible_poses
     from jaxrobot._bench_poses import draw_fleet, measure_poses
 
     dev = jax.devices()[0]

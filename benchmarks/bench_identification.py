@@ -27,9 +27,9 @@ import numpy as np
 
 import jaxrobot as jr
 from identification import DEFAULT_PARAMETERS, calibrate, identify_gear
-from identification._calibration import map_parameters
-from identification._diagnose import Poses, diagnose
 from identification._pose_files import read_poses
+from identification.calibration._calibrate import map_parameters
+from identification.diagnosis._diagnose import Poses, diagnose
 
 
 def shared_folder(arg: str | None) -> Path:

@@ -14,11 +14,15 @@ import pytest
 import scipy.optimize
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
-from identification._calibration import DEFAULT_PARAMETERS, _residual_fn, calibrate
-from identification._calibration_report import error_table, parameter_table
-from identification._identifiability import THESIS_PREFERENCE, analyse, default_parameters, kinematic_parameters
-from identification._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters
-from identification._pose_selection import (
+from identification.calibration._calibrate import DEFAULT_PARAMETERS, _residual_fn, calibrate
+from identification.calibration._identifiability import (
+    THESIS_PREFERENCE,
+    analyse,
+    default_parameters,
+    kinematic_parameters,
+)
+from identification.calibration._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters
+from identification.calibration._pose_selection import (
     default_marker,
     detmax,
     pose_jacobians,
@@ -26,6 +30,7 @@ from identification._pose_selection import (
     rest_motor_angles,
     set_indices,
 )
+from identification.calibration._report import error_table, parameter_table
 from jaxrobot._bench_poses import measure_poses, read_pose_csv, write_pose_csv
 
 N_SE = 3.0
@@ -149,7 +154,7 @@ def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
     differentiated by jax, at a random point: equal to rounding (1e-12 mm, 1e-9 relative)."""
     import jax
 
-    from identification._parameters import predict_pose, rotation_error
+    from identification.calibration._parameters import predict_pose, rotation_error
 
     nominal, _ = robots
     ident, _ = bench
@@ -171,7 +176,7 @@ def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
 
 
 def calibrated_deflection(robot, theta):
-    from identification._parameters import rest_deflection
+    from identification.calibration._parameters import rest_deflection
 
     return rest_deflection(robot, jnp.asarray(theta))
 
@@ -303,7 +308,7 @@ FLEET_SCRIPT = textwrap.dedent("""
     import json, sys
     import jaxrobot as jr
     import jax, numpy as np
-    from identification._fleet import calibrate_fleet
+    from identification.calibration._fleet import calibrate_fleet
     assert len(jax.devices()) == 4, jax.devices()
     data = np.load(sys.argv[1])
     res = calibrate_fleet(jr.racer7(), data["theta"], data["positions"], parameters=data["names"].tolist())
@@ -382,7 +387,7 @@ scipy's ftol test stops up to ~4e-6 standard errors short of the optimum (measur
 def fleet_problem(robots, bench):
     """Three as-built robots (draw_fleet), each with its own 50 of the bench poses (rolled), and
     the fleet solve with DEFAULT_PARAMETERS."""
-    from identification._fleet import calibrate_fleet
+    from identification.calibration._fleet import calibrate_fleet
 
     nominal, _ = robots
     ident, valid = bench
@@ -439,8 +444,8 @@ def test_fleet_constants_one_robot_and_fleet_agree_and_hold_statics(robots, flee
     `jaxrobot._statics.TOL`, + 7e-16 rad rounding of `phi - q`)), `phi = Xi^{-1}(theta)` from Xi."""
     import jax
 
-    from identification._calibration_model import rippled_joints
-    from identification._fleet import _constants
+    from identification.calibration._fleet import _constants
+    from identification.calibration._model import rippled_joints
 
     nominal, _ = robots
     theta = jnp.asarray(fleet_problem[0])
@@ -460,8 +465,8 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
     by `calibrate_fleet` (same shapes, shardings and statics)."""
     import jax
 
-    from identification._calibration_model import rippled_joints
-    from identification._fleet import _fleet_constants, _fleet_solve, fleet_mesh
+    from identification.calibration._fleet import _fleet_constants, _fleet_solve, fleet_mesh
+    from identification.calibration._model import rippled_joints
 
     nominal, _ = robots
     theta, meas, _ = fleet_problem
@@ -477,7 +482,7 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
     assert np.asarray(out["status"]).tolist() == [0, 2, 0]
     assert np.asarray(out["converged"]).tolist() == [True, False, True]
     with pytest.raises(ValueError, match=r"positions\[robot 1\]: NaN/inf in rows \[4\]"):
-        from identification._fleet import calibrate_fleet
+        from identification.calibration._fleet import calibrate_fleet
 
         calibrate_fleet(nominal, theta, pos)
 
@@ -523,8 +528,8 @@ def test_fleet_screw_jacobian_matches_residual_fn(robots, bench):
     two robots at random points: equal to rounding (1e-9 mm, 1e-9 relative)."""
     import jax
 
-    from identification._calibration_model import rippled_joints
-    from identification._fleet import _robot_residual_jacobian, _screw_residual_jacobian
+    from identification.calibration._fleet import _robot_residual_jacobian, _screw_residual_jacobian
+    from identification.calibration._model import rippled_joints
 
     nominal, truth = robots
     ident, _ = bench

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 import jaxrobot as jr
-from identification._diagnose import Poses, diagnose
-from identification._pose_selection import random_feasible_poses, rest_motor_angles
+from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
+from identification.diagnosis._diagnose import Poses, diagnose
 
 N_TRAIN, N_VAL = 150, 60
 
@@ -198,7 +198,7 @@ def test_bad_input_is_named():
 
 def test_catalogue_is_extensible_by_one_class():
     """The README example: a new effect is one class; the layout gives it parameters and its hook."""
-    from identification._effects import Effect, Layout, model_of
+    from identification.diagnosis._effects import Effect, Layout, model_of
 
     class GravityScale(Effect):
         kind, per_joint, names, scales, units = "gravity_scale", False, ("scale",), (1e-3,), ("1",)
@@ -206,7 +206,7 @@ def test_catalogue_is_extensible_by_one_class():
         def apply(self, model, v, orders):
             return eqx.tree_at(lambda m: m.robot.gravity, model, model.robot.gravity * (1 + v[0]))
 
-    from identification._effects import CATALOGUE
+    from identification.diagnosis._effects import CATALOGUE
 
     layout = Layout.of([*CATALOGUE, GravityScale()])
     block = layout.blocks[layout.index("gravity_scale")]

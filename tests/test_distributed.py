@@ -17,7 +17,7 @@ import pytest
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
 from identification import calibrate_fleet
-from identification._cli_fleet import TABLE, bench_fleet
+from identification.calibration._cli_fleet import TABLE, bench_fleet
 from jaxrobot._cli import main
 
 JOB_TIMEOUT_S = 420

@@ -19,8 +19,8 @@ import pytest
 
 import jaxrobot as jr
 from identification import check_gear_run, identify_gear, prepare_gear_runs
-from identification._cli_gear import bench_runs
-from identification._gear_report import summary
+from identification.gear._cli import bench_runs
+from identification.gear._report import summary
 
 MISALIGNMENT_TOL = 1e-3  # rad (issue 3)
 U0_TOL = 1e-4  # relative (issue 3)

@@ -16,8 +16,8 @@ import pytest
 from helpers import independent_data
 
 import jaxrobot as jr
-from identification._diagnose import Poses, diagnose
 from identification._pose_files import read_poses
+from identification.diagnosis._diagnose import Poses, diagnose
 
 CASES = {"p0_clean": None, "p1_joint5_offset": ("joint_offset", 5), "p2_joint2_softer": ("joint_compliance", 2),
          "p3_base_shift": ("base_offset", None), "p4_link_scale": ("link_scale", None)}
@@ -175,7 +175,7 @@ def test_gear_joint2_never_worse_than_no_ripple(gear_stage, direction):
 def test_pose_unit_mistakes_are_named(mistake, transform, message):
     """Each common mistake, made on the independent calibration poses (motor degrees as in the file)."""
     from identification._pose_files import check_pose_units
-    from identification._pose_selection import default_marker
+    from identification.calibration._pose_selection import default_marker
 
     robot = jr.racer7()
     data = read_poses(independent_data() / "calibration" / "train.csv")
@@ -193,7 +193,7 @@ def test_pose_unit_mistakes_are_named(mistake, transform, message):
 ])
 def test_gear_unit_mistakes_are_named(tmp_path, mistake, column, factor, message):
     """Each mistake written into a copy of an independent gear run, read through the CLI's reader."""
-    from identification._gear_processing import prepare_gear_runs
+    from identification.gear._processing import prepare_gear_runs
 
     t, theta, gyro = jr.read_gear_run(independent_data() / "gear" / "j3_pos_r0.csv")
     u0 = np.asarray(jr.racer7().u0)
@@ -231,7 +231,7 @@ def test_map_calibration_holds_on_independent_poses():
     validates within 1.15x the true robot's mean error and no worse than plain LM (by more than one
     standard error of a 30-pose mean), and every true deviation lies within 3 posterior sigma."""
     from identification import DEFAULT_PARAMETERS, calibrate
-    from identification._calibration import map_parameters
+    from identification.calibration._calibrate import map_parameters
 
     d = independent_data() / "calibration"
     train, val = (read_poses(d / f"{s}.csv") for s in ("train", "val"))
@@ -310,7 +310,7 @@ def test_calibrate_fleet_approach(tmp_path, capsys):
     tracker noise (RMS within the chi-square mean + 3 std of 3K residuals). Read as `cw` (the
     default), the same poses would be off by more than twice that bound (checked on the noise-free
     positions of both conventions), so the fit shows the option was applied."""
-    from identification._pose_selection import default_marker, random_feasible_poses
+    from identification.calibration._pose_selection import default_marker, random_feasible_poses
     from jaxrobot._cli import main
 
     robot = jr.racer7()

@@ -17,9 +17,9 @@ import tomli_w
 import jaxrobot as jr
 import planning as pl
 from identification import calibrate, default_parameters
-from identification._diagnose import Poses, diagnose
-from identification._parameters import ParameterMap
-from identification._pose_selection import random_feasible_poses, rest_motor_angles
+from identification.calibration._parameters import ParameterMap
+from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
+from identification.diagnosis._diagnose import Poses, diagnose
 from jaxrobot._description import filter_cutoffs, robot_from_description
 
 ARM7 = Path(__file__).parent / "data" / "arm7.toml"
@@ -172,7 +172,7 @@ def test_seven_joint_calibration_recovers_the_as_built_arm(arm7):
     for i, name in enumerate(names):
         p = rep["parameters"][name]
         assert abs(p["delta"] - true_delta[i]) < 3 * p["std"], (name, p, true_delta[i])
-    from identification._calibration import position_errors
+    from identification.calibration._calibrate import position_errors
 
     defl = np.asarray(meas.link_angles[k:]) - np.asarray(jr.gear_output(truth, jnp.asarray(meas.motor_angles[k:])))
     floor = position_errors(truth, meas.motor_angles[k:], meas.positions[k:], defl,

@@ -47,9 +47,9 @@ def _line(n: int = 6):
 
 
 def _cases():
-    from identification._gear_processing import normal_solve
-    from identification._observability import singular_values_from_gram
-    from identification._pose_selection import _feasible
+    from identification.calibration._observability import singular_values_from_gram
+    from identification.calibration._pose_selection import _feasible
+    from identification.gear._processing import normal_solve
     from jaxrobot._cli_info import _numbers
     from planning._ik import _starts, singular_values
 

@@ -19,7 +19,7 @@ from helpers import example_urdf
 
 import jaxrobot as jr
 import planning as pl
-from identification._pose_selection import random_feasible_poses, rest_motor_angles
+from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
 from jaxrobot._cli import main
 from planning._cli_plan import read_task_csv
 from planning._ik import SINGULARITY_MARGIN, singular_values

@@ -22,16 +22,16 @@ from jaxtyping import Array, Bool, Float
 import jaxrobot as jr
 from jaxrobot._program_cache import cached_program
 
-from ._calibration_model import (
+from .._pose_files import check_pose_units
+from ._identifiability import analyse, default_parameters
+from ._model import (
     analytic_names,
     joint_angle_model,
     marker_pose_one,
     position_jacobian_one,
     rippled_joints,
 )
-from ._identifiability import analyse, default_parameters
 from ._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection, rotation_error
-from ._pose_files import check_pose_units
 from ._pose_selection import default_marker
 
 DEFAULT_PARAMETERS = THESIS_PARAMETERS + ("offset1", "offset2", "offset4", "offset5", "offset6", "d1",

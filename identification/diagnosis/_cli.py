@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ._pose_files import add_approach_option
+from .._pose_files import add_approach_option
 
 HELP = "find where model and pose measurements disagree, name the missing effect, add it, repeat"
 EXAMPLE = "jaxrobot diagnose --model start.toml train.csv --validate val.csv --out diagnose --save-model fixed.toml"
@@ -28,8 +28,8 @@ def configure(parser) -> None:
 
 
 def _poses(paths, approach: str):
+    from .._pose_files import read_poses
     from ._diagnose import Poses
-    from ._pose_files import read_poses
 
     data = [read_poses(p, approach) for p in paths]
     return Poses.concatenate([Poses.of(d["motor_angles"], d["positions"], "column", d["ccw"]) for d in data])
@@ -40,7 +40,7 @@ def run(args, echo) -> dict:
     from jaxrobot._cli import Progress
 
     from ._diagnose import diagnose
-    from ._diagnose_report import candidate_table, loop_table, plot_candidates, plot_residuals, plot_spectra
+    from ._report import candidate_table, loop_table, plot_candidates, plot_residuals, plot_spectra
 
     if args.max_steps < 0 or args.max_order < 1:
         raise ValueError(f"--max-steps >= 0 and --max-order >= 1 expected, found {args.max_steps}, {args.max_order}")

@@ -10,7 +10,7 @@ import numpy as np
 
 from jaxrobot._cli import SolveFailed, add_model_option
 
-from ._pose_files import add_approach_option
+from .._pose_files import add_approach_option
 
 HELP = "calibrate the kinematic parameters from a pose file (docs/model.md (3.12), LM)"
 EXAMPLE = "jaxrobot calibrate poses.csv --validate validation.csv --out calibration --save-model calibrated.toml"
@@ -54,7 +54,7 @@ def summary(report: dict) -> dict:
 
 
 def _echo_report(report: dict, echo, truth: dict | None = None) -> None:
-    from ._calibration_report import error_table, parameter_table
+    from ._report import error_table, parameter_table
 
     echo(f"LM: {report['status']}, {report['iterations']} iterations, noise estimate "
          f"{1e3 * report['noise_estimate_m']:.4f} mm per axis")
@@ -84,7 +84,7 @@ def _workspace(robot, marker) -> np.ndarray:
 
 def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions=None,
                    workspace=None) -> list[str]:
-    from ._calibration_report import error_table, parameter_table, plot_errors, plot_pose_set
+    from ._report import error_table, parameter_table, plot_errors, plot_pose_set
 
     files = []
     parts = [error_table(report["identification"], "Identification set (Table 3.6 format)")]
@@ -110,9 +110,9 @@ def run(args, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot._cli import Progress
 
-    from ._calibration import PRIOR_KEYS, calibrate, map_parameters
+    from .._pose_files import read_poses
+    from ._calibrate import PRIOR_KEYS, calibrate, map_parameters
     from ._identifiability import default_parameters
-    from ._pose_files import read_poses
     from ._pose_selection import default_marker
 
     progress = Progress(3, "calibrate")
@@ -141,7 +141,7 @@ def run(args, echo) -> dict:
                     method=args.method, prior_std=prior)
     progress.step("calibration")
     _echo_report(res.report, echo)
-    from ._model_files import ripple_outside_range
+    from .._model_files import ripple_outside_range
 
     outside = ripple_outside_range(args.robot, data["motor_angles"], data["ccw"], robot.u0)
     for j, o in outside.items():
@@ -154,7 +154,7 @@ def run(args, echo) -> dict:
         for f in _write_outputs(args.out, res.report, positions=data["positions"], workspace=_workspace(robot, marker)):
             echo(f"wrote {args.out / f}")
     if args.save_model is not None:
-        from ._model_files import save_model
+        from .._model_files import save_model
 
         save_model(res.robot, args.save_model, args.robot)
         echo(f"wrote {args.save_model}")
@@ -168,10 +168,10 @@ def demo_stage(out: Path, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot._bench_poses import measure_poses, write_pose_csv
 
-    from ._calibration import DEFAULT_PARAMETERS, calibrate
-    from ._calibration_report import plot_pose_set
+    from ._calibrate import DEFAULT_PARAMETERS, calibrate
     from ._parameters import ParameterMap
     from ._pose_selection import detmax
+    from ._report import plot_pose_set
 
     start = time.perf_counter()
     truth, nominal = jr.racer7(as_built=True), jr.racer7()

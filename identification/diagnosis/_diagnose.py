@@ -34,10 +34,10 @@ from jax.scipy.special import gammaincc
 import jaxrobot as jr
 from jaxrobot._statics import approach_sign
 
-from ._diagnose_model import functions
+from .._pose_files import check_pose_units
+from ..gear._fit import chi2_quantile
 from ._effects import RIPPLE_SLOTS, Layout, Model, catalogue, model_of, robot_of
-from ._gear_fit import chi2_quantile
-from ._pose_files import check_pose_units
+from ._model import functions
 
 MIN_BIC_GAIN = 10.0
 """Least BIC decrease for adding an effect ("very strong" evidence, Kass and Raftery 1995)."""
@@ -62,7 +62,7 @@ class Poses:
     @classmethod
     def of(cls, motor_angles, positions, approach: str = "cw", ccw=None) -> Poses:
         """`approach`: "cw", "order" or "column" (then `ccw` (K, n) bool, e.g. `read_poses`'s)."""
-        from ._pose_files import approach_ccw
+        from .._pose_files import approach_ccw
 
         th = np.asarray(motor_angles, float)
         pos = np.asarray(positions, float)

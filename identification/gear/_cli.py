@@ -45,7 +45,7 @@ def _cutoffs(desc: dict) -> dict[int, float]:
 
 
 def _echo_result(res, echo) -> None:
-    from ._gear_report import order_table, resolution_table, rms_table, test_table
+    from ._report import order_table, resolution_table, rms_table, test_table
 
     joints = sorted({j for j, _ in res.groups})
     for j in joints:
@@ -66,8 +66,8 @@ def run(args, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot._cli import Progress
 
-    from ._gear_fit import identify_gear
-    from ._gear_report import summary, write_report
+    from ._fit import identify_gear
+    from ._report import summary, write_report
 
     progress = Progress(3, "identify-gear")
     desc = jr.read_description(args.robot)
@@ -86,7 +86,7 @@ def run(args, echo) -> dict:
         for f in write_report(res, args.out):
             echo(f"wrote {f}")
     if args.save_model is not None:
-        from ._model_files import save_model
+        from .._model_files import save_model
 
         save_model(res.robot(robot), args.save_model, args.robot, res.identified_ranges())
         echo(f"wrote {args.save_model}")
@@ -126,8 +126,8 @@ def demo_stage(out: Path, echo) -> dict:
     """Bench runs of joints 1-3 -> identification -> validation -> tables and plots in `out`."""
     import jaxrobot as jr
 
-    from ._gear_fit import identify_gear
-    from ._gear_report import summary, write_report
+    from ._fit import identify_gear
+    from ._report import summary, write_report
 
     start = time.perf_counter()
     ident, val, ident_names, val_names = bench_runs(seed=0)

@@ -29,10 +29,10 @@ from jaxrobot._batch import backend_kind
 from jaxrobot._distributed import gather_rows, shard_rows
 from jaxrobot._statics import rest_link_angles
 
-from ._batched_lm import STATUS, batched_lm, covariance, map_chunks
-from ._calibration import RESIDUAL_UNIT, _check_array, _residual_fn
-from ._calibration_model import analytic_names, joint_angle_model, position_jacobian, rippled_joints
+from .._batched_lm import STATUS, batched_lm, covariance, map_chunks
+from ._calibrate import RESIDUAL_UNIT, _check_array, _residual_fn
 from ._identifiability import default_parameters
+from ._model import analytic_names, joint_angle_model, position_jacobian, rippled_joints
 from ._parameters import ParameterMap
 from ._pose_selection import default_marker
 

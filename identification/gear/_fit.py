@@ -28,8 +28,8 @@ from jaxrobot._gear import xi_inverse
 from jaxrobot._linalg import map_matrices
 from jaxrobot._program_cache import cached_program
 
-from ._gear_frequencies import fft_orders, group_samples, sparse_orders
-from ._gear_processing import (
+from ._frequencies import fft_orders, group_samples, sparse_orders
+from ._processing import (
     GearBatch,
     ProcessedRuns,
     gaussian_filter,

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._gear_fit import GearIdentification
+from ._fit import GearIdentification
 
 
 def _deg(x: float) -> float:

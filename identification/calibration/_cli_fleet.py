@@ -15,7 +15,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from ._pose_files import add_approach_option
+from .._pose_files import add_approach_option
 
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
 TABLE = "fleet_calibration.csv"
@@ -116,8 +116,8 @@ def run(args, echo) -> dict:
 
     from jaxrobot._cli import Progress, SolveFailed
 
+    from .._pose_files import read_poses
     from ._fleet import calibrate_fleet
-    from ._pose_files import read_poses
 
     pid = jax.process_index()
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)

@@ -36,7 +36,7 @@ from jaxtyping import Array, Float, Int
 
 from jaxrobot._program_cache import cached_program
 
-from ._gear_processing import GearBatch, ProcessedRuns, normal_solve
+from ._processing import GearBatch, ProcessedRuns, normal_solve
 
 N_MAX = 512
 """Highest candidate order of `sparse_orders` (the passband of each group may end lower)."""

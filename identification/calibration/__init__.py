@@ -1,0 +1,24 @@
+"""Kinematic calibration of one robot and of fleets: parameters, identifiability, pose sets, LM/MAP (thesis ch. 3.3)."""
+
+from jaxrobot._checks import check_public as _check_public
+
+from ._calibrate import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
+from ._calibrate import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
+from ._calibrate import CalibrationResult as CalibrationResult
+from ._calibrate import calibrate as calibrate
+from ._calibrate import map_parameters as map_parameters
+from ._fleet import FleetResult as FleetResult
+from ._fleet import calibrate_fleet as calibrate_fleet
+from ._identifiability import IdentifiabilityResult as IdentifiabilityResult
+from ._identifiability import default_parameters as default_parameters
+from ._identifiability import identifiability as identifiability
+from ._identifiability import kinematic_parameters as kinematic_parameters
+from ._observability import observability_indices as observability_indices
+from ._parameters import THESIS_PARAMETERS as THESIS_PARAMETERS
+from ._parameters import ParameterMap as ParameterMap
+from ._pose_selection import PoseConstraints as PoseConstraints
+from ._pose_selection import detmax as detmax
+from ._pose_selection import random_feasible_poses as random_feasible_poses
+from ._pose_selection import rest_motor_angles as rest_motor_angles
+
+_check_public(globals())

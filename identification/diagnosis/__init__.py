@@ -1,0 +1,13 @@
+"""Finding the effect that explains a gap between model and measurement (`diagnose`, the effect catalogue)."""
+
+from jaxrobot._checks import check_public as _check_public
+
+from ._diagnose import DiagnoseResult as DiagnoseResult
+from ._diagnose import Poses as Poses
+from ._diagnose import diagnose as diagnose
+from ._effects import CATALOGUE as CATALOGUE
+from ._effects import Effect as Effect
+from ._effects import Layout as Layout
+from ._effects import catalogue as catalogue
+
+_check_public(globals())
