@@ -9,11 +9,12 @@ process deserializes it and calls it through `jax.jit`, whose executable then co
 compilation cache.
 
 A program is found again only under the same key: the hash of the sources and data of the
-packages `jaxrobot`, `planning` and `identification` (a code change invalidates every program),
-the jax and jaxlib versions, the backend, x64, the function and its code, the tree structure and the shapes,
-dtypes and weak types of the traced arguments, and the values of the static ones. Static values
-and tree structures enter the key by their `repr`; one whose `repr` does not show its value (an
-object address, an elision) makes the call run uncached, and so does a closure (its captured
+packages `jaxrobot`, `planning` and `identification` as the process first reads them (a code
+change invalidates every program; each version of the sources has its own subfolder), the jax
+and jaxlib versions, the backend, x64, the function and its code, the tree structure and the
+shapes, dtypes and weak types of the traced arguments, and the values of the static ones. Static
+values and tree structures enter the key by their `repr`; one whose `repr` does not show its value
+(an object address, an elision) makes the call run uncached, and so does a closure (its captured
 values would be baked into the program). A program therefore reads no constant from outside its
 arguments except the packages' own code and data: wrap functions of these packages only. Calls
 under a transformation (`jit`, `vmap`, `grad`: tracers among the arguments) run the plain jitted
@@ -47,9 +48,10 @@ _NOT_EXPORTABLE = object()  # stored as a pickled `None`: later processes do not
 
 
 def program_dir() -> Path | None:
-    """The folder of the exported programs (`cache_dir() / "programs"`); `None` when switched off."""
+    """The folder of the exported programs of these sources (`cache_dir() / "programs" / hash`);
+    `None` when switched off."""
     folder = cache_dir()
-    return None if folder is None else folder / "programs"
+    return None if folder is None else folder / "programs" / _source_hash()
 
 
 @functools.cache
@@ -122,7 +124,7 @@ def _key(fn, tree, static: dict, static_leaves: list, dynamic: list) -> str:
              str(jax.config.jax_enable_x64), f"{fn.__module__}.{fn.__qualname__}",
              _code_digest(fn.__code__), _shown(tree),
              _shown(sorted(static.items())), _shown(static_leaves), ",".join(avals)]
-    return _source_hash() + "-" + hashlib.sha256("\n".join(parts).encode()).hexdigest()[:32]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:32]
 
 
 def _code_digest(code) -> str:
@@ -173,9 +175,6 @@ def _export(folder: Path, key: str, fn, sig, tree, static, leaves, traced, dynam
 def _write(folder: Path, name: str, data: bytes) -> None:
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        for old in folder.glob("*.program"):  # programs of other sources can never be used again
-            if not old.name.startswith(_source_hash()):
-                old.unlink(missing_ok=True)
         tmp = folder / f".{name}.{os.getpid()}.tmp"
         tmp.write_bytes(data)
         os.replace(tmp, folder / name)

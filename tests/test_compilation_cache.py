@@ -57,7 +57,7 @@ def _pose_and_sum(robot, q, scale, mode="plus"):
 
 
 def _programs(folder):
-    return sorted(p.name for p in (folder / "programs").glob("*.program"))
+    return sorted(p.name for p in (folder / "programs").glob("*/*.program"))
 
 
 def test_exported_program_hit_miss_and_bitwise(tmp_path, monkeypatch):
