@@ -30,6 +30,7 @@ from ._dynamics import gravity_torque
 from ._elasticity import elastic_deflection
 from ._gear import gear_output, gear_ratio
 from ._kinematics import link_frames, rot_x, rot_y, rot_z
+from ._program_cache import cached_program
 from ._robot import Robot
 
 
@@ -157,7 +158,7 @@ def _theta_fn(profile, joint):
     return lambda ti: start + onehot * motion_profile(ti, speed, travel, ramp, rest)
 
 
-@jax.jit
+@cached_program
 def _deflection_knots(robot, profile, t, joint, ccw_vec):
     """Gravity deflection `phi - q` (n,) and its time derivative at times `t`."""
     theta_of = _theta_fn(profile, joint)
@@ -169,7 +170,7 @@ def _deflection_knots(robot, profile, t, joint, ccw_vec):
     return jax.vmap(lambda ti: jax.jvp(deflection, (ti,), (jnp.ones_like(ti),)))(t)
 
 
-@jax.jit
+@cached_program
 def _bench_samples(robot, profile, t, joint, ccw_vec, rot_s, delta, delta_dot):
     """Motor angles, link angles, joint rate about its axis and gyroscope-frame angular velocity
     per sample: `q = phi - delta`, `qd = thetad / u(phi) - delta_dot`, `omega = sum_{j <= i} qd_j z_{j-1}`."""

@@ -23,6 +23,7 @@ from jaxtyping import Array, Bool, Float
 from ._bench_trajectory import file_joint_count, read_csv_columns, theta_columns
 from ._description import read_description
 from ._kinematics import tool_pose
+from ._program_cache import cached_program
 from ._robot import Robot
 from ._statics import rest_link_angles
 
@@ -171,7 +172,7 @@ def measure_poses(
     return PoseMeasurements(np.asarray(theta), np.asarray(noisy), quat, np.asarray(q), np.asarray(p), meta)
 
 
-@eqx.filter_jit
+@cached_program(filter=True)
 def _measure(robot, theta, marker, ccw):
     q = rest_link_angles(robot, theta, ccw)
     p, r = marker_pose(robot, q, marker)

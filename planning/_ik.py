@@ -24,6 +24,7 @@ from jaxtyping import Array, Bool, Float, Real
 
 import jaxrobot as jr
 from jaxrobot._linalg import map_matrices, solve
+from jaxrobot._program_cache import cached_program
 
 from ._trajectories import Path, sample_path, time_grid
 
@@ -112,7 +113,7 @@ def _first_sample(robot, p_d, r_d, q_init):
     return (*_newton(robot, p_d, r_d, sol.value, redundancy), redundancy)
 
 
-@jax.jit
+@cached_program
 def inverse_kinematics(
     robot: jr.Robot, p_d: Float[Array, "N 3"], r_d: Float[Array, "N 3 3"], q_init: Float[Array, " n"]
 ) -> IKResult:

@@ -11,6 +11,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 import jaxrobot as jr
 from jaxrobot._elasticity import require_elastic
+from jaxrobot._program_cache import cached_program
 from jaxrobot._status import RESULTS, check
 
 from ._al_solver import ALConfig, augmented_lagrangian, history_length
@@ -77,7 +78,7 @@ class OCPSolution(eqx.Module):
         return self.state.thetad
 
 
-@eqx.filter_jit
+@cached_program(filter=True)
 def _solve(problem, start, config: ALConfig, history: int, reference_from_start: bool) -> OCPSolution:
     if start is None:
         x0, u0 = default_warm_start(problem)

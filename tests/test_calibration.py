@@ -3,6 +3,7 @@ selection, LM calibration (vs scipy), bad input, and the sharded fleet path."""
 
 import json
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -356,7 +357,10 @@ def test_cli_json_schema(bench, tmp_path, capsys):
     rc = main(["calibrate", str(tmp_path / "poses.csv"), "--validate", str(tmp_path / "val.csv"),
                "--save-model", str(tmp_path / "out.toml"), "--json", "--out", str(tmp_path / "out")])
     assert rc == 0
-    summary = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    assert re.search(r"^\[calibrate 2/3\] calibration: \d+ s elapsed, ETA \d+ s$", captured.err, re.M)
+    assert re.search(r"^\[calibrate 3/3\] report: \d+ s elapsed, done$", captured.err, re.M)
     assert set(summary) == {"parameters", "identification", "validation"}
     assert set(summary["parameters"]) == set(DEFAULT_PARAMETERS)
     assert all(set(p) == {"value", "delta", "std"} for p in summary["parameters"].values())

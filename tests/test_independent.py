@@ -9,6 +9,7 @@ an RMS over 3 x 30 residuals is 1/sqrt(180) = 7.5 %, so 1.2x is about 2.7 sigma 
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -109,11 +110,13 @@ def gear_stage(tmp_path_factory):
     import contextlib
     import io
 
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
+    buf, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(err):
         code = main(["identify-gear", *files(0), *files(1), "--validate", *files(2), "--json",
                      "--save-model", str(out / "gear.toml")])
     assert code == 0
+    assert re.search(r"^\[identify-gear 2/3\] identification: \d+ s elapsed, ETA \d+ s$", err.getvalue(), re.M)
+    assert re.search(r"^\[identify-gear 3/3\] report: \d+ s elapsed, done$", err.getvalue(), re.M)
     runs = {f: jr.read_gear_run(f) for f in files(2)}
     return json.loads(buf.getvalue()), out / "gear.toml", runs
 

@@ -20,6 +20,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
+from jaxrobot._program_cache import cached_program
 from jaxrobot._status import RESULTS, check
 
 from .._pose_files import check_pose_units
@@ -207,7 +208,7 @@ def solve(
     return check(result, out, throw)
 
 
-_solve_jit = eqx.filter_jit(solve)
+_solve_jit = cached_program(solve, filter=True)
 
 
 @dataclasses.dataclass(frozen=True)

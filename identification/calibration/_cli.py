@@ -108,6 +108,7 @@ def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions
 
 def run(args, echo) -> dict:
     import jaxrobot as jr
+    from jaxrobot._cli import Progress
 
     from .._pose_files import read_poses
     from ._calibrate import PRIOR_KEYS, calibrate, map_parameters
@@ -115,12 +116,14 @@ def run(args, echo) -> dict:
     from ._pose_selection import default_marker
     from ._report import calibration_report
 
+    progress = Progress(3, "calibrate")
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
     data = read_poses(args.poses, args.approach)
     val = None
     if args.validate is not None:
         v = read_poses(args.validate, args.approach)
         val = (v["motor_angles"], v["positions"], v["ccw"])
+    progress.step(f"read {len(data['motor_angles'])} poses" + ("" if val is None else f" + {len(val[0])} validation"))
     names = None if args.parameters is None else [
         n.strip() for n in args.parameters.split(",") if n.strip()]
     desc = jr.read_description(args.robot)
@@ -138,6 +141,7 @@ def run(args, echo) -> dict:
                     marker=marker, position_noise=noise, ccw=data["ccw"], validation=val, limits=args.limits,
                     method=args.method, prior_std=prior)
     report = calibration_report(res)
+    progress.step("calibration")
     _echo_report(report, echo)
     from .._model_files import ripple_outside_range
 
@@ -156,6 +160,7 @@ def run(args, echo) -> dict:
 
         save_model(res.robot, args.save_model, args.robot)
         echo(f"wrote {args.save_model}")
+    progress.step("report")
     return {**summary(report), **({"ripple_outside_identified_range": outside} if outside else {})}
 
 

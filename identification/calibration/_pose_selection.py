@@ -19,6 +19,7 @@ from jaxtyping import Array, Float
 
 import jaxrobot as jr
 from jaxrobot._linalg import map_matrices
+from jaxrobot._program_cache import cached_program
 
 from ._observability import observability_indices, singular_values_from_gram
 from ._parameters import ParameterMap, predict_pose, rotation_error
@@ -70,7 +71,7 @@ def feasible(
                                 c.min_sigma))
 
 
-@eqx.filter_jit
+@cached_program(filter=True)
 def _static_equilibrium(robot, q):
     return jr.static_equilibrium(robot, q)
 
@@ -104,7 +105,7 @@ CHUNK = 1000
 """Poses per batch of `pose_jacobians` (one compiled shape for every pose-set size)."""
 
 
-@eqx.filter_jit
+@cached_program(filter=True)
 def _pose_jacobians(robot, params: ParameterMap, q, marker, ccw):
     theta = jr.static_equilibrium(robot, q, ccw)
     defl = q - jr.gear_output(robot, theta, ccw)
@@ -172,7 +173,7 @@ def _gram(b):
     return jnp.einsum("...kdi,...kdj->...ij", b, b)
 
 
-@eqx.filter_jit
+@cached_program(filter=True)
 def _detmax_loop(pool, start, key, n_draw, n_admit, max_iter, tol, patience):
     """Exchange loop on a pool of candidate blocks (P, d, m), set = indices (K,)."""
     n_pool, k = pool.shape[0], start.shape[0]

@@ -64,10 +64,12 @@ def _echo_result(res, echo) -> None:
 
 def run(args, echo) -> dict:
     import jaxrobot as jr
+    from jaxrobot._cli import Progress
 
     from ._fit import identify_gear
     from ._report import summary, write_report
 
+    progress = Progress(3, "identify-gear")
     desc = jr.read_description(args.robot)
     robot = jr.load_robot(args.robot) if args.robot is not None else jr.racer7()
     for p in [*args.runs, *args.validate]:
@@ -75,8 +77,10 @@ def run(args, echo) -> dict:
             raise FileNotFoundError(f"gear-run file not found: {p}")
     runs = [jr.read_gear_run(p) for p in args.runs]
     val = [jr.read_gear_run(p) for p in args.validate]
+    progress.step(f"read {len(runs)} + {len(val)} runs")
     res = identify_gear(robot, runs, val, _cutoffs(desc), method=args.method,
                         names=[str(p) for p in args.runs], validation_names=[str(p) for p in args.validate])
+    progress.step("identification")
     _echo_result(res, echo)
     if args.out is not None:
         for f in write_report(res, args.out):
@@ -86,6 +90,7 @@ def run(args, echo) -> dict:
 
         save_model(res.robot(robot), args.save_model, args.robot, res.identified_ranges())
         echo(f"wrote {args.save_model}")
+    progress.step("report")
     return summary(res)
 
 

@@ -25,6 +25,7 @@ from jaxrobot._description import filter_cutoffs
 from jaxrobot._gear import ratio as gear_ratio
 from jaxrobot._gear import xi_inverse
 from jaxrobot._linalg import map_matrices
+from jaxrobot._program_cache import cached_program
 
 from ._frequencies import fft_orders, group_samples, sparse_orders
 from ._processing import (
@@ -95,7 +96,7 @@ def _design(phi, phid, orders):
     return jnp.concatenate([phid[:, None], c, s], 1)
 
 
-@jax.jit
+@cached_program
 def fit_gear_ratio(
     proc: ProcessedRuns,
     batch: GearBatch,
@@ -169,7 +170,7 @@ class GearErrors(eqx.Module):
     """Gear output angle `Xi^{-1}(theta)` with the identified ratio."""
 
 
-@jax.jit
+@cached_program
 def kinematic_errors(proc: ProcessedRuns, batch: GearBatch, fit: GearFit, group: Int[Array, " R"]) -> GearErrors:
     """Kinematic error of every run with the constant ratio and with the identified ripple of its
     group (validation runs: groups from the identification runs of the same joint/direction)."""

@@ -29,6 +29,7 @@ from jaxrobot import RESULTS, Ripple, Robot
 from jaxrobot._bench_gear import mount_angular_velocity, quasi_static_link_angles
 from jaxrobot._kinematics import rot_x, rot_y
 from jaxrobot._linalg import map_matrices
+from jaxrobot._program_cache import cached_program
 
 MOVE_THRESHOLD_RAD = math.radians(1.0)
 """A joint moves in a run if its motor angle spans more than this [rad, motor side]."""
@@ -372,7 +373,7 @@ class ProcessedRuns(eqx.Module):
     """`sum g_k^2` of each run's filter: white noise of variance s^2 leaves s^2 times this."""
 
 
-@jax.jit
+@cached_program
 def process_gear_runs(robot: Robot, batch: GearBatch) -> ProcessedRuns:
     """Kinematic error of all runs of all joints in one call (thesis Fig. 3.1).
 
