@@ -1,7 +1,7 @@
 """Identification from measurements: gear ratios (`gear`), kinematic calibration (`calibration`) and
 the discrepancy workflow (`diagnosis`). The workflows and the effect catalogue are exported here."""
 
-from jaxrobot._checks import check_public as _check_public
+from jaxrobot.checks import check_public as _check_public
 
 from ._pose_files import APPROACHES as APPROACHES
 from ._pose_files import check_pose_units as check_pose_units
@@ -16,6 +16,7 @@ from .calibration import ParameterMap as ParameterMap
 from .calibration import PoseConstraints as PoseConstraints
 from .calibration import calibrate as calibrate
 from .calibration import calibrate_fleet as calibrate_fleet
+from .calibration import calibration_report as calibration_report
 from .calibration import default_parameters as default_parameters
 from .calibration import detmax as detmax
 from .calibration import identifiability as identifiability
@@ -25,6 +26,7 @@ from .calibration import observability_indices as observability_indices
 from .calibration import random_feasible_poses as random_feasible_poses
 from .calibration import rest_motor_angles as rest_motor_angles
 from .diagnosis import CATALOGUE as CATALOGUE
+from .diagnosis import DiagnoseEvent as DiagnoseEvent
 from .diagnosis import DiagnoseResult as DiagnoseResult
 from .diagnosis import Effect as Effect
 from .diagnosis import Layout as Layout

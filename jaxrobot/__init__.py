@@ -50,6 +50,7 @@ from ._kinematics import link_frames as link_frames  # noqa: E402
 from ._kinematics import point_position as point_position  # noqa: E402
 from ._kinematics import tool_pose as tool_pose  # noqa: E402
 from ._linalg import spd_solve as spd_solve  # noqa: E402
+from ._program_cache import cached_program as cached_program  # noqa: E402
 from ._robot import Ripple as Ripple  # noqa: E402
 from ._robot import Robot as Robot  # noqa: E402
 from ._rotations import homogeneous as homogeneous  # noqa: E402
@@ -65,6 +66,9 @@ from ._rotations import rotvec_to_rotation as rotvec_to_rotation  # noqa: E402
 from ._rotations import rpy as rpy  # noqa: E402
 from ._rotations import vee as vee  # noqa: E402
 from ._simulate import simulate as simulate  # noqa: E402
+from ._status import RESULTS as RESULTS  # noqa: E402
+from ._status import status_message as status_message  # noqa: E402
+from ._status import status_name as status_name  # noqa: E402
 from ._urdf import save_urdf as save_urdf  # noqa: E402
 from ._urdf import to_urdf as to_urdf  # noqa: E402
 

@@ -9,6 +9,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._program_cache import cached_program
+
 HELP = "summarise a robot: parameters, home pose, static deflection, eigenfrequencies"
 EXAMPLE = "jaxrobot info --model arm.toml --as-built --out info"
 
@@ -37,6 +39,7 @@ def configure(parser) -> None:
     parser.add_argument("--as-built", action="store_true", help="the test bench's as-built robot")
 
 
+@cached_program(static_argnames=("elastic",))
 def _numbers(robot, q, elastic: tuple[int, ...]):
     from ._dynamics import gravity_torque, mass_matrix
     from ._elasticity import elastic_deflection
@@ -66,7 +69,7 @@ def summary(robot) -> dict:
     q = np.deg2rad(np.asarray(list(poses.values()), float))
     elastic = tuple(int(i) for i in np.flatnonzero(np.isfinite(np.asarray(robot.k1))))
     sag, freq, home = (None if a is None else np.asarray(a)
-                       for a in jax.jit(_numbers, static_argnums=2)(robot, q, elastic))
+                       for a in _numbers(robot, q, elastic))
     return {
         "name": robot.name,
         "home_flange_position_m": np.asarray(home[:3, 3]),
@@ -127,11 +130,36 @@ def run(args, echo) -> dict:
     return info
 
 
+def _joint_move(qa, qb, duration):
+    def q_d(t):
+        s = jnp.clip(t / duration, 0.0, 1.0)
+        return qa + (qb - qa) * (35 * s**4 - 84 * s**5 + 70 * s**6 - 20 * s**7)
+
+    return q_d
+
+
+@cached_program(static_argnames=("duration",))
+def _move_flat_inverse(robot, qa, qb, duration, t):
+    from ._flat import flat_inverse
+
+    return flat_inverse(robot, _joint_move(qa, qb, duration), t)
+
+
+@cached_program
+def _move_simulation(robot, t, theta, thetad, thetadd):
+    from ._simulate import simulate
+
+    return simulate(robot, t, theta, thetad, thetadd, substeps=4)
+
+
+@cached_program(static_argnames=("duration",))
+def _move_error(qa, qb, duration, q, t):
+    return jnp.max(jnp.abs(q - jax.vmap(_joint_move(qa, qb, duration))(t)))
+
+
 def stage(out: Path, echo) -> dict:
     """Demo stage 1: the model, and the flat inverse tracking a joint move on the simulated plant."""
     from ._description import racer7
-    from ._flat import flat_inverse
-    from ._simulate import simulate
 
     robot = racer7()
     info = _report(robot, echo)
@@ -139,15 +167,11 @@ def stage(out: Path, echo) -> dict:
     qb = jnp.deg2rad(jnp.array([40.0, 30.0, -60.0, 30.0, 30.0, 45.0]))
     duration = 1.5
 
-    def q_d(t):
-        s = jnp.clip(t / duration, 0.0, 1.0)
-        return qa + (qb - qa) * (35 * s**4 - 84 * s**5 + 70 * s**6 - 20 * s**7)
-
     t = jnp.arange(0.0, duration + 0.2, 1e-3)
     start = time.perf_counter()
-    th, thd, thdd = jax.jit(lambda t: flat_inverse(robot, q_d, t))(t)
-    q, _ = jax.jit(lambda *a: simulate(robot, *a, substeps=4))(t, th, thd, thdd)
-    err = float(jax.jit(lambda q, t: jnp.max(jnp.abs(q - jax.vmap(q_d)(t))))(q, t))
+    th, thd, thdd = _move_flat_inverse(robot, qa, qb, duration, t)
+    q, _ = _move_simulation(robot, t, th, thd, thdd)
+    err = float(_move_error(qa, qb, duration, q, t))
     echo(f"\nflat inverse of a {duration} s joint move, simulated with RK4 (0.25 ms): max |q - q_d| = "
          f"{err:.2e} rad ({time.perf_counter() - start:.1f} s incl. compile)")
     info["flat_inverse_tracking_error_rad"] = err

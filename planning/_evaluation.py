@@ -20,6 +20,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
+from jaxrobot import cached_program
 
 from ._ik import JointPath, taylor_joint_path
 from ._trajectories import sample_path
@@ -68,21 +69,21 @@ def _along(fn: Callable, q: Float[Array, "N n"], qd: Float[Array, "N n"], qdd: F
     return MotorTrajectory(*jax.vmap(single)(q, qd, qdd))
 
 
-@jax.jit
+@cached_program
 def rigid_motor_trajectory(robot: jr.Robot, q: Float[Array, "N n"], qd: Float[Array, "N n"],
                            qdd: Float[Array, "N n"]) -> MotorTrajectory:
     """(a) Rigid planning: `theta = Xi(q_d)` (gear ripple, no elasticity)."""
     return _along(lambda q: jr.motor_angle(robot, q), q, qd, qdd)
 
 
-@jax.jit
+@cached_program
 def quasi_static_motor_trajectory(robot: jr.Robot, q: Float[Array, "N n"], qd: Float[Array, "N n"],
                                   qdd: Float[Array, "N n"]) -> MotorTrajectory:
     """(b) Quasi-static planning: `theta = Xi(q_d + kappa^{-1}(g(q_d)))` (gravity deflection only)."""
     return _along(lambda q: jr.static_equilibrium(robot, q), q, qd, qdd)
 
 
-@jax.jit
+@cached_program
 def _flat(robot, t, derivatives):
     return MotorTrajectory(*jr.flat_inverse(robot, taylor_joint_path(t, derivatives), t))
 
@@ -140,7 +141,7 @@ def _run(plant, t, p_d, r_d, traj, extra, substeps, directional):
     return q, jnp.linalg.norm(pose[:, :3, 3] - p_d, axis=-1), _orientation_angle(r_d, pose[:, :3, :3])
 
 
-_run_jit = jax.jit(_run, static_argnums=(5, 6, 7))
+_run_jit = cached_program(_run, static_argnames=("extra", "substeps", "directional"))
 
 
 def simulate_plans(

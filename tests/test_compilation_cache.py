@@ -40,3 +40,108 @@ def test_users_own_jax_cache_is_kept(tmp_path):
     used = _run({"JAX_COMPILATION_CACHE_DIR": str(tmp_path / "users")}, tmp_path)
     assert used == str(tmp_path / "users")
     assert not (tmp_path / "xdg").exists()
+
+
+# --- exported programs (`jaxrobot._program_cache`) -----------------------------------------------
+
+
+def _pose_and_sum(robot, q, scale, mode="plus"):
+    """A program with a robot (custom pytree, a static name), a static argument and LAPACK (QR)."""
+    import jax.numpy as jnp
+
+    import jaxrobot as jr
+
+    r = jnp.linalg.qr(jr.geometric_jacobian(robot, q if q.ndim == 1 else q[0]))[1]
+    total = jnp.sum(q) if mode == "plus" else -jnp.sum(q)
+    return {"pose": jr.tool_pose(robot, q) * scale, "r": r, "total": total, "weak": q.shape[-1] * 0.5}
+
+
+def _programs(folder):
+    return sorted(p.name for p in (folder / "programs").glob("*/*.program"))
+
+
+def test_exported_program_hit_miss_and_bitwise(tmp_path, monkeypatch):
+    import dataclasses
+
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import jaxrobot as jr
+    from jaxrobot._program_cache import cached_program
+
+    monkeypatch.setenv("JAXROBOT_CACHE_DIR", str(tmp_path))
+    robot, q = jr.racer7(), jnp.linspace(-0.5, 0.7, 6)
+    plain = jax.jit(_pose_and_sum, static_argnames="mode")
+    expected = plain(robot, q, 2.0)
+    first = cached_program(_pose_and_sum, static_argnames=("mode",))(robot, q, 2.0)
+    assert len(_programs(tmp_path)) == 1
+    # a new wrapper (as in a new process) loads the stored program and must not export again
+    with monkeypatch.context() as m:
+        m.setattr(jax.export, "export", lambda *a, **k: (_ for _ in ()).throw(AssertionError("exported again")))
+        again = cached_program(_pose_and_sum, static_argnames=("mode",))(robot, q, 2.0)
+    for out in (first, again):
+        for k in expected:
+            np.testing.assert_array_equal(np.asarray(out[k]), np.asarray(expected[k]), err_msg=k)  # bitwise
+            assert out[k].weak_type == expected[k].weak_type, k
+    assert len(_programs(tmp_path)) == 1
+
+    cached = cached_program(_pose_and_sum, static_argnames=("mode",))
+    # every change of a shape, a static argument or a robot's static field is another program
+    changes = [((robot, jnp.stack([q, 2 * q]), 2.0), {}), ((robot, q, 2.0), {"mode": "minus"}),
+               ((dataclasses.replace(robot, name="other"), q, 2.0), {})]
+    for i, (args, kwargs) in enumerate(changes, 2):
+        out, ref = cached(*args, **kwargs), plain(*args, **kwargs)
+        for k in ref:
+            np.testing.assert_array_equal(np.asarray(out[k]), np.asarray(ref[k]), err_msg=k)
+        assert len(_programs(tmp_path)) == i
+    assert float(cached(robot, q, 2.0, mode="minus")["total"]) == -float(jnp.sum(q))
+
+
+def test_exported_program_static_leaves_and_fallbacks(tmp_path, monkeypatch):
+    import jax
+    import jax.numpy as jnp
+
+    from jaxrobot._program_cache import cached_program
+
+    monkeypatch.setenv("JAXROBOT_CACHE_DIR", str(tmp_path))
+    scaled = cached_program(lambda x, factor: x * factor, filter=True)  # `factor` (a float) is static
+    x = jnp.arange(3.0)
+    assert scaled(x, 2.0).tolist() == [0.0, 2.0, 4.0]
+    assert scaled(x, 3.0).tolist() == [0.0, 3.0, 6.0]  # a new static value: a new program, not a stale one
+    assert len(_programs(tmp_path)) == 2
+    # under a transformation the plain jitted function runs (tracers are never exported)
+    assert jax.vmap(lambda v: scaled(v, 2.0))(jnp.ones((2, 3))).tolist() == [[2.0] * 3] * 2
+    assert float(jax.grad(lambda v: scaled(v, 2.0).sum())(x)[0]) == 2.0
+    # a static value whose repr does not show it (a function), or a closure, runs uncached
+    apply = cached_program(lambda f, x: f(x), filter=True)
+    assert apply(jnp.sin, x).tolist() == jnp.sin(x).tolist()
+    assert cached_program(lambda v: v * x)(x).tolist() == (x * x).tolist()
+    assert len(_programs(tmp_path)) == 2
+    monkeypatch.setenv("JAXROBOT_CACHE_DIR", "off")
+    assert cached_program(lambda v: v + 1.0)(x).tolist() == [1.0, 2.0, 3.0]
+    assert len(_programs(tmp_path)) == 2 and not (tmp_path / "off").exists()
+
+
+_PROGRAM_PROBE = """
+import sys, jax, jax.numpy as jnp, jaxrobot
+from jaxrobot import _cli_info
+if sys.argv[1] == "load":  # the second process must find the program of the first
+    jax.export.export = None
+q, t = jnp.ones((5, 6)), jnp.linspace(0.0, 1.0, 5)
+err = _cli_info._move_error(jnp.zeros(6), jnp.ones(6), 1.5, q, t)
+print(repr(float(err)), err.weak_type)
+"""
+
+
+def test_exported_program_found_by_a_new_process(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env.update({"JAXROBOT_CACHE_DIR": str(tmp_path), "JAX_PLATFORMS": "cpu"})
+    outs = []
+    for mode in ("export", "load"):
+        done = subprocess.run([sys.executable, "-c", _PROGRAM_PROBE, mode], env=env, capture_output=True,
+                              text=True, timeout=120)
+        assert done.returncode == 0, done.stderr
+        outs.append(done.stdout.strip())
+        assert len(_programs(tmp_path)) == 1
+    assert outs[0] == outs[1]

@@ -144,7 +144,7 @@ def rest_deflection(
     the kinematic deviations only through `g(q)`, a relative effect of ~1e-4 on a deflection of
     ~1e-4 rad (~1e-8 rad, far below the tracker noise).
     """
-    return rest_link_angles(robot, theta, ccw) - jr.gear_output(robot, theta, ccw)
+    return rest_link_angles(robot, theta, ccw, throw=False) - jr.gear_output(robot, theta, ccw)
 
 
 def predict_pose(

@@ -18,6 +18,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
+from jaxrobot import cached_program
 from jaxrobot.linalg import map_matrices
 from jaxrobot.measurement import marker_pose
 
@@ -69,7 +70,7 @@ def feasible(
                                 c.min_sigma))
 
 
-@eqx.filter_jit
+@cached_program(filter=True)
 def _static_equilibrium(robot, q):
     return jr.static_equilibrium(robot, q)
 
@@ -103,7 +104,7 @@ CHUNK = 1000
 """Poses per batch of `pose_jacobians` (one compiled shape for every pose-set size)."""
 
 
-@eqx.filter_jit
+@cached_program(filter=True)
 def _pose_jacobians(robot, params: ParameterMap, q, marker, ccw):
     theta = jr.static_equilibrium(robot, q, ccw)
     defl = q - jr.gear_output(robot, theta, ccw)
@@ -171,7 +172,7 @@ def _gram(b):
     return jnp.einsum("...kdi,...kdj->...ij", b, b)
 
 
-@eqx.filter_jit
+@cached_program(filter=True)
 def _detmax_loop(pool, start, key, n_draw, n_admit, max_iter, tol, patience):
     """Exchange loop on a pool of candidate blocks (P, d, m), set = indices (K,)."""
     n_pool, k = pool.shape[0], start.shape[0]

@@ -21,7 +21,7 @@ def configure(parser) -> None:
     parser.add_argument("runs", nargs="+", type=Path, help="gear-run CSV files used for identification")
     parser.add_argument("--validate", nargs="+", type=Path, default=[], metavar="RUNS",
                         help="gear-run CSV files used for validation only")
-    from jaxrobot._cli import add_model_option
+    from jaxrobot.cli import add_model_option
 
     add_model_option(parser, "robot description (TOML, racer7.toml format; default: the embedded Racer-7)",
                      dest="robot")
@@ -33,7 +33,7 @@ def configure(parser) -> None:
 
 
 def _cutoffs(desc: dict) -> dict[int, float]:
-    from jaxrobot._description import filter_cutoffs
+    from jaxrobot import filter_cutoffs
 
     if "gear" not in desc:
         raise ValueError("robot description: a [gear] section (basic ratios u0) is needed for gear identification")
@@ -65,10 +65,12 @@ def _echo_result(res, echo) -> None:
 def run(args, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot import bench
+    from jaxrobot.cli import Progress
 
     from ._fit import identify_gear
     from ._report import summary, write_report
 
+    progress = Progress(3, "identify-gear")
     desc = jr.read_description(args.robot)
     robot = jr.load_robot(args.robot) if args.robot is not None else jr.racer7()
     for p in [*args.runs, *args.validate]:
@@ -76,8 +78,10 @@ def run(args, echo) -> dict:
             raise FileNotFoundError(f"gear-run file not found: {p}")
     runs = [bench.read_gear_run(p) for p in args.runs]
     val = [bench.read_gear_run(p) for p in args.validate]
+    progress.step(f"read {len(runs)} + {len(val)} runs")
     res = identify_gear(robot, runs, val, _cutoffs(desc), method=args.method,
                         names=[str(p) for p in args.runs], validation_names=[str(p) for p in args.validate])
+    progress.step("identification")
     _echo_result(res, echo)
     if args.out is not None:
         for f in write_report(res, args.out):
@@ -87,6 +91,7 @@ def run(args, echo) -> dict:
 
         save_model(res.robot(robot), args.save_model, args.robot, res.identified_ranges())
         echo(f"wrote {args.save_model}")
+    progress.step("report")
     return summary(res)
 
 

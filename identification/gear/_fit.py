@@ -17,11 +17,20 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jax.scipy.special import betainc, gammaincc
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxrobot import Ripple, Robot, filter_cutoffs, fourier_ratio, fourier_xi_inverse, read_description
+from jaxrobot import (
+    RESULTS,
+    Ripple,
+    Robot,
+    cached_program,
+    filter_cutoffs,
+    fourier_ratio,
+    fourier_xi_inverse,
+    read_description,
+    status_message,
+)
 from jaxrobot.linalg import map_matrices
 
 from ._frequencies import fft_orders, group_samples, sparse_orders
@@ -93,7 +102,7 @@ def _design(phi, phid, orders):
     return jnp.concatenate([phid[:, None], c, s], 1)
 
 
-@jax.jit
+@cached_program
 def fit_gear_ratio(
     proc: ProcessedRuns,
     batch: GearBatch,
@@ -168,7 +177,7 @@ class GearErrors(eqx.Module):
     """Gear output angle `Xi^{-1}(theta)` with the identified ratio."""
 
 
-@jax.jit
+@cached_program
 def kinematic_errors(proc: ProcessedRuns, batch: GearBatch, fit: GearFit, group: Int[Array, " R"]) -> GearErrors:
     """Kinematic error of every run with the constant ratio and with the identified ripple of its
     group (validation runs: groups from the identification runs of the same joint/direction)."""
@@ -482,10 +491,10 @@ def identify_gear(
     group = np.array([groups.index((i.joint, i.ccw)) for i in infos])
     fit_run = ~is_val
     proc = process_gear_runs(robot, batch)
-    align_ok = bool(proc.align_result == optx.RESULTS.successful)
+    align_ok = bool(proc.align_result == RESULTS.successful)
     if not align_ok:
         raise ValueError("gyroscope alignment (eq. 3.3) did not converge: "
-                         f"{optx.RESULTS[proc.align_result]}; check the gyroscope columns")
+                         f"{status_message(proc.align_result)}; check the gyroscope columns")
     n_groups = len(groups)
     u0_run = u0_model[np.asarray(batch.joint)]
     samples = group_samples(proc, batch, group, fit_run, n_groups, u0_run)

@@ -27,13 +27,14 @@ Two methods on the kinematic error of the identification runs of one joint and d
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
+
+from jaxrobot import cached_program
 
 from ._processing import GearBatch, ProcessedRuns, normal_solve
 
@@ -233,7 +234,7 @@ def sparse_orders(
                        samples.fold, jnp.asarray(max_order), n_max, k_max, keep_all)
 
 
-@functools.partial(jax.jit, static_argnames=("n_max", "k_max", "keep_all"))
+@cached_program(static_argnames=("n_max", "k_max", "keep_all"))
 def _sparse_jit(error, phi, rate, sigma, weight, fold, max_order, n_max, k_max, keep_all):
     return jax.lax.map(lambda a: _sparse_one(*a, n_max=n_max, k_max=k_max, keep_all=keep_all),
                        (error, phi, rate, sigma, weight, fold, max_order))

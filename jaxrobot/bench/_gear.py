@@ -27,6 +27,7 @@ from jaxtyping import Array, Float
 
 from .._description import read_description
 from .._gear import gear_output, gear_ratio
+from .._program_cache import cached_program
 from .._robot import Robot
 from ..measurement._gyroscope import mount_angular_velocity, sensor_rotation
 from ..measurement._model import quasi_static_link_angles
@@ -121,7 +122,7 @@ def _theta_fn(profile, joint):
     return lambda ti: start + onehot * motion_profile(ti, speed, travel, ramp, rest)
 
 
-@jax.jit
+@cached_program
 def _deflection_knots(robot, profile, t, joint, ccw_vec):
     """Gravity deflection `phi - q` (n,) and its time derivative at times `t`."""
     theta_of = _theta_fn(profile, joint)
@@ -133,7 +134,7 @@ def _deflection_knots(robot, profile, t, joint, ccw_vec):
     return jax.vmap(lambda ti: jax.jvp(deflection, (ti,), (jnp.ones_like(ti),)))(t)
 
 
-@jax.jit
+@cached_program
 def _bench_samples(robot, profile, t, joint, ccw_vec, rot_s, delta, delta_dot):
     """Motor angles, link angles, joint rate about its axis and gyroscope-frame angular velocity
     per sample: `q = phi - delta`, `qd = thetad / u(phi) - delta_dot`, `omega = sum_{j <= i} qd_j z_{j-1}`."""

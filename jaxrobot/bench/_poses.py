@@ -21,6 +21,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from .._description import read_description
+from .._program_cache import cached_program
 from .._robot import Robot
 from .._rotations import rotation_to_quaternion, rotvec_to_rotation
 from ..measurement._model import measured_pose
@@ -63,7 +64,7 @@ class PoseMeasurements:
     metadata: dict
 
 
-_measure = eqx.filter_jit(measured_pose)
+_measure = cached_program(filter=True)(measured_pose)
 
 
 def _fleet_axes(robot: Robot) -> tuple[int, ...]:

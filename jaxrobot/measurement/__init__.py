@@ -14,5 +14,6 @@ from ._model import quasi_static_link_angles as quasi_static_link_angles
 from ._model import rest_iterations as rest_iterations
 from ._model import rest_link_angles as rest_link_angles
 from ._model import rest_map as rest_map
+from ._model import rest_solution as rest_solution
 
 _check_public(globals())

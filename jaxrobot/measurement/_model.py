@@ -11,10 +11,11 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
 from .._dynamics import gravity_torque
-from .._elasticity import compliance_deflection, elastic_deflection
+from .._elasticity import elastic_deflection
 from .._gear import gear_output
 from .._kinematics import tool_pose
 from .._robot import Robot
+from .._status import RESULTS, check
 
 TOL = 1e-11
 """Fixed-point tolerance on the last step [rad]. The map contracts by `L = |dg/dq| / k` per step (Racer-7:
@@ -51,24 +52,18 @@ def lost_motion(robot: Robot, ccw: bool | Bool[Array, "*b n"]) -> Float[Array, "
     return 0.5 * robot.backlash * approach_sign(ccw)
 
 
-def rest_map(
-    robot: Robot, phi: Float[Array, "*b n"], q: Float[Array, "*b n"],
-    compliance: tuple[Float[Array, " n"], Float[Array, " n"]] | None = None,
-) -> Float[Array, "*b n"]:
+def rest_map(robot: Robot, phi: Float[Array, "*b n"], q: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
     """One step of the rest fixed point, `phi - kappa^{-1}(g(q))` (the gears' deflection under the
-    gravity torque at `q`). `compliance`: `(c, e)` of `compliance_deflection` in place of the
-    robot's stiffness."""
-    tau = gravity_torque(robot, q)
-    return phi - (elastic_deflection(robot, tau) if compliance is None else compliance_deflection(*compliance, tau))
+    gravity torque at `q`)."""
+    return phi - elastic_deflection(robot, gravity_torque(robot, q))
 
 
 def rest_iterations(
-    robot: Robot, phi: Float[Array, "*b n"], steps: int, q0: Float[Array, "*b n"] | None = None,
-    compliance: tuple[Float[Array, " n"], Float[Array, " n"]] | None = None,
+    robot: Robot, phi: Float[Array, "*b n"], steps: int, q0: Float[Array, "*b n"] | None = None
 ) -> Float[Array, "*b n"]:
     """`steps` iterations of `rest_map` from `q0` (default `phi`): the rest angles unrolled, cheap to
     differentiate in forward mode."""
-    return jax.lax.fori_loop(0, steps, lambda _, q: rest_map(robot, phi, q, compliance), phi if q0 is None else q0)
+    return jax.lax.fori_loop(0, steps, lambda _, q: rest_map(robot, phi, q), phi if q0 is None else q0)
 
 
 FIXED_POINT_STEPS = 6
@@ -85,13 +80,14 @@ def quasi_static_link_angles(
     return rest_iterations(robot, gear_output(robot, theta, ccw), FIXED_POINT_STEPS)
 
 
-def rest_link_angles(
+def rest_solution(
     robot: Robot,
     theta: Float[Array, "*b n"],
     ccw: bool | Bool[Array, "*b n"] = False,
     rippled: tuple[int, ...] | None = None,
-) -> Float[Array, "*b n"]:
-    """Link angles `q` at rest at motor angles `theta`: `kappa(phi - q) = g(q)`, `phi = Xi^{-1}(theta)`.
+) -> tuple[Float[Array, "*b n"], RESULTS]:
+    """Link angles `q` at rest at motor angles `theta` and the status of their fixed point
+    (`RESULTS`, one per pose under `vmap`): `kappa(phi - q) = g(q)`, `phi = Xi^{-1}(theta)`.
 
     Solved as the fixed point `q = phi - kappa^{-1}(g(q))` with optimistix (implicit
     derivatives). `ccw` gives the last direction of approach per joint: it selects the gear set,
@@ -106,7 +102,25 @@ def rest_link_angles(
 
     sol = optx.fixed_point(fn, optx.FixedPointIteration(rtol=0.0, atol=TOL), phi, args=(robot, phi),
                            max_steps=64, throw=False)
-    return jnp.where(sol.result == optx.RESULTS.successful, sol.value, jnp.nan)
+    return sol.value, RESULTS.promote(sol.result)
+
+
+def rest_link_angles(
+    robot: Robot,
+    theta: Float[Array, "*b n"],
+    ccw: bool | Bool[Array, "*b n"] = False,
+    rippled: tuple[int, ...] | None = None,
+    throw: bool = True,
+) -> Float[Array, "*b n"]:
+    """Link angles `q` at rest at motor angles `theta` (`rest_solution`).
+
+    `throw`: raise the status's message (at run time, also under `jit`) when the fixed point did
+    not converge; False gives NaN there instead, for batched solves that report a non-finite
+    start in their own status (the fleet calibration).
+    """
+    q, result = rest_solution(robot, theta, ccw, rippled)
+    ok = result == RESULTS.successful
+    return check(result, q, True) if throw else jnp.where(ok, q, jnp.nan)
 
 
 def marker_pose(
