@@ -49,7 +49,6 @@ from ._kinematics import geometric_jacobian as geometric_jacobian  # noqa: E402
 from ._kinematics import link_frames as link_frames  # noqa: E402
 from ._kinematics import point_position as point_position  # noqa: E402
 from ._kinematics import tool_pose as tool_pose  # noqa: E402
-from ._linalg import spd_solve as spd_solve  # noqa: E402
 from ._program_cache import cached_program as cached_program  # noqa: E402
 from ._robot import Ripple as Ripple  # noqa: E402
 from ._robot import Robot as Robot  # noqa: E402
