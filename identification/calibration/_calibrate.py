@@ -222,7 +222,8 @@ class CalibrationResult:
     distance per identification pose with the start and the calibrated robot, and
     `validation_before`/`validation_after` the same for the validation poses (None without);
     `beyond_limits`: the poses beyond the joint limits ({row, joint, q_deg, limits_deg});
-    `prior_std` (m,): the MAP priors (None for `method="lm"`).
+    `prior_std` (m,): the MAP priors (None for `method="lm"`); `status`: the name of the solve's
+    `jaxrobot.RESULTS` (`converged` only for `successful`).
     """
 
     robot: jr.Robot
@@ -358,7 +359,7 @@ def calibrate(
     parameters, unit mistakes (`check_pose_units`), and, with
     `limits="raise"`, poses beyond the joint limits (by row); after the solve, for a
     rank-deficient pose set (naming the unidentifiable directions). A solve that does not converge is
-    returned with `converged=False` and its optimistix `status`, never as success.
+    returned with `converged=False` and its `status` (a `jaxrobot.RESULTS` name), never as success.
 
     **Returns:** `CalibrationResult` (SI units; `calibration_report` gives the report dict).
     """
