@@ -124,7 +124,7 @@ class LoopRow:
 @dataclasses.dataclass(frozen=True)
 class CandidateScore:
     """One candidate of a step: BIC linearised (all) and after its LM fit (the shortlist: `bic`,
-    residual RMS norms [m], optimistix status index and steps; None otherwise); `selected`: added."""
+    residual RMS norms [m], status name (`jaxrobot.status_name`) and steps; None otherwise); `selected`: added."""
 
     candidate: str
     bic_linearised: float
