@@ -173,7 +173,7 @@ def solve(
     skips the Newton inversion.
 
     **Returns:** `value` (m,) parameters, `std` (m,) standard errors, `cov` (m, m), `result`
-    (optimistix RESULTS index), `steps`, `residuals` (n,) at the solution in m (orientation rows
+    (below), `steps`, `residuals` (n,) at the solution in m (orientation rows
     in m-equivalent units), `rank` of the scaled Jacobian, `sigma2` the noise estimate [m^2],
     `jacobian` (n, m) at the solution (residual mm per parameter unit). `result` is a `RESULTS`:
     optimistix's status, `rank_deficient` for a converged solve with a rank-deficient Jacobian,
