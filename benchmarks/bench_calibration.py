@@ -189,7 +189,8 @@ def main() -> None:
         "",
         f"LM steps per robot (batched): median {np.median(res.iterations):.0f}, max {res.iterations.max()} "
         f"(the batch runs until the last robot stops); status: "
-        + ", ".join(f"{name} {int(np.sum(res.status == name))}" for name in np.unique(res.status)) + ".",
+        + ", ".join(f"{name} {int(np.sum(jr.status_name(res.status) == name))}"
+                    for name in np.unique(jr.status_name(res.status))) + ".",
         "",
         "Accuracy distribution (batched LM):",
         "",

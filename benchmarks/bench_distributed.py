@@ -95,7 +95,7 @@ def worker(folder: Path, result: Path) -> None:
         res = calibrate_fleet(jr.racer7(), theta, pos)
         seconds[call] = time.perf_counter() - t
     if jax.process_index() == 0:
-        np.savez(result, value=res.value, status=res.status)
+        np.savez(result, value=res.value, status=jr.status_name(res.status))
     print(json.dumps({"process_id": jax.process_index(), "local_robots": share.stop - share.start, "seconds": seconds,
                       "peak_memory_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}, indent=2))
 

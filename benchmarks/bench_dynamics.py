@@ -154,7 +154,7 @@ def random_chain(n: int, seed: int) -> jr.Robot:
         a=u(-0.5, 0.5), d=u(-0.5, 0.5), alpha=u(-np.pi, np.pi), beta=u(-0.5, 0.5), offset=u(-np.pi, np.pi),
         base=jnp.eye(4), tool=jnp.eye(4), q_min=jnp.full(n, -np.pi), q_max=jnp.full(n, np.pi),
         qd_max=u(1.0, 5.0), qdd_max=u(5.0, 20.0), u0=jnp.ones(n), cw=jr.Ripple.none(n), ccw=jr.Ripple.none(n),
-        backlash=jnp.zeros(n), k1=jnp.full(n, jnp.inf), k3=jnp.zeros(n), mass=jnp.asarray(mass),
+        backlash=jnp.zeros(n), c=jnp.zeros(n), e=jnp.zeros(n), mass=jnp.asarray(mass),
         com=u(-0.2, 0.2, (n, 3)), inertia=jnp.asarray(np.einsum("lij,lj,lkj->lik", rots, moments, rots)),
         motor_inertia=jnp.zeros(n), gravity=jnp.array([0.0, 0.0, -9.81]), name=f"random {n}-joint chain",
     )

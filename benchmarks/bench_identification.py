@@ -26,10 +26,11 @@ import jax
 import numpy as np
 
 import jaxrobot as jr
-from identification import DEFAULT_PARAMETERS, calibrate, identify_gear
+from identification import DEFAULT_PARAMETERS, calibrate, calibration_report, identify_gear
 from identification._pose_files import read_poses
 from identification.calibration._calibrate import map_parameters
-from identification.diagnosis._diagnose import Poses, diagnose
+from identification.diagnosis import Poses, diagnose
+from identification.diagnosis import summary as diagnosis_summary
 
 
 def shared_folder(arg: str | None) -> Path:
@@ -48,7 +49,7 @@ def poses_table(root: Path) -> list[str]:
         t0 = time.perf_counter()
         res = diagnose(jr.load_robot(d / "start.toml"), *(Poses.of(p["motor_angles"], p["positions"]) for p in data))
         dt = time.perf_counter() - t0
-        rep = res.report
+        rep = diagnosis_summary(res)
         added = ", ".join(f"{s['effect']}{'' if s['joint'] is None else ' j' + str(s['joint'])}" for s in rep["steps"])
         rms, ref = rep["final_rms_validation_um"], truth["truth_val_rms_um"]
         rows.append(f"| {d.name} | {truth['hidden']} | {added or '-'} | {rms:.2f} | {ref:.2f} | {rms / ref:.3f} "
@@ -104,8 +105,8 @@ def calibration_table(root: Path) -> list[str]:
             "determined by the prior | time [s] |", "|---|---|---|---|---|---|---|---|"]
     for method, names in (("lm", DEFAULT_PARAMETERS), ("map", map_parameters(DEFAULT_PARAMETERS, 6))):
         t0 = time.perf_counter()
-        rep = calibrate(jr.racer7(), train["motor_angles"], train["positions"], method=method, parameters=names,
-                        validation=(val["motor_angles"], val["positions"])).report
+        rep = calibration_report(calibrate(jr.racer7(), train["motor_angles"], train["positions"], method=method,
+                                           parameters=names, validation=(val["motor_angles"], val["positions"])))
         dt = time.perf_counter() - t0
         mean = 1e3 * rep["validation"]["after_m"]["mean"]
         beyond = [n for n, p in rep["parameters"].items() if abs(p["delta"] - true.get(n, 0.0)) > 3 * p["std"]]

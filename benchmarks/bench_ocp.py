@@ -26,7 +26,7 @@ from _timing import timed  # benchmarks/ is the script's folder
 import jaxrobot as jr
 import planning as pl
 from jaxrobot._gear import NEWTON_STEPS
-from planning._ocp import RESULTS, solve_ocp
+from planning._ocp import solve_ocp
 from planning._transcription import (
     ANGLE_SCALE,
     bound_violation,
@@ -198,7 +198,7 @@ def main() -> None:
             sol, first, ours_s = timed(lambda nu=nu: solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm))
             ours = {"wall_s": ours_s, "compile_s": max(first - ours_s, 0.0), "iterations": int(sol.iterations),
                     "objective": float(sol.objective), "violation": float(sol.max_constraint_violation),
-                    "status": "converged" if bool(sol.converged) else RESULTS[sol.status].split(" (")[0],
+                    "status": jr.status_message(sol.status),
                     "path_um": path_error_um(robot, path, jp.t, sol.x[:, :6])}
             row = {"task": task, "nu": nu, "ours": ours}
             print(f"{task} nu={nu:g} ours: {ours}", flush=True)

@@ -16,6 +16,7 @@ from .calibration import ParameterMap as ParameterMap
 from .calibration import PoseConstraints as PoseConstraints
 from .calibration import calibrate as calibrate
 from .calibration import calibrate_fleet as calibrate_fleet
+from .calibration import calibration_report as calibration_report
 from .calibration import default_parameters as default_parameters
 from .calibration import detmax as detmax
 from .calibration import identifiability as identifiability
@@ -25,6 +26,7 @@ from .calibration import observability_indices as observability_indices
 from .calibration import random_feasible_poses as random_feasible_poses
 from .calibration import rest_motor_angles as rest_motor_angles
 from .diagnosis import CATALOGUE as CATALOGUE
+from .diagnosis import DiagnoseEvent as DiagnoseEvent
 from .diagnosis import DiagnoseResult as DiagnoseResult
 from .diagnosis import Effect as Effect
 from .diagnosis import Layout as Layout

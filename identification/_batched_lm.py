@@ -7,8 +7,9 @@ near the optimum) at ~1 ms per robot and step, five times the cost of the joint-
 Here one `lax.while_loop` carries the whole batch (optionally in chunks, each step a `lax.map`
 over them so that a chunk's arrays stay in cache): per step one evaluation of the residual `r`
 (R, n) and Jacobian `J` (R, n, m) at the trial points, the normal equations `A = J^T J`,
-`g = J^T r` and a Cholesky solve written as array operations over the batch (no LAPACK call:
-jaxlib 0.10's batched LAPACK kernels can deadlock XLA's CPU thread pool when two run at once).
+`g = J^T r` and a Cholesky solve written as array operations over the batch
+(`jaxrobot._linalg.cholesky`; no LAPACK call: jaxlib 0.10's batched LAPACK kernels can deadlock
+XLA's CPU thread pool when two run at once).
 
 The step `(A + mu D) h = -g` uses Marquardt's scaling `D = diag(A)` (kept at its running
 maximum, as in MINPACK, so a vanishing column cannot make it singular); the gain ratio
@@ -25,55 +26,40 @@ rejected steps, each raising `mu` by `nu`.
 Each problem stops on its own (then frozen) when a step is small (`||h|| <= xtol (||x|| + xtol)`),
 the step is flat (actual and predicted reduction `<= ftol F`), or the gradient is orthogonal to
 the residual (`max_j |g_j| / (||J_j|| ||r||) <= gtol`); the loop ends when all have stopped or
-after `max_steps`.
+after `max_steps` (`LMConfig`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PyTree
 
-STATUS = ("converged", "max_steps", "non_finite")
-"""Status names by index: stopped by a tolerance; still running after `max_steps`; the residual
-or Jacobian at the current point is not finite (then the problem is stopped there)."""
+from jaxrobot._linalg import cholesky, cholesky_solve
+from jaxrobot._status import RESULTS, check, full, where
+
+
+class LMConfig(eqx.Module):
+    """Settings of `batched_lm` (module docstring). A pytree whose fields are all traced, the step
+    limit included (it bounds a `while_loop`): solves that differ only in their settings share one
+    compiled program."""
+
+    max_steps: int = 100
+    """LM steps at most; a problem still running then ends with `RESULTS.nonlinear_max_steps_reached`."""
+    xtol: float = 1e-10
+    """A problem stops when a step is small: `||h|| <= xtol (||x|| + xtol)`."""
+    ftol: float = 1e-10
+    """... or flat: actual and predicted reduction at most `ftol F`."""
+    gtol: float = 1e-10
+    """... or the gradient is orthogonal to the residual: `max_j |g_j| / (||J_j|| ||r||) <= gtol`."""
+    tau: float = 1e-6
+    """Initial damping relative to Marquardt's scaling `diag(J^T J)`."""
+
 
 ResidualJacobian = Callable[[Float[Array, "B m"], PyTree], tuple[Float[Array, "B n"], Float[Array, "B n m"]]]
-
-
-def cholesky(a: Float[Array, "R m m"]) -> Float[Array, "R m m"]:
-    """Lower Cholesky factor of a batch of SPD matrices, one column per `fori_loop` step (each a
-    batched matrix-vector product); NaN where a pivot is not positive."""
-    m = a.shape[-1]
-    rows = jnp.arange(m)
-
-    def column(j, low):
-        col = jnp.take(a, j, 2) - jnp.einsum("rik,rk->ri", low, jnp.take(low, j, 1))
-        d = jnp.take(col, j, 1)
-        pivot = jnp.sqrt(jnp.where(d > 0, d, jnp.nan))
-        return jax.lax.dynamic_update_index_in_dim(low, jnp.where(rows >= j, col / pivot[:, None], 0.0), j, 2)
-
-    return jax.lax.fori_loop(0, m, column, jnp.zeros_like(a))
-
-
-def cholesky_solve(low: Float[Array, "R m m"], b: Float[Array, "R m k"]) -> Float[Array, "R m k"]:
-    """`(L L^T)^{-1} b` by forward and back substitution, one row per `fori_loop` step."""
-    m = low.shape[-1]
-    diag = jnp.diagonal(low, 0, 1, 2)
-
-    def forward(i, y):  # L y = b
-        row = (jnp.take(b, i, 1) - jnp.einsum("rk,rkc->rc", jnp.take(low, i, 1), y)) / jnp.take(diag, i, 1)[:, None]
-        return jax.lax.dynamic_update_index_in_dim(y, row, i, 1)
-
-    def backward(k, x):  # L^T x = y
-        i = m - 1 - k
-        row = (jnp.take(y, i, 1) - jnp.einsum("rk,rkc->rc", jnp.take(low, i, 2), x)) / jnp.take(diag, i, 1)[:, None]
-        return jax.lax.dynamic_update_index_in_dim(x, row, i, 1)
-
-    y = jax.lax.fori_loop(0, m, forward, jnp.zeros_like(b))
-    return jax.lax.fori_loop(0, m, backward, jnp.zeros_like(b))
 
 
 def _normal(r, jac):
@@ -108,9 +94,9 @@ def map_chunks(fn: Callable, args: PyTree, chunk: int) -> PyTree:
     return _unchunk(jax.lax.map(fn, _chunks(args, min(chunk, n))), n)
 
 
-def _step(residual_jacobian, s, data, first, tols):
+def _step(residual_jacobian, s, data, first, config: LMConfig):
     """One LM step of a chunk of problems: solve for `h`, evaluate at `x + h`, accept or reject."""
-    xtol, ftol, gtol, tau = tols
+    xtol, ftol, gtol, tau = config.xtol, config.ftol, config.gtol, config.tau
     n_rob, m = s["x"].shape
     active = ~s["done"]
     damped = s["a"] + (s["mu"][:, None] * s["d"])[:, :, None] * jnp.eye(m)
@@ -140,7 +126,7 @@ def _step(residual_jacobian, s, data, first, tols):
                        "mu": s["mu"] * s["nu"], "nu": 2 * s["nu"]}))
     bad_start = first & ~finite_new
     stop = active & (small_step | flat | small_grad)
-    out["status"] = jnp.where(bad_start, 2, jnp.where(stop, 0, s["status"]))
+    out["status"] = where(bad_start, RESULTS.nonfinite, where(stop, RESULTS.successful, s["status"]))
     out["done"] = s["done"] | stop | bad_start
     out["steps"] = s["steps"] + (active & ~first)
     out["accepted"] = s["accepted"] + (accept & ~first)
@@ -151,29 +137,30 @@ def batched_lm(
     residual_jacobian: ResidualJacobian,
     x0: Float[Array, "R m"],
     data: PyTree = None,
+    config: LMConfig | None = None,
     *,
-    max_steps: int = 100,
-    xtol: float = 1e-10,
-    ftol: float = 1e-10,
-    gtol: float = 1e-10,
-    tau: float = 1e-6,
     chunk: int | None = None,
+    throw: bool = False,
 ) -> dict[str, Array]:
     """Minimise `||r_i(x_i)||^2 / 2` for every problem `i` of the batch (see the module docstring).
 
     **Arguments:**
     - `residual_jacobian`: `(x (B, m), data) -> (r (B, n), J (B, n, m))`, batch-first, row `i` only
       from `x_i` and row `i` of `data` (a pytree of arrays with leading axis R, or None).
-    - `x0` (R, m) start; `max_steps` LM steps at most; `xtol`, `ftol`, `gtol` tolerances as above;
-      `tau` initial damping relative to `diag(J^T J)`.
+    - `x0` (R, m) start; `config`: `LMConfig` (default `LMConfig()`), traced.
     - `chunk`: problems per chunk (B); each step runs over the chunks in turn (`lax.map`), so that a
       chunk's Jacobian and normal equations stay in cache (R is padded to a multiple with copies of
       the last problem). None: all at once.
+    - `throw`: raise the message of the first status that is not `successful` (at run time, also
+      under `jit`); default False, the statuses are returned.
 
     **Returns:** `x` (R, m), `residuals` (R, n) and `normal` `J^T J` (R, m, m) at `x`, `cost`
-    `||r||^2 / 2` (R,), `status` (R,) index into `STATUS`, `steps` (R,) LM steps taken (accepted
-    or not), `accepted` (R,) accepted steps.
+    `||r||^2 / 2` (R,), `status` (R,) `RESULTS`: `successful` (stopped by a tolerance),
+    `nonlinear_max_steps_reached` (still running after `max_steps`) or `nonfinite` (the residual or
+    Jacobian at the start is not finite), `steps` (R,) LM steps taken (accepted or not),
+    `accepted` (R,) accepted steps.
     """
+    config = jax.tree.map(jnp.asarray, LMConfig() if config is None else config)
     n_rob, m = x0.shape
     chunk = n_rob if chunk is None else max(1, min(chunk, n_rob))
     n = jax.eval_shape(residual_jacobian, x0[:chunk], jax.tree.map(lambda v: v[:chunk], data))[0].shape[1]
@@ -182,22 +169,23 @@ def batched_lm(
         "x": x0, "r": jnp.zeros((n_rob, n)), "a": jnp.broadcast_to(jnp.eye(m), (n_rob, m, m)),
         "g": jnp.zeros((n_rob, m)), "cost": jnp.full(n_rob, jnp.inf), "d": jnp.ones((n_rob, m)),
         "mu": jnp.ones(n_rob), "nu": jnp.full(n_rob, 2.0), "done": jnp.zeros(n_rob, bool),
-        "status": jnp.ones(n_rob, int), "steps": jnp.zeros(n_rob, int), "accepted": jnp.zeros(n_rob, int)}, chunk)
+        "status": full((n_rob,), RESULTS.nonlinear_max_steps_reached), "steps": jnp.zeros(n_rob, int),
+        "accepted": jnp.zeros(n_rob, int)}, chunk)
     data = _chunks(data, chunk)
-    tols = (xtol, ftol, gtol, tau)
 
     def cond(carry):
         k, s = carry
-        return (k <= max_steps) & ~jnp.all(s["done"])
+        return (k <= config.max_steps) & ~jnp.all(s["done"])
 
     def body(carry):
         k, s = carry
-        return k + 1, jax.lax.map(lambda c: _step(residual_jacobian, c[0], c[1], k == 0, tols), (s, data))
+        return k + 1, jax.lax.map(lambda c: _step(residual_jacobian, c[0], c[1], k == 0, config), (s, data))
 
     _, s = jax.lax.while_loop(cond, body, (jnp.asarray(0), state))
     s = _unchunk(s, n_rob)
-    return {"x": s["x"], "residuals": s["r"], "normal": s["a"], "cost": s["cost"], "status": s["status"],
-            "steps": s["steps"], "accepted": s["accepted"]}
+    out = {"x": s["x"], "residuals": s["r"], "normal": s["a"], "cost": s["cost"], "status": s["status"],
+           "steps": s["steps"], "accepted": s["accepted"]}
+    return check(s["status"], out, throw)
 
 
 def covariance(normal: Float[Array, "R m m"], sigma2: Float[Array, " R"]

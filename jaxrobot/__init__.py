@@ -66,6 +66,9 @@ from ._robot import Robot as Robot  # noqa: E402
 from ._simulate import simulate as simulate  # noqa: E402
 from ._statics import approach_directions as approach_directions  # noqa: E402
 from ._statics import rest_link_angles as rest_link_angles  # noqa: E402
+from ._status import RESULTS as RESULTS  # noqa: E402
+from ._status import status_message as status_message  # noqa: E402
+from ._status import status_name as status_name  # noqa: E402
 from ._urdf import save_urdf as save_urdf  # noqa: E402
 from ._urdf import to_urdf as to_urdf  # noqa: E402
 

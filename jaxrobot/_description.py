@@ -316,6 +316,7 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
     lim = np.deg2rad(np.asarray(data["limits"]["position_deg"], float))
     cw, ccw = _ripples(gear, n)
     k1, k3 = _stiffness(data, n)
+    c = 1.0 / k1  # the compliance form the robot stores; 0 for a rigid joint (k1 = inf)
     eye = np.eye(4)
     return Robot(
         a=jnp.asarray(kin["a"]), d=jnp.asarray(kin["d"]), alpha=jnp.asarray(kin["alpha"]),
@@ -327,7 +328,7 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         qdd_max=jnp.deg2rad(jnp.asarray(data["limits"].get("acceleration_deg_s2", np.full(n, np.inf)), float)),
         u0=jnp.asarray(u0), cw=cw, ccw=ccw,
         backlash=jnp.asarray(gear.get("backlash_rad", np.zeros(n)), float),
-        k1=jnp.asarray(k1), k3=jnp.asarray(k3),
+        c=jnp.asarray(c), e=jnp.asarray(k3 * c),
         mass=jnp.asarray(data["links"]["mass"], float),
         com=jnp.asarray(data["links"]["com"], float),
         inertia=jnp.asarray(np.stack([_inertia_matrix(np.asarray(r, float))
@@ -336,6 +337,16 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         gravity=jnp.asarray(data["gravity"], float),
         name=data["name"],
     )
+
+
+def _shortest(x: float, reads_back) -> float:
+    """The shortest decimal near `x` for which `reads_back` holds (the stiffness written for a stored
+    compliance loads to the same compliance), else `x`."""
+    for digits in range(1, 18):
+        y = float(f"{x:.{digits}g}")
+        if reads_back(y):
+            return y
+    return float(x)
 
 
 def load_robot(path: str | Path, as_built: bool = False, base: str | None = None, tip: str | None = None) -> Robot:
@@ -389,8 +400,12 @@ def description_of(robot: Robot) -> dict:
         data["gear"] = gear
     if np.any(np.asarray(robot.motor_inertia) != 0):  # else no [motors] section
         data["motors"] = {"inertia": f(robot.motor_inertia)}
-    if np.any(np.isfinite(np.asarray(robot.k1))):  # else rigid: no [stiffness] section
-        data["stiffness"] = {"k1": f(robot.k1), "k3": f(robot.k3)}
+    c, e = np.asarray(robot.c, float), np.asarray(robot.e, float)
+    if np.any(c != 0):  # else rigid: no [stiffness] section
+        k1, k3 = np.asarray(robot.k1, float), np.asarray(robot.k3, float)
+        k1 = [_shortest(x, lambda y, ci=ci: 1.0 / y == ci) for x, ci in zip(k1, c)]
+        k3 = [_shortest(x, lambda y, ci=ci, ei=ei: y * ci == ei) for x, ci, ei in zip(k3, c, e)]
+        data["stiffness"] = {"k1": k1, "k3": k3}
     for key in ("tool", "base"):
         t = np.asarray(getattr(robot, key), float)
         if not np.array_equal(t, np.eye(4)):

@@ -1,7 +1,8 @@
 """Nonlinear joint stiffness `kappa(x) = k1 x + k3 x^3` (eq. 2.17-2.18, docs/model.md (2.17)).
 
-The gear applies `kappa(phi - q)` to the link and `-kappa(phi - q)` to the motor. A rigid joint
-has `k1 = inf` (a description without `[stiffness]`); its deflection is zero.
+The gear applies `kappa(phi - q)` to the link and `-kappa(phi - q)` to the motor. The robot stores
+the compliance form `x + e x^3 = c kappa` (`c = 1/k1`, `e = k3/k1`): a rigid joint (a description
+without `[stiffness]`) has `c = 0`, deflects by zero and is differentiable in `c` there.
 """
 
 from __future__ import annotations
@@ -19,8 +20,9 @@ iteration decreases monotonically and quadratically (tested to 1e-12 relative)."
 
 
 def elastic_torque(robot: Robot, x: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
-    """`kappa(x) = k1 x + k3 x^3` [N m] for a deflection `x = phi - q` [rad]."""
-    return robot.k1 * x + robot.k3 * x**3
+    """`kappa(x) = k1 x + k3 x^3 = (x + e x^3) / c` [N m] for a deflection `x = phi - q` [rad]
+    (elastic joints, `c > 0`)."""
+    return (x + robot.e * x**3) / robot.c
 
 
 @jax.custom_jvp
@@ -59,18 +61,17 @@ def elastic_deflection(robot: Robot, tau: Float[Array, "*b n"]) -> Float[Array, 
 
     Newton on `|x|` from `min(|tau|/k1, cbrt(|tau|/k3))`, which lies above the root of the
     convex branch; derivatives of every order follow the implicit function. Rigid joints
-    (`k1 = inf`) give 0.
+    (`c = 0`) give 0.
     """
-    c = 1.0 / robot.k1
-    return compliance_deflection(c, robot.k3 * c, tau)
+    return compliance_deflection(robot.c, robot.e, tau)
 
 
 def require_elastic(robot: Robot, user: str) -> None:
-    """Raise if a concrete `robot` has rigid joints (`k1 = inf`): `user` integrates the elastic model."""
-    k1 = robot.k1
-    if isinstance(k1, jax.core.Tracer):
+    """Raise if a concrete `robot` has rigid joints (`c = 0`): `user` integrates the elastic model."""
+    c = robot.c
+    if isinstance(c, jax.core.Tracer):
         return
-    rigid = np.flatnonzero(np.any(~np.isfinite(np.reshape(np.asarray(k1), (-1, robot.n_joints))), 0))
+    rigid = np.flatnonzero(np.any(np.reshape(np.asarray(c), (-1, robot.n_joints)) == 0, 0))
     if rigid.size:
         raise ValueError(f"{user}: needs elastic joints (finite k1 [N m/rad], the [stiffness] section of the robot "
                          f"file); found rigid joints {(rigid + 1).tolist()} (k1 = inf)")

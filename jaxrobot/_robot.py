@@ -68,10 +68,11 @@ class Robot(eqx.Module):
     backlash: Float[Array, "*batch n"]
     """Lost motion of the gears [rad of link angle]: at rest the link lags the motor by
     `backlash / 2` against the direction of approach (used by the rest poses only)."""
-    k1: Float[Array, "*batch n"]
-    """Linear joint stiffness [N m/rad] (eq. 2.18); `inf` for a rigid joint."""
-    k3: Float[Array, "*batch n"]
-    """Cubic joint stiffness [N m/rad^3]."""
+    c: Float[Array, "*batch n"]
+    """Joint compliance `c = 1/k1` [rad/(N m)] (eq. 2.18 in compliance form, docs/model.md (2.17));
+    0 for a rigid joint."""
+    e: Float[Array, "*batch n"]
+    """Cubic compliance term `e = k3/k1` [1/rad^2]: the deflection solves `x + e x^3 = c tau`."""
     mass: Float[Array, "*batch n"]
     """Link masses [kg] (motors lumped in)."""
     com: Float[Array, "*batch n 3"]
@@ -83,6 +84,17 @@ class Robot(eqx.Module):
     gravity: Float[Array, "*batch 3"]
     """Gravity acceleration in the world frame [m/s^2]."""
     name: str = eqx.field(static=True, default="robot")
+
+    @property
+    def k1(self) -> Float[Array, "*batch n"]:
+        """Linear joint stiffness `1/c` [N m/rad] (eq. 2.18); `inf` for a rigid joint."""
+        return jnp.reciprocal(self.c)
+
+    @property
+    def k3(self) -> Float[Array, "*batch n"]:
+        """Cubic joint stiffness `e/c` [N m/rad^3]; 0 for a rigid joint."""
+        rigid = self.c == 0
+        return jnp.where(rigid, 0.0, self.e / jnp.where(rigid, 1.0, self.c))
 
     @property
     def n_joints(self) -> int:

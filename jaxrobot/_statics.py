@@ -12,6 +12,7 @@ from ._dynamics import gravity_torque
 from ._elasticity import elastic_deflection
 from ._gear import gear_output
 from ._robot import Robot
+from ._status import RESULTS, check
 
 TOL = 1e-11
 """Fixed-point tolerance on the last step [rad]. The map contracts by `L = |dg/dq| / k` per step (Racer-7:
@@ -42,13 +43,14 @@ def approach_directions(theta: Float[Array, "*b K n"]) -> Bool[Array, "*b K n"]:
     return jnp.moveaxis(d, 0, -2) < 0
 
 
-def rest_link_angles(
+def rest_solution(
     robot: Robot,
     theta: Float[Array, "*b n"],
     ccw: bool | Bool[Array, "*b n"] = False,
     rippled: tuple[int, ...] | None = None,
-) -> Float[Array, "*b n"]:
-    """Link angles `q` at rest at motor angles `theta`: `kappa(phi - q) = g(q)`, `phi = Xi^{-1}(theta)`.
+) -> tuple[Float[Array, "*b n"], RESULTS]:
+    """Link angles `q` at rest at motor angles `theta` and the status of their fixed point
+    (`RESULTS`, one per pose under `vmap`): `kappa(phi - q) = g(q)`, `phi = Xi^{-1}(theta)`.
 
     Solved as the fixed point `q = phi - kappa^{-1}(g(q))` with optimistix (implicit
     derivatives). `ccw` gives the last direction of approach per joint: it selects the gear set,
@@ -63,4 +65,22 @@ def rest_link_angles(
 
     sol = optx.fixed_point(fn, optx.FixedPointIteration(rtol=0.0, atol=TOL), phi, args=(robot, phi),
                            max_steps=64, throw=False)
-    return jnp.where(sol.result == optx.RESULTS.successful, sol.value, jnp.nan)
+    return sol.value, RESULTS.promote(sol.result)
+
+
+def rest_link_angles(
+    robot: Robot,
+    theta: Float[Array, "*b n"],
+    ccw: bool | Bool[Array, "*b n"] = False,
+    rippled: tuple[int, ...] | None = None,
+    throw: bool = True,
+) -> Float[Array, "*b n"]:
+    """Link angles `q` at rest at motor angles `theta` (`rest_solution`).
+
+    `throw`: raise the status's message (at run time, also under `jit`) when the fixed point did
+    not converge; False gives NaN there instead, for batched solves that report a non-finite
+    start in their own status (the fleet calibration).
+    """
+    q, result = rest_solution(robot, theta, ccw, rippled)
+    ok = result == RESULTS.successful
+    return check(result, q, True) if throw else jnp.where(ok, q, jnp.nan)

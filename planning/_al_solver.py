@@ -33,13 +33,13 @@ accumulated from those of the warm start so that their roundoff scales with the 
 
 from __future__ import annotations
 
-import dataclasses
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
+
+from jaxrobot._status import RESULTS, full
 
 from ._block_tridiagonal import BlockCholesky, block_cholesky, block_cholesky_solve
 from ._transcription import (
@@ -57,12 +57,14 @@ from ._transcription import (
 )
 
 
-@dataclasses.dataclass(frozen=True)
-class ALConfig:
-    """Settings of the augmented-Lagrangian solver (scaled units, `_transcription`)."""
+class ALConfig(eqx.Module):
+    """Settings of the augmented-Lagrangian solver (scaled units, `_transcription`). A pytree whose
+    fields are all traced: solves that differ only in their settings share one compiled program.
+    Only the length of the history arrays is static; it is derived from `max_outer_iterations`
+    (`history_length`) where the config is concrete."""
 
     max_outer_iterations: int = 30
-    """Most multiplier/penalty updates before giving up (`RESULTS.max_iterations`)."""
+    """Most multiplier/penalty updates before giving up (`RESULTS.nonlinear_max_steps_reached`)."""
     max_inner_iterations: int = 1
     """Gauss-Newton/LM steps per outer iteration; more follow while steps are rejected (the
     multipliers move only from an accepted iterate), until the damping exceeds `damping_max`."""
@@ -106,10 +108,6 @@ class ALConfig:
     `rho` or `mu` changed, and after a step from a reused factor was rejected)."""
 
 
-STATUS_SUCCESSFUL = 0
-STATUS_MAX_ITERATIONS = 1
-STATUS_INNER_FAILED = 2
-STATUS_NONFINITE = 3
 HISTORY_CHUNK = 32
 """History arrays hold a multiple of this many outer iterations (one compilation serves all
 `max_outer_iterations` up to it)."""
@@ -121,7 +119,7 @@ class ALResult(eqx.Module):
     y: Float[Array, "N 5*n"]
     multipliers: Float[Array, "Nm1 4*n"]
     bound_multipliers: Float[Array, "N 5*n"]
-    status: Int[Array, ""]
+    status: RESULTS
     iterations: Int[Array, ""]
     inner_iterations: Int[Array, ""]
     objective: Float[Array, ""]
@@ -270,7 +268,7 @@ class _State(eqx.Module):
     steps: Int[Array, ""]
     violation: Float[Array, ""]
     stationarity: Float[Array, ""]
-    status: Int[Array, ""]
+    status: RESULTS
     stop: Bool[Array, ""]
     hist: Float[Array, "4 M"]
     factor: BlockCholesky
@@ -287,10 +285,11 @@ def history_length(config: ALConfig) -> int:
 
 
 def augmented_lagrangian(
-    problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig = ALConfig(), history: int | None = None
+    problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig | None = None, history: int | None = None
 ) -> ALResult:
     """Solve eq. 4.3 from the scaled initial guess `y0` (its fixed nodes must hold the boundary
     values), multipliers starting at zero. Pure; `jit`/`vmap` over `problem` and `y0`.
+    `config`: default `ALConfig()`.
     `config`'s numbers may be traced; `history` (static, default `history_length(config)`) must
     then be given.
 
@@ -318,8 +317,9 @@ def augmented_lagrangian(
     and history; a continued member meets the same tolerances as a cold solve, so the two agree
     to the solver's tolerance, not bit for bit.
     """
+    config = ALConfig() if config is None else config
     m = history_length(config) if history is None else history
-    settings = {f.name: jnp.asarray(getattr(config, f.name)) for f in dataclasses.fields(ALConfig)}
+    settings = jax.tree.map(jnp.asarray, config)
     n, nz = y0.shape[-2:]
     dual = (jnp.zeros((n - 1, 4 * nz // 5)), jnp.zeros((n, nz)))
 
@@ -327,7 +327,7 @@ def augmented_lagrangian(
 
     @jax.custom_batching.custom_vmap
     def solve(arrays, y0, settings, dual):
-        return _augmented_lagrangian(eqx.combine(arrays, static), y0, ALConfig(**settings), m, dual)
+        return _augmented_lagrangian(eqx.combine(arrays, static), y0, settings, m, dual)
 
     @solve.def_vmap
     def _solve_batch(axis_size, in_batched, arrays, y0, settings, dual):
@@ -370,7 +370,8 @@ def _continuation(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[
     xs = [x[order] for x in xs]
     n, nz = y0.shape
     z = lambda *shape, dtype=float: jnp.zeros((size, *shape), dtype)  # noqa: E731
-    out = ALResult(y=z(n, nz), multipliers=z(n - 1, 4 * nz // 5), bound_multipliers=z(n, nz), status=z(dtype=int),
+    out = ALResult(y=z(n, nz), multipliers=z(n - 1, 4 * nz // 5), bound_multipliers=z(n, nz),
+                   status=full((size,), RESULTS.successful),
                    iterations=z(dtype=int), inner_iterations=z(dtype=int), objective=z(), violation=z(),
                    stationarity=z(), history_objective=z(m), history_violation=z(m), history_penalty=z(m),
                    history_stationarity=z(m))
@@ -390,7 +391,7 @@ def _continuation(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[
         k, retry, known, last, before, out = s
         y, d, cold = start(s)
         res = solve([x[k] for x in xs], y, d)
-        ok = res.status == STATUS_SUCCESSFUL
+        ok = res.status == RESULTS.successful
         done = ok | cold
         scale = jnp.exp(-log_nu[k])
         now = (res.y, scale * res.multipliers, scale * res.bound_multipliers)
@@ -423,8 +424,8 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
         finite = jnp.isfinite(viol) & jnp.isfinite(stat)
         it = s.it + 1
         out_of_iterations = it >= config.max_outer_iterations
-        status = jnp.where(converged, STATUS_SUCCESSFUL,
-                           jnp.where(finite, STATUS_MAX_ITERATIONS, STATUS_NONFINITE))
+        status = RESULTS.where(converged, RESULTS.successful,
+                               RESULTS.where(finite, RESULTS.nonlinear_max_steps_reached, RESULTS.nonfinite))
         record = jnp.stack([_cost(p, s.y) * ANGLE_SCALE**2, viol, s.rho, stat])
         hist = s.hist.at[:, jnp.minimum(s.it, m - 1)].set(record)
         return eqx.tree_at(
@@ -454,7 +455,7 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
         mu_down = jnp.maximum(s.mu / config.damping_down, config.damping_init)
         mu = jnp.where(good, mu_down, jnp.where(accept | retry, s.mu, s.mu * config.damping_up))
         failed = mu > config.damping_max
-        status = jnp.where(failed, STATUS_INNER_FAILED, s.status)
+        status = RESULTS.where(failed, RESULTS.inner_failed, s.status)
         age = jnp.where(retry, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))
         return eqx.tree_at(
             lambda t: (t.y, t.mu, t.inner, t.steps, t.status, t.stop, t.factor, t.factor_key, t.factor_age, t.accepted,
@@ -486,7 +487,7 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
     init = _State(
         y=y_init, lam=dual[0], gam=dual[1], rho=rho0, mu=mu0, it=jnp.array(0),
         inner=jnp.array(0), steps=jnp.array(0), violation=jnp.array(jnp.inf), stationarity=jnp.array(jnp.inf),
-        status=jnp.array(STATUS_MAX_ITERATIONS), stop=jnp.array(False), hist=jnp.full((4, m), jnp.nan),
+        status=RESULTS.nonlinear_max_steps_reached, stop=jnp.array(False), hist=jnp.full((4, m), jnp.nan),
         # placeholder factor; the NaN key makes the first step factorise (one copy of the
         # Jacobian code in the program: compile time)
         factor=BlockCholesky(jnp.zeros((n,) + 2 * y0.shape[-1:]), *2 * [jnp.zeros((n - 1,) + 2 * y0.shape[-1:])]),

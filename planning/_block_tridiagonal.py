@@ -19,8 +19,9 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jax.scipy.linalg import solve_triangular
 from jaxtyping import Array, Bool, Float
+
+from jaxrobot._linalg import inverse_cholesky_factor
 
 
 class BlockCholesky(eqx.Module):
@@ -44,17 +45,12 @@ def block_cholesky(diag: Float[Array, "N n n"], lower: Float[Array, "Nm1 n n"]) 
     """Factorise the SPD block-tridiagonal matrix with diagonal blocks `diag` and sub-diagonal
     blocks `lower[k] = M[k+1, k]`. A matrix that is not SPD gives NaN blocks (check
     `BlockCholesky.positive_definite`)."""
-    eye = jnp.eye(diag.shape[-1])
-
-    def inverse_factor(a):
-        return solve_triangular(jnp.linalg.cholesky(a), eye, lower=True)
-
-    w0 = inverse_factor(diag[0])
+    w0 = inverse_cholesky_factor(diag[0])
 
     def step(w_k, x):
         b_k, a_next = x
         c_k = b_k @ w_k.T  # B_k L_k^{-T}
-        w_next = inverse_factor(a_next - c_k @ c_k.T)
+        w_next = inverse_cholesky_factor(a_next - c_k @ c_k.T)
         return w_next, (w_next, w_next @ c_k, c_k @ w_k)
 
     _, (ws, fs, es) = jax.lax.scan(step, w0, (lower, diag[1:]))

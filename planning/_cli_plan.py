@@ -90,25 +90,16 @@ def _tool_position(robot, q):
     return jr.tool_pose(robot, q)[:, :3, 3]
 
 
-def _status_name(code: int) -> str:
-    from ._ocp import RESULTS
-
-    return {RESULTS.successful: "successful", RESULTS.max_iterations: "max_iterations",
-            RESULTS.inner_failed: "inner_failed", RESULTS.nonfinite: "nonfinite"}.get(int(code), str(int(code)))
-
-
 def failure_report(robot, jp, sol, nu: float) -> str:
     """Why a solve did not converge: status, its meaning and the likely cause."""
-    from ._ocp import RESULTS
-
     qd = np.max(np.abs(np.asarray(jp.qd)) / np.asarray(robot.qd_max), 0)
     qdd = np.max(np.abs(np.asarray(jp.qdd)) / np.asarray(robot.qdd_max), 0)
     j, k = int(np.argmax(qd)), int(np.argmax(qdd))
     cause = (f"the task passed the rest, smoothness, limit and singularity checks; it uses up to {100 * qd[j]:.0f} % "
              f"of joint {j + 1}'s speed limit and {100 * qdd[k]:.0f} % of joint {k + 1}'s acceleration limit. "
              f"A task close to the limits, or nu = {nu:g} far from the studied 1e-16 ... 1e-9, is the likely cause")
-    return (f"the OCP did not converge: status {_status_name(sol.status)} after {int(sol.iterations)} outer "
-            f"iterations ({RESULTS[sol.status]}); {cause}")
+    return (f"the OCP did not converge: status {jr.status_name(sol.status)} after {int(sol.iterations)} outer "
+            f"iterations ({jr.status_message(sol.status)}); {cause}")
 
 
 def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, directional: bool = False,
@@ -157,7 +148,7 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
     hv, ho, hp = (np.asarray(a) for a in (sol.history_violation, sol.history_objective, sol.history_penalty))
     for k in range(min(it, hv.shape[0])):
         echo(f"    outer {k + 1:3d}: objective {ho[k]:.6e}  violation {hv[k]:.2e}  penalty {hp[k]:.0e}")
-    status = _status_name(sol.status)
+    status = jr.status_name(sol.status)
     timed = f"solve {solve_s:.2f} s, compile {compile_s:.1f} s" if timing else f"{solve_s:.1f} s incl. compile"
     echo(f"  OCP: {status} after {it} outer iterations, objective {float(sol.objective):.6e}, max violation "
          f"{float(sol.max_constraint_violation):.1e} (scaled), {timed}")

@@ -14,7 +14,7 @@ from jaxrobot._cli import Progress, SolveFailed, add_model_option
 
 from . import _plots
 from ._bandwidth import bandwidth, control_spectrum
-from ._cli_plan import COSTS, _status_name, task_path, task_title
+from ._cli_plan import COSTS, task_path, task_title
 from ._evaluation import baseline_trajectories, ocp_motor_trajectory, simulate_plans, summarize
 from ._ik import default_start, joint_path, task_start
 from ._sweep import solve_ocp_sweep
@@ -40,10 +40,9 @@ def configure(parser) -> None:
 
 def failures(nus, cost: str, sols) -> list[str]:
     """One line per member of a sweep that did not converge: nu, status and its meaning."""
-    from ._ocp import RESULTS
-
-    return [f"cost {cost}, nu {nu:.0e}: status {_status_name(sols.status[i])} after {int(sols.iterations[i])} "
-            f"outer iterations ({RESULTS[sols.status[i]]})"
+    names, messages = jr.status_name(sols.status), jr.status_message(sols.status)
+    return [f"cost {cost}, nu {nu:.0e}: status {names[i]} after {int(sols.iterations[i])} "
+            f"outer iterations ({messages[i]})"
             for i, nu in enumerate(nus) if not bool(sols.converged[i])]
 
 
@@ -80,8 +79,9 @@ def sweep(robot, plant, path, nus, costs, echo, directional: bool = False, q_ini
         err = summarize(run)
         results[cost] = {"solutions": sols, "bandwidth": bw, "errors": err, "run": run, "names": names}
         progress.step(f"cost {cost}")
+        status = jr.status_name(sols.status)
         for i, nu in enumerate(nus):
-            echo(f"    nu {nu:.0e}: status {int(sols.status[i])}, {int(sols.iterations[i]):3d} it, bandwidth "
+            echo(f"    nu {nu:.0e}: status {status[i]}, {int(sols.iterations[i]):3d} it, bandwidth "
                  f"{np.nanmax(bw[i]):7.1f} Hz, plant max {1e6 * float(err.position_max[i]):10.3f} µm, "
                  f"rms {1e6 * float(err.position_rms[i]):10.3f} µm")
     return {"jp": jp, "nus": nus, "results": results, "ts": ts}
@@ -90,8 +90,9 @@ def sweep(robot, plant, path, nus, costs, echo, directional: bool = False, q_ini
 def table(res: dict) -> list[dict]:
     rows = []
     for cost, r in res["results"].items():
+        status = jr.status_name(r["solutions"].status)
         for i, nu in enumerate(res["nus"]):
-            rows.append({"cost": cost, "nu": float(nu), "status": int(r["solutions"].status[i]),
+            rows.append({"cost": cost, "nu": float(nu), "status": str(status[i]),
                          "converged": bool(r["solutions"].converged[i]),
                          "iterations": int(r["solutions"].iterations[i]),
                          "objective": float(r["solutions"].objective[i]),

@@ -63,15 +63,21 @@ class IKResult(NamedTuple):
     """Inverse kinematics on a grid.
 
     **Fields:** `q` (N, n) joint coordinates [rad]; `position_residual` (N,) [m] and
-    `orientation_residual` (N,) [rad] of eq. 4.5b-c; `converged` (N,) per-sample Newton status;
+    `orientation_residual` (N,) [rad] of eq. 4.5b-c; `status` (N,) per-sample Newton status
+    (`jaxrobot.RESULTS`; `converged` where it is `successful`);
     `redundancy` the null-space equations held along the path (`Redundancy`).
     """
 
     q: Float[Array, "N n"]
     position_residual: Float[Array, " N"]
     orientation_residual: Float[Array, " N"]
-    converged: Bool[Array, " N"]
+    status: jr.RESULTS
     redundancy: Redundancy
+
+    @property
+    def converged(self) -> Bool[Array, " N"]:
+        """True at the samples where Newton converged."""
+        return self.status == jr.RESULTS.successful
 
 
 def task_residual(
@@ -95,7 +101,7 @@ def _newton(robot, p_d, r_d, q0, redundancy):
     fn = lambda q, args: task_residual(robot, q, *args, redundancy)  # noqa: E731
     sol = optx.root_find(fn, optx.Newton(rtol=TOL, atol=TOL), q0, args=(p_d, r_d),
                          max_steps=MAX_STEPS, throw=False)
-    return sol.value, sol.result == optx.RESULTS.successful
+    return sol.value, jr.RESULTS.promote(sol.result)
 
 
 def _first_sample(robot, p_d, r_d, q_init):
@@ -122,7 +128,7 @@ def inverse_kinematics(
 
     _, (q_rest, ok_rest) = jax.lax.scan(step, q_first, (p_d[1:], r_d[1:]))
     q = jnp.concatenate([q_first[None], q_rest])
-    ok = jnp.concatenate([ok_first[None], ok_rest])
+    ok = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), ok_first, ok_rest)
     res = jax.vmap(pose_residual, (None, 0, 0, 0))(robot, q, p_d, r_d)
     return IKResult(q, jnp.linalg.norm(res[:, :3], axis=-1),
                     jnp.arcsin(jnp.minimum(jnp.linalg.norm(res[:, 3:], axis=-1), 1.0)), ok, redundancy)
@@ -155,7 +161,7 @@ def _starts(robot, p_d, r_d, seeds):
         res = pose_residual(robot, q, p_d, r_d)
         margin = jnp.min(jnp.minimum(q - robot.q_min, robot.q_max - q) / (robot.q_max - robot.q_min))
         sigma = jnp.linalg.svd(jr.geometric_jacobian(robot, q), compute_uv=False)[-1]
-        good = ok & (jnp.max(jnp.abs(res)) <= 1e-12) & (margin > 0)
+        good = (ok == jr.RESULTS.successful) & (jnp.max(jnp.abs(res)) <= 1e-12) & (margin > 0)
         return q, jnp.where(good, sigma * margin, -jnp.inf)
 
     return jax.lax.map(one, seeds)  # one seed after another: no batched LAPACK

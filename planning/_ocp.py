@@ -3,9 +3,8 @@ method of `_al_solver` on its block-tridiagonal structure."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
@@ -13,45 +12,11 @@ from jaxtyping import Array, Bool, Float, Int
 import jaxrobot as jr
 from jaxrobot._elasticity import require_elastic
 from jaxrobot._program_cache import cached_program
+from jaxrobot._status import RESULTS, check
 
-from ._al_solver import (
-    STATUS_INNER_FAILED,
-    STATUS_MAX_ITERATIONS,
-    STATUS_NONFINITE,
-    STATUS_SUCCESSFUL,
-    ALConfig,
-    augmented_lagrangian,
-    history_length,
-)
+from ._al_solver import ALConfig, augmented_lagrangian, history_length
 from ._transcription import Cost, State, boundary_states, max_violations, objective, ocp_problem, variable_scale
 from ._transcription import warm_start as default_warm_start
-
-
-class _Results:
-    """Status codes of `OCPSolution.status`; `RESULTS[code]` is the message (as `optx.RESULTS`)."""
-
-    successful = STATUS_SUCCESSFUL
-    max_iterations = STATUS_MAX_ITERATIONS
-    inner_failed = STATUS_INNER_FAILED
-    nonfinite = STATUS_NONFINITE
-    _messages = {
-        STATUS_SUCCESSFUL: "converged: constraint violation and stationarity below their tolerances",
-        STATUS_MAX_ITERATIONS: "not converged: the most outer iterations were reached "
-        "(raise ALConfig.max_outer_iterations or loosen the tolerances)",
-        STATUS_INNER_FAILED: "not converged: the Gauss-Newton/LM inner solve found no descent step even at the "
-        "largest damping (check the warm start and the limits)",
-        STATUS_NONFINITE: "not converged: NaN or inf in the iterates (check the robot and q_d)",
-    }
-
-    def __getitem__(self, code) -> str:
-        return self._messages[int(code)]
-
-    def __repr__(self) -> str:
-        return f"RESULTS({self._messages})"
-
-
-RESULTS = _Results()
-"""Status codes and messages of `solve_ocp`."""
 
 
 class OCPSolution(eqx.Module):
@@ -61,8 +26,9 @@ class OCPSolution(eqx.Module):
     """Optimal states `[q, qd, theta, thetad]` [rad, rad/s] (packed `State`)."""
     u: Float[Array, "N n"]
     """Optimal motor accelerations `thetadd` [rad/s^2]."""
-    status: Int[Array, ""]
-    """`RESULTS` code; 0 (`RESULTS.successful`) only when converged."""
+    status: RESULTS
+    """`RESULTS.successful` only when converged, else why not (`RESULTS.nonlinear_max_steps_reached`,
+    `RESULTS.inner_failed`, `RESULTS.nonfinite`); `RESULTS[status]` is the message."""
     iterations: Int[Array, ""]
     """Outer (multiplier/penalty) iterations."""
     inner_iterations: Int[Array, ""]
@@ -113,7 +79,7 @@ class OCPSolution(eqx.Module):
 
 
 @cached_program(filter=True)
-def _solve(problem, start, settings: dict, history: int, reference_from_start: bool) -> OCPSolution:
+def _solve(problem, start, config: ALConfig, history: int, reference_from_start: bool) -> OCPSolution:
     if start is None:
         x0, u0 = default_warm_start(problem)
     else:
@@ -124,7 +90,7 @@ def _solve(problem, start, settings: dict, history: int, reference_from_start: b
     if reference_from_start:
         problem = eqx.tree_at(lambda p: p.u_ref, problem, u0)
     sz = variable_scale(problem)
-    res = augmented_lagrangian(problem, jnp.concatenate([x0, u0], -1) / sz, ALConfig(**settings), history)
+    res = augmented_lagrangian(problem, jnp.concatenate([x0, u0], -1) / sz, config, history)
     z = res.y * sz
     # the end nodes are fixed (eq. 4.3e-j): restore them exactly after the scaling round trip
     nx = x0.shape[-1]
@@ -150,6 +116,7 @@ def solve_ocp(
     config: ALConfig | None = None,
     warm_start: tuple[Float[Array, "N 4*n"], Float[Array, "N n"]] | None = None,
     u_ref: Float[Array, "N n"] | None = None,
+    throw: bool = False,
 ) -> OCPSolution:
     """Optimal motor accelerations that make the elastic robot follow `q_d` (eq. 4.3).
 
@@ -166,6 +133,8 @@ def solve_ocp(
       relation on finite differences of `q_d` (`_transcription.warm_start`). Its end nodes
       are replaced by the boundary values of eq. 4.3e-j.
     - `u_ref`: reference of the `"flat"` cost; default the warm start's `u`.
+    - `throw`: raise the message of `status` (at run time, also under `jit`) when the solve did
+      not converge. Default False: the solution carries its status (under `vmap` one per member).
 
     **Returns:** `OCPSolution`; check `status`/`converged` (a solve that did not converge is
     never reported as successful). `jit`/`vmap` over `nu`, `q_d` or `robot` work (range
@@ -177,6 +146,13 @@ def solve_ocp(
     config = ALConfig() if config is None else config
     if not isinstance(config, ALConfig):
         raise ValueError(f"config: expected an ALConfig, found {type(config).__name__}")
+    return _solve_ocp(robot, q_d, ts, nu, cost, config, warm_start, u_ref, throw, history_length(config))
+
+
+def _solve_ocp(robot, q_d, ts, nu, cost: Cost, config: ALConfig, warm_start, u_ref, throw: bool,
+               history: int) -> OCPSolution:
+    """`solve_ocp` with the static history length given (`history_length`), so that `config` may be
+    traced."""
     problem = ocp_problem(robot, q_d, ts, nu, cost, u_ref)
     require_elastic(robot, "solve_ocp")
     n, j = problem.n_nodes, problem.n_joints
@@ -188,5 +164,5 @@ def solve_ocp(
                              f"found {np.shape(x0)}, {np.shape(u0)}")
         start = (jnp.asarray(x0, float), jnp.asarray(u0, float))
     # the settings are traced: one compilation serves every ALConfig of the same history length
-    settings = {k: jnp.asarray(v) for k, v in dataclasses.asdict(config).items()}
-    return _solve(problem, start, settings, history_length(config), cost == "flat" and u_ref is None)
+    sol = _solve(problem, start, jax.tree.map(jnp.asarray, config), history, cost == "flat" and u_ref is None)
+    return check(sol.status, sol, throw)

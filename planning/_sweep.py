@@ -30,17 +30,18 @@ from jaxtyping import Array, Float
 import jaxrobot as jr
 from jaxrobot._batch import backend_kind
 from jaxrobot._distributed import gather_array
+from jaxrobot._status import check
 
-from ._al_solver import ALConfig
-from ._ocp import OCPSolution, solve_ocp
+from ._al_solver import ALConfig, history_length
+from ._ocp import OCPSolution, _solve_ocp
 from ._transcription import Cost, ocp_problem
 
 
-@functools.partial(jax.jit, static_argnames=("cost", "config"))
-def _chain(robot, q_d, ts, nus, warm_start, u_ref, cost, config) -> OCPSolution:
-    """One continuation chain: `solve_ocp` vmapped over `nus`."""
-    return jax.vmap(lambda nu: solve_ocp(robot, q_d, ts, nu=nu, cost=cost, config=config, warm_start=warm_start,
-                                         u_ref=u_ref))(nus)
+@functools.partial(jax.jit, static_argnames=("cost", "history"))
+def _chain(robot, q_d, ts, nus, warm_start, u_ref, config, cost, history) -> OCPSolution:
+    """One continuation chain: `solve_ocp` vmapped over `nus`; `config` is traced, so chains that
+    differ only in their settings share one compiled program (`history`: `history_length(config)`)."""
+    return jax.vmap(lambda nu: _solve_ocp(robot, q_d, ts, nu, cost, config, warm_start, u_ref, False, history))(nus)
 
 
 def _padded(positions: np.ndarray, length: int) -> np.ndarray:
@@ -61,14 +62,14 @@ def _first_places(index: np.ndarray) -> np.ndarray:
     return np.unique(index.reshape(-1), return_index=True)[1]
 
 
-@functools.partial(jax.jit, static_argnames=("cost", "config", "mesh"))
-def _sharded_chains(robot, q_d, ts, nus, warm_start, u_ref, cost, config, mesh) -> OCPSolution:
+@functools.partial(jax.jit, static_argnames=("cost", "history", "mesh"))
+def _sharded_chains(robot, q_d, ts, nus, warm_start, u_ref, config, cost, history, mesh) -> OCPSolution:
     """`_chain` on every device of `mesh` for its own members (`shard_map`, no communication); the
     other arguments are replicated."""
     one, rep = PartitionSpec("sweep"), PartitionSpec()
-    return jax.shard_map(functools.partial(_chain, cost=cost, config=config), mesh=mesh,
-                         in_specs=(rep, rep, rep, one, rep, rep), out_specs=one, check_vma=False)(
-        robot, q_d, ts, nus, warm_start, u_ref)
+    return jax.shard_map(functools.partial(_chain, cost=cost, history=history), mesh=mesh,
+                         in_specs=(rep, rep, rep, one, rep, rep, rep), out_specs=one, check_vma=False)(
+        robot, q_d, ts, nus, warm_start, u_ref, config)
 
 
 def solve_ocp_sweep(
@@ -81,6 +82,7 @@ def solve_ocp_sweep(
     warm_start: tuple[Float[Array, "N 4*n"], Float[Array, "N n"]] | None = None,
     u_ref: Float[Array, "N n"] | None = None,
     workers: int | None = None,
+    throw: bool = False,
 ) -> OCPSolution:
     """`solve_ocp` for every `nu` in `nus` (B values > 0, any order); returns an `OCPSolution` with a
     leading axis B in the order of `nus`, each member with its own status (as `jax.vmap(solve_ocp)`).
@@ -92,7 +94,9 @@ def solve_ocp_sweep(
     so all chains share one compiled program. Not jittable: it is a driver of compiled calls.
     Under several processes (`jaxrobot.initialize_processes`) every process passes the same
     arguments and receives all members; the chains are one per device of all processes (`workers`
-    is not used).
+    is not used). `config` is traced: sweeps that differ only in their settings (of the same
+    `history_length`) share one compiled program. `throw`: raise the message of the first member
+    that did not converge (default False: each member carries its status).
 
     **Raises:** `ValueError` naming the field for bad values, before any compute (`nus`, `workers`;
     the others as `solve_ocp`).
@@ -105,6 +109,10 @@ def solve_ocp_sweep(
     if not isinstance(workers, int | np.integer) or workers < 1:
         raise ValueError(f"workers: expected an integer >= 1, found {workers!r}")
     ocp_problem(robot, q_d, ts, float(nus[0]), cost, u_ref)  # range checks on the concrete inputs
+    config = ALConfig() if config is None else config
+    if not isinstance(config, ALConfig):
+        raise ValueError(f"config: expected an ALConfig, found {type(config).__name__}")
+    history = history_length(config)
     order = np.argsort(nus)
     if jax.process_count() > 1:
         mesh = Mesh(np.asarray(jax.devices()), ("sweep",))
@@ -112,13 +120,16 @@ def solve_ocp_sweep(
         g_nus = jax.make_array_from_callback(index.shape, NamedSharding(mesh, PartitionSpec("sweep")),
                                              lambda idx: nus[index][idx])
         out = _sharded_chains(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), g_nus, warm_start, u_ref,
-                              cost, config, mesh)
-        return jax.tree.map(lambda leaf: jnp.asarray(leaf[_first_places(index)]), gather_array(out))
+                              config, cost, history, mesh)
+        out = jax.tree.map(lambda leaf: jnp.asarray(leaf[_first_places(index)]), gather_array(out))
+        return check(out.status, out, throw)
     chains = max(1, min(int(workers), nus.size // 2))
     index = _chain_index(order, chains)
-    args = [(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), jnp.asarray(nus[idx]), warm_start, u_ref)
+    config = jax.tree.map(jnp.asarray, config)
+    args = [(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), jnp.asarray(nus[idx]), warm_start, u_ref, config)
             for idx in index]
-    compiled = _chain.lower(*args[0], cost=cost, config=config).compile()  # cached after the first call
+    compiled = _chain.lower(*args[0], cost=cost, history=history).compile()  # cached after the first call
     with ThreadPoolExecutor(chains) as pool:
         parts = list(pool.map(lambda a: jax.block_until_ready(compiled(*a)), args))
-    return jax.tree.map(lambda *leaves: jnp.concatenate(leaves)[_first_places(index)], *parts)
+    out = jax.tree.map(lambda *leaves: jnp.concatenate(leaves)[_first_places(index)], *parts)
+    return check(out.status, out, throw)

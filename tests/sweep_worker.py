@@ -19,4 +19,5 @@ import planning as pl  # noqa: E402
 problem = np.load(sys.argv[3])
 sweep = pl.solve_ocp_sweep(jr.racer7(), problem["q_d"], float(problem["ts"]), problem["nus"])
 if jax.process_index() == 0:
-    np.savez(sys.argv[4], **{f.name: np.asarray(getattr(sweep, f.name)) for f in dataclasses.fields(sweep)})
+    fields = {f.name: np.asarray(getattr(sweep, f.name)) for f in dataclasses.fields(sweep) if f.name != "status"}
+    np.savez(sys.argv[4], status=jr.status_name(sweep.status), **fields)

@@ -6,7 +6,9 @@ import jaxrobot as jr  # noqa: F401, I001  (x64 first)
 import jax.numpy as jnp
 import numpy as np
 
-from planning._al_solver import STATUS_MAX_ITERATIONS, STATUS_SUCCESSFUL, ALResult, _continuation
+from jaxrobot import RESULTS
+from jaxrobot._status import where
+from planning._al_solver import ALResult, _continuation
 
 N, M = 3, 4
 """Nodes and history length of the stand-in problem."""
@@ -22,7 +24,7 @@ def _stand_in(x, y, dual):
     failed = (fails_warm & ~cold) | fails_always
     z = lambda *shape: jnp.zeros(shape)  # noqa: E731
     return ALResult(y=Y0 + target, multipliers=dual[0] + target, bound_multipliers=dual[1],
-                    status=jnp.where(failed, STATUS_MAX_ITERATIONS, STATUS_SUCCESSFUL),
+                    status=where(failed, RESULTS.nonlinear_max_steps_reached, RESULTS.successful),
                     iterations=jnp.where(cold, 9, 1), inner_iterations=jnp.array(0), objective=y[0, 0],
                     violation=jnp.array(0.0), stationarity=jnp.array(0.0), history_objective=z(M),
                     history_violation=z(M), history_penalty=z(M), history_stationarity=z(M))
@@ -37,7 +39,7 @@ def _sweep(nu, fails_warm, fails_always):
 
 def test_members_in_increasing_nu_warm_after_the_first():
     out, target = _sweep([1e-12, 1e-14, 1e-10, 1e-13], [False] * 4, [False] * 4)
-    assert np.all(np.asarray(out.status) == STATUS_SUCCESSFUL)
+    assert np.all(np.asarray(out.status == RESULTS.successful))
     np.testing.assert_array_equal(np.asarray(out.y[:, 0, 0]), target)  # caller's order
     # the smallest nu (caller's index 1) is cold, every other member warm
     np.testing.assert_array_equal(np.asarray(out.iterations), [1, 9, 1, 1])
@@ -47,7 +49,7 @@ def test_members_in_increasing_nu_warm_after_the_first():
 
 def test_failed_warm_member_is_retried_cold():
     out, target = _sweep([1e-14, 1e-13, 1e-12], [False, True, False], [False] * 3)
-    assert np.all(np.asarray(out.status) == STATUS_SUCCESSFUL)
+    assert np.all(np.asarray(out.status == RESULTS.successful))
     np.testing.assert_array_equal(np.asarray(out.y[:, 0, 0]), target)
     np.testing.assert_array_equal(np.asarray(out.iterations), [9, 9, 1])  # the retry is a cold solve
     assert float(out.objective[1]) == 0.0  # ... from Y0
@@ -55,7 +57,7 @@ def test_failed_warm_member_is_retried_cold():
 
 def test_member_failing_cold_is_reported_and_the_next_starts_cold():
     out, _ = _sweep([1e-14, 1e-13, 1e-12], [False] * 3, [False, True, False])
-    np.testing.assert_array_equal(np.asarray(out.status),
-                                  [STATUS_SUCCESSFUL, STATUS_MAX_ITERATIONS, STATUS_SUCCESSFUL])
+    np.testing.assert_array_equal(jr.status_name(out.status),
+                                  ["successful", "nonlinear_max_steps_reached", "successful"])
     # no converged predecessor after the failure: the third member is cold as well
     np.testing.assert_array_equal(np.asarray(out.iterations), [9, 9, 9])

@@ -60,7 +60,7 @@ def _with_ripple(robot, joint, orders, amp_cw, amp_ccw):
 
 
 def _rigid(robot, joint):
-    return eqx.tree_at(lambda r: (r.k1, r.k3), robot, (robot.k1.at[joint].set(jnp.inf), robot.k3.at[joint].set(0.0)))
+    return eqx.tree_at(lambda r: (r.c, r.e), robot, (robot.c.at[joint].set(0.0), robot.e.at[joint].set(0.0)))
 
 
 def _payload(robot, mass, com):
@@ -70,14 +70,13 @@ def _payload(robot, mass, com):
 
 
 def _check(res, expected):
-    rep = res.report
-    steps = [(s["effect"], s["joint"]) for s in rep["steps"]]
+    steps = [(s.kind, s.joint) for s in res.steps]
     # a refinement of the same effect on the same joint (cubic after linear compliance: the cubic
     # term has no first-order signature at a rigid joint) counts as one effect
     got = [k for i, k in enumerate(steps) if i == 0 or k != steps[i - 1]]
-    assert got == expected, rep["verdict"]
-    assert rep["final_rms_validation_um"] <= 1.3 * rep["noise_floor_um"]
-    assert rep["verdict"].startswith("explained")
+    assert got == expected, res.verdict
+    assert res.final_rms_validation <= 1.3 * res.noise_floor
+    assert res.verdict.startswith("explained")
 
 
 AS_BUILT = jr.racer7(as_built=True)
@@ -126,15 +125,15 @@ def test_more_hidden_effects(bench, name):
 
 
 def test_hidden_parameters_within_three_standard_errors(bench):
-    p = _single(bench, "joint_offset_j5").report["steps"][0]["parameters"]["offset"]
-    assert abs(p["value"] - 5e-4) < 3 * p["std"]
-    assert 5e-6 < p["std"] < 1e-4  # 50 um noise over ~0.3 m lever arms and 150 poses: ~2e-5 rad
+    p = _single(bench, "joint_offset_j5").steps[0].parameters["offset"]
+    assert p.unit == "rad" and abs(p.value - 5e-4) < 3 * p.std
+    assert 5e-6 < p.std < 1e-4  # 50 um noise over ~0.3 m lever arms and 150 poses: ~2e-5 rad
 
 
 def test_nothing_hidden_adds_nothing(bench):
     res = _run(bench, AS_BUILT)
-    assert res.report["steps"] == []
-    assert res.report["verdict"].startswith("no significant discrepancy")
+    assert res.steps == ()
+    assert res.verdict.startswith("no significant discrepancy")
     np.testing.assert_allclose(np.asarray(res.robot.a), np.asarray(AS_BUILT.a))
 
 
@@ -161,6 +160,9 @@ def test_cli_json_and_saved_model(bench, tmp_path, capsys):
     captured = capsys.readouterr()
     out = json.loads(captured.out)  # progress lines go to stderr
     assert re.search(r"^\[diagnose 1/7\] step 0: \d+ s elapsed, ETA at most \d+ s$", captured.err, re.M)
+    assert re.search(r"^\[diagnose 2/7\] step 1: ", captured.err, re.M)  # candidate lines are no steps
+    assert re.search(r"^step 1: joint_offset j5 +rms train +\d+\.\d\d um, validation +\d+\.\d\d um, noise floor "
+                     r"\d+\.\d\d um", captured.err, re.M)
     assert {"noise_floor_um", "steps", "final_rms_validation_um", "verdict"} <= set(out)
     step = out["steps"][0]
     assert (step["effect"], step["joint"]) == ("joint_offset", 5)
@@ -179,11 +181,11 @@ def test_order_dependent_approach_is_named_under_the_cw_convention(bench):
     train, val = (_measure(AS_BUILT, theta[k], s) for k, s in (("train", 1), ("validation", 2)))
     cw = [Poses.of(p.motor_angles, p.positions) for p in (train, val)]
     res = diagnose(start, *cw)
-    step = res.report["steps"][0]
-    assert (step["effect"], step["joint"]) == ("approach_dependent_gear_set", None), res.report["verdict"]
-    w = step["parameters"]["weight"]
-    assert abs(w["value"] - 1.0) < 3 * w["std"] and w["std"] < 0.2
-    assert res.report["final_rms_validation_um"] <= res.report["validation_bound_um"]
+    step = res.steps[0]
+    assert (step.kind, step.joint) == ("approach_dependent_gear_set", None), res.verdict
+    w = step.parameters["weight"]
+    assert abs(w.value - 1.0) < 3 * w.std and w.std < 0.2
+    assert res.final_rms_validation <= res.validation_bound
 
 
 def test_bad_input_is_named():
@@ -198,22 +200,21 @@ def test_bad_input_is_named():
 
 def test_catalogue_is_extensible_by_one_class():
     """The README example: a new effect is one class; the layout gives it parameters and its hook."""
-    from identification.diagnosis._effects import Effect, Layout, model_of
+    from identification.diagnosis._effects import Effect, Layout
 
     class GravityScale(Effect):
         kind, per_joint, names, scales, units = "gravity_scale", False, ("scale",), (1e-3,), ("1",)
 
-        def apply(self, model, v, orders):
-            return eqx.tree_at(lambda m: m.robot.gravity, model, model.robot.gravity * (1 + v[0]))
+        def apply(self, robot, v, orders):
+            return eqx.tree_at(lambda r: r.gravity, robot, robot.gravity * (1 + v[0]))
 
     from identification.diagnosis._effects import CATALOGUE
 
     layout = Layout.of([*CATALOGUE, GravityScale()])
     block = layout.blocks[layout.index("gravity_scale")]
     assert block.tolist() == [layout.size - 1]
-    m0 = model_of(AS_BUILT)
     v = jnp.zeros(layout.size + 1)
-    same = layout.apply(m0, v, jnp.zeros((6, 6)))
-    np.testing.assert_array_equal(np.asarray(same.robot.gravity), np.asarray(AS_BUILT.gravity))
-    moved = layout.apply(m0, v.at[block[0]].set(2e-3), jnp.zeros((6, 6)))
-    np.testing.assert_allclose(np.asarray(moved.robot.gravity), 1.002 * np.asarray(AS_BUILT.gravity), rtol=1e-15)
+    same = layout.apply(AS_BUILT, v, jnp.zeros((6, 6)))
+    np.testing.assert_array_equal(np.asarray(same.gravity), np.asarray(AS_BUILT.gravity))
+    moved = layout.apply(AS_BUILT, v.at[block[0]].set(2e-3), jnp.zeros((6, 6)))
+    np.testing.assert_allclose(np.asarray(moved.gravity), 1.002 * np.asarray(AS_BUILT.gravity), rtol=1e-15)

@@ -45,7 +45,7 @@ def _failed_solve(robot, q_d, ts, nu=1e-14, cost="thesis", config=None, warm_sta
     x, u = warm_start
     z = jnp.zeros(())
     h = jnp.zeros(4)
-    return OCPSolution(x=x, u=u, status=jnp.asarray(RESULTS.inner_failed), iterations=jnp.asarray(17),
+    return OCPSolution(x=x, u=u, status=RESULTS.inner_failed, iterations=jnp.asarray(17),
                        inner_iterations=jnp.asarray(40), objective=z, max_constraint_violation=z + 1.0,
                        max_constraint_violation_unscaled=z + 1.0, stationarity=z,
                        multipliers=jnp.zeros((x.shape[0] - 1, 24)), history_objective=h, history_violation=h,

@@ -17,7 +17,8 @@ from helpers import independent_data
 
 import jaxrobot as jr
 from identification._pose_files import read_poses
-from identification.diagnosis._diagnose import Poses, diagnose
+from identification.diagnosis import Poses, diagnose
+from identification.diagnosis import summary as diagnosis_summary
 
 CASES = {"p0_clean": None, "p1_joint5_offset": ("joint_offset", 5), "p2_joint2_softer": ("joint_compliance", 2),
          "p3_base_shift": ("base_offset", None), "p4_link_scale": ("link_scale", None)}
@@ -27,7 +28,7 @@ def _diagnose_case(name: str):
     d = independent_data() / "poses" / name
     poses = [read_poses(d / f"{s}.csv") for s in ("train", "val")]
     res = diagnose(jr.load_robot(d / "start.toml"), *(Poses.of(p["motor_angles"], p["positions"]) for p in poses))
-    return res.report, json.loads((d / "truth.json").read_text())
+    return diagnosis_summary(res), json.loads((d / "truth.json").read_text())
 
 
 FAST = ("p0_clean", "p2_joint2_softer")
@@ -57,7 +58,7 @@ def test_not_explained_when_validation_exceeds_its_bound():
     shifted = val["positions"] + np.array([2e-4, 0.0, 0.0])
     res = diagnose(jr.load_robot(d / "start.toml"), Poses.of(train["motor_angles"], train["positions"]),
                    Poses.of(val["motor_angles"], shifted))
-    rep = res.report
+    rep = diagnosis_summary(res)
     assert rep["final_rms_validation_um"] > rep["validation_bound_um"]
     assert rep["verdict"].startswith("not explained"), rep["verdict"]
 
@@ -230,7 +231,7 @@ def test_map_calibration_holds_on_independent_poses():
     """50 thesis poses of a robot with random deviations: MAP (default set plus every offset and ratio)
     validates within 1.15x the true robot's mean error and no worse than plain LM (by more than one
     standard error of a 30-pose mean), and every true deviation lies within 3 posterior sigma."""
-    from identification import DEFAULT_PARAMETERS, calibrate
+    from identification import DEFAULT_PARAMETERS, calibrate, calibration_report
     from identification.calibration._calibrate import map_parameters
 
     d = independent_data() / "calibration"
@@ -239,8 +240,8 @@ def test_map_calibration_holds_on_independent_poses():
     robot = jr.racer7()
     args = (robot, train["motor_angles"], train["positions"])
     kw = {"validation": (val["motor_angles"], val["positions"])}
-    lm = calibrate(*args, **kw).report
-    mp = calibrate(*args, **kw, method="map", parameters=map_parameters(DEFAULT_PARAMETERS, 6)).report
+    lm = calibration_report(calibrate(*args, **kw))
+    mp = calibration_report(calibrate(*args, **kw, method="map", parameters=map_parameters(DEFAULT_PARAMETERS, 6)))
     assert lm["converged"] and mp["converged"]
     mean_lm, mean_map = (r["validation"]["after_m"]["mean"] for r in (lm, mp))
     se = lm["validation"]["after_m"]["std"] / np.sqrt(len(val["positions"]))

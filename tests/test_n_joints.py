@@ -16,10 +16,11 @@ import tomli_w
 
 import jaxrobot as jr
 import planning as pl
-from identification import calibrate, default_parameters
+from identification import calibrate, calibration_report, default_parameters
 from identification.calibration._parameters import ParameterMap
 from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
-from identification.diagnosis._diagnose import Poses, diagnose
+from identification.diagnosis import Poses, diagnose
+from identification.diagnosis import summary as diagnosis_summary
 from jaxrobot._description import filter_cutoffs, robot_from_description
 
 ARM7 = Path(__file__).parent / "data" / "arm7.toml"
@@ -162,7 +163,7 @@ def test_seven_joint_calibration_recovers_the_as_built_arm(arm7):
     k = 60
     res = calibrate(nominal, meas.motor_angles[:k], meas.positions[:k],
                     validation=(meas.motor_angles[k:], meas.positions[k:]))
-    rep = res.report
+    rep = calibration_report(res)
     assert rep["converged"], rep["status"]
     names = default_parameters(nominal)
     assert set(rep["parameters"]) == set(names)
@@ -192,7 +193,7 @@ def test_diagnose_names_a_hidden_offset_on_joint_seven(arm7):
         return Poses.of(theta, m.positions)
 
     res = diagnose(start, poses(150, 21), poses(60, 22), max_steps=2)
-    rep = res.report
+    rep = diagnosis_summary(res)
     assert [(s["effect"], s["joint"]) for s in rep["steps"]] == [("joint_offset", 7)], rep["verdict"]
     p = rep["steps"][0]["parameters"]["offset"]
     assert abs(p["value"] - 2e-3) < 3 * p["std"]

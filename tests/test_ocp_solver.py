@@ -11,6 +11,7 @@ import pytest
 import planning as pl
 from planning import _transcription as tr
 from planning._block_tridiagonal import block_cholesky, block_tridiagonal_matvec, block_tridiagonal_solve
+from planning._al_solver import history_length
 
 TS = 1e-3
 N = 51
@@ -230,7 +231,7 @@ def test_structured_linearisation_matches_autodiff(robot, q_d):
 
 def test_solution_converges_and_satisfies_constraints(robot, q_d, solution):
     assert bool(solution.converged), pl.RESULTS[solution.status]
-    assert int(solution.status) == pl.RESULTS.successful
+    assert bool(solution.status == pl.RESULTS.successful)
     problem = tr.ocp_problem(robot, q_d, TS, NU)
     scaled = jax.jit(lambda p, x, u: tr.defects(p, x, u) / tr.defect_scale(p))(problem, solution.x, solution.u)
     assert float(jnp.max(jnp.abs(scaled))) <= DEFECT_TOL
@@ -319,6 +320,22 @@ def test_sweep_in_chains_matches_separate_solves(robot, q_d):
         _assert_same_optimum(tr.ocp_problem(robot, q_d, TS, float(nu)), member, pl.solve_ocp(robot, q_d, TS, float(nu)))
 
 
+def test_sweep_configs_differing_in_numbers_share_one_program(robot, q_d, monkeypatch):
+    """`ALConfig` is a traced argument of the sweep's compiled chain: two configs that differ only in a
+    tolerance trace it (and so compile it) at most once (a static config traced it once per config)."""
+    import planning._sweep as sweep
+
+    traces = []
+    solve = sweep._solve_ocp
+    monkeypatch.setattr(sweep, "_solve_ocp", lambda *a: traces.append(a[5]) or solve(*a))
+    args = (robot, jnp.asarray(q_d), jnp.asarray(TS), jnp.asarray([1e-14, 1e-12]), None, None)
+    for tol in (3e-9, 4e-9):
+        config = pl.ALConfig(tol_violation=tol)
+        sweep._chain.lower(*args, jax.tree.map(jnp.asarray, config), cost="thesis",
+                           history=history_length(config))
+    assert len(traces) <= 1
+
+
 @pytest.mark.parametrize("kwargs,field", [
     (dict(nus=[1e-14, -1e-12]), "nus"),
     (dict(nus=[[1e-14]]), "nus"),
@@ -336,9 +353,11 @@ def test_sweep_bad_input_names_the_field(robot, q_d, kwargs, field):
 def test_non_converged_solve_is_not_success(robot, q_d):
     sol = pl.solve_ocp(robot, q_d, TS, NU, config=pl.ALConfig(max_outer_iterations=1))
     assert int(sol.iterations) == 1
-    assert int(sol.status) != pl.RESULTS.successful
+    assert bool(sol.status == pl.RESULTS.nonlinear_max_steps_reached)
     assert not bool(sol.converged)
-    assert "not converged" in pl.RESULTS[sol.status]
+    assert "maximum number of steps" in jr.status_message(sol.status)
+    with pytest.raises(Exception, match="maximum number of steps"):  # throw=True: RESULTS.error_if
+        pl.solve_ocp(robot, q_d, TS, NU, config=pl.ALConfig(max_outer_iterations=1), throw=True)
 
 
 @pytest.mark.slow

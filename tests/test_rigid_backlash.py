@@ -58,6 +58,24 @@ def test_rigid_robot_rests_at_gear_output(tmp_path):
     assert np.all(np.isfinite(np.asarray(g)))
 
 
+def test_compliance_grows_from_a_rigid_joint(tmp_path):
+    """The robot stores `c = 1/k1`; at `c = 0` the motor angles holding `q` at rest are exactly the rigid
+    ones, `Xi(q)`, and differentiable in `c`: `theta = Xi(q + c g(q))` gives `d theta_i / d c_j =
+    delta_ij u_j(q) g_j(q)`. A central difference with `h` = 1e-9 rad/(N m) (deflections ~1e-6 rad,
+    motor angles ~1e2 rad: round-off 1e-14 rad) matches to 1e-4 of the largest entry."""
+    robot = jr.load_robot(_rigid_file(tmp_path))
+    assert np.all(np.asarray(robot.c) == 0) and np.all(np.asarray(robot.e) == 0)
+    q = jnp.asarray(np.random.default_rng(6).uniform(-1.0, 1.0, 6))
+    hold = jax.jit(lambda c: jr.static_equilibrium(eqx.tree_at(lambda r: r.c, robot, c), q))
+    np.testing.assert_array_equal(np.asarray(jr.static_equilibrium(robot, q)), np.asarray(jr.motor_angle(robot, q)))
+    jac = np.asarray(jax.jacfwd(hold)(robot.c))
+    expected = np.diag(np.asarray(jr.gear_ratio(robot, q) * jr.gravity_torque(robot, q)))
+    np.testing.assert_allclose(jac, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    h = 1e-9
+    fd = np.stack([(hold(robot.c.at[j].set(h)) - hold(robot.c.at[j].set(-h))) / (2 * h) for j in range(6)], 1)
+    np.testing.assert_allclose(jac, fd, rtol=0, atol=1e-4 * np.abs(expected).max())
+
+
 def test_rigid_and_backlash_round_trip(tmp_path):
     robot = jr.load_robot(_rigid_file(tmp_path, [0.0, 1e-4, 0.0, 0.0, 0.0, 3e-4]))
     out = tmp_path / "saved.toml"
@@ -83,6 +101,24 @@ def test_compliance_form_solves_the_spring_equation():
     # rigid joint: zero deflection with the derivative dx/dc = tau
     dx_dc = jax.jacfwd(lambda c: jr.compliance_deflection(c, jnp.zeros(6), tau[0]))(jnp.zeros(6))
     np.testing.assert_allclose(np.diag(np.asarray(dx_dc)), np.asarray(tau[0]), rtol=1e-14)
+
+
+def test_stiffness_file_round_trip_keeps_k1(tmp_path):
+    """The robot stores `c = 1/k1`, `e = k3/k1`; the file keeps `k1`, `k3` digit for digit (1e5 is a
+    value whose double reciprocal is not 1e5) and a reload gives the same `c`, `e` bit for bit."""
+    data = copy.deepcopy(jr.read_description())
+    data["stiffness"] = {"k1": [1e5, 2.2e5, 3.3e4, float("inf"), 7.7e3, 1.23456789e5],
+                         "k3": [0.0, 4.0e10, 3.1e9, 0.0, 2.5e8, 0.0]}
+    path = tmp_path / "stiff.toml"
+    path.write_text(tomli_w.dumps(data))
+    robot = jr.load_robot(path)
+    assert 1.0 / (1.0 / 1e5) != 1e5 and float(robot.c[3]) == 0.0
+    jr.save_robot(robot, tmp_path / "saved.toml")
+    assert jr.read_description(tmp_path / "saved.toml")["stiffness"] == data["stiffness"]
+    again = jr.load_robot(tmp_path / "saved.toml")
+    for f in ("c", "e"):
+        np.testing.assert_array_equal(np.asarray(getattr(again, f)), np.asarray(getattr(robot, f)))
+    np.testing.assert_allclose(np.asarray(robot.k1), data["stiffness"]["k1"], rtol=2 * np.finfo(float).eps)
 
 
 def test_planning_rejects_rigid_joints(tmp_path):

@@ -61,7 +61,7 @@ def _random_chain(seed: int, n: int, name: str | None = None) -> jr.Robot:
         q_min=jnp.asarray(q_min), q_max=jnp.asarray(q_min + rng.uniform(1.0, 5.0, n)),
         qd_max=jnp.asarray(rng.uniform(1.0, 5.0, n)), qdd_max=jnp.asarray(rng.uniform(5.0, 20.0, n)),
         u0=jnp.ones(n), cw=jr.Ripple.none(n), ccw=jr.Ripple.none(n), backlash=jnp.zeros(n),
-        k1=jnp.full(n, jnp.inf), k3=jnp.zeros(n), mass=jnp.asarray(mass),
+        c=jnp.zeros(n), e=jnp.zeros(n), mass=jnp.asarray(mass),
         com=jnp.asarray(rng.uniform(-0.2, 0.2, (n, 3))),
         inertia=jnp.asarray(np.einsum("lij,lj,lkj->lik", rots, moments, rots)),
         motor_inertia=jnp.zeros(n), gravity=jnp.array([0.0, 0.0, -9.81]), name=name or f"chain{seed}",

@@ -20,5 +20,6 @@ from ._pose_selection import PoseConstraints as PoseConstraints
 from ._pose_selection import detmax as detmax
 from ._pose_selection import random_feasible_poses as random_feasible_poses
 from ._pose_selection import rest_motor_angles as rest_motor_angles
+from ._report import calibration_report as calibration_report
 
 _check_public(globals())

@@ -21,6 +21,7 @@ from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
 from jaxrobot._program_cache import cached_program
+from jaxrobot._status import RESULTS, check
 
 from .._pose_files import check_pose_units
 from ._identifiability import analyse, default_parameters
@@ -61,13 +62,6 @@ prior variance (`1 - posterior / prior variance`), else by the prior."""
 
 RESIDUAL_UNIT = 1e-3
 """Residuals are solved in mm (and orientation in units of the position/orientation noise ratio)."""
-
-
-def error_stats(err: Float[Array, "*b K"]) -> dict[str, float]:
-    """max/min/mean/std of position errors [m] (thesis Tables 3.6-3.7; std with 1/(K-1))."""
-    e = np.asarray(err, float)
-    return {"max": float(e.max()), "min": float(e.min()), "mean": float(e.mean()),
-            "std": float(e.std(ddof=1)) if e.size > 1 else 0.0}
 
 
 def position_errors(
@@ -166,6 +160,7 @@ def solve(
     max_steps: int = 100,
     rippled: tuple[int, ...] | None = None,
     prior_weight: Float[Array, " m"] | None = None,
+    throw: bool = False,
 ) -> dict[str, Array]:
     """LM solve for one robot; pure and jit/vmap-safe (the fleet maps it over robots).
 
@@ -180,7 +175,10 @@ def solve(
     **Returns:** `value` (m,) parameters, `std` (m,) standard errors, `cov` (m, m), `result`
     (optimistix RESULTS index), `steps`, `residuals` (n,) at the solution in m (orientation rows
     in m-equivalent units), `rank` of the scaled Jacobian, `sigma2` the noise estimate [m^2],
-    `jacobian` (n, m) at the solution (residual mm per parameter unit).
+    `jacobian` (n, m) at the solution (residual mm per parameter unit). `result` is a `RESULTS`:
+    optimistix's status, `rank_deficient` for a converged solve with a rank-deficient Jacobian,
+    `nonfinite` for a non-finite solution; `converged` is `result == RESULTS.successful`.
+    `throw`: raise its message when it is not `successful` (also under `jit`).
     """
     fn_data, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r,
                                       ccw, rippled)
@@ -198,11 +196,16 @@ def solve(
     rank = jnp.sum(s > 1e-10 * s[0])
     cov_x = sigma2 * jnp.linalg.inv(j_all.T @ j_all)
     cov = cov_x * scale[:, None] * scale[None, :]
-    ok = (sol.result == optx.RESULTS.successful) & (rank == m) & jnp.all(jnp.isfinite(x))
-    return {"value": v0 + scale * x, "std": jnp.sqrt(jnp.diag(cov)), "cov": cov,
-            "result": sol.result._value, "converged": ok, "steps": sol.stats["num_steps"],
-            "residuals": r * RESIDUAL_UNIT, "rank": rank, "sigma2": sigma2 * RESIDUAL_UNIT**2,
-            "jacobian": jx / scale}
+    result = RESULTS.promote(sol.result)
+    result = RESULTS.where(result == RESULTS.successful,
+                           RESULTS.where(jnp.all(jnp.isfinite(x)),
+                                         RESULTS.where(rank == m, RESULTS.successful, RESULTS.rank_deficient),
+                                         RESULTS.nonfinite), result)
+    out = {"value": v0 + scale * x, "std": jnp.sqrt(jnp.diag(cov)), "cov": cov,
+           "result": result, "converged": result == RESULTS.successful, "steps": sol.stats["num_steps"],
+           "residuals": r * RESIDUAL_UNIT, "rank": rank, "sigma2": sigma2 * RESIDUAL_UNIT**2,
+           "jacobian": jx / scale}
+    return check(result, out, throw)
 
 
 _solve_jit = cached_program(solve, filter=True)
@@ -210,20 +213,51 @@ _solve_jit = cached_program(solve, filter=True)
 
 @dataclasses.dataclass(frozen=True)
 class CalibrationResult:
-    """Result of `calibrate`: the calibrated robot and a report (plain numbers).
+    """Result of `calibrate` in SI units (m, rad; gear ratios and scales dimensionless; `_report`
+    turns it into tables and the JSON).
 
-    `report`: `parameters` {name: {value, delta, std, unit}}, `identification` and (with
-    validation data) `validation` {before_m, after_m: {max, min, mean, std}}, `status`,
-    `converged`, `iterations`, `noise_estimate_m`, `residual_rms_m`, `n_poses`, `beyond_limits`.
+    `value`, `start`, `std` (m,) and `covariance` (m, m): the free parameters `names` (units of
+    `ParameterMap`) identified, in the start robot, and their standard errors and covariance;
+    `residuals` (n,) [m] at the solution; `errors_before`/`errors_after` (K,) [m]: model-measurement
+    distance per identification pose with the start and the calibrated robot, and
+    `validation_before`/`validation_after` the same for the validation poses (None without);
+    `beyond_limits`: the poses beyond the joint limits ({row, joint, q_deg, limits_deg});
+    `prior_std` (m,): the MAP priors (None for `method="lm"`).
     """
 
     robot: jr.Robot
-    report: dict
+    names: tuple[str, ...]
     value: np.ndarray
+    start: np.ndarray
     std: np.ndarray
     covariance: np.ndarray
     residuals: np.ndarray
-    names: tuple[str, ...]
+    converged: bool
+    status: str
+    iterations: int
+    noise_estimate: float
+    errors_before: np.ndarray
+    errors_after: np.ndarray
+    validation_before: np.ndarray | None
+    validation_after: np.ndarray | None
+    beyond_limits: tuple[dict, ...]
+    method: str
+    prior_std: np.ndarray | None
+
+    @property
+    def delta(self) -> np.ndarray:
+        """Identified deviations from the start robot."""
+        return self.value - self.start
+
+    @property
+    def residual_rms(self) -> float:
+        """RMS of the residuals at the solution [m]."""
+        return float(np.sqrt(np.mean(self.residuals**2)))
+
+    @property
+    def data_fraction(self) -> np.ndarray | None:
+        """Fraction of each prior variance the data remove (MAP; `DATA_FRACTION` splits data from prior)."""
+        return None if self.prior_std is None else 1.0 - self.std**2 / self.prior_std**2
 
 
 def _check_array(x, shape_tail: tuple, field: str, unit: str) -> np.ndarray:
@@ -313,18 +347,20 @@ def calibrate(
       position rows (defaults: the toml tracker noise and 0.05 deg); positions alone need none.
     - `ccw`: gear set of the approach direction. `validation`: `(motor_angles, positions)` or
       `(motor_angles, positions, ccw)`.
-    - `limits`: `"flag"` lists poses beyond the joint limits in `report["beyond_limits"]`,
+    - `limits`: `"flag"` lists poses beyond the joint limits in `beyond_limits`,
       `"raise"` rejects them.
     - `method`: `"lm"` plain least squares, or `"map"` maximum a posteriori with the tolerance
-      priors `DEFAULT_PRIOR_STD` updated by `prior_std` (same keys); the report then gives each
-      parameter's prior std, the fraction of its prior variance the data remove and whether the
-      data or the prior determine it (`DATA_FRACTION`).
+      priors `DEFAULT_PRIOR_STD` updated by `prior_std` (same keys); the result then carries each
+      parameter's prior std and the fraction of its prior variance the data remove (`data_fraction`;
+      the data determine it above `DATA_FRACTION`).
 
     Raises `ValueError` before solving for wrong shapes, NaN rows (named), fewer equations than
     parameters, unit mistakes (`check_pose_units`), and, with
     `limits="raise"`, poses beyond the joint limits (by row); after the solve, for a
     rank-deficient pose set (naming the unidentifiable directions). A solve that does not converge is
-    reported with `converged: False` and its optimistix status, never as success.
+    returned with `converged=False` and its optimistix `status`, never as success.
+
+    **Returns:** `CalibrationResult` (SI units; `calibration_report` gives the report dict).
     """
     from jaxrobot._bench_poses import ORIENTATION_NOISE_RAD, quaternion_to_rotation
 
@@ -369,35 +405,17 @@ def calibrate(
     if prior is None:
         check_rank(out["jacobian"], params)
     calibrated = params.set(robot, jnp.asarray(out["value"]))
-    v0 = np.asarray(params.get(robot))
     p_all = np.concatenate([pos, vp])
     err0 = position_errors(robot, th_all, p_all, defl_all, marker, ccw_all)
     err1 = position_errors(calibrated, th_all, p_all, defl_all, marker, ccw_all)
-    report: dict = {
-        "parameters": {n: {"value": float(out["value"][i]), "delta": float(out["value"][i] - v0[i]),
-                           "std": float(out["std"][i])} for i, n in enumerate(params.names)},
-        "identification": {"before_m": error_stats(err0[:k]), "after_m": error_stats(err1[:k])},
-        "converged": bool(out["converged"]),
-        "status": status_text(int(out["result"]), bool(out["rank"] == len(params))),
-        "iterations": int(out["steps"]),
-        "noise_estimate_m": float(np.sqrt(out["sigma2"])),
-        "residual_rms_m": float(np.sqrt(np.mean(out["residuals"] ** 2))),
-        "n_poses": int(k),
-        "beyond_limits": beyond,
-        "errors_m": {"identification": {"before": err0[:k], "after": err1[:k]}},
-        "method": method,
-    }
-    if prior is not None:
-        for i, n in enumerate(params.names):
-            fraction = float(1.0 - out["std"][i] ** 2 / prior[i] ** 2)
-            report["parameters"][n].update({"prior_std": float(prior[i]), "data_fraction": fraction,
-                                            "determined_by": "data" if fraction > DATA_FRACTION else "prior"})
-    if validation is not None:
-        report["validation"] = {"before_m": error_stats(err0[k:]), "after_m": error_stats(err1[k:]),
-                                "n_poses": int(vt.shape[0])}
-        report["errors_m"]["validation"] = {"before": err0[k:], "after": err1[k:]}
-    return CalibrationResult(robot=calibrated, report=report, value=out["value"], std=out["std"],
-                             covariance=out["cov"], residuals=out["residuals"], names=params.names)
+    val = validation is not None
+    return CalibrationResult(
+        robot=calibrated, names=params.names, value=out["value"], start=np.asarray(params.get(robot)),
+        std=out["std"], covariance=out["cov"], residuals=out["residuals"], converged=bool(out["converged"]),
+        status=jr.status_name(out["result"]), iterations=int(out["steps"]),
+        noise_estimate=float(np.sqrt(out["sigma2"])), errors_before=err0[:k], errors_after=err1[:k],
+        validation_before=err0[k:] if val else None, validation_after=err1[k:] if val else None,
+        beyond_limits=tuple(beyond), method=method, prior_std=prior)
 
 
 def map_parameters(parameters: Sequence[str], n_joints: int) -> tuple[str, ...]:
@@ -427,10 +445,3 @@ def prior_stds(robot: jr.Robot, params: ParameterMap, overrides: dict | None = N
         else:
             out.append(table[field])
     return np.asarray(out)
-
-
-def status_text(result: int, full_rank: bool = True) -> str:
-    """Name of an optimistix result index (`successful`, `max_steps_reached`, ...)."""
-    names = list(optx.RESULTS._name_to_item)
-    text = names[result] if 0 <= result < len(names) else f"status {result}"
-    return text if full_rank else text + "; Jacobian rank deficient at the solution"

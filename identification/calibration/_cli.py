@@ -114,6 +114,7 @@ def run(args, echo) -> dict:
     from ._calibrate import PRIOR_KEYS, calibrate, map_parameters
     from ._identifiability import default_parameters
     from ._pose_selection import default_marker
+    from ._report import calibration_report
 
     progress = Progress(3, "calibrate")
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
@@ -139,8 +140,9 @@ def run(args, echo) -> dict:
     res = calibrate(robot, data["motor_angles"], data["positions"], data["quaternions"], parameters=names,
                     marker=marker, position_noise=noise, ccw=data["ccw"], validation=val, limits=args.limits,
                     method=args.method, prior_std=prior)
+    report = calibration_report(res)
     progress.step("calibration")
-    _echo_report(res.report, echo)
+    _echo_report(report, echo)
     from .._model_files import ripple_outside_range
 
     outside = ripple_outside_range(args.robot, data["motor_angles"], data["ccw"], robot.u0)
@@ -148,10 +150,10 @@ def run(args, echo) -> dict:
         echo(f"warning: joint {j}: {o['poses']} poses rest outside the range {o['range_deg']} deg where its "
              f"gear ripple ({'/'.join(o['direction'])}) was identified; there the Fourier set is an extrapolation "
              "(identify the gear over the poses' range)")
-    if not res.report["converged"]:
-        raise SolveFailed(f"calibration did not converge ({res.report['status']}); the model was not saved")
+    if not res.converged:
+        raise SolveFailed(f"calibration did not converge ({res.status}); the model was not saved")
     if args.out is not None:
-        for f in _write_outputs(args.out, res.report, positions=data["positions"], workspace=_workspace(robot, marker)):
+        for f in _write_outputs(args.out, report, positions=data["positions"], workspace=_workspace(robot, marker)):
             echo(f"wrote {args.out / f}")
     if args.save_model is not None:
         from .._model_files import save_model
@@ -159,45 +161,62 @@ def run(args, echo) -> dict:
         save_model(res.robot, args.save_model, args.robot)
         echo(f"wrote {args.save_model}")
     progress.step("report")
-    return {**summary(res.report), **({"ripple_outside_identified_range": outside} if outside else {})}
+    return {**summary(report), **({"ripple_outside_identified_range": outside} if outside else {})}
 
 
-def demo_stage(out: Path, echo) -> dict:
-    """Bench data of the as-built Racer-7 at the 50 thesis poses (toml `[poses]`), 13
-    validation poses chosen by our DETMAX, calibration, tables and plots."""
+def bench_calibration():
+    """The calibration workflow of `jaxrobot demo` (compute only): bench data of the as-built Racer-7
+    at the 50 thesis poses (toml `[poses]`) and 13 validation poses chosen by our DETMAX, one bench
+    session; the nominal robot calibrated on them.
+
+    **Returns:** `(truth, nominal, selection, measurements, k, result)` (`k` identification poses
+    first in `measurements`)."""
     import jaxrobot as jr
-    from jaxrobot._bench_poses import measure_poses, write_pose_csv
+    from jaxrobot._bench_poses import measure_poses
 
     from ._calibrate import DEFAULT_PARAMETERS, calibrate
     from ._parameters import ParameterMap
     from ._pose_selection import detmax
-    from ._report import plot_pose_set
 
-    start = time.perf_counter()
     truth, nominal = jr.racer7(as_built=True), jr.racer7()
     theta = np.deg2rad(np.asarray(jr.read_description(None)["poses"]["motor_deg"], float))
-    params = ParameterMap(DEFAULT_PARAMETERS)
-    sel = detmax(nominal, params, n_poses=13, seed=7, pool_size=1000, max_iter=200)
-    echo(f"DETMAX: 13 validation poses, {sel.iterations} iterations, O1 {sel.indices['O1']:.4g}, "
-         f"O4 {sel.indices['O4']:.4g}")
+    sel = detmax(nominal, ParameterMap(DEFAULT_PARAMETERS), n_poses=13, seed=7, pool_size=1000, max_iter=200)
     both = measure_poses(truth, np.concatenate([theta, sel.motor_angles]), seed=1)  # one bench session
     k = theta.shape[0]
+    res = calibrate(nominal, both.motor_angles[:k], both.positions[:k],
+                    validation=(both.motor_angles[k:], both.positions[k:]))
+    return truth, nominal, sel, both, k, res
+
+
+def demo_stage(out: Path, echo) -> dict:
+    """Calibration stage of `jaxrobot demo` (`bench_calibration`): pose files, tables, plots and the
+    calibrated robot in `out`."""
+    import jaxrobot as jr
+    from jaxrobot._bench_poses import write_pose_csv
+
+    from ._parameters import ParameterMap
+    from ._report import calibration_report, plot_pose_set
+
+    start = time.perf_counter()
+    truth, nominal, sel, both, k, res = bench_calibration()
+    echo(f"DETMAX: 13 validation poses, {sel.iterations} iterations, O1 {sel.indices['O1']:.4g}, "
+         f"O4 {sel.indices['O4']:.4g}")
     write_pose_csv(out / "bench_poses.csv", both.motor_angles[:k], both.positions[:k])
     write_pose_csv(out / "bench_validation.csv", both.motor_angles[k:], both.positions[k:])
     echo(f"bench: as-built Racer-7, {k} thesis poses + {len(sel.q)} validation poses, tracker noise "
          f"{1e3 * both.metadata['position_noise_m']:.3f} mm per axis")
-    res = calibrate(nominal, both.motor_angles[:k], both.positions[:k],
-                    validation=(both.motor_angles[k:], both.positions[k:]))
+    params = ParameterMap(res.names)
     truth_delta = dict(zip(params.names, np.asarray(params.get(truth) - params.get(nominal)).tolist()))
-    _echo_report(res.report, echo, truth_delta)
-    files = _write_outputs(out, res.report, truth_delta, positions=None)
+    report = calibration_report(res)
+    _echo_report(report, echo, truth_delta)
+    files = _write_outputs(out, report, truth_delta, positions=None)
     plot_pose_set(out / "calibration_poses.png", both.true_positions[:k],
                   _workspace(nominal, both.metadata["marker_offset_m"]),
                   title="Marker positions of the thesis' identification poses")
     files += ["calibration_poses.png", "bench_poses.csv", "bench_validation.csv"]
     jr.save_robot(res.robot, out / "calibrated_robot.toml")
     files.append("calibrated_robot.toml")
-    s = summary(res.report)
+    s = summary(report)
     s["files"] = files
     s["seconds"] = time.perf_counter() - start
     return s

@@ -97,11 +97,14 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
 
 
 def _table(res, files: list[Path]) -> str:
+    import jaxrobot as jr
+
     head = ["file", "status", "converged", "iterations", "rank", "rms_mm"]
     head += [c for n in res.names for c in (n, f"std_{n}")]
     lines = [",".join(head)]
+    status = jr.status_name(res.status)
     for r, f in enumerate(files):
-        cells = [f.name, str(res.status[r]), str(bool(res.converged[r])), str(int(res.iterations[r])),
+        cells = [f.name, str(status[r]), str(bool(res.converged[r])), str(int(res.iterations[r])),
                  str(int(res.rank[r])), repr(1e3 * float(res.rms_m[r]))]
         cells += [repr(float(v)) for pair in zip(res.value[r], res.std[r]) for v in pair]
         lines.append(",".join(cells))
@@ -153,7 +156,8 @@ def run(args, echo) -> dict:
                           ccw=np.stack([d["ccw"] for d in data]))
     seconds["calibrate"] = time.perf_counter() - t
     progress.step("fleet calibration")
-    status = {str(s): int(np.sum(res.status == s)) for s in np.unique(res.status)}
+    names = jr.status_name(res.status)
+    status = {str(s): int(np.sum(names == s)) for s in np.unique(names)}
     if pid == 0:
         echo(f"fleet of {len(files)} robots on {res.n_devices} device(s): {status}; LM steps median "
              f"{np.median(res.iterations):.0f}, max {res.iterations.max()}; residual rms median "

@@ -28,8 +28,9 @@ import jaxrobot as jr
 from jaxrobot._batch import backend_kind
 from jaxrobot._distributed import gather_rows, shard_rows
 from jaxrobot._statics import rest_link_angles
+from jaxrobot._status import RESULTS, check, where
 
-from .._batched_lm import STATUS, batched_lm, covariance, map_chunks
+from .._batched_lm import LMConfig, batched_lm, covariance, map_chunks
 from ._calibrate import RESIDUAL_UNIT, _check_array, _residual_fn
 from ._identifiability import default_parameters
 from ._model import analytic_names, joint_angle_model, position_jacobian, rippled_joints
@@ -40,9 +41,9 @@ from ._pose_selection import default_marker
 @dataclasses.dataclass(frozen=True)
 class FleetResult:
     """Per-robot results (leading axis R): `robot` (calibrated fleet pytree), `value`, `std`
-    (R, m), `covariance` (R, m, m), `converged` (status converged and full rank), `status`
-    (R,) name from `_batched_lm.STATUS` (`converged`, `max_steps`, `non_finite`, or
-    `rank_deficient`), `iterations` LM steps, `rank` (R,), `rms_m` residual rms (R,),
+    (R, m), `covariance` (R, m, m), `converged` (status `successful`), `status` (R,) `RESULTS`
+    (`successful`, `nonlinear_max_steps_reached`, `nonfinite`, or `rank_deficient`; names by
+    `jaxrobot.status_name`), `iterations` LM steps, `rank` (R,), `rms_m` residual rms (R,),
     `residuals` (R, 3K) [m], `names`."""
 
     robot: jr.Robot
@@ -50,7 +51,7 @@ class FleetResult:
     std: np.ndarray
     covariance: np.ndarray
     converged: np.ndarray
-    status: np.ndarray
+    status: RESULTS
     iterations: np.ndarray
     rank: np.ndarray
     rms_m: np.ndarray
@@ -114,11 +115,11 @@ def _constants(robots, theta, rippled, ccw=False):
     `rippled` joints only (the others are `theta / u0`); `ccw` (R, K, n) the direction of approach
     (False: every gear's `cw` set)."""
     fleet = robots if robots.a.ndim == 1 else jax.tree.map(lambda f: f[:, None], robots)
-    q0 = rest_link_angles(fleet, theta, ccw, rippled=rippled)
+    q0 = rest_link_angles(fleet, theta, ccw, rippled=rippled, throw=False)  # NaN: stops as `nonfinite`
     return q0, q0 - jr.gear_output(fleet, theta, ccw, rippled=rippled)
 
 
-def _local_solve(robots, theta, positions, marker, q0, defl, ccw=None, *, params, max_steps, rippled):
+def _local_solve(robots, theta, positions, marker, q0, defl, config, ccw=None, *, params, rippled):
     """The fleet solve, batch-first: one `batched_lm` over all robots, then the covariances (`ccw`:
     as in `_constants`)."""
     v0 = jax.vmap(params.get)(robots)
@@ -135,7 +136,7 @@ def _local_solve(robots, theta, positions, marker, q0, defl, ccw=None, *, params
 
     directed = () if ccw is None else (ccw,)
     out = batched_lm(residual_jacobian, jnp.zeros_like(v0), (robots, theta, positions, q0, defl, v0, scale, *directed),
-                     max_steps=max_steps, chunk=_chunk())
+                     config, chunk=_chunk())
     n_rob, n, m = out["residuals"].shape + v0.shape[1:]
     if screws:  # component-major rows -> pose-major
         out["residuals"] = jnp.swapaxes(out["residuals"].reshape(n_rob, 3, -1), 1, 2).reshape(n_rob, n)
@@ -143,8 +144,10 @@ def _local_solve(robots, theta, positions, marker, q0, defl, ccw=None, *, params
     cov_x, rank, full = map_chunks(lambda a: covariance(*a), (out["normal"], sigma2), _chunk())
     cov = cov_x * scale[:, :, None] * scale[:, None, :]
     finite = jnp.all(jnp.isfinite(out["x"]), 1) & jnp.all(jnp.isfinite(cov), (1, 2))
+    ok = out["status"] == RESULTS.successful
+    status = where(ok & ~finite, RESULTS.nonfinite, where(ok & ~full, RESULTS.rank_deficient, out["status"]))
     return {"value": v0 + scale * out["x"], "std": jnp.sqrt(jnp.diagonal(cov, 0, 1, 2)), "cov": cov,
-            "converged": (out["status"] == 0) & full & finite, "status": out["status"], "steps": out["steps"],
+            "converged": status == RESULTS.successful, "status": status, "steps": out["steps"],
             "rank": rank, "residuals": out["residuals"] * RESIDUAL_UNIT}
 
 
@@ -161,15 +164,15 @@ def _fleet_constants(robots, theta, rippled, mesh, ccw=None):
 
 
 @eqx.filter_jit
-def _fleet_solve(robots, params, theta, positions, marker, q0, defl, max_steps, rippled, mesh, ccw=None):
+def _fleet_solve(robots, params, theta, positions, marker, q0, defl, config, rippled, mesh, ccw=None):
     """`_local_solve`, every device on its own robots (`shard_map` over the `"fleet"` axis; each
-    device's LM loop runs until its own robots have stopped)."""
-    fleet = PartitionSpec("fleet")
-    local = functools.partial(_local_solve, params=params, max_steps=max_steps, rippled=rippled)
+    device's LM loop runs until its own robots have stopped); `config` (`LMConfig`) is traced."""
+    fleet, rep = PartitionSpec("fleet"), PartitionSpec()
+    local = functools.partial(_local_solve, params=params, rippled=rippled)
     directed = () if ccw is None else (ccw,)
-    return jax.shard_map(local, mesh=mesh, in_specs=(fleet, fleet, fleet, PartitionSpec(), fleet, fleet)
+    return jax.shard_map(local, mesh=mesh, in_specs=(fleet, fleet, fleet, rep, fleet, fleet, rep)
                          + (fleet,) * len(directed), out_specs=fleet,
-                         check_vma=False)(robots, theta, positions, marker, q0, defl, *directed)
+                         check_vma=False)(robots, theta, positions, marker, q0, defl, config, *directed)
 
 
 _set_parameters = eqx.filter_jit(ParameterMap.set)  # one compiled call instead of ~m eager scatters
@@ -185,6 +188,7 @@ def calibrate_fleet(
     max_steps: int = 100,
     mesh: Mesh | None = None,
     ccw: Bool[Array, "R K n"] | None = None,
+    throw: bool = False,
 ) -> FleetResult:
     """Calibrate R robots at once, each from its own K poses (positions only; at rest every gear's
     `cw` set, or the set of the direction of approach `ccw` (R, K, n) where given).
@@ -192,7 +196,8 @@ def calibrate_fleet(
     `robots`: the initial robots, a fleet pytree with leading axis R, or one robot used for all.
     The fleet axis is padded to a multiple of the device count and sharded over `mesh`
     (default: all devices). Robots whose solve failed or whose pose set is rank deficient have
-    `converged = False`. `parameters`: default `default_parameters` of the first robot. Under
+    `converged = False` and their `status` says why (`throw`: raise the message of the first such
+    status instead). `max_steps`: of `LMConfig`. `parameters`: default `default_parameters` of the first robot. Under
     several processes (`jaxrobot.initialize_processes`) each process passes only its own robots
     (e.g. rows `jaxrobot.process_share(R)`, one robot or its own fleet rows in `robots`) and every
     process receives the whole fleet in process order.
@@ -232,11 +237,11 @@ def calibrate_fleet(
     rippled = rippled_joints(robots)
     g_ccw = g_ccw if ccw.any() else None  # none: every gear's cw set, no selection per pose
     q0, defl = _fleet_constants(initial if np.ndim(initial.a) == 1 else g_robots, g_theta, rippled, mesh, g_ccw)
-    out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, max_steps, rippled, mesh, g_ccw)
+    config = jax.tree.map(jnp.asarray, LMConfig(max_steps=max_steps))
+    out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, config, rippled, mesh, g_ccw)
     out, robots = gather_rows((out, g_robots), origin)
     value = out["value"]
-    status = np.asarray(STATUS + ("rank_deficient",))[np.where(
-        (out["status"] == 0) & (out["rank"] < len(params)), len(STATUS), out["status"])]
+    status = check(out["status"], out["status"], throw)
     return FleetResult(
         robot=_set_parameters(params, robots, jnp.asarray(value)), value=value, std=out["std"], covariance=out["cov"],
         converged=out["converged"], status=status, iterations=out["steps"], rank=out["rank"],

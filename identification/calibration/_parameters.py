@@ -154,7 +154,7 @@ def rest_deflection(
     """
     from jaxrobot._statics import rest_link_angles
 
-    return rest_link_angles(robot, theta, ccw) - jr.gear_output(robot, theta, ccw)
+    return rest_link_angles(robot, theta, ccw, throw=False) - jr.gear_output(robot, theta, ccw)
 
 
 def predict_pose(

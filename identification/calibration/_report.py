@@ -1,4 +1,4 @@
-"""Tables and plots of a kinematic calibration (edge module: formats text, writes figures).
+"""Report, tables and plots of a kinematic calibration (edge module: formats text, writes figures).
 
 Tables in the format of thesis Tables 3.6-3.7 (position errors before/after, in m) and
 Table 3.8 (identified deviations per frame, with standard errors); plots like Fig. 3.11
@@ -12,7 +12,48 @@ from pathlib import Path
 
 import numpy as np
 
+from ._calibrate import DATA_FRACTION, CalibrationResult
 from ._parameters import parse_name, unit
+
+
+def error_stats(err: np.ndarray) -> dict[str, float]:
+    """max/min/mean/std of position errors [m] (thesis Tables 3.6-3.7; std with 1/(K-1))."""
+    e = np.asarray(err, float)
+    return {"max": float(e.max()), "min": float(e.min()), "mean": float(e.mean()),
+            "std": float(e.std(ddof=1)) if e.size > 1 else 0.0}
+
+
+def calibration_report(res: CalibrationResult) -> dict:
+    """The report of a calibration (plain numbers, SI units): `parameters` {name: {value, delta, std,
+    and for MAP prior_std, data_fraction, determined_by}}, `identification` and (with validation
+    data) `validation` {before_m, after_m: {max, min, mean, std}}, `status`, `converged`,
+    `iterations`, `noise_estimate_m`, `residual_rms_m`, `n_poses`, `beyond_limits`, `method` and
+    `errors_m` (the errors per pose behind the statistics)."""
+    params = {n: {"value": float(res.value[i]), "delta": float(res.delta[i]), "std": float(res.std[i])}
+              for i, n in enumerate(res.names)}
+    if res.prior_std is not None:
+        for i, n in enumerate(res.names):
+            fraction = float(res.data_fraction[i])
+            params[n].update({"prior_std": float(res.prior_std[i]), "data_fraction": fraction,
+                              "determined_by": "data" if fraction > DATA_FRACTION else "prior"})
+    report: dict = {
+        "parameters": params,
+        "identification": {"before_m": error_stats(res.errors_before), "after_m": error_stats(res.errors_after)},
+        "converged": res.converged,
+        "status": res.status,
+        "iterations": res.iterations,
+        "noise_estimate_m": res.noise_estimate,
+        "residual_rms_m": res.residual_rms,
+        "n_poses": len(res.errors_before),
+        "beyond_limits": list(res.beyond_limits),
+        "errors_m": {"identification": {"before": res.errors_before, "after": res.errors_after}},
+        "method": res.method,
+    }
+    if res.validation_before is not None:
+        report["validation"] = {"before_m": error_stats(res.validation_before),
+                                "after_m": error_stats(res.validation_after), "n_poses": len(res.validation_before)}
+        report["errors_m"]["validation"] = {"before": res.validation_before, "after": res.validation_after}
+    return report
 
 
 def error_table(report_part: dict, title: str) -> str:

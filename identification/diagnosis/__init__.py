@@ -2,12 +2,19 @@
 
 from jaxrobot._checks import check_public as _check_public
 
+from ._diagnose import AddedEffect as AddedEffect
+from ._diagnose import CandidateScore as CandidateScore
+from ._diagnose import DiagnoseEvent as DiagnoseEvent
 from ._diagnose import DiagnoseResult as DiagnoseResult
+from ._diagnose import Estimate as Estimate
+from ._diagnose import LoopRow as LoopRow
 from ._diagnose import Poses as Poses
 from ._diagnose import diagnose as diagnose
 from ._effects import CATALOGUE as CATALOGUE
 from ._effects import Effect as Effect
 from ._effects import Layout as Layout
 from ._effects import catalogue as catalogue
+from ._report import progress_lines as progress_lines
+from ._report import summary as summary
 
 _check_public(globals())

@@ -40,7 +40,7 @@ def run(args, echo) -> dict:
     from jaxrobot._cli import Progress
 
     from ._diagnose import diagnose
-    from ._report import candidate_table, loop_table, plot_candidates, plot_residuals, plot_spectra
+    from ._report import loop_table, progress_lines, summary, write_outputs
 
     if args.max_steps < 0 or args.max_order < 1:
         raise ValueError(f"--max-steps >= 0 and --max-order >= 1 expected, found {args.max_steps}, {args.max_order}")
@@ -56,28 +56,22 @@ def run(args, echo) -> dict:
     echo(f"diagnose: {len(train)} training and {len(val)} validation poses, start model {robot.name}")
     steps = Progress(args.max_steps + 1, "diagnose", at_most=True)
 
-    def progress(line: str) -> None:
-        echo(line)
-        steps.step(line.split(":")[0])
+    def progress(event) -> None:
+        for line in progress_lines(event):
+            echo(line)
+        if event.stage == "compare":
+            steps.step(f"step {event.step}")
 
     res = diagnose(robot, train, val, noise=noise,
                    marker=marker, max_steps=args.max_steps, max_order=args.max_order, progress=progress)
-    rep = res.report
-    table = loop_table(res.loop, rep["noise_floor_um"])
-    echo("\n" + table)
-    echo(f"verdict: {rep['verdict']}")
+    echo("\n" + loop_table(res.loop, res.noise_floor))
+    echo(f"verdict: {res.verdict}")
     if args.out is not None:
-        parts = [table, f"verdict: {rep['verdict']}"]
-        for i, log in enumerate(res.candidates, 1):
-            parts.append(f"candidates of step {i}\n" + candidate_table(log))
-        (args.out / "diagnose_tables.txt").write_text("\n\n".join(parts) + "\n")
-        plot_residuals(args.out / "diagnose_residuals.png", res.residuals["before"], res.residuals["after"],
-                       rep["noise_floor_um"])
-        plot_candidates(args.out / "diagnose_candidates.png", res.candidates)
-        plot_spectra(args.out / "diagnose_spectra.png", res.spectra[0] if res.spectra else {}, args.max_order)
+        write_outputs(args.out, res, args.max_order)
         echo(f"wrote tables and plots to {args.out}")
     if args.save_model is not None:
         jr.save_robot(res.robot, args.save_model)
         echo(f"wrote {args.save_model}")
+    rep = summary(res)
     return {k: rep[k] for k in ("noise_floor_um", "validation_bound_um", "steps", "final_rms_validation_um",
                                 "verdict", "start")}

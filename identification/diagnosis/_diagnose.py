@@ -30,13 +30,14 @@ from collections.abc import Callable
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import gammaincc
+from jaxtyping import Array
 
 import jaxrobot as jr
 from jaxrobot._statics import approach_sign
 
 from .._pose_files import check_pose_units
 from ..gear._fit import chi2_quantile
-from ._effects import RIPPLE_SLOTS, Layout, Model, catalogue, model_of, robot_of
+from ._effects import RIPPLE_SLOTS, Layout, catalogue, with_ripple_slots
 from ._model import functions
 
 MIN_BIC_GAIN = 10.0
@@ -105,18 +106,104 @@ class Candidate:
 
 
 @dataclasses.dataclass(frozen=True)
+class LoopRow:
+    """The model after `step` effects (`effect`: the last one added): `parameters` fitted, residual
+    RMS norms [m] of the training and validation poses, chi-square test and BIC on the training poses."""
+
+    step: int
+    effect: str
+    parameters: int
+    rms_train: float
+    rms_validation: float
+    chi2: float
+    dof: int
+    p_value: float
+    bic: float
+
+
+@dataclasses.dataclass(frozen=True)
+class CandidateScore:
+    """One candidate of a step: BIC linearised (all) and after its LM fit (the shortlist: `bic`,
+    residual RMS norms [m], optimistix status index and steps; None otherwise); `selected`: added."""
+
+    candidate: str
+    bic_linearised: float
+    delta_bic_linearised: float
+    bic: float | None = None
+    delta_bic: float | None = None
+    rms_train: float | None = None
+    rms_validation: float | None = None
+    lm_status: str | None = None
+    lm_steps: int | None = None
+    selected: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class Estimate:
+    """An identified parameter in SI units (`unit`); `std` None where derived (`k1` from `c`)."""
+
+    value: float
+    unit: str
+    std: float | None = None
+    note: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class AddedEffect:
+    """An effect the workflow added: `kind`, `joint` (1-based, None for a global one), `variant`,
+    its parameters and the residual RMS norms [m] after adding it."""
+
+    kind: str
+    joint: int | None
+    variant: str
+    parameters: dict[str, Estimate]
+    rms_train: float
+    rms_validation: float
+
+
+@dataclasses.dataclass(frozen=True)
+class DiagnoseEvent:
+    """Progress of `diagnose`: `stage` "compare" (the model after `step` effects: `row`, with the
+    noise floor `sigma sqrt(3)` [m]) or "name" (the scored `candidates` of step `step`, best first);
+    `elapsed` [s] since the loop began."""
+
+    stage: str
+    step: int
+    elapsed: float
+    row: LoopRow | None = None
+    noise_floor: float = 0.0
+    candidates: tuple[CandidateScore, ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
 class DiagnoseResult:
-    """`robot`: the start robot with the added effects; `report`: the JSON summary;
-    `loop`: one row per step; `candidates`: per step, the scored candidates; `residuals`:
-    validation residual norms [m] before and after; `spectra`: per step, {joint: (orders, dchi2)}."""
+    """`robot`: the start robot with the added effects (`steps`); `verdict`; `loop`: one row per
+    model; `candidates`: per step, the scored candidates, best first; `residuals_before`/`_after`:
+    validation residual norms [m] per pose; `spectra`: per step, {(kind, joint): chi2 decrease per
+    order 1..max_order}; `noise`: tracker std per axis [m]; `validation_bound` [m] (`validation_bound`)."""
 
     robot: jr.Robot
-    model: Model
-    report: dict
-    loop: list[dict]
-    candidates: list[list[dict]]
-    residuals: dict
-    spectra: list[dict]
+    verdict: str
+    steps: tuple[AddedEffect, ...]
+    loop: tuple[LoopRow, ...]
+    candidates: tuple[tuple[CandidateScore, ...], ...]
+    residuals_before: np.ndarray
+    residuals_after: np.ndarray
+    spectra: tuple[dict, ...]
+    noise: float
+    validation_bound: float
+    n_train: int
+    n_validation: int
+
+    @property
+    def noise_floor(self) -> float:
+        """RMS norm of the tracker noise `sigma sqrt(3)` [m]."""
+        return self.noise * float(np.sqrt(3.0))
+
+    @property
+    def final_rms_validation(self) -> float:
+        """RMS norm of the validation residuals of the final model [m]."""
+        return self.loop[-1].rms_validation
 
 
 def _p_value(chi2: float, dof: int) -> float:
@@ -218,7 +305,7 @@ def diagnose(
     max_steps: int = 6,
     max_order: int = 400,
     shortlist: int = 4,
-    progress: Callable[[str], None] | None = None,
+    progress: Callable[[DiagnoseEvent], None] | None = None,
 ) -> DiagnoseResult:
     """Find, name and add the effects that `start` misses, from tracker pose measurements.
 
@@ -228,10 +315,111 @@ def diagnose(
     - `noise`: tracker std per axis [m] (default `[sensors] tracker_position_noise_m`).
     - `marker`: marker offset in the tool frame [m] (default `[sensors]`).
     - `max_steps`: most effects to add; `max_order`: highest ripple order searched [1/rev];
-      `shortlist`: candidates fitted by LM per step; `progress`: a line printer.
+      `shortlist`: candidates fitted by LM per step; `progress`: receives a `DiagnoseEvent` per model
+      compared and per step's candidates (`_report.progress_lines` turns them into text).
 
-    **Returns:** `DiagnoseResult`; `report` is the JSON of `jaxrobot diagnose` (lengths in um).
+    **Returns:** `DiagnoseResult` in SI units (`_report.summary`: the JSON of `jaxrobot diagnose`).
     """
+    sigma, marker = _checked_inputs(start, train, validation, noise, marker)
+    joints = start.n_joints
+    emit = progress or (lambda _: None)
+    layout = Layout.of(catalogue(start), joints)
+    fns = functions(layout)
+    robot0 = with_ripple_slots(start)
+    spare = layout.size
+    scale = jnp.asarray(layout.scales())
+    v = jnp.zeros(spare + 1)
+    orders = np.zeros((joints, 2 * RIPPLE_SLOTS))
+    both = Poses.concatenate([train, validation])  # one compiled shape for both sets
+    th_all, ccw_all = jnp.asarray(both.motor_angles), (jnp.asarray(both.ccw), jnp.asarray(both.ccw_order))
+    k_tr = len(train)
+    th, ccw, pos = th_all[:k_tr], tuple(c[:k_tr] for c in ccw_all), jnp.asarray(train.positions)
+    varying = np.any(train.ccw != train.ccw[:1], axis=0)
+    n_res = 3 * k_tr
+    ln_n = float(np.log(n_res))
+    free: list[int] = []
+    accepted: list[Candidate] = []
+    loop, cand_log, spectra, steps = [], [], [], []
+
+    def evaluate(vv):
+        q, p = fns.exact(robot0, vv, jnp.asarray(orders), th_all, ccw_all, marker)
+        err = both.positions - np.asarray(p)
+        return {"train": (np.asarray(q)[:k_tr], err[:k_tr]), "validation": (np.asarray(q)[k_tr:], err[k_tr:])}
+
+    ev = evaluate(v)
+    residual_before = np.linalg.norm(ev["validation"][1], axis=-1)
+    t0 = time.perf_counter()
+    while True:
+        chi2 = float(np.sum(ev["train"][1] ** 2) / sigma**2)
+        row = LoopRow(len(accepted), accepted[-1].label(layout) if accepted else "(start)", len(free),
+                      _rms(ev["train"][1]), _rms(ev["validation"][1]), chi2, n_res - len(free),
+                      _p_value(chi2, n_res - len(free)), chi2 + len(free) * ln_n)
+        loop.append(row)
+        emit(DiagnoseEvent("compare", row.step, time.perf_counter() - t0, row=row,
+                           noise_floor=sigma * float(np.sqrt(3.0))))
+        if row.p_value > ALPHA:
+            verdict = _verdict_at_noise_floor(row, validation_bound(sigma, len(validation), len(free), n_res),
+                                              [c.label(layout) for c in accepted])
+            break
+        if len(accepted) >= max_steps:
+            verdict = f"discrepancy remains after {max_steps} effects (max_steps)"
+            break
+        q_cur = jnp.asarray(ev["train"][0])
+        r = ev["train"][1].ravel() / sigma
+        jac = np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
+        found, spec_step = _locate_orders(layout, jac, r, free, accepted, orders, np.asarray(q_cur), ccw[0],
+                                          varying, max_order)
+        spectra.append(spec_step)
+        if any(found[k] for k in found):
+            jac = np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
+        # name: linearised fit of every candidate, then LM on the shortlist
+        scored = _rank_linearised(_candidates(layout, set(free), found, varying), free, jac, r, ln_n)
+        top = scored[:shortlist]
+        log = [CandidateScore(c.label(layout), b, b - row.bic) for b, c, _ in scored]
+        winner = None
+        if top:
+            idx = _pad([cols for _, _, cols in top], spare)
+            vs, status, nsteps = fns.fit(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale,
+                                         pos, sigma, jnp.asarray(idx))
+            ok_fit, status = np.asarray(status == jr.RESULTS.successful), jr.status_name(status)
+            pos_fit = np.asarray(fns.exact_batch(robot0, vs, jnp.asarray(orders), th_all, ccw_all, marker))
+            best = None
+            for k, (_, _c, cols) in enumerate(top):
+                err_t = train.positions - pos_fit[k, :k_tr]
+                bic_k = float(np.sum(err_t**2) / sigma**2) + len(cols) * ln_n
+                rms_v = _rms(validation.positions - pos_fit[k, k_tr:])
+                log[k] = dataclasses.replace(log[k], bic=bic_k, delta_bic=bic_k - row.bic, rms_train=_rms(err_t),
+                                             rms_validation=rms_v, lm_status=str(status[k]), lm_steps=int(nsteps[k]))
+                if bool(ok_fit[k]) and bic_k < row.bic - MIN_BIC_GAIN and rms_v < row.rms_validation:
+                    if best is None or bic_k < best[0]:
+                        best = (bic_k, k)
+            if best is not None:
+                winner = top[best[1]]
+                log[best[1]] = dataclasses.replace(log[best[1]], selected=True)
+                v_new = jnp.asarray(vs[best[1]])
+        cand_log.append(tuple(log))
+        emit(DiagnoseEvent("name", len(accepted) + 1, time.perf_counter() - t0, candidates=tuple(log)))
+        if winner is None:
+            verdict = "discrepancy remains: no candidate effect lowers the BIC and the validation error"
+            break
+        _, c, cols = winner
+        a = jac[:, cols]
+        std = np.sqrt(np.diag(np.linalg.pinv(a.T @ a))) * np.asarray(scale)[cols]
+        free, v = cols, v_new
+        accepted.append(c)
+        ev = evaluate(v)
+        steps.append(_added_effect(layout, robot0, c, v, orders, dict(zip(cols, std)), ev))
+    return DiagnoseResult(
+        robot=layout.apply(robot0, v, jnp.asarray(orders)), verdict=verdict, steps=tuple(steps), loop=tuple(loop),
+        candidates=tuple(cand_log), residuals_before=residual_before,
+        residuals_after=np.linalg.norm(ev["validation"][1], axis=-1), spectra=tuple(spectra), noise=sigma,
+        validation_bound=validation_bound(sigma, len(validation), len(free), n_res), n_train=len(train),
+        n_validation=len(validation))
+
+
+def _checked_inputs(start: jr.Robot, train: Poses, validation: Poses, noise, marker) -> tuple[float, Array]:
+    """The tracker noise [m] and marker offset [m] (defaults from `[sensors]`), after checking them and
+    the poses against `start` (see `diagnose`)."""
     sensors = jr.read_description(None)["sensors"]
     sigma = float(sensors["tracker_position_noise_m"] if noise is None else noise)
     marker = jnp.asarray(sensors["tracker_marker_offset_m"] if marker is None else marker, float)
@@ -246,189 +434,88 @@ def diagnose(
             raise ValueError(f"{name}: expected motor_angles (K, {joints}) rad for the {joints}-joint start robot, "
                              f"found {poses.motor_angles.shape}")
         check_pose_units(start, poses.motor_angles, poses.positions, marker, f"{name} poses")
-    say = progress or (lambda _: None)
-    layout = Layout.of(catalogue(start), joints)
-    fns = functions(layout)
-    model0 = model_of(start)
-    spare = layout.size
-    scale = jnp.asarray(layout.scales())
-    v = jnp.zeros(spare + 1)
-    orders = np.zeros((joints, 2 * RIPPLE_SLOTS))
-    both = Poses.concatenate([train, validation])  # one compiled shape for both sets
-    th_all, ccw_all = jnp.asarray(both.motor_angles), (jnp.asarray(both.ccw), jnp.asarray(both.ccw_order))
-    k_tr = len(train)
-    data = {"train": (th_all[:k_tr], tuple(c[:k_tr] for c in ccw_all), train.positions)}
-    varying = np.any(train.ccw != train.ccw[:1], axis=0)
-    n_res = 3 * k_tr
-    ln_n = float(np.log(n_res))
-    free: list[int] = []
-    accepted: list[Candidate] = []
-    loop, cand_log, spectra, steps = [], [], [], []
+    return sigma, marker
 
-    def split(q, p):
-        err = both.positions - np.asarray(p)
-        return {"train": (np.asarray(q)[:k_tr], err[:k_tr]), "validation": (np.asarray(q)[k_tr:], err[k_tr:])}
 
-    def evaluate(vv):
-        return split(*fns.exact(model0, vv, jnp.asarray(orders), th_all, ccw_all, marker))
+def _verdict_at_noise_floor(row: LoopRow, bound: float, added: list[str]) -> str:
+    """Verdict once the training residuals pass the chi-square test (`bound`: `validation_bound`)."""
+    names = ", ".join(added)
+    if row.rms_validation > bound:
+        after = " after adding " + names if names else ""
+        return (f"not explained: training residuals at the noise floor{after}, but the validation RMS "
+                f"{row.rms_validation * 1e6:.2f} um exceeds its noise-floor bound {bound * 1e6:.2f} um (overfit, or an "
+                "effect the training poses do not excite)")
+    return ("no significant discrepancy: the model explains the data to the noise floor" if not added
+            else "explained: residuals at the noise floor after adding " + names)
 
-    ev = evaluate(v)
-    residual_before = np.linalg.norm(ev["validation"][1], axis=-1)
-    t0 = time.perf_counter()
-    verdict = ""
-    while True:
-        chi2 = float(np.sum(ev["train"][1] ** 2) / sigma**2)
-        p_val = _p_value(chi2, n_res - len(free))
-        bic = chi2 + len(free) * ln_n
-        row = {"step": len(accepted), "effect": accepted[-1].label(layout) if accepted else "(start)",
-               "parameters": len(free), "rms_train_um": _rms(ev["train"][1]) * 1e6,
-               "rms_validation_um": _rms(ev["validation"][1]) * 1e6, "chi2": chi2, "dof": n_res - len(free),
-               "p_value": p_val, "bic": bic}
-        loop.append(row)
-        say(f"step {row['step']}: {row['effect']:<34} rms train {row['rms_train_um']:8.2f} um, validation "
-            f"{row['rms_validation_um']:8.2f} um, noise floor {sigma * np.sqrt(3) * 1e6:.2f} um, chi2/dof "
-            f"{chi2 / max(row['dof'], 1):.3f} (p = {p_val:.3g}) [{time.perf_counter() - t0:.1f} s]")
-        bound = validation_bound(sigma, len(validation), len(free), n_res)
-        if p_val > ALPHA:
-            added = ", ".join(c.label(layout) for c in accepted)
-            if _rms(ev["validation"][1]) > bound:
-                after = " after adding " + added if added else ""
-                rms_v = _rms(ev["validation"][1]) * 1e6
-                verdict = (f"not explained: training residuals at the noise floor{after}, but the validation RMS "
-                           f"{rms_v:.2f} um exceeds its noise-floor bound {bound * 1e6:.2f} um (overfit, or an "
-                           "effect the training poses do not excite)")
-            else:
-                verdict = ("no significant discrepancy: the model explains the data to the noise floor" if not accepted
-                           else "explained: residuals at the noise floor after adding " + added)
-            break
-        if len(accepted) >= max_steps:
-            verdict = f"discrepancy remains after {max_steps} effects (max_steps)"
-            break
-        th, ccw, pos = data["train"]
-        q_cur = jnp.asarray(ev["train"][0])
-        r = ev["train"][1].ravel() / sigma
-        jac = np.asarray(fns.jacobian(model0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
-        # locate: ripple orders per joint from the residual spectra (joints without a ripple effect yet)
-        qe = _orthonormal(jac[:, free]) if free else np.zeros((n_res, 0))
-        threshold = 2.0 * np.log(joints * max_order / ORDER_FALSE_ALARM)
-        off = layout.blocks[layout.index("joint_offset")]
-        sign = np.asarray(approach_sign(np.asarray(ccw[0])))
-        found: dict[str, dict[int, list[int]]] = {"gear_ripple": {}, "direction_dependent_ripple": {}}
-        spec_step = {}
-        for j in range(joints):
-            g = jac[:, off[j, 0]].reshape(-1, 3)
-            phi = np.asarray(q_cur)[:, j]
-            for kind, col, sgn in (("gear_ripple", 0, None), ("direction_dependent_ripple", RIPPLE_SLOTS, sign[:, j])):
-                if any(c.joint == j and layout.effects[c.effect].kind == kind for c in accepted):
-                    found[kind][j] = [int(n) for n in orders[j, col: col + RIPPLE_SLOTS] if n > 0]
-                    continue
-                if kind in DIRECTIONAL and not varying[j]:
-                    found[kind][j] = []
-                    continue
-                ns, first = _find_orders(g, phi, r, qe, max_order, sgn, threshold)
-                spec_step[(kind, j + 1)] = first
-                found[kind][j] = ns
-                orders[j, col: col + RIPPLE_SLOTS] = 0.0
-                orders[j, col: col + len(ns)] = ns
-        spectra.append(spec_step)
-        if any(found[k] for k in found):
-            jac = np.asarray(fns.jacobian(model0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
-        # name: linearised fit of every candidate, then LM on the shortlist
-        cands = _candidates(layout, set(free), found, varying)
-        scored = []
-        for c in cands:
-            cols = free + [i for i in c.params if i not in free]
-            a = jac[:, cols]
-            norms = np.linalg.norm(a, axis=0)
-            if np.any(norms == 0):
+
+def _locate_orders(layout: Layout, jac, r, free: list[int], accepted: list[Candidate], orders: np.ndarray,
+                   q_cur: np.ndarray, ccw, varying: np.ndarray, max_order: int) -> tuple[dict, dict]:
+    """Ripple orders per joint from the residual spectra (joints without a ripple effect yet); writes
+    them into `orders`. **Returns:** {kind: {joint: orders}} and the first spectrum per (kind, joint)."""
+    joints = orders.shape[0]
+    qe = _orthonormal(jac[:, free]) if free else np.zeros((jac.shape[0], 0))
+    threshold = 2.0 * np.log(joints * max_order / ORDER_FALSE_ALARM)
+    off = layout.blocks[layout.index("joint_offset")]
+    sign = np.asarray(approach_sign(np.asarray(ccw)))
+    found: dict[str, dict[int, list[int]]] = {"gear_ripple": {}, "direction_dependent_ripple": {}}
+    spec_step = {}
+    for j in range(joints):
+        g = jac[:, off[j, 0]].reshape(-1, 3)
+        phi = q_cur[:, j]
+        for kind, col, sgn in (("gear_ripple", 0, None), ("direction_dependent_ripple", RIPPLE_SLOTS, sign[:, j])):
+            if any(c.joint == j and layout.effects[c.effect].kind == kind for c in accepted):
+                found[kind][j] = [int(n) for n in orders[j, col: col + RIPPLE_SLOTS] if n > 0]
                 continue
-            s = np.linalg.svd(a / norms, compute_uv=False)
-            if s[-1] < 1e-6 * s[0]:
-                continue  # not identifiable together with the effects already added
-            delta = np.linalg.lstsq(a, r, rcond=None)[0]
-            rss = float(np.sum((r - a @ delta) ** 2))
-            scored.append((rss + len(cols) * ln_n, c, cols))
-        scored.sort(key=lambda t: t[0])
-        top = scored[:shortlist]
-        log = [{"candidate": c.label(layout), "bic_linearised": b, "delta_bic_linearised": b - bic}
-               for b, c, _ in scored]
-        winner = None
-        if top:
-            idx = _pad([cols for _, _, cols in top], spare)
-            vs, status, nsteps = fns.fit(model0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale,
-                                         jnp.asarray(pos), sigma, jnp.asarray(idx))
-            pos_fit = np.asarray(fns.exact_batch(model0, vs, jnp.asarray(orders), th_all, ccw_all, marker))
-            best = None
-            for k, (_, _c, cols) in enumerate(top):
-                err_t = train.positions - pos_fit[k, :k_tr]
-                err_v = validation.positions - pos_fit[k, k_tr:]
-                chi2_k = float(np.sum(err_t**2) / sigma**2)
-                bic_k = chi2_k + len(cols) * ln_n
-                rms_v = _rms(err_v)
-                ok = int(status[k]) == 0
-                entry = log[k]
-                entry.update({"bic": bic_k, "delta_bic": bic_k - bic, "rms_train_um": _rms(err_t) * 1e6,
-                              "rms_validation_um": rms_v * 1e6, "lm_status": int(status[k]),
-                              "lm_steps": int(nsteps[k])})
-                if ok and bic_k < bic - MIN_BIC_GAIN and rms_v < _rms(ev["validation"][1]):
-                    if best is None or bic_k < best[0]:
-                        best = (bic_k, k)
-            if best is not None:
-                winner = top[best[1]]
-                log[best[1]]["selected"] = True
-                v_new = jnp.asarray(vs[best[1]])
-        cand_log.append(log)
-        for e in log[:5]:
-            say(f"    {e['candidate']:<38} dBIC {e.get('delta_bic', e['delta_bic_linearised']):12.1f}"
-                + (f"  rms val {e['rms_validation_um']:8.2f} um" if "rms_validation_um" in e else "")
-                + ("  <- added" if e.get("selected") else ""))
-        if winner is None:
-            verdict = "discrepancy remains: no candidate effect lowers the BIC and the validation error"
-            break
-        _, c, cols = winner
+            if kind in DIRECTIONAL and not varying[j]:
+                found[kind][j] = []
+                continue
+            ns, first = _find_orders(g, phi, r, qe, max_order, sgn, threshold)
+            spec_step[(kind, j + 1)] = first
+            found[kind][j] = ns
+            orders[j, col: col + RIPPLE_SLOTS] = 0.0
+            orders[j, col: col + len(ns)] = ns
+    return found, spec_step
+
+
+def _rank_linearised(cands: list[Candidate], free: list[int], jac, r, ln_n: float) -> list[tuple]:
+    """`(BIC, candidate, columns)` of one Gauss-Newton step per identifiable candidate, best first."""
+    scored = []
+    for c in cands:
+        cols = free + [i for i in c.params if i not in free]
         a = jac[:, cols]
-        std = np.sqrt(np.diag(np.linalg.pinv(a.T @ a))) * np.asarray(scale)[cols]
-        free, v = cols, v_new
-        accepted.append(c)
-        ev = evaluate(v)
-        steps.append(_step_entry(layout, model0, c, v, orders, dict(zip(cols, std)), ev))
-    final = ev["validation"][1]
-    model = layout.apply(model0, v, jnp.asarray(orders))
-    report = {
-        "noise_floor_um": sigma * np.sqrt(3) * 1e6,
-        "validation_bound_um": validation_bound(sigma, len(validation), len(free), n_res) * 1e6,
-        "steps": steps,
-        "final_rms_validation_um": _rms(final) * 1e6,
-        "verdict": verdict,
-        "start": {"rms_train_um": loop[0]["rms_train_um"], "rms_validation_um": loop[0]["rms_validation_um"],
-                  "chi2_per_dof": loop[0]["chi2"] / loop[0]["dof"], "p_value": loop[0]["p_value"]},
-        "n_poses": {"train": len(train), "validation": len(validation)},
-    }
-    return DiagnoseResult(robot_of(model), model, report, loop, cand_log,
-                          {"before": residual_before, "after": np.linalg.norm(final, axis=-1)}, spectra)
+        norms = np.linalg.norm(a, axis=0)
+        if np.any(norms == 0):
+            continue
+        s = np.linalg.svd(a / norms, compute_uv=False)
+        if s[-1] < 1e-6 * s[0]:
+            continue  # not identifiable together with the effects already added
+        delta = np.linalg.lstsq(a, r, rcond=None)[0]
+        scored.append((float(np.sum((r - a @ delta) ** 2)) + len(cols) * ln_n, c, cols))
+    scored.sort(key=lambda t: t[0])
+    return scored
 
 
-def _step_entry(layout: Layout, model0: Model, c: Candidate, v, orders, std: dict, ev) -> dict:
+def _added_effect(layout: Layout, robot0: jr.Robot, c: Candidate, v, orders, std: dict, ev) -> AddedEffect:
     e = layout.effects[c.effect]
     block = layout.blocks[c.effect]
-    names = e.names
     local = block[c.joint] if e.per_joint else block
     params = {}
     for i, gi in enumerate(local):
         if int(gi) not in c.params:
             continue
-        name = names[i]
+        name = e.names[i]
         if e.kind in ("gear_ripple", "direction_dependent_ripple"):
             slot = int(name[-1])
             col = slot + (RIPPLE_SLOTS if e.kind == "direction_dependent_ripple" else 0)
             name = f"{name[:-1]}_order{int(orders[c.joint, col])}"
-        params[name] = {"value": float(v[gi]), "std": float(std.get(int(gi), np.nan)), "unit": e.units[i]}
+        params[name] = Estimate(float(v[gi]), e.units[i], float(std.get(int(gi), np.nan)))
     if e.kind == "approach_dependent_gear_set":
-        params["weight"]["note"] = ("the poses' row order gives the gear set at rest; a robot file cannot hold "
-                                    "this: read the poses with --approach order")
+        params["weight"] = dataclasses.replace(
+            params["weight"], note="the poses' row order gives the gear set at rest; a robot file cannot hold "
+                                   "this: read the poses with --approach order")
     if e.kind == "joint_compliance":
-        cj = float(model0.c[c.joint] + v[local[0]])
-        params["k1"] = {"value": 1.0 / cj if cj > 0 else float("inf"), "unit": "N m/rad"}
-    return {"effect": e.kind, "joint": None if c.joint is None else c.joint + 1, "variant": c.variant,
-            "parameters": params, "rms_train_um": _rms(ev["train"][1]) * 1e6,
-            "rms_validation_um": _rms(ev["validation"][1]) * 1e6}
+        cj = float(robot0.c[c.joint] + v[local[0]])
+        params["k1"] = Estimate(1.0 / cj if cj > 0 else float("inf"), "N m/rad")
+    return AddedEffect(e.kind, None if c.joint is None else c.joint + 1, c.variant, params,
+                       _rms(ev["train"][1]), _rms(ev["validation"][1]))

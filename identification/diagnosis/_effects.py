@@ -1,13 +1,12 @@
 """Catalogue of model effects for the discrepancy workflow (`diagnose`).
 
 Each effect is a small model extension: its parameter names and typical sizes, and a hook
-`apply(model, v, orders) -> model` that is the identity at `v = 0`. Per-joint effects get `v` of
+`apply(robot, v, orders) -> robot` that is the identity at `v = 0`. Per-joint effects get `v` of
 shape (joints, p) (one row per joint; the workflow frees one row at a time), global ones (p,).
 Adding an effect = one subclass of `Effect` appended to `CATALOGUE`.
 
-The model (`Model`) is the robot plus its joint compliance in the form of
-`jaxrobot.compliance_deflection` (`c = 1/k1`, `e = k3/k1`), which is finite for rigid joints
-(`c = 0`), so compliance can be identified from a rigid start.
+Effects act on the `jaxrobot.Robot` itself: its joint compliance is stored as `c = 1/k1`,
+`e = k3/k1` (`c = 0` rigid), so compliance can be identified from a rigid start.
 """
 
 from __future__ import annotations
@@ -29,38 +28,16 @@ RIPPLE_SLOTS = 3
 """Orders per ripple effect and joint (found from the residual spectrum)."""
 
 
-class Model(eqx.Module):
-    """The robot of the workflow: `robot` with `RIPPLE_SLOTS` free ripple slots per effect
-    appended, and joint compliance `c` [rad/(N m)], `e` [1/rad^2] (`x + e x^3 = c tau`)."""
-
-    robot: jr.Robot
-    c: Float[Array, " n"]
-    e: Float[Array, " n"]
-    approach: Float[Array, " n"]
-    """Weight of the gear set of the direction of approach from the order at rest (0: the set of
-    the poses' convention; `ApproachDependentGearSet`)."""
-
-
 def _pad(rip: jr.Ripple, m: int) -> jr.Ripple:
     z = jnp.zeros(rip.orders.shape[:-1] + (m,))
     return jr.Ripple(*(jnp.concatenate([getattr(rip, k), z], -1) for k in ("orders", "a", "b")))
 
 
-def model_of(robot: jr.Robot) -> Model:
-    """The workflow's model of `robot` (free ripple slots appended, compliance form)."""
+def with_ripple_slots(robot: jr.Robot) -> jr.Robot:
+    """`robot` with `RIPPLE_SLOTS` free ripple slots per ripple effect appended (empty slots are
+    dropped when the robot is written: `save_robot` keeps used orders only)."""
     m = 2 * RIPPLE_SLOTS
-    robot = eqx.tree_at(lambda r: (r.cw, r.ccw), robot, (_pad(robot.cw, m), _pad(robot.ccw, m)))
-    c = 1.0 / robot.k1
-    return Model(robot, c, robot.k3 * c, jnp.zeros_like(robot.u0))
-
-
-def robot_of(model: Model) -> jr.Robot:
-    """Back to a `jaxrobot.Robot`: `k1 = 1/c`, `k3 = e k1` (inf for `c = 0`); empty ripple slots dropped
-    when the robot is written (`save_robot` keeps used orders only)."""
-    c = np.asarray(model.c)
-    k1 = np.where(c > 0, 1.0 / np.where(c > 0, c, 1.0), np.inf)
-    k3 = np.where(c > 0, np.asarray(model.e) * np.where(c > 0, k1, 0.0), 0.0)
-    return eqx.tree_at(lambda r: (r.k1, r.k3), model.robot, (jnp.asarray(k1), jnp.asarray(k3)))
+    return eqx.tree_at(lambda r: (r.cw, r.ccw), robot, (_pad(robot.cw, m), _pad(robot.ccw, m)))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,7 +51,7 @@ class Effect:
     scales: ClassVar[tuple[float, ...]]
     units: ClassVar[tuple[str, ...]]
 
-    def apply(self, model: Model, v: Array, orders: Float[Array, "n S"]) -> Model:
+    def apply(self, robot: jr.Robot, v: Array, orders: Float[Array, "n S"]) -> jr.Robot:
         raise NotImplementedError
 
     def variants(self) -> tuple[tuple[int, ...], ...]:
@@ -82,8 +59,8 @@ class Effect:
         return (tuple(range(len(self.names))),)
 
 
-def _robot_at(model: Model, fields: tuple[str, ...], values: tuple) -> Model:
-    return eqx.tree_at(lambda m: tuple(getattr(m.robot, f) for f in fields), model, values)
+def _robot_at(robot: jr.Robot, fields: tuple[str, ...], values: tuple) -> jr.Robot:
+    return eqx.tree_at(lambda r: tuple(getattr(r, f) for f in fields), robot, values)
 
 
 class JointOffset(Effect):
@@ -91,8 +68,8 @@ class JointOffset(Effect):
 
     kind, per_joint, names, scales, units = "joint_offset", True, ("offset",), (1e-4,), ("rad",)
 
-    def apply(self, model, v, orders):
-        return _robot_at(model, ("offset",), (model.robot.offset + v[:, 0],))
+    def apply(self, robot, v, orders):
+        return _robot_at(robot, ("offset",), (robot.offset + v[:, 0],))
 
 
 class GearRatio(Effect):
@@ -100,8 +77,8 @@ class GearRatio(Effect):
 
     kind, per_joint, names, scales, units = "gear_ratio", True, ("u0_relative",), (1e-4,), ("1",)
 
-    def apply(self, model, v, orders):
-        return _robot_at(model, ("u0",), (model.robot.u0 * (1.0 + v[:, 0]),))
+    def apply(self, robot, v, orders):
+        return _robot_at(robot, ("u0",), (robot.u0 * (1.0 + v[:, 0]),))
 
 
 class Backlash(Effect):
@@ -110,8 +87,8 @@ class Backlash(Effect):
 
     kind, per_joint, names, scales, units = "backlash", True, ("backlash",), (1e-4,), ("rad",)
 
-    def apply(self, model, v, orders):
-        return _robot_at(model, ("backlash",), (model.robot.backlash + v[:, 0],))
+    def apply(self, robot, v, orders):
+        return _robot_at(robot, ("backlash",), (robot.backlash + v[:, 0],))
 
 
 class JointCompliance(Effect):
@@ -121,8 +98,8 @@ class JointCompliance(Effect):
     kind, per_joint, names, scales, units = ("joint_compliance", True, ("compliance", "cubic"), (1e-6, 1e5),
                                              ("rad/(N m)", "1/rad^2"))
 
-    def apply(self, model, v, orders):
-        return eqx.tree_at(lambda m: (m.c, m.e), model, (model.c + v[:, 0], model.e + v[:, 1]))
+    def apply(self, robot, v, orders):
+        return _robot_at(robot, ("c", "e"), (robot.c + v[:, 0], robot.e + v[:, 1]))
 
     def variants(self):
         return ((0,), (0, 1))
@@ -144,13 +121,12 @@ class GearRipple(Effect):
     names = tuple(f"{p}{s}" for s in range(RIPPLE_SLOTS) for p in ("A", "B"))
     scales = (1e-5,) * 2 * RIPPLE_SLOTS
 
-    def apply(self, model, v, orders):
+    def apply(self, robot, v, orders):
         n = orders[:, : RIPPLE_SLOTS]
-        start = model.robot.cw.orders.shape[-1] - 2 * RIPPLE_SLOTS
+        start = robot.cw.orders.shape[-1] - 2 * RIPPLE_SLOTS
         a, b = v[:, 0::2], v[:, 1::2]
-        rob = model.robot
-        return _robot_at(model, ("cw", "ccw"), (_set_ripple(rob.cw, start, n, a, b),
-                                                 _set_ripple(rob.ccw, start, n, a, b)))
+        return _robot_at(robot, ("cw", "ccw"), (_set_ripple(robot.cw, start, n, a, b),
+                                                 _set_ripple(robot.ccw, start, n, a, b)))
 
 
 class DirectionDependentRipple(Effect):
@@ -161,13 +137,12 @@ class DirectionDependentRipple(Effect):
     names = tuple(f"{d}_{p}{s}" for s in range(RIPPLE_SLOTS) for d in ("cw", "ccw") for p in ("A", "B"))
     scales = (1e-5,) * 4 * RIPPLE_SLOTS
 
-    def apply(self, model, v, orders):
+    def apply(self, robot, v, orders):
         n = orders[:, RIPPLE_SLOTS:]
-        start = model.robot.cw.orders.shape[-1] - RIPPLE_SLOTS
+        start = robot.cw.orders.shape[-1] - RIPPLE_SLOTS
         v = v.reshape(v.shape[0], RIPPLE_SLOTS, 4)
-        rob = model.robot
-        return _robot_at(model, ("cw", "ccw"), (_set_ripple(rob.cw, start, n, v[..., 0], v[..., 1]),
-                                                 _set_ripple(rob.ccw, start, n, v[..., 2], v[..., 3])))
+        return _robot_at(robot, ("cw", "ccw"), (_set_ripple(robot.cw, start, n, v[..., 0], v[..., 1]),
+                                                 _set_ripple(robot.ccw, start, n, v[..., 2], v[..., 3])))
 
 
 GEOMETRY = ("a1", "a2", "a3", "a4", "a5", "a6", "d1", "d2", "d4", "d5", "d6",
@@ -202,14 +177,13 @@ class Geometry(Effect):
     def units(self) -> tuple[str, ...]:  # type: ignore[override]
         return tuple("m" if parse_name(n)[0] in ("a", "d") else "rad" for n in self.names)
 
-    def apply(self, model, v, orders):
-        rob = model.robot
-        upd = {k: getattr(rob, k) for k in ("a", "d", "alpha", "beta")}
+    def apply(self, robot, v, orders):
+        upd = {k: getattr(robot, k) for k in ("a", "d", "alpha", "beta")}
         for i, n in enumerate(self.names):
             field, j = parse_name(n)
             upd[field] = upd[field].at[j].add(v[i])
         keys = tuple(upd)
-        return _robot_at(model, keys, tuple(upd[k] for k in keys))
+        return _robot_at(robot, keys, tuple(upd[k] for k in keys))
 
 
 class LinkScale(Effect):
@@ -217,9 +191,8 @@ class LinkScale(Effect):
 
     kind, per_joint, names, scales, units = "link_scale", False, ("scale",), (1e-4,), ("1",)
 
-    def apply(self, model, v, orders):
-        rob = model.robot
-        return _robot_at(model, ("a", "d"), (rob.a * (1.0 + v[0]), rob.d * (1.0 + v[0])))
+    def apply(self, robot, v, orders):
+        return _robot_at(robot, ("a", "d"), (robot.a * (1.0 + v[0]), robot.d * (1.0 + v[0])))
 
 
 class ToolOffset(Effect):
@@ -227,9 +200,9 @@ class ToolOffset(Effect):
 
     kind, per_joint, names, scales, units = ("tool_offset", False, ("x", "y", "z"), (1e-4,) * 3, ("m",) * 3)
 
-    def apply(self, model, v, orders):
-        tool = model.robot.tool
-        return _robot_at(model, ("tool",), (tool.at[:3, 3].add(v),))
+    def apply(self, robot, v, orders):
+        tool = robot.tool
+        return _robot_at(robot, ("tool",), (tool.at[:3, 3].add(v),))
 
 
 class BaseOffset(Effect):
@@ -240,9 +213,9 @@ class BaseOffset(Effect):
     names, scales = ("x", "y", "z", "rx", "ry", "rz"), (1e-4,) * 6
     units = ("m",) * 3 + ("rad",) * 3
 
-    def apply(self, model, v, orders):
+    def apply(self, robot, v, orders):
         t = homogeneous(rot_z(v[5]) @ rot_y(v[4]) @ rot_x(v[3]), v[:3])
-        return _robot_at(model, ("base",), (t @ model.robot.base,))
+        return _robot_at(robot, ("base",), (t @ robot.base,))
 
 
 class Payload(Effect):
@@ -252,12 +225,11 @@ class Payload(Effect):
     kind, per_joint = "payload", False
     names, scales, units = ("mass", "moment_x", "moment_y", "moment_z"), (1.0, 0.1, 0.1, 0.1), ("kg",) + ("kg m",) * 3
 
-    def apply(self, model, v, orders):
-        rob = model.robot
-        m_last = rob.mass[-1]
+    def apply(self, robot, v, orders):
+        m_last = robot.mass[-1]
         m = m_last + v[0]
-        com = (m_last * rob.com[-1] + v[1:]) / m
-        return _robot_at(model, ("mass", "com"), (rob.mass.at[-1].set(m), rob.com.at[-1].set(com)))
+        com = (m_last * robot.com[-1] + v[1:]) / m
+        return _robot_at(robot, ("mass", "com"), (robot.mass.at[-1].set(m), robot.com.at[-1].set(com)))
 
 
 class ApproachDependentGearSet(Effect):
@@ -269,8 +241,8 @@ class ApproachDependentGearSet(Effect):
 
     kind, per_joint, names, scales, units = "approach_dependent_gear_set", False, ("weight",), (1.0,), ("1",)
 
-    def apply(self, model, v, orders):
-        return eqx.tree_at(lambda m: m.approach, model, model.approach + v[0])
+    def apply(self, robot, v, orders):
+        return robot  # a hypothesis on the poses: `rest_angles` reads the weight (`Layout.approach`)
 
 
 CATALOGUE: list[Effect] = [JointOffset(), GearRatio(), Backlash(), JointCompliance(), GearRipple(),
@@ -315,11 +287,18 @@ class Layout:
             s[b] = np.broadcast_to(np.asarray(e.scales), b.shape)
         return s
 
-    def apply(self, model: Model, v: Float[Array, " P"], orders: Float[Array, "n S"]) -> Model:
+    def apply(self, robot: jr.Robot, v: Float[Array, " P"], orders: Float[Array, "n S"]) -> jr.Robot:
         """All effects with the values `v` (the identity at `v = 0`)."""
         for e, b in zip(self.effects, self.blocks):
-            model = e.apply(model, v[jnp.asarray(b)], orders)
-        return model
+            robot = e.apply(robot, v[jnp.asarray(b)], orders)
+        return robot
+
+    def approach(self, v: Float[Array, " P"]) -> Float[Array, ""]:
+        """Weight of `ApproachDependentGearSet` in `v` (0 without it in the layout)."""
+        kinds = [e.kind for e in self.effects]
+        if ApproachDependentGearSet.kind not in kinds:
+            return jnp.zeros(())
+        return v[int(self.blocks[kinds.index(ApproachDependentGearSet.kind)][0])]
 
     def index(self, kind: str) -> int:
         return [e.kind for e in self.effects].index(kind)

@@ -1,4 +1,5 @@
-"""Tables and plots of the discrepancy workflow (`jaxrobot diagnose --out`)."""
+"""Progress lines, JSON summary, tables and plots of the discrepancy workflow (`jaxrobot diagnose`):
+the edge that turns `diagnose`'s SI results and events into um and text."""
 
 from __future__ import annotations
 
@@ -6,44 +7,109 @@ from pathlib import Path
 
 import numpy as np
 
+from ._diagnose import AddedEffect, CandidateScore, DiagnoseEvent, DiagnoseResult, Estimate, LoopRow
 
-def loop_table(loop: list[dict], noise_floor_um: float) -> str:
-    """Step, effect added, residual RMS train/validation, noise floor, chi-square test."""
+UM = 1e6
+"""Micrometres per metre: residuals are reported in um."""
+
+
+def progress_lines(event: DiagnoseEvent) -> list[str]:
+    """The progress text of one `diagnose` event: a line per model compared, the best five
+    candidates of a step."""
+    if event.stage == "compare":
+        r = event.row
+        return [f"step {r.step}: {r.effect:<34} rms train {r.rms_train * UM:8.2f} um, validation "
+                f"{r.rms_validation * UM:8.2f} um, noise floor {event.noise_floor * UM:.2f} um, chi2/dof "
+                f"{r.chi2 / max(r.dof, 1):.3f} (p = {r.p_value:.3g}) [{event.elapsed:.1f} s]"]
+    return [f"    {e.candidate:<38} dBIC {_delta_bic(e):12.1f}"
+            + (f"  rms val {e.rms_validation * UM:8.2f} um" if e.rms_validation is not None else "")
+            + ("  <- added" if e.selected else "") for e in event.candidates[:5]]
+
+
+def _delta_bic(e: CandidateScore) -> float:
+    """BIC change after the LM fit where there is one, else linearised."""
+    return e.delta_bic_linearised if e.delta_bic is None else e.delta_bic
+
+
+def _estimate(p: Estimate) -> dict:
+    out: dict = {"value": p.value}
+    if p.std is not None:
+        out["std"] = p.std
+    out["unit"] = p.unit
+    if p.note:
+        out["note"] = p.note
+    return out
+
+
+def _step(s: AddedEffect) -> dict:
+    return {"effect": s.kind, "joint": s.joint, "variant": s.variant,
+            "parameters": {n: _estimate(p) for n, p in s.parameters.items()},
+            "rms_train_um": s.rms_train * UM, "rms_validation_um": s.rms_validation * UM}
+
+
+def summary(res: DiagnoseResult) -> dict:
+    """The JSON of `jaxrobot diagnose` (residuals in um, parameters in their SI units)."""
+    first = res.loop[0]
+    return {
+        "noise_floor_um": res.noise_floor * UM,
+        "validation_bound_um": res.validation_bound * UM,
+        "steps": [_step(s) for s in res.steps],
+        "final_rms_validation_um": res.final_rms_validation * UM,
+        "verdict": res.verdict,
+        "start": {"rms_train_um": first.rms_train * UM, "rms_validation_um": first.rms_validation * UM,
+                  "chi2_per_dof": first.chi2 / first.dof, "p_value": first.p_value},
+        "n_poses": {"train": res.n_train, "validation": res.n_validation},
+    }
+
+
+def loop_table(loop: tuple[LoopRow, ...], noise_floor: float) -> str:
+    """Step, effect added, residual RMS train/validation, noise floor, chi-square test (lengths in um)."""
     lines = [f"{'step':>4}  {'effect added':<36} {'params':>6} {'rms train [um]':>14} {'rms val [um]':>12} "
              f"{'noise floor [um]':>16} {'chi2/dof':>8} {'p':>9}"]
     for r in loop:
-        lines.append(f"{r['step']:>4}  {r['effect']:<36} {r['parameters']:>6} {r['rms_train_um']:>14.2f} "
-                     f"{r['rms_validation_um']:>12.2f} {noise_floor_um:>16.2f} {r['chi2'] / max(r['dof'], 1):>8.3f} "
-                     f"{r['p_value']:>9.3g}")
+        lines.append(f"{r.step:>4}  {r.effect:<36} {r.parameters:>6} {r.rms_train * UM:>14.2f} "
+                     f"{r.rms_validation * UM:>12.2f} {noise_floor * UM:>16.2f} {r.chi2 / max(r.dof, 1):>8.3f} "
+                     f"{r.p_value:>9.3g}")
     return "\n".join(lines)
 
 
-def candidate_table(log: list[dict], top: int = 12) -> str:
+def candidate_table(log: tuple[CandidateScore, ...], top: int = 12) -> str:
     """Candidates of one step: BIC change (linearised for all, LM for the shortlist), validation RMS."""
     lines = [f"{'candidate':<40} {'dBIC lin.':>11} {'dBIC LM':>11} {'rms val [um]':>12}  added"]
     for e in log[:top]:
-        lm = f"{e['delta_bic']:>11.1f}" if "delta_bic" in e else f"{'-':>11}"
-        val = f"{e['rms_validation_um']:>12.2f}" if "rms_validation_um" in e else f"{'-':>12}"
-        lines.append(f"{e['candidate']:<40} {e['delta_bic_linearised']:>11.1f} {lm} {val}  "
-                     f"{'yes' if e.get('selected') else ''}")
+        lm = f"{e.delta_bic:>11.1f}" if e.delta_bic is not None else f"{'-':>11}"
+        val = f"{e.rms_validation * UM:>12.2f}" if e.rms_validation is not None else f"{'-':>12}"
+        lines.append(f"{e.candidate:<40} {e.delta_bic_linearised:>11.1f} {lm} {val}  "
+                     f"{'yes' if e.selected else ''}")
     return "\n".join(lines)
 
 
-def plot_residuals(path: Path, before: np.ndarray, after: np.ndarray, noise_floor_um: float) -> None:
-    """Validation residual norms per pose before and after the loop, with the noise floor."""
+def write_outputs(out: Path, res: DiagnoseResult, max_order: int) -> None:
+    """`diagnose_tables.txt` (loop and candidate tables, verdict) and the three plots into `out`."""
+    parts = [loop_table(res.loop, res.noise_floor), f"verdict: {res.verdict}"]
+    for i, log in enumerate(res.candidates, 1):
+        parts.append(f"candidates of step {i}\n" + candidate_table(log))
+    (out / "diagnose_tables.txt").write_text("\n\n".join(parts) + "\n")
+    plot_residuals(out / "diagnose_residuals.png", res.residuals_before, res.residuals_after, res.noise_floor)
+    plot_candidates(out / "diagnose_candidates.png", res.candidates)
+    plot_spectra(out / "diagnose_spectra.png", res.spectra[0] if res.spectra else {}, max_order)
+
+
+def plot_residuals(path: Path, before: np.ndarray, after: np.ndarray, noise_floor: float) -> None:
+    """Validation residual norms [m] per pose before and after the loop, with the noise floor [m]."""
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
     k = np.arange(1, len(before) + 1)
-    ax[0].plot(k, 1e6 * before, "o-", ms=3, label="start model")
-    ax[0].plot(k, 1e6 * after, "o-", ms=3, label="after the loop")
-    ax[0].axhline(noise_floor_um, color="k", ls="--", lw=1, label="noise floor (rms)")
+    ax[0].plot(k, UM * before, "o-", ms=3, label="start model")
+    ax[0].plot(k, UM * after, "o-", ms=3, label="after the loop")
+    ax[0].axhline(noise_floor * UM, color="k", ls="--", lw=1, label="noise floor (rms)")
     ax[0].set(xlabel="validation pose", ylabel="position residual [µm]",
               title="Validation residuals per pose")
     ax[0].legend(fontsize=8)
-    bins = np.linspace(0, 1e6 * max(before.max(), after.max()), 30)
-    ax[1].hist(1e6 * before, bins, alpha=0.6, label="start model")
-    ax[1].hist(1e6 * after, bins, alpha=0.6, label="after the loop")
+    bins = np.linspace(0, UM * max(before.max(), after.max()), 30)
+    ax[1].hist(UM * before, bins, alpha=0.6, label="start model")
+    ax[1].hist(UM * after, bins, alpha=0.6, label="after the loop")
     ax[1].set(xlabel="position residual [µm]", ylabel="poses", title="Distribution")
     ax[1].legend(fontsize=8)
     fig.tight_layout()
@@ -51,7 +117,7 @@ def plot_residuals(path: Path, before: np.ndarray, after: np.ndarray, noise_floo
     plt.close(fig)
 
 
-def plot_candidates(path: Path, candidates: list[list[dict]], top: int = 10) -> None:
+def plot_candidates(path: Path, candidates: tuple[tuple[CandidateScore, ...], ...], top: int = 10) -> None:
     """BIC change of the best candidates of every step (LM where fitted, else linearised)."""
     import matplotlib.pyplot as plt
 
@@ -61,10 +127,10 @@ def plot_candidates(path: Path, candidates: list[list[dict]], top: int = 10) -> 
     fig, axes = plt.subplots(len(steps), 1, figsize=(8, 2.6 * len(steps)), squeeze=False)
     for i, (ax, log) in enumerate(zip(axes[:, 0], steps)):
         rows = log[:top]
-        val = [e.get("delta_bic", e["delta_bic_linearised"]) for e in rows]
-        colors = ["tab:green" if e.get("selected") else "tab:gray" for e in rows]
+        val = [_delta_bic(e) for e in rows]
+        colors = ["tab:green" if e.selected else "tab:gray" for e in rows]
         ax.barh(range(len(rows)), val, color=colors)
-        ax.set_yticks(range(len(rows)), [e["candidate"] for e in rows], fontsize=7)
+        ax.set_yticks(range(len(rows)), [e.candidate for e in rows], fontsize=7)
         ax.invert_yaxis()
         ax.set_xscale("symlog")
         ax.set_title(f"Step {i + 1}: BIC change of the candidate effects (green: added)", fontsize=9)

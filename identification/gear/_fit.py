@@ -17,11 +17,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jax.scipy.special import betainc, gammaincc
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxrobot import Ripple, Robot, read_description
+from jaxrobot import RESULTS, Ripple, Robot, read_description, status_message
 from jaxrobot._description import filter_cutoffs
 from jaxrobot._gear import ratio as gear_ratio
 from jaxrobot._gear import xi_inverse
@@ -485,10 +484,10 @@ def identify_gear(
     group = np.array([groups.index((i.joint, i.ccw)) for i in infos])
     fit_run = ~is_val
     proc = process_gear_runs(robot, batch)
-    align_ok = bool(proc.align_result == optx.RESULTS.successful)
+    align_ok = bool(proc.align_result == RESULTS.successful)
     if not align_ok:
         raise ValueError("gyroscope alignment (eq. 3.3) did not converge: "
-                         f"{optx.RESULTS[proc.align_result]}; check the gyroscope columns")
+                         f"{status_message(proc.align_result)}; check the gyroscope columns")
     n_groups = len(groups)
     u0_run = u0_model[np.asarray(batch.joint)]
     samples = group_samples(proc, batch, group, fit_run, n_groups, u0_run)

@@ -25,7 +25,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxrobot import Ripple, Robot
+from jaxrobot import RESULTS, Ripple, Robot
 from jaxrobot._bench_gear import mount_angular_velocity, quasi_static_link_angles
 from jaxrobot._kinematics import rot_x, rot_y
 from jaxrobot._linalg import map_matrices
@@ -356,8 +356,8 @@ class ProcessedRuns(eqx.Module):
     """`omega_e = thetad_f / u0 - phid_f` (eq. 3.4) with the model's `u0`."""
     misalignment: Float[Array, "n 2"]
     """Alignment angles `(alpha, beta)` per joint (eq. 3.3); zero for joints without runs."""
-    align_result: Array
-    """optimistix result of the alignment."""
+    align_result: RESULTS
+    """Status of the alignment (`jaxrobot.RESULTS`)."""
     align_steps: Array
     """Levenberg-Marquardt steps of the alignment."""
     bias: Float[Array, "R 3"]
@@ -443,8 +443,9 @@ def process_gear_runs(robot: Robot, batch: GearBatch) -> ProcessedRuns:
     phid_f = filt(phid, batch.valid, kernels)
     return ProcessedRuns(
         theta=theta, thetad=thetad, phid=phid, thetad_f=thetad_f, phid_f=phid_f,
-        kinematic_error=thetad_f / u0[:, None] - phid_f, misalignment=angles, align_result=sol.result,
-        align_steps=sol.stats["num_steps"], bias=bias, bias_var=bias_var, noise_var=noise_var,
+        kinematic_error=thetad_f / u0[:, None] - phid_f, misalignment=angles,
+        align_result=RESULTS.promote(sol.result), align_steps=sol.stats["num_steps"], bias=bias, bias_var=bias_var,
+        noise_var=noise_var,
         kernel_energy=jnp.sum(kernels**2, 1))
 
 

@@ -1,0 +1,71 @@
+"""The one status vocabulary of every solver in the project: `RESULTS`, optimistix's (and so
+lineax's) results extended by our cases, with their messages.
+
+A status is an `equinox.Enumeration` item: a pytree holding an int32 array, so it is carried by
+`lax.while_loop`, batched by `vmap` (a per-item status is one `RESULTS` with a batched value) and
+compared with `==` elementwise. `error_if` raises its message at run time, also under `jit`: the
+solvers' `throw=` options use it through `check`. Names (stable, for JSON and tables) and
+messages (for people) come from here only: `status_name`, `status_message`.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import ArrayLike, Bool, PyTree
+
+
+class RESULTS(optx.RESULTS):  # pyright: ignore
+    """Status of a solve: optimistix's `RESULTS` (`successful`, `nonlinear_max_steps_reached`,
+    `nonfinite`, lineax's linear-solve cases) and ours."""
+
+    inner_failed = (
+        "The inner Gauss-Newton/Levenberg-Marquardt solve found no descent step even at the "
+        "largest damping. Check the warm start and the limits."
+    )
+    rank_deficient = (
+        "The solve stopped at a point where the Jacobian is rank deficient: some parameters are not "
+        "identifiable from these data. Choose other parameters or more varied poses."
+    )
+
+
+NAMES: tuple[str, ...] = (
+    "successful", "max_steps_reached", "singular", "breakdown", "stagnation", "conlim", "nonfinite_input",
+    "nonlinear_max_steps_reached", "nonlinear_divergence", "nonfinite", "inner_failed", "rank_deficient",
+)
+"""The names of `RESULTS` in the order of their codes (`tests/test_status.py` checks it against the
+enumeration); a status is written under its name in JSON and tables."""
+
+
+def where(pred: Bool[ArrayLike, "..."], a: RESULTS, b: RESULTS) -> RESULTS:
+    """`a` where `pred`, else `b`, elementwise for a predicate of any shape (`RESULTS.where` takes
+    a scalar one)."""
+    return jax.tree.map(lambda u, v: jnp.where(pred, u, v), a, b)
+
+
+def full(shape: tuple[int, ...], result: RESULTS) -> RESULTS:
+    """`result` for every item of a batch of `shape`."""
+    return where(jnp.ones(shape, bool), result, result)
+
+
+def status_name(result: RESULTS) -> str | np.ndarray:
+    """The name of a concrete status (`NAMES`); an array of names for a batched one."""
+    code = sum(k * np.asarray(result == getattr(RESULTS, name)) for k, name in enumerate(NAMES))
+    names = np.asarray(NAMES)[code]
+    return str(names) if names.ndim == 0 else names
+
+
+def status_message(result: RESULTS) -> str | np.ndarray:
+    """The human-readable message of a concrete status, `converged` for `successful` (an array of
+    messages for a batched one)."""
+    names = status_name(result)
+    text = {name: RESULTS[getattr(RESULTS, name)] or "converged" for name in np.unique(names)}
+    return text[names] if isinstance(names, str) else np.vectorize(text.get, otypes=[object])(names).astype(str)
+
+
+def check(result: RESULTS, token: PyTree, throw: bool) -> PyTree:
+    """`token` (a pytree with an array), raising the message of `result` at run time (also under
+    `jit`) where it is not `successful` and `throw` is set (`RESULTS.error_if`)."""
+    return result.error_if(token, result != RESULTS.successful) if throw else token
