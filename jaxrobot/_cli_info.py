@@ -146,10 +146,10 @@ def _move_flat_inverse(robot, qa, qb, duration, t):
 
 
 @cached_program
-def _move_simulation(robot, t, theta, thetad, thetadd):
+def _move_simulation(robot, t, theta, thetad, thetadd, q0):
     from ._simulate import simulate
 
-    return simulate(robot, t, theta, thetad, thetadd, substeps=4)
+    return simulate(robot, t, theta, thetad, thetadd, substeps=4, q0=q0)
 
 
 @cached_program(static_argnames=("duration",))
@@ -160,6 +160,7 @@ def _move_error(qa, qb, duration, q, t):
 def stage(out: Path, echo) -> dict:
     """Demo stage 1: the model, and the flat inverse tracking a joint move on the simulated plant."""
     from ._description import racer7
+    from ._statics import rest_link_angles
 
     robot = racer7()
     info = _report(robot, echo)
@@ -170,7 +171,7 @@ def stage(out: Path, echo) -> dict:
     t = jnp.arange(0.0, duration + 0.2, 1e-3)
     start = time.perf_counter()
     th, thd, thdd = _move_flat_inverse(robot, qa, qb, duration, t)
-    q, _ = _move_simulation(robot, t, th, thd, thdd)
+    q, _ = _move_simulation(robot, t, th, thd, thdd, jax.jit(rest_link_angles)(robot, th[0]))
     err = float(_move_error(qa, qb, duration, q, t))
     echo(f"\nflat inverse of a {duration} s joint move, simulated with RK4 (0.25 ms): max |q - q_d| = "
          f"{err:.2e} rad ({time.perf_counter() - start:.1f} s incl. compile)")

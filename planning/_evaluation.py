@@ -134,13 +134,15 @@ class PlantRun(NamedTuple):
     n: int
 
 
-def _run(plant, t, p_d, r_d, traj, extra, substeps, directional):
+def _run(plant, t, p_d, r_d, traj, q0, extra, substeps, directional):
     traj = _extend(traj, extra)
-    q, _ = jr.simulate(plant, t, traj.theta, traj.thetad, traj.thetadd, substeps=substeps, directional=directional)
+    q, _ = jr.simulate(plant, t, traj.theta, traj.thetad, traj.thetadd, substeps=substeps, q0=q0,
+                       directional=directional)
     pose = jr.tool_pose(plant, q)
     return q, jnp.linalg.norm(pose[:, :3, 3] - p_d, axis=-1), _orientation_angle(r_d, pose[:, :3, :3])
 
 
+_rest = jax.jit(jr.rest_link_angles)
 _run_jit = cached_program(_run, static_argnames=("extra", "substeps", "directional"))
 
 
@@ -173,8 +175,10 @@ def simulate_plans(
     t = np.arange(n + extra) * ts
     p_d, r_d = jax.jit(lambda tk: sample_path(jp.path, tk))(np.minimum(t, np.asarray(jp.t)[-1]))
     names = list(trajectories)
-    runs = [_run_jit(plant, jnp.asarray(t), p_d, r_d, trajectories[k], extra, substeps, bool(directional))
-            for k in names]
+    # the start at rest outside the simulation: its convergence check (a host callback) would keep the
+    # simulation program from being exported and cached
+    runs = [_run_jit(plant, jnp.asarray(t), p_d, r_d, trajectories[k], _rest(plant, trajectories[k].theta[0]), extra,
+                     substeps, bool(directional)) for k in names]
     q, dp, da = (np.stack(a) for a in zip(*runs, strict=True))
     return names, PlantRun(jnp.asarray(t), jnp.asarray(q), jnp.asarray(dp), jnp.asarray(da), n)
 
