@@ -36,6 +36,7 @@ from ._dynamics import planning_dynamics as planning_dynamics  # noqa: E402
 from ._dynamics import static_equilibrium as static_equilibrium  # noqa: E402
 from ._elasticity import compliance_deflection as compliance_deflection  # noqa: E402
 from ._elasticity import elastic_deflection as elastic_deflection  # noqa: E402
+from ._elasticity import elastic_stiffness as elastic_stiffness  # noqa: E402
 from ._elasticity import elastic_torque as elastic_torque  # noqa: E402
 from ._flat import flat_inverse as flat_inverse  # noqa: E402
 from ._gear import fourier_ratio as fourier_ratio  # noqa: E402

@@ -42,7 +42,7 @@ def configure(parser) -> None:
 @cached_program(static_argnames=("elastic",))
 def _numbers(robot, q, elastic: tuple[int, ...]):
     from ._dynamics import gravity_torque, mass_matrix
-    from ._elasticity import elastic_deflection
+    from ._elasticity import elastic_deflection, elastic_stiffness
     from ._gear import motor_angle
     from ._kinematics import forward_kinematics
     from ._linalg import map_matrices
@@ -55,8 +55,8 @@ def _numbers(robot, q, elastic: tuple[int, ...]):
     if not elastic:
         return sag, None, home
     e = jnp.asarray(elastic)  # rigid joints held: the eigenproblem of the elastic joints
-    x = elastic_deflection(robot, gravity_torque(robot, q))[:, e]
-    stiffness = jax.vmap(jnp.diag)(robot.k1[e] + 3 * robot.k3[e] * x**2)
+    x = elastic_deflection(robot, gravity_torque(robot, q))
+    stiffness = jax.vmap(jnp.diag)(elastic_stiffness(robot, x)[:, e])
     mass = mass_matrix(robot, q)[:, e][:, :, e]
     lam = map_matrices(lambda m, k: jnp.linalg.eigvals(jnp.linalg.solve(m, k)).real, mass, stiffness)
     return sag, jnp.sqrt(jnp.sort(lam, -1)) / (2 * jnp.pi), home

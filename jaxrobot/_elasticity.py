@@ -66,6 +66,13 @@ def elastic_deflection(robot: Robot, tau: Float[Array, "*b n"]) -> Float[Array, 
     return compliance_deflection(robot.c, robot.e, tau)
 
 
+def elastic_stiffness(robot: Robot, x: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+    """`kappa'(x) = k1 + 3 k3 x^2 = (1 + 3 e x^2) / c` [N m/rad] at the deflection `x = phi - q` [rad];
+    `inf` for a rigid joint (`c = 0`), with finite derivatives there."""
+    rigid = robot.c == 0
+    return jnp.where(rigid, jnp.inf, (1.0 + 3.0 * robot.e * x**2) / jnp.where(rigid, 1.0, robot.c))
+
+
 def require_elastic(robot: Robot, user: str) -> None:
     """Raise if a concrete `robot` has rigid joints (`c = 0`): `user` integrates the elastic model."""
     c = robot.c

@@ -255,11 +255,6 @@ def scaled_cost(problem: OCPProblem) -> ScaledQuadratic:
     return ScaledQuadratic(node_weight=node_w, node_target=target, edge_weight=edge_w)
 
 
-def _stiffness(robot: jr.Robot, x: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
-    """`kappa'(x) = k1 + 3 k3 x^2` [N m/rad] at the deflection `x = phi - q` (eq. 2.17)."""
-    return robot.k1 + 3.0 * robot.k3 * x**2
-
-
 def _link_acceleration(robot: jr.Robot, q, qd, phi, d) -> Float[Array, "N n"]:
     """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`)."""
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
@@ -309,7 +304,7 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep) -> Callable[[Float[Array, "N
         s = spd_solve(h.mass, wf.qd[..., None])[..., 0]
         _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, h.qdd), x.q, x.qd)
         id_q, id_qd = id_vjp(s)
-        stiff = _stiffness(r, h.phi - x.q) * s
+        stiff = jr.elastic_stiffness(r, h.phi - x.q) * s
         out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / jr.gear_ratio(r, h.phi), wf.theta, wf.thetad],
                               -1)
         return out * sz
@@ -339,7 +334,7 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep) -> Float[Array, "N n 3*
     j = problem.n_joints
     x = State.of((h.y * sz)[:, :4 * j])
     q, qd = x.q, x.qd
-    stiff = _stiffness(r, h.phi - q)
+    stiff = jr.elastic_stiffness(r, h.phi - q)
     _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, h.qdd), q, qd)
     rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(j)[:, None, :], (j, *q.shape)))  # row i of dID
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
