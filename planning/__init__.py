@@ -54,5 +54,8 @@ from ._transcription import objective as objective
 from ._transcription import ocp_problem as ocp_problem
 from ._transcription import variable_scale as variable_scale
 from ._transcription import warm_start as warm_start
+from ._workflow import PlanEvent as PlanEvent
+from ._workflow import PlanResult as PlanResult
+from ._workflow import plan_task as plan_task
 
 _check_public(globals())

@@ -7,10 +7,8 @@ robot without `[trajectories]`).
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -20,16 +18,10 @@ from jaxrobot.cli import Progress, SolveFailed, add_model_option, suggestion
 
 from . import _plots
 from ._bandwidth import bandwidth, control_spectrum
-from ._evaluation import (
-    METHODS,
-    baseline_trajectories,
-    ocp_motor_trajectory,
-    simulate_plans,
-    summarize,
-)
-from ._ik import default_start, joint_path, task_start
-from ._trajectories import check_task, reference_path, sample_path, sampled_path
-from ._transcription import State
+from ._evaluation import METHODS
+from ._ik import default_start, task_start
+from ._trajectories import check_task, reference_path, sampled_path
+from ._workflow import PlanEvent, PlanResult, _tool_position, plan_task
 
 HELP = "plan a task (line, spiral or a CSV of tool positions) with the OCP and evaluate it on the plant"
 COSTS = ("thesis", "jerk", "flat")
@@ -86,11 +78,6 @@ def task_path(task: str, description: dict | None = None):
     return path
 
 
-@jax.jit
-def _tool_position(robot, q):
-    return jr.tool_pose(robot, q)[:, :3, 3]
-
-
 def failure_report(robot, jp, sol, nu: float) -> str:
     """Why a solve did not converge: status, its meaning and the likely cause."""
     qd = np.max(np.abs(np.asarray(jp.qd)) / np.asarray(robot.qd_max), 0)
@@ -103,88 +90,67 @@ def failure_report(robot, jp, sol, nu: float) -> str:
             f"iterations ({jr.status_message(sol.status)}); {cause}")
 
 
-def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, directional: bool = False,
-         q_init=None, keep_failed: bool = False) -> dict:
-    """IK (from `q_init`, default the embedded description's start), flat-inverse warm start, OCP and
-    plant evaluation of one task; returns every intermediate.
-    A solve that did not converge raises `SolveFailed`, or with `keep_failed` returns only `jp`,
-    `sol` and its trajectory (no plant evaluation)."""
-    from ._ocp import solve_ocp
+_STAGES = {"inverse_kinematics": "inverse kinematics", "flat_inverse": "flat inverse",
+           "ocp": "OCP (incl. compile)", "ocp_again": "OCP again (solve time without compile)",
+           "plant_simulation": "plant simulation"}
+"""`Progress` label of each `PlanEvent` stage that ends a step."""
 
+
+def progress_lines(event: PlanEvent, plant_name: str = "", directional: bool = False) -> list[str]:
+    """The echo lines of one `plan_task` event (µm, s)."""
+    e = event
+    if e.stage == "inverse_kinematics":
+        return [f"  inverse kinematics: {e.samples} samples, max residual {e.ik_residual:.1e} m, limits ok "
+                f"({e.elapsed:.1f} s)"]
+    if e.stage == "flat_inverse":
+        return [f"  flat inverse (warm start): {e.elapsed:.1f} s"]
+    if e.stage == "solving":
+        return [f"  solving the OCP (N = {e.samples}, nu = {e.nu:g}, cost {e.cost}) ..."]
+    if e.stage == "solved":
+        timed = (f"{e.solve_time:.1f} s incl. compile" if e.compile_time is None
+                 else f"solve {e.solve_time:.2f} s, compile {e.compile_time:.1f} s")
+        return [f"    outer {k + 1:3d}: objective {o:.6e}  violation {v:.2e}  penalty {p:.0e}"
+                for k, (o, v, p) in enumerate(e.history)] + [
+            f"  OCP: {e.status} after {e.iterations} outer iterations, objective {e.objective:.6e}, max violation "
+            f"{e.max_violation:.1e} (scaled), {timed}"]
+    if e.stage == "plant_simulation":
+        return [f"  plant simulation ({plant_name}{', as built' if directional else ''}): {e.elapsed:.1f} s"] + [
+            f"    {k:13s} max {1e6 * m:10.3f} µm   rms {1e6 * r:10.3f} µm   after t_e {1e6 * s:9.3f} µm"
+            for k, m, r, s in e.errors]
+    return []
+
+
+def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, directional: bool = False,
+         q_init=None, keep_failed: bool = False) -> PlanResult:
+    """`plan_task` with its progress echoed and on stderr. A solve that did not converge raises
+    `SolveFailed`, or with `keep_failed` returns its result (the OCP trajectory only, no plant evaluation)."""
     if not (np.isfinite(nu) and nu > 0):
         raise ValueError(f"--nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
-    for name, r in (("model", robot), ("plant", plant)):
-        rigid = [j + 1 for j in range(r.n_joints) if not np.isfinite(float(r.k1[j]))]
-        if rigid:
-            raise ValueError(f"{name}: planning needs elastic joints ([stiffness] k1 finite), found rigid joints "
-                             f"{rigid} (k1 = inf); identify the stiffness first (e.g. jaxrobot diagnose)")
     progress = Progress(5 if timing else 4, "plan")
-    start = time.perf_counter()
-    jp = joint_path(robot, path, q_init)
-    echo(f"  inverse kinematics: {jp.t.shape[0]} samples, max residual "
-         f"{float(jp.ik.position_residual.max()):.1e} m, limits ok ({time.perf_counter() - start:.1f} s)")
-    progress.step("inverse kinematics")
-    start = time.perf_counter()
-    base = baseline_trajectories(robot, jp)
-    flat = base["flat_inverse"]
-    jax.block_until_ready(flat)
-    echo(f"  flat inverse (warm start): {time.perf_counter() - start:.1f} s")
-    progress.step("flat inverse")
-    warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
-    ts = float(path.sample_time)
-    echo(f"  solving the OCP (N = {jp.t.shape[0]}, nu = {nu:g}, cost {cost}) ...")
-    start = time.perf_counter()
-    sol = solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm)
-    jax.block_until_ready(sol.u)
-    first = time.perf_counter() - start
-    progress.step("OCP (incl. compile)")
-    solve_s, compile_s = first, None  # one call: compile and solve together
-    if timing:  # a second, compiled call separates compile and solve time
-        start = time.perf_counter()
-        jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm).u)
-        solve_s = time.perf_counter() - start
-        compile_s = max(first - solve_s, 0.0)
-        progress.step("OCP again (solve time without compile)")
-    it = int(sol.iterations)
-    hv, ho, hp = (np.asarray(a) for a in (sol.history_violation, sol.history_objective, sol.history_penalty))
-    for k in range(min(it, hv.shape[0])):
-        echo(f"    outer {k + 1:3d}: objective {ho[k]:.6e}  violation {hv[k]:.2e}  penalty {hp[k]:.0e}")
-    status = jr.status_name(sol.status)
-    timed = f"solve {solve_s:.2f} s, compile {compile_s:.1f} s" if timing else f"{solve_s:.1f} s incl. compile"
-    echo(f"  OCP: {status} after {it} outer iterations, objective {float(sol.objective):.6e}, max violation "
-         f"{float(sol.max_constraint_violation):.1e} (scaled), {timed}")
-    if not bool(sol.converged):
-        if not keep_failed:
-            raise SolveFailed(failure_report(robot, jp, sol, nu) + "; nothing written (--save-failed writes the "
-                              "trajectory, marked as not converged)")
-        return {"jp": jp, "sol": sol, "trajectories": {"ocp": ocp_motor_trajectory(sol.x, sol.u)}}
-    p_d, r_d = jax.jit(lambda t: sample_path(path, t))(jp.t)
-    p_plan = _tool_position(robot, sol.q)
-    plan_err = np.linalg.norm(np.asarray(p_plan - p_d), axis=-1)
-    trajectories = {**base, "ocp": ocp_motor_trajectory(sol.x, sol.u)}
-    start = time.perf_counter()
-    names, run = simulate_plans(plant, jp, trajectories, directional=directional)
-    errors = summarize(run)
-    echo(f"  plant simulation ({plant.name}{', as built' if directional else ''}): "
-         f"{time.perf_counter() - start:.1f} s")
-    progress.step("plant simulation")
-    for i, k in enumerate(names):
-        um = [1e6 * float(a[i]) for a in (errors.position_max, errors.position_rms, errors.settle_position_max)]
-        echo(f"    {k:13s} max {um[0]:10.3f} µm   rms {um[1]:10.3f} µm   after t_e {um[2]:9.3f} µm")
-    return {"jp": jp, "sol": sol, "trajectories": trajectories, "names": names, "run": run, "errors": errors,
-            "status": status, "solve_s": solve_s, "compile_s": compile_s, "plan_error": plan_err, "p_d": p_d,
-            "r_d": r_d, "plant": plant, "nu": nu, "cost": cost}
+
+    def on_event(event: PlanEvent) -> None:
+        for line in progress_lines(event, plant.name, directional):
+            echo(line)
+        if event.stage in _STAGES:
+            progress.step(_STAGES[event.stage])
+
+    result = plan_task(robot, plant, path, nu, cost, q_init=q_init, timing=timing, directional=directional,
+                       on_event=on_event)
+    if not result.converged and not keep_failed:
+        raise SolveFailed(failure_report(robot, result.joint_path, result.solution, nu) + "; nothing written "
+                          "(--save-failed writes the trajectory, marked as not converged)")
+    return result
 
 
-def summary(result: dict) -> dict:
+def summary(result: PlanResult) -> dict:
     """The JSON summary of issue 6 (`plan --json`)."""
-    sol, err, names = result["sol"], result["errors"], result["names"]
+    sol, err, names = result.solution, result.errors, result.names
     plant = {k: {"max_um": 1e6 * float(err.position_max[names.index(k)]),
                  "rms_um": 1e6 * float(err.position_rms[names.index(k)])} for k in METHODS}
-    e = result["plan_error"]
+    e = result.plan_error
     return {
-        "status": result["status"], "iterations": int(sol.iterations), "solve_time_s": result["solve_s"],
-        "compile_time_s": result["compile_s"], "objective": float(sol.objective),
+        "status": result.status, "iterations": int(sol.iterations), "solve_time_s": result.solve_time,
+        "compile_time_s": result.compile_time, "objective": float(sol.objective),
         "max_constraint_violation": float(sol.max_constraint_violation),
         "path_error_um": {"max": 1e6 * float(e.max()), "rms": 1e6 * float(np.sqrt(np.mean(e**2)))},
         "plant": plant,
@@ -208,12 +174,12 @@ def task_title(name: str) -> str:
     return name.capitalize() if name in ("line", "spiral") else f"Task '{name}'"
 
 
-def write_plots(result: dict, out: Path, label: str) -> list[Path]:
+def write_plots(result: PlanResult, out: Path, label: str) -> list[Path]:
     """Figures in the spirit of thesis Figs. 4.1 and 4.5-4.9 for one planned task, `out/{label}_*.png`."""
-    jp, sol, run, names = result["jp"], result["sol"], result["run"], result["names"]
+    jp, sol, run, names = result.joint_path, result.solution, result.run, result.names
     t, n = np.asarray(jp.t), run.n
-    task = f"{task_title(jp.path.name)}, ν = {result['nu']:.0e}" + (
-        "" if result["cost"] == "thesis" else f", cost {result['cost']}")
+    task = f"{task_title(jp.path.name)}, ν = {result.nu:.0e}" + (
+        "" if result.cost == "thesis" else f", cost {result.cost}")
     files = [_plots.position_errors(t, {k: np.asarray(run.position[i, :n]) for i, k in enumerate(names)},
                                     out / f"{label}_position_error.png",
                                     f"{task}: tool position error on the plant, per motor trajectory")]
@@ -225,13 +191,13 @@ def write_plots(result: dict, out: Path, label: str) -> list[Path]:
     files.append(_plots.motor_signals(t, np.asarray(sol.u), np.asarray(sol.thetad), np.asarray(sol.state.qd),
                                       out / f"{label}_ocp_signals.png",
                                       f"{task}: OCP control input, motor and link rates"))
-    p_d = np.asarray(result["p_d"])
-    robot_p = np.asarray(_tool_position(result["plant"], jnp.asarray(q_sim)))
+    p_d = np.asarray(result.p_d)
+    robot_p = np.asarray(_tool_position(result.plant, jnp.asarray(q_sim)))
     speed = lambda p: np.linalg.norm(np.gradient(p, t, axis=0), axis=-1)  # noqa: E731
     files.append(_plots.path_velocity(t, speed(p_d), speed(robot_p), out / f"{label}_path_speed.png",
                                       f"{task}: path speed of the OCP plan on the plant"))
     files.append(_plots.trajectory_3d(p_d, robot_p, out / f"{label}_path_3d.png",
-                                      f"{task}: tool path of the OCP plan on the plant", np.asarray(result["r_d"])))
+                                      f"{task}: tool path of the OCP plan on the plant", np.asarray(result.r_d)))
     freq, spec = control_spectrum(sol.u, float(jp.path.sample_time))
     files.append(_plots.spectra(np.asarray(freq), {"OCP": np.asarray(spec)},
                                 {"OCP": np.asarray(bandwidth(sol.u, float(jp.path.sample_time)))},
@@ -253,11 +219,10 @@ def run(args, echo) -> dict:
     echo(f"planning {path.name} ({path.duration:g} s at T_s = {1e3 * path.sample_time:g} ms) on {robot.name}")
     result = plan(robot, plant, path, args.nu, args.cost, echo, directional=args.plant == "as-built",
                   q_init=q_init, keep_failed=args.save_failed)
-    sol = result["sol"]
-    failed = None if bool(sol.converged) else failure_report(robot, result["jp"], sol, args.nu)
+    failed = None if result.converged else failure_report(robot, result.joint_path, result.solution, args.nu)
     if args.save_trajectory is not None:
-        tr = result["trajectories"]["ocp"]
-        save_trajectory(args.save_trajectory, result["jp"].t, tr.theta, tr.thetad, tr.thetadd, failed=failed)
+        tr = result.trajectories["ocp"]
+        save_trajectory(args.save_trajectory, result.joint_path.t, tr.theta, tr.thetad, tr.thetadd, failed=failed)
         echo(f"  motor trajectory written to {args.save_trajectory}{' (NOT CONVERGED)' if failed else ''}")
     if failed:
         raise SolveFailed(failed + (f"; trajectory written to {args.save_trajectory}, marked as not converged"
@@ -275,5 +240,5 @@ def demo_stage(out: Path, echo) -> dict:
     echo("line, nu = 1e-14, evaluated on the planning model")
     result = plan(robot, robot, reference_path("line"), 1e-14, "thesis", echo, timing=False)
     write_plots(result, out, "planning_line")
-    save_trajectory(out / "planning_line_motor.csv", result["jp"].t, *result["trajectories"]["ocp"])
+    save_trajectory(out / "planning_line_motor.csv", result.joint_path.t, *result.trajectories["ocp"])
     return summary(result)

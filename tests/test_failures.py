@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import jaxrobot as jr
 import jaxrobot.bench as jb
 import planning as pl
 from jaxrobot._cli import main
@@ -69,6 +70,48 @@ def test_plan_failed_solve_exits_3_and_writes_only_with_save_failed(tmp_path, ca
     assert out.read_text().startswith(jb.NOT_CONVERGED + ": the OCP did not converge: status inner_failed")
     with pytest.raises(ValueError, match="written from a solve that did not converge"):
         jb.read_csv_columns(out, ["t_s"])
+
+
+def _converged_solve(*args, **kwargs):
+    """Stand-in for `solve_ocp` that returns its warm start (the flat inverse) as converged."""
+    import equinox as eqx
+
+    from planning._ocp import RESULTS
+
+    return eqx.tree_at(lambda s: s.status, _failed_solve(*args, **kwargs), RESULTS.successful)
+
+
+STAGES = ("inverse_kinematics", "flat_inverse", "solving", "ocp", "ocp_again", "solved")
+
+
+def test_plan_task_events_in_order_and_si_results_behind_the_summary(monkeypatch):
+    import planning._ocp
+    from planning._cli_plan import summary
+
+    robot = jr.racer7()
+    path = pl.sampled_path(*(jnp.asarray(a) for a in line_samples(5)))  # RK4 at T_s / 10 = 0.5 ms
+    events = []
+    monkeypatch.setattr(planning._ocp, "solve_ocp", _failed_solve)
+    failed = pl.plan_task(robot, robot, path, 1e-14, on_event=events.append)
+    assert tuple(e.stage for e in events) == STAGES and not failed.converged
+    assert failed.run is None and set(failed.trajectories) == {"ocp"}  # a failed solve is not evaluated
+    assert events[-1].status == "inner_failed" and events[-1].iterations == 17
+    monkeypatch.setattr(planning._ocp, "solve_ocp", _converged_solve)
+    events.clear()
+    res = pl.plan_task(robot, robot, path, 1e-14, on_event=events.append)
+    assert tuple(e.stage for e in events) == (*STAGES, "plant_simulation") and res.converged
+    assert all(e.elapsed >= 0 for e in events) and events[0].samples == res.joint_path.t.shape[0]
+    # the stand-in's plan is the warm start: its link angles are the IK's, its motor trajectory the flat inverse
+    assert float(res.plan_error.max()) <= events[0].ik_residual + 1e-12
+    sim = {k: (m, r) for k, m, r, _ in events[-1].errors}
+    assert np.isfinite(list(sim.values())).all() and sim["ocp"] == sim["flat_inverse"]
+    rep = summary(res)
+    for k in pl.METHODS:  # the summary is the SI result in µm
+        np.testing.assert_allclose([rep["plant"][k]["max_um"], rep["plant"][k]["rms_um"]],
+                                   [1e6 * v for v in sim[k]], rtol=1e-15)
+    assert rep["path_error_um"]["max"] == pytest.approx(1e6 * float(res.plan_error.max()), rel=1e-15)
+    assert rep["solve_time_s"] == res.solve_time == events[4].elapsed
+    assert rep["compile_time_s"] == res.compile_time == pytest.approx(max(events[3].elapsed - events[4].elapsed, 0))
 
 
 @pytest.mark.slow

@@ -1,0 +1,167 @@
+"""Plan one task and evaluate it on the plant (issue 6): inverse kinematics, the four motor
+trajectories of `METHODS` (the OCP of eq. 4.3 warm-started by the flat inverse) and their tool-pose
+errors on a plant. SI results and structured progress events; text, JSON and figures are made by the
+`plan` command (`_cli_plan.py`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+
+import jax
+import numpy as np
+from jaxtyping import Array, Float
+
+import jaxrobot as jr
+
+from ._evaluation import (
+    MotorTrajectory,
+    PlantError,
+    PlantRun,
+    baseline_trajectories,
+    ocp_motor_trajectory,
+    simulate_plans,
+    summarize,
+)
+from ._ik import JointPath, joint_path
+from ._trajectories import Path, sample_path
+from ._transcription import State
+
+
+@dataclasses.dataclass(frozen=True)
+class PlanEvent:
+    """Progress of `plan_task`, after each stage; `elapsed` [s] is the stage's time.
+
+    `stage`: "inverse_kinematics" (`samples` N, `ik_residual` the largest tool position residual [m]),
+    "flat_inverse" (the warm start), "solving" (before the OCP: `samples`, `nu`, `cost`), "ocp" (the first
+    solve, compile included), "ocp_again" (the compiled solve, timed without compile), "solved" (the
+    solution: `status`, `iterations`, `objective`, scaled `max_violation`, `history` of (objective,
+    violation, penalty) per outer iteration, `solve_time`, `compile_time` [s]) or "plant_simulation"
+    (`errors`: per trajectory (name, max, rms, max after t_e) tool position error [m]).
+    """
+
+    stage: str
+    elapsed: float = 0.0
+    samples: int = 0
+    ik_residual: float = 0.0
+    nu: float = 0.0
+    cost: str = ""
+    status: str = ""
+    iterations: int = 0
+    objective: float = 0.0
+    max_violation: float = 0.0
+    history: tuple[tuple[float, float, float], ...] = ()
+    solve_time: float = 0.0
+    compile_time: float | None = None
+    errors: tuple[tuple[str, float, float, float], ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
+class PlanResult:
+    """One planned task: the joint path `joint_path`, the OCP `solution` and the motor `trajectories`
+    (name -> `MotorTrajectory` [rad, rad/s, rad/s^2]); `solve_time` [s] of a compiled solve (with `timing`,
+    else including compile) and `compile_time` [s] (None without `timing`).
+
+    On the plant (None when the solve did not converge, which then left `trajectories` with the OCP only):
+    `names` of the simulated trajectories, the simulated `run` and its tool-pose `errors` [m, rad], the task
+    `p_d` [m] and `r_d` on the grid, and `plan_error` [m]: the tool position error of the planned link
+    angles on the model.
+    """
+
+    path: Path
+    joint_path: JointPath
+    solution: object
+    trajectories: dict[str, MotorTrajectory]
+    nu: float
+    cost: str
+    solve_time: float
+    compile_time: float | None
+    plant: jr.Robot | None = None
+    names: tuple[str, ...] | None = None
+    run: PlantRun | None = None
+    errors: PlantError | None = None
+    plan_error: Float[Array, " N"] | None = None
+    p_d: Float[Array, "N 3"] | None = None
+    r_d: Float[Array, "N 3 3"] | None = None
+
+    @property
+    def converged(self) -> bool:
+        """True when the OCP converged (and the plans were evaluated on the plant)."""
+        return bool(self.solution.converged)
+
+    @property
+    def status(self) -> str:
+        """The OCP's status name (`jaxrobot.status_name`)."""
+        return jr.status_name(self.solution.status)
+
+
+@jax.jit
+def _tool_position(robot, q):
+    return jr.tool_pose(robot, q)[:, :3, 3]
+
+
+def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str = "thesis",
+              q_init=None, timing: bool = True, directional: bool = False,
+              on_event: Callable[[PlanEvent], None] | None = None) -> PlanResult:
+    """Plan `path` on `robot` and evaluate the four motor trajectories on `plant`.
+
+    IK from `q_init` (default the embedded description's start), the flat inverse as warm start, the OCP
+    at weighting `nu` with `cost`, solved twice with `timing` to separate compile and solve time, then a
+    fine simulation on `plant` (`directional`: its directional effects on). A solve that did not converge
+    is returned without plant evaluation (`converged` False). `on_event` receives a `PlanEvent` per stage.
+    """
+    from ._ocp import solve_ocp
+
+    if not (np.isfinite(nu) and nu > 0):
+        raise ValueError(f"nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
+    for name, r in (("model", robot), ("plant", plant)):
+        rigid = [j + 1 for j in range(r.n_joints) if float(r.c[j]) == 0]
+        if rigid:
+            raise ValueError(f"{name}: planning needs elastic joints ([stiffness] k1 finite), found rigid joints "
+                             f"{rigid} (k1 = inf); identify the stiffness first (e.g. jaxrobot diagnose)")
+    emit = on_event or (lambda event: None)
+    start = time.perf_counter()
+    jp = joint_path(robot, path, q_init)
+    emit(PlanEvent("inverse_kinematics", time.perf_counter() - start, samples=jp.t.shape[0],
+                   ik_residual=float(jp.ik.position_residual.max())))
+    start = time.perf_counter()
+    base = baseline_trajectories(robot, jp)
+    flat = base["flat_inverse"]
+    jax.block_until_ready(flat)
+    emit(PlanEvent("flat_inverse", time.perf_counter() - start))
+    warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
+    ts = float(path.sample_time)
+    emit(PlanEvent("solving", samples=jp.t.shape[0], nu=nu, cost=cost))
+    start = time.perf_counter()
+    sol = solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm)
+    jax.block_until_ready(sol.u)
+    first = time.perf_counter() - start
+    emit(PlanEvent("ocp", first))
+    solve_s, compile_s = first, None  # one call: compile and solve together
+    if timing:  # a second, compiled call separates compile and solve time
+        start = time.perf_counter()
+        jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm).u)
+        solve_s = time.perf_counter() - start
+        compile_s = max(first - solve_s, 0.0)
+        emit(PlanEvent("ocp_again", solve_s))
+    it = int(sol.iterations)
+    hist = np.stack([np.asarray(a) for a in (sol.history_objective, sol.history_violation, sol.history_penalty)], -1)
+    emit(PlanEvent("solved", status=jr.status_name(sol.status), iterations=it, objective=float(sol.objective),
+                   max_violation=float(sol.max_constraint_violation),
+                   history=tuple(tuple(map(float, h)) for h in hist[:min(it, hist.shape[0])]),
+                   solve_time=solve_s, compile_time=compile_s))
+    ocp = ocp_motor_trajectory(sol.x, sol.u)
+    if not bool(sol.converged):
+        return PlanResult(path, jp, sol, {"ocp": ocp}, nu, cost, solve_s, compile_s)
+    p_d, r_d = jax.jit(lambda t: sample_path(path, t))(jp.t)
+    plan_err = np.linalg.norm(np.asarray(_tool_position(robot, sol.q) - p_d), axis=-1)
+    trajectories = {**base, "ocp": ocp}
+    start = time.perf_counter()
+    names, run = simulate_plans(plant, jp, trajectories, directional=directional)
+    errors = summarize(run)
+    emit(PlanEvent("plant_simulation", time.perf_counter() - start, errors=tuple(
+        (k, float(errors.position_max[i]), float(errors.position_rms[i]), float(errors.settle_position_max[i]))
+        for i, k in enumerate(names))))
+    return PlanResult(path, jp, sol, trajectories, nu, cost, solve_s, compile_s, plant, tuple(names), run, errors,
+                      plan_err, p_d, r_d)
