@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import jax
 import numpy as np
@@ -27,6 +28,9 @@ from ._evaluation import (
 from ._ik import JointPath, joint_path
 from ._trajectories import Path, sample_path
 from ._transcription import State
+
+if TYPE_CHECKING:
+    from ._ocp import OCPSolution
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,7 +75,7 @@ class PlanResult:
 
     path: Path
     joint_path: JointPath
-    solution: object
+    solution: OCPSolution
     trajectories: dict[str, MotorTrajectory]
     nu: float
     cost: str
