@@ -29,7 +29,7 @@ from identification.calibration._fleet import _constants, _fleet_constants, _fle
 from identification.calibration._model import rippled_joints
 from identification.calibration._parameters import ParameterMap
 from identification.calibration._pose_selection import default_marker, random_feasible_poses
-from jaxrobot._bench_poses import draw_fleet, measure_poses
+from jaxrobot.bench import draw_fleet, measure_poses
 
 
 def log(text: str) -> None:
@@ -139,7 +139,7 @@ def main() -> None:
     agree = np.abs(res.value[:n_loop] - v_sp) / res.std[:n_loop]
     pos_err = []  # model error of the calibrated robots at their own poses, noise-free
     for r in range(0, n_rob, max(1, n_rob // 100)):
-        p_cal = jr.marker_pose(jax.tree.map(lambda x: x[r], res.robot), jnp.asarray(meas.link_angles[r]),
+        p_cal = jr.measurement.marker_pose(jax.tree.map(lambda x: x[r], res.robot), jnp.asarray(meas.link_angles[r]),
                                marker)[0]
         pos_err.append(np.linalg.norm(np.asarray(p_cal) - meas.true_positions[r], axis=-1).mean())
     pos_err = np.asarray(pos_err)

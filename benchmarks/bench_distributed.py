@@ -32,6 +32,7 @@ import jax
 import numpy as np
 
 import jaxrobot as jr
+import jaxrobot.bench as jb
 
 TIMEOUT_S = 1800
 
@@ -87,7 +88,7 @@ def worker(folder: Path, result: Path) -> None:
     files = sorted(folder.glob("*.csv"))
     share = jr.process_share(len(files))
     t = time.perf_counter()
-    data = [jr.read_pose_csv(f) for f in files[share]]
+    data = [jb.read_pose_csv(f) for f in files[share]]
     theta, pos = np.stack([d["motor_angles"] for d in data]), np.stack([d["positions"] for d in data])
     seconds = {"read": time.perf_counter() - t}
     for call in ("first call", "second call"):

@@ -43,7 +43,7 @@ def worker(states: list[int], robots: list[int], repeat: int, ocp: bool) -> dict
     import planning as pl
     from identification import calibrate_fleet
     from identification.calibration._pose_selection import random_feasible_poses
-    from jaxrobot._bench_poses import draw_fleet, measure_poses
+    from jaxrobot.bench import draw_fleet, measure_poses
 
     dev = jax.devices()[0]
     out = {"device": f"{dev.platform} ({dev.device_kind}) x {len(jax.devices())}", "jax": jax.__version__,

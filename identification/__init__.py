@@ -1,7 +1,7 @@
 """Identification from measurements: gear ratios (`gear`), kinematic calibration (`calibration`) and
 the discrepancy workflow (`diagnosis`). The workflows and the effect catalogue are exported here."""
 
-from jaxrobot._checks import check_public as _check_public
+from jaxrobot.checks import check_public as _check_public
 
 from ._pose_files import APPROACHES as APPROACHES
 from ._pose_files import check_pose_units as check_pose_units

@@ -38,8 +38,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PyTree
 
-from jaxrobot._linalg import cholesky, cholesky_solve
-from jaxrobot._status import RESULTS, check, full, where
+from jaxrobot import RESULTS
+from jaxrobot.linalg import cholesky, cholesky_solve
+from jaxrobot.status import check, full, where
 
 
 class LMConfig(eqx.Module):

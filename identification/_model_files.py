@@ -18,9 +18,7 @@ def save_model(robot: jr.Robot, path: str | Path, start: str | Path | None = Non
     """Write `robot` (format of `racer7.toml`) keeping `KEPT_SECTIONS` of the start file `start`
     (default: the embedded description); `ranges` `{(joint, "cw"/"ccw"): (lo, hi) deg}` become the
     sets' `identified_range_deg`."""
-    from jaxrobot._description import description_of
-
-    data = description_of(robot)
+    data = jr.description_of(robot)
     desc = jr.read_description(start)
     ranges = dict(ranges or {})
     for name, sets in desc.get("gear", {}).items():  # a set carried over unchanged keeps its range

@@ -18,6 +18,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
+from jaxrobot.bench import read_csv_columns, read_pose_csv
+from jaxrobot.measurement import approach_directions
 
 APPROACHES = ("cw", "order", "column")
 """The conventions for the direction of approach of a pose file (`--approach`)."""
@@ -37,7 +39,7 @@ def approach_ccw(motor_angles, approach: str = "cw", column=None, name: str = "p
     if approach == "cw":
         return np.zeros(th.shape, bool)
     if approach == "order":
-        return np.asarray(jr.approach_directions(th))
+        return np.asarray(approach_directions(th))
     if column is None:
         raise ValueError(f"{name}: approach 'column' needs the columns {approach_columns(th.shape[-1])} "
                          "(+1 cw, -1 ccw per joint); the file has none; use --approach cw or order")
@@ -53,12 +55,10 @@ def approach_ccw(motor_angles, approach: str = "cw", column=None, name: str = "p
 def read_poses(path: str | Path, approach: str = "cw") -> dict:
     """Read a pose file (README, "Measurement files") with the direction of approach of the convention `approach`.
 
-    **Returns:** `jaxrobot.read_pose_csv`'s `motor_angles` (K, n) rad, `positions` (K, 3) m and
+    **Returns:** `jaxrobot.bench.read_pose_csv`'s `motor_angles` (K, n) rad, `positions` (K, 3) m and
     `quaternions`, plus `ccw` (K, n) bool.
     """
-    from jaxrobot._bench_trajectory import read_csv_columns
-
-    data = jr.read_pose_csv(path)
+    data = read_pose_csv(path)
     n = data["motor_angles"].shape[1]
     column = None
     if approach == "column":

@@ -46,7 +46,7 @@ def _numbers(robot, q, elastic: tuple[int, ...]):
     from ._gear import motor_angle
     from ._kinematics import forward_kinematics
     from ._linalg import map_matrices
-    from ._statics import rest_link_angles
+    from .measurement._model import rest_link_angles
 
     q_rest = rest_link_angles(robot, motor_angle(robot, q))  # rigid command theta = Xi(q)
     p = forward_kinematics(robot, jnp.concatenate([q_rest, q]))[..., :3, 3]

@@ -18,6 +18,7 @@ from ._elasticity import elastic_deflection, elastic_torque
 from ._gear import gear_output, gear_ratio, motor_angle
 from ._linalg import spd_solve
 from ._robot import Robot
+from ._rotations import rot_x, rot_y, rot_z
 
 # Batch-last internals: the rigid-body terms below keep the state batch as the LAST axis
 # ((n, 3, N) etc.), so XLA's CPU loops run over contiguous states and vectorise, and they
@@ -58,11 +59,7 @@ def _dot(u, v):  # (..., 3, N) . (..., 3, N)
 
 
 def _rot(t, axis: int):  # (..., N) angles -> (..., 3, 3, N) rotations about x, y or z
-    c, s = jnp.cos(t), jnp.sin(t)
-    o, z = jnp.ones_like(c), jnp.zeros_like(c)
-    rows = ([[o, z, z], [z, c, -s], [z, s, c]], [[c, z, s], [z, o, z], [-s, z, c]],
-            [[c, -s, z], [s, c, z], [z, z, o]])[axis]
-    return jnp.stack([jnp.stack(r, -2) for r in rows], -3)
+    return jnp.moveaxis((rot_x, rot_y, rot_z)[axis](t), -3, -1)
 
 
 def _suffix(x):  # sum over links k >= j (leading link axis)

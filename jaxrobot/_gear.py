@@ -45,7 +45,7 @@ def _horner(coef, z):
 def _sincos(x):
     """`(sin x, cos x)` with one shared reduction `x = k pi/2 + r`, within 2.3e-16 for `|x| < 1e6` (the gear
     arguments `n_j phi` stay below 2e3); 4x faster than `jnp.sin` plus `jnp.cos` in float64 on CPU. Jitted,
-    like `xi_inverse`, so that eager calls run as one op."""
+    like `fourier_xi_inverse`, so that eager calls run as one op."""
     k = jnp.round(x * (2 / np.pi))
     r = ((x - k * _PIO2[0]) - k * _PIO2[1]) - k * _PIO2[2]
     z = r * r
@@ -78,22 +78,22 @@ def _harmonics(orders, a, b, phi):
     return n, jnp.where(used, a, 0.0), jnp.where(used, b, 0.0), s, c
 
 
-def ratio(u0, orders, a, b, phi):
+def fourier_ratio(u0, orders, a, b, phi):
     """`u(phi)` (eq. 2.10) of one Fourier set: `u0` (...), `orders`, `a`, `b` (..., M), 0 = padding."""
     _, a, b, s, c = _harmonics(orders, a, b, phi)
     return u0 * (1.0 + jnp.sum(a * c - b * s, -1))
 
 
-def xi(u0, orders, a, b, phi):
-    """`Xi(phi)` (eq. 2.13, `Xi(0) = 0`) of one Fourier set (arguments as `ratio`)."""
+def fourier_xi(u0, orders, a, b, phi):
+    """`Xi(phi)` (eq. 2.13, `Xi(0) = 0`) of one Fourier set (arguments as `fourier_ratio`)."""
     n, a, b, s, c = _harmonics(orders, a, b, phi)
     return u0 * (phi + jnp.sum((a * s + b * (c - 1.0)) / n, -1))
 
 
 @jax.custom_jvp
 @jax.jit
-def xi_inverse(u0, orders, a, b, theta):
-    """`phi = Xi^{-1}(theta)` of one Fourier set (arguments as `ratio`), exact derivatives (custom JVP)."""
+def fourier_xi_inverse(u0, orders, a, b, theta):
+    """`phi = Xi^{-1}(theta)` of one Fourier set (arguments as `fourier_ratio`), exact derivatives (custom JVP)."""
     # NEWTON_STEPS steps from theta / u0 on Xi / u0; one sin/cos per harmonic and step, shared by Xi and u.
     # Padded orders are masked (their sin/cos are still computed: shapes stay static).
     used = orders > 0
@@ -109,13 +109,13 @@ def xi_inverse(u0, orders, a, b, theta):
     return phi
 
 
-@xi_inverse.defjvp
+@fourier_xi_inverse.defjvp
 def _xi_inverse_jvp(primals, tangents):
     # implicit function theorem on Xi(phi; p) = theta: u(phi) dphi = dtheta - dXi/dp dp
     u0, orders, a, b, theta = primals
-    phi = xi_inverse(*primals)
-    _, dxi_params = jax.jvp(lambda *p: xi(*p, phi), (u0, orders, a, b), tuple(tangents[:4]))
-    return phi, (tangents[4] - dxi_params) / ratio(u0, orders, a, b, phi)
+    phi = fourier_xi_inverse(*primals)
+    _, dxi_params = jax.jvp(lambda *p: fourier_xi(*p, phi), (u0, orders, a, b), tuple(tangents[:4]))
+    return phi, (tangents[4] - dxi_params) / fourier_ratio(u0, orders, a, b, phi)
 
 
 def gear_ratio(
@@ -123,7 +123,7 @@ def gear_ratio(
 ) -> Float[Array, "*b n"]:
     """Gear ratio `u(phi) = dtheta/dphi` (eq. 2.10)."""
     rip = _ripple(robot, ccw)
-    return ratio(robot.u0, rip.orders, rip.a, rip.b, phi)
+    return fourier_ratio(robot.u0, rip.orders, rip.a, rip.b, phi)
 
 
 def motor_angle(
@@ -131,7 +131,7 @@ def motor_angle(
 ) -> Float[Array, "*b n"]:
     """Motor angle `theta = Xi(phi)` of gear output angle `phi` (eq. 2.13), `Xi(0) = 0`."""
     rip = _ripple(robot, ccw)
-    return xi(robot.u0, rip.orders, rip.a, rip.b, phi)
+    return fourier_xi(robot.u0, rip.orders, rip.a, rip.b, phi)
 
 
 def gear_output(
@@ -157,6 +157,6 @@ def gear_output(
             return plain
         sub = shape[:-1] + (idx.size,)
         orders, a, b = (jnp.broadcast_to(x[..., idx, :], sub + x.shape[-1:]) for x in (rip.orders, rip.a, rip.b))
-        return plain.at[..., idx].set(xi_inverse(u0[..., idx], orders, a, b, theta[..., idx]))
+        return plain.at[..., idx].set(fourier_xi_inverse(u0[..., idx], orders, a, b, theta[..., idx]))
     orders, a, b = (jnp.broadcast_to(x, shape + x.shape[-1:]) for x in (rip.orders, rip.a, rip.b))
-    return xi_inverse(u0, orders, a, b, theta)
+    return fourier_xi_inverse(u0, orders, a, b, theta)

@@ -11,29 +11,7 @@ from jaxtyping import Array, Float
 
 from ._batch import unbatched
 from ._robot import Robot
-
-
-def rot_x(t: Float[Array, "*b"]) -> Float[Array, "*b 3 3"]:
-    c, s, o, z = jnp.cos(t), jnp.sin(t), jnp.ones_like(t), jnp.zeros_like(t)
-    return jnp.stack([jnp.stack([o, z, z], -1), jnp.stack([z, c, -s], -1), jnp.stack([z, s, c], -1)], -2)
-
-
-def rot_y(t: Float[Array, "*b"]) -> Float[Array, "*b 3 3"]:
-    c, s, o, z = jnp.cos(t), jnp.sin(t), jnp.ones_like(t), jnp.zeros_like(t)
-    return jnp.stack([jnp.stack([c, z, s], -1), jnp.stack([z, o, z], -1), jnp.stack([-s, z, c], -1)], -2)
-
-
-def rot_z(t: Float[Array, "*b"]) -> Float[Array, "*b 3 3"]:
-    c, s, o, z = jnp.cos(t), jnp.sin(t), jnp.ones_like(t), jnp.zeros_like(t)
-    return jnp.stack([jnp.stack([c, -s, z], -1), jnp.stack([s, c, z], -1), jnp.stack([z, z, o], -1)], -2)
-
-
-def homogeneous(r: Float[Array, "*b 3 3"], p: Float[Array, "*b 3"]) -> Float[Array, "*b 4 4"]:
-    """`[[R, p], [0, 1]]` (eq. 2.1)."""
-    r, p = jnp.broadcast_arrays(r, p[..., None])
-    top = jnp.concatenate([r, p[..., :1]], -1)
-    bottom = jnp.broadcast_to(jnp.array([0.0, 0.0, 0.0, 1.0]), top.shape[:-2] + (1, 4))
-    return jnp.concatenate([top, bottom], -2)
+from ._rotations import homogeneous, rot_x, rot_y, rot_z, rpy, vee
 
 
 def joint_rotation_translation(
@@ -86,11 +64,6 @@ def point_position(
     return t[..., :3, 3] + jnp.einsum("...ij,...j->...i", t[..., :3, :3], point)
 
 
-def _vee(w: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
-    return 0.5 * jnp.stack([w[..., 2, 1] - w[..., 1, 2], w[..., 0, 2] - w[..., 2, 0],
-                            w[..., 1, 0] - w[..., 0, 1]], -1)
-
-
 def geometric_jacobian(robot: Robot, q: Float[Array, "*b n"]) -> Float[Array, "*b 6 n"]:
     """Geometric Jacobian `[v; omega] = J qd` of the tool frame, world axes (autodiff)."""
     return unbatched(robot, q, _geometric_jacobian)
@@ -100,16 +73,8 @@ def _geometric_jacobian(robot: Robot, q: Float[Array, " n"]) -> Float[Array, "6 
     pose = lambda q: tool_pose(robot, q)  # noqa: E731
     t, dt = pose(q), jax.jacfwd(pose)(q)  # dt: (4, 4, n)
     jv = dt[:3, 3, :]
-    jw = _vee(jnp.einsum("ijk,lj->kil", dt[:3, :3, :], t[:3, :3]))  # (n, 3)
+    jw = vee(jnp.einsum("ijk,lj->kil", dt[:3, :3, :], t[:3, :3]))  # (n, 3)
     return jnp.concatenate([jv, jw.T], 0)
-
-
-def rpy(r: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
-    """Roll-pitch-yaw angles (`R = Rz(yaw) Ry(pitch) Rx(roll)`) of a rotation matrix."""
-    roll = jnp.arctan2(r[..., 2, 1], r[..., 2, 2])
-    pitch = jnp.arctan2(-r[..., 2, 0], jnp.hypot(r[..., 2, 1], r[..., 2, 2]))
-    yaw = jnp.arctan2(r[..., 1, 0], r[..., 0, 0])
-    return jnp.stack([roll, pitch, yaw], -1)
 
 
 def analytic_jacobian(robot: Robot, q: Float[Array, "*b n"]) -> Float[Array, "*b 6 n"]:

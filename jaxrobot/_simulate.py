@@ -25,7 +25,7 @@ from ._dynamics import link_acceleration
 from ._elasticity import require_elastic
 from ._gear import gear_output
 from ._robot import Robot
-from ._statics import rest_link_angles
+from .measurement._model import rest_link_angles
 
 
 def _hermite_weights(s: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-from jaxrobot._checks import check_public as _check_public
+from jaxrobot.checks import check_public as _check_public
 
 from ._al_solver import ALConfig as ALConfig
 from ._bandwidth import bandwidth as bandwidth

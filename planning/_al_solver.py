@@ -39,7 +39,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxrobot._status import RESULTS, full
+from jaxrobot import RESULTS
+from jaxrobot.status import full
 
 from ._block_tridiagonal import BlockCholesky, block_cholesky, block_cholesky_solve
 from ._transcription import (

@@ -15,7 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot._cli import Progress, SolveFailed, add_model_option, suggestion
+from jaxrobot.bench import NOT_CONVERGED, read_csv_columns
+from jaxrobot.cli import Progress, SolveFailed, add_model_option, suggestion
 
 from . import _plots
 from ._bandwidth import bandwidth, control_spectrum
@@ -55,7 +56,7 @@ def configure(parser) -> None:
 def read_task_csv(path: Path, orientation_required: bool = False):
     """A `Path` from a CSV of tool positions (see the module docstring); `orientation_required`: the
     quaternion columns must be there (a robot without `[trajectories]` has no default orientation)."""
-    cols = jr.read_csv_columns(path, ["t_s", "x_m", "y_m", "z_m"], ["qx", "qy", "qz", "qw"], min_rows=2)
+    cols = read_csv_columns(path, ["t_s", "x_m", "y_m", "z_m"], ["qx", "qy", "qz", "qw"], min_rows=2)
     if orientation_required and "qx" not in cols:
         raise ValueError(f"{path}: columns qx, qy, qz, qw (tool orientation quaternion) missing; they are "
                          "required for a robot without a [trajectories] section (no default orientation_q)")
@@ -192,12 +193,12 @@ def summary(result: dict) -> dict:
 
 def save_trajectory(path: Path, t, theta, thetad, thetadd, failed: str | None = None) -> None:
     """CSV `t_s, theta1_deg..thetan_deg, thetad1_deg_s.., thetadd1_deg_s2..` of a motor trajectory;
-    `failed` (the status of a solve that did not converge) puts `jr.NOT_CONVERGED` and it in a first
+    `failed` (the status of a solve that did not converge) puts `jaxrobot.bench.NOT_CONVERGED` and it in a first
     line, which the CSV readers refuse."""
     joints = range(1, np.shape(theta)[-1] + 1)
     header = (["t_s"] + [f"theta{i}_deg" for i in joints] + [f"thetad{i}_deg_s" for i in joints]
               + [f"thetadd{i}_deg_s2" for i in joints])
-    header = ",".join(header) if failed is None else f"{jr.NOT_CONVERGED}: {failed}\n" + ",".join(header)
+    header = ",".join(header) if failed is None else f"{NOT_CONVERGED}: {failed}\n" + ",".join(header)
     data = np.column_stack([np.asarray(t)] + [np.degrees(np.asarray(a)) for a in (theta, thetad, thetadd)])
     np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.12g")
 
@@ -242,7 +243,7 @@ def write_plots(result: dict, out: Path, label: str) -> list[Path]:
 def run(args, echo) -> dict:
     if args.cost not in COSTS:
         raise ValueError(f"--cost must be one of {COSTS}, got {args.cost!r}")
-    from jaxrobot._description import robot_from_description
+    from jaxrobot import robot_from_description
 
     desc = jr.read_description(args.model)
     robot = robot_from_description(desc)

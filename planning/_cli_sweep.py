@@ -10,7 +10,8 @@ import jax
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot._cli import Progress, SolveFailed, add_model_option
+from jaxrobot.bench import NOT_CONVERGED
+from jaxrobot.cli import Progress, SolveFailed, add_model_option
 
 from . import _plots
 from ._bandwidth import bandwidth, control_spectrum
@@ -107,7 +108,7 @@ def write_outputs(res: dict, rows: list[dict], out: Path, label: str) -> list[Pa
     header = "cost,nu,converged,iterations,objective,max_bandwidth_hz,plant_max_um,plant_rms_um"
     failed = [f"cost {r['cost']} nu {r['nu']:.0e}" for r in rows if not r["converged"]]
     if failed:
-        header = f"{jr.NOT_CONVERGED}: {'; '.join(failed)}\n{header}"
+        header = f"{NOT_CONVERGED}: {'; '.join(failed)}\n{header}"
     lines = [header] + [f"{r['cost']},{r['nu']:.3e},{r['converged']},{r['iterations']},{r['objective']:.10e},"
                         f"{r['max_bandwidth_hz']:.3f},{r['plant_max_um']:.6f},{r['plant_rms_um']:.6f}" for r in rows]
     files = [out / f"{label}_sweep.csv"]
@@ -141,7 +142,7 @@ def write_outputs(res: dict, rows: list[dict], out: Path, label: str) -> list[Pa
 
 
 def run(args, echo) -> dict:
-    from jaxrobot._description import robot_from_description
+    from jaxrobot import robot_from_description
 
     desc = jr.read_description(args.model)
     robot = robot_from_description(desc)

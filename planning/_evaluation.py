@@ -20,7 +20,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
-from jaxrobot._program_cache import cached_program
+from jaxrobot import cached_program
 
 from ._ik import JointPath, taylor_joint_path
 from ._trajectories import sample_path

@@ -23,8 +23,8 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, Real
 
 import jaxrobot as jr
-from jaxrobot._linalg import map_matrices, solve
-from jaxrobot._program_cache import cached_program
+from jaxrobot import cached_program
+from jaxrobot.linalg import map_matrices, solve
 
 from ._trajectories import Path, sample_path, time_grid
 

@@ -28,9 +28,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
-from jaxrobot._batch import backend_kind
-from jaxrobot._distributed import gather_array
-from jaxrobot._status import check
+from jaxrobot import backend_kind, gather_array
+from jaxrobot.status import check
 
 from ._al_solver import ALConfig, history_length
 from ._ocp import OCPSolution, _solve_ocp

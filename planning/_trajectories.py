@@ -61,10 +61,8 @@ def task_orientation(description: dict[str, Any] | None = None) -> Float[Array, 
     """Constant desired orientation `R_d` of eq. 4.6: the forward kinematics of the description's
     nominal robot at its `trajectories.orientation_q` (joint coordinates), `diag(-1, -1, 1)` for
     the Racer-7 (the default description)."""
-    from jaxrobot._description import robot_from_description
-
     sec = _section(description)
-    robot = jr.racer7() if description is None else robot_from_description(description)
+    robot = jr.racer7() if description is None else jr.robot_from_description(description)
     q = jnp.asarray(sec["orientation_q"], dtype=float)
     return jr.forward_kinematics(robot, q)[:3, :3]
 

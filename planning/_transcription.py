@@ -38,6 +38,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
+from jaxrobot.linalg import spd_solve
 
 ANGLE_SCALE = 1e-3
 """Angle unit of the scaled problem [rad] (mrad)."""
@@ -262,7 +263,7 @@ def _stiffness(robot: jr.Robot, x: Float[Array, "*b n"]) -> Float[Array, "*b n"]
 def _link_acceleration(robot: jr.Robot, q, qd, phi, d) -> Float[Array, "N n"]:
     """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`)."""
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
-    return jr.spd_solve(d, rhs[..., None])[..., 0]
+    return spd_solve(d, rhs[..., None])[..., 0]
 
 
 class HalfStep(eqx.Module):
@@ -305,7 +306,7 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep) -> Callable[[Float[Array, "N
 
     def vjp(w):
         wf = State.of(half * w)  # cotangent of f = [qd, qdd, thetad, u]
-        s = jr.spd_solve(h.mass, wf.qd[..., None])[..., 0]
+        s = spd_solve(h.mass, wf.qd[..., None])[..., 0]
         _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, h.qdd), x.q, x.qd)
         id_q, id_qd = id_vjp(s)
         stiff = _stiffness(r, h.phi - x.q) * s
@@ -344,7 +345,7 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep) -> Float[Array, "N n 3*
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
     rhs = jnp.concatenate([-(id_q + jax.vmap(jnp.diag)(stiff)), -id_qd,
                            jax.vmap(jnp.diag)(stiff / jr.gear_ratio(r, h.phi))], -1)
-    dqdd = jr.spd_solve(h.mass, rhs)  # (N, n, 3n): d qdd / d (q, qd, theta)
+    dqdd = spd_solve(h.mass, rhs)  # (N, n, 3n): d qdd / d (q, qd, theta)
     return (0.5 * problem.ts / sz[j:2 * j, None]) * dqdd * sz[:3 * j]
 
 

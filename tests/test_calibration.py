@@ -14,6 +14,7 @@ import pytest
 import scipy.optimize
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
+import jaxrobot.bench as jb
 from identification.calibration._calibrate import DEFAULT_PARAMETERS, _residual_fn, calibrate
 from identification.calibration._identifiability import (
     THESIS_PREFERENCE,
@@ -31,7 +32,7 @@ from identification.calibration._pose_selection import (
     set_indices,
 )
 from identification.calibration._report import calibration_report, error_table, parameter_table
-from jaxrobot._bench_poses import measure_poses, read_pose_csv, write_pose_csv
+from jaxrobot.bench import measure_poses, read_pose_csv, write_pose_csv
 
 N_SE = 3.0
 """Identified deviations must lie within this many standard errors of the truth."""
@@ -154,7 +155,7 @@ def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
     differentiated by jax, at a random point: equal to rounding (1e-12 mm, 1e-9 relative)."""
     import jax
 
-    from identification.calibration._parameters import predict_pose, rotation_error
+    from identification.calibration._parameters import predict_pose
 
     nominal, _ = robots
     ident, _ = bench
@@ -167,7 +168,7 @@ def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
     def reference(x):
         p, r = predict_pose(params.set(nominal, v0 + scale * x), th, defl, marker)
         res = (p - pos) / 1e-3
-        return jnp.concatenate([res, 2.0 * rotation_error(rot, r) / 1e-3], -1).ravel() if orient else res.ravel()
+        return jnp.concatenate([res, 2.0 * jr.rotation_error(rot, r) / 1e-3], -1).ravel() if orient else res.ravel()
 
     x = jnp.asarray(np.random.default_rng(5).normal(0, 1, len(params)))
     np.testing.assert_allclose(fn(x, None), reference(x), rtol=0, atol=1e-9)
@@ -270,7 +271,7 @@ def test_bad_input(robots, bench, tmp_path):
         calibrate(nominal, theta, pos, limits="raise")
     fixed = theta.copy()
     fixed[:, 5] = 0.4  # joint 6 never moves: its gear ratio and offset cannot be told apart
-    fixed_pos = jr.measure_poses(robots[1], fixed, seed=3).positions  # consistent data (else: unit check)
+    fixed_pos = jb.measure_poses(robots[1], fixed, seed=3).positions  # consistent data (else: unit check)
     with pytest.raises(ValueError, match=r"rank deficient.*u0_6 ~ .*offset6|rank deficient.*offset6 ~ .*u0_6"):
         calibrate(nominal, fixed, fixed_pos)
     # pose files: NaN rows by row number, missing columns by name; extra columns ignored
@@ -393,7 +394,7 @@ def fleet_problem(robots, bench):
     ident, valid = bench
     theta_all = np.concatenate([ident.motor_angles, valid.motor_angles])
     theta = np.stack([np.roll(theta_all, 7 * r, axis=0)[:50] for r in range(3)])
-    truth = jr.draw_fleet(3, seed=5)
+    truth = jb.draw_fleet(3, seed=5)
     meas = measure_poses(truth, theta, seed=6)
     return theta, meas, calibrate_fleet(nominal, theta, meas.positions)
 
@@ -442,7 +443,7 @@ def test_fleet_constants_one_robot_and_fleet_agree_and_hold_statics(robots, flee
     """The per-pose constants from one robot for all (rippled joints only) equal those of the broadcast
     fleet with the full gear inversion to 1e-15 rad, and are the static equilibrium: `kappa(phi - q0) =
     g(q0)` to 1e-8 N m (tangent stiffness <= 4e5 N m/rad x (2e-14 rad, the fixed point's error bound
-    `jaxrobot._statics.TOL`, + 7e-16 rad rounding of `phi - q`)), `phi = Xi^{-1}(theta)` from Xi."""
+    `jaxrobot.measurement._model.TOL`, + 7e-16 rad rounding of `phi - q`)), `phi = Xi^{-1}(theta)` from Xi."""
     import jax
 
     from identification.calibration._fleet import _constants

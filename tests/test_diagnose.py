@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import jaxrobot as jr
+import jaxrobot.bench as jb
 from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
 from identification.diagnosis._diagnose import Poses, diagnose
 
@@ -33,7 +34,7 @@ def bench():
 
 
 def _measure(truth, theta, seed):
-    m = jr.measure_poses(truth, theta, seed=seed, ccw=jr.approach_directions(theta))
+    m = jb.measure_poses(truth, theta, seed=seed, ccw=jr.measurement.approach_directions(theta))
     return Poses.of(theta, m.positions, approach="order")
 
 
@@ -148,8 +149,8 @@ def test_cli_json_and_saved_model(bench, tmp_path, capsys):
     start, theta = bench
     truth = _at(start, "offset", 4, start.offset[4] + 5e-4)
     for name, k in (("train", 1), ("validation", 2)):
-        m = jr.measure_poses(truth, theta[name], seed=k, ccw=jr.approach_directions(theta[name]))
-        jr.write_pose_csv(tmp_path / f"{name}.csv", m.motor_angles, m.positions)
+        m = jb.measure_poses(truth, theta[name], seed=k, ccw=jr.measurement.approach_directions(theta[name]))
+        jb.write_pose_csv(tmp_path / f"{name}.csv", m.motor_angles, m.positions)
     jr.save_robot(start, tmp_path / "start.toml")
     from jaxrobot._cli import main
 

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import jaxrobot as jr
+import jaxrobot.bench as jb
 from identification import check_gear_run, identify_gear, prepare_gear_runs
 from identification.gear._cli import bench_runs
 from identification.gear._report import summary
@@ -61,14 +62,14 @@ def bench(truth):
     for joint in (1, 2, 3):
         if IDENTIFICATION_RUNS[joint] > 4:
             noise = QUIET_NOISE.get(joint, 1.0) * jr.read_description()["sensors"]["gyro_noise_deg_s"]
-            more = jr.gear_runs(truth, joint, repetitions=IDENTIFICATION_RUNS[joint] - 4, seed=70 + joint,
+            more = jb.gear_runs(truth, joint, repetitions=IDENTIFICATION_RUNS[joint] - 4, seed=70 + joint,
                                 gyro_noise_deg_s=noise)
             for k, ccw in enumerate(more.ccw):
                 ident.append((more.t, more.theta[k], more.gyro[k]))
                 ident_names.append(f"joint{joint}_{'ccw' if ccw else 'cw'}_extra_{k}")
-        for speed in (jr.GEAR_RUN_DEFAULTS[joint]["motor_speed_deg_s"],
-                      jr.GEAR_RUN_DEFAULTS[joint]["validation_speed_deg_s"]):
-            runs = jr.gear_runs(truth, joint, repetitions=1, motor_speed_deg_s=speed, seed=700 + joint,
+        for speed in (jb.GEAR_RUN_DEFAULTS[joint]["motor_speed_deg_s"],
+                      jb.GEAR_RUN_DEFAULTS[joint]["validation_speed_deg_s"]):
+            runs = jb.gear_runs(truth, joint, repetitions=1, motor_speed_deg_s=speed, seed=700 + joint,
                                 gyro_noise_deg_s=0.0, gyro_bias_deg_s=0.0)
             for k, ccw in enumerate(runs.ccw):
                 quiet.append((runs.t, runs.theta[k], runs.gyro[k]))
@@ -143,7 +144,7 @@ def _reductions(result, bench):
     for r in np.flatnonzero(quiet):
         joint = result.infos[r].joint
         same_speed = abs(abs(result.infos[r].motor_speed_deg_s)
-                         - jr.GEAR_RUN_DEFAULTS[joint]["motor_speed_deg_s"]) < 1.0
+                         - jb.GEAR_RUN_DEFAULTS[joint]["motor_speed_deg_s"]) < 1.0
         rows.append((joint, same_speed, bench["val_names"][r - len(bench["ident"])], 1.0 - after[r] / before[r]))
     assert len(rows) == 12
     return rows
@@ -188,7 +189,7 @@ def test_cw_ccw_significantly_different(result):
 
 def test_identical_sets_not_significant(truth):
     same = eqx.tree_at(lambda r: r.ccw, truth, truth.cw)
-    runs = jr.gear_runs(same, 3, repetitions=3, seed=11)
+    runs = jb.gear_runs(same, 3, repetitions=3, seed=11)
     res = identify_gear(jr.racer7(), [(runs.t, runs.theta[k], runs.gyro[k]) for k in range(len(runs.ccw))])
     (test,) = res.tests
     assert not test.significant, f"joint 3 with identical sets: p = {test.p_value:.3g}"
@@ -210,14 +211,14 @@ def test_summary_schema(result):
 def test_csv_round_trip(tmp_path, bench):
     t, theta, gyro = bench["ident"][0]
     path = tmp_path / "run.csv"
-    jr.write_gear_run(path, t, theta, gyro)
-    t2, theta2, gyro2 = jr.read_gear_run(path)
+    jb.write_gear_run(path, t, theta, gyro)
+    t2, theta2, gyro2 = jb.read_gear_run(path)
     np.testing.assert_allclose(t2, t, atol=1e-9)
     np.testing.assert_allclose(theta2, theta, atol=1e-9)  # 12 digits of degrees
     np.testing.assert_allclose(gyro2, gyro, atol=1e-9)
     path.write_text("t_s,theta1_deg\n0,1\n")
     with pytest.raises(ValueError, match="missing column"):
-        jr.read_gear_run(path)
+        jb.read_gear_run(path)
 
 
 def _run(bench):
@@ -254,19 +255,19 @@ def test_bad_run_two_joints(bench):
 
 
 def test_bad_run_short_segment(truth, cutoffs):
-    runs = jr.gear_runs(truth, 1, repetitions=1, directions=("cw",), range_deg=1.0, seed=3)
+    runs = jb.gear_runs(truth, 1, repetitions=1, directions=("cw",), range_deg=1.0, seed=3)
     with pytest.raises(ValueError, match="too short|needs >="):
         prepare_gear_runs([(runs.t, runs.theta[0], runs.gyro[0])], cutoffs, np.asarray(truth.u0))
 
 
 def test_bench_quantised_and_seeded(truth):
-    a = jr.gear_runs(truth, 3, repetitions=1, directions=("cw",), seed=5)
-    b = jr.gear_runs(truth, 3, repetitions=1, directions=("cw",), seed=5)
+    a = jb.gear_runs(truth, 3, repetitions=1, directions=("cw",), seed=5)
+    b = jb.gear_runs(truth, 3, repetitions=1, directions=("cw",), seed=5)
     np.testing.assert_array_equal(a.gyro, b.gyro)
     counts = a.theta[0] / (2 * np.pi / 2**20)
     np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)
     with pytest.raises(ValueError, match="joint"):
-        jr.gear_runs(truth, 7)
+        jb.gear_runs(truth, 7)
     assert jnp.all(jnp.isfinite(jnp.asarray(a.link_angles)))
 
 
@@ -275,7 +276,7 @@ def test_ripple_below_the_noise_gives_the_constant_ratio(truth):
     """Joint 2 with 30x the gyroscope noise and two runs per direction (other seeds than the
     fixture's): the runs cannot resolve its ripple, so the result is the constant ratio and the
     report says how many more runs would resolve it; u0 still within 3 reported sigma."""
-    runs = jr.gear_runs(truth, 2, repetitions=2, seed=901, gyro_noise_deg_s=9.0)
+    runs = jb.gear_runs(truth, 2, repetitions=2, seed=901, gyro_noise_deg_s=9.0)
     res = identify_gear(jr.racer7(), [(runs.t, runs.theta[k], runs.gyro[k]) for k in range(len(runs.ccw))])
     for g, r in enumerate(res.resolution):
         assert not r.resolved
@@ -293,7 +294,7 @@ def test_high_bias_two_runs_holds_the_independent_criteria(truth, seed):
     ratio (seed 4 kept a spurious cluster before the per-fold search: 1.08x)."""
     runs, val = [], []
     for joint in (1, 2, 3):
-        r = jr.gear_runs(truth, joint, repetitions=3, seed=1000 * seed + joint, gyro_bias_deg_s=0.05)
+        r = jb.gear_runs(truth, joint, repetitions=3, seed=1000 * seed + joint, gyro_bias_deg_s=0.05)
         ccw = np.asarray(r.ccw)
         for k in range(ccw.size):
             last = k == np.flatnonzero(ccw == ccw[k]).max()

@@ -16,6 +16,7 @@ import pytest
 from helpers import independent_data
 
 import jaxrobot as jr
+import jaxrobot.bench as jb
 from identification._pose_files import read_poses
 from identification.diagnosis import Poses, diagnose
 from identification.diagnosis import summary as diagnosis_summary
@@ -69,10 +70,10 @@ def test_approach_conventions(tmp_path):
 
     theta = np.deg2rad([[10.0, -5, 3, 0, 1, 2], [4.0, -2, 5, 0, 1, 1], [6.0, -8, 5, 1, 0, 1]])
     assert not approach_ccw(theta, "cw").any()
-    np.testing.assert_array_equal(approach_ccw(theta, "order"), np.asarray(jr.approach_directions(theta)))
-    sign = np.where(np.asarray(jr.approach_directions(theta)), -1, 1)
+    np.testing.assert_array_equal(approach_ccw(theta, "order"), np.asarray(jr.measurement.approach_directions(theta)))
+    sign = np.where(np.asarray(jr.measurement.approach_directions(theta)), -1, 1)
     path = tmp_path / "poses.csv"
-    jr.write_pose_csv(path, theta, np.zeros((3, 3)))
+    jb.write_pose_csv(path, theta, np.zeros((3, 3)))
     lines = path.read_text().splitlines()
     cols = approach_columns(6)
     text = [lines[0] + "," + ",".join(cols)] + [ln + "," + ",".join(map(str, s)) for ln, s in zip(lines[1:], sign)]
@@ -82,7 +83,7 @@ def test_approach_conventions(tmp_path):
     path.write_text("\n".join(text).replace(",-1\n", ",0\n", 1) + "\n")
     with pytest.raises(ValueError, match=r"approach\d in data row \d: expected \+1 \(cw\) or -1 \(ccw\), found 0"):
         read_poses(path, "column")
-    jr.write_pose_csv(path, theta, np.zeros((3, 3)))
+    jb.write_pose_csv(path, theta, np.zeros((3, 3)))
     with pytest.raises(ValueError, match=r"approach 'column' needs the columns \['approach1'"):
         read_poses(path, "column")
     with pytest.raises(ValueError, match=r"approach: expected one of \['cw', 'order', 'column'\], found 'up'"):
@@ -117,7 +118,7 @@ def gear_stage(tmp_path_factory):
     assert code == 0
     assert re.search(r"^\[identify-gear 2/3\] identification: \d+ s elapsed, ETA \d+ s$", err.getvalue(), re.M)
     assert re.search(r"^\[identify-gear 3/3\] report: \d+ s elapsed, done$", err.getvalue(), re.M)
-    runs = {f: jr.read_gear_run(f) for f in files(2)}
+    runs = {f: jb.read_gear_run(f) for f in files(2)}
     return json.loads(buf.getvalue()), out / "gear.toml", runs
 
 
@@ -196,7 +197,7 @@ def test_gear_unit_mistakes_are_named(tmp_path, mistake, column, factor, message
     """Each mistake written into a copy of an independent gear run, read through the CLI's reader."""
     from identification.gear._processing import prepare_gear_runs
 
-    t, theta, gyro = jr.read_gear_run(independent_data() / "gear" / "j3_pos_r0.csv")
+    t, theta, gyro = jb.read_gear_run(independent_data() / "gear" / "j3_pos_r0.csv")
     u0 = np.asarray(jr.racer7().u0)
     cut = {3: 57.5}
     prepare_gear_runs([(t, theta, gyro)], cut, u0)  # the file as it is
@@ -204,16 +205,16 @@ def test_gear_unit_mistakes_are_named(tmp_path, mistake, column, factor, message
         theta = theta / u0 if factor == "link" else theta * factor
     else:
         gyro = gyro * factor
-    jr.write_gear_run(tmp_path / "run.csv", t, theta, gyro)
+    jb.write_gear_run(tmp_path / "run.csv", t, theta, gyro)
     with pytest.raises(ValueError, match=message):
-        prepare_gear_runs([jr.read_gear_run(tmp_path / "run.csv")], cut, u0, ["run.csv"])
+        prepare_gear_runs([jb.read_gear_run(tmp_path / "run.csv")], cut, u0, ["run.csv"])
 
 
 def test_unit_mistake_fails_the_cli_before_fitting(tmp_path, capsys):
     from jaxrobot._cli import main
 
     data = read_poses(independent_data() / "calibration" / "train.csv")
-    jr.write_pose_csv(tmp_path / "mm.csv", data["motor_angles"], 1e3 * data["positions"])
+    jb.write_pose_csv(tmp_path / "mm.csv", data["motor_angles"], 1e3 * data["positions"])
     assert main(["calibrate", str(tmp_path / "mm.csv")]) == 2
     assert "millimetres in the _m columns" in capsys.readouterr().err
 
@@ -321,11 +322,11 @@ def test_calibrate_fleet_approach(tmp_path, capsys):
     for r in range(2):
         q = random_feasible_poses(robot, k, seed=40 + r, marker=default_marker())
         theta = np.asarray(jr.static_equilibrium(robot, q))
-        ccw = jr.approach_directions(theta)
-        m = jr.measure_poses(robot, theta, seed=r, ccw=ccw)
-        exact = [jr.measure_poses(robot, theta, ccw=c, position_noise=0.0).positions for c in (ccw, False)]
+        ccw = jr.measurement.approach_directions(theta)
+        m = jb.measure_poses(robot, theta, seed=r, ccw=ccw)
+        exact = [jb.measure_poses(robot, theta, ccw=c, position_noise=0.0).positions for c in (ccw, False)]
         assert np.sqrt(np.mean(np.sum((exact[0] - exact[1]) ** 2, -1) / 3)) > 2 * bound
-        jr.write_pose_csv(tmp_path / f"robot_{r}.csv", theta, m.positions)
+        jb.write_pose_csv(tmp_path / f"robot_{r}.csv", theta, m.positions)
     assert main(["calibrate-fleet", str(tmp_path), "--approach", "order", "--out", str(tmp_path), "--json"]) == 0
     capsys.readouterr()
     table = np.genfromtxt(tmp_path / "fleet_calibration.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")

@@ -15,6 +15,7 @@ import pytest
 import tomli_w
 
 import jaxrobot as jr
+import jaxrobot.bench as jb
 import planning as pl
 from identification import calibrate, calibration_report, default_parameters
 from identification.calibration._parameters import ParameterMap
@@ -60,16 +61,16 @@ def test_model_functions_and_bench_for_n_joints(n, tmp_path):
     # statics and bench: the motor angles that hold q at rest give back q (fixed point to 1e-11 rad),
     # and the noise-free marker sits where the forward kinematics puts it
     th_rest = jax.jit(jax.vmap(lambda q: jr.static_equilibrium(robot, q)))(q)
-    assert jr.approach_directions(th_rest).shape == (4, n)
-    meas = jr.measure_poses(robot, th_rest, seed=0, position_noise=0.0, marker=[0.0, 0.0, 0.1])
+    assert jr.measurement.approach_directions(th_rest).shape == (4, n)
+    meas = jb.measure_poses(robot, th_rest, seed=0, position_noise=0.0, marker=[0.0, 0.0, 0.1])
     np.testing.assert_allclose(meas.link_angles, q, rtol=0, atol=1e-10)
     tip = jr.tool_pose(robot, q) @ jnp.array([0.0, 0.0, 0.1, 1.0])
     np.testing.assert_allclose(meas.positions, tip[:, :3], atol=1e-12)
     # pose files carry theta1_deg .. thetan_deg
-    jr.write_pose_csv(tmp_path / "poses.csv", meas.motor_angles, meas.positions)
+    jb.write_pose_csv(tmp_path / "poses.csv", meas.motor_angles, meas.positions)
     assert (tmp_path / "poses.csv").read_text().splitlines()[0].startswith(
         ",".join(f"theta{i}_deg" for i in range(1, n + 1)) + ",x_m")
-    back = jr.read_pose_csv(tmp_path / "poses.csv")
+    back = jb.read_pose_csv(tmp_path / "poses.csv")
     np.testing.assert_allclose(back["motor_angles"], meas.motor_angles, rtol=1e-15)
 
 
@@ -132,7 +133,7 @@ def test_seven_joint_gear_run_on_the_bench(tmp_path):
     to the link travel (trapezoid at 1 kHz on a cycloidal profile: < 1e-6 rad), and the gear-run
     file carries seven motor-angle columns."""
     desc = jr.read_description(ARM7)
-    runs = jr.gear_runs(jr.load_robot(ARM7, as_built=True), 7, motor_speed_deg_s=3000.0, range_deg=20.0,
+    runs = jb.gear_runs(jr.load_robot(ARM7, as_built=True), 7, motor_speed_deg_s=3000.0, range_deg=20.0,
                         centre_deg=0.0, repetitions=1, directions=("cw",), description=desc)
     assert runs.theta.shape[2] == runs.link_angles.shape[2] == 7
     moved = np.ptp(runs.theta[0], axis=0)
@@ -141,9 +142,9 @@ def test_seven_joint_gear_run_on_the_bench(tmp_path):
     rate = runs.link_rate[0]
     integral = np.sum(0.5 * (rate[1:] + rate[:-1]) * np.diff(runs.t))
     assert abs(integral - travel) < 1e-6
-    jr.write_gear_run(tmp_path / "run.csv", runs.t, runs.theta[0], runs.gyro[0])
-    assert (tmp_path / "run.csv").read_text().splitlines()[0] == ",".join(jr.gear_run_columns(7))
-    t, theta, gyro = jr.read_gear_run(tmp_path / "run.csv")
+    jb.write_gear_run(tmp_path / "run.csv", runs.t, runs.theta[0], runs.gyro[0])
+    assert (tmp_path / "run.csv").read_text().splitlines()[0] == ",".join(jb.gear_run_columns(7))
+    t, theta, gyro = jb.read_gear_run(tmp_path / "run.csv")
     np.testing.assert_allclose(theta, runs.theta[0], rtol=1e-11, atol=1e-12)
 
 
@@ -159,7 +160,7 @@ def test_seven_joint_calibration_recovers_the_as_built_arm(arm7):
     nominal, truth = arm7
     q = random_feasible_poses(nominal, 80, seed=3)
     theta = rest_motor_angles(truth, q)
-    meas = jr.measure_poses(truth, theta, seed=4)
+    meas = jb.measure_poses(truth, theta, seed=4)
     k = 60
     res = calibrate(nominal, meas.motor_angles[:k], meas.positions[:k],
                     validation=(meas.motor_angles[k:], meas.positions[k:]))
@@ -189,7 +190,7 @@ def test_diagnose_names_a_hidden_offset_on_joint_seven(arm7):
 
     def poses(k, seed):
         theta = rest_motor_angles(start, random_feasible_poses(start, k, seed=seed))
-        m = jr.measure_poses(truth, theta, seed=seed, ccw=jr.approach_directions(theta))
+        m = jb.measure_poses(truth, theta, seed=seed, ccw=jr.measurement.approach_directions(theta))
         return Poses.of(theta, m.positions)
 
     res = diagnose(start, poses(150, 21), poses(60, 22), max_steps=2)

@@ -51,7 +51,7 @@ def _cases():
     from identification.calibration._pose_selection import _feasible
     from identification.gear._processing import normal_solve
     from jaxrobot._cli_info import _numbers
-    from jaxrobot._linalg import cholesky, cholesky_solve
+    from jaxrobot.linalg import cholesky, cholesky_solve, spd_solve
     from planning._ik import _starts, singular_values
 
     path, t = _line()
@@ -59,9 +59,9 @@ def _cases():
     yield "info numbers", lambda r, q: _numbers(r, q, tuple(range(6))), (ROBOT, Q[:4])
     x = jnp.concatenate([Q, Q, Q, Q], -1)
     yield "dynamics under vmap", jax.vmap(jr.planning_dynamics, (None, 0, 0)), (ROBOT, x, Q)
-    yield "mass matrix solve", jr.spd_solve, (spd, jnp.ones((4, 5, 2)))
+    yield "mass matrix solve", spd_solve, (spd, jnp.ones((4, 5, 2)))
     yield "Cholesky kernels (batched LM)", lambda a, b: cholesky_solve(cholesky(a), b), (spd, jnp.ones((4, 5, 2)))
-    yield "rest link angles", jr.rest_link_angles, (ROBOT, Q)
+    yield "rest link angles", jr.measurement.rest_link_angles, (ROBOT, Q)
     yield "gear output", jr.gear_output, (ROBOT, Q)
     p_d, r_d = pl.sample_path(path, t)
     yield "inverse kinematics", pl.inverse_kinematics, (ROBOT, p_d, r_d, Q[0])

@@ -18,6 +18,7 @@ import tomllib
 from helpers import example_urdf
 
 import jaxrobot as jr
+import jaxrobot.bench as jb
 import planning as pl
 from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
 from jaxrobot._cli import main
@@ -71,9 +72,9 @@ def chain(tmp_path_factory):
                         (nominal.offset + rng.normal(0.0, 5e-4, 7), nominal.a + rng.normal(0.0, 2e-4, 7),
                          nominal.alpha + rng.normal(0.0, 3e-4, 7)))
     theta = rest_motor_angles(truth, random_feasible_poses(nominal, 80, seed=1))
-    meas = jr.measure_poses(truth, theta, seed=2, marker=jnp.asarray(MARKER), position_noise=SIGMA)
-    jr.write_pose_csv(d / "poses.csv", meas.motor_angles[:60], meas.positions[:60])
-    jr.write_pose_csv(d / "validation.csv", meas.motor_angles[60:], meas.positions[60:])
+    meas = jb.measure_poses(truth, theta, seed=2, marker=jnp.asarray(MARKER), position_noise=SIGMA)
+    jb.write_pose_csv(d / "poses.csv", meas.motor_angles[:60], meas.positions[:60])
+    jb.write_pose_csv(d / "validation.csv", meas.motor_angles[60:], meas.positions[60:])
     rc, report = _cli(["calibrate", str(d / "poses.csv"), "--validate", str(d / "validation.csv"),
                        "--robot", str(d / "panda.toml"), "--save-model", str(d / "panda-calibrated.toml")])
     return d, rc, report

@@ -18,6 +18,7 @@ import tomllib
 from helpers import example_urdf
 
 import jaxrobot as jr
+import jaxrobot.bench as jb
 from identification import CATALOGUE
 
 README = Path(__file__).resolve().parents[1] / "README.md"
@@ -44,9 +45,9 @@ def _fleet(folder: Path) -> None:
     writes)."""
     folder.mkdir()
     theta = np.deg2rad(np.asarray(jr.read_description()["poses"]["motor_deg"], float))
-    m = jr.measure_poses(jr.draw_fleet(FLEET_ROBOTS, seed=0), theta, seed=1)
+    m = jb.measure_poses(jb.draw_fleet(FLEET_ROBOTS, seed=0), theta, seed=1)
     for r in range(FLEET_ROBOTS):
-        jr.write_pose_csv(folder / f"robot{r}.csv", m.motor_angles[r], m.positions[r])
+        jb.write_pose_csv(folder / f"robot{r}.csv", m.motor_angles[r], m.positions[r])
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ import jaxrobot as jr
 
 def test_approach_directions_follow_pose_order():
     theta = np.array([[1.0, -1.0, 0, 0, 0, 0], [2.0, -1.0, 0, 0, 0, 1.0], [0.5, 3.0, 0, 0, 0, 1.0]])
-    ccw = np.asarray(jr.approach_directions(theta))
+    ccw = np.asarray(jr.measurement.approach_directions(theta))
     # joint 1: up from 0, up, down; joint 2: down, no move (keeps down), up; joint 3 never moves (cw)
     np.testing.assert_array_equal(ccw[:, 0], [False, False, True])
     np.testing.assert_array_equal(ccw[:, 1], [True, True, False])
@@ -31,8 +31,8 @@ def test_backlash_shifts_rest_angle_by_half_against_approach():
     with_bl = eqx.tree_at(lambda r: r.backlash, robot, jnp.asarray(b))
     theta = jnp.asarray(np.random.default_rng(3).uniform(-20, 20, (8, 6)))
     for ccw in (False, True):
-        q0 = jr.rest_link_angles(robot, theta, ccw)
-        q1 = jr.rest_link_angles(with_bl, theta, ccw)
+        q0 = jr.measurement.rest_link_angles(robot, theta, ccw)
+        q1 = jr.measurement.rest_link_angles(with_bl, theta, ccw)
         # the gravity deflection changes by dg/dq * b / k ~ 1e3 * 2e-4 / 1e5 = 2e-6 rad at most
         np.testing.assert_allclose(q1 - q0, np.broadcast_to(-0.5 * b * (-1 if ccw else 1), theta.shape), atol=5e-6)
 
@@ -51,10 +51,10 @@ def test_rigid_robot_rests_at_gear_output(tmp_path):
     robot = jr.load_robot(_rigid_file(tmp_path))
     assert np.all(np.isinf(np.asarray(robot.k1)))
     theta = jnp.asarray(np.random.default_rng(4).uniform(-30, 30, (5, 6)))
-    np.testing.assert_array_equal(np.asarray(jr.rest_link_angles(robot, theta)),
+    np.testing.assert_array_equal(np.asarray(jr.measurement.rest_link_angles(robot, theta)),
                                   np.asarray(jr.gear_output(robot, theta)))
     # derivatives stay finite for rigid joints
-    g = jax.grad(lambda t: jnp.sum(jr.rest_link_angles(robot, t)))(theta)
+    g = jax.grad(lambda t: jnp.sum(jr.measurement.rest_link_angles(robot, t)))(theta)
     assert np.all(np.isfinite(np.asarray(g)))
 
 

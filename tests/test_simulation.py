@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import jaxrobot as jr
+import jaxrobot.bench as jb
 
 ROBOT = jr.racer7()
 QA = jnp.array([0.1, 0.2, -1.3, 0.2, 0.9, 0.1])
@@ -72,19 +73,19 @@ def test_trajectory_run_and_csv_round_trip(tmp_path, flat):
     marker, noise = jnp.array([0.05, 0.02, 0.06]), 5e-5
     n = 600
     args = (T[:n], *(x[:n] for x in flat))
-    p, q = jax.jit(lambda k: jr.trajectory_run(truth, k, *args, marker, noise, substeps=2))(jax.random.PRNGKey(0))
+    p, q = jax.jit(lambda k: jb.trajectory_run(truth, k, *args, marker, noise, substeps=2))(jax.random.PRNGKey(0))
     residual = p - jr.point_position(truth, q, marker)
     assert abs(float(jnp.std(residual)) / noise - 1) < 0.1  # the tracker's noise, nothing else
     path = tmp_path / "run.csv"
-    jr.write_trajectory_csv(path, args[0], args[1], p)
-    t2, theta2, p2 = jr.read_trajectory_csv(path)
+    jb.write_trajectory_csv(path, args[0], args[1], p)
+    t2, theta2, p2 = jb.read_trajectory_csv(path)
     np.testing.assert_allclose(theta2, args[1], rtol=1e-11)
     np.testing.assert_allclose(p2, p, atol=1e-12)
     lines = path.read_text().splitlines()
     lines[5] = lines[5].replace(lines[5].split(",")[3], "nan", 1)
     path.write_text("\n".join(lines))
     with pytest.raises(ValueError, match=r"NaN or empty cells in line\(s\) \[6\]"):
-        jr.read_trajectory_csv(path)
+        jb.read_trajectory_csv(path)
     path.write_text("t_s,theta1_deg\n0,1\n")
     with pytest.raises(ValueError, match=r"missing columns \['x_m', 'y_m', 'z_m'\]"):
-        jr.read_trajectory_csv(path)
+        jb.read_trajectory_csv(path)

@@ -1,6 +1,6 @@
 """Kinematic calibration of one robot and of fleets: parameters, identifiability, pose sets, LM/MAP (thesis ch. 3.3)."""
 
-from jaxrobot._checks import check_public as _check_public
+from jaxrobot.checks import check_public as _check_public
 
 from ._calibrate import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
 from ._calibrate import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD

@@ -20,8 +20,8 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
-from jaxrobot._program_cache import cached_program
-from jaxrobot._status import RESULTS, check
+from jaxrobot import RESULTS, cached_program
+from jaxrobot.status import check
 
 from .._pose_files import check_pose_units
 from ._identifiability import analyse, default_parameters
@@ -173,7 +173,7 @@ def solve(
     skips the Newton inversion.
 
     **Returns:** `value` (m,) parameters, `std` (m,) standard errors, `cov` (m, m), `result`
-    (optimistix RESULTS index), `steps`, `residuals` (n,) at the solution in m (orientation rows
+    (below), `steps`, `residuals` (n,) at the solution in m (orientation rows
     in m-equivalent units), `rank` of the scaled Jacobian, `sigma2` the noise estimate [m^2],
     `jacobian` (n, m) at the solution (residual mm per parameter unit). `result` is a `RESULTS`:
     optimistix's status, `rank_deficient` for a converged solve with a rank-deficient Jacobian,
@@ -222,7 +222,8 @@ class CalibrationResult:
     distance per identification pose with the start and the calibrated robot, and
     `validation_before`/`validation_after` the same for the validation poses (None without);
     `beyond_limits`: the poses beyond the joint limits ({row, joint, q_deg, limits_deg});
-    `prior_std` (m,): the MAP priors (None for `method="lm"`).
+    `prior_std` (m,): the MAP priors (None for `method="lm"`); `status`: the name of the solve's
+    `jaxrobot.RESULTS` (`converged` only for `successful`).
     """
 
     robot: jr.Robot
@@ -358,11 +359,11 @@ def calibrate(
     parameters, unit mistakes (`check_pose_units`), and, with
     `limits="raise"`, poses beyond the joint limits (by row); after the solve, for a
     rank-deficient pose set (naming the unidentifiable directions). A solve that does not converge is
-    returned with `converged=False` and its optimistix `status`, never as success.
+    returned with `converged=False` and its `status` (a `jaxrobot.RESULTS` name), never as success.
 
     **Returns:** `CalibrationResult` (SI units; `calibration_report` gives the report dict).
     """
-    from jaxrobot._bench_poses import ORIENTATION_NOISE_RAD, quaternion_to_rotation
+    from jaxrobot.bench import ORIENTATION_NOISE_RAD
 
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     if parameters is None:
@@ -380,7 +381,7 @@ def calibrate(
     sensors = jr.read_description(None)["sensors"]
     s_p = sensors["tracker_position_noise_m"] if position_noise is None else position_noise
     s_r = ORIENTATION_NOISE_RAD if orientation_noise is None else orientation_noise
-    rot = None if quat is None else quaternion_to_rotation(jnp.asarray(quat))
+    rot = None if quat is None else jr.quaternion_to_rotation(jnp.asarray(quat))
     w_r = jnp.asarray(s_p / s_r)
     if validation is not None:
         vt = _check_array(validation[0], (robot.n_joints,), "validation motor_angles", "rad")

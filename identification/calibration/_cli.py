@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxrobot._cli import SolveFailed, add_model_option
+from jaxrobot.cli import SolveFailed, add_model_option
 
 from .._pose_files import add_approach_option
 
@@ -108,7 +108,7 @@ def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions
 
 def run(args, echo) -> dict:
     import jaxrobot as jr
-    from jaxrobot._cli import Progress
+    from jaxrobot.cli import Progress
 
     from .._pose_files import read_poses
     from ._calibrate import PRIOR_KEYS, calibrate, map_parameters
@@ -172,7 +172,7 @@ def bench_calibration():
     **Returns:** `(truth, nominal, selection, measurements, k, result)` (`k` identification poses
     first in `measurements`)."""
     import jaxrobot as jr
-    from jaxrobot._bench_poses import measure_poses
+    from jaxrobot.bench import measure_poses
 
     from ._calibrate import DEFAULT_PARAMETERS, calibrate
     from ._parameters import ParameterMap
@@ -192,7 +192,7 @@ def demo_stage(out: Path, echo) -> dict:
     """Calibration stage of `jaxrobot demo` (`bench_calibration`): pose files, tables, plots and the
     calibrated robot in `out`."""
     import jaxrobot as jr
-    from jaxrobot._bench_poses import write_pose_csv
+    from jaxrobot.bench import write_pose_csv
 
     from ._parameters import ParameterMap
     from ._report import calibration_report, plot_pose_set

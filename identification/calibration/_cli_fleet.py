@@ -32,7 +32,7 @@ def configure(parser) -> None:
                              "FOLDER (robot_00000.csv, ...) and calibrate those")
     parser.add_argument("--poses", type=int, default=50, help="poses per robot of --bench (default 50)")
     parser.add_argument("--seed", type=int, default=0, help="seed of --bench (default 0)")
-    from jaxrobot._cli import add_model_option
+    from jaxrobot.cli import add_model_option
 
     add_model_option(parser, "initial robot description for all robots (default: the embedded Racer-7, nominal)",
                      dest="robot")
@@ -53,13 +53,14 @@ def configure(parser) -> None:
 def _rest_poses(nominal, truth, q, marker):
     """Per robot (`lax.map`: its fixed-point iterations are its own, so its data do not depend on the
     batch): the nominal robot's motor angles (R, K, n) holding `q` at rest (`static_equilibrium`) and
-    the true marker positions (R, K, 3) of `truth` resting at them (`rest_link_angles`)."""
+    the true marker positions (R, K, 3) of `truth` resting at them (`jaxrobot.measurement.measured_pose`)."""
     import jaxrobot as jr
+    from jaxrobot.measurement import measured_pose
 
     def one(args):
         robot, q_r = args
         theta = jr.static_equilibrium(nominal, q_r)
-        return theta, jr.marker_pose(robot, jr.rest_link_angles(robot, theta), marker)[0]
+        return theta, measured_pose(robot, theta, marker)[1]
 
     return jax.lax.map(one, (truth, q))
 
@@ -74,6 +75,7 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
     import jax.numpy as jnp
 
     import jaxrobot as jr
+    from jaxrobot.bench import draw_fleet, write_pose_csv
 
     from ._pose_selection import default_marker, random_feasible_poses
 
@@ -84,7 +86,7 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
     share = jr.process_share(n_robots)
     nominal = jr.racer7() if nominal is None else nominal
     marker = default_marker() if marker is None else np.asarray(marker, float)
-    truth = jax.tree.map(lambda x: x[share], jr.draw_fleet(n_robots, seed=seed, robot=nominal))
+    truth = jax.tree.map(lambda x: x[share], draw_fleet(n_robots, seed=seed, robot=nominal))
     pool = random_feasible_poses(nominal, 20 * n_poses, seed=seed, marker=marker)
     rows = range(share.start, share.stop)
     q = np.stack([pool[np.random.default_rng([seed, r]).choice(len(pool), n_poses, replace=False)] for r in rows])
@@ -92,7 +94,7 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
     sigma = float(jr.read_description(None)["sensors"]["tracker_position_noise_m"])
     for i, r in enumerate(rows):
         noise = sigma * np.random.default_rng([seed, r, 1]).standard_normal((n_poses, 3))
-        jr.write_pose_csv(paths[r], theta[i], exact[i] + noise)
+        write_pose_csv(paths[r], theta[i], exact[i] + noise)
     return paths
 
 
@@ -117,7 +119,7 @@ def run(args, echo) -> dict:
     count = jr.initialize_processes(args.coordinator, args.num_processes, args.process_id)
     import jax
 
-    from jaxrobot._cli import Progress, SolveFailed
+    from jaxrobot.cli import Progress, SolveFailed
 
     from .._pose_files import read_poses
     from ._fleet import calibrate_fleet

@@ -25,10 +25,9 @@ from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
-from jaxrobot._batch import backend_kind
-from jaxrobot._distributed import gather_rows, shard_rows
-from jaxrobot._statics import rest_link_angles
-from jaxrobot._status import RESULTS, check, where
+from jaxrobot import RESULTS, backend_kind, gather_rows, shard_rows
+from jaxrobot.measurement import rest_link_angles
+from jaxrobot.status import check, where
 
 from .._batched_lm import LMConfig, batched_lm, covariance, map_chunks
 from ._calibrate import RESIDUAL_UNIT, _check_array, _residual_fn

@@ -24,7 +24,6 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
-from jaxrobot._kinematics import rot_x, rot_y
 
 from ._parameters import ParameterMap, parse_name
 
@@ -61,21 +60,39 @@ def _rows(m: Float[Array, "3 3"]) -> Mat:
     return [[m[i, k] for k in range(3)] for i in range(3)]
 
 
+def _alpha_beta(robot: jr.Robot) -> Mat:
+    """`Rx(alpha) Ry(beta)` of every joint (per robot, not per pose), entries (..., n)."""
+    ca, sa, cb, sb = (f(x) for x in (robot.alpha, robot.beta) for f in (jnp.cos, jnp.sin))
+    return [[cb, jnp.zeros_like(cb), sb], [sa * sb, ca, -sa * cb], [-ca * sb, sa, ca * cb]]
+
+
+def _joint_step(rot: Mat, pos: list[Array], c, s, a, d, xy: Mat):
+    """Frame i from frame i-1 (eq. 2.2-2.3, `H = Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`, `c`, `s` of
+    `q + offset`): the new rotation and origin, and the z axis of frame i-1 and its x axis after `Rz`."""
+    z = [rot[k][2] for k in range(3)]
+    x1 = [c * rot[k][0] + s * rot[k][1] for k in range(3)]
+    rz_xy = [[c * xy[0][k] - s * xy[1][k] for k in range(3)], [s * xy[0][k] + c * xy[1][k] for k in range(3)], xy[2]]
+    return _mm(rot, rz_xy), [pos[k] + a * x1[k] + d * z[k] for k in range(3)], z, x1
+
+
+def _tool_marker(robot: jr.Robot, rot: Mat, pos: list[Array], marker) -> tuple[list[Array], Mat]:
+    """Marker position and rotation from the flange frame `rot`, `pos` (eq. 2.4 and the tool)."""
+    pos = _add(pos, _mv(rot, [robot.tool[..., i, 3] for i in range(3)]))
+    rot = _mm(rot, [[robot.tool[..., i, k] for k in range(3)] for i in range(3)])
+    return _add(pos, _mv(rot, [marker[i] for i in range(3)])), rot
+
+
 def marker_pose_one(robot: jr.Robot, q: Float[Array, " n"], marker: Float[Array, " 3"]
                     ) -> tuple[Float[Array, " 3"], Float[Array, "3 3"]]:
-    """Marker position and rotation of one pose (eq. 2.2-2.4, `H = Rz(q + offset) Tx(a) Tz(d) Rx(alpha)
-    Ry(beta)`), the same as `jaxrobot._bench_poses.marker_pose`."""
+    """Marker position and rotation of one pose, the same as `jaxrobot.measurement.marker_pose`
+    (unrolled over the joints: the whole chain fuses into a few loops over the poses)."""
     rot, pos = _rows(robot.base[:3, :3]), [robot.base[i, 3] for i in range(3)]
     c, s = jnp.cos(q + robot.offset), jnp.sin(q + robot.offset)
+    xy = _alpha_beta(robot)
     for i in range(robot.n_joints):
-        xy = _rows(rot_x(robot.alpha[i]) @ rot_y(robot.beta[i]))  # per robot, not per pose
-        rz_xy = [[c[i] * xy[0][k] - s[i] * xy[1][k] for k in range(3)],
-                 [s[i] * xy[0][k] + c[i] * xy[1][k] for k in range(3)], xy[2]]
-        pos = _add(pos, _mv(rot, [c[i] * robot.a[i], s[i] * robot.a[i], robot.d[i]]))
-        rot = _mm(rot, rz_xy)
-    pos = _add(pos, _mv(rot, [robot.tool[i, 3] for i in range(3)]))
-    rot = _mm(rot, _rows(robot.tool[:3, :3]))
-    pos = _add(pos, _mv(rot, [marker[i] for i in range(3)]))
+        rot, pos, _, _ = _joint_step(rot, pos, c[i], s[i], robot.a[i], robot.d[i],
+                                     [[e[i] for e in row] for row in xy])
+    pos, rot = _tool_marker(robot, rot, pos, marker)
     return jnp.stack(pos), jnp.stack([jnp.stack(r) for r in rot])
 
 
@@ -146,29 +163,21 @@ def position_jacobian(
     batch = jnp.broadcast_shapes(q.shape[:-1], robot.a.shape[:-1])
     joint_first = lambda f: jnp.moveaxis(f, -1, 0)  # noqa: E731  (*b, n) -> (n, *b)
     ang = joint_first(q + robot.offset)
-    ca, sa, cb, sb = (joint_first(f(x)) for x in (robot.alpha, robot.beta) for f in (jnp.cos, jnp.sin))
-    # Rx(alpha) Ry(beta) entries, row by row
-    xy = [[cb, jnp.zeros_like(cb), sb], [sa * sb, ca, -sa * cb], [-ca * sb, sa, ca * cb]]
+    xy = [[joint_first(e) for e in row] for row in _alpha_beta(robot)]
     xs = (jnp.cos(ang), jnp.sin(ang), joint_first(robot.a), joint_first(robot.d), xy)
 
     def step(frame, x):
         rot, pos = frame
         c, s, a, d, xy = x
-        z = [rot[k][2] for k in range(3)]
-        x1 = [c * rot[k][0] + s * rot[k][1] for k in range(3)]
         y2 = _mv(rot, [-s * xy[1][1], c * xy[1][1], xy[2][1]])  # Rz (0, cos alpha, sin alpha)
-        pos_new = [pos[k] + a * x1[k] + d * z[k] for k in range(3)]
-        rz_xy = [[c * xy[0][k] - s * xy[1][k] for k in range(3)],
-                 [s * xy[0][k] + c * xy[1][k] for k in range(3)], xy[2]]
-        return (_mm(rot, rz_xy), pos_new), (z, x1, y2, pos, pos_new)
+        rot_new, pos_new, z, x1 = _joint_step(rot, pos, c, s, a, d, xy)
+        return (rot_new, pos_new), (z, x1, y2, pos, pos_new)
 
     full = lambda x: jnp.broadcast_to(x, batch)  # noqa: E731
     frame0 = ([[full(robot.base[..., i, k]) for k in range(3)] for i in range(3)],
               [full(robot.base[..., i, 3]) for i in range(3)])
     (rot, pos), (z, x1, y2, o_prev, o) = jax.lax.scan(step, frame0, xs)
-    pos = _add(pos, _mv(rot, [robot.tool[..., i, 3] for i in range(3)]))
-    rot = _mm(rot, [[robot.tool[..., i, k] for k in range(3)] for i in range(3)])
-    p = _add(pos, _mv(rot, [marker[i] for i in range(3)]))
+    p, _ = _tool_marker(robot, rot, pos, marker)
     cols = []
     for name in params.names:
         field, j = parse_name(name)

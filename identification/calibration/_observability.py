@@ -10,7 +10,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from jaxrobot._linalg import map_matrices
+from jaxrobot.linalg import map_matrices
 
 
 def observability_indices(

@@ -16,7 +16,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
-from jaxrobot._kinematics import homogeneous, rot_x, rot_y, rot_z
+from jaxrobot import rotation_error as rotation_error  # re-exported until _calibrate imports it from jaxrobot
+from jaxrobot.measurement import marker_pose, rest_link_angles
 
 JOINT_FIELDS = ("a", "d", "alpha", "beta", "offset")
 FRAME_FIELDS = ("x", "y", "z", "rx", "ry", "rz")
@@ -63,15 +64,6 @@ def unit(name: str) -> str:
     return UNITS[comp if isinstance(comp, str) else field]
 
 
-def _frame_vector(t: Float[Array, "*b 4 4"]) -> Float[Array, "*b 6"]:
-    return jnp.concatenate([t[..., :3, 3], jr.rpy(t[..., :3, :3])], -1)
-
-
-def _frame_matrix(v: Float[Array, "*b 6"]) -> Float[Array, "*b 4 4"]:
-    r = rot_z(v[..., 5]) @ rot_y(v[..., 4]) @ rot_x(v[..., 3])
-    return homogeneous(r, v[..., :3])
-
-
 class ParameterMap(eqx.Module):
     """Which parameters are free, and their order in the flat vector (static: safe under jit).
 
@@ -102,7 +94,7 @@ class ParameterMap(eqx.Module):
     def get(self, robot: jr.Robot) -> Float[Array, "*b m"]:
         check_joints(self.names, robot)
         used = {parse_name(n)[0] for n in self.names}
-        frames = {k: _frame_vector(getattr(robot, k)) for k in ("tool", "base") if k in used}
+        frames = {k: jr.pose_vector(getattr(robot, k)) for k in ("tool", "base") if k in used}
         out = []
         for n in self.names:
             field, comp = parse_name(n)
@@ -119,7 +111,7 @@ class ParameterMap(eqx.Module):
             field, comp = parse_name(n)
             if field in ("tool", "base"):
                 if field not in upd:
-                    upd[field] = _frame_vector(getattr(robot, field))
+                    upd[field] = jr.pose_vector(getattr(robot, field))
                 upd[field] = upd[field].at[..., FRAME_FIELDS.index(comp)].set(v[..., k])
             else:
                 if field not in upd:
@@ -127,7 +119,7 @@ class ParameterMap(eqx.Module):
                 upd[field] = upd[field].at[..., comp].set(v[..., k])
         for field in ("tool", "base"):
             if field in upd:
-                upd[field] = _frame_matrix(upd[field])
+                upd[field] = jr.pose_matrix(upd[field])
         keys = tuple(upd)
         return eqx.tree_at(lambda r: tuple(getattr(r, k) for k in keys), robot, tuple(upd[k] for k in keys))
 
@@ -152,8 +144,6 @@ def rest_deflection(
     the kinematic deviations only through `g(q)`, a relative effect of ~1e-4 on a deflection of
     ~1e-4 rad (~1e-8 rad, far below the tracker noise).
     """
-    from jaxrobot._statics import rest_link_angles
-
     return rest_link_angles(robot, theta, ccw, throw=False) - jr.gear_output(robot, theta, ccw)
 
 
@@ -169,14 +159,5 @@ def predict_pose(
     `phi = Xi^{-1}(theta)` (`theta/u0` on the gears without ripple),
     `q = phi + deflection`, then the direct kinematics (eq. 2.4) and the marker offset.
     """
-    from jaxrobot._bench_poses import marker_pose
-
     q = jr.gear_output(robot, theta, ccw) + deflection
     return marker_pose(robot, q, marker)
-
-
-def rotation_error(r_meas: Float[Array, "*b 3 3"], r_model: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
-    """Small-angle rotation vector of `r_meas^T r_model` (rad; exact to second order)."""
-    e = jnp.einsum("...ji,...jk->...ik", r_meas, r_model)
-    return 0.5 * jnp.stack([e[..., 2, 1] - e[..., 1, 2], e[..., 0, 2] - e[..., 2, 0],
-                            e[..., 1, 0] - e[..., 0, 1]], -1)

@@ -18,11 +18,12 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
-from jaxrobot._linalg import map_matrices
-from jaxrobot._program_cache import cached_program
+from jaxrobot import cached_program
+from jaxrobot.linalg import map_matrices
+from jaxrobot.measurement import marker_pose
 
 from ._observability import observability_indices, singular_values_from_gram
-from ._parameters import ParameterMap, predict_pose, rotation_error
+from ._parameters import ParameterMap, predict_pose
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,8 +54,6 @@ def default_marker() -> np.ndarray:
 
 @eqx.filter_jit
 def _feasible(robot: jr.Robot, q: Float[Array, "N n"], marker, margin, z_min, min_sigma):
-    from jaxrobot._bench_poses import marker_pose
-
     inside = jnp.all((q >= robot.q_min + margin) & (q <= robot.q_max - margin), -1)
     z = marker_pose(robot, q, marker)[0][..., 2]
     smin = map_matrices(lambda j: jnp.linalg.svd(j, compute_uv=False), jr.geometric_jacobian(robot, q))[..., -1]
@@ -114,7 +113,7 @@ def _pose_jacobians(robot, params: ParameterMap, q, marker, ccw):
     def model(v, th, de):
         p, r = predict_pose(params.set(robot, v), th, de, marker, ccw)
         r0 = jax.lax.stop_gradient(predict_pose(robot, th, de, marker, ccw)[1])
-        return jnp.concatenate([p, rotation_error(r0, r)])
+        return jnp.concatenate([p, jr.rotation_error(r0, r)])
 
     return jax.vmap(jax.jacfwd(model), in_axes=(None, 0, 0))(v0, theta, defl)
 

@@ -1,6 +1,6 @@
 """Finding the effect that explains a gap between model and measurement (`diagnose`, the effect catalogue)."""
 
-from jaxrobot._checks import check_public as _check_public
+from jaxrobot.checks import check_public as _check_public
 
 from ._diagnose import AddedEffect as AddedEffect
 from ._diagnose import CandidateScore as CandidateScore

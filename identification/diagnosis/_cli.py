@@ -14,7 +14,7 @@ EXAMPLE = "jaxrobot diagnose --model start.toml train.csv --validate val.csv --o
 def configure(parser) -> None:
     parser.add_argument("poses", type=Path, nargs="+", help="training pose CSV files (README, 'Measurement files')")
     parser.add_argument("--validate", type=Path, nargs="+", required=True, help="held-out validation pose CSV files")
-    from jaxrobot._cli import add_model_option
+    from jaxrobot.cli import add_model_option
 
     add_model_option(parser, "start robot description (default: the embedded Racer-7, nominal)")
     parser.add_argument("--save-model", type=Path, default=None, help="write the augmented robot (TOML)")
@@ -37,7 +37,7 @@ def _poses(paths, approach: str):
 
 def run(args, echo) -> dict:
     import jaxrobot as jr
-    from jaxrobot._cli import Progress
+    from jaxrobot.cli import Progress
 
     from ._diagnose import diagnose
     from ._report import loop_table, progress_lines, summary, write_outputs

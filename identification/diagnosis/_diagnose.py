@@ -33,7 +33,7 @@ from jax.scipy.special import gammaincc
 from jaxtyping import Array
 
 import jaxrobot as jr
-from jaxrobot._statics import approach_sign
+from jaxrobot.measurement import approach_directions, approach_sign
 
 from .._pose_files import check_pose_units
 from ..gear._fit import chi2_quantile
@@ -80,7 +80,7 @@ class Poses:
             ccw = np.asarray(ccw, bool)
         else:
             ccw = approach_ccw(th, approach)
-        return cls(th, pos, ccw, np.asarray(jr.approach_directions(th)))
+        return cls(th, pos, ccw, np.asarray(approach_directions(th)))
 
     @classmethod
     def concatenate(cls, parts: list[Poses]) -> Poses:
@@ -124,7 +124,7 @@ class LoopRow:
 @dataclasses.dataclass(frozen=True)
 class CandidateScore:
     """One candidate of a step: BIC linearised (all) and after its LM fit (the shortlist: `bic`,
-    residual RMS norms [m], optimistix status index and steps; None otherwise); `selected`: added."""
+    residual RMS norms [m], status name (`jaxrobot.RESULTS`) and steps; None otherwise); `selected`: added."""
 
     candidate: str
     bic_linearised: float

@@ -20,7 +20,6 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
-from jaxrobot._kinematics import homogeneous, rot_x, rot_y, rot_z
 
 from ..calibration._parameters import parse_name
 
@@ -214,7 +213,7 @@ class BaseOffset(Effect):
     units = ("m",) * 3 + ("rad",) * 3
 
     def apply(self, robot, v, orders):
-        t = homogeneous(rot_z(v[5]) @ rot_y(v[4]) @ rot_x(v[3]), v[:3])
+        t = jr.pose_matrix(v)
         return _robot_at(robot, ("base",), (t @ robot.base,))
 
 

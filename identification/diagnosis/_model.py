@@ -20,8 +20,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
 import jaxrobot as jr
-from jaxrobot._bench_poses import marker_pose
-from jaxrobot._statics import approach_sign
+from jaxrobot.measurement import lost_motion, marker_pose, rest_iterations
 
 from ._effects import Layout
 
@@ -39,9 +38,8 @@ def rest_angles(
     ccw, ccw_order = ccw
     phi = jr.gear_output(robot, theta, ccw)
     phi = phi + approach * (jr.gear_output(robot, theta, ccw_order) - phi)
-    phi = phi - 0.5 * robot.backlash * approach_sign(ccw)
-    step = lambda _, q: phi - jr.elastic_deflection(robot, jr.gravity_torque(robot, q))
-    return jax.lax.fori_loop(0, iterations, step, phi if q0 is None else q0)
+    phi = phi - lost_motion(robot, ccw)
+    return rest_iterations(robot, phi, iterations, q0)
 
 
 class Functions(eqx.Module):

@@ -21,7 +21,7 @@ def configure(parser) -> None:
     parser.add_argument("runs", nargs="+", type=Path, help="gear-run CSV files used for identification")
     parser.add_argument("--validate", nargs="+", type=Path, default=[], metavar="RUNS",
                         help="gear-run CSV files used for validation only")
-    from jaxrobot._cli import add_model_option
+    from jaxrobot.cli import add_model_option
 
     add_model_option(parser, "robot description (TOML, racer7.toml format; default: the embedded Racer-7)",
                      dest="robot")
@@ -33,7 +33,7 @@ def configure(parser) -> None:
 
 
 def _cutoffs(desc: dict) -> dict[int, float]:
-    from jaxrobot._description import filter_cutoffs
+    from jaxrobot import filter_cutoffs
 
     if "gear" not in desc:
         raise ValueError("robot description: a [gear] section (basic ratios u0) is needed for gear identification")
@@ -64,7 +64,8 @@ def _echo_result(res, echo) -> None:
 
 def run(args, echo) -> dict:
     import jaxrobot as jr
-    from jaxrobot._cli import Progress
+    from jaxrobot import bench
+    from jaxrobot.cli import Progress
 
     from ._fit import identify_gear
     from ._report import summary, write_report
@@ -75,8 +76,8 @@ def run(args, echo) -> dict:
     for p in [*args.runs, *args.validate]:
         if not p.is_file():
             raise FileNotFoundError(f"gear-run file not found: {p}")
-    runs = [jr.read_gear_run(p) for p in args.runs]
-    val = [jr.read_gear_run(p) for p in args.validate]
+    runs = [bench.read_gear_run(p) for p in args.runs]
+    val = [bench.read_gear_run(p) for p in args.validate]
     progress.step(f"read {len(runs)} + {len(val)} runs")
     res = identify_gear(robot, runs, val, _cutoffs(desc), method=args.method,
                         names=[str(p) for p in args.runs], validation_names=[str(p) for p in args.validate])
@@ -98,14 +99,15 @@ def bench_runs(seed: int = 0, repetitions: dict | None = None) -> tuple[list, li
     """Bench runs of joints 1-3 of the as-built Racer-7: identification runs and validation runs
     (same speed, then the other speed), as `(t, theta, gyro)` tuples, with names."""
     import jaxrobot as jr
+    from jaxrobot import bench
 
     reps = dict(DEMO_REPETITIONS, **(repetitions or {}))
     truth = jr.racer7(as_built=True)
     ident, val, ident_names, val_names = [], [], [], []
     for joint in (1, 2, 3):
-        speed = jr.GEAR_RUN_DEFAULTS[joint]["motor_speed_deg_s"]
-        slow = jr.GEAR_RUN_DEFAULTS[joint]["validation_speed_deg_s"]
-        same = jr.gear_runs(truth, joint, repetitions=reps["identification"] + reps["validation"],
+        speed = bench.GEAR_RUN_DEFAULTS[joint]["motor_speed_deg_s"]
+        slow = bench.GEAR_RUN_DEFAULTS[joint]["validation_speed_deg_s"]
+        same = bench.gear_runs(truth, joint, repetitions=reps["identification"] + reps["validation"],
                             seed=seed * 100 + joint)
         for k, ccw in enumerate(same.ccw):
             rep = k % (reps["identification"] + reps["validation"])
@@ -114,7 +116,7 @@ def bench_runs(seed: int = 0, repetitions: dict | None = None) -> tuple[list, li
             target[0].append((same.t, same.theta[k], same.gyro[k]))
             target[1].append(name)
         if reps["other_speed"] > 0:
-            other = jr.gear_runs(truth, joint, repetitions=reps["other_speed"], motor_speed_deg_s=slow,
+            other = bench.gear_runs(truth, joint, repetitions=reps["other_speed"], motor_speed_deg_s=slow,
                                  seed=seed * 100 + 10 + joint)
             for k, ccw in enumerate(other.ccw):
                 val.append((other.t, other.theta[k], other.gyro[k]))
@@ -125,6 +127,7 @@ def bench_runs(seed: int = 0, repetitions: dict | None = None) -> tuple[list, li
 def demo_stage(out: Path, echo) -> dict:
     """Bench runs of joints 1-3 -> identification -> validation -> tables and plots in `out`."""
     import jaxrobot as jr
+    from jaxrobot import bench
 
     from ._fit import identify_gear
     from ._report import summary, write_report
@@ -134,7 +137,7 @@ def demo_stage(out: Path, echo) -> dict:
     echo(f"bench: {len(ident)} identification and {len(val)} validation runs of joints 1-3 "
          f"({time.perf_counter() - start:.1f} s)")
     sample = out / "gear_run_example.csv"
-    jr.write_gear_run(sample, *ident[0])
+    bench.write_gear_run(sample, *ident[0])
     res = identify_gear(jr.racer7(), ident, val, names=ident_names, validation_names=val_names)
     _echo_result(res, echo)
     files = write_report(res, out)

@@ -20,12 +20,18 @@ import numpy as np
 from jax.scipy.special import betainc, gammaincc
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxrobot import RESULTS, Ripple, Robot, read_description, status_message
-from jaxrobot._description import filter_cutoffs
-from jaxrobot._gear import ratio as gear_ratio
-from jaxrobot._gear import xi_inverse
-from jaxrobot._linalg import map_matrices
-from jaxrobot._program_cache import cached_program
+from jaxrobot import (
+    RESULTS,
+    Ripple,
+    Robot,
+    cached_program,
+    filter_cutoffs,
+    fourier_ratio,
+    fourier_xi_inverse,
+    read_description,
+    status_message,
+)
+from jaxrobot.linalg import map_matrices
 
 from ._frequencies import fft_orders, group_samples, sparse_orders
 from ._processing import (
@@ -123,7 +129,8 @@ def fit_gear_ratio(
 
     def solve(params):
         u0, a, b = params
-        phi = xi_inverse(u0[group][:, None], run_orders[:, None], a[group][:, None], b[group][:, None], proc.theta)
+        phi = fourier_xi_inverse(u0[group][:, None], run_orders[:, None], a[group][:, None], b[group][:, None],
+                                 proc.theta)
         x_raw = jax.vmap(_design)(phi, proc.phid, run_orders)
         x_f = filt(x_raw, batch.valid, kernels) * weight[..., None]
         y = proc.thetad_f * weight
@@ -176,8 +183,8 @@ def kinematic_errors(proc: ProcessedRuns, batch: GearBatch, fit: GearFit, group:
     group (validation runs: groups from the identification runs of the same joint/direction)."""
     kernels = jax.vmap(gaussian_kernel, in_axes=(0, 0, None))(batch.sigma, batch.ts, batch.half_width)
     fourier = [v[group][:, None] for v in (fit.u0, fit.orders, fit.a, fit.b)]  # broadcast over the samples
-    phi = xi_inverse(*fourier, proc.theta)
-    ratio = gear_ratio(*fourier, phi)
+    phi = fourier_xi_inverse(*fourier, proc.theta)
+    ratio = fourier_ratio(*fourier, phi)
     u0 = fit.u0[group]
     comp = jax.vmap(gaussian_filter)(proc.thetad / ratio, batch.valid, kernels)
     before = proc.thetad_f / u0[:, None] - proc.phid_f
@@ -511,7 +518,7 @@ def identify_gear(
     for _ in range(SEARCH_PASSES):
         if orders_sparse is not None:  # search again on phi = Xi^{-1}(theta) of the orders found
             first = fit_orders(orders_sparse)
-            phi = xi_inverse(*(v[gj][:, None] for v in (first.u0, first.orders, first.a, first.b)), proc.theta)
+            phi = fourier_xi_inverse(*(v[gj][:, None] for v in (first.u0, first.orders, first.a, first.b)), proc.theta)
             samples = group_samples(proc, batch, group, fit_run, n_groups, u0_run, phi)
         sparse, cv = sparse_orders(samples, jnp.asarray(max_order), keep_all=select == "all")
         sparse = np.asarray(sparse)

@@ -25,11 +25,9 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxrobot import RESULTS, Ripple, Robot
-from jaxrobot._bench_gear import mount_angular_velocity, quasi_static_link_angles
-from jaxrobot._kinematics import rot_x, rot_y
-from jaxrobot._linalg import map_matrices
-from jaxrobot._program_cache import cached_program
+from jaxrobot import RESULTS, Ripple, Robot, cached_program
+from jaxrobot.linalg import map_matrices
+from jaxrobot.measurement import mount_angular_velocity, quasi_static_link_angles, sensor_rotation
 
 MOVE_THRESHOLD_RAD = math.radians(1.0)
 """A joint moves in a run if its motor angle spans more than this [rad, motor side]."""
@@ -325,11 +323,6 @@ def central_rate(x: Float[Array, " N"], ts: Float[Array, ""]) -> Float[Array, " 
     return jnp.concatenate([(x[1:2] - x[:1]) / ts, mid, (x[-1:] - x[-2:-1]) / ts])
 
 
-def alignment_rotation(angles: Float[Array, "*b 2"]) -> Float[Array, "*b 3 3"]:
-    """`R_x(alpha) R_y(beta)` of eq. 3.3."""
-    return rot_x(angles[..., 0]) @ rot_y(angles[..., 1])
-
-
 def _link_rate_factor(robot: Robot, theta: Float[Array, " n"], joint: Int[Array, ""]) -> Float[Array, ""]:
     """Angular velocity of the moving link about its joint axis per unit motor rate of that joint,
     for the quasi-static model (gravity deflection of all joints included, no ripple)."""
@@ -415,7 +408,7 @@ def process_gear_runs(robot: Robot, batch: GearBatch) -> ProcessedRuns:
     w_sub, mask_sub, joint = gyro_f[sub], (batch.segment & batch.align[:, None])[sub], batch.joint
 
     def residual(angles, _):
-        rot = alignment_rotation(angles)[joint]  # (R, 3, 3)
+        rot = sensor_rotation(angles)[joint]  # (R, 3, 3)
         aligned = jnp.einsum("rij,rnj->rni", rot, w_sub)
         r = jnp.linalg.norm(w_sub, axis=-1) * jnp.sign(w_sub[..., 2])
         res = (r[..., None] * jnp.array([0.0, 0.0, 1.0]) - aligned) * mask_sub[..., None]
@@ -424,7 +417,7 @@ def process_gear_runs(robot: Robot, batch: GearBatch) -> ProcessedRuns:
     solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12, linear_solver=lx.Normal(lx.Cholesky()))
     sol = optx.least_squares(residual, solver, jnp.zeros((robot.n_joints, 2)), max_steps=64, throw=False)
     angles = sol.value
-    rot = alignment_rotation(angles)[joint]
+    rot = sensor_rotation(angles)[joint]
     gyro_z = jnp.einsum("rj,rnj->rn", rot[:, 2, :], gyro)
 
     # white-noise variance of the gyroscope from second differences of the aligned rate

@@ -2,7 +2,7 @@
 (thesis 3.2, docs/model.md (3.6)).
 
 The as-built robot rests at commanded motor angles `theta`; its link angles are
-`Xi^{-1}(theta)` plus the gravity deflection (`rest_link_angles`, thesis 3.2.3); the tracker
+`Xi^{-1}(theta)` plus the gravity deflection (`jaxrobot.measurement`, thesis 3.2.3); the tracker
 reports the world position of a marker body fixed in the tool frame (the flange frame for the
 identity tool) with Gaussian noise, and optionally its orientation as a unit quaternion.
 Also: random fleets of as-built robots, and the pose CSV format (README, "Measurement files").
@@ -20,12 +20,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._bench_trajectory import file_joint_count, read_csv_columns, theta_columns
-from ._description import read_description
-from ._kinematics import tool_pose
-from ._program_cache import cached_program
-from ._robot import Robot
-from ._statics import rest_link_angles
+from .._description import read_description
+from .._program_cache import cached_program
+from .._robot import Robot
+from .._rotations import rotation_to_quaternion, rotvec_to_rotation
+from ..measurement._model import measured_pose
+from ._trajectory import file_joint_count, read_csv_columns, theta_columns
 
 ORIENTATION_NOISE_RAD = float(np.deg2rad(0.05))
 """Default std per axis of the tracker's orientation error [rad]: the 0.05 deg camera
@@ -64,55 +64,7 @@ class PoseMeasurements:
     metadata: dict
 
 
-def marker_pose(
-    robot: Robot, q: Float[Array, "*b n"], marker: Float[Array, "*b 3"]
-) -> tuple[Float[Array, "*b 3"], Float[Array, "*b 3 3"]]:
-    """World position and rotation of a marker body at `marker` in the tool frame (eq. 2.4).
-
-    With the identity tool this is `jr.point_position(robot, q, marker)` and the flange rotation.
-    """
-    t = tool_pose(robot, q)
-    r = t[..., :3, :3]
-    return t[..., :3, 3] + jnp.einsum("...ij,...j->...i", r, marker), r
-
-
-def rotation_to_quaternion(r: Float[Array, "*b 3 3"]) -> Float[Array, "*b 4"]:
-    """Unit quaternion (qx, qy, qz, qw), qw >= 0, of a rotation matrix (branch-free Shepperd)."""
-    tr = r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2]
-    cands = jnp.stack([
-        jnp.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1],
-                   1.0 + tr], -1),
-        jnp.stack([1.0 + 2 * r[..., 0, 0] - tr, r[..., 0, 1] + r[..., 1, 0], r[..., 0, 2] + r[..., 2, 0],
-                   r[..., 2, 1] - r[..., 1, 2]], -1),
-        jnp.stack([r[..., 0, 1] + r[..., 1, 0], 1.0 + 2 * r[..., 1, 1] - tr, r[..., 1, 2] + r[..., 2, 1],
-                   r[..., 0, 2] - r[..., 2, 0]], -1),
-        jnp.stack([r[..., 0, 2] + r[..., 2, 0], r[..., 1, 2] + r[..., 2, 1], 1.0 + 2 * r[..., 2, 2] - tr,
-                   r[..., 1, 0] - r[..., 0, 1]], -1),
-    ], -2)  # each row is 4 * q_k * q, largest for the largest |q_k|
-    diag = jnp.stack([1.0 + tr, 1.0 + 2 * r[..., 0, 0] - tr, 1.0 + 2 * r[..., 1, 1] - tr,
-                      1.0 + 2 * r[..., 2, 2] - tr], -1)
-    best = jnp.argmax(diag, -1)
-    q = jnp.take_along_axis(cands, best[..., None, None], -2)[..., 0, :]
-    q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
-    return q * jnp.where(q[..., 3:] < 0, -1.0, 1.0)
-
-
-def quaternion_to_rotation(quat: Float[Array, "*b 4"]) -> Float[Array, "*b 3 3"]:
-    """Rotation matrix of a quaternion (qx, qy, qz, qw); the quaternion is normalised first."""
-    quat = quat / jnp.linalg.norm(quat, axis=-1, keepdims=True)
-    x, y, z, w = (quat[..., i] for i in range(4))
-    return jnp.stack([
-        jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        jnp.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        jnp.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
-
-
-def _rotvec_to_matrix(w: Float[Array, "*b 3"]) -> Float[Array, "*b 3 3"]:
-    angle = jnp.linalg.norm(w, axis=-1)
-    half = 0.5 * angle
-    scale = jnp.where(angle > 0, jnp.sin(half) / jnp.where(angle > 0, angle, 1.0), 0.5)
-    return quaternion_to_rotation(jnp.concatenate([w * scale[..., None], jnp.cos(half)[..., None]], -1))
+_measure = cached_program(filter=True)(measured_pose)
 
 
 def _fleet_axes(robot: Robot) -> tuple[int, ...]:
@@ -164,19 +116,12 @@ def measure_poses(
     quat = None
     if orientation:
         err = orientation_noise * jax.random.normal(key_r, p.shape)
-        quat = np.asarray(rotation_to_quaternion(r @ _rotvec_to_matrix(err)))
+        quat = np.asarray(rotation_to_quaternion(r @ rotvec_to_rotation(err)))
     meta = {"seed": seed, "position_noise_m": sigma,
             "orientation_noise_rad": orientation_noise if orientation else None,
             "marker_offset_m": marker.tolist(), "ccw": np.asarray(ccw).tolist(),
             "robot": truth.name}
     return PoseMeasurements(np.asarray(theta), np.asarray(noisy), quat, np.asarray(q), np.asarray(p), meta)
-
-
-@cached_program(filter=True)
-def _measure(robot, theta, marker, ccw):
-    q = rest_link_angles(robot, theta, ccw)
-    p, r = marker_pose(robot, q, marker)
-    return q, p, r
 
 
 def draw_fleet(
@@ -199,7 +144,7 @@ def draw_fleet(
     """
     data = read_description(None)
     if robot is None:
-        from ._description import racer7
+        from .._description import racer7
 
         robot = racer7()
     dev = data["as_built"]

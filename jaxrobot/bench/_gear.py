@@ -5,11 +5,12 @@ One joint turns at a constant motor speed over its usable range, with cycloidal 
 ramps at both ends and short rests before and after; the other joints hold a fixed
 configuration. The motor follows the commanded angle exactly; the link angles are the
 quasi-static rest angles of the as-built robot, `q = phi - kappa^{-1}(g(q))` with
-`phi = Xi^{-1}(theta)` (as `rest_link_angles`), where the moving gear uses the ripple set of its
-direction (`cw` for a positive, `ccw` for a negative motor speed). The 20-bit motor encoders
-are sampled at 1 kHz; a 3-axis gyroscope on the moving link measures the link's angular
-velocity in a frame misaligned from the joint axis by `Rx(alpha) Ry(beta)` (eq. 3.3), with
-white noise and a small constant bias. Also: the gear-run CSV format (README, "Measurement files").
+`phi = Xi^{-1}(theta)` (`jaxrobot.measurement.quasi_static_link_angles`), where the moving gear
+uses the ripple set of its direction (`cw` for a positive, `ccw` for a negative motor speed). The
+20-bit motor encoders are sampled at 1 kHz; a 3-axis gyroscope on the moving link measures the
+link's angular velocity in a frame misaligned from the joint axis by `Rx(alpha) Ry(beta)` (eq. 3.3,
+`jaxrobot.measurement.sensor_rotation`), with white noise and a small constant bias. Also: the
+gear-run CSV format (README, "Measurement files").
 """
 
 from __future__ import annotations
@@ -22,16 +23,15 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Float
 
-from ._bench_trajectory import file_joint_count, read_csv_columns, theta_columns
-from ._description import read_description
-from ._dynamics import gravity_torque
-from ._elasticity import elastic_deflection
-from ._gear import gear_output, gear_ratio
-from ._kinematics import link_frames, rot_x, rot_y, rot_z
-from ._program_cache import cached_program
-from ._robot import Robot
+from .._description import read_description
+from .._gear import gear_output, gear_ratio
+from .._program_cache import cached_program
+from .._robot import Robot
+from ..measurement._gyroscope import mount_angular_velocity, sensor_rotation
+from ..measurement._model import quasi_static_link_angles
+from ._trajectory import file_joint_count, read_csv_columns, theta_columns
 
 
 def gear_run_columns(n: int) -> tuple[str, ...]:
@@ -83,24 +83,6 @@ class GearRuns:
     metadata: dict
 
 
-def mount_angular_velocity(
-    robot: Robot, q: Float[Array, " n"], qd: Float[Array, " n"], joint: Int[Array, ""] | int
-) -> Float[Array, "3"]:
-    """Angular velocity of the link after `joint` (0-based) in its ideal gyroscope frame: frame
-    `joint - 1` (the base frame for joint 0) turned by `Rz(q_joint + offset_joint)`, whose z-axis is
-    the joint axis. `omega = sum_{j <= joint} qd_j z_{j-1}` (world), rotated into that frame.
-    Works with a traced `joint`."""
-    frames = link_frames(robot, q)[:, :3, :3]
-    prev = jnp.concatenate([robot.base[None, :3, :3], frames[:-1]], 0)
-    omega_world = jnp.sum(jnp.where(jnp.arange(qd.shape[-1]) <= joint, qd, 0.0)[:, None] * prev[:, :, 2], 0)
-    return (prev[joint] @ rot_z(q[joint] + robot.offset[joint])).T @ omega_world
-
-
-def sensor_rotation(misalignment: Float[Array, "2"]) -> Float[Array, "3 3"]:
-    """`Rx(alpha) Ry(beta)`: maps gyroscope-frame vectors into the ideal frame (eq. 3.3)."""
-    return rot_x(misalignment[0]) @ rot_y(misalignment[1])
-
-
 def motion_profile(
     t: Float[Array, " N"], speed: float, travel: float, ramp: float, rest: float
 ) -> Float[Array, " N"]:
@@ -123,26 +105,8 @@ def motion_profile(
     return jnp.sign(speed) * x
 
 
-FIXED_POINT_STEPS = 6
-"""Iterations of `q = phi - kappa^{-1}(g(q))` from `q = phi`; the map contracts by
-`|dg/dq| / kappa' < 3e-3` per step on the Racer-7, so 6 steps reach float64 precision (the
-same fixed point as `rest_link_angles`, unrolled so that `jvp` through it stays cheap)."""
-
 CHUNK = 2048
 """Samples per compiled call of the bench (one compilation serves every run length)."""
-
-
-def quasi_static_link_angles(
-    robot: Robot, theta: Float[Array, " n"], ccw: Bool[Array, " n"]
-) -> Float[Array, " n"]:
-    """Link angles at rest at motor angles `theta`: the fixed point of
-    `q = Xi^{-1}(theta) - kappa^{-1}(g(q))` (docs/model.md (B.2)), differentiable."""
-    phi = gear_output(robot, theta, ccw)
-
-    def step(_, q):
-        return phi - elastic_deflection(robot, gravity_torque(robot, q))
-
-    return jax.lax.fori_loop(0, FIXED_POINT_STEPS, step, phi)
 
 
 KNOT_STEP = 16

@@ -12,10 +12,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._description import read_description
-from ._kinematics import point_position
-from ._robot import Robot
-from ._simulate import simulate
+from .._description import read_description
+from .._kinematics import point_position
+from .._robot import Robot
+from .._simulate import simulate
 
 
 def theta_columns(n: int) -> list[str]:

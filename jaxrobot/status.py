@@ -1,0 +1,6 @@
+"""What a solver needs besides `jaxrobot.RESULTS` (`jaxrobot._status`): `check` raises a status's
+message for `throw=True` (also under `jit`), `where` and `full` select and broadcast statuses."""
+
+from ._status import check as check
+from ._status import full as full
+from ._status import where as where
