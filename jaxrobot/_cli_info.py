@@ -160,7 +160,7 @@ def _move_error(qa, qb, duration, q, t):
 def stage(out: Path, echo) -> dict:
     """Demo stage 1: the model, and the flat inverse tracking a joint move on the simulated plant."""
     from ._description import racer7
-    from ._statics import rest_link_angles
+    from .measurement._model import rest_link_angles
 
     robot = racer7()
     info = _report(robot, echo)

@@ -21,6 +21,7 @@ from jaxtyping import Array, Float
 
 import jaxrobot as jr
 from jaxrobot import cached_program
+from jaxrobot.measurement import rest_link_angles
 
 from ._ik import JointPath, taylor_joint_path
 from ._trajectories import sample_path
@@ -142,7 +143,7 @@ def _run(plant, t, p_d, r_d, traj, q0, extra, substeps, directional):
     return q, jnp.linalg.norm(pose[:, :3, 3] - p_d, axis=-1), _orientation_angle(r_d, pose[:, :3, :3])
 
 
-_rest = jax.jit(jr.rest_link_angles)
+_rest = jax.jit(rest_link_angles)
 _run_jit = cached_program(_run, static_argnames=("extra", "substeps", "directional"))
 
 
