@@ -94,8 +94,8 @@ def measure_poses(
       rotated by a random rotation vector with this std per axis [rad].
     - `ccw`: gear set of the last approach direction (default `cw`, docs/model.md (B.1)).
 
-    **Returns:** `PoseMeasurements` (plain numpy arrays plus metadata). Link angles are NaN where
-    the rest fixed point failed (never for the default robot).
+    **Returns:** `PoseMeasurements` (plain numpy arrays plus metadata). Raises the status message
+    where the rest fixed point failed (`jaxrobot.measurement.rest_link_angles`; never for the default robot).
     """
     sensors = read_description(None)["sensors"]
     marker = np.asarray(sensors["tracker_marker_offset_m"] if marker is None else marker, float)
