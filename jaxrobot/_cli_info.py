@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._program_cache import cached_program
+from ._status import require_successful
 
 HELP = "summarise a robot: parameters, home pose, static deflection, eigenfrequencies"
 EXAMPLE = "jaxrobot info --model arm.toml --as-built --out info"
@@ -46,20 +47,20 @@ def _numbers(robot, q, elastic: tuple[int, ...]):
     from ._gear import motor_angle
     from ._kinematics import forward_kinematics
     from ._linalg import map_matrices
-    from .measurement._model import rest_link_angles
+    from .measurement._model import rest_solution
 
-    q_rest = rest_link_angles(robot, motor_angle(robot, q))  # rigid command theta = Xi(q)
+    q_rest, result = rest_solution(robot, motor_angle(robot, q))  # rigid command theta = Xi(q)
     p = forward_kinematics(robot, jnp.concatenate([q_rest, q]))[..., :3, 3]
     sag = jnp.linalg.norm(p[: len(q)] - p[len(q):], axis=-1)
     home = forward_kinematics(robot, jnp.zeros(robot.n_joints))
     if not elastic:
-        return sag, None, home
+        return sag, None, home, result
     e = jnp.asarray(elastic)  # rigid joints held: the eigenproblem of the elastic joints
     x = elastic_deflection(robot, gravity_torque(robot, q))
     stiffness = jax.vmap(jnp.diag)(elastic_stiffness(robot, x)[:, e])
     mass = mass_matrix(robot, q)[:, e][:, :, e]
     lam = map_matrices(lambda m, k: jnp.linalg.eigvals(jnp.linalg.solve(m, k)).real, mass, stiffness)
-    return sag, jnp.sqrt(jnp.sort(lam, -1)) / (2 * jnp.pi), home
+    return sag, jnp.sqrt(jnp.sort(lam, -1)) / (2 * jnp.pi), home, result
 
 
 def summary(robot) -> dict:
@@ -68,8 +69,9 @@ def summary(robot) -> dict:
     poses = poses_deg(robot)
     q = np.deg2rad(np.asarray(list(poses.values()), float))
     elastic = tuple(int(i) for i in np.flatnonzero(np.isfinite(np.asarray(robot.k1))))
-    sag, freq, home = (None if a is None else np.asarray(a)
-                       for a in _numbers(robot, q, elastic))
+    *numbers, result = _numbers(robot, q, elastic)
+    require_successful(result, "info: rest pose of the robot at a listed pose")
+    sag, freq, home = (None if a is None else np.asarray(a) for a in numbers)
     return {
         "name": robot.name,
         "home_flange_position_m": np.asarray(home[:3, 3]),
@@ -160,7 +162,7 @@ def _move_error(qa, qb, duration, q, t):
 def stage(out: Path, echo) -> dict:
     """Demo stage 1: the model, and the flat inverse tracking a joint move on the simulated plant."""
     from ._description import racer7
-    from .measurement._model import rest_link_angles
+    from .measurement._model import rest_solution
 
     robot = racer7()
     info = _report(robot, echo)
@@ -171,7 +173,9 @@ def stage(out: Path, echo) -> dict:
     t = jnp.arange(0.0, duration + 0.2, 1e-3)
     start = time.perf_counter()
     th, thd, thdd = _move_flat_inverse(robot, qa, qb, duration, t)
-    q, _ = _move_simulation(robot, t, th, thd, thdd, jax.jit(rest_link_angles)(robot, th[0]))
+    q0, result = jax.jit(rest_solution)(robot, th[0])
+    require_successful(result, "demo: rest pose at the start of the joint move")
+    q, _ = _move_simulation(robot, t, th, thd, thdd, q0)
     err = float(_move_error(qa, qb, duration, q, t))
     echo(f"\nflat inverse of a {duration} s joint move, simulated with RK4 (0.25 ms): max |q - q_d| = "
          f"{err:.2e} rad ({time.perf_counter() - start:.1f} s incl. compile)")

@@ -65,6 +65,17 @@ def status_message(result: RESULTS) -> str | np.ndarray:
     return text[names] if isinstance(names, str) else np.vectorize(text.get, otypes=[object])(names).astype(str)
 
 
+def require_successful(result: RESULTS, what: str) -> None:
+    """Raise `RuntimeError` naming `what` with the message of the first item of a concrete status
+    (any batch shape) that is not `successful`: the host-side `check`, for programs that stay free of
+    run-time checks (a callback keeps a program out of the compilation and program caches)."""
+    failed = np.asarray(result != RESULTS.successful)
+    if failed.any():
+        first = np.unravel_index(np.argmax(failed), failed.shape)
+        raise RuntimeError(f"{what}: {np.asarray(status_message(result))[first]} "
+                           f"({int(failed.sum())} of {failed.size} items)")
+
+
 def check(result: RESULTS, token: PyTree, throw: bool) -> PyTree:
     """`token` (a pytree with an array), raising the message of `result` at run time (also under
     `jit`) where it is not `successful` and `throw` is set (`RESULTS.error_if`)."""

@@ -21,7 +21,8 @@ from jaxtyping import Array, Float
 
 import jaxrobot as jr
 from jaxrobot import cached_program
-from jaxrobot.measurement import rest_link_angles
+from jaxrobot.measurement import rest_solution
+from jaxrobot.status import require_successful
 
 from ._ik import JointPath, taylor_joint_path
 from ._trajectories import sample_path
@@ -143,7 +144,7 @@ def _run(plant, t, p_d, r_d, traj, q0, extra, substeps, directional):
     return q, jnp.linalg.norm(pose[:, :3, 3] - p_d, axis=-1), _orientation_angle(r_d, pose[:, :3, :3])
 
 
-_rest = jax.jit(rest_link_angles)
+_rest = jax.jit(rest_solution)
 _run_jit = cached_program(_run, static_argnames=("extra", "substeps", "directional"))
 
 
@@ -176,10 +177,12 @@ def simulate_plans(
     t = np.arange(n + extra) * ts
     p_d, r_d = jax.jit(lambda tk: sample_path(jp.path, tk))(np.minimum(t, np.asarray(jp.t)[-1]))
     names = list(trajectories)
-    # the start at rest outside the simulation: its convergence check (a host callback) would keep the
-    # simulation program from being exported and cached
-    runs = [_run_jit(plant, jnp.asarray(t), p_d, r_d, trajectories[k], _rest(plant, trajectories[k].theta[0]), extra,
-                     substeps, bool(directional)) for k in names]
+    runs = []
+    for k in names:
+        q0, result = _rest(plant, trajectories[k].theta[0])
+        require_successful(result, f"simulate_plans: rest pose of the plant at the start of {k!r}")
+        runs.append(_run_jit(plant, jnp.asarray(t), p_d, r_d, trajectories[k], q0, extra, substeps,
+                             bool(directional)))
     q, dp, da = (np.stack(a) for a in zip(*runs, strict=True))
     return names, PlantRun(jnp.asarray(t), jnp.asarray(q), jnp.asarray(dp), jnp.asarray(da), n)
 

@@ -40,3 +40,25 @@ def test_throw_raises_the_message_under_jit_and_vmap():
     np.testing.assert_array_equal(solve(jnp.asarray([-1.0, -2.0]), True), [-1.0, -2.0])
     with pytest.raises(Exception, match="Nonfinite"):
         solve(jnp.asarray([-1.0, 1.0]), True)
+
+
+def test_require_successful_raises_on_the_host_with_the_first_failure():
+    from jaxrobot.status import require_successful
+
+    ok = where(jnp.ones((2, 3), bool), jr.RESULTS.successful, jr.RESULTS.nonfinite)
+    require_successful(ok, "poses")  # all successful: no error
+    failed = where(jnp.asarray([[True, True, False], [True, False, True]]), jr.RESULTS.successful,
+                   jr.RESULTS.nonlinear_max_steps_reached)
+    with pytest.raises(RuntimeError, match=r"^poses: .*\(2 of 6 items\)$"):
+        require_successful(failed, "poses")
+
+
+def test_measured_pose_returns_the_status_of_its_rest_pose():
+    from jaxrobot.measurement import measured_pose, rest_link_angles
+
+    robot = jr.racer7()
+    theta = jnp.zeros((2, robot.n_joints))
+    q, p, r, result = jax.jit(measured_pose)(robot, theta, jnp.zeros(3))
+    assert np.all(np.asarray(result == jr.RESULTS.successful))
+    np.testing.assert_array_equal(q, rest_link_angles(robot, theta))  # the same fixed point, bitwise
+    assert p.shape == (2, 3) and r.shape == (2, 3, 3)

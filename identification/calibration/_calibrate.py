@@ -32,7 +32,7 @@ from ._model import (
     position_jacobian_one,
     rippled_joints,
 )
-from ._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection, rotation_error
+from ._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection
 from ._pose_selection import default_marker
 
 DEFAULT_PARAMETERS = THESIS_PARAMETERS + ("offset1", "offset2", "offset4", "offset5", "offset6", "d1",
@@ -112,7 +112,7 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
         p, r = marker_pose_one(robot, q_pose(robot, th, q0k, de, cw), marker)
         res = (p - tp) / RESIDUAL_UNIT
         if orient:
-            res = jnp.concatenate([res, weight_r * rotation_error(tr, r) / RESIDUAL_UNIT])
+            res = jnp.concatenate([res, weight_r * jr.rotation_error(tr, r) / RESIDUAL_UNIT])
         return res
 
     ccw_b = jnp.broadcast_to(jnp.asarray(ccw), theta.shape)

@@ -15,6 +15,8 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from jaxrobot.status import require_successful
+
 from .._pose_files import add_approach_option
 
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
@@ -53,14 +55,16 @@ def configure(parser) -> None:
 def _rest_poses(nominal, truth, q, marker):
     """Per robot (`lax.map`: its fixed-point iterations are its own, so its data do not depend on the
     batch): the nominal robot's motor angles (R, K, n) holding `q` at rest (`static_equilibrium`) and
-    the true marker positions (R, K, 3) of `truth` resting at them (`jaxrobot.measurement.measured_pose`)."""
+    the true marker positions (R, K, 3) of `truth` resting at them and their status
+    (`jaxrobot.measurement.measured_pose`)."""
     import jaxrobot as jr
     from jaxrobot.measurement import measured_pose
 
     def one(args):
         robot, q_r = args
         theta = jr.static_equilibrium(nominal, q_r)
-        return theta, measured_pose(robot, theta, marker)[1]
+        _, p, _, result = measured_pose(robot, theta, marker)
+        return theta, p, result
 
     return jax.lax.map(one, (truth, q))
 
@@ -90,7 +94,9 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
     pool = random_feasible_poses(nominal, 20 * n_poses, seed=seed, marker=marker)
     rows = range(share.start, share.stop)
     q = np.stack([pool[np.random.default_rng([seed, r]).choice(len(pool), n_poses, replace=False)] for r in rows])
-    theta, exact = (np.asarray(x) for x in _rest_poses(nominal, truth, jnp.asarray(q), jnp.asarray(marker)))
+    theta, exact, result = _rest_poses(nominal, truth, jnp.asarray(q), jnp.asarray(marker))
+    require_successful(result, "calibrate-fleet --bench: rest pose of a drawn robot")
+    theta, exact = np.asarray(theta), np.asarray(exact)
     sigma = float(jr.read_description(None)["sensors"]["tracker_position_noise_m"])
     for i, r in enumerate(rows):
         noise = sigma * np.random.default_rng([seed, r, 1]).standard_normal((n_poses, 3))

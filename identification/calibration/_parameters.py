@@ -16,7 +16,6 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
-from jaxrobot import rotation_error as rotation_error  # re-exported until _calibrate imports it from jaxrobot
 from jaxrobot.measurement import marker_pose, rest_link_angles
 
 JOINT_FIELDS = ("a", "d", "alpha", "beta", "offset")

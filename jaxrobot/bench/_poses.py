@@ -24,6 +24,7 @@ from .._description import read_description
 from .._program_cache import cached_program
 from .._robot import Robot
 from .._rotations import rotation_to_quaternion, rotvec_to_rotation
+from .._status import require_successful
 from ..measurement._model import measured_pose
 from ._trajectory import file_joint_count, read_csv_columns, theta_columns
 
@@ -94,8 +95,8 @@ def measure_poses(
       rotated by a random rotation vector with this std per axis [rad].
     - `ccw`: gear set of the last approach direction (default `cw`, docs/model.md (B.1)).
 
-    **Returns:** `PoseMeasurements` (plain numpy arrays plus metadata). Link angles are NaN where
-    the rest fixed point failed (never for the default robot).
+    **Returns:** `PoseMeasurements` (plain numpy arrays plus metadata). Raises the status message
+    where the rest fixed point failed (`jaxrobot.measurement.rest_link_angles`; never for the default robot).
     """
     sensors = read_description(None)["sensors"]
     marker = np.asarray(sensors["tracker_marker_offset_m"] if marker is None else marker, float)
@@ -110,7 +111,8 @@ def measure_poses(
     theta = jnp.broadcast_to(theta, fleet + theta.shape[-2:])
     # the robot's fleet axes broadcast against the pose axis K
     robot = jax.tree.map(lambda x: jnp.expand_dims(x, len(fleet)), truth) if fleet else truth
-    q, p, r = _measure(robot, theta, jnp.asarray(marker), ccw)
+    q, p, r, result = _measure(robot, theta, jnp.asarray(marker), ccw)
+    require_successful(result, "measure_poses: rest pose of the measured robot")
     key_p, key_r = jax.random.split(jax.random.PRNGKey(seed))
     noisy = p + sigma * jax.random.normal(key_p, p.shape)
     quat = None

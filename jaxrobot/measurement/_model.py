@@ -137,8 +137,9 @@ def marker_pose(
 
 def measured_pose(
     robot: Robot, theta: Float[Array, "*b n"], marker: Float[Array, "*b 3"], ccw: bool | Bool[Array, "*b n"] = False
-) -> tuple[Float[Array, "*b n"], Float[Array, "*b 3"], Float[Array, "*b 3 3"]]:
-    """Noise-free measurement at motor angles `theta`: link angles at rest (`rest_link_angles`) and
-    the marker's position and rotation there (`marker_pose`)."""
-    q = rest_link_angles(robot, theta, ccw)
-    return (q, *marker_pose(robot, q, marker))
+) -> tuple[Float[Array, "*b n"], Float[Array, "*b 3"], Float[Array, "*b 3 3"], RESULTS]:
+    """Noise-free measurement at motor angles `theta`: link angles at rest, the marker's position and
+    rotation there (`marker_pose`) and the status of the rest fixed point (`rest_solution`; the
+    caller raises on it, e.g. `jaxrobot.status.require_successful`)."""
+    q, result = rest_solution(robot, theta, ccw)
+    return (q, *marker_pose(robot, q, marker), result)
