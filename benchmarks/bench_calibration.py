@@ -24,6 +24,7 @@ import scipy
 import scipy.optimize
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
+from identification._batched_lm import LMConfig
 from identification.calibration._calibrate import DEFAULT_PARAMETERS, _residual_fn
 from identification.calibration._fleet import _constants, _fleet_constants, _fleet_solve, calibrate_fleet, fleet_mesh
 from identification.calibration._model import rippled_joints
@@ -88,7 +89,8 @@ def main() -> None:
         q0, defl = jax.block_until_ready(_fleet_constants(nominal, g_theta, rippled, mesh))
         t_const.append(time.perf_counter() - t)
         t = time.perf_counter()
-        jax.block_until_ready(_fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, 100, rippled, mesh))
+        jax.block_until_ready(_fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl,
+                                           LMConfig(max_steps=100), rippled, mesh))
         t_solve.append(time.perf_counter() - t)
     t_const, t_solve = min(t_const), min(t_solve)
     log(f"batched LM parts: constants {t_const:.2f} s, solve {t_solve:.2f} s")
