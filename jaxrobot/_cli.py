@@ -27,8 +27,6 @@ from importlib.metadata import entry_points
 from pathlib import Path
 from types import ModuleType
 
-Echo = Callable[[str], None]
-
 EXIT_CODES = {0: "success", 1: "internal error (a bug: please report it)", 2: "bad input or usage",
               3: "a solve did not converge (no result saved unless --save-failed)"}
 

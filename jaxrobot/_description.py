@@ -418,11 +418,3 @@ def save_robot(robot: Robot, path: str | Path) -> None:
     text = "# written by jaxrobot.save_robot; format: racer7.toml (SI units, rad unless _deg)\n"
     Path(path).write_text(text + tomli_w.dumps(description_of(robot)))
 
-
-def check_finite(value: Any, field: str) -> None:
-    """Raise if `value` (a concrete array) holds NaN or inf, naming the field and the rows."""
-    arr = np.asarray(value)
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        rows = np.unique(np.nonzero(bad)[0])[:10].tolist()
-        raise ValueError(f"{field}: expected finite numbers, found NaN/inf at index {rows}")

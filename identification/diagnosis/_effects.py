@@ -250,9 +250,6 @@ CATALOGUE: list[Effect] = [JointOffset(), GearRatio(), Backlash(), JointComplian
 """The effects the workflow tries, in this order (ties keep the earlier one); `catalogue(robot)`
 sizes the geometry effect for a robot."""
 
-KINDS = tuple(e.kind for e in CATALOGUE)
-
-
 def catalogue(robot: jr.Robot) -> list[Effect]:
     """`CATALOGUE` with the geometry effect on the identifiable mDH parameters of `robot`."""
     return [Geometry(geometry_names(robot)) if isinstance(e, Geometry) else e for e in CATALOGUE]

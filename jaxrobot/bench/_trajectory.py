@@ -12,7 +12,6 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from .._description import read_description
 from .._kinematics import point_position
 from .._robot import Robot
 from .._simulate import simulate
@@ -35,12 +34,6 @@ def file_joint_count(path: str | Path) -> int:
     while f"theta{n + 1}_deg" in header:
         n += 1
     return max(n, 1)
-
-
-def tracker_defaults() -> tuple[np.ndarray, float]:
-    """Marker offset in the flange frame [m] and tracker noise std per axis [m] of `racer7.toml`."""
-    sensors = read_description()["sensors"]
-    return np.asarray(sensors["tracker_marker_offset_m"]), float(sensors["tracker_position_noise_m"])
 
 
 def trajectory_run(
