@@ -83,7 +83,7 @@ def _batch_last(fn, robot: Robot, *vecs):
 def _frames_t(robot, q_t):
     """`Chain` of the joints (world frames 1..n, joint axes and pivots), entries (n, N)."""
     _, chain = frame_chain(mat(robot.base[:3, :3], 0), vec(robot.base[:3, 3], 0), q_t + robot.offset, robot.a,
-                           robot.d, robot.alpha, robot.beta)
+                           robot.d, robot.alpha, robot.beta, stacked=True)
     return chain
 
 

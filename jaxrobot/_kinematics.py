@@ -140,11 +140,13 @@ def _frame_step(rot: Mat, pos: Vec, c, s, a, d, xy: Mat) -> tuple[Mat, Vec, Vec]
     return mm(rot, r_loc), add(pos, mv(rot, p_loc)), x1
 
 
-def frame_chain(base_r: Mat, base_p: Vec, theta, a, d, alpha, beta, unroll: bool = False
+def frame_chain(base_r: Mat, base_p: Vec, theta, a, d, alpha, beta, unroll: bool = False, stacked: bool = False
                 ) -> tuple[tuple[Mat, Vec], Chain]:
     """World frames of the joints by `H_0^i = H_0^{i-1} H_{i-1}^i` (eq. 2.2-2.4) from the base
     frame `base_r`, `base_p`: a `lax.scan` over the joints, or unrolled (`unroll`, for one pose
-    under `vmap`: the chain then fuses into a few loops over the poses).
+    under `vmap`: the chain then fuses into a few loops over the poses). `stacked`: the scan
+    carries one array per frame part instead of one per entry (fewer kernels per step, for small
+    batches such as the dynamics' chunks; separate entries suit large batches).
 
     `theta = q + offset`, `a`, `d`, `alpha`, `beta`: joint first, (n, *b) broadcastable with the
     base's entries (*b), in any layout. Returns the last frame (`R_0^n`, `o_n`) and the `Chain` of
@@ -153,28 +155,30 @@ def frame_chain(base_r: Mat, base_p: Vec, theta, a, d, alpha, beta, unroll: bool
     xy = alpha_beta(alpha, beta)
     batch = jnp.broadcast_shapes(*(jnp.shape(e)[1:] for e in (theta, a, d, *xy[0], *xy[1], *xy[2])),
                                  *(jnp.shape(e) for e in (*base_r[0], *base_r[1], *base_r[2], *base_p)))
-    full = lambda e: jnp.broadcast_to(e, batch)  # noqa: E731
+    frame0 = jax.tree.map(lambda e: jnp.broadcast_to(e, batch), (base_r, base_p))
     c, s = jnp.cos(theta), jnp.sin(theta)
     if unroll:
-        frames = [(jax.tree.map(full, base_r), jax.tree.map(full, base_p), None)]
+        frames = [(*frame0, None)]
         for i in range(jnp.shape(theta)[0]):
             frames.append(_frame_step(*frames[-1][:2], c[i], s[i], a[i], d[i], jax.tree.map(lambda e: e[i], xy)))
         rots, origins, x1 = (jax.tree.map(lambda *e: jnp.stack(e), *(f[k] for f in frames[1:])) for k in range(3))
-        rots, origins, x1 = stack_mat(rots, 1), stack_vec(origins, 1), stack_vec(x1, 1)
         end = frames[-1][:2]
-        frame0 = (stack_mat(frames[0][0], 0), stack_vec(frames[0][1], 0))
     else:
-        def step(frame, x):  # carry and outputs stacked (component axes first): one buffer each
-            rot, pos, x1 = _frame_step(mat(frame[0], 0), vec(frame[1], 0), *x[:4], mat(x[4], 0))
-            new = (stack_mat(rot, 0), stack_vec(pos, 0))
-            return new, (*new, stack_vec(x1, 0))
+        sm, sv = (lambda m: stack_mat(m, 0), lambda v: stack_vec(v, 0)) if stacked else (lambda m: m, lambda v: v)
+        um, uv = (lambda m: mat(m, 0), lambda v: vec(v, 0)) if stacked else (lambda m: m, lambda v: v)
 
-        frame0 = (stack_mat(jax.tree.map(full, base_r), 0), stack_vec(jax.tree.map(full, base_p), 0))
-        (rot, pos), (rots, origins, x1) = jax.lax.scan(step, frame0, (c, s, a, d, stack_mat(xy, 1)))
-        end = (mat(rot, 0), vec(pos, 0))
-    pivots = jnp.concatenate([frame0[1][None], origins[:-1]])
-    z = jnp.concatenate([frame0[0][None, :, 2], rots[:-1, :, 2]])
-    return end, Chain(mat(rots, 1), *(vec(v, 1) for v in (origins, pivots, z, x1, rots[:, :, 1])))
+        def step(frame, x):
+            rot, pos, x1 = _frame_step(um(frame[0]), uv(frame[1]), *x[:4], mat(x[4], 0))
+            new = (sm(rot), sv(pos))
+            return new, (*new, sv(x1))
+
+        end, (rots, origins, x1) = jax.lax.scan(step, (sm(frame0[0]), sv(frame0[1])), (c, s, a, d, stack_mat(xy, 1)))
+        end = (um(end[0]), uv(end[1]))
+        if stacked:
+            rots, origins, x1 = mat(rots, 1), vec(origins, 1), vec(x1, 1)
+    shift = lambda first, v: jax.tree.map(lambda f, e: jnp.concatenate([f[None], e[:-1]]), first, v)  # noqa: E731
+    return end, Chain(rots, origins, shift(frame0[1], origins), shift(column(frame0[0], 2), column(rots, 2)), x1,
+                      column(rots, 1))
 
 
 def _joint_first(robot: Robot, q: Array) -> tuple[Array, ...]:

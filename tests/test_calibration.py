@@ -533,7 +533,7 @@ def test_batched_lm_kernel():
 
 
 def test_fleet_screw_jacobian_matches_residual_fn(robots, bench):
-    """The fleet's batch-last residuals and joint-screw Jacobian (every joint field, a rippled and a
+    """The fleet's residuals and joint-screw Jacobian (every joint field, a rippled and a
     ripple-free u0) against forward mode on `_residual_fn` per robot (tested against `predict_pose`),
     two robots at random points: equal to rounding (1e-9 mm, 1e-9 relative)."""
     import jax
@@ -556,6 +556,5 @@ def test_fleet_screw_jacobian_matches_residual_fn(robots, bench):
         fleet, theta, pos, defl, q0, v0, scale, x)
     r_ref, jac_ref = jax.jit(jax.vmap(lambda *a: _robot_residual_jacobian(a[0], params, *a[1:5], marker, rippled,
                                                                           a[5])))(fleet, theta, pos, defl, q0, x)
-    pose_major = lambda a: jnp.swapaxes(a.reshape((2, 3, 6) + a.shape[2:]), 1, 2).reshape(a.shape)  # noqa: E731
-    np.testing.assert_allclose(pose_major(r), r_ref, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(pose_major(jac), jac_ref, rtol=0, atol=1e-9 * np.abs(jac_ref).max())
+    np.testing.assert_allclose(r, r_ref, rtol=0, atol=1e-9)  # both pose-major
+    np.testing.assert_allclose(jac, jac_ref, rtol=0, atol=1e-9 * np.abs(jac_ref).max())

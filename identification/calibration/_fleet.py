@@ -76,8 +76,8 @@ def _robot_residual_jacobian(robot, params, theta, positions, deflection, q0, ma
 def _screw_residual_jacobian(robots, params, theta, positions, deflection, q0, marker, rippled, v0, scale, x,
                              ccw=False):
     """Residuals (R, 3K) [mm] and Jacobian (R, 3K, m) of all robots at scaled parameters `x` from the
-    joint screws (`position_jacobian` over robots and poses); rows are component-major
-    (row `c K + k` is component `c` of pose `k`)."""
+    joint screws (`position_jacobian` over robots and poses); rows are pose-major, as in
+    `_robot_residual_jacobian` (row `3 k + c` is component `c` of pose `k`)."""
     robot = params.set(robots, v0 + scale * x)
     _, q_pose = joint_angle_model(robots, params, theta, deflection, False, rippled, q0)
     cc = jnp.zeros(theta.shape, bool) if ccw is False else ccw
@@ -90,9 +90,8 @@ def _screw_residual_jacobian(robots, params, theta, positions, deflection, q0, m
         ratio = robot.u0[:, None]
     p, jac = position_jacobian(jax.tree.map(lambda f: f[:, None], robot), params, q, theta, ratio, marker)
     n_rob = x.shape[0]
-    r = jnp.moveaxis((p - positions) / RESIDUAL_UNIT, -1, 1).reshape(n_rob, -1)
-    jac = jac * (scale / RESIDUAL_UNIT)[:, None, None, :]  # (R, K, 3, m)
-    return r, jnp.swapaxes(jac, 1, 2).reshape(n_rob, -1, x.shape[1])
+    r = ((p - positions) / RESIDUAL_UNIT).reshape(n_rob, -1)
+    return r, (jac * (scale / RESIDUAL_UNIT)[:, None, None, :]).reshape(n_rob, -1, x.shape[1])
 
 
 CHUNK = {"cpu": 32, "accelerator": 4096}
@@ -136,9 +135,7 @@ def _local_solve(robots, theta, positions, marker, q0, defl, config, ccw=None, *
     directed = () if ccw is None else (ccw,)
     out = batched_lm(residual_jacobian, jnp.zeros_like(v0), (robots, theta, positions, q0, defl, v0, scale, *directed),
                      config, chunk=_chunk())
-    n_rob, n, m = out["residuals"].shape + v0.shape[1:]
-    if screws:  # component-major rows -> pose-major
-        out["residuals"] = jnp.swapaxes(out["residuals"].reshape(n_rob, 3, -1), 1, 2).reshape(n_rob, n)
+    n, m = out["residuals"].shape[1], v0.shape[1]
     sigma2 = 2 * out["cost"] / max(n - m, 1)  # [mm^2]
     cov_x, rank, full = map_chunks(lambda a: covariance(*a), (out["normal"], sigma2), _chunk())
     cov = cov_x * scale[:, :, None] * scale[:, None, :]
