@@ -334,6 +334,7 @@ def calibrate(
     max_steps: int = 100,
     method: str = "lm",
     prior_std: dict | None = None,
+    throw: bool = False,
 ) -> CalibrationResult:
     """Calibrate the kinematic parameters from tracker measurements (thesis 3.2.3, eq. 3.12).
 
@@ -359,7 +360,8 @@ def calibrate(
     parameters, unit mistakes (`check_pose_units`), and, with
     `limits="raise"`, poses beyond the joint limits (by row); after the solve, for a
     rank-deficient pose set (naming the unidentifiable directions). A solve that does not converge is
-    returned with `converged=False` and its `status` (a `jaxrobot.RESULTS` name), never as success.
+    returned with `converged=False` and its `status` (a `jaxrobot.RESULTS` name), never as success;
+    `throw=True` raises its message instead (`RESULTS.error_if`).
 
     **Returns:** `CalibrationResult` (SI units; `calibration_report` gives the report dict).
     """
@@ -402,9 +404,11 @@ def calibrate(
     weight = None if prior is None else jnp.asarray(s_p / RESIDUAL_UNIT * np.asarray(params.scales(robot)) / prior)
     out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw_id, max_steps=max_steps,
                      rippled=rippled_joints(robot), prior_weight=weight)
+    result = out["result"]
     out = jax.tree.map(np.asarray, out)
     if prior is None:
         check_rank(out["jacobian"], params)
+    check(result, result, throw)
     calibrated = params.set(robot, jnp.asarray(out["value"]))
     p_all = np.concatenate([pos, vp])
     err0 = position_errors(robot, th_all, p_all, defl_all, marker, ccw_all)
