@@ -199,8 +199,8 @@ def demo_stage(out: Path, echo) -> dict:
 
     start = time.perf_counter()
     truth, nominal, sel, both, k, res = bench_calibration()
-    echo(f"DETMAX: 13 validation poses, {sel.iterations} iterations, O1 {sel.indices['O1']:.4g}, "
-         f"O4 {sel.indices['O4']:.4g}")
+    echo(f"DETMAX: 13 validation poses, {sel.iterations} iterations, O1 {sel.indices.O1:.4g}, "
+         f"O4 {sel.indices.O4:.4g}")
     write_pose_csv(out / "bench_poses.csv", both.motor_angles[:k], both.positions[:k])
     write_pose_csv(out / "bench_validation.csv", both.motor_angles[k:], both.positions[k:])
     echo(f"bench: as-built Racer-7, {k} thesis poses + {len(sel.q)} validation poses, tracker noise "
