@@ -303,7 +303,7 @@ def test_bad_input(robots, bench, tmp_path):
     text[5] = text[4]
     path.write_text("\n".join(text) + "\n")
     data = read_pose_csv(path)
-    np.testing.assert_allclose(data["motor_angles"][:4], theta[:4], rtol=1e-15)
+    np.testing.assert_allclose(data.motor_angles[:4], theta[:4], rtol=1e-15)
     (tmp_path / "short.csv").write_text("theta1_deg,theta2_deg,x_m\n1,2,3\n")
     with pytest.raises(ValueError, match=r"missing columns \['y_m', 'z_m'\]"):
         read_pose_csv(tmp_path / "short.csv")

@@ -81,8 +81,8 @@ def test_two_process_fleet_equals_one_process(tmp_path, capsys):
     assert all(f.read_bytes() == g.read_bytes() for f, g in zip(files, reference))
 
     poses = [jb.read_pose_csv(f) for f in files]
-    one = calibrate_fleet(jr.racer7(), np.stack([p["motor_angles"] for p in poses]),
-                          np.stack([p["positions"] for p in poses]))
+    one = calibrate_fleet(jr.racer7(), np.stack([p.motor_angles for p in poses]),
+                          np.stack([p.positions for p in poses]))
     with (tmp_path / "out" / TABLE).open() as f:
         rows = list(csv.DictReader(f))
     assert [r["file"] for r in rows] == [f.name for f in files]

@@ -71,7 +71,7 @@ def test_model_functions_and_bench_for_n_joints(n, tmp_path):
     assert (tmp_path / "poses.csv").read_text().splitlines()[0].startswith(
         ",".join(f"theta{i}_deg" for i in range(1, n + 1)) + ",x_m")
     back = jb.read_pose_csv(tmp_path / "poses.csv")
-    np.testing.assert_allclose(back["motor_angles"], meas.motor_angles, rtol=1e-15)
+    np.testing.assert_allclose(back.motor_angles, meas.motor_angles, rtol=1e-15)
 
 
 @pytest.mark.parametrize("n", [1, 2, 7, 12])
