@@ -497,8 +497,8 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
     config = jax.tree.map(jnp.asarray, LMConfig())
     out = _fleet_solve(fleet, params, g_theta, g_pos, jnp.asarray(default_marker(), float), q0, defl, config,
                        rippled, mesh)
-    assert jr.status_name(out["status"]).tolist() == ["successful", "nonfinite", "successful"]
-    assert np.asarray(out["converged"]).tolist() == [True, False, True]
+    assert jr.status_name(out.status).tolist() == ["successful", "nonfinite", "successful"]
+    assert np.asarray(out.converged).tolist() == [True, False, True]
     with pytest.raises(ValueError, match=r"positions\[robot 1\]: NaN/inf in rows \[4\]"):
         from identification.calibration._fleet import calibrate_fleet
 
@@ -524,18 +524,18 @@ def test_batched_lm_kernel():
     x0 = jnp.asarray([[-1.2, 1.0], [3.0, -2.0], [jnp.nan, 0.0]])
     run = jax.jit(batched_lm, static_argnums=0)
     out = run(rj, x0, None, LMConfig(max_steps=200))
-    assert jr.status_name(out["status"]).tolist() == ["successful", "successful", "nonfinite"]
-    np.testing.assert_allclose(np.asarray(out["x"][:2]), 1.0, atol=1e-9)
+    assert jr.status_name(out.status).tolist() == ["successful", "successful", "nonfinite"]
+    np.testing.assert_allclose(np.asarray(out.x[:2]), 1.0, atol=1e-9)
     chunked = jax.jit(batched_lm, static_argnums=0, static_argnames="chunk")(rj, x0, None, LMConfig(max_steps=200),
                                                                              chunk=2)
-    assert jr.status_name(chunked["status"]).tolist() == jr.status_name(out["status"]).tolist()
+    assert jr.status_name(chunked.status).tolist() == jr.status_name(out.status).tolist()
     for key in ("steps", "accepted"):
-        assert np.asarray(chunked[key]).tolist() == np.asarray(out[key]).tolist(), key
-    np.testing.assert_array_equal(np.asarray(chunked["x"][:2]), np.asarray(out["x"][:2]))
+        assert np.asarray(getattr(chunked, key)).tolist() == np.asarray(getattr(out, key)).tolist(), key
+    np.testing.assert_array_equal(np.asarray(chunked.x[:2]), np.asarray(out.x[:2]))
     compiled = run._cache_size()
     short = run(rj, x0, None, LMConfig(max_steps=3, xtol=1e-12))
-    assert jr.status_name(short["status"]).tolist() == ["nonlinear_max_steps_reached"] * 2 + ["nonfinite"]
-    assert np.asarray(short["steps"]).tolist() == [3, 3, 0]
+    assert jr.status_name(short.status).tolist() == ["nonlinear_max_steps_reached"] * 2 + ["nonfinite"]
+    assert np.asarray(short.steps).tolist() == [3, 3, 0]
     assert run._cache_size() == compiled  # the second config was not compiled again
     rng = np.random.default_rng(3)
     b = rng.normal(size=(4, 7, 7))
