@@ -72,16 +72,6 @@ def _echo_report(report: dict, echo, truth: dict | None = None) -> None:
             echo(f"determined by the {source}: {', '.join(names) or '(none)'}")
 
 
-def _workspace(robot, marker) -> np.ndarray:
-    """Marker positions (1000, 3) of random feasible poses: the workspace behind a pose set (Fig. 3.11)."""
-    import jaxrobot as jr
-
-    from ._pose_selection import default_marker, random_feasible_poses
-
-    marker = default_marker() if marker is None else np.asarray(marker, float)
-    return np.asarray(jr.point_position(robot, random_feasible_poses(robot, 1000, seed=3), marker))
-
-
 def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions=None,
                    workspace=None) -> list[str]:
     from ._report import error_table, parameter_table, plot_errors, plot_pose_set
@@ -113,7 +103,7 @@ def run(args, echo) -> dict:
     from .._pose_files import read_poses
     from ._calibrate import PRIOR_KEYS, calibrate, map_parameters
     from ._identifiability import default_parameters
-    from ._pose_selection import default_marker
+    from ._pose_selection import default_marker, workspace_positions
     from ._report import calibration_report
 
     progress = Progress(3, "calibrate")
@@ -153,7 +143,8 @@ def run(args, echo) -> dict:
     if not res.converged:
         raise SolveFailed(f"calibration did not converge ({res.status}); the model was not saved")
     if args.out is not None:
-        for f in _write_outputs(args.out, report, positions=data.positions, workspace=_workspace(robot, marker)):
+        workspace = workspace_positions(robot, marker)
+        for f in _write_outputs(args.out, report, positions=data.positions, workspace=workspace):
             echo(f"wrote {args.out / f}")
     if args.save_model is not None:
         from .._model_files import save_model
@@ -172,6 +163,7 @@ def demo_stage(out: Path, echo) -> dict:
 
     from ._bench import bench_calibration
     from ._parameters import ParameterMap
+    from ._pose_selection import workspace_positions
     from ._report import calibration_report, plot_pose_set
 
     start = time.perf_counter()
@@ -190,7 +182,7 @@ def demo_stage(out: Path, echo) -> dict:
     _echo_report(report, echo, truth_delta)
     files = _write_outputs(out, report, truth_delta, positions=None)
     plot_pose_set(out / "calibration_poses.png", both.true_positions[:k],
-                  _workspace(nominal, both.metadata["marker_offset_m"]),
+                  workspace_positions(nominal, both.metadata["marker_offset_m"]),
                   title="Marker positions of the thesis' identification poses")
     files += ["calibration_poses.png", "bench_poses.csv", "bench_validation.csv"]
     jr.save_robot(res.robot, out / "calibrated_robot.toml")

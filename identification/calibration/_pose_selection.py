@@ -80,6 +80,13 @@ def rest_motor_angles(robot: jr.Robot, q: Float[Array, "N n"]) -> np.ndarray:
     return np.asarray(_static_equilibrium(robot, jnp.asarray(q, float)))
 
 
+def workspace_positions(robot: jr.Robot, marker=None, n: int = 1000, seed: int = 3) -> np.ndarray:
+    """Marker positions (n, 3) [m] at `n` random feasible poses: the workspace behind a pose set (Fig. 3.11);
+    `marker` default `default_marker()`."""
+    marker = default_marker() if marker is None else np.asarray(marker, float)
+    return np.asarray(jr.point_position(robot, random_feasible_poses(robot, n, seed=seed), marker))
+
+
 def random_feasible_poses(
     robot: jr.Robot, n: int, seed: int = 0, marker=None, constraints: PoseConstraints = DEFAULT_CONSTRAINTS,
     batch: int = 2048,
