@@ -205,7 +205,7 @@ class SweepCost:
     """(M, n) 99 % energy bandwidth of the control per member and joint [Hz] (NaN for a joint without
     control energy); None when the sweep stopped at a member that did not converge."""
     names: tuple[str, ...] | None = None
-    """Name of each simulated member (`nu` as `1e-14`), the order of `run` and `errors`."""
+    """Name of each simulated member (its `nu` to 6 digits), the order of `run` and `errors`."""
     run: PlantRun | None = None
     """The M plans simulated on the plant."""
     errors: PlantError | None = None
@@ -249,6 +249,9 @@ def sweep_task(robot: jr.Robot, plant: jr.Robot, path: Path, nus, costs: tuple[s
     nus = np.asarray(nus, dtype=float)
     if nus.ndim != 1 or nus.size < 1 or not np.all(np.isfinite(nus) & (nus > 0)):
         raise ValueError(f"nus: expected one or more values > 0, got {nus}")
+    names = tuple(f"{nu:.6g}" for nu in nus)
+    if len(set(names)) < len(names):
+        raise ValueError(f"nus: expected distinct values (to 6 digits), got {nus}")
     emit = on_event or (lambda event: None)
     jp = joint_path(robot, path, q_init)
     flat = baseline_trajectories(robot, jp)["flat_inverse"]
@@ -266,10 +269,10 @@ def sweep_task(robot: jr.Robot, plant: jr.Robot, path: Path, nus, costs: tuple[s
             break
         start = time.perf_counter()
         bw = np.asarray(bandwidth(sols.u, ts))
-        trajectories = {f"{nu:.0e}": ocp_motor_trajectory(sols.x[i], sols.u[i]) for i, nu in enumerate(nus)}
-        names, run = simulate_plans(plant, jp, trajectories, directional=directional)
+        trajectories = {name: ocp_motor_trajectory(sols.x[i], sols.u[i]) for i, name in enumerate(names)}
+        _, run = simulate_plans(plant, jp, trajectories, directional=directional)
         errors = summarize(run)
-        out[cost] = SweepCost(sols, bw, tuple(names), run, errors)
+        out[cost] = SweepCost(sols, bw, names, run, errors)
         emit(SweepEvent("evaluated", cost, time.perf_counter() - start, tuple(map(float, nus)), status, iterations,
                         tuple(float(b) for b in np.nanmax(bw, axis=-1)),
                         tuple(float(e) for e in np.asarray(errors.position_max)),

@@ -163,6 +163,8 @@ def test_sweep_task_events_stop_at_a_failed_member_and_si_results_behind_the_tab
     assert failures(failed)[0].startswith("cost thesis, nu 1e-14: status inner_failed after 17 outer iterations")
     with pytest.raises(ValueError, match="nus: expected one or more values > 0"):
         pl.sweep_task(robot, robot, path, [1e-14, 0.0])
+    with pytest.raises(ValueError, match="nus: expected distinct values"):
+        pl.sweep_task(robot, robot, path, [1e-14, 1e-14])
     monkeypatch.setattr(planning._workflow, "solve_ocp_sweep", stand_in(_converged_solve))
     events.clear()
     res = pl.sweep_task(robot, robot, path, nus, ("thesis", "jerk"), on_event=events.append)
