@@ -39,11 +39,12 @@ ignored.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
@@ -189,7 +190,8 @@ _ON_AXIS = 1e-12  # [m]: a point this close to a joint axis lies on it (URDF ang
 _REVOLUTE = ("revolute", "continuous")
 
 
-class _Joint(NamedTuple):
+@dataclasses.dataclass(frozen=True)
+class _Joint:
     name: str
     type: str
     parent: str
@@ -200,7 +202,8 @@ class _Joint(NamedTuple):
     mimic: bool
 
 
-class _Inertial(NamedTuple):
+@dataclasses.dataclass(frozen=True)
+class _Inertial:
     mass: float
     frame: np.ndarray  # (4, 4) centre-of-mass frame in the link frame
     inertia: np.ndarray  # (3, 3) about the centre of mass, axes of `frame`

@@ -30,7 +30,7 @@ from jaxrobot.measurement import rest_link_angles
 from jaxrobot.status import check, where
 
 from .._batched_lm import LMConfig, batched_lm, covariance, map_chunks
-from ._calibrate import RESIDUAL_UNIT, _check_array, _residual_fn
+from ._calibrate import RESIDUAL_UNIT, ParameterEstimate, _check_array, _residual_fn
 from ._identifiability import default_parameters
 from ._model import analytic_names, joint_angle_model, position_jacobian, rippled_joints
 from ._parameters import ParameterMap
@@ -135,16 +135,16 @@ def _local_solve(robots, theta, positions, marker, q0, defl, config, ccw=None, *
     directed = () if ccw is None else (ccw,)
     out = batched_lm(residual_jacobian, jnp.zeros_like(v0), (robots, theta, positions, q0, defl, v0, scale, *directed),
                      config, chunk=_chunk())
-    n, m = out["residuals"].shape[1], v0.shape[1]
-    sigma2 = 2 * out["cost"] / max(n - m, 1)  # [mm^2]
-    cov_x, rank, full = map_chunks(lambda a: covariance(*a), (out["normal"], sigma2), _chunk())
+    n, m = out.residuals.shape[1], v0.shape[1]
+    sigma2 = 2 * out.cost / max(n - m, 1)  # [mm^2]
+    cov_x, rank, full = map_chunks(lambda a: covariance(*a), (out.normal, sigma2), _chunk())
     cov = cov_x * scale[:, :, None] * scale[:, None, :]
-    finite = jnp.all(jnp.isfinite(out["x"]), 1) & jnp.all(jnp.isfinite(cov), (1, 2))
-    ok = out["status"] == RESULTS.successful
-    status = where(ok & ~finite, RESULTS.nonfinite, where(ok & ~full, RESULTS.rank_deficient, out["status"]))
-    return {"value": v0 + scale * out["x"], "std": jnp.sqrt(jnp.diagonal(cov, 0, 1, 2)), "cov": cov,
-            "converged": status == RESULTS.successful, "status": status, "steps": out["steps"],
-            "rank": rank, "residuals": out["residuals"] * RESIDUAL_UNIT}
+    finite = jnp.all(jnp.isfinite(out.x), 1) & jnp.all(jnp.isfinite(cov), (1, 2))
+    ok = out.status == RESULTS.successful
+    status = where(ok & ~finite, RESULTS.nonfinite, where(ok & ~full, RESULTS.rank_deficient, out.status))
+    return ParameterEstimate(value=v0 + scale * out.x, std=jnp.sqrt(jnp.diagonal(cov, 0, 1, 2)), covariance=cov,
+                             status=status, steps=out.steps, rank=rank, residuals=out.residuals * RESIDUAL_UNIT,
+                             noise_variance=sigma2 * RESIDUAL_UNIT**2)
 
 
 @eqx.filter_jit
@@ -236,10 +236,9 @@ def calibrate_fleet(
     config = jax.tree.map(jnp.asarray, LMConfig(max_steps=max_steps))
     out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, config, rippled, mesh, g_ccw)
     out, robots = gather_rows((out, g_robots), origin)
-    value = out["value"]
-    status = check(out["status"], out["status"], throw)
+    status = check(out.status, out.status, throw)
     return FleetResult(
-        robot=_set_parameters(params, robots, jnp.asarray(value)), value=value, std=out["std"], covariance=out["cov"],
-        converged=out["converged"], status=status, iterations=out["steps"], rank=out["rank"],
-        rms_m=np.sqrt(np.mean(out["residuals"] ** 2, -1)), residuals=out["residuals"], names=params.names,
+        robot=_set_parameters(params, robots, jnp.asarray(out.value)), value=out.value, std=out.std,
+        covariance=out.covariance, converged=np.asarray(out.converged), status=status, iterations=out.steps,
+        rank=out.rank, rms_m=np.sqrt(np.mean(out.residuals**2, -1)), residuals=out.residuals, names=params.names,
         n_devices=n_dev)
