@@ -84,6 +84,7 @@ def _converged_solve(*args, **kwargs):
 STAGES = ("inverse_kinematics", "flat_inverse", "solving", "ocp", "ocp_again", "solved")
 
 
+@pytest.mark.extended  # IK, flat inverse and plant simulation at 5 ms compile; exit code 3 stays in the suite
 def test_plan_task_events_in_order_and_si_results_behind_the_summary(monkeypatch):
     import planning._ocp
     from planning._cli_plan import summary

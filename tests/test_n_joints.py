@@ -153,6 +153,7 @@ def arm7():
     return jr.load_robot(ARM7), jr.load_robot(ARM7, as_built=True)
 
 
+@pytest.mark.extended  # the pose bench and LM of a 7-joint arm compile; the suite keeps the 7-joint model
 def test_seven_joint_calibration_recovers_the_as_built_arm(arm7):
     """Bench poses of the as-built arm: the calibrated deviations within 3 reported standard errors
     of the truth, and the validation error at the noise floor (the as-built arm's own error on the

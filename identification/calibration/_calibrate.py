@@ -21,6 +21,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 import jaxrobot as jr
 from jaxrobot import RESULTS, cached_program
+from jaxrobot.measurement import marker_pose
 from jaxrobot.status import check
 
 from .._pose_files import check_pose_units
@@ -28,8 +29,7 @@ from ._identifiability import analyse, default_parameters
 from ._model import (
     analytic_names,
     joint_angle_model,
-    marker_pose_one,
-    position_jacobian_one,
+    position_jacobian,
     rippled_joints,
 )
 from ._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection
@@ -86,9 +86,9 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
                  rippled: tuple[int, ...] | None = None, q0=None):
     """Residual `fn(x, _)` in scaled variables `v = v0 + scale x`, its start `v0` and `scale`.
 
-    The model is `predict_pose` with its per-pose constants hoisted (`_calibration_model`; `q0`,
+    The model is `predict_pose` with its per-pose constants hoisted (`_model`; `q0`,
     the initial joint angles, may be given). Its Jacobian is supplied per pose: for position rows
-    and joint parameters from the joint screws (`position_jacobian_one`), else by reverse mode
+    and joint parameters from the joint screws (`position_jacobian`), else by reverse mode
     (3 or 6 outputs against the robot fields that `params` touches) chained with
     `d fields / d x`; either costs a few model evaluations instead of m forward passes.
     """
@@ -109,7 +109,7 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
 
     def one_pose(fields, th, q0k, de, tp, tr, cw):
         robot = robot_of(fields)
-        p, r = marker_pose_one(robot, q_pose(robot, th, q0k, de, cw), marker)
+        p, r = marker_pose(robot, q_pose(robot, th, q0k, de, cw), marker)
         res = (p - tp) / RESIDUAL_UNIT
         if orient:
             res = jnp.concatenate([res, weight_r * jr.rotation_error(tr, r) / RESIDUAL_UNIT])
@@ -128,7 +128,7 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
         robot = robot_of(fields)
         q = q_pose(robot, th, q0k, de, cw)
         ratio = jr.gear_ratio(robot, q - de, cw) if full_ratio else robot.u0
-        return position_jacobian_one(robot, params, q, th, ratio, marker)[1] * (scale / RESIDUAL_UNIT)
+        return position_jacobian(robot, params, q, th, ratio, marker)[1] * (scale / RESIDUAL_UNIT)
 
     @resid.defjvp
     def _resid_jvp(primals, tangents):

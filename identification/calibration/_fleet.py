@@ -3,7 +3,7 @@
 Every robot has its own poses and measurements; all robots are solved together by one
 batch-first Levenberg-Marquardt loop (`_batched_lm`, in chunks of `CHUNK` robots, on the model of
 `_calibration._residual_fn` with its joint-screw Jacobian evaluated batch-last over robots and
-poses, `_calibration_model.position_jacobian`), each robot stopping on its own tolerances. The
+poses, `_model.position_jacobian`), each robot stopping on its own tolerances. The
 fleet axis is sharded across all devices with `jax.sharding` (a 1-D mesh named `"fleet"`,
 `shard_map`: each device runs its own LM loop on its own robots, no communication), so that the
 same call uses one CPU, several GPUs, or several processes and hosts under `jax.distributed`
@@ -76,7 +76,7 @@ def _robot_residual_jacobian(robot, params, theta, positions, deflection, q0, ma
 def _screw_residual_jacobian(robots, params, theta, positions, deflection, q0, marker, rippled, v0, scale, x,
                              ccw=False):
     """Residuals (R, 3K) [mm] and Jacobian (R, 3K, m) of all robots at scaled parameters `x` from the
-    joint screws (`position_jacobian`, batch-last over robots and poses); rows are component-major
+    joint screws (`position_jacobian` over robots and poses); rows are component-major
     (row `c K + k` is component `c` of pose `k`)."""
     robot = params.set(robots, v0 + scale * x)
     _, q_pose = joint_angle_model(robots, params, theta, deflection, False, rippled, q0)
@@ -90,9 +90,9 @@ def _screw_residual_jacobian(robots, params, theta, positions, deflection, q0, m
         ratio = robot.u0[:, None]
     p, jac = position_jacobian(jax.tree.map(lambda f: f[:, None], robot), params, q, theta, ratio, marker)
     n_rob = x.shape[0]
-    r = jnp.moveaxis((p - jnp.moveaxis(positions, -1, 0)) / RESIDUAL_UNIT, 0, 1).reshape(n_rob, -1)
-    jac = jac * (scale.T / RESIDUAL_UNIT)[:, None, :, None]  # (m, 3, R, K)
-    return r, jnp.transpose(jac, (2, 1, 3, 0)).reshape(n_rob, -1, x.shape[1])
+    r = jnp.moveaxis((p - positions) / RESIDUAL_UNIT, -1, 1).reshape(n_rob, -1)
+    jac = jac * (scale / RESIDUAL_UNIT)[:, None, None, :]  # (R, K, 3, m)
+    return r, jnp.swapaxes(jac, 1, 2).reshape(n_rob, -1, x.shape[1])
 
 
 CHUNK = {"cpu": 32, "accelerator": 4096}
