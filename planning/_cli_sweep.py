@@ -67,6 +67,8 @@ def sweep(robot, plant, path, nus, costs, echo, directional: bool = False, q_ini
     nus = np.asarray(nus, dtype=float)
     if nus.ndim != 1 or nus.size < 1 or not np.all(np.isfinite(nus) & (nus > 0)):
         raise ValueError(f"--nu must be one or more values > 0, got {nus}")
+    if len({f"{nu:.6g}" for nu in nus}) < nus.size:
+        raise ValueError(f"--nu must be distinct values (to 6 digits), got {nus}")
     progress = Progress(len(costs), "sweep")
 
     def on_event(event: SweepEvent) -> None:

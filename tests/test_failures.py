@@ -140,34 +140,46 @@ def jax_stack(trees):
     return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)
 
 
-def test_sweep_task_events_stop_at_a_failed_member_and_si_results_behind_the_table(monkeypatch):
-    """`sweep_task` with stand-ins for `solve_ocp_sweep`: a cost with a failed member ends the sweep
-    there, unevaluated; converged members are evaluated on the plant, one "solved" and one "evaluated"
-    event per cost, and the CLI's table is the SI result in µm and Hz."""
+def _sweep_stand_in(solve):
+    """Stand-in for `solve_ocp_sweep`: `solve` (`_failed_solve`, `_converged_solve`) for every nu."""
+    return lambda robot, q_d, ts, nus, cost="thesis", warm_start=None: jax_stack(
+        [solve(robot, q_d, ts, warm_start=warm_start) for _ in nus])
+
+
+def test_sweep_task_stops_at_a_failed_member(monkeypatch):
+    """`sweep_task` with a failing stand-in for `solve_ocp_sweep` (the line at T_s = 25 ms, the task of
+    the plan exit-3 test): the first cost with a failed member ends the sweep there, unevaluated, with
+    its status and iterations in the event and the CLI's failure lines; bad `nus` are named first."""
+    import planning._workflow
+    from planning._cli_sweep import failures
+
+    robot = jr.racer7()
+    path = pl.sampled_path(*(jnp.asarray(a) for a in line_samples(25)))
+    with pytest.raises(ValueError, match="nus: expected one or more values > 0"):
+        pl.sweep_task(robot, robot, path, [1e-14, 0.0])
+    with pytest.raises(ValueError, match="nus: expected distinct values"):
+        pl.sweep_task(robot, robot, path, [1e-14, 1e-14])
+    events = []
+    monkeypatch.setattr(planning._workflow, "solve_ocp_sweep", _sweep_stand_in(_failed_solve))
+    failed = pl.sweep_task(robot, robot, path, [1e-14, 1e-12], ("thesis", "jerk"), on_event=events.append)
+    assert [(e.stage, e.cost) for e in events] == [("solved", "thesis")] and not failed.converged
+    assert list(failed.costs) == ["thesis"] and failed.costs["thesis"].run is None
+    assert events[0].status == ("inner_failed",) * 2 and events[0].iterations == (17, 17)
+    assert failures(failed)[0].startswith("cost thesis, nu 1e-14: status inner_failed after 17 outer iterations")
+
+
+@pytest.mark.extended  # plant simulation at 5 ms compiles (shared with the plan workflow's events test)
+def test_sweep_task_events_and_si_results_behind_the_table(monkeypatch):
+    """`sweep_task` with a converging stand-in: every member evaluated on the plant, one "solved" and one
+    "evaluated" event per cost, and the CLI's table is the SI result in µm and Hz."""
     import planning._workflow
     from planning._cli_sweep import failures, table
 
     robot = jr.racer7()
     path = pl.sampled_path(*(jnp.asarray(a) for a in line_samples(5)))
     nus = [1e-14, 1e-12]
-
-    def stand_in(solve):
-        return lambda robot, q_d, ts, nus, cost="thesis", warm_start=None: jax_stack(
-            [solve(robot, q_d, ts, warm_start=warm_start) for _ in nus])
-
     events = []
-    monkeypatch.setattr(planning._workflow, "solve_ocp_sweep", stand_in(_failed_solve))
-    failed = pl.sweep_task(robot, robot, path, nus, ("thesis", "jerk"), on_event=events.append)
-    assert [(e.stage, e.cost) for e in events] == [("solved", "thesis")] and not failed.converged
-    assert list(failed.costs) == ["thesis"] and failed.costs["thesis"].run is None
-    assert events[0].status == ("inner_failed",) * 2 and events[0].iterations == (17, 17)
-    assert failures(failed)[0].startswith("cost thesis, nu 1e-14: status inner_failed after 17 outer iterations")
-    with pytest.raises(ValueError, match="nus: expected one or more values > 0"):
-        pl.sweep_task(robot, robot, path, [1e-14, 0.0])
-    with pytest.raises(ValueError, match="nus: expected distinct values"):
-        pl.sweep_task(robot, robot, path, [1e-14, 1e-14])
-    monkeypatch.setattr(planning._workflow, "solve_ocp_sweep", stand_in(_converged_solve))
-    events.clear()
+    monkeypatch.setattr(planning._workflow, "solve_ocp_sweep", _sweep_stand_in(_converged_solve))
     res = pl.sweep_task(robot, robot, path, nus, ("thesis", "jerk"), on_event=events.append)
     assert [(e.stage, e.cost) for e in events] == [("solved", "thesis"), ("evaluated", "thesis"),
                                                    ("solved", "jerk"), ("evaluated", "jerk")]
