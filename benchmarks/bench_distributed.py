@@ -89,7 +89,7 @@ def worker(folder: Path, result: Path) -> None:
     share = jr.process_share(len(files))
     t = time.perf_counter()
     data = [jb.read_pose_csv(f) for f in files[share]]
-    theta, pos = np.stack([d["motor_angles"] for d in data]), np.stack([d["positions"] for d in data])
+    theta, pos = np.stack([d.motor_angles for d in data]), np.stack([d.positions for d in data])
     seconds = {"read": time.perf_counter() - t}
     for call in ("first call", "second call"):
         t = time.perf_counter()

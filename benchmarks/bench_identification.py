@@ -48,7 +48,7 @@ def poses_table(root: Path) -> list[str]:
         truth = json.loads((d / "truth.json").read_text())
         data = [read_poses(d / f"{s}.csv") for s in ("train", "val")]
         t0 = time.perf_counter()
-        res = diagnose(jr.load_robot(d / "start.toml"), *(Poses.of(p["motor_angles"], p["positions"]) for p in data))
+        res = diagnose(jr.load_robot(d / "start.toml"), *(Poses.of(p.motor_angles, p.positions) for p in data))
         dt = time.perf_counter() - t0
         rep = diagnosis_summary(res)
         added = ", ".join(f"{s['effect']}{'' if s['joint'] is None else ' j' + str(s['joint'])}" for s in rep["steps"])
@@ -106,8 +106,8 @@ def calibration_table(root: Path) -> list[str]:
             "determined by the prior | time [s] |", "|---|---|---|---|---|---|---|---|"]
     for method, names in (("lm", DEFAULT_PARAMETERS), ("map", map_parameters(DEFAULT_PARAMETERS, 6))):
         t0 = time.perf_counter()
-        rep = calibration_report(calibrate(jr.racer7(), train["motor_angles"], train["positions"], method=method,
-                                           parameters=names, validation=(val["motor_angles"], val["positions"])))
+        rep = calibration_report(calibrate(jr.racer7(), train.motor_angles, train.positions, method=method,
+                                           parameters=names, validation=(val.motor_angles, val.positions)))
         dt = time.perf_counter() - t0
         mean = 1e3 * rep["validation"]["after_m"]["mean"]
         beyond = [n for n, p in rep["parameters"].items() if abs(p["delta"] - true.get(n, 0.0)) > 3 * p["std"]]

@@ -12,6 +12,7 @@ from .calibration import THESIS_PARAMETERS as THESIS_PARAMETERS
 from .calibration import CalibrationResult as CalibrationResult
 from .calibration import FleetResult as FleetResult
 from .calibration import IdentifiabilityResult as IdentifiabilityResult
+from .calibration import ObservabilityIndices as ObservabilityIndices
 from .calibration import ParameterMap as ParameterMap
 from .calibration import PoseConstraints as PoseConstraints
 from .calibration import calibrate as calibrate

@@ -134,6 +134,26 @@ def _step(residual_jacobian, s, data, first, config: LMConfig):
     return out
 
 
+class LMResult(eqx.Module):
+    """The result of `batched_lm` for R problems of m unknowns and n residuals."""
+
+    x: Float[Array, "R m"]
+    """The solutions."""
+    residuals: Float[Array, "R n"]
+    """The residuals at `x`."""
+    normal: Float[Array, "R m m"]
+    """`J^T J` at `x`."""
+    cost: Float[Array, " R"]
+    """`||r||^2 / 2` at `x`."""
+    status: RESULTS
+    """`successful` (stopped by a tolerance), `nonlinear_max_steps_reached` (still running after
+    `max_steps`) or `nonfinite` (the residual or Jacobian at the start is not finite), per problem."""
+    steps: Int[Array, " R"]
+    """LM steps taken (accepted or not)."""
+    accepted: Int[Array, " R"]
+    """Accepted steps."""
+
+
 def batched_lm(
     residual_jacobian: ResidualJacobian,
     x0: Float[Array, "R m"],
@@ -142,7 +162,7 @@ def batched_lm(
     *,
     chunk: int | None = None,
     throw: bool = False,
-) -> dict[str, Array]:
+) -> LMResult:
     """Minimise `||r_i(x_i)||^2 / 2` for every problem `i` of the batch (see the module docstring).
 
     **Arguments:**
@@ -155,11 +175,7 @@ def batched_lm(
     - `throw`: raise the message of the first status that is not `successful` (at run time, also
       under `jit`); default False, the statuses are returned.
 
-    **Returns:** `x` (R, m), `residuals` (R, n) and `normal` `J^T J` (R, m, m) at `x`, `cost`
-    `||r||^2 / 2` (R,), `status` (R,) `RESULTS`: `successful` (stopped by a tolerance),
-    `nonlinear_max_steps_reached` (still running after `max_steps`) or `nonfinite` (the residual or
-    Jacobian at the start is not finite), `steps` (R,) LM steps taken (accepted or not),
-    `accepted` (R,) accepted steps.
+    **Returns:** `LMResult`.
     """
     config = jax.tree.map(jnp.asarray, LMConfig() if config is None else config)
     n_rob, m = x0.shape
@@ -184,8 +200,8 @@ def batched_lm(
 
     _, s = jax.lax.while_loop(cond, body, (jnp.asarray(0), state))
     s = _unchunk(s, n_rob)
-    out = {"x": s["x"], "residuals": s["r"], "normal": s["a"], "cost": s["cost"], "status": s["status"],
-           "steps": s["steps"], "accepted": s["accepted"]}
+    out = LMResult(x=s["x"], residuals=s["r"], normal=s["a"], cost=s["cost"], status=s["status"], steps=s["steps"],
+                   accepted=s["accepted"])
     return check(s["status"], out, throw)
 
 

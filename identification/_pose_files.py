@@ -12,13 +12,14 @@ that do not move joint by joint. So the direction is a convention the user state
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot.bench import read_csv_columns, read_pose_csv
+from jaxrobot.bench import PoseFile, read_csv_columns, read_pose_csv
 from jaxrobot.measurement import approach_directions
 
 APPROACHES = ("cw", "order", "column")
@@ -52,19 +53,16 @@ def approach_ccw(motor_angles, approach: str = "cw", column=None, name: str = "p
     return col < 0
 
 
-def read_poses(path: str | Path, approach: str = "cw") -> dict:
-    """Read a pose file (README, "Measurement files") with the direction of approach of the convention `approach`.
-
-    **Returns:** `jaxrobot.bench.read_pose_csv`'s `motor_angles` (K, n) rad, `positions` (K, 3) m and
-    `quaternions`, plus `ccw` (K, n) bool.
-    """
+def read_poses(path: str | Path, approach: str = "cw") -> PoseFile:
+    """Read a pose file (README, "Measurement files") with the direction of approach of the convention
+    `approach`: `jaxrobot.bench.read_pose_csv`'s `PoseFile` with its `ccw` (K, n) set."""
     data = read_pose_csv(path)
-    n = data["motor_angles"].shape[1]
+    n = data.motor_angles.shape[1]
     column = None
     if approach == "column":
         cols = read_csv_columns(path, [], approach_columns(n))
         column = np.column_stack([cols[c] for c in approach_columns(n)]) if cols else None
-    return dict(data, ccw=approach_ccw(data["motor_angles"], approach, column, str(path)))
+    return dataclasses.replace(data, ccw=approach_ccw(data.motor_angles, approach, column, str(path)))
 
 
 def add_approach_option(parser) -> None:

@@ -47,6 +47,7 @@ from ._gear import motor_angle as motor_angle  # noqa: E402
 from ._kinematics import analytic_jacobian as analytic_jacobian  # noqa: E402
 from ._kinematics import forward_kinematics as forward_kinematics  # noqa: E402
 from ._kinematics import geometric_jacobian as geometric_jacobian  # noqa: E402
+from ._kinematics import identification_jacobian as identification_jacobian  # noqa: E402
 from ._kinematics import link_frames as link_frames  # noqa: E402
 from ._kinematics import point_position as point_position  # noqa: E402
 from ._kinematics import tool_pose as tool_pose  # noqa: E402

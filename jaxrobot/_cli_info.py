@@ -9,8 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._program_cache import cached_program
-from ._status import require_successful
+from ._summary import move_tracking_error, pose_numbers
 
 HELP = "summarise a robot: parameters, home pose, static deflection, eigenfrequencies"
 EXAMPLE = "jaxrobot info --model arm.toml --as-built --out info"
@@ -40,38 +39,13 @@ def configure(parser) -> None:
     parser.add_argument("--as-built", action="store_true", help="the test bench's as-built robot")
 
 
-@cached_program(static_argnames=("elastic",))
-def _numbers(robot, q, elastic: tuple[int, ...]):
-    from ._dynamics import gravity_torque, mass_matrix
-    from ._elasticity import elastic_deflection, elastic_stiffness
-    from ._gear import motor_angle
-    from ._kinematics import forward_kinematics
-    from ._linalg import map_matrices
-    from .measurement._model import rest_solution
-
-    q_rest, result = rest_solution(robot, motor_angle(robot, q))  # rigid command theta = Xi(q)
-    p = forward_kinematics(robot, jnp.concatenate([q_rest, q]))[..., :3, 3]
-    sag = jnp.linalg.norm(p[: len(q)] - p[len(q):], axis=-1)
-    home = forward_kinematics(robot, jnp.zeros(robot.n_joints))
-    if not elastic:
-        return sag, None, home, result
-    e = jnp.asarray(elastic)  # rigid joints held: the eigenproblem of the elastic joints
-    x = elastic_deflection(robot, gravity_torque(robot, q))
-    stiffness = jax.vmap(jnp.diag)(elastic_stiffness(robot, x)[:, e])
-    mass = mass_matrix(robot, q)[:, e][:, :, e]
-    lam = map_matrices(lambda m, k: jnp.linalg.eigvals(jnp.linalg.solve(m, k)).real, mass, stiffness)
-    return sag, jnp.sqrt(jnp.sort(lam, -1)) / (2 * jnp.pi), home, result
-
-
 def summary(robot) -> dict:
     """Numbers shown by `jaxrobot info` (SI units, deflections in µm); eigenfrequencies of the elastic
     joints with the rigid ones held (`None` where every joint is rigid)."""
     poses = poses_deg(robot)
-    q = np.deg2rad(np.asarray(list(poses.values()), float))
-    elastic = tuple(int(i) for i in np.flatnonzero(np.isfinite(np.asarray(robot.k1))))
-    *numbers, result = _numbers(robot, q, elastic)
-    require_successful(result, "info: rest pose of the robot at a listed pose")
-    sag, freq, home = (None if a is None else np.asarray(a) for a in numbers)
+    numbers = pose_numbers(robot, np.deg2rad(np.asarray(list(poses.values()), float)))
+    sag, freq, home = (None if a is None else np.asarray(a) for a in (numbers.sag, numbers.eigenfrequencies,
+                                                                      numbers.home))
     return {
         "name": robot.name,
         "home_flange_position_m": np.asarray(home[:3, 3]),
@@ -132,51 +106,17 @@ def run(args, echo) -> dict:
     return info
 
 
-def _joint_move(qa, qb, duration):
-    def q_d(t):
-        s = jnp.clip(t / duration, 0.0, 1.0)
-        return qa + (qb - qa) * (35 * s**4 - 84 * s**5 + 70 * s**6 - 20 * s**7)
-
-    return q_d
-
-
-@cached_program(static_argnames=("duration",))
-def _move_flat_inverse(robot, qa, qb, duration, t):
-    from ._flat import flat_inverse
-
-    return flat_inverse(robot, _joint_move(qa, qb, duration), t)
-
-
-@cached_program
-def _move_simulation(robot, t, theta, thetad, thetadd, q0):
-    from ._simulate import simulate
-
-    return simulate(robot, t, theta, thetad, thetadd, substeps=4, q0=q0)
-
-
-@cached_program(static_argnames=("duration",))
-def _move_error(qa, qb, duration, q, t):
-    return jnp.max(jnp.abs(q - jax.vmap(_joint_move(qa, qb, duration))(t)))
-
-
 def stage(out: Path, echo) -> dict:
     """Demo stage 1: the model, and the flat inverse tracking a joint move on the simulated plant."""
     from ._description import racer7
-    from .measurement._model import rest_solution
 
     robot = racer7()
     info = _report(robot, echo)
     qa = jnp.deg2rad(jnp.array([0.0, 10.0, -80.0, 0.0, 60.0, 0.0]))
     qb = jnp.deg2rad(jnp.array([40.0, 30.0, -60.0, 30.0, 30.0, 45.0]))
     duration = 1.5
-
-    t = jnp.arange(0.0, duration + 0.2, 1e-3)
     start = time.perf_counter()
-    th, thd, thdd = _move_flat_inverse(robot, qa, qb, duration, t)
-    q0, result = jax.jit(rest_solution)(robot, th[0])
-    require_successful(result, "demo: rest pose at the start of the joint move")
-    q, _ = _move_simulation(robot, t, th, thd, thdd, q0)
-    err = float(_move_error(qa, qb, duration, q, t))
+    err = move_tracking_error(robot, qa, qb, duration)
     echo(f"\nflat inverse of a {duration} s joint move, simulated with RK4 (0.25 ms): max |q - q_d| = "
          f"{err:.2e} rad ({time.perf_counter() - start:.1f} s incl. compile)")
     info["flat_inverse_tracking_error_rad"] = err

@@ -16,17 +16,30 @@ from jaxtyping import Array, Bool, Float
 from ._batch import backend_kind, unbatched
 from ._elasticity import elastic_deflection, elastic_torque
 from ._gear import gear_output, gear_ratio, motor_angle
+from ._kinematics import (
+    add,
+    cross,
+    dot,
+    frame_chain,
+    mat,
+    mm,
+    mv,
+    scale,
+    stack_mat,
+    stack_vec,
+    sub,
+    transpose,
+    vec,
+)
 from ._linalg import spd_solve
 from ._robot import Robot
 from ._rotations import rot_x, rot_y, rot_z
 
-# Batch-last internals: the rigid-body terms below keep the state batch as the LAST axis
-# ((n, 3, N) etc.), so XLA's CPU loops run over contiguous states and vectorise, and they
-# process large batches in chunks of `_chunk()` states (lax.map) so that the intermediates of a
-# chunk stay in cache (on the CPU; an accelerator takes far larger chunks, since every chunk is
-# a sequential step of kernel launches there). Small products are written out as sums of elementwise products: they
-# fuse into one loop also under `vmap`, where tiny batched `matmul`/`einsum` become separate dot
-# kernels and `jnp.sum` over a size-3 axis becomes a slow reduction.
+# Batch-last internals: the rigid-body terms below keep the state batch as the LAST axis (the
+# entries of the `_kinematics` 3x3 algebra are (n, N) or (N,) arrays), so XLA's CPU loops run over
+# contiguous states and vectorise, and they process large batches in chunks of `_chunk()` states
+# (lax.map) so that the intermediates of a chunk stay in cache (on the CPU; an accelerator takes far
+# larger chunks, since every chunk is a sequential step of kernel launches there).
 _CHUNK = {"cpu": 256, "accelerator": 65536}
 """States per chunk of the batched rigid-body terms, by backend (`benchmarks/results_dynamics.md`,
 `benchmarks/results_gpu.md`)."""
@@ -34,32 +47,6 @@ _CHUNK = {"cpu": 256, "accelerator": 65536}
 
 def _chunk() -> int:
     return _CHUNK[backend_kind()]
-
-
-def _mm(a, b):  # (..., 3, 3, N) @ (..., 3, 3, N)
-    return sum(a[..., :, k, None, :] * b[..., None, k, :, :] for k in range(3))
-
-
-def _mv(a, v):  # (..., 3, 3, N) @ (..., 3, N)
-    return sum(a[..., :, k, :] * v[..., None, k, :] for k in range(3))
-
-
-def _mtv(a, v):  # (..., 3, 3, N)^T @ (..., 3, N)
-    return sum(a[..., k, :, :] * v[..., None, k, :] for k in range(3))
-
-
-def _cross(u, v):  # (..., 3, N) x (..., 3, N)
-    u0, u1, u2 = u[..., 0, :], u[..., 1, :], u[..., 2, :]
-    v0, v1, v2 = v[..., 0, :], v[..., 1, :], v[..., 2, :]
-    return jnp.stack([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0], -2)
-
-
-def _dot(u, v):  # (..., 3, N) . (..., 3, N)
-    return u[..., 0, :] * v[..., 0, :] + u[..., 1, :] * v[..., 1, :] + u[..., 2, :] * v[..., 2, :]
-
-
-def _rot(t, axis: int):  # (..., N) angles -> (..., 3, 3, N) rotations about x, y or z
-    return jnp.moveaxis((rot_x, rot_y, rot_z)[axis](t), -3, -1)
 
 
 def _suffix(x):  # sum over links k >= j (leading link axis)
@@ -93,43 +80,25 @@ def _batch_last(fn, robot: Robot, *vecs):
     return tuple(jnp.moveaxis(o, -1, 0).reshape(batch + o.shape[:-1]) for o in out)
 
 
-def _joints_t(robot, q_t):
-    """Rotation (n, 3, 3, N) and origin (n, 3, N) of frame i in frame i-1 (eq. 2.2-2.3), batch last."""
-    rz = _rot(q_t + robot.offset, 2)
-    r_loc = _mm(rz, _mm(_rot(robot.alpha, 0), _rot(robot.beta, 1)))
-    p_loc = _mv(rz, jnp.stack([robot.a, jnp.zeros_like(robot.a), robot.d], -2))
-    return r_loc, p_loc
-
-
 def _frames_t(robot, q_t):
-    """World rotations (n, 3, 3, N) and origins (n, 3, N) of frames 1..n, and the joint axes and
-    pivots (n, 3, N) (z axis and origin of frames 0..n-1), batch last."""
-    r_loc, p_loc = _joints_t(robot, q_t)
-    shape = q_t.shape[-1:]
-    base_r = jnp.broadcast_to(robot.base[:3, :3], (3, 3) + jnp.broadcast_shapes(robot.base.shape[-1:], shape))
-    base_p = jnp.broadcast_to(robot.base[:3, 3], base_r.shape[1:])
-
-    def step(carry, x):
-        r, p = carry
-        r_new, p_new = _mm(r, x[0]), p + _mv(r, x[1])
-        return (r_new, p_new), (r_new, p_new)
-
-    _, (rot, org) = jax.lax.scan(step, (base_r, base_p), (r_loc, p_loc))
-    axes = jnp.concatenate([base_r[None, :, 2], rot[:-1, :, 2]], 0)
-    pivots = jnp.concatenate([base_p[None], org[:-1]], 0)
-    return rot, org, axes, pivots
+    """`Chain` of the joints (world frames 1..n, joint axes and pivots), entries (n, N)."""
+    _, chain = frame_chain(mat(robot.base[:3, :3], 0), vec(robot.base[:3, 3], 0), q_t + robot.offset, robot.a,
+                           robot.d, robot.alpha, robot.beta)
+    return chain
 
 
 def _subtrees_t(robot, q_t):
     """Joint axes `a_j`, pivots `p_j`, and per subtree j (links j..n): total mass `M_j` (n, N),
-    first moment `s_j = sum m_k c_k` (n, 3, N) and inertia about the world origin (n, 3, 3, N)."""
-    rot, org, axes, pivots = _frames_t(robot, q_t)
-    com = org + _mv(rot, robot.com)
-    mass = robot.mass[:, None]
-    i_world = _mm(_mm(rot, robot.inertia), jnp.swapaxes(rot, -3, -2))
-    j_origin = i_world + mass[:, None] * (
-        _dot(com, com)[:, None, None] * jnp.eye(3)[..., None] - com[:, :, None] * com[:, None, :])
-    return axes, pivots, _suffix(robot.mass), _suffix(mass * com), _suffix(j_origin)
+    first moment `s_j = sum m_k c_k` and inertia about the world origin, entries (n, N)."""
+    chain = _frames_t(robot, q_t)
+    rot = chain.rotation
+    com = add(chain.origin, mv(rot, vec(robot.com, 1)))
+    i_world = mm(mm(rot, mat(robot.inertia, 1)), transpose(rot))
+    cc = dot(com, com)
+    j_origin = [[i_world[i][k] + robot.mass * ((cc - com[i] * com[k]) if i == k else -(com[i] * com[k]))
+                 for k in range(3)] for i in range(3)]
+    s = vec(_suffix(stack_vec(scale(robot.mass, com), 1)), 1)
+    return chain.z, chain.pivot, _suffix(robot.mass), s, mat(_suffix(stack_mat(j_origin, 1)), 1)
 
 
 def _mass_matrix_t(robot, q_t):
@@ -137,18 +106,57 @@ def _mass_matrix_t(robot, q_t):
     subtree j turning at unit rate about joint j, `D_ij = a_i . (h_j - p_i x l_j)` for i <= j,
     with `l_j = a_j x (s_j - M_j p_j)`, `h_j = J_j a_j - s_j x (a_j x p_j)` (equals eq. 2.16)."""
     a, p, m, s, j = _subtrees_t(robot, q_t)
-    lin = _cross(a, s - m[:, None] * p)
-    ang = _mv(j, a) - _cross(s, _cross(a, p))
-    t = _dot(a[:, None], ang[None] - _cross(p[:, None], lin[None]))
-    d = jnp.where(jnp.triu(jnp.ones((len(a),) * 2, bool))[..., None], t, jnp.swapaxes(t, 0, 1))
+    lin = cross(a, sub(s, scale(m, p)))
+    ang = sub(mv(j, a), cross(s, cross(a, p)))
+    col, row = (lambda v: [e[:, None] for e in v]), (lambda v: [e[None] for e in v])  # noqa: E731
+    t = dot(col(a), sub(row(ang), cross(col(p), row(lin))))
+    d = jnp.where(jnp.triu(jnp.ones((len(m),) * 2, bool))[..., None], t, jnp.swapaxes(t, 0, 1))
     return (d,)
 
 
 def _gravity_t(robot, q_t):
     """`g_i = -a_i . ((s_i - M_i p_i) x gravity)` (eq. 2.19-2.20 summed over the subtree of joint i)."""
     a, p, m, s, _ = _subtrees_t(robot, q_t)
-    lever = s - m[:, None] * p
-    return (-_dot(a, _cross(lever, jnp.broadcast_to(robot.gravity, lever.shape[1:]))),)
+    return (-dot(a, cross(sub(s, scale(m, p)), vec(robot.gravity, 0))),)
+
+
+# Recursive Newton-Euler: its scans carry batch-last arrays, (..., 3, N) vectors and (..., 3, 3, N)
+# matrices, with the small products below; on the `_kinematics` entries XLA fuses each step into
+# one large concatenating kernel that recomputes shared terms, measurably slower.
+
+
+def _mm(a, b):  # (..., 3, 3, N) @ (..., 3, 3, N)
+    return sum(a[..., :, k, None, :] * b[..., None, k, :, :] for k in range(3))
+
+
+def _mv(a, v):  # (..., 3, 3, N) @ (..., 3, N)
+    return sum(a[..., :, k, :] * v[..., None, k, :] for k in range(3))
+
+
+def _mtv(a, v):  # (..., 3, 3, N)^T @ (..., 3, N)
+    return sum(a[..., k, :, :] * v[..., None, k, :] for k in range(3))
+
+
+def _cross(u, v):  # (..., 3, N) x (..., 3, N)
+    u0, u1, u2 = u[..., 0, :], u[..., 1, :], u[..., 2, :]
+    v0, v1, v2 = v[..., 0, :], v[..., 1, :], v[..., 2, :]
+    return jnp.stack([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0], -2)
+
+
+def _dot(u, v):  # (..., 3, N) . (..., 3, N)
+    return u[..., 0, :] * v[..., 0, :] + u[..., 1, :] * v[..., 1, :] + u[..., 2, :] * v[..., 2, :]
+
+
+def _rot(t, axis: int):  # (..., N) angles -> (..., 3, 3, N) rotations about x, y or z
+    return jnp.moveaxis((rot_x, rot_y, rot_z)[axis](t), -3, -1)
+
+
+def _joints_t(robot, q_t):
+    """Rotation (n, 3, 3, N) and origin (n, 3, N) of frame i in frame i-1 (eq. 2.2-2.3), batch last."""
+    rz = _rot(q_t + robot.offset, 2)
+    r_loc = _mm(rz, _mm(_rot(robot.alpha, 0), _rot(robot.beta, 1)))
+    p_loc = _mv(rz, jnp.stack([robot.a, jnp.zeros_like(robot.a), robot.d], -2))
+    return r_loc, p_loc
 
 
 def _rnea_t(robot, q_t, qd_t, qdd_t, with_gravity: bool):

@@ -39,16 +39,19 @@ ignored.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
 from ._description import RobotFileError, validate
+from ._kinematics import dh_transform
 from ._robot import Robot
+from ._rotations import pose_matrix, rot_x, rot_z
 
 EFFORT_LIMIT = 1.0e4
 """URDF `<limit effort>` [N m] of every joint. The model has no torque limits, so this is a
@@ -56,21 +59,9 @@ placeholder large enough never to bind (the default robot's gravity torques stay
 1e3 N m); replace it for a controller that enforces effort limits."""
 
 
-def _rot(axis: int, t: float) -> np.ndarray:
-    c, s = math.cos(t), math.sin(t)
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    r = np.eye(3)
-    r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
-    return r
-
-
 def _dh(theta: float, a: float, d: float, alpha: float, beta: float) -> np.ndarray:
     """`Rz(theta) Tx(a) Tz(d) Rx(alpha) Ry(beta)` as a 4x4 matrix."""
-    t = np.eye(4)
-    rz = _rot(2, theta)
-    t[:3, :3] = rz @ _rot(0, alpha) @ _rot(1, beta)
-    t[:3, 3] = rz @ np.array([a, 0.0, d])
-    return t
+    return np.asarray(dh_transform(theta, a, d, alpha, beta))
 
 
 def _placement(robot: dict[str, np.ndarray], i: int) -> np.ndarray:
@@ -84,7 +75,7 @@ def _rpy(r: np.ndarray) -> tuple[float, float, float]:
     Yaw first, then roll and pitch from `Rz(yaw)^T R = Ry(pitch) Rx(roll)`: well conditioned
     at every pitch, including the gimbal lock where yaw is arbitrary and roll absorbs it."""
     yaw = math.atan2(r[1, 0], r[0, 0])
-    rest = _rot(2, -yaw) @ r
+    rest = np.asarray(rot_z(-yaw)) @ r
     return math.atan2(-rest[1, 2], rest[1, 1]), math.atan2(-rest[2, 0], rest[0, 0]), yaw
 
 
@@ -199,7 +190,8 @@ _ON_AXIS = 1e-12  # [m]: a point this close to a joint axis lies on it (URDF ang
 _REVOLUTE = ("revolute", "continuous")
 
 
-class _Joint(NamedTuple):
+@dataclasses.dataclass(frozen=True)
+class _Joint:
     name: str
     type: str
     parent: str
@@ -210,7 +202,8 @@ class _Joint(NamedTuple):
     mimic: bool
 
 
-class _Inertial(NamedTuple):
+@dataclasses.dataclass(frozen=True)
+class _Inertial:
     mass: float
     frame: np.ndarray  # (4, 4) centre-of-mass frame in the link frame
     inertia: np.ndarray  # (3, 3) about the centre of mass, axes of `frame`
@@ -231,11 +224,8 @@ def _floats(el: ET.Element | None, attr: str, default: tuple[float, ...], where:
 
 def _frame(el: ET.Element | None, where: str) -> np.ndarray:
     """The transform of an `<origin xyz rpy>` element (identity if absent)."""
-    t = np.eye(4)
-    roll, pitch, yaw = _floats(el, "rpy", (0.0, 0.0, 0.0), where)
-    t[:3, :3] = _rot(2, yaw) @ _rot(1, pitch) @ _rot(0, roll)
-    t[:3, 3] = _floats(el, "xyz", (0.0, 0.0, 0.0), where)
-    return t
+    rpy = _floats(el, "rpy", (0.0, 0.0, 0.0), where)
+    return np.asarray(pose_matrix(np.concatenate([_floats(el, "xyz", (0.0, 0.0, 0.0), where), rpy])))
 
 
 def _inertial(link: ET.Element) -> _Inertial | None:
@@ -354,7 +344,7 @@ def _axis_frame(joint_frame: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """The joint frame turned by the smallest rotation that takes its z axis onto `axis`."""
     c = axis[2]
     if c < -1.0 + 1e-12:
-        turn = _rot(0, math.pi)
+        turn = np.asarray(rot_x(math.pi))
     else:
         k = np.array([[0.0, 0.0, axis[0]], [0.0, 0.0, axis[1]], [-axis[0], -axis[1], 0.0]])  # skew(e_z x axis)
         turn = np.eye(3) + k + k @ k / (1.0 + c)
@@ -385,7 +375,7 @@ def _through(o: np.ndarray, u: np.ndarray, x_ref: np.ndarray) -> tuple[float, ..
     if r >= _ON_AXIS:
         out = []
         for theta, a in ((math.atan2(o[1], o[0]), r), (math.atan2(-o[1], -o[0]), -r)):
-            v = _rot(2, -theta) @ u
+            v = np.asarray(rot_z(-theta)) @ u
             out.append((theta, a, o[2], math.atan2(-v[1], v[2]), math.asin(min(1.0, max(-1.0, v[0])))))
         return _nearest(out, x_ref)
     h = math.hypot(u[0], u[1])  # origin on axis i: beta = 0, Rz(theta) Rx(alpha) e_z = u

@@ -56,6 +56,10 @@ from ._transcription import variable_scale as variable_scale
 from ._transcription import warm_start as warm_start
 from ._workflow import PlanEvent as PlanEvent
 from ._workflow import PlanResult as PlanResult
+from ._workflow import SweepCost as SweepCost
+from ._workflow import SweepEvent as SweepEvent
+from ._workflow import SweepResult as SweepResult
 from ._workflow import plan_task as plan_task
+from ._workflow import sweep_task as sweep_task
 
 _check_public(globals())

@@ -21,10 +21,10 @@ from ._bandwidth import bandwidth, control_spectrum
 from ._evaluation import METHODS
 from ._ik import default_start, task_start
 from ._trajectories import check_task, reference_path, sampled_path
+from ._transcription import COSTS
 from ._workflow import PlanEvent, PlanResult, _tool_position, plan_task
 
 HELP = "plan a task (line, spiral or a CSV of tool positions) with the OCP and evaluate it on the plant"
-COSTS = ("thesis", "jerk", "flat")
 EXAMPLE = "jaxrobot plan line --nu 1e-13 --plant as-built --out plan-line --save-trajectory line.csv"
 
 
@@ -240,5 +240,6 @@ def demo_stage(out: Path, echo) -> dict:
     echo("line, nu = 1e-14, evaluated on the planning model")
     result = plan(robot, robot, reference_path("line"), 1e-14, "thesis", echo, timing=False)
     write_plots(result, out, "planning_line")
-    save_trajectory(out / "planning_line_motor.csv", result.joint_path.t, *result.trajectories["ocp"])
+    tr = result.trajectories["ocp"]
+    save_trajectory(out / "planning_line_motor.csv", result.joint_path.t, tr.theta, tr.thetad, tr.thetadd)
     return summary(result)

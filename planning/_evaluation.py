@@ -10,10 +10,11 @@ the path and during a rest after `t_e`.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from functools import partial
-from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -36,27 +37,32 @@ SETTLE_S = 0.5
 """Rest after `t_e` over which the residual error is reported [s]."""
 
 
-class MotorTrajectory(NamedTuple):
-    """Commanded motor angles, rates and accelerations on the grid: each (..., N, n) [rad, rad/s, rad/s^2]."""
+class MotorTrajectory(eqx.Module):
+    """A motor command on the grid of N samples (leading axes `*b`: a batch of commands)."""
 
     theta: Float[Array, "*b N n"]
+    """Motor angles [rad]."""
     thetad: Float[Array, "*b N n"]
+    """Motor rates [rad/s]."""
     thetadd: Float[Array, "*b N n"]
+    """Motor accelerations [rad/s^2]."""
 
 
-class PlantError(NamedTuple):
-    """Tool-pose error of a simulated run against the task (each (...,)).
-
-    `position_max`, `position_rms` [m] and `orientation_max`, `orientation_rms` [rad] over
-    `[0, t_e]`; `settle_position_max` [m], `settle_orientation_max` [rad] over `(t_e, t_e + settle]`.
-    """
+class PlantError(eqx.Module):
+    """Tool-pose error of simulated runs against the task (leading axes `*b`: one per run)."""
 
     position_max: Float[Array, "*b"]
+    """Largest position error over `[0, t_e]` [m]."""
     position_rms: Float[Array, "*b"]
+    """RMS position error over `[0, t_e]` [m]."""
     orientation_max: Float[Array, "*b"]
+    """Largest orientation error over `[0, t_e]` [rad]."""
     orientation_rms: Float[Array, "*b"]
+    """RMS orientation error over `[0, t_e]` [rad]."""
     settle_position_max: Float[Array, "*b"]
+    """Largest position error over the rest `(t_e, t_e + settle]` [m]."""
     settle_orientation_max: Float[Array, "*b"]
+    """Largest orientation error over the rest `(t_e, t_e + settle]` [rad]."""
 
 
 def _along(fn: Callable, q: Float[Array, "N n"], qd: Float[Array, "N n"], qdd: Float[Array, "N n"]):
@@ -124,16 +130,20 @@ def _extend(traj: MotorTrajectory, settle_samples: int) -> MotorTrajectory:
     return MotorTrajectory(hold(traj.theta, traj.theta[-1]), hold(traj.thetad, 0.0), hold(traj.thetadd, 0.0))
 
 
-class PlantRun(NamedTuple):
-    """Simulated runs of stacked motor trajectories: `t` (T,) [s] (the path grid plus the rest after
-    `t_e`), link angles `q` (K, T, n), tool position error `position` (K, T) [m] and orientation error
-    `orientation` (K, T) [rad] against the task; `n` samples lie on the path."""
+@dataclasses.dataclass(frozen=True)
+class PlantRun:
+    """Simulated runs of K stacked motor trajectories on T samples (the result of `simulate_plans`)."""
 
     t: Float[Array, " T"]
+    """Time [s]: the path grid, then the rest after `t_e`."""
     q: Float[Array, "K T n"]
+    """Link angles [rad]."""
     position: Float[Array, "K T"]
+    """Tool position error against the task [m]."""
     orientation: Float[Array, "K T"]
+    """Tool orientation error against the task [rad]."""
     n: int
+    """Samples on the path (the first `n` of `t`)."""
 
 
 def _run(plant, t, p_d, r_d, traj, q0, extra, substeps, directional):

@@ -11,11 +11,13 @@ whose derivatives of every order are exact (the flat inverse needs four).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from functools import partial
-from typing import Any, NamedTuple
+from typing import Any
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -25,6 +27,7 @@ from jaxtyping import Array, Bool, Float, Real
 import jaxrobot as jr
 from jaxrobot import cached_program
 from jaxrobot.linalg import map_matrices, solve
+from jaxrobot.status import check
 
 from ._trajectories import Path, sample_path, time_grid
 
@@ -51,28 +54,28 @@ def pose_residual(
     return jnp.concatenate([t[:3, 3] - p_d, jnp.stack([w[2, 1], w[0, 2], w[1, 0]])])
 
 
-class Redundancy(NamedTuple):
-    """The `n - 6` extra equations `null (q - q_ref) = 0` of a redundant robot: `null` (n - 6, n)
-    orthonormal rows spanning the null space of the Jacobian at `q_ref` (n,); empty for six joints."""
+class Redundancy(eqx.Module):
+    """The `n - 6` extra equations `null (q - q_ref) = 0` of a redundant robot (no rows for six joints)."""
 
     null: Float[Array, "m n"]
+    """Orthonormal rows (n - 6, n) spanning the null space of the pose Jacobian at `q_ref` [rad/rad]."""
     q_ref: Float[Array, " n"]
+    """Joint coordinates whose null-space coordinates are held [rad]."""
 
 
-class IKResult(NamedTuple):
-    """Inverse kinematics on a grid.
-
-    **Fields:** `q` (N, n) joint coordinates [rad]; `position_residual` (N,) [m] and
-    `orientation_residual` (N,) [rad] of eq. 4.5b-c; `status` (N,) per-sample Newton status
-    (`jaxrobot.RESULTS`; `converged` where it is `successful`);
-    `redundancy` the null-space equations held along the path (`Redundancy`).
-    """
+class IKResult(eqx.Module):
+    """Inverse kinematics on a grid of N samples."""
 
     q: Float[Array, "N n"]
+    """Joint coordinates [rad]."""
     position_residual: Float[Array, " N"]
+    """Tool position residual of eq. 4.5b [m]."""
     orientation_residual: Float[Array, " N"]
+    """Tool orientation residual of eq. 4.5c [rad]."""
     status: jr.RESULTS
+    """Per-sample Newton status (`jaxrobot.RESULTS`, batched over N); `converged` where `successful`."""
     redundancy: Redundancy
+    """The null-space equations held along the path."""
 
     @property
     def converged(self) -> Bool[Array, " N"]:
@@ -113,13 +116,22 @@ def _first_sample(robot, p_d, r_d, q_init):
     return (*_newton(robot, p_d, r_d, sol.value, redundancy), redundancy)
 
 
-@cached_program
 def inverse_kinematics(
-    robot: jr.Robot, p_d: Float[Array, "N 3"], r_d: Float[Array, "N 3 3"], q_init: Float[Array, " n"]
+    robot: jr.Robot, p_d: Float[Array, "N 3"], r_d: Float[Array, "N 3 3"], q_init: Float[Array, " n"],
+    throw: bool = False,
 ) -> IKResult:
     """Joint coordinates that reach the poses `(p_d[k], R_d[k])` (eq. 4.5), warm-started sample to
     sample from the solution nearest `q_init` at the first sample (n >= 6 joints; a redundant robot
-    keeps its null-space coordinates of the first sample, see the module docstring)."""
+    keeps its null-space coordinates of the first sample, see the module docstring).
+
+    `throw`: raise the message of the first sample's `status` that is not `successful` (at run time,
+    also under `jit`). Default False: the result carries the status of every sample."""
+    ik = _inverse_kinematics(robot, p_d, r_d, q_init)
+    return check(ik.status, ik, throw)
+
+
+@cached_program
+def _inverse_kinematics(robot, p_d, r_d, q_init) -> IKResult:
     q_first, ok_first, redundancy = _first_sample(robot, p_d[0], r_d[0], q_init)
 
     def step(q_prev, pose):
@@ -237,19 +249,26 @@ def taylor_joint_path(
     return q_d
 
 
-class JointPath(NamedTuple):
-    """A planned joint path: grid `t` (N,), IK samples `q` (N, n) with their residuals, their exact
-    derivatives `qd`, `qdd` (N, n) and `derivatives` `[q, ..., q^(4)]` (5, N, n), and the smooth
-    `q_d(t)` (`fn`, the `taylor_joint_path` of `derivatives`)."""
+@dataclasses.dataclass(frozen=True)
+class JointPath:
+    """A planned joint path on the grid of its task (the checked result of `joint_path`)."""
 
     t: Float[Array, " N"]
+    """Time grid [s]."""
     q: Float[Array, "N n"]
+    """IK samples [rad]."""
     qd: Float[Array, "N n"]
+    """Their exact first derivatives [rad/s]."""
     qdd: Float[Array, "N n"]
+    """Their exact second derivatives [rad/s^2]."""
     derivatives: Float[Array, "5 N n"]
+    """`[q, ..., q^(4)]` [rad, rad/s, ..., rad/s^4]."""
     ik: IKResult
+    """The inverse kinematics with its residuals and statuses."""
     fn: Callable[[Real[Array, ""]], Float[Array, " n"]]
+    """The smooth `q_d(t)` [rad] of `t` [s] (`taylor_joint_path` of `derivatives`)."""
     path: Path
+    """The task."""
 
 
 def joint_path(

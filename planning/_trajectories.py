@@ -7,8 +7,9 @@ a path on its time grid.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -18,22 +19,21 @@ from jaxtyping import Array, Float, Real
 import jaxrobot as jr
 
 
-class Path(NamedTuple):
-    """A task-space reference: any smooth `p_d(t)`, `R_d(t)` on `[0, duration]`.
-
-    **Fields:**
-    - `position`: `t -> p_d(t)`, shape (3,) [m]; pure and differentiable in `t`.
-    - `orientation`: `t -> R_d(t)`, shape (3, 3); pure and differentiable in `t`.
-    - `duration`: `t_e` [s] (the path starts at `t_0 = 0`).
-    - `sample_time`: `T_s` [s] of the planning grid.
-    - `name`: a label for reports.
-    """
+@dataclasses.dataclass(frozen=True)
+class Path:
+    """A task-space reference: any smooth `p_d(t)`, `R_d(t)` on `[0, duration]`. Hashable (its
+    functions by identity), so a static argument of `jit`."""
 
     position: Callable[[Real[Array, ""]], Float[Array, "3"]]
+    """`t -> p_d(t)`, shape (3,) [m] of `t` [s]; pure and differentiable in `t`."""
     orientation: Callable[[Real[Array, ""]], Float[Array, "3 3"]]
+    """`t -> R_d(t)`, shape (3, 3) of `t` [s]; pure and differentiable in `t`."""
     duration: float
+    """`t_e` [s] (the path starts at `t_0 = 0`)."""
     sample_time: float
+    """`T_s` [s] of the planning grid."""
     name: str = "path"
+    """A label for reports."""
 
 
 def polynomial7(

@@ -1,7 +1,8 @@
 """Plan one task and evaluate it on the plant (issue 6): inverse kinematics, the four motor
 trajectories of `METHODS` (the OCP of eq. 4.3 warm-started by the flat inverse) and their tool-pose
-errors on a plant. SI results and structured progress events; text, JSON and figures are made by the
-`plan` command (`_cli_plan.py`)."""
+errors on a plant; and the nu study of thesis 4.3 (`sweep_task`). SI results and structured progress
+events; text, tables, JSON and figures are made by the `plan` and `sweep` commands (`_cli_plan.py`,
+`_cli_sweep.py`)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from jaxtyping import Array, Float
 
 import jaxrobot as jr
 
+from ._bandwidth import bandwidth
 from ._evaluation import (
     MotorTrajectory,
     PlantError,
@@ -26,8 +28,9 @@ from ._evaluation import (
     summarize,
 )
 from ._ik import JointPath, joint_path
+from ._sweep import solve_ocp_sweep
 from ._trajectories import Path, sample_path
-from ._transcription import State
+from ._transcription import COSTS, State
 
 if TYPE_CHECKING:
     from ._ocp import OCPSolution
@@ -169,3 +172,109 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
         for i, k in enumerate(names))))
     return PlanResult(path, jp, sol, trajectories, nu, cost, solve_s, compile_s, plant, tuple(names), run, errors,
                       plan_err, p_d, r_d)
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepEvent:
+    """Progress of `sweep_task`, per cost variant; `elapsed` [s] is the stage's time.
+
+    `stage`: "solved" (the OCPs of all `nus` of `cost` in one call, compile included) or "evaluated"
+    (bandwidths and plant errors of every member). Per member, in the order of `nus`: `status` names,
+    outer `iterations`, and after "evaluated" the largest 99 % control `bandwidth` over the joints [Hz]
+    and the tool `position_max` and `position_rms` error on the plant [m].
+    """
+
+    stage: str
+    cost: str
+    elapsed: float = 0.0
+    nus: tuple[float, ...] = ()
+    status: tuple[str, ...] = ()
+    iterations: tuple[int, ...] = ()
+    bandwidth: tuple[float, ...] = ()
+    position_max: tuple[float, ...] = ()
+    position_rms: tuple[float, ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepCost:
+    """The sweep of one cost variant over `SweepResult.nus` (M members, n joints)."""
+
+    solutions: OCPSolution
+    """The M solutions (one batched `OCPSolution`)."""
+    bandwidth: np.ndarray | None = None
+    """(M, n) 99 % energy bandwidth of the control per member and joint [Hz] (NaN for a joint without
+    control energy); None when the sweep stopped at a member that did not converge."""
+    names: tuple[str, ...] | None = None
+    """Name of each simulated member (its `nu` to 6 digits), the order of `run` and `errors`."""
+    run: PlantRun | None = None
+    """The M plans simulated on the plant."""
+    errors: PlantError | None = None
+    """Their tool-pose errors [m, rad]."""
+
+    @property
+    def converged(self) -> np.ndarray:
+        """(M,) True for the members whose solve converged."""
+        return np.asarray(self.solutions.converged)
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepResult:
+    """The nu study of one task (the result of `sweep_task`)."""
+
+    path: Path
+    """The task."""
+    joint_path: JointPath
+    """Its IK, whose flat inverse warm-starts every solve."""
+    nus: np.ndarray
+    """(M,) weighting factors of eq. 4.3a, as given."""
+    costs: dict[str, SweepCost]
+    """Per cost variant, in the order solved; a sweep that stopped at a failed member ends with it."""
+
+    @property
+    def converged(self) -> bool:
+        """True when every member of every cost variant converged."""
+        return all(bool(c.converged.all()) for c in self.costs.values())
+
+
+def sweep_task(robot: jr.Robot, plant: jr.Robot, path: Path, nus, costs: tuple[str, ...] = COSTS,
+               q_init=None, directional: bool = False, keep_failed: bool = False,
+               on_event: Callable[[SweepEvent], None] | None = None) -> SweepResult:
+    """Solve the OCP of `path` on `robot` for every weighting factor `nus` and cost variant in `costs`
+    (one `solve_ocp_sweep` call per cost: continuation chains in increasing nu, each member warm-started
+    from the previous ones, one chain per CPU core, all from the flat inverse of the IK from `q_init`),
+    then the control bandwidths and the tool-pose errors on `plant` (`directional`: its directional
+    effects on) of every solution. A cost variant with a member that did not converge ends the sweep
+    there, without plant evaluation, unless `keep_failed`; check `converged`. `on_event` receives a
+    `SweepEvent` per stage."""
+    nus = np.asarray(nus, dtype=float)
+    if nus.ndim != 1 or nus.size < 1 or not np.all(np.isfinite(nus) & (nus > 0)):
+        raise ValueError(f"nus: expected one or more values > 0, got {nus}")
+    names = tuple(f"{nu:.6g}" for nu in nus)
+    if len(set(names)) < len(names):
+        raise ValueError(f"nus: expected distinct values (to 6 digits), got {nus}")
+    emit = on_event or (lambda event: None)
+    jp = joint_path(robot, path, q_init)
+    flat = baseline_trajectories(robot, jp)["flat_inverse"]
+    warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
+    ts = float(path.sample_time)
+    out: dict[str, SweepCost] = {}
+    for cost in costs:
+        start = time.perf_counter()
+        sols = jax.block_until_ready(solve_ocp_sweep(robot, jp.q, ts, nus, cost=cost, warm_start=warm))
+        status = tuple(str(s) for s in jr.status_name(sols.status))
+        iterations = tuple(int(k) for k in np.asarray(sols.iterations))
+        emit(SweepEvent("solved", cost, time.perf_counter() - start, tuple(map(float, nus)), status, iterations))
+        if not bool(np.all(np.asarray(sols.converged))) and not keep_failed:
+            out[cost] = SweepCost(sols)
+            break
+        start = time.perf_counter()
+        bw = np.asarray(bandwidth(sols.u, ts))
+        trajectories = {name: ocp_motor_trajectory(sols.x[i], sols.u[i]) for i, name in enumerate(names)}
+        _, run = simulate_plans(plant, jp, trajectories, directional=directional)
+        errors = summarize(run)
+        out[cost] = SweepCost(sols, bw, names, run, errors)
+        emit(SweepEvent("evaluated", cost, time.perf_counter() - start, tuple(map(float, nus)), status, iterations,
+                        tuple(float(b) for b in np.nanmax(bw, axis=-1)),
+                        tuple(float(e) for e in np.asarray(errors.position_max)),
+                        tuple(float(e) for e in np.asarray(errors.position_rms))))
+    return SweepResult(path, jp, nus, out)

@@ -1,5 +1,11 @@
-"""`--runslow` runs the long checks (full-size OCP solves and sweeps); by default they are skipped
-so that the suite stays within 10 minutes on 2 CPU cores."""
+"""Markers beyond the 10-minute suite (2 CPU cores):
+
+- `extended`: an end-to-end check that CI runs after the suite (`.ci/run`, second step); run it with
+  `--extended`. Every notebook and README block, and the long integration runs whose parts the suite
+  covers one by one.
+- `slow`: a long check (full-size OCP solves and sweeps) that CI does not run; `--runslow` runs it
+  (and the extended ones).
+"""
 
 from __future__ import annotations
 
@@ -7,17 +13,21 @@ import pytest
 
 
 def pytest_addoption(parser):
-    parser.addoption("--runslow", action="store_true", help="also run tests marked slow (about 30 min on 2 cores)")
+    parser.addoption("--extended", action="store_true", help="also run the tests marked extended (CI's second step)")
+    parser.addoption("--runslow", action="store_true",
+                     help="also run the tests marked slow or extended (about 30 min on 2 cores)")
 
 
 def pytest_configure(config):
+    config.addinivalue_line("markers", "extended: an end-to-end check CI runs after the suite; run with --extended")
     config.addinivalue_line("markers", "slow: a long check (full-size OCP, sweeps); run with --runslow")
 
 
 def pytest_collection_modifyitems(config, items):
-    if config.getoption("--runslow"):
-        return
-    skip = pytest.mark.skip(reason="slow: run with --runslow")
+    runslow = config.getoption("--runslow")
+    extended = runslow or config.getoption("--extended")
     for item in items:
-        if "slow" in item.keywords:
-            item.add_marker(skip)
+        if "slow" in item.keywords and not runslow:
+            item.add_marker(pytest.mark.skip(reason="slow: run with --runslow"))
+        elif "extended" in item.keywords and not extended:
+            item.add_marker(pytest.mark.skip(reason="extended: run with --extended (CI's second step)"))

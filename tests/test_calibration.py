@@ -235,6 +235,20 @@ def test_identifiability_with_orientation(identifiability_blocks):
     assert res.rank == len(names) - 2
 
 
+def test_observability_indices_of_known_singular_values_under_jit():
+    """O1-O5 (eq. 3.10-3.11) of sigma = (1, 2, 4) and (2, 2, 2) for K = 4 poses, by hand: O1 = 8^(1/3) / 2
+    = 1 for both, O2 = 1/4 and 1, O3 = 1 and 2, O4 = 1/4 and 2, O5 = 4/7 and 2/3; a pytree through jit."""
+    import jax
+
+    from identification import ObservabilityIndices, observability_indices
+
+    idx = jax.jit(observability_indices)(jnp.asarray([[1.0, 2.0, 4.0], [2.0, 2.0, 2.0]]), 4)
+    assert isinstance(idx, ObservabilityIndices)
+    expected = {"O1": [1.0, 1.0], "O2": [0.25, 1.0], "O3": [1.0, 2.0], "O4": [0.25, 2.0], "O5": [4 / 7, 2 / 3]}
+    for k, v in expected.items():
+        np.testing.assert_allclose(getattr(idx, k), v, rtol=1e-15, err_msg=k)
+
+
 def test_detmax_beats_random_and_thesis(robots, bench, candidate_poses):
     nominal, _ = robots
     params = ParameterMap(DEFAULT_PARAMETERS)
@@ -247,10 +261,10 @@ def test_detmax_beats_random_and_thesis(robots, bench, candidate_poses):
     blocks = pose_jacobians(nominal, ParameterMap(CANDIDATES), np.concatenate([q_thesis, q_random]))[..., cols]
     thesis = set_indices(blocks[:50], sel.scale)
     rand = set_indices(blocks[50:], sel.scale)
-    print(f"\nO1/O4 DETMAX {sel.indices['O1']:.4g}/{sel.indices['O4']:.4g}, thesis {thesis['O1']:.4g}/"
-          f"{thesis['O4']:.4g}, random {rand['O1']:.4g}/{rand['O4']:.4g} ({sel.iterations} iterations)")
+    print(f"\nO1/O4 DETMAX {sel.indices.O1:.4g}/{sel.indices.O4:.4g}, thesis {thesis.O1:.4g}/"
+          f"{thesis.O4:.4g}, random {rand.O1:.4g}/{rand.O4:.4g} ({sel.iterations} iterations)")
     for k in ("O1", "O4"):
-        assert sel.indices[k] > thesis[k] and sel.indices[k] > rand[k], k
+        assert getattr(sel.indices, k) > getattr(thesis, k) and getattr(sel.indices, k) > getattr(rand, k), k
     feasible_q = sel.q
     assert np.all((feasible_q >= nominal.q_min) & (feasible_q <= nominal.q_max))
     z = np.asarray(jr.point_position(nominal, jnp.asarray(feasible_q), default_marker()))[:, 2]
@@ -289,7 +303,7 @@ def test_bad_input(robots, bench, tmp_path):
     text[5] = text[4]
     path.write_text("\n".join(text) + "\n")
     data = read_pose_csv(path)
-    np.testing.assert_allclose(data["motor_angles"][:4], theta[:4], rtol=1e-15)
+    np.testing.assert_allclose(data.motor_angles[:4], theta[:4], rtol=1e-15)
     (tmp_path / "short.csv").write_text("theta1_deg,theta2_deg,x_m\n1,2,3\n")
     with pytest.raises(ValueError, match=r"missing columns \['y_m', 'z_m'\]"):
         read_pose_csv(tmp_path / "short.csv")
@@ -483,8 +497,8 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
     config = jax.tree.map(jnp.asarray, LMConfig())
     out = _fleet_solve(fleet, params, g_theta, g_pos, jnp.asarray(default_marker(), float), q0, defl, config,
                        rippled, mesh)
-    assert jr.status_name(out["status"]).tolist() == ["successful", "nonfinite", "successful"]
-    assert np.asarray(out["converged"]).tolist() == [True, False, True]
+    assert jr.status_name(out.status).tolist() == ["successful", "nonfinite", "successful"]
+    assert np.asarray(out.converged).tolist() == [True, False, True]
     with pytest.raises(ValueError, match=r"positions\[robot 1\]: NaN/inf in rows \[4\]"):
         from identification.calibration._fleet import calibrate_fleet
 
@@ -510,18 +524,18 @@ def test_batched_lm_kernel():
     x0 = jnp.asarray([[-1.2, 1.0], [3.0, -2.0], [jnp.nan, 0.0]])
     run = jax.jit(batched_lm, static_argnums=0)
     out = run(rj, x0, None, LMConfig(max_steps=200))
-    assert jr.status_name(out["status"]).tolist() == ["successful", "successful", "nonfinite"]
-    np.testing.assert_allclose(np.asarray(out["x"][:2]), 1.0, atol=1e-9)
+    assert jr.status_name(out.status).tolist() == ["successful", "successful", "nonfinite"]
+    np.testing.assert_allclose(np.asarray(out.x[:2]), 1.0, atol=1e-9)
     chunked = jax.jit(batched_lm, static_argnums=0, static_argnames="chunk")(rj, x0, None, LMConfig(max_steps=200),
                                                                              chunk=2)
-    assert jr.status_name(chunked["status"]).tolist() == jr.status_name(out["status"]).tolist()
+    assert jr.status_name(chunked.status).tolist() == jr.status_name(out.status).tolist()
     for key in ("steps", "accepted"):
-        assert np.asarray(chunked[key]).tolist() == np.asarray(out[key]).tolist(), key
-    np.testing.assert_array_equal(np.asarray(chunked["x"][:2]), np.asarray(out["x"][:2]))
+        assert np.asarray(getattr(chunked, key)).tolist() == np.asarray(getattr(out, key)).tolist(), key
+    np.testing.assert_array_equal(np.asarray(chunked.x[:2]), np.asarray(out.x[:2]))
     compiled = run._cache_size()
     short = run(rj, x0, None, LMConfig(max_steps=3, xtol=1e-12))
-    assert jr.status_name(short["status"]).tolist() == ["nonlinear_max_steps_reached"] * 2 + ["nonfinite"]
-    assert np.asarray(short["steps"]).tolist() == [3, 3, 0]
+    assert jr.status_name(short.status).tolist() == ["nonlinear_max_steps_reached"] * 2 + ["nonfinite"]
+    assert np.asarray(short.steps).tolist() == [3, 3, 0]
     assert run._cache_size() == compiled  # the second config was not compiled again
     rng = np.random.default_rng(3)
     b = rng.normal(size=(4, 7, 7))

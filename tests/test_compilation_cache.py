@@ -125,11 +125,11 @@ def test_exported_program_static_leaves_and_fallbacks(tmp_path, monkeypatch):
 
 _PROGRAM_PROBE = """
 import sys, jax, jax.numpy as jnp, jaxrobot
-from jaxrobot import _cli_info
+from jaxrobot import _summary
 if sys.argv[1] == "load":  # the second process must find the program of the first
     jax.export.export = None
 q, t = jnp.ones((5, 6)), jnp.linspace(0.0, 1.0, 5)
-err = _cli_info._move_error(jnp.zeros(6), jnp.ones(6), 1.5, q, t)
+err = _summary._move_error(jnp.zeros(6), jnp.ones(6), 1.5, q, t)
 print(repr(float(err)), err.weak_type)
 """
 

@@ -59,6 +59,7 @@ def _run_job(argv, tmp_path: Path, n: int = 2) -> list[str]:
     return [out.read_text() for out, _ in logs]
 
 
+@pytest.mark.extended  # two new processes compile the sharded fleet LM
 def test_two_process_fleet_equals_one_process(tmp_path, capsys):
     """7 robots (shares 3 and 4, so process 0 pads): the bench data each process wrote are the
     1-process bench data byte for byte, and the table process 0 wrote holds the 1-process call's
@@ -81,8 +82,8 @@ def test_two_process_fleet_equals_one_process(tmp_path, capsys):
     assert all(f.read_bytes() == g.read_bytes() for f, g in zip(files, reference))
 
     poses = [jb.read_pose_csv(f) for f in files]
-    one = calibrate_fleet(jr.racer7(), np.stack([p["motor_angles"] for p in poses]),
-                          np.stack([p["positions"] for p in poses]))
+    one = calibrate_fleet(jr.racer7(), np.stack([p.motor_angles for p in poses]),
+                          np.stack([p.positions for p in poses]))
     with (tmp_path / "out" / TABLE).open() as f:
         rows = list(csv.DictReader(f))
     assert [r["file"] for r in rows] == [f.name for f in files]

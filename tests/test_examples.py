@@ -34,14 +34,14 @@ def test_every_notebook_is_tested():
     assert sorted(p.name for p in EXAMPLES.glob("*.ipynb")) == sorted(NOTEBOOKS)
 
 
-@pytest.mark.slow  # ~35 s cold (CI runs every notebook in its notebook step, .ci/run)
+@pytest.mark.extended  # ~35 s cold
 def test_model_tour(tmp_path, monkeypatch):
     """The flat inverse, simulated on the elastic model, tracks to < 1e-6 rad (as tests/test_simulation)."""
     s = _run("01_model_tour.ipynb", tmp_path, monkeypatch)
     assert s["tracking_error_rad"] < 1e-6
 
 
-@pytest.mark.slow  # ~60 s cold: the gear programs compile (CI runs it in its notebook step, .ci/run)
+@pytest.mark.extended  # ~60 s cold: the gear programs compile
 def test_gear_identification(tmp_path, monkeypatch):
     """u0 within 4 of its reported standard errors of the bench's true ratio; on runs it did not fit,
     the identified ratio leaves less kinematic error than the constant one."""
@@ -51,7 +51,7 @@ def test_gear_identification(tmp_path, monkeypatch):
     assert all(r > 0 for r in s["validation_rms_reduction"].values()), s["validation_rms_reduction"]
 
 
-@pytest.mark.slow  # 81-84 s cold on the 2 shared cores (load 6-10): two LM programs and DETMAX compile
+@pytest.mark.extended  # 81-84 s cold on the 2 shared cores (load 6-10): two LM programs and DETMAX compile
 def test_calibration(tmp_path, monkeypatch):
     """One robot: mean validation error within 1.2x the mean norm of the tracker noise
     (`sigma sqrt(8/pi)`, as tests/test_own_robot); the fleet: every robot converged and predicts the
@@ -62,7 +62,7 @@ def test_calibration(tmp_path, monkeypatch):
     assert s["fleet_prediction_rms_max_m"] < SIGMA_SQRT3 * s["sigma_m"]
 
 
-@pytest.mark.slow  # 164-246 s cold on the 2 shared cores (load 6-10): two OCP sweep programs compile
+@pytest.mark.extended  # 164-246 s cold on the 2 shared cores (load 6-10): two OCP sweep programs compile
 def test_nu_study(tmp_path, monkeypatch):
     """Every OCP of the sweep converged; the smallest nu follows the path more closely than the largest."""
     s = _run("04_nu_study.ipynb", tmp_path, monkeypatch)
@@ -70,7 +70,7 @@ def test_nu_study(tmp_path, monkeypatch):
     assert s["thesis_error_m"][0] < s["thesis_error_m"][-1]
 
 
-@pytest.mark.slow  # 82-121 s cold on the 2 shared cores (load 6-10): the diagnose programs compile
+@pytest.mark.extended  # 82-121 s cold on the 2 shared cores (load 6-10): the diagnose programs compile
 def test_diagnose(tmp_path, monkeypatch):
     """The hidden ripple of joint 1 is named, and the validation RMS ends within 1.3x the noise
     floor (as tests/test_diagnose)."""
@@ -79,7 +79,7 @@ def test_diagnose(tmp_path, monkeypatch):
     assert s["final_rms_validation_um"] <= 1.3 * s["noise_floor_um"]
 
 
-@pytest.mark.slow  # 88-125 s cold on the 2 shared cores (load 6-10): an OCP program for a new robot compiles
+@pytest.mark.extended  # 88-125 s cold on the 2 shared cores (load 6-10): an OCP program for a new robot compiles
 def test_own_robot(tmp_path, monkeypatch):
     """The OCP on the imported arm converged and its plan, simulated on the model, stays within 1 µm
     of the path (as tests/test_own_robot), where the rigid plan misses by more than 100 µm."""

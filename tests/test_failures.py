@@ -84,6 +84,7 @@ def _converged_solve(*args, **kwargs):
 STAGES = ("inverse_kinematics", "flat_inverse", "solving", "ocp", "ocp_again", "solved")
 
 
+@pytest.mark.extended  # IK, flat inverse and plant simulation at 5 ms compile; exit code 3 stays in the suite
 def test_plan_task_events_in_order_and_si_results_behind_the_summary(monkeypatch):
     import planning._ocp
     from planning._cli_plan import summary
@@ -116,13 +117,13 @@ def test_plan_task_events_in_order_and_si_results_behind_the_summary(monkeypatch
 
 @pytest.mark.slow
 def test_sweep_failed_member_exits_3_and_writes_nothing(tmp_path, capsys, monkeypatch):
-    import planning._cli_sweep
+    import planning._workflow
 
     def failed_sweep(robot, q_d, ts, nus, cost="thesis", warm_start=None):
         sols = [_failed_solve(robot, q_d, ts, warm_start=warm_start) for _ in nus]
         return jax_stack(sols)
 
-    monkeypatch.setattr(planning._cli_sweep, "solve_ocp_sweep", failed_sweep)
+    monkeypatch.setattr(planning._workflow, "solve_ocp_sweep", failed_sweep)
     t, pos = line_samples(25)
     task = write_task(tmp_path / "line.csv", t, pos)
     out = tmp_path / "sweep"
@@ -137,3 +138,43 @@ def jax_stack(trees):
     import jax
 
     return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)
+
+
+def test_sweep_task_events_stop_at_a_failed_member_and_si_results_behind_the_table(monkeypatch):
+    """`sweep_task` with stand-ins for `solve_ocp_sweep`: a cost with a failed member ends the sweep
+    there, unevaluated; converged members are evaluated on the plant, one "solved" and one "evaluated"
+    event per cost, and the CLI's table is the SI result in µm and Hz."""
+    import planning._workflow
+    from planning._cli_sweep import failures, table
+
+    robot = jr.racer7()
+    path = pl.sampled_path(*(jnp.asarray(a) for a in line_samples(5)))
+    nus = [1e-14, 1e-12]
+
+    def stand_in(solve):
+        return lambda robot, q_d, ts, nus, cost="thesis", warm_start=None: jax_stack(
+            [solve(robot, q_d, ts, warm_start=warm_start) for _ in nus])
+
+    events = []
+    monkeypatch.setattr(planning._workflow, "solve_ocp_sweep", stand_in(_failed_solve))
+    failed = pl.sweep_task(robot, robot, path, nus, ("thesis", "jerk"), on_event=events.append)
+    assert [(e.stage, e.cost) for e in events] == [("solved", "thesis")] and not failed.converged
+    assert list(failed.costs) == ["thesis"] and failed.costs["thesis"].run is None
+    assert events[0].status == ("inner_failed",) * 2 and events[0].iterations == (17, 17)
+    assert failures(failed)[0].startswith("cost thesis, nu 1e-14: status inner_failed after 17 outer iterations")
+    with pytest.raises(ValueError, match="nus: expected one or more values > 0"):
+        pl.sweep_task(robot, robot, path, [1e-14, 0.0])
+    with pytest.raises(ValueError, match="nus: expected distinct values"):
+        pl.sweep_task(robot, robot, path, [1e-14, 1e-14])
+    monkeypatch.setattr(planning._workflow, "solve_ocp_sweep", stand_in(_converged_solve))
+    events.clear()
+    res = pl.sweep_task(robot, robot, path, nus, ("thesis", "jerk"), on_event=events.append)
+    assert [(e.stage, e.cost) for e in events] == [("solved", "thesis"), ("evaluated", "thesis"),
+                                                   ("solved", "jerk"), ("evaluated", "jerk")]
+    assert res.converged and failures(res) == [] and res.costs["jerk"].names == ("1e-14", "1e-12")
+    rows = table(res)
+    for row, (cost, i) in zip(rows, [(c, i) for c in ("thesis", "jerk") for i in range(2)], strict=True):
+        c = res.costs[cost]
+        assert (row["cost"], row["nu"], row["status"]) == (cost, nus[i], "successful")
+        assert row["plant_max_um"] == 1e6 * float(c.errors.position_max[i]) == 1e6 * events[1].position_max[i]
+        assert row["max_bandwidth_hz"] == float(np.nanmax(c.bandwidth[i])) == events[1].bandwidth[i]

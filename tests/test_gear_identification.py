@@ -20,7 +20,7 @@ import pytest
 import jaxrobot as jr
 import jaxrobot.bench as jb
 from identification import check_gear_run, identify_gear, prepare_gear_runs
-from identification.gear._cli import bench_runs
+from identification.gear._bench import bench_runs
 from identification.gear._report import summary
 
 MISALIGNMENT_TOL = 1e-3  # rad (issue 3)
@@ -56,8 +56,8 @@ def cutoffs():
 def bench(truth):
     """Identification runs (`IDENTIFICATION_RUNS` per direction), noisy validation runs (1 per
     direction at each speed) and the same without noise."""
-    ident, val, ident_names, val_names = bench_runs(
-        seed=7, repetitions={"identification": 4, "validation": 1, "other_speed": 1})
+    runs = bench_runs(seed=7, repetitions={"identification": 4, "validation": 1, "other_speed": 1})
+    ident, val, ident_names, val_names = runs.runs, runs.validation_runs, runs.names, runs.validation_names
     quiet = []
     for joint in (1, 2, 3):
         if IDENTIFICATION_RUNS[joint] > 4:

@@ -28,7 +28,7 @@ CASES = {"p0_clean": None, "p1_joint5_offset": ("joint_offset", 5), "p2_joint2_s
 def _diagnose_case(name: str):
     d = independent_data() / "poses" / name
     poses = [read_poses(d / f"{s}.csv") for s in ("train", "val")]
-    res = diagnose(jr.load_robot(d / "start.toml"), *(Poses.of(p["motor_angles"], p["positions"]) for p in poses))
+    res = diagnose(jr.load_robot(d / "start.toml"), *(Poses.of(p.motor_angles, p.positions) for p in poses))
     return diagnosis_summary(res), json.loads((d / "truth.json").read_text())
 
 
@@ -56,9 +56,9 @@ def test_not_explained_when_validation_exceeds_its_bound():
     std per axis, which the training poses do not show) must not give "explained"/"no discrepancy"."""
     d = independent_data() / "poses" / "p0_clean"
     train, val = (read_poses(d / f"{s}.csv") for s in ("train", "val"))
-    shifted = val["positions"] + np.array([2e-4, 0.0, 0.0])
-    res = diagnose(jr.load_robot(d / "start.toml"), Poses.of(train["motor_angles"], train["positions"]),
-                   Poses.of(val["motor_angles"], shifted))
+    shifted = val.positions + np.array([2e-4, 0.0, 0.0])
+    res = diagnose(jr.load_robot(d / "start.toml"), Poses.of(train.motor_angles, train.positions),
+                   Poses.of(val.motor_angles, shifted))
     rep = diagnosis_summary(res)
     assert rep["final_rms_validation_um"] > rep["validation_bound_um"]
     assert rep["verdict"].startswith("not explained"), rep["verdict"]
@@ -78,8 +78,8 @@ def test_approach_conventions(tmp_path):
     cols = approach_columns(6)
     text = [lines[0] + "," + ",".join(cols)] + [ln + "," + ",".join(map(str, s)) for ln, s in zip(lines[1:], sign)]
     path.write_text("\n".join(text) + "\n")
-    np.testing.assert_array_equal(read_poses(path, "column")["ccw"], sign < 0)
-    assert not read_poses(path)["ccw"].any()
+    np.testing.assert_array_equal(read_poses(path, "column").ccw, sign < 0)
+    assert not read_poses(path).ccw.any()
     path.write_text("\n".join(text).replace(",-1\n", ",0\n", 1) + "\n")
     with pytest.raises(ValueError, match=r"approach\d in data row \d: expected \+1 \(cw\) or -1 \(ccw\), found 0"):
         read_poses(path, "column")
@@ -181,8 +181,8 @@ def test_pose_unit_mistakes_are_named(mistake, transform, message):
 
     robot = jr.racer7()
     data = read_poses(independent_data() / "calibration" / "train.csv")
-    check_pose_units(robot, data["motor_angles"], data["positions"], default_marker())  # the file as it is
-    th_deg, pos = transform(np.rad2deg(data["motor_angles"]), data["positions"], np.asarray(robot.u0))
+    check_pose_units(robot, data.motor_angles, data.positions, default_marker())  # the file as it is
+    th_deg, pos = transform(np.rad2deg(data.motor_angles), data.positions, np.asarray(robot.u0))
     with pytest.raises(ValueError, match=message):
         check_pose_units(robot, np.deg2rad(th_deg), pos, default_marker())
 
@@ -214,7 +214,7 @@ def test_unit_mistake_fails_the_cli_before_fitting(tmp_path, capsys):
     from jaxrobot._cli import main
 
     data = read_poses(independent_data() / "calibration" / "train.csv")
-    jb.write_pose_csv(tmp_path / "mm.csv", data["motor_angles"], 1e3 * data["positions"])
+    jb.write_pose_csv(tmp_path / "mm.csv", data.motor_angles, 1e3 * data.positions)
     assert main(["calibrate", str(tmp_path / "mm.csv")]) == 2
     assert "millimetres in the _m columns" in capsys.readouterr().err
 
@@ -239,13 +239,13 @@ def test_map_calibration_holds_on_independent_poses():
     train, val = (read_poses(d / f"{s}.csv") for s in ("train", "val"))
     truth = json.loads((d / "truth.json").read_text())
     robot = jr.racer7()
-    args = (robot, train["motor_angles"], train["positions"])
-    kw = {"validation": (val["motor_angles"], val["positions"])}
+    args = (robot, train.motor_angles, train.positions)
+    kw = {"validation": (val.motor_angles, val.positions)}
     lm = calibration_report(calibrate(*args, **kw))
     mp = calibration_report(calibrate(*args, **kw, method="map", parameters=map_parameters(DEFAULT_PARAMETERS, 6)))
     assert lm["converged"] and mp["converged"]
     mean_lm, mean_map = (r["validation"]["after_m"]["mean"] for r in (lm, mp))
-    se = lm["validation"]["after_m"]["std"] / np.sqrt(len(val["positions"]))
+    se = lm["validation"]["after_m"]["std"] / np.sqrt(len(val.positions))
     assert mean_map <= 1.15 * 1e-3 * truth["truth_val_mean_mm"]
     assert mean_map <= mean_lm + se
     true = _true_deviations(truth)
@@ -290,7 +290,7 @@ def test_chained_cli_gear_calibrate(gear_stage, tmp_path, capsys):
             theta = np.concatenate([th[:, 2] for f, (_, th, _) in runs.items() if f"j3_{key}" in f])
             u0 = float(jr.racer7(as_built=True).u0[2])
             assert np.rad2deg(theta.min()) / u0 - 1.0 <= lo < hi <= np.rad2deg(theta.max()) / u0 + 1.0
-    phi3 = np.rad2deg(read_poses(d / "train.csv")["motor_angles"][:, 2]) / float(gear.u0[2])
+    phi3 = np.rad2deg(read_poses(d / "train.csv").motor_angles[:, 2]) / float(gear.u0[2])
     lo, hi = jr.read_description(gear_toml)["gear"]["joint3"]["cw"]["identified_range_deg"]
     assert out["ripple_outside_identified_range"]["3"]["poses"] == int(np.sum((phi3 < lo) | (phi3 > hi))) > 0
 

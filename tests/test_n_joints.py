@@ -71,7 +71,7 @@ def test_model_functions_and_bench_for_n_joints(n, tmp_path):
     assert (tmp_path / "poses.csv").read_text().splitlines()[0].startswith(
         ",".join(f"theta{i}_deg" for i in range(1, n + 1)) + ",x_m")
     back = jb.read_pose_csv(tmp_path / "poses.csv")
-    np.testing.assert_allclose(back["motor_angles"], meas.motor_angles, rtol=1e-15)
+    np.testing.assert_allclose(back.motor_angles, meas.motor_angles, rtol=1e-15)
 
 
 @pytest.mark.parametrize("n", [1, 2, 7, 12])
@@ -153,6 +153,7 @@ def arm7():
     return jr.load_robot(ARM7), jr.load_robot(ARM7, as_built=True)
 
 
+@pytest.mark.extended  # the pose bench and LM of a 7-joint arm compile; the suite keeps the 7-joint model
 def test_seven_joint_calibration_recovers_the_as_built_arm(arm7):
     """Bench poses of the as-built arm: the calibrated deviations within 3 reported standard errors
     of the truth, and the validation error at the noise floor (the as-built arm's own error on the

@@ -2,7 +2,7 @@
 the README), in a temporary working directory. The files a block reads are made first: `panda.toml`
 (example-robot-data's Panda imported, plus the README's own TOML fragment) and `fleet/` (pose files of
 a few bench robots). The blocks together compile most of the package's programs (several minutes on
-2 cores): they run with `--runslow`, which CI does after the suite (`.ci/run`)."""
+2 cores): they are marked `extended`: CI runs them after the suite (`.ci/run`)."""
 
 from __future__ import annotations
 
@@ -68,7 +68,7 @@ def _check_python_block(ns: dict) -> None:
 CHECKS = {"jr.flat_inverse": _check_python_block}
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 @pytest.mark.parametrize("index", [pytest.param(i, id=f"line{line}")
                                    for i, (line, code) in enumerate(BLOCKS)])
 def test_readme_python_block(index, reader, monkeypatch):

@@ -62,3 +62,32 @@ def test_measured_pose_returns_the_status_of_its_rest_pose():
     assert np.all(np.asarray(result == jr.RESULTS.successful))
     np.testing.assert_array_equal(q, rest_link_angles(robot, theta))  # the same fixed point, bitwise
     assert p.shape == (2, 3) and r.shape == (2, 3, 3)
+
+
+def test_inverse_kinematics_throw_raises_a_non_converged_sample():
+    """A pose 3 m beyond the reach (the Racer-7 reaches ~0.8 m): Newton cannot converge; the status
+    says so with `throw=False` (the default) and `throw=True` raises its message."""
+    robot = jr.racer7()
+    p_d, r_d = pl.sample_path(pl.reference_path("line"), jnp.zeros(3))
+    p_d = p_d + jnp.asarray([3.0, 0.0, 0.0])
+    ik = pl.inverse_kinematics(robot, p_d, r_d, pl.default_start())
+    assert jr.status_name(ik.status).tolist() == ["nonlinear_max_steps_reached"] * 3
+    assert not np.asarray(ik.converged).any() and float(ik.position_residual.min()) > 1.0
+    with pytest.raises(Exception, match="maximum number of steps"):
+        pl.inverse_kinematics(robot, p_d, r_d, pl.default_start(), throw=True)
+
+
+def test_calibrate_throw_raises_a_non_converged_solve():
+    """One LM step from the nominal robot on bench data of the as-built one: not converged (its
+    status returned, `converged=False`) and, with `throw=True`, raised."""
+    import jaxrobot.bench as jb
+    from identification import calibrate
+
+    theta = np.deg2rad(np.asarray(jr.read_description()["poses"]["motor_deg"], float))[:8]
+    m = jb.measure_poses(jr.racer7(as_built=True), theta, seed=11)
+    args = (jr.racer7(), m.motor_angles, m.positions)
+    kwargs = dict(parameters=("offset2", "offset3"), max_steps=1)
+    res = calibrate(*args, **kwargs)
+    assert (res.converged, res.status, res.iterations) == (False, "nonlinear_max_steps_reached", 1)
+    with pytest.raises(Exception, match="maximum number of steps"):
+        calibrate(*args, **kwargs, throw=True)

@@ -13,6 +13,7 @@ from ._identifiability import IdentifiabilityResult as IdentifiabilityResult
 from ._identifiability import default_parameters as default_parameters
 from ._identifiability import identifiability as identifiability
 from ._identifiability import kinematic_parameters as kinematic_parameters
+from ._observability import ObservabilityIndices as ObservabilityIndices
 from ._observability import observability_indices as observability_indices
 from ._parameters import THESIS_PARAMETERS as THESIS_PARAMETERS
 from ._parameters import ParameterMap as ParameterMap

@@ -17,10 +17,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 import jaxrobot as jr
 from jaxrobot import RESULTS, cached_program
+from jaxrobot.measurement import marker_pose
 from jaxrobot.status import check
 
 from .._pose_files import check_pose_units
@@ -28,8 +29,7 @@ from ._identifiability import analyse, default_parameters
 from ._model import (
     analytic_names,
     joint_angle_model,
-    marker_pose_one,
-    position_jacobian_one,
+    position_jacobian,
     rippled_joints,
 )
 from ._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection
@@ -86,9 +86,9 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
                  rippled: tuple[int, ...] | None = None, q0=None):
     """Residual `fn(x, _)` in scaled variables `v = v0 + scale x`, its start `v0` and `scale`.
 
-    The model is `predict_pose` with its per-pose constants hoisted (`_calibration_model`; `q0`,
+    The model is `predict_pose` with its per-pose constants hoisted (`_model`; `q0`,
     the initial joint angles, may be given). Its Jacobian is supplied per pose: for position rows
-    and joint parameters from the joint screws (`position_jacobian_one`), else by reverse mode
+    and joint parameters from the joint screws (`position_jacobian`), else by reverse mode
     (3 or 6 outputs against the robot fields that `params` touches) chained with
     `d fields / d x`; either costs a few model evaluations instead of m forward passes.
     """
@@ -109,7 +109,7 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
 
     def one_pose(fields, th, q0k, de, tp, tr, cw):
         robot = robot_of(fields)
-        p, r = marker_pose_one(robot, q_pose(robot, th, q0k, de, cw), marker)
+        p, r = marker_pose(robot, q_pose(robot, th, q0k, de, cw), marker)
         res = (p - tp) / RESIDUAL_UNIT
         if orient:
             res = jnp.concatenate([res, weight_r * jr.rotation_error(tr, r) / RESIDUAL_UNIT])
@@ -128,7 +128,7 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
         robot = robot_of(fields)
         q = q_pose(robot, th, q0k, de, cw)
         ratio = jr.gear_ratio(robot, q - de, cw) if full_ratio else robot.u0
-        return position_jacobian_one(robot, params, q, th, ratio, marker)[1] * (scale / RESIDUAL_UNIT)
+        return position_jacobian(robot, params, q, th, ratio, marker)[1] * (scale / RESIDUAL_UNIT)
 
     @resid.defjvp
     def _resid_jvp(primals, tangents):
@@ -143,6 +143,36 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
         return resid(x), (jac @ t).ravel()
 
     return (lambda x, _: resid(x)), v0, scale
+
+
+class ParameterEstimate(eqx.Module):
+    """Free parameters estimated by LM, in the units of `ParameterMap`, for one robot or a fleet
+    (leading axes `*b`), from n residuals."""
+
+    value: Float[Array, "*b m"]
+    """The parameters at the solution."""
+    std: Float[Array, "*b m"]
+    """Their standard errors (`sqrt(diag(covariance))`)."""
+    covariance: Float[Array, "*b m m"]
+    """`s^2 (J^T J)^{-1}`, `s^2` the noise estimate."""
+    status: RESULTS
+    """The solver's status; `rank_deficient` for a converged solve with a rank-deficient Jacobian,
+    `nonfinite` for a non-finite solution."""
+    steps: Int[Array, "*b"]
+    """LM steps taken."""
+    rank: Int[Array, "*b"]
+    """Numerical rank of the scaled Jacobian."""
+    residuals: Float[Array, "*b n"]
+    """Residuals at the solution [m] (orientation rows in m-equivalent units)."""
+    noise_variance: Float[Array, "*b"]
+    """`s^2 = ||r||^2 / (n - m)` [m^2]."""
+    jacobian: Float[Array, "*b n m"] | None = None
+    """The Jacobian at the solution, residual mm per parameter unit (one robot only; None for a fleet)."""
+
+    @property
+    def converged(self) -> Bool[Array, "*b"]:
+        """True where the solve converged (`status == RESULTS.successful`)."""
+        return self.status == RESULTS.successful
 
 
 def solve(
@@ -161,8 +191,8 @@ def solve(
     rippled: tuple[int, ...] | None = None,
     prior_weight: Float[Array, " m"] | None = None,
     throw: bool = False,
-) -> dict[str, Array]:
-    """LM solve for one robot; pure and jit/vmap-safe (the fleet maps it over robots).
+) -> ParameterEstimate:
+    """LM solve for one robot; pure and jit/vmap-safe.
 
     `prior_weight`: maximum a posteriori with independent Gaussian priors on the deviations,
     entered as rows `prior_weight * x` (x: scaled deviation; weight = noise / prior std, in the
@@ -172,13 +202,8 @@ def solve(
     is traced (e.g. under `vmap`), else found from `robot0`; a free `u0` of a ripple-free gear then
     skips the Newton inversion.
 
-    **Returns:** `value` (m,) parameters, `std` (m,) standard errors, `cov` (m, m), `result`
-    (below), `steps`, `residuals` (n,) at the solution in m (orientation rows
-    in m-equivalent units), `rank` of the scaled Jacobian, `sigma2` the noise estimate [m^2],
-    `jacobian` (n, m) at the solution (residual mm per parameter unit). `result` is a `RESULTS`:
-    optimistix's status, `rank_deficient` for a converged solve with a rank-deficient Jacobian,
-    `nonfinite` for a non-finite solution; `converged` is `result == RESULTS.successful`.
-    `throw`: raise its message when it is not `successful` (also under `jit`).
+    **Returns:** `ParameterEstimate` with its `jacobian`. `throw`: raise the message of its status
+    when it is not `successful` (also under `jit`).
     """
     fn_data, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r,
                                       ccw, rippled)
@@ -201,10 +226,9 @@ def solve(
                            RESULTS.where(jnp.all(jnp.isfinite(x)),
                                          RESULTS.where(rank == m, RESULTS.successful, RESULTS.rank_deficient),
                                          RESULTS.nonfinite), result)
-    out = {"value": v0 + scale * x, "std": jnp.sqrt(jnp.diag(cov)), "cov": cov,
-           "result": result, "converged": result == RESULTS.successful, "steps": sol.stats["num_steps"],
-           "residuals": r * RESIDUAL_UNIT, "rank": rank, "sigma2": sigma2 * RESIDUAL_UNIT**2,
-           "jacobian": jx / scale}
+    out = ParameterEstimate(value=v0 + scale * x, std=jnp.sqrt(jnp.diag(cov)), covariance=cov, status=result,
+                            steps=sol.stats["num_steps"], rank=rank, residuals=r * RESIDUAL_UNIT,
+                            noise_variance=sigma2 * RESIDUAL_UNIT**2, jacobian=jx / scale)
     return check(result, out, throw)
 
 
@@ -334,6 +358,7 @@ def calibrate(
     max_steps: int = 100,
     method: str = "lm",
     prior_std: dict | None = None,
+    throw: bool = False,
 ) -> CalibrationResult:
     """Calibrate the kinematic parameters from tracker measurements (thesis 3.2.3, eq. 3.12).
 
@@ -359,7 +384,8 @@ def calibrate(
     parameters, unit mistakes (`check_pose_units`), and, with
     `limits="raise"`, poses beyond the joint limits (by row); after the solve, for a
     rank-deficient pose set (naming the unidentifiable directions). A solve that does not converge is
-    returned with `converged=False` and its `status` (a `jaxrobot.RESULTS` name), never as success.
+    returned with `converged=False` and its `status` (a `jaxrobot.RESULTS` name), never as success;
+    `throw=True` raises its message instead (`RESULTS.error_if`).
 
     **Returns:** `CalibrationResult` (SI units; `calibration_report` gives the report dict).
     """
@@ -402,19 +428,21 @@ def calibrate(
     weight = None if prior is None else jnp.asarray(s_p / RESIDUAL_UNIT * np.asarray(params.scales(robot)) / prior)
     out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw_id, max_steps=max_steps,
                      rippled=rippled_joints(robot), prior_weight=weight)
+    result = out.status
     out = jax.tree.map(np.asarray, out)
     if prior is None:
-        check_rank(out["jacobian"], params)
-    calibrated = params.set(robot, jnp.asarray(out["value"]))
+        check_rank(out.jacobian, params)
+    check(result, result, throw)
+    calibrated = params.set(robot, jnp.asarray(out.value))
     p_all = np.concatenate([pos, vp])
     err0 = position_errors(robot, th_all, p_all, defl_all, marker, ccw_all)
     err1 = position_errors(calibrated, th_all, p_all, defl_all, marker, ccw_all)
     val = validation is not None
     return CalibrationResult(
-        robot=calibrated, names=params.names, value=out["value"], start=np.asarray(params.get(robot)),
-        std=out["std"], covariance=out["cov"], residuals=out["residuals"], converged=bool(out["converged"]),
-        status=jr.status_name(out["result"]), iterations=int(out["steps"]),
-        noise_estimate=float(np.sqrt(out["sigma2"])), errors_before=err0[:k], errors_after=err1[:k],
+        robot=calibrated, names=params.names, value=out.value, start=np.asarray(params.get(robot)),
+        std=out.std, covariance=out.covariance, residuals=out.residuals, converged=bool(out.converged),
+        status=jr.status_name(out.status), iterations=int(out.steps),
+        noise_estimate=float(np.sqrt(out.noise_variance)), errors_before=err0[:k], errors_after=err1[:k],
         validation_before=err0[k:] if val else None, validation_after=err1[k:] if val else None,
         beyond_limits=tuple(beyond), method=method, prior_std=prior)
 

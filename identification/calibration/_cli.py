@@ -72,16 +72,6 @@ def _echo_report(report: dict, echo, truth: dict | None = None) -> None:
             echo(f"determined by the {source}: {', '.join(names) or '(none)'}")
 
 
-def _workspace(robot, marker) -> np.ndarray:
-    """Marker positions (1000, 3) of random feasible poses: the workspace behind a pose set (Fig. 3.11)."""
-    import jaxrobot as jr
-
-    from ._pose_selection import default_marker, random_feasible_poses
-
-    marker = default_marker() if marker is None else np.asarray(marker, float)
-    return np.asarray(jr.point_position(robot, random_feasible_poses(robot, 1000, seed=3), marker))
-
-
 def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions=None,
                    workspace=None) -> list[str]:
     from ._report import error_table, parameter_table, plot_errors, plot_pose_set
@@ -113,7 +103,7 @@ def run(args, echo) -> dict:
     from .._pose_files import read_poses
     from ._calibrate import PRIOR_KEYS, calibrate, map_parameters
     from ._identifiability import default_parameters
-    from ._pose_selection import default_marker
+    from ._pose_selection import default_marker, workspace_positions
     from ._report import calibration_report
 
     progress = Progress(3, "calibrate")
@@ -122,8 +112,8 @@ def run(args, echo) -> dict:
     val = None
     if args.validate is not None:
         v = read_poses(args.validate, args.approach)
-        val = (v["motor_angles"], v["positions"], v["ccw"])
-    progress.step(f"read {len(data['motor_angles'])} poses" + ("" if val is None else f" + {len(val[0])} validation"))
+        val = (v.motor_angles, v.positions, v.ccw)
+    progress.step(f"read {len(data.motor_angles)} poses" + ("" if val is None else f" + {len(val[0])} validation"))
     names = None if args.parameters is None else [
         n.strip() for n in args.parameters.split(",") if n.strip()]
     desc = jr.read_description(args.robot)
@@ -134,18 +124,18 @@ def run(args, echo) -> dict:
         marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
         noise = sensors.get("tracker_position_noise_m")
     if args.method == "map" and args.parameters is None:
-        names = map_parameters(default_parameters(robot, orientation=data["quaternions"] is not None,
+        names = map_parameters(default_parameters(robot, orientation=data.quaternions is not None,
                                                   marker=default_marker() if marker is None else marker),
                                robot.n_joints)
-    res = calibrate(robot, data["motor_angles"], data["positions"], data["quaternions"], parameters=names,
-                    marker=marker, position_noise=noise, ccw=data["ccw"], validation=val, limits=args.limits,
+    res = calibrate(robot, data.motor_angles, data.positions, data.quaternions, parameters=names,
+                    marker=marker, position_noise=noise, ccw=data.ccw, validation=val, limits=args.limits,
                     method=args.method, prior_std=prior)
     report = calibration_report(res)
     progress.step("calibration")
     _echo_report(report, echo)
     from .._model_files import ripple_outside_range
 
-    outside = ripple_outside_range(args.robot, data["motor_angles"], data["ccw"], robot.u0)
+    outside = ripple_outside_range(args.robot, data.motor_angles, data.ccw, robot.u0)
     for j, o in outside.items():
         echo(f"warning: joint {j}: {o['poses']} poses rest outside the range {o['range_deg']} deg where its "
              f"gear ripple ({'/'.join(o['direction'])}) was identified; there the Fourier set is an extrapolation "
@@ -153,7 +143,8 @@ def run(args, echo) -> dict:
     if not res.converged:
         raise SolveFailed(f"calibration did not converge ({res.status}); the model was not saved")
     if args.out is not None:
-        for f in _write_outputs(args.out, report, positions=data["positions"], workspace=_workspace(robot, marker)):
+        workspace = workspace_positions(robot, marker)
+        for f in _write_outputs(args.out, report, positions=data.positions, workspace=workspace):
             echo(f"wrote {args.out / f}")
     if args.save_model is not None:
         from .._model_files import save_model
@@ -164,43 +155,23 @@ def run(args, echo) -> dict:
     return {**summary(report), **({"ripple_outside_identified_range": outside} if outside else {})}
 
 
-def bench_calibration():
-    """The calibration workflow of `jaxrobot demo` (compute only): bench data of the as-built Racer-7
-    at the 50 thesis poses (toml `[poses]`) and 13 validation poses chosen by our DETMAX, one bench
-    session; the nominal robot calibrated on them.
-
-    **Returns:** `(truth, nominal, selection, measurements, k, result)` (`k` identification poses
-    first in `measurements`)."""
-    import jaxrobot as jr
-    from jaxrobot.bench import measure_poses
-
-    from ._calibrate import DEFAULT_PARAMETERS, calibrate
-    from ._parameters import ParameterMap
-    from ._pose_selection import detmax
-
-    truth, nominal = jr.racer7(as_built=True), jr.racer7()
-    theta = np.deg2rad(np.asarray(jr.read_description(None)["poses"]["motor_deg"], float))
-    sel = detmax(nominal, ParameterMap(DEFAULT_PARAMETERS), n_poses=13, seed=7, pool_size=1000, max_iter=200)
-    both = measure_poses(truth, np.concatenate([theta, sel.motor_angles]), seed=1)  # one bench session
-    k = theta.shape[0]
-    res = calibrate(nominal, both.motor_angles[:k], both.positions[:k],
-                    validation=(both.motor_angles[k:], both.positions[k:]))
-    return truth, nominal, sel, both, k, res
-
-
 def demo_stage(out: Path, echo) -> dict:
     """Calibration stage of `jaxrobot demo` (`bench_calibration`): pose files, tables, plots and the
     calibrated robot in `out`."""
     import jaxrobot as jr
     from jaxrobot.bench import write_pose_csv
 
+    from ._bench import bench_calibration
     from ._parameters import ParameterMap
+    from ._pose_selection import workspace_positions
     from ._report import calibration_report, plot_pose_set
 
     start = time.perf_counter()
-    truth, nominal, sel, both, k, res = bench_calibration()
-    echo(f"DETMAX: 13 validation poses, {sel.iterations} iterations, O1 {sel.indices['O1']:.4g}, "
-         f"O4 {sel.indices['O4']:.4g}")
+    bench = bench_calibration()
+    truth, nominal, sel, both, k, res = (bench.truth, bench.nominal, bench.selection, bench.measurements,
+                                         bench.n_identification, bench.result)
+    echo(f"DETMAX: 13 validation poses, {sel.iterations} iterations, O1 {sel.indices.O1:.4g}, "
+         f"O4 {sel.indices.O4:.4g}")
     write_pose_csv(out / "bench_poses.csv", both.motor_angles[:k], both.positions[:k])
     write_pose_csv(out / "bench_validation.csv", both.motor_angles[k:], both.positions[k:])
     echo(f"bench: as-built Racer-7, {k} thesis poses + {len(sel.q)} validation poses, tracker noise "
@@ -211,7 +182,7 @@ def demo_stage(out: Path, echo) -> dict:
     _echo_report(report, echo, truth_delta)
     files = _write_outputs(out, report, truth_delta, positions=None)
     plot_pose_set(out / "calibration_poses.png", both.true_positions[:k],
-                  _workspace(nominal, both.metadata["marker_offset_m"]),
+                  workspace_positions(nominal, both.metadata["marker_offset_m"]),
                   title="Marker positions of the thesis' identification poses")
     files += ["calibration_poses.png", "bench_poses.csv", "bench_validation.csv"]
     jr.save_robot(res.robot, out / "calibrated_robot.toml")

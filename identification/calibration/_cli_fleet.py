@@ -11,11 +11,7 @@ import resource
 import time
 from pathlib import Path
 
-import equinox as eqx
-import jax
 import numpy as np
-
-from jaxrobot.status import require_successful
 
 from .._pose_files import add_approach_option
 
@@ -51,56 +47,23 @@ def configure(parser) -> None:
     add_approach_option(parser)
 
 
-@eqx.filter_jit
-def _rest_poses(nominal, truth, q, marker):
-    """Per robot (`lax.map`: its fixed-point iterations are its own, so its data do not depend on the
-    batch): the nominal robot's motor angles (R, K, n) holding `q` at rest (`static_equilibrium`) and
-    the true marker positions (R, K, 3) of `truth` resting at them and their status
-    (`jaxrobot.measurement.measured_pose`)."""
-    import jaxrobot as jr
-    from jaxrobot.measurement import measured_pose
-
-    def one(args):
-        robot, q_r = args
-        theta = jr.static_equilibrium(nominal, q_r)
-        _, p, _, result = measured_pose(robot, theta, marker)
-        return theta, p, result
-
-    return jax.lax.map(one, (truth, q))
-
-
 def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nominal=None, marker=None) -> list[Path]:
-    """Bench data of a fleet, this process's share (`process_share`): robots of `draw_fleet(n_robots,
-    seed, nominal)` (default the nominal Racer-7), each at its own `n_poses` random feasible poses (one
-    pool, `random_feasible_poses`) held at the nominal robot's static equilibrium, measured by the
-    tracker at `marker` (default `[sensors]`; `_rest_poses`, each robot on its own) with noise of its
-    own seed, so that the data do not depend on the process count. Writes `robot_{r:05d}.csv` of this
-    share; returns all R paths."""
-    import jax.numpy as jnp
-
+    """Bench data of a fleet (`fleet_measurements`), this process's share (`process_share`): writes
+    `robot_{r:05d}.csv` of this share; returns all R paths. The files do not depend on the process count."""
     import jaxrobot as jr
-    from jaxrobot.bench import draw_fleet, write_pose_csv
+    from jaxrobot.bench import write_pose_csv
 
-    from ._pose_selection import default_marker, random_feasible_poses
+    from ._bench import fleet_measurements
 
     if n_robots < 1 or n_poses < 1:
         raise ValueError(f"--bench/--poses: expected >= 1 robots and poses, found {n_robots} and {n_poses}")
     paths = [folder / f"robot_{r:05d}.csv" for r in range(n_robots)]
     folder.mkdir(parents=True, exist_ok=True)
     share = jr.process_share(n_robots)
-    nominal = jr.racer7() if nominal is None else nominal
-    marker = default_marker() if marker is None else np.asarray(marker, float)
-    truth = jax.tree.map(lambda x: x[share], draw_fleet(n_robots, seed=seed, robot=nominal))
-    pool = random_feasible_poses(nominal, 20 * n_poses, seed=seed, marker=marker)
     rows = range(share.start, share.stop)
-    q = np.stack([pool[np.random.default_rng([seed, r]).choice(len(pool), n_poses, replace=False)] for r in rows])
-    theta, exact, result = _rest_poses(nominal, truth, jnp.asarray(q), jnp.asarray(marker))
-    require_successful(result, "calibrate-fleet --bench: rest pose of a drawn robot")
-    theta, exact = np.asarray(theta), np.asarray(exact)
-    sigma = float(jr.read_description(None)["sensors"]["tracker_position_noise_m"])
+    meas = fleet_measurements(n_robots, n_poses, rows, seed, nominal, marker)
     for i, r in enumerate(rows):
-        noise = sigma * np.random.default_rng([seed, r, 1]).standard_normal((n_poses, 3))
-        write_pose_csv(paths[r], theta[i], exact[i] + noise)
+        write_pose_csv(paths[r], meas.motor_angles[i], meas.positions[i])
     return paths
 
 
@@ -152,16 +115,16 @@ def run(args, echo) -> dict:
     share = jr.process_share(len(files))
     t = time.perf_counter()
     data = [read_poses(f, args.approach) for f in files[share]]
-    k = data[0]["motor_angles"].shape[0]
+    k = data[0].motor_angles.shape[0]
     for f, d in zip(files[share], data):
-        if d["motor_angles"].shape[0] != k:
-            raise ValueError(f"{f}: expected {k} poses as {files[share][0].name}, found {d['motor_angles'].shape[0]}")
+        if d.motor_angles.shape[0] != k:
+            raise ValueError(f"{f}: expected {k} poses as {files[share][0].name}, found {d.motor_angles.shape[0]}")
     seconds["read"] = time.perf_counter() - t
     echo(f"process {pid} of {count}: robots {share.start}..{share.stop - 1} of {len(files)}, {k} poses each")
     t = time.perf_counter()
-    res = calibrate_fleet(robot, np.stack([d["motor_angles"] for d in data]), np.stack([d["positions"] for d in data]),
+    res = calibrate_fleet(robot, np.stack([d.motor_angles for d in data]), np.stack([d.positions for d in data]),
                           parameters=names, marker=marker, max_steps=args.max_steps,
-                          ccw=np.stack([d["ccw"] for d in data]))
+                          ccw=np.stack([d.ccw for d in data]))
     seconds["calibrate"] = time.perf_counter() - t
     progress.step("fleet calibration")
     names = jr.status_name(res.status)

@@ -3,7 +3,7 @@
 Every robot has its own poses and measurements; all robots are solved together by one
 batch-first Levenberg-Marquardt loop (`_batched_lm`, in chunks of `CHUNK` robots, on the model of
 `_calibration._residual_fn` with its joint-screw Jacobian evaluated batch-last over robots and
-poses, `_calibration_model.position_jacobian`), each robot stopping on its own tolerances. The
+poses, `_model.position_jacobian`), each robot stopping on its own tolerances. The
 fleet axis is sharded across all devices with `jax.sharding` (a 1-D mesh named `"fleet"`,
 `shard_map`: each device runs its own LM loop on its own robots, no communication), so that the
 same call uses one CPU, several GPUs, or several processes and hosts under `jax.distributed`
@@ -30,7 +30,7 @@ from jaxrobot.measurement import rest_link_angles
 from jaxrobot.status import check, where
 
 from .._batched_lm import LMConfig, batched_lm, covariance, map_chunks
-from ._calibrate import RESIDUAL_UNIT, _check_array, _residual_fn
+from ._calibrate import RESIDUAL_UNIT, ParameterEstimate, _check_array, _residual_fn
 from ._identifiability import default_parameters
 from ._model import analytic_names, joint_angle_model, position_jacobian, rippled_joints
 from ._parameters import ParameterMap
@@ -76,7 +76,7 @@ def _robot_residual_jacobian(robot, params, theta, positions, deflection, q0, ma
 def _screw_residual_jacobian(robots, params, theta, positions, deflection, q0, marker, rippled, v0, scale, x,
                              ccw=False):
     """Residuals (R, 3K) [mm] and Jacobian (R, 3K, m) of all robots at scaled parameters `x` from the
-    joint screws (`position_jacobian`, batch-last over robots and poses); rows are component-major
+    joint screws (`position_jacobian` over robots and poses); rows are component-major
     (row `c K + k` is component `c` of pose `k`)."""
     robot = params.set(robots, v0 + scale * x)
     _, q_pose = joint_angle_model(robots, params, theta, deflection, False, rippled, q0)
@@ -90,9 +90,9 @@ def _screw_residual_jacobian(robots, params, theta, positions, deflection, q0, m
         ratio = robot.u0[:, None]
     p, jac = position_jacobian(jax.tree.map(lambda f: f[:, None], robot), params, q, theta, ratio, marker)
     n_rob = x.shape[0]
-    r = jnp.moveaxis((p - jnp.moveaxis(positions, -1, 0)) / RESIDUAL_UNIT, 0, 1).reshape(n_rob, -1)
-    jac = jac * (scale.T / RESIDUAL_UNIT)[:, None, :, None]  # (m, 3, R, K)
-    return r, jnp.transpose(jac, (2, 1, 3, 0)).reshape(n_rob, -1, x.shape[1])
+    r = jnp.moveaxis((p - positions) / RESIDUAL_UNIT, -1, 1).reshape(n_rob, -1)
+    jac = jac * (scale / RESIDUAL_UNIT)[:, None, None, :]  # (R, K, 3, m)
+    return r, jnp.swapaxes(jac, 1, 2).reshape(n_rob, -1, x.shape[1])
 
 
 CHUNK = {"cpu": 32, "accelerator": 4096}
@@ -136,18 +136,19 @@ def _local_solve(robots, theta, positions, marker, q0, defl, config, ccw=None, *
     directed = () if ccw is None else (ccw,)
     out = batched_lm(residual_jacobian, jnp.zeros_like(v0), (robots, theta, positions, q0, defl, v0, scale, *directed),
                      config, chunk=_chunk())
-    n_rob, n, m = out["residuals"].shape + v0.shape[1:]
+    n_rob, n, m = out.residuals.shape + v0.shape[1:]
+    residuals = out.residuals
     if screws:  # component-major rows -> pose-major
-        out["residuals"] = jnp.swapaxes(out["residuals"].reshape(n_rob, 3, -1), 1, 2).reshape(n_rob, n)
-    sigma2 = 2 * out["cost"] / max(n - m, 1)  # [mm^2]
-    cov_x, rank, full = map_chunks(lambda a: covariance(*a), (out["normal"], sigma2), _chunk())
+        residuals = jnp.swapaxes(residuals.reshape(n_rob, 3, -1), 1, 2).reshape(n_rob, n)
+    sigma2 = 2 * out.cost / max(n - m, 1)  # [mm^2]
+    cov_x, rank, full = map_chunks(lambda a: covariance(*a), (out.normal, sigma2), _chunk())
     cov = cov_x * scale[:, :, None] * scale[:, None, :]
-    finite = jnp.all(jnp.isfinite(out["x"]), 1) & jnp.all(jnp.isfinite(cov), (1, 2))
-    ok = out["status"] == RESULTS.successful
-    status = where(ok & ~finite, RESULTS.nonfinite, where(ok & ~full, RESULTS.rank_deficient, out["status"]))
-    return {"value": v0 + scale * out["x"], "std": jnp.sqrt(jnp.diagonal(cov, 0, 1, 2)), "cov": cov,
-            "converged": status == RESULTS.successful, "status": status, "steps": out["steps"],
-            "rank": rank, "residuals": out["residuals"] * RESIDUAL_UNIT}
+    finite = jnp.all(jnp.isfinite(out.x), 1) & jnp.all(jnp.isfinite(cov), (1, 2))
+    ok = out.status == RESULTS.successful
+    status = where(ok & ~finite, RESULTS.nonfinite, where(ok & ~full, RESULTS.rank_deficient, out.status))
+    return ParameterEstimate(value=v0 + scale * out.x, std=jnp.sqrt(jnp.diagonal(cov, 0, 1, 2)), covariance=cov,
+                             status=status, steps=out.steps, rank=rank, residuals=residuals * RESIDUAL_UNIT,
+                             noise_variance=sigma2 * RESIDUAL_UNIT**2)
 
 
 @eqx.filter_jit
@@ -239,10 +240,9 @@ def calibrate_fleet(
     config = jax.tree.map(jnp.asarray, LMConfig(max_steps=max_steps))
     out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, config, rippled, mesh, g_ccw)
     out, robots = gather_rows((out, g_robots), origin)
-    value = out["value"]
-    status = check(out["status"], out["status"], throw)
+    status = check(out.status, out.status, throw)
     return FleetResult(
-        robot=_set_parameters(params, robots, jnp.asarray(value)), value=value, std=out["std"], covariance=out["cov"],
-        converged=out["converged"], status=status, iterations=out["steps"], rank=out["rank"],
-        rms_m=np.sqrt(np.mean(out["residuals"] ** 2, -1)), residuals=out["residuals"], names=params.names,
+        robot=_set_parameters(params, robots, jnp.asarray(out.value)), value=out.value, std=out.std,
+        covariance=out.covariance, converged=np.asarray(out.converged), status=status, iterations=out.steps,
+        rank=out.rank, rms_m=np.sqrt(np.mean(out.residuals**2, -1)), residuals=out.residuals, names=params.names,
         n_devices=n_dev)

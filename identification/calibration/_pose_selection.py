@@ -22,7 +22,7 @@ from jaxrobot import cached_program
 from jaxrobot.linalg import map_matrices
 from jaxrobot.measurement import marker_pose
 
-from ._observability import observability_indices, singular_values_from_gram
+from ._observability import ObservabilityIndices, observability_indices, singular_values_from_gram
 from ._parameters import ParameterMap, predict_pose
 
 
@@ -78,6 +78,13 @@ def _static_equilibrium(robot, q):
 def rest_motor_angles(robot: jr.Robot, q: Float[Array, "N n"]) -> np.ndarray:
     """Motor angles (N, n) that hold joint coordinates `q` at rest (cw set; eq. 4.3f-g)."""
     return np.asarray(_static_equilibrium(robot, jnp.asarray(q, float)))
+
+
+def workspace_positions(robot: jr.Robot, marker=None, n: int = 1000, seed: int = 3) -> np.ndarray:
+    """Marker positions (n, 3) [m] at `n` random feasible poses: the workspace behind a pose set (Fig. 3.11);
+    `marker` default `default_marker()`."""
+    marker = default_marker() if marker is None else np.asarray(marker, float)
+    return np.asarray(jr.point_position(robot, random_feasible_poses(robot, n, seed=seed), marker))
 
 
 def random_feasible_poses(
@@ -143,12 +150,12 @@ def column_scale(blocks: Float[Array, "N d m"]) -> np.ndarray:
     return np.sqrt(np.mean(np.sum(b**2, 1), 0))
 
 
-def set_indices(blocks: Float[Array, "K d m"], scale: Float[Array, " m"]) -> dict[str, float]:
-    """O1-O5 of a pose set from its Jacobian blocks, columns divided by `scale`."""
+def set_indices(blocks: Float[Array, "K d m"], scale: Float[Array, " m"]) -> ObservabilityIndices:
+    """O1-O5 of a pose set from its Jacobian blocks, columns divided by `scale` (Python floats)."""
     b = np.asarray(blocks) / np.asarray(scale)
     j = b.reshape(-1, b.shape[-1])
     sigma = np.linalg.svd(j, compute_uv=False)
-    return {k: float(v) for k, v in observability_indices(jnp.asarray(sigma), b.shape[0]).items()}
+    return jax.tree.map(float, observability_indices(jnp.asarray(sigma), b.shape[0]))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,8 +166,8 @@ class DetmaxResult:
     """Joint coordinates (K, n) [rad]."""
     motor_angles: np.ndarray
     """Motor angles (K, n) [rad] that hold `q` at rest (static equilibrium, cw set)."""
-    indices: dict
-    """O1-O5 of the final set."""
+    indices: ObservabilityIndices
+    """O1-O5 of the final set (Python floats)."""
     history: np.ndarray
     """(iterations, 2): O1 and O4 after each iteration."""
     iterations: int
@@ -179,7 +186,7 @@ def _detmax_loop(pool, start, key, n_draw, n_admit, max_iter, tol, patience):
 
     def o1_o4(gram, n):
         idx = observability_indices(singular_values_from_gram(gram), n)
-        return idx["O1"], idx["O4"]
+        return idx.O1, idx.O4
 
     def body(state):
         sel, key, it, stall, hist = state

@@ -32,7 +32,7 @@ def _poses(paths, approach: str):
     from ._diagnose import Poses
 
     data = [read_poses(p, approach) for p in paths]
-    return Poses.concatenate([Poses.of(d["motor_angles"], d["positions"], "column", d["ccw"]) for d in data])
+    return Poses.concatenate([Poses.of(d.motor_angles, d.positions, "column", d.ccw) for d in data])
 
 
 def run(args, echo) -> dict:

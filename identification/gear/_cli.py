@@ -12,11 +12,6 @@ HELP = "identify the gear ratios (u0 + Fourier ripple, cw/ccw) from encoder + gy
 EXAMPLE = ("jaxrobot identify-gear j1_cw_1.csv j1_ccw_1.csv --validate j1_cw_2.csv j1_ccw_2.csv "
            "--out gear --save-model gear.toml")
 
-DEMO_REPETITIONS = {"identification": 2, "validation": 1, "other_speed": 1}
-"""Runs per direction and joint in the demo: identification, validation at the same speed and at
-the other speed (`GEAR_RUN_DEFAULTS`)."""
-
-
 def configure(parser) -> None:
     parser.add_argument("runs", nargs="+", type=Path, help="gear-run CSV files used for identification")
     parser.add_argument("--validate", nargs="+", type=Path, default=[], metavar="RUNS",
@@ -95,45 +90,18 @@ def run(args, echo) -> dict:
     return summary(res)
 
 
-def bench_runs(seed: int = 0, repetitions: dict | None = None) -> tuple[list, list, list, list]:
-    """Bench runs of joints 1-3 of the as-built Racer-7: identification runs and validation runs
-    (same speed, then the other speed), as `(t, theta, gyro)` tuples, with names."""
-    import jaxrobot as jr
-    from jaxrobot import bench
-
-    reps = dict(DEMO_REPETITIONS, **(repetitions or {}))
-    truth = jr.racer7(as_built=True)
-    ident, val, ident_names, val_names = [], [], [], []
-    for joint in (1, 2, 3):
-        speed = bench.GEAR_RUN_DEFAULTS[joint]["motor_speed_deg_s"]
-        slow = bench.GEAR_RUN_DEFAULTS[joint]["validation_speed_deg_s"]
-        same = bench.gear_runs(truth, joint, repetitions=reps["identification"] + reps["validation"],
-                            seed=seed * 100 + joint)
-        for k, ccw in enumerate(same.ccw):
-            rep = k % (reps["identification"] + reps["validation"])
-            name = f"joint{joint}_{'ccw' if ccw else 'cw'}_{speed:.0f}_{rep + 1}"
-            target = (ident, ident_names) if rep < reps["identification"] else (val, val_names)
-            target[0].append((same.t, same.theta[k], same.gyro[k]))
-            target[1].append(name)
-        if reps["other_speed"] > 0:
-            other = bench.gear_runs(truth, joint, repetitions=reps["other_speed"], motor_speed_deg_s=slow,
-                                 seed=seed * 100 + 10 + joint)
-            for k, ccw in enumerate(other.ccw):
-                val.append((other.t, other.theta[k], other.gyro[k]))
-                val_names.append(f"joint{joint}_{'ccw' if ccw else 'cw'}_{slow:.0f}_{k + 1}")
-    return ident, val, ident_names, val_names
-
-
 def demo_stage(out: Path, echo) -> dict:
     """Bench runs of joints 1-3 -> identification -> validation -> tables and plots in `out`."""
     import jaxrobot as jr
     from jaxrobot import bench
 
+    from ._bench import bench_runs
     from ._fit import identify_gear
     from ._report import summary, write_report
 
     start = time.perf_counter()
-    ident, val, ident_names, val_names = bench_runs(seed=0)
+    runs = bench_runs(seed=0)
+    ident, val, ident_names, val_names = runs.runs, runs.validation_runs, runs.names, runs.validation_names
     echo(f"bench: {len(ident)} identification and {len(val)} validation runs of joints 1-3 "
          f"({time.perf_counter() - start:.1f} s)")
     sample = out / "gear_run_example.csv"

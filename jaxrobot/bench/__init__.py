@@ -10,6 +10,7 @@ from ._gear import gear_runs as gear_runs
 from ._gear import read_gear_run as read_gear_run
 from ._gear import write_gear_run as write_gear_run
 from ._poses import ORIENTATION_NOISE_RAD as ORIENTATION_NOISE_RAD
+from ._poses import PoseFile as PoseFile
 from ._poses import PoseMeasurements as PoseMeasurements
 from ._poses import draw_fleet as draw_fleet
 from ._poses import measure_poses as measure_poses

@@ -199,10 +199,24 @@ def write_pose_csv(
         w.writerows([[repr(float(v)) for v in row] for row in table])
 
 
-def read_pose_csv(path: str | Path) -> dict:
+@dataclasses.dataclass(frozen=True)
+class PoseFile:
+    """The measurements of a pose file (README, "Measurement files"), K poses of an n-joint robot."""
+
+    motor_angles: np.ndarray
+    """(K, n) motor angles at rest [rad]."""
+    positions: np.ndarray
+    """(K, 3) measured marker positions [m]."""
+    quaternions: np.ndarray | None = None
+    """(K, 4) measured marker orientations (qx, qy, qz, qw), None without the columns."""
+    ccw: np.ndarray | None = None
+    """(K, n) bool direction of approach per joint (True: ccw gear set), as `identification.read_poses`
+    finds it by its convention; None from `read_pose_csv`."""
+
+
+def read_pose_csv(path: str | Path) -> PoseFile:
     """Read a pose file (README, "Measurement files"); extra columns are ignored.
 
-    **Returns:** `{"motor_angles": (K, n) rad, "positions": (K, 3) m, "quaternions": (K, 4) or None}`.
     Raises `ValueError` naming missing columns, non-numeric cells and NaN rows (`read_csv_columns`).
     """
     path = Path(path)
@@ -211,5 +225,5 @@ def read_pose_csv(path: str | Path) -> dict:
     thetas = theta_columns(file_joint_count(path))
     cols = read_csv_columns(path, [*thetas, *POSITION_COLUMNS], list(QUAT_COLUMNS))
     quat = np.column_stack([cols[c] for c in QUAT_COLUMNS]) if QUAT_COLUMNS[0] in cols else None
-    return {"motor_angles": np.deg2rad(np.column_stack([cols[c] for c in thetas])),
-            "positions": np.column_stack([cols[c] for c in POSITION_COLUMNS]), "quaternions": quat}
+    return PoseFile(np.deg2rad(np.column_stack([cols[c] for c in thetas])),
+                    np.column_stack([cols[c] for c in POSITION_COLUMNS]), quat)

@@ -13,7 +13,7 @@ from jaxtyping import Array, Bool, Float
 from .._dynamics import gravity_torque
 from .._elasticity import elastic_deflection
 from .._gear import gear_output
-from .._kinematics import tool_pose
+from .._kinematics import marker_frame
 from .._robot import Robot
 from .._status import RESULTS, check
 
@@ -130,9 +130,7 @@ def marker_pose(
 
     With the identity tool this is `jr.point_position(robot, q, marker)` and the flange rotation.
     """
-    t = tool_pose(robot, q)
-    r = t[..., :3, :3]
-    return t[..., :3, 3] + jnp.einsum("...ij,...j->...i", r, marker), r
+    return marker_frame(robot, q, marker)
 
 
 def measured_pose(
