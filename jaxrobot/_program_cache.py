@@ -108,7 +108,8 @@ def cached_program(fn: Callable | None = None, *, static_argnames: tuple[str, ..
         except _Uncacheable:
             return jitted(*args, **kwargs)
         if key not in loaded:
-            loaded[key] = _load(folder, key) or _export(folder, key, fn, sig, tree, static, leaves, traced, dynamic)
+            loaded[key] = (_load(folder, key, fn.__name__)
+                           or _export(folder, key, fn, sig, tree, static, leaves, traced, dynamic))
         if loaded[key] is _NOT_EXPORTABLE:
             return jitted(*args, **kwargs)
         call, out_tree = loaded[key]
@@ -135,13 +136,14 @@ def _code_digest(code) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def _callable(exported, weak: list[bool]) -> Callable:
-    """The exported program under `jit`; outputs weakly typed where the traced function's were (a
-    deserialized program forgets weak types)."""
+def _callable(exported, weak: list[bool], name: str) -> Callable:
+    """The exported program under `jit`, named `name` (compile logs, profiles); outputs weakly typed
+    where the traced function's were (a deserialized program forgets weak types)."""
 
     def call(*args):
         return [_convert_element_type(x, weak_type=True) if w else x for x, w in zip(exported.call(*args), weak)]
 
+    call.__name__ = call.__qualname__ = name
     return jax.jit(call)
 
 
@@ -169,7 +171,7 @@ def _export(folder: Path, key: str, fn, sig, tree, static, leaves, traced, dynam
     skeleton = jax.tree_util.tree_unflatten(out_tree, list(range(out_tree.num_leaves)))
     _write(folder, f"{key}.program", pickle.dumps((blob, skeleton, weak)))
     # the program as a later process reads it, so that every process runs the same
-    return _callable(jax.export.deserialize(bytearray(blob)), weak), out_tree
+    return _callable(jax.export.deserialize(bytearray(blob)), weak, fn.__name__), out_tree
 
 
 def _write(folder: Path, name: str, data: bytes) -> None:
@@ -182,7 +184,7 @@ def _write(folder: Path, name: str, data: bytes) -> None:
         pass
 
 
-def _load(folder: Path, key: str) -> tuple[Callable, object] | object | None:
+def _load(folder: Path, key: str, name: str) -> tuple[Callable, object] | object | None:
     try:
         stored = pickle.loads((folder / f"{key}.program").read_bytes())
         if stored is None:
@@ -191,4 +193,4 @@ def _load(folder: Path, key: str) -> tuple[Callable, object] | object | None:
         exported = jax.export.deserialize(bytearray(blob))
     except (OSError, pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, ImportError):
         return None
-    return _callable(exported, weak), jax.tree_util.tree_structure(skeleton)
+    return _callable(exported, weak, name), jax.tree_util.tree_structure(skeleton)

@@ -53,6 +53,7 @@ from ._transcription import (
     half_step_jacobian,
     half_step_shift,
     half_step_vjp,
+    inverse_dynamics_vjp,
     scaled_cost,
     variable_scale,
 )
@@ -176,16 +177,18 @@ def _defects(p: _Parts, y, g):
 
 
 def _linearise(p: _Parts, y, h: HalfStep):
-    """Defects at `y` and the map `v -> (dc/dy)^T v` (structured reverse pass, `half_step_vjp`),
+    """Defects at `y`, the map `v -> (dc/dy)^T v` (structured reverse pass, `half_step_vjp`) and the
+    linearisation of Newton-Euler it uses (`inverse_dynamics_vjp`, shared with `half_step_jacobian`),
     from `h = half_step` at `y0 + y`, which the step that was accepted has already evaluated."""
-    g_vjp = half_step_vjp(p.problem, h)
+    id_vjp = inverse_dynamics_vjp(p.problem, h)
+    g_vjp = half_step_vjp(p.problem, h, id_vjp)
     c = _defects(p, y, h.g)
 
     def vjp(v):  # node k enters c_k with -E - J_k and c_{k-1} with E - J_k
         before, after = jnp.pad(v, ((1, 0), (0, 0))), jnp.pad(v, ((0, 1), (0, 0)))
         return jnp.pad(before - after, ((0, 0), (0, p.problem.n_joints))) - g_vjp(before + after)
 
-    return c, vjp
+    return c, vjp, id_vjp
 
 
 def _box_violation(p: _Parts, y):
@@ -205,10 +208,11 @@ def _gradient(p: _Parts, y, c, vjp, lam, gam, rho):
 
 
 def _normal_blocks(
-    p: _Parts, y, h: HalfStep, gam, rho, mu
+    p: _Parts, y, h: HalfStep, gam, rho, mu, id_vjp=None
 ) -> tuple[Float[Array, "N 5*n 5*n"], Float[Array, "Nm1 5*n 5*n"]]:
     """Diagonal and sub-diagonal blocks of the Gauss-Newton matrix of `Phi` plus `mu I` at `y` (`h`:
-    `half_step` there), fixed variables replaced by identity rows. The exact defect Jacobian is
+    `half_step` there; `id_vjp`: `inverse_dynamics_vjp` there, if made), fixed variables replaced by
+    identity rows. The exact defect Jacobian is
     needed: dropping the gravity/Coriolis/inertia derivatives (~1e-3 of the stiffness terms) slows
     the iteration from ~100x to ~2x per step at nu = 1e-14 (the conditioning amplifies the error).
 
@@ -220,7 +224,7 @@ def _normal_blocks(
     than products of the 4j x 5j blocks."""
     n, nz = y.shape
     j = p.problem.n_joints
-    pk = half_step_jacobian(p.problem, h)
+    pk = half_step_jacobian(p.problem, h, id_vjp)
     e, shift = np.eye(4 * j, nz), half_step_shift(j)
     ka, kb = -e - shift, e - shift
     k = np.arange(n)[:, None, None]
@@ -245,9 +249,9 @@ def _normal_blocks(
     return diag, lower
 
 
-def _normal_matrix(p: _Parts, y, h: HalfStep, gam, rho, mu) -> BlockCholesky:
+def _normal_matrix(p: _Parts, y, h: HalfStep, gam, rho, mu, id_vjp=None) -> BlockCholesky:
     """Factor of the Gauss-Newton matrix of `Phi` plus `mu I` at `y` (`_normal_blocks`)."""
-    return block_cholesky(*_normal_blocks(p, y, h, gam, rho, mu))
+    return block_cholesky(*_normal_blocks(p, y, h, gam, rho, mu, id_vjp))
 
 
 def _merit_from(p: _Parts, y, c, lam, gam, rho):
@@ -433,10 +437,10 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
             lambda t: (t.lam, t.gam, t.rho, t.it, t.inner, t.violation, t.stationarity, t.status, t.stop, t.hist),
             s, (lam, gam, rho, it, jnp.array(0), viol, stat, status, converged | ~finite | out_of_iterations, hist))
 
-    def lm_step(s: _State, c_y, grad) -> _State:
+    def lm_step(s: _State, c_y, grad, id_vjp) -> _State:
         key = jnp.stack([s.rho, s.mu])
         fresh = jnp.any(key != s.factor_key) | (s.factor_age >= config.refresh_every)
-        factor = jax.lax.cond(fresh, lambda: _normal_matrix(p, s.y, s.forward, s.gam, s.rho, s.mu),
+        factor = jax.lax.cond(fresh, lambda: _normal_matrix(p, s.y, s.forward, s.gam, s.rho, s.mu, id_vjp),
                               lambda: s.factor)
         dy = -block_cholesky_solve(factor, grad)
         phi = _merit_from(p, s.y, c_y, s.lam, s.gam, s.rho)
@@ -469,7 +473,7 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
 
     def body(s: _State) -> _State:
         # one linearisation at `y` serves the multiplier update and the LM step that follows it
-        c_y, vjp = _linearise(p, s.y, s.forward)
+        c_y, vjp, id_vjp = _linearise(p, s.y, s.forward)
         grad = _gradient(p, s.y, c_y, vjp, s.lam, s.gam, s.rho)
 
         def update(s):
@@ -478,7 +482,7 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
 
         s, grad = jax.lax.cond(inner_done(s, grad), update, lambda s: (s, grad), s)
         step = ~s.stop & ~inner_done(s, grad)
-        return jax.lax.cond(step, lambda s: lm_step(s, c_y, grad), lambda s: s, s)
+        return jax.lax.cond(step, lambda s: lm_step(s, c_y, grad, id_vjp), lambda s: s, s)
 
     y_init = jnp.zeros_like(y0)
     w_u = jnp.max(jnp.maximum(p.weight, p.edge)[4 * problem.n_joints:])

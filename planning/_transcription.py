@@ -287,22 +287,33 @@ def half_step(problem: OCPProblem, y: Float[Array, "*b 5*n"]) -> HalfStep:
     return HalfStep(y=y, g=0.5 * problem.ts * f / sz[:nx], phi=phi, mass=d, qdd=qdd)
 
 
-def half_step_vjp(problem: OCPProblem, h: HalfStep) -> Callable[[Float[Array, "N 4*n"]], Float[Array, "N 5*n"]]:
+def inverse_dynamics_vjp(problem: OCPProblem, h: HalfStep
+                         ) -> Callable[[Float[Array, "N n"]], tuple[Float[Array, "N n"], Float[Array, "N n"]]]:
+    """The map `s -> ((dID/dq)^T s, (dID/dqd)^T s)` of Newton-Euler `ID(q, qd, qdd)` at the link angles and
+    rates of `h = half_step(problem, y)` and its `qdd`; one forward pass serves every `s` (the gradient
+    and the rows of `half_step_jacobian` at the same linearisation point)."""
+    x = State.of((h.y * variable_scale(problem))[:, :4 * problem.n_joints])
+    return jax.vjp(lambda a, b: jr.inverse_dynamics(problem.robot, a, b, h.qdd), x.q, x.qd)[1]
+
+
+def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = None
+                  ) -> Callable[[Float[Array, "N 4*n"]], Float[Array, "N 5*n"]]:
     """The map `w -> (d g_k / d y_k)^T w_k` at `h = half_step(problem, y)`, from the structure of
     eq. 4.1 (as `half_step_jacobian`): with `s = D^{-1} w_qdd`,
     `(dqdd/dq)^T w_qdd = -(dID/dq)^T s - kappa' s`, `(dqdd/dqd)^T w_qdd = -(dID/dqd)^T s`,
     `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; `(dID/d(q, qd))^T s` is one reverse pass through
-    Newton-Euler alone (4.8x faster than reversing the mass matrix, its solve and `Xi^-1` too)."""
+    Newton-Euler alone (4.8x faster than reversing the mass matrix, its solve and `Xi^-1` too), whose
+    forward pass is made once (`inverse_dynamics_vjp`, or `id_vjp` if already made) for every `w`."""
     r = problem.robot
     sz = variable_scale(problem)
     nx = 4 * problem.n_joints
     x = State.of((h.y * sz)[:, :nx])
     half = 0.5 * problem.ts / sz[:nx]
+    id_vjp = inverse_dynamics_vjp(problem, h) if id_vjp is None else id_vjp
 
     def vjp(w):
         wf = State.of(half * w)  # cotangent of f = [qd, qdd, thetad, u]
         s = spd_solve(h.mass, wf.qd[..., None])[..., 0]
-        _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, h.qdd), x.q, x.qd)
         id_q, id_qd = id_vjp(s)
         stiff = jr.elastic_stiffness(r, h.phi - x.q) * s
         out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / jr.gear_ratio(r, h.phi), wf.theta, wf.thetad],
@@ -319,7 +330,7 @@ def half_step_shift(n: int) -> np.ndarray:
     return 0.5 * np.eye(4 * n, 5 * n, n) * (np.arange(4 * n) // n != 1)[:, None]
 
 
-def half_step_jacobian(problem: OCPProblem, h: HalfStep) -> Float[Array, "N n 3*n"]:
+def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = None) -> Float[Array, "N n 3*n"]:
     """The only state-dependent block of the Jacobian of `g` at `h = half_step(problem, y)`,
     `p_k = d g_k[qd rows] / d y_k[q, qd, theta]` (scaled); `d g_k / d y_k` is `half_step_shift(n)` with
     `p_k` in rows n:2n, columns 0:3n.
@@ -327,15 +338,16 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep) -> Float[Array, "N n 3*
     With `ID(q, qd, qdd) = D qdd + C qd + g = kappa(phi - q)` at the model's `qdd`:
     `dqdd/dq = -D^{-1} (dID/dq + kappa')`, `dqdd/dqd = -D^{-1} dID/dqd`,
     `dqdd/dtheta = D^{-1} kappa' / u(phi)`. The rows of `dID/d(q, qd)` come from n reverse passes
-    through Newton-Euler (1.7x faster than 2n forward tangents), the rest in closed form.
+    through Newton-Euler (1.7x faster than 2n forward tangents; `id_vjp`: its linearisation at `h`,
+    `inverse_dynamics_vjp`, if already made), the rest in closed form.
     """
     r = problem.robot
     sz = variable_scale(problem)
     j = problem.n_joints
     x = State.of((h.y * sz)[:, :4 * j])
-    q, qd = x.q, x.qd
+    q = x.q
     stiff = jr.elastic_stiffness(r, h.phi - q)
-    _, id_vjp = jax.vjp(lambda a, b: jr.inverse_dynamics(r, a, b, h.qdd), q, qd)
+    id_vjp = inverse_dynamics_vjp(problem, h) if id_vjp is None else id_vjp
     rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(j)[:, None, :], (j, *q.shape)))  # row i of dID
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
     rhs = jnp.concatenate([-(id_q + jax.vmap(jnp.diag)(stiff)), -id_qd,
