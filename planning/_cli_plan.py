@@ -78,6 +78,17 @@ def task_path(task: str, description: dict | None = None):
     return path
 
 
+def load_task(args):
+    """The planning model, the plant (`--plant`), the task path and the IK start of `plan` and `sweep`."""
+    from jaxrobot import robot_from_description
+
+    desc = jr.read_description(args.model)
+    robot = robot_from_description(desc)
+    plant = robot_from_description(desc, as_built=True) if args.plant == "as-built" else robot
+    path = task_path(args.task, desc)
+    return robot, plant, path, default_start(desc) if "trajectories" in desc else task_start(robot, path)
+
+
 def failure_report(robot, jp, sol, nu: float) -> str:
     """Why a solve did not converge: status, its meaning and the likely cause."""
     qd = np.max(np.abs(np.asarray(jp.qd)) / np.asarray(robot.qd_max), 0)
@@ -209,13 +220,7 @@ def write_plots(result: PlanResult, out: Path, label: str) -> list[Path]:
 def run(args, echo) -> dict:
     if args.cost not in COSTS:
         raise ValueError(f"--cost must be one of {COSTS}, got {args.cost!r}")
-    from jaxrobot import robot_from_description
-
-    desc = jr.read_description(args.model)
-    robot = robot_from_description(desc)
-    plant = robot_from_description(desc, as_built=True) if args.plant == "as-built" else robot
-    path = task_path(args.task, desc)
-    q_init = default_start(desc) if "trajectories" in desc else task_start(robot, path)
+    robot, plant, path, q_init = load_task(args)
     echo(f"planning {path.name} ({path.duration:g} s at T_s = {1e3 * path.sample_time:g} ms) on {robot.name}")
     result = plan(robot, plant, path, args.nu, args.cost, echo, directional=args.plant == "as-built",
                   q_init=q_init, keep_failed=args.save_failed)

@@ -13,8 +13,7 @@ from jaxrobot.cli import Progress, SolveFailed, add_model_option
 
 from . import _plots
 from ._bandwidth import control_spectrum
-from ._cli_plan import task_path, task_title
-from ._ik import default_start, task_start
+from ._cli_plan import load_task, task_title
 from ._transcription import COSTS
 from ._workflow import SweepEvent, SweepResult, sweep_task
 
@@ -142,13 +141,7 @@ def write_outputs(res: SweepResult, rows: list[dict], out: Path, label: str) -> 
 
 
 def run(args, echo) -> dict:
-    from jaxrobot import robot_from_description
-
-    desc = jr.read_description(args.model)
-    robot = robot_from_description(desc)
-    plant = robot_from_description(desc, as_built=True) if args.plant == "as-built" else robot
-    path = task_path(args.task, desc)
-    q_init = default_start(desc) if "trajectories" in desc else task_start(robot, path)
+    robot, plant, path, q_init = load_task(args)
     echo(f"nu sweep on {path.name}: {len(args.nu)} values x costs {args.costs}, plant {args.plant}")
     res = sweep(robot, plant, path, args.nu, args.costs, echo, directional=args.plant == "as-built", q_init=q_init,
                 keep_failed=args.save_failed)

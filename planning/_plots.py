@@ -25,6 +25,16 @@ def _axis(i: int) -> str:
     return f"axis {i + 1}"
 
 
+def _finish(ax, xlabel: str, ylabel: str, title: str, path: Path, which: str = "major") -> Path:
+    """Labels, title, grid and legend of a one-axes figure, saved to `path`."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, which=which, alpha=0.3)
+    ax.legend()
+    return _save(ax.figure, path)
+
+
 def _save(fig, path: Path) -> Path:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -37,12 +47,7 @@ def position_errors(t: np.ndarray, errors: dict[str, np.ndarray], path: Path, ti
     fig, ax = plt.subplots(figsize=(8, 4))
     for label, e in errors.items():
         ax.semilogy(t, np.maximum(np.asarray(e) * 1e6, 1e-9), label=legend(label), lw=1)
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("‖p_d − p_e‖ [µm]")
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    return _save(fig, path)
+    return _finish(ax, "t [s]", "‖p_d − p_e‖ [µm]", title, path, which="both")
 
 
 def path_velocity(t: np.ndarray, v_desired: np.ndarray, v_actual: np.ndarray, path: Path, title: str) -> Path:
@@ -50,12 +55,7 @@ def path_velocity(t: np.ndarray, v_desired: np.ndarray, v_actual: np.ndarray, pa
     fig, ax = plt.subplots(figsize=(8, 3.5))
     ax.plot(t, v_desired, label="desired", lw=2)
     ax.plot(t, v_actual, "--", label="plant", lw=1)
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("path speed v [m/s]")
-    ax.set_title(title)
-    ax.legend()
-    ax.grid(True, alpha=0.3)
-    return _save(fig, path)
+    return _finish(ax, "t [s]", "path speed v [m/s]", title, path)
 
 
 def joint_errors(t: np.ndarray, dq: np.ndarray, d_orient: np.ndarray, d_pos: np.ndarray, path: Path,
@@ -193,9 +193,5 @@ def pareto_front(points: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], p
     for axis in (ax.xaxis, ax.yaxis):  # plain numbers, also on the minor ticks of a range within a decade
         axis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
         axis.set_minor_formatter(ticker.LogFormatter(labelOnlyBase=False, minor_thresholds=(1.5, 0.5)))
-    ax.set_xlabel("control bandwidth f_99 (99 % of the energy of u, max over axes) [Hz]")
-    ax.set_ylabel("max ‖p_d − p_e‖ on the plant [µm]")
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    return _save(fig, path)
+    return _finish(ax, "control bandwidth f_99 (99 % of the energy of u, max over axes) [Hz]",
+                   "max ‖p_d − p_e‖ on the plant [µm]", title, path, which="both")
