@@ -66,31 +66,39 @@ class PlanEvent:
 
 @dataclasses.dataclass(frozen=True)
 class PlanResult:
-    """One planned task: the joint path `joint_path`, the OCP `solution` and the motor `trajectories`
-    (name -> `MotorTrajectory` [rad, rad/s, rad/s^2]); `solve_time` [s] of a compiled solve (with `timing`,
-    else including compile) and `compile_time` [s] (None without `timing`).
-
-    On the plant (None when the solve did not converge, which then left `trajectories` with the OCP only):
-    `names` of the simulated trajectories, the simulated `run` and its tool-pose `errors` [m, rad], the task
-    `p_d` [m] and `r_d` on the grid, and `plan_error` [m]: the tool position error of the planned link
-    angles on the model.
-    """
+    """One planned task. The plant fields are None when the solve did not converge (`trajectories`
+    then holds the OCP's only)."""
 
     path: Path
+    """The task."""
     joint_path: JointPath
+    """Its link angles from the IK [rad]."""
     solution: OCPSolution
+    """The OCP's solution."""
     trajectories: dict[str, MotorTrajectory]
+    """Name -> motor trajectory [rad, rad/s, rad/s^2] (the OCP's and the baselines')."""
     nu: float
+    """Weight of the motor acceleration in the cost."""
     cost: str
+    """Cost variant."""
     solve_time: float
+    """[s] of a compiled solve (with `timing`, else including the compilation)."""
     compile_time: float | None
+    """[s] of the compilation (None without `timing`)."""
     plant: jr.Robot | None = None
+    """The robot the trajectories were simulated on."""
     names: tuple[str, ...] | None = None
+    """The simulated trajectories, in the order of `run`."""
     run: PlantRun | None = None
+    """The plant simulation."""
     errors: PlantError | None = None
+    """Its tool-pose errors [m, rad]."""
     plan_error: Float[Array, " N"] | None = None
+    """[m] tool position error of the planned link angles on the model."""
     p_d: Float[Array, "N 3"] | None = None
+    """[m] task positions on the grid."""
     r_d: Float[Array, "N 3 3"] | None = None
+    """Task orientations on the grid."""
 
     @property
     def converged(self) -> bool:

@@ -238,36 +238,46 @@ _solve_jit = cached_program(solve, filter=True)
 @dataclasses.dataclass(frozen=True)
 class CalibrationResult:
     """Result of `calibrate` in SI units (m, rad; gear ratios and scales dimensionless; `_report`
-    turns it into tables and the JSON).
-
-    `value`, `start`, `std` (m,) and `covariance` (m, m): the free parameters `names` (units of
-    `ParameterMap`) identified, in the start robot, and their standard errors and covariance;
-    `residuals` (n,) [m] at the solution; `errors_before`/`errors_after` (K,) [m]: model-measurement
-    distance per identification pose with the start and the calibrated robot, and
-    `validation_before`/`validation_after` the same for the validation poses (None without);
-    `beyond_limits`: the poses beyond the joint limits ({row, joint, q_deg, limits_deg});
-    `prior_std` (m,): the MAP priors (None for `method="lm"`); `status`: the name of the solve's
-    `jaxrobot.RESULTS` (`converged` only for `successful`).
-    """
+    turns it into tables and the JSON). `m` free parameters, `K` identification poses."""
 
     robot: jr.Robot
+    """The calibrated robot."""
     names: tuple[str, ...]
+    """The free parameters (names and units of `ParameterMap`)."""
     value: np.ndarray
+    """(m,) identified values."""
     start: np.ndarray
+    """(m,) their values in the start robot."""
     std: np.ndarray
+    """(m,) standard errors."""
     covariance: np.ndarray
+    """(m, m) covariance of `value`."""
     residuals: np.ndarray
+    """[m] data residuals at the solution (3 per pose, plus the weighted orientation rows when
+    orientations are given)."""
     converged: bool
+    """True only for status `successful`."""
     status: str
+    """Name of the solve's `jaxrobot.RESULTS`."""
     iterations: int
+    """Levenberg-Marquardt steps."""
     noise_estimate: float
+    """[m] noise per axis estimated from the residuals (their RMS with the m free parameters' degrees
+    of freedom removed)."""
     errors_before: np.ndarray
+    """(K,) [m] model-measurement distance per identification pose with the start robot."""
     errors_after: np.ndarray
+    """(K,) [m] the same with the calibrated robot."""
     validation_before: np.ndarray | None
+    """[m] the distances of the validation poses with the start robot (None without)."""
     validation_after: np.ndarray | None
+    """[m] the same with the calibrated robot (None without)."""
     beyond_limits: tuple[dict, ...]
+    """The poses beyond the joint limits ({row, joint, q_deg, limits_deg})."""
     method: str
+    """`"lm"` or `"map"`."""
     prior_std: np.ndarray | None
+    """(m,) the MAP priors (None for `method="lm"`)."""
 
     @property
     def delta(self) -> np.ndarray:

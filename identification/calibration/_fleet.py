@@ -39,24 +39,33 @@ from ._pose_selection import default_marker
 
 @dataclasses.dataclass(frozen=True)
 class FleetResult:
-    """Per-robot results (leading axis R): `robot` (calibrated fleet pytree), `value`, `std`
-    (R, m), `covariance` (R, m, m), `converged` (status `successful`), `status` (R,) `RESULTS`
-    (`successful`, `nonlinear_max_steps_reached`, `nonfinite`, or `rank_deficient`; names by
-    `jaxrobot.status_name`), `iterations` LM steps, `rank` (R,), `rms_m` residual rms (R,),
-    `residuals` (R, 3K) [m], `names`."""
+    """Result of `calibrate_fleet`, per robot along the leading axis R (`m` free parameters, `K` poses)."""
 
     robot: jr.Robot
+    """The calibrated fleet (a `Robot` pytree with leading axis R)."""
     value: np.ndarray
+    """(R, m) identified values (units of `ParameterMap`)."""
     std: np.ndarray
+    """(R, m) standard errors."""
     covariance: np.ndarray
+    """(R, m, m) covariances."""
     converged: np.ndarray
+    """(R,) True where the status is `successful`."""
     status: RESULTS
+    """(R,) `successful`, `nonlinear_max_steps_reached`, `nonfinite` or `rank_deficient` (names by
+    `jaxrobot.status_name`)."""
     iterations: np.ndarray
+    """(R,) Levenberg-Marquardt steps."""
     rank: np.ndarray
+    """(R,) numerical rank of the Jacobian."""
     rms_m: np.ndarray
+    """(R,) [m] RMS of the residuals."""
     residuals: np.ndarray
+    """(R, 3K) [m] model minus measurement at the solution."""
     names: tuple[str, ...]
+    """The free parameters."""
     n_devices: int
+    """Devices the fleet was sharded over."""
 
 
 def fleet_mesh(devices: Sequence | None = None) -> Mesh:
