@@ -11,8 +11,7 @@ kernel on the CPU.
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
@@ -116,7 +115,7 @@ def dh_transform(theta, a, d, alpha, beta) -> Float[Array, "*b 4 4"]:
     return _homogeneous(*joint_step(jnp.cos(theta), jnp.sin(theta), a, d, alpha_beta(alpha, beta)))
 
 
-class Chain(NamedTuple):
+class Chain(eqx.Module):
     """Frames 1..n of a chain (eq. 2.4) and the axes of joint i, per joint on a leading axis."""
 
     rotation: Mat
