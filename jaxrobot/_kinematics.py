@@ -139,13 +139,13 @@ def _frame_step(rot: Mat, pos: Vec, c, s, a, d, xy: Mat) -> tuple[Mat, Vec, Vec]
     return mm(rot, r_loc), add(pos, mv(rot, p_loc)), x1
 
 
-def frame_chain(base_r: Mat, base_p: Vec, theta, a, d, alpha, beta, unroll: bool = False, stacked: bool = False
+def frame_chain(base_r: Mat, base_p: Vec, theta, a, d, alpha, beta, stacked: bool = False
                 ) -> tuple[tuple[Mat, Vec], Chain]:
     """World frames of the joints by `H_0^i = H_0^{i-1} H_{i-1}^i` (eq. 2.2-2.4) from the base
-    frame `base_r`, `base_p`: a `lax.scan` over the joints, or unrolled (`unroll`, for one pose
-    under `vmap`: the chain then fuses into a few loops over the poses). `stacked`: the scan
-    carries one array per frame part instead of one per entry (fewer kernels per step, for small
-    batches such as the dynamics' chunks; separate entries suit large batches).
+    frame `base_r`, `base_p`, as a `lax.scan` over the joints (unrolled, its reverse mode compiles
+    several times longer). `stacked`: the scan carries one array per frame part instead of one per
+    entry (fewer kernels per step, for small batches such as the dynamics' chunks; separate entries
+    suit large batches).
 
     `theta = q + offset`, `a`, `d`, `alpha`, `beta`: joint first, (n, *b) broadcastable with the
     base's entries (*b), in any layout. Returns the last frame (`R_0^n`, `o_n`) and the `Chain` of
@@ -156,25 +156,18 @@ def frame_chain(base_r: Mat, base_p: Vec, theta, a, d, alpha, beta, unroll: bool
                                  *(jnp.shape(e) for e in (*base_r[0], *base_r[1], *base_r[2], *base_p)))
     frame0 = jax.tree.map(lambda e: jnp.broadcast_to(e, batch), (base_r, base_p))
     c, s = jnp.cos(theta), jnp.sin(theta)
-    if unroll:
-        frames = [(*frame0, None)]
-        for i in range(jnp.shape(theta)[0]):
-            frames.append(_frame_step(*frames[-1][:2], c[i], s[i], a[i], d[i], jax.tree.map(lambda e: e[i], xy)))
-        rots, origins, x1 = (jax.tree.map(lambda *e: jnp.stack(e), *(f[k] for f in frames[1:])) for k in range(3))
-        end = frames[-1][:2]
-    else:
-        sm, sv = (lambda m: stack_mat(m, 0), lambda v: stack_vec(v, 0)) if stacked else (lambda m: m, lambda v: v)
-        um, uv = (lambda m: mat(m, 0), lambda v: vec(v, 0)) if stacked else (lambda m: m, lambda v: v)
+    sm, sv = (lambda m: stack_mat(m, 0), lambda v: stack_vec(v, 0)) if stacked else (lambda m: m, lambda v: v)
+    um, uv = (lambda m: mat(m, 0), lambda v: vec(v, 0)) if stacked else (lambda m: m, lambda v: v)
 
-        def step(frame, x):
-            rot, pos, x1 = _frame_step(um(frame[0]), uv(frame[1]), *x[:4], mat(x[4], 0))
-            new = (sm(rot), sv(pos))
-            return new, (*new, sv(x1))
+    def step(frame, x):
+        rot, pos, x1 = _frame_step(um(frame[0]), uv(frame[1]), *x[:4], mat(x[4], 0))
+        new = (sm(rot), sv(pos))
+        return new, (*new, sv(x1))
 
-        end, (rots, origins, x1) = jax.lax.scan(step, (sm(frame0[0]), sv(frame0[1])), (c, s, a, d, stack_mat(xy, 1)))
-        end = (um(end[0]), uv(end[1]))
-        if stacked:
-            rots, origins, x1 = mat(rots, 1), vec(origins, 1), vec(x1, 1)
+    end, (rots, origins, x1) = jax.lax.scan(step, (sm(frame0[0]), sv(frame0[1])), (c, s, a, d, stack_mat(xy, 1)))
+    end = (um(end[0]), uv(end[1]))
+    if stacked:
+        rots, origins, x1 = mat(rots, 1), vec(origins, 1), vec(x1, 1)
     shift = lambda first, v: jax.tree.map(lambda f, e: jnp.concatenate([f[None], e[:-1]]), first, v)  # noqa: E731
     return end, Chain(rots, origins, shift(frame0[1], origins), shift(column(frame0[0], 2), column(rots, 2)), x1,
                       column(rots, 1))
@@ -188,10 +181,9 @@ def _joint_first(robot: Robot, q: Array) -> tuple[Array, ...]:
     return tuple(first(x) for x in (q + robot.offset, robot.a, robot.d, robot.alpha, robot.beta))
 
 
-def _chain(robot: Robot, q: Array, unroll: bool = False) -> tuple[tuple[Mat, Vec], Chain]:
+def _chain(robot: Robot, q: Array) -> tuple[tuple[Mat, Vec], Chain]:
     """`frame_chain` of batch-first `robot` and `q` from `robot.base`."""
-    return frame_chain(mat(robot.base[..., :3, :3]), vec(robot.base[..., :3, 3]), *_joint_first(robot, q),
-                       unroll=unroll)
+    return frame_chain(mat(robot.base[..., :3, :3]), vec(robot.base[..., :3, 3]), *_joint_first(robot, q))
 
 
 def _tool_frame(robot: Robot, rot: Mat, pos: Vec) -> tuple[Mat, Vec]:
@@ -228,9 +220,8 @@ def point_position(
 def marker_frame(
     robot: Robot, q: Float[Array, "*b n"], point: Float[Array, "*b 3"]
 ) -> tuple[Float[Array, "*b 3"], Float[Array, "*b 3 3"]]:
-    """World position of `point` (fixed in the tool frame) and the tool rotation. The chain is
-    unrolled: under `vmap` (one pose per call) it fuses into a few loops over the poses."""
-    (rot, pos), _ = _chain(robot, q, unroll=True)
+    """World position of `point` (fixed in the tool frame) and the tool rotation."""
+    (rot, pos), _ = _chain(robot, q)
     rot, pos = _tool_frame(robot, rot, pos)
     return stack_vec(add(pos, mv(rot, vec(point)))), stack_mat(rot)
 
