@@ -249,7 +249,7 @@ def test_solution_converges_and_satisfies_constraints(robot, q_d, solution):
                                                                       rel=0.5, abs=1e-12)
 
 
-@pytest.mark.parametrize("nu", [NU, 1e-10])
+@pytest.mark.parametrize("nu", [NU, pytest.param(1e-10, marks=pytest.mark.extended)])
 def test_same_optimum_as_dense_newton_kkt(robot, q_d, solution, nu):
     # nu = 1e-10: the control weight is 1e4 times larger, far from the warm start (the spiral at this
     # nu failed when the multipliers were updated after rejected steps)
@@ -310,6 +310,7 @@ def test_vmap_over_nu_matches_separate_solves(robot, q_d):
     assert int(jnp.sum(batched.iterations)) < 0.8 * separate_iterations, (batched.iterations, separate_iterations)
 
 
+@pytest.mark.extended  # compiles the sweep's chain program; its one-program-per-config check stays in the suite
 def test_sweep_in_chains_matches_separate_solves(robot, q_d):
     # 3 members in 2 chains (one repeats its last member), given out of nu's order
     nus = np.logspace(-14, -11, 3)[[2, 0, 1]]
