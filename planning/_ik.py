@@ -29,7 +29,7 @@ from jaxrobot import cached_program
 from jaxrobot.linalg import map_matrices, solve
 from jaxrobot.status import check
 
-from ._trajectories import Path, sample_path, time_grid
+from ._trajectories import Path, path_derivatives, sample_path, time_grid
 
 TOL = 1e-14
 """Newton tolerance on the pose residual [m, rad] and on the step [rad]."""
@@ -300,7 +300,6 @@ def joint_path(
     return jp
 
 
-@partial(jax.jit, static_argnames=("path", "order"))
 def joint_derivatives(
     robot: jr.Robot, path: Path, q: Float[Array, "N n"], t: Real[Array, " N"], order: int = 2,
     redundancy: Redundancy | None = None,
@@ -309,22 +308,42 @@ def joint_derivatives(
     recursion of the implicit function: `J q_k = -d^k/ds^k F(sum_{j<k} q_j s^j / j!, t + s)` at `s = 0`
     (`F` = `task_residual` with the IK's `redundancy`, required for more than six joints). Exact, and
     far cheaper to compile than differentiating `q_d(t)`."""
-    redundancy = _redundancy_or_none(redundancy, q)
+    q, t = jnp.asarray(q, dtype=float), jnp.asarray(t, dtype=float)
+    if order < 0:
+        raise ValueError(f"order must be >= 0, got {order}")
+    # the task enters only by its Taylor coefficients at the samples: the program below is data-only
+    task = _task_taylor(path.position, t, order), _task_taylor(path.orientation, t, order)
+    return list(_joint_taylor(robot, q, *task, _redundancy_or_none(redundancy, q), order))
 
-    def single(q, t):
-        residual = lambda q, t: task_residual(robot, q, path.position(t), path.orientation(t), redundancy)  # noqa: E731
-        j_inv = solve(jax.jacfwd(residual)(q, t), jnp.eye(q.shape[-1]))  # LAPACK-free: vmapped over the samples
+
+@partial(jax.jit, static_argnums=(0, 2))
+def _task_taylor(fn: Callable[[Real[Array, ""]], Float[Array, "*s"]], t: Float[Array, " N"], order: int
+                 ) -> Float[Array, "K N *s"]:
+    return jnp.stack(path_derivatives(fn, t, order))
+
+
+@cached_program(static_argnames=("order",))
+def _joint_taylor(robot: jr.Robot, q: Float[Array, "N n"], p: Float[Array, "K N 3"], r: Float[Array, "K N 3 3"],
+                  redundancy: Redundancy, order: int) -> tuple[Float[Array, "N n"], ...]:
+    """`joint_derivatives` from the task's derivatives `p`, `r` (`K = order + 1`) at the samples."""
+    def single(q, p, r):
+        def residual(q, s):  # F(q, t + s) to order `order` in s
+            taylor = lambda c: sum(c[j] * s**j / math.factorial(j) for j in range(order + 1))  # noqa: E731
+            return task_residual(robot, q, taylor(p), taylor(r), redundancy)
+
+        zero = jnp.zeros(())
+        j_inv = solve(jax.jacfwd(residual)(q, zero), jnp.eye(q.shape[-1]))  # LAPACK-free: vmapped over the samples
         coeffs = [q]
         for k in range(1, order + 1):
             def h(s, cs=tuple(coeffs)):
-                return residual(sum(c * s**j / math.factorial(j) for j, c in enumerate(cs)), t + s)
+                return residual(sum(c * s**j / math.factorial(j) for j, c in enumerate(cs)), s)
 
             for _ in range(k):
                 h = (lambda f: lambda s: jax.jvp(f, (s,), (jnp.ones_like(s),))[1])(h)
-            coeffs.append(-j_inv @ h(jnp.zeros_like(t)))
-        return coeffs
+            coeffs.append(-j_inv @ h(zero))
+        return tuple(coeffs)
 
-    return list(jax.vmap(single)(jnp.asarray(q, dtype=float), jnp.asarray(t, dtype=float)))
+    return jax.vmap(single, (0, 1, 1))(q, p, r)
 
 
 @jax.jit
