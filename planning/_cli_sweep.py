@@ -14,6 +14,7 @@ from jaxrobot.cli import Progress, SolveFailed, add_model_option
 from . import _plots
 from ._bandwidth import control_spectrum
 from ._cli_plan import load_task, task_title
+from ._sweep import check_nus
 from ._transcription import COSTS
 from ._workflow import SweepEvent, SweepResult, sweep_task
 
@@ -63,11 +64,7 @@ def sweep(robot, plant, path, nus, costs, echo, directional: bool = False, q_ini
           keep_failed: bool = False) -> SweepResult:
     """`sweep_task` with its progress echoed and on stderr. A member that did not converge raises
     `SolveFailed` unless `keep_failed`."""
-    nus = np.asarray(nus, dtype=float)
-    if nus.ndim != 1 or nus.size < 1 or not np.all(np.isfinite(nus) & (nus > 0)):
-        raise ValueError(f"--nu must be one or more values > 0, got {nus}")
-    if len({f"{nu:.6g}" for nu in nus}) < nus.size:
-        raise ValueError(f"--nu must be distinct values (to 6 digits), got {nus}")
+    nus = check_nus(nus, "--nu", distinct=True)
     progress = Progress(len(costs), "sweep")
 
     def on_event(event: SweepEvent) -> None:

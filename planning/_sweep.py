@@ -71,6 +71,18 @@ def _sharded_chains(robot, q_d, ts, nus, warm_start, u_ref, config, cost, histor
         robot, q_d, ts, nus, warm_start, u_ref, config)
 
 
+def check_nus(nus, name: str = "nus", distinct: bool = False) -> np.ndarray:
+    """`nus` as a float array, checked before any compute: one or more finite weighting factors > 0
+    in a 1-D sequence and, with `distinct`, different to 6 digits (they name a sweep's members).
+    Raises `ValueError` naming `name` (the argument, or the command-line option)."""
+    nus = np.asarray(nus, dtype=float)
+    if nus.ndim != 1 or nus.size < 1 or not np.all(np.isfinite(nus) & (nus > 0)):
+        raise ValueError(f"{name}: expected one or more values > 0 (finite, a 1-D sequence), got {nus}")
+    if distinct and len({f"{nu:.6g}" for nu in nus}) < nus.size:
+        raise ValueError(f"{name}: expected distinct values (to 6 digits), got {nus}")
+    return nus
+
+
 def solve_ocp_sweep(
     robot: jr.Robot,
     q_d: Float[Array, "N n"],
@@ -100,9 +112,7 @@ def solve_ocp_sweep(
     **Raises:** `ValueError` naming the field for bad values, before any compute (`nus`, `workers`;
     the others as `solve_ocp`).
     """
-    nus = np.asarray(nus, dtype=float)
-    if nus.ndim != 1 or nus.size < 1 or not np.all(np.isfinite(nus) & (nus > 0)):
-        raise ValueError(f"nus: expected a 1-D sequence of finite weighting factors > 0, found {nus}")
+    nus = check_nus(nus)
     if workers is None:
         workers = (os.cpu_count() or 1) if backend_kind() == "cpu" else 1
     if not isinstance(workers, int | np.integer) or workers < 1:

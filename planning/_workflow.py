@@ -28,7 +28,7 @@ from ._evaluation import (
     summarize,
 )
 from ._ik import JointPath, joint_path
-from ._sweep import solve_ocp_sweep
+from ._sweep import check_nus, solve_ocp_sweep
 from ._trajectories import Path, sample_path
 from ._transcription import COSTS, State
 
@@ -254,12 +254,8 @@ def sweep_task(robot: jr.Robot, plant: jr.Robot, path: Path, nus, costs: tuple[s
     effects on) of every solution. A cost variant with a member that did not converge ends the sweep
     there, without plant evaluation, unless `keep_failed`; check `converged`. `on_event` receives a
     `SweepEvent` per stage."""
-    nus = np.asarray(nus, dtype=float)
-    if nus.ndim != 1 or nus.size < 1 or not np.all(np.isfinite(nus) & (nus > 0)):
-        raise ValueError(f"nus: expected one or more values > 0, got {nus}")
+    nus = check_nus(nus, distinct=True)
     names = tuple(f"{nu:.6g}" for nu in nus)
-    if len(set(names)) < len(names):
-        raise ValueError(f"nus: expected distinct values (to 6 digits), got {nus}")
     emit = on_event or (lambda event: None)
     jp = joint_path(robot, path, q_init)
     flat = baseline_trajectories(robot, jp)["flat_inverse"]

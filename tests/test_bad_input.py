@@ -46,8 +46,8 @@ CLI = [  # (id, argv (FILE: the file written from `content`), content, exit code
     ("nu nan", ["plan", "line", "--nu", "nan"], None, 2, "--nu must be a finite number > 0 .*got nan"),
     ("nu inf", ["plan", "line", "--nu", "inf"], None, 2, "--nu must be a finite number > 0 .*got inf"),
     ("nu not a number", ["plan", "line", "--nu", "tiny"], None, 2, "argument --nu: invalid float value: 'tiny'"),
-    ("sweep nu zero", ["sweep", "--nu", "1e-14", "0"], None, 2, "--nu must be one or more values > 0"),
-    ("sweep nu twice", ["sweep", "--nu", "1e-14", "1e-14"], None, 2, "--nu must be distinct values"),
+    ("sweep nu zero", ["sweep", "--nu", "1e-14", "0"], None, 2, "--nu: expected one or more values > 0"),
+    ("sweep nu twice", ["sweep", "--nu", "1e-14", "1e-14"], None, 2, "--nu: expected distinct values"),
     ("unknown cost", ["plan", "line", "--cost", "energy"], None, 2, "argument --cost: invalid choice: 'energy'"),
     ("out is a file", ["info", "--out", "FILE"], "x", 2, "--out .*: is an existing file; --out names a folder"),
     ("task file missing", ["plan", "missing.csv"], None, 2, "task 'missing.csv': expected 'line', 'spiral' or an "

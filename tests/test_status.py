@@ -91,3 +91,23 @@ def test_calibrate_throw_raises_a_non_converged_solve():
     assert (res.converged, res.status, res.iterations) == (False, "nonlinear_max_steps_reached", 1)
     with pytest.raises(Exception, match="maximum number of steps"):
         calibrate(*args, **kwargs, throw=True)
+
+
+def test_process_gear_runs_throw_raises_a_failed_alignment():
+    """A gear batch whose gyroscope samples are NaN (built by hand: `prepare_gear_runs` rejects
+    such runs): the alignment's linear solve fails, its status is returned with `throw=False` (the
+    default) and `throw=True` raises its message."""
+    from identification.gear._processing import GearBatch, process_gear_runs
+
+    robot = jr.racer7()
+    samples = 128
+    theta = jnp.zeros((1, samples, robot.n_joints)).at[0, :, 0].set(jnp.linspace(0.0, 0.5, samples))
+    segment = jnp.zeros((1, samples), bool).at[:, 16:-16].set(True)
+    batch = GearBatch(
+        theta=theta, gyro=jnp.full((1, samples, 3), jnp.nan), valid=jnp.ones((1, samples), bool), segment=segment,
+        rest=jnp.zeros((1, samples), bool), joint=jnp.asarray([0]), ccw=jnp.asarray([False]),
+        align=jnp.asarray([True]), ts=jnp.asarray([1e-3]), sigma=jnp.asarray([2e-3]), half_width=8)
+    proc = process_gear_runs(robot, batch)
+    assert jr.status_name(proc.align_result) == "nonfinite_input"
+    with pytest.raises(Exception, match="non-finite"):
+        process_gear_runs(robot, batch, throw=True)

@@ -28,6 +28,7 @@ from jaxtyping import Array, Bool, Float, Int
 from jaxrobot import RESULTS, Ripple, Robot, cached_program
 from jaxrobot.linalg import map_matrices
 from jaxrobot.measurement import mount_angular_velocity, quasi_static_link_angles, sensor_rotation
+from jaxrobot.status import check
 
 MOVE_THRESHOLD_RAD = math.radians(1.0)
 """A joint moves in a run if its motor angle spans more than this [rad, motor side]."""
@@ -366,13 +367,21 @@ class ProcessedRuns(eqx.Module):
     """`sum g_k^2` of each run's filter: white noise of variance s^2 leaves s^2 times this."""
 
 
-@cached_program
-def process_gear_runs(robot: Robot, batch: GearBatch) -> ProcessedRuns:
+def process_gear_runs(robot: Robot, batch: GearBatch, throw: bool = False) -> ProcessedRuns:
     """Kinematic error of all runs of all joints in one call (thesis Fig. 3.1).
 
     `robot` is the model (nominal); its ripple is ignored, its `u0`, kinematics, masses and
     stiffness give the gravity-deflection rate that is subtracted.
+
+    `throw`: raise the message of `align_result` (at run time, also under `jit`) when the gyroscope
+    alignment (eq. 3.3) did not converge. Default False: the result carries the status.
     """
+    proc = _process_gear_runs(robot, batch)
+    return check(proc.align_result, proc, throw)
+
+
+@cached_program
+def _process_gear_runs(robot: Robot, batch: GearBatch) -> ProcessedRuns:
     robot = eqx.tree_at(lambda r: (r.cw, r.ccw), robot, (Ripple.none(robot.n_joints), Ripple.none(robot.n_joints)))
     r_idx = jnp.arange(batch.theta.shape[0])
     theta = batch.theta[r_idx, :, batch.joint]
