@@ -139,7 +139,7 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "independent")
     ap.add_argument("--source", type=Path, default=None, help="run the packages in this folder instead")
     ap.add_argument("--table", action="store_true", help="write results_startup.md from the measurements")
-    ap.add_argument("--labels", nargs="+", default=["before", "own changes", "after"],
+    ap.add_argument("--labels", nargs="+", default=["s12-before", "s12-after"],
                     help="measurements (startup_*.json labels) in the table of --table")
     args = ap.parse_args()
     if not args.data.is_dir():
