@@ -29,7 +29,7 @@ from jaxrobot import cached_program
 from jaxrobot.linalg import map_matrices, solve
 from jaxrobot.status import check
 
-from ._trajectories import Path, path_derivatives, sample_path, time_grid
+from ._trajectories import Path, nested_derivatives, path_derivatives, sample_path, time_grid
 
 TOL = 1e-14
 """Newton tolerance on the pose residual [m, rad] and on the step [rad]."""
@@ -325,25 +325,29 @@ def _task_taylor(fn: Callable[[Real[Array, ""]], Float[Array, "*s"]], t: Float[A
 @cached_program(static_argnames=("order",))
 def _joint_taylor(robot: jr.Robot, q: Float[Array, "N n"], p: Float[Array, "K N 3"], r: Float[Array, "K N 3 3"],
                   redundancy: Redundancy, order: int) -> tuple[Float[Array, "N n"], ...]:
-    """`joint_derivatives` from the task's derivatives `p`, `r` (`K = order + 1`) at the samples."""
+    """`joint_derivatives` from the task's derivatives `p`, `r` (`K = order + 1`) at the samples. The
+    recursion is a loop over k of one program, the derivatives up to `order` along the curve of the
+    coefficients found so far (those from k on are zero, so the k-th derivative lacks `J q_k`)."""
     def single(q, p, r):
         def residual(q, s):  # F(q, t + s) to order `order` in s
-            taylor = lambda c: sum(c[j] * s**j / math.factorial(j) for j in range(order + 1))  # noqa: E731
-            return task_residual(robot, q, taylor(p), taylor(r), redundancy)
+            return task_residual(robot, q, _polynomial(p, s), _polynomial(r, s), redundancy)
 
         zero = jnp.zeros(())
         j_inv = solve(jax.jacfwd(residual)(q, zero), jnp.eye(q.shape[-1]))  # LAPACK-free: vmapped over the samples
-        coeffs = [q]
-        for k in range(1, order + 1):
-            def h(s, cs=tuple(coeffs)):
-                return residual(sum(c * s**j / math.factorial(j) for j, c in enumerate(cs)), s)
 
-            for _ in range(k):
-                h = (lambda f: lambda s: jax.jvp(f, (s,), (jnp.ones_like(s),))[1])(h)
-            coeffs.append(-j_inv @ h(zero))
-        return tuple(coeffs)
+        def coefficient(k, cs):
+            along = lambda s: residual(_polynomial(cs, s), s)  # noqa: E731
+            return cs.at[k].set(-j_inv @ jnp.stack(nested_derivatives(along, zero, order))[k])
+
+        cs = jnp.zeros((order + 1, *q.shape)).at[0].set(q)
+        return tuple(jax.lax.fori_loop(1, order + 1, coefficient, cs))
 
     return jax.vmap(single, (0, 1, 1))(q, p, r)
+
+
+def _polynomial(c: Float[Array, "K ..."], s: Real[Array, ""]) -> Float[Array, "..."]:
+    """`sum_j c_j s^j / j!`: the Taylor polynomial of derivatives `c`."""
+    return sum(c[j] * s**j / math.factorial(j) for j in range(c.shape[0]))
 
 
 @jax.jit

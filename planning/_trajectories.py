@@ -134,20 +134,19 @@ def path_derivatives(
     """`[fn(t), fn'(t), ..., fn^(order)(t)]` at every `t` by nested `jax.jvp` (exact, no differencing)."""
     if order < 0:
         raise ValueError(f"order must be >= 0, got {order}")
-
-    def nested(k):  # s -> (fn(s), ..., fn^(k)(s)) in one trace
-        if k == 0:
-            return lambda s: (fn(s),)
-        inner = nested(k - 1)
-
-        def outer(s):
-            primal, tangent = jax.jvp(inner, (s,), (jnp.ones_like(s),))
-            return (*primal, tangent[-1])
-
-        return outer
-
     t = jnp.asarray(t, dtype=float)
-    return list(jax.vmap(nested(order))(t))
+    return list(jax.vmap(lambda s: nested_derivatives(fn, s, order))(t))
+
+
+def nested_derivatives(fn: Callable[[Real[Array, ""]], Float[Array, "*s"]], s: Real[Array, ""], order: int
+                       ) -> tuple[Float[Array, "*s"], ...]:
+    """`(fn(s), fn'(s), ..., fn^(order)(s))` of a function of one scalar, by `jax.jvp` nested `order`
+    deep: one trace for all orders."""
+    if order == 0:
+        return (fn(s),)
+    inner = lambda s: nested_derivatives(fn, s, order - 1)  # noqa: E731
+    primal, tangent = jax.jvp(inner, (s,), (jnp.ones_like(s),))
+    return (*primal, tangent[-1])
 
 
 STENCIL = 9
