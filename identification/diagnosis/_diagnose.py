@@ -177,23 +177,33 @@ class DiagnoseEvent:
 
 @dataclasses.dataclass(frozen=True)
 class DiagnoseResult:
-    """`robot`: the start robot with the added effects (`steps`); `verdict`; `loop`: one row per
-    model; `candidates`: per step, the scored candidates, best first; `residuals_before`/`_after`:
-    validation residual norms [m] per pose; `spectra`: per step, {(kind, joint): chi2 decrease per
-    order 1..max_order}; `noise`: tracker std per axis [m]; `validation_bound` [m] (`validation_bound`)."""
+    """What `diagnose` found: the model it ended with, each step of the loop and the evidence."""
 
     robot: jr.Robot
+    """The start robot with the added effects (`steps`) at their fitted values."""
     verdict: str
+    """The conclusion in words, starting with "no significant discrepancy", "explained", "not
+    explained" (validation above `validation_bound`) or "discrepancy remains" (and why)."""
     steps: tuple[AddedEffect, ...]
+    """The effects added, in order."""
     loop: tuple[LoopRow, ...]
+    """One row per model: the start model, then after each added effect."""
     candidates: tuple[tuple[CandidateScore, ...], ...]
+    """Per step, the scored candidate effects, best first."""
     residuals_before: np.ndarray
+    """Validation residual norm of each pose with the start model [m]."""
     residuals_after: np.ndarray
+    """Validation residual norm of each pose with the final model [m]."""
     spectra: tuple[dict, ...]
+    """Per step, `{(kind, joint): chi2 decrease per ripple order 1..max_order}` of the residuals."""
     noise: float
+    """Tracker noise, standard deviation per axis [m]."""
     validation_bound: float
+    """Largest validation RMS that the noise alone explains [m] (`validation_bound`)."""
     n_train: int
+    """Training poses."""
     n_validation: int
+    """Validation poses."""
 
     @property
     def noise_floor(self) -> float:

@@ -170,7 +170,9 @@ class GearErrors(eqx.Module):
     after: Float[Array, "R N"]
     """`filter(thetad / u(phi)) - phid_f` with the identified ripple [rad/s]."""
     rms_before: Float[Array, " R"]
+    """RMS of `before` over the segment [rad/s]."""
     rms_after: Float[Array, " R"]
+    """RMS of `after` over the segment [rad/s]."""
     noise_floor: Float[Array, " R"]
     """RMS that the gyroscope's white noise alone leaves after the filter [rad/s]."""
     phi: Float[Array, "R N"]
@@ -239,29 +241,42 @@ class DirectionTest:
 
 @dataclasses.dataclass(frozen=True)
 class GearIdentification:
-    """Everything `identify_gear` found (numpy arrays; joints 1-based).
-
-    `groups[g] = (joint, ccw)`; `fit` holds one ripple set per group with the orders of
-    `method`; `orders_fft` / `orders_sparse` the orders of both searches; per run: `infos`,
-    `group`, `validation` (True for validation runs), `errors` (kinematic errors before/after)."""
+    """Everything `identify_gear` found (numpy arrays; joints 1-based). A group is one joint in one
+    direction of motion."""
 
     groups: list
+    """`groups[g] = (joint, ccw)`."""
     fit: GearFit
+    """Per group: the basic ratio `u0` and the Fourier ripple set with the orders of `method`."""
     misalignment: np.ndarray
+    """(n, 2) gyroscope alignment angles `(alpha, beta)` per joint [rad] (eq. 3.3)."""
     align_ok: bool
+    """True when the alignment solve converged."""
     method: str
+    """The order search whose orders were fitted: "sparse" (ours) or "fft" (the thesis')."""
     orders_fft: list
+    """Per group: the orders of the thesis' FFT search (peaks and their neighbours)."""
     orders_sparse: list
+    """Per group: the orders of our sparse cluster search (cross-validated)."""
     spectra: list
+    """Per group: `(orders, magnitude)`, the mean FFT magnitude spectrum of the kinematic error over
+    the gear output angle (for plots, Fig. 3.3)."""
     cv_curves: np.ndarray
+    """(groups, K + 1) cross-validated RMS of the kinematic error after 0..K clusters [rad/s]."""
     tests: list
+    """Per joint with both directions: the `DirectionTest` of cw against ccw."""
     resolution: list
     """Per group: `Resolution` of its ripple (kept, or below the noise and how many more runs)."""
     infos: list
+    """Per run: its `RunInfo`."""
     group: np.ndarray
+    """Per run: its group index."""
     validation: np.ndarray
+    """Per run: True for a validation run (not fitted)."""
     errors: GearErrors
+    """Per run: kinematic errors before and after the compensation."""
     t: np.ndarray
+    """(1, N) sample times of the padded runs [s]."""
     ranges: list = dataclasses.field(default_factory=list)
     """Per group: `(lo, hi)` gear output angle [rad] over the identification runs' segments, the
     range where its Fourier set is measured (outside: an extrapolation)."""
