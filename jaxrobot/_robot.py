@@ -84,6 +84,8 @@ class Robot(eqx.Module):
     gravity: Float[Array, "*batch 3"]
     """Gravity acceleration in the world frame [m/s^2]."""
     name: str = eqx.field(static=True, default="robot")
+    """Name of the robot (the robot file's `name`, a URDF's `<robot name>`); static: part of the
+    tree structure, not an array leaf."""
 
     @property
     def k1(self) -> Float[Array, "*batch n"]:

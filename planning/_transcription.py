@@ -50,13 +50,17 @@ Cost = Literal["thesis", "jerk", "flat"]
 
 
 class State(eqx.Module):
-    """The state `x = [q, qd, theta, thetad]` of eq. 4.1 [rad, rad/s]: link angles and rates, motor
-    angles and rates, each (..., n); `State.of(x)` splits a packed (..., 4n) array, `pack` joins it."""
+    """The state `x = [q, qd, theta, thetad]` of eq. 4.1; `State.of(x)` splits a packed (..., 4n) array,
+    `pack` joins it."""
 
     q: Float[Array, "*b n"]
+    """Link angles [rad]."""
     qd: Float[Array, "*b n"]
+    """Link angular velocities [rad/s]."""
     theta: Float[Array, "*b n"]
+    """Motor angles [rad]."""
     thetad: Float[Array, "*b n"]
+    """Motor angular velocities [rad/s]."""
 
     @classmethod
     def of(cls, x: Float[Array, "*b 4*n"]) -> State:

@@ -38,30 +38,40 @@ if TYPE_CHECKING:
 
 @dataclasses.dataclass(frozen=True)
 class PlanEvent:
-    """Progress of `plan_task`, after each stage; `elapsed` [s] is the stage's time.
-
-    `stage`: "inverse_kinematics" (`samples` N, `ik_residual` the largest tool position residual [m]),
-    "flat_inverse" (the warm start), "solving" (before the OCP: `samples`, `nu`, `cost`), "ocp" (the first
-    solve, compile included), "ocp_again" (the compiled solve, timed without compile), "solved" (the
-    solution: `status`, `iterations`, `objective`, scaled `max_violation`, `history` of (objective,
-    violation, penalty) per outer iteration, `solve_time`, `compile_time` [s]) or "plant_simulation"
-    (`errors`: per trajectory (name, max, rms, max after t_e) tool position error [m]).
-    """
+    """Progress of `plan_task`, after each stage; the fields a stage does not set keep their defaults."""
 
     stage: str
+    """One of "inverse_kinematics", "flat_inverse" (the warm start), "solving" (before the OCP), "ocp" (the
+    first solve, compile included), "ocp_again" (the compiled solve, with `timing`), "solved" (the solution)
+    or "plant_simulation"."""
     elapsed: float = 0.0
+    """The stage's time [s] ("ocp_again": the solve without compile); 0 for "solving" and "solved"."""
     samples: int = 0
+    """At "inverse_kinematics" and "solving": the samples `N` of the task's time grid."""
     ik_residual: float = 0.0
+    """At "inverse_kinematics": the largest tool position residual of the IK [m]."""
     nu: float = 0.0
+    """At "solving": weighting factor `nu` of the motor acceleration in the cost [rad^2 / (rad/s^2)^2]."""
     cost: str = ""
+    """At "solving": the cost variant (one of `COSTS`)."""
     status: str = ""
+    """At "solved": the OCP's status name (`jaxrobot.status_name`)."""
     iterations: int = 0
+    """At "solved": outer iterations."""
     objective: float = 0.0
+    """At "solved": the final cost (`OCPSolution.objective`)."""
     max_violation: float = 0.0
+    """At "solved": the largest constraint violation, in scaled units (`OCPSolution.max_constraint_violation`)."""
     history: tuple[tuple[float, float, float], ...] = ()
+    """At "solved": per outer iteration (as far as the solver records them), (objective, largest scaled
+    violation, penalty `rho`)."""
     solve_time: float = 0.0
+    """At "solved": time of a compiled solve [s] (with `timing`, else including the compilation)."""
     compile_time: float | None = None
+    """At "solved": time of the compilation [s] (None without `timing`)."""
     errors: tuple[tuple[str, float, float, float], ...] = ()
+    """At "plant_simulation": per trajectory, (name, max, rms over `[0, t_e]`, max after `t_e`) of the tool
+    position error on the plant [m]."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -184,23 +194,28 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
 
 @dataclasses.dataclass(frozen=True)
 class SweepEvent:
-    """Progress of `sweep_task`, per cost variant; `elapsed` [s] is the stage's time.
-
-    `stage`: "solved" (the OCPs of all `nus` of `cost` in one call, compile included) or "evaluated"
-    (bandwidths and plant errors of every member). Per member, in the order of `nus`: `status` names,
-    outer `iterations`, and after "evaluated" the largest 99 % control `bandwidth` over the joints [Hz]
-    and the tool `position_max` and `position_rms` error on the plant [m].
-    """
+    """Progress of `sweep_task`, per cost variant and stage; the per-member tuples follow the order of
+    `nus`."""
 
     stage: str
+    """Either "solved" (the OCPs of all `nus` of `cost` in one call) or "evaluated" (bandwidths and plant errors
+    of every member)."""
     cost: str
+    """The cost variant (one of `COSTS`)."""
     elapsed: float = 0.0
+    """The stage's time [s] ("solved": compile included)."""
     nus: tuple[float, ...] = ()
+    """The weighting factors `nu` of the members, as given [rad^2 / (rad/s^2)^2]."""
     status: tuple[str, ...] = ()
+    """Status name of each member's solve (`jaxrobot.status_name`)."""
     iterations: tuple[int, ...] = ()
+    """Outer iterations of each member's solve."""
     bandwidth: tuple[float, ...] = ()
+    """At "evaluated": per member, the largest 99 % energy bandwidth of the control over the joints [Hz]."""
     position_max: tuple[float, ...] = ()
+    """At "evaluated": per member, the largest tool position error on the plant over `[0, t_e]` [m]."""
     position_rms: tuple[float, ...] = ()
+    """At "evaluated": per member, the RMS tool position error on the plant over `[0, t_e]` [m]."""
 
 
 @dataclasses.dataclass(frozen=True)

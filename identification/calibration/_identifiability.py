@@ -100,6 +100,8 @@ class IdentifiabilityResult:
     singular_values: np.ndarray
     """Of the column-scaled stacked Jacobian, descending."""
     rank: int
+    """Numerical rank of the column-scaled stacked Jacobian: its singular values above `rtol` times the
+    largest."""
     identifiable: tuple[str, ...]
     """A maximal identifiable subset (selected by pivoted QR)."""
     unidentifiable: tuple[str, ...]
@@ -112,7 +114,9 @@ class IdentifiabilityResult:
     null_space: np.ndarray
     """(n, n - rank) unidentifiable directions in scaled parameter space (SVD)."""
     orientation: bool
+    """True when the measurements include the marker orientations, False for positions only."""
     n_poses: int
+    """Poses `K` whose Jacobian blocks were stacked."""
 
 
 def analyse(

@@ -72,6 +72,7 @@ class ParameterMap(eqx.Module):
     """
 
     names: tuple[str, ...] = eqx.field(static=True)
+    """The free parameters (`a2`, `u0_5`, `tool_x`, ...; joints 1-based), in the order of the flat vector."""
 
     def __init__(self, names: Sequence[str]):
         names = tuple(names)

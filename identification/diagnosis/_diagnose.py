@@ -50,15 +50,18 @@ ORDER_FALSE_ALARM = 1e-3
 
 @dataclasses.dataclass(frozen=True)
 class Poses:
-    """Measured poses: `motor_angles` (K, n) rad, `positions` (K, 3) m, `ccw` (K, n) the direction
-    of approach of the stated convention (`_pose_files.APPROACHES`, `cw` by default, docs/model.md (B.1)) and
-    `ccw_order` (K, n) the one the row order would give (`jaxrobot.approach_directions`), which the
-    hypothesis `approach_dependent_gear_set` tests."""
+    """Measured poses of an n-joint robot (K of them) with their directions of approach (`Poses.of`)."""
 
     motor_angles: np.ndarray
+    """(K, n) motor angles at rest [rad]."""
     positions: np.ndarray
+    """(K, 3) measured world positions of the marker [m]."""
     ccw: np.ndarray
+    """(K, n) bool direction of approach of the stated convention (`_pose_files.APPROACHES`, `cw` by
+    default, docs/model.md (B.1)); True: the ccw gear set."""
     ccw_order: np.ndarray
+    """(K, n) bool direction of approach the row order would give (`jaxrobot.approach_directions`),
+    which the hypothesis `approach_dependent_gear_set` tests."""
 
     @classmethod
     def of(cls, motor_angles, positions, approach: str = "cw", ccw=None) -> Poses:
@@ -107,72 +110,109 @@ class Candidate:
 
 @dataclasses.dataclass(frozen=True)
 class LoopRow:
-    """The model after `step` effects (`effect`: the last one added): `parameters` fitted, residual
-    RMS norms [m] of the training and validation poses, chi-square test and BIC on the training poses."""
+    """One model of the loop (the start model, then after each added effect) and its evidence: the
+    chi-square test and BIC on the K training poses."""
 
     step: int
+    """Effects added so far (0: the start model)."""
     effect: str
+    """Label of the last effect added (`kind jJ (variant)`), "(start)" for the start model."""
     parameters: int
+    """Parameters `m` fitted, those of all effects added."""
     rms_train: float
+    """RMS norm of the training position residuals [m]."""
     rms_validation: float
+    """RMS norm of the validation position residuals [m]."""
     chi2: float
+    """`sum r^2 / sigma^2` of the training residuals (`sigma`: tracker noise per axis)."""
     dof: int
+    """Degrees of freedom `3K - m`."""
     p_value: float
+    """Probability of a chi-square with `dof` exceeding `chi2`; the test passes above `ALPHA`."""
     bic: float
+    """Bayesian information criterion `chi2 + m ln(3K)`."""
 
 
 @dataclasses.dataclass(frozen=True)
 class CandidateScore:
-    """One candidate of a step: BIC linearised (all) and after its LM fit (the shortlist: `bic`,
-    residual RMS norms [m], status name (`jaxrobot.RESULTS`) and steps; None otherwise); `selected`: added."""
+    """One candidate effect of a step, fitted with the effects already added: scored linearised (every
+    candidate) and after its LM fit (the `shortlist` only; the LM fields are None for the others)."""
 
     candidate: str
+    """Label of the candidate: `kind jJ (variant)` (no joint for a global effect, no variant for one)."""
     bic_linearised: float
+    """BIC after one Gauss-Newton step from the current model."""
     delta_bic_linearised: float
+    """`bic_linearised` minus the current model's BIC (negative: better)."""
     bic: float | None = None
+    """BIC of the exact model after the LM fit (training poses)."""
     delta_bic: float | None = None
+    """`bic` minus the current model's BIC."""
     rms_train: float | None = None
+    """RMS norm of the training position residuals after the LM fit [m]."""
     rms_validation: float | None = None
+    """RMS norm of the validation position residuals after the LM fit [m]."""
     lm_status: str | None = None
+    """Status name of the LM fit (`jaxrobot.status_name` of a `jaxrobot.RESULTS`)."""
     lm_steps: int | None = None
+    """Steps of the LM fit."""
     selected: bool = False
+    """True for the candidate added in this step."""
 
 
 @dataclasses.dataclass(frozen=True)
 class Estimate:
-    """An identified parameter in SI units (`unit`); `std` None where derived (`k1` from `c`)."""
+    """An identified parameter of an added effect, in SI units."""
 
     value: float
+    """Fitted value [`unit`] of the effect's parameter (`Effect.apply`: 0 leaves the start model as it
+    is), or of a derived quantity (`k1`: the joint's stiffness `1 / c` [N m/rad])."""
     unit: str
+    """Unit of `value` and `std`: the effect's `units` entry ("1" for a pure number), "N m/rad" for `k1`."""
     std: float | None = None
+    """Standard error [`unit`] from the Gauss-Newton covariance `(J^T J)^+` of the training residuals
+    over the noise `sigma` (`J` at the model before this step's fit); None where derived (`k1` from `c`)."""
     note: str = ""
+    """A remark for the report, e.g. why the weight of `approach_dependent_gear_set` cannot go into a
+    robot file; usually empty."""
 
 
 @dataclasses.dataclass(frozen=True)
 class AddedEffect:
-    """An effect the workflow added: `kind`, `joint` (1-based, None for a global one), `variant`,
-    its parameters and the residual RMS norms [m] after adding it."""
+    """An effect the workflow added, with its fitted parameters and the residuals after adding it."""
 
     kind: str
+    """The effect's `Effect.kind`."""
     joint: int | None
+    """The joint it acts on (1-based); None for a global effect."""
     variant: str
+    """Which parameter subset was fitted ("linear" or "cubic" for `joint_compliance`), else ""."""
     parameters: dict[str, Estimate]
+    """Parameter name (`Effect.names`; a ripple amplitude with its order instead of its slot, e.g.
+    `A_order70`) -> fitted value; `joint_compliance` adds the derived `k1`."""
     rms_train: float
+    """RMS norm of the training position residuals after adding it [m]."""
     rms_validation: float
+    """RMS norm of the validation position residuals after adding it [m]."""
 
 
 @dataclasses.dataclass(frozen=True)
 class DiagnoseEvent:
-    """Progress of `diagnose`: `stage` "compare" (the model after `step` effects: `row`, with the
-    noise floor `sigma sqrt(3)` [m]) or "name" (the scored `candidates` of step `step`, best first);
-    `elapsed` [s] since the loop began."""
+    """Progress of `diagnose`: one event per model compared and one per step's scored candidates."""
 
     stage: str
+    """Either "compare" (a model against the measurements) or "name" (the candidates of a step scored)."""
     step: int
+    """At "compare" the effects in the model (`row.step`); at "name" the step (1-based) whose effect is
+    sought."""
     elapsed: float
+    """Time since the loop began [s]."""
     row: LoopRow | None = None
+    """At "compare" the model's row; None at "name"."""
     noise_floor: float = 0.0
+    """At "compare" the RMS norm of the tracker noise `sigma sqrt(3)` [m]; 0 at "name"."""
     candidates: tuple[CandidateScore, ...] = ()
+    """At "name" the scored candidates, best (linearised BIC) first; empty at "compare"."""
 
 
 @dataclasses.dataclass(frozen=True)

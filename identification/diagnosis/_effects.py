@@ -41,14 +41,18 @@ def with_ripple_slots(robot: jr.Robot) -> jr.Robot:
 
 @dataclasses.dataclass(frozen=True)
 class Effect:
-    """One kind of discrepancy: `kind` (the name of the JSON report), whether it acts per joint,
-    parameter `names` and typical `scales` (the LM works in units of these)."""
+    """One kind of discrepancy: a model extension with `p` parameters (set by each subclass)."""
 
     kind: ClassVar[str]
+    """Its name (in the JSON report and the candidates' labels)."""
     per_joint: ClassVar[bool]
+    """True: one set of parameters per joint (`v` of shape (joints, p)); False: one global set (p,)."""
     names: ClassVar[tuple[str, ...]]
+    """(p,) parameter names."""
     scales: ClassVar[tuple[float, ...]]
+    """(p,) typical sizes of the parameters, in `units` (the LM works in units of these)."""
     units: ClassVar[tuple[str, ...]]
+    """(p,) SI unit of each parameter ("1" for a pure number)."""
 
     def apply(self, robot: jr.Robot, v: Array, orders: Float[Array, "n S"]) -> jr.Robot:
         raise NotImplementedError
@@ -261,9 +265,11 @@ class Layout:
     spare entry that moves nothing (padding of parameter subsets)."""
 
     effects: tuple[Effect, ...]
+    """The effects, in the order of their blocks in `V`."""
     blocks: tuple[np.ndarray, ...]
     """Per effect: indices into `V`, shape (joints, p) per joint or (p,) global."""
     size: int
+    """Number of entries of all effects in `V`, also the index of the spare entry (`V` has `size + 1`)."""
 
     @classmethod
     def of(cls, effects=None, joints: int = 6) -> Layout:

@@ -230,10 +230,17 @@ class DirectionTest:
     statistic, calibrated by the same statistic between halves of each direction's repetitions."""
 
     joint: int
+    """The joint (1-based)."""
     chi2: float
+    """Wald statistic `d^T (C_cw + C_ccw)^+ d` of the difference `d` of the two Fourier sets (0 when
+    neither direction has ripple)."""
     dof: int
+    """Degrees of freedom: 2 per order of the union (0 when neither direction has ripple)."""
     p_value: float
+    """Chi-square p-value of `chi2`; with >= 2 runs per direction that of the F test against the
+    repetitions (`within_scale`); 1 without ripple."""
     significant: bool
+    """True when `p_value < SIGNIFICANCE`: the ripple differs between the directions."""
     within_scale: float = 1.0
     """chi2/dof between halves of the same direction's repetitions (1 if the covariance were exact);
     with >= 2 runs per direction the p-value is that of `chi2_between/dof` over this (an F test)."""
@@ -338,11 +345,20 @@ class Resolution:
     (the non-centrality `chi2 - dof` grows in proportion to the runs)."""
 
     chi2: float
+    """Wald statistic of the group's Fourier coefficients against zero, covariance scaled by
+    `scatter` (0 without orders)."""
     dof: int
+    """Degrees of freedom: 2 per fitted order (0 when no orders were fitted)."""
     p_value: float
+    """Chi-square p-value of `chi2` (1 without orders); resolved when below `SIGNIFICANCE`."""
     runs: int
+    """Identification runs of the group (one joint in one direction)."""
     scatter: float
+    """Run-to-run spread of the coefficients over the model covariance: chi2/dof of the differences of
+    consecutive runs, at least 1 (1 with one run or without orders)."""
     more_runs: int
+    """Further runs per direction that would resolve the ripple (at least 1, meaningful when unresolved;
+    0 without orders)."""
     probe: bool = False
     """The orders the cross-validation rejected (the FFT's peaks), tested only to estimate the runs
     that would resolve them: never resolved."""

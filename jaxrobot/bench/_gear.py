@@ -64,23 +64,29 @@ REST_S = 0.2
 
 @dataclasses.dataclass(frozen=True)
 class GearRuns:
-    """Plain arrays of `R` runs of one joint, all of `N` samples.
-
-    `t` (N,) s; `theta` (R, N, n) measured (quantised) motor angles [rad]; `gyro` (R, N, 3)
-    measured angular velocity [rad/s] in the gyroscope frame; `ccw` (R,) direction of each run.
-    Noise-free truth: `link_angles` (R, N, n) [rad], `link_rate` (R, N) rate of the moving joint
-    about its axis [rad/s], `gyro_true` (R, N, 3). `metadata` holds joint (1-based), speeds,
-    ranges, seed, noise, bias and misalignment.
-    """
+    """Plain arrays of `R` runs of one joint (`gear_runs`), all of `N` samples of an `n`-joint robot:
+    the measurements and their noise-free truth."""
 
     t: np.ndarray
+    """(N,) sample times from the start of each run [s] (the same for every run)."""
     theta: np.ndarray
+    """(R, N, n) measured motor angles, quantised to the encoder's counts per revolution [rad]."""
     gyro: np.ndarray
+    """(R, N, 3) measured angular velocity of the moving link in the (misaligned) gyroscope frame,
+    with white noise and a constant bias per run [rad/s]."""
     ccw: np.ndarray
+    """(R,) bool direction of each run: True for a negative motor speed (the `ccw` gear set)."""
     link_angles: np.ndarray
+    """(R, N, n) noise-free link angles at quasi-static rest under gravity [rad]."""
     link_rate: np.ndarray
+    """(R, N) noise-free angular velocity of the moving link about its joint axis [rad/s]."""
     gyro_true: np.ndarray
+    """(R, N, 3) noise-free, bias-free `gyro` [rad/s]."""
     metadata: dict
+    """The settings, units in the key names: `joint` (1-based), `motor_speed_deg_s`, `range_deg`,
+    `centre_deg`, `ramp_s`, `rest_s`, `sample_time_s`, `encoder_counts_per_rev`, `gyro_noise_deg_s`, the
+    drawn `gyro_bias_deg_s` (R, 3), `misalignment_rad` (alpha, beta), `hold_q_deg`, `directions` (R,),
+    `seed` (None when a key was given)."""
 
 
 def motion_profile(

@@ -50,19 +50,23 @@ _FLEET_MASK = {
 
 @dataclasses.dataclass(frozen=True)
 class PoseMeasurements:
-    """Plain arrays of one bench session (leading axes `*b` = robots of a fleet, if any).
-
-    `motor_angles` (*b, K, n) rad, `positions` (*b, K, 3) m (measured, noisy),
-    `quaternions` (*b, K, 4) (qx, qy, qz, qw) or None; `link_angles` and `true_positions` are
-    the noise-free truth; `metadata` holds the seed, noise levels, marker offset and `ccw`.
-    """
+    """Plain arrays of one bench session (`measure_poses`): K poses of an n-joint robot, leading axes
+    `*b` = robots of a fleet, if any; the measurements and their noise-free truth."""
 
     motor_angles: np.ndarray
+    """(*b, K, n) commanded motor angles at rest [rad] (broadcast to the fleet)."""
     positions: np.ndarray
+    """(*b, K, 3) measured world positions of the marker, with Gaussian noise [m]."""
     quaternions: np.ndarray | None
+    """(*b, K, 4) measured world orientations of the marker as unit quaternions (qx, qy, qz, qw),
+    with a random rotation error; None unless `orientation`."""
     link_angles: np.ndarray
+    """(*b, K, n) noise-free link angles at rest under gravity [rad]."""
     true_positions: np.ndarray
+    """(*b, K, 3) noise-free world positions of the marker [m]."""
     metadata: dict
+    """The settings, units in the key names: `seed`, `position_noise_m`, `orientation_noise_rad` (None
+    without orientation), `marker_offset_m`, `ccw` (as given) and `robot` (its name)."""
 
 
 _measure = cached_program(filter=True)(measured_pose)
