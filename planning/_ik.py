@@ -240,11 +240,7 @@ def taylor_joint_path(
 
     def q_d(s):
         k = jnp.clip(jnp.round((jax.lax.stop_gradient(s) - t[0]) / (t[1] - t[0])), 0, t.shape[0] - 1).astype(int)
-        ds, c = s - t[k], coeffs[:, k]
-        value = c[-1] / math.factorial(len(derivatives) - 1)
-        for j in range(len(derivatives) - 2, -1, -1):  # Horner
-            value = value * ds + c[j] / math.factorial(j)
-        return value
+        return _polynomial(coeffs[:, k], s - t[k])
 
     return q_d
 
@@ -346,8 +342,11 @@ def _joint_taylor(robot: jr.Robot, q: Float[Array, "N n"], p: Float[Array, "K N 
 
 
 def _polynomial(c: Float[Array, "K ..."], s: Real[Array, ""]) -> Float[Array, "..."]:
-    """`sum_j c_j s^j / j!`: the Taylor polynomial of derivatives `c`."""
-    return sum(c[j] * s**j / math.factorial(j) for j in range(c.shape[0]))
+    """`sum_j c_j s^j / j!`, the Taylor polynomial of the derivatives `c`, by Horner's rule."""
+    value = c[-1] / math.factorial(c.shape[0] - 1)
+    for j in range(c.shape[0] - 2, -1, -1):
+        value = value * s + c[j] / math.factorial(j)
+    return value
 
 
 @jax.jit
