@@ -93,7 +93,7 @@ def _homogeneous(r: Mat, p: Vec) -> Array:
     """`[[R, p], [0, 1]]` (eq. 2.1) as an array (..., 4, 4)."""
     top = jnp.broadcast_arrays(*(e for i in range(3) for e in r[i] + [p[i]]))
     zero, one = jnp.zeros_like(top[0]), jnp.ones_like(top[0])
-    return jnp.stack(top + [zero, zero, zero, one], -1).reshape(top[0].shape + (4, 4))
+    return jnp.stack([*top, zero, zero, zero, one], -1).reshape(top[0].shape + (4, 4))
 
 
 def alpha_beta(alpha, beta) -> Mat:

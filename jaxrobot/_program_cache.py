@@ -36,10 +36,10 @@ from pathlib import Path
 
 import equinox as eqx
 import jax
+import jax.export
 import jaxlib
-from jax._src.lax.lax import _convert_element_type
-
 from ._compilation_cache import cache_dir
+from ._jax_internals import weakly_typed
 
 _PACKAGES = ("jaxrobot", "planning", "identification")
 _UNSHOWN = (" at 0x", "...", "object>")
@@ -141,7 +141,7 @@ def _callable(exported, weak: list[bool], name: str) -> Callable:
     where the traced function's were (a deserialized program forgets weak types)."""
 
     def call(*args):
-        return [_convert_element_type(x, weak_type=True) if w else x for x, w in zip(exported.call(*args), weak)]
+        return [weakly_typed(x) if w else x for x, w in zip(exported.call(*args), weak)]
 
     call.__name__ = call.__qualname__ = name
     return jax.jit(call)

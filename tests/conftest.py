@@ -18,6 +18,15 @@ def pytest_addoption(parser):
                      help="also run the tests marked slow or extended (about 30 min on 2 cores)")
 
 
+def pytest_report_header(config):
+    import sys
+
+    import jax
+    import jaxlib
+
+    return f"jaxrobot under Python {sys.version.split()[0]}, jax {jax.__version__}, jaxlib {jaxlib.__version__}"
+
+
 def pytest_configure(config):
     config.addinivalue_line("markers", "extended: an end-to-end check CI runs after the suite; run with --extended")
     config.addinivalue_line("markers", "slow: a long check (full-size OCP, sweeps); run with --runslow")
