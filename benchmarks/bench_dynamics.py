@@ -431,7 +431,7 @@ def main(argv: list[str] | None = None) -> int:
         + ", ".join(map(str, args.joints)) + " joints",
         "",
         "Command: `" + " ".join(["python benchmarks/bench_dynamics.py", *cli]) + "`  ",
-        f"Date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M UTC}; {args.states:,} random states "
+        f"Date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M UTC}; {args.states:,} random states "
         f"per robot (q uniform in the limits, qd uniform in +-qd_max), seed {args.seed}; best of {args.repeats} "
         f"runs (pinocchio Python loop: best of {min(args.repeats, 3)}).",
         "",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import difflib
+import tomllib
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -10,7 +11,6 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 import tomli_w
-import tomllib
 
 from ._robot import Ripple, Robot
 

@@ -38,6 +38,7 @@ import equinox as eqx
 import jax
 import jax.export
 import jaxlib
+
 from ._compilation_cache import cache_dir
 from ._jax_internals import weakly_typed
 

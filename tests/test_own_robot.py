@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import tomllib
 from pathlib import Path
 
 import equinox as eqx
@@ -14,7 +15,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import tomli_w
-import tomllib
 from helpers import example_urdf
 
 import jaxrobot as jr

@@ -7,6 +7,7 @@ a few bench robots). The blocks together compile most of the package's programs 
 from __future__ import annotations
 
 import re
+import tomllib
 from pathlib import Path
 
 import jax
@@ -14,7 +15,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import tomli_w
-import tomllib
 from helpers import example_urdf
 
 import jaxrobot as jr
