@@ -13,8 +13,9 @@ Newton-Euler alone, `half_step_vjp`); the matrix is `J`'s exact Hessian plus `rh
 variables and `mu I`, assembled from the one dense 6x18 block per node of the defect Jacobian
 (`_normal_blocks`). It is block-tridiagonal with 5n x 5n blocks, factorised by
 `_block_tridiagonal.block_cholesky` (a `lax.scan` over the nodes) or by the block cyclic reduction of
-`_cyclic_reduction` (`ceil(log2 N)` levels of batched dense operations; `ALConfig.linear_solver`), and reused for `refresh_every` steps while `rho` and `mu`
-stay put (the iterates move by micro-radians, so a factor from a few steps back is as good).
+`_cyclic_reduction` (`ceil(log2 N)` levels of batched dense operations; `ALConfig.linear_solver`),
+and reused for `refresh_every` steps while `rho` and `mu` stay put (the iterates move by
+micro-radians, so a factor from a few steps back is as good).
 Steps are accepted by the gain ratio of the merit; `mu` grows on rejection or on a matrix
 that is not positive definite and falls back towards `damping_init` after good steps. After
 each inner solve, which ends only at an accepted step, the multipliers are updated
@@ -133,7 +134,8 @@ def linear_solver(config: ALConfig) -> str:
     return "scan" if backend_kind() == "cpu" else "cyclic_reduction"
 
 
-_FACTOR = {"scan": (block_cholesky, block_cholesky_solve), "cyclic_reduction": (cyclic_reduction, cyclic_reduction_solve)}
+_FACTOR = {"scan": (block_cholesky, block_cholesky_solve),
+           "cyclic_reduction": (cyclic_reduction, cyclic_reduction_solve)}
 """Factorisation and solve of each `linear_solver`."""
 
 

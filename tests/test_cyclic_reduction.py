@@ -61,7 +61,8 @@ def test_cyclic_reduction_matches_dense_solve_and_scan(n_blocks, n):
     assert bool(spd)
     x_ref = np.linalg.solve(m, rhs.ravel()).reshape(n_blocks, n)
     scale = np.abs(x_ref).max()
-    np.testing.assert_allclose(np.asarray(x), x_ref, rtol=0, atol=SOLVE_RTOL * scale, err_msg="cyclic reduction vs dense")
+    np.testing.assert_allclose(np.asarray(x), x_ref, rtol=0, atol=SOLVE_RTOL * scale,
+                               err_msg="cyclic reduction vs dense")
     np.testing.assert_allclose(np.asarray(x), np.asarray(x_scan), rtol=0, atol=SOLVE_RTOL * scale,
                                err_msg="cyclic reduction vs scan")
 
