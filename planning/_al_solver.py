@@ -331,7 +331,9 @@ def augmented_lagrangian(
     members advance together in one batched `while_loop` (`_batched`), each from its own start with
     its own status, iteration count and stopping (a member that is done is masked); the conditionals
     of an iteration (factor refresh, step) then run for every member. A batch larger than the device
-    memory holds (`batch_capacity`) runs in chunks, one after the other. With the `"scan"` (the default
+    memory holds (`batch_capacity`) runs in chunks, one after the other. A batch that differs only in
+    the cost weights is solved in `WAVES` batched waves of increasing `nu` (`_waves`): the interleaved
+    continuation chains below, batched across the chains. With the `"scan"` (the default
     on the CPU) the batch is solved one member after the other (a custom batching rule): each
     solve keeps its real conditionals (factor reuse, no evaluation of both branches) and stops at
     its own iteration count, and no LAPACK call is batched. A batched LAPACK call in jaxlib 0.10
@@ -375,19 +377,21 @@ def augmented_lagrangian(
             return jax.tree.unflatten(treedef, [next(it) if b else leaf
                                                 for leaf, b in zip(leaves, batched, strict=True)])
 
-        if linear_solver(settings) == "cyclic_reduction":
-            out = _batched(lambda x: _augmented_lagrangian(eqx.combine(member(x)[0], static), *member(x)[1:3], m,
-                                                           member(x)[3]), axis_size, xs,
-                           batch_capacity(n, nz))
-            return out, jax.tree.map(lambda _: True, out)
         arrays_b, y0_b, settings_b, dual_b = in_batched
         weights_only = not any(jax.tree.leaves((arrays_b.robot, arrays_b.q_d, arrays_b.ts, y0_b, settings_b, dual_b)))
+        nu = jnp.broadcast_to(arrays.nu, (axis_size,))
+        if linear_solver(settings) == "cyclic_reduction":
+            if weights_only and axis_size > 1:  # chains of the continuation, batched across the chains
+                out = _waves(lambda x, y, d: solve(member(x)[0], y, member(x)[2], d), axis_size, nu, xs, y0, dual, m)
+            else:
+                out = _batched(lambda x: _augmented_lagrangian(eqx.combine(member(x)[0], static), *member(x)[1:3], m,
+                                                               member(x)[3]), axis_size, xs, batch_capacity(n, nz))
+            return out, jax.tree.map(lambda _: True, out)
         if not weights_only:
             out = jax.lax.map(lambda x: solve(*member(x)), xs)
             return out, jax.tree.map(lambda _: True, out)
 
-        out = _continuation(lambda x, y, d: solve(member(x)[0], y, member(x)[2], d), axis_size,
-                            jnp.broadcast_to(arrays.nu, (axis_size,)), xs, y0, dual, m)
+        out = _continuation(lambda x, y, d: solve(member(x)[0], y, member(x)[2], d), axis_size, nu, xs, y0, dual, m)
         return out, jax.tree.map(lambda _: True, out)
 
     return solve(arrays, y0, settings, dual)
@@ -426,6 +430,28 @@ def _batched(solve, size: int, xs: list, capacity: int) -> ALResult:
     xs = [jnp.concatenate([x, jnp.repeat(x[-1:], pad, 0)]).reshape(chunks, width, *x.shape[1:]) for x in xs]
     out = jax.lax.map(jax.vmap(solve), xs)
     return jax.tree.map(lambda a: a.reshape(chunks * width, *a.shape[2:])[:size], out)
+
+
+WAVES = 4
+"""Length of the continuation chains of a batched sweep (`_waves`): its members are solved in this many
+waves of increasing `nu`."""
+
+
+def _waves(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[Array, "N 5*n"],
+           dual: tuple[Float[Array, "Nm1 4*n"], Float[Array, "N 5*n"]], m: int) -> ALResult:
+    """Solve a batch that differs only in the cost weights as `ceil(size / WAVES)` interleaved
+    continuation chains (`_continuation`) vmapped across the chains: chain `c` holds the members
+    `c, c + chains, ...` in increasing `nu` (a short chain repeats its largest), so that the members
+    advance in `WAVES` batched waves, each warm-started from the waves before it (arguments as
+    `_continuation`; `solve` is batched across the chains)."""
+    chains = -(-size // WAVES)
+    length = -(-size // chains)
+    order = jnp.argsort(nu)
+    index = order[np.minimum(np.arange(length) * chains + np.arange(chains)[:, None], size - 1)]  # (chains, length)
+    out = jax.vmap(lambda x, v: _continuation(solve, length, v, x, y0, dual, m))([x[index] for x in xs], nu[index])
+    # sorted member p is in chain p % chains at place p // chains
+    in_order = jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1).reshape(chains * length, *a.shape[2:])[:size], out)
+    return jax.tree.map(lambda a: a[jnp.argsort(order)], in_order)
 
 
 def _continuation(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[Array, "N 5*n"],

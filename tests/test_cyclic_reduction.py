@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 import planning as pl
+from planning import _transcription as tr
 from planning._al_solver import _batched, batch_capacity, linear_solver
 from planning._block_tridiagonal import block_cholesky, block_cholesky_solve, block_tridiagonal_matvec
+from test_ocp_solver import _assert_same_optimum
 
 SOLVE_RTOL = 1e-12
 """Agreement of two backward-stable solves of one system, relative to the largest entry of the
@@ -20,7 +22,7 @@ OBJECTIVE_RTOL = 1e-9
 meet the same tolerances (violation 1e-9, stationarity 1e-6) from the same start and take the same
 steps up to roundoff; measured 1.4e-13 on the short move."""
 BATCH_OBJECTIVE_RTOL = 1e-8
-"""Agreement of a member of the batched solve with its separate solve: the same iteration in
+"""Agreement of a member of a batched cold solve with its separate solve: the same iteration in
 another program (XLA may fuse and order the sums differently); measured 2.5e-12."""
 
 
@@ -156,15 +158,31 @@ def test_solve_ocp_cyclic_reduction_matches_scan_on_tasks(task):
 
 
 @pytest.mark.extended  # compiles the batched program
+def test_batched_solves_match_separate_solves():
+    """`jax.vmap(solve_ocp)` over two trajectories with cyclic reduction: the members advance together in
+    one `while_loop` from their cold starts, each equal to its separate solve (status, iterations,
+    objective)."""
+    robot = jr.racer7()
+    moves = jnp.stack([_move(), _move()[::-1]])
+    batched = jax.vmap(lambda q: pl.solve_ocp(robot, q, 1e-3, 1e-12, config=CR))(moves)
+    for i in range(2):
+        single = pl.solve_ocp(robot, moves[i], 1e-3, 1e-12, config=CR)
+        member = jax.tree.map(lambda a, i=i: a[i], batched)
+        assert bool(member.status == single.status) and bool(single.converged)
+        assert int(member.iterations) == int(single.iterations)
+        np.testing.assert_allclose(float(member.objective), float(single.objective), rtol=BATCH_OBJECTIVE_RTOL)
+
+
+@pytest.mark.extended  # compiles the batched program
 def test_batched_sweep_matches_separate_solves():
-    """`solve_ocp_sweep` with cyclic reduction in one chain (`workers=1`): the members advance together
-    in one `while_loop`, each equal to its separate solve (status, iterations, objective)."""
+    """`solve_ocp_sweep` with cyclic reduction in one chain (`workers=1`): 6 nu in 2 continuation chains
+    of 3 (`_waves`), batched across the chains, given out of nu's order; each member is the optimum
+    of its separate cold solve to the solver's tolerances (`test_ocp_solver._assert_same_optimum`)."""
     robot, q_d = jr.racer7(), _move()
-    nus = np.array([1e-10, 1e-14, 1e-12])  # not in nu's order
+    nus = np.logspace(-14, -10, 6)[[3, 0, 5, 1, 4, 2]]
     sweep = pl.solve_ocp_sweep(robot, q_d, 1e-3, nus, config=CR, workers=1)
     for i, nu in enumerate(nus):
         single = pl.solve_ocp(robot, q_d, 1e-3, float(nu), config=CR)
         member = jax.tree.map(lambda a, i=i: a[i], sweep)
-        assert bool(member.status == single.status) and bool(single.converged)
-        assert int(member.iterations) == int(single.iterations)
-        np.testing.assert_allclose(float(member.objective), float(single.objective), rtol=BATCH_OBJECTIVE_RTOL)
+        assert bool(member.status == single.status)
+        _assert_same_optimum(tr.ocp_problem(robot, q_d, 1e-3, float(nu)), member, single)
