@@ -9,8 +9,9 @@ GPU where JAX sees one), on the same seeded inputs:
 - OCP: one `solve_ocp` of the line at nu = 1e-14 (N = 2501) with each linear solver (`"scan"`,
   `"cyclic_reduction"`); one factor + solve of its block-tridiagonal system (30 x 30 blocks) by
   each; the crossover: `solve_ocp_sweep` over B nu in [1e-15, 1e-9] for each B of `--sizes` with the
-  backend's defaults (the CPU: continuation chains with the scan; an accelerator: one batched
-  program with cyclic reduction); with `--vmap`, `jax.vmap(solve_ocp)` over 16 nu.
+  backend's defaults (the CPU: continuation chains on the cores with the scan; an accelerator: the
+  chains batched across the chains with cyclic reduction); with `--vmap`, `jax.vmap(solve_ocp)` over
+  16 nu.
 
 Times: first call (compile + run) and the best of `--repeat` further runs, `block_until_ready`.
 The first calls of the OCP rows run at once in threads (XLA compiles them in parallel; their
@@ -241,9 +242,11 @@ the `ceil(log2 N)` levels of cyclic reduction in the factor and twice that in th
 N = 2501), the Newton-Euler scans over the 6 links (forward and backward) and the fixed Newton steps of
 the gear inverse in each `half_step`. No scan or loop over the nodes runs in an iteration with cyclic
 reduction; with the scan, the factor and the solve are sequential over the N nodes (the
-`block-tridiagonal factor + solve` rows measure one of each). A batched sweep runs its members in one
-`while_loop` until the last is done: the refresh and step conditionals become selects, so every member
-refactors at every step (the single solve refactors every `refresh_every` steps)."""
+`block-tridiagonal factor + solve` rows measure one of each). A sweep on an accelerator runs 4 batched
+waves of increasing nu one after the other (continuation chains of 4, batched across the chains); each
+wave is one `while_loop` over its members until the last is done, in which the refresh and step
+conditionals are selects, so every member refactors at every pass (a single solve refactors every
+`refresh_every` steps)."""
 
 
 def main() -> None:
@@ -288,8 +291,8 @@ def main() -> None:
         "the persistent compilation cache as set" + ("; the OCP rows' first calls ran concurrently in threads"
                                                      if args.concurrent else "") + ").",
         "Defaults by backend: on the CPU `solve_ocp` uses the scan and `solve_ocp_sweep` continuation chains "
-        "(one per core, `lax.map`/`while_loop`); on an accelerator cyclic reduction and one batched program "
-        "whose members advance together.",
+        "(one per core, `lax.map`/`while_loop`); on an accelerator cyclic reduction, and the sweep as continuation "
+        "chains of 4 batched across the chains (4 waves whose members advance together).",
         "",
     ]
     if gpu:
