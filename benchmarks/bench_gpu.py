@@ -6,14 +6,22 @@ GPU where JAX sees one), on the same seeded inputs:
 - dynamics: `mass_matrix`, `gravity_torque` and `coriolis_vector` of the Racer-7 on N random states
   (one jitted program, the public functions on (N, 6) arrays);
 - fleet calibration: `calibrate_fleet` on R bench robots with 50 random feasible poses each;
-- OCP: one `solve_ocp` of the line at nu = 1e-14 (N = 2501), and the 16-nu sweep
-  (`solve_ocp_sweep`, and `jax.vmap(solve_ocp)` over the 16 nu).
+- OCP: one `solve_ocp` of the line at nu = 1e-14 (N = 2501) with each linear solver (`"scan"`,
+  `"cyclic_reduction"`); one factor + solve of its block-tridiagonal system (30 x 30 blocks) by
+  each; the crossover: `solve_ocp_sweep` over B nu in [1e-15, 1e-9] for each B of `--sizes` with the
+  backend's defaults (the CPU: continuation chains on the cores with the scan; an accelerator: the
+  chains batched across the chains with cyclic reduction); with `--vmap`, `jax.vmap(solve_ocp)` over
+  16 nu.
 
 Times: first call (compile + run) and the best of `--repeat` further runs, `block_until_ready`.
+The first calls of the OCP rows run at once in threads (XLA compiles them in parallel; their
+first-call times then overlap), which shortens the run on a many-core machine; `--serial-compile`
+runs them one after the other.
 Results are checked to agree between the backends (fleet parameters, OCP objectives).
 
-Run: `python benchmarks/bench_gpu.py [--states 10000 1000000] [--robots 1000 10000]`
-(writes benchmarks/results_gpu.md, or --out).
+Run: `python benchmarks/bench_gpu.py [--states 10000 1000000] [--robots 1000 10000] [--sizes 1 4 16 64 256]`
+(writes benchmarks/results_gpu.md, or --out; `--nodes K` replaces the line by a short move of K
+nodes, for a quick check).
 """
 
 from __future__ import annotations
@@ -24,30 +32,121 @@ import os
 import platform
 import subprocess
 import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-SWEEP = np.logspace(-15, -9, 16)
 NU = 1e-14
+VMAP = np.logspace(-15, -9, 16)
 
 
+def _sweep_nus(b: int) -> np.ndarray:
+    return np.logspace(-15, -9, b) if b > 1 else np.array([NU])
 
-def worker(states: list[int], robots: list[int], repeat: int, ocp: bool) -> dict:
+
+def _ocp_task(nodes: int | None):
+    """Robot, q_d, T_s and warm start: the line (flat inverse), or a short smooth move of `nodes` nodes."""
+    import jax.numpy as jnp
+
+    import jaxrobot as jr
+    import planning as pl
+
+    robot = jr.racer7()
+    if nodes is None:
+        path = pl.reference_path("line")
+        jp = pl.joint_path(robot, path)
+        flat = pl.flat_motor_trajectory(robot, jp)
+        warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+        return robot, jp.q, float(path.sample_time), warm, "line"
+    s = jnp.arange(nodes) / (nodes - 1)
+    blend = s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3)
+    q = jnp.array([0.1, 0.2, -1.4, 0.1, 1.4, 0.1]) + 3e-4 * blend[:, None] * jnp.array([1.0, -1, 1, 1, -1, 1])
+    return robot, q, 1e-3, None, "short move"
+
+
+def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int | None, concurrent: bool) -> None:
+    """The OCP rows of `worker` (module docstring), appended to `out`."""
+    import jax
+    import jax.numpy as jnp
+    from _timing import timed
+
+    import planning as pl
+    from planning._al_solver import batch_capacity
+    from planning._block_tridiagonal import block_cholesky, block_cholesky_solve
+
+    robot, q, ts, warm, name = _ocp_task(nodes)
+    n = q.shape[0]
+    work: list[tuple[str, str, object, dict]] = []  # (key, label, fn, extra)
+    for ls in ("scan", "cyclic_reduction"):
+        config = pl.ALConfig(linear_solver=ls)
+        work.append((f"ocp_{ls}", f"solve_ocp: {name}, N = {n}, nu = {NU:g}, {ls}",
+                     lambda config=config: pl.solve_ocp(robot, q, ts, nu=NU, warm_start=warm, config=config), {}))
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(n, 30, 30))
+    diag = jnp.asarray(np.einsum("kij,klj->kil", a, a) + 120.0 * np.eye(30))
+    lower, rhs = jnp.asarray(rng.normal(size=(n - 1, 30, 30))), jnp.asarray(rng.normal(size=(n, 30)))
+    scan_solve = jax.jit(lambda d, lo, r: block_cholesky_solve(block_cholesky(d, lo), r))
+    cr_solve = jax.jit(lambda d, lo, r: pl.cyclic_reduction_solve(pl.cyclic_reduction(d, lo), r))
+    work.append(("kkt_scan", f"block-tridiagonal factor + solve, N = {n}, 30 x 30 blocks, scan",
+                 lambda: scan_solve(diag, lower, rhs), {}))
+    work.append(("kkt_cyclic_reduction", f"block-tridiagonal factor + solve, N = {n}, 30 x 30 blocks, cyclic reduction",
+                 lambda: cr_solve(diag, lower, rhs), {}))
+    for b in sizes:
+        nus = _sweep_nus(b)
+        work.append((f"sweep{b}", f"solve_ocp_sweep: {b} nu",
+                     lambda nus=nus: pl.solve_ocp_sweep(robot, q, ts, nus, warm_start=warm), {"members": b}))
+    if vmap:
+        batched = jax.jit(jax.vmap(lambda nu: pl.solve_ocp(robot, q, ts, nu=nu, warm_start=warm)))
+        work.append(("vmap", f"jax.vmap(solve_ocp): {len(VMAP)} nu", lambda: batched(jnp.asarray(VMAP)),
+                     {"members": len(VMAP)}))
+    first: dict[str, float] = {}
+    if concurrent:
+        with ThreadPoolExecutor(len(work)) as pool:
+            first = dict(pool.map(lambda item: (item[0], timed(item[2], 0)[1]), work))
+    for key, label, fn, extra in work:
+        if key in first:
+            res, best = None, np.inf
+            for _ in range(repeat):
+                start = time.perf_counter()
+                res = jax.block_until_ready(fn())
+                best = min(best, time.perf_counter() - start)
+            first_s = first[key]
+        else:
+            res, first_s, best = timed(fn, repeat)
+        row = {"work": label, "first_s": first_s, "run_s": best}
+        if hasattr(res, "converged"):
+            conv = np.asarray(res.converged)
+            row["converged"] = f"{int(np.sum(conv))}/{conv.size}"
+            row["rate"] = f"{int(np.sum(np.asarray(res.iterations)))} outer iterations"
+            if "members" in extra:
+                row["rate"] += f", {extra['members'] / best:.3g} solves/s"
+            out["check"][key] = np.atleast_1d(np.asarray(res.objective)).tolist()
+        else:
+            row["rate"] = ""
+        out["rows"].append(row)
+        print(row, flush=True)
+    out["capacity"] = {f"N = {k}": batch_capacity(k, 30, 80e9) for k in (2501, 10001)}
+    out["capacity_here"] = batch_capacity(n, 30)
+    out["concurrent"] = concurrent
+
+
+def worker(states: list[int], robots: list[int], repeat: int, ocp: bool, sizes: list[int], vmap: bool,
+           nodes: int | None, concurrent: bool) -> dict:
     """The timings on this process' default backend."""
     import jax
     import jax.numpy as jnp
     from _timing import timed
 
     import jaxrobot as jr
-    import planning as pl
     from identification import calibrate_fleet
     from identification.calibration._pose_selection import random_feasible_poses
     from jaxrobot.bench import draw_fleet, measure_poses
 
     dev = jax.devices()[0]
     out = {"device": f"{dev.platform} ({dev.device_kind}) x {len(jax.devices())}", "jax": jax.__version__,
-           "rows": [], "check": {}}
+           "platform": dev.platform, "rows": [], "check": {}}
     robot = jr.racer7()
     lo, hi = (np.asarray(x) for x in (robot.q_min, robot.q_max))
 
@@ -64,7 +163,7 @@ def worker(states: list[int], robots: list[int], repeat: int, ocp: bool) -> dict
                             "rate": f"{n / best:.3g} states/s"})
         print(out["rows"][-1], flush=True)
 
-    pool = random_feasible_poses(robot, 1000, seed=0)
+    pool = random_feasible_poses(robot, 1000, seed=0) if robots else None
     for r in robots:
         rng = np.random.default_rng(0)
         q = np.stack([pool[rng.choice(len(pool), 50, replace=False)] for _ in range(r)])
@@ -78,30 +177,7 @@ def worker(states: list[int], robots: list[int], repeat: int, ocp: bool) -> dict
         print(out["rows"][-1], flush=True)
 
     if ocp:
-        path = pl.reference_path("line")
-        jp = pl.joint_path(robot, path)
-        flat = pl.flat_motor_trajectory(robot, jp)
-        warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
-        ts = float(path.sample_time)
-        sol, first, best = timed(lambda: pl.solve_ocp(robot, jp.q, ts, nu=NU, warm_start=warm), repeat)
-        out["rows"].append({"work": f"solve_ocp: line, N = {jp.q.shape[0]}, nu = {NU:g}", "first_s": first,
-                            "run_s": best, "rate": f"{int(sol.iterations)} outer iterations",
-                            "converged": f"{int(bool(sol.converged))}/1"})
-        out["check"]["ocp"] = float(sol.objective)
-        print(out["rows"][-1], flush=True)
-        sols, first, best = timed(lambda: pl.solve_ocp_sweep(robot, jp.q, ts, SWEEP, warm_start=warm), repeat)
-        out["rows"].append({"work": f"solve_ocp_sweep: {len(SWEEP)} nu", "first_s": first, "run_s": best,
-                            "rate": f"{len(SWEEP) / best:.3g} solves/s",
-                            "converged": f"{int(np.sum(np.asarray(sols.converged)))}/{len(SWEEP)}"})
-        out["check"]["sweep"] = np.asarray(sols.objective).tolist()
-        print(out["rows"][-1], flush=True)
-        batched = jax.jit(jax.vmap(lambda nu: pl.solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm)))
-        sols, first, best = timed(lambda: batched(jnp.asarray(SWEEP)), repeat)
-        out["rows"].append({"work": f"jax.vmap(solve_ocp): {len(SWEEP)} nu", "first_s": first, "run_s": best,
-                            "rate": f"{len(SWEEP) / best:.3g} solves/s",
-                            "converged": f"{int(np.sum(np.asarray(sols.converged)))}/{len(SWEEP)}"})
-        out["check"]["vmap"] = np.asarray(sols.objective).tolist()
-        print(out["rows"][-1], flush=True)
+        _ocp_rows(out, repeat, sizes, vmap, nodes, concurrent)
     return out
 
 
@@ -111,12 +187,21 @@ def _run_worker(platforms: str | None, args) -> dict:
     if platforms:
         env["JAX_PLATFORMS"] = platforms
     with_out = Path(os.environ.get("TMPDIR", "/tmp")) / f"bench_gpu_{platforms or 'default'}.json"
-    cmd = [sys.executable, __file__, "--worker", str(with_out), "--repeat", str(args.repeat),
-           "--states", *map(str, args.states), "--robots", *map(str, args.robots)]
-    cmd += ["--no-ocp"] if args.no_ocp else []
+    cmd = [sys.executable, __file__, "--worker", str(with_out), *_options(args)]
     print(f"$ {'JAX_PLATFORMS=' + platforms + ' ' if platforms else ''}{' '.join(cmd)}", file=sys.stderr, flush=True)
     subprocess.run(cmd, env=env, check=True)
     return json.loads(with_out.read_text())
+
+
+def _options(args) -> list[str]:
+    """The command-line options of this run (for the workers and the results file)."""
+    opts = ["--repeat", str(args.repeat), "--states", *map(str, args.states), "--robots", *map(str, args.robots),
+            "--sizes", *map(str, args.sizes)]
+    opts += ["--no-ocp"] if args.no_ocp else []
+    opts += ["--vmap"] if args.vmap else []
+    opts += ["--serial-compile"] if not args.concurrent else []
+    opts += ["--nodes", str(args.nodes)] if args.nodes else []
+    return opts
 
 
 def _agreement(cpu: dict, acc: dict) -> list[str]:
@@ -131,49 +216,114 @@ def _agreement(cpu: dict, acc: dict) -> list[str]:
     return lines
 
 
+def _run(rows: list[dict], key: str) -> float | None:
+    hits = [r["run_s"] for r in rows if r["work"].startswith(key)]
+    return hits[0] if hits else None
+
+
+def _goals(cpu: dict, acc: dict) -> list[str]:
+    """The issue's goals, checked on the rows of this run."""
+    single = [r["run_s"] for r in acc["rows"] if r["work"].startswith("solve_ocp: ") and "cyclic" in r["work"]]
+    if not single:
+        return []
+    t, t_cpu = single[0], min(r["run_s"] for r in cpu["rows"] if r["work"].startswith("solve_ocp: "))
+    lines = [f"- one `solve_ocp` on the GPU (cyclic reduction): {1e3 * t:.1f} ms (goal <= 40 ms); "
+             f"the CPU's fastest: {1e3 * t_cpu:.1f} ms, {t_cpu / t:.2f}x (goal >= 5x)"]
+    sweep, sweep_cpu = _run(acc["rows"], "solve_ocp_sweep: 64 nu"), _run(cpu["rows"], "solve_ocp_sweep: 64 nu")
+    if sweep is not None:
+        lines.append(f"- `solve_ocp_sweep` with 64 nu on the GPU: {sweep:.3g} s = {sweep / t:.1f} single GPU "
+                     f"solves (goal <= 3); {sweep_cpu / sweep:.2f}x the CPU's sweep (goal >= 10x)")
+    return lines
+
+
+SEQUENTIAL = """Sequential parts of one solver iteration that remain on an accelerator (depth independent of N):
+the augmented-Lagrangian `while_loop` itself (one pass per step, its count in the rows' outer iterations),
+the `ceil(log2 N)` levels of cyclic reduction in the factor and twice that in the solve (12 and 24 at
+N = 2501), the Newton-Euler scans over the 6 links (forward and backward) and the fixed Newton steps of
+the gear inverse in each `half_step`. No scan or loop over the nodes runs in an iteration with cyclic
+reduction; with the scan, the factor and the solve are sequential over the N nodes (the
+`block-tridiagonal factor + solve` rows measure one of each). A sweep on an accelerator runs 4 batched
+waves of increasing nu one after the other (continuation chains of 4, batched across the chains); each
+wave is one `while_loop` over its members until the last is done, in which the refresh and step
+conditionals are selects, so every member refactors at every pass (a single solve refactors every
+`refresh_every` steps)."""
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--states", type=int, nargs="*", default=[10_000, 1_000_000])
     ap.add_argument("--robots", type=int, nargs="*", default=[1000, 10_000])
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--sizes", type=int, nargs="*", default=[1, 4, 16, 64, 256],
+                    help="sweep sizes B of the crossover table")
+    ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--no-ocp", action="store_true", help="skip the OCP rows")
+    ap.add_argument("--vmap", action="store_true", help="also time jax.vmap(solve_ocp) over 16 nu")
+    ap.add_argument("--nodes", type=int, default=None, help="a short move of this many nodes instead of the line")
+    ap.add_argument("--serial-compile", dest="concurrent", action="store_false",
+                    help="first calls of the OCP rows one after the other (default: at once in threads)")
+    ap.add_argument("--commit", default=None, help="the commit to name (default: git rev-parse HEAD)")
     ap.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, default=Path(__file__).with_name("results_gpu.md"))
     args = ap.parse_args()
     if args.worker is not None:
-        args.worker.write_text(json.dumps(worker(args.states, args.robots, args.repeat, not args.no_ocp)))
+        args.worker.write_text(json.dumps(worker(args.states, args.robots, args.repeat, not args.no_ocp, args.sizes,
+                                                 args.vmap, args.nodes, args.concurrent)))
         return
     cpu = _run_worker("cpu", args)
-    acc = _run_worker(None, args)
-    if acc["device"] == cpu["device"]:
-        print("no accelerator: the default backend is the CPU; nothing to compare", file=sys.stderr)
+    gpu = cpu["device"] != _run_worker_probe()
+    acc = _run_worker(None, args) if gpu else None
+    commit = args.commit or subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                           cwd=Path(__file__).parent).stdout.strip() or "unknown"
     gpu_smi = subprocess.run(["nvidia-smi", "--query-gpu=name,memory.total,driver_version", "--format=csv,noheader"],
-                             capture_output=True, text=True).stdout.strip() if acc["device"] != cpu["device"] else ""
-    cmd = "python benchmarks/bench_gpu.py --states " + " ".join(map(str, args.states)) + " --robots " + " ".join(
-        map(str, args.robots)) + f" --repeat {args.repeat}" + (" --no-ocp" if args.no_ocp else "")
+                             capture_output=True, text=True).stdout.strip() if gpu else ""
     lines = [
         "# Batched workloads: GPU against the CPU of the same machine",
         "",
-        f"Command: `{cmd}`",
+        f"Command: `python benchmarks/bench_gpu.py {' '.join(_options(args))}` at commit {commit}.",
         "",
-        f"Machine: {platform.platform()}, {os.cpu_count()} CPU cores; jax {acc['jax']}; "
+        f"Machine: {platform.platform()}, {os.cpu_count()} CPU cores; jax {cpu['jax']}; "
         f"load average at the end {os.getloadavg()[0]:.1f}.",
-        f"CPU backend: {cpu['device']}. Accelerator backend: {acc['device']}" + (f" ({gpu_smi})." if gpu_smi else "."),
+        f"CPU backend: {cpu['device']}. "
+        + (f"Accelerator backend: {acc['device']}" + (f" ({gpu_smi})." if gpu_smi else ".") if gpu
+           else "No GPU was found (the default backend is the CPU): CPU rows only, the GPU rows are open."),
         "",
         f"Run time: the best of {args.repeat} calls after the first; first call: compile + run (a fresh process, "
-        "the persistent compilation cache as set).",
+        "the persistent compilation cache as set" + ("; the OCP rows' first calls ran concurrently in threads"
+                                                     if args.concurrent else "") + ").",
+        "Defaults by backend: on the CPU `solve_ocp` uses the scan and `solve_ocp_sweep` continuation chains "
+        "(one per core, `lax.map`/`while_loop`); on an accelerator cyclic reduction, and the sweep as continuation "
+        "chains of 4 batched across the chains (4 waves whose members advance together).",
         "",
-        "| work | CPU first call [s] | CPU run [s] | GPU first call [s] | GPU run [s] | GPU speed-up (run) | GPU rate "
-        "| converged (CPU / GPU) |",
-        "|---|---|---|---|---|---|---|---|",
     ]
-    for c, g in zip(cpu["rows"], acc["rows"]):
-        conv = f"{c.get('converged', '')} / {g.get('converged', '')}" if "converged" in c else ""
-        lines.append(f"| {c['work']} | {c['first_s']:.2f} | {c['run_s']:.3g} | {g['first_s']:.2f} | {g['run_s']:.3g} | "
-                     f"{c['run_s'] / g['run_s']:.2f}x | {g['rate']} | {conv} |")
-    lines += ["", "Agreement of the results (the same inputs on both backends):", "", *_agreement(cpu, acc), ""]
+    if gpu:
+        lines += ["| work | CPU first call [s] | CPU run [s] | GPU first call [s] | GPU run [s] | GPU speed-up (run) "
+                  "| GPU | converged (CPU / GPU) |", "|---|---|---|---|---|---|---|---|"]
+        for c, g in zip(cpu["rows"], acc["rows"], strict=True):
+            conv = f"{c.get('converged', '')} / {g.get('converged', '')}" if "converged" in c else ""
+            lines.append(f"| {c['work']} | {c['first_s']:.2f} | {c['run_s']:.3g} | {g['first_s']:.2f} | "
+                         f"{g['run_s']:.3g} | {c['run_s'] / g['run_s']:.2f}x | {g['rate']} | {conv} |")
+        lines += ["", "Goals:", "", *_goals(cpu, acc), "",
+                  "Agreement of the results (the same inputs on both backends):", "", *_agreement(cpu, acc), ""]
+    else:
+        lines += ["| work | CPU first call [s] | CPU run [s] | CPU | converged |", "|---|---|---|---|---|"]
+        lines += [f"| {c['work']} | {c['first_s']:.2f} | {c['run_s']:.3g} | {c['rate']} | {c.get('converged', '')} |"
+                  for c in cpu["rows"]]
+        lines.append("")
+    if "capacity" in cpu:
+        cap = ", ".join(f"{v} members at {k}" for k, v in cpu["capacity"].items())
+        lines += ["Memory of a batched solve (`planning._al_solver.batch_capacity`: `MEMBER_BLOCKS` 30 x 30 float64 "
+                  f"blocks per node and member): an 80 GB card holds {cap}; larger batches run in chunks of that "
+                  "size.", "", SEQUENTIAL, ""]
     args.out.write_text("\n".join(lines))
     print("\n".join(lines))
+
+
+def _run_worker_probe() -> str:
+    """The device string of the default backend (a short subprocess)."""
+    env = dict(os.environ)
+    env.pop("JAX_PLATFORMS", None)
+    code = "import jax; d = jax.devices()[0]; print(f'{d.platform} ({d.device_kind}) x {len(jax.devices())}')"
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True).stdout.strip()
 
 
 if __name__ == "__main__":

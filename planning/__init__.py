@@ -7,6 +7,9 @@ from ._block_tridiagonal import BlockCholesky as BlockCholesky
 from ._block_tridiagonal import block_cholesky as block_cholesky
 from ._block_tridiagonal import block_cholesky_solve as block_cholesky_solve
 from ._block_tridiagonal import block_tridiagonal_solve as block_tridiagonal_solve
+from ._cyclic_reduction import CyclicReduction as CyclicReduction
+from ._cyclic_reduction import cyclic_reduction as cyclic_reduction
+from ._cyclic_reduction import cyclic_reduction_solve as cyclic_reduction_solve
 from ._evaluation import METHODS as METHODS
 from ._evaluation import MotorTrajectory as MotorTrajectory
 from ._evaluation import PlantError as PlantError

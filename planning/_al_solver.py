@@ -12,8 +12,10 @@ Newton-Euler alone, `half_step_vjp`); the matrix is `J`'s exact Hessian plus `rh
 (constraint curvature dropped, it is `O(lam + rho c)`), `rho` on the diagonal of bound-active
 variables and `mu I`, assembled from the one dense 6x18 block per node of the defect Jacobian
 (`_normal_blocks`). It is block-tridiagonal with 5n x 5n blocks, factorised by
-`_block_tridiagonal.block_cholesky`, and reused for `refresh_every` steps while `rho` and `mu`
-stay put (the iterates move by micro-radians, so a factor from a few steps back is as good).
+`_block_tridiagonal.block_cholesky` (a `lax.scan` over the nodes) or by the block cyclic reduction of
+`_cyclic_reduction` (`ceil(log2 N)` levels of batched dense operations; `ALConfig.linear_solver`),
+and reused for `refresh_every` steps while `rho` and `mu` stay put (the iterates move by
+micro-radians, so a factor from a few steps back is as good).
 Steps are accepted by the gain ratio of the merit; `mu` grows on rejection or on a matrix
 that is not positive definite and falls back towards `damping_init` after good steps. After
 each inner solve, which ends only at an accepted step, the multipliers are updated
@@ -39,10 +41,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxrobot import RESULTS
+from jaxrobot import RESULTS, backend_kind
 from jaxrobot.status import full
 
 from ._block_tridiagonal import BlockCholesky, block_cholesky, block_cholesky_solve
+from ._cyclic_reduction import CyclicReduction, cyclic_reduction, cyclic_reduction_solve
 from ._transcription import (
     ANGLE_SCALE,
     HalfStep,
@@ -61,8 +64,8 @@ from ._transcription import (
 
 class ALConfig(eqx.Module):
     """Settings of the augmented-Lagrangian solver (scaled units, `_transcription`). A pytree whose
-    fields are all traced: solves that differ only in their settings share one compiled program.
-    Only the length of the history arrays is static; it is derived from `max_outer_iterations`
+    numeric fields are traced: solves that differ only in their settings share one compiled program.
+    Static: `linear_solver`, and the length of the history arrays, derived from `max_outer_iterations`
     (`history_length`) where the config is concrete."""
 
     max_outer_iterations: int = 30
@@ -108,6 +111,32 @@ class ALConfig(eqx.Module):
     refresh_every: int = 4
     """Steps after which the Gauss-Newton matrix is re-linearised and re-factorised (also when
     `rho` or `mu` changed, and after a step from a reused factor was rejected)."""
+    linear_solver: str | None = eqx.field(static=True, default=None)
+    """Static. Factor and solve of the block-tridiagonal Gauss-Newton matrix: `"scan"` (sequential
+    block Cholesky, a `lax.scan` over the nodes), `"cyclic_reduction"` (`ceil(log2 N)` levels of batched
+    dense operations) or `None`: by the backend (`jaxrobot.backend_kind()`), the scan on the CPU and
+    cyclic reduction on an accelerator. It also decides how a `vmap` is solved (`augmented_lagrangian`)."""
+
+    def __check_init__(self):
+        if self.linear_solver not in LINEAR_SOLVERS + (None,):
+            raise ValueError(f"linear_solver: expected one of {LINEAR_SOLVERS} or None, found {self.linear_solver!r}")
+
+
+LINEAR_SOLVERS = ("scan", "cyclic_reduction")
+"""The values of `ALConfig.linear_solver` besides `None`."""
+
+
+def linear_solver(config: ALConfig) -> str:
+    """`config.linear_solver`, or for `None` the one for JAX's default backend: `"scan"` on the CPU,
+    `"cyclic_reduction"` on an accelerator."""
+    if config.linear_solver is not None:
+        return config.linear_solver
+    return "scan" if backend_kind() == "cpu" else "cyclic_reduction"
+
+
+_FACTOR = {"scan": (block_cholesky, block_cholesky_solve),
+           "cyclic_reduction": (cyclic_reduction, cyclic_reduction_solve)}
+"""Factorisation and solve of each `linear_solver`."""
 
 
 HISTORY_CHUNK = 32
@@ -249,11 +278,6 @@ def _normal_blocks(
     return diag, lower
 
 
-def _normal_matrix(p: _Parts, y, h: HalfStep, gam, rho, mu, id_vjp=None) -> BlockCholesky:
-    """Factor of the Gauss-Newton matrix of `Phi` plus `mu I` at `y` (`_normal_blocks`)."""
-    return block_cholesky(*_normal_blocks(p, y, h, gam, rho, mu, id_vjp))
-
-
 def _merit_from(p: _Parts, y, c, lam, gam, rho):
     """`Phi` at `y` with its defects `c` already known."""
     v = y + gam / rho
@@ -276,7 +300,7 @@ class _State(eqx.Module):
     status: RESULTS
     stop: Bool[Array, ""]
     hist: Float[Array, "4 M"]
-    factor: BlockCholesky
+    factor: BlockCholesky | CyclicReduction
     factor_key: Float[Array, "2"]
     factor_age: Int[Array, ""]
     accepted: Bool[Array, ""]
@@ -303,7 +327,14 @@ def augmented_lagrangian(
     multipliers and the penalty and checks convergence; then, unless it stopped or the inner
     solve is already done for the new multipliers, it takes one LM step.
 
-    Under `vmap` the batch is solved one member after the other (a custom batching rule): each
+    Under `vmap` with the `"cyclic_reduction"` `linear_solver` (the default on an accelerator) the
+    members advance together in one batched `while_loop` (`_batched`), each from its own start with
+    its own status, iteration count and stopping (a member that is done is masked); the conditionals
+    of an iteration (factor refresh, step) then run for every member. A batch larger than the device
+    memory holds (`batch_capacity`) runs in chunks, one after the other. A batch that differs only in
+    the cost weights is solved in `WAVES` batched waves of increasing `nu` (`_waves`): the interleaved
+    continuation chains below, batched across the chains. With the `"scan"` (the default
+    on the CPU) the batch is solved one member after the other (a custom batching rule): each
     solve keeps its real conditionals (factor reuse, no evaluation of both branches) and stops at
     its own iteration count, and no LAPACK call is batched. A batched LAPACK call in jaxlib 0.10
     fans out into XLA's CPU intra-op thread pool and blocks waiting for it; two of them at once
@@ -348,15 +379,79 @@ def augmented_lagrangian(
 
         arrays_b, y0_b, settings_b, dual_b = in_batched
         weights_only = not any(jax.tree.leaves((arrays_b.robot, arrays_b.q_d, arrays_b.ts, y0_b, settings_b, dual_b)))
+        nu = jnp.broadcast_to(arrays.nu, (axis_size,))
+        if linear_solver(settings) == "cyclic_reduction":
+            if weights_only and axis_size > 1:  # chains of the continuation, batched across the chains
+                out = _waves(lambda x, y, d: solve(member(x)[0], y, member(x)[2], d), axis_size, nu, xs, y0, dual, m)
+            else:
+                out = _batched(lambda x: _augmented_lagrangian(eqx.combine(member(x)[0], static), *member(x)[1:3], m,
+                                                               member(x)[3]), axis_size, xs, batch_capacity(n, nz))
+            return out, jax.tree.map(lambda _: True, out)
         if not weights_only:
             out = jax.lax.map(lambda x: solve(*member(x)), xs)
             return out, jax.tree.map(lambda _: True, out)
 
-        out = _continuation(lambda x, y, d: solve(member(x)[0], y, member(x)[2], d), axis_size,
-                            jnp.broadcast_to(arrays.nu, (axis_size,)), xs, y0, dual, m)
+        out = _continuation(lambda x, y, d: solve(member(x)[0], y, member(x)[2], d), axis_size, nu, xs, y0, dual, m)
         return out, jax.tree.map(lambda _: True, out)
 
     return solve(arrays, y0, settings, dual)
+
+
+MEMBER_BLOCKS = 12
+"""Peak count of `5n x 5n` float64 blocks per node that one member of a batched solve (`_batched`)
+holds: the factor carried by the loop and the new one (both live when the refresh is a select under
+`vmap`, 3 blocks per node each for cyclic reduction), the diagonal and sub-diagonal blocks of the
+Gauss-Newton matrix and about 4 more for their assembly and the first reduction level."""
+
+DEFAULT_MEMORY = 16 * 2**30
+"""Memory assumed for a batched solve [bytes] where the device does not report its own (the CPU)."""
+
+
+def batch_capacity(n_nodes: int, n_vars: int, memory: float | None = None) -> int:
+    """How many members of a batched solve with `n_nodes` nodes of `n_vars` scaled variables (`5n`)
+    fit in `memory` bytes (default: the default device's `bytes_limit`, else `DEFAULT_MEMORY`), by
+    `MEMBER_BLOCKS`; at least 1."""
+    if memory is None:
+        stats = jax.devices()[0].memory_stats() or {}
+        memory = stats.get("bytes_limit", DEFAULT_MEMORY)
+    return max(1, int(memory // (MEMBER_BLOCKS * n_nodes * n_vars**2 * 8)))
+
+
+def _batched(solve, size: int, xs: list, capacity: int) -> ALResult:
+    """`solve(x)` for the `size` members of a batch, advancing together in one vmapped program
+    (`xs`: the batched leaves, member `k` is `[x[k] for x in xs]`); above `capacity` members, in
+    chunks of at most that many, one after the other (`lax.map`; the last chunk is padded with copies
+    of the last member)."""
+    if size <= capacity:
+        return jax.vmap(solve)(xs)
+    chunks = -(-size // capacity)
+    width = -(-size // chunks)
+    pad = chunks * width - size
+    xs = [jnp.concatenate([x, jnp.repeat(x[-1:], pad, 0)]).reshape(chunks, width, *x.shape[1:]) for x in xs]
+    out = jax.lax.map(jax.vmap(solve), xs)
+    return jax.tree.map(lambda a: a.reshape(chunks * width, *a.shape[2:])[:size], out)
+
+
+WAVES = 4
+"""Length of the continuation chains of a batched sweep (`_waves`): its members are solved in this many
+waves of increasing `nu`."""
+
+
+def _waves(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[Array, "N 5*n"],
+           dual: tuple[Float[Array, "Nm1 4*n"], Float[Array, "N 5*n"]], m: int) -> ALResult:
+    """Solve a batch that differs only in the cost weights as `ceil(size / WAVES)` interleaved
+    continuation chains (`_continuation`) vmapped across the chains: chain `c` holds the members
+    `c, c + chains, ...` in increasing `nu` (a short chain repeats its largest), so that the members
+    advance in `WAVES` batched waves, each warm-started from the waves before it (arguments as
+    `_continuation`; `solve` is batched across the chains)."""
+    chains = -(-size // WAVES)
+    length = -(-size // chains)
+    order = jnp.argsort(nu)
+    index = order[np.minimum(np.arange(length) * chains + np.arange(chains)[:, None], size - 1)]  # (chains, length)
+    out = jax.vmap(lambda x, v: _continuation(solve, length, v, x, y0, dual, m))([x[index] for x in xs], nu[index])
+    # sorted member p is in chain p % chains at place p // chains
+    in_order = jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1).reshape(chains * length, *a.shape[2:])[:size], out)
+    return jax.tree.map(lambda a: a[jnp.argsort(order)], in_order)
 
 
 def _continuation(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[Array, "N 5*n"],
@@ -415,7 +510,8 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
     """`augmented_lagrangian` for one problem from `y0` and the multipliers `dual = (lam, gam)`
     (zeros: a cold start; `m` the static history length)."""
     p = _parts(problem, y0)
-    n = y0.shape[0]
+    factorise, solve = _FACTOR[linear_solver(config)]
+    n, nz = y0.shape
 
     def outer_update(s: _State, c_y, grad) -> _State:
         viol = jnp.maximum(jnp.max(jnp.abs(c_y)), _box_violation(p, s.y))
@@ -440,9 +536,9 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
     def lm_step(s: _State, c_y, grad, id_vjp) -> _State:
         key = jnp.stack([s.rho, s.mu])
         fresh = jnp.any(key != s.factor_key) | (s.factor_age >= config.refresh_every)
-        factor = jax.lax.cond(fresh, lambda: _normal_matrix(p, s.y, s.forward, s.gam, s.rho, s.mu, id_vjp),
+        factor = jax.lax.cond(fresh, lambda: factorise(*_normal_blocks(p, s.y, s.forward, s.gam, s.rho, s.mu, id_vjp)),
                               lambda: s.factor)
-        dy = -block_cholesky_solve(factor, grad)
+        dy = -solve(factor, grad)
         phi = _merit_from(p, s.y, c_y, s.lam, s.gam, s.rho)
         y_try = s.y + dy
         h_new = half_step(p.problem, p.y0 + y_try)
@@ -495,7 +591,8 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
         status=RESULTS.nonlinear_max_steps_reached, stop=jnp.array(False), hist=jnp.full((4, m), jnp.nan),
         # placeholder factor; the NaN key makes the first step factorise (one copy of the
         # Jacobian code in the program: compile time)
-        factor=BlockCholesky(jnp.zeros((n,) + 2 * y0.shape[-1:]), *2 * [jnp.zeros((n - 1,) + 2 * y0.shape[-1:])]),
+        factor=jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
+                            jax.eval_shape(factorise, jnp.zeros((n, nz, nz)), jnp.zeros((n - 1, nz, nz)))),
         factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), forward=p.start,
     )
     s = jax.lax.while_loop(lambda s: ~s.stop, body, init)

@@ -138,8 +138,9 @@ def solve_ocp(
 
     **Returns:** `OCPSolution`; check `status`/`converged` (a solve that did not converge is
     never reported as successful). `jit`/`vmap` over `nu`, `q_d` or `robot` work (range
-    checks then apply only to concrete inputs); a `vmap` over `nu` alone is solved by
-    continuation in increasing `nu` (`augmented_lagrangian`).
+    checks then apply only to concrete inputs); with the scan (`ALConfig.linear_solver`, the CPU's
+    default) a `vmap` over `nu` alone is solved by continuation in increasing `nu`, with cyclic
+    reduction (an accelerator's) as one batched program (`augmented_lagrangian`).
 
     **Raises:** `ValueError` naming the field for bad inputs (shapes, NaN, `ts <= 0`, `nu <= 0`).
     """
