@@ -24,7 +24,7 @@ def configure(parser) -> None:
     parser.add_argument("--parameters", default=None,
                         help="comma-separated free parameters, e.g. a2,beta3,u0_5 (default: identifiable set)")
     parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
-                        help="marker offset in the flange frame in m (default: the robot file's [sensors])")
+                        help="marker offset in m in the tool frame (the flange without [tool]; default: [sensors])")
     parser.add_argument("--limits", choices=("flag", "raise"), default="flag",
                         help="poses beyond the joint limits: list them (flag) or reject the file (raise)")
     add_approach_option(parser)

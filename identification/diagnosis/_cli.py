@@ -21,7 +21,7 @@ def configure(parser) -> None:
     parser.add_argument("--noise-um", type=float, default=None,
                         help="tracker noise std per axis in um (default: the robot file's [sensors])")
     parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
-                        help="marker offset in the flange frame in m (default: [sensors])")
+                        help="marker offset in m in the tool frame (the flange without [tool]; default: [sensors])")
     parser.add_argument("--max-steps", type=int, default=6, help="most effects to add (default 6)")
     add_approach_option(parser)
     parser.add_argument("--max-order", type=int, default=400, help="highest ripple order searched (default 400)")

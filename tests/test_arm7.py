@@ -1,0 +1,36 @@
+"""Identification on `../shared/independent/arm7/`: a 7-joint arm imported from its URDF, with
+measurements made by a separate numpy + pinocchio implementation (its README states the
+conventions): a tool frame below the flange, gross tracker errors, an anisotropic laser tracker,
+drift with acquisition times, and a calibration case with a least-squares oracle.
+
+Tolerances: the floor is the true model's validation RMS over 3 x 30 residuals, whose relative
+std is 1/sqrt(180) = 7.5 %; an estimate from the data ends within 1.1x of it (1.3 sigma)."""
+
+from __future__ import annotations
+
+import json
+
+import jax.numpy as jnp
+import numpy as np
+from helpers import independent_data
+
+import jaxrobot as jr
+from identification._pose_files import check_pose_units, read_poses
+from jaxrobot.measurement import measured_pose
+
+
+def _case(*parts: str):
+    d = independent_data().joinpath("arm7", *parts)
+    train, val = (read_poses(d / f"{s}.csv") for s in ("train", "val"))
+    return d, jr.load_robot(d / "start.toml"), train, val, json.loads((d / "truth.json").read_text())
+
+
+def test_tool_frame_marker_is_in_the_tool_frame():
+    """The marker of `[sensors]` is in the tool frame for the measurement model and the unit check
+    alike: correct data pass the check and the start model (the truth) is at the floor."""
+    d, robot, train, val, truth = _case("tool_frame")
+    marker = jnp.asarray(jr.read_description(d / "start.toml")["sensors"]["tracker_marker_offset_m"])
+    check_pose_units(robot, train.motor_angles, train.positions, marker)
+    p = np.asarray(measured_pose(robot, jnp.asarray(val.motor_angles), marker)[1])
+    rms = np.sqrt(np.mean(np.sum((p - val.positions) ** 2, -1)))
+    np.testing.assert_allclose(rms, 1e-6 * truth["floor_um"], rtol=1e-6)
