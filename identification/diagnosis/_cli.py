@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .._pose_files import add_approach_option
+from .._robust import add_loss_option
 
 HELP = "find where model and pose measurements disagree, name the missing effect, add it, repeat"
 EXAMPLE = "jaxrobot diagnose --model start.toml train.csv --validate val.csv --out diagnose --save-model fixed.toml"
@@ -24,15 +25,18 @@ def configure(parser) -> None:
                         help="marker offset in m in the tool frame (the flange without [tool]; default: [sensors])")
     parser.add_argument("--max-steps", type=int, default=6, help="most effects to add (default 6)")
     add_approach_option(parser)
+    add_loss_option(parser)
     parser.add_argument("--max-order", type=int, default=400, help="highest ripple order searched (default 400)")
 
 
 def _poses(paths, approach: str):
+    """The poses of the files `paths`, concatenated, and (file, line) of each row (header = line 1)."""
     from .._pose_files import read_poses
     from ._diagnose import Poses
 
     data = [read_poses(p, approach) for p in paths]
-    return Poses.concatenate([Poses.of(d.motor_angles, d.positions, "column", d.ccw) for d in data])
+    lines = [(str(p), k + 2) for p, d in zip(paths, data) for k in range(len(d.motor_angles))]
+    return Poses.concatenate([Poses.of(d.motor_angles, d.positions, "column", d.ccw) for d in data]), lines
 
 
 def run(args, echo) -> dict:
@@ -52,7 +56,7 @@ def run(args, echo) -> dict:
         sensors = jr.read_description(args.model).get("sensors", {})
         marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
         noise = sensors.get("tracker_position_noise_m") if noise is None else noise
-    train, val = _poses(args.poses, args.approach), _poses(args.validate, args.approach)
+    (train, lines), (val, _) = _poses(args.poses, args.approach), _poses(args.validate, args.approach)
     echo(f"diagnose: {len(train)} training and {len(val)} validation poses, start model {robot.name}")
     steps = Progress(args.max_steps + 1, "diagnose", at_most=True)
 
@@ -62,10 +66,16 @@ def run(args, echo) -> dict:
         if event.stage == "compare":
             steps.step(f"step {event.step}")
 
-    res = diagnose(robot, train, val, noise=noise,
-                   marker=marker, max_steps=args.max_steps, max_order=args.max_order, progress=progress)
+    res = diagnose(robot, train, val, noise=noise, marker=marker, max_steps=args.max_steps,
+                   max_order=args.max_order, loss=args.loss, progress=progress)
     echo("\n" + loop_table(res.loop, res.noise_floor))
     echo(f"verdict: {res.verdict}")
+    outliers = [{"file": lines[o.row][0], "line": lines[o.row][1], "residual_um": 1e6 * o.residual,
+                 "sigmas": o.sigmas} for o in res.outliers]
+    for o in outliers:
+        echo(f"warning: {o['file']}:{o['line']}: residual {o['residual_um']:.1f} um ({o['sigmas']:.1f} sigma) at the "
+             "final model, beyond the outlier bound: a gross measurement error?"
+             + (" (left out of the fits)" if args.loss != "l2" else ""))
     if args.out is not None:
         write_outputs(args.out, res, args.max_order)
         echo(f"wrote tables and plots to {args.out}")
@@ -73,5 +83,5 @@ def run(args, echo) -> dict:
         jr.save_robot(res.robot, args.save_model)
         echo(f"wrote {args.save_model}")
     rep = summary(res)
-    return {k: rep[k] for k in ("noise_floor_um", "validation_bound_um", "steps", "final_rms_validation_um",
-                                "verdict", "start")}
+    return {**{k: rep[k] for k in ("noise_floor_um", "validation_bound_um", "steps", "final_rms_validation_um",
+                                   "verdict", "start")}, "loss": res.loss, "outliers": outliers}

@@ -8,7 +8,8 @@
    revolution, also signed by the direction of approach) find the ripple orders.
 3. *Name*: every candidate (effect x joint x variant) is fitted together with the effects already
    added, first linearised (one Gauss-Newton step from the current model) to rank all of them,
-   then the best `shortlist` by Levenberg-Marquardt (optimistix, one after another) to convergence; each is
+   then the best `shortlist` by Levenberg-Marquardt (optimistix, one after another) to convergence (a
+   fit that fails, or ends with a larger chi-square than its start, gives its place to the next); each is
    scored by the Bayesian information criterion `BIC = chi2 + m ln(3K)` on the training poses
    and the RMS on held-out validation poses.
 4. *Add*: the best-BIC candidate that lowers BIC by more than `MIN_BIC_GAIN` and lowers the
@@ -35,6 +36,7 @@ from jaxtyping import Array
 import jaxrobot as jr
 from jaxrobot.measurement import approach_directions, approach_sign
 
+from .. import _robust as robust
 from .._pose_files import check_pose_units
 from ..gear._fit import chi2_quantile
 from ._effects import RIPPLE_SLOTS, Layout, catalogue, with_ripple_slots
@@ -124,9 +126,10 @@ class LoopRow:
     rms_validation: float
     """RMS norm of the validation position residuals [m]."""
     chi2: float
-    """`sum r^2 / sigma^2` of the training residuals (`sigma`: tracker noise per axis)."""
+    """`sum r^2 / sigma^2` of the residuals of the `K'` training poses that the robust loss does not
+    reject (all `K` for `l2`; `sigma`: tracker noise per axis)."""
     dof: int
-    """Degrees of freedom `3K - m`."""
+    """Degrees of freedom `3K' - m`."""
     p_value: float
     """Probability of a chi-square with `dof` exceeding `chi2`; the test passes above `ALPHA`."""
     bic: float
@@ -153,7 +156,10 @@ class CandidateScore:
     rms_validation: float | None = None
     """RMS norm of the validation position residuals after the LM fit [m]."""
     lm_status: str | None = None
-    """Status name of the LM fit (`jaxrobot.status_name` of a `jaxrobot.RESULTS`)."""
+    """Status name of the LM fit (`jaxrobot.status_name` of a `jaxrobot.RESULTS`); `nonlinear_divergence`
+    where the fit ended with a larger chi-square than the current model's, its start."""
+    lm_message: str | None = None
+    """The message of `lm_status` (`jaxrobot.status_message`; for a divergence, both chi-squares)."""
     lm_steps: int | None = None
     """Steps of the LM fit."""
     selected: bool = False
@@ -244,6 +250,12 @@ class DiagnoseResult:
     """Training poses."""
     n_validation: int
     """Validation poses."""
+    loss: str = "l2"
+    """The loss of the fits (`"cauchy"`, `"huber"` or `"l2"`)."""
+    outliers: tuple[robust.Outlier, ...] = ()
+    """The training poses whose residual at the final model exceeds the outlier bound
+    (`_robust.outlier_bound`) in units of the noise, or of the residuals' robust spread where that is
+    larger (`_robust.spread`; `Outlier.sigmas` in the same unit), by row."""
 
     @property
     def noise_floor(self) -> float:
@@ -355,6 +367,7 @@ def diagnose(
     max_steps: int = 6,
     max_order: int = 400,
     shortlist: int = 4,
+    loss: str = robust.LOSSES[0],
     progress: Callable[[DiagnoseEvent], None] | None = None,
 ) -> DiagnoseResult:
     """Find, name and add the effects that `start` misses, from tracker pose measurements.
@@ -365,12 +378,17 @@ def diagnose(
     - `noise`: tracker std per axis [m] (default `[sensors] tracker_position_noise_m`).
     - `marker`: marker offset in the tool frame [m] (default `[sensors]`).
     - `max_steps`: most effects to add; `max_order`: highest ripple order searched [1/rev];
-      `shortlist`: candidates fitted by LM per step; `progress`: receives a `DiagnoseEvent` per model
+      `shortlist`: candidates fitted by LM per step; `loss`: `"cauchy"` (default) or `"huber"` weigh each
+      training pose by the loss of its residual norm at the current model in every fit
+      (`_robust.scaled_weights`: against the larger of the noise and the residuals' robust spread); the
+      poses it rejects (weight 0: gross errors) are left out of the chi-square test and BIC, which
+      score the others unweighted; `"l2"` weighs all alike; `progress`: receives a `DiagnoseEvent` per model
       compared and per step's candidates (`_report.progress_lines` turns them into text).
 
     **Returns:** `DiagnoseResult` in SI units (`_report.summary`: the JSON of `jaxrobot diagnose`).
     """
     sigma, marker = _checked_inputs(start, train, validation, noise, marker)
+    robust.check_loss(loss)
     joints = start.n_joints
     emit = progress or (lambda _: None)
     layout = Layout.of(catalogue(start), joints)
@@ -400,10 +418,14 @@ def diagnose(
     residual_before = np.linalg.norm(ev["validation"][1], axis=-1)
     t0 = time.perf_counter()
     while True:
-        chi2 = float(np.sum(ev["train"][1] ** 2) / sigma**2)
+        w = robust.scaled_weights(np.linalg.norm(ev["train"][1], axis=-1) / sigma, loss)
+        sig = sigma if loss == "l2" else jnp.asarray(sigma / np.sqrt(np.maximum(w, 1e-30)))[:, None]
+        keep = w > 0  # the chi-square test and BIC: over the poses not rejected, unweighted
+        chi2 = float(np.sum(ev["train"][1][keep] ** 2) / sigma**2)
+        dof = 3 * int(np.sum(keep)) - len(free)
         row = LoopRow(len(accepted), accepted[-1].label(layout) if accepted else "(start)", len(free),
-                      _rms(ev["train"][1]), _rms(ev["validation"][1]), chi2, n_res - len(free),
-                      _p_value(chi2, n_res - len(free)), chi2 + len(free) * ln_n)
+                      _rms(ev["train"][1]), _rms(ev["validation"][1]), chi2, dof,
+                      _p_value(chi2, dof), chi2 + len(free) * ln_n)
         loop.append(row)
         emit(DiagnoseEvent("compare", row.step, time.perf_counter() - t0, row=row,
                            noise_floor=sigma * float(np.sqrt(3.0))))
@@ -415,38 +437,51 @@ def diagnose(
             verdict = f"discrepancy remains after {max_steps} effects (max_steps)"
             break
         q_cur = jnp.asarray(ev["train"][0])
-        r = ev["train"][1].ravel() / sigma
-        jac = np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
+        root_w = np.repeat(np.sqrt(w), 3)[:, None]  # pose-major rows
+        r = (ev["train"][1].ravel() / sigma) * root_w[:, 0]
+        jac = np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma * root_w
         found, spec_step = _locate_orders(layout, jac, r, free, accepted, orders, np.asarray(q_cur), ccw[0],
                                           varying, max_order)
         spectra.append(spec_step)
         if any(found[k] for k in found):
             jac = np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
+            jac = jac * root_w
         # name: linearised fit of every candidate, then LM on the shortlist
         scored = _rank_linearised(_candidates(layout, set(free), found, varying), free, jac, r, ln_n)
-        top = scored[:shortlist]
         log = [CandidateScore(c.label(layout), b, b - row.bic) for b, c, _ in scored]
-        winner = None
-        if top:
-            idx = _pad([cols for _, _, cols in top], spare)
+        winner, best, sound, start = None, None, 0, 0
+        while sound < shortlist and start < len(scored):  # a failed fit gives its place to the next candidate
+            batch = list(range(start, min(len(scored), start + shortlist - sound)))
+            start = batch[-1] + 1
+            idx = _pad([scored[k][2] for k in batch], spare)
+            idx = np.concatenate([idx, np.repeat(idx[-1:], shortlist - len(batch), 0)])  # one batch size
             vs, status, nsteps = fns.fit(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale,
-                                         pos, sigma, jnp.asarray(idx))
-            ok_fit, status = np.asarray(status == jr.RESULTS.successful), jr.status_name(status)
+                                         pos, sig, jnp.asarray(idx))
+            status = np.atleast_1d(jr.status_name(status))
             pos_fit = np.asarray(fns.exact_batch(robot0, vs, jnp.asarray(orders), th_all, ccw_all, marker))
-            best = None
-            for k, (_, _c, cols) in enumerate(top):
-                err_t = train.positions - pos_fit[k, :k_tr]
-                bic_k = float(np.sum(err_t**2) / sigma**2) + len(cols) * ln_n
-                rms_v = _rms(validation.positions - pos_fit[k, k_tr:])
+            for i, k in enumerate(batch):
+                cols = scored[k][2]
+                err_t = train.positions - pos_fit[i, :k_tr]
+                chi2_k = float(np.sum(err_t[keep] ** 2) / sigma**2)
+                bic_k = chi2_k + len(cols) * ln_n
+                rms_v = _rms(validation.positions - pos_fit[i, k_tr:])
+                name, message = str(status[i]), None
+                if name == "successful" and not chi2_k <= row.chi2:
+                    name = "nonlinear_divergence"
+                    message = (f"{jr.status_message(jr.RESULTS.nonlinear_divergence)} (chi-square "
+                               f"{chi2_k:.6g} after the fit, {row.chi2:.6g} at its start)")
+                message = message or str(jr.status_message(getattr(jr.RESULTS, name)))
+                sound += name == "successful"
                 log[k] = dataclasses.replace(log[k], bic=bic_k, delta_bic=bic_k - row.bic, rms_train=_rms(err_t),
-                                             rms_validation=rms_v, lm_status=str(status[k]), lm_steps=int(nsteps[k]))
-                if bool(ok_fit[k]) and bic_k < row.bic - MIN_BIC_GAIN and rms_v < row.rms_validation:
+                                             rms_validation=rms_v, lm_status=name, lm_message=message,
+                                             lm_steps=int(nsteps[i]))
+                if name == "successful" and bic_k < row.bic - MIN_BIC_GAIN and rms_v < row.rms_validation:
                     if best is None or bic_k < best[0]:
-                        best = (bic_k, k)
-            if best is not None:
-                winner = top[best[1]]
-                log[best[1]] = dataclasses.replace(log[best[1]], selected=True)
-                v_new = jnp.asarray(vs[best[1]])
+                        best = (bic_k, k, vs[i])
+        if best is not None:
+            winner = scored[best[1]]
+            log[best[1]] = dataclasses.replace(log[best[1]], selected=True)
+            v_new = jnp.asarray(best[2])
         cand_log.append(tuple(log))
         emit(DiagnoseEvent("name", len(accepted) + 1, time.perf_counter() - t0, candidates=tuple(log)))
         if winner is None:
@@ -464,7 +499,8 @@ def diagnose(
         candidates=tuple(cand_log), residuals_before=residual_before,
         residuals_after=np.linalg.norm(ev["validation"][1], axis=-1), spectra=tuple(spectra), noise=sigma,
         validation_bound=validation_bound(sigma, len(validation), len(free), n_res), n_train=len(train),
-        n_validation=len(validation))
+        n_validation=len(validation), loss=loss, outliers=robust.outliers(
+            ev["train"][1], sigma * robust.spread(np.linalg.norm(ev["train"][1], axis=-1) / sigma)))
 
 
 def _checked_inputs(start: jr.Robot, train: Poses, validation: Poses, noise, marker) -> tuple[float, Array]:
