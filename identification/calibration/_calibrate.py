@@ -29,6 +29,7 @@ from jaxrobot.measurement import marker_pose
 from jaxrobot.status import check
 
 from .. import _robust as robust
+from .._noise import noise_model
 from .._pose_files import check_pose_units
 from .._robust import Outlier
 from ._identifiability import analyse, default_parameters
@@ -89,9 +90,10 @@ def _deflection(robot, theta, ccw):
 
 
 def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflection, marker, weight_r, ccw,
-                 rippled: tuple[int, ...] | None = None, q0=None, pose_weight=None):
+                 rippled: tuple[int, ...] | None = None, q0=None, pose_weight=None, whiten=None):
     """Residual `fn(x, _)` in scaled variables `v = v0 + scale x`, its start `v0` and `scale`; each
-    pose's rows times `sqrt(pose_weight)` (K,) where given.
+    pose's position rows times its `whiten` (K, 3, 3) and all its rows times `sqrt(pose_weight)` (K,)
+    where given.
 
     The model is `predict_pose` with its per-pose constants hoisted (`_model`; `q0`,
     the initial joint angles, may be given). Its Jacobian is supplied per pose: for position rows
@@ -124,13 +126,20 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
 
     ccw_b = jnp.broadcast_to(jnp.asarray(ccw), theta.shape)
     root_w = jnp.ones(theta.shape[:-1]) if pose_weight is None else jnp.sqrt(pose_weight)
+    white = jnp.broadcast_to(jnp.eye(3), theta.shape[:-1] + (3, 3)) if whiten is None else whiten
+
+    def rows_of(out, k_axis_rows):  # whiten the position rows of (K, rows, ...), weigh all rows
+        pos_rows = jnp.einsum("kij,kj...->ki...", white, out[:, :3])
+        out = jnp.concatenate([pos_rows, out[:, 3:]], 1) if k_axis_rows > 3 else pos_rows
+        return out * root_w.reshape((-1,) + (1,) * (out.ndim - 1))
     tr = target_r if orient else jnp.zeros(theta.shape[:-1] + (3, 3))
     axes = (None, 0, 0, 0, 0, 0, 0)
     data = (theta, q0, deflection, target_p, tr, ccw_b)
 
     @jax.custom_jvp
     def resid(x):
-        return (jax.vmap(one_pose, axes)(fields_of(x), *data) * root_w[:, None]).ravel()
+        out = jax.vmap(one_pose, axes)(fields_of(x), *data)
+        return rows_of(out, out.shape[1]).ravel()
 
     def one_jacobian(fields, th, q0k, de, tp, tr, cw):
         robot = robot_of(fields)
@@ -146,9 +155,9 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
             jac = jax.vmap(jax.jacrev(one_pose), axes)(fields, *data)  # {key: (K, rows, *field)}
             out = sum(jnp.sum((jac[k] * dfields[k][None, None]).reshape(jac[k].shape[:2] + (-1,)), -1)
                       for k in keys)
-            return resid(x), (out * root_w[:, None]).ravel()
+            return resid(x), rows_of(out, out.shape[1]).ravel()
         jac = jax.vmap(one_jacobian, axes)(fields_of(x), *data)  # (K, 3, m), joint screws
-        return resid(x), ((jac @ t) * root_w[:, None]).ravel()
+        return resid(x), rows_of(jac @ t, 3).ravel()
 
     return (lambda x, _: resid(x)), v0, scale
 
@@ -200,6 +209,7 @@ def solve(
     rippled: tuple[int, ...] | None = None,
     prior_weight: Float[Array, " m"] | None = None,
     pose_weight: Float[Array, " K"] | None = None,
+    whiten: Float[Array, "K 3 3"] | None = None,
     throw: bool = False,
 ) -> ParameterEstimate:
     """LM solve for one robot; pure and jit/vmap-safe.
@@ -210,7 +220,8 @@ def solve(
 
     `pose_weight`: the weight of each pose's squared residual (the robust losses' reweighting,
     `identification._robust`); `None` weights all alike. The returned residuals are unweighted, the
-    noise variance and covariance those of the weighted rows.
+    noise variance and covariance those of the weighted rows. `whiten`: each pose's position rows times
+    this matrix (`identification._noise`: an anisotropic tracker's `sigma Sigma_k^{-1/2}`), residuals too.
 
     `rippled`: the joints whose gears have ripple (`rippled_joints`; static), needed when `robot0`
     is traced (e.g. under `vmap`), else found from `robot0`; a free `u0` of a ripple-free gear then
@@ -220,7 +231,7 @@ def solve(
     when it is not `successful` (also under `jit`).
     """
     fn_data, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r,
-                                      ccw, rippled, pose_weight=pose_weight)
+                                      ccw, rippled, pose_weight=pose_weight, whiten=whiten)
     fn = fn_data if prior_weight is None else (lambda x, a: jnp.concatenate([fn_data(x, a), prior_weight * x]))
     x0 = jnp.zeros(len(params))
     sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=rtol, atol=atol), x0, max_steps=max_steps,
@@ -241,8 +252,8 @@ def solve(
                                          RESULTS.where(rank == m, RESULTS.successful, RESULTS.rank_deficient),
                                          RESULTS.nonfinite), result)
     if pose_weight is not None:
-        r = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r, ccw, rippled)[0](
-            x, None)
+        r = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r, ccw, rippled,
+                         whiten=whiten)[0](x, None)
     out = ParameterEstimate(value=v0 + scale * x, std=jnp.sqrt(jnp.diag(cov)), covariance=cov, status=result,
                             steps=sol.stats["num_steps"], rank=rank, residuals=r * RESIDUAL_UNIT,
                             noise_variance=sigma2 * RESIDUAL_UNIT**2, jacobian=jx / scale)
@@ -406,7 +417,9 @@ def calibrate(
       type: positions, or positions and orientations when `quaternions` are given).
     - `marker`: marker offset in the tool frame [m] (default: the toml `[sensors]`).
     - `position_noise`, `orientation_noise`: stds that weight orientation rows against
-      position rows (defaults: the toml tracker noise and 0.05 deg); positions alone need none.
+      position rows (defaults: the toml tracker noise and 0.05 deg) and scale the robust loss;
+      `position_noise` may be a laser tracker's `TrackerNoise` (`identification._noise`: std along and
+      across the line of sight), whose covariance then whitens each pose's position residual.
     - `ccw`: gear set of the approach direction. `validation`: `(motor_angles, positions)` or
       `(motor_angles, positions, ccw)`.
     - `limits`: `"flag"` lists poses beyond the joint limits in `beyond_limits`,
@@ -446,7 +459,8 @@ def calibrate(
     theta, pos, quat, beyond = check_inputs(robot, params, motor_angles, positions, quaternions, limits, ccw)
     check_pose_units(robot, theta, pos, marker, "motor_angles/positions")
     sensors = jr.read_description(None)["sensors"]
-    s_p = sensors["tracker_position_noise_m"] if position_noise is None else position_noise
+    s_p, white = noise_model(sensors["tracker_position_noise_m"] if position_noise is None else position_noise,
+                             pos, "position_noise")
     s_r = ORIENTATION_NOISE_RAD if orientation_noise is None else orientation_noise
     rot = None if quat is None else jr.quaternion_to_rotation(jnp.asarray(quat))
     w_r = jnp.asarray(s_p / s_r)
@@ -472,7 +486,8 @@ def calibrate(
     def fit(pose_w):
         out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw_id, max_steps=max_steps,
                          rippled=rippled_joints(robot), prior_weight=weight,
-                         pose_weight=None if loss == "l2" else jnp.asarray(pose_w))
+                         pose_weight=None if loss == "l2" else jnp.asarray(pose_w),
+                         whiten=None if white is None else jnp.asarray(white))
         resid = np.asarray(out.residuals).reshape(k, rows)
         return (out, resid), np.linalg.norm(resid, axis=-1) / s_p
 

@@ -113,6 +113,7 @@ def run(args, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot.cli import Progress
 
+    from .._noise import TrackerNoise
     from .._pose_files import read_poses
     from ._calibrate import PRIOR_KEYS, calibrate, map_parameters
     from ._identifiability import default_parameters
@@ -135,7 +136,7 @@ def run(args, echo) -> dict:
     if args.robot is not None:
         sensors = desc.get("sensors", {})
         marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
-        noise = sensors.get("tracker_position_noise_m")
+        noise = TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")
     if args.method == "map" and args.parameters is None:
         names = map_parameters(default_parameters(robot, orientation=data.quaternions is not None,
                                                   marker=default_marker() if marker is None else marker),

@@ -43,6 +43,7 @@ def run(args, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot.cli import Progress
 
+    from .._noise import TrackerNoise
     from ._diagnose import diagnose
     from ._report import loop_table, progress_lines, summary, write_outputs
 
@@ -55,7 +56,7 @@ def run(args, echo) -> dict:
     if args.model is not None:
         sensors = jr.read_description(args.model).get("sensors", {})
         marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
-        noise = sensors.get("tracker_position_noise_m") if noise is None else noise
+        noise = (TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")) if noise is None else noise
     (train, lines), (val, _) = _poses(args.poses, args.approach), _poses(args.validate, args.approach)
     echo(f"diagnose: {len(train)} training and {len(val)} validation poses, start model {robot.name}")
     steps = Progress(args.max_steps + 1, "diagnose", at_most=True)

@@ -37,6 +37,7 @@ import jaxrobot as jr
 from jaxrobot.measurement import approach_directions, approach_sign
 
 from .. import _robust as robust
+from .._noise import TrackerNoise, noise_model
 from .._pose_files import check_pose_units
 from ..gear._fit import chi2_quantile
 from ._effects import RIPPLE_SLOTS, Layout, catalogue, with_ripple_slots
@@ -348,6 +349,11 @@ def _candidates(layout: Layout, free: set, ripple_orders: dict, varying: np.ndar
     return [c for c in out if not set(c.params) <= free]
 
 
+def _rows(jac: np.ndarray, whiten: np.ndarray) -> np.ndarray:
+    """Jacobian rows (3K, P) (pose-major) times each pose's whitening (K, 3, 3)."""
+    return np.einsum("kij,kjp->kip", whiten, jac.reshape(whiten.shape[0], 3, -1)).reshape(jac.shape)
+
+
 def _rms(err: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(err**2, -1))))
 
@@ -375,7 +381,10 @@ def diagnose(
     **Arguments:**
     - `start`: the model to test (may have rigid joints and constant gear ratios).
     - `train`, `validation`: `Poses` (the validation poses only score candidates).
-    - `noise`: tracker std per axis [m] (default `[sensors] tracker_position_noise_m`).
+    - `noise`: tracker std per axis [m] (default `[sensors] tracker_position_noise_m`), or a laser
+      tracker's `TrackerNoise` (`identification._noise`): each training pose's residual is then whitened
+      by its covariance in every fit, the chi-square test and BIC (noise floor and `sigma`: the isotropic
+      std of the same total variance).
     - `marker`: marker offset in the tool frame [m] (default `[sensors]`).
     - `max_steps`: most effects to add; `max_order`: highest ripple order searched [1/rev];
       `shortlist`: candidates fitted by LM per step; `loss`: `"cauchy"` (default) or `"huber"` weigh each
@@ -389,6 +398,11 @@ def diagnose(
     """
     sigma, marker = _checked_inputs(start, train, validation, noise, marker)
     robust.check_loss(loss)
+    white = noise_model(noise, train.positions)[1] if isinstance(noise, TrackerNoise) else None
+    white = np.broadcast_to(np.eye(3), (len(train), 3, 3)) if white is None else white
+
+    def _white(err):  # each training pose's residual whitened (the isotropic equivalent sigma per axis)
+        return np.einsum("kij,kj->ki", white, err)
     joints = start.n_joints
     emit = progress or (lambda _: None)
     layout = Layout.of(catalogue(start), joints)
@@ -418,10 +432,11 @@ def diagnose(
     residual_before = np.linalg.norm(ev["validation"][1], axis=-1)
     t0 = time.perf_counter()
     while True:
-        w = robust.scaled_weights(np.linalg.norm(ev["train"][1], axis=-1) / sigma, loss)
-        sig = sigma if loss == "l2" else jnp.asarray(sigma / np.sqrt(np.maximum(w, 1e-30)))[:, None]
+        e_w = _white(ev["train"][1])
+        w = robust.scaled_weights(np.linalg.norm(e_w, axis=-1) / sigma, loss)
+        fit_white = jnp.asarray(white * (np.sqrt(w) / sigma)[:, None, None])
         keep = w > 0  # the chi-square test and BIC: over the poses not rejected, unweighted
-        chi2 = float(np.sum(ev["train"][1][keep] ** 2) / sigma**2)
+        chi2 = float(np.sum(e_w[keep] ** 2) / sigma**2)
         dof = 3 * int(np.sum(keep)) - len(free)
         row = LoopRow(len(accepted), accepted[-1].label(layout) if accepted else "(start)", len(free),
                       _rms(ev["train"][1]), _rms(ev["validation"][1]), chi2, dof,
@@ -437,15 +452,15 @@ def diagnose(
             verdict = f"discrepancy remains after {max_steps} effects (max_steps)"
             break
         q_cur = jnp.asarray(ev["train"][0])
-        root_w = np.repeat(np.sqrt(w), 3)[:, None]  # pose-major rows
-        r = (ev["train"][1].ravel() / sigma) * root_w[:, 0]
-        jac = np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma * root_w
+        r = (e_w * np.sqrt(w)[:, None]).ravel() / sigma
+        jac = _rows(np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)),
+                    np.asarray(fit_white))
         found, spec_step = _locate_orders(layout, jac, r, free, accepted, orders, np.asarray(q_cur), ccw[0],
                                           varying, max_order)
         spectra.append(spec_step)
         if any(found[k] for k in found):
-            jac = np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
-            jac = jac * root_w
+            jac = _rows(np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)),
+                        np.asarray(fit_white))
         # name: linearised fit of every candidate, then LM on the shortlist
         scored = _rank_linearised(_candidates(layout, set(free), found, varying), free, jac, r, ln_n)
         log = [CandidateScore(c.label(layout), b, b - row.bic) for b, c, _ in scored]
@@ -456,13 +471,13 @@ def diagnose(
             idx = _pad([scored[k][2] for k in batch], spare)
             idx = np.concatenate([idx, np.repeat(idx[-1:], shortlist - len(batch), 0)])  # one batch size
             vs, status, nsteps = fns.fit(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale,
-                                         pos, sig, jnp.asarray(idx))
+                                         pos, fit_white, jnp.asarray(idx))
             status = np.atleast_1d(jr.status_name(status))
             pos_fit = np.asarray(fns.exact_batch(robot0, vs, jnp.asarray(orders), th_all, ccw_all, marker))
             for i, k in enumerate(batch):
                 cols = scored[k][2]
                 err_t = train.positions - pos_fit[i, :k_tr]
-                chi2_k = float(np.sum(err_t[keep] ** 2) / sigma**2)
+                chi2_k = float(np.sum(_white(err_t)[keep] ** 2) / sigma**2)
                 bic_k = chi2_k + len(cols) * ln_n
                 rms_v = _rms(validation.positions - pos_fit[i, k_tr:])
                 name, message = str(status[i]), None
@@ -507,10 +522,9 @@ def _checked_inputs(start: jr.Robot, train: Poses, validation: Poses, noise, mar
     """The tracker noise [m] and marker offset [m] (defaults from `[sensors]`), after checking them and
     the poses against `start` (see `diagnose`)."""
     sensors = jr.read_description(None)["sensors"]
-    sigma = float(sensors["tracker_position_noise_m"] if noise is None else noise)
+    sigma = noise_model(sensors["tracker_position_noise_m"] if noise is None else noise, train.positions[:1],
+                        "noise")[0]
     marker = jnp.asarray(sensors["tracker_marker_offset_m"] if marker is None else marker, float)
-    if not sigma > 0:
-        raise ValueError(f"noise: expected the tracker std per axis > 0 m, found {sigma}")
     if len(train) < 10 or len(validation) < 3:
         raise ValueError(f"poses: expected >= 10 training and >= 3 validation poses, found {len(train)} and "
                          f"{len(validation)}")
