@@ -3,13 +3,16 @@ separate numpy + pinocchio implementation): one table row per case, before (the 
 (the default robust loss) and after with `loss="l2"` (plain least squares), against the floor (the
 true model's validation RMS) and, where the case has one, an oracle.
 
-- `cases/`, `noise/`, `tool_frame/`: `diagnose` from `start.toml` (the `[sensors]` noise and marker);
-- `calibration/`, `noise/outliers/`: `calibrate` (default parameter set) from `start.toml`; the oracle
-  of `calibration/` is the generator's least squares over the 32 true deviations (truth.json), that of
-  `noise/outliers/` least squares on the clean rows alone.
+- `cases/`, `noise/`, `tool_frame/`: `diagnose` from `start.toml` (the `[sensors]` noise and marker, the
+  training file's `t_s` where it has them; also with `loss="l2"` on `noise/outliers`);
+- `calibration/`, `noise/outliers/`, `noise/anisotropic/`: `calibrate` (default parameter set) from
+  `start.toml`; the reference ("oracle") of `calibration/` is the generator's least squares over the 32
+  true deviations (truth.json), that of `noise/outliers/` least squares on the clean rows alone; on
+  `noise/anisotropic/` the fit with the laser-tracker model of truth.json against the fit with the
+  isotropic std of `start.toml`.
 
-Run: `python benchmarks/bench_arm7.py [--shared PATH]` (default: `../shared` beside the repository,
-else `$JAXROBOT_SHARED`); prints the markdown tables.
+Run: `python benchmarks/bench_arm7.py [--shared PATH]` (default: `../shared` beside the repository);
+prints the markdown tables.
 """
 
 from __future__ import annotations
@@ -22,12 +25,13 @@ from pathlib import Path
 import numpy as np
 
 import jaxrobot as jr
-from identification import calibrate, read_poses
+from jaxrobot.bench import read_csv_columns
+from identification import TrackerNoise, calibrate, read_poses
 from identification.diagnosis import Poses, diagnose
 
 DIAGNOSE = ("cases/a0_clean", "cases/a1_joint3_offset", "cases/a2_joint4_softer", "cases/a3_payload",
             "cases/a4_ratio1_softer4", "noise/outliers", "noise/anisotropic", "noise/drift", "tool_frame")
-CALIBRATE = ("calibration", "noise/outliers")
+CALIBRATE = ("calibration", "noise/outliers", "noise/anisotropic")
 
 
 def _rms(err) -> float:
@@ -44,30 +48,45 @@ def _load(d: Path):
 def diagnose_row(d: Path, name: str) -> str:
     robot, train, val, truth, marker, noise = _load(d)
     tr, va = Poses.of(train.motor_angles, train.positions), Poses.of(val.motor_angles, val.positions)
+    times = read_csv_columns(d / "train.csv", [], ["t_s"]).get("t_s")
     out = {}
-    for loss in ("cauchy", "l2"):
+    for loss in ("cauchy", "l2") if name == "noise/outliers" else ("cauchy",):
         t = time.perf_counter()
-        res = diagnose(robot, tr, va, noise=noise, marker=marker, loss=loss)
+        res = diagnose(robot, tr, va, noise=noise, marker=marker, loss=loss, times=times)
         out[loss] = (res, time.perf_counter() - t)
     res, seconds = out["cauchy"]
     floor = truth["floor_um"]
     added = ", ".join(f"{s.kind}{'' if s.joint is None else f' j{s.joint}'}" for s in res.steps) or "-"
     expected = ", ".join(f"{k}{'' if j is None else f' j{j}'}" for k, j in truth.get("expected_effects", [])) or "-"
-    l2 = out["l2"][0]
-    l2_added = ", ".join(f"{s.kind}{'' if s.joint is None else f' j{s.joint}'}" for s in l2.steps) or "-"
     rows = ", ".join(str(o.row) for o in res.outliers) or "-"
+    if res.drift is not None:
+        dr = res.drift
+        added += (f"; drift {'named' if dr.named else 'not named'}: scale {dr.rate * dr.duration:+.2g} "
+                  f"+- {dr.std * dr.duration:.1g} over {dr.duration:.0f} s")
+    failed = sum(e.lm_status not in (None, "successful") for c in res.candidates for e in c)
+    l2 = "-"
+    if "l2" in out:
+        r2 = out["l2"][0]
+        l2 = (f"{', '.join(s.kind for s in r2.steps) or '-'}; {1e6 * r2.final_rms_validation:.1f} "
+              f"({1e6 * r2.final_rms_validation / floor:.3f}x); {r2.verdict.split(':')[0]}")
     return (f"| {name} | {expected} | {_rms(res.residuals_before):.1f} | {added} | "
             f"{1e6 * res.final_rms_validation:.1f} ({1e6 * res.final_rms_validation / floor:.3f}x) | {rows} | "
-            f"{l2_added} | {1e6 * l2.final_rms_validation:.1f} ({1e6 * l2.final_rms_validation / floor:.3f}x) | "
-            f"{floor:.1f} | {res.verdict.split(':')[0]} | {seconds:.0f} |")
+            f"{failed} | {floor:.1f} | {res.verdict.split(':')[0]} | {seconds:.0f} | {l2} |")
 
 
 def calibrate_row(d: Path, name: str) -> str:
     robot, train, val, truth, marker, noise = _load(d)
     kw = {"marker": marker, "position_noise": noise, "validation": (val.motor_angles, val.positions)}
-    res = {loss: calibrate(robot, train.motor_angles, train.positions, loss=loss, **kw) for loss in ("cauchy", "l2")}
     floor = truth["floor_um"]
-    if "oracle" in truth:
+    if "noise_los_um" in truth:  # the laser-tracker model against the isotropic std of the same variance
+        tracker = TrackerNoise(np.asarray(truth["tracker_position_m"]), 1e-6 * truth["noise_los_um"],
+                               1e-6 * truth["noise_perp_um"])
+        kw["position_noise"] = tracker
+    res = {loss: calibrate(robot, train.motor_angles, train.positions, loss=loss, **kw) for loss in ("cauchy", "l2")}
+    if "noise_los_um" in truth:
+        iso = calibrate(robot, train.motor_angles, train.positions, **{**kw, "position_noise": noise})
+        oracle, how = _rms(iso.validation_after), "the same with the isotropic std (start.toml)"
+    elif "oracle" in truth:
         oracle = truth["oracle"]["val_rms_um"]
         how = "generator's LS, 32 true deviations"
     else:
@@ -86,8 +105,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--shared", type=Path, default=Path(__file__).resolve().parents[2] / "shared")
     root = parser.parse_args().shared / "independent" / "arm7"
-    print("| case | hidden (expected) | before [um] | added (default loss) | after [um] | outlier rows | "
-          "added (l2) | after, l2 [um] | floor [um] | verdict | time [s] |")
+    print("| case | hidden (expected) | before [um] | added | after [um] | outlier rows | failed LM fits | "
+          "floor [um] | verdict | time [s] | with loss l2: added; after; verdict |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name in DIAGNOSE:
         print(diagnose_row(root / name, name), flush=True)

@@ -82,3 +82,60 @@ def test_laser_tracker_noise_model_whitens_the_fit():
     assert iso.converged and white.converged and white.outliers == ()
     assert _rms(white.validation_after) < _rms(iso.validation_after)
     assert _rms(white.validation_after) < 1.1e-6 * truth["floor_um"]
+
+
+def _diagnose(*parts: str):
+    from identification.diagnosis import Poses, diagnose
+
+    d, robot, train, val, truth = _case(*parts)
+    sensors = jr.read_description(d / "start.toml")["sensors"]
+    res = diagnose(robot, Poses.of(train.motor_angles, train.positions), Poses.of(val.motor_angles, val.positions),
+                   noise=sensors["tracker_position_noise_m"], marker=sensors["tracker_marker_offset_m"])
+    return res, truth
+
+
+@pytest.mark.extended
+def test_diagnose_rejects_and_names_gross_tracker_errors():
+    """Nothing hidden, 3 gross errors: `diagnose` (default loss) finds no discrepancy, names exactly the
+    corrupted rows and keeps the start model (the truth) at the floor."""
+    res, truth = _diagnose("noise", "outliers")
+    assert res.steps == () and res.verdict.startswith("no significant discrepancy"), res.verdict
+    assert [o.row for o in res.outliers] == truth["outlier_rows_0based"]
+    assert abs(res.final_rms_validation / (1e-6 * truth["floor_um"]) - 1) < 1e-6
+
+
+@pytest.mark.slow
+def test_diagnose_two_effects_without_a_geometry_block():
+    """Joint 1 gear ratio and joint 4 stiffness hidden together: both named, no many-parameter block,
+    validation within 1.1x the floor; an LM fit whose chi-square rose is reported as failed (status and
+    message) and every step still has `shortlist` (4) sound LM fits where there are enough candidates."""
+    res, truth = _diagnose("cases", "a4_ratio1_softer4")
+    assert sorted((s.kind, s.joint) for s in res.steps) == sorted(tuple(e) for e in truth["expected_effects"])
+    assert res.final_rms_validation < 1.1e-6 * truth["floor_um"]
+    for log in res.candidates:
+        fitted = [e for e in log if e.lm_status is not None]
+        sound = [e for e in fitted if e.lm_status == "successful"]
+        assert len(sound) == 4 or len(fitted) == len(log)  # a failed fit gave its place to the next
+        for e in fitted:
+            if e.lm_status == "nonlinear_divergence":
+                assert "chi-square" in e.lm_message and not e.selected
+
+
+@pytest.mark.extended
+def test_diagnose_names_a_drift_in_acquisition_time():
+    """Every link grows by 3e-5 linearly over the 1722 s of the training file (`t_s`): `diagnose` with
+    the times names a link-length scale linear in time, its rate within 3 standard errors of the truth;
+    without times there is no drift test (the row order is not taken for time)."""
+    from identification.diagnosis import Poses, diagnose
+    from jaxrobot.bench import read_csv_columns
+
+    d, robot, train, val, truth = _case("noise", "drift")
+    sensors = jr.read_description(d / "start.toml")["sensors"]
+    t = read_csv_columns(d / "train.csv", ["t_s"])["t_s"]
+    args = (robot, Poses.of(train.motor_angles, train.positions), Poses.of(val.motor_angles, val.positions))
+    kw = {"noise": sensors["tracker_position_noise_m"], "marker": sensors["tracker_marker_offset_m"]}
+    res = diagnose(*args, times=t, **kw)
+    rate = truth["effects"]["link_scale_final"] / truth["duration_s"]
+    assert res.drift.named and "drift" in res.verdict, res.drift
+    assert abs(res.drift.rate - rate) < 3 * res.drift.std, (res.drift.rate, rate)
+    assert diagnose(*args, max_steps=0, **kw).drift is None

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from .._pose_files import add_approach_option
 from .._robust import add_loss_option
 
@@ -31,12 +33,16 @@ def configure(parser) -> None:
 
 def _poses(paths, approach: str):
     """The poses of the files `paths`, concatenated, and (file, line) of each row (header = line 1)."""
+    from jaxrobot.bench import read_csv_columns
+
     from .._pose_files import read_poses
     from ._diagnose import Poses
 
     data = [read_poses(p, approach) for p in paths]
     lines = [(str(p), k + 2) for p, d in zip(paths, data) for k in range(len(d.motor_angles))]
-    return Poses.concatenate([Poses.of(d.motor_angles, d.positions, "column", d.ccw) for d in data]), lines
+    times = [read_csv_columns(p, [], ["t_s"]).get("t_s") for p in paths]
+    times = np.concatenate(times) if all(t is not None for t in times) else None
+    return Poses.concatenate([Poses.of(d.motor_angles, d.positions, "column", d.ccw) for d in data]), lines, times
 
 
 def run(args, echo) -> dict:
@@ -57,7 +63,7 @@ def run(args, echo) -> dict:
         sensors = jr.read_description(args.model).get("sensors", {})
         marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
         noise = (TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")) if noise is None else noise
-    (train, lines), (val, _) = _poses(args.poses, args.approach), _poses(args.validate, args.approach)
+    (train, lines, times), (val, _, _) = _poses(args.poses, args.approach), _poses(args.validate, args.approach)
     echo(f"diagnose: {len(train)} training and {len(val)} validation poses, start model {robot.name}")
     steps = Progress(args.max_steps + 1, "diagnose", at_most=True)
 
@@ -68,7 +74,7 @@ def run(args, echo) -> dict:
             steps.step(f"step {event.step}")
 
     res = diagnose(robot, train, val, noise=noise, marker=marker, max_steps=args.max_steps,
-                   max_order=args.max_order, loss=args.loss, progress=progress)
+                   max_order=args.max_order, loss=args.loss, times=times, progress=progress)
     echo("\n" + loop_table(res.loop, res.noise_floor))
     echo(f"verdict: {res.verdict}")
     outliers = [{"file": lines[o.row][0], "line": lines[o.row][1], "residual_um": 1e6 * o.residual,
@@ -83,6 +89,14 @@ def run(args, echo) -> dict:
     if args.save_model is not None:
         jr.save_robot(res.robot, args.save_model)
         echo(f"wrote {args.save_model}")
+    drift = None
+    if res.drift is not None:
+        d = res.drift
+        drift = {"rate_per_s": d.rate, "std_per_s": d.std, "duration_s": d.duration, "delta_bic": d.delta_bic,
+                 "named": d.named}
+        echo(f"drift against t_s: link-length scale {d.rate:+.3g} +- {d.std:.2g} per s "
+             f"({d.rate * d.duration:+.3g} over {d.duration:.0f} s), dBIC {d.delta_bic:.1f}: "
+             + ("named" if d.named else "not significant"))
     rep = summary(res)
-    return {**{k: rep[k] for k in ("noise_floor_um", "validation_bound_um", "steps", "final_rms_validation_um",
-                                   "verdict", "start")}, "loss": res.loss, "outliers": outliers}
+    keys = ("noise_floor_um", "validation_bound_um", "steps", "final_rms_validation_um", "verdict", "start")
+    return {**{k: rep[k] for k in keys}, "loss": res.loss, "outliers": outliers, "drift": drift}

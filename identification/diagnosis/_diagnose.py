@@ -223,6 +223,52 @@ class DiagnoseEvent:
 
 
 @dataclasses.dataclass(frozen=True)
+class Drift:
+    """The residual trend against the acquisition time: a link-length scale linear in time (thermal
+    growth, `1 + rate (t - mean t)`), fitted to the final model's training residuals together with a
+    constant scale and the effects added."""
+
+    rate: float
+    """[1/s] the fitted growth of the link-length scale per second."""
+    std: float
+    """[1/s] its standard error."""
+    duration: float
+    """[s] the span of the acquisition times."""
+    delta_bic: float
+    """BIC change of adding the trend (negative: the data support it)."""
+    chi2_gain: float
+    """Decrease of the chi-square by the trend: the likelihood-ratio statistic of "no drift" (chi-square
+    with 1 degree of freedom)."""
+    named: bool
+    """True where the likelihood-ratio test rejects "no drift" at level `ALPHA` (one hypothesis stated
+    in advance, not a search over a catalogue)."""
+
+
+def _drift(layout: Layout, jac: np.ndarray, r: np.ndarray, free: list[int], scale: np.ndarray, times,
+           ln_n: float) -> Drift:
+    """`Drift` from the whitened residuals `r` (3K,) and Jacobian `jac` (3K, P+1) at the final model."""
+    t = np.asarray(times, float)
+    if t.shape != (r.size // 3,) or not np.all(np.isfinite(t)):
+        raise ValueError(f"times: expected one finite acquisition time per training pose, shape ({r.size // 3},) s, "
+                         f"found shape {t.shape}")
+    duration = float(np.ptp(t))
+    if not duration > 0:
+        raise ValueError("times: expected acquisition times that differ, found all equal")
+    k = int(layout.blocks[layout.index("link_scale")].ravel()[0])
+    col = jac[:, k]
+    trend = col * np.repeat((t - t.mean()) / duration, 3)
+    base = jac[:, sorted(set(free) | {k})]
+    a = np.column_stack([base, trend])
+    coef, *_ = np.linalg.lstsq(a, r, rcond=None)
+    c0, *_ = np.linalg.lstsq(base, r, rcond=None)
+    gain = float(np.sum((r - base @ c0) ** 2) - np.sum((r - a @ coef) ** 2))
+    cov = np.linalg.pinv(a.T @ a)
+    delta_bic = ln_n - gain
+    return Drift(float(coef[-1] * scale[k] / duration), float(np.sqrt(cov[-1, -1]) * scale[k] / duration), duration,
+                 delta_bic, gain, gain > chi2_quantile(ALPHA, 1.0))
+
+
+@dataclasses.dataclass(frozen=True)
 class DiagnoseResult:
     """What `diagnose` found: the model it ended with, each step of the loop and the evidence."""
 
@@ -253,6 +299,8 @@ class DiagnoseResult:
     """Validation poses."""
     loss: str = "l2"
     """The loss of the fits (`"cauchy"`, `"huber"` or `"l2"`)."""
+    drift: Drift | None = None
+    """The residual trend against the acquisition time (None without `times`)."""
     outliers: tuple[robust.Outlier, ...] = ()
     """The training poses whose residual at the final model exceeds the outlier bound
     (`_robust.outlier_bound`) in units of the noise, or of the residuals' robust spread where that is
@@ -374,6 +422,7 @@ def diagnose(
     max_order: int = 400,
     shortlist: int = 4,
     loss: str = robust.LOSSES[0],
+    times=None,
     progress: Callable[[DiagnoseEvent], None] | None = None,
 ) -> DiagnoseResult:
     """Find, name and add the effects that `start` misses, from tracker pose measurements.
@@ -391,7 +440,10 @@ def diagnose(
       training pose by the loss of its residual norm at the current model in every fit
       (`_robust.scaled_weights`: against the larger of the noise and the residuals' robust spread); the
       poses it rejects (weight 0: gross errors) are left out of the chi-square test and BIC, which
-      score the others unweighted; `"l2"` weighs all alike; `progress`: receives a `DiagnoseEvent` per model
+      score the others unweighted; `"l2"` weighs all alike; `times`: the training poses' acquisition
+      times [s] (a pose file's `t_s`; the row order is never taken for time): the final model's
+      residuals are then tested for a link-length scale linear in time (thermal drift, `Drift`);
+      `progress`: receives a `DiagnoseEvent` per model
       compared and per step's candidates (`_report.progress_lines` turns them into text).
 
     **Returns:** `DiagnoseResult` in SI units (`_report.summary`: the JSON of `jaxrobot diagnose`).
@@ -509,12 +561,23 @@ def diagnose(
         accepted.append(c)
         ev = evaluate(v)
         steps.append(_added_effect(layout, robot0, c, v, orders, dict(zip(cols, std)), ev))
+    drift = None
+    if times is not None:
+        e_w = _white(ev["train"][1])
+        w = robust.scaled_weights(np.linalg.norm(e_w, axis=-1) / sigma, loss)
+        fit_white = white * (np.sqrt(w) / sigma)[:, None, None]
+        jac = _rows(np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, jnp.asarray(ev["train"][0]),
+                                            marker, scale)), fit_white)
+        drift = _drift(layout, jac, (e_w * np.sqrt(w)[:, None]).ravel() / sigma, free, np.asarray(scale), times, ln_n)
+        if drift.named:
+            verdict += (f"; the residuals drift with the acquisition time as a link-length scale growing by "
+                        f"{drift.rate * drift.duration:.3g} over {drift.duration:.0f} s (chi-square decrease {drift.chi2_gain:.1f})")
     return DiagnoseResult(
         robot=layout.apply(robot0, v, jnp.asarray(orders)), verdict=verdict, steps=tuple(steps), loop=tuple(loop),
         candidates=tuple(cand_log), residuals_before=residual_before,
         residuals_after=np.linalg.norm(ev["validation"][1], axis=-1), spectra=tuple(spectra), noise=sigma,
         validation_bound=validation_bound(sigma, len(validation), len(free), n_res), n_train=len(train),
-        n_validation=len(validation), loss=loss, outliers=robust.outliers(
+        n_validation=len(validation), loss=loss, drift=drift, outliers=robust.outliers(
             ev["train"][1], sigma * robust.spread(np.linalg.norm(ev["train"][1], axis=-1) / sigma)))
 
 
