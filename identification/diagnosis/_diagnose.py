@@ -571,7 +571,8 @@ def diagnose(
         drift = _drift(layout, jac, (e_w * np.sqrt(w)[:, None]).ravel() / sigma, free, np.asarray(scale), times, ln_n)
         if drift.named:
             verdict += (f"; the residuals drift with the acquisition time as a link-length scale growing by "
-                        f"{drift.rate * drift.duration:.3g} over {drift.duration:.0f} s (chi-square decrease {drift.chi2_gain:.1f})")
+                        f"{drift.rate * drift.duration:.3g} over {drift.duration:.0f} s (chi-square decrease "
+                        f"{drift.chi2_gain:.1f})")
     return DiagnoseResult(
         robot=layout.apply(robot0, v, jnp.asarray(orders)), verdict=verdict, steps=tuple(steps), loop=tuple(loop),
         candidates=tuple(cand_log), residuals_before=residual_before,
