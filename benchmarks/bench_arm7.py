@@ -12,16 +12,22 @@ true model's validation RMS) and, where the case has one, an oracle.
   isotropic std of `start.toml`.
 
 Run: `python benchmarks/bench_arm7.py [--shared PATH]` (default: `../shared` beside the repository);
-prints the markdown tables.
+prints the markdown tables and writes them as the section "## arm7" at the end of
+`benchmarks/results_identification.md`.
 """
 
 from __future__ import annotations
 
 import argparse
+import builtins
 import json
+import os
+import platform
+import subprocess
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
 import jaxrobot as jr
@@ -105,6 +111,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--shared", type=Path, default=Path(__file__).resolve().parents[2] / "shared")
     root = parser.parse_args().shared / "independent" / "arm7"
+    lines = []
+
+    def print(line: str = "", flush: bool = True) -> None:  # noqa: A001 (echo and keep)
+        builtins.print(line, flush=flush)
+        lines.append(line)
+
     print("| case | hidden (expected) | before [um] | added | after [um] | outlier rows | failed LM fits | "
           "floor [um] | verdict | time [s] | with loss l2: added; after; verdict |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
@@ -115,6 +127,25 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|---|")
     for name in CALIBRATE:
         print(calibrate_row(root / name, name), flush=True)
+    head = (f"## arm7: a 7-joint arm, real-tracker noise, tool frame (`../shared/independent/arm7/`)\n\n"
+            f"`python benchmarks/bench_arm7.py`, {platform.machine()}, {os.cpu_count()} cores, jax {jax.__version__}, "
+            f"commit {_commit()}; times include compilation where not cached, measured while other jobs shared the "
+            "cores. Before: the start model; after: `diagnose`/`calibrate` with default options (robust loss "
+            "`cauchy`); floor: the true model's validation RMS (truth.json); RMS norms over the 30 validation "
+            "poses. Diagnose:\n")
+    path = Path(__file__).parent / "results_identification.md"
+    old = path.read_text() if path.is_file() else ""
+    keep = old[:old.index("## arm7")] if "## arm7" in old else old + "\n"
+    path.write_text(keep + head + "\n".join(lines).replace("\n\n| case | params", "\n\nCalibrate:\n\n| case | params")
+                    + "\n")
+
+
+def _commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              cwd=Path(__file__).parent, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
 
 
 if __name__ == "__main__":
