@@ -139,3 +139,22 @@ def test_diagnose_names_a_drift_in_acquisition_time():
     assert res.drift.named and "drift" in res.verdict, res.drift
     assert abs(res.drift.rate - rate) < 3 * res.drift.std, (res.drift.rate, rate)
     assert diagnose(*args, max_steps=0, **kw).drift is None
+
+
+@pytest.mark.extended
+def test_fleet_with_the_laser_tracker_model_matches_calibrate():
+    """`calibrate_fleet` whitens by the tracker's covariance as `calibrate` does: one robot of the
+    anisotropic case gives the same parameters (to the reweighting's tolerance, far below a standard
+    error) and the same outliers (none)."""
+    from identification import TrackerNoise, calibrate_fleet
+
+    d, robot, train, val, truth = _case("noise", "anisotropic")
+    sensors = jr.read_description(d / "start.toml")["sensors"]
+    tracker = TrackerNoise(np.asarray(truth["tracker_position_m"]), 1e-6 * truth["noise_los_um"],
+                           1e-6 * truth["noise_perp_um"])
+    one = calibrate(robot, train.motor_angles, train.positions, marker=sensors["tracker_marker_offset_m"],
+                    position_noise=tracker)
+    fleet = calibrate_fleet(robot, train.motor_angles[None], train.positions[None], parameters=one.names,
+                            marker=np.asarray(sensors["tracker_marker_offset_m"]), position_noise=tracker)
+    assert fleet.converged.all() and fleet.outliers == ((),)
+    assert np.max(np.abs(fleet.value[0] - one.value) / one.std) < 0.02

@@ -93,6 +93,7 @@ def run(args, echo) -> dict:
 
     from jaxrobot.cli import Progress, SolveFailed
 
+    from .._noise import TrackerNoise
     from .._pose_files import read_poses
     from ._fleet import calibrate_fleet
 
@@ -100,7 +101,8 @@ def run(args, echo) -> dict:
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
     names = None if args.parameters is None else [n.strip() for n in args.parameters.split(",") if n.strip()]
     sensors = {} if args.robot is None else jr.read_description(args.robot).get("sensors", {})
-    marker, noise = sensors.get("tracker_marker_offset_m"), sensors.get("tracker_position_noise_m")
+    marker = sensors.get("tracker_marker_offset_m")
+    noise = TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")
     seconds = {}
     progress = Progress(2 if args.bench is not None else 1, "calibrate-fleet")
     start = time.perf_counter()

@@ -30,6 +30,7 @@ from jaxrobot.status import check, where
 
 from .. import _robust as robust
 from .._batched_lm import LMConfig, batched_lm, covariance, map_chunks
+from .._noise import noise_model
 from ._calibrate import RESIDUAL_UNIT, ParameterEstimate, _check_array, _residual_fn
 from ._identifiability import default_parameters
 from ._model import analytic_names, joint_angle_model, position_jacobian, rippled_joints
@@ -61,7 +62,8 @@ class FleetResult:
     rms_m: np.ndarray
     """(R,) [m] RMS of the residuals."""
     residuals: np.ndarray
-    """(R, 3K) [m] model minus measurement at the solution (unweighted by the robust loss)."""
+    """(R, 3K) [m] model minus measurement at the solution (unweighted by the robust loss; whitened by
+    each pose's covariance for a `TrackerNoise`)."""
     names: tuple[str, ...]
     """The free parameters."""
     n_devices: int
@@ -133,35 +135,43 @@ def _constants(robots, theta, rippled, ccw=False):
     return q0, q0 - jr.gear_output(fleet, theta, ccw, rippled=rippled)
 
 
-def _local_solve(robots, theta, positions, marker, q0, defl, config, ccw=None, weight=None, x0=None, *, params,
-                 rippled):
+def _local_solve(robots, theta, positions, marker, q0, defl, config, ccw=None, weight=None, x0=None, whiten=None, *,
+                 params, rippled):
     """The fleet solve, batch-first: one `batched_lm` over all robots from scaled parameters `x0`
     (R, m) (default 0: the initial robots), then the covariances (`ccw`: as in `_constants`;
-    `weight` (R, K): of each pose's squared residual, default 1)."""
+    `weight` (R, K): of each pose's squared residual, default 1; `whiten` (R, K, 3, 3): each pose's
+    residual times it, default none; the returned residuals are whitened, not weighted)."""
     v0 = jax.vmap(params.get)(robots)
     scale = jax.vmap(params.scales)(robots)
     screws = analytic_names(params.names)
     root_w = jnp.ones(theta.shape[:2]) if weight is None else jnp.sqrt(weight)
 
+    white = () if whiten is None else (whiten,)
+
     def residual_jacobian(x, data):
-        rb, th, pos, q, de, v, sc, rw, *cc = data
+        rb, th, pos, q, de, v, sc, rw, *rest = data
+        wh, cc = (rest[0], rest[1:]) if white else (None, rest)
         if screws:
             r, jac = _screw_residual_jacobian(rb, params, th, pos, de, q, marker, rippled, v, sc, x, *cc)
         else:
             one = lambda r_, t_, p_, d_, q_, y_, *c_: _robot_residual_jacobian(  # noqa: E731
                 r_, params, t_, p_, d_, q_, marker, rippled, y_, *c_)
             r, jac = jax.vmap(one)(rb, th, pos, de, q, x, *cc)
+        if wh is not None:
+            r = jnp.einsum("bkij,bkj->bki", wh, r.reshape(wh.shape[:3])).reshape(r.shape)
+            jac = jnp.einsum("bkij,bkjp->bkip", wh, jac.reshape(wh.shape[:3] + jac.shape[-1:])).reshape(jac.shape)
         rows = jnp.repeat(rw, 3, axis=1)  # pose-major rows
         return r * rows, jac * rows[..., None]
 
     directed = () if ccw is None else (ccw,)
     out = batched_lm(residual_jacobian, jnp.zeros_like(v0) if x0 is None else x0,
-                     (robots, theta, positions, q0, defl, v0, scale, root_w, *directed), config, chunk=_chunk())
+                     (robots, theta, positions, q0, defl, v0, scale, root_w, *white, *directed), config,
+                     chunk=_chunk())
     n, m = out.residuals.shape[1], v0.shape[1]
     sigma2 = 2 * out.cost / max(n - m, 1)  # [mm^2], weighted
     residuals = out.residuals if weight is None else map_chunks(  # unweighted
         lambda a: residual_jacobian(a[0], (*a[1:8], jnp.ones_like(a[8]), *a[9:]))[0],
-        (out.x, robots, theta, positions, q0, defl, v0, scale, root_w, *directed), _chunk())
+        (out.x, robots, theta, positions, q0, defl, v0, scale, root_w, *white, *directed), _chunk())
     cov_x, rank, full = map_chunks(lambda a: covariance(*a), (out.normal, sigma2), _chunk())
     cov = cov_x * scale[:, :, None] * scale[:, None, :]
     finite = jnp.all(jnp.isfinite(out.x), 1) & jnp.all(jnp.isfinite(cov), (1, 2))
@@ -186,11 +196,11 @@ def _fleet_constants(robots, theta, rippled, mesh, ccw=None):
 
 @eqx.filter_jit
 def _fleet_solve(robots, params, theta, positions, marker, q0, defl, config, rippled, mesh, ccw=None, weight=None,
-                 x0=None):
+                 x0=None, whiten=None):
     """`_local_solve`, every device on its own robots (`shard_map` over the `"fleet"` axis; each
     device's LM loop runs until its own robots have stopped); `config` (`LMConfig`) is traced."""
     fleet, rep = PartitionSpec("fleet"), PartitionSpec()
-    optional = {k: a for k, a in (("ccw", ccw), ("weight", weight), ("x0", x0)) if a is not None}
+    optional = {k: a for k, a in (("ccw", ccw), ("weight", weight), ("x0", x0), ("whiten", whiten)) if a is not None}
 
     def local(*args):
         return _local_solve(*args[:7], **dict(zip(optional, args[7:])), params=params, rippled=rippled)
@@ -236,7 +246,8 @@ def calibrate_fleet(
     process receives the whole fleet in process order.
 
     `loss`: as in `calibrate` (robust by default, thresholds in units of `position_noise`, the
-    tracker's per-axis std, default `[sensors] tracker_position_noise_m`); each robot is reweighted on
+    tracker's per-axis std, default `[sensors] tracker_position_noise_m`, or a laser tracker's
+    `TrackerNoise`, whose covariance then whitens each pose's residual); each robot is reweighted on
     its own, its outliers and robust noise estimate are in `outliers` and `noise_estimate`.
     """
     robust.check_loss(loss)
@@ -270,24 +281,25 @@ def calibrate_fleet(
         raise ValueError(f"robots: expected one robot or a fleet of {n_rob}, found {robots.a.shape[0]}")
     mesh = fleet_mesh() if mesh is None else mesh
     n_dev = mesh.devices.size
-    (g_robots, g_theta, g_pos, g_ccw), origin = shard_rows((robots, theta, pos, ccw), mesh)  # padded with robot 0
+    sigma, white = noise_model(jr.read_description(None)["sensors"]["tracker_position_noise_m"]
+                               if position_noise is None else position_noise, pos.reshape(-1, 3), "position_noise")
+    white = () if white is None else (white.reshape(theta.shape[:2] + (3, 3)),)  # none: isotropic
+    (g_robots, g_theta, g_pos, g_ccw, *g_white), origin = shard_rows((robots, theta, pos, ccw, *white), mesh)
+    g_white = g_white[0] if g_white else None
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     rippled = rippled_joints(robots)
     g_ccw = g_ccw if ccw.any() else None  # none: every gear's cw set, no selection per pose
     q0, defl = _fleet_constants(initial if np.ndim(initial.a) == 1 else g_robots, g_theta, rippled, mesh, g_ccw)
     config = jax.tree.map(jnp.asarray, LMConfig(max_steps=max_steps))
-    sigma = float(jr.read_description(None)["sensors"]["tracker_position_noise_m"] if position_noise is None
-                  else position_noise)
-    if not sigma > 0:
-        raise ValueError(f"position_noise: expected the tracker std per axis > 0 m, found {sigma}")
     if loss == "l2":
-        out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, config, rippled, mesh, g_ccw)
+        out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, config, rippled, mesh, g_ccw,
+                           whiten=g_white)
     else:
         start = {"x0": None}
 
         def fit(weight):
             out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, config, rippled, mesh, g_ccw,
-                               weight, start["x0"])
+                               weight, start["x0"], g_white)
             start["x0"] = (out.value - jax.vmap(params.get)(g_robots)) / jax.vmap(params.scales)(g_robots)
             return out, _pose_norms(out.residuals, sigma)
 
