@@ -126,20 +126,19 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
 
     ccw_b = jnp.broadcast_to(jnp.asarray(ccw), theta.shape)
     root_w = jnp.ones(theta.shape[:-1]) if pose_weight is None else jnp.sqrt(pose_weight)
-    white = jnp.broadcast_to(jnp.eye(3), theta.shape[:-1] + (3, 3)) if whiten is None else whiten
 
-    def rows_of(out, k_axis_rows):  # whiten the position rows of (K, rows, ...), weigh all rows
-        pos_rows = jnp.einsum("kij,kj...->ki...", white, out[:, :3])
-        out = jnp.concatenate([pos_rows, out[:, 3:]], 1) if k_axis_rows > 3 else pos_rows
+    def rows_of(out):  # (K, rows[, m]): whiten the 3 position rows of each pose, weigh all its rows
+        if whiten is not None:
+            out = jnp.concatenate([jnp.einsum("kij,kj...->ki...", whiten, out[:, :3]), out[:, 3:]], 1)
         return out * root_w.reshape((-1,) + (1,) * (out.ndim - 1))
+
     tr = target_r if orient else jnp.zeros(theta.shape[:-1] + (3, 3))
     axes = (None, 0, 0, 0, 0, 0, 0)
     data = (theta, q0, deflection, target_p, tr, ccw_b)
 
     @jax.custom_jvp
     def resid(x):
-        out = jax.vmap(one_pose, axes)(fields_of(x), *data)
-        return rows_of(out, out.shape[1]).ravel()
+        return rows_of(jax.vmap(one_pose, axes)(fields_of(x), *data)).ravel()
 
     def one_jacobian(fields, th, q0k, de, tp, tr, cw):
         robot = robot_of(fields)
@@ -155,9 +154,9 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
             jac = jax.vmap(jax.jacrev(one_pose), axes)(fields, *data)  # {key: (K, rows, *field)}
             out = sum(jnp.sum((jac[k] * dfields[k][None, None]).reshape(jac[k].shape[:2] + (-1,)), -1)
                       for k in keys)
-            return resid(x), rows_of(out, out.shape[1]).ravel()
+            return resid(x), rows_of(out).ravel()
         jac = jax.vmap(one_jacobian, axes)(fields_of(x), *data)  # (K, 3, m), joint screws
-        return resid(x), rows_of(jac @ t, 3).ravel()
+        return resid(x), rows_of(jac @ t).ravel()
 
     return (lambda x, _: resid(x)), v0, scale
 
