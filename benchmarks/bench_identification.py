@@ -10,7 +10,8 @@ data set, with the time of every stage.
   priors): validation mean error against the true robot's, true deviations beyond 3 sigma.
 
 Run: `python benchmarks/bench_identification.py [--shared PATH]` (default: `../shared` beside the
-repository, else `$JAXROBOT_SHARED`); writes `benchmarks/results_identification.md`.
+repository, else `$JAXROBOT_SHARED`); writes `benchmarks/results_identification.md` (keeping the
+section of `bench_arm7.py`).
 """
 
 from __future__ import annotations
@@ -119,6 +120,10 @@ def calibration_table(root: Path) -> list[str]:
     return rows
 
 
+ARM7_HEADING = "## arm7"
+"""The section `bench_arm7.py` writes at the end of the results (kept when this script rewrites them)."""
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", default=None)
@@ -132,7 +137,10 @@ def main() -> None:
         rows = table(root)
         print(f"## {title}\n" + "\n".join(rows) + "\n", flush=True)
         parts.append(f"## {title}\n\n" + "\n".join(rows) + "\n")
-    (Path(__file__).parent / "results_identification.md").write_text("\n".join(parts))
+    path = Path(__file__).parent / "results_identification.md"
+    old = path.read_text() if path.is_file() else ""
+    arm7 = old[old.index(ARM7_HEADING):] if ARM7_HEADING in old else ""  # bench_arm7.py's section
+    path.write_text("\n".join(parts) + ("\n" + arm7 if arm7 else ""))
 
 
 if __name__ == "__main__":

@@ -3,9 +3,12 @@ the discrepancy workflow (`diagnosis`). The workflows and the effect catalogue a
 
 from jaxrobot.checks import check_public as _check_public
 
+from ._noise import TrackerNoise as TrackerNoise
 from ._pose_files import APPROACHES as APPROACHES
 from ._pose_files import check_pose_units as check_pose_units
 from ._pose_files import read_poses as read_poses
+from ._robust import LOSSES as LOSSES
+from ._robust import Outlier as Outlier
 from .calibration import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
 from .calibration import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
 from .calibration import THESIS_PARAMETERS as THESIS_PARAMETERS

@@ -20,7 +20,7 @@ import numpy as np
 
 import jaxrobot as jr
 from jaxrobot.bench import PoseFile, read_csv_columns, read_pose_csv
-from jaxrobot.measurement import approach_directions
+from jaxrobot.measurement import approach_directions, marker_pose
 
 APPROACHES = ("cw", "order", "column")
 """The conventions for the direction of approach of a pose file (`--approach`)."""
@@ -88,7 +88,8 @@ def check_pose_units(robot: jr.Robot, motor_angles, positions, marker, name: str
     """Reject pose data whose magnitudes betray a unit mistake, before any fit: positions beyond
     the robot's reach (millimetres in the `_m` columns), and motor angles that put the model's
     marker far (> `GROSS_ERROR_M` RMS) from the measured one where a common mistake
-    (`ANGLE_MISTAKES`) would put it close. Raises `ValueError` naming the likely mistake."""
+    (`ANGLE_MISTAKES`) would put it close; `marker` is in the tool frame, as in the measurement model
+    (`jaxrobot.measurement.marker_pose`). Raises `ValueError` naming the likely mistake."""
     th = np.asarray(motor_angles, float)
     pos = np.asarray(positions, float)
     marker = np.asarray(marker, float)
@@ -103,7 +104,7 @@ def check_pose_units(robot: jr.Robot, motor_angles, positions, marker, name: str
     u0 = np.asarray(robot.u0, float)
 
     def rms(theta):
-        p = np.asarray(jr.point_position(robot, jnp.asarray(theta / u0), jnp.asarray(marker)))
+        p = np.asarray(marker_pose(robot, jnp.asarray(theta / u0), jnp.asarray(marker))[0])
         return float(np.sqrt(np.mean(np.sum((p - pos) ** 2, -1))))
 
     err = rms(th)

@@ -47,7 +47,8 @@ def _schema(n: int) -> dict[str, Any]:
         "?sensors": {  # each key optional: the test bench takes racer7.toml's value where one is missing
             "?tracker_position_noise_m": (), "?tracker_marker_offset_m": (3,), "?gyro_noise_deg_s": (),
             "?gyro_misalignment_rad": (2,), "?encoder_counts_per_rev": (), "?sample_time_s": (),
-            "?filter_cutoff_hz": (None,),
+            "?filter_cutoff_hz": (None,), "?tracker_position_m": (3,), "?tracker_noise_along_m": (),
+            "?tracker_noise_across_m": (),
         },
         "?poses": {"motor_deg": (None, n)},
         "?calibration": {"prior_std": {f"?{k}": () for k in ("a_m", "d_m", "alpha_rad", "beta_rad", "offset_rad",
@@ -177,6 +178,13 @@ def _check_physics(data: dict, n: int) -> None:
     for key in ("u0", "u0_wrist"):
         if key in dev:
             _positive(dev[key], f"as_built.{key}")
+    tracker = [k for k in ("tracker_position_m", "tracker_noise_along_m", "tracker_noise_across_m")
+               if k in data.get("sensors", {})]
+    if tracker and len(tracker) < 3:
+        _fail("sensors", "the laser-tracker model's keys together: tracker_position_m, tracker_noise_along_m, "
+              "tracker_noise_across_m", f"only {tracker}")
+    for key in tracker[1:]:
+        _positive(data["sensors"][key], f"sensors.{key}", "m")
     cutoff = data.get("sensors", {}).get("filter_cutoff_hz")
     if cutoff is not None:
         if len(cutoff) not in (n, 3):

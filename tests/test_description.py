@@ -61,6 +61,8 @@ CASES = {
     "both as-built ratio keys": (("as_built", "u0"), [84.0, 82.0, 69.0, 51.0, 46.0, 50.0],
                                  r"as_built: expected either u0 \(all joints\) or the older u0_wrist"),
     "ripple lengths": (("gear", "joint2", "cw", "a"), [0.001], r"gear\.joint2\.cw: expected orders, a and b of equal"),
+    "partial laser-tracker model": (("sensors", "tracker_position_m"), [2.5, 1.0, 0.8],
+                                    r"sensors: expected the laser-tracker model's keys together"),
 }
 
 
@@ -105,3 +107,24 @@ SHARED = Path(__file__).resolve().parents[2] / "shared" / "racer7" / "racer7.tom
 def test_package_data_equals_the_shared_racer7_file():
     for ours, theirs in zip(jax.tree.leaves(jr.racer7()), jax.tree.leaves(jr.load_robot(SHARED))):
         np.testing.assert_array_equal(ours, theirs)
+
+
+def test_laser_tracker_model(tmp_path):
+    """A full laser-tracker model in `[sensors]` loads; `TrackerNoise` whitens its covariance to the
+    isotropic std of the same total variance; a non-positive std is named."""
+    from identification._noise import TrackerNoise
+
+    data = copy.deepcopy(BASE)
+    sensors = {"tracker_position_m": [2.5, 1.0, 0.8], "tracker_noise_along_m": 8e-6, "tracker_noise_across_m": 35e-6}
+    data["sensors"].update(sensors)
+    jr.load_robot(_write(tmp_path, data))
+    model = TrackerNoise.of(jr.read_description(tmp_path / "robot.toml")["sensors"])
+    assert abs(model.sigma - np.sqrt((8e-6**2 + 2 * 35e-6**2) / 3)) < 1e-15
+    p = np.array([0.5, 0.0, 1.0])
+    u = (p - model.position) / np.linalg.norm(p - model.position)
+    cov = 35e-6**2 * (np.eye(3) - np.outer(u, u)) + 8e-6**2 * np.outer(u, u)
+    w = model.whitening(p[None])[0]
+    np.testing.assert_allclose(w @ cov @ w.T, model.sigma**2 * np.eye(3), rtol=0, atol=1e-12 * model.sigma**2)
+    data["sensors"]["tracker_noise_across_m"] = 0.0
+    with pytest.raises(jr.RobotFileError, match=r"sensors\.tracker_noise_across_m"):
+        jr.load_robot(_write(tmp_path, data))

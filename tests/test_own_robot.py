@@ -28,7 +28,7 @@ from planning._ik import SINGULARITY_MARGIN, singular_values
 SIGMA = 5e-5
 """Tracker noise per axis of the bench pose files [m]."""
 MARKER = [0.03, -0.02, 0.05]
-"""Marker offset in the flange frame [m] (told to calibrate by [sensors], not racer7.toml's)."""
+"""Marker offset in the tool frame [m] (told to calibrate by [sensors], not racer7.toml's)."""
 ELASTIC = {  # the README's fragment: Franka's acceleration limits, Racer-like gears and rotors
     "gear": {"u0": [100.0] * 7},
     "stiffness": {"k1": [3.0e4, 3.0e4, 2.0e4, 2.0e4, 1.0e4, 1.0e4, 1.0e4], "k3": [0.0] * 7},

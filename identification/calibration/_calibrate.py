@@ -3,8 +3,12 @@
 `min_v sum_i ||p_e(v, theta_i) - p_{e,m,i}||^2` over the free parameters `v`, with the forward
 model of `predict_pose` (motor angles -> `Xi^{-1}` -> plus gravity deflection -> marker), solved
 with `optx.least_squares` + `optx.LevenbergMarquardt` in scaled variables (1 mm, 1 mrad, 1e-3
-of a gear ratio). The parameter covariance is `s^2 (J^T J)^{-1}` with the noise estimate
-`s^2 = ||r||^2 / (n - m)` (n residuals, m parameters).
+of a gear ratio). By default the squared norms are replaced by a robust loss of each pose's residual
+(Cauchy, by iteratively reweighted least squares, `identification._robust`), so that gross tracker
+errors do not move the model; they are reported as outliers. The parameter covariance is
+`s^2 (J^T W J)^{-1}` (`W` the final pose weights) with the noise estimate `s^2 = ||r||^2 / (n - m)`
+over the `n` residuals of the poses within the outlier bound (all of them for `loss="l2"`), `m`
+parameters.
 """
 
 from __future__ import annotations
@@ -24,7 +28,10 @@ from jaxrobot import RESULTS, cached_program
 from jaxrobot.measurement import marker_pose
 from jaxrobot.status import check
 
+from .. import _robust as robust
+from .._noise import noise_model
 from .._pose_files import check_pose_units
+from .._robust import Outlier
 from ._identifiability import analyse, default_parameters
 from ._model import (
     analytic_names,
@@ -83,8 +90,10 @@ def _deflection(robot, theta, ccw):
 
 
 def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflection, marker, weight_r, ccw,
-                 rippled: tuple[int, ...] | None = None, q0=None):
-    """Residual `fn(x, _)` in scaled variables `v = v0 + scale x`, its start `v0` and `scale`.
+                 rippled: tuple[int, ...] | None = None, q0=None, pose_weight=None, whiten=None):
+    """Residual `fn(x, _)` in scaled variables `v = v0 + scale x`, its start `v0` and `scale`; each
+    pose's position rows times its `whiten` (K, 3, 3) and all its rows times `sqrt(pose_weight)` (K,)
+    where given.
 
     The model is `predict_pose` with its per-pose constants hoisted (`_model`; `q0`,
     the initial joint angles, may be given). Its Jacobian is supplied per pose: for position rows
@@ -116,13 +125,20 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
         return res
 
     ccw_b = jnp.broadcast_to(jnp.asarray(ccw), theta.shape)
+    root_w = jnp.ones(theta.shape[:-1]) if pose_weight is None else jnp.sqrt(pose_weight)
+
+    def rows_of(out):  # (K, rows[, m]): whiten the 3 position rows of each pose, weigh all its rows
+        if whiten is not None:
+            out = jnp.concatenate([jnp.einsum("kij,kj...->ki...", whiten, out[:, :3]), out[:, 3:]], 1)
+        return out * root_w.reshape((-1,) + (1,) * (out.ndim - 1))
+
     tr = target_r if orient else jnp.zeros(theta.shape[:-1] + (3, 3))
     axes = (None, 0, 0, 0, 0, 0, 0)
     data = (theta, q0, deflection, target_p, tr, ccw_b)
 
     @jax.custom_jvp
     def resid(x):
-        return jax.vmap(one_pose, axes)(fields_of(x), *data).ravel()
+        return rows_of(jax.vmap(one_pose, axes)(fields_of(x), *data)).ravel()
 
     def one_jacobian(fields, th, q0k, de, tp, tr, cw):
         robot = robot_of(fields)
@@ -138,9 +154,9 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
             jac = jax.vmap(jax.jacrev(one_pose), axes)(fields, *data)  # {key: (K, rows, *field)}
             out = sum(jnp.sum((jac[k] * dfields[k][None, None]).reshape(jac[k].shape[:2] + (-1,)), -1)
                       for k in keys)
-            return resid(x), out.ravel()
+            return resid(x), rows_of(out).ravel()
         jac = jax.vmap(one_jacobian, axes)(fields_of(x), *data)  # (K, 3, m), joint screws
-        return resid(x), (jac @ t).ravel()
+        return resid(x), rows_of(jac @ t).ravel()
 
     return (lambda x, _: resid(x)), v0, scale
 
@@ -163,9 +179,10 @@ class ParameterEstimate(eqx.Module):
     rank: Int[Array, "*b"]
     """Numerical rank of the scaled Jacobian."""
     residuals: Float[Array, "*b n"]
-    """Residuals at the solution [m] (orientation rows in m-equivalent units)."""
+    """Residuals at the solution [m] (orientation rows in m-equivalent units), unweighted by the pose
+    weights of a robust fit."""
     noise_variance: Float[Array, "*b"]
-    """`s^2 = ||r||^2 / (n - m)` [m^2]."""
+    """`s^2 = ||r||^2 / (n - m)` [m^2] of the weighted residuals."""
     jacobian: Float[Array, "*b n m"] | None = None
     """The Jacobian at the solution, residual mm per parameter unit (one robot only; None for a fleet)."""
 
@@ -190,6 +207,8 @@ def solve(
     max_steps: int = 100,
     rippled: tuple[int, ...] | None = None,
     prior_weight: Float[Array, " m"] | None = None,
+    pose_weight: Float[Array, " K"] | None = None,
+    whiten: Float[Array, "K 3 3"] | None = None,
     throw: bool = False,
 ) -> ParameterEstimate:
     """LM solve for one robot; pure and jit/vmap-safe.
@@ -197,6 +216,11 @@ def solve(
     `prior_weight`: maximum a posteriori with independent Gaussian priors on the deviations,
     entered as rows `prior_weight * x` (x: scaled deviation; weight = noise / prior std, in the
     residual's mm); `None` is plain least squares.
+
+    `pose_weight`: the weight of each pose's squared residual (the robust losses' reweighting,
+    `identification._robust`); `None` weights all alike. The returned residuals are unweighted, the
+    noise variance and covariance those of the weighted rows. `whiten`: each pose's position rows times
+    this matrix (`identification._noise`: an anisotropic tracker's `sigma Sigma_k^{-1/2}`), residuals too.
 
     `rippled`: the joints whose gears have ripple (`rippled_joints`; static), needed when `robot0`
     is traced (e.g. under `vmap`), else found from `robot0`; a free `u0` of a ripple-free gear then
@@ -206,7 +230,7 @@ def solve(
     when it is not `successful` (also under `jit`).
     """
     fn_data, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r,
-                                      ccw, rippled)
+                                      ccw, rippled, pose_weight=pose_weight, whiten=whiten)
     fn = fn_data if prior_weight is None else (lambda x, a: jnp.concatenate([fn_data(x, a), prior_weight * x]))
     x0 = jnp.zeros(len(params))
     sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=rtol, atol=atol), x0, max_steps=max_steps,
@@ -226,6 +250,9 @@ def solve(
                            RESULTS.where(jnp.all(jnp.isfinite(x)),
                                          RESULTS.where(rank == m, RESULTS.successful, RESULTS.rank_deficient),
                                          RESULTS.nonfinite), result)
+    if pose_weight is not None:
+        r = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r, ccw, rippled,
+                         whiten=whiten)[0](x, None)
     out = ParameterEstimate(value=v0 + scale * x, std=jnp.sqrt(jnp.diag(cov)), covariance=cov, status=result,
                             steps=sol.stats["num_steps"], rank=rank, residuals=r * RESIDUAL_UNIT,
                             noise_variance=sigma2 * RESIDUAL_UNIT**2, jacobian=jx / scale)
@@ -253,8 +280,8 @@ class CalibrationResult:
     covariance: np.ndarray
     """(m, m) covariance of `value`."""
     residuals: np.ndarray
-    """[m] data residuals at the solution (3 per pose, plus the weighted orientation rows when
-    orientations are given)."""
+    """[m] data residuals at the solution (3 per pose, plus the orientation rows scaled by the
+    noise ratio when orientations are given), unweighted by the robust loss."""
     converged: bool
     """True only for status `successful`."""
     status: str
@@ -262,8 +289,16 @@ class CalibrationResult:
     iterations: int
     """Levenberg-Marquardt steps."""
     noise_estimate: float
-    """[m] noise per axis estimated from the residuals (their RMS with the m free parameters' degrees
-    of freedom removed)."""
+    """[m] noise per axis estimated from the residuals of the poses within the outlier bound (their
+    RMS with the m free parameters' degrees of freedom removed); it scales `covariance`."""
+    loss: str
+    """The loss of the fit (`"cauchy"`, `"huber"` or `"l2"`)."""
+    weights: np.ndarray
+    """(K,) the final weight of each pose's squared residual (1 for `"l2"`)."""
+    outliers: tuple[Outlier, ...]
+    """The identification poses whose residual norm exceeds `outlier_bound`, by row."""
+    outlier_bound: float
+    """[m] the residual norm above which a pose is reported as an outlier."""
     errors_before: np.ndarray
     """(K,) [m] model-measurement distance per identification pose with the start robot."""
     errors_after: np.ndarray
@@ -368,6 +403,7 @@ def calibrate(
     max_steps: int = 100,
     method: str = "lm",
     prior_std: dict | None = None,
+    loss: str = "cauchy",
     throw: bool = False,
 ) -> CalibrationResult:
     """Calibrate the kinematic parameters from tracker measurements (thesis 3.2.3, eq. 3.12).
@@ -380,7 +416,9 @@ def calibrate(
       type: positions, or positions and orientations when `quaternions` are given).
     - `marker`: marker offset in the tool frame [m] (default: the toml `[sensors]`).
     - `position_noise`, `orientation_noise`: stds that weight orientation rows against
-      position rows (defaults: the toml tracker noise and 0.05 deg); positions alone need none.
+      position rows (defaults: the toml tracker noise and 0.05 deg) and scale the robust loss;
+      `position_noise` may be a laser tracker's `TrackerNoise` (`identification._noise`: std along and
+      across the line of sight), whose covariance then whitens each pose's position residual.
     - `ccw`: gear set of the approach direction. `validation`: `(motor_angles, positions)` or
       `(motor_angles, positions, ccw)`.
     - `limits`: `"flag"` lists poses beyond the joint limits in `beyond_limits`,
@@ -389,6 +427,10 @@ def calibrate(
       priors `DEFAULT_PRIOR_STD` updated by `prior_std` (same keys); the result then carries each
       parameter's prior std and the fraction of its prior variance the data remove (`data_fraction`;
       the data determine it above `DATA_FRACTION`).
+    - `loss`: `"cauchy"` (default) or `"huber"`, robust losses on each pose's residual norm in units of
+      `position_noise`, by iteratively reweighted least squares (`identification._robust`: thresholds,
+      outlier bound); `"l2"` plain least squares. Poses beyond the outlier bound are listed in
+      `outliers` whichever the loss; the noise estimate leaves them out.
 
     Raises `ValueError` before solving for wrong shapes, NaN rows (named), fewer equations than
     parameters, unit mistakes (`check_pose_units`), and, with
@@ -407,6 +449,7 @@ def calibrate(
         _check_array(positions, (3,), "positions", "m")
         parameters = default_parameters(robot, orientation=quaternions is not None, marker=marker)
     params = ParameterMap(parameters)
+    robust.check_loss(loss)
     if method not in ("lm", "map"):
         raise ValueError(f"method: expected 'lm' or 'map', found {method!r}")
     prior = None
@@ -415,7 +458,8 @@ def calibrate(
     theta, pos, quat, beyond = check_inputs(robot, params, motor_angles, positions, quaternions, limits, ccw)
     check_pose_units(robot, theta, pos, marker, "motor_angles/positions")
     sensors = jr.read_description(None)["sensors"]
-    s_p = sensors["tracker_position_noise_m"] if position_noise is None else position_noise
+    s_p, white = noise_model(sensors["tracker_position_noise_m"] if position_noise is None else position_noise,
+                             pos, "position_noise")
     s_r = ORIENTATION_NOISE_RAD if orientation_noise is None else orientation_noise
     rot = None if quat is None else jr.quaternion_to_rotation(jnp.asarray(quat))
     w_r = jnp.asarray(s_p / s_r)
@@ -436,13 +480,25 @@ def calibrate(
     th, defl = th_all[:k], defl_all[:k]
     ccw_id = ccw if np.ndim(ccw) == 0 else ccw_all[:k]
     weight = None if prior is None else jnp.asarray(s_p / RESIDUAL_UNIT * np.asarray(params.scales(robot)) / prior)
-    out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw_id, max_steps=max_steps,
-                     rippled=rippled_joints(robot), prior_weight=weight)
+    rows = 3 if rot is None else 6
+
+    def fit(pose_w):
+        out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw_id, max_steps=max_steps,
+                         rippled=rippled_joints(robot), prior_weight=weight,
+                         pose_weight=None if loss == "l2" else jnp.asarray(pose_w),
+                         whiten=None if white is None else jnp.asarray(white))
+        resid = np.asarray(out.residuals).reshape(k, rows)
+        return (out, resid), np.linalg.norm(resid, axis=-1) / s_p
+
+    pose_w = np.ones(k)
+    (out, resid), pose_w = (fit(pose_w)[0], pose_w) if loss == "l2" else robust.irls(fit, pose_w, loss, rows)
     result = out.status
     out = jax.tree.map(np.asarray, out)
     if prior is None:
         check_rank(out.jacobian, params)
     check(result, result, throw)
+    noise = float(np.sqrt(out.noise_variance)) if loss == "l2" else robust.noise_estimate(resid, s_p, len(params))
+    cov = out.covariance * noise**2 / np.maximum(out.noise_variance, 1e-300)
     calibrated = params.set(robot, jnp.asarray(out.value))
     p_all = np.concatenate([pos, vp])
     err0 = position_errors(robot, th_all, p_all, defl_all, marker, ccw_all)
@@ -450,9 +506,10 @@ def calibrate(
     val = validation is not None
     return CalibrationResult(
         robot=calibrated, names=params.names, value=out.value, start=np.asarray(params.get(robot)),
-        std=out.std, covariance=out.covariance, residuals=out.residuals, converged=bool(out.converged),
-        status=jr.status_name(out.status), iterations=int(out.steps),
-        noise_estimate=float(np.sqrt(out.noise_variance)), errors_before=err0[:k], errors_after=err1[:k],
+        std=np.sqrt(np.diag(cov)), covariance=cov, residuals=resid.ravel(), converged=bool(out.converged),
+        status=jr.status_name(out.status), iterations=int(out.steps), noise_estimate=noise, loss=loss,
+        weights=pose_w, outliers=robust.outliers(resid, s_p), outlier_bound=s_p * robust.outlier_bound(rows),
+        errors_before=err0[:k], errors_after=err1[:k],
         validation_before=err0[k:] if val else None, validation_after=err1[k:] if val else None,
         beyond_limits=tuple(beyond), method=method, prior_std=prior)
 

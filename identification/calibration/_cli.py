@@ -11,6 +11,7 @@ import numpy as np
 from jaxrobot.cli import SolveFailed, add_model_option
 
 from .._pose_files import add_approach_option
+from .._robust import add_loss_option
 
 HELP = "calibrate the kinematic parameters from a pose file (docs/model.md (3.12), LM)"
 EXAMPLE = "jaxrobot calibrate poses.csv --validate validation.csv --out calibration --save-model calibrated.toml"
@@ -24,7 +25,7 @@ def configure(parser) -> None:
     parser.add_argument("--parameters", default=None,
                         help="comma-separated free parameters, e.g. a2,beta3,u0_5 (default: identifiable set)")
     parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
-                        help="marker offset in the flange frame in m (default: the robot file's [sensors])")
+                        help="marker offset in m in the tool frame (the flange without [tool]; default: [sensors])")
     parser.add_argument("--limits", choices=("flag", "raise"), default="flag",
                         help="poses beyond the joint limits: list them (flag) or reject the file (raise)")
     add_approach_option(parser)
@@ -32,20 +33,26 @@ def configure(parser) -> None:
                         help="lm: plain least squares (default); map: maximum a posteriori with tolerance priors "
                              "(identification.DEFAULT_PRIOR_STD, overridden by the robot file's [calibration] "
                              "prior_std), default set plus every joint offset and gear ratio")
+    add_loss_option(parser)
 
 
 def _mm(stats: dict) -> dict:
     return {k: 1e3 * v for k, v in stats.items()}
 
 
-def summary(report: dict) -> dict:
-    """The JSON summary of issue 4 from a calibration report."""
+def summary(report: dict, poses: Path | str = "") -> dict:
+    """The JSON summary from a calibration report; `poses`: the pose file the outliers' lines refer to."""
     keep = ("value", "delta", "std", "prior_std", "data_fraction", "determined_by")
     out = {
         "parameters": {n: {k: p[k] for k in keep if k in p} for n, p in report["parameters"].items()},
         "identification": {"before_mm": _mm(report["identification"]["before_m"]),
                            "after_mm": _mm(report["identification"]["after_m"])},
         "validation": None,
+        "loss": report["loss"],
+        "noise_estimate_mm": 1e3 * report["noise_estimate_m"],
+        "outlier_bound_mm": 1e3 * report["outlier_bound_m"],
+        "outliers": [{"file": str(poses), "line": o["row"] + 2, "row": o["row"], "residual_mm": 1e3 * o["residual_m"],
+                      "sigmas": o["sigmas"]} for o in report["outliers"]],
     }
     if "validation" in report:
         out["validation"] = {"before_mm": _mm(report["validation"]["before_m"]),
@@ -53,11 +60,17 @@ def summary(report: dict) -> dict:
     return out
 
 
-def _echo_report(report: dict, echo, truth: dict | None = None) -> None:
-    from ._report import error_table, parameter_table
+def _echo_report(report: dict, echo, truth: dict | None = None, poses: Path | str = "") -> None:
+    from ._report import error_table, outlier_table, parameter_table
 
-    echo(f"LM: {report['status']}, {report['iterations']} iterations, noise estimate "
+    echo(f"LM: {report['status']}, {report['iterations']} iterations, loss {report['loss']}, noise estimate "
          f"{1e3 * report['noise_estimate_m']:.4f} mm per axis")
+    for o in report["outliers"]:
+        echo(f"warning: {poses}:{o['row'] + 2}: residual {1e3 * o['residual_m']:.3f} mm ({o['sigmas']:.1f} sigma) "
+             f"beyond the outlier bound {1e3 * report['outlier_bound_m']:.3f} mm: a gross measurement error?"
+             + (" (weighted down by the robust loss)" if report["loss"] != "l2" else ""))
+    if report["outliers"]:
+        echo(outlier_table(report["outliers"], report["outlier_bound_m"], str(poses)))
     for b in report["beyond_limits"]:
         echo(f"warning: pose row {b['row'] + 1} (data row, 1-based): joint {b['joint']} at {b['q_deg']:.2f} deg "
              f"outside [{b['limits_deg'][0]:.0f}, {b['limits_deg'][1]:.0f}] deg")
@@ -100,6 +113,7 @@ def run(args, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot.cli import Progress
 
+    from .._noise import TrackerNoise
     from .._pose_files import read_poses
     from ._calibrate import PRIOR_KEYS, calibrate, map_parameters
     from ._identifiability import default_parameters
@@ -122,17 +136,17 @@ def run(args, echo) -> dict:
     if args.robot is not None:
         sensors = desc.get("sensors", {})
         marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
-        noise = sensors.get("tracker_position_noise_m")
+        noise = TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")
     if args.method == "map" and args.parameters is None:
         names = map_parameters(default_parameters(robot, orientation=data.quaternions is not None,
                                                   marker=default_marker() if marker is None else marker),
                                robot.n_joints)
     res = calibrate(robot, data.motor_angles, data.positions, data.quaternions, parameters=names,
                     marker=marker, position_noise=noise, ccw=data.ccw, validation=val, limits=args.limits,
-                    method=args.method, prior_std=prior)
+                    method=args.method, prior_std=prior, loss=args.loss)
     report = calibration_report(res)
     progress.step("calibration")
-    _echo_report(report, echo)
+    _echo_report(report, echo, poses=args.poses)
     from .._model_files import ripple_outside_range
 
     outside = ripple_outside_range(args.robot, data.motor_angles, data.ccw, robot.u0)
@@ -152,7 +166,7 @@ def run(args, echo) -> dict:
         save_model(res.robot, args.save_model, args.robot)
         echo(f"wrote {args.save_model}")
     progress.step("report")
-    return {**summary(report), **({"ripple_outside_identified_range": outside} if outside else {})}
+    return {**summary(report, args.poses), **({"ripple_outside_identified_range": outside} if outside else {})}
 
 
 def demo_stage(out: Path, echo) -> dict:

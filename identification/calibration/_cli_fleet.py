@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .._pose_files import add_approach_option
+from .._robust import add_loss_option
 
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
 TABLE = "fleet_calibration.csv"
@@ -45,6 +46,7 @@ def configure(parser) -> None:
     parser.add_argument("--process-id", type=int, default=None, help="this process, 0 .. count - 1 (default "
                         "$JAX_PROCESS_ID)")
     add_approach_option(parser)
+    add_loss_option(parser)
 
 
 def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nominal=None, marker=None) -> list[Path]:
@@ -70,13 +72,14 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
 def _table(res, files: list[Path]) -> str:
     import jaxrobot as jr
 
-    head = ["file", "status", "converged", "iterations", "rank", "rms_mm"]
+    head = ["file", "status", "converged", "iterations", "rank", "rms_mm", "noise_estimate_mm", "outlier_lines"]
     head += [c for n in res.names for c in (n, f"std_{n}")]
     lines = [",".join(head)]
     status = jr.status_name(res.status)
     for r, f in enumerate(files):
         cells = [f.name, str(status[r]), str(bool(res.converged[r])), str(int(res.iterations[r])),
-                 str(int(res.rank[r])), repr(1e3 * float(res.rms_m[r]))]
+                 str(int(res.rank[r])), repr(1e3 * float(res.rms_m[r])), repr(1e3 * float(res.noise_estimate[r])),
+                 " ".join(str(o.row + 2) for o in res.outliers[r])]
         cells += [repr(float(v)) for pair in zip(res.value[r], res.std[r]) for v in pair]
         lines.append(",".join(cells))
     return "\n".join(lines) + "\n"
@@ -90,14 +93,16 @@ def run(args, echo) -> dict:
 
     from jaxrobot.cli import Progress, SolveFailed
 
+    from .._noise import TrackerNoise
     from .._pose_files import read_poses
     from ._fleet import calibrate_fleet
 
     pid = jax.process_index()
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
     names = None if args.parameters is None else [n.strip() for n in args.parameters.split(",") if n.strip()]
-    marker = None if args.robot is None else jr.read_description(args.robot).get("sensors", {}).get(
-        "tracker_marker_offset_m")
+    sensors = {} if args.robot is None else jr.read_description(args.robot).get("sensors", {})
+    marker = sensors.get("tracker_marker_offset_m")
+    noise = TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")
     seconds = {}
     progress = Progress(2 if args.bench is not None else 1, "calibrate-fleet")
     start = time.perf_counter()
@@ -124,7 +129,7 @@ def run(args, echo) -> dict:
     t = time.perf_counter()
     res = calibrate_fleet(robot, np.stack([d.motor_angles for d in data]), np.stack([d.positions for d in data]),
                           parameters=names, marker=marker, max_steps=args.max_steps,
-                          ccw=np.stack([d.ccw for d in data]))
+                          ccw=np.stack([d.ccw for d in data]), position_noise=noise, loss=args.loss)
     seconds["calibrate"] = time.perf_counter() - t
     progress.step("fleet calibration")
     names = jr.status_name(res.status)
@@ -133,6 +138,10 @@ def run(args, echo) -> dict:
         echo(f"fleet of {len(files)} robots on {res.n_devices} device(s): {status}; LM steps median "
              f"{np.median(res.iterations):.0f}, max {res.iterations.max()}; residual rms median "
              f"{1e3 * np.median(res.rms_m):.4f} mm; {seconds['calibrate']:.1f} s")
+        for f, found in zip(files, res.outliers):
+            for o in found:
+                echo(f"warning: {f}:{o.row + 2}: residual {1e3 * o.residual:.3f} mm ({o.sigmas:.1f} sigma) beyond the "
+                     "outlier bound: a gross measurement error?")
         if args.out is not None:
             (args.out / TABLE).write_text(_table(res, files))
             echo(f"wrote {args.out / TABLE}")
@@ -142,5 +151,7 @@ def run(args, echo) -> dict:
                          f"see the status column of {TABLE}")
     return {"robots": len(files), "poses": k, "processes": count, "process_id": pid,
             "local_robots": share.stop - share.start, "devices": res.n_devices, "parameters": list(res.names),
-            "status": status, "seconds": seconds,
+            "status": status, "seconds": seconds, "loss": res.loss,
+            "outliers": [{"file": str(f), "line": o.row + 2, "row": o.row, "residual_mm": 1e3 * o.residual,
+                          "sigmas": o.sigmas} for f, found in zip(files, res.outliers) for o in found],
             "peak_memory_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}

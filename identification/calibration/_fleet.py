@@ -14,7 +14,6 @@ are assembled from the processes' rows (`jaxrobot.shard_rows`) and the results g
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -29,7 +28,9 @@ from jaxrobot import RESULTS, backend_kind, gather_rows, shard_rows
 from jaxrobot.measurement import rest_link_angles
 from jaxrobot.status import check, where
 
+from .. import _robust as robust
 from .._batched_lm import LMConfig, batched_lm, covariance, map_chunks
+from .._noise import noise_model
 from ._calibrate import RESIDUAL_UNIT, ParameterEstimate, _check_array, _residual_fn
 from ._identifiability import default_parameters
 from ._model import analytic_names, joint_angle_model, position_jacobian, rippled_joints
@@ -61,11 +62,19 @@ class FleetResult:
     rms_m: np.ndarray
     """(R,) [m] RMS of the residuals."""
     residuals: np.ndarray
-    """(R, 3K) [m] model minus measurement at the solution."""
+    """(R, 3K) [m] model minus measurement at the solution (unweighted by the robust loss; whitened by
+    each pose's covariance for a `TrackerNoise`)."""
     names: tuple[str, ...]
     """The free parameters."""
     n_devices: int
     """Devices the fleet was sharded over."""
+    loss: str
+    """The loss of the fit (`"cauchy"`, `"huber"` or `"l2"`, as in `calibrate`)."""
+    noise_estimate: np.ndarray
+    """(R,) [m] per-axis noise estimated from each robot's residuals (those of its poses within the
+    outlier bound, as in `calibrate`); it scales `covariance`."""
+    outliers: tuple[tuple[robust.Outlier, ...], ...]
+    """Per robot, its poses whose residual norm exceeds the outlier bound (`calibrate`'s)."""
 
 
 def fleet_mesh(devices: Sequence | None = None) -> Mesh:
@@ -126,33 +135,50 @@ def _constants(robots, theta, rippled, ccw=False):
     return q0, q0 - jr.gear_output(fleet, theta, ccw, rippled=rippled)
 
 
-def _local_solve(robots, theta, positions, marker, q0, defl, config, ccw=None, *, params, rippled):
-    """The fleet solve, batch-first: one `batched_lm` over all robots, then the covariances (`ccw`:
-    as in `_constants`)."""
+def _local_solve(robots, theta, positions, marker, q0, defl, config, ccw=None, weight=None, x0=None, whiten=None, *,
+                 params, rippled):
+    """The fleet solve, batch-first: one `batched_lm` over all robots from scaled parameters `x0`
+    (R, m) (default 0: the initial robots), then the covariances (`ccw`: as in `_constants`;
+    `weight` (R, K): of each pose's squared residual, default 1; `whiten` (R, K, 3, 3): each pose's
+    residual times it, default none; the returned residuals are whitened, not weighted)."""
     v0 = jax.vmap(params.get)(robots)
     scale = jax.vmap(params.scales)(robots)
     screws = analytic_names(params.names)
+    root_w = jnp.ones(theta.shape[:2]) if weight is None else jnp.sqrt(weight)
+
+    white = () if whiten is None else (whiten,)
 
     def residual_jacobian(x, data):
-        rb, th, pos, q, de, v, sc, *cc = data
+        rb, th, pos, q, de, v, sc, rw, *rest = data
+        wh, cc = (rest[0], rest[1:]) if white else (None, rest)
         if screws:
-            return _screw_residual_jacobian(rb, params, th, pos, de, q, marker, rippled, v, sc, x, *cc)
-        one = lambda r_, t_, p_, d_, q_, y_, *c_: _robot_residual_jacobian(  # noqa: E731
-            r_, params, t_, p_, d_, q_, marker, rippled, y_, *c_)
-        return jax.vmap(one)(rb, th, pos, de, q, x, *cc)
+            r, jac = _screw_residual_jacobian(rb, params, th, pos, de, q, marker, rippled, v, sc, x, *cc)
+        else:
+            one = lambda r_, t_, p_, d_, q_, y_, *c_: _robot_residual_jacobian(  # noqa: E731
+                r_, params, t_, p_, d_, q_, marker, rippled, y_, *c_)
+            r, jac = jax.vmap(one)(rb, th, pos, de, q, x, *cc)
+        if wh is not None:
+            r = jnp.einsum("bkij,bkj->bki", wh, r.reshape(wh.shape[:3])).reshape(r.shape)
+            jac = jnp.einsum("bkij,bkjp->bkip", wh, jac.reshape(wh.shape[:3] + jac.shape[-1:])).reshape(jac.shape)
+        rows = jnp.repeat(rw, 3, axis=1)  # pose-major rows
+        return r * rows, jac * rows[..., None]
 
     directed = () if ccw is None else (ccw,)
-    out = batched_lm(residual_jacobian, jnp.zeros_like(v0), (robots, theta, positions, q0, defl, v0, scale, *directed),
-                     config, chunk=_chunk())
+    out = batched_lm(residual_jacobian, jnp.zeros_like(v0) if x0 is None else x0,
+                     (robots, theta, positions, q0, defl, v0, scale, root_w, *white, *directed), config,
+                     chunk=_chunk())
     n, m = out.residuals.shape[1], v0.shape[1]
-    sigma2 = 2 * out.cost / max(n - m, 1)  # [mm^2]
+    sigma2 = 2 * out.cost / max(n - m, 1)  # [mm^2], weighted
+    residuals = out.residuals if weight is None else map_chunks(  # unweighted
+        lambda a: residual_jacobian(a[0], (*a[1:8], jnp.ones_like(a[8]), *a[9:]))[0],
+        (out.x, robots, theta, positions, q0, defl, v0, scale, root_w, *white, *directed), _chunk())
     cov_x, rank, full = map_chunks(lambda a: covariance(*a), (out.normal, sigma2), _chunk())
     cov = cov_x * scale[:, :, None] * scale[:, None, :]
     finite = jnp.all(jnp.isfinite(out.x), 1) & jnp.all(jnp.isfinite(cov), (1, 2))
     ok = out.status == RESULTS.successful
     status = where(ok & ~finite, RESULTS.nonfinite, where(ok & ~full, RESULTS.rank_deficient, out.status))
     return ParameterEstimate(value=v0 + scale * out.x, std=jnp.sqrt(jnp.diagonal(cov, 0, 1, 2)), covariance=cov,
-                             status=status, steps=out.steps, rank=rank, residuals=out.residuals * RESIDUAL_UNIT,
+                             status=status, steps=out.steps, rank=rank, residuals=residuals * RESIDUAL_UNIT,
                              noise_variance=sigma2 * RESIDUAL_UNIT**2)
 
 
@@ -169,15 +195,25 @@ def _fleet_constants(robots, theta, rippled, mesh, ccw=None):
 
 
 @eqx.filter_jit
-def _fleet_solve(robots, params, theta, positions, marker, q0, defl, config, rippled, mesh, ccw=None):
+def _fleet_solve(robots, params, theta, positions, marker, q0, defl, config, rippled, mesh, ccw=None, weight=None,
+                 x0=None, whiten=None):
     """`_local_solve`, every device on its own robots (`shard_map` over the `"fleet"` axis; each
     device's LM loop runs until its own robots have stopped); `config` (`LMConfig`) is traced."""
     fleet, rep = PartitionSpec("fleet"), PartitionSpec()
-    local = functools.partial(_local_solve, params=params, rippled=rippled)
-    directed = () if ccw is None else (ccw,)
+    optional = {k: a for k, a in (("ccw", ccw), ("weight", weight), ("x0", x0), ("whiten", whiten)) if a is not None}
+
+    def local(*args):
+        return _local_solve(*args[:7], **dict(zip(optional, args[7:])), params=params, rippled=rippled)
+
     return jax.shard_map(local, mesh=mesh, in_specs=(fleet, fleet, fleet, rep, fleet, fleet, rep)
-                         + (fleet,) * len(directed), out_specs=fleet,
-                         check_vma=False)(robots, theta, positions, marker, q0, defl, config, *directed)
+                         + (fleet,) * len(optional), out_specs=fleet,
+                         check_vma=False)(robots, theta, positions, marker, q0, defl, config, *optional.values())
+
+
+@jax.jit
+def _pose_norms(residuals, sigma):
+    """Whitened residual norm (R, K) of each pose from the residuals (R, 3K) [m] (pose-major)."""
+    return jnp.linalg.norm(residuals.reshape(residuals.shape[0], -1, 3), axis=-1) / sigma
 
 
 _set_parameters = eqx.filter_jit(ParameterMap.set)  # one compiled call instead of ~m eager scatters
@@ -193,6 +229,8 @@ def calibrate_fleet(
     max_steps: int = 100,
     mesh: Mesh | None = None,
     ccw: Bool[Array, "R K n"] | None = None,
+    position_noise: float | None = None,
+    loss: str = robust.LOSSES[0],
     throw: bool = False,
 ) -> FleetResult:
     """Calibrate R robots at once, each from its own K poses (positions only; at rest every gear's
@@ -206,7 +244,13 @@ def calibrate_fleet(
     several processes (`jaxrobot.initialize_processes`) each process passes only its own robots
     (e.g. rows `jaxrobot.process_share(R)`, one robot or its own fleet rows in `robots`) and every
     process receives the whole fleet in process order.
+
+    `loss`: as in `calibrate` (robust by default, thresholds in units of `position_noise`, the
+    tracker's per-axis std, default `[sensors] tracker_position_noise_m`, or a laser tracker's
+    `TrackerNoise`, whose covariance then whitens each pose's residual); each robot is reweighted on
+    its own, its outliers and robust noise estimate are in `outliers` and `noise_estimate`.
     """
+    robust.check_loss(loss)
     joints = robots.n_joints
     theta = np.asarray(motor_angles, float)
     pos = np.asarray(positions, float)
@@ -237,17 +281,39 @@ def calibrate_fleet(
         raise ValueError(f"robots: expected one robot or a fleet of {n_rob}, found {robots.a.shape[0]}")
     mesh = fleet_mesh() if mesh is None else mesh
     n_dev = mesh.devices.size
-    (g_robots, g_theta, g_pos, g_ccw), origin = shard_rows((robots, theta, pos, ccw), mesh)  # padded with robot 0
+    sigma, white = noise_model(jr.read_description(None)["sensors"]["tracker_position_noise_m"]
+                               if position_noise is None else position_noise, pos.reshape(-1, 3), "position_noise")
+    white = () if white is None else (white.reshape(theta.shape[:2] + (3, 3)),)  # none: isotropic
+    (g_robots, g_theta, g_pos, g_ccw, *g_white), origin = shard_rows((robots, theta, pos, ccw, *white), mesh)
+    g_white = g_white[0] if g_white else None
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     rippled = rippled_joints(robots)
     g_ccw = g_ccw if ccw.any() else None  # none: every gear's cw set, no selection per pose
     q0, defl = _fleet_constants(initial if np.ndim(initial.a) == 1 else g_robots, g_theta, rippled, mesh, g_ccw)
     config = jax.tree.map(jnp.asarray, LMConfig(max_steps=max_steps))
-    out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, config, rippled, mesh, g_ccw)
+    if loss == "l2":
+        out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, config, rippled, mesh, g_ccw,
+                           whiten=g_white)
+    else:
+        start = {"x0": None}
+
+        def fit(weight):
+            out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, config, rippled, mesh, g_ccw,
+                               weight, start["x0"], g_white)
+            start["x0"] = (out.value - jax.vmap(params.get)(g_robots)) / jax.vmap(params.scales)(g_robots)
+            return out, _pose_norms(out.residuals, sigma)
+
+        out, _ = robust.irls(fit, jnp.ones_like(g_pos[..., 0]), loss, 3)
     out, robots = gather_rows((out, g_robots), origin)
     status = check(out.status, out.status, throw)
+    resid = np.asarray(out.residuals).reshape(out.residuals.shape[0], -1, 3)
+    noise = np.array([np.sqrt(v) if loss == "l2" else robust.noise_estimate(r, sigma, len(params))
+                      for r, v in zip(resid, np.asarray(out.noise_variance))])
+    cov = np.asarray(out.covariance) * (noise**2 / np.maximum(out.noise_variance, 1e-300))[:, None, None]
+    resid = resid.reshape(resid.shape[0], -1)
     return FleetResult(
-        robot=_set_parameters(params, robots, jnp.asarray(out.value)), value=out.value, std=out.std,
-        covariance=out.covariance, converged=np.asarray(out.converged), status=status, iterations=out.steps,
-        rank=out.rank, rms_m=np.sqrt(np.mean(out.residuals**2, -1)), residuals=out.residuals, names=params.names,
-        n_devices=n_dev)
+        robot=_set_parameters(params, robots, jnp.asarray(out.value)), value=out.value,
+        std=np.sqrt(np.diagonal(cov, 0, 1, 2)), covariance=cov, converged=np.asarray(out.converged), status=status,
+        iterations=out.steps, rank=out.rank, rms_m=np.sqrt(np.mean(resid**2, -1)), residuals=resid,
+        names=params.names, n_devices=n_dev, loss=loss, noise_estimate=noise,
+        outliers=tuple(robust.outliers(r.reshape(-1, 3), sigma) for r in resid))

@@ -188,8 +188,8 @@ def identifiability(
     robot at rest, from `n_poses` random feasible poses (thesis 3.2.1: K = 1000).
 
     `prefer` orders the pivoting: of a dependent group the earlier names stay identifiable
-    (default `THESIS_PREFERENCE`; `None` = classic largest-norm pivoting). `marker`: marker offset in the flange frame
-    (default `[sensors] tracker_marker_offset_m`; zeros = the flange origin `p_e` of eq. 3.6).
+    (default `THESIS_PREFERENCE`; `None` = classic largest-norm pivoting). `marker`: marker offset in the tool frame
+    (default `[sensors] tracker_marker_offset_m`; zeros = the tool-frame origin, `p_e` of eq. 3.6 without a tool).
     `names`: default `kinematic_parameters(robot)`.
     """
     robot = jr.racer7() if robot is None else robot

@@ -84,7 +84,7 @@ def workspace_positions(robot: jr.Robot, marker=None, n: int = 1000, seed: int =
     """Marker positions (n, 3) [m] at `n` random feasible poses: the workspace behind a pose set (Fig. 3.11);
     `marker` default `default_marker()`."""
     marker = default_marker() if marker is None else np.asarray(marker, float)
-    return np.asarray(jr.point_position(robot, random_feasible_poses(robot, n, seed=seed), marker))
+    return np.asarray(marker_pose(robot, random_feasible_poses(robot, n, seed=seed), jnp.asarray(marker))[0])
 
 
 def random_feasible_poses(

@@ -27,8 +27,9 @@ def calibration_report(res: CalibrationResult) -> dict:
     """The report of a calibration (plain numbers, SI units): `parameters` {name: {value, delta, std,
     and for MAP prior_std, data_fraction, determined_by}}, `identification` and (with validation
     data) `validation` {before_m, after_m: {max, min, mean, std}}, `status`, `converged`,
-    `iterations`, `noise_estimate_m`, `residual_rms_m`, `n_poses`, `beyond_limits`, `method` and
-    `errors_m` (the errors per pose behind the statistics)."""
+    `iterations`, `noise_estimate_m`, `residual_rms_m`, `n_poses`, `beyond_limits`, `method`, `loss`,
+    `outliers` [{row (0-based data row), residual_m, sigmas}], `outlier_bound_m` and `errors_m` (the
+    errors per pose behind the statistics)."""
     params = {n: {"value": float(res.value[i]), "delta": float(res.delta[i]), "std": float(res.std[i])}
               for i, n in enumerate(res.names)}
     if res.prior_std is not None:
@@ -48,12 +49,26 @@ def calibration_report(res: CalibrationResult) -> dict:
         "beyond_limits": list(res.beyond_limits),
         "errors_m": {"identification": {"before": res.errors_before, "after": res.errors_after}},
         "method": res.method,
+        "loss": res.loss,
+        "outliers": [{"row": o.row, "residual_m": o.residual, "sigmas": o.sigmas} for o in res.outliers],
+        "outlier_bound_m": res.outlier_bound,
     }
     if res.validation_before is not None:
         report["validation"] = {"before_m": error_stats(res.validation_before),
                                 "after_m": error_stats(res.validation_after), "n_poses": len(res.validation_before)}
         report["errors_m"]["validation"] = {"before": res.validation_before, "after": res.validation_after}
     return report
+
+
+def outlier_table(outliers: list[dict], bound: float, file: str = "") -> str:
+    """The poses beyond the outlier bound: file line (header = line 1), residual in mm and in noise
+    stds; `outliers` as in `calibration_report`."""
+    lines = [f"Poses beyond the outlier bound ({1e3 * bound:.4f} mm): {len(outliers)}",
+             f"{'file:line':>30s}{'residual in mm':>16s}{'in sigma':>10s}"]
+    for o in outliers:
+        where = f"{file}:{o['row'] + 2}"
+        lines.append(f"{where:>30s}{1e3 * o['residual_m']:16.4f}{o['sigmas']:10.1f}")
+    return "\n".join(lines)
 
 
 def error_table(report_part: dict, title: str) -> str:

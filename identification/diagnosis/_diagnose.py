@@ -8,7 +8,8 @@
    revolution, also signed by the direction of approach) find the ripple orders.
 3. *Name*: every candidate (effect x joint x variant) is fitted together with the effects already
    added, first linearised (one Gauss-Newton step from the current model) to rank all of them,
-   then the best `shortlist` by Levenberg-Marquardt (optimistix, one after another) to convergence; each is
+   then the best `shortlist` by Levenberg-Marquardt (optimistix, one after another) to convergence (a
+   fit that fails, or ends with a larger chi-square than its start, gives its place to the next); each is
    scored by the Bayesian information criterion `BIC = chi2 + m ln(3K)` on the training poses
    and the RMS on held-out validation poses.
 4. *Add*: the best-BIC candidate that lowers BIC by more than `MIN_BIC_GAIN` and lowers the
@@ -35,6 +36,8 @@ from jaxtyping import Array
 import jaxrobot as jr
 from jaxrobot.measurement import approach_directions, approach_sign
 
+from .. import _robust as robust
+from .._noise import TrackerNoise, noise_model
 from .._pose_files import check_pose_units
 from ..gear._fit import chi2_quantile
 from ._effects import RIPPLE_SLOTS, Layout, catalogue, with_ripple_slots
@@ -124,9 +127,10 @@ class LoopRow:
     rms_validation: float
     """RMS norm of the validation position residuals [m]."""
     chi2: float
-    """`sum r^2 / sigma^2` of the training residuals (`sigma`: tracker noise per axis)."""
+    """`sum r^2 / sigma^2` of the residuals of the `K'` training poses that the robust loss does not
+    reject (all `K` for `l2`; `sigma`: tracker noise per axis)."""
     dof: int
-    """Degrees of freedom `3K - m`."""
+    """Degrees of freedom `3K' - m`."""
     p_value: float
     """Probability of a chi-square with `dof` exceeding `chi2`; the test passes above `ALPHA`."""
     bic: float
@@ -153,7 +157,10 @@ class CandidateScore:
     rms_validation: float | None = None
     """RMS norm of the validation position residuals after the LM fit [m]."""
     lm_status: str | None = None
-    """Status name of the LM fit (`jaxrobot.status_name` of a `jaxrobot.RESULTS`)."""
+    """Status name of the LM fit (`jaxrobot.status_name` of a `jaxrobot.RESULTS`); `nonlinear_divergence`
+    where the fit ended with a larger chi-square than the current model's, its start."""
+    lm_message: str | None = None
+    """The message of `lm_status` (`jaxrobot.status_message`; for a divergence, both chi-squares)."""
     lm_steps: int | None = None
     """Steps of the LM fit."""
     selected: bool = False
@@ -216,6 +223,52 @@ class DiagnoseEvent:
 
 
 @dataclasses.dataclass(frozen=True)
+class Drift:
+    """The residual trend against the acquisition time: a link-length scale linear in time (thermal
+    growth, `1 + rate (t - mean t)`), fitted to the final model's training residuals together with a
+    constant scale and the effects added."""
+
+    rate: float
+    """[1/s] the fitted growth of the link-length scale per second."""
+    std: float
+    """[1/s] its standard error."""
+    duration: float
+    """[s] the span of the acquisition times."""
+    delta_bic: float
+    """BIC change of adding the trend (negative: the data support it)."""
+    chi2_gain: float
+    """Decrease of the chi-square by the trend: the likelihood-ratio statistic of "no drift" (chi-square
+    with 1 degree of freedom)."""
+    named: bool
+    """True where the likelihood-ratio test rejects "no drift" at level `ALPHA` (one hypothesis stated
+    in advance, not a search over a catalogue)."""
+
+
+def _drift(layout: Layout, jac: np.ndarray, r: np.ndarray, free: list[int], scale: np.ndarray, times,
+           ln_n: float) -> Drift:
+    """`Drift` from the whitened residuals `r` (3K,) and Jacobian `jac` (3K, P+1) at the final model."""
+    t = np.asarray(times, float)
+    if t.shape != (r.size // 3,) or not np.all(np.isfinite(t)):
+        raise ValueError(f"times: expected one finite acquisition time per training pose, shape ({r.size // 3},) s, "
+                         f"found shape {t.shape}")
+    duration = float(np.ptp(t))
+    if not duration > 0:
+        raise ValueError("times: expected acquisition times that differ, found all equal")
+    k = int(layout.blocks[layout.index("link_scale")].ravel()[0])
+    col = jac[:, k]
+    trend = col * np.repeat((t - t.mean()) / duration, 3)
+    base = jac[:, sorted(set(free) | {k})]
+    a = np.column_stack([base, trend])
+    coef, *_ = np.linalg.lstsq(a, r, rcond=None)
+    c0, *_ = np.linalg.lstsq(base, r, rcond=None)
+    gain = float(np.sum((r - base @ c0) ** 2) - np.sum((r - a @ coef) ** 2))
+    cov = np.linalg.pinv(a.T @ a)
+    delta_bic = ln_n - gain
+    return Drift(float(coef[-1] * scale[k] / duration), float(np.sqrt(cov[-1, -1]) * scale[k] / duration), duration,
+                 delta_bic, gain, gain > chi2_quantile(ALPHA, 1.0))
+
+
+@dataclasses.dataclass(frozen=True)
 class DiagnoseResult:
     """What `diagnose` found: the model it ended with, each step of the loop and the evidence."""
 
@@ -244,6 +297,14 @@ class DiagnoseResult:
     """Training poses."""
     n_validation: int
     """Validation poses."""
+    loss: str = "l2"
+    """The loss of the fits (`"cauchy"`, `"huber"` or `"l2"`)."""
+    drift: Drift | None = None
+    """The residual trend against the acquisition time (None without `times`)."""
+    outliers: tuple[robust.Outlier, ...] = ()
+    """The training poses whose residual at the final model exceeds the outlier bound
+    (`_robust.outlier_bound`) in units of the noise, or of the residuals' robust spread where that is
+    larger (`_robust.spread`; `Outlier.sigmas` in the same unit), by row."""
 
     @property
     def noise_floor(self) -> float:
@@ -336,6 +397,11 @@ def _candidates(layout: Layout, free: set, ripple_orders: dict, varying: np.ndar
     return [c for c in out if not set(c.params) <= free]
 
 
+def _rows(jac: np.ndarray, whiten: np.ndarray) -> np.ndarray:
+    """Jacobian rows (3K, P) (pose-major) times each pose's whitening (K, 3, 3)."""
+    return np.einsum("kij,kjp->kip", whiten, jac.reshape(whiten.shape[0], 3, -1)).reshape(jac.shape)
+
+
 def _rms(err: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(err**2, -1))))
 
@@ -355,6 +421,8 @@ def diagnose(
     max_steps: int = 6,
     max_order: int = 400,
     shortlist: int = 4,
+    loss: str = robust.LOSSES[0],
+    times=None,
     progress: Callable[[DiagnoseEvent], None] | None = None,
 ) -> DiagnoseResult:
     """Find, name and add the effects that `start` misses, from tracker pose measurements.
@@ -362,15 +430,31 @@ def diagnose(
     **Arguments:**
     - `start`: the model to test (may have rigid joints and constant gear ratios).
     - `train`, `validation`: `Poses` (the validation poses only score candidates).
-    - `noise`: tracker std per axis [m] (default `[sensors] tracker_position_noise_m`).
+    - `noise`: tracker std per axis [m] (default `[sensors] tracker_position_noise_m`), or a laser
+      tracker's `TrackerNoise` (`identification._noise`): each training pose's residual is then whitened
+      by its covariance in every fit, the chi-square test and BIC (noise floor and `sigma`: the isotropic
+      std of the same total variance).
     - `marker`: marker offset in the tool frame [m] (default `[sensors]`).
     - `max_steps`: most effects to add; `max_order`: highest ripple order searched [1/rev];
-      `shortlist`: candidates fitted by LM per step; `progress`: receives a `DiagnoseEvent` per model
+      `shortlist`: candidates fitted by LM per step; `loss`: `"cauchy"` (default) or `"huber"` weigh each
+      training pose by the loss of its residual norm at the current model in every fit
+      (`_robust.scaled_weights`: against the larger of the noise and the residuals' robust spread); the
+      poses it rejects (weight 0: gross errors) are left out of the chi-square test and BIC, which
+      score the others unweighted; `"l2"` weighs all alike; `times`: the training poses' acquisition
+      times [s] (a pose file's `t_s`; the row order is never taken for time): the final model's
+      residuals are then tested for a link-length scale linear in time (thermal drift, `Drift`);
+      `progress`: receives a `DiagnoseEvent` per model
       compared and per step's candidates (`_report.progress_lines` turns them into text).
 
     **Returns:** `DiagnoseResult` in SI units (`_report.summary`: the JSON of `jaxrobot diagnose`).
     """
     sigma, marker = _checked_inputs(start, train, validation, noise, marker)
+    robust.check_loss(loss)
+    white = noise_model(noise, train.positions)[1] if isinstance(noise, TrackerNoise) else None
+    white = np.broadcast_to(np.eye(3), (len(train), 3, 3)) if white is None else white
+
+    def _white(err):  # each training pose's residual whitened (the isotropic equivalent sigma per axis)
+        return np.einsum("kij,kj->ki", white, err)
     joints = start.n_joints
     emit = progress or (lambda _: None)
     layout = Layout.of(catalogue(start), joints)
@@ -400,10 +484,15 @@ def diagnose(
     residual_before = np.linalg.norm(ev["validation"][1], axis=-1)
     t0 = time.perf_counter()
     while True:
-        chi2 = float(np.sum(ev["train"][1] ** 2) / sigma**2)
+        e_w = _white(ev["train"][1])
+        w = robust.scaled_weights(np.linalg.norm(e_w, axis=-1) / sigma, loss)
+        fit_white = jnp.asarray(white * (np.sqrt(w) / sigma)[:, None, None])
+        keep = w > 0  # the chi-square test and BIC: over the poses not rejected, unweighted
+        chi2 = float(np.sum(e_w[keep] ** 2) / sigma**2)
+        dof = 3 * int(np.sum(keep)) - len(free)
         row = LoopRow(len(accepted), accepted[-1].label(layout) if accepted else "(start)", len(free),
-                      _rms(ev["train"][1]), _rms(ev["validation"][1]), chi2, n_res - len(free),
-                      _p_value(chi2, n_res - len(free)), chi2 + len(free) * ln_n)
+                      _rms(ev["train"][1]), _rms(ev["validation"][1]), chi2, dof,
+                      _p_value(chi2, dof), chi2 + len(free) * ln_n)
         loop.append(row)
         emit(DiagnoseEvent("compare", row.step, time.perf_counter() - t0, row=row,
                            noise_floor=sigma * float(np.sqrt(3.0))))
@@ -415,38 +504,51 @@ def diagnose(
             verdict = f"discrepancy remains after {max_steps} effects (max_steps)"
             break
         q_cur = jnp.asarray(ev["train"][0])
-        r = ev["train"][1].ravel() / sigma
-        jac = np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
+        r = (e_w * np.sqrt(w)[:, None]).ravel() / sigma
+        jac = _rows(np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)),
+                    np.asarray(fit_white))
         found, spec_step = _locate_orders(layout, jac, r, free, accepted, orders, np.asarray(q_cur), ccw[0],
                                           varying, max_order)
         spectra.append(spec_step)
         if any(found[k] for k in found):
-            jac = np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)) / sigma
+            jac = _rows(np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)),
+                        np.asarray(fit_white))
         # name: linearised fit of every candidate, then LM on the shortlist
         scored = _rank_linearised(_candidates(layout, set(free), found, varying), free, jac, r, ln_n)
-        top = scored[:shortlist]
         log = [CandidateScore(c.label(layout), b, b - row.bic) for b, c, _ in scored]
-        winner = None
-        if top:
-            idx = _pad([cols for _, _, cols in top], spare)
+        winner, best, sound, start = None, None, 0, 0
+        while sound < shortlist and start < len(scored):  # a failed fit gives its place to the next candidate
+            batch = list(range(start, min(len(scored), start + shortlist - sound)))
+            start = batch[-1] + 1
+            idx = _pad([scored[k][2] for k in batch], spare)
+            idx = np.concatenate([idx, np.repeat(idx[-1:], shortlist - len(batch), 0)])  # one batch size
             vs, status, nsteps = fns.fit(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale,
-                                         pos, sigma, jnp.asarray(idx))
-            ok_fit, status = np.asarray(status == jr.RESULTS.successful), jr.status_name(status)
+                                         pos, fit_white, jnp.asarray(idx))
+            status = np.atleast_1d(jr.status_name(status))
             pos_fit = np.asarray(fns.exact_batch(robot0, vs, jnp.asarray(orders), th_all, ccw_all, marker))
-            best = None
-            for k, (_, _c, cols) in enumerate(top):
-                err_t = train.positions - pos_fit[k, :k_tr]
-                bic_k = float(np.sum(err_t**2) / sigma**2) + len(cols) * ln_n
-                rms_v = _rms(validation.positions - pos_fit[k, k_tr:])
+            for i, k in enumerate(batch):
+                cols = scored[k][2]
+                err_t = train.positions - pos_fit[i, :k_tr]
+                chi2_k = float(np.sum(_white(err_t)[keep] ** 2) / sigma**2)
+                bic_k = chi2_k + len(cols) * ln_n
+                rms_v = _rms(validation.positions - pos_fit[i, k_tr:])
+                name, message = str(status[i]), None
+                if name == "successful" and not chi2_k <= row.chi2:
+                    name = "nonlinear_divergence"
+                    message = (f"{jr.status_message(jr.RESULTS.nonlinear_divergence)} (chi-square "
+                               f"{chi2_k:.6g} after the fit, {row.chi2:.6g} at its start)")
+                message = message or str(jr.status_message(getattr(jr.RESULTS, name)))
+                sound += name == "successful"
                 log[k] = dataclasses.replace(log[k], bic=bic_k, delta_bic=bic_k - row.bic, rms_train=_rms(err_t),
-                                             rms_validation=rms_v, lm_status=str(status[k]), lm_steps=int(nsteps[k]))
-                if bool(ok_fit[k]) and bic_k < row.bic - MIN_BIC_GAIN and rms_v < row.rms_validation:
+                                             rms_validation=rms_v, lm_status=name, lm_message=message,
+                                             lm_steps=int(nsteps[i]))
+                if name == "successful" and bic_k < row.bic - MIN_BIC_GAIN and rms_v < row.rms_validation:
                     if best is None or bic_k < best[0]:
-                        best = (bic_k, k)
-            if best is not None:
-                winner = top[best[1]]
-                log[best[1]] = dataclasses.replace(log[best[1]], selected=True)
-                v_new = jnp.asarray(vs[best[1]])
+                        best = (bic_k, k, vs[i])
+        if best is not None:
+            winner = scored[best[1]]
+            log[best[1]] = dataclasses.replace(log[best[1]], selected=True)
+            v_new = jnp.asarray(best[2])
         cand_log.append(tuple(log))
         emit(DiagnoseEvent("name", len(accepted) + 1, time.perf_counter() - t0, candidates=tuple(log)))
         if winner is None:
@@ -459,22 +561,34 @@ def diagnose(
         accepted.append(c)
         ev = evaluate(v)
         steps.append(_added_effect(layout, robot0, c, v, orders, dict(zip(cols, std)), ev))
+    drift = None
+    if times is not None:
+        e_w = _white(ev["train"][1])
+        w = robust.scaled_weights(np.linalg.norm(e_w, axis=-1) / sigma, loss)
+        fit_white = white * (np.sqrt(w) / sigma)[:, None, None]
+        jac = _rows(np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, jnp.asarray(ev["train"][0]),
+                                            marker, scale)), fit_white)
+        drift = _drift(layout, jac, (e_w * np.sqrt(w)[:, None]).ravel() / sigma, free, np.asarray(scale), times, ln_n)
+        if drift.named:
+            verdict += (f"; the residuals drift with the acquisition time as a link-length scale growing by "
+                        f"{drift.rate * drift.duration:.3g} over {drift.duration:.0f} s (chi-square decrease "
+                        f"{drift.chi2_gain:.1f})")
     return DiagnoseResult(
         robot=layout.apply(robot0, v, jnp.asarray(orders)), verdict=verdict, steps=tuple(steps), loop=tuple(loop),
         candidates=tuple(cand_log), residuals_before=residual_before,
         residuals_after=np.linalg.norm(ev["validation"][1], axis=-1), spectra=tuple(spectra), noise=sigma,
         validation_bound=validation_bound(sigma, len(validation), len(free), n_res), n_train=len(train),
-        n_validation=len(validation))
+        n_validation=len(validation), loss=loss, drift=drift, outliers=robust.outliers(
+            ev["train"][1], sigma * robust.spread(np.linalg.norm(ev["train"][1], axis=-1) / sigma)))
 
 
 def _checked_inputs(start: jr.Robot, train: Poses, validation: Poses, noise, marker) -> tuple[float, Array]:
     """The tracker noise [m] and marker offset [m] (defaults from `[sensors]`), after checking them and
     the poses against `start` (see `diagnose`)."""
     sensors = jr.read_description(None)["sensors"]
-    sigma = float(sensors["tracker_position_noise_m"] if noise is None else noise)
+    sigma = noise_model(sensors["tracker_position_noise_m"] if noise is None else noise, train.positions[:1],
+                        "noise")[0]
     marker = jnp.asarray(sensors["tracker_marker_offset_m"] if marker is None else marker, float)
-    if not sigma > 0:
-        raise ValueError(f"noise: expected the tracker std per axis > 0 m, found {sigma}")
     if len(train) < 10 or len(validation) < 3:
         raise ValueError(f"poses: expected >= 10 training and >= 3 validation poses, found {len(train)} and "
                          f"{len(validation)}")

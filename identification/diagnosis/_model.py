@@ -66,10 +66,11 @@ class Functions(eqx.Module):
         return jax.jacfwd(f)(jnp.zeros_like(v))
 
     @eqx.filter_jit
-    def fit(self, robot0: jr.Robot, v, orders, theta, ccw, q_cur, marker, scale, target, sigma,
-            idx: Int[Array, "S L"], max_steps: int = 50):
+    def fit(self, robot0: jr.Robot, v, orders, theta, ccw, q_cur, marker, scale, target,
+            whiten: Float[Array, "K 3 3"], idx: Int[Array, "S L"], max_steps: int = 50):
         """Levenberg-Marquardt (optimistix) on the entries `idx` of `v` for each of S candidates
-        (padding points at the spare entry); residuals in units of the noise `sigma`. The
+        (padding points at the spare entry); residuals whitened by each pose's `whiten` (its noise
+        covariance's inverse square root, times the root of its robust weight). The
         candidates run one after another (`lax.map`): each stops at its own step count, and no
         LAPACK call is batched (batched LAPACK calls can deadlock XLA's CPU thread pool in jaxlib 0.10).
 
@@ -79,7 +80,7 @@ class Functions(eqx.Module):
             def fn(x, _):
                 vv = v.at[ix].add(x * scale[ix])
                 p = self.fit_positions(robot0, vv, orders, theta, ccw, q_cur, marker)
-                return ((p - target) / sigma).ravel()
+                return jnp.einsum("kij,kj->ki", whiten, p - target).ravel()
 
             sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=1e-5, atol=1e-5), jnp.zeros(ix.shape),
                                      max_steps=max_steps, throw=False)

@@ -23,7 +23,12 @@ def progress_lines(event: DiagnoseEvent) -> list[str]:
                 f"{r.chi2 / max(r.dof, 1):.3f} (p = {r.p_value:.3g}) [{event.elapsed:.1f} s]"]
     return [f"    {e.candidate:<38} dBIC {_delta_bic(e):12.1f}"
             + (f"  rms val {e.rms_validation * UM:8.2f} um" if e.rms_validation is not None else "")
-            + ("  <- added" if e.selected else "") for e in event.candidates[:5]]
+            + ("  <- added" if e.selected else "") + _failed(e) for e in event.candidates[:5]]
+
+
+def _failed(e: CandidateScore) -> str:
+    """`  LM failed: <message>` for a candidate whose LM fit failed, else empty."""
+    return "" if e.lm_status in (None, "successful") else f"  LM failed: {e.lm_message}"
 
 
 def _delta_bic(e: CandidateScore) -> float:
@@ -80,7 +85,7 @@ def candidate_table(log: tuple[CandidateScore, ...], top: int = 12) -> str:
         lm = f"{e.delta_bic:>11.1f}" if e.delta_bic is not None else f"{'-':>11}"
         val = f"{e.rms_validation * UM:>12.2f}" if e.rms_validation is not None else f"{'-':>12}"
         lines.append(f"{e.candidate:<40} {e.delta_bic_linearised:>11.1f} {lm} {val}  "
-                     f"{'yes' if e.selected else ''}")
+                     f"{'yes' if e.selected else ''}{_failed(e)}")
     return "\n".join(lines)
 
 

@@ -1,0 +1,67 @@
+"""Tracker noise models of pose measurements: isotropic (one std per axis) or a laser tracker's.
+
+A laser tracker measures a distance along its line of sight (interferometer or absolute distance
+meter) and two angles (encoders); the angles' error grows with the range, so across the line of
+sight the noise is larger. Typical figures of industrial laser trackers (Leica AT960, FARO Vantage,
+API Radian: distance about 0.5 um/m + 5-10 um, angles about 15 um + 6 um/m, MPE, i.e. about half
+that as one std) at 2-4 m: 5-10 um along the line of sight, 20-40 um across it. A pose `k` measured
+at `p_k` has the covariance `Sigma_k = s_x^2 (I - u u^T) + s_l^2 u u^T`, `u` the unit vector from the
+tracker to `p_k`, `s_l` along and `s_x` across; the fits whiten each pose's residual by
+`sigma Sigma_k^{-1/2}`, `sigma = sqrt((s_l^2 + 2 s_x^2) / 3)` the isotropic std of the same total
+variance, so whitened residuals of clean data have the std `sigma` per axis in every direction and the
+noise floor (RMS norm of the noise) stays `sigma sqrt(3)`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackerNoise:
+    """A laser tracker's noise model (`[sensors]` `tracker_position_m`, `tracker_noise_along_m`,
+    `tracker_noise_across_m`)."""
+
+    position: np.ndarray
+    """(3,) [m] the tracker's position in the robot's base frame."""
+    along: float
+    """[m] noise std along the line of sight (the distance meter)."""
+    across: float
+    """[m] noise std in each of the two directions across the line of sight (the angle encoders)."""
+
+    @property
+    def sigma(self) -> float:
+        """[m] the isotropic per-axis std of the same total variance, `sqrt((along^2 + 2 across^2) / 3)`."""
+        return float(np.sqrt((self.along**2 + 2.0 * self.across**2) / 3.0))
+
+    def whitening(self, points: np.ndarray) -> np.ndarray:
+        """(K, 3, 3) `sigma Sigma_k^{-1/2}` of the poses measured at `points` (K, 3) [m] (see the module)."""
+        d = np.asarray(points, float) - np.asarray(self.position, float)
+        u = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        uu = u[:, :, None] * u[:, None, :]
+        return self.sigma * ((np.eye(3) - uu) / self.across + uu / self.along)
+
+    @classmethod
+    def of(cls, sensors: dict) -> TrackerNoise | None:
+        """The model of a robot file's `[sensors]` (checked by `jaxrobot.read_description`), None where it
+        states none."""
+        if "tracker_position_m" not in sensors:
+            return None
+        return cls(np.asarray(sensors["tracker_position_m"], float), float(sensors["tracker_noise_along_m"]),
+                   float(sensors["tracker_noise_across_m"]))
+
+
+def noise_model(noise, points: np.ndarray, name: str = "noise") -> tuple[float, np.ndarray | None]:
+    """The per-axis std `sigma` [m] and the whitening (K, 3, 3) of the poses at `points` (None: isotropic)
+    of `noise`: a std per axis [m] or a `TrackerNoise`. Raises `ValueError` naming `name` for a std <= 0."""
+    if isinstance(noise, TrackerNoise):
+        if not (noise.along > 0 and noise.across > 0):
+            raise ValueError(f"{name}: expected the tracker's stds along and across > 0 m, found {noise.along}, "
+                             f"{noise.across}")
+        return noise.sigma, noise.whitening(points)
+    sigma = float(noise)
+    if not sigma > 0:
+        raise ValueError(f"{name}: expected the tracker std per axis > 0 m, found {sigma}")
+    return sigma, None
