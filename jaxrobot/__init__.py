@@ -39,11 +39,15 @@ from ._elasticity import elastic_deflection as elastic_deflection  # noqa: E402
 from ._elasticity import elastic_stiffness as elastic_stiffness  # noqa: E402
 from ._elasticity import elastic_torque as elastic_torque  # noqa: E402
 from ._flat import flat_inverse as flat_inverse  # noqa: E402
+from ._gear import direction_state as direction_state  # noqa: E402
+from ._gear import flank_motor_angle as flank_motor_angle  # noqa: E402
+from ._gear import flank_output as flank_output  # noqa: E402
 from ._gear import fourier_ratio as fourier_ratio  # noqa: E402
 from ._gear import fourier_xi_inverse as fourier_xi_inverse  # noqa: E402
 from ._gear import gear_output as gear_output  # noqa: E402
 from ._gear import gear_ratio as gear_ratio  # noqa: E402
 from ._gear import motor_angle as motor_angle  # noqa: E402
+from ._gear import reversal_travel as reversal_travel  # noqa: E402
 from ._kinematics import analytic_jacobian as analytic_jacobian  # noqa: E402
 from ._kinematics import forward_kinematics as forward_kinematics  # noqa: E402
 from ._kinematics import geometric_jacobian as geometric_jacobian  # noqa: E402
