@@ -42,6 +42,7 @@ from ._flat import flat_inverse as flat_inverse  # noqa: E402
 from ._gear import direction_state as direction_state  # noqa: E402
 from ._gear import flank_motor_angle as flank_motor_angle  # noqa: E402
 from ._gear import flank_output as flank_output  # noqa: E402
+from ._gear import flank_ratio as flank_ratio  # noqa: E402
 from ._gear import fourier_ratio as fourier_ratio  # noqa: E402
 from ._gear import fourier_xi_inverse as fourier_xi_inverse  # noqa: E402
 from ._gear import gear_output as gear_output  # noqa: E402

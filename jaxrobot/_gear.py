@@ -192,7 +192,7 @@ def flank_weight(p: Float[Array, "*b n"], theta: Float[Array, "*b n"], travel: F
     """Weight `sigma` of the ccw flank for play state `p`: `S(1/2 - (theta - p) / travel)` with the quintic
     smoothstep `S(x) = x^3 (10 - 15 x + 6 x^2)` (0 after a cw move, 1 after a ccw move, C2 in `p`)."""
     x = jnp.clip(0.5 - (theta - p) / travel, 0.0, 1.0)
-    return x**3 * (10.0 + x * (6.0 * x - 15.0))
+    return jnp.minimum(x**3 * (10.0 + x * (6.0 * x - 15.0)), 1.0)  # S(1) may round to 1 + 2^-52
 
 
 def play_start(theta: Float[Array, "*b n"], travel: Float[Array, "*b n"], ccw: bool | Bool[Array, "*b n"] = False
@@ -236,6 +236,12 @@ def flank_output(robot: Robot, theta: Float[Array, "*b n"], sigma: Float[Array, 
     phi = fourier_xi_inverse(jnp.broadcast_to(robot.u0, shape), rip.orders, rip.a, rip.b,
                              jnp.broadcast_to(theta, shape))
     return phi - robot.backlash * (0.5 - sigma)
+
+
+def flank_ratio(robot: Robot, phi: Float[Array, "*b n"], sigma: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+    """`dtheta/dphi = u_sigma(phi + b (1/2 - sigma))` of `flank_motor_angle` at fixed `sigma`."""
+    rip = flank_ripple(robot, sigma)
+    return fourier_ratio(robot.u0, rip.orders, rip.a, rip.b, phi + robot.backlash * (0.5 - sigma))
 
 
 def flank_motor_angle(robot: Robot, phi: Float[Array, "*b n"], sigma: Float[Array, "*b n"]) -> Float[Array, "*b n"]:

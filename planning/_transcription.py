@@ -87,6 +87,9 @@ class OCPProblem(eqx.Module):
     """Reference motor acceleration of the `"flat"` cost [rad/s^2] (zeros otherwise)."""
     cost: str = eqx.field(static=True, default="thesis")
     """One of `COSTS`."""
+    direction: Float[Array, "N n"] | None = None
+    """Flank weight `sigma` of each gear at each node (0 cw, 1 ccw; `jr.flank_output`, docs/model.md (B.0));
+    None: the cw set throughout (eq. 4.1)."""
 
     @property
     def n_nodes(self) -> int:
@@ -108,12 +111,14 @@ def ocp_problem(
     nu: float | Float[Array, ""] = 1e-14,
     cost: Cost = "thesis",
     u_ref: Float[Array, "N n"] | None = None,
+    direction: Float[Array, "N n"] | None = None,
 ) -> OCPProblem:
     """Validate the inputs of eq. 4.3 and bundle them (before any compute).
 
     **Arguments:** `q_d` (N, n) desired link angles [rad] sampled every `ts` [s] (N >= 3);
     `nu > 0`; `cost` in `COSTS`; `u_ref` (N, n) [motor rad/s^2] for `cost="flat"`
-    (default: the quasi-static/flat warm start's `u`, see `warm_start`).
+    (default: the quasi-static/flat warm start's `u`, see `warm_start`); `direction` (N, n) flank weights
+    in [0, 1] of the gears at the nodes (default: cw throughout).
 
     **Raises:** `ValueError` naming the field for wrong shapes, non-finite values, `ts <= 0`,
     `nu <= 0` or an unknown cost. Traced values (under `jit`/`vmap`) are not range-checked.
@@ -142,8 +147,15 @@ def ocp_problem(
                          f"found {np.shape(u_ref)}")
     elif _concrete(u_ref) and not np.all(np.isfinite(np.asarray(u_ref))):
         raise ValueError("u_ref: expected finite motor accelerations [rad/s^2], found NaN or inf")
+    if direction is not None:
+        if np.shape(direction) != (n, joints):
+            raise ValueError(f"direction: expected flank weights of shape ({n}, {joints}) in [0, 1], "
+                             f"found {np.shape(direction)}")
+        if _concrete(direction) and not np.all((np.asarray(direction) >= 0) & (np.asarray(direction) <= 1)):
+            raise ValueError("direction: expected flank weights in [0, 1] (0 cw, 1 ccw), found values outside")
+        direction = jnp.asarray(direction, float)
     return OCPProblem(robot=robot, q_d=jnp.asarray(q_d, float), ts=jnp.asarray(ts, float),
-                      nu=jnp.asarray(nu, float), u_ref=jnp.asarray(u_ref, float), cost=cost)
+                      nu=jnp.asarray(nu, float), u_ref=jnp.asarray(u_ref, float), cost=cost, direction=direction)
 
 
 # ----------------------------------------------------------------------------- eq. 4.3 as written
@@ -152,11 +164,16 @@ def ocp_problem(
 def boundary_states(problem: OCPProblem) -> tuple[Float[Array, " 4*n"], Float[Array, " 4*n"]]:
     """Fixed states of the first and last node (eq. 4.3e-i); `u` is 0 there (eq. 4.3j)."""
 
-    def rest(q):
-        z = jnp.zeros_like(q)
-        return State(q, z, jr.static_equilibrium(problem.robot, q), z).pack()
+    r, sigma = problem.robot, problem.direction
 
-    return rest(problem.q_d[0]), rest(problem.q_d[-1])
+    def rest(k):
+        q = problem.q_d[k]
+        z = jnp.zeros_like(q)
+        theta = jr.static_equilibrium(r, q) if sigma is None else jr.flank_motor_angle(
+            r, q + jr.elastic_deflection(r, jr.gravity_torque(r, q)), sigma[k])
+        return State(q, z, theta, z).pack()
+
+    return rest(0), rest(-1)
 
 
 def bounds(problem: OCPProblem) -> tuple[Float[Array, " 5*n"], Float[Array, " 5*n"]]:
@@ -179,7 +196,7 @@ def objective(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N 
 
 def defects(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, "Nm1 4*n"]:
     """Trapezoidal collocation defects `x_{k+1} - x_k - T_s/2 (f_k + f_{k+1})` (eq. 4.3b), unscaled."""
-    f = jr.planning_dynamics(problem.robot, x, u)
+    f = jr.planning_dynamics(problem.robot, x, u, problem.direction)
     return x[1:] - x[:-1] - 0.5 * problem.ts * (f[1:] + f[:-1])
 
 
@@ -265,6 +282,16 @@ def _link_acceleration(robot: jr.Robot, q, qd, phi, d) -> Float[Array, "N n"]:
     return spd_solve(d, rhs[..., None])[..., 0]
 
 
+def gear(problem: OCPProblem, theta: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
+    """Gear output angles and ratios `dtheta/dphi` at the nodes' motor angles, on the problem's flanks."""
+    r, sigma = problem.robot, problem.direction
+    if sigma is None:
+        phi = jr.gear_output(r, theta)
+        return phi, jr.gear_ratio(r, phi)
+    phi = jr.flank_output(r, theta, sigma)
+    return phi, jr.flank_ratio(r, phi, sigma)
+
+
 class HalfStep(eqx.Module):
     """`g = T_s/2 f(x, u)` (scaled) at the scaled nodes `y`, with the intermediates that its
     derivatives reuse (`half_step_vjp`)."""
@@ -273,6 +300,8 @@ class HalfStep(eqx.Module):
     g: Float[Array, "*b 4*n"]
     phi: Float[Array, "*b n"]
     """Gear output angles `Xi^-1(theta)` [rad]."""
+    ratio: Float[Array, "*b n"]
+    """Gear ratios `dtheta/dphi` there."""
     mass: Float[Array, "*b n n"]
     qdd: Float[Array, "*b n"]
 
@@ -285,10 +314,11 @@ def half_step(problem: OCPProblem, y: Float[Array, "*b 5*n"]) -> HalfStep:
     z = y * sz
     nx = 4 * problem.n_joints
     x, u = State.of(z[..., :nx]), z[..., nx:]
-    phi, d = jr.gear_output(r, x.theta), jr.mass_matrix(r, x.q)
+    phi, ratio = gear(problem, x.theta)
+    d = jr.mass_matrix(r, x.q)
     qdd = _link_acceleration(r, x.q, x.qd, phi, d)
     f = State(x.qd, qdd, x.thetad, u).pack()
-    return HalfStep(y=y, g=0.5 * problem.ts * f / sz[:nx], phi=phi, mass=d, qdd=qdd)
+    return HalfStep(y=y, g=0.5 * problem.ts * f / sz[:nx], phi=phi, ratio=ratio, mass=d, qdd=qdd)
 
 
 def inverse_dynamics_vjp(problem: OCPProblem, h: HalfStep
@@ -320,7 +350,7 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
         s = spd_solve(h.mass, wf.qd[..., None])[..., 0]
         id_q, id_qd = id_vjp(s)
         stiff = jr.elastic_stiffness(r, h.phi - x.q) * s
-        out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / jr.gear_ratio(r, h.phi), wf.theta, wf.thetad],
+        out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / h.ratio, wf.theta, wf.thetad],
                               -1)
         return out * sz
 
@@ -355,7 +385,7 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
     rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(j)[:, None, :], (j, *q.shape)))  # row i of dID
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
     rhs = jnp.concatenate([-(id_q + jax.vmap(jnp.diag)(stiff)), -id_qd,
-                           jax.vmap(jnp.diag)(stiff / jr.gear_ratio(r, h.phi))], -1)
+                           jax.vmap(jnp.diag)(stiff / h.ratio)], -1)
     dqdd = spd_solve(h.mass, rhs)  # (N, n, 3n): d qdd / d (q, qd, theta)
     return (0.5 * problem.ts / sz[j:2 * j, None]) * dqdd * sz[:3 * j]
 
@@ -387,7 +417,8 @@ def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 4*n"], Float[Array,
     qd = _time_derivative(q, ts)
     qdd = _time_derivative(qd, ts)
     tau = jr.inverse_dynamics(r, q, qd, qdd)
-    theta = jr.motor_angle(r, q + jr.elastic_deflection(r, tau))
+    phi = q + jr.elastic_deflection(r, tau)
+    theta = jr.motor_angle(r, phi) if problem.direction is None else jr.flank_motor_angle(r, phi, problem.direction)
     thetad = _time_derivative(theta, ts)
     u = _time_derivative(thetad, ts)
     x = State(q, qd, theta, thetad).pack()
