@@ -71,7 +71,8 @@ def main() -> None:
             flat = baseline_trajectories(model, jp)["flat_inverse"]
             for directional in (False, True):
                 start = time.perf_counter()
-                sol, _, _ = solve_directional(model, jp.q, jp.qd, flat, float(path.sample_time), nu, "thesis", directional)
+                ts = float(path.sample_time)
+                sol, _, _ = solve_directional(model, jp.q, jp.qd, flat, ts, nu, "thesis", directional)
                 solve_s = time.perf_counter() - start
                 ev = evaluate(truth, jp, {"ocp": ocp_motor_trajectory(sol.x, sol.u), "flat": flat})
                 row = dict(task=task, nu=nu, model=label, plan="flanks" if directional else "cw",

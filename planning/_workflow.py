@@ -140,11 +140,11 @@ DIRECTION_SOLVES = 4
 def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Array, "N n"], flat: MotorTrajectory,
                       ts: float, nu: float, cost: str, directional: bool
                       ) -> tuple[OCPSolution, Float[Array, "N n"] | None, tuple]:
-    """The OCP of the joint path `q_d` (rates `qd_d`) warm-started by its flat inverse `flat`; with `directional`, on the flanks the gears take
-    along the planned motion (from rest on cw): planned with the flank weights of the motor angles of the
-    previous plan (first of `flat`), until the gear outputs on both agree within `DIRECTION_TOLERANCE` (at most
-    `DIRECTION_SOLVES` solves). Returns the solution, the flank weights it was planned with (None: cw) and its
-    warm start."""
+    """The OCP of the joint path `q_d` (rates `qd_d`) warm-started by its flat inverse `flat`; with
+    `directional`, on the flanks the gears take along the planned motion (from rest on cw): planned with the
+    flank weights of the motor angles of the previous plan (first of `flat`), until the gear outputs on both
+    agree within `DIRECTION_TOLERANCE` (at most `DIRECTION_SOLVES` solves). Returns the solution, the flank
+    weights it was planned with (None: cw) and its warm start."""
     from ._ocp import solve_ocp
 
     warm = (State(q_d, qd_d, flat.theta, flat.thetad).pack(), flat.thetadd)
