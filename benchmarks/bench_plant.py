@@ -43,6 +43,12 @@ def reversals(thetad: np.ndarray) -> np.ndarray:
     return np.array(out)
 
 
+def flank_changes(robot, theta) -> np.ndarray:
+    """Changes of flank of each gear of `robot` along the motor angles `theta` (weight crossing 1/2, from cw)."""
+    side = np.asarray(jr.direction_state(robot, theta)) > 0.5
+    return np.count_nonzero(np.diff(np.concatenate([np.zeros((1, side.shape[1]), bool), side]), axis=0), axis=0)
+
+
 def evaluate(truth, jp, trajectories):
     """Per plant (cw, directional): name -> (max along the path, max at rest after it) [µm]."""
     out = {}
@@ -77,12 +83,15 @@ def main() -> None:
                 ev = evaluate(truth, jp, {"ocp": ocp_motor_trajectory(sol.x, sol.u), "flat": flat})
                 row = dict(task=task, nu=nu, model=label, plan="flanks" if directional else "cw",
                            status=jr.status_name(sol.status), cw=ev[False], dir=ev[True],
-                           rev=reversals(sol.thetad), rev_flat=reversals(flat.thetad), solve_s=solve_s)
+                           rev=reversals(sol.thetad), rev_flat=reversals(flat.thetad),
+                           flank=flank_changes(truth, sol.theta), flank_flat=flank_changes(truth, flat.theta),
+                           solve_s=solve_s)
                 rows.append(row)
                 print(f"{task} {nu:g} {label:18s} plan {row['plan']:6s} {row['status']}: OCP cw-plant "
                       f"{ev[False]['ocp'][0]:.3f} µm, directional plant {ev[True]['ocp'][0]:.3f} µm (rest "
                       f"{ev[True]['ocp'][1]:.3f}), flat {ev[False]['flat'][0]:.3f} / {ev[True]['flat'][0]:.3f} µm, "
-                      f"reversals {row['rev'].tolist()} (flat inverse {row['rev_flat'].tolist()}), {solve_s:.0f} s",
+                      f"reversals {row['rev'].tolist()} (flat inverse {row['rev_flat'].tolist()}), flank changes "
+                      f"{row['flank'].tolist()} ({row['flank_flat'].tolist()}), {solve_s:.0f} s",
                       flush=True)
     if args.quick:
         return
@@ -96,19 +105,22 @@ def main() -> None:
         "after the motion. `plan cw`: the OCP on the cw set throughout (eq. 4.1, the thesis); `plan flanks`: on",
         "the model's flanks along the planned motion (`planning._workflow.solve_directional`, what",
         "`jaxrobot plan --plant as-built` does). `flat`: the flat inverse of the same model (cw). Reversals:",
-        "sign changes of the OCP's motor rate per joint (the flat inverse's in brackets).",
+        "sign changes of the OCP's motor rate per joint; flank changes: how often each gear of the as-built robot",
+        "changes flank along the OCP's motor angles (`jr.direction_state` crossing 1/2, from rest on cw); the flat",
+        "inverse's (the exact inverse of the same model) in brackets.",
         "",
         f"Machine: {platform.machine()}, {os.cpu_count()} CPU cores, JAX {jax.__version__}, "
         f"backend {jax.default_backend()}.",
         "",
         "| task | ν | planning model | plan | OCP, cw plant | OCP, flank plant | rest, flank plant | "
-        "flat, cw plant | flat, flank plant | OCP reversals (flat inverse) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "flat, cw plant | flat, flank plant | OCP reversals (flat inverse) | OCP flank changes (flat inverse) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(f"| {r['task']} | {r['nu']:g} | {r['model']} | {r['plan']} | {r['cw']['ocp'][0]:.3f} | "
                      f"{r['dir']['ocp'][0]:.3f} | {r['dir']['ocp'][1]:.3f} | {r['cw']['flat'][0]:.3f} | "
-                     f"{r['dir']['flat'][0]:.3f} | {r['rev'].tolist()} ({r['rev_flat'].tolist()}) |")
+                     f"{r['dir']['flat'][0]:.3f} | {r['rev'].tolist()} ({r['rev_flat'].tolist()}) | "
+                     f"{r['flank'].tolist()} ({r['flank_flat'].tolist()}) |")
     OUT.write_text("\n".join(lines) + "\n")
     print(f"wrote {OUT}")
 

@@ -43,11 +43,13 @@ from ._gear import direction_state as direction_state  # noqa: E402
 from ._gear import flank_motor_angle as flank_motor_angle  # noqa: E402
 from ._gear import flank_output as flank_output  # noqa: E402
 from ._gear import flank_ratio as flank_ratio  # noqa: E402
+from ._gear import flank_weight as flank_weight  # noqa: E402
 from ._gear import fourier_ratio as fourier_ratio  # noqa: E402
 from ._gear import fourier_xi_inverse as fourier_xi_inverse  # noqa: E402
 from ._gear import gear_output as gear_output  # noqa: E402
 from ._gear import gear_ratio as gear_ratio  # noqa: E402
 from ._gear import motor_angle as motor_angle  # noqa: E402
+from ._gear import play_state as play_state  # noqa: E402
 from ._gear import reversal_travel as reversal_travel  # noqa: E402
 from ._kinematics import analytic_jacobian as analytic_jacobian  # noqa: E402
 from ._kinematics import forward_kinematics as forward_kinematics  # noqa: E402

@@ -169,17 +169,18 @@ def gear_output(
 
 
 def reversal_travel(robot: Robot) -> Float[Array, "*b n"]:
-    """Default motor travel `w` [rad] of a reversal: `u0 (b + e_cw + e_ccw)`, the travel that carries the output
-    across the lost motion `b` and the widest gap between the two flanks, `e = sum_j (|a_j| + 2 |b_j|) / n_j`
-    bounding `|Xi(phi) / u0 - phi|` of each set. A gear without ripple and backlash gets `w = u0 * 1e-9`."""
+    """Default motor travel `w` [rad] of a reversal: `3 u0 (b + e_cw + e_ccw)` with the lost motion `b` and
+    `e = sum_j (|a_j| + 2 |b_j|) / n_j` of each set, which bounds `|Xi(phi) / u0 - phi|`: three times the travel
+    that carries the output across the lost motion and the widest gap between the flanks, so that the output
+    keeps following the motor through a reversal (`dphi/dtheta >= (1 / (1 + rho) - 5/8) / u0 > 0` for a ripple
+    `rho = sum_j |(a_j, b_j)| < 0.6`). A gear without ripple and backlash gets `w = 3e-9 u0`."""
 
     def bound(rip):
         used = rip.orders > 0
         return jnp.sum(jnp.where(used, (jnp.abs(rip.a) + 2 * jnp.abs(rip.b)) / jnp.where(used, rip.orders, 1.0),
                                  0.0), -1)
 
-    return robot.u0 * jnp.maximum(robot.backlash + bound(robot.cw) + bound(robot.ccw), 1e-9)
-
+    return 3.0 * robot.u0 * jnp.maximum(robot.backlash + bound(robot.cw) + bound(robot.ccw), 1e-9)
 
 def play(p: Float[Array, "*b n"], theta: Float[Array, "*b n"], travel: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
     """One step of the play operator of width `travel`: `p` moved just enough to stay within `travel / 2` of
@@ -201,17 +202,19 @@ def play_start(theta: Float[Array, "*b n"], travel: Float[Array, "*b n"], ccw: b
     return theta - 0.5 * travel * (1.0 - 2.0 * jnp.asarray(ccw, float))
 
 
+def play_state(robot: Robot, theta: Float[Array, "N n"], ccw: bool | Bool[Array, " n"] = False,
+               travel: Float[Array, " n"] | None = None) -> Float[Array, "N n"]:
+    """Play states `p` (module docstring) along sampled motor angles `theta`, the gear at rest on flank `ccw`
+    before `theta[0]` (`travel`: default `reversal_travel(robot)`)."""
+    w = reversal_travel(robot) if travel is None else travel
+    return jax.lax.scan(lambda p, th: (play(p, th, w),) * 2, play_start(theta[0], w, ccw), theta)[1]
+
+
 def direction_state(robot: Robot, theta: Float[Array, "N n"], ccw: bool | Bool[Array, " n"] = False,
                     travel: Float[Array, " n"] | None = None) -> Float[Array, "N n"]:
-    """Flank weights `sigma` along sampled motor angles `theta`, the gear at rest on flank `ccw` before
-    `theta[0]` (`travel`: default `reversal_travel(robot)`)."""
+    """Flank weights `sigma` along sampled motor angles `theta` (arguments as `play_state`)."""
     w = reversal_travel(robot) if travel is None else travel
-
-    def step(p, th):
-        p = play(p, th, w)
-        return p, flank_weight(p, th, w)
-
-    return jax.lax.scan(step, play_start(theta[0], w, ccw), theta)[1]
+    return flank_weight(play_state(robot, theta, ccw, w), theta, w)
 
 
 def flank_ripple(robot: Robot, sigma: Float[Array, "*b n"]) -> Ripple:

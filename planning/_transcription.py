@@ -87,9 +87,12 @@ class OCPProblem(eqx.Module):
     """Reference motor acceleration of the `"flat"` cost [rad/s^2] (zeros otherwise)."""
     cost: str = eqx.field(static=True, default="thesis")
     """One of `COSTS`."""
-    direction: Float[Array, "N n"] | None = None
-    """Flank weight `sigma` of each gear at each node (0 cw, 1 ccw; `jr.flank_output`, docs/model.md (B.0));
-    None: the cw set throughout (eq. 4.1)."""
+    play: Float[Array, "N n"] | None = None
+    """Play state of each gear at each node [motor rad] (`jr.play_state`, docs/model.md (B.0)): the flank
+    weights are `jr.flank_weight(play, theta, travel)` of the nodes' motor angles; None: the cw set
+    throughout (eq. 4.1)."""
+    travel: Float[Array, " n"] | None = None
+    """Reversal travel of each gear [motor rad] (`jr.reversal_travel`), with `play`."""
 
     @property
     def n_nodes(self) -> int:
@@ -111,14 +114,16 @@ def ocp_problem(
     nu: float | Float[Array, ""] = 1e-14,
     cost: Cost = "thesis",
     u_ref: Float[Array, "N n"] | None = None,
-    direction: Float[Array, "N n"] | None = None,
+    play: Float[Array, "N n"] | None = None,
+    travel: Float[Array, " n"] | None = None,
 ) -> OCPProblem:
     """Validate the inputs of eq. 4.3 and bundle them (before any compute).
 
     **Arguments:** `q_d` (N, n) desired link angles [rad] sampled every `ts` [s] (N >= 3);
     `nu > 0`; `cost` in `COSTS`; `u_ref` (N, n) [motor rad/s^2] for `cost="flat"`
-    (default: the quasi-static/flat warm start's `u`, see `warm_start`); `direction` (N, n) flank weights
-    in [0, 1] of the gears at the nodes (default: cw throughout).
+    (default: the quasi-static/flat warm start's `u`, see `warm_start`); `play` (N, n) the play states of
+    the gears at the nodes [motor rad] and `travel` (n,) their reversal travel (default
+    `jr.reversal_travel(robot)`): the flanks follow the motor angles (default: cw throughout).
 
     **Raises:** `ValueError` naming the field for wrong shapes, non-finite values, `ts <= 0`,
     `nu <= 0` or an unknown cost. Traced values (under `jit`/`vmap`) are not range-checked.
@@ -147,30 +152,54 @@ def ocp_problem(
                          f"found {np.shape(u_ref)}")
     elif _concrete(u_ref) and not np.all(np.isfinite(np.asarray(u_ref))):
         raise ValueError("u_ref: expected finite motor accelerations [rad/s^2], found NaN or inf")
-    if direction is not None:
-        if np.shape(direction) != (n, joints):
-            raise ValueError(f"direction: expected flank weights of shape ({n}, {joints}) in [0, 1], "
-                             f"found {np.shape(direction)}")
-        if _concrete(direction) and not np.all((np.asarray(direction) >= 0) & (np.asarray(direction) <= 1)):
-            raise ValueError("direction: expected flank weights in [0, 1] (0 cw, 1 ccw), found values outside")
-        direction = jnp.asarray(direction, float)
+    if play is not None:
+        if np.shape(play) != (n, joints):
+            raise ValueError(f"play: expected play states of shape ({n}, {joints}) [motor rad], found {np.shape(play)}")
+        travel = jr.reversal_travel(robot) if travel is None else travel
+        if np.shape(travel) != (joints,):
+            raise ValueError(f"travel: expected reversal travels of shape ({joints},) [motor rad], "
+                             f"found {np.shape(travel)}")
+        if _concrete(travel) and not np.all(np.asarray(travel) > 0):
+            raise ValueError(f"travel: expected reversal travels > 0 [motor rad], found {np.asarray(travel)}")
+        play, travel = jnp.asarray(play, float), jnp.asarray(travel, float)
     return OCPProblem(robot=robot, q_d=jnp.asarray(q_d, float), ts=jnp.asarray(ts, float),
-                      nu=jnp.asarray(nu, float), u_ref=jnp.asarray(u_ref, float), cost=cost, direction=direction)
+                      nu=jnp.asarray(nu, float), u_ref=jnp.asarray(u_ref, float), cost=cost, play=play, travel=travel)
 
 
 # ----------------------------------------------------------------------------- eq. 4.3 as written
+
+REST_NEWTON_STEPS = 6
+"""Newton steps for the end nodes' motor angles on the flanks (`boundary_states`), from the cw rest pose:
+`phi(theta)` is monotone with a slope within a factor 3 of `1/u0` (`jr.reversal_travel`)."""
+
+
+def flank_weights(problem: OCPProblem, theta: Float[Array, "*b n"], k: int | slice = slice(None)
+                  ) -> Float[Array, "*b n"] | None:
+    """Flank weights of the gears at motor angles `theta` of the nodes `k` (None without `play`)."""
+    if problem.play is None:
+        return None
+    return jr.flank_weight(problem.play[k], theta, problem.travel)
+
+
+def _flank_output(problem: OCPProblem, theta, k: int | slice = slice(None)):
+    return jr.flank_output(problem.robot, theta, flank_weights(problem, theta, k))
+
 
 
 def boundary_states(problem: OCPProblem) -> tuple[Float[Array, " 4*n"], Float[Array, " 4*n"]]:
     """Fixed states of the first and last node (eq. 4.3e-i); `u` is 0 there (eq. 4.3j)."""
 
-    r, sigma = problem.robot, problem.direction
+    r = problem.robot
 
     def rest(k):
         q = problem.q_d[k]
         z = jnp.zeros_like(q)
-        theta = jr.static_equilibrium(r, q) if sigma is None else jr.flank_motor_angle(
-            r, q + jr.elastic_deflection(r, jr.gravity_torque(r, q)), sigma[k])
+        theta = jr.static_equilibrium(r, q)
+        if problem.play is not None:  # Newton on the gear output, the flank weight following theta
+            phi = q + jr.elastic_deflection(r, jr.gravity_torque(r, q))
+            for _ in range(REST_NEWTON_STEPS):
+                out, slope = jax.jvp(lambda th: _flank_output(problem, th, k), (theta,), (jnp.ones_like(theta),))
+                theta = theta - (out - phi) / slope
         return State(q, z, theta, z).pack()
 
     return rest(0), rest(-1)
@@ -196,7 +225,7 @@ def objective(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N 
 
 def defects(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, "Nm1 4*n"]:
     """Trapezoidal collocation defects `x_{k+1} - x_k - T_s/2 (f_k + f_{k+1})` (eq. 4.3b), unscaled."""
-    f = jr.planning_dynamics(problem.robot, x, u, problem.direction)
+    f = jr.planning_dynamics(problem.robot, x, u, flank_weights(problem, State.of(x).theta))
     return x[1:] - x[:-1] - 0.5 * problem.ts * (f[1:] + f[:-1])
 
 
@@ -283,13 +312,14 @@ def _link_acceleration(robot: jr.Robot, q, qd, phi, d) -> Float[Array, "N n"]:
 
 
 def gear(problem: OCPProblem, theta: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
-    """Gear output angles and ratios `dtheta/dphi` at the nodes' motor angles, on the problem's flanks."""
-    r, sigma = problem.robot, problem.direction
-    if sigma is None:
+    """Gear output angles and `dtheta/dphi` at the nodes' motor angles, on the problem's flanks (the flank weight
+    a function of `theta` at the node's play state)."""
+    r = problem.robot
+    if problem.play is None:
         phi = jr.gear_output(r, theta)
         return phi, jr.gear_ratio(r, phi)
-    phi = jr.flank_output(r, theta, sigma)
-    return phi, jr.flank_ratio(r, phi, sigma)
+    phi, slope = jax.jvp(lambda th: _flank_output(problem, th), (theta,), (jnp.ones_like(theta),))
+    return phi, 1.0 / slope
 
 
 class HalfStep(eqx.Module):
@@ -418,7 +448,9 @@ def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 4*n"], Float[Array,
     qdd = _time_derivative(qd, ts)
     tau = jr.inverse_dynamics(r, q, qd, qdd)
     phi = q + jr.elastic_deflection(r, tau)
-    theta = jr.motor_angle(r, phi) if problem.direction is None else jr.flank_motor_angle(r, phi, problem.direction)
+    theta = jr.motor_angle(r, phi)
+    if problem.play is not None:
+        theta = jr.flank_motor_angle(r, phi, flank_weights(problem, theta))
     thetad = _time_derivative(theta, ts)
     u = _time_derivative(thetad, ts)
     x = State(q, qd, theta, thetad).pack()

@@ -110,9 +110,9 @@ class PlanResult:
     """[m] task positions on the grid."""
     r_d: Float[Array, "N 3 3"] | None = None
     """Task orientations on the grid."""
-    direction: Float[Array, "N n"] | None = None
-    """Flank weights of the gears the OCP planned with (`jr.direction_state` of its motor angles); None: the
-    cw set throughout."""
+    play: Float[Array, "N n"] | None = None
+    """Play states of the gears the OCP planned with (`jr.play_state`; the flank weights follow its motor
+    angles); None: the cw set throughout."""
 
     @property
     def converged(self) -> bool:
@@ -131,7 +131,7 @@ def _tool_position(robot, q):
 
 
 DIRECTION_TOLERANCE = 1e-10
-"""[rad] Largest change of a gear output between the flanks planned with and those of the plan's motor angles
+"""[rad] Largest change of a gear output between the play states planned with and those of the plan's motion
 at which `solve_directional` stops."""
 DIRECTION_SOLVES = 4
 """Most OCP solves of `solve_directional`."""
@@ -141,26 +141,28 @@ def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Arr
                       ts: float, nu: float, cost: str, directional: bool
                       ) -> tuple[OCPSolution, Float[Array, "N n"] | None, tuple]:
     """The OCP of the joint path `q_d` (rates `qd_d`) warm-started by its flat inverse `flat`; with
-    `directional`, on the flanks the gears take along the planned motion (from rest on cw): planned with the
-    flank weights of the motor angles of the previous plan (first of `flat`), until the gear outputs on both
-    agree within `DIRECTION_TOLERANCE` (at most `DIRECTION_SOLVES` solves). Returns the solution, the flank
-    weights it was planned with (None: cw) and its warm start."""
+    `directional`, on the flanks the gears take along the planned motion (from rest on cw): the flank weight of
+    each node follows its motor angle at the play state of the previous plan's motion (first of `flat` on
+    the flanks), until the gear outputs on both play states agree within `DIRECTION_TOLERANCE` (at most
+    `DIRECTION_SOLVES` solves). Returns the solution, the play states it was planned with (None: cw) and
+    its warm start."""
     from ._ocp import solve_ocp
 
     warm = (State(q_d, qd_d, flat.theta, flat.thetad).pack(), flat.thetadd)
     if not directional:
         return solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm), None, warm
-    direction = jr.direction_state(robot, flat.theta)
-    theta = jr.flank_motor_angle(robot, jr.gear_output(robot, flat.theta), direction)
+    w = jr.reversal_travel(robot)
+    theta = jr.flank_motor_angle(robot, jr.gear_output(robot, flat.theta), jr.direction_state(robot, flat.theta))
+    play = jr.play_state(robot, theta)
     warm = (State(q_d, qd_d, theta, flat.thetad).pack(), flat.thetadd)
     for _ in range(DIRECTION_SOLVES):
-        sol = solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm, direction=direction)
-        new = jr.direction_state(robot, sol.theta)
-        change = jnp.abs(jr.flank_output(robot, sol.theta, new) - jr.flank_output(robot, sol.theta, direction))
-        if not bool(sol.converged) or float(change.max()) <= DIRECTION_TOLERANCE:
+        sol = solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm, play=play, travel=w)
+        new = jr.play_state(robot, sol.theta)
+        out = lambda p: jr.flank_output(robot, sol.theta, jr.flank_weight(p, sol.theta, w))  # noqa: E731
+        if not bool(sol.converged) or float(jnp.abs(out(new) - out(play)).max()) <= DIRECTION_TOLERANCE:
             break
-        warm, direction = (sol.x, sol.u), new
-    return sol, direction, warm
+        warm, play = (sol.x, sol.u), new
+    return sol, play, warm
 
 
 def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str = "thesis",
@@ -196,14 +198,14 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     ts = float(path.sample_time)
     emit(PlanEvent("solving", samples=jp.t.shape[0], nu=nu, cost=cost))
     start = time.perf_counter()
-    sol, direction, warm = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
+    sol, play, warm = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
     jax.block_until_ready(sol.u)
     first = time.perf_counter() - start
     emit(PlanEvent("ocp", first))
     solve_s, compile_s = first, None  # one call: compile and solve together
     if timing:  # a second, compiled call separates compile and solve time
         start = time.perf_counter()
-        jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm, direction=direction).u)
+        jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm, play=play).u)
         solve_s = time.perf_counter() - start
         compile_s = max(first - solve_s, 0.0)
         emit(PlanEvent("ocp_again", solve_s))
@@ -215,7 +217,7 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
                    solve_time=solve_s, compile_time=compile_s))
     ocp = ocp_motor_trajectory(sol.x, sol.u)
     if not bool(sol.converged):
-        return PlanResult(path, jp, sol, {"ocp": ocp}, nu, cost, solve_s, compile_s, direction=direction)
+        return PlanResult(path, jp, sol, {"ocp": ocp}, nu, cost, solve_s, compile_s, play=play)
     p_d, r_d = jax.jit(lambda t: sample_path(path, t))(jp.t)
     plan_err = np.linalg.norm(np.asarray(_tool_position(robot, sol.q) - p_d), axis=-1)
     trajectories = {**base, "ocp": ocp}
@@ -226,7 +228,7 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
         (k, float(errors.position_max[i]), float(errors.position_rms[i]), float(errors.settle_position_max[i]))
         for i, k in enumerate(names))))
     return PlanResult(path, jp, sol, trajectories, nu, cost, solve_s, compile_s, plant, tuple(names), run, errors,
-                      plan_err, p_d, r_d, direction)
+                      plan_err, p_d, r_d, play)
 
 
 @dataclasses.dataclass(frozen=True)

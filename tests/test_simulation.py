@@ -112,14 +112,14 @@ def test_flank_transition_follows_motor_travel():
     `reversal_travel`); a reversal of 1e-7 rad moves the output by 1e-7 / u(phi), not by the gap between
     the flanks; and at the ends the output is each flank's transmission with the lost motion (rest model)."""
     w = jr.reversal_travel(AS_BUILT)
-    np.testing.assert_allclose(w / AS_BUILT.u0, [3.30959e-4, 1.99768e-4, 2.43683e-3, 1e-9, 1e-9, 1e-9], rtol=1e-5)
+    np.testing.assert_allclose(w / AS_BUILT.u0, [9.92878e-4, 5.99305e-4, 7.31048e-3, 3e-9, 3e-9, 3e-9], rtol=1e-5)
     th0 = jr.static_equilibrium(AS_BUILT, QA)
     # forward by 2w (cw), back by x w: the weight is S(x) for x in [0, 1], then 1
     x = jnp.linspace(0.0, 1.5, 16)
     path = jnp.concatenate([th0 + jnp.linspace(0, 2, 9)[:, None] * w, th0 + (2 - x)[:, None] * w])
     sigma = jr.direction_state(AS_BUILT, path)
     s = jnp.clip(x, 0, 1)
-    # joints 1-3 (w >= 1.6e-2 rad: the angles' rounding is 1e-14 of w; joints 4-6 have w = 5e-8 rad)
+    # joints 1-3 (w >= 5e-2 rad: the angles' rounding is 1e-14 of w; joints 4-6 have w = 1.5e-7 rad)
     np.testing.assert_allclose(sigma[9:, :3], jnp.broadcast_to((s**3 * (10 - 15 * s + 6 * s**2))[:, None], (16, 3)),
                                atol=1e-12)
     # moving cw: the rounding of theta - w/2 (x <= 1e-16 |theta| / w < 1e-8) enters cubed, S(x) = 10 x^3
