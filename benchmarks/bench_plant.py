@@ -121,6 +121,16 @@ def main() -> None:
                      f"{r['dir']['ocp'][0]:.3f} | {r['dir']['ocp'][1]:.3f} | {r['cw']['flat'][0]:.3f} | "
                      f"{r['dir']['flat'][0]:.3f} | {r['rev'].tolist()} ({r['rev_flat'].tolist()}) | "
                      f"{r['flank'].tolist()} ({r['flank_flat'].tolist()}) |")
+    lines += ["", "Goals (largest path error on the flank plant, OCP planned on the flanks):", ""]
+    pick = {(r["task"], r["nu"], r["model"], r["plan"]): r for r in rows}
+    for task, nu in cases:
+        truth_row, cw_row = pick[task, nu, "as-built truth", "flanks"], pick[task, nu, "as-built truth", "cw"]
+        cal = pick[task, nu, "calibrated (demo)", "flanks"]
+        lines.append(f"- {task}, ν = {nu:g}: plan on the truth {truth_row['dir']['ocp'][0]:.3f} µm, "
+                     f"{truth_row['dir']['ocp'][0] / cw_row['cw']['ocp'][0]:.2f}× the model's own error (the cw "
+                     f"plan on the cw plant, {cw_row['cw']['ocp'][0]:.3f} µm); plan on the calibrated model "
+                     f"{cal['dir']['ocp'][0]:.3f} µm, {cal['dir']['ocp'][0] / cal['cw']['ocp'][0]:.2f}× the same "
+                     f"plan on the cw plant ({cal['cw']['ocp'][0]:.3f} µm).")
     OUT.write_text("\n".join(lines) + "\n")
     print(f"wrote {OUT}")
 
