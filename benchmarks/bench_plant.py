@@ -112,12 +112,13 @@ def main() -> None:
         f"Machine: {platform.machine()}, {os.cpu_count()} CPU cores, JAX {jax.__version__}, "
         f"backend {jax.default_backend()}.",
         "",
-        "| task | ν | planning model | plan | OCP, cw plant | OCP, flank plant | rest, flank plant | "
+        "| task | ν | planning model | plan | OCP status | OCP, cw plant | OCP, flank plant | rest, flank plant | "
         "flat, cw plant | flat, flank plant | OCP reversals (flat inverse) | OCP flank changes (flat inverse) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        lines.append(f"| {r['task']} | {r['nu']:g} | {r['model']} | {r['plan']} | {r['cw']['ocp'][0]:.3f} | "
+        lines.append(f"| {r['task']} | {r['nu']:g} | {r['model']} | {r['plan']} | {r['status']} | "
+                     f"{r['cw']['ocp'][0]:.3f} | "
                      f"{r['dir']['ocp'][0]:.3f} | {r['dir']['ocp'][1]:.3f} | {r['cw']['flat'][0]:.3f} | "
                      f"{r['dir']['flat'][0]:.3f} | {r['rev'].tolist()} ({r['rev_flat'].tolist()}) | "
                      f"{r['flank'].tolist()} ({r['flank_flat'].tolist()}) |")

@@ -144,8 +144,8 @@ def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Arr
     `directional`, on the flanks the gears take along the planned motion (from rest on cw): the flank weight of
     each node follows its motor angle at the play state of the previous plan's motion (first of `flat` on
     the flanks), until the gear outputs on both play states agree within `DIRECTION_TOLERANCE` (at most
-    `DIRECTION_SOLVES` solves). Returns the solution, the play states it was planned with (None: cw) and
-    its warm start."""
+    `DIRECTION_SOLVES` solves; a solve that does not converge ends the iteration with the last one that
+    did, if any). Returns the solution, the play states it was planned with (None: cw) and its warm start."""
     from ._ocp import solve_ocp
 
     warm = (State(q_d, qd_d, flat.theta, flat.thetad).pack(), flat.thetadd)
@@ -155,14 +155,18 @@ def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Arr
     theta = jr.flank_motor_angle(robot, jr.gear_output(robot, flat.theta), jr.direction_state(robot, flat.theta))
     play = jr.play_state(robot, theta)
     warm = (State(q_d, qd_d, theta, flat.thetad).pack(), flat.thetadd)
+    last = None  # the last converged solve
     for _ in range(DIRECTION_SOLVES):
         sol = solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm, play=play, travel=w)
+        if not bool(sol.converged):
+            return last or (sol, play, warm)
+        last = (sol, play, warm)
         new = jr.play_state(robot, sol.theta)
         out = lambda p: jr.flank_output(robot, sol.theta, jr.flank_weight(p, sol.theta, w))  # noqa: E731
-        if not bool(sol.converged) or float(jnp.abs(out(new) - out(play)).max()) <= DIRECTION_TOLERANCE:
+        if float(jnp.abs(out(new) - out(play)).max()) <= DIRECTION_TOLERANCE:
             break
         warm, play = (sol.x, sol.u), new
-    return sol, play, warm
+    return last
 
 
 def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str = "thesis",
