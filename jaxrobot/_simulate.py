@@ -70,7 +70,7 @@ def simulate(
     (default `reversal_travel(robot)`) after a reversal and keeps its flank at rest; `q0` defaults to the
     rest pose on that flank. The default uses the cw set throughout (the planning model, eq. 4.1).
     """
-    t = jnp.asarray(t, float)
+    t, theta, thetad, thetadd = (jnp.asarray(a, float) for a in (t, theta, thetad, thetadd))
     n = robot.n_joints
     if t.ndim != 1 or theta.shape != t.shape + (n,) or thetad.shape != theta.shape or thetadd.shape != theta.shape:
         raise ValueError(f"simulate: expected t (N,) and theta, thetad, thetadd (N, {n}), found t {t.shape}, "
