@@ -37,7 +37,7 @@ def configure(parser) -> None:
                         help="thesis: nu||u||^2; jerk: nu||u_k+1 - u_k||^2; flat: nu||u - u_flat||^2")
     add_model_option(parser, "planning model TOML (default: the embedded Racer-7)")
     parser.add_argument("--plant", default="model", metavar="{model,as-built,FILE}",
-                        help=PLANT_HELP)
+                        help=PLANT_HELP + ", and then the OCP plans on the model's flanks along the motion")
     parser.add_argument("--save-trajectory", type=Path, default=None, metavar="OUT.csv",
                         help="write t_s, theta1_deg..thetan_deg, motor rates [deg/s] and accelerations [deg/s^2]")
     parser.add_argument("--save-failed", action="store_true",
@@ -80,8 +80,7 @@ def task_path(task: str, description: dict | None = None):
 
 PLANT_HELP = ("robot the plans are simulated on: 'model' (the planning model, cw gear set throughout), 'as-built' "
               "(the test bench's robot: the model file's [as_built], else the embedded Racer-7's) or a robot FILE "
-              "(TOML/URDF); all but 'model' with their gears' flanks as states, and then the OCP plans on the "
-              "model's flanks along the motion")
+              "(TOML/URDF); all but 'model' with their gears' flanks as states")
 
 
 def load_plant(plant: str, desc: dict, robot: jr.Robot) -> jr.Robot:
