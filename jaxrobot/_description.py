@@ -421,8 +421,20 @@ def description_of(robot: Robot) -> dict:
     return validate(data)
 
 
-def save_robot(robot: Robot, path: str | Path) -> None:
-    """Write the robot in the format of `racer7.toml` (loadable by `load_robot`)."""
+KEPT_SECTIONS = ("sensors", "poses", "trajectories")
+"""Sections of a description that a `Robot` does not hold and `save_robot` copies from `keep`."""
+
+
+def save_robot(robot: Robot, path: str | Path, keep: dict | None = None) -> None:
+    """Write the robot in the format of `racer7.toml` (loadable by `load_robot`), with the `KEPT_SECTIONS` of the
+    description `keep` (the tasks of `jaxrobot plan`, the bench's sensors and poses). Default `keep`: the embedded
+    description for a robot of its name and joint count (one calibrated or diagnosed from it), else none."""
+    if keep is None:
+        embedded = read_description(None)
+        same = robot.name == embedded["name"] and np.shape(robot.a)[-1:] == (len(embedded["kinematics"]["a"]),)
+        keep = embedded if same else {}
+    data = description_of(robot)
+    data.update({k: keep[k] for k in KEPT_SECTIONS if k in keep})
     text = "# written by jaxrobot.save_robot; format: racer7.toml (SI units, rad unless _deg)\n"
-    Path(path).write_text(text + tomli_w.dumps(description_of(robot)))
+    Path(path).write_text(text + tomli_w.dumps(validate(data)))
 

@@ -15,7 +15,7 @@ from jaxtyping import Array, Bool, Float
 
 from ._batch import backend_kind, unbatched
 from ._elasticity import elastic_deflection, elastic_torque
-from ._gear import gear_output, gear_ratio, motor_angle
+from ._gear import flank_output, gear_output, gear_ratio, motor_angle
 from ._kinematics import (
     add,
     alpha_beta,
@@ -240,11 +240,13 @@ def inverse_dynamics(
 
 
 def planning_dynamics(
-    robot: Robot, x: Float[Array, "*b 4*n"], u: Float[Array, "*b n"]
+    robot: Robot, x: Float[Array, "*b 4*n"], u: Float[Array, "*b n"], direction: Float[Array, "*b n"] | None = None
 ) -> Float[Array, "*b 4*n"]:
-    """`xd = f(x, u)` of eq. 4.1, `x = [q, qd, theta, thetad]`, `u = thetadd`; cw gear set."""
+    """`xd = f(x, u)` of eq. 4.1, `x = [q, qd, theta, thetad]`, `u = thetadd`; cw gear set, or with `direction`
+    the flank weights `sigma` of the gears (`flank_output`, docs/model.md (B.0))."""
     q, qd, theta, thetad = jnp.split(x, 4, axis=-1)
-    qdd = link_acceleration(robot, q, qd, gear_output(robot, theta))
+    phi = gear_output(robot, theta) if direction is None else flank_output(robot, theta, direction)
+    qdd = link_acceleration(robot, q, qd, phi)
     return jnp.concatenate([qd, qdd, thetad, jnp.broadcast_to(u, thetad.shape)], -1)
 
 

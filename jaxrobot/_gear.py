@@ -4,6 +4,12 @@
 `Xi(phi) = u0 (phi + sum_j (a_j sin(n_j phi) + b_j cos(n_j phi)) / n_j) + U_C` (eq. 2.13)
 with `U_C` such that `Xi(0) = 0` (eq. 2.14). `ccw` selects the set of the negative direction;
 it broadcasts against the joint axis (a bool or a bool array of shape (..., n)).
+
+At a reversal (docs/model.md (B.0)) the gear crosses from one flank to the other over a motor travel `w`
+(`reversal_travel`): a play operator `p` on the motor angle (`play`) gives the flank weight
+`sigma = S(1/2 - (theta - p) / w)` (0: cw, 1: ccw; `S` the quintic smoothstep), and the transmission is
+`theta = Xi_sigma(phi + b (1/2 - sigma))` with `Xi_sigma = (1 - sigma) Xi_cw + sigma Xi_ccw` and lost motion `b`
+(`flank_output`, `flank_motor_angle`).
 """
 
 from __future__ import annotations
@@ -160,3 +166,88 @@ def gear_output(
         return plain.at[..., idx].set(fourier_xi_inverse(u0[..., idx], orders, a, b, theta[..., idx]))
     orders, a, b = (jnp.broadcast_to(x, shape + x.shape[-1:]) for x in (rip.orders, rip.a, rip.b))
     return fourier_xi_inverse(u0, orders, a, b, theta)
+
+
+def reversal_travel(robot: Robot) -> Float[Array, "*b n"]:
+    """Default motor travel `w` [rad] of a reversal: `3 u0 (b + e_cw + e_ccw)` with the lost motion `b` and
+    `e = sum_j (|a_j| + 2 |b_j|) / n_j` of each set, which bounds `|Xi(phi) / u0 - phi|`: three times the travel
+    that carries the output across the lost motion and the widest gap between the flanks, so that the output
+    keeps following the motor through a reversal (`dphi/dtheta >= (1 / (1 + rho) - 5/8) / u0 > 0` for a ripple
+    `rho = sum_j |(a_j, b_j)| < 0.6`). A gear without ripple and backlash gets `w = 3e-9 u0`."""
+
+    def bound(rip):
+        used = rip.orders > 0
+        return jnp.sum(jnp.where(used, (jnp.abs(rip.a) + 2 * jnp.abs(rip.b)) / jnp.where(used, rip.orders, 1.0),
+                                 0.0), -1)
+
+    return 3.0 * robot.u0 * jnp.maximum(robot.backlash + bound(robot.cw) + bound(robot.ccw), 1e-9)
+
+def play(p: Float[Array, "*b n"], theta: Float[Array, "*b n"], travel: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+    """One step of the play operator of width `travel`: `p` moved just enough to stay within `travel / 2` of
+    `theta` (it lags the motor by `travel / 2` after a move of at least `travel` in one direction)."""
+    return jnp.clip(p, theta - 0.5 * travel, theta + 0.5 * travel)
+
+
+def flank_weight(p: Float[Array, "*b n"], theta: Float[Array, "*b n"], travel: Float[Array, "*b n"]
+                 ) -> Float[Array, "*b n"]:
+    """Weight `sigma` of the ccw flank for play state `p`: `S(1/2 - (theta - p) / travel)` with the quintic
+    smoothstep `S(x) = x^3 (10 - 15 x + 6 x^2)` (0 after a cw move, 1 after a ccw move, C2 in `p`)."""
+    x = jnp.clip(0.5 - (theta - p) / travel, 0.0, 1.0)
+    return jnp.minimum(x**3 * (10.0 + x * (6.0 * x - 15.0)), 1.0)  # S(1) may round to 1 + 2^-52
+
+
+def play_start(theta: Float[Array, "*b n"], travel: Float[Array, "*b n"], ccw: bool | Bool[Array, "*b n"] = False
+               ) -> Float[Array, "*b n"]:
+    """Play state of a gear at rest at `theta` that last moved `ccw` (False: cw)."""
+    return theta - 0.5 * travel * (1.0 - 2.0 * jnp.asarray(ccw, float))
+
+
+def play_state(robot: Robot, theta: Float[Array, "N n"], ccw: bool | Bool[Array, " n"] = False,
+               travel: Float[Array, " n"] | None = None) -> Float[Array, "N n"]:
+    """Play states `p` (module docstring) along sampled motor angles `theta`, the gear at rest on flank `ccw`
+    before `theta[0]` (`travel`: default `reversal_travel(robot)`)."""
+    w = reversal_travel(robot) if travel is None else travel
+    return jax.lax.scan(lambda p, th: (play(p, th, w),) * 2, play_start(theta[0], w, ccw), theta)[1]
+
+
+def direction_state(robot: Robot, theta: Float[Array, "N n"], ccw: bool | Bool[Array, " n"] = False,
+                    travel: Float[Array, " n"] | None = None) -> Float[Array, "N n"]:
+    """Flank weights `sigma` along sampled motor angles `theta` (arguments as `play_state`)."""
+    w = reversal_travel(robot) if travel is None else travel
+    return flank_weight(play_state(robot, theta, ccw, w), theta, w)
+
+
+def flank_ripple(robot: Robot, sigma: Float[Array, "*b n"]) -> Ripple:
+    """The ripple of `Xi_sigma = (1 - sigma) Xi_cw + sigma Xi_ccw`: both sets' harmonics (2M per joint), weighted."""
+    sigma = jnp.asarray(sigma, float)[..., None]
+    shape = jnp.broadcast_shapes(sigma.shape[:-1] + (1,), robot.cw.orders.shape[:-1] + (1,))[:-1]
+
+    def cat(cw, ccw, weighted):
+        cw, ccw = jnp.broadcast_to(cw, shape + cw.shape[-1:]), jnp.broadcast_to(ccw, shape + ccw.shape[-1:])
+        if weighted:
+            cw, ccw = (1.0 - sigma) * cw, sigma * ccw
+        return jnp.concatenate([cw, ccw], -1)
+
+    return Ripple(orders=cat(robot.cw.orders, robot.ccw.orders, False), a=cat(robot.cw.a, robot.ccw.a, True),
+                  b=cat(robot.cw.b, robot.ccw.b, True))
+
+
+def flank_output(robot: Robot, theta: Float[Array, "*b n"], sigma: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+    """Gear output `phi = Xi_sigma^{-1}(theta) - b (1/2 - sigma)` at flank weight `sigma` (module docstring)."""
+    rip = flank_ripple(robot, sigma)
+    shape = jnp.broadcast_shapes(jnp.shape(theta), rip.orders.shape[:-1])
+    phi = fourier_xi_inverse(jnp.broadcast_to(robot.u0, shape), rip.orders, rip.a, rip.b,
+                             jnp.broadcast_to(theta, shape))
+    return phi - robot.backlash * (0.5 - sigma)
+
+
+def flank_ratio(robot: Robot, phi: Float[Array, "*b n"], sigma: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+    """`dtheta/dphi = u_sigma(phi + b (1/2 - sigma))` of `flank_motor_angle` at fixed `sigma`."""
+    rip = flank_ripple(robot, sigma)
+    return fourier_ratio(robot.u0, rip.orders, rip.a, rip.b, phi + robot.backlash * (0.5 - sigma))
+
+
+def flank_motor_angle(robot: Robot, phi: Float[Array, "*b n"], sigma: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+    """Motor angle `theta = Xi_sigma(phi + b (1/2 - sigma))`, the inverse of `flank_output`."""
+    rip = flank_ripple(robot, sigma)
+    return fourier_xi(robot.u0, rip.orders, rip.a, rip.b, phi + robot.backlash * (0.5 - sigma))

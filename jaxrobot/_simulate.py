@@ -12,6 +12,11 @@ covers the imaginary axis up to |hω| = 2.83, and its amplitude error per step i
 amplitude exact to ~2e-6 per step, while the forced motion is integrated at 4th order. An
 implicit A-stable scheme (trapezoidal) would need a Newton solve of the 12-state system per
 step and damps nothing more here; it buys nothing for an undamped model at this step.
+
+`directional=True` adds the flank of each gear as a state (docs/model.md (B.0)): the play operator runs
+along the motor angle at every stage point of the scheme, and the gear output is `flank_output` at its
+flank weight. The weight moves only with motor travel (never with time or the sign of a rate), and is flat
+(C2) where a transition starts or ends, so a motor at rest keeps its flank and the scheme keeps its order.
 """
 
 from __future__ import annotations
@@ -19,11 +24,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from ._dynamics import link_acceleration
 from ._elasticity import require_elastic
-from ._gear import gear_output
+from ._gear import flank_output, flank_weight, gear_output, play, play_start, reversal_travel
 from ._robot import Robot
 from .measurement._model import rest_link_angles
 
@@ -53,15 +58,19 @@ def simulate(
     q0: Float[Array, " n"] | None = None,
     qd0: Float[Array, " n"] | None = None,
     directional: bool = False,
+    ccw0: bool | Bool[Array, " n"] = False,
+    travel: Float[Array, " n"] | None = None,
 ) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
     """Link angles and rates `(q, qd)` at the sample times `t` (uniform) for a commanded motor
     trajectory, integrated by RK4 with `substeps` steps per sample (see module docstring).
 
     The start defaults to rest: `q0` = link angles held by `theta[0]` under gravity, `qd0 = 0`.
-    `directional=True` uses the ccw gear set while a motor turns backwards (the test bench's
-    as-built robot); the default uses the cw set throughout (the planning model).
+    `directional=True` gives each gear its flank state (the test bench's as-built robot): it starts at rest
+    on flank `ccw0` (False: cw, per joint), crosses to the other flank over the motor travel `travel`
+    (default `reversal_travel(robot)`) after a reversal and keeps its flank at rest; `q0` defaults to the
+    rest pose on that flank. The default uses the cw set throughout (the planning model, eq. 4.1).
     """
-    t = jnp.asarray(t, float)
+    t, theta, thetad, thetadd = (jnp.asarray(a, float) for a in (t, theta, thetad, thetadd))
     n = robot.n_joints
     if t.ndim != 1 or theta.shape != t.shape + (n,) or thetad.shape != theta.shape or thetadd.shape != theta.shape:
         raise ValueError(f"simulate: expected t (N,) and theta, thetad, thetadd (N, {n}), found t {t.shape}, "
@@ -70,25 +79,39 @@ def simulate(
     if substeps < 1:
         raise ValueError(f"simulate: substeps must be >= 1, found {substeps}")
     h = t[1] - t[0]
-    q0 = rest_link_angles(robot, theta[0]) if q0 is None else q0
+    if directional:
+        q0 = rest_link_angles(robot, theta[0], jnp.broadcast_to(ccw0, (n,))) if q0 is None else q0
+        wt = reversal_travel(robot) if travel is None else jnp.asarray(travel, float)
+        p0 = play_start(theta[0], wt, ccw0)
+    else:
+        q0 = rest_link_angles(robot, theta[0]) if q0 is None else q0
+        p0 = jnp.zeros(n)
     qd0 = jnp.zeros(n) if qd0 is None else qd0
     w = jnp.asarray(_hermite_weights(np.arange(2 * substeps + 1) / (2 * substeps)))  # (S, 6, 3)
 
-    def accel(q, qd, th, thd):
-        ccw = thd < 0 if directional else False
-        return link_acceleration(robot, q, qd, gear_output(robot, th, ccw))
+    def outputs(p, th_s):
+        """Gear outputs at the stage points `th_s` (S, n) and the play state after them."""
+        if not directional:
+            return gear_output(robot, th_s), p
 
-    def interval(state, k):
+        def advance(p, th):
+            p = play(p, th, wt)
+            return p, flank_weight(p, th, wt)
+
+        p, sigma = jax.lax.scan(advance, p, th_s)
+        return flank_output(robot, th_s, sigma), p
+
+    def interval(carry, k):
+        state, p = carry
         knots = jnp.stack([theta[k], thetad[k] * h, thetadd[k] * h**2,
                            theta[k + 1], thetad[k + 1] * h, thetadd[k + 1] * h**2])  # (6 knots, n joints)
-        th_s = jnp.einsum("si,ij->sj", w[..., 0], knots)
-        thd_s = jnp.einsum("si,ij->sj", w[..., 1], knots) / h
+        phi_s, p = outputs(p, jnp.einsum("si,ij->sj", w[..., 0], knots))
         dt = h / substeps
 
         def step(j, state):
             q, qd = state
             i = 2 * j
-            f = lambda q, qd, m: (qd, accel(q, qd, th_s[i + m], thd_s[i + m]))  # noqa: E731
+            f = lambda q, qd, m: (qd, link_acceleration(robot, q, qd, phi_s[i + m]))  # noqa: E731
             k1 = f(q, qd, 0)
             k2 = f(q + 0.5 * dt * k1[0], qd + 0.5 * dt * k1[1], 1)
             k3 = f(q + 0.5 * dt * k2[0], qd + 0.5 * dt * k2[1], 1)
@@ -97,7 +120,7 @@ def simulate(
                     qd + dt / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]))
 
         state = jax.lax.fori_loop(0, substeps, step, state)
-        return state, state
+        return (state, p), state
 
-    _, (q, qd) = jax.lax.scan(interval, (q0, qd0), jnp.arange(t.shape[0] - 1))
+    _, (q, qd) = jax.lax.scan(interval, ((q0, qd0), p0), jnp.arange(t.shape[0] - 1))
     return jnp.concatenate([q0[None], q]), jnp.concatenate([qd0[None], qd])

@@ -36,8 +36,8 @@ def configure(parser) -> None:
     parser.add_argument("--cost", choices=COSTS, default="thesis",
                         help="thesis: nu||u||^2; jerk: nu||u_k+1 - u_k||^2; flat: nu||u - u_flat||^2")
     add_model_option(parser, "planning model TOML (default: the embedded Racer-7)")
-    parser.add_argument("--plant", choices=("model", "as-built"), default="model",
-                        help="robot the plans are simulated on: the planning model or the test bench's as-built robot")
+    parser.add_argument("--plant", default="model", metavar="{model,as-built,FILE}",
+                        help=PLANT_HELP + ", and then the OCP plans on the model's flanks along the motion")
     parser.add_argument("--save-trajectory", type=Path, default=None, metavar="OUT.csv",
                         help="write t_s, theta1_deg..thetan_deg, motor rates [deg/s] and accelerations [deg/s^2]")
     parser.add_argument("--save-failed", action="store_true",
@@ -78,13 +78,37 @@ def task_path(task: str, description: dict | None = None):
     return path
 
 
+PLANT_HELP = ("robot the plans are simulated on: 'model' (the planning model, cw gear set throughout), 'as-built' "
+              "(the test bench's robot: the model file's [as_built], else the embedded Racer-7's) or a robot FILE "
+              "(TOML/URDF); all but 'model' with their gears' flanks as states")
+
+
+def load_plant(plant: str, desc: dict, robot: jr.Robot) -> jr.Robot:
+    """The plant of `--plant` (`PLANT_HELP`) for the planning model `robot` read from `desc`."""
+    from jaxrobot import robot_from_description
+
+    if plant == "model":
+        return robot
+    if plant == "as-built":
+        out = robot_from_description(desc if "as_built" in desc else jr.read_description(None), as_built=True)
+    elif Path(plant).is_file():
+        out = jr.load_robot(plant)
+    else:
+        raise ValueError(f"--plant: expected 'model', 'as-built' or an existing robot file, found {plant!r}"
+                         f"{suggestion(plant, ('model', 'as-built'))}")
+    if out.n_joints != robot.n_joints:
+        raise ValueError(f"--plant {plant}: the plant has {out.n_joints} joints, the planning model "
+                         f"{robot.n_joints}")
+    return out
+
+
 def load_task(args):
     """The planning model, the plant (`--plant`), the task path and the IK start of `plan` and `sweep`."""
     from jaxrobot import robot_from_description
 
     desc = jr.read_description(args.model)
     robot = robot_from_description(desc)
-    plant = robot_from_description(desc, as_built=True) if args.plant == "as-built" else robot
+    plant = load_plant(args.plant, desc, robot)
     path = task_path(args.task, desc)
     return robot, plant, path, default_start(desc) if "trajectories" in desc else task_start(robot, path)
 
@@ -125,7 +149,8 @@ def progress_lines(event: PlanEvent, plant_name: str = "", directional: bool = F
             f"  OCP: {e.status} after {e.iterations} outer iterations, objective {e.objective:.6e}, max violation "
             f"{e.max_violation:.1e} (scaled), {timed}"]
     if e.stage == "plant_simulation":
-        return [f"  plant simulation ({plant_name}{', as built' if directional else ''}): {e.elapsed:.1f} s"] + [
+        gears = ", direction-dependent gears" if directional else ""
+        return [f"  plant simulation ({plant_name}{gears}): {e.elapsed:.1f} s"] + [
             f"    {k:13s} max {1e6 * m:10.3f} µm   rms {1e6 * r:10.3f} µm   after t_e {1e6 * s:9.3f} µm"
             for k, m, r, s in e.errors]
     return []
@@ -222,7 +247,7 @@ def run(args, echo) -> dict:
         raise ValueError(f"--cost must be one of {COSTS}, got {args.cost!r}")
     robot, plant, path, q_init = load_task(args)
     echo(f"planning {path.name} ({path.duration:g} s at T_s = {1e3 * path.sample_time:g} ms) on {robot.name}")
-    result = plan(robot, plant, path, args.nu, args.cost, echo, directional=args.plant == "as-built",
+    result = plan(robot, plant, path, args.nu, args.cost, echo, directional=args.plant != "model",
                   q_init=q_init, keep_failed=args.save_failed)
     failed = None if result.converged else failure_report(robot, result.joint_path, result.solution, args.nu)
     if args.save_trajectory is not None:
@@ -239,12 +264,23 @@ def run(args, echo) -> dict:
 
 
 def demo_stage(out: Path, echo) -> dict:
-    """Planning stage of `jaxrobot demo`: the line at nu = 1e-14, evaluated on the planning model
-    (`jaxrobot plan line --plant as-built` evaluates on the test bench's robot)."""
+    """Planning stage of `jaxrobot demo`: the line at nu = 1e-14 planned on the nominal model and evaluated on
+    it (the model's own error), then planned on the model the demo calibrates (`bench_calibration`, as the
+    calibration stage) and evaluated on the test bench's as-built robot with its gears' flanks (the error on
+    the robot)."""
+    from identification.calibration import bench_calibration
+
     robot = jr.racer7()
-    echo("line, nu = 1e-14, evaluated on the planning model")
+    echo("line, nu = 1e-14, planned on the nominal model, evaluated on it")
     result = plan(robot, robot, reference_path("line"), 1e-14, "thesis", echo, timing=False)
     write_plots(result, out, "planning_line")
     tr = result.trajectories["ocp"]
     save_trajectory(out / "planning_line_motor.csv", result.joint_path.t, tr.theta, tr.thetad, tr.thetadd)
-    return summary(result)
+    calibrated = bench_calibration().result.robot
+    echo("line, nu = 1e-14, planned on the calibrated model, evaluated on the as-built robot (gear flanks as states)")
+    bench = plan(calibrated, jr.racer7(as_built=True), reference_path("line"), 1e-14, "thesis", echo, timing=False,
+                 directional=True)
+    own, robot_err = summary(result), summary(bench)
+    echo(f"  line: {own['plant']['ocp']['max_um']:.3f} µm on the model it was planned on, "
+         f"{robot_err['plant']['ocp']['max_um']:.1f} µm planned on the calibrated model, on the as-built robot")
+    return {**own, "on_the_robot": robot_err}

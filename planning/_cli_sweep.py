@@ -13,7 +13,7 @@ from jaxrobot.cli import Progress, SolveFailed, add_model_option
 
 from . import _plots
 from ._bandwidth import control_spectrum
-from ._cli_plan import load_task, task_title
+from ._cli_plan import PLANT_HELP, load_task, task_title
 from ._sweep import check_nus
 from ._transcription import COSTS
 from ._workflow import SweepEvent, SweepResult, sweep_task
@@ -28,8 +28,8 @@ def configure(parser) -> None:
     parser.add_argument("--nu", type=float, nargs="+", default=list(DEFAULT_NUS),
                         help="weighting factors (default 1e-16 ... 1e-9, one per decade)")
     parser.add_argument("--costs", nargs="+", choices=COSTS, default=list(COSTS), help="cost variants to compare")
-    parser.add_argument("--plant", choices=("model", "as-built"), default="model",
-                        help="robot the plans are simulated on")
+    parser.add_argument("--plant", default="model", metavar="{model,as-built,FILE}",
+                        help=PLANT_HELP + " (the sweep plans on the cw set throughout)")
     add_model_option(parser, "planning model TOML (default: the embedded Racer-7)")
     parser.add_argument("--save-failed", action="store_true",
                         help="also write the outputs when a solve did not converge (the table's first line then "
@@ -140,7 +140,7 @@ def write_outputs(res: SweepResult, rows: list[dict], out: Path, label: str) -> 
 def run(args, echo) -> dict:
     robot, plant, path, q_init = load_task(args)
     echo(f"nu sweep on {path.name}: {len(args.nu)} values x costs {args.costs}, plant {args.plant}")
-    res = sweep(robot, plant, path, args.nu, args.costs, echo, directional=args.plant == "as-built", q_init=q_init,
+    res = sweep(robot, plant, path, args.nu, args.costs, echo, directional=args.plant != "model", q_init=q_init,
                 keep_failed=args.save_failed)
     rows = table(res)
     if args.out is not None:

@@ -117,6 +117,8 @@ def solve_ocp(
     warm_start: tuple[Float[Array, "N 4*n"], Float[Array, "N n"]] | None = None,
     u_ref: Float[Array, "N n"] | None = None,
     throw: bool = False,
+    play: Float[Array, "N n"] | None = None,
+    travel: Float[Array, " n"] | None = None,
 ) -> OCPSolution:
     """Optimal motor accelerations that make the elastic robot follow `q_d` (eq. 4.3).
 
@@ -133,6 +135,10 @@ def solve_ocp(
       relation on finite differences of `q_d` (`_transcription.warm_start`). Its end nodes
       are replaced by the boundary values of eq. 4.3e-j.
     - `u_ref`: reference of the `"flat"` cost; default the warm start's `u`.
+    - `play`, `travel`: play states (N, n) [motor rad] of the gears at the nodes (`jr.play_state` of a motor
+      path) and their reversal travels (n,) (default `jr.reversal_travel(robot)`): the flank weight of each
+      node follows its motor angle, `jr.flank_weight(play, theta, travel)` (docs/model.md (B.0)); default
+      the cw set throughout (eq. 4.1).
     - `throw`: raise the message of `status` (at run time, also under `jit`) when the solve did
       not converge. Default False: the solution carries its status (under `vmap` one per member).
 
@@ -147,14 +153,15 @@ def solve_ocp(
     config = ALConfig() if config is None else config
     if not isinstance(config, ALConfig):
         raise ValueError(f"config: expected an ALConfig, found {type(config).__name__}")
-    return _solve_ocp(robot, q_d, ts, nu, cost, config, warm_start, u_ref, throw, history_length(config))
+    return _solve_ocp(robot, q_d, ts, nu, cost, config, warm_start, u_ref, throw, history_length(config), play,
+                      travel)
 
 
 def _solve_ocp(robot, q_d, ts, nu, cost: Cost, config: ALConfig, warm_start, u_ref, throw: bool,
-               history: int) -> OCPSolution:
+               history: int, play=None, travel=None) -> OCPSolution:
     """`solve_ocp` with the static history length given (`history_length`), so that `config` may be
     traced."""
-    problem = ocp_problem(robot, q_d, ts, nu, cost, u_ref)
+    problem = ocp_problem(robot, q_d, ts, nu, cost, u_ref, play, travel)
     require_elastic(robot, "solve_ocp")
     n, j = problem.n_nodes, problem.n_joints
     start = None

@@ -87,6 +87,12 @@ class OCPProblem(eqx.Module):
     """Reference motor acceleration of the `"flat"` cost [rad/s^2] (zeros otherwise)."""
     cost: str = eqx.field(static=True, default="thesis")
     """One of `COSTS`."""
+    play: Float[Array, "N n"] | None = None
+    """Play state of each gear at each node [motor rad] (`jr.play_state`, docs/model.md (B.0)): the flank
+    weights are `jr.flank_weight(play, theta, travel)` of the nodes' motor angles; None: the cw set
+    throughout (eq. 4.1)."""
+    travel: Float[Array, " n"] | None = None
+    """Reversal travel of each gear [motor rad] (`jr.reversal_travel`), with `play`."""
 
     @property
     def n_nodes(self) -> int:
@@ -108,12 +114,16 @@ def ocp_problem(
     nu: float | Float[Array, ""] = 1e-14,
     cost: Cost = "thesis",
     u_ref: Float[Array, "N n"] | None = None,
+    play: Float[Array, "N n"] | None = None,
+    travel: Float[Array, " n"] | None = None,
 ) -> OCPProblem:
     """Validate the inputs of eq. 4.3 and bundle them (before any compute).
 
     **Arguments:** `q_d` (N, n) desired link angles [rad] sampled every `ts` [s] (N >= 3);
     `nu > 0`; `cost` in `COSTS`; `u_ref` (N, n) [motor rad/s^2] for `cost="flat"`
-    (default: the quasi-static/flat warm start's `u`, see `warm_start`).
+    (default: the quasi-static/flat warm start's `u`, see `warm_start`); `play` (N, n) the play states of
+    the gears at the nodes [motor rad] and `travel` (n,) their reversal travel (default
+    `jr.reversal_travel(robot)`): the flanks follow the motor angles (default: cw throughout).
 
     **Raises:** `ValueError` naming the field for wrong shapes, non-finite values, `ts <= 0`,
     `nu <= 0` or an unknown cost. Traced values (under `jit`/`vmap`) are not range-checked.
@@ -142,21 +152,57 @@ def ocp_problem(
                          f"found {np.shape(u_ref)}")
     elif _concrete(u_ref) and not np.all(np.isfinite(np.asarray(u_ref))):
         raise ValueError("u_ref: expected finite motor accelerations [rad/s^2], found NaN or inf")
+    if play is not None:
+        if np.shape(play) != (n, joints):
+            raise ValueError(f"play: expected play states of shape ({n}, {joints}) [motor rad], found {np.shape(play)}")
+        travel = jr.reversal_travel(robot) if travel is None else travel
+        if np.shape(travel) != (joints,):
+            raise ValueError(f"travel: expected reversal travels of shape ({joints},) [motor rad], "
+                             f"found {np.shape(travel)}")
+        if _concrete(travel) and not np.all(np.asarray(travel) > 0):
+            raise ValueError(f"travel: expected reversal travels > 0 [motor rad], found {np.asarray(travel)}")
+        play, travel = jnp.asarray(play, float), jnp.asarray(travel, float)
     return OCPProblem(robot=robot, q_d=jnp.asarray(q_d, float), ts=jnp.asarray(ts, float),
-                      nu=jnp.asarray(nu, float), u_ref=jnp.asarray(u_ref, float), cost=cost)
+                      nu=jnp.asarray(nu, float), u_ref=jnp.asarray(u_ref, float), cost=cost, play=play, travel=travel)
 
 
 # ----------------------------------------------------------------------------- eq. 4.3 as written
+
+REST_NEWTON_STEPS = 6
+"""Newton steps for the end nodes' motor angles on the flanks (`boundary_states`), from the cw rest pose:
+`phi(theta)` is monotone with a slope within a factor 3 of `1/u0` (`jr.reversal_travel`)."""
+
+
+def flank_weights(problem: OCPProblem, theta: Float[Array, "*b n"], k: int | slice = slice(None)
+                  ) -> Float[Array, "*b n"] | None:
+    """Flank weights of the gears at motor angles `theta` of the nodes `k` (None without `play`)."""
+    if problem.play is None:
+        return None
+    return jr.flank_weight(problem.play[k], theta, problem.travel)
+
+
+def _flank_output(problem: OCPProblem, theta, k: int | slice = slice(None)):
+    return jr.flank_output(problem.robot, theta, flank_weights(problem, theta, k))
+
 
 
 def boundary_states(problem: OCPProblem) -> tuple[Float[Array, " 4*n"], Float[Array, " 4*n"]]:
     """Fixed states of the first and last node (eq. 4.3e-i); `u` is 0 there (eq. 4.3j)."""
 
-    def rest(q):
-        z = jnp.zeros_like(q)
-        return State(q, z, jr.static_equilibrium(problem.robot, q), z).pack()
+    r = problem.robot
 
-    return rest(problem.q_d[0]), rest(problem.q_d[-1])
+    def rest(k):
+        q = problem.q_d[k]
+        z = jnp.zeros_like(q)
+        theta = jr.static_equilibrium(r, q)
+        if problem.play is not None:  # Newton on the gear output, the flank weight following theta
+            phi = q + jr.elastic_deflection(r, jr.gravity_torque(r, q))
+            for _ in range(REST_NEWTON_STEPS):
+                out, slope = jax.jvp(lambda th: _flank_output(problem, th, k), (theta,), (jnp.ones_like(theta),))
+                theta = theta - (out - phi) / slope
+        return State(q, z, theta, z).pack()
+
+    return rest(0), rest(-1)
 
 
 def bounds(problem: OCPProblem) -> tuple[Float[Array, " 5*n"], Float[Array, " 5*n"]]:
@@ -179,7 +225,7 @@ def objective(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N 
 
 def defects(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, "Nm1 4*n"]:
     """Trapezoidal collocation defects `x_{k+1} - x_k - T_s/2 (f_k + f_{k+1})` (eq. 4.3b), unscaled."""
-    f = jr.planning_dynamics(problem.robot, x, u)
+    f = jr.planning_dynamics(problem.robot, x, u, flank_weights(problem, State.of(x).theta))
     return x[1:] - x[:-1] - 0.5 * problem.ts * (f[1:] + f[:-1])
 
 
@@ -265,6 +311,17 @@ def _link_acceleration(robot: jr.Robot, q, qd, phi, d) -> Float[Array, "N n"]:
     return spd_solve(d, rhs[..., None])[..., 0]
 
 
+def gear(problem: OCPProblem, theta: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
+    """Gear output angles and `dtheta/dphi` at the nodes' motor angles, on the problem's flanks (the flank weight
+    a function of `theta` at the node's play state)."""
+    r = problem.robot
+    if problem.play is None:
+        phi = jr.gear_output(r, theta)
+        return phi, jr.gear_ratio(r, phi)
+    phi, slope = jax.jvp(lambda th: _flank_output(problem, th), (theta,), (jnp.ones_like(theta),))
+    return phi, 1.0 / slope
+
+
 class HalfStep(eqx.Module):
     """`g = T_s/2 f(x, u)` (scaled) at the scaled nodes `y`, with the intermediates that its
     derivatives reuse (`half_step_vjp`)."""
@@ -273,6 +330,8 @@ class HalfStep(eqx.Module):
     g: Float[Array, "*b 4*n"]
     phi: Float[Array, "*b n"]
     """Gear output angles `Xi^-1(theta)` [rad]."""
+    ratio: Float[Array, "*b n"]
+    """Gear ratios `dtheta/dphi` there."""
     mass: Float[Array, "*b n n"]
     qdd: Float[Array, "*b n"]
 
@@ -285,10 +344,11 @@ def half_step(problem: OCPProblem, y: Float[Array, "*b 5*n"]) -> HalfStep:
     z = y * sz
     nx = 4 * problem.n_joints
     x, u = State.of(z[..., :nx]), z[..., nx:]
-    phi, d = jr.gear_output(r, x.theta), jr.mass_matrix(r, x.q)
+    phi, ratio = gear(problem, x.theta)
+    d = jr.mass_matrix(r, x.q)
     qdd = _link_acceleration(r, x.q, x.qd, phi, d)
     f = State(x.qd, qdd, x.thetad, u).pack()
-    return HalfStep(y=y, g=0.5 * problem.ts * f / sz[:nx], phi=phi, mass=d, qdd=qdd)
+    return HalfStep(y=y, g=0.5 * problem.ts * f / sz[:nx], phi=phi, ratio=ratio, mass=d, qdd=qdd)
 
 
 def inverse_dynamics_vjp(problem: OCPProblem, h: HalfStep
@@ -320,7 +380,7 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
         s = spd_solve(h.mass, wf.qd[..., None])[..., 0]
         id_q, id_qd = id_vjp(s)
         stiff = jr.elastic_stiffness(r, h.phi - x.q) * s
-        out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / jr.gear_ratio(r, h.phi), wf.theta, wf.thetad],
+        out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / h.ratio, wf.theta, wf.thetad],
                               -1)
         return out * sz
 
@@ -355,7 +415,7 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
     rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(j)[:, None, :], (j, *q.shape)))  # row i of dID
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
     rhs = jnp.concatenate([-(id_q + jax.vmap(jnp.diag)(stiff)), -id_qd,
-                           jax.vmap(jnp.diag)(stiff / jr.gear_ratio(r, h.phi))], -1)
+                           jax.vmap(jnp.diag)(stiff / h.ratio)], -1)
     dqdd = spd_solve(h.mass, rhs)  # (N, n, 3n): d qdd / d (q, qd, theta)
     return (0.5 * problem.ts / sz[j:2 * j, None]) * dqdd * sz[:3 * j]
 
@@ -387,7 +447,10 @@ def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 4*n"], Float[Array,
     qd = _time_derivative(q, ts)
     qdd = _time_derivative(qd, ts)
     tau = jr.inverse_dynamics(r, q, qd, qdd)
-    theta = jr.motor_angle(r, q + jr.elastic_deflection(r, tau))
+    phi = q + jr.elastic_deflection(r, tau)
+    theta = jr.motor_angle(r, phi)
+    if problem.play is not None:
+        theta = jr.flank_motor_angle(r, phi, flank_weights(problem, theta))
     thetad = _time_derivative(theta, ts)
     u = _time_derivative(thetad, ts)
     x = State(q, qd, theta, thetad).pack()

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
@@ -109,6 +110,9 @@ class PlanResult:
     """[m] task positions on the grid."""
     r_d: Float[Array, "N 3 3"] | None = None
     """Task orientations on the grid."""
+    play: Float[Array, "N n"] | None = None
+    """Play states of the gears the OCP planned with (`jr.play_state`; the flank weights follow its motor
+    angles); None: the cw set throughout."""
 
     @property
     def converged(self) -> bool:
@@ -126,14 +130,54 @@ def _tool_position(robot, q):
     return jr.tool_pose(robot, q)[:, :3, 3]
 
 
+DIRECTION_TOLERANCE = 1e-10
+"""[rad] Largest change of a gear output between the play states planned with and those of the plan's motion
+at which `solve_directional` stops."""
+DIRECTION_SOLVES = 4
+"""Most OCP solves of `solve_directional`."""
+
+
+def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Array, "N n"], flat: MotorTrajectory,
+                      ts: float, nu: float, cost: str, directional: bool
+                      ) -> tuple[OCPSolution, Float[Array, "N n"] | None, tuple]:
+    """The OCP of the joint path `q_d` (rates `qd_d`) warm-started by its flat inverse `flat`; with
+    `directional`, on the flanks the gears take along the planned motion (from rest on cw): the flank weight of
+    each node follows its motor angle at the play state of the previous plan's motion (first of `flat` on
+    the flanks), until the gear outputs on both play states agree within `DIRECTION_TOLERANCE` (at most
+    `DIRECTION_SOLVES` solves; a solve that does not converge ends the iteration with the last one that
+    did, if any). Returns the solution, the play states it was planned with (None: cw) and its warm start."""
+    from ._ocp import solve_ocp
+
+    warm = (State(q_d, qd_d, flat.theta, flat.thetad).pack(), flat.thetadd)
+    if not directional:
+        return solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm), None, warm
+    w = jr.reversal_travel(robot)
+    theta = jr.flank_motor_angle(robot, jr.gear_output(robot, flat.theta), jr.direction_state(robot, flat.theta))
+    play = jr.play_state(robot, theta)
+    warm = (State(q_d, qd_d, theta, flat.thetad).pack(), flat.thetadd)
+    last = None  # the last converged solve
+    for _ in range(DIRECTION_SOLVES):
+        sol = solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm, play=play, travel=w)
+        if not bool(sol.converged):
+            return last or (sol, play, warm)
+        last = (sol, play, warm)
+        new = jr.play_state(robot, sol.theta)
+        out = lambda p: jr.flank_output(robot, sol.theta, jr.flank_weight(p, sol.theta, w))  # noqa: E731
+        if float(jnp.abs(out(new) - out(play)).max()) <= DIRECTION_TOLERANCE:
+            break
+        warm, play = (sol.x, sol.u), new
+    return last
+
+
 def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str = "thesis",
               q_init=None, timing: bool = True, directional: bool = False,
               on_event: Callable[[PlanEvent], None] | None = None) -> PlanResult:
     """Plan `path` on `robot` and evaluate the four motor trajectories on `plant`.
 
     IK from `q_init` (default the embedded description's start), the flat inverse as warm start, the OCP
-    at weighting `nu` with `cost`, solved twice with `timing` to separate compile and solve time, then a
-    fine simulation on `plant` (`directional`: its directional effects on). A solve that did not converge
+    at weighting `nu` with `cost` (`directional`: on the gear flanks along the planned motion,
+    `solve_directional`), solved twice with `timing` to separate compile and solve time, then a fine
+    simulation on `plant` (`directional`: with its gear flanks as states, `jr.simulate`). A solve that did not converge
     is returned without plant evaluation (`converged` False). `on_event` receives a `PlanEvent` per stage.
     """
     from ._ocp import solve_ocp
@@ -155,18 +199,17 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     flat = base["flat_inverse"]
     jax.block_until_ready(flat)
     emit(PlanEvent("flat_inverse", time.perf_counter() - start))
-    warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
     ts = float(path.sample_time)
     emit(PlanEvent("solving", samples=jp.t.shape[0], nu=nu, cost=cost))
     start = time.perf_counter()
-    sol = solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm)
+    sol, play, warm = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
     jax.block_until_ready(sol.u)
     first = time.perf_counter() - start
     emit(PlanEvent("ocp", first))
     solve_s, compile_s = first, None  # one call: compile and solve together
     if timing:  # a second, compiled call separates compile and solve time
         start = time.perf_counter()
-        jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm).u)
+        jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm, play=play).u)
         solve_s = time.perf_counter() - start
         compile_s = max(first - solve_s, 0.0)
         emit(PlanEvent("ocp_again", solve_s))
@@ -178,7 +221,7 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
                    solve_time=solve_s, compile_time=compile_s))
     ocp = ocp_motor_trajectory(sol.x, sol.u)
     if not bool(sol.converged):
-        return PlanResult(path, jp, sol, {"ocp": ocp}, nu, cost, solve_s, compile_s)
+        return PlanResult(path, jp, sol, {"ocp": ocp}, nu, cost, solve_s, compile_s, play=play)
     p_d, r_d = jax.jit(lambda t: sample_path(path, t))(jp.t)
     plan_err = np.linalg.norm(np.asarray(_tool_position(robot, sol.q) - p_d), axis=-1)
     trajectories = {**base, "ocp": ocp}
@@ -189,7 +232,7 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
         (k, float(errors.position_max[i]), float(errors.position_rms[i]), float(errors.settle_position_max[i]))
         for i, k in enumerate(names))))
     return PlanResult(path, jp, sol, trajectories, nu, cost, solve_s, compile_s, plant, tuple(names), run, errors,
-                      plan_err, p_d, r_d)
+                      plan_err, p_d, r_d, play)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -49,6 +49,8 @@ CLI = [  # (id, argv (FILE: the file written from `content`), content, exit code
     ("sweep nu zero", ["sweep", "--nu", "1e-14", "0"], None, 2, "--nu: expected one or more values > 0"),
     ("sweep nu twice", ["sweep", "--nu", "1e-14", "1e-14"], None, 2, "--nu: expected distinct values"),
     ("unknown cost", ["plan", "line", "--cost", "energy"], None, 2, "argument --cost: invalid choice: 'energy'"),
+    ("typo of a plant", ["plan", "line", "--plant", "as-biult"], None, 2,
+     "--plant: expected 'model', 'as-built' or an existing robot file, found 'as-biult'.*did you mean 'as-built'"),
     ("out is a file", ["info", "--out", "FILE"], "x", 2, "--out .*: is an existing file; --out names a folder"),
     ("task file missing", ["plan", "missing.csv"], None, 2, "task 'missing.csv': expected 'line', 'spiral' or an "
      "existing CSV file"),

@@ -89,3 +89,65 @@ def test_trajectory_run_and_csv_round_trip(tmp_path, flat):
     path.write_text("t_s,theta1_deg\n0,1\n")
     with pytest.raises(ValueError, match=r"missing columns \['x_m', 'y_m', 'z_m'\]"):
         jb.read_trajectory_csv(path)
+
+
+AS_BUILT = jr.racer7(as_built=True)
+
+
+def test_directional_hold_keeps_its_flank_under_round_off():
+    """A held command whose rates are round-off (+-1e-11 rad/s) does not move the tool (< 1 nm in 1 s) on
+    either flank: the flank follows motor travel, not the sign of a rate."""
+    t = jnp.arange(1001) * 1e-3
+    theta = jnp.broadcast_to(jr.static_equilibrium(AS_BUILT, QA), (t.shape[0], 6))
+    noise = 1e-11 * jax.random.normal(jax.random.PRNGKey(0), theta.shape)
+    run = jax.jit(lambda a, c: jr.simulate(AS_BUILT, t, theta, a, 0 * a, directional=True, ccw0=c))
+    for ccw0 in (False, True):
+        q, _ = run(noise, jnp.full(6, ccw0))
+        p = jr.tool_pose(AS_BUILT, q)[:, :3, 3]
+        assert float(jnp.max(jnp.linalg.norm(p - p[0], axis=-1))) < 1e-9
+
+
+def test_flank_transition_follows_motor_travel():
+    """After a reversal the flank weight grows with the travel since the reversal (0 -> 1 over
+    `reversal_travel`); a reversal of 1e-7 rad moves the output by 1e-7 / u(phi), not by the gap between
+    the flanks; and at the ends the output is each flank's transmission with the lost motion (rest model)."""
+    w = jr.reversal_travel(AS_BUILT)
+    np.testing.assert_allclose(w / AS_BUILT.u0, [9.92878e-4, 5.99305e-4, 7.31048e-3, 3e-9, 3e-9, 3e-9], rtol=1e-5)
+    th0 = jr.static_equilibrium(AS_BUILT, QA)
+    # forward by 2w (cw), back by x w: the weight is S(x) for x in [0, 1], then 1
+    x = jnp.linspace(0.0, 1.5, 16)
+    path = jnp.concatenate([th0 + jnp.linspace(0, 2, 9)[:, None] * w, th0 + (2 - x)[:, None] * w])
+    sigma = jr.direction_state(AS_BUILT, path)
+    s = jnp.clip(x, 0, 1)
+    # joints 1-3 (w >= 5e-2 rad: the angles' rounding is 1e-14 of w; joints 4-6 have w = 1.5e-7 rad)
+    np.testing.assert_allclose(sigma[9:, :3], jnp.broadcast_to((s**3 * (10 - 15 * s + 6 * s**2))[:, None], (16, 3)),
+                               atol=1e-12)
+    # moving cw: the rounding of theta - w/2 (x <= 1e-16 |theta| / w < 1e-8) enters cubed, S(x) = 10 x^3
+    assert float(jnp.abs(sigma[:9]).max()) < 1e-20
+    ends = jr.flank_output(AS_BUILT, path[-1], jnp.ones(6)), jr.flank_output(AS_BUILT, path[8], jnp.zeros(6))
+    for phi, th, ccw in ((ends[0], path[-1], True), (ends[1], path[8], False)):
+        np.testing.assert_allclose(phi, jr.gear_output(AS_BUILT, th, ccw) - jr.measurement.lost_motion(AS_BUILT, ccw),
+                                   rtol=0, atol=1e-15)
+        np.testing.assert_allclose(jr.flank_motor_angle(AS_BUILT, phi, jnp.full(6, float(ccw))), th, rtol=0, atol=1e-13)
+    # a small reversal: 1e-7 rad back from a cw rest
+    small = jnp.stack([th0, th0 - 1e-7])
+    phi = jr.flank_output(AS_BUILT, small, jr.direction_state(AS_BUILT, small))
+    # 1e-7 / u(phi) on the cw flank; the ccw flank enters with weight S(1e-7 / w) <= 2e-15 (joint 1-3)
+    np.testing.assert_allclose(phi[0] - phi[1], 1e-7 / jr.gear_ratio(AS_BUILT, phi[0]), rtol=1e-6)
+
+
+def test_directional_simulation_converges_at_fourth_order():
+    """Motor oscillations with reversals (swing 0.6 rad > every reversal travel) on the directional plant:
+    halving the RK4 step divides the error by about 16."""
+    t = jnp.arange(601) * 1e-3
+    th0 = jr.static_equilibrium(AS_BUILT, QA)
+
+    def command(tt):
+        return th0 + 0.3 * jnp.sin(np.pi * tt / 0.6) ** 4 * jnp.sin(2 * np.pi * tt / 0.4) * jnp.ones(6)
+
+    th = jax.vmap(command)(t)
+    thd, thdd = jax.vmap(jax.jacfwd(command))(t), jax.vmap(jax.jacfwd(jax.jacfwd(command)))(t)
+    q = {s: SIMULATE(AS_BUILT, t, th, thd, thdd, substeps=s, directional=True)[0] for s in (20, 40, 80)}
+    e20, e40 = float(jnp.abs(q[20] - q[80]).max()), float(jnp.abs(q[40] - q[80]).max())
+    # against the finest run (h/4): C h^4 (1 - 4^-4) and C h^4 (2^-4 - 4^-4), ratio 255/15 = 17
+    assert e20 < 1e-11 and 13 < e20 / e40 < 21, (e20, e40)

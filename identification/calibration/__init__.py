@@ -2,6 +2,8 @@
 
 from jaxrobot.checks import check_public as _check_public
 
+from ._bench import BenchCalibration as BenchCalibration
+from ._bench import bench_calibration as bench_calibration
 from ._calibrate import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
 from ._calibrate import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
 from ._calibrate import CalibrationResult as CalibrationResult

@@ -1,0 +1,146 @@
+"""Plans on the direction-dependent plant (docs/model.md (B.0)): the OCP on the gears' flanks, motor
+reversals, `plan --plant` and saved robot files."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxrobot as jr
+import planning as pl
+from planning._workflow import solve_directional
+
+TRUTH = jr.racer7(as_built=True)
+QA = jnp.array([0.1, 0.2, -1.3, 0.2, 0.9, 0.1])
+DELTA = jnp.array([0.15, -0.1, 0.12, 0.0, 0.0, 0.0])
+DURATION = 1.0
+T = jnp.arange(0.0, DURATION + 5e-4, 1e-3)
+
+
+def out_and_back(t):
+    """Joints 1-3 move out and back, reversing at mid-time while their motors turn fast: a bump
+    `(4 s (1 - s))^4`, C3 at both ends (rest)."""
+    s = jnp.clip(t / DURATION, 0.0, 1.0)
+    return QA + DELTA * (4 * s * (1 - s)) ** 4
+
+
+def reversals(thetad) -> list[int]:
+    """Sign changes of each joint's rate (zeros skipped)."""
+    return [int(np.count_nonzero(np.diff(np.sign(c[c != 0])))) for c in np.asarray(thetad).T]
+
+
+def flank_changes(robot, theta) -> list[int]:
+    """Changes of flank of each gear along the motor angles (its weight crossing 1/2, from rest on cw)."""
+    side = np.asarray(jr.direction_state(robot, theta)) > 0.5
+    return np.count_nonzero(np.diff(np.concatenate([np.zeros((1, side.shape[1]), bool), side]), axis=0), axis=0
+                            ).tolist()
+
+
+def test_transcription_uses_the_flanks_it_is_given():
+    """The defects on play states of a cw move are the cw model's bit for bit; after a ccw move those of a robot
+    whose cw set is the ccw set (no backlash); the end nodes' motor angles hold the rest pose on that flank."""
+    n, q = 5, jnp.linspace(QA, QA + DELTA, 5)
+    x = jnp.concatenate([q, 0.1 * jnp.ones((n, 6)), jr.static_equilibrium(TRUTH, q), jnp.ones((n, 6))], -1)
+    u = jnp.ones((n, 6))
+    swapped = eqx.tree_at(lambda r: r.cw, TRUTH, TRUTH.ccw)
+    w, theta = jr.reversal_travel(TRUTH), x[:, 12:18]
+    on_cw, on_ccw = theta - 0.5 * w, theta + 0.5 * w  # play states of a gear that last moved cw / ccw
+    cw = pl.defects(pl.ocp_problem(TRUTH, q, 1e-3), x, u)
+    np.testing.assert_array_equal(pl.defects(pl.ocp_problem(TRUTH, q, 1e-3, play=on_cw), x, u), cw)
+    ccw = pl.defects(pl.ocp_problem(TRUTH, q, 1e-3, play=on_ccw), x, u)
+    np.testing.assert_allclose(ccw, pl.defects(pl.ocp_problem(swapped, q, 1e-3), x, u), rtol=1e-12, atol=1e-15)
+    assert float(jnp.abs(ccw - cw).max()) > 1e-3  # joint 3's link acceleration: k1 (phi_ccw - phi_cw) / D
+    start, _ = pl.boundary_states(pl.ocp_problem(TRUTH, q, 1e-3, play=jr.static_equilibrium(TRUTH, q) + w))
+    rest = jr.measurement.rest_link_angles(TRUTH, start[12:18], jnp.ones(6, bool))
+    np.testing.assert_allclose(rest, q[0], atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def reversal_task():
+    q = jax.vmap(out_and_back)(T)
+    qd = jax.vmap(jax.jacfwd(out_and_back))(T)
+    flat = pl.MotorTrajectory(*jax.jit(lambda t: jr.flat_inverse(TRUTH, out_and_back, t))(T))
+    plans = {d: solve_directional(TRUTH, q, qd, flat, 1e-3, 1e-14, "thesis", d) for d in (False, True)}
+    return q, flat, plans
+
+
+@pytest.mark.extended
+def test_flank_plan_meets_the_task_on_the_flank_plant(reversal_task):
+    """Planned on the cw set, the joints that move backwards miss by the gap between the flanks on the flank
+    plant (1.04 mrad); planned on the flanks along the motion, the plan meets the task there within the
+    trapezoidal discretisation error (below 1e-6 rad, 1e-3 of that gap, as the cw plan on the cw plant), and
+    the play states it planned with are those of its own motion."""
+    q, flat, plans = reversal_task
+    errors = {}
+    for d, (sol, _, _) in plans.items():
+        assert bool(sol.converged), jr.status_name(sol.status)
+        traj = pl.ocp_motor_trajectory(sol.x, sol.u)
+        for plant in (False, True):
+            q_sim, _ = jax.jit(jr.simulate, static_argnames=("directional",))(
+                TRUTH, T, traj.theta, traj.thetad, traj.thetadd, directional=plant)
+            errors[d, plant] = float(jnp.abs(q_sim - q).max())
+    sol, play, _ = plans[True]
+    w = jr.reversal_travel(TRUTH)
+    out = lambda p: jr.flank_output(TRUTH, sol.theta, jr.flank_weight(p, sol.theta, w))  # noqa: E731
+    assert float(jnp.abs(out(jr.play_state(TRUTH, sol.theta)) - out(play)).max()) <= 1e-10
+    assert float(jr.flank_weight(play, sol.theta, w)[:, 2].max()) == 1.0  # joint 3 crossed to ccw on the way back
+    # measured: 3.4e-7 (cw on cw), 6.7e-7 (flanks on flanks: the trapezoidal rule across joint 3's reversal,
+    # where the flank weight turns within 0.1 s), 1.04e-3 (cw plan on the flank plant)
+    assert errors[False, False] < 1e-6 and errors[True, True] < 1e-6, errors
+    assert errors[False, True] > 1e-3, errors
+
+
+@pytest.mark.extended
+def test_motor_reverses_only_where_the_motion_does(reversal_task):
+    """The OCP's gears change flank where the exact inverse (the flat inverse) does: joint 2 once (it starts
+    backwards from rest on cw), joints 1 and 3 once (the task's reversal), joint 2 once more."""
+    _, flat, plans = reversal_task
+    want = flank_changes(TRUTH, flat.theta)
+    assert want[:3] == [1, 2, 1], want
+    for sol, _, _ in plans.values():
+        assert flank_changes(TRUTH, sol.theta)[:3] == want[:3]
+
+
+def test_saved_robot_files_keep_the_tasks_and_plan_on_any_plant(tmp_path):
+    """A robot written by `save_robot` (a calibrated model) keeps `[trajectories]`; `--plant as-built` on a
+    file without `[as_built]` is the test bench's robot, `--plant FILE` a robot file."""
+    from planning._cli_plan import load_plant, task_path
+
+    nominal = jr.racer7()
+    calibrated = eqx.tree_at(lambda r: r.a, nominal, nominal.a + 1e-4)
+    jr.save_robot(calibrated, tmp_path / "calibrated.toml")
+    desc = jr.read_description(tmp_path / "calibrated.toml")
+    assert "trajectories" in desc and "as_built" not in desc
+    assert task_path("line", desc).duration == 2.5
+    model = jr.load_robot(tmp_path / "calibrated.toml")
+    bench = load_plant("as-built", desc, model)
+    for ours, theirs in zip(jax.tree.leaves(bench), jax.tree.leaves(TRUTH), strict=True):
+        np.testing.assert_array_equal(ours, theirs)
+    plant = load_plant(str(tmp_path / "calibrated.toml"), desc, model)
+    np.testing.assert_array_equal(plant.a, calibrated.a)
+    with pytest.raises(ValueError, match="--plant: expected 'model', 'as-built' or an existing robot file"):
+        load_plant("as-biult", desc, model)
+
+
+@pytest.mark.extended
+@pytest.mark.parametrize("task", ["line", "spiral"])
+def test_reference_tasks_on_the_as_built_flank_plant(task):
+    """The reference tasks at nu = 1e-14 planned on the as-built truth's flanks: on the flank plant the error
+    is the cw plan's on the cw plant (line 0.032 µm, spiral 11.1 µm; goals: line <= 1 µm, spiral <= 1.2x),
+    and the gears with ripple (joints 1-3) change flank exactly where the exact inverse's do."""
+    from planning._trajectories import reference_path
+
+    path = reference_path(task)
+    jp = pl.joint_path(TRUTH, path)
+    flat = pl.baseline_trajectories(TRUTH, jp)["flat_inverse"]
+    errors = {}
+    for d in (False, True):
+        sol, _, _ = solve_directional(TRUTH, jp.q, jp.qd, flat, 1e-3, 1e-14, "thesis", d)
+        assert bool(sol.converged), jr.status_name(sol.status)
+        assert flank_changes(TRUTH, sol.theta)[:3] == flank_changes(TRUTH, flat.theta)[:3]
+        err = pl.evaluate_on_plant(TRUTH, jp, {"ocp": pl.ocp_motor_trajectory(sol.x, sol.u)}, directional=d)
+        errors[d] = float(err["ocp"].position_max)
+    assert errors[True] <= (1e-6 if task == "line" else 1.2 * errors[False]), errors
