@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
@@ -106,11 +108,16 @@ def irls(fit, weight, loss: str, rows: int):
     weights `weight` (numpy or jax, any shape) and returns the whitened residual norms `z` of its poses.
     Reweights until no weight changes by more than `IRLS_TOL`, then rejects the poses beyond
     `outlier_bound` and reweights to convergence again (at most `IRLS_STEPS` solves; a non-finite
-    weight stops it). **Returns:** the last solution and the weights it was solved with."""
-    c, bound = threshold(rows), outlier_bound(rows)
+    weight stops it). The norms are measured against the larger of the stated noise and their own robust
+    spread (their median over clean noise's, per fit along the last axis), so that a misfit common to all
+    poses (a start far from the data, a fit stopped early) weighs them alike and rejects none.
+    **Returns:** the last solution and the weights it was solved with."""
+    c, bound, median = threshold(rows), outlier_bound(rows), threshold(rows, 0.5)
     rejecting = False
     for _ in range(IRLS_STEPS):
         solution, z = fit(weight)
+        scale = jnp.maximum(1.0, jnp.median(jnp.asarray(z), axis=-1, keepdims=True) / median)
+        z = z / (scale if isinstance(z, jax.Array) else np.asarray(scale))
         new = weights(z, loss, c) * ((z <= bound) if rejecting else 1.0)
         change = float(abs(new - weight).max())
         if change <= IRLS_TOL and not rejecting:
