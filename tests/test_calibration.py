@@ -425,6 +425,7 @@ def fleet_problem(robots, bench):
     return theta, meas, calibrate_fleet(nominal, theta, meas.positions, loss="l2")
 
 
+@pytest.mark.extended  # its own fleet programs; the suite keeps the robust single-robot fits
 def test_fleet_robust_to_a_gross_error(robots, fleet_problem):
     """A 2 mm tracker error (40 noise stds) in one pose of robot 1: the default (Cauchy) fit names it
     for that robot alone and rejects it: robot 1 gets the model `calibrate` finds without that pose,

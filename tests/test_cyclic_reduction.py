@@ -69,7 +69,8 @@ def test_cyclic_reduction_matches_dense_solve_and_scan(n_blocks, n):
                                err_msg="cyclic reduction vs scan")
 
 
-@pytest.mark.parametrize("n_blocks,n", [(2501, 30), (2501, 6), (64, 30)])
+@pytest.mark.parametrize("n_blocks,n", [pytest.param(2501, 30, marks=pytest.mark.extended),
+                                         pytest.param(2501, 6, marks=pytest.mark.extended), (64, 30)])
 def test_cyclic_reduction_batched_matches_scan(n_blocks, n):
     """A batch of 2 systems under `vmap` (the long ones too large for a dense reference): each
     member equals the scan's solution and solves its system (residual)."""
@@ -130,6 +131,7 @@ def _move(n: int = 51):
     return q_a + 3e-4 * blend[:, None] * jnp.array([1.0, -1.0, 1.0, 1.0, -1.0, 1.0])
 
 
+@pytest.mark.extended  # two OCP programs compiled; the suite keeps the factor and solve against dense and scan
 def test_solve_ocp_cyclic_reduction_matches_scan():
     robot, q_d = jr.racer7(), _move()
     scan = pl.solve_ocp(robot, q_d, 1e-3, 1e-14, config=pl.ALConfig(linear_solver="scan"))

@@ -136,6 +136,7 @@ def test_flank_transition_follows_motor_travel():
     np.testing.assert_allclose(phi[0] - phi[1], 1e-7 / jr.gear_ratio(AS_BUILT, phi[0]), rtol=1e-6)
 
 
+@pytest.mark.extended  # four plant simulations; the suite keeps the hold under round-off
 def test_directional_simulation_converges_at_fourth_order():
     """Motor oscillations with reversals (swing 0.6 rad > every reversal travel) on the directional plant:
     halving the RK4 step divides the error by about 16."""
