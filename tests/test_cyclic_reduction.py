@@ -53,7 +53,8 @@ def _both(diag, lower, rhs):
             factor.positive_definite)
 
 
-@pytest.mark.parametrize("n_blocks,n", [(1, 6), (2, 6), (3, 6), (5, 6), (37, 6), (64, 6), (2, 30), (5, 30), (37, 30)])
+@pytest.mark.parametrize("n_blocks,n", [(1, 6), (2, 6), (3, 6), (5, 6), (37, 6), (64, 6), (2, 30), (5, 30),
+                                         pytest.param(37, 30, marks=pytest.mark.extended)])
 def test_cyclic_reduction_matches_dense_solve_and_scan(n_blocks, n):
     rng = np.random.default_rng(n_blocks * 100 + n)
     diag, lower, rhs = _system(rng, n_blocks, n)
@@ -70,7 +71,8 @@ def test_cyclic_reduction_matches_dense_solve_and_scan(n_blocks, n):
 
 
 @pytest.mark.parametrize("n_blocks,n", [pytest.param(2501, 30, marks=pytest.mark.extended),
-                                         pytest.param(2501, 6, marks=pytest.mark.extended), (64, 30)])
+                                         pytest.param(2501, 6, marks=pytest.mark.extended),
+                                         pytest.param(64, 30, marks=pytest.mark.extended), (64, 6)])
 def test_cyclic_reduction_batched_matches_scan(n_blocks, n):
     """A batch of 2 systems under `vmap` (the long ones too large for a dense reference): each
     member equals the scan's solution and solves its system (residual)."""
