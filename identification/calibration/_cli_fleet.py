@@ -120,14 +120,12 @@ def _failure_messages(res, files: list[str], sigma: float) -> dict[str, str]:
     """The message of every calibrated robot that is not `successful`, by file."""
     import jaxrobot as jr
 
-    from .._noise import ALPHA
-
     out = {}
     for r, (f, name) in enumerate(zip(files, jr.status_name(res.status))):
         if name == "inconsistent":
             out[f] = (f"{f}: residuals beyond the stated tracker noise ({1e3 * sigma:.4g} mm per axis): chi2/dof "
                       f"{res.chi2[r] / max(res.dof[r], 1):.3g} over {int(res.dof[r])} dof, p = {res.p_value[r]:.2g} "
-                      f"<= {ALPHA}; residual RMS {1e3 * res.rms_m[r]:.4g} mm")
+                      f"<= {res.inconsistent_below:.2g}; residual RMS {1e3 * res.rms_m[r]:.4g} mm")
         elif name != "successful":
             out[f] = f"{f}: {jr.status_message(res.status)[r]}"
     return out

@@ -55,7 +55,7 @@ class FleetResult:
     status: RESULTS
     """(R,) `successful`, `nonlinear_max_steps_reached`, `nonfinite`, `rank_deficient` or `inconsistent`
     (converged, but the residuals fail the chi-square test against the stated noise: `p_value` at or
-    below `identification._noise.ALPHA`) (names by `jaxrobot.status_name`)."""
+    below `inconsistent_below`) (names by `jaxrobot.status_name`)."""
     iterations: np.ndarray
     """(R,) Levenberg-Marquardt steps."""
     rank: np.ndarray
@@ -83,6 +83,9 @@ class FleetResult:
     """(R,) its degrees of freedom, 3 K' - m over the K' poses kept."""
     p_value: np.ndarray
     """(R,) probability that noise alone exceeds `chi2`."""
+    inconsistent_below: float
+    """`identification._noise.ALPHA / R`: the p-value at or below which a robot is `inconsistent`, so
+    that noise alone marks any robot of a clean fleet with probability at most `ALPHA` (Bonferroni)."""
 
 
 def fleet_mesh(devices: Sequence | None = None) -> Mesh:
@@ -249,7 +252,7 @@ def calibrate_fleet(
     (default: all devices). Robots whose solve failed or whose pose set is rank deficient have
     `converged = False` and their `status` says why (`throw`: raise the message of the first such
     status instead); so has a robot whose residuals exceed the stated noise (`inconsistent`: the
-    chi-square test of `diagnose`, `identification._noise.noise_test`). `max_steps`: of `LMConfig`.
+    chi-square test of `diagnose`, `identification._noise.noise_test`, at the level `ALPHA / R`). `max_steps`: of `LMConfig`.
     `parameters`: default `default_parameters` of the first robot. Under
     several processes (`jaxrobot.initialize_processes`) each process passes only its own robots
     (e.g. rows `jaxrobot.process_share(R)`, one robot or its own fleet rows in `robots`; none on a
@@ -321,7 +324,8 @@ def calibrate_fleet(
         kept = weight > 0
     resid = np.asarray(out.residuals).reshape(out.residuals.shape[0], -1, 3)
     chi2, dof, p_value = noise_test(resid, sigma, len(params), kept)
-    status = where(np.asarray(out.status == RESULTS.successful) & (p_value <= ALPHA), RESULTS.inconsistent,
+    level = ALPHA / len(p_value)
+    status = where(np.asarray(out.status == RESULTS.successful) & (p_value <= level), RESULTS.inconsistent,
                    out.status)
     status = check(status, status, throw)
     noise = np.array([np.sqrt(v) if loss == "l2" else robust.noise_estimate(r, sigma, len(params))
@@ -335,4 +339,4 @@ def calibrate_fleet(
         iterations=out.steps, rank=out.rank, rms_m=np.sqrt(np.mean(resid**2, -1)), residuals=resid,
         names=params.names, n_devices=n_dev, loss=loss, noise_estimate=noise,
         outliers=tuple(robust.outliers(r.reshape(-1, 3), sigma) for r in resid), chi2=chi2, dof=dof,
-        p_value=p_value)
+        p_value=p_value, inconsistent_below=level)

@@ -22,9 +22,9 @@ FILE_CHECKS = {
     "missing": "the file does not exist",
     "unreadable": "the file is not a pose file (columns, cells, approach columns)",
     "nonfinite": "NaN or empty cells",
+    "duplicate_rows": "a marker position that repeats another row's exactly (a copied tracker row)",
     "units": "the unit checks of `calibrate` (`check_pose_units`: millimetres in the _m columns, radians in "
              "the _deg columns, ...)",
-    "duplicate_rows": "a marker position that repeats another row's exactly (a copied tracker row)",
     "pose_count": "a pose count other than the fleet's (the count most files have)",
 }
 """The checks of a fleet's pose files, in the order they run, with what each rejects."""
@@ -83,15 +83,15 @@ def check_pose_file(path: Path, robot: jr.Robot, marker, approach: str = "cw") -
         lines = bad + 2
         return failed("nonfinite", f"{path}: NaN or empty cells in line(s) {lines[:20].tolist()}"
                       f"{' ...' if len(lines) > 20 else ''}", lines, k)
-    try:
-        check_pose_units(robot, data.motor_angles, data.positions, marker, str(path))
-    except ValueError as err:
-        return failed("units", str(err), (), k)
     dup = _duplicates(data.positions)
     if dup:
         text = ", ".join(f"line {r + 2} repeats line {e + 2}" for r, e in dup[:10])
         return failed("duplicate_rows", f"{path}: marker positions repeated exactly ({text}): a copied tracker "
                       "row? remove or re-measure it", [r + 2 for r, _ in dup], k)
+    try:
+        check_pose_units(robot, data.motor_angles, data.positions, marker, str(path))
+    except ValueError as err:
+        return failed("units", str(err), (), k)
     return data, FileCheck(str(path), "", "", (), k)
 
 
