@@ -252,8 +252,8 @@ def calibrate_fleet(
     (default: all devices). Robots whose solve failed or whose pose set is rank deficient have
     `converged = False` and their `status` says why (`throw`: raise the message of the first such
     status instead); so has a robot whose residuals exceed the stated noise (`inconsistent`: the
-    chi-square test of `diagnose`, `identification._noise.noise_test`, at the level `ALPHA / R`). `max_steps`: of `LMConfig`.
-    `parameters`: default `default_parameters` of the first robot. Under
+    chi-square test of `diagnose`, `identification._noise.noise_test`, at the level `ALPHA / R`).
+    `max_steps`: of `LMConfig`. `parameters`: default `default_parameters` of the first robot. Under
     several processes (`jaxrobot.initialize_processes`) each process passes only its own robots
     (e.g. rows `jaxrobot.process_share(R)`, one robot or its own fleet rows in `robots`; none on a
     process whose robots all failed their checks) and every process receives the whole fleet in process
