@@ -116,7 +116,7 @@ def irls(fit, weight, loss: str, rows: int):
     **Returns:** the last solution and the weights it was solved with."""
     c, bound, median = threshold(rows), outlier_bound(rows), threshold(rows, 0.5)
     xp = jnp if isinstance(weight, jax.Array) else np
-    rejecting = done = xp.zeros(weight.shape[:-1] + (1,), bool)
+    rejecting = done = weight[..., :1] < 0  # per fit, all False (sharded as `weight`)
     for _ in range(IRLS_STEPS):
         solution, z = fit(weight)
         scale = jnp.maximum(1.0, jnp.median(jnp.asarray(z), axis=-1, keepdims=True) / median)

@@ -176,8 +176,9 @@ def fleet_outliers(values: np.ndarray) -> np.ndarray:
 def plot_fleet(path: str | Path, rms: np.ndarray, values: np.ndarray, names: tuple[str, ...],
                robots: list[str], marked: np.ndarray) -> None:
     """Histograms over the fleet of the residual RMS [m] (`rms` (R,)) and of each parameter (`values`
-    (R, m), named `names`, in mm and mrad where lengths and angles), the robots `marked` (R, 1 + m)
-    (`fleet_outliers` of the RMS and the values) drawn red and named (`robots`: a label per robot)."""
+    (R, m), named `names`, in mm and mrad where lengths and angles, about the fleet's median), the robots
+    `marked` (R, 1 + m) (`fleet_outliers` of the RMS and the values) drawn red and named (`robots`: a
+    label per robot)."""
     import matplotlib.pyplot as plt
 
     scale = {"m": (1e3, "mm"), "rad": (1e3, "mrad")}
@@ -188,8 +189,12 @@ def plot_fleet(path: str | Path, rms: np.ndarray, values: np.ndarray, names: tup
     cols = min(5, len(panels))
     rows = -(-len(panels) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.4 * rows), squeeze=False)
-    for ax, (label, x, u), out in zip(axes.flat, panels, marked.T):
+    for i, (ax, (label, x, u), out) in enumerate(zip(axes.flat, panels, marked.T)):
+        if i:  # a parameter: its deviation from the fleet's median
+            median = float(np.median(x))
+            x, label = x - median, f"{label} − {median:.6g} {u}"
         ax.hist(x[~out], bins=min(30, max(5, int(np.sqrt(len(x))))), color="tab:blue")
+        ax.locator_params(axis="x", nbins=4)
         for r in np.flatnonzero(out):
             ax.axvline(x[r], color="tab:red", lw=1)
             ax.annotate(robots[r], (x[r], 1), xycoords=("data", "axes fraction"), rotation=90, va="top",
