@@ -148,10 +148,11 @@ def run(args, echo) -> dict:
     pid = jax.process_index()
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
     names = None if args.parameters is None else [n.strip() for n in args.parameters.split(",") if n.strip()]
-    sensors = jr.read_description(args.robot).get("sensors", {})
-    marker = sensors.get("tracker_marker_offset_m") if args.robot is not None else None
-    noise = (TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")) if args.robot is not None else None
-    sigma = noise_model(sensors["tracker_position_noise_m"] if noise is None else noise, np.zeros((1, 3)))[0]
+    sensors = {} if args.robot is None else jr.read_description(args.robot).get("sensors", {})
+    marker = sensors.get("tracker_marker_offset_m")
+    noise = TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")
+    sigma = noise_model(jr.read_description(None)["sensors"]["tracker_position_noise_m"] if noise is None else noise,
+                        np.zeros((1, 3)))[0]  # calibrate_fleet's default
     seconds = {}
     progress = Progress(3 if args.bench is not None else 2, "calibrate-fleet")
     start = time.perf_counter()
