@@ -186,5 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # `python -m jaxrobot._cli`: the package's module, whose `SolveFailed` the commands raise
+    from jaxrobot._cli import main as _main
+
+    sys.exit(_main())
