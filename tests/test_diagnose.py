@@ -145,6 +145,18 @@ def test_two_hidden_effects_found_in_order_of_size(bench):
     _check(res, [("joint_compliance", 3), ("joint_offset", 2)])
 
 
+def test_two_joint_effects_are_preferred_to_a_geometry_block(bench):
+    """Joint 2 compliance x1.2 and a joint 5 offset of 6e-4 rad: the 17-parameter `geometry` block fits the
+    training poses better (BIC) than either effect alone, the two together better still, so both are
+    named and no block is added."""
+    truth = _at(_at(AS_BUILT, "c", 1, AS_BUILT.c[1] * 1.2), "offset", 4, AS_BUILT.offset[4] + 6e-4)
+    res = _run(bench, truth)
+    _check(res, [("joint_compliance", 2), ("joint_offset", 5)])
+    first = {e.candidate: e for e in res.candidates[0] if e.lm_status == "successful"}
+    singles = [e.delta_bic for k, e in first.items() if k != "geometry" and " + " not in k]
+    assert first["joint_compliance j2 (linear) + joint_offset j5"].delta_bic < first["geometry"].delta_bic < min(singles)
+
+
 def test_cli_json_and_saved_model(bench, tmp_path, capsys):
     start, theta = bench
     truth = _at(start, "offset", 4, start.offset[4] + 5e-4)
