@@ -98,10 +98,13 @@ def _diagnose(*parts: str):
 def test_diagnose_rejects_and_names_gross_tracker_errors():
     """Nothing hidden, 3 gross errors: `diagnose` (default loss) finds no discrepancy, names exactly the
     corrupted rows and keeps the start model (the truth) at the floor."""
+    from identification.diagnosis import summary
+
     res, truth = _diagnose("noise", "outliers")
     assert res.steps == () and res.verdict.startswith("no significant discrepancy"), res.verdict
     assert [o.row for o in res.outliers] == truth["outlier_rows_0based"]
     assert abs(res.final_rms_validation / (1e-6 * truth["floor_um"]) - 1) < 1e-6
+    assert [o["row"] for o in summary(res)["outliers"]] == truth["outlier_rows_0based"]
 
 
 @pytest.mark.slow
@@ -163,7 +166,7 @@ def test_diagnose_names_a_drift_in_acquisition_time():
     """Every link grows by 3e-5 linearly over the 1722 s of the training file (`t_s`): `diagnose` with
     the times names a link-length scale linear in time, its rate within 3 standard errors of the truth;
     without times there is no drift test (the row order is not taken for time)."""
-    from identification.diagnosis import Poses, diagnose
+    from identification.diagnosis import Poses, diagnose, summary
     from jaxrobot.bench import read_csv_columns
 
     d, robot, train, val, truth = _case("noise", "drift")
@@ -175,6 +178,7 @@ def test_diagnose_names_a_drift_in_acquisition_time():
     rate = truth["effects"]["link_scale_final"] / truth["duration_s"]
     assert res.drift.named and "drift" in res.verdict, res.drift
     assert abs(res.drift.rate - rate) < 3 * res.drift.std, (res.drift.rate, rate)
+    assert summary(res)["drift"]["rate_per_s"] == res.drift.rate and summary(res)["drift"]["named"]
     assert diagnose(*args, max_steps=0, **kw).drift is None
 
 
