@@ -306,7 +306,8 @@ class DiagnoseResult:
     loop: tuple[LoopRow, ...]
     """One row per model: the start model, then after each added effect."""
     candidates: tuple[tuple[CandidateScore, ...], ...]
-    """Per step, the scored candidate effects, best first."""
+    """Per step, the scored candidate effects, best (linearised BIC) first, with the pairs a block was
+    compared with (`BLOCKS`)."""
     residuals_before: np.ndarray
     """Validation residual norm of each pose with the start model [m]."""
     residuals_after: np.ndarray
