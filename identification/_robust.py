@@ -18,10 +18,12 @@ is reported as an outlier, whichever loss (`l2` keeps it in the fit).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.scipy.special import gammainc
 from jaxtyping import Array, Float
 
 from .gear._fit import chi2_quantile
@@ -114,13 +116,12 @@ def irls(fit, weight, loss: str, rows: int):
     noise's, per fit), so that a misfit common to all poses (a start far from the data, a fit stopped
     early) weighs them alike and rejects none.
     **Returns:** the last solution and the weights it was solved with."""
-    c, bound, median = threshold(rows), outlier_bound(rows), threshold(rows, 0.5)
+    c, bound = threshold(rows), outlier_bound(rows)
     xp = jnp if isinstance(weight, jax.Array) else np
     rejecting = done = weight[..., :1] < 0  # per fit, all False (sharded as `weight`)
     for _ in range(IRLS_STEPS):
         solution, z = fit(weight)
-        scale = jnp.maximum(1.0, jnp.median(jnp.asarray(z), axis=-1, keepdims=True) / median)
-        z = z / (scale if isinstance(z, jax.Array) else np.asarray(scale))
+        z = z / spread(z, rows)
         new = weights(z, loss, c) * xp.where(rejecting, z <= bound, True)
         settled = ~rejecting & (abs(new - weight).max(-1, keepdims=True) <= IRLS_TOL)
         rejecting = rejecting | settled
@@ -132,23 +133,31 @@ def irls(fit, weight, loss: str, rows: int):
     return solution, weight
 
 
-MEDIAN_NORM = 1.5382
-"""Median of the norm of standard normal noise on 3 axes (`sqrt` of the median of chi-square with 3
-degrees of freedom)."""
+@functools.cache
+def median_norm(rows: int) -> float:
+    """Median of the norm of standard normal noise on `rows` axes (`sqrt` of the median of chi-square
+    with `rows` degrees of freedom; bisection on its distribution function to 1e-12)."""
+    lo, hi = 0.0, float(rows) + 10.0
+    while hi - lo > 1e-12 * hi:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if float(gammainc(0.5 * rows, 0.5 * mid)) < 0.5 else (lo, mid)
+    return float(np.sqrt(0.5 * (lo + hi)))
 
 
-def spread(z: np.ndarray) -> float:
-    """The larger of 1 and the robust spread of whitened position residual norms `z` (their median over
-    `MEDIAN_NORM`): the noise scale of a model that may still miss an effect, in units of the noise."""
-    return max(1.0, float(np.median(z)) / MEDIAN_NORM)
+def spread(z: Float[Array, "*B K"], rows: int, axis: int = -1) -> Float[Array, "*B 1"]:
+    """The larger of 1 and the robust spread of whitened residual norms `z` of poses with `rows` axes
+    along `axis` (their median over `median_norm(rows)`, that axis kept with length 1): the noise scale
+    of a model that may still miss an effect, in units of the noise; numpy or jax."""
+    xp = jnp if isinstance(z, jax.Array) else np
+    return xp.maximum(1.0, xp.median(z, axis=axis, keepdims=True) / median_norm(rows))
 
 
 def scaled_weights(z: np.ndarray, loss: str) -> np.ndarray:
     """Pose weights of a model that may still miss an effect: the loss's weights (`weights`, 0 beyond
     `outlier_bound`) with the norms `z` measured against the larger of the stated noise and the robust
-    spread of `z` itself (its median over `MEDIAN_NORM`), so that a misfit common to all poses weighs
-    them alike and only gross errors among them are rejected; all 1 for `l2`. Position rows (3 per pose)."""
+    spread of `z` itself (`spread`), so that a misfit common to all poses weighs them alike and only
+    gross errors among them are rejected; all 1 for `l2`. Position rows (3 per pose)."""
     if loss == "l2":
         return np.ones_like(z)
-    u = z / spread(z)
+    u = z / spread(z, 3)
     return weights(u, loss, threshold(3)) * (u <= outlier_bound(3))

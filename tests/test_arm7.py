@@ -98,10 +98,13 @@ def _diagnose(*parts: str):
 def test_diagnose_rejects_and_names_gross_tracker_errors():
     """Nothing hidden, 3 gross errors: `diagnose` (default loss) finds no discrepancy, names exactly the
     corrupted rows and keeps the start model (the truth) at the floor."""
+    from identification.diagnosis import summary
+
     res, truth = _diagnose("noise", "outliers")
     assert res.steps == () and res.verdict.startswith("no significant discrepancy"), res.verdict
     assert [o.row for o in res.outliers] == truth["outlier_rows_0based"]
     assert abs(res.final_rms_validation / (1e-6 * truth["floor_um"]) - 1) < 1e-6
+    assert [o["row"] for o in summary(res)["outliers"]] == truth["outlier_rows_0based"]
 
 
 @pytest.mark.slow
@@ -121,12 +124,49 @@ def test_diagnose_two_effects_without_a_geometry_block():
                 assert "chi-square" in e.lm_message and not e.selected
 
 
+def _generator():
+    """The arm7 generator (`make_arm7.py`: numpy + pinocchio, no code shared with jaxrobot) as a module."""
+    import importlib.util
+
+    path = independent_data() / "arm7" / "make_arm7.py"
+    spec = importlib.util.spec_from_file_location("make_arm7", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.extended  # the 7-joint diagnose programs compile in about a minute
+def test_diagnose_prefers_two_joint_effects_to_a_geometry_block():
+    """Joint 2 stiffness x0.8 and a joint 6 encoder offset of 0.3 mrad, measured by the arm7 generator
+    (its README's conventions; seeded): the 20-parameter `geometry` block fits better (BIC) than either
+    effect alone, but the two together fit better still, so `diagnose` names both, adds no block and
+    ends within 1.1x the floor (the true model's validation RMS)."""
+    from identification.diagnosis import Poses, diagnose
+
+    g = _generator()
+    rng = np.random.default_rng(1)
+    arm = g.Arm(k1=g.K1 * [1, 0.8, 1, 1, 1, 1, 1], offset_err=[0, 0, 0, 0, 0, 3e-4, 0])
+    th_tr, p_tr, th_va, p_va = g.make_set(arm, rng)
+    m_tr, m_va = g.noise_iso(p_tr, rng), g.noise_iso(p_va, rng)
+    d = independent_data() / "arm7" / "cases" / "a0_clean"  # the start model of every case
+    sensors = jr.read_description(d / "start.toml")["sensors"]
+    res = diagnose(jr.load_robot(d / "start.toml"), Poses.of(th_tr, m_tr), Poses.of(th_va, m_va),
+                   noise=sensors["tracker_position_noise_m"], marker=sensors["tracker_marker_offset_m"])
+    assert sorted((s.kind, s.joint) for s in res.steps) == [("joint_compliance", 2), ("joint_offset", 6)]
+    first = {e.candidate: e for e in res.candidates[0] if e.lm_status == "successful"}
+    pair = first["joint_compliance j2 (linear) + joint_offset j6"]
+    singles = [e.delta_bic for k, e in first.items() if k != "geometry" and " + " not in k]
+    assert pair.delta_bic < first["geometry"].delta_bic < min(singles)  # the block was the best single candidate
+    floor = _rms(np.linalg.norm(m_va - p_va, axis=-1))
+    assert res.final_rms_validation < 1.1 * floor
+
+
 @pytest.mark.extended
 def test_diagnose_names_a_drift_in_acquisition_time():
     """Every link grows by 3e-5 linearly over the 1722 s of the training file (`t_s`): `diagnose` with
     the times names a link-length scale linear in time, its rate within 3 standard errors of the truth;
     without times there is no drift test (the row order is not taken for time)."""
-    from identification.diagnosis import Poses, diagnose
+    from identification.diagnosis import Poses, diagnose, summary
     from jaxrobot.bench import read_csv_columns
 
     d, robot, train, val, truth = _case("noise", "drift")
@@ -138,6 +178,7 @@ def test_diagnose_names_a_drift_in_acquisition_time():
     rate = truth["effects"]["link_scale_final"] / truth["duration_s"]
     assert res.drift.named and "drift" in res.verdict, res.drift
     assert abs(res.drift.rate - rate) < 3 * res.drift.std, (res.drift.rate, rate)
+    assert summary(res)["drift"]["rate_per_s"] == res.drift.rate and summary(res)["drift"]["named"]
     assert diagnose(*args, max_steps=0, **kw).drift is None
 
 

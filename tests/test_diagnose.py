@@ -9,6 +9,7 @@ name the effect and joint, and end with a validation RMS within 1.3x of the nois
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 
@@ -145,6 +146,19 @@ def test_two_hidden_effects_found_in_order_of_size(bench):
     _check(res, [("joint_compliance", 3), ("joint_offset", 2)])
 
 
+def test_two_joint_effects_are_preferred_to_a_geometry_block(bench):
+    """Joint 2 compliance x1.2 and a joint 5 offset of 6e-4 rad: the 17-parameter `geometry` block fits the
+    training poses better (BIC) than either effect alone, the two together better still, so both are
+    named and no block is added."""
+    truth = _at(_at(AS_BUILT, "c", 1, AS_BUILT.c[1] * 1.2), "offset", 4, AS_BUILT.offset[4] + 6e-4)
+    res = _run(bench, truth)
+    _check(res, [("joint_compliance", 2), ("joint_offset", 5)])
+    first = {e.candidate: e for e in res.candidates[0] if e.lm_status == "successful"}
+    singles = [e.delta_bic for k, e in first.items() if k != "geometry" and " + " not in k]
+    pair = first["joint_compliance j2 (linear) + joint_offset j5"]
+    assert pair.delta_bic < first["geometry"].delta_bic < min(singles)  # the block was the best single candidate
+
+
 def test_cli_json_and_saved_model(bench, tmp_path, capsys):
     start, theta = bench
     truth = _at(start, "offset", 4, start.offset[4] + 5e-4)
@@ -165,6 +179,7 @@ def test_cli_json_and_saved_model(bench, tmp_path, capsys):
     assert re.search(r"^step 1: joint_offset j5 +rms train +\d+\.\d\d um, validation +\d+\.\d\d um, noise floor "
                      r"\d+\.\d\d um", captured.err, re.M)
     assert {"noise_floor_um", "steps", "final_rms_validation_um", "verdict"} <= set(out)
+    assert out["outliers"] == [] and out["drift"] is None and out["loss"] == "cauchy"
     step = out["steps"][0]
     assert (step["effect"], step["joint"]) == ("joint_offset", 5)
     assert {"parameters", "rms_train_um", "rms_validation_um"} <= set(step)
@@ -173,6 +188,26 @@ def test_cli_json_and_saved_model(bench, tmp_path, capsys):
     assert abs(float(saved.offset[4] - start.offset[4]) - 5e-4) < 3 * std
     for f in ("diagnose_tables.txt", "diagnose_residuals.png", "diagnose_candidates.png", "diagnose_spectra.png"):
         assert (tmp_path / "out" / f).stat().st_size > 0
+
+
+def test_summary_reports_outliers_and_drift(bench):
+    """The Python `summary` (the JSON of `jaxrobot diagnose`) carries the loss, each outlier row (with its
+    file and line where the rows' origins are given) and the drift test, as the command prints them."""
+    from identification._robust import Outlier
+    from identification.diagnosis import summary
+    from identification.diagnosis._diagnose import Drift
+
+    res = _single(bench, "joint_offset_j5")
+    rep = summary(res)
+    assert rep["loss"] == "cauchy" and rep["outliers"] == [] and rep["drift"] is None
+    res = dataclasses.replace(res, outliers=(Outlier(7, 2.5e-3, 50.0),),
+                              drift=Drift(2e-8, 5e-9, 1800.0, -9.0, 16.0, True))
+    lines = [("train.csv", k + 2) for k in range(res.n_train)]
+    assert summary(res)["outliers"] == [{"row": 7, "residual_um": 2500.0, "sigmas": 50.0}]
+    assert summary(res, lines)["outliers"] == [{"row": 7, "file": "train.csv", "line": 9, "residual_um": 2500.0,
+                                                "sigmas": 50.0}]
+    assert summary(res)["drift"] == {"rate_per_s": 2e-8, "std_per_s": 5e-9, "duration_s": 1800.0, "delta_bic": -9.0,
+                                     "named": True}
 
 
 def test_order_dependent_approach_is_named_under_the_cw_convention(bench):

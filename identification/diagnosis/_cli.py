@@ -77,9 +77,8 @@ def run(args, echo) -> dict:
                    max_order=args.max_order, loss=args.loss, times=times, progress=progress)
     echo("\n" + loop_table(res.loop, res.noise_floor))
     echo(f"verdict: {res.verdict}")
-    outliers = [{"file": lines[o.row][0], "line": lines[o.row][1], "residual_um": 1e6 * o.residual,
-                 "sigmas": o.sigmas} for o in res.outliers]
-    for o in outliers:
+    rep = summary(res, lines)
+    for o in rep["outliers"]:
         echo(f"warning: {o['file']}:{o['line']}: residual {o['residual_um']:.1f} um ({o['sigmas']:.1f} sigma) at the "
              "final model, beyond the outlier bound: a gross measurement error?"
              + (" (left out of the fits)" if args.loss != "l2" else ""))
@@ -89,14 +88,9 @@ def run(args, echo) -> dict:
     if args.save_model is not None:
         jr.save_robot(res.robot, args.save_model)
         echo(f"wrote {args.save_model}")
-    drift = None
     if res.drift is not None:
         d = res.drift
-        drift = {"rate_per_s": d.rate, "std_per_s": d.std, "duration_s": d.duration, "delta_bic": d.delta_bic,
-                 "named": d.named}
         echo(f"drift against t_s: link-length scale {d.rate:+.3g} +- {d.std:.2g} per s "
              f"({d.rate * d.duration:+.3g} over {d.duration:.0f} s), dBIC {d.delta_bic:.1f}: "
              + ("named" if d.named else "not significant"))
-    rep = summary(res)
-    keys = ("noise_floor_um", "validation_bound_um", "steps", "final_rms_validation_um", "verdict", "start")
-    return {**{k: rep[k] for k in keys}, "loss": res.loss, "outliers": outliers, "drift": drift}
+    return rep

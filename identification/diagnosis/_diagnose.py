@@ -16,6 +16,11 @@
    validation RMS is added; repeat until the chi-square test passes or no candidate helps. The
    verdict "explained" needs also the validation RMS within its noise-floor bound
    (`validation_bound`).
+   Parsimony: where that candidate is a block on every link (`BLOCKS`: `geometry`, `link_scale`), the
+   best `shortlist` pairs of single-joint candidates (linearised BIC) are fitted by LM too, with the
+   members of the best pair; if a pair or another candidate has a BIC or a validation RMS at most the
+   block's, the block is set aside for the best other candidate that lowers both (a member of the best
+   pair first): two local effects together can look like a block.
 
 Effects that need the direction of approach (backlash, direction-dependent ripple) are offered
 only for joints whose direction varies over the training poses under their convention; whether
@@ -46,6 +51,9 @@ MIN_BIC_GAIN = 10.0
 """Least BIC decrease for adding an effect ("very strong" evidence, Kass and Raftery 1995)."""
 ORDER_FALSE_ALARM = 1e-3
 """Probability that noise alone yields a ripple order over the whole order search."""
+BLOCKS = ("geometry", "link_scale")
+"""Effects on every link at once: one is added only where it explains the training poses better (BIC) and
+the validation poses better (RMS) than every combination of at most two single-joint effects."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,6 +117,20 @@ class Candidate:
 
 
 @dataclasses.dataclass(frozen=True)
+class Combination:
+    """Single-joint candidates fitted together (the rivals of a block, `BLOCKS`)."""
+
+    parts: tuple[Candidate, ...]
+
+    @property
+    def params(self) -> tuple[int, ...]:
+        return tuple(i for c in self.parts for i in c.params)
+
+    def label(self, layout: Layout) -> str:
+        return " + ".join(c.label(layout) for c in self.parts)
+
+
+@dataclasses.dataclass(frozen=True)
 class LoopRow:
     """One model of the loop (the start model, then after each added effect) and its evidence: the
     chi-square test and BIC on the K training poses."""
@@ -137,10 +159,12 @@ class LoopRow:
 @dataclasses.dataclass(frozen=True)
 class CandidateScore:
     """One candidate effect of a step, fitted with the effects already added: scored linearised (every
-    candidate) and after its LM fit (the `shortlist` only; the LM fields are None for the others)."""
+    candidate) and after its LM fit (the `shortlist` only; the LM fields are None for the others). Where
+    a block (`BLOCKS`) was best, the pairs of single-joint candidates it was compared with, too."""
 
     candidate: str
-    """Label of the candidate: `kind jJ (variant)` (no joint for a global effect, no variant for one)."""
+    """Label of the candidate: `kind jJ (variant)` (no joint for a global effect, no variant for one); a
+    pair: both labels joined by " + " (never `selected`)."""
     bic_linearised: float
     """BIC after one Gauss-Newton step from the current model."""
     delta_bic_linearised: float
@@ -279,7 +303,8 @@ class DiagnoseResult:
     loop: tuple[LoopRow, ...]
     """One row per model: the start model, then after each added effect."""
     candidates: tuple[tuple[CandidateScore, ...], ...]
-    """Per step, the scored candidate effects, best first."""
+    """Per step, the scored candidate effects, best (linearised BIC) first, with the pairs a block was
+    compared with (`BLOCKS`)."""
     residuals_before: np.ndarray
     """Validation residual norm of each pose with the start model [m]."""
     residuals_after: np.ndarray
@@ -508,39 +533,69 @@ def diagnose(
         # name: linearised fit of every candidate, then LM on the shortlist
         scored = _rank_linearised(_candidates(layout, set(free), found, varying), free, jac, r, ln_n)
         log = [CandidateScore(c.label(layout), b, b - row.bic) for b, c, _ in scored]
-        winner, best, sound, start = None, None, 0, 0
+
+        def lm(column_sets: list[list[int]]) -> list[tuple[dict, Array]]:
+            """LM fits (`shortlist` at a time) from the current model: each one's `CandidateScore` fields
+            and fitted `v`; a fit whose chi-square rose is a `nonlinear_divergence`."""
+            out = []
+            for at in range(0, len(column_sets), shortlist):
+                sets = column_sets[at: at + shortlist]
+                idx = _pad(sets, spare)
+                idx = np.concatenate([idx, np.repeat(idx[-1:], shortlist - len(sets), 0)])  # one batch size
+                vs, status, nsteps = fns.fit(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale,
+                                             pos, fit_white, jnp.asarray(idx))
+                status = np.atleast_1d(jr.status_name(status))
+                pos_fit = np.asarray(fns.exact_batch(robot0, vs, jnp.asarray(orders), th_all, ccw_all, marker))
+                for i, cols in enumerate(sets):
+                    err_t = train.positions - pos_fit[i, :k_tr]
+                    chi2_k = float(np.sum(_white(err_t)[keep] ** 2) / sigma**2)
+                    bic_k = chi2_k + len(cols) * ln_n
+                    name, message = str(status[i]), None
+                    if name == "successful" and not chi2_k <= row.chi2:
+                        name = "nonlinear_divergence"
+                        message = (f"{jr.status_message(jr.RESULTS.nonlinear_divergence)} (chi-square "
+                                   f"{chi2_k:.6g} after the fit, {row.chi2:.6g} at its start)")
+                    out.append(({"bic": bic_k, "delta_bic": bic_k - row.bic, "rms_train": _rms(err_t),
+                                 "rms_validation": _rms(validation.positions - pos_fit[i, k_tr:]),
+                                 "lm_status": name,
+                                 "lm_message": message or str(jr.status_message(getattr(jr.RESULTS, name))),
+                                 "lm_steps": int(nsteps[i])}, vs[i]))
+            return out
+
+        fits, sound, start = {}, 0, 0
         while sound < shortlist and start < len(scored):  # a failed fit gives its place to the next candidate
             batch = list(range(start, min(len(scored), start + shortlist - sound)))
             start = batch[-1] + 1
-            idx = _pad([scored[k][2] for k in batch], spare)
-            idx = np.concatenate([idx, np.repeat(idx[-1:], shortlist - len(batch), 0)])  # one batch size
-            vs, status, nsteps = fns.fit(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale,
-                                         pos, fit_white, jnp.asarray(idx))
-            status = np.atleast_1d(jr.status_name(status))
-            pos_fit = np.asarray(fns.exact_batch(robot0, vs, jnp.asarray(orders), th_all, ccw_all, marker))
-            for i, k in enumerate(batch):
-                cols = scored[k][2]
-                err_t = train.positions - pos_fit[i, :k_tr]
-                chi2_k = float(np.sum(_white(err_t)[keep] ** 2) / sigma**2)
-                bic_k = chi2_k + len(cols) * ln_n
-                rms_v = _rms(validation.positions - pos_fit[i, k_tr:])
-                name, message = str(status[i]), None
-                if name == "successful" and not chi2_k <= row.chi2:
-                    name = "nonlinear_divergence"
-                    message = (f"{jr.status_message(jr.RESULTS.nonlinear_divergence)} (chi-square "
-                               f"{chi2_k:.6g} after the fit, {row.chi2:.6g} at its start)")
-                message = message or str(jr.status_message(getattr(jr.RESULTS, name)))
-                sound += name == "successful"
-                log[k] = dataclasses.replace(log[k], bic=bic_k, delta_bic=bic_k - row.bic, rms_train=_rms(err_t),
-                                             rms_validation=rms_v, lm_status=name, lm_message=message,
-                                             lm_steps=int(nsteps[i]))
-                if name == "successful" and bic_k < row.bic - MIN_BIC_GAIN and rms_v < row.rms_validation:
-                    if best is None or bic_k < best[0]:
-                        best = (bic_k, k, vs[i])
+            for k, (fields, fits[k]) in zip(batch, lm([scored[k][2] for k in batch])):
+                log[k] = dataclasses.replace(log[k], **fields)
+                sound += fields["lm_status"] == "successful"
+        best = min((k for k in fits if _improves(log[k], row)), key=lambda k: log[k].bic, default=None)
+        combos: list[CandidateScore] = []
+        if best is not None and layout.effects[scored[best][1].effect].kind in BLOCKS:
+            # parsimony: the block against the combinations of at most two single-joint effects
+            singles = [c for _, c, _ in scored if layout.effects[c.effect].per_joint]
+            pairs = _rank_linearised([Combination((a, b)) for i, a in enumerate(singles) for b in singles[i + 1:]
+                                      if not set(a.params) & set(b.params)], free, jac, r, ln_n)[:shortlist]
+            members = [k for k, t in enumerate(scored) if pairs and t[1] in pairs[0][1].parts and k not in fits]
+            results = lm([cols for _, _, cols in pairs] + [scored[k][2] for k in members])
+            for k, (fields, fits[k]) in zip(members, results[len(pairs):]):
+                log[k] = dataclasses.replace(log[k], **fields)
+            combos = [CandidateScore(c.label(layout), b, b - row.bic, **fields)
+                      for (b, c, _), (fields, _) in zip(pairs, results)]
+            small = [k for k in fits if layout.effects[scored[k][1].effect].kind not in BLOCKS]
+            rivals = [e for e in combos + [log[k] for k in small] if e.lm_status == "successful"]
+            if any(e.bic <= log[best].bic or e.rms_validation <= log[best].rms_validation for e in rivals):
+                sound_pairs = [i for i, e in enumerate(combos) if e.lm_status == "successful"]
+                i = min(sound_pairs, key=lambda i: combos[i].bic, default=None)
+                parts = () if i is None else pairs[i][1].parts
+                best = min((k for k in small if _improves(log[k], row)),
+                           key=lambda k: (scored[k][1] not in parts, log[k].bic), default=best)
+        winner = None
         if best is not None:
-            winner = scored[best[1]]
-            log[best[1]] = dataclasses.replace(log[best[1]], selected=True)
-            v_new = jnp.asarray(best[2])
+            winner = scored[best]
+            log[best] = dataclasses.replace(log[best], selected=True)
+            v_new = jnp.asarray(fits[best])
+        log = sorted(log + combos, key=lambda e: e.bic_linearised)
         cand_log.append(tuple(log))
         emit(DiagnoseEvent("name", len(accepted) + 1, time.perf_counter() - t0, candidates=tuple(log)))
         if winner is None:
@@ -571,7 +626,7 @@ def diagnose(
         residuals_after=np.linalg.norm(ev["validation"][1], axis=-1), spectra=tuple(spectra), noise=sigma,
         validation_bound=validation_bound(sigma, len(validation), len(free), n_res), n_train=len(train),
         n_validation=len(validation), loss=loss, drift=drift, outliers=robust.outliers(
-            ev["train"][1], sigma * robust.spread(np.linalg.norm(ev["train"][1], axis=-1) / sigma)))
+            ev["train"][1], sigma * robust.spread(np.linalg.norm(ev["train"][1], axis=-1) / sigma, 3).item()))
 
 
 def _checked_inputs(start: jr.Robot, train: Poses, validation: Poses, noise, marker) -> tuple[float, Array]:
@@ -634,7 +689,12 @@ def _locate_orders(layout: Layout, jac, r, free: list[int], accepted: list[Candi
     return found, spec_step
 
 
-def _rank_linearised(cands: list[Candidate], free: list[int], jac, r, ln_n: float) -> list[tuple]:
+def _improves(e: CandidateScore, row: LoopRow) -> bool:
+    """Whether a candidate's sound LM fit lowers the BIC by more than `MIN_BIC_GAIN` and the validation RMS."""
+    return e.lm_status == "successful" and e.bic < row.bic - MIN_BIC_GAIN and e.rms_validation < row.rms_validation
+
+
+def _rank_linearised(cands: list[Candidate] | list[Combination], free: list[int], jac, r, ln_n: float) -> list[tuple]:
     """`(BIC, candidate, columns)` of one Gauss-Newton step per identifiable candidate, best first."""
     scored = []
     for c in cands:

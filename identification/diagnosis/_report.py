@@ -52,9 +52,16 @@ def _step(s: AddedEffect) -> dict:
             "rms_train_um": s.rms_train * UM, "rms_validation_um": s.rms_validation * UM}
 
 
-def summary(res: DiagnoseResult) -> dict:
-    """The JSON of `jaxrobot diagnose` (residuals in um, parameters in their SI units)."""
+def summary(res: DiagnoseResult, lines: list[tuple[str, int]] | None = None) -> dict:
+    """The JSON of `jaxrobot diagnose` (residuals in um, parameters in their SI units): with the loss, the
+    outlier rows (0-based `row`; with `lines`, the (file, line) of each training row, their `file` and
+    `line` too) and the drift against the acquisition time (None without times)."""
     first = res.loop[0]
+    outliers = [{"row": o.row, **({"file": lines[o.row][0], "line": lines[o.row][1]} if lines else {}),
+                 "residual_um": o.residual * UM, "sigmas": o.sigmas} for o in res.outliers]
+    d = res.drift
+    drift = None if d is None else {"rate_per_s": d.rate, "std_per_s": d.std, "duration_s": d.duration,
+                                    "delta_bic": d.delta_bic, "named": d.named}
     return {
         "noise_floor_um": res.noise_floor * UM,
         "validation_bound_um": res.validation_bound * UM,
@@ -64,6 +71,9 @@ def summary(res: DiagnoseResult) -> dict:
         "start": {"rms_train_um": first.rms_train * UM, "rms_validation_um": first.rms_validation * UM,
                   "chi2_per_dof": first.chi2 / first.dof, "p_value": first.p_value},
         "n_poses": {"train": res.n_train, "validation": res.n_validation},
+        "loss": res.loss,
+        "outliers": outliers,
+        "drift": drift,
     }
 
 
