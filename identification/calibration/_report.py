@@ -160,13 +160,17 @@ def plot_errors(path: str | Path, before: np.ndarray, after: np.ndarray,
 FLEET_OUTLIER_SPREAD = 5.0
 """The fleet report marks a robot where a quantity lies farther than this many robust stds (1.4826 times
 the median absolute deviation over the fleet) from the fleet's median."""
+FLEET_OUTLIER_MIN_ROBOTS = 20
+"""Fewest robots whose spread marks outliers: with fewer, the median absolute deviation is too uncertain
+(normal data of 7 robots would have one beyond 5 of its robust stds in 7 % of the quantities, of 20 in
+1.4 %)."""
 
 
 def fleet_outliers(values: np.ndarray) -> np.ndarray:
     """(R, q) True where robot r's quantity q (`values` (R, q)) lies beyond `FLEET_OUTLIER_SPREAD` robust
-    stds from the fleet's median (none with fewer than 3 robots or a spread of 0)."""
+    stds from the fleet's median (none with fewer than `FLEET_OUTLIER_MIN_ROBOTS` robots or a spread of 0)."""
     v = np.asarray(values, float)
-    if v.shape[0] < 3:
+    if v.shape[0] < FLEET_OUTLIER_MIN_ROBOTS:
         return np.zeros(v.shape, bool)
     median = np.median(v, axis=0)
     spread = 1.4826 * np.median(np.abs(v - median), axis=0)
@@ -203,7 +207,7 @@ def plot_fleet(path: str | Path, rms: np.ndarray, values: np.ndarray, names: tup
     for ax in axes.flat[len(panels):]:
         ax.set_visible(False)
     fig.suptitle(f"Fleet of {len(rms)} calibrated robots: residual RMS and parameters (red: beyond "
-                 f"{FLEET_OUTLIER_SPREAD:g} robust stds of the fleet)")
+                 f"{FLEET_OUTLIER_SPREAD:g} robust stds of the fleet's median, from {FLEET_OUTLIER_MIN_ROBOTS} robots)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
