@@ -71,10 +71,11 @@ def process_share(n: int) -> slice:
     return slice(n * p // count, n * (p + 1) // count)
 
 
-def shard_rows(local, mesh: Mesh):
+def shard_rows(local, mesh: Mesh, multiple: int = 1):
     """Global arrays from each process's own rows: `local` is a pytree of arrays with a common
     leading axis (its length may differ between processes, >= 1); every process pads its rows with
-    copies of its first row to a common multiple of its device count, and the leading axis is sharded
+    copies of its first row to a common multiple of its device count (times `multiple`: rows per
+    device a multiple of it, so that batches of other sizes share compiled programs), and the leading axis is sharded
     over the 1-D `mesh` (all processes' devices); a process without rows pads with copies of the first
     row of the first process that has some. Returns the global pytree and `origin` (rows,), each
     global row's place in the processes' rows concatenated in process order, -1 for padding."""
@@ -89,7 +90,7 @@ def shard_rows(local, mesh: Mesh):
         firsts = multihost_utils.process_allgather([x[:1] if n_local else np.zeros((1,) + x.shape[1:], x.dtype)
                                                     for x in leaves])
         leaves = leaves if n_local else [np.asarray(f)[source] for f in firsts]
-    per_device = len(mesh.local_devices)
+    per_device = len(mesh.local_devices) * multiple
     length = -(-int(counts.max()) // per_device) * per_device
     take = np.concatenate([np.arange(n_local), np.zeros(length - n_local, int)])
     offset = int(counts[:jax.process_index()].sum())

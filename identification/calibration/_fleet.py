@@ -134,6 +134,12 @@ def _chunk() -> int:
     return CHUNK[backend_kind()]
 
 
+ROWS_MULTIPLE = 32
+"""The robots of each device are padded to a multiple of this (copies of a robot, dropped after the
+gather), so that fleets of other sizes share their compiled programs; on the CPU it is `CHUNK`, whose
+last chunk the batched LM pads anyway."""
+
+
 def _constants(robots, theta, rippled, ccw=False):
     """Per-pose constants of the solve, from the initial robots (thesis 3.2.3): the joint angles at
     rest `q0` (R, K, n) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, n) (`rest_deflection`;
@@ -248,7 +254,7 @@ def calibrate_fleet(
     `cw` set, or the set of the direction of approach `ccw` (R, K, n) where given).
 
     `robots`: the initial robots, a fleet pytree with leading axis R, or one robot used for all.
-    The fleet axis is padded to a multiple of the device count and sharded over `mesh`
+    The fleet axis is padded to `ROWS_MULTIPLE` robots per device and sharded over `mesh`
     (default: all devices). Robots whose solve failed or whose pose set is rank deficient have
     `converged = False` and their `status` says why (`throw`: raise the message of the first such
     status instead); so has a robot whose residuals exceed the stated noise (`inconsistent`: the
@@ -298,7 +304,8 @@ def calibrate_fleet(
     sigma, white = noise_model(jr.read_description(None)["sensors"]["tracker_position_noise_m"]
                                if position_noise is None else position_noise, pos.reshape(-1, 3), "position_noise")
     white = () if white is None else (white.reshape(theta.shape[:2] + (3, 3)),)  # none: isotropic
-    (g_robots, g_theta, g_pos, g_ccw, *g_white), origin = shard_rows((robots, theta, pos, ccw, *white), mesh)
+    (g_robots, g_theta, g_pos, g_ccw, *g_white), origin = shard_rows((robots, theta, pos, ccw, *white), mesh,
+                                                                      ROWS_MULTIPLE)
     g_white = g_white[0] if g_white else None
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     rippled = rippled_joints(robots)
