@@ -17,6 +17,10 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from jax.scipy.special import gammaincc
+
+ALPHA = 0.01
+"""Significance level of the chi-square tests of residuals against the stated noise (`noise_test`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,3 +69,16 @@ def noise_model(noise, points: np.ndarray, name: str = "noise") -> tuple[float, 
     if not sigma > 0:
         raise ValueError(f"{name}: expected the tracker std per axis > 0 m, found {sigma}")
     return sigma, None
+
+
+def noise_test(residuals: np.ndarray, sigma: float, m: int, keep: np.ndarray | None = None):
+    """Chi-square test of a fit's residuals against the stated noise: `chi2 = sum r^2 / sigma^2` over the
+    rows of the poses `keep` (..., K) (default all) of `residuals` (..., K, rows) [m], whitened to the
+    per-axis std `sigma`, with `rows K' - m` degrees of freedom (`m` fitted parameters).
+    **Returns:** `(chi2, dof, p_value)` over the leading axes; `p_value` is the probability that noise
+    alone exceeds `chi2`: the fit has reached its noise floor where it is above `ALPHA`."""
+    r = np.asarray(residuals, float)
+    keep = np.ones(r.shape[:-1], bool) if keep is None else np.asarray(keep, bool)
+    chi2 = np.sum(np.where(keep[..., None], r, 0.0) ** 2, axis=(-2, -1)) / sigma**2
+    dof = r.shape[-1] * np.sum(keep, -1) - m
+    return chi2, dof, np.asarray(gammaincc(0.5 * np.maximum(dof, 1), 0.5 * chi2))

@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -53,10 +54,10 @@ def approach_ccw(motor_angles, approach: str = "cw", column=None, name: str = "p
     return col < 0
 
 
-def read_poses(path: str | Path, approach: str = "cw") -> PoseFile:
+def read_poses(path: str | Path, approach: str = "cw", *, reject_nan: bool = True) -> PoseFile:
     """Read a pose file (README, "Measurement files") with the direction of approach of the convention
-    `approach`: `jaxrobot.bench.read_pose_csv`'s `PoseFile` with its `ccw` (K, n) set."""
-    data = read_pose_csv(path)
+    `approach`: `jaxrobot.bench.read_pose_csv`'s `PoseFile` (`reject_nan` as there) with its `ccw` (K, n) set."""
+    data = read_pose_csv(path, reject_nan=reject_nan)
     n = data.motor_angles.shape[1]
     column = None
     if approach == "column":
@@ -84,6 +85,12 @@ ANGLE_MISTAKES = {
 """Common mistakes in the motor-angle columns: factor to the intended motor angles ("link": u0)."""
 
 
+@jax.jit
+def _marker_positions(robot: jr.Robot, q, marker):
+    """Marker positions (K, 3) [m] at the link angles `q` (K, n), one compiled program per shape."""
+    return marker_pose(robot, q, marker)[0]
+
+
 def check_pose_units(robot: jr.Robot, motor_angles, positions, marker, name: str = "poses") -> None:
     """Reject pose data whose magnitudes betray a unit mistake, before any fit: positions beyond
     the robot's reach (millimetres in the `_m` columns), and motor angles that put the model's
@@ -104,7 +111,7 @@ def check_pose_units(robot: jr.Robot, motor_angles, positions, marker, name: str
     u0 = np.asarray(robot.u0, float)
 
     def rms(theta):
-        p = np.asarray(marker_pose(robot, jnp.asarray(theta / u0), jnp.asarray(marker))[0])
+        p = np.asarray(_marker_positions(robot, jnp.asarray(theta / u0), jnp.asarray(marker)))
         return float(np.sqrt(np.mean(np.sum((p - pos) ** 2, -1))))
 
     err = rms(th)

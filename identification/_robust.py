@@ -107,27 +107,29 @@ def add_loss_option(parser) -> None:
 
 def irls(fit, weight, loss: str, rows: int):
     """Iteratively reweighted least squares: `fit(weight) -> (solution, z)` solves with the pose
-    weights `weight` (numpy or jax, any shape) and returns the whitened residual norms `z` of its poses.
-    Reweights until no weight changes by more than `IRLS_TOL`, then rejects the poses beyond
-    `outlier_bound` and reweights to convergence again (at most `IRLS_STEPS` solves; a non-finite
-    weight stops it). The norms are measured against the larger of the stated noise and their own robust
-    spread (their median over clean noise's, per fit along the last axis), so that a misfit common to all
-    poses (a start far from the data, a fit stopped early) weighs them alike and rejects none.
+    weights `weight` (numpy or jax, any shape: one fit per row along the last axis) and returns the
+    whitened residual norms `z` of its poses. Each fit is reweighted until none of its weights changes by
+    more than `IRLS_TOL`, then its poses beyond `outlier_bound` are rejected and it is reweighted to
+    convergence again; from then on its weights stay (a non-finite weight ends it too), so that a fit's
+    result does not depend on the others of the batch (at most `IRLS_STEPS` solves of all). The norms are
+    measured against the larger of the stated noise and their own robust spread (their median over clean
+    noise's, per fit), so that a misfit common to all poses (a start far from the data, a fit stopped
+    early) weighs them alike and rejects none.
     **Returns:** the last solution and the weights it was solved with."""
     c, bound = threshold(rows), outlier_bound(rows)
-    rejecting = False
+    xp = jnp if isinstance(weight, jax.Array) else np
+    rejecting = done = weight[..., :1] < 0  # per fit, all False (sharded as `weight`)
     for _ in range(IRLS_STEPS):
         solution, z = fit(weight)
         z = z / spread(z, rows)
-        new = weights(z, loss, c) * ((z <= bound) if rejecting else 1.0)
-        change = float(abs(new - weight).max())
-        if change <= IRLS_TOL and not rejecting:
-            rejecting = True
-            new = new * (z <= bound)
-            change = float(abs(new - weight).max())
-        if not change > IRLS_TOL:  # converged, or NaN
+        new = weights(z, loss, c) * xp.where(rejecting, z <= bound, True)
+        settled = ~rejecting & (abs(new - weight).max(-1, keepdims=True) <= IRLS_TOL)
+        rejecting = rejecting | settled
+        new = new * xp.where(settled, z <= bound, True)
+        done = done | ~(abs(new - weight).max(-1, keepdims=True) > IRLS_TOL)  # converged, or NaN
+        if bool(done.all()):
             break
-        weight = new
+        weight = xp.where(done, weight, new)
     return solution, weight
 
 

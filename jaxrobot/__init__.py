@@ -22,6 +22,7 @@ from ._description import save_robot as save_robot  # noqa: E402
 from ._distributed import PROCESS_ENV as PROCESS_ENV  # noqa: E402
 from ._distributed import gather_array as gather_array  # noqa: E402
 from ._distributed import gather_rows as gather_rows  # noqa: E402
+from ._distributed import gather_texts as gather_texts  # noqa: E402
 from ._distributed import initialize_processes as initialize_processes  # noqa: E402
 from ._distributed import process_share as process_share  # noqa: E402
 from ._distributed import shard_rows as shard_rows  # noqa: E402

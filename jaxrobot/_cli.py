@@ -11,7 +11,9 @@ entry-point group `jaxrobot.commands`, and stages of `jaxrobot demo` through `ja
 that `jaxrobot` never imports the packages built on it.
 
 Exit codes (`EXIT_CODES`): 0 success, 1 internal error, 2 bad input or usage, 3 a solve did not
-converge (`SolveFailed`; nothing is saved as a result). No traceback reaches the user.
+converge (`SolveFailed`; nothing is saved as a result), 4 some items of a batch failed (`ItemsFailed`:
+the others' results are saved). No traceback reaches the user; `--json` prints the summary a failure
+carries.
 """
 
 from __future__ import annotations
@@ -28,11 +30,26 @@ from pathlib import Path
 from types import ModuleType
 
 EXIT_CODES = {0: "success", 1: "internal error (a bug: please report it)", 2: "bad input or usage",
-              3: "a solve did not converge (no result saved unless --save-failed)"}
+              3: "a solve did not converge (no result saved unless --save-failed)",
+              4: "some items of a batch failed (named in the output; the others' results are saved)"}
 
 
 class SolveFailed(Exception):
-    """A solve that did not converge: `main` prints the message and exits with code 3."""
+    """A solve that did not converge: `main` prints the message and exits with `code` (3), and with
+    `--json` prints `summary` (the JSON summary of what was done) where one is given."""
+
+    code = 3
+
+    def __init__(self, message: str, summary: dict | None = None):
+        super().__init__(message)
+        self.summary = summary
+
+
+class ItemsFailed(SolveFailed):
+    """Some items of a batch failed (rejected input, no convergence, a fit beyond the noise) while the
+    others succeeded: their statuses are in the output and `summary`; exit code 4."""
+
+    code = 4
 
 
 def suggestion(word: str, choices) -> str:
@@ -155,7 +172,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         summary = commands[args.command].run(args, echo)
     except SolveFailed as err:
-        return fail(str(err), 3)
+        if args.json and err.summary is not None:
+            print(json.dumps(_jsonable(err.summary), indent=2))
+        return fail(str(err), err.code)
     except (ValueError, OSError) as err:
         return fail(str(err), 2)
     except KeyboardInterrupt:
@@ -167,5 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # `python -m jaxrobot._cli`: the package's module, whose `SolveFailed` the commands raise
+    from jaxrobot._cli import main as _main
+
+    sys.exit(_main())

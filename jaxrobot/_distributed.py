@@ -10,6 +10,7 @@ transfers are XLA collectives (on the CPU through gloo).
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 
 import jax
 import numpy as np
@@ -70,18 +71,26 @@ def process_share(n: int) -> slice:
     return slice(n * p // count, n * (p + 1) // count)
 
 
-def shard_rows(local, mesh: Mesh):
+def shard_rows(local, mesh: Mesh, multiple: int = 1):
     """Global arrays from each process's own rows: `local` is a pytree of arrays with a common
     leading axis (its length may differ between processes, >= 1); every process pads its rows with
-    copies of its first row to a common multiple of its device count, and the leading axis is sharded
-    over the 1-D `mesh` (all processes' devices). Returns the global pytree and `origin` (rows,), each
+    copies of its first row to a common multiple of its device count (times `multiple`: rows per
+    device a multiple of it, so that batches of other sizes share compiled programs), and the leading axis is sharded
+    over the 1-D `mesh` (all processes' devices); a process without rows pads with copies of the first
+    row of the first process that has some. Returns the global pytree and `origin` (rows,), each
     global row's place in the processes' rows concatenated in process order, -1 for padding."""
     leaves, tree = jax.tree.flatten(local)
+    leaves = [np.asarray(x) for x in leaves]
     n_local = int(np.shape(leaves[0])[0])
-    if n_local < 1:
-        raise ValueError(f"rows: process {jax.process_index()} has no rows; give every process at least one")
     counts = np.atleast_1d(np.asarray(multihost_utils.process_allgather(np.int64(n_local))))
-    per_device = len(mesh.local_devices)
+    if counts.max() < 1:
+        raise ValueError("rows: no process has rows; give at least one process one")
+    if counts.min() < 1:  # a collective of all processes, as every process knows the counts
+        source = int(np.argmax(counts > 0))
+        firsts = multihost_utils.process_allgather([x[:1] if n_local else np.zeros((1,) + x.shape[1:], x.dtype)
+                                                    for x in leaves])
+        leaves = leaves if n_local else [np.asarray(f)[source] for f in firsts]
+    per_device = len(mesh.local_devices) * multiple
     length = -(-int(counts.max()) // per_device) * per_device
     take = np.concatenate([np.arange(n_local), np.zeros(length - n_local, int)])
     offset = int(counts[:jax.process_index()].sum())
@@ -91,7 +100,7 @@ def shard_rows(local, mesh: Mesh):
     def place(x):  # x: this process's padded rows
         return jax.make_array_from_process_local_data(sharding, x, (len(counts) * length,) + x.shape[1:])
 
-    return jax.tree.unflatten(tree, [place(np.asarray(x)[take]) for x in leaves]), gather_array(place(origin))
+    return jax.tree.unflatten(tree, [place(x[take]) for x in leaves]), gather_array(place(origin))
 
 
 def gather_array(tree):
@@ -107,3 +116,18 @@ def gather_rows(tree, origin: np.ndarray):
     keep = np.flatnonzero(origin >= 0)
     order = keep[np.argsort(origin[keep])]
     return jax.tree.map(lambda x: x[order], gather_array(tree))
+
+
+def gather_texts(texts: Sequence[str]) -> list[str]:
+    """Every process's `texts` (any number on each), concatenated in process order, on every process."""
+    data = [t.encode() for t in texts]
+    if jax.process_count() == 1:
+        return list(texts)
+    sizes = np.asarray(multihost_utils.process_allgather(np.asarray([len(data), max(map(len, data), default=0)])))
+    table = np.zeros((max(1, int(sizes[:, 0].max())), max(1, int(sizes[:, 1].max()))), np.uint8)
+    for i, d in enumerate(data):
+        table[i, :len(d)] = np.frombuffer(d, np.uint8)
+    lengths = np.zeros(table.shape[0], np.int64)
+    lengths[:len(data)] = [len(d) for d in data]
+    tables, lens = (np.asarray(a) for a in multihost_utils.process_allgather((table, lengths)))
+    return [bytes(tables[p, i, :lens[p, i]]).decode() for p in range(len(sizes)) for i in range(int(sizes[p, 0]))]

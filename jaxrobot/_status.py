@@ -29,11 +29,21 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "The solve stopped at a point where the Jacobian is rank deficient: some parameters are not "
         "identifiable from these data. Choose other parameters or more varied poses."
     )
+    inconsistent = (
+        "The solve converged, but its residuals exceed the stated measurement noise (a chi-square test "
+        "against the noise): the data hold an error or the model misses an effect. Check the "
+        "measurements and the noise stated in [sensors], or run `jaxrobot diagnose`."
+    )
+    rejected_input = (
+        "The input failed a check before the solve (unreadable, non-finite cells, wrong units, duplicated "
+        "rows, a size other than the batch's) and was left out; the message names the check and the lines."
+    )
 
 
 NAMES: tuple[str, ...] = (
     "successful", "max_steps_reached", "singular", "breakdown", "stagnation", "conlim", "nonfinite_input",
     "nonlinear_max_steps_reached", "nonlinear_divergence", "nonfinite", "inner_failed", "rank_deficient",
+    "inconsistent", "rejected_input",
 )
 """The names of `RESULTS` in the order of their codes (`tests/test_status.py` checks it against the
 enumeration); a status is written under its name in JSON and tables."""

@@ -73,6 +73,9 @@ CLI = [  # (id, argv (FILE: the file written from `content`), content, exit code
     ("model file malformed", ["info", "--model", "FILE"], "[robot\nname = ", 2, "FILE"),
     ("poses file missing", ["calibrate", "missing.csv"], None, 2, "pose file missing.csv does not exist"),
     ("poses columns missing", ["calibrate", "FILE"], "theta1_deg,x_m\n1,2\n", 2, r"missing columns \["),
+    ("fleet missing", ["calibrate-fleet", "missing"], None, 2, "folder missing: no such folder or list of pose files"),
+    ("fleet bench of 0 robots", ["calibrate-fleet", "f", "--bench", "0"], None, 2,
+     "--bench/--poses: expected >= 1 robots and poses, found 0 and 50"),
     ("gear run missing", ["identify-gear", "missing.csv"], None, 2, "gear-run file not found: missing.csv"),
     ("gear run columns missing", ["identify-gear", "FILE"], "t_s,theta1_deg\n0,1\n", 2, r"missing columns \["),
 ]

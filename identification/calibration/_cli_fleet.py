@@ -3,7 +3,13 @@ one process or on several (`jax.distributed`): started once per process with the
 and the coordinator address, process count and id (flags or `jaxrobot.PROCESS_ENV`); each process
 reads only its share of the files (`jaxrobot.process_share`), the fleet call runs on the global
 mesh, and process 0 writes the gathered table once. `--bench R` first writes bench data of R random
-as-built robots, each process its own share."""
+as-built robots, each process its own share.
+
+Each file is read and checked on its own (`_fleet_files`): one that fails a check is left out with
+the status `rejected_input`, the check and a message naming the file and lines; a robot whose fit
+does not reach the stated noise is `inconsistent`. The others are calibrated as a fleet without the
+failed ones. Exit code 0 when every robot is `successful`, 4 (`ItemsFailed`) when some are not, 3 when
+none is; the table, the warnings and the `--json` field `failures` name each failed robot."""
 
 from __future__ import annotations
 
@@ -18,14 +24,15 @@ from .._robust import add_loss_option
 
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
 TABLE = "fleet_calibration.csv"
+REPORT = "fleet_report.png"
 EXAMPLE = "jaxrobot calibrate-fleet fleet --bench 1000 --out fleet-out"
 
 
 def configure(parser) -> None:
     parser.add_argument("folder", type=Path,
                         help="folder of pose CSVs (README, 'Measurement files'), one per robot, all with the same "
-                             "poses count; "
-                             "robots in file-name order")
+                             "pose count, robots in file-name order; or a text file listing them, one path per line "
+                             "(relative to its folder; '#' starts a comment)")
     parser.add_argument("--bench", type=int, default=None, metavar="R",
                         help="first write bench data of R random as-built robots (draw_fleet around --model) into "
                              "FOLDER (robot_00000.csv, ...) and calibrate those")
@@ -49,6 +56,17 @@ def configure(parser) -> None:
     add_loss_option(parser)
 
 
+def fleet_files(fleet: Path) -> list[Path]:
+    """The pose files of a fleet: the CSVs of a folder in name order, or the paths a text file lists
+    (one per line, relative to the list's folder; blank lines and '#' comments skipped)."""
+    if fleet.is_dir():
+        return sorted(fleet.glob("*.csv"))
+    if not fleet.is_file():
+        raise FileNotFoundError(f"folder {fleet}: no such folder or list of pose files")
+    lines = (line.split("#", 1)[0].strip() for line in fleet.read_text().splitlines())
+    return [fleet.parent / line for line in lines if line]
+
+
 def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nominal=None, marker=None) -> list[Path]:
     """Bench data of a fleet (`fleet_measurements`), this process's share (`process_share`): writes
     `robot_{r:05d}.csv` of this share; returns all R paths. The files do not depend on the process count."""
@@ -69,20 +87,48 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
     return paths
 
 
-def _table(res, files: list[Path]) -> str:
+def _table(files: list[Path], checks, res, rows: dict[str, int], messages: dict[str, str]) -> str:
+    """One row per file: its status, the check it failed or the message of its status, and for a calibrated
+    robot its fit (`rows`: file -> row of `res`)."""
+    import csv
+    import io
+
     import jaxrobot as jr
 
-    head = ["file", "status", "converged", "iterations", "rank", "rms_mm", "noise_estimate_mm", "outlier_lines"]
-    head += [c for n in res.names for c in (n, f"std_{n}")]
-    lines = [",".join(head)]
-    status = jr.status_name(res.status)
-    for r, f in enumerate(files):
-        cells = [f.name, str(status[r]), str(bool(res.converged[r])), str(int(res.iterations[r])),
-                 str(int(res.rank[r])), repr(1e3 * float(res.rms_m[r])), repr(1e3 * float(res.noise_estimate[r])),
-                 " ".join(str(o.row + 2) for o in res.outliers[r])]
-        cells += [repr(float(v)) for pair in zip(res.value[r], res.std[r]) for v in pair]
-        lines.append(",".join(cells))
-    return "\n".join(lines) + "\n"
+    head = ["file", "status", "check", "message", "converged", "iterations", "rank", "rms_mm", "noise_estimate_mm",
+            "chi2_per_dof", "p_value", "outlier_lines"]
+    names = () if res is None else res.names
+    head += [c for n in names for c in (n, f"std_{n}")]
+    text = io.StringIO()
+    table = csv.writer(text, lineterminator="\n")
+    table.writerow(head)
+    status = None if res is None else jr.status_name(res.status)
+    for f, c in zip(files, checks):
+        if c.check:
+            table.writerow([f.name, "rejected_input", c.check, c.message] + [""] * (len(head) - 4))
+            continue
+        r = rows[c.file]
+        table.writerow([f.name, str(status[r]), "", messages.get(c.file, ""), str(bool(res.converged[r])),
+                        str(int(res.iterations[r])), str(int(res.rank[r])), repr(1e3 * float(res.rms_m[r])),
+                        repr(1e3 * float(res.noise_estimate[r])), repr(float(res.chi2[r] / max(res.dof[r], 1))),
+                        repr(float(res.p_value[r])), " ".join(str(o.row + 2) for o in res.outliers[r])]
+                       + [repr(float(v)) for pair in zip(res.value[r], res.std[r]) for v in pair])
+    return text.getvalue()
+
+
+def _failure_messages(res, files: list[str], sigma: float) -> dict[str, str]:
+    """The message of every calibrated robot that is not `successful`, by file."""
+    import jaxrobot as jr
+
+    out = {}
+    for r, (f, name) in enumerate(zip(files, jr.status_name(res.status))):
+        if name == "inconsistent":
+            out[f] = (f"{f}: residuals beyond the stated tracker noise ({1e3 * sigma:.4g} mm per axis): chi2/dof "
+                      f"{res.chi2[r] / max(res.dof[r], 1):.3g} over {int(res.dof[r])} dof, p = {res.p_value[r]:.2g} "
+                      f"<= {res.inconsistent_below:.2g}; residual RMS {1e3 * res.rms_m[r]:.4g} mm")
+        elif name != "successful":
+            out[f] = f"{f}: {jr.status_message(res.status)[r]}"
+    return out
 
 
 def run(args, echo) -> dict:
@@ -91,11 +137,13 @@ def run(args, echo) -> dict:
     count = jr.initialize_processes(args.coordinator, args.num_processes, args.process_id)
     import jax
 
-    from jaxrobot.cli import Progress, SolveFailed
+    from jaxrobot.cli import ItemsFailed, Progress, SolveFailed
 
-    from .._noise import TrackerNoise
-    from .._pose_files import read_poses
+    from .._noise import TrackerNoise, noise_model
     from ._fleet import calibrate_fleet
+    from ._fleet_files import check_fleet_files
+    from ._pose_selection import default_marker
+    from ._report import fleet_outliers, plot_fleet
 
     pid = jax.process_index()
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
@@ -103,55 +151,84 @@ def run(args, echo) -> dict:
     sensors = {} if args.robot is None else jr.read_description(args.robot).get("sensors", {})
     marker = sensors.get("tracker_marker_offset_m")
     noise = TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")
+    sigma = noise_model(jr.read_description(None)["sensors"]["tracker_position_noise_m"] if noise is None else noise,
+                        np.zeros((1, 3)))[0]  # calibrate_fleet's default
     seconds = {}
-    progress = Progress(2 if args.bench is not None else 1, "calibrate-fleet")
+    progress = Progress(3 if args.bench is not None else 2, "calibrate-fleet")
     start = time.perf_counter()
     if args.bench is not None:
         files = bench_fleet(args.folder, args.bench, args.poses, args.seed, robot, marker)
         seconds["bench"] = time.perf_counter() - start
         progress.step(f"bench data of {args.bench} robots")
     else:
-        if not args.folder.is_dir():
-            raise FileNotFoundError(f"folder {args.folder} does not exist")
-        files = sorted(args.folder.glob("*.csv"))
+        files = fleet_files(args.folder)
     if len(files) < count:
         raise ValueError(f"folder: expected at least one pose file per process ({count}), found {len(files)} "
                          f"in {args.folder}")
-    share = jr.process_share(len(files))
     t = time.perf_counter()
-    data = [read_poses(f, args.approach) for f in files[share]]
-    k = data[0].motor_angles.shape[0]
-    for f, d in zip(files[share], data):
-        if d.motor_angles.shape[0] != k:
-            raise ValueError(f"{f}: expected {k} poses as {files[share][0].name}, found {d.motor_angles.shape[0]}")
+    checked = check_fleet_files(files, robot, default_marker() if marker is None else marker, args.approach)
     seconds["read"] = time.perf_counter() - t
-    echo(f"process {pid} of {count}: robots {share.start}..{share.stop - 1} of {len(files)}, {k} poses each")
-    t = time.perf_counter()
-    res = calibrate_fleet(robot, np.stack([d.motor_angles for d in data]), np.stack([d.positions for d in data]),
-                          parameters=names, marker=marker, max_steps=args.max_steps,
-                          ccw=np.stack([d.ccw for d in data]), position_noise=noise, loss=args.loss)
-    seconds["calibrate"] = time.perf_counter() - t
+    good = [c.file for c in checked.checks if not c.check]
+    k, n = checked.poses, robot.n_joints
+    echo(f"process {pid} of {count}: {len(checked.data)} of its robots pass their checks, {len(good)} of "
+         f"{len(files)} in all, {k} poses each")
+    progress.step(f"read and checked {len(files)} pose files: {len(files) - len(good)} left out")
+    res, rows, messages = None, {f: r for r, f in enumerate(good)}, {}
+    if good:
+        t = time.perf_counter()
+
+        def stack(field: str, tail: tuple, dtype=float):
+            return (np.stack([getattr(d, field) for d in checked.data]) if checked.data
+                    else np.zeros((0, k) + tail, dtype))
+
+        res = calibrate_fleet(robot, stack("motor_angles", (n,)), stack("positions", (3,)), parameters=names,
+                              marker=marker, max_steps=args.max_steps, ccw=stack("ccw", (n,), bool),
+                              position_noise=noise, loss=args.loss)
+        seconds["calibrate"] = time.perf_counter() - t
+        messages = _failure_messages(res, good, sigma)
     progress.step("fleet calibration")
-    names = jr.status_name(res.status)
-    status = {str(s): int(np.sum(names == s)) for s in np.unique(names)}
+    status_of = ["rejected_input" if c.check else str(jr.status_name(res.status)[rows[c.file]])
+                 for c in checked.checks]
+    status = {str(s): status_of.count(s) for s in sorted(set(status_of))}
+    failures = [{"file": c.file, "status": st, "check": c.check, "lines": list(c.lines),
+                 "message": c.message or messages.get(c.file, "")}
+                for c, st in zip(checked.checks, status_of) if st != "successful"]
+    marked = np.zeros((0, 1)) if res is None else fleet_outliers(np.column_stack([res.rms_m, res.value]))
+    quantities = ("rms",) + (() if res is None else res.names)
     if pid == 0:
-        echo(f"fleet of {len(files)} robots on {res.n_devices} device(s): {status}; LM steps median "
-             f"{np.median(res.iterations):.0f}, max {res.iterations.max()}; residual rms median "
-             f"{1e3 * np.median(res.rms_m):.4f} mm; {seconds['calibrate']:.1f} s")
-        for f, found in zip(files, res.outliers):
-            for o in found:
-                echo(f"warning: {f}:{o.row + 2}: residual {1e3 * o.residual:.3f} mm ({o.sigmas:.1f} sigma) beyond the "
-                     "outlier bound: a gross measurement error?")
+        summary_line = f"fleet of {len(files)} robots: {status}"
+        if res is not None:
+            summary_line += (f" on {res.n_devices} device(s); LM steps median {np.median(res.iterations):.0f}, max "
+                             f"{res.iterations.max()}; residual rms median {1e3 * np.median(res.rms_m):.4f} mm; "
+                             f"{seconds['calibrate']:.1f} s")
+        echo(summary_line)
+        for x in failures:
+            left_out = f", check {x['check']}; left out" if x["check"] else ""
+            echo(f"warning: {x['message']} ({x['status']}{left_out})")
+        if res is not None:
+            for f, found in zip(good, res.outliers):
+                for o in found:
+                    echo(f"warning: {f}:{o.row + 2}: residual {1e3 * o.residual:.3f} mm ({o.sigmas:.1f} sigma) beyond "
+                         "the outlier bound: a gross measurement error?")
         if args.out is not None:
-            (args.out / TABLE).write_text(_table(res, files))
+            (args.out / TABLE).write_text(_table(files, checked.checks, res, rows, messages))
             echo(f"wrote {args.out / TABLE}")
-    failed = int(np.sum(~res.converged))
+            if res is not None:
+                plot_fleet(args.out / REPORT, res.rms_m, res.value, res.names, [Path(f).name for f in good], marked)
+                echo(f"wrote {args.out / REPORT}")
+    summary = {"robots": len(files), "poses": k, "processes": count, "process_id": pid,
+               "local_robots": len(checked.data), "devices": None if res is None else res.n_devices,
+               "parameters": [] if res is None else list(res.names), "status": status, "failures": failures,
+               "seconds": seconds, "loss": args.loss,
+               "outliers": [] if res is None else [
+                   {"file": f, "line": o.row + 2, "row": o.row, "residual_mm": 1e3 * o.residual, "sigmas": o.sigmas}
+                   for f, found in zip(good, res.outliers) for o in found],
+               "fleet_outliers": [{"file": f, "quantities": [q for q, m in zip(quantities, mk) if m]}
+                                  for f, mk in zip(good, marked) if mk.any()],
+               "peak_memory_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    failed = len(failures)
     if failed:
-        raise SolveFailed(f"{failed} of {len(files)} robots did not converge or are rank deficient ({status}); "
-                         f"see the status column of {TABLE}")
-    return {"robots": len(files), "poses": k, "processes": count, "process_id": pid,
-            "local_robots": share.stop - share.start, "devices": res.n_devices, "parameters": list(res.names),
-            "status": status, "seconds": seconds, "loss": res.loss,
-            "outliers": [{"file": str(f), "line": o.row + 2, "row": o.row, "residual_mm": 1e3 * o.residual,
-                          "sigmas": o.sigmas} for f, found in zip(files, res.outliers) for o in found],
-            "peak_memory_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+        text = (f"{failed} of {len(files)} robots did not converge, were rejected or fit beyond the noise ({status}); "
+                f"see the status column of {TABLE}")
+        raise (ItemsFailed if failed < len(files) else SolveFailed)(text, summary)
+    return summary

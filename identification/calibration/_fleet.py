@@ -30,7 +30,7 @@ from jaxrobot.status import check, where
 
 from .. import _robust as robust
 from .._batched_lm import LMConfig, batched_lm, covariance, map_chunks
-from .._noise import noise_model
+from .._noise import ALPHA, noise_model, noise_test
 from ._calibrate import RESIDUAL_UNIT, ParameterEstimate, _check_array, _residual_fn
 from ._identifiability import default_parameters
 from ._model import analytic_names, joint_angle_model, position_jacobian, rippled_joints
@@ -53,8 +53,9 @@ class FleetResult:
     converged: np.ndarray
     """(R,) True where the status is `successful`."""
     status: RESULTS
-    """(R,) `successful`, `nonlinear_max_steps_reached`, `nonfinite` or `rank_deficient` (names by
-    `jaxrobot.status_name`)."""
+    """(R,) `successful`, `nonlinear_max_steps_reached`, `nonfinite`, `rank_deficient` or `inconsistent`
+    (converged, but the residuals fail the chi-square test against the stated noise: `p_value` at or
+    below `inconsistent_below`) (names by `jaxrobot.status_name`)."""
     iterations: np.ndarray
     """(R,) Levenberg-Marquardt steps."""
     rank: np.ndarray
@@ -75,6 +76,16 @@ class FleetResult:
     outlier bound, as in `calibrate`); it scales `covariance`."""
     outliers: tuple[tuple[robust.Outlier, ...], ...]
     """Per robot, its poses whose residual norm exceeds the outlier bound (`calibrate`'s)."""
+    chi2: np.ndarray
+    """(R,) `sum r^2 / sigma^2` of the residuals of the poses the robust loss kept (all for `l2`) against
+    the stated noise `sigma` (`identification._noise.noise_test`, as in `diagnose`)."""
+    dof: np.ndarray
+    """(R,) its degrees of freedom, 3 K' - m over the K' poses kept."""
+    p_value: np.ndarray
+    """(R,) probability that noise alone exceeds `chi2`."""
+    inconsistent_below: float
+    """`identification._noise.ALPHA / R`: the p-value at or below which a robot is `inconsistent`, so
+    that noise alone marks any robot of a clean fleet with probability at most `ALPHA` (Bonferroni)."""
 
 
 def fleet_mesh(devices: Sequence | None = None) -> Mesh:
@@ -121,6 +132,12 @@ sequential step of kernel launches, so chunks are large (`benchmarks/results_cal
 
 def _chunk() -> int:
     return CHUNK[backend_kind()]
+
+
+ROWS_MULTIPLE = 32
+"""The robots of each device are padded to a multiple of this (copies of a robot, dropped after the
+gather), so that fleets of other sizes share their compiled programs; on the CPU it is `CHUNK`, whose
+last chunk the batched LM pads anyway."""
 
 
 def _constants(robots, theta, rippled, ccw=False):
@@ -237,13 +254,16 @@ def calibrate_fleet(
     `cw` set, or the set of the direction of approach `ccw` (R, K, n) where given).
 
     `robots`: the initial robots, a fleet pytree with leading axis R, or one robot used for all.
-    The fleet axis is padded to a multiple of the device count and sharded over `mesh`
+    The fleet axis is padded to `ROWS_MULTIPLE` robots per device and sharded over `mesh`
     (default: all devices). Robots whose solve failed or whose pose set is rank deficient have
     `converged = False` and their `status` says why (`throw`: raise the message of the first such
-    status instead). `max_steps`: of `LMConfig`. `parameters`: default `default_parameters` of the first robot. Under
+    status instead); so has a robot whose residuals exceed the stated noise (`inconsistent`: the
+    chi-square test of `diagnose`, `identification._noise.noise_test`, at the level `ALPHA / R`).
+    `max_steps`: of `LMConfig`. `parameters`: default `default_parameters` of the first robot. Under
     several processes (`jaxrobot.initialize_processes`) each process passes only its own robots
-    (e.g. rows `jaxrobot.process_share(R)`, one robot or its own fleet rows in `robots`) and every
-    process receives the whole fleet in process order.
+    (e.g. rows `jaxrobot.process_share(R)`, one robot or its own fleet rows in `robots`; none on a
+    process whose robots all failed their checks) and every process receives the whole fleet in process
+    order.
 
     `loss`: as in `calibrate` (robust by default, thresholds in units of `position_noise`, the
     tracker's per-axis std, default `[sensors] tracker_position_noise_m`, or a laser tracker's
@@ -284,7 +304,8 @@ def calibrate_fleet(
     sigma, white = noise_model(jr.read_description(None)["sensors"]["tracker_position_noise_m"]
                                if position_noise is None else position_noise, pos.reshape(-1, 3), "position_noise")
     white = () if white is None else (white.reshape(theta.shape[:2] + (3, 3)),)  # none: isotropic
-    (g_robots, g_theta, g_pos, g_ccw, *g_white), origin = shard_rows((robots, theta, pos, ccw, *white), mesh)
+    (g_robots, g_theta, g_pos, g_ccw, *g_white), origin = shard_rows((robots, theta, pos, ccw, *white), mesh,
+                                                                      ROWS_MULTIPLE)
     g_white = g_white[0] if g_white else None
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     rippled = rippled_joints(robots)
@@ -294,6 +315,8 @@ def calibrate_fleet(
     if loss == "l2":
         out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, config, rippled, mesh, g_ccw,
                            whiten=g_white)
+        out, robots = gather_rows((out, g_robots), origin)
+        kept = None  # every pose
     else:
         start = {"x0": None}
 
@@ -303,17 +326,24 @@ def calibrate_fleet(
             start["x0"] = (out.value - jax.vmap(params.get)(g_robots)) / jax.vmap(params.scales)(g_robots)
             return out, _pose_norms(out.residuals, sigma)
 
-        out, _ = robust.irls(fit, jnp.ones_like(g_pos[..., 0]), loss, 3)
-    out, robots = gather_rows((out, g_robots), origin)
-    status = check(out.status, out.status, throw)
+        out, weight = robust.irls(fit, jnp.ones_like(g_pos[..., 0]), loss, 3)
+        out, robots, weight = gather_rows((out, g_robots, weight), origin)
+        kept = weight > 0
     resid = np.asarray(out.residuals).reshape(out.residuals.shape[0], -1, 3)
+    chi2, dof, p_value = noise_test(resid, sigma, len(params), kept)
+    level = ALPHA / len(p_value)
+    status = where(np.asarray(out.status == RESULTS.successful) & (p_value <= level), RESULTS.inconsistent,
+                   out.status)
+    status = check(status, status, throw)
     noise = np.array([np.sqrt(v) if loss == "l2" else robust.noise_estimate(r, sigma, len(params))
                       for r, v in zip(resid, np.asarray(out.noise_variance))])
     cov = np.asarray(out.covariance) * (noise**2 / np.maximum(out.noise_variance, 1e-300))[:, None, None]
     resid = resid.reshape(resid.shape[0], -1)
     return FleetResult(
         robot=_set_parameters(params, robots, jnp.asarray(out.value)), value=out.value,
-        std=np.sqrt(np.diagonal(cov, 0, 1, 2)), covariance=cov, converged=np.asarray(out.converged), status=status,
+        std=np.sqrt(np.diagonal(cov, 0, 1, 2)), covariance=cov, converged=np.asarray(status == RESULTS.successful),
+        status=status,
         iterations=out.steps, rank=out.rank, rms_m=np.sqrt(np.mean(resid**2, -1)), residuals=resid,
         names=params.names, n_devices=n_dev, loss=loss, noise_estimate=noise,
-        outliers=tuple(robust.outliers(r.reshape(-1, 3), sigma) for r in resid))
+        outliers=tuple(robust.outliers(r.reshape(-1, 3), sigma) for r in resid), chi2=chi2, dof=dof,
+        p_value=p_value, inconsistent_below=level)

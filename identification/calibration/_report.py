@@ -155,3 +155,59 @@ def plot_errors(path: str | Path, before: np.ndarray, after: np.ndarray,
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+FLEET_OUTLIER_SPREAD = 5.0
+"""The fleet report marks a robot where a quantity lies farther than this many robust stds (1.4826 times
+the median absolute deviation over the fleet) from the fleet's median."""
+FLEET_OUTLIER_MIN_ROBOTS = 20
+"""Fewest robots whose spread marks outliers: with fewer, the median absolute deviation is too uncertain
+(normal data of 7 robots would have one beyond 5 of its robust stds in 7 % of the quantities, of 20 in
+1.4 %)."""
+
+
+def fleet_outliers(values: np.ndarray) -> np.ndarray:
+    """(R, q) True where robot r's quantity q (`values` (R, q)) lies beyond `FLEET_OUTLIER_SPREAD` robust
+    stds from the fleet's median (none with fewer than `FLEET_OUTLIER_MIN_ROBOTS` robots or a spread of 0)."""
+    v = np.asarray(values, float)
+    if v.shape[0] < FLEET_OUTLIER_MIN_ROBOTS:
+        return np.zeros(v.shape, bool)
+    median = np.median(v, axis=0)
+    spread = 1.4826 * np.median(np.abs(v - median), axis=0)
+    return np.abs(v - median) > FLEET_OUTLIER_SPREAD * np.where(spread > 0, spread, np.inf)
+
+
+def plot_fleet(path: str | Path, rms: np.ndarray, values: np.ndarray, names: tuple[str, ...],
+               robots: list[str], marked: np.ndarray) -> None:
+    """Histograms over the fleet of the residual RMS [m] (`rms` (R,)) and of each parameter (`values`
+    (R, m), named `names`, in mm and mrad where lengths and angles, about the fleet's median), the robots
+    `marked` (R, 1 + m) (`fleet_outliers` of the RMS and the values) drawn red and named (`robots`: a
+    label per robot)."""
+    import matplotlib.pyplot as plt
+
+    scale = {"m": (1e3, "mm"), "rad": (1e3, "mrad")}
+    panels = [("residual RMS", 1e3 * np.asarray(rms), "mm")]
+    for i, n in enumerate(names):
+        f, u = scale.get(unit(n), (1.0, unit(n)))
+        panels.append((n, f * np.asarray(values)[:, i], u))
+    cols = min(5, len(panels))
+    rows = -(-len(panels) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.4 * rows), squeeze=False)
+    for i, (ax, (label, x, u), out) in enumerate(zip(axes.flat, panels, marked.T)):
+        if i:  # a parameter: its deviation from the fleet's median
+            median = float(np.median(x))
+            x, label = x - median, f"{label} − {median:.6g} {u}"
+        ax.hist(x[~out], bins=min(30, max(5, int(np.sqrt(len(x))))), color="tab:blue")
+        ax.locator_params(axis="x", nbins=4)
+        for r in np.flatnonzero(out):
+            ax.axvline(x[r], color="tab:red", lw=1)
+            ax.annotate(robots[r], (x[r], 1), xycoords=("data", "axes fraction"), rotation=90, va="top",
+                        fontsize=6, color="tab:red")
+        ax.set_xlabel(f"{label} [{u}]")
+    for ax in axes.flat[len(panels):]:
+        ax.set_visible(False)
+    fig.suptitle(f"Fleet of {len(rms)} calibrated robots: residual RMS and parameters (red: beyond "
+                 f"{FLEET_OUTLIER_SPREAD:g} robust stds of the fleet's median, from {FLEET_OUTLIER_MIN_ROBOTS} robots)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

@@ -35,14 +35,13 @@ from collections.abc import Callable
 
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.special import gammaincc
 from jaxtyping import Array
 
 import jaxrobot as jr
 from jaxrobot.measurement import approach_directions, approach_sign
 
 from .. import _robust as robust
-from .._noise import TrackerNoise, noise_model
+from .._noise import ALPHA, TrackerNoise, noise_model, noise_test
 from .._pose_files import check_pose_units
 from ..gear._fit import chi2_quantile
 from ._effects import RIPPLE_SLOTS, Layout, catalogue, with_ripple_slots
@@ -50,8 +49,6 @@ from ._model import functions
 
 MIN_BIC_GAIN = 10.0
 """Least BIC decrease for adding an effect ("very strong" evidence, Kass and Raftery 1995)."""
-ALPHA = 0.01
-"""Significance level of the chi-square test of the model against the noise floor."""
 ORDER_FALSE_ALARM = 1e-3
 """Probability that noise alone yields a ripple order over the whole order search."""
 BLOCKS = ("geometry", "link_scale")
@@ -342,10 +339,6 @@ class DiagnoseResult:
         return self.loop[-1].rms_validation
 
 
-def _p_value(chi2: float, dof: int) -> float:
-    return float(gammaincc(0.5 * max(dof, 1), 0.5 * chi2))
-
-
 def validation_bound(sigma: float, k_val: int, m: int, n_res: int) -> float:
     """Largest validation RMS [m] that noise alone explains at level `ALPHA`: `K RMS^2 / sigma^2`
     is chi-square with `3K` dof (Wilson-Hilferty quantile), inflated by `1 + m / (n - m)` for the
@@ -513,11 +506,10 @@ def diagnose(
         w = robust.scaled_weights(np.linalg.norm(e_w, axis=-1) / sigma, loss)
         fit_white = jnp.asarray(white * (np.sqrt(w) / sigma)[:, None, None])
         keep = w > 0  # the chi-square test and BIC: over the poses not rejected, unweighted
-        chi2 = float(np.sum(e_w[keep] ** 2) / sigma**2)
-        dof = 3 * int(np.sum(keep)) - len(free)
+        chi2, dof, p_value = (float(x) for x in noise_test(e_w, sigma, len(free), keep))
         row = LoopRow(len(accepted), accepted[-1].label(layout) if accepted else "(start)", len(free),
-                      _rms(ev["train"][1]), _rms(ev["validation"][1]), chi2, dof,
-                      _p_value(chi2, dof), chi2 + len(free) * ln_n)
+                      _rms(ev["train"][1]), _rms(ev["validation"][1]), chi2, int(dof), p_value,
+                      chi2 + len(free) * ln_n)
         loop.append(row)
         emit(DiagnoseEvent("compare", row.step, time.perf_counter() - t0, row=row,
                            noise_floor=sigma * float(np.sqrt(3.0))))

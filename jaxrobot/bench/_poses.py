@@ -218,16 +218,17 @@ class PoseFile:
     finds it by its convention; None from `read_pose_csv`."""
 
 
-def read_pose_csv(path: str | Path) -> PoseFile:
+def read_pose_csv(path: str | Path, *, reject_nan: bool = True) -> PoseFile:
     """Read a pose file (README, "Measurement files"); extra columns are ignored.
 
-    Raises `ValueError` naming missing columns, non-numeric cells and NaN rows (`read_csv_columns`).
+    Raises `ValueError` naming missing columns, non-numeric cells and NaN rows (`read_csv_columns`;
+    `reject_nan=False`: NaN where cells are empty or `nan`).
     """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"pose file {path} does not exist")
     thetas = theta_columns(file_joint_count(path))
-    cols = read_csv_columns(path, [*thetas, *POSITION_COLUMNS], list(QUAT_COLUMNS))
+    cols = read_csv_columns(path, [*thetas, *POSITION_COLUMNS], list(QUAT_COLUMNS), reject_nan=reject_nan)
     quat = np.column_stack([cols[c] for c in QUAT_COLUMNS]) if QUAT_COLUMNS[0] in cols else None
     return PoseFile(np.deg2rad(np.column_stack([cols[c] for c in thetas])),
                     np.column_stack([cols[c] for c in POSITION_COLUMNS]), quat)
