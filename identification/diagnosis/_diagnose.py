@@ -548,7 +548,7 @@ def diagnose(
                 pos_fit = np.asarray(fns.exact_batch(robot0, vs, jnp.asarray(orders), th_all, ccw_all, marker))
                 for i, cols in enumerate(sets):
                     err_t = train.positions - pos_fit[i, :k_tr]
-                    chi2_k = float(np.sum(_white(err_t)[keep] ** 2) / sigma**2)
+                    chi2_k = float(noise_test(_white(err_t), sigma, len(cols), keep)[0])
                     bic_k = chi2_k + len(cols) * ln_n
                     name, message = str(status[i]), None
                     if name == "successful" and not chi2_k <= row.chi2:
