@@ -260,7 +260,8 @@ def validate(data: dict) -> dict:
     The number of joints `n` is the length of `kinematics.a`; every per-joint field has `n` rows.
     Kinematics, limits and links are required; without `[gear]` the ratios are 1 with no ripple,
     without `[stiffness]` the joints are rigid, without `[motors]` the rotors have no inertia; without
-    `[stiffness] damping` or `[motors] velocity_lag_s` the model has no such term (`Robot.damping`, `Robot.motor_lag`)."""
+    `[stiffness] damping` or `[motors] velocity_lag_s` the model has no such term (`Robot.damping`,
+    `Robot.motor_lag`)."""
     n = joint_count(data)
     _check(data, _schema(n), "")
     _check_physics(data, n)

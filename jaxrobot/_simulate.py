@@ -44,7 +44,6 @@ from ._gear import flank_output, flank_weight, gear_output, play, play_start, re
 from ._robot import Robot
 from .measurement._model import rest_link_angles
 
-
 _HERMITE = np.array([
     [1, 0, 0, -10, 15, -6], [0, 1, 0, -6, 8, -3], [0, 0, 0.5, -1.5, 1.5, -0.5],
     [0, 0, 0, 10, -15, 6], [0, 0, 0, -4, 7, -3], [0, 0, 0, 0.5, -1, 0.5],
