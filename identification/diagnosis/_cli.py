@@ -21,14 +21,37 @@ def configure(parser) -> None:
 
     add_model_option(parser, "start robot description (default: the embedded Racer-7, nominal)")
     parser.add_argument("--save-model", type=Path, default=None, help="write the augmented robot (TOML)")
-    parser.add_argument("--noise-um", type=float, default=None,
-                        help="tracker noise std per axis in um (default: the robot file's [sensors])")
-    parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
-                        help="marker offset in m in the tool frame (the flange without [tool]; default: [sensors])")
+    add_tracker_options(parser)
     parser.add_argument("--max-steps", type=int, default=6, help="most effects to add (default 6)")
     add_approach_option(parser)
     add_loss_option(parser)
     parser.add_argument("--max-order", type=int, default=400, help="highest ripple order searched (default 400)")
+
+
+def add_tracker_options(parser) -> None:
+    """`--noise-um` and `--marker` of the commands that compare tracker positions with the model."""
+    parser.add_argument("--noise-um", type=float, default=None,
+                        help="tracker noise std per axis in um (default: the robot file's [sensors])")
+    parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                        help="marker offset in m in the tool frame (the flange without [tool]; default: [sensors])")
+
+
+def tracker_of(args):
+    """The start robot, marker offset [m] and tracker noise (std [m] or a `TrackerNoise`) of the options: the
+    robot file's `[sensors]` where `--marker`, `--noise-um` are not given (None: the embedded robot's)."""
+    import jaxrobot as jr
+
+    from .._noise import TrackerNoise
+
+    if args.noise_um is not None and not args.noise_um > 0:
+        raise ValueError(f"--noise-um: expected the tracker std per axis > 0 um, found {args.noise_um}")
+    robot = jr.racer7() if args.model is None else jr.load_robot(args.model)
+    marker, noise = args.marker, None if args.noise_um is None else 1e-6 * args.noise_um
+    if args.model is not None:
+        sensors = jr.read_description(args.model).get("sensors", {})
+        marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
+        noise = (TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")) if noise is None else noise
+    return robot, marker, noise
 
 
 def _poses(paths, approach: str):
@@ -49,20 +72,12 @@ def run(args, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot.cli import Progress
 
-    from .._noise import TrackerNoise
     from ._diagnose import diagnose
     from ._report import loop_table, progress_lines, summary, write_outputs
 
     if args.max_steps < 0 or args.max_order < 1:
         raise ValueError(f"--max-steps >= 0 and --max-order >= 1 expected, found {args.max_steps}, {args.max_order}")
-    if args.noise_um is not None and not args.noise_um > 0:
-        raise ValueError(f"--noise-um: expected the tracker std per axis > 0 um, found {args.noise_um}")
-    robot = jr.racer7() if args.model is None else jr.load_robot(args.model)
-    marker, noise = args.marker, None if args.noise_um is None else 1e-6 * args.noise_um
-    if args.model is not None:
-        sensors = jr.read_description(args.model).get("sensors", {})
-        marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
-        noise = (TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")) if noise is None else noise
+    robot, marker, noise = tracker_of(args)
     (train, lines, times), (val, _, _) = _poses(args.poses, args.approach), _poses(args.validate, args.approach)
     echo(f"diagnose: {len(train)} training and {len(val)} validation poses, start model {robot.name}")
     steps = Progress(args.max_steps + 1, "diagnose", at_most=True)

@@ -115,6 +115,22 @@ def read_csv_columns(
     return {c: data[:, i] for i, c in enumerate(wanted)}
 
 
+RUN_MAX_STEP_S = 0.1
+"""A file whose `t_s` advances in equal steps shorter than this [s] is a trajectory run, not static poses: a pose
+is measured with the robot at rest, which it does not reach again within this time after a move."""
+
+
+def trajectory_run_step(path: str | Path) -> float | None:
+    """The sample time [s] of `path` if it is a trajectory run (`t_s` in equal steps below `RUN_MAX_STEP_S`,
+    at least 3 rows), else None."""
+    t = read_csv_columns(path, [], ["t_s"], reject_nan=False).get("t_s")
+    if t is None or len(t) < 3 or not np.all(np.isfinite(t)):
+        return None
+    step = np.diff(t)
+    uniform = np.all(step > 0) and np.ptp(step) <= 1e-6 * np.mean(step)
+    return float(np.mean(step)) if uniform and np.mean(step) < RUN_MAX_STEP_S else None
+
+
 def command_columns(n: int) -> list[str]:
     """Columns of a command file of an `n`-joint robot: `t_s`, motor angles [deg], rates [deg/s] and
     accelerations [deg/s^2]."""
