@@ -43,7 +43,8 @@ def write_plots(out: Path, comparison, label: str) -> list[Path]:
     ax2.set_xlabel("t [s]")
     ax2.set_ylabel("measured - model [um]")
     ax2.legend(loc="upper right")
-    fig.suptitle(c.verdict.split(";")[0])
+    fig.suptitle(f"{label}: {'consistent' if c.consistent else 'not consistent'} with the model, chi-square/dof "
+                 f"{c.chi2 / c.dof:.3f} (p = {c.p_value:.3g})")
     fig.tight_layout()
     paths = [out / f"{label}_error.png"]
     fig.savefig(paths[0], dpi=120)

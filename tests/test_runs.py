@@ -1,0 +1,114 @@
+"""Trajectory runs as evidence (`jaxrobot compare`, `identification.diagnosis._runs`) on the independent runs of
+../shared/independent/trajectories (scipy DOP853 on pinocchio, no code shared with ours), and run files refused
+as poses."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers import independent_data
+
+import jaxrobot as jr
+import jaxrobot.bench as jb
+from identification.diagnosis._diagnose import ALPHA
+from identification.diagnosis._runs import compare_run, extend_command
+from jaxrobot._cli import main
+
+SHORT = 700
+"""Samples of the shortened runs of the main suite (0.7 s: the lag's departure reaches ~10 sigma)."""
+
+
+def case(name: str):
+    return independent_data() / "trajectories" / name
+
+
+def true_robot(folder) -> jr.Robot:
+    """The case's true robot in our format: `start.toml` plus the lag, damping and stiffness of `truth.json`."""
+    robot = jr.load_robot(folder / "start.toml")
+    effects = json.loads((folder / "truth.json").read_text())["effects"]
+    scale = np.asarray(effects["stiffness_scale"])
+    assert not any(effects["k3_delta"]) and effects["payload_mass"] == 0 and not any(effects["link_friction"])
+    return dataclasses.replace(robot, c=robot.c / scale,  # k1 and k3 scaled alike: e = k3 / k1 stays
+                               motor_lag=jnp.asarray(effects["lag"]) if any(effects["lag"]) else None,
+                               damping=jnp.asarray(effects["damping"]) if any(effects["damping"]) else None)
+
+
+def sensors(folder):
+    s = jr.read_description(folder / "start.toml")["sensors"]
+    return np.asarray(s["tracker_marker_offset_m"]), s["tracker_position_noise_m"]
+
+
+def shortened(folder, name, samples):
+    run = jb.read_trajectory_csv(folder / f"run_{name}.csv")
+    return jb.read_command_csv(folder / f"command_{name}.csv"), tuple(a[:samples] for a in run)
+
+
+def test_lag_run_is_explained_by_the_true_lag_only():
+    """The first 0.7 s of the lag case's line: the start model fails the chi-square test, the true robot with its
+    3 ms lags passes it, and its motor angles are the run's encoder columns to their 12 digits (~1e-10 rad)."""
+    folder = case("p2_motor_lag_j123")
+    command, run = shortened(folder, "line_nu1e-14", SHORT)
+    marker, noise = sensors(folder)
+    start = compare_run(jr.load_robot(folder / "start.toml"), command, run, marker, noise)
+    truth = compare_run(true_robot(folder), command, run, marker, noise)
+    assert truth.consistent and truth.p_value > ALPHA and truth.dof == 3 * SHORT
+    assert not start.consistent and start.chi2 > 2 * start.dof
+    assert np.max(truth.encoder_deviation) < 1e-9
+    assert np.max(start.encoder_deviation[:3]) > 1e-3 and np.max(start.encoder_deviation[3:]) < 1e-9
+
+
+@pytest.mark.extended
+@pytest.mark.parametrize("name", ["p0_clean", "p1_joint1_damping", "p2_motor_lag_j123", "p3_joint3_stiffness"])
+def test_every_case_against_start_and_truth(name):
+    """Whole runs: the true robot of every case is consistent with each of its runs; the start model is consistent
+    exactly where `truth.json`'s signature is invisible (chi-square of the noise-free difference below ~100 on 9003
+    degrees of freedom, whose chi-square spreads by 134: the clean case and joint-1 damping), and not elsewhere."""
+    folder = case(name)
+    marker, noise = sensors(folder)
+    runs = json.loads((folder / "truth.json").read_text())["runs"]
+    start, truth = jr.load_robot(folder / "start.toml"), true_robot(folder)
+    for file, info in runs.items():
+        command, run = jb.read_command_csv(folder / info["command"]), jb.read_trajectory_csv(folder / file)
+        assert compare_run(truth, command, run, marker, noise).consistent, file
+        assert compare_run(start, command, run, marker, noise).consistent == (info["signature_chi2"] < 100), file
+
+
+def test_command_and_run_must_share_the_time_base():
+    t = np.arange(5) * 1e-3
+    theta = np.zeros((5, 2))
+    command = (t, theta, theta, theta)
+    with pytest.raises(ValueError, match=r"run: expected t_s from the command's start 0 s in its steps of 0.001 s"):
+        extend_command(command, np.arange(5) * 2e-3)
+    moving = (t, theta, theta + 0.1, theta)
+    with pytest.raises(ValueError, match=r"run: runs 2 samples past the command, which does not end at rest"):
+        extend_command(moving, np.arange(7) * 1e-3)
+    held = extend_command((t, theta + 1.0, theta, theta), np.arange(7) * 1e-3)
+    assert held[1].shape == (7, 2) and np.all(held[1] == 1.0) and np.all(held[2] == 0.0)
+
+
+def test_cli_compare_and_run_files_refused_as_poses(tmp_path, capsys):
+    """`jaxrobot compare --json` on the shortened lag run (its verdict, the encoders' departure, the plots), and
+    `diagnose` refusing the run as a pose file, naming `compare --run`."""
+    folder = case("p2_motor_lag_j123")
+    command, run = shortened(folder, "line_nu1e-14", SHORT)
+    cmd, run_file = tmp_path / "command.csv", tmp_path / "run.csv"
+    jb.write_command_csv(cmd, *command)
+    jb.write_trajectory_csv(run_file, run[0], run[1], run[2])
+    code = main(["compare", "--model", str(folder / "start.toml"), "--command", str(cmd), "--run", str(run_file),
+                 "--out", str(tmp_path / "out"), "--json"])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    summary = json.loads(out.out)
+    assert summary["consistent"] is False and summary["dof"] == 3 * SHORT
+    assert summary["rms_residual_um"] > 2 * summary["noise_floor_um"]
+    assert min(summary["encoder_deviation_rad"][:3]) > 1e-3 and "motors [1, 2, 3] depart" in out.err
+    assert all((tmp_path / "out" / f"run_{k}.png").stat().st_size > 0 for k in ("error", "spectrum"))
+    code = main(["diagnose", "--model", str(folder / "start.toml"), str(run_file), "--validate", str(run_file)])
+    err = capsys.readouterr().err
+    assert code == 2 and "a trajectory run (t_s in equal steps of 1 ms" in err and "jaxrobot compare --run" in err
+    with pytest.raises(ValueError, match=r"a trajectory run \(columns x_m, y_m, z_m"):
+        jb.read_command_csv(run_file)
