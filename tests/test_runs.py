@@ -61,20 +61,27 @@ def test_lag_run_is_explained_by_the_true_lag_only():
     assert np.max(start.encoder_deviation[:3]) > 1e-3 and np.max(start.encoder_deviation[3:]) < 1e-9
 
 
+FAMILY_P = 1e-4
+"""Level at which the extended test calls a run consistent: its 16 runs are tested twice, so a level of `ALPHA`
+would fail ~16 % of clean suites by the noise draw alone (two of the truths' runs have p ~ 0.005)."""
+
+
 @pytest.mark.extended
 @pytest.mark.parametrize("name", ["p0_clean", "p1_joint1_damping", "p2_motor_lag_j123", "p3_joint3_stiffness"])
 def test_every_case_against_start_and_truth(name):
     """Whole runs: the true robot of every case is consistent with each of its runs; the start model is consistent
     exactly where `truth.json`'s signature is invisible (chi-square of the noise-free difference below ~100 on 9003
-    degrees of freedom, whose chi-square spreads by 134: the clean case and joint-1 damping), and not elsewhere."""
+    degrees of freedom, whose chi-square spreads by 134: the clean case and joint-1 damping), and far from it
+    elsewhere (the smallest visible signature has a chi-square of 4.9e3)."""
     folder = case(name)
     marker, noise = sensors(folder)
     runs = json.loads((folder / "truth.json").read_text())["runs"]
     start, truth = jr.load_robot(folder / "start.toml"), true_robot(folder)
     for file, info in runs.items():
         command, run = jb.read_command_csv(folder / info["command"]), jb.read_trajectory_csv(folder / file)
-        assert compare_run(truth, command, run, marker, noise).consistent, file
-        assert compare_run(start, command, run, marker, noise).consistent == (info["signature_chi2"] < 100), file
+        assert compare_run(truth, command, run, marker, noise).p_value > FAMILY_P, file
+        p_start = compare_run(start, command, run, marker, noise).p_value
+        assert p_start > FAMILY_P if info["signature_chi2"] < 100 else p_start < 1e-10, (file, p_start)
 
 
 def test_command_and_run_must_share_the_time_base():
