@@ -116,6 +116,37 @@ def test_cli_compare_and_run_files_refused_as_poses(tmp_path, capsys):
     assert all((tmp_path / "out" / f"run_{k}.png").stat().st_size > 0 for k in ("error", "spectrum"))
     code = main(["diagnose", "--model", str(folder / "start.toml"), str(run_file), "--validate", str(run_file)])
     err = capsys.readouterr().err
-    assert code == 2 and "a trajectory run (t_s in equal steps of 1 ms" in err and "jaxrobot compare --run" in err
+    assert code == 2 and "a trajectory run (t_s in equal steps of 1 ms" in err
+    assert "jaxrobot diagnose --runs RUN.csv --commands CMD.csv" in err and "jaxrobot compare --run" in err
     with pytest.raises(ValueError, match=r"a trajectory run \(columns x_m, y_m, z_m"):
         jb.read_command_csv(run_file)
+
+
+@pytest.mark.extended
+def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
+    """`diagnose --runs` on the first 0.7 s of the lag case's four runs (line and spiral at nu = 1e-14 for training,
+    1e-10 for validation): the lags of motors 1, 2 and 3, each within 3 reported sigma of truth.json's 3 ms, and
+    nothing else; the saved model carries them."""
+    folder = case("p2_motor_lag_j123")
+    files = {}
+    for name in ("line_nu1e-14", "spiral_nu1e-14", "line_nu1e-10", "spiral_nu1e-10"):
+        command, run = shortened(folder, name, SHORT)
+        files[name] = (tmp_path / f"command_{name}.csv", tmp_path / f"run_{name}.csv")
+        jb.write_command_csv(files[name][0], *command)
+        jb.write_trajectory_csv(files[name][1], *run)
+    train, val = ("line_nu1e-14", "spiral_nu1e-14"), ("line_nu1e-10", "spiral_nu1e-10")
+    code = main(["diagnose", "--model", str(folder / "start.toml"), "--runs", *(str(files[k][1]) for k in train),
+                 "--commands", *(str(files[k][0]) for k in train), "--validate-runs", *(str(files[k][1]) for k in val),
+                 "--validate-commands", *(str(files[k][0]) for k in val), "--save-model", str(tmp_path / "fixed.toml"),
+                 "--json"])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    summary = json.loads(out.out)
+    truth = json.loads((folder / "truth.json").read_text())["effects"]["lag"]
+    assert sorted((e["kind"], e["joint"]) for e in summary["effects"]) == [("lag", 1), ("lag", 2), ("lag", 3)]
+    for e in summary["effects"]:
+        assert abs(e["value"] - truth[e["joint"] - 1]) < 3 * e["std"], e
+    assert summary["verdict"].startswith("explained")
+    fixed = jr.load_robot(tmp_path / "fixed.toml")
+    np.testing.assert_allclose(fixed.motor_lag[:3], 3e-3, rtol=0.1)
+    assert fixed.damping is None and np.all(np.asarray(fixed.motor_lag[3:]) == 0)

@@ -230,8 +230,8 @@ def read_pose_csv(path: str | Path) -> PoseFile:
     step = trajectory_run_step(path)
     if step is not None:
         raise ValueError(f"{path}: a trajectory run (t_s in equal steps of {1e3 * step:g} ms: a moving robot sampled "
-                         "by the tracker), not static poses; give it as a run with its command: `jaxrobot compare "
-                         "--run RUN.csv --command CMD.csv`")
+                         "by the tracker), not static poses; give it as a run with its command: `jaxrobot diagnose "
+                         "--runs RUN.csv --commands CMD.csv` or `jaxrobot compare --run RUN.csv --command CMD.csv`")
     thetas = theta_columns(file_joint_count(path))
     cols = read_csv_columns(path, [*thetas, *POSITION_COLUMNS], list(QUAT_COLUMNS))
     quat = np.column_stack([cols[c] for c in QUAT_COLUMNS]) if QUAT_COLUMNS[0] in cols else None
