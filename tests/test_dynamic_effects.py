@@ -166,7 +166,7 @@ def test_diagnose_runs_names_a_lag_on_the_arm():
     test; on the arm without it, it adds nothing. Extended: its three programs (the simulation, its derivatives
     along every effect and along the fitted one) compile in ~1 min each on 2 cores."""
     from identification.diagnosis._runs import diagnose_runs
-    from jaxrobot._kinematics import marker_frame
+    from jaxrobot.measurement import marker_pose
 
     marker, noise = np.array([0.05, 0.0, 0.0]), 5e-5
     rng = np.random.default_rng(3201)
@@ -177,7 +177,7 @@ def test_diagnose_runs_names_a_lag_on_the_arm():
         theta, thetad, thetadd = command(t)
         cmd = (t, theta[0] + scale * (theta - theta[0]), scale * thetad, scale * thetadd)
         q, _, motors = jr.simulate(truth, *cmd, substeps=4, motor_angles=True)
-        positions = np.asarray(marker_frame(truth, q, jnp.asarray(marker))[0])
+        positions = np.asarray(marker_pose(truth, q, jnp.asarray(marker))[0])
         return cmd, (t, np.asarray(motors), positions + noise * rng.standard_normal(positions.shape))
 
     train, val = [pair(1.0)], [pair(0.7)]

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot._kinematics import marker_frame
+from jaxrobot.measurement import marker_pose
 
 from .._noise import noise_model
 from ._diagnose import ALPHA, MIN_BIC_GAIN, _p_value
@@ -108,7 +108,7 @@ def extend_command(command, t_run: np.ndarray, where: str = "run") -> tuple[np.n
 @jax.jit
 def _simulated(robot: jr.Robot, t, theta, thetad, thetadd, marker):
     q, _, motors = jr.simulate(robot, t, theta, thetad, thetadd, motor_angles=True)
-    return marker_frame(robot, q, marker)[0], motors
+    return marker_pose(robot, q, marker)[0], motors
 
 
 def compare_run(robot: jr.Robot, command, run, marker, noise) -> RunComparison:
@@ -225,7 +225,7 @@ def _with_effects(robot: jr.Robot, z):
 
 def _whitened(robot, z, cmd, white, measured, sigma, marker, substeps):
     q, _ = jr.simulate(_with_effects(robot, z), *cmd, substeps=substeps)
-    return (jnp.einsum("kij,kj->ki", white, measured - marker_frame(_with_effects(robot, z), q, marker)[0])
+    return (jnp.einsum("kij,kj->ki", white, measured - marker_pose(_with_effects(robot, z), q, marker)[0])
             / sigma).ravel()
 
 
