@@ -1,25 +1,27 @@
 """Fixed-step simulation of the elastic-joint model for a commanded motor trajectory.
 
-The motor follows the commanded `theta(t)` exactly (ideal velocity loop, thesis ch. 4), so
+The motor follows the commanded `theta(t)` exactly (ideal velocity loop, thesis ch. 4; a lag below), so
 the state is the link side `(q, qd)` of eq. 2.23a. Between samples the command is the quintic
 Hermite interpolant of `(theta, thetad, thetadd)`, so it is C2 in time.
 
-Scheme: classic 4th-order Runge-Kutta with `substeps` steps per sample. The model has no
-damping; its elastic modes are undamped oscillations with eigenvalues `±iω` on the imaginary
+Scheme: classic 4th-order Runge-Kutta with `substeps` steps per sample. Without joint damping
+the elastic modes are undamped oscillations with eigenvalues `±iω` on the imaginary
 axis (ω up to ~2.6e3 rad/s for the Racer-7, `jaxrobot info` prints it). RK4's stability region
 covers the imaginary axis up to |hω| = 2.83, and its amplitude error per step is
 ~(hω)^6/144, so h = 0.1 ms (10 substeps at 1 ms, hω ≈ 0.26) keeps the modes stable and their
 amplitude exact to ~2e-6 per step, while the forced motion is integrated at 4th order. An
 implicit A-stable scheme (trapezoidal) would need a Newton solve of the 12-state system per
-step and damps nothing more here; it buys nothing for an undamped model at this step.
+step and damps nothing more here; it buys nothing for an undamped model at this step (damping moves
+the eigenvalues into the left half-plane, where the same steps stay stable).
 
 Dynamic effects of the robot (`Robot.motor_lag`, `Robot.damping`; None leaves the code above untouched):
 
 - Velocity-loop lag: `tau thetad_m + theta_m = theta_cmd` per motor, with the quintic command of an interval,
   is solved exactly: `theta_m = theta_p + (theta_m(t_k) - theta_p(t_k)) exp(-(t - t_k)/tau)` with the particular
   solution `theta_p = sum_j (-tau)^j theta_cmd^(j)` (j <= 5, the series ends for a quintic). It is smooth in
-  `tau` at 0 (`dtheta_m/dtau = -thetad_cmd` there), so a lag can be fitted from none; its intermediate terms
-  grow as `(tau/h)^5`, which keeps it within rounding for `tau` up to ~100 sample times.
+  `tau` at 0 (`dtheta_m/dtau = -thetad_cmd` there), so a lag can be fitted from none. Its terms grow as
+  `(tau/h)^j` times the command's j-th difference and cancel against the decay, so rounding grows with
+  `tau/h` (tested to `tau = 3 h`).
 - Joint damping: the link receives `d (phid - qd)` besides `kappa(phi - q)`, `phid` the gear output's rate
   along the motor rate `thetad_m` (at a fixed flank weight where `directional`).
 
