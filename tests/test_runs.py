@@ -152,3 +152,30 @@ def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
     fixed = jr.load_robot(tmp_path / "fixed.toml")
     np.testing.assert_allclose(fixed.motor_lag[:3], 3e-3, rtol=0.1)
     assert fixed.damping is None and np.all(np.asarray(fixed.motor_lag[3:]) == 0)
+
+
+def test_cli_diagnose_runs_refuses_incomplete_input(tmp_path, capsys):
+    """`diagnose --runs` names what is missing before any computation: the commands of the runs, the validation
+    runs, pose files mixed in; a command file with uneven steps is refused by its reader."""
+    folder = case("p0_clean")
+    command, run = shortened(folder, "line_nu1e-14", 20)
+    cmd, run_file = tmp_path / "command.csv", tmp_path / "run.csv"
+    jb.write_command_csv(cmd, *(a[:20] for a in command))
+    jb.write_trajectory_csv(run_file, *run)
+    model = ["--model", str(folder / "start.toml")]
+    cases = [
+        (["--runs", str(run_file), "--validate-runs", str(run_file)],
+         "--commands: expected one command file per file of --runs (1), found 0"),
+        (["--runs", str(run_file), "--commands", str(cmd)], "--validate-runs: required with --runs"),
+        ([str(run_file), "--runs", str(run_file)], "--runs with pose files: not supported yet"),
+        ([], "diagnose: expected training pose files and --validate pose files (or --runs"),
+    ]
+    for argv, message in cases:
+        assert main(["diagnose", *model, *argv]) == 2
+        assert message in capsys.readouterr().err, argv
+    uneven = tmp_path / "uneven.csv"
+    t = command[0][:20].copy()
+    t[5] += 2e-4
+    jb.write_command_csv(uneven, t, *(a[:20] for a in command[1:]))
+    with pytest.raises(ValueError, match=r"uneven.csv: t_s must increase in equal steps"):
+        jb.read_command_csv(uneven)
