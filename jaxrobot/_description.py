@@ -35,9 +35,9 @@ def _schema(n: int) -> dict[str, Any]:
         "limits": {"position_deg": (n, 2), "velocity_deg_s": vn, "?acceleration_deg_s2": vn},
         "?gear": {"u0": vn, "?backlash_rad": vn,
                   **{f"?joint{i}": {"cw": _RIPPLE, "ccw": _RIPPLE} for i in range(1, n + 1)}},
-        "?stiffness": {"k1": vn, "k3": vn},
+        "?stiffness": {"k1": vn, "k3": vn, "?damping": vn},
         "links": {"mass": vn, "com": (n, 3), "inertia": (n, 6)},
-        "?motors": {"inertia": vn},
+        "?motors": {"?inertia": vn, "?velocity_lag_s": vn},
         "?tool": {"transform": (4, 4)},
         "?base": {"transform": (4, 4)},
         "?as_built": {
@@ -166,8 +166,18 @@ def _check_physics(data: dict, n: int) -> None:
     _positive(data["links"]["mass"], "links.mass", "kg")
     for i, row in enumerate(np.asarray(data["links"]["inertia"], float)):
         _check_inertia(row, f"links.inertia[{i}] (link {i + 1})")
-    if "motors" in data and np.any(np.asarray(data["motors"]["inertia"], float) < 0):
-        _fail("motors.inertia", "rotor inertias >= 0 kg m^2", data["motors"]["inertia"])
+    motors = data.get("motors", {})
+    if "inertia" in motors and np.any(np.asarray(motors["inertia"], float) < 0):
+        _fail("motors.inertia", "rotor inertias >= 0 kg m^2", motors["inertia"])
+    if "velocity_lag_s" in motors and np.any(np.asarray(motors["velocity_lag_s"], float) < 0):
+        _fail("motors.velocity_lag_s", "velocity-loop time constants >= 0 s (0: the motor follows its command "
+              "exactly)", motors["velocity_lag_s"])
+    damping = np.asarray(data.get("stiffness", {}).get("damping", np.zeros(n)), float)
+    for i in range(n):
+        if damping[i] < 0 or (damping[i] > 0 and np.isinf(k1[i])):
+            _fail(f"stiffness.damping[{i}] (joint {i + 1})",
+                  "viscous damping >= 0 N m s/rad of an elastic joint (0 where k1 = inf, a rigid joint)",
+                  float(damping[i]))
     dev = data.get("as_built", {})
     if "u0" in dev and "u0_wrist" in dev:
         _fail("as_built", "either u0 (all joints) or the older u0_wrist (joints 4-6), not both",
@@ -249,7 +259,9 @@ def validate(data: dict) -> dict:
 
     The number of joints `n` is the length of `kinematics.a`; every per-joint field has `n` rows.
     Kinematics, limits and links are required; without `[gear]` the ratios are 1 with no ripple,
-    without `[stiffness]` the joints are rigid, without `[motors]` the rotors have no inertia."""
+    without `[stiffness]` the joints are rigid, without `[motors]` the rotors have no inertia; without
+    `[stiffness] damping` or `[motors] velocity_lag_s` the model has no such term (`Robot.damping`,
+    `Robot.motor_lag`)."""
     n = joint_count(data)
     _check(data, _schema(n), "")
     _check_physics(data, n)
@@ -344,7 +356,14 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         motor_inertia=jnp.asarray(data.get("motors", {}).get("inertia", np.zeros(n)), float),
         gravity=jnp.asarray(data["gravity"], float),
         name=data["name"],
+        damping=_optional(data.get("stiffness", {}), "damping"),
+        motor_lag=_optional(data.get("motors", {}), "velocity_lag_s"),
     )
+
+
+def _optional(section: dict, key: str) -> jnp.ndarray | None:
+    """A dynamic effect of the robot: the array `section[key]`, None where the file has no such key."""
+    return jnp.asarray(section[key], float) if key in section else None
 
 
 def _shortest(x: float, reads_back) -> float:
@@ -406,14 +425,21 @@ def description_of(robot: Robot) -> dict:
         data["limits"]["acceleration_deg_s2"] = f(np.rad2deg(robot.qdd_max))
     if gear.keys() != {"u0"} or np.any(np.asarray(robot.u0) != 1.0):  # else no gears: no [gear] section
         data["gear"] = gear
-    if np.any(np.asarray(robot.motor_inertia) != 0):  # else no [motors] section
-        data["motors"] = {"inertia": f(robot.motor_inertia)}
+    motors = {}
+    if np.any(np.asarray(robot.motor_inertia) != 0):  # else no rotor inertia
+        motors["inertia"] = f(robot.motor_inertia)
+    if robot.motor_lag is not None:
+        motors["velocity_lag_s"] = f(robot.motor_lag)
+    if motors:  # else no [motors] section
+        data["motors"] = motors
     c, e = np.asarray(robot.c, float), np.asarray(robot.e, float)
-    if np.any(c != 0):  # else rigid: no [stiffness] section
+    if np.any(c != 0) or robot.damping is not None:  # else rigid: no [stiffness] section
         k1, k3 = np.asarray(robot.k1, float), np.asarray(robot.k3, float)
         k1 = [_shortest(x, lambda y, ci=ci: 1.0 / y == ci) for x, ci in zip(k1, c)]
         k3 = [_shortest(x, lambda y, ci=ci, ei=ei: y * ci == ei) for x, ci, ei in zip(k3, c, e)]
         data["stiffness"] = {"k1": k1, "k3": k3}
+        if robot.damping is not None:
+            data["stiffness"]["damping"] = f(robot.damping)
     for key in ("tool", "base"):
         t = np.asarray(getattr(robot, key), float)
         if not np.array_equal(t, np.eye(4)):

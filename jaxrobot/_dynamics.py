@@ -1,6 +1,7 @@
 """Rigid-body and elastic-joint dynamics, eq. 2.15-2.23 and 4.1 (docs/model.md, section 4).
 
-Link side: `D(q) qdd + C(q, qd) qd + g(q) = kappa(phi - q)` (eq. 2.23a, no friction);
+Link side: `D(q) qdd + C(q, qd) qd + g(q) = kappa(phi - q)` (eq. 2.23a, no friction), plus `d (phid - qd)`
+on the right for a robot with joint damping (`Robot.damping`);
 motor side: `J_m thetadd = tau_motor - kappa(phi - q) / u(phi)`.
 All functions broadcast over leading batch axes of `robot` and the states.
 """
@@ -244,17 +245,29 @@ def planning_dynamics(
 ) -> Float[Array, "*b 4*n"]:
     """`xd = f(x, u)` of eq. 4.1, `x = [q, qd, theta, thetad]`, `u = thetadd`; cw gear set, or with `direction`
     the flank weights `sigma` of the gears (`flank_output`, docs/model.md (B.0))."""
+    if robot.motor_lag is not None:
+        raise ValueError("planning_dynamics: the planning model (eq. 4.1) has no velocity-loop lag; found "
+                         "robot.motor_lag (the robot file's [motors] velocity_lag_s)")
     q, qd, theta, thetad = jnp.split(x, 4, axis=-1)
-    phi = gear_output(robot, theta) if direction is None else flank_output(robot, theta, direction)
-    qdd = link_acceleration(robot, q, qd, phi)
+    output = (lambda th: gear_output(robot, th)) if direction is None else (  # noqa: E731
+        lambda th: flank_output(robot, th, direction))
+    phi, phid = jax.jvp(output, (theta,), (thetad,)) if robot.damping is not None else (output(theta), None)
+    qdd = link_acceleration(robot, q, qd, phi, phid)
     return jnp.concatenate([qd, qdd, thetad, jnp.broadcast_to(u, thetad.shape)], -1)
 
 
 def link_acceleration(
-    robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"], phi: Float[Array, "*b n"]
+    robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"], phi: Float[Array, "*b n"],
+    phid: Float[Array, "*b n"] | None = None,
 ) -> Float[Array, "*b n"]:
-    """`qdd = D(q)^{-1} (kappa(phi - q) - g(q) - C(q, qd) qd)` (eq. 2.23a)."""
+    """`qdd = D(q)^{-1} (kappa(phi - q) - g(q) - C(q, qd) qd)` (eq. 2.23a); a robot with joint damping
+    (`robot.damping`) adds `d (phid - qd)` to the bracket and needs the gear output rate `phid`."""
     rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
+    if robot.damping is not None:
+        if phid is None:
+            raise ValueError("link_acceleration: phid (the gear output rates, shape (..., n)) is required for a "
+                             "robot with joint damping (robot.damping); found None")
+        rhs = rhs + robot.damping * (phid - qd)
     return spd_solve(mass_matrix(robot, q), rhs[..., None])[..., 0]
 
 

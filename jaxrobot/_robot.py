@@ -32,7 +32,8 @@ class Robot(eqx.Module):
     """An elastic-joint serial robot with `n` revolute joints.
 
     Every field is an array (SI units, radians) whose joint axis has length `n`
-    (`n_joints`), so a fleet of robots is the same pytree with a leading batch axis. Kinematics
+    (`n_joints`), so a fleet of robots is the same pytree with a leading batch axis; the dynamic
+    effects `damping` and `motor_lag` may be None (absent: the model without them, exactly). Kinematics
     follow eq. 2.2-2.4: standard DH plus the Hayati angle `beta` (eq. 2.3), not Craig's modified DH;
     the joint transform is `Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`.
     """
@@ -86,6 +87,14 @@ class Robot(eqx.Module):
     name: str = eqx.field(static=True, default="robot")
     """Name of the robot (the robot file's `name`, a URDF's `<robot name>`); static: part of the
     tree structure, not an array leaf."""
+
+    damping: Float[Array, "*batch n"] | None = None
+    """Viscous damping `d` of the joint springs [N m s/rad]: the link receives `d (phid - qd)` besides
+    `kappa(phi - q)` (the robot file's `[stiffness] damping`); None: undamped (no term at all)."""
+    motor_lag: Float[Array, "*batch n"] | None = None
+    """Velocity-loop time constants `tau` [s]: motor i follows its command through the first-order lag
+    `tau_i thetad_m + theta_m = theta_cmd`, and its encoder reports `theta_m` (the robot file's
+    `[motors] velocity_lag_s`); None: the motors follow the command exactly."""
 
     @property
     def k1(self) -> Float[Array, "*batch n"]:

@@ -1,17 +1,29 @@
 """Fixed-step simulation of the elastic-joint model for a commanded motor trajectory.
 
-The motor follows the commanded `theta(t)` exactly (ideal velocity loop, thesis ch. 4), so
+The motor follows the commanded `theta(t)` exactly (ideal velocity loop, thesis ch. 4; a lag below), so
 the state is the link side `(q, qd)` of eq. 2.23a. Between samples the command is the quintic
 Hermite interpolant of `(theta, thetad, thetadd)`, so it is C2 in time.
 
-Scheme: classic 4th-order Runge-Kutta with `substeps` steps per sample. The model has no
-damping; its elastic modes are undamped oscillations with eigenvalues `±iω` on the imaginary
+Scheme: classic 4th-order Runge-Kutta with `substeps` steps per sample. Without joint damping
+the elastic modes are undamped oscillations with eigenvalues `±iω` on the imaginary
 axis (ω up to ~2.6e3 rad/s for the Racer-7, `jaxrobot info` prints it). RK4's stability region
 covers the imaginary axis up to |hω| = 2.83, and its amplitude error per step is
 ~(hω)^6/144, so h = 0.1 ms (10 substeps at 1 ms, hω ≈ 0.26) keeps the modes stable and their
 amplitude exact to ~2e-6 per step, while the forced motion is integrated at 4th order. An
 implicit A-stable scheme (trapezoidal) would need a Newton solve of the 12-state system per
-step and damps nothing more here; it buys nothing for an undamped model at this step.
+step and damps nothing more here; it buys nothing for an undamped model at this step (damping moves
+the eigenvalues into the left half-plane, where the same steps stay stable).
+
+Dynamic effects of the robot (`Robot.motor_lag`, `Robot.damping`; None leaves the code above untouched):
+
+- Velocity-loop lag: `tau thetad_m + theta_m = theta_cmd` per motor, with the quintic command of an interval,
+  is solved exactly: `theta_m = theta_p + (theta_m(t_k) - theta_p(t_k)) exp(-(t - t_k)/tau)` with the particular
+  solution `theta_p = sum_j (-tau)^j theta_cmd^(j)` (j <= 5, the series ends for a quintic). It is smooth in
+  `tau` at 0 (`dtheta_m/dtau = -thetad_cmd` there), so a lag can be fitted from none. Its terms grow as
+  `(tau/h)^j` times the command's j-th difference and cancel against the decay, so rounding grows with
+  `tau/h` (tested to `tau = 3 h`).
+- Joint damping: the link receives `d (phid - qd)` besides `kappa(phi - q)`, `phid` the gear output's rate
+  along the motor rate `thetad_m` (at a fixed flank weight where `directional`).
 
 `directional=True` adds the flank of each gear as a state (docs/model.md (B.0)): the play operator runs
 along the motor angle at every stage point of the scheme, and the gear output is `flank_output` at its
@@ -20,6 +32,8 @@ flank weight. The weight moves only with motor travel (never with time or the si
 """
 
 from __future__ import annotations
+
+import math
 
 import jax
 import jax.numpy as jnp
@@ -32,20 +46,47 @@ from ._gear import flank_output, flank_weight, gear_output, play, play_start, re
 from ._robot import Robot
 from .measurement._model import rest_link_angles
 
+_HERMITE = np.array([
+    [1, 0, 0, -10, 15, -6], [0, 1, 0, -6, 8, -3], [0, 0, 0.5, -1.5, 1.5, -0.5],
+    [0, 0, 0, 10, -15, 6], [0, 0, 0, -4, 7, -3], [0, 0, 0, 0.5, -1, 0.5],
+])
+"""Quintic Hermite basis: row i holds the coefficients of `s^0..s^5` of the weight of knot i of
+`(p0, v0 h, a0 h^2, p1, v1 h, a1 h^2)` on the unit fraction `s`."""
+
+
+def _power_derivatives(s: np.ndarray, orders: int) -> np.ndarray:
+    """`d^j/ds^j s^k` at the fractions `s`: (len(s), orders, 6) for j < orders, k = 0..5."""
+    k, j = np.arange(6)[None, None], np.arange(orders)[None, :, None]
+    fall = np.array([[math.perm(kk, jj) for kk in range(6)] for jj in range(orders)], float)
+    return np.where(k >= j, fall * np.asarray(s, float)[:, None, None] ** np.maximum(k - j, 0), 0.0)
+
 
 def _hermite_weights(s: np.ndarray) -> np.ndarray:
     """Quintic Hermite basis (value, rate, acceleration at 0 and 1) at fractions `s`: (len(s), 6, 3).
 
     Returns weights `w[s, i, j]` for `(p0, v0 h, a0 h^2, p1, v1 h, a1 h^2)` and derivative
     order j = 0, 1, 2 (per unit fraction)."""
-    h = np.array([
-        [1, 0, 0, -10, 15, -6], [0, 1, 0, -6, 8, -3], [0, 0, 0.5, -1.5, 1.5, -0.5],
-        [0, 0, 0, 10, -15, 6], [0, 0, 0, -4, 7, -3], [0, 0, 0, 0.5, -1, 0.5],
-    ])  # coefficients of s^0..s^5
     powers = np.stack([s**k for k in range(6)], -1)
     d1 = np.stack([k * s ** max(k - 1, 0) for k in range(6)], -1)
     d2 = np.stack([k * (k - 1) * s ** max(k - 2, 0) for k in range(6)], -1)
-    return np.stack([powers @ h.T, d1 @ h.T, d2 @ h.T], -1)
+    return np.stack([powers @ _HERMITE.T, d1 @ _HERMITE.T, d2 @ _HERMITE.T], -1)
+
+
+def _lag_response(
+    knots: Float[Array, "6 n"], tau: Float[Array, " n"], m0: Float[Array, " n"], s: np.ndarray, h: Float[Array, ""]
+) -> tuple[Float[Array, "S n"], Float[Array, "S n"]]:
+    """Motor angles and rates at the fractions `s` (S,), `s[0] = 0`, of an interval of length `h` [s] with the
+    Hermite `knots` of its command, through the lags `tau` [s] from the motor angles `m0` at its start (module
+    docstring)."""
+    derivs = jnp.einsum("sjk,ik,in->sjn", _power_derivatives(s, 7), _HERMITE, knots)  # d^j/ds^j command, j <= 6
+    powers = (-tau / h)[None] ** np.arange(6)[:, None]  # (-tau/h)^j: (6, n)
+    theta_p = jnp.einsum("jn,sjn->sn", powers, derivs[:, :6])
+    thetad_p = jnp.einsum("jn,sjn->sn", powers, derivs[:, 1:]) / h
+    lagged = tau > 0
+    tau_safe = jnp.where(lagged, tau, 1.0)
+    decay = jnp.where(lagged, jnp.exp(-np.asarray(s, float)[:, None] * h / tau_safe), 0.0)
+    start = m0 - theta_p[0]
+    return theta_p + start * decay, thetad_p - jnp.where(lagged, start / tau_safe, 0.0) * decay
 
 
 def simulate(
@@ -60,11 +101,14 @@ def simulate(
     directional: bool = False,
     ccw0: bool | Bool[Array, " n"] = False,
     travel: Float[Array, " n"] | None = None,
-) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
+    motor_angles: bool = False,
+) -> tuple[Float[Array, "N n"], ...]:
     """Link angles and rates `(q, qd)` at the sample times `t` (uniform) for a commanded motor
     trajectory, integrated by RK4 with `substeps` steps per sample (see module docstring).
 
-    The start defaults to rest: `q0` = link angles held by `theta[0]` under gravity, `qd0 = 0`.
+    The start defaults to rest: `q0` = link angles held by `theta[0]` under gravity, `qd0 = 0`; lagging motors
+    (`robot.motor_lag`) start at `theta[0]`. With `motor_angles=True` the motor angles `theta_m` (N, n) at the
+    sample times (what the encoders report; the command where the robot has no lag) come third.
     `directional=True` gives each gear its flank state (the test bench's as-built robot): it starts at rest
     on flank `ccw0` (False: cw, per joint), crosses to the other flank over the motor travel `travel`
     (default `reversal_travel(robot)`) after a reversal and keeps its flank at rest; `q0` defaults to the
@@ -87,31 +131,40 @@ def simulate(
         q0 = rest_link_angles(robot, theta[0]) if q0 is None else q0
         p0 = jnp.zeros(n)
     qd0 = jnp.zeros(n) if qd0 is None else qd0
-    w = jnp.asarray(_hermite_weights(np.arange(2 * substeps + 1) / (2 * substeps)))  # (S, 6, 3)
+    stages = np.arange(2 * substeps + 1) / (2 * substeps)
+    w = jnp.asarray(_hermite_weights(stages))  # (S, 6, 3)
+    lag, damped = robot.motor_lag, robot.damping is not None
 
     def outputs(p, th_s):
-        """Gear outputs at the stage points `th_s` (S, n) and the play state after them."""
+        """The gear output as a function of the stage points' motor angles `th_s` (S, n) (at their flank weights
+        where `directional`), and the play state after them."""
         if not directional:
-            return gear_output(robot, th_s), p
+            return (lambda th: gear_output(robot, th)), p
 
         def advance(p, th):
             p = play(p, th, wt)
             return p, flank_weight(p, th, wt)
 
         p, sigma = jax.lax.scan(advance, p, th_s)
-        return flank_output(robot, th_s, sigma), p
+        return (lambda th: flank_output(robot, th, sigma)), p
 
     def interval(carry, k):
-        state, p = carry
+        state, p, m = carry
         knots = jnp.stack([theta[k], thetad[k] * h, thetadd[k] * h**2,
                            theta[k + 1], thetad[k + 1] * h, thetadd[k + 1] * h**2])  # (6 knots, n joints)
-        phi_s, p = outputs(p, jnp.einsum("si,ij->sj", w[..., 0], knots))
+        if lag is None:
+            th_s, thd_s = jnp.einsum("si,ij->sj", w[..., 0], knots), jnp.einsum("si,ij->sj", w[..., 1], knots) / h
+        else:
+            th_s, thd_s = _lag_response(knots, lag, m, stages, h)
+        output, p = outputs(p, th_s)
+        phi_s, phid_s = jax.jvp(output, (th_s,), (thd_s,)) if damped else (output(th_s), None)
         dt = h / substeps
 
         def step(j, state):
             q, qd = state
             i = 2 * j
-            f = lambda q, qd, m: (qd, link_acceleration(robot, q, qd, phi_s[i + m]))  # noqa: E731
+            f = lambda q, qd, m: (qd, link_acceleration(  # noqa: E731
+                robot, q, qd, phi_s[i + m], None if phid_s is None else phid_s[i + m]))
             k1 = f(q, qd, 0)
             k2 = f(q + 0.5 * dt * k1[0], qd + 0.5 * dt * k1[1], 1)
             k3 = f(q + 0.5 * dt * k2[0], qd + 0.5 * dt * k2[1], 1)
@@ -120,7 +173,8 @@ def simulate(
                     qd + dt / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]))
 
         state = jax.lax.fori_loop(0, substeps, step, state)
-        return (state, p), state
+        return (state, p, th_s[-1]), (state, th_s[-1])
 
-    _, (q, qd) = jax.lax.scan(interval, ((q0, qd0), p0), jnp.arange(t.shape[0] - 1))
-    return jnp.concatenate([q0[None], q]), jnp.concatenate([qd0[None], qd])
+    _, ((q, qd), m) = jax.lax.scan(interval, ((q0, qd0), p0, theta[0]), jnp.arange(t.shape[0] - 1))
+    out = jnp.concatenate([q0[None], q]), jnp.concatenate([qd0[None], qd])
+    return out + (jnp.concatenate([theta[:1], m]),) if motor_angles else out

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot.bench import NOT_CONVERGED, read_csv_columns
+from jaxrobot.bench import read_csv_columns, write_command_csv
 from jaxrobot.cli import Progress, SolveFailed, add_model_option, suggestion
 
 from . import _plots
@@ -193,18 +193,6 @@ def summary(result: PlanResult) -> dict:
     }
 
 
-def save_trajectory(path: Path, t, theta, thetad, thetadd, failed: str | None = None) -> None:
-    """CSV `t_s, theta1_deg..thetan_deg, thetad1_deg_s.., thetadd1_deg_s2..` of a motor trajectory;
-    `failed` (the status of a solve that did not converge) puts `jaxrobot.bench.NOT_CONVERGED` and it in a first
-    line, which the CSV readers refuse."""
-    joints = range(1, np.shape(theta)[-1] + 1)
-    header = (["t_s"] + [f"theta{i}_deg" for i in joints] + [f"thetad{i}_deg_s" for i in joints]
-              + [f"thetadd{i}_deg_s2" for i in joints])
-    header = ",".join(header) if failed is None else f"{NOT_CONVERGED}: {failed}\n" + ",".join(header)
-    data = np.column_stack([np.asarray(t)] + [np.degrees(np.asarray(a)) for a in (theta, thetad, thetadd)])
-    np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.12g")
-
-
 def task_title(name: str) -> str:
     """`line` -> `Line`, a task file's stem -> `Task 'stem'` (figure titles)."""
     return name.capitalize() if name in ("line", "spiral") else f"Task '{name}'"
@@ -252,7 +240,7 @@ def run(args, echo) -> dict:
     failed = None if result.converged else failure_report(robot, result.joint_path, result.solution, args.nu)
     if args.save_trajectory is not None:
         tr = result.trajectories["ocp"]
-        save_trajectory(args.save_trajectory, result.joint_path.t, tr.theta, tr.thetad, tr.thetadd, failed=failed)
+        write_command_csv(args.save_trajectory, result.joint_path.t, tr.theta, tr.thetad, tr.thetadd, failed=failed)
         echo(f"  motor trajectory written to {args.save_trajectory}{' (NOT CONVERGED)' if failed else ''}")
     if failed:
         raise SolveFailed(failed + (f"; trajectory written to {args.save_trajectory}, marked as not converged"
@@ -275,7 +263,7 @@ def demo_stage(out: Path, echo) -> dict:
     result = plan(robot, robot, reference_path("line"), 1e-14, "thesis", echo, timing=False)
     write_plots(result, out, "planning_line")
     tr = result.trajectories["ocp"]
-    save_trajectory(out / "planning_line_motor.csv", result.joint_path.t, tr.theta, tr.thetad, tr.thetadd)
+    write_command_csv(out / "planning_line_motor.csv", result.joint_path.t, tr.theta, tr.thetad, tr.thetadd)
     calibrated = bench_calibration().result.robot
     echo("line, nu = 1e-14, planned on the calibrated model, evaluated on the as-built robot (gear flanks as states)")
     bench = plan(calibrated, jr.racer7(as_built=True), reference_path("line"), 1e-14, "thesis", echo, timing=False,

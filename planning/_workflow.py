@@ -189,6 +189,11 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
         if rigid:
             raise ValueError(f"{name}: planning needs elastic joints ([stiffness] k1 finite), found rigid joints "
                              f"{rigid} (k1 = inf); identify the stiffness first (e.g. jaxrobot diagnose)")
+    effects = [f for f, v in (("[motors] velocity_lag_s", robot.motor_lag), ("[stiffness] damping", robot.damping))
+               if v is not None]
+    if effects:  # the plant (jr.simulate) has them, the OCP's model (eq. 4.1) not yet
+        raise ValueError(f"model: the planning model has no velocity-loop lag or joint damping yet; found "
+                         f"{', '.join(effects)} in the robot to plan on (give them to the plant, or plan without them)")
     emit = on_event or (lambda event: None)
     start = time.perf_counter()
     jp = joint_path(robot, path, q_init)

@@ -1,4 +1,5 @@
-"""Finding the effect that explains a gap between model and measurement (`diagnose`, the effect catalogue)."""
+"""Finding the effect that explains a gap between model and measurement (`diagnose`, the effect catalogue), and
+between the model and trajectory runs (`compare_run`, `diagnose_runs`)."""
 
 from jaxrobot.checks import check_public as _check_public
 
@@ -16,5 +17,12 @@ from ._effects import Layout as Layout
 from ._effects import catalogue as catalogue
 from ._report import progress_lines as progress_lines
 from ._report import summary as summary
+from ._runs import RunComparison as RunComparison
+from ._runs import RunDiagnosis as RunDiagnosis
+from ._runs import RunEffect as RunEffect
+from ._runs import RunEstimate as RunEstimate
+from ._runs import RunStep as RunStep
+from ._runs import compare_run as compare_run
+from ._runs import diagnose_runs as diagnose_runs
 
 _check_public(globals())

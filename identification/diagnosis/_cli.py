@@ -1,8 +1,11 @@
 """`jaxrobot diagnose --model START.toml TRAIN.csv… --validate VAL.csv…`: find the effects the
-model misses (compare, locate, name, add, repeat), with tables, plots and `--save-model`."""
+model misses (compare, locate, name, add, repeat), with tables, plots and `--save-model`; with `--runs RUN.csv…
+--commands CMD.csv… --validate-runs … --validate-commands …` the dynamic effects that trajectory runs show
+(`_runs.diagnose_runs`)."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -10,25 +13,56 @@ import numpy as np
 from .._pose_files import add_approach_option
 from .._robust import add_loss_option
 
-HELP = "find where model and pose measurements disagree, name the missing effect, add it, repeat"
+HELP = "find where model and pose measurements (or trajectory runs) disagree, name the missing effect, add it, repeat"
 EXAMPLE = "jaxrobot diagnose --model start.toml train.csv --validate val.csv --out diagnose --save-model fixed.toml"
 
 
 def configure(parser) -> None:
-    parser.add_argument("poses", type=Path, nargs="+", help="training pose CSV files (README, 'Measurement files')")
-    parser.add_argument("--validate", type=Path, nargs="+", required=True, help="held-out validation pose CSV files")
+    parser.add_argument("poses", type=Path, nargs="*", help="training pose CSV files (README, 'Measurement files')")
+    parser.add_argument("--validate", type=Path, nargs="+", default=None, help="held-out validation pose CSV files")
+    parser.add_argument("--runs", type=Path, nargs="+", default=None, metavar="RUN.csv",
+                        help="training trajectory runs (t_s, theta1_deg …, x_m, y_m, z_m) instead of poses")
+    parser.add_argument("--commands", type=Path, nargs="+", default=None, metavar="CMD.csv",
+                        help="the motor commands of --runs, one per run in the same order (plan --save-trajectory)")
+    parser.add_argument("--validate-runs", type=Path, nargs="+", default=None, metavar="RUN.csv",
+                        help="held-out validation runs")
+    parser.add_argument("--validate-commands", type=Path, nargs="+", default=None, metavar="CMD.csv",
+                        help="the motor commands of --validate-runs")
     from jaxrobot.cli import add_model_option
 
     add_model_option(parser, "start robot description (default: the embedded Racer-7, nominal)")
     parser.add_argument("--save-model", type=Path, default=None, help="write the augmented robot (TOML)")
-    parser.add_argument("--noise-um", type=float, default=None,
-                        help="tracker noise std per axis in um (default: the robot file's [sensors])")
-    parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
-                        help="marker offset in m in the tool frame (the flange without [tool]; default: [sensors])")
+    add_tracker_options(parser)
     parser.add_argument("--max-steps", type=int, default=6, help="most effects to add (default 6)")
     add_approach_option(parser)
     add_loss_option(parser)
     parser.add_argument("--max-order", type=int, default=400, help="highest ripple order searched (default 400)")
+
+
+def add_tracker_options(parser) -> None:
+    """`--noise-um` and `--marker` of the commands that compare tracker positions with the model."""
+    parser.add_argument("--noise-um", type=float, default=None,
+                        help="tracker noise std per axis in um (default: the robot file's [sensors])")
+    parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                        help="marker offset in m in the tool frame (the flange without [tool]; default: [sensors])")
+
+
+def tracker_of(args):
+    """The start robot, marker offset [m] and tracker noise (std [m] or a `TrackerNoise`) of the options: the
+    robot file's `[sensors]` where `--marker`, `--noise-um` are not given (None: the embedded robot's)."""
+    import jaxrobot as jr
+
+    from .._noise import TrackerNoise
+
+    if args.noise_um is not None and not args.noise_um > 0:
+        raise ValueError(f"--noise-um: expected the tracker std per axis > 0 um, found {args.noise_um}")
+    robot = jr.racer7() if args.model is None else jr.load_robot(args.model)
+    marker, noise = args.marker, None if args.noise_um is None else 1e-6 * args.noise_um
+    if args.model is not None:
+        sensors = jr.read_description(args.model).get("sensors", {})
+        marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
+        noise = (TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")) if noise is None else noise
+    return robot, marker, noise
 
 
 def _poses(paths, approach: str):
@@ -45,24 +79,72 @@ def _poses(paths, approach: str):
     return Poses.concatenate([Poses.of(d.motor_angles, d.positions, "column", d.ccw) for d in data]), lines, times
 
 
+def _run_pairs(runs, commands, option: str) -> list:
+    """(command, run) pairs of the files of `--runs`/`--commands` (or their `--validate-` forms)."""
+    from jaxrobot.bench import read_command_csv, read_trajectory_csv
+
+    if commands is None or len(commands) != len(runs):
+        raise ValueError(f"--{option}commands: expected one command file per file of --{option}runs ({len(runs)}), "
+                         f"found {0 if commands is None else len(commands)}")
+    return [(read_command_csv(c), read_trajectory_csv(r)) for c, r in zip(commands, runs)]
+
+
+def _diagnose_runs(args, echo) -> dict:
+    """`diagnose --runs`: the dynamic effects of `_runs.diagnose_runs`."""
+    import jaxrobot as jr
+
+    from ._runs import diagnose_runs
+
+    if args.poses or args.validate:
+        raise ValueError("--runs with pose files: not supported yet; diagnose the runs and the poses separately")
+    if args.validate_runs is None:
+        raise ValueError("--validate-runs: required with --runs (held-out runs, with --validate-commands)")
+    train = _run_pairs(args.runs, args.commands, "")
+    val = _run_pairs(args.validate_runs, args.validate_commands, "validate-")
+    robot, marker, noise = tracker_of(args)
+    sensors = jr.read_description(args.model).get("sensors", {}) if args.model is not None else {}
+    embedded = jr.read_description(None)["sensors"]
+    marker = embedded["tracker_marker_offset_m"] if marker is None else marker
+    noise = embedded["tracker_position_noise_m"] if noise is None else noise
+    counts = sensors.get("encoder_counts_per_rev")
+    echo(f"diagnose: {len(train)} training and {len(val)} validation runs, start model {robot.name}")
+
+    def progress(row) -> None:
+        echo(f"step {row.step}: {row.effect:<34} chi2/dof {row.chi2 / row.dof:.4f} (p = {row.p_value:.3g}), BIC "
+             f"{row.bic:.1f}, validation chi2/dof {row.chi2_validation / sum(3 * len(p[1][0]) for p in val):.4f}")
+
+    res = diagnose_runs(robot, train, val, marker, noise, max_steps=args.max_steps,
+                        encoder_quantum=0.0 if counts is None else 2 * np.pi / counts, progress=progress)
+    echo(f"verdict: {res.verdict}")
+    effects = []
+    for e in res.estimates:
+        unit = {"lag": "s", "damping": "N m s/rad", "stiffness": "x k1, k3"}[e.effect.kind]
+        echo(f"  {e.effect.label}: {e.value:.6g} +- {e.std:.2g} {unit}")
+        effects.append({"effect": e.effect.label, "kind": e.effect.kind, "joint": e.effect.joint + 1,
+                        "value": e.value, "std": e.std})
+    if args.save_model is not None:
+        jr.save_robot(res.robot, args.save_model, keep=jr.read_description(args.model) if args.model else None)
+        echo(f"wrote {args.save_model}")
+    return {"verdict": res.verdict, "effects": effects,
+            "steps": [dataclasses.asdict(s) for s in res.steps]}
+
+
 def run(args, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot.cli import Progress
 
-    from .._noise import TrackerNoise
     from ._diagnose import diagnose
     from ._report import loop_table, progress_lines, summary, write_outputs
 
     if args.max_steps < 0 or args.max_order < 1:
         raise ValueError(f"--max-steps >= 0 and --max-order >= 1 expected, found {args.max_steps}, {args.max_order}")
-    if args.noise_um is not None and not args.noise_um > 0:
-        raise ValueError(f"--noise-um: expected the tracker std per axis > 0 um, found {args.noise_um}")
-    robot = jr.racer7() if args.model is None else jr.load_robot(args.model)
-    marker, noise = args.marker, None if args.noise_um is None else 1e-6 * args.noise_um
-    if args.model is not None:
-        sensors = jr.read_description(args.model).get("sensors", {})
-        marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
-        noise = (TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")) if noise is None else noise
+    if args.runs is not None:
+        return _diagnose_runs(args, echo)
+    if not args.poses or not args.validate:
+        raise ValueError("diagnose: expected training pose files and --validate pose files (or --runs with "
+                         f"--commands, --validate-runs, --validate-commands), found {len(args.poses)} pose files and "
+                         f"{0 if args.validate is None else len(args.validate)} validation files")
+    robot, marker, noise = tracker_of(args)
     (train, lines, times), (val, _, _) = _poses(args.poses, args.approach), _poses(args.validate, args.approach)
     echo(f"diagnose: {len(train)} training and {len(val)} validation poses, start model {robot.name}")
     steps = Progress(args.max_steps + 1, "diagnose", at_most=True)

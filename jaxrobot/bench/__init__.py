@@ -17,9 +17,12 @@ from ._poses import measure_poses as measure_poses
 from ._poses import read_pose_csv as read_pose_csv
 from ._poses import write_pose_csv as write_pose_csv
 from ._trajectory import NOT_CONVERGED as NOT_CONVERGED
+from ._trajectory import command_columns as command_columns
+from ._trajectory import read_command_csv as read_command_csv
 from ._trajectory import read_csv_columns as read_csv_columns
 from ._trajectory import read_trajectory_csv as read_trajectory_csv
 from ._trajectory import trajectory_run as trajectory_run
+from ._trajectory import write_command_csv as write_command_csv
 from ._trajectory import write_trajectory_csv as write_trajectory_csv
 
 _check_public(globals())

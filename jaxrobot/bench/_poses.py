@@ -26,7 +26,7 @@ from .._robot import Robot
 from .._rotations import rotation_to_quaternion, rotvec_to_rotation
 from .._status import require_successful
 from ..measurement._model import measured_pose
-from ._trajectory import file_joint_count, read_csv_columns, theta_columns
+from ._trajectory import file_joint_count, read_csv_columns, theta_columns, trajectory_run_step
 
 ORIENTATION_NOISE_RAD = float(np.deg2rad(0.05))
 """Default std per axis of the tracker's orientation error [rad]: the 0.05 deg camera
@@ -222,11 +222,17 @@ def read_pose_csv(path: str | Path, *, reject_nan: bool = True) -> PoseFile:
     """Read a pose file (README, "Measurement files"); extra columns are ignored.
 
     Raises `ValueError` naming missing columns, non-numeric cells and NaN rows (`read_csv_columns`;
-    `reject_nan=False`: NaN where cells are empty or `nan`).
+    `reject_nan=False`: NaN where cells are empty or `nan`), and for a trajectory run
+    (`trajectory_run_step`), which is evidence of the motion, never a set of poses.
     """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"pose file {path} does not exist")
+    step = trajectory_run_step(path)
+    if step is not None:
+        raise ValueError(f"{path}: a trajectory run (t_s in equal steps of {1e3 * step:g} ms: a moving robot sampled "
+                         "by the tracker), not static poses; give it as a run with its command: `jaxrobot diagnose "
+                         "--runs RUN.csv --commands CMD.csv` or `jaxrobot compare --run RUN.csv --command CMD.csv`")
     thetas = theta_columns(file_joint_count(path))
     cols = read_csv_columns(path, [*thetas, *POSITION_COLUMNS], list(QUAT_COLUMNS), reject_nan=reject_nan)
     quat = np.column_stack([cols[c] for c in QUAT_COLUMNS]) if QUAT_COLUMNS[0] in cols else None

@@ -1,6 +1,7 @@
 """Virtual test bench, trajectory runs (README, "Measurement files"): the motor follows a commanded `theta(t)`
 exactly, the elastic model of the as-built robot is integrated finely, and the optical tracker
-reports the marker position along the path with Gaussian noise."""
+reports the marker position along the path with Gaussian noise. Also the command files that `jaxrobot plan
+--save-trajectory` writes (`write_command_csv`, `read_command_csv`)."""
 
 from __future__ import annotations
 
@@ -112,6 +113,63 @@ def read_csv_columns(
         raise ValueError(f"{path}: NaN or empty cells in line(s) {lines[:20]}{' …' if len(lines) > 20 else ''} "
                          f"(data row k is line k + 1); remove or re-measure these rows")
     return {c: data[:, i] for i, c in enumerate(wanted)}
+
+
+RUN_MAX_STEP_S = 0.1
+"""A file whose `t_s` advances in equal steps shorter than this [s] is a trajectory run, not static poses: a pose
+is measured with the robot at rest, which it does not reach again within this time after a move."""
+
+
+def trajectory_run_step(path: str | Path) -> float | None:
+    """The sample time [s] of `path` if it is a trajectory run (`t_s` in equal steps below `RUN_MAX_STEP_S`,
+    at least 3 rows), else None."""
+    t = read_csv_columns(path, [], ["t_s"], reject_nan=False).get("t_s")
+    if t is None or len(t) < 3 or not np.all(np.isfinite(t)):
+        return None
+    step = np.diff(t)
+    uniform = np.all(step > 0) and np.ptp(step) <= 1e-6 * np.mean(step)
+    return float(np.mean(step)) if uniform and np.mean(step) < RUN_MAX_STEP_S else None
+
+
+def command_columns(n: int) -> list[str]:
+    """Columns of a command file of an `n`-joint robot: `t_s`, motor angles [deg], rates [deg/s] and
+    accelerations [deg/s^2]."""
+    joints = range(1, n + 1)
+    return (["t_s", *theta_columns(n)] + [f"thetad{i}_deg_s" for i in joints]
+            + [f"thetadd{i}_deg_s2" for i in joints])
+
+
+def write_command_csv(path: str | Path, t, theta, thetad, thetadd, failed: str | None = None) -> None:
+    """Write a motor command (the trajectory `jaxrobot plan --save-trajectory` saves): `command_columns`;
+    `failed` (the status of a solve that did not converge) puts `NOT_CONVERGED` and it in a first line, which
+    the readers refuse."""
+    header = ",".join(command_columns(np.shape(theta)[-1]))
+    header = header if failed is None else f"{NOT_CONVERGED}: {failed}\n" + header
+    data = np.column_stack([np.asarray(t)] + [np.degrees(np.asarray(a)) for a in (theta, thetad, thetadd)])
+    np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.12g")
+
+
+def read_command_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Read a motor command: times [s] (N,) on a uniform grid, motor angles [rad], rates [rad/s] and
+    accelerations [rad/s^2] (N, n). Raises naming the file for a trajectory run (no rate columns), a
+    non-uniform time step or fewer than 2 samples."""
+    n = file_joint_count(path)
+    columns = command_columns(n)
+    with Path(path).open(newline="") as f:
+        header = {h.strip() for h in next(csv.reader(f), [])}
+    if {"x_m", "y_m", "z_m"} <= header and not set(columns) <= header:
+        raise ValueError(f"{path}: a trajectory run (columns x_m, y_m, z_m: the tracker's positions), not a motor "
+                         f"command; a command has the columns {columns[:2] + ['…'] + columns[-1:]}, as "
+                         "`jaxrobot plan --save-trajectory` writes them")
+    cols = read_csv_columns(path, columns, min_rows=2)
+    t = cols["t_s"]
+    step = np.diff(t)
+    if np.any(step <= 0) or np.ptp(step) > 1e-9 * np.max(np.abs(t)) + 1e-12:
+        raise ValueError(f"{path}: t_s must increase in equal steps (the command is a sampled trajectory); found "
+                         f"steps from {step.min():g} to {step.max():g} s")
+    theta, thetad, thetadd = (np.deg2rad(np.column_stack([cols[c] for c in columns[1 + k * n:1 + (k + 1) * n]]))
+                              for k in range(3))
+    return t, theta, thetad, thetadd
 
 
 def read_trajectory_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

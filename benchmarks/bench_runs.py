@@ -1,0 +1,73 @@
+"""Trajectory runs as evidence: `compare_run` on the independent runs of ../shared/independent/trajectories and its
+time per run, and optionally `diagnose_runs` on the lag case's four runs shortened to `--diagnose-samples`.
+
+`python benchmarks/bench_runs.py [--shared ../shared] [--diagnose-samples N] [--out benchmarks/results_runs.md]`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import subprocess
+import time
+from pathlib import Path
+
+import jax
+from _timing import timed
+
+import jaxrobot as jr
+import jaxrobot.bench as jb
+from identification.diagnosis._runs import compare_run, diagnose_runs
+
+CASES = ("p0_clean", "p1_joint1_damping", "p2_motor_lag_j123", "p3_joint3_stiffness")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--shared", type=Path, default=Path(__file__).resolve().parents[2] / "shared")
+    parser.add_argument("--diagnose-samples", type=int, default=0, help="also time diagnose_runs (0: no)")
+    parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results_runs.md"))
+    args = parser.parse_args()
+    root = args.shared / "independent" / "trajectories"
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    lines = ["# Trajectory runs against the model (`jaxrobot compare`, `diagnose --runs`)", "",
+             f"`python benchmarks/bench_runs.py --diagnose-samples {args.diagnose_samples}` at commit {commit}. "
+             f"Machine: {platform.machine()}, {jax.device_count()} device(s), JAX {jax.__version__}, backend "
+             f"{jax.default_backend()}; the runs of ../shared/independent/trajectories (3001 samples at 1 kHz).", "",
+             "`compare_run` of each case's `start.toml` with its runs: chi-square per degree of freedom (9003) and "
+             "p-value; time of the first call (compile + run) and of a second call.", "",
+             "| case | run | chi2/dof | p | first call [s] | second call [s] |", "|---|---|---|---|---|---|"]
+    for case in CASES:
+        folder = root / case
+        sensors = jr.read_description(folder / "start.toml")["sensors"]
+        marker, noise = sensors["tracker_marker_offset_m"], sensors["tracker_position_noise_m"]
+        robot = jr.load_robot(folder / "start.toml")
+        for file, info in json.loads((folder / "truth.json").read_text())["runs"].items():
+            command, run = jb.read_command_csv(folder / info["command"]), jb.read_trajectory_csv(folder / file)
+            c, first, best = timed(lambda: compare_run(robot, command, run, marker, noise))  # noqa: B023
+            lines.append(f"| {case} | {file} | {c.chi2 / c.dof:.4f} | {c.p_value:.3g} | {first:.2f} | {best:.2f} |")
+    if args.diagnose_samples:
+        folder = root / "p2_motor_lag_j123"
+        sensors = jr.read_description(folder / "start.toml")["sensors"]
+
+        def pair(name):
+            run = jb.read_trajectory_csv(folder / f"run_{name}.csv")
+            return (jb.read_command_csv(folder / f"command_{name}.csv"),
+                    tuple(a[:args.diagnose_samples] for a in run))
+
+        start = time.perf_counter()
+        res = diagnose_runs(jr.load_robot(folder / "start.toml"), [pair("line_nu1e-14"), pair("spiral_nu1e-14")],
+                            [pair("line_nu1e-10"), pair("spiral_nu1e-10")], sensors["tracker_marker_offset_m"],
+                            sensors["tracker_position_noise_m"])
+        elapsed = time.perf_counter() - start
+        lines += ["", f"`diagnose_runs` on the lag case, 2 training + 2 validation runs of {args.diagnose_samples} "
+                  f"samples: {elapsed:.0f} s (compiles included); {res.verdict}", "",
+                  "| effect | value | std |", "|---|---|---|"]
+        lines += [f"| {e.effect.label} | {e.value:.6g} | {e.std:.2g} |" for e in res.estimates]
+    args.out.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,413 @@
+"""Trajectory runs as evidence of the dynamics: simulate a motor command on the model and set the tracker's
+positions along the run against it, in units of the tracker noise (`jaxrobot compare`).
+
+Conventions of a run and its command (README, "Measurement files"; explicit here):
+
+- the run's `t_s` are the command's sample times: the same start and step (the tracker samples with the command);
+- after the command's last sample the robot holds its last angle (the command must end at rest to be held);
+- the robot starts at rest at the first command (`jr.simulate`'s default start);
+- the encoder columns of the run are the motor angles (with a velocity-loop lag they differ from the command:
+  `RunComparison.encoder_deviation`);
+- the tracker's noise is independent per sample and axis, the std of the robot file's `[sensors]` (or a laser
+  tracker's model), the marker in the tool frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxrobot as jr
+from jaxrobot.measurement import marker_pose
+
+from .._noise import noise_model
+from ._diagnose import ALPHA, MIN_BIC_GAIN, _p_value
+
+STEP_TOLERANCE = 1e-6
+"""Relative agreement of the run's and the command's sample times (the files keep 12 digits)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunComparison:
+    """A trajectory run against the model's simulation of its command (`compare_run`)."""
+
+    t: np.ndarray
+    """(N,) [s] the run's sample times."""
+    predicted: np.ndarray
+    """(N, 3) [m] the marker positions of the simulated model."""
+    measured: np.ndarray
+    """(N, 3) [m] the tracker's marker positions."""
+    residual: np.ndarray
+    """(N, 3) [m] `measured - predicted`, whitened by the tracker's noise model (isotropic: as measured)."""
+    sigma: float
+    """[m] the tracker's noise std per axis (the isotropic equivalent of a laser tracker's)."""
+    chi2: float
+    """`sum residual^2 / sigma^2`: chi-square with `dof` degrees of freedom if the model is right."""
+    dof: int
+    """`3 N`: no parameter is fitted."""
+    p_value: float
+    """Probability of a chi-square with `dof` exceeding `chi2`; consistent above `ALPHA`."""
+    encoder_deviation: np.ndarray
+    """(n,) [rad] the largest difference per motor between the run's encoders and the model's motor angles."""
+    command_end: float
+    """[s] the time of the command's last sample (after it the last angle is held)."""
+
+    @property
+    def consistent(self) -> bool:
+        """Whether the run agrees with the model within the tracker noise (the chi-square test at `ALPHA`)."""
+        return self.p_value > ALPHA
+
+    @property
+    def sigmas(self) -> np.ndarray:
+        """(N,) the residual's norm per sample in units of `sigma` (about sqrt(3) for pure noise)."""
+        return np.linalg.norm(self.residual, axis=1) / self.sigma
+
+    @property
+    def verdict(self) -> str:
+        """The verdict in words."""
+        rms = 1e6 * float(np.sqrt(np.mean(np.sum(self.residual**2, 1))))
+        floor = 1e6 * self.sigma * np.sqrt(3.0)
+        text = (f"chi-square {self.chi2:.6g} for {self.dof} degrees of freedom (p = {self.p_value:.3g}); RMS residual "
+                f"{rms:.2f} um against the noise floor {floor:.2f} um")
+        if self.consistent:
+            return "consistent: the model explains the run to the tracker noise; " + text
+        worst = int(np.argmax(self.sigmas))
+        return (f"not consistent: the run departs from the model beyond the tracker noise ({text}); the largest "
+                f"departure {self.sigmas[worst]:.1f} sigma at t = {self.t[worst]:.3f} s")
+
+
+def extend_command(command, t_run: np.ndarray, where: str = "run") -> tuple[np.ndarray, ...]:
+    """The command `(t, theta, thetad, thetadd)` on the run's times `t_run`: the same start and step, the last
+    angle held after the command ends (at rest). Raises naming `where` otherwise."""
+    t, theta, thetad, thetadd = (np.asarray(a, float) for a in command)
+    step = t[1] - t[0]
+    n_run = len(t_run)
+    if n_run < 2 or abs(t_run[0] - t[0]) > STEP_TOLERANCE * step or \
+            np.max(np.abs(np.diff(t_run) - step)) > STEP_TOLERANCE * step:
+        raise ValueError(f"{where}: expected t_s from the command's start {t[0]:g} s in its steps of {step:g} s "
+                         f"(the tracker samples with the command), found {n_run} samples from {t_run[0]:g} s in "
+                         f"steps of {np.min(np.diff(t_run)) if n_run > 1 else float('nan'):g} to "
+                         f"{np.max(np.diff(t_run)) if n_run > 1 else float('nan'):g} s")
+    extra = n_run - len(t)
+    if extra <= 0:
+        return t_run, theta[:n_run], thetad[:n_run], thetadd[:n_run]
+    if np.any(thetad[-1] != 0) or np.any(thetadd[-1] != 0):
+        raise ValueError(f"{where}: runs {extra} samples past the command, which does not end at rest (last rates "
+                         f"{thetad[-1].tolist()} rad/s, accelerations {thetadd[-1].tolist()} rad/s^2) to be held")
+    zeros = np.zeros((extra, theta.shape[1]))
+    return (t_run, np.concatenate([theta, np.repeat(theta[-1:], extra, 0)]), np.concatenate([thetad, zeros]),
+            np.concatenate([thetadd, zeros]))
+
+
+@jax.jit
+def _simulated(robot: jr.Robot, t, theta, thetad, thetadd, marker):
+    q, _, motors = jr.simulate(robot, t, theta, thetad, thetadd, motor_angles=True)
+    return marker_pose(robot, q, marker)[0], motors
+
+
+def compare_run(robot: jr.Robot, command, run, marker, noise) -> RunComparison:
+    """Simulate `command` `(t, theta, thetad, thetadd)` (`jaxrobot.bench.read_command_csv`) on `robot` and compare
+    the marker's positions with the `run` `(t, theta, positions)` (`jaxrobot.bench.read_trajectory_csv`).
+
+    `marker` (3,) [m] in the tool frame; `noise`: the tracker's std per axis [m] or a `TrackerNoise`. Conventions:
+    the module docstring."""
+    t_run, encoders, measured = (np.asarray(a, float) for a in run)
+    n = robot.n_joints
+    if encoders.shape[1:] != (n,) or np.shape(command[1])[1:] != (n,):
+        raise ValueError(f"run, command: expected motor angles (N, {n}) of the {n}-joint robot, found "
+                         f"{encoders.shape} in the run and {np.shape(command[1])} in the command")
+    cmd = extend_command(command, t_run)
+    predicted, motors = (np.asarray(a) for a in _simulated(robot, *(jnp.asarray(a) for a in cmd),
+                                                            jnp.asarray(marker, float)))
+    sigma, white = noise_model(noise, measured, "noise")
+    residual = measured - predicted
+    if white is not None:
+        residual = np.einsum("kij,kj->ki", white, residual)
+    chi2 = float(np.sum(residual**2) / sigma**2)
+    dof = residual.size
+    return RunComparison(t_run, predicted, measured, residual, sigma, chi2, dof, _p_value(chi2, dof),
+                         np.max(np.abs(encoders - motors), 0), float(command[0][-1]))
+
+
+# ------------------------------------------------------------------ naming dynamic effects from runs
+
+RUN_KINDS = {"lag": (1e-3, "s"), "damping": (10.0, "N m s/rad"), "stiffness": (1e-2, "")}
+"""The dynamic effects a run can name, one parameter per joint, with the scale of its fit variable and the unit of
+its value: `lag` the velocity-loop time constant of a motor (`Robot.motor_lag`), `damping` the viscous damping of
+a joint spring (`Robot.damping`), `stiffness` the factor on the joint's `k1` and `k3` (the value reported; the fit
+varies the compliance `c = 1/k1` by `1 + x/100`)."""
+SCREENED = 3
+"""Candidates per step fitted in full: those with the largest linearised chi-square decrease."""
+ENCODER_LAG_RAD = 1e-6
+"""Least departure [rad] of a motor's encoder from the model's motor angle that makes a lag of that motor a
+candidate (above the files' rounding, 12 digits, ~1e-10 rad; and at least two encoder counts where `[sensors]
+encoder_counts_per_rev` states them): the encoders report the motor angle, so a lag shows there first."""
+LM_STEPS = 30
+"""Most Levenberg-Marquardt iterations of a fit."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunEffect:
+    """A dynamic effect of one joint that runs can show (`RUN_KINDS`)."""
+
+    kind: str
+    """`lag`, `damping` or `stiffness`."""
+    joint: int
+    """0-based joint (motor) index."""
+
+    @property
+    def label(self) -> str:
+        """The effect in words."""
+        what = {"lag": "velocity-loop lag, motor", "damping": "joint damping, joint",
+                "stiffness": "stiffness (k1, k3), joint"}[self.kind]
+        return f"{what} {self.joint + 1}"
+
+
+@dataclasses.dataclass(frozen=True)
+class RunEstimate:
+    """The fitted value of an added effect with its standard deviation."""
+
+    effect: RunEffect
+    """The effect."""
+    value: float
+    """The value in the unit of `RUN_KINDS` (for `stiffness`: the factor on `k1` and `k3`)."""
+    std: float
+    """Its standard deviation from the fit's covariance (linearised, noise as stated)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunStep:
+    """One model of the loop compared with the runs."""
+
+    step: int
+    """0 for the start model, then one per added effect."""
+    effect: str
+    """What this step added (the start model: "start")."""
+    chi2: float
+    """Chi-square of the training runs."""
+    dof: int
+    """Its degrees of freedom: residuals minus fitted parameters."""
+    p_value: float
+    """Probability of a chi-square with `dof` exceeding `chi2`; the test passes above `ALPHA`."""
+    bic: float
+    """`chi2 + m ln(residuals)`."""
+    chi2_validation: float
+    """Chi-square of the validation runs (their degrees of freedom: `3 N` of them, nothing fitted)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunDiagnosis:
+    """What `diagnose_runs` found."""
+
+    robot: jr.Robot
+    """The start robot with the added effects (a field the start lacked and no effect filled stays None)."""
+    steps: list[RunStep]
+    """The loop, one row per model compared."""
+    estimates: list[RunEstimate]
+    """The added effects with their fitted values at the final model."""
+    verdict: str
+    """The outcome in words."""
+
+
+def _with_effects(robot: jr.Robot, z):
+    """`robot` (with lag and damping arrays) moved by the scaled effect variables `z` (3n,): lag, damping, stiffness."""
+    n = robot.n_joints
+    return dataclasses.replace(robot, motor_lag=robot.motor_lag + RUN_KINDS["lag"][0] * z[:n],
+                               damping=robot.damping + RUN_KINDS["damping"][0] * z[n:2 * n],
+                               c=robot.c * (1.0 + RUN_KINDS["stiffness"][0] * z[2 * n:]))
+
+
+def _whitened(robot, z, cmd, white, measured, sigma, marker, substeps):
+    q, _ = jr.simulate(_with_effects(robot, z), *cmd, substeps=substeps)
+    return (jnp.einsum("kij,kj->ki", white, measured - marker_pose(_with_effects(robot, z), q, marker)[0])
+            / sigma).ravel()
+
+
+@functools.partial(jax.jit, static_argnames="substeps")
+def _residual(robot, z, cmd, white, measured, sigma, marker, substeps):
+    return _whitened(robot, z, cmd, white, measured, sigma, marker, substeps)
+
+
+@functools.partial(jax.jit, static_argnames="substeps")
+def _columns(robot, z, tangents, cmd, white, measured, sigma, marker, substeps):
+    """Residual (3N,) and its derivatives (3N, m) along the `tangents` (3n, m) of the effect variables."""
+    f = lambda z: _whitened(robot, z, cmd, white, measured, sigma, marker, substeps)  # noqa: E731
+    r = f(z)
+    return r, jax.vmap(lambda t: jax.jvp(f, (z,), (t,))[1], in_axes=1, out_axes=1)(tangents)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Run:
+    """A run prepared for the fits: the command on its times, whitening (N, 3, 3), positions, encoders."""
+
+    command: tuple
+    white: jax.Array
+    measured: jax.Array
+    encoders: np.ndarray
+
+
+def _prepare(pairs, noise, where: str) -> tuple[list[_Run], float]:
+    runs, sigma = [], None
+    for k, (command, run) in enumerate(pairs):
+        t, encoders, measured = (np.asarray(a, float) for a in run)
+        cmd = extend_command(command, t, f"{where}[{k}]")
+        sigma, white = noise_model(noise, measured, "noise")
+        white = np.broadcast_to(np.eye(3), (len(t), 3, 3)) if white is None else white
+        runs.append(_Run(tuple(jnp.asarray(a) for a in cmd), jnp.asarray(white), jnp.asarray(measured), encoders))
+    if not runs:
+        raise ValueError(f"{where}: expected at least one (command, run) pair, found none")
+    return runs, sigma
+
+
+def _evaluate(robot, z, runs, sigma, marker, substeps, tangents=None):
+    """Stacked whitened residuals of `runs` at `z`, and their columns along `tangents` (3n, m) if given."""
+    if tangents is None:
+        return np.concatenate([np.asarray(_residual(robot, z, r.command, r.white, r.measured, sigma, marker,
+                                                    substeps)) for r in runs]), None
+    out = [_columns(robot, z, tangents, r.command, r.white, r.measured, sigma, marker, substeps) for r in runs]
+    return np.concatenate([np.asarray(o[0]) for o in out]), np.concatenate([np.asarray(o[1]) for o in out])
+
+
+def _index(effect: RunEffect, n: int) -> int:
+    return list(RUN_KINDS).index(effect.kind) * n + effect.joint
+
+
+def _fit(robot, z0, effects, runs, sigma, marker, substeps):
+    """Levenberg-Marquardt on the variables of `effects` from `z0`: (z, chi2, std of the variables) or None where
+    the fit leaves the physical range (a negative lag or damping) or fails to lower the chi-square."""
+    n = robot.n_joints
+    idx = np.array([_index(e, n) for e in effects])
+    tangents = jnp.asarray(np.eye(3 * n)[:, idx])
+    z = jnp.asarray(z0)
+    r, jac = _evaluate(robot, z, runs, sigma, marker, substeps, tangents)
+    chi2, start, lam = float(r @ r), float(r @ r), 1e-3
+    for _ in range(LM_STEPS):
+        a, g = jac.T @ jac, jac.T @ r
+        step = np.linalg.solve(a + lam * np.diag(np.diag(a)), -g)
+        z_try = z.at[idx].add(step)
+        r_try, jac_try = _evaluate(robot, z_try, runs, sigma, marker, substeps, tangents)
+        chi2_try = float(r_try @ r_try)
+        if chi2_try < chi2:
+            done = chi2 - chi2_try < 1e-9 * chi2 + 1e-6
+            z, r, jac, chi2, lam = z_try, r_try, jac_try, chi2_try, max(lam / 10.0, 1e-12)
+            if done:
+                break
+        else:
+            lam *= 10.0
+            if lam > 1e8:
+                break
+    values = np.asarray(z)
+    if not chi2 < start or np.any(values[:2 * n] < 0):
+        return None
+    return z, chi2, np.sqrt(np.diag(np.linalg.inv(jac.T @ jac)))
+
+
+def _estimate(robot, z, effects, std) -> list[RunEstimate]:
+    n, out = robot.n_joints, []
+    for e, s in zip(effects, std):
+        scale = RUN_KINDS[e.kind][0]
+        x = float(z[_index(e, n)])
+        if e.kind == "stiffness":  # k1 scales by 1 / (1 + scale x)
+            out.append(RunEstimate(e, 1.0 / (1.0 + scale * x), scale * float(s) / (1.0 + scale * x) ** 2))
+        else:
+            out.append(RunEstimate(e, scale * x, scale * float(s)))
+    return out
+
+
+def diagnose_runs(
+    robot: jr.Robot,
+    train: list,
+    validation: list,
+    marker,
+    noise,
+    max_steps: int = 6,
+    substeps: int = 4,
+    encoder_quantum: float = 0.0,
+    progress: Callable[[RunStep], None] | None = None,
+) -> RunDiagnosis:
+    """Name the dynamic effects (`RUN_KINDS`) that `robot` misses from trajectory runs, one per step.
+
+    `train`, `validation`: lists of `(command, run)` pairs (`jaxrobot.bench.read_command_csv`,
+    `read_trajectory_csv`); `marker` (3,) [m] in the tool frame; `noise` the tracker's std per axis [m] or a
+    `TrackerNoise`; `substeps` of `jr.simulate` per sample; `encoder_quantum` [rad] the encoders' resolution.
+
+    Each step compares the model with the training runs (chi-square against the noise, as `compare_run`); while
+    the test fails, it screens every effect not yet added by the linearised chi-square decrease of its own
+    variable (a lag only for a motor whose encoders depart from the model's motor angles, `ENCODER_LAG_RAD`), fits
+    the `SCREENED` best with the effects already added by Levenberg-Marquardt through the simulation (forward-mode
+    derivatives), and adds the one of least BIC if it lowers BIC by more than `MIN_BIC_GAIN` and lowers the
+    validation runs' chi-square. The model without an effect is where each fit starts (lag and damping 0)."""
+    n = robot.n_joints
+    if max_steps < 0 or substeps < 1:
+        raise ValueError(f"max_steps >= 0 and substeps >= 1 expected, found {max_steps}, {substeps}")
+    runs, sigma = _prepare(train, noise, "train")
+    val, _ = _prepare(validation, noise, "validation")
+    marker = jnp.asarray(marker, float)
+    base = dataclasses.replace(robot, motor_lag=jnp.zeros(n) if robot.motor_lag is None else robot.motor_lag,
+                               damping=jnp.zeros(n) if robot.damping is None else robot.damping)
+    n_res = sum(r.measured.size for r in runs)
+    ln_n = math.log(n_res)
+    threshold = max(ENCODER_LAG_RAD, 2.0 * encoder_quantum)
+
+    def row(step, label, z, m):
+        chi2 = float(np.sum(_evaluate(base, z, runs, sigma, marker, substeps)[0] ** 2))
+        chi2_v = float(np.sum(_evaluate(base, z, val, sigma, marker, substeps)[0] ** 2))
+        out = RunStep(step, label, chi2, n_res - m, _p_value(chi2, n_res - m), chi2 + m * ln_n, chi2_v)
+        if progress is not None:
+            progress(out)
+        return out
+
+    z, added, std = jnp.zeros(3 * n), [], np.zeros(0)
+    steps = [row(0, "start", z, 0)]
+    verdict = "no significant discrepancy: the model explains the runs to the tracker noise"
+    while steps[-1].p_value <= ALPHA:
+        if len(added) == max_steps:
+            verdict = f"not explained after {max_steps} effects (--max-steps)"
+            break
+        current = _with_effects(base, z)
+        departs = np.zeros(n, bool)
+        for r in runs:
+            motors = np.asarray(_simulated(current, *r.command, marker)[1])
+            departs |= np.max(np.abs(r.encoders - motors), 0) > threshold
+        candidates = [RunEffect(k, j) for k in RUN_KINDS for j in range(n)]  # in the order of the variables
+        eligible = np.array([c not in added and (c.kind != "lag" or departs[c.joint]) for c in candidates])
+        if not eligible.any():
+            verdict = "not explained: no effect of the catalogue is left to add"
+            break
+        res, cols = _evaluate(base, z, runs, sigma, marker, substeps, jnp.eye(3 * n))  # one program for all steps
+        gain = np.where(eligible, (cols.T @ res) ** 2 / np.maximum(np.sum(cols**2, 0), 1e-300), -np.inf)
+        best = None
+        for k in np.argsort(-gain)[:min(SCREENED, int(eligible.sum()))]:
+            fit = _fit(base, z, added + [candidates[k]], runs, sigma, marker, substeps)
+            if fit is not None and (best is None or fit[1] < best[1][1]):
+                best = (candidates[k], fit)
+        last = steps[-1]
+        if best is None:
+            verdict = "not explained: no candidate fit lowers the chi-square within the physical range"
+            break
+        effect, (z_new, chi2_new, std_new) = best
+        if not chi2_new + (len(added) + 1) * ln_n < last.bic - MIN_BIC_GAIN:
+            verdict = f"not explained: the best candidate ({effect.label}) does not lower BIC by {MIN_BIC_GAIN}"
+            break
+        new = row(len(added) + 1, effect.label, z_new, len(added) + 1)
+        if not new.chi2_validation < last.chi2_validation:
+            verdict = f"not explained: {effect.label} does not lower the validation runs' chi-square"
+            break
+        z, added, std = z_new, added + [effect], std_new
+        steps.append(new)
+    else:
+        if added:
+            verdict = "explained: the runs agree with the model to the tracker noise after adding " + ", ".join(
+                e.label for e in added)
+    final = _with_effects(base, z)
+    kinds = {e.kind for e in added}
+    final = dataclasses.replace(final, motor_lag=None if robot.motor_lag is None and "lag" not in kinds
+                                else final.motor_lag,
+                                damping=None if robot.damping is None and "damping" not in kinds else final.damping)
+    return RunDiagnosis(final, steps, _estimate(robot, np.asarray(z), added, std), verdict)
