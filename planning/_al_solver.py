@@ -72,7 +72,8 @@ class ALConfig(eqx.Module):
     """Most multiplier/penalty updates before giving up (`RESULTS.nonlinear_max_steps_reached`)."""
     max_inner_iterations: int = 1
     """Gauss-Newton/LM steps per outer iteration; more follow while steps are rejected (the
-    multipliers move only from an accepted iterate), until the damping exceeds `damping_max`."""
+    multipliers move only from an accepted iterate), until the damping exceeds `damping_max`, and while
+    the last step changed which bounds are active (up to `ACTIVE_SET_STEPS`)."""
     penalty_init: float = 1e6
     """Initial penalty `rho` (at least; see `penalty_per_weight`)."""
     penalty_per_weight: float = 10.0
@@ -269,13 +270,18 @@ def _normal_blocks(
     lower = rho * lower - jnp.eye(nz) * 2 * p.edge
     hdiag = jnp.broadcast_to(2 * p.weight, (n, nz))
     hdiag = hdiag.at[:-1].add(2 * p.edge).at[1:].add(2 * p.edge)
-    v = y + gam / rho
-    hdiag = hdiag + rho * (v != jnp.clip(v, p.lower, p.upper)) + mu
+    hdiag = hdiag + rho * _active(p, y, gam, rho) + mu
     eye = jnp.eye(nz)
     f = p.free
     diag = f[:, :, None] * (rho * diag + hdiag[:, :, None] * eye) * f[:, None, :] + (1.0 - f)[:, :, None] * eye
     lower = f[1:, :, None] * lower * f[:-1, None, :]
     return diag, lower
+
+
+def _active(p: _Parts, y, gam, rho) -> Bool[Array, "N 5*n"]:
+    """The bounds active in `Phi` at `y`: those that `v = y + gam / rho` violates."""
+    v = y + gam / rho
+    return v != jnp.clip(v, p.lower, p.upper)
 
 
 def _merit_from(p: _Parts, y, c, lam, gam, rho):
@@ -304,6 +310,8 @@ class _State(eqx.Module):
     factor_key: Float[Array, "2"]
     factor_age: Int[Array, ""]
     accepted: Bool[Array, ""]
+    switched: Bool[Array, ""]
+    """The last accepted step changed the set of active bounds."""
     forward: HalfStep
     """`half_step` at `y0 + y`."""
 
@@ -432,6 +440,10 @@ def _batched(solve, size: int, xs: list, capacity: int) -> ALResult:
     return jax.tree.map(lambda a: a.reshape(chunks * width, *a.shape[2:])[:size], out)
 
 
+ACTIVE_SET_STEPS = 16
+"""Most steps of one inner solve that continue because the last step changed the active bounds
+(`ALConfig.max_inner_iterations`)."""
+
 WAVES = 4
 """Length of the continuation chains of a batched sweep (`_waves`): its members are solved in this many
 waves of increasing `nu`."""
@@ -551,21 +563,25 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
         good = accept & ((actual >= config.good_ratio * predicted) | (jnp.abs(actual) <= noise))
         # a rejected step from a reused factor is retried with a fresh one at the same damping
         retry = ~accept & ~fresh
+        switched = accept & jnp.any(_active(p, y_try, s.gam, s.rho) != _active(p, s.y, s.gam, s.rho))
         y = jnp.where(accept, y_try, s.y)
         forward = jax.tree.map(lambda new, old: jnp.where(accept, new, old), h_new, s.forward)
         mu_down = jnp.maximum(s.mu / config.damping_down, config.damping_init)
         mu = jnp.where(good, mu_down, jnp.where(accept | retry, s.mu, s.mu * config.damping_up))
         failed = mu > config.damping_max
         status = RESULTS.where(failed, RESULTS.inner_failed, s.status)
-        age = jnp.where(retry, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))
+        age = jnp.where(retry | switched, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))
         return eqx.tree_at(
             lambda t: (t.y, t.mu, t.inner, t.steps, t.status, t.stop, t.factor, t.factor_key, t.factor_age, t.accepted,
-                       t.forward),
-            s, (y, mu, s.inner + 1, s.steps + 1, status, failed, factor, key, age, accept, forward))
+                       t.switched, t.forward),
+            s, (y, mu, s.inner + 1, s.steps + 1, status, failed, factor, key, age, accept, switched, forward))
 
     def inner_done(s: _State, grad):
-        # the multipliers move only from an iterate the inner solve accepted (never after a rejection)
-        return (jnp.max(jnp.abs(grad)) <= config.inner_tol) | ((s.inner >= config.max_inner_iterations) & s.accepted)
+        # the multipliers move only from an iterate the inner solve accepted (never after a rejection), once the
+        # active bounds settled: updated from a step that switched them, they cycle between two active sets
+        settled = ~s.switched | (s.inner >= ACTIVE_SET_STEPS)
+        return (jnp.max(jnp.abs(grad)) <= config.inner_tol) | ((s.inner >= config.max_inner_iterations) & s.accepted
+                                                               & settled)
 
     def body(s: _State) -> _State:
         # one linearisation at `y` serves the multiplier update and the LM step that follows it
@@ -593,7 +609,8 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
         # Jacobian code in the program: compile time)
         factor=jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
                             jax.eval_shape(factorise, jnp.zeros((n, nz, nz)), jnp.zeros((n - 1, nz, nz)))),
-        factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), forward=p.start,
+        factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), switched=jnp.array(False),
+        forward=p.start,
     )
     s = jax.lax.while_loop(lambda s: ~s.stop, body, init)
     return ALResult(

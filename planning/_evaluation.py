@@ -18,7 +18,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 import jaxrobot as jr
 from jaxrobot import cached_program
@@ -106,6 +106,25 @@ def ocp_motor_trajectory(x: Float[Array, "*b N 4*n"], u: Float[Array, "*b N n"])
     """(d) The motor part of an OCP solution `x = [q, qd, theta, thetad]`, `u = thetadd`."""
     state = State.of(x)
     return MotorTrajectory(state.theta, state.thetad, u)
+
+
+def motor_reversals(theta: Float[Array, "N n"], resolution: float | Float[Array, " n"]) -> Int[Array, " n"]:
+    """Reversals of each motor along the angles `theta` [rad]: turns at which it travels back by more than
+    `resolution` [rad] from its last extreme (one encoder count, docs/model.md (B.6)); the first move from
+    rest is none."""
+    res = jnp.broadcast_to(jnp.asarray(resolution, float), theta.shape[-1:])
+
+    def step(c, x):
+        d, hi, lo, count = c  # direction (0: not moved yet), extremes since the last turn, reversals
+        hi, lo = jnp.maximum(hi, x), jnp.minimum(lo, x)
+        up, down = (d <= 0) & (x - lo > res), (d >= 0) & (hi - x > res)
+        count = count + ((up & (d < 0)) | (down & (d > 0)))
+        d = jnp.where(up, 1, jnp.where(down, -1, d))
+        return (d, jnp.where(up, x, hi), jnp.where(down, x, lo), count), None
+
+    theta = jnp.asarray(theta, float)
+    zero = jnp.zeros(theta.shape[-1:], int)
+    return jax.lax.scan(step, (zero, theta[0], theta[0], zero), theta)[0][3]
 
 
 def baseline_trajectories(robot: jr.Robot, jp: JointPath) -> dict[str, MotorTrajectory]:

@@ -31,7 +31,7 @@ from ._evaluation import (
 from ._ik import JointPath, joint_path
 from ._sweep import check_nus, solve_ocp_sweep
 from ._trajectories import Path, sample_path
-from ._transcription import COSTS, State
+from ._transcription import COSTS, State, motor_directions
 
 if TYPE_CHECKING:
     from ._ocp import OCPSolution
@@ -140,8 +140,9 @@ DIRECTION_SOLVES = 4
 def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Array, "N n"], flat: MotorTrajectory,
                       ts: float, nu: float, cost: str, directional: bool
                       ) -> tuple[OCPSolution, Float[Array, "N n"] | None, tuple]:
-    """The OCP of the joint path `q_d` (rates `qd_d`) warm-started by its flat inverse `flat`; with
-    `directional`, on the flanks the gears take along the planned motion (from rest on cw): the flank weight of
+    """The OCP of the joint path `q_d` (rates `qd_d`) warm-started by its flat inverse `flat`, each motor
+    turning only in the direction of the flat inverse's (`motor_directions`: it reverses where the task
+    does); with `directional`, on the flanks the gears take along the planned motion (from rest on cw): the flank weight of
     each node follows its motor angle at the play state of the previous plan's motion (first of `flat` on
     the flanks), until the gear outputs on both play states agree within `DIRECTION_TOLERANCE` (at most
     `DIRECTION_SOLVES` solves; a solve that does not converge ends the iteration with the last one that
@@ -149,15 +150,16 @@ def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Arr
     from ._ocp import solve_ocp
 
     warm = (State(q_d, qd_d, flat.theta, flat.thetad).pack(), flat.thetadd)
+    direction = motor_directions(flat.thetad)
     if not directional:
-        return solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm), None, warm
+        return solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm, direction=direction), None, warm
     w = jr.reversal_travel(robot)
     theta = jr.flank_motor_angle(robot, jr.gear_output(robot, flat.theta), jr.direction_state(robot, flat.theta))
     play = jr.play_state(robot, theta)
     warm = (State(q_d, qd_d, theta, flat.thetad).pack(), flat.thetadd)
     last = None  # the last converged solve
     for _ in range(DIRECTION_SOLVES):
-        sol = solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm, play=play, travel=w)
+        sol = solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm, play=play, travel=w, direction=direction)
         if not bool(sol.converged):
             return last or (sol, play, warm)
         last = (sol, play, warm)
@@ -209,7 +211,8 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     solve_s, compile_s = first, None  # one call: compile and solve together
     if timing:  # a second, compiled call separates compile and solve time
         start = time.perf_counter()
-        jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm, play=play).u)
+        jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm, play=play,
+                                        direction=motor_directions(flat.thetad)).u)
         solve_s = time.perf_counter() - start
         compile_s = max(first - solve_s, 0.0)
         emit(PlanEvent("ocp_again", solve_s))
