@@ -336,7 +336,7 @@ def augmented_lagrangian(
     solve is already done for the new multipliers, it takes one LM step.
 
     Under `vmap` with the `"cyclic_reduction"` `linear_solver` (the default on an accelerator) the
-    members advance together in one batched `while_loop` (`_batched`), each from its own start with
+    members advance together in one batched `while_loop` (`chunked_vmap`), each from its own start with
     its own status, iteration count and stopping (a member that is done is masked); the conditionals
     of an iteration (factor refresh, step) then run for every member. A batch larger than the device
     memory holds (`batch_capacity`) runs in chunks, one after the other. A batch that differs only in
@@ -392,8 +392,8 @@ def augmented_lagrangian(
             if weights_only and axis_size > 1:  # chains of the continuation, batched across the chains
                 out = _waves(lambda x, y, d: solve(member(x)[0], y, member(x)[2], d), axis_size, nu, xs, y0, dual, m)
             else:
-                out = _batched(lambda x: _augmented_lagrangian(eqx.combine(member(x)[0], static), *member(x)[1:3], m,
-                                                               member(x)[3]), axis_size, xs, batch_capacity(n, nz))
+                out = chunked_vmap(lambda x: _augmented_lagrangian(eqx.combine(member(x)[0], static), *member(x)[1:3],
+                                                                   m, member(x)[3]), axis_size, xs, batch_capacity(n, nz))
             return out, jax.tree.map(lambda _: True, out)
         if not weights_only:
             out = jax.lax.map(lambda x: solve(*member(x)), xs)
@@ -406,7 +406,7 @@ def augmented_lagrangian(
 
 
 MEMBER_BLOCKS = 12
-"""Peak count of `5n x 5n` float64 blocks per node that one member of a batched solve (`_batched`)
+"""Peak count of `5n x 5n` float64 blocks per node that one member of a batched solve (`chunked_vmap`)
 holds: the factor carried by the loop and the new one (both live when the refresh is a select under
 `vmap`, 3 blocks per node each for cyclic reduction), the diagonal and sub-diagonal blocks of the
 Gauss-Newton matrix and about 4 more for their assembly and the first reduction level."""
@@ -415,17 +415,20 @@ DEFAULT_MEMORY = 16 * 2**30
 """Memory assumed for a batched solve [bytes] where the device does not report its own (the CPU)."""
 
 
+def device_memory() -> float:
+    """Memory of the default device for one batched program [bytes]: its `bytes_limit`, else `DEFAULT_MEMORY`."""
+    stats = jax.devices()[0].memory_stats() or {}
+    return stats.get("bytes_limit", DEFAULT_MEMORY)
+
+
 def batch_capacity(n_nodes: int, n_vars: int, memory: float | None = None) -> int:
     """How many members of a batched solve with `n_nodes` nodes of `n_vars` scaled variables (`5n`)
-    fit in `memory` bytes (default: the default device's `bytes_limit`, else `DEFAULT_MEMORY`), by
-    `MEMBER_BLOCKS`; at least 1."""
-    if memory is None:
-        stats = jax.devices()[0].memory_stats() or {}
-        memory = stats.get("bytes_limit", DEFAULT_MEMORY)
+    fit in `memory` bytes (default `device_memory()`), by `MEMBER_BLOCKS`; at least 1."""
+    memory = device_memory() if memory is None else memory
     return max(1, int(memory // (MEMBER_BLOCKS * n_nodes * n_vars**2 * 8)))
 
 
-def _batched(solve, size: int, xs: list, capacity: int) -> ALResult:
+def chunked_vmap(solve, size: int, xs: list, capacity: int):
     """`solve(x)` for the `size` members of a batch, advancing together in one vmapped program
     (`xs`: the batched leaves, member `k` is `[x[k] for x in xs]`); above `capacity` members, in
     chunks of at most that many, one after the other (`lax.map`; the last chunk is padded with copies
