@@ -346,6 +346,8 @@ def test_sweep_configs_differing_in_numbers_share_one_program(robot, q_d, monkey
     (dict(workers=0), "workers"),
     (dict(workers=1.5), "workers"),
     (dict(ts=0.0), "ts"),
+    (dict(play=np.zeros((1, N, 6))), "play"),
+    (dict(direction=np.full((N, 6), 2.0)), "direction"),
 ])
 def test_sweep_bad_input_names_the_field(robot, q_d, kwargs, field):
     args = dict(q_d=q_d, ts=TS, nus=[1e-14, 1e-12])

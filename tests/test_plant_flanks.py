@@ -202,3 +202,25 @@ def test_reference_tasks_on_the_as_built_flank_plant(task):
         err = pl.evaluate_on_plant(TRUTH, jp, {"ocp": pl.ocp_motor_trajectory(sol.x, sol.u)}, directional=d)
         errors[d] = float(err["ocp"].position_max)
     assert errors[True] <= (1e-6 if task == "line" else 1.2 * errors[False]), errors
+
+
+@pytest.mark.extended
+def test_sweep_plans_on_the_flanks_like_plan_task():
+    """`sweep_task` on a directional plant plans every member on its gears' flanks as `solve_directional` does
+    one plan (objectives to the solver's tolerance, 1e-8 relative), and its batched evaluation gives each
+    member's error on the flank plant as the plan alone has it (to 1e-3 of the error: the plans agree to the
+    solver's tolerance, not bit for bit)."""
+    from planning._trajectories import reference_path
+
+    path, nus = reference_path("line"), (1e-14, 1e-10)
+    res = pl.sweep_task(TRUTH, TRUTH, path, nus, costs=("thesis",), directional=True)
+    assert res.converged
+    swept = res.costs["thesis"]
+    jp = res.joint_path
+    flat = pl.baseline_trajectories(TRUTH, jp)["flat_inverse"]
+    for i, nu in enumerate(nus):
+        sol, _, _ = solve_directional(TRUTH, jp.q, jp.qd, flat, 1e-3, nu, "thesis", True)
+        assert float(swept.solutions.objective[i]) == pytest.approx(float(sol.objective), rel=1e-8)
+        assert reversals(swept.solutions.theta[i]) == reversals(flat.theta)
+        err = pl.evaluate_on_plant(TRUTH, jp, {"ocp": pl.ocp_motor_trajectory(sol.x, sol.u)}, directional=True)
+        assert float(swept.errors.position_max[i]) == pytest.approx(float(err["ocp"].position_max), rel=1e-3)
