@@ -393,7 +393,8 @@ def augmented_lagrangian(
                 out = _waves(lambda x, y, d: solve(member(x)[0], y, member(x)[2], d), axis_size, nu, xs, y0, dual, m)
             else:
                 out = chunked_vmap(lambda x: _augmented_lagrangian(eqx.combine(member(x)[0], static), *member(x)[1:3],
-                                                                   m, member(x)[3]), axis_size, xs, batch_capacity(n, nz))
+                                                                   m, member(x)[3]),
+                                   axis_size, xs, batch_capacity(n, nz))
             return out, jax.tree.map(lambda _: True, out)
         if not weights_only:
             out = jax.lax.map(lambda x: solve(*member(x)), xs)

@@ -152,15 +152,15 @@ def iterate_flanks(robot: jr.Robot, play: Float[Array, "B N n"], solve: Callable
     first, and leaves the iteration). Returns the solutions, the play states and the warm starts of each."""
     w = jr.reversal_travel(robot)
     states = jax.vmap(lambda theta: jr.play_state(robot, theta))
-    active, last = np.ones(play.shape[0], bool), None
+    active, last, kept = np.ones(play.shape[0], bool), None, None
     for _ in range(DIRECTION_SOLVES):
         sols, warm = solve(play, last)
-        take = active & np.asarray(sols.converged) if last is not None else np.ones_like(active)
-        kept = (sols, play, warm) if last is None else _select(take, (sols, play, warm), kept)
+        converged = np.asarray(sols.converged)
+        kept = (sols, play, warm) if kept is None else _select(active & converged, (sols, play, warm), kept)
         new = states(sols.theta)
         out = lambda p: jr.flank_output(robot, sols.theta, jr.flank_weight(p, sols.theta, w))  # noqa: E731
         agree = np.asarray(jnp.abs(out(new) - out(play)).max(axis=(-2, -1))) <= DIRECTION_TOLERANCE
-        active = active & np.asarray(sols.converged) & ~agree
+        active = active & converged & ~agree
         if not active.any():
             break
         play, last = jnp.where(active[:, None, None], new, play), sols
