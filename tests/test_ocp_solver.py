@@ -335,7 +335,7 @@ def test_sweep_configs_differing_in_numbers_share_one_program(robot, q_d, monkey
     args = (robot, jnp.asarray(q_d), jnp.asarray(TS), jnp.asarray([1e-14, 1e-12]), None, None)
     for tol in (3e-9, 4e-9):
         config = pl.ALConfig(tol_violation=tol)
-        sweep._chain.lower(*args, jax.tree.map(jnp.asarray, config), cost="thesis",
+        sweep._chain.lower(*args, jax.tree.map(jnp.asarray, config), None, None, cost="thesis",
                            history=history_length(config))
     assert len(traces) <= 1
 
