@@ -132,7 +132,7 @@ def _tool_position(robot, q):
 
 DIRECTION_TOLERANCE = 1e-10
 """[rad] Largest change of a gear output between the play states planned with and those of the plan's motion
-at which `solve_directional` stops."""
+at which `iterate_flanks` stops."""
 DIRECTION_SOLVES = 4
 """Most OCP solves of `iterate_flanks`."""
 
