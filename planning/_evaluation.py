@@ -167,8 +167,9 @@ class PlantRun:
 
 
 SIMULATION_FLOATS = 24
-"""Float64 numbers per sample and joint that one simulated run holds at once (`simulate_plans`): its command
-and the link states, the stage points of an interval and the tool poses, with room for their temporaries."""
+"""Float64 numbers that one simulated run holds at once per sample and per joint or tool-pose entry (`n + 16`
+per sample, `simulation_capacity`): its command, link states and tool poses, with room for their
+temporaries."""
 
 
 def simulation_capacity(samples: int, n_joints: int, memory: float | None = None) -> int:
