@@ -51,7 +51,7 @@ def progress_lines(event: SweepEvent) -> list[str]:
     e = event
     if e.stage == "solved":
         converged = sum(s == "successful" for s in e.status)
-        return [f"  {e.cost}: {len(e.nus)} OCPs in one call, {e.elapsed:.1f} s (incl. compile); "
+        return [f"  {e.cost}: {len(e.nus)} OCPs batched, {e.elapsed:.1f} s (incl. compile); "
                 f"{converged}/{len(e.nus)} converged"]
     if e.stage == "evaluated":
         return [f"    nu {nu:.0e}: status {e.status[i]}, {e.iterations[i]:3d} it, bandwidth {e.bandwidth[i]:7.1f} Hz, "

@@ -273,8 +273,8 @@ class SweepEvent:
     `nus`."""
 
     stage: str
-    """Either "solved" (the OCPs of all `nus` of `cost` in one call) or "evaluated" (bandwidths and plant errors
-    of every member)."""
+    """Either "solved" (the OCPs of all `nus` of `cost`, batched: one call, one per round on the flanks) or
+    "evaluated" (bandwidths and plant errors of every member)."""
     cost: str
     """The cost variant (one of `COSTS`)."""
     elapsed: float = 0.0
