@@ -119,9 +119,10 @@ def casadi_dynamics(robot: jr.Robot) -> ca.Function:
     return ca.Function("f", [x, u], [ca.vertcat(qd, qdd, thetad, u)])
 
 
-def solve_ipopt(robot, q_d, ts, nu, warm, f=None, max_iter=100, print_level=0):
-    """Eq. 4.3 (thesis cost) in the scaled variables of `planning._transcription`, by IPOPT."""
-    problem = ocp_problem(robot, q_d, ts, nu)
+def solve_ipopt(robot, q_d, ts, nu, warm, f=None, max_iter=100, print_level=0, direction=None):
+    """Eq. 4.3 (thesis cost) in the scaled variables of `planning._transcription`, by IPOPT (`direction`: the
+    motor directions of `solve_ocp`, as bounds)."""
+    problem = ocp_problem(robot, q_d, ts, nu, direction=direction)
     n = q_d.shape[0]
     sz = np.asarray(variable_scale(problem))
     f = casadi_dynamics(robot) if f is None else f
@@ -133,8 +134,7 @@ def solve_ipopt(robot, q_d, ts, nu, warm, f=None, max_iter=100, print_level=0):
     dfx = (xs[:, 1:] - xs[:, :-1] - 0.5 * ts * (fx[:, 1:] + fx[:, :-1])) / ca.DM(sz[:24])
     track = (xs[:6, :] - ca.DM(np.asarray(q_d).T)) / ANGLE_SCALE
     cost = ca.sumsqr(track) + nu / ANGLE_SCALE**2 * ca.sumsqr(us)
-    lo, hi = (np.asarray(b) / sz for b in bounds(problem))
-    lbx, ubx = np.tile(lo[:, None], (1, n)), np.tile(hi[:, None], (1, n))
+    lbx, ubx = (np.array((np.asarray(b) / sz).T) for b in bounds(problem))  # (30, N), node per column
     xa, xb = (np.asarray(b) for b in boundary_states(problem))
     for k, xe in ((0, xa), (n - 1, xb)):
         fixed = np.concatenate([xe, np.zeros(6)]) / sz
@@ -154,9 +154,9 @@ def solve_ipopt(robot, q_d, ts, nu, warm, f=None, max_iter=100, print_level=0):
             "status": stats["return_status"], "success": bool(stats["success"])}
 
 
-def cross_check(robot, q_d, ts, nu, x, u) -> dict:
+def cross_check(robot, q_d, ts, nu, x, u, direction=None) -> dict:
     """Our objective and constraint violations (scaled, `planning._transcription`) at a given solution."""
-    problem = ocp_problem(robot, q_d, ts, nu)
+    problem = ocp_problem(robot, q_d, ts, nu, direction=direction)
     x, u = jnp.asarray(x), jnp.asarray(u)
     sz = variable_scale(problem)
     return {"objective": float(objective(problem, x, u)),
@@ -173,11 +173,37 @@ def path_error_um(robot, path, t, q) -> float:
 # ----------------------------------------------------------------------------- benchmark
 
 
+def directions(robot, tasks, nus, f) -> None:
+    """Print our solve and IPOPT's of each task and nu with the motor-direction bounds of `plan_task`."""
+    for task in tasks:
+        path = pl.reference_path(task)
+        jp = pl.joint_path(robot, path)
+        flat = pl.flat_motor_trajectory(robot, jp)
+        warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+        d = pl.motor_directions(flat.thetad)
+        ts = float(path.sample_time)
+        for nu in nus:
+            sol, _, ours_s = timed(lambda nu=nu: solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm, direction=d))
+            line = (f"{task} nu={nu:g} bounded: ours {jr.status_name(sol.status)}, {int(sol.iterations)} it, "
+                    f"{ours_s:.2f} s, objective {float(sol.objective):.10e}")
+            if f is not None:
+                ip = solve_ipopt(robot, jp.q, ts, nu, warm, f, direction=d)
+                chk = cross_check(robot, jp.q, ts, nu, ip["x"], ip["u"], direction=d)
+                line += (f"; ipopt {ip['status']}, {ip['iterations']} it, {ip['wall_s']:.1f} s, objective "
+                         f"{chk['objective']:.10e} (rel. difference "
+                         f"{abs(chk['objective'] / float(sol.objective) - 1):.1e}), violation "
+                         f"{max(chk['max_defect'], chk['max_bound'], chk['max_boundary']):.1e}")
+            print(line, flush=True)
+
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="the line at nu = 1e-14 only, no sweep")
     parser.add_argument("--no-ipopt", action="store_true", help="skip IPOPT (our solver only)")
+    parser.add_argument("--directions", action="store_true",
+                        help="the plans bounded to the task's motor directions (planning.motor_directions, as "
+                        "plan_task makes them) against IPOPT with the same bounds, printed; no file written")
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results_ocp.md"))
     args = parser.parse_args()
     robot = jr.racer7()
@@ -187,6 +213,8 @@ def main() -> None:
     tasks = TASKS[:1] if args.quick else TASKS
     nus = NUS[:1] if args.quick else NUS
     f = None if args.no_ipopt else casadi_dynamics(robot)
+    if args.directions:
+        return directions(robot, tasks, nus, f)
     rows, notes = [], []
     for task in tasks:
         path = pl.reference_path(task)

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import tomli_w
 
+from ._gear import shortest_reversal_travel
 from ._robot import Ripple, Robot
 
 
@@ -33,7 +34,7 @@ def _schema(n: int) -> dict[str, Any]:
         "gravity": (3,),
         "kinematics": {"a": vn, "d": vn, "alpha": vn, "beta": vn, "offset": vn},
         "limits": {"position_deg": (n, 2), "velocity_deg_s": vn, "?acceleration_deg_s2": vn},
-        "?gear": {"u0": vn, "?backlash_rad": vn,
+        "?gear": {"u0": vn, "?backlash_rad": vn, "?reversal_travel_rad": vn,
                   **{f"?joint{i}": {"cw": _RIPPLE, "ccw": _RIPPLE} for i in range(1, n + 1)}},
         "?stiffness": {"k1": vn, "k3": vn, "?damping": vn},
         "links": {"mass": vn, "com": (n, 3), "inertia": (n, 6)},
@@ -163,6 +164,8 @@ def _check_physics(data: dict, n: int) -> None:
     backlash = np.asarray(gear.get("backlash_rad", np.zeros(n)), float)
     if np.any(backlash < 0):
         _fail("gear.backlash_rad", "lost motion >= 0 rad per joint", backlash.tolist())
+    if "reversal_travel_rad" in gear:
+        _positive(gear["reversal_travel_rad"], "gear.reversal_travel_rad", "rad of motor travel")
     _positive(data["links"]["mass"], "links.mass", "kg")
     for i, row in enumerate(np.asarray(data["links"]["inertia"], float)):
         _check_inertia(row, f"links.inertia[{i}] (link {i + 1})")
@@ -338,7 +341,7 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
     k1, k3 = _stiffness(data, n)
     c = 1.0 / k1  # the compliance form the robot stores; 0 for a rigid joint (k1 = inf)
     eye = np.eye(4)
-    return Robot(
+    robot = Robot(
         a=jnp.asarray(kin["a"]), d=jnp.asarray(kin["d"]), alpha=jnp.asarray(kin["alpha"]),
         beta=jnp.asarray(kin["beta"]), offset=jnp.asarray(kin["offset"]),
         base=jnp.asarray(data.get("base", {}).get("transform", eye), float),
@@ -358,7 +361,18 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         name=data["name"],
         damping=_optional(data.get("stiffness", {}), "damping"),
         motor_lag=_optional(data.get("motors", {}), "velocity_lag_s"),
+        reversal_travel=_optional(gear, "reversal_travel_rad"),
     )
+    if robot.reversal_travel is not None:
+        shortest = np.asarray(shortest_reversal_travel(robot))
+        short = np.asarray(robot.reversal_travel) <= shortest
+        if short.any():
+            j = int(np.argmax(short))
+            _fail(f"gear.reversal_travel_rad[{j}] (joint {j + 1})", f"a motor travel > {shortest[j]:.3g} rad, through "
+                  "which the gear output keeps following the motor across the gap between its flanks (1.875 (1 + "
+                  "ripple) u0 (lost motion + both sets' transmission-error bounds), docs/model.md (B.0))",
+                  float(robot.reversal_travel[j]))
+    return robot
 
 
 def _optional(section: dict, key: str) -> jnp.ndarray | None:
@@ -397,6 +411,8 @@ def description_of(robot: Robot) -> dict:
     gear: dict[str, Any] = {"u0": f(robot.u0)}
     if np.any(np.asarray(robot.backlash) != 0):
         gear["backlash_rad"] = f(robot.backlash)
+    if robot.reversal_travel is not None:
+        gear["reversal_travel_rad"] = f(robot.reversal_travel)
     for j in range(robot.n_joints):
         sets = {}
         for direction, rip in (("cw", robot.cw), ("ccw", robot.ccw)):

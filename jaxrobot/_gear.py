@@ -168,19 +168,37 @@ def gear_output(
     return fourier_xi_inverse(u0, orders, a, b, theta)
 
 
-def reversal_travel(robot: Robot) -> Float[Array, "*b n"]:
-    """Default motor travel `w` [rad] of a reversal: `3 u0 (b + e_cw + e_ccw)` with the lost motion `b` and
-    `e = sum_j (|a_j| + 2 |b_j|) / n_j` of each set, which bounds `|Xi(phi) / u0 - phi|`: three times the travel
-    that carries the output across the lost motion and the widest gap between the flanks, so that the output
-    keeps following the motor through a reversal (`dphi/dtheta >= (1 / (1 + rho) - 5/8) / u0 > 0` for a ripple
-    `rho = sum_j |(a_j, b_j)| < 0.6`). A gear without ripple and backlash gets `w = 3e-9 u0`."""
+def _flank_gap(robot: Robot) -> Float[Array, "*b n"]:
+    """`b + e_cw + e_ccw` [output rad]: the lost motion and `e = sum_j (|a_j| + 2 |b_j|) / n_j` of each set, which
+    bounds `|Xi(phi) / u0 - phi|`, so the widest gap between the flanks' outputs at one motor angle."""
 
     def bound(rip):
         used = rip.orders > 0
         return jnp.sum(jnp.where(used, (jnp.abs(rip.a) + 2 * jnp.abs(rip.b)) / jnp.where(used, rip.orders, 1.0),
                                  0.0), -1)
 
-    return 3.0 * robot.u0 * jnp.maximum(robot.backlash + bound(robot.cw) + bound(robot.ccw), 1e-9)
+    return robot.backlash + bound(robot.cw) + bound(robot.ccw)
+
+
+def shortest_reversal_travel(robot: Robot) -> Float[Array, "*b n"]:
+    """The shortest travel [motor rad] through which the output keeps following the motor at a reversal:
+    `(15/8) (1 + rho) u0 gap` (`_flank_gap`, `rho = sum_j |(a_j, b_j)|` of the larger set; `15/8` is the
+    steepest slope of the smoothstep)."""
+    rho = jnp.maximum(*(jnp.sum(jnp.hypot(r.a, r.b) * (r.orders > 0), -1) for r in (robot.cw, robot.ccw)))
+    return 1.875 * (1.0 + rho) * robot.u0 * _flank_gap(robot)
+
+
+def reversal_travel(robot: Robot) -> Float[Array, "*b n"]:
+    """Motor travel `w` [rad] of a reversal: `robot.reversal_travel` where the robot file gives it (`[gear]
+    reversal_travel_rad`), else the default `3 u0 (b + e_cw + e_ccw)` (`_flank_gap`): three times the travel
+    that carries the output across the lost motion and the widest gap between the flanks, so that the output
+    keeps following the motor through a reversal (`dphi/dtheta >= (1 / (1 + rho) - 5/8) / u0 > 0` for a ripple
+    `rho = sum_j |(a_j, b_j)| < 0.6`; `shortest_reversal_travel`). A gear without ripple and backlash gets
+    `w = 3e-9 u0`."""
+    if robot.reversal_travel is not None:
+        return robot.reversal_travel
+    return 3.0 * robot.u0 * jnp.maximum(_flank_gap(robot), 1e-9)
+
 
 def play(p: Float[Array, "*b n"], theta: Float[Array, "*b n"], travel: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
     """One step of the play operator of width `travel`: `p` moved just enough to stay within `travel / 2` of

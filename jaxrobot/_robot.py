@@ -87,6 +87,10 @@ class Robot(eqx.Module):
     name: str = eqx.field(static=True, default="robot")
     """Name of the robot (the robot file's `name`, a URDF's `<robot name>`); static: part of the
     tree structure, not an array leaf."""
+    reversal_travel: Float[Array, "*batch n"] | None = None
+    """Motor travel over which a gear crosses from one flank to the other after a reversal [rad of motor
+    angle] (docs/model.md (B.0), the robot file's `[gear] reversal_travel_rad`); None: the default of
+    `jaxrobot.reversal_travel` from the Fourier sets and the lost motion."""
 
     damping: Float[Array, "*batch n"] | None = None
     """Viscous damping `d` of the joint springs [N m s/rad]: the link receives `d (phid - qd)` besides

@@ -17,6 +17,7 @@ from ._evaluation import PlantRun as PlantRun
 from ._evaluation import baseline_trajectories as baseline_trajectories
 from ._evaluation import evaluate_on_plant as evaluate_on_plant
 from ._evaluation import flat_motor_trajectory as flat_motor_trajectory
+from ._evaluation import motor_reversals as motor_reversals
 from ._evaluation import ocp_motor_trajectory as ocp_motor_trajectory
 from ._evaluation import quasi_static_motor_trajectory as quasi_static_motor_trajectory
 from ._evaluation import rigid_motor_trajectory as rigid_motor_trajectory
@@ -53,6 +54,7 @@ from ._transcription import boundary_states as boundary_states
 from ._transcription import bounds as bounds
 from ._transcription import defects as defects
 from ._transcription import max_violation as max_violation
+from ._transcription import motor_directions as motor_directions
 from ._transcription import objective as objective
 from ._transcription import ocp_problem as ocp_problem
 from ._transcription import variable_scale as variable_scale

@@ -72,7 +72,8 @@ class ALConfig(eqx.Module):
     """Most multiplier/penalty updates before giving up (`RESULTS.nonlinear_max_steps_reached`)."""
     max_inner_iterations: int = 1
     """Gauss-Newton/LM steps per outer iteration; more follow while steps are rejected (the
-    multipliers move only from an accepted iterate), until the damping exceeds `damping_max`."""
+    multipliers move only from an accepted iterate), until the damping exceeds `damping_max`, and while
+    the last step changed which bounds are active (up to `ACTIVE_SET_STEPS`)."""
     penalty_init: float = 1e6
     """Initial penalty `rho` (at least; see `penalty_per_weight`)."""
     penalty_per_weight: float = 10.0
@@ -269,13 +270,18 @@ def _normal_blocks(
     lower = rho * lower - jnp.eye(nz) * 2 * p.edge
     hdiag = jnp.broadcast_to(2 * p.weight, (n, nz))
     hdiag = hdiag.at[:-1].add(2 * p.edge).at[1:].add(2 * p.edge)
-    v = y + gam / rho
-    hdiag = hdiag + rho * (v != jnp.clip(v, p.lower, p.upper)) + mu
+    hdiag = hdiag + rho * _active(p, y, gam, rho) + mu
     eye = jnp.eye(nz)
     f = p.free
     diag = f[:, :, None] * (rho * diag + hdiag[:, :, None] * eye) * f[:, None, :] + (1.0 - f)[:, :, None] * eye
     lower = f[1:, :, None] * lower * f[:-1, None, :]
     return diag, lower
+
+
+def _active(p: _Parts, y, gam, rho) -> Bool[Array, "N 5*n"]:
+    """The bounds active in `Phi` at `y`: those that `v = y + gam / rho` violates."""
+    v = y + gam / rho
+    return v != jnp.clip(v, p.lower, p.upper)
 
 
 def _merit_from(p: _Parts, y, c, lam, gam, rho):
@@ -304,6 +310,8 @@ class _State(eqx.Module):
     factor_key: Float[Array, "2"]
     factor_age: Int[Array, ""]
     accepted: Bool[Array, ""]
+    switched: Bool[Array, ""]
+    """The last accepted step changed the set of active bounds."""
     forward: HalfStep
     """`half_step` at `y0 + y`."""
 
@@ -328,7 +336,7 @@ def augmented_lagrangian(
     solve is already done for the new multipliers, it takes one LM step.
 
     Under `vmap` with the `"cyclic_reduction"` `linear_solver` (the default on an accelerator) the
-    members advance together in one batched `while_loop` (`_batched`), each from its own start with
+    members advance together in one batched `while_loop` (`chunked_vmap`), each from its own start with
     its own status, iteration count and stopping (a member that is done is masked); the conditionals
     of an iteration (factor refresh, step) then run for every member. A batch larger than the device
     memory holds (`batch_capacity`) runs in chunks, one after the other. A batch that differs only in
@@ -384,8 +392,9 @@ def augmented_lagrangian(
             if weights_only and axis_size > 1:  # chains of the continuation, batched across the chains
                 out = _waves(lambda x, y, d: solve(member(x)[0], y, member(x)[2], d), axis_size, nu, xs, y0, dual, m)
             else:
-                out = _batched(lambda x: _augmented_lagrangian(eqx.combine(member(x)[0], static), *member(x)[1:3], m,
-                                                               member(x)[3]), axis_size, xs, batch_capacity(n, nz))
+                out = chunked_vmap(lambda x: _augmented_lagrangian(eqx.combine(member(x)[0], static), *member(x)[1:3],
+                                                                   m, member(x)[3]),
+                                   axis_size, xs, batch_capacity(n, nz))
             return out, jax.tree.map(lambda _: True, out)
         if not weights_only:
             out = jax.lax.map(lambda x: solve(*member(x)), xs)
@@ -398,7 +407,7 @@ def augmented_lagrangian(
 
 
 MEMBER_BLOCKS = 12
-"""Peak count of `5n x 5n` float64 blocks per node that one member of a batched solve (`_batched`)
+"""Peak count of `5n x 5n` float64 blocks per node that one member of a batched solve (`chunked_vmap`)
 holds: the factor carried by the loop and the new one (both live when the refresh is a select under
 `vmap`, 3 blocks per node each for cyclic reduction), the diagonal and sub-diagonal blocks of the
 Gauss-Newton matrix and about 4 more for their assembly and the first reduction level."""
@@ -407,17 +416,20 @@ DEFAULT_MEMORY = 16 * 2**30
 """Memory assumed for a batched solve [bytes] where the device does not report its own (the CPU)."""
 
 
+def device_memory() -> float:
+    """Memory of the default device for one batched program [bytes]: its `bytes_limit`, else `DEFAULT_MEMORY`."""
+    stats = jax.devices()[0].memory_stats() or {}
+    return stats.get("bytes_limit", DEFAULT_MEMORY)
+
+
 def batch_capacity(n_nodes: int, n_vars: int, memory: float | None = None) -> int:
     """How many members of a batched solve with `n_nodes` nodes of `n_vars` scaled variables (`5n`)
-    fit in `memory` bytes (default: the default device's `bytes_limit`, else `DEFAULT_MEMORY`), by
-    `MEMBER_BLOCKS`; at least 1."""
-    if memory is None:
-        stats = jax.devices()[0].memory_stats() or {}
-        memory = stats.get("bytes_limit", DEFAULT_MEMORY)
+    fit in `memory` bytes (default `device_memory()`), by `MEMBER_BLOCKS`; at least 1."""
+    memory = device_memory() if memory is None else memory
     return max(1, int(memory // (MEMBER_BLOCKS * n_nodes * n_vars**2 * 8)))
 
 
-def _batched(solve, size: int, xs: list, capacity: int) -> ALResult:
+def chunked_vmap(solve, size: int, xs: list, capacity: int):
     """`solve(x)` for the `size` members of a batch, advancing together in one vmapped program
     (`xs`: the batched leaves, member `k` is `[x[k] for x in xs]`); above `capacity` members, in
     chunks of at most that many, one after the other (`lax.map`; the last chunk is padded with copies
@@ -431,6 +443,10 @@ def _batched(solve, size: int, xs: list, capacity: int) -> ALResult:
     out = jax.lax.map(jax.vmap(solve), xs)
     return jax.tree.map(lambda a: a.reshape(chunks * width, *a.shape[2:])[:size], out)
 
+
+ACTIVE_SET_STEPS = 16
+"""Most steps of one inner solve that continue because the last step changed the active bounds
+(`ALConfig.max_inner_iterations`)."""
 
 WAVES = 4
 """Length of the continuation chains of a batched sweep (`_waves`): its members are solved in this many
@@ -551,21 +567,25 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
         good = accept & ((actual >= config.good_ratio * predicted) | (jnp.abs(actual) <= noise))
         # a rejected step from a reused factor is retried with a fresh one at the same damping
         retry = ~accept & ~fresh
+        switched = accept & jnp.any(_active(p, y_try, s.gam, s.rho) != _active(p, s.y, s.gam, s.rho))
         y = jnp.where(accept, y_try, s.y)
         forward = jax.tree.map(lambda new, old: jnp.where(accept, new, old), h_new, s.forward)
         mu_down = jnp.maximum(s.mu / config.damping_down, config.damping_init)
         mu = jnp.where(good, mu_down, jnp.where(accept | retry, s.mu, s.mu * config.damping_up))
         failed = mu > config.damping_max
         status = RESULTS.where(failed, RESULTS.inner_failed, s.status)
-        age = jnp.where(retry, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))
+        age = jnp.where(retry | switched, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))
         return eqx.tree_at(
             lambda t: (t.y, t.mu, t.inner, t.steps, t.status, t.stop, t.factor, t.factor_key, t.factor_age, t.accepted,
-                       t.forward),
-            s, (y, mu, s.inner + 1, s.steps + 1, status, failed, factor, key, age, accept, forward))
+                       t.switched, t.forward),
+            s, (y, mu, s.inner + 1, s.steps + 1, status, failed, factor, key, age, accept, switched, forward))
 
     def inner_done(s: _State, grad):
-        # the multipliers move only from an iterate the inner solve accepted (never after a rejection)
-        return (jnp.max(jnp.abs(grad)) <= config.inner_tol) | ((s.inner >= config.max_inner_iterations) & s.accepted)
+        # the multipliers move only from an iterate the inner solve accepted (never after a rejection), once the
+        # active bounds settled: updated from a step that switched them, they cycle between two active sets
+        settled = ~s.switched | (s.inner >= ACTIVE_SET_STEPS)
+        return (jnp.max(jnp.abs(grad)) <= config.inner_tol) | ((s.inner >= config.max_inner_iterations) & s.accepted
+                                                               & settled)
 
     def body(s: _State) -> _State:
         # one linearisation at `y` serves the multiplier update and the LM step that follows it
@@ -593,7 +613,8 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
         # Jacobian code in the program: compile time)
         factor=jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
                             jax.eval_shape(factorise, jnp.zeros((n, nz, nz)), jnp.zeros((n - 1, nz, nz)))),
-        factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), forward=p.start,
+        factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), switched=jnp.array(False),
+        forward=p.start,
     )
     s = jax.lax.while_loop(lambda s: ~s.stop, body, init)
     return ALResult(

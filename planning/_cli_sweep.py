@@ -29,7 +29,7 @@ def configure(parser) -> None:
                         help="weighting factors (default 1e-16 ... 1e-9, one per decade)")
     parser.add_argument("--costs", nargs="+", choices=COSTS, default=list(COSTS), help="cost variants to compare")
     parser.add_argument("--plant", default="model", metavar="{model,as-built,FILE}",
-                        help=PLANT_HELP + " (the sweep plans on the cw set throughout)")
+                        help=PLANT_HELP + ", and then every member plans on the model's flanks along its motion")
     add_model_option(parser, "planning model TOML (default: the embedded Racer-7)")
     parser.add_argument("--save-failed", action="store_true",
                         help="also write the outputs when a solve did not converge (the table's first line then "
@@ -51,7 +51,7 @@ def progress_lines(event: SweepEvent) -> list[str]:
     e = event
     if e.stage == "solved":
         converged = sum(s == "successful" for s in e.status)
-        return [f"  {e.cost}: {len(e.nus)} OCPs in one call, {e.elapsed:.1f} s (incl. compile); "
+        return [f"  {e.cost}: {len(e.nus)} OCPs batched, {e.elapsed:.1f} s (incl. compile); "
                 f"{converged}/{len(e.nus)} converged"]
     if e.stage == "evaluated":
         return [f"    nu {nu:.0e}: status {e.status[i]}, {e.iterations[i]:3d} it, bandwidth {e.bandwidth[i]:7.1f} Hz, "

@@ -18,13 +18,14 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 import jaxrobot as jr
 from jaxrobot import cached_program
 from jaxrobot.measurement import rest_solution
 from jaxrobot.status import require_successful
 
+from ._al_solver import chunked_vmap, device_memory
 from ._ik import JointPath, taylor_joint_path
 from ._trajectories import sample_path
 from ._transcription import State
@@ -108,6 +109,25 @@ def ocp_motor_trajectory(x: Float[Array, "*b N 4*n"], u: Float[Array, "*b N n"])
     return MotorTrajectory(state.theta, state.thetad, u)
 
 
+def motor_reversals(theta: Float[Array, "N n"], resolution: float) -> Int[Array, " n"]:
+    """Reversals of each motor along the angles `theta` [rad]: turns at which it travels back by more than
+    `resolution` [rad] from its last extreme (one encoder count, docs/model.md (B.6)); the first move from
+    rest is none."""
+    res = jnp.broadcast_to(jnp.asarray(resolution, float), theta.shape[-1:])
+
+    def step(c, x):
+        d, hi, lo, count = c  # direction (0: not moved yet), extremes since the last turn, reversals
+        hi, lo = jnp.maximum(hi, x), jnp.minimum(lo, x)
+        up, down = (d <= 0) & (x - lo > res), (d >= 0) & (hi - x > res)
+        count = count + ((up & (d < 0)) | (down & (d > 0)))
+        d = jnp.where(up, 1, jnp.where(down, -1, d))
+        return (d, jnp.where(up, x, hi), jnp.where(down, x, lo), count), None
+
+    theta = jnp.asarray(theta, float)
+    zero = jnp.zeros(theta.shape[-1:], int)
+    return jax.lax.scan(step, (zero, theta[0], theta[0], zero), theta)[0][3]
+
+
 def baseline_trajectories(robot: jr.Robot, jp: JointPath) -> dict[str, MotorTrajectory]:
     """Motor trajectories (a)-(c) planned with `robot` for the joint path `jp`."""
     return {
@@ -146,16 +166,37 @@ class PlantRun:
     """Samples on the path (the first `n` of `t`)."""
 
 
-def _run(plant, t, p_d, r_d, traj, q0, extra, substeps, directional):
-    traj = _extend(traj, extra)
-    q, _ = jr.simulate(plant, t, traj.theta, traj.thetad, traj.thetadd, substeps=substeps, q0=q0,
-                       directional=directional)
-    pose = jr.tool_pose(plant, q)
-    return q, jnp.linalg.norm(pose[:, :3, 3] - p_d, axis=-1), _orientation_angle(r_d, pose[:, :3, :3])
+SIMULATION_FLOATS = 24
+"""Float64 numbers that one simulated run holds at once per sample and per joint or tool-pose entry (`n + 16`
+per sample, `simulation_capacity`): its command, link states and tool poses, with room for their
+temporaries."""
 
 
-_rest = jax.jit(rest_solution)
-_run_jit = cached_program(_run, static_argnames=("extra", "substeps", "directional"))
+def simulation_capacity(samples: int, n_joints: int, memory: float | None = None) -> int:
+    """How many runs of `samples` samples of `n_joints` joints one batched simulation holds in `memory` bytes
+    (default `device_memory()`), by `SIMULATION_FLOATS`; at least 1."""
+    memory = device_memory() if memory is None else memory
+    return max(1, int(memory // (SIMULATION_FLOATS * samples * (n_joints + 16) * 8)))
+
+
+@partial(cached_program, static_argnames=("extra", "substeps", "directional", "capacity"))
+def _runs(plant, t, p_d, r_d, trajectories: MotorTrajectory, extra: int, substeps: int, directional: bool,
+          capacity: int):
+    """The K stacked `trajectories` from rest (on cw), held for `extra` samples, simulated on `plant` in one
+    vmapped program (in chunks of `capacity`): the rest status of each start, link angles and tool-pose
+    errors."""
+    q0, status = rest_solution(plant, trajectories.theta[:, 0])
+
+    def run(x):
+        traj, q_start = MotorTrajectory(*x[:3]), x[3]
+        traj = _extend(traj, extra)
+        q, _ = jr.simulate(plant, t, traj.theta, traj.thetad, traj.thetadd, substeps=substeps, q0=q_start,
+                           directional=directional)
+        pose = jr.tool_pose(plant, q)
+        return q, jnp.linalg.norm(pose[:, :3, 3] - p_d, axis=-1), _orientation_angle(r_d, pose[:, :3, :3])
+
+    xs = [trajectories.theta, trajectories.thetad, trajectories.thetadd, q0]
+    return status, chunked_vmap(run, q0.shape[0], xs, capacity)
 
 
 def simulate_plans(
@@ -166,11 +207,12 @@ def simulate_plans(
     settle_s: float = SETTLE_S,
     directional: bool = False,
 ) -> tuple[list[str], PlantRun]:
-    """Simulate every motor trajectory on `plant` (one compiled simulation serves all), holding the last command at rest
-    for `settle_s` after `t_e`, and measure the tool-pose error against the task of `jp`.
+    """Simulate every motor trajectory on `plant` in one batched simulation (`jax.vmap` over the runs, in chunks
+    of `simulation_capacity`), holding the last command at rest for `settle_s` after `t_e`, and measure the
+    tool-pose error against the task of `jp`.
 
-    `directional=True` selects the gear set by direction of motion, as the test bench's as-built robot
-    does (pass it for `jr.racer7(as_built=True)`); the planning model uses the cw set throughout.
+    `directional=True` gives the gears their flanks as states, as the test bench's as-built robot has them
+    (pass it for `jr.racer7(as_built=True)`; `jr.simulate`); the planning model uses the cw set throughout.
     Returns the names in stacking order and the `PlantRun`.
     """
     if not trajectories:
@@ -187,14 +229,13 @@ def simulate_plans(
     t = np.arange(n + extra) * ts
     p_d, r_d = jax.jit(lambda tk: sample_path(jp.path, tk))(np.minimum(t, np.asarray(jp.t)[-1]))
     names = list(trajectories)
-    runs = []
-    for k in names:
-        q0, result = _rest(plant, trajectories[k].theta[0])
-        require_successful(result, f"simulate_plans: rest pose of the plant at the start of {k!r}")
-        runs.append(_run_jit(plant, jnp.asarray(t), p_d, r_d, trajectories[k], q0, extra, substeps,
-                             bool(directional)))
-    q, dp, da = (np.stack(a) for a in zip(*runs, strict=True))
-    return names, PlantRun(jnp.asarray(t), jnp.asarray(q), jnp.asarray(dp), jnp.asarray(da), n)
+    stacked = jax.tree.map(lambda *a: jnp.stack(a), *trajectories.values())
+    status, (q, dp, da) = _runs(plant, jnp.asarray(t), p_d, r_d, stacked, extra, substeps, bool(directional),
+                                simulation_capacity(t.size, plant.n_joints))
+    failed = np.flatnonzero(np.asarray(status != jr.RESULTS.successful))
+    if failed.size:
+        require_successful(status, f"simulate_plans: rest pose of the plant at the start of {names[failed[0]]!r}")
+    return names, PlantRun(jnp.asarray(t), q, dp, da, n)
 
 
 def summarize(run: PlantRun) -> PlantError:

@@ -119,6 +119,7 @@ def solve_ocp(
     throw: bool = False,
     play: Float[Array, "N n"] | None = None,
     travel: Float[Array, " n"] | None = None,
+    direction: Float[Array, "N n"] | None = None,
 ) -> OCPSolution:
     """Optimal motor accelerations that make the elastic robot follow `q_d` (eq. 4.3).
 
@@ -139,6 +140,9 @@ def solve_ocp(
       path) and their reversal travels (n,) (default `jr.reversal_travel(robot)`): the flank weight of each
       node follows its motor angle, `jr.flank_weight(play, theta, travel)` (docs/model.md (B.0)); default
       the cw set throughout (eq. 4.1).
+    - `direction`: (N, n) the direction each motor may turn at each node, +1 (`thetad >= 0`), -1 or 0 (either);
+      `motor_directions` of the exact motor rates keeps the plan's reversals to the task's (docs/model.md
+      (B.6)). Default: either way throughout (eq. 4.3).
     - `throw`: raise the message of `status` (at run time, also under `jit`) when the solve did
       not converge. Default False: the solution carries its status (under `vmap` one per member).
 
@@ -154,14 +158,14 @@ def solve_ocp(
     if not isinstance(config, ALConfig):
         raise ValueError(f"config: expected an ALConfig, found {type(config).__name__}")
     return _solve_ocp(robot, q_d, ts, nu, cost, config, warm_start, u_ref, throw, history_length(config), play,
-                      travel)
+                      travel, direction)
 
 
 def _solve_ocp(robot, q_d, ts, nu, cost: Cost, config: ALConfig, warm_start, u_ref, throw: bool,
-               history: int, play=None, travel=None) -> OCPSolution:
+               history: int, play=None, travel=None, direction=None) -> OCPSolution:
     """`solve_ocp` with the static history length given (`history_length`), so that `config` may be
     traced."""
-    problem = ocp_problem(robot, q_d, ts, nu, cost, u_ref, play, travel)
+    problem = ocp_problem(robot, q_d, ts, nu, cost, u_ref, play, travel, direction)
     require_elastic(robot, "solve_ocp")
     n, j = problem.n_nodes, problem.n_joints
     start = None

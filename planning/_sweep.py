@@ -40,10 +40,12 @@ from ._transcription import Cost, ocp_problem
 
 
 @functools.partial(jax.jit, static_argnames=("cost", "history"))
-def _chain(robot, q_d, ts, nus, warm_start, u_ref, config, cost, history) -> OCPSolution:
-    """One continuation chain: `solve_ocp` vmapped over `nus`; `config` is traced, so chains that
-    differ only in their settings share one compiled program (`history`: `history_length(config)`)."""
-    return jax.vmap(lambda nu: _solve_ocp(robot, q_d, ts, nu, cost, config, warm_start, u_ref, False, history))(nus)
+def _chain(robot, q_d, ts, nus, warm_start, u_ref, config, play, direction, cost, history) -> OCPSolution:
+    """One continuation chain: `solve_ocp` vmapped over `nus` (and the members' `play`, if any); `config` is
+    traced, so chains that differ only in their settings share one compiled program (`history`:
+    `history_length(config)`)."""
+    return jax.vmap(lambda nu, p: _solve_ocp(robot, q_d, ts, nu, cost, config, warm_start, u_ref, False, history, p,
+                                             None, direction))(nus, play)
 
 
 def _padded(positions: np.ndarray, length: int) -> np.ndarray:
@@ -65,13 +67,14 @@ def _first_places(index: np.ndarray) -> np.ndarray:
 
 
 @functools.partial(jax.jit, static_argnames=("cost", "history", "mesh"))
-def _sharded_chains(robot, q_d, ts, nus, warm_start, u_ref, config, cost, history, mesh) -> OCPSolution:
+def _sharded_chains(robot, q_d, ts, nus, warm_start, u_ref, config, play, direction, cost, history, mesh
+                    ) -> OCPSolution:
     """`_chain` on every device of `mesh` for its own members (`shard_map`, no communication); the
-    other arguments are replicated."""
+    other arguments (but the members' `play`) are replicated."""
     one, rep = PartitionSpec("sweep"), PartitionSpec()
     return jax.shard_map(functools.partial(_chain, cost=cost, history=history), mesh=mesh,
-                         in_specs=(rep, rep, rep, one, rep, rep, rep), out_specs=one, check_vma=False)(
-        robot, q_d, ts, nus, warm_start, u_ref, config)
+                         in_specs=(rep, rep, rep, one, rep, rep, rep, one, rep), out_specs=one, check_vma=False)(
+        robot, q_d, ts, nus, warm_start, u_ref, config, play, direction)
 
 
 def check_nus(nus, name: str = "nus", distinct: bool = False) -> np.ndarray:
@@ -97,6 +100,8 @@ def solve_ocp_sweep(
     u_ref: Float[Array, "N n"] | None = None,
     workers: int | None = None,
     throw: bool = False,
+    play: Float[Array, "B N n"] | None = None,
+    direction: Float[Array, "N n"] | None = None,
 ) -> OCPSolution:
     """`solve_ocp` for every `nu` in `nus` (B values > 0, any order); returns an `OCPSolution` with a
     leading axis B in the order of `nus`, each member with its own status (as `jax.vmap(solve_ocp)`).
@@ -110,9 +115,10 @@ def solve_ocp_sweep(
     arguments and receives all members; the chains are one per device of all processes (`workers`
     is not used). `config` is traced: sweeps that differ only in their settings (of the same
     `history_length`) share one compiled program. `throw`: raise the message of the first member
-    that did not converge (default False: each member carries its status).
+    that did not converge (default False: each member carries its status). `play`: the play states of each
+    member's gears (B, N, n) and `direction` the motor directions, shared (as `solve_ocp`).
 
-    **Raises:** `ValueError` naming the field for bad values, before any compute (`nus`, `workers`;
+    **Raises:** `ValueError` naming the field for bad values, before any compute (`nus`, `workers`, `play`;
     the others as `solve_ocp`).
     """
     nus = check_nus(nus)
@@ -120,7 +126,11 @@ def solve_ocp_sweep(
         workers = (os.cpu_count() or 1) if backend_kind() == "cpu" else 1
     if not isinstance(workers, int | np.integer) or workers < 1:
         raise ValueError(f"workers: expected an integer >= 1, found {workers!r}")
-    ocp_problem(robot, q_d, ts, float(nus[0]), cost, u_ref)  # range checks on the concrete inputs
+    if play is not None and np.shape(play) != (nus.size, *np.shape(q_d)):
+        raise ValueError(f"play: expected play states of shape ({nus.size}, {', '.join(map(str, np.shape(q_d)))}) "
+                         f"[motor rad], one set per nu, found {np.shape(play)}")
+    ocp_problem(robot, q_d, ts, float(nus[0]), cost, u_ref, None if play is None else play[0], None,
+                direction)  # range checks on the concrete inputs
     config = ALConfig() if config is None else config
     if not isinstance(config, ALConfig):
         raise ValueError(f"config: expected an ALConfig, found {type(config).__name__}")
@@ -129,17 +139,18 @@ def solve_ocp_sweep(
     if jax.process_count() > 1:
         mesh = Mesh(np.asarray(jax.devices()), ("sweep",))
         index = _chain_index(order, mesh.size).reshape(-1)
-        g_nus = jax.make_array_from_callback(index.shape, NamedSharding(mesh, PartitionSpec("sweep")),
-                                             lambda idx: nus[index][idx])
-        out = _sharded_chains(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), g_nus, warm_start, u_ref,
-                              config, cost, history, mesh)
+        spread = lambda a: jax.make_array_from_callback(  # noqa: E731
+            a[index].shape, NamedSharding(mesh, PartitionSpec("sweep")), lambda idx: a[index][idx])
+        out = _sharded_chains(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), spread(nus), warm_start, u_ref,
+                              config, None if play is None else spread(np.asarray(play, float)), direction, cost,
+                              history, mesh)
         out = jax.tree.map(lambda leaf: jnp.asarray(leaf[_first_places(index)]), gather_array(out))
         return check(out.status, out, throw)
     chains = max(1, min(int(workers), nus.size // 2))
     index = _chain_index(order, chains)
     config = jax.tree.map(jnp.asarray, config)
-    args = [(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), jnp.asarray(nus[idx]), warm_start, u_ref, config)
-            for idx in index]
+    args = [(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), jnp.asarray(nus[idx]), warm_start, u_ref, config,
+             None if play is None else jnp.asarray(play, float)[idx], direction) for idx in index]
     compiled = _chain.lower(*args[0], cost=cost, history=history).compile()  # cached after the first call
     with ThreadPoolExecutor(chains) as pool:
         parts = list(pool.map(lambda a: jax.block_until_ready(compiled(*a)), args))

@@ -11,7 +11,8 @@ Decision variables: one node `z_k = [x_k, u_k]` (5n for n joints) per sample, th
   `jr.planning_dynamics`;
 - bounds (eq. 4.3c-d): link angles `[q_min, q_max]`, link rates `|qd| <= qd_max`, motor
   angles `u0 [q_min, q_max]`, motor rates `|thetad| <= u0 qd_max`, motor accelerations
-  `|u| <= u0 qdd_max`;
+  `|u| <= u0 qdd_max`; where a direction of motion is given (`motor_directions`), the motor rate
+  keeps its sign, `thetad >= 0` or `<= 0` (docs/model.md (B.6));
 - boundary conditions (eq. 4.3e-j): both end nodes are fixed, `q = q_d`, `qd = 0`,
   `theta = Xi(q + kappa^{-1}(g(q)))` (docs/model.md (B.2), `jr.static_equilibrium`),
   `thetad = 0`, `u = 0`.
@@ -93,6 +94,9 @@ class OCPProblem(eqx.Module):
     throughout (eq. 4.1)."""
     travel: Float[Array, " n"] | None = None
     """Reversal travel of each gear [motor rad] (`jr.reversal_travel`), with `play`."""
+    direction: Float[Array, "N n"] | None = None
+    """Direction each motor may turn at each node (`motor_directions`): +1 only forward (`thetad >= 0`), -1
+    only backward, 0 either way (also where None)."""
 
     @property
     def n_nodes(self) -> int:
@@ -116,6 +120,7 @@ def ocp_problem(
     u_ref: Float[Array, "N n"] | None = None,
     play: Float[Array, "N n"] | None = None,
     travel: Float[Array, " n"] | None = None,
+    direction: Float[Array, "N n"] | None = None,
 ) -> OCPProblem:
     """Validate the inputs of eq. 4.3 and bundle them (before any compute).
 
@@ -123,7 +128,8 @@ def ocp_problem(
     `nu > 0`; `cost` in `COSTS`; `u_ref` (N, n) [motor rad/s^2] for `cost="flat"`
     (default: the quasi-static/flat warm start's `u`, see `warm_start`); `play` (N, n) the play states of
     the gears at the nodes [motor rad] and `travel` (n,) their reversal travel (default
-    `jr.reversal_travel(robot)`): the flanks follow the motor angles (default: cw throughout).
+    `jr.reversal_travel(robot)`): the flanks follow the motor angles (default: cw throughout); `direction`
+    (N, n) the direction each motor may turn at each node, +1, -1 or 0 (`motor_directions`; default: either).
 
     **Raises:** `ValueError` naming the field for wrong shapes, non-finite values, `ts <= 0`,
     `nu <= 0` or an unknown cost. Traced values (under `jit`/`vmap`) are not range-checked.
@@ -162,8 +168,30 @@ def ocp_problem(
         if _concrete(travel) and not np.all(np.asarray(travel) > 0):
             raise ValueError(f"travel: expected reversal travels > 0 [motor rad], found {np.asarray(travel)}")
         play, travel = jnp.asarray(play, float), jnp.asarray(travel, float)
+    if direction is None:
+        direction = jnp.zeros((n, joints))
+    elif np.shape(direction) != (n, joints):
+        raise ValueError(f"direction: expected motor directions of shape ({n}, {joints}), found {np.shape(direction)}")
+    elif _concrete(direction) and not np.all(np.isin(np.asarray(direction), (-1.0, 0.0, 1.0))):
+        raise ValueError(f"direction: expected values +1 (forward), -1 (backward) or 0 (either), found "
+                         f"{np.unique(np.asarray(direction)).tolist()}")
     return OCPProblem(robot=robot, q_d=jnp.asarray(q_d, float), ts=jnp.asarray(ts, float),
-                      nu=jnp.asarray(nu, float), u_ref=jnp.asarray(u_ref, float), cost=cost, play=play, travel=travel)
+                      nu=jnp.asarray(nu, float), u_ref=jnp.asarray(u_ref, float), cost=cost, play=play, travel=travel,
+                      direction=jnp.asarray(direction, float))
+
+
+def motor_directions(thetad: Float[Array, "N n"]) -> Float[Array, "N n"]:
+    """The direction (+1, -1) in which each motor turns at each sample of exact motor rates `thetad` (the
+    flat inverse's): the rate's sign, where it is 0 the sign of the next sample that moves (after the last
+    one, of the last): it changes only where the motion reverses (docs/model.md (B.6))."""
+
+    def fill(last, s):
+        last = jnp.where(s != 0, s, last)
+        return last, last
+
+    sign = jnp.sign(jnp.asarray(thetad, float))
+    zero = jnp.zeros(sign.shape[-1:])
+    return jax.lax.scan(fill, zero, jax.lax.scan(fill, zero, sign, reverse=True)[1])[1]
 
 
 # ----------------------------------------------------------------------------- eq. 4.3 as written
@@ -205,12 +233,20 @@ def boundary_states(problem: OCPProblem) -> tuple[Float[Array, " 4*n"], Float[Ar
     return rest(0), rest(-1)
 
 
-def bounds(problem: OCPProblem) -> tuple[Float[Array, " 5*n"], Float[Array, " 5*n"]]:
-    """Lower and upper bounds of one node `[q, qd, theta, thetad, u]` (eq. 4.3c-d)."""
+def bounds(problem: OCPProblem) -> tuple[Float[Array, "N 5*n"], Float[Array, "N 5*n"]]:
+    """Lower and upper bounds of every node's `[q, qd, theta, thetad, u]` (eq. 4.3c-d; the motor rate 0 on the
+    side a node's `direction` excludes)."""
     r = problem.robot
     lower = jnp.concatenate([r.q_min, -r.qd_max, r.u0 * r.q_min, -r.u0 * r.qd_max, -r.u0 * r.qdd_max])
     upper = jnp.concatenate([r.q_max, r.qd_max, r.u0 * r.q_max, r.u0 * r.qd_max, r.u0 * r.qdd_max])
-    return lower, upper
+    n, j = problem.n_nodes, problem.n_joints
+    lower, upper = jnp.broadcast_to(lower, (n, 5 * j)), jnp.broadcast_to(upper, (n, 5 * j))
+    if problem.direction is None:
+        return lower, upper
+    rate = slice(3 * j, 4 * j)
+    d = problem.direction
+    return (lower.at[:, rate].set(jnp.where(d > 0, 0.0, lower[:, rate])),
+            upper.at[:, rate].set(jnp.where(d < 0, 0.0, upper[:, rate])))
 
 
 def objective(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, ""]:

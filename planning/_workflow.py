@@ -31,7 +31,7 @@ from ._evaluation import (
 from ._ik import JointPath, joint_path
 from ._sweep import check_nus, solve_ocp_sweep
 from ._trajectories import Path, sample_path
-from ._transcription import COSTS, State
+from ._transcription import COSTS, State, motor_directions
 
 if TYPE_CHECKING:
     from ._ocp import OCPSolution
@@ -132,41 +132,72 @@ def _tool_position(robot, q):
 
 DIRECTION_TOLERANCE = 1e-10
 """[rad] Largest change of a gear output between the play states planned with and those of the plan's motion
-at which `solve_directional` stops."""
+at which `iterate_flanks` stops."""
 DIRECTION_SOLVES = 4
-"""Most OCP solves of `solve_directional`."""
+"""Most OCP solves of `iterate_flanks`."""
+
+
+def _select(take: np.ndarray, new, old):
+    """`new` where `take` (B,), else `old`, leaf by leaf along the leading axis."""
+    return jax.tree.map(lambda a, b: jnp.where(take.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
+
+
+def iterate_flanks(robot: jr.Robot, play: Float[Array, "B N n"], solve: Callable) -> tuple[OCPSolution,
+                                                                                          Float[Array, "B N n"], tuple]:
+    """B plans on the flanks their gears take along each plan's own motion: `solve(play, last)` solves with the
+    play states `play` (B, N, n) (`last`: the previous round's solutions, None at first) and returns the B
+    solutions and their warm starts; then each plan's play states become those of its motion
+    (`jr.play_state`), until the gear outputs on both agree within `DIRECTION_TOLERANCE` for every plan (at
+    most `DIRECTION_SOLVES` rounds; a plan whose solve does not converge keeps its last converged one, or its
+    first, and leaves the iteration). Returns the solutions, the play states and the warm starts of each."""
+    w = jr.reversal_travel(robot)
+    states = jax.vmap(lambda theta: jr.play_state(robot, theta))
+    active, last, kept = np.ones(play.shape[0], bool), None, None
+    for _ in range(DIRECTION_SOLVES):
+        sols, warm = solve(play, last)
+        converged = np.asarray(sols.converged)
+        kept = (sols, play, warm) if kept is None else _select(active & converged, (sols, play, warm), kept)
+        new = states(sols.theta)
+        out = lambda p: jr.flank_output(robot, sols.theta, jr.flank_weight(p, sols.theta, w))  # noqa: E731
+        agree = np.asarray(jnp.abs(out(new) - out(play)).max(axis=(-2, -1))) <= DIRECTION_TOLERANCE
+        active = active & converged & ~agree
+        if not active.any():
+            break
+        play, last = jnp.where(active[:, None, None], new, play), sols
+    return kept
+
+
+def flank_start(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Array, "N n"], flat: MotorTrajectory
+                ) -> tuple[Float[Array, "N n"], tuple[Float[Array, "N 4*n"], Float[Array, "N n"]]]:
+    """The play states and the warm start of the first solve on the flanks: the flat inverse `flat` of the joint
+    path `q_d` (rates `qd_d`) moved onto the flanks its own motion takes (from rest on cw)."""
+    theta = jr.flank_motor_angle(robot, jr.gear_output(robot, flat.theta), jr.direction_state(robot, flat.theta))
+    return jr.play_state(robot, theta), (State(q_d, qd_d, theta, flat.thetad).pack(), flat.thetadd)
 
 
 def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Array, "N n"], flat: MotorTrajectory,
                       ts: float, nu: float, cost: str, directional: bool
                       ) -> tuple[OCPSolution, Float[Array, "N n"] | None, tuple]:
-    """The OCP of the joint path `q_d` (rates `qd_d`) warm-started by its flat inverse `flat`; with
-    `directional`, on the flanks the gears take along the planned motion (from rest on cw): the flank weight of
-    each node follows its motor angle at the play state of the previous plan's motion (first of `flat` on
-    the flanks), until the gear outputs on both play states agree within `DIRECTION_TOLERANCE` (at most
-    `DIRECTION_SOLVES` solves; a solve that does not converge ends the iteration with the last one that
-    did, if any). Returns the solution, the play states it was planned with (None: cw) and its warm start."""
+    """The OCP of the joint path `q_d` (rates `qd_d`) warm-started by its flat inverse `flat`, each motor
+    turning only in the direction of the flat inverse's (`motor_directions`: it reverses where the task
+    does); with `directional`, on the flanks the gears take along the planned motion (`iterate_flanks`, from
+    `flank_start`; each later solve warm-started by the previous plan). Returns the solution, the play
+    states it was planned with (None: cw) and its warm start."""
     from ._ocp import solve_ocp
 
-    warm = (State(q_d, qd_d, flat.theta, flat.thetad).pack(), flat.thetadd)
+    direction = motor_directions(flat.thetad)
     if not directional:
-        return solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm), None, warm
-    w = jr.reversal_travel(robot)
-    theta = jr.flank_motor_angle(robot, jr.gear_output(robot, flat.theta), jr.direction_state(robot, flat.theta))
-    play = jr.play_state(robot, theta)
-    warm = (State(q_d, qd_d, theta, flat.thetad).pack(), flat.thetadd)
-    last = None  # the last converged solve
-    for _ in range(DIRECTION_SOLVES):
-        sol = solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm, play=play, travel=w)
-        if not bool(sol.converged):
-            return last or (sol, play, warm)
-        last = (sol, play, warm)
-        new = jr.play_state(robot, sol.theta)
-        out = lambda p: jr.flank_output(robot, sol.theta, jr.flank_weight(p, sol.theta, w))  # noqa: E731
-        if float(jnp.abs(out(new) - out(play)).max()) <= DIRECTION_TOLERANCE:
-            break
-        warm, play = (sol.x, sol.u), new
-    return last
+        warm = (State(q_d, qd_d, flat.theta, flat.thetad).pack(), flat.thetadd)
+        return solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm, direction=direction), None, warm
+    play, start = flank_start(robot, q_d, qd_d, flat)
+
+    def solve(play, last):
+        warm = start if last is None else (last.x[0], last.u[0])
+        sol = solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm, play=play[0], direction=direction)
+        return jax.tree.map(lambda a: a[None], (sol, warm))
+
+    sol, play, warm = jax.tree.map(lambda a: a[0], iterate_flanks(robot, play[None], solve))
+    return sol, play, warm
 
 
 def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str = "thesis",
@@ -214,7 +245,8 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     solve_s, compile_s = first, None  # one call: compile and solve together
     if timing:  # a second, compiled call separates compile and solve time
         start = time.perf_counter()
-        jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm, play=play).u)
+        jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm, play=play,
+                                        direction=motor_directions(flat.thetad)).u)
         solve_s = time.perf_counter() - start
         compile_s = max(first - solve_s, 0.0)
         emit(PlanEvent("ocp_again", solve_s))
@@ -246,8 +278,8 @@ class SweepEvent:
     `nus`."""
 
     stage: str
-    """Either "solved" (the OCPs of all `nus` of `cost` in one call) or "evaluated" (bandwidths and plant errors
-    of every member)."""
+    """Either "solved" (the OCPs of all `nus` of `cost`, batched: one call, one per round on the flanks) or
+    "evaluated" (bandwidths and plant errors of every member)."""
     cost: str
     """The cost variant (one of `COSTS`)."""
     elapsed: float = 0.0
@@ -312,22 +344,38 @@ def sweep_task(robot: jr.Robot, plant: jr.Robot, path: Path, nus, costs: tuple[s
                on_event: Callable[[SweepEvent], None] | None = None) -> SweepResult:
     """Solve the OCP of `path` on `robot` for every weighting factor `nus` and cost variant in `costs`
     (one `solve_ocp_sweep` call per cost: continuation chains in increasing nu, each member warm-started
-    from the previous ones, one chain per CPU core, all from the flat inverse of the IK from `q_init`),
-    then the control bandwidths and the tool-pose errors on `plant` (`directional`: its directional
-    effects on) of every solution. A cost variant with a member that did not converge ends the sweep
-    there, without plant evaluation, unless `keep_failed`; check `converged`. `on_event` receives a
-    `SweepEvent` per stage."""
+    from the previous ones, one chain per CPU core, all from the flat inverse of the IK from `q_init`; each
+    motor turning only in the task's direction, `motor_directions`; with `directional`, every member on the
+    flanks its gears take along its own motion, `iterate_flanks` from `flank_start`, a call per round), then
+    the control bandwidths and the tool-pose errors on `plant` (`directional`: with its gear flanks as
+    states) of every solution, all members in one batched simulation (`simulate_plans`). A cost variant with
+    a member that did not converge ends the sweep there, without plant evaluation, unless `keep_failed`;
+    check `converged`. `on_event` receives a `SweepEvent` per stage."""
     nus = check_nus(nus, distinct=True)
     names = tuple(f"{nu:.6g}" for nu in nus)
     emit = on_event or (lambda event: None)
     jp = joint_path(robot, path, q_init)
     flat = baseline_trajectories(robot, jp)["flat_inverse"]
-    warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
+    direction = motor_directions(flat.thetad)
+    if directional:
+        play, warm = flank_start(robot, jp.q, jp.qd, flat)
+    else:
+        play, warm = None, (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
     ts = float(path.sample_time)
     out: dict[str, SweepCost] = {}
     for cost in costs:
         start = time.perf_counter()
-        sols = jax.block_until_ready(solve_ocp_sweep(robot, jp.q, ts, nus, cost=cost, warm_start=warm))
+
+        def solve(members_play, last, cost=cost):
+            sols = solve_ocp_sweep(robot, jp.q, ts, nus, cost=cost, warm_start=warm, play=members_play,
+                                   direction=direction)
+            return sols, jax.tree.map(lambda a: jnp.broadcast_to(a, (nus.size, *a.shape)), warm)
+
+        if directional:
+            sols = iterate_flanks(robot, jnp.broadcast_to(play, (nus.size, *play.shape)), solve)[0]
+        else:
+            sols = solve(None, None)[0]
+        sols = jax.block_until_ready(sols)
         status = tuple(str(s) for s in jr.status_name(sols.status))
         iterations = tuple(int(k) for k in np.asarray(sols.iterations))
         emit(SweepEvent("solved", cost, time.perf_counter() - start, tuple(map(float, nus)), status, iterations))

@@ -10,7 +10,7 @@ import pytest
 
 import planning as pl
 from planning import _transcription as tr
-from planning._al_solver import _batched, batch_capacity, linear_solver
+from planning._al_solver import batch_capacity, chunked_vmap, linear_solver
 from planning._block_tridiagonal import block_cholesky, block_cholesky_solve, block_tridiagonal_matvec
 from test_ocp_solver import _assert_same_optimum
 
@@ -116,7 +116,7 @@ def test_batched_chunks_give_the_members_in_order(capacity):
     """7 members in chunks of at most `capacity` (the last chunk padded) equal the unchunked batch."""
     xs = [jnp.arange(7.0), jnp.arange(14.0).reshape(7, 2)]
     solve = lambda x: {"a": x[0] ** 2, "b": x[1] * x[0]}  # noqa: E731
-    out = _batched(solve, 7, xs, capacity)
+    out = chunked_vmap(solve, 7, xs, capacity)
     ref = jax.vmap(solve)(xs)
     for key in ref:
         np.testing.assert_array_equal(np.asarray(out[key]), np.asarray(ref[key]))

@@ -63,6 +63,13 @@ CASES = {
     "ripple lengths": (("gear", "joint2", "cw", "a"), [0.001], r"gear\.joint2\.cw: expected orders, a and b of equal"),
     "partial laser-tracker model": (("sensors", "tracker_position_m"), [2.5, 1.0, 0.8],
                                     r"sensors: expected the laser-tracker model's keys together"),
+    "reversal travel shape": (("gear", "reversal_travel_rad"), [0.1, 0.1],
+                              r"gear\.reversal_travel_rad: expected shape"),
+    "reversal travel not positive": (("gear", "reversal_travel_rad"), [0.1, 0.1, 0.6, 0.0, 1e-6, 1e-6],
+                                     r"gear\.reversal_travel_rad\[3\] \(joint 4\): expected a positive value"),
+    "reversal travel shorter than the gap": (("gear", "reversal_travel_rad"), [0.1, 0.01, 0.6, 1e-6, 1e-6, 1e-6],
+                                             r"gear\.reversal_travel_rad\[1\] \(joint 2\): expected a motor travel > "
+                                             r"0\.0\d+ rad, through which the gear output keeps following"),
 }
 
 
@@ -128,3 +135,22 @@ def test_laser_tracker_model(tmp_path):
     data["sensors"]["tracker_noise_across_m"] = 0.0
     with pytest.raises(jr.RobotFileError, match=r"sensors\.tracker_noise_across_m"):
         jr.load_robot(_write(tmp_path, data))
+
+
+def test_reversal_travel_from_the_robot_file(tmp_path):
+    """`[gear] reversal_travel_rad` sets `jr.reversal_travel` (absent: the default from the sets and the lost
+    motion, which leaves the output following the motor: above `shortest_reversal_travel`) and survives
+    `save_robot`."""
+    from jaxrobot._gear import shortest_reversal_travel
+
+    default = np.asarray(jr.reversal_travel(jr.racer7()))
+    assert jr.racer7().reversal_travel is None
+    np.testing.assert_allclose(default / np.asarray(jr.racer7().u0), [0.99e-3, 0.60e-3, 7.31e-3, 3e-9, 3e-9, 3e-9],
+                               rtol=5e-3)  # docs/model.md (B.0): w / u0 on joints 1-3, the wrist's floor
+    assert np.all(default > np.asarray(shortest_reversal_travel(jr.racer7())))
+    travel = [0.2, 0.1, 0.9, 1e-6, 1e-6, 1e-6]
+    robot = jr.load_robot(_write(tmp_path, _edit(("gear", "reversal_travel_rad"), travel)))
+    np.testing.assert_array_equal(jr.reversal_travel(robot), travel)
+    jr.save_robot(robot, tmp_path / "again.toml")
+    assert jr.read_description(tmp_path / "again.toml")["gear"]["reversal_travel_rad"] == travel
+    np.testing.assert_array_equal(jr.reversal_travel(jr.load_robot(tmp_path / "again.toml")), travel)

@@ -40,7 +40,7 @@ def test_plan_rejects_a_task_not_at_rest(tmp_path, capsys):
 
 
 def _failed_solve(robot, q_d, ts, nu=1e-14, cost="thesis", config=None, warm_start=None, u_ref=None, throw=False,
-                  play=None, travel=None):
+                  play=None, travel=None, direction=None):
     """Stand-in for `solve_ocp` that returns its warm start as an `inner_failed` solution."""
     from planning._ocp import RESULTS, OCPSolution
 

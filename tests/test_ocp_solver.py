@@ -31,12 +31,15 @@ VMAP_UTOL = 1e-5
 the loosest direction of the optimum; measured differences up to 2.2e-6)."""
 
 
+def _move_at(s):
+    """The move of `_move` at the fraction `s` of its duration."""
+    blend = s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3)
+    return jnp.array([0.1, 0.2, -1.4, 0.1, 1.4, 0.1]) + 3e-4 * blend * jnp.array([1.0, -1.0, 1.0, 1.0, -1.0, 1.0])
+
+
 def _move():
     """A short smooth joint move (eq. 4.4 blend, 50 ms, 0.3 mrad per joint; no bound active) near the line task."""
-    q_a = jnp.array([0.1, 0.2, -1.4, 0.1, 1.4, 0.1])
-    s = jnp.arange(N) / (N - 1)
-    blend = s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3)
-    return q_a + 3e-4 * blend[:, None] * jnp.array([1.0, -1.0, 1.0, 1.0, -1.0, 1.0])
+    return jax.vmap(_move_at)(jnp.arange(N) / (N - 1))
 
 
 @pytest.fixture(scope="module")
@@ -332,7 +335,7 @@ def test_sweep_configs_differing_in_numbers_share_one_program(robot, q_d, monkey
     args = (robot, jnp.asarray(q_d), jnp.asarray(TS), jnp.asarray([1e-14, 1e-12]), None, None)
     for tol in (3e-9, 4e-9):
         config = pl.ALConfig(tol_violation=tol)
-        sweep._chain.lower(*args, jax.tree.map(jnp.asarray, config), cost="thesis",
+        sweep._chain.lower(*args, jax.tree.map(jnp.asarray, config), None, None, cost="thesis",
                            history=history_length(config))
     assert len(traces) <= 1
 
@@ -343,6 +346,8 @@ def test_sweep_configs_differing_in_numbers_share_one_program(robot, q_d, monkey
     (dict(workers=0), "workers"),
     (dict(workers=1.5), "workers"),
     (dict(ts=0.0), "ts"),
+    (dict(play=np.zeros((1, N, 6))), "play"),
+    (dict(direction=np.full((N, 6), 2.0)), "direction"),
 ])
 def test_sweep_bad_input_names_the_field(robot, q_d, kwargs, field):
     args = dict(q_d=q_d, ts=TS, nus=[1e-14, 1e-12])
@@ -359,6 +364,25 @@ def test_non_converged_solve_is_not_success(robot, q_d):
     assert "maximum number of steps" in jr.status_message(sol.status)
     with pytest.raises(Exception, match="maximum number of steps"):  # throw=True: RESULTS.error_if
         pl.solve_ocp(robot, q_d, TS, NU, config=pl.ALConfig(max_outer_iterations=1), throw=True)
+
+
+def test_motor_directions_keep_the_plan_to_the_task(robot, q_d):
+    """At nu = 1e-10 the thesis cost alone turns motors against the exact inverse's direction (the smoothed plan
+    starts and stops earlier: rates of 0.036 rad/s the wrong way); bounded to the exact inverse's directions
+    (`motor_directions`), no rate points the wrong way beyond the solver's tolerance on a bound (`tol_violation`
+    in the rate's scaled unit `u0 ANGLE_SCALE / T_s`), each motor reverses as often as the exact inverse (the
+    rates reach the task's reversals), and the cost rises by less than 1 %."""
+    t = jnp.arange(N) * TS
+    flat = pl.MotorTrajectory(*jax.jit(lambda t: jr.flat_inverse(robot, lambda x: _move_at(x / t[-1]), t))(t))
+    direction = pl.motor_directions(flat.thetad)
+    free, bound = (pl.solve_ocp(robot, q_d, TS, 1e-10, direction=d) for d in (None, direction))
+    assert bool(free.converged) and bool(bound.converged), (jr.status_name(free.status), jr.status_name(bound.status))
+    wrong_way = lambda sol: float(jnp.max(-direction * sol.thetad))  # noqa: E731
+    assert wrong_way(free) > 1e-2
+    assert wrong_way(bound) <= pl.ALConfig().tol_violation * float(jnp.max(robot.u0)) * tr.ANGLE_SCALE / TS
+    count = 2 * np.pi / 2**20  # one count of a 20-bit motor encoder (docs/model.md (B.6))
+    np.testing.assert_array_equal(pl.motor_reversals(bound.theta, count), pl.motor_reversals(flat.theta, count))
+    assert float(free.objective) < float(bound.objective) < 1.01 * float(free.objective)
 
 
 @pytest.mark.slow
@@ -384,6 +408,8 @@ def test_cost_variants_converge(robot, q_d, cost):
     (dict(ts=-1e-3), "ts"),
     (dict(cost="energy"), "cost"),
     (dict(warm_start=(np.zeros((10, 24)), np.zeros((9, 6)))), "warm_start"),
+    (dict(direction=np.ones((9, 6))), "direction"),
+    (dict(direction=np.full((10, 6), 0.5)), "direction"),
 ])
 def test_bad_input_names_the_field(robot, kwargs, field):
     args = dict(q_d=np.zeros((10, 6)), ts=TS, nu=NU)

@@ -193,6 +193,19 @@ def test_baselines_order_on_the_model(line_model_errors):
     assert float(qs.settle_position_max) < 0.05 * float(rigid.settle_position_max)
 
 
+def test_plans_simulated_in_one_batch_equal_one_by_one(robot, joint_paths, line_baselines, monkeypatch):
+    """`simulate_plans` runs all trajectories in one vmapped simulation; each run equals the same trajectory
+    simulated on its own (`simulation_capacity` forced to 1: chunks of one, one after the other) to round-off."""
+    jp = joint_paths["line"]
+    names, batch = pl.simulate_plans(robot, jp, line_baselines)
+    monkeypatch.setattr("planning._evaluation.simulation_capacity", lambda *args: 1)
+    _, alone = pl.simulate_plans(robot, jp, line_baselines)
+    for k, name in enumerate(names):
+        np.testing.assert_allclose(batch.q[k], alone.q[k], rtol=0, atol=1e-13, err_msg=f"{name}: link angles")
+        np.testing.assert_allclose(batch.position[k], alone.position[k], rtol=0, atol=1e-13,
+                                   err_msg=f"{name}: tool position error")
+
+
 def test_evaluation_rejects_bad_trajectories(robot, joint_paths):
     bad = pl.MotorTrajectory(jnp.zeros((10, 6)), jnp.zeros((10, 6)), jnp.zeros((10, 6)))
     with pytest.raises(ValueError, match="theta must have shape"):

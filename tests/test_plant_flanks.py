@@ -27,9 +27,37 @@ def out_and_back(t):
     return QA + DELTA * (4 * s * (1 - s)) ** 4
 
 
-def reversals(thetad) -> list[int]:
-    """Sign changes of each joint's rate (zeros skipped)."""
-    return [int(np.count_nonzero(np.diff(np.sign(c[c != 0])))) for c in np.asarray(thetad).T]
+ENCODER_COUNT = 2 * np.pi / float(jr.read_description()["sensors"]["encoder_counts_per_rev"])
+"""[rad] One count of the Racer-7's motor encoders: the hysteresis of `pl.motor_reversals` (docs/model.md (B.6))."""
+
+
+def reversals(theta) -> list[int]:
+    """Reversals of each motor along `theta`: back-travel beyond one encoder count (`pl.motor_reversals`)."""
+    return np.asarray(pl.motor_reversals(theta, ENCODER_COUNT)).tolist()
+
+
+def wrong_way_rate(sol, direction) -> float:
+    """[rad/s] Largest motor rate against the direction of the task (`pl.motor_directions`)."""
+    return float(jnp.max(-direction * sol.thetad))
+
+
+def rate_tolerance(robot) -> float:
+    """[rad/s] The solver's tolerance on a motor-rate bound: its scaled violation tolerance (1e-9) in the
+    rate's unit `u0 ANGLE_SCALE / T_s` at T_s = 1 ms."""
+    return float(pl.ALConfig().tol_violation * jnp.max(robot.u0) * 1e-3 / 1e-3)
+
+
+def test_reversals_count_back_travel_beyond_the_resolution():
+    """A motor swinging three times (six turns after its first move) has six reversals at any resolution below
+    the swing; a wobble below the resolution on a monotone ramp, or on a motor at rest, none; the direction of
+    a rate that pauses is that of the next motion, after the last one that of the last."""
+    t = np.linspace(0.0, 1.0, 1001)
+    theta = np.stack([np.sin(6 * np.pi * t), t + 0.4 * ENCODER_COUNT * np.sin(100 * np.pi * t),
+                      0.4 * ENCODER_COUNT * np.sin(100 * np.pi * t)], -1)
+    assert reversals(theta) == [6, 0, 0]
+    assert np.asarray(pl.motor_reversals(theta, 0.0)).tolist() == [6, 0, 100]
+    rate = jnp.array([[0.0, 0.0], [2.0, 0.0], [0.0, 0.0], [-1.0, 0.0], [0.0, 0.0]])
+    np.testing.assert_array_equal(pl.motor_directions(rate), [[1, 0], [1, 0], [-1, 0], [-1, 0], [-1, 0]])
 
 
 def flank_changes(robot, theta) -> list[int]:
@@ -95,13 +123,42 @@ def test_flank_plan_meets_the_task_on_the_flank_plant(reversal_task):
 
 @pytest.mark.extended
 def test_motor_reverses_only_where_the_motion_does(reversal_task):
-    """The OCP's gears change flank where the exact inverse (the flat inverse) does: joint 2 once (it starts
-    backwards from rest on cw), joints 1 and 3 once (the task's reversal), joint 2 once more."""
+    """The OCP's motors reverse as often as the exact inverse (the flat inverse): joints 1 and 2 once (the task's
+    reversal), joint 3 three times and the wrist's motors, which hold their links against the reversing load,
+    three times each (measured); its gears change flank where the exact inverse's do: joint 2 once (it starts
+    backwards from rest on cw), joints 1 and 3 once, joint 2 once more; no motor turns against the task beyond
+    the solver's tolerance."""
     _, flat, plans = reversal_task
     want = flank_changes(TRUTH, flat.theta)
     assert want[:3] == [1, 2, 1], want
+    assert reversals(flat.theta) == [1, 1, 3, 3, 3, 3], reversals(flat.theta)
     for sol, _, _ in plans.values():
         assert flank_changes(TRUTH, sol.theta)[:3] == want[:3]
+        assert reversals(sol.theta) == reversals(flat.theta)
+        assert wrong_way_rate(sol, pl.motor_directions(flat.thetad)) <= rate_tolerance(TRUTH)
+
+
+@pytest.mark.extended
+@pytest.mark.parametrize("task", ["line", "spiral"])
+def test_reference_plans_reverse_only_where_the_task_does(task):
+    """At nu = 1e-10 the thesis cost alone starts the line's joints 1, 2, 3 and 6 backwards and overshoots at
+    the end (unbounded plan: reversals [2, 1, 1, 0, 1, 2] against the task's [0, 0, 0, 0, 1, 0], back-travels
+    up to 1.2e-4 rad, 20 encoder counts); bounded to the task's directions, the plan reverses each motor
+    exactly as often as the exact inverse, and no rate points the wrong way beyond the solver's tolerance."""
+    from planning._trajectories import reference_path
+
+    jp = pl.joint_path(TRUTH, reference_path(task))
+    flat = pl.baseline_trajectories(TRUTH, jp)["flat_inverse"]
+    warm = (pl.State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
+    direction = pl.motor_directions(flat.thetad)
+    free = pl.solve_ocp(TRUTH, jp.q, 1e-3, 1e-10, warm_start=warm)
+    sol, _, _ = solve_directional(TRUTH, jp.q, jp.qd, flat, 1e-3, 1e-10, "thesis", False)
+    assert bool(free.converged) and bool(sol.converged), (jr.status_name(free.status), jr.status_name(sol.status))
+    if task == "line":
+        assert reversals(free.theta) == [2, 1, 1, 0, 1, 2] and reversals(flat.theta) == [0, 0, 0, 0, 1, 0]
+    assert wrong_way_rate(free, direction) > 1e-3  # the cause: the free plan turns against the task
+    assert reversals(sol.theta) == reversals(flat.theta)
+    assert wrong_way_rate(sol, direction) <= rate_tolerance(TRUTH)
 
 
 def test_saved_robot_files_keep_the_tasks_and_plan_on_any_plant(tmp_path):
@@ -130,7 +187,8 @@ def test_saved_robot_files_keep_the_tasks_and_plan_on_any_plant(tmp_path):
 def test_reference_tasks_on_the_as_built_flank_plant(task):
     """The reference tasks at nu = 1e-14 planned on the as-built truth's flanks: on the flank plant the error
     is the cw plan's on the cw plant (line 0.032 µm, spiral 11.1 µm; goals: line <= 1 µm, spiral <= 1.2x),
-    and the gears with ripple (joints 1-3) change flank exactly where the exact inverse's do."""
+    the gears with ripple (joints 1-3) change flank exactly where the exact inverse's do and every motor reverses
+    as often as the exact inverse."""
     from planning._trajectories import reference_path
 
     path = reference_path(task)
@@ -141,6 +199,29 @@ def test_reference_tasks_on_the_as_built_flank_plant(task):
         sol, _, _ = solve_directional(TRUTH, jp.q, jp.qd, flat, 1e-3, 1e-14, "thesis", d)
         assert bool(sol.converged), jr.status_name(sol.status)
         assert flank_changes(TRUTH, sol.theta)[:3] == flank_changes(TRUTH, flat.theta)[:3]
+        assert reversals(sol.theta) == reversals(flat.theta)
         err = pl.evaluate_on_plant(TRUTH, jp, {"ocp": pl.ocp_motor_trajectory(sol.x, sol.u)}, directional=d)
         errors[d] = float(err["ocp"].position_max)
     assert errors[True] <= (1e-6 if task == "line" else 1.2 * errors[False]), errors
+
+
+@pytest.mark.extended
+def test_sweep_plans_on_the_flanks_like_plan_task():
+    """`sweep_task` on a directional plant plans every member on its gears' flanks as `solve_directional` does
+    one plan (objectives to the solver's tolerance, 1e-8 relative), and its batched evaluation gives each
+    member's error on the flank plant as the plan alone has it (to 1e-3 of the error: the plans agree to the
+    solver's tolerance, not bit for bit)."""
+    from planning._trajectories import reference_path
+
+    path, nus = reference_path("line"), (1e-14, 1e-10)
+    res = pl.sweep_task(TRUTH, TRUTH, path, nus, costs=("thesis",), directional=True)
+    assert res.converged
+    swept = res.costs["thesis"]
+    jp = res.joint_path
+    flat = pl.baseline_trajectories(TRUTH, jp)["flat_inverse"]
+    for i, nu in enumerate(nus):
+        sol, _, _ = solve_directional(TRUTH, jp.q, jp.qd, flat, 1e-3, nu, "thesis", True)
+        assert float(swept.solutions.objective[i]) == pytest.approx(float(sol.objective), rel=1e-8)
+        assert reversals(swept.solutions.theta[i]) == reversals(flat.theta)
+        err = pl.evaluate_on_plant(TRUTH, jp, {"ocp": pl.ocp_motor_trajectory(sol.x, sol.u)}, directional=True)
+        assert float(swept.errors.position_max[i]) == pytest.approx(float(err["ocp"].position_max), rel=1e-3)
