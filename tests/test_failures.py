@@ -143,7 +143,7 @@ def jax_stack(trees):
 
 def _sweep_stand_in(solve):
     """Stand-in for `solve_ocp_sweep`: `solve` (`_failed_solve`, `_converged_solve`) for every nu."""
-    return lambda robot, q_d, ts, nus, cost="thesis", warm_start=None: jax_stack(
+    return lambda robot, q_d, ts, nus, cost="thesis", warm_start=None, play=None, direction=None: jax_stack(
         [solve(robot, q_d, ts, warm_start=warm_start) for _ in nus])
 
 
