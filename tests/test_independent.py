@@ -311,6 +311,7 @@ def test_chained_cli_plan_uses_the_calibrated_model(gear_stage, tmp_path, capsys
     assert out["status"] == "successful"
 
 
+@pytest.mark.extended  # two robust fleet fits through the CLI; the fleet CLI's fast checks are in test_fleet_faults
 def test_calibrate_fleet_approach(tmp_path, capsys):
     """`calibrate-fleet --approach order`: bench poses of two robots measured in row order, each gear
     at rest on the set of its direction of approach from that order; read so, the fit reaches the
