@@ -26,8 +26,8 @@ import numpy as np
 import jaxrobot as jr
 from jaxrobot.measurement import marker_pose
 
-from .._noise import noise_model
-from ._diagnose import ALPHA, MIN_BIC_GAIN, _p_value
+from .._noise import ALPHA, noise_model, noise_test
+from ._diagnose import MIN_BIC_GAIN
 
 STEP_TOLERANCE = 1e-6
 """Relative agreement of the run's and the command's sample times (the files keep 12 digits)."""
@@ -129,9 +129,8 @@ def compare_run(robot: jr.Robot, command, run, marker, noise) -> RunComparison:
     residual = measured - predicted
     if white is not None:
         residual = np.einsum("kij,kj->ki", white, residual)
-    chi2 = float(np.sum(residual**2) / sigma**2)
-    dof = residual.size
-    return RunComparison(t_run, predicted, measured, residual, sigma, chi2, dof, _p_value(chi2, dof),
+    chi2, dof, p_value = noise_test(residual, sigma, 0)
+    return RunComparison(t_run, predicted, measured, residual, sigma, float(chi2), int(dof), float(p_value),
                          np.max(np.abs(encoders - motors), 0), float(command[0][-1]))
 
 
@@ -356,9 +355,9 @@ def diagnose_runs(
     threshold = max(ENCODER_LAG_RAD, 2.0 * encoder_quantum)
 
     def row(step, label, z, m):
-        chi2 = float(np.sum(_evaluate(base, z, runs, sigma, marker, substeps)[0] ** 2))
+        chi2, dof, p_value = noise_test(_evaluate(base, z, runs, sigma, marker, substeps)[0].reshape(-1, 3), 1.0, m)
         chi2_v = float(np.sum(_evaluate(base, z, val, sigma, marker, substeps)[0] ** 2))
-        out = RunStep(step, label, chi2, n_res - m, _p_value(chi2, n_res - m), chi2 + m * ln_n, chi2_v)
+        out = RunStep(step, label, float(chi2), int(dof), float(p_value), float(chi2) + m * ln_n, chi2_v)
         if progress is not None:
             progress(out)
         return out
