@@ -81,9 +81,4 @@ def noise_test(residuals: np.ndarray, sigma: float, m: int, keep: np.ndarray | N
     keep = np.ones(r.shape[:-1], bool) if keep is None else np.asarray(keep, bool)
     chi2 = np.sum(np.where(keep[..., None], r, 0.0) ** 2, axis=(-2, -1)) / sigma**2
     dof = r.shape[-1] * np.sum(keep, -1) - m
-    return chi2, dof, chi2_p_value(chi2, dof)
-
-
-def chi2_p_value(chi2, dof):
-    """Probability that a chi-square with `dof` (at least 1) degrees of freedom exceeds `chi2`."""
-    return np.asarray(gammaincc(0.5 * np.maximum(dof, 1), 0.5 * np.asarray(chi2, float)))
+    return chi2, dof, np.asarray(gammaincc(0.5 * np.maximum(dof, 1), 0.5 * chi2))

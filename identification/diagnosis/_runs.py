@@ -26,7 +26,7 @@ import numpy as np
 import jaxrobot as jr
 from jaxrobot.measurement import marker_pose
 
-from .._noise import ALPHA, chi2_p_value, noise_model, noise_test
+from .._noise import ALPHA, noise_model, noise_test
 from ._diagnose import MIN_BIC_GAIN
 
 STEP_TOLERANCE = 1e-6
@@ -149,6 +149,9 @@ candidate (above the files' rounding, 12 digits, ~1e-10 rad; and at least two en
 encoder_counts_per_rev` states them): the encoders report the motor angle, so a lag shows there first."""
 LM_STEPS = 30
 """Most Levenberg-Marquardt iterations of a fit."""
+TANGENTS = 3
+"""Derivative columns per call of the compiled derivative program: the screening and the fits evaluate theirs this
+many at a time, zero-padded, so that one program serves every number of fitted effects."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -235,7 +238,7 @@ def _residual(robot, z, cmd, white, measured, sigma, marker, substeps):
 
 @functools.partial(jax.jit, static_argnames="substeps")
 def _columns(robot, z, tangents, cmd, white, measured, sigma, marker, substeps):
-    """Residual (3N,) and its derivatives (3N, m) along the `tangents` (3n, m) of the effect variables."""
+    """Residual (3N,) and its derivatives (3N, TANGENTS) along the `tangents` (3n, TANGENTS) of the variables."""
     f = lambda z: _whitened(robot, z, cmd, white, measured, sigma, marker, substeps)  # noqa: E731
     r = f(z)
     return r, jax.vmap(lambda t: jax.jvp(f, (z,), (t,))[1], in_axes=1, out_axes=1)(tangents)
@@ -264,37 +267,50 @@ def _prepare(pairs, noise, where: str) -> tuple[list[_Run], float]:
     return runs, sigma
 
 
-def _evaluate(robot, z, runs, sigma, marker, substeps, tangents=None):
-    """Stacked whitened residuals of `runs` at `z`, and their columns along `tangents` (3n, m) if given."""
-    if tangents is None:
+def _evaluate(robot, z, runs, sigma, marker, substeps, variables=None):
+    """Stacked whitened residuals of `runs` at `z`, and their derivatives (3N, m) along the effect `variables`
+    (m,) if given, `TANGENTS` at a time (zero-padded: one compiled program for any number of variables)."""
+    if variables is None:
         return np.concatenate([np.asarray(_residual(robot, z, r.command, r.white, r.measured, sigma, marker,
                                                     substeps)) for r in runs]), None
-    out = [_columns(robot, z, tangents, r.command, r.white, r.measured, sigma, marker, substeps) for r in runs]
-    return np.concatenate([np.asarray(o[0]) for o in out]), np.concatenate([np.asarray(o[1]) for o in out])
+    m, size = len(variables), len(z)
+    res, cols = [], []
+    for r in runs:
+        parts = []
+        for start in range(0, m, TANGENTS):
+            chunk = variables[start:start + TANGENTS]
+            tangents = np.zeros((size, TANGENTS))
+            tangents[chunk, np.arange(len(chunk))] = 1.0
+            out = _columns(robot, z, jnp.asarray(tangents), r.command, r.white, r.measured, sigma, marker,
+                           substeps)
+            parts.append(np.asarray(out[1])[:, :len(chunk)])
+        res.append(np.asarray(out[0]))
+        cols.append(np.concatenate(parts, 1))
+    return np.concatenate(res), np.concatenate(cols)
 
 
 def _index(effect: RunEffect, n: int) -> int:
     return list(RUN_KINDS).index(effect.kind) * n + effect.joint
 
 
-def _fit(robot, z0, effects, runs, sigma, marker, substeps):
-    """Levenberg-Marquardt on the variables of `effects` from `z0`: (z, chi2, std of the variables) or None where
-    the fit leaves the physical range (a negative lag or damping) or fails to lower the chi-square."""
+def _fit(robot, z0, effects, runs, sigma, marker, substeps, r0, jac0):
+    """Levenberg-Marquardt on the variables of `effects` from `z0`, where the residual is `r0` and its derivatives
+    along those variables `jac0`: (z, chi2, std of the variables) or None where the fit leaves the physical range
+    (a negative lag or damping) or fails to lower the chi-square. Derivatives are evaluated at accepted steps only."""
     n = robot.n_joints
     idx = np.array([_index(e, n) for e in effects])
-    tangents = jnp.asarray(np.eye(3 * n)[:, idx])
-    z = jnp.asarray(z0)
-    r, jac = _evaluate(robot, z, runs, sigma, marker, substeps, tangents)
+    z, r, jac = jnp.asarray(z0), r0, jac0
     chi2, start, lam = float(r @ r), float(r @ r), 1e-3
     for _ in range(LM_STEPS):
         a, g = jac.T @ jac, jac.T @ r
         step = np.linalg.solve(a + lam * np.diag(np.diag(a)), -g)
         z_try = z.at[idx].add(step)
-        r_try, jac_try = _evaluate(robot, z_try, runs, sigma, marker, substeps, tangents)
+        r_try = _evaluate(robot, z_try, runs, sigma, marker, substeps)[0]
         chi2_try = float(r_try @ r_try)
         if chi2_try < chi2:
             done = chi2 - chi2_try < 1e-9 * chi2 + 1e-6
-            z, r, jac, chi2, lam = z_try, r_try, jac_try, chi2_try, max(lam / 10.0, 1e-12)
+            z, r, chi2, lam = z_try, r_try, chi2_try, max(lam / 10.0, 1e-12)
+            jac = _evaluate(robot, z, runs, sigma, marker, substeps, idx)[1]
             if done:
                 break
         else:
@@ -355,9 +371,9 @@ def diagnose_runs(
     threshold = max(ENCODER_LAG_RAD, 2.0 * encoder_quantum)
 
     def row(step, label, z, m):
-        chi2 = float(np.sum(_evaluate(base, z, runs, sigma, marker, substeps)[0] ** 2))
+        chi2, dof, p_value = noise_test(_evaluate(base, z, runs, sigma, marker, substeps)[0].reshape(-1, 3), 1.0, m)
         chi2_v = float(np.sum(_evaluate(base, z, val, sigma, marker, substeps)[0] ** 2))
-        out = RunStep(step, label, chi2, n_res - m, float(chi2_p_value(chi2, n_res - m)), chi2 + m * ln_n, chi2_v)
+        out = RunStep(step, label, float(chi2), int(dof), float(p_value), float(chi2) + m * ln_n, chi2_v)
         if progress is not None:
             progress(out)
         return out
@@ -379,11 +395,15 @@ def diagnose_runs(
         if not eligible.any():
             verdict = "not explained: no effect of the catalogue is left to add"
             break
-        res, cols = _evaluate(base, z, runs, sigma, marker, substeps, jnp.eye(3 * n))  # one program for all steps
+        needed = np.flatnonzero(eligible | np.array([c in added for c in candidates]))
+        res, part = _evaluate(base, z, runs, sigma, marker, substeps, needed)  # reused by the fits' first step
+        cols = np.zeros((len(res), 3 * n))
+        cols[:, needed] = part
         gain = np.where(eligible, (cols.T @ res) ** 2 / np.maximum(np.sum(cols**2, 0), 1e-300), -np.inf)
         best = None
         for k in np.argsort(-gain)[:min(SCREENED, int(eligible.sum()))]:
-            fit = _fit(base, z, added + [candidates[k]], runs, sigma, marker, substeps)
+            effects = added + [candidates[k]]
+            fit = _fit(base, z, effects, runs, sigma, marker, substeps, res, cols[:, [_index(e, n) for e in effects]])
             if fit is not None and (best is None or fit[1] < best[1][1]):
                 best = (candidates[k], fit)
         last = steps[-1]
