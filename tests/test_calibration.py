@@ -359,6 +359,7 @@ FLEET_SCRIPT = textwrap.dedent("""
 FLEET_NAMES = ("a2", "d4", "alpha3", "u0_5")
 
 
+@pytest.mark.extended  # four simulated devices in a subprocess; the sharded fleet runs in test_distributed too
 def test_fleet_sharded_four_devices(robots, bench, tmp_path):
     """Six robots (padded to 8) with their own data, sharded over 4 host devices in a subprocess.
     Bench data come from this process (the compiled bench of the other tests)."""

@@ -138,6 +138,7 @@ def test_lag_and_damping_match_an_independent_integration():
     assert float(np.max(np.abs(q_plain - q_ref))) > 1e-4
 
 
+@pytest.mark.extended  # a forward derivative through the lagged simulation compiles for 20 s
 def test_lag_is_differentiable_from_none():
     """`dtheta_m/dtau` at `tau = 0` is `-thetad_cmd` (the lag's first-order effect), so a fit can start from no
     lag (to the rounding of the interpolant's rate at a knot, ~eps |theta| / h times its coefficients ~ 1e-10);

@@ -110,6 +110,7 @@ def test_plan_a_short_task_on_the_calibrated_panda(chain):
         f"theta{j}_deg" for j in range(1, 8)]
 
 
+@pytest.mark.extended  # IK compile of a 7-joint robot; the panda's import and calibration stay in the suite
 def test_ik_start_of_a_robot_without_reference_tasks(tmp_path):
     """The UR5's middle of the limits (q = 0, arm stretched) is singular: IK from there fails at the
     first sample; `task_start` finds a start from which the whole path converges, inside the limits

@@ -193,6 +193,7 @@ def test_baselines_order_on_the_model(line_model_errors):
     assert float(qs.settle_position_max) < 0.05 * float(rigid.settle_position_max)
 
 
+@pytest.mark.extended  # compiles the one-wide simulation beside the batched one; the LAPACK guard runs the batch
 def test_plans_simulated_in_one_batch_equal_one_by_one(robot, joint_paths, line_baselines, monkeypatch):
     """`simulate_plans` runs all trajectories in one vmapped simulation; each run equals the same trajectory
     simulated on its own (`simulation_capacity` forced to 1: chunks of one, one after the other) to round-off."""
