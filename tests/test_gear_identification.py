@@ -187,6 +187,7 @@ def test_cw_ccw_significantly_different(result):
         assert t.significant, f"joint {t.joint}: p = {t.p_value:.3g}"
 
 
+@pytest.mark.extended  # a second identification of its own; the significant case stays in the suite
 def test_identical_sets_not_significant(truth):
     same = eqx.tree_at(lambda r: r.ccw, truth, truth.cw)
     runs = jb.gear_runs(same, 3, repetitions=3, seed=11)

@@ -130,6 +130,7 @@ def test_mass_matrix_is_symmetric_positive_definite():
     assert np.linalg.eigvalsh(d).min() > 0
 
 
+@pytest.mark.extended  # Christoffel symbols by nested autodiff compile for 17 s; pinocchio checks C qd in the suite
 def test_coriolis_newton_euler_equals_christoffel_and_ddot_minus_2c_is_skew():
     q, qd, _ = (jnp.asarray(x) for x in random_states(50, seed=5))
     c = jr.coriolis_matrix(ROBOT, q, qd)
