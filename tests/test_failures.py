@@ -54,6 +54,7 @@ def _failed_solve(robot, q_d, ts, nu=1e-14, cost="thesis", config=None, warm_sta
                        history_penalty=h, history_stationarity=h)
 
 
+@pytest.mark.extended  # the whole plan command at T_s = 25 ms; the sweep's failed member and test_status stay
 def test_plan_failed_solve_exits_3_and_writes_only_with_save_failed(tmp_path, capsys, monkeypatch):
     import planning._ocp
 
