@@ -148,6 +148,7 @@ def _sweep_stand_in(solve):
         [solve(robot, q_d, ts, warm_start=warm_start) for _ in nus])
 
 
+@pytest.mark.extended  # IK and flat inverse of the 25 ms line; test_status keeps the failed-solve statuses
 def test_sweep_task_stops_at_a_failed_member(monkeypatch):
     """`sweep_task` with a failing stand-in for `solve_ocp_sweep` (the line at T_s = 25 ms, the task of
     the plan exit-3 test): the first cost with a failed member ends the sweep there, unevaluated, with
