@@ -101,6 +101,7 @@ def fleet_runs(tmp_path_factory):
     return expect, runs
 
 
+@pytest.mark.extended  # two fleet CLI runs (41 s); the chi-square and the outlier marking stay in the suite
 def test_spoiled_files_are_named_and_left_out(fleet_runs):
     """Each fault gets its status, check and lines in the table and in `--json`, the warning names the
     file; the run exits 4 (some robots failed) and still writes the others' results and the report."""
@@ -135,6 +136,7 @@ def test_spoiled_files_are_named_and_left_out(fleet_runs):
     assert summary["fleet_outliers"] == []  # 7 robots: too few for a robust spread
 
 
+@pytest.mark.extended  # shares the two fleet CLI runs above
 def test_clean_robots_as_the_fleet_without_the_faulty_ones(fleet_runs):
     """Every clean robot's parameters and standard errors are those of the fleet of the clean files alone:
     each robot's LM runs on its own, the spoiled robots only add reweighting rounds that start at the clean
