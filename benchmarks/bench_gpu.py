@@ -242,11 +242,11 @@ the `ceil(log2 N)` levels of cyclic reduction in the factor and twice that in th
 N = 2501), the Newton-Euler scans over the 6 links (forward and backward) and the fixed Newton steps of
 the gear inverse in each `half_step`. No scan or loop over the nodes runs in an iteration with cyclic
 reduction; with the scan, the factor and the solve are sequential over the N nodes (the
-`block-tridiagonal factor + solve` rows measure one of each). A sweep on an accelerator runs 4 batched
-waves of increasing nu one after the other (continuation chains of 4, batched across the chains); each
-wave is one `while_loop` over its members until the last is done, in which the refresh and step
-conditionals are selects, so every member refactors at every pass (a single solve refactors every
-`refresh_every` steps)."""
+`block-tridiagonal factor + solve` rows measure one of each). A sweep on an accelerator runs its B
+members in ceil(B / 4) lanes of one `while_loop` (`planning._al_solver._pool`): a lane whose member is
+done takes the next nu, warm-started from the lane's last two members; the loop's passes are at least
+those of the slowest lane. In a pass the refresh and step conditionals are selects, so every lane
+refactors at every pass (a single solve refactors every `refresh_every` steps)."""
 
 
 def main() -> None:
@@ -291,8 +291,8 @@ def main() -> None:
         "the persistent compilation cache as set" + ("; the OCP rows' first calls ran concurrently in threads"
                                                      if args.concurrent else "") + ").",
         "Defaults by backend: on the CPU `solve_ocp` uses the scan and `solve_ocp_sweep` continuation chains "
-        "(one per core, `lax.map`/`while_loop`); on an accelerator cyclic reduction, and the sweep as continuation "
-        "chains of 4 batched across the chains (4 waves whose members advance together).",
+        "(one per core, `lax.map`/`while_loop`); on an accelerator cyclic reduction, and the sweep in "
+        "ceil(B / 4) lanes of one batched loop, each lane taking the next nu by continuation when its member is done.",
         "",
     ]
     if gpu:
