@@ -341,7 +341,8 @@ def augmented_lagrangian(
     the next one, and a lane with none left is masked. The conditionals of a pass (factor refresh,
     step) then run for every lane. At most `batch_capacity` lanes run at once. A batch that differs
     only in the cost weights runs in `ceil(B / MEMBERS_PER_LANE)` lanes by continuation in increasing
-    `nu` (below), each member warm-started from the last two of its lane.
+    `nu` (below), each member warm-started from the last two of its lane. A batch of one member is
+    the unbatched solve.
     With the `"scan"` (the default
     on the CPU) the batch is solved one member after the other (a custom batching rule): each
     solve keeps its real conditionals (factor reuse, no evaluation of both branches) and stops at
@@ -386,6 +387,9 @@ def augmented_lagrangian(
             return jax.tree.unflatten(treedef, [next(it) if b else leaf
                                                 for leaf, b in zip(leaves, batched, strict=True)])
 
+        if axis_size == 1:  # one member: the unbatched solve, with its real conditionals
+            out = jax.tree.map(lambda a: a[None], solve(*member([x[0] for x in xs])))
+            return out, jax.tree.map(lambda _: True, out)
         arrays_b, y0_b, settings_b, dual_b = in_batched
         weights_only = not any(jax.tree.leaves((arrays_b.robot, arrays_b.q_d, arrays_b.ts, y0_b, settings_b, dual_b)))
         nu = jnp.broadcast_to(arrays.nu, (axis_size,))

@@ -141,6 +141,9 @@ def test_solve_ocp_cyclic_reduction_matches_scan():
     cr = pl.solve_ocp(robot, q_d, 1e-3, 1e-14, config=CR)
     assert bool(scan.converged) and bool(cr.converged)
     np.testing.assert_allclose(float(cr.objective), float(scan.objective), rtol=OBJECTIVE_RTOL)
+    one = jax.vmap(lambda nu: pl.solve_ocp(robot, q_d, 1e-3, nu, config=CR))(jnp.array([1e-14]))  # the unbatched solve
+    assert int(one.iterations[0]) == int(cr.iterations) and int(one.inner_iterations[0]) == int(cr.inner_iterations)
+    np.testing.assert_allclose(float(one.objective[0]), float(cr.objective), rtol=1e-12)
 
 
 def _task(name: str):
