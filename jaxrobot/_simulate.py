@@ -89,6 +89,62 @@ def _lag_response(
     return theta_p + start * decay, thetad_p - jnp.where(lagged, start / tau_safe, 0.0) * decay
 
 
+def _lag_step_weights(tau: Float[Array, " n"], h: Float[Array, ""]) -> tuple[Float[Array, "6 n"], Float[Array, " n"]]:
+    """The exact step of `_lag_response` over a whole interval: the motor angle at its end is
+    `sum_i a[i] knots[i] + decay m0` (per joint, `tau > 0`) for the Hermite `knots` of its command and the start `m0`."""
+    ends = np.einsum("sjk,ik->sij", _power_derivatives(np.array([0.0, 1.0]), 6), _HERMITE)  # d^j/ds^j of knot i
+    powers = (-tau / h)[None] ** np.arange(6)[:, None]  # (6, n)
+    w = jnp.einsum("sij,jn->sin", ends, powers)  # the particular solution's weights at s = 0, 1
+    decay = jnp.exp(-h / tau)
+    return w[1] - decay * w[0], decay
+
+
+def lag_command(
+    robot: Robot,
+    t: Float[Array, " N"],
+    theta: Float[Array, "N n"],
+    thetad: Float[Array, "N n"],
+    thetadd: Float[Array, "N n"],
+) -> tuple[Float[Array, "N n"], Float[Array, "N n"], Float[Array, "N n"]]:
+    """The command `(theta_c, thetad_c, thetadd_c)` (N, n) at the sample times `t` (uniform) whose motors, after the
+    velocity-loop lags `robot.motor_lag` as `simulate` solves them, pass every sample with the angles, rates and
+    accelerations `(theta, thetad, thetadd)` of a motor trajectory that starts at rest; the trajectory itself where
+    the robot has no lag (None, or a motor's `tau = 0`).
+
+    From `tau thetad_m + theta_m = theta_c`: `theta_c = theta + tau thetad` and `thetad_c = thetad + tau thetadd` at
+    each sample; `thetadd_c` (which sets the motor's jerk there) by the exact step of each interval (module
+    docstring) that takes the motor from `theta_k` to `theta_{k+1}`, one linear recursion per motor from
+    `thetadd_c[0] = thetadd[0] + tau jerk_0` (the jerk of the Hermite interpolant of `theta` at `t[0]`). The
+    recursion's free mode alternates and decays by a factor `|a2 / a5| < 1` per sample (0.95 at `tau = 3 h`)."""
+    t, theta, thetad, thetadd = (jnp.asarray(a, float) for a in (t, theta, thetad, thetadd))
+    n = robot.n_joints
+    if t.ndim != 1 or theta.shape != t.shape + (n,) or thetad.shape != theta.shape or thetadd.shape != theta.shape:
+        raise ValueError(f"lag_command: expected t (N,) and theta, thetad, thetadd (N, {n}), found t {t.shape}, "
+                         f"theta {theta.shape}, thetad {thetad.shape}, thetadd {thetadd.shape}")
+    if robot.motor_lag is None:
+        return theta, thetad, thetadd
+    h = t[1] - t[0]
+    lagged = robot.motor_lag > 0
+    tau = jnp.where(lagged, robot.motor_lag, h)
+    a, _ = _lag_step_weights(tau, h)
+    rate = thetad + tau * thetadd
+    step = theta[1:] - theta[:-1]
+    # theta_{k+1} - decay theta_k minus the value and rate knots' part, with a0 + a3 = 1 - decay
+    rhs = ((1 - a[3]) * step - tau * (a[0] * thetad[:-1] + a[3] * thetad[1:])
+           - h * (a[1] * rate[:-1] + a[4] * rate[1:])) / h**2
+    jerk0 = jnp.asarray(_HERMITE[:, 3] * 6, float) @ jnp.stack(
+        [theta[0], thetad[0] * h, thetadd[0] * h**2, theta[1], thetad[1] * h, thetadd[1] * h**2]) / h**3
+
+    def advance(acc, r):
+        nxt = (r - a[2] * acc) / a[5]
+        return nxt, nxt
+
+    _, rest = jax.lax.scan(advance, thetadd[0] + tau * jerk0, rhs)
+    acc = jnp.concatenate([(thetadd[0] + tau * jerk0)[None], rest])
+    return (jnp.where(lagged, theta + tau * thetad, theta), jnp.where(lagged, rate, thetad),
+            jnp.where(lagged, acc, thetadd))
+
+
 def simulate(
     robot: Robot,
     t: Float[Array, " N"],

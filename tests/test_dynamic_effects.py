@@ -193,3 +193,70 @@ def test_diagnose_runs_names_a_lag_on_the_arm():
     assert res.robot.damping is None and float(res.robot.motor_lag[1]) == 0.0
     clean = diagnose_runs(truth, train, val, marker, noise)
     assert clean.estimates == [] and len(clean.steps) == 1 and clean.verdict.startswith("no significant")
+
+
+# ----------------------------------------------------------------------------- the effects in planning
+
+
+def rest_to_rest(t):
+    """A motor move of the arm from rest to rest (the blend of eq. 4.4 over 0.3 s) [rad] and its two rates."""
+    s = np.clip(t / 0.3, 0.0, 1.0)
+    blend = np.stack([s**4 * (35 - 84 * s + 70 * s**2 - 20 * s**3), 140 * s**3 * (1 - s) ** 3 / 0.3,
+                      420 * s**2 * (1 - s) ** 2 * (1 - 2 * s) / 0.3**2])
+    return tuple(U0 * (np.array([0.3, -0.6]) * (k == 0) + np.array([0.6, 0.4]) * b[:, None])
+                 for k, b in enumerate(blend))
+
+
+def test_lag_command_moves_the_lagged_motors_through_the_samples():
+    """`jr.lag_command` inverts the lag as `jr.simulate` solves it: the lagged motors pass every sample at the
+    planned angles (to the rounding of ~100 rad motor angles, ~1e-13) and the links move as under the plan
+    without a lag (to 1e-12 rad: between samples the lag's response and the Hermite interpolant differ only
+    through the jump of the interpolant's jerk, measured 5e-15 rad on the links); a motor without lag gets
+    the plan itself; it is jit-, vmap- and grad-able in the lags."""
+    robot = jr.robot_from_description(arm_description(lag=[0.003, 0.0]))
+    t = np.arange(401) * 1e-3
+    plan = rest_to_rest(t)
+    command = jax.jit(jr.lag_command)(robot, t, *plan)
+    np.testing.assert_array_equal(np.asarray(command)[:, :, 1], np.asarray(plan)[:, :, 1])
+    _, _, motors = jax.jit(jr.simulate, static_argnames="motor_angles")(robot, t, *command, motor_angles=True)
+    np.testing.assert_allclose(motors, plan[0], rtol=0, atol=1e-12)
+    q, _ = jax.jit(jr.simulate)(robot, t, *command)
+    q_plain, _ = jax.jit(jr.simulate)(dataclasses.replace(robot, motor_lag=None), t, *plan)
+    np.testing.assert_allclose(q, q_plain, rtol=0, atol=1e-12)
+    assert float(np.abs(np.asarray(command[2]) - plan[2]).max()) > 0.05 * float(np.abs(plan[2]).max())  # tau jerk
+    lags = jnp.array([[0.003, 0.0], [0.0015, 0.001]])
+    batch = jax.vmap(lambda tau: jr.lag_command(dataclasses.replace(robot, motor_lag=tau), t, *plan))(lags)
+    np.testing.assert_allclose(batch[2][0], command[2], rtol=1e-12, atol=1e-9)
+    grad = jax.grad(lambda tau: jr.lag_command(dataclasses.replace(robot, motor_lag=tau), t, *plan)[0].sum())(
+        jnp.array([0.003, 0.001]))
+    np.testing.assert_allclose(grad, plan[1].sum(0), rtol=1e-12)  # d theta_c / d tau = thetad
+
+
+def test_damped_transcription_derivatives_match_autodiff():
+    """With joint damping (and lags), the OCP's structured `half_step`, `half_step_vjp` and `half_step_jacobian`
+    (now with the motor-rate columns) agree with forward-mode autodiff of the public `jr.planning_dynamics`
+    to rounding (1e-11 of the largest entry; both are sums of O(1) scaled terms); the lags' cost term is the
+    scaled quadratic's."""
+    from planning import _transcription as tr
+
+    robot = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING))
+    t = np.arange(6) * 1e-3
+    q_d = np.asarray(rest_to_rest(t)[0]) / U0
+    problem = tr.ocp_problem(robot, q_d, 1e-3, 1e-12)
+    sz = tr.variable_scale(problem)
+    rng = np.random.default_rng(5)
+    y = jnp.concatenate(tr.warm_start(problem), -1) / sz + rng.normal(size=(6, 10))
+    node_f = lambda yk: jr.planning_dynamics(robot, yk[:8] * sz[:8], yk[8:] * sz[8:])  # noqa: E731
+    jac = jax.vmap(jax.jacfwd(node_f))(y) * (0.5 * 1e-3 / sz[:8])[:, None]
+    h = tr.half_step(problem, y)
+    w = jnp.asarray(rng.normal(size=(6, 8)))
+    close = lambda a, b: float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))) <= 1e-11  # noqa: E731
+    assert close(h.g, jax.vmap(node_f)(y) * 0.5 * 1e-3 / sz[:8])
+    assert close(tr.half_step_vjp(problem, h)(w), jnp.einsum("kij,ki->kj", jac, w))
+    pk = tr.half_step_jacobian(problem, h)
+    assert pk.shape == (6, 2, 8) and close(pk, jac[:, 2:4, :8])
+    x, u = tr.State.of(y[:, :8] * sz[:8]).pack(), y[:, 8:] * sz[8:]
+    cost = tr.scaled_cost(problem)
+    scaled = (jnp.sum(cost.node_weight * (y - cost.node_target) ** 2)
+              + jnp.sum(cost.edge_weight * (y[1:] - y[:-1]) ** 2)) * tr.ANGLE_SCALE**2
+    np.testing.assert_allclose(scaled, tr.objective(problem, x, u), rtol=1e-12)
