@@ -15,6 +15,9 @@ from scipy.interpolate import BPoly
 from scipy.optimize import fsolve
 
 import jaxrobot as jr
+import planning as pl
+from planning._evaluation import motor_commands
+from planning._workflow import solve_directional
 
 # A two-joint arm turning about parallel vertical axes in a vertical plane (gravity along -y): links of length
 # L, centres of mass LC from each joint, inertias IZ about them; gears without ripple, stiff and soft springs.
@@ -218,15 +221,17 @@ def test_lag_command_moves_the_lagged_motors_through_the_samples():
     plan = rest_to_rest(t)
     command = jax.jit(jr.lag_command)(robot, t, *plan)
     np.testing.assert_array_equal(np.asarray(command)[:, :, 1], np.asarray(plan)[:, :, 1])
-    _, _, motors = jax.jit(jr.simulate, static_argnames="motor_angles")(robot, t, *command, motor_angles=True)
+    q, _, motors = jax.jit(jr.simulate, static_argnames="motor_angles")(robot, t, *command, motor_angles=True)
     np.testing.assert_allclose(motors, plan[0], rtol=0, atol=1e-12)
-    q, _ = jax.jit(jr.simulate)(robot, t, *command)
     q_plain, _ = jax.jit(jr.simulate)(dataclasses.replace(robot, motor_lag=None), t, *plan)
     np.testing.assert_allclose(q, q_plain, rtol=0, atol=1e-12)
     assert float(np.abs(np.asarray(command[2]) - plan[2]).max()) > 0.05 * float(np.abs(plan[2]).max())  # tau jerk
     lags = jnp.array([[0.003, 0.0], [0.0015, 0.001]])
     batch = jax.vmap(lambda tau: jr.lag_command(dataclasses.replace(robot, motor_lag=tau), t, *plan))(lags)
-    np.testing.assert_allclose(batch[2][0], command[2], rtol=1e-12, atol=1e-9)
+    # the acceleration knot moves the motor by a5 h^2 = 2.4e-9 s^2 per rad/s^2 (tau = 3 h), so rounding of the
+    # ~100 rad angles (1e-14 rad) leaves it uncertain by ~1e-5 rad/s^2 (measured 3e-5 between jit and vmap)
+    np.testing.assert_allclose(batch[0][0], command[0], rtol=1e-14)
+    np.testing.assert_allclose(batch[2][0], command[2], rtol=0, atol=1e-4)
     grad = jax.grad(lambda tau: jr.lag_command(dataclasses.replace(robot, motor_lag=tau), t, *plan)[0].sum())(
         jnp.array([0.003, 0.001]))
     np.testing.assert_allclose(grad, plan[1].sum(0), rtol=1e-12)  # d theta_c / d tau = thetad
@@ -260,3 +265,37 @@ def test_damped_transcription_derivatives_match_autodiff():
     scaled = (jnp.sum(cost.node_weight * (y - cost.node_target) ** 2)
               + jnp.sum(cost.edge_weight * (y[1:] - y[:-1]) ** 2)) * tr.ANGLE_SCALE**2
     np.testing.assert_allclose(scaled, tr.objective(problem, x, u), rtol=1e-12)
+
+
+RACER_LAG = jnp.array([3e-3, 3e-3, 3e-3, 0.0, 0.0, 1.5e-3])
+"""[s] Velocity-loop lags of the planning test: the trajectory runs' 3 ms on motors 1-3, half of it on motor 6."""
+
+
+def racer_move(t):
+    """A 0.5 s rest-to-rest move of all six Racer-7 joints (the blend of eq. 4.4), within its limits."""
+    s = jnp.clip(t / 0.5, 0.0, 1.0)
+    return (jnp.array([0.1, 0.2, -1.3, 0.2, 0.9, 0.1]) + jnp.array([0.1, -0.08, 0.1, 0.1, -0.1, 0.1])
+            * s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3))
+
+
+def test_plan_on_a_model_with_lag_and_damping_meets_the_move_on_it():
+    """The OCP (nu = 1e-14) on the Racer-7 with lags and 3 % damping of each joint's mode, its command through the
+    lags' inverse, simulated by `jr.simulate` on that model: the links follow the move within 1e-6 rad, the bound
+    of today's plans on the trapezoidal discretisation (`test_plant_flanks`; on this move without the effects
+    2.6e-7 rad measured, with them 3.2e-7); the planned motor trajectory given as the command misses by the lag
+    (> 1e-4 rad, measured 1.3e-3; the plan without damping, lag-inverted, missed by 4.1e-6 rad)."""
+    plain = jr.racer7()
+    start = racer_move(0.0)
+    damping = 2 * 0.03 * jnp.sqrt(plain.k1 * jnp.diag(jr.mass_matrix(plain, start)))  # N m s/rad
+    robot = dataclasses.replace(plain, motor_lag=RACER_LAG, damping=damping)
+    t = jnp.arange(501) * 1e-3
+    q_d, qd_d = jax.vmap(racer_move)(t), jax.vmap(jax.jacfwd(racer_move))(t)
+    flat = pl.MotorTrajectory(*jax.jit(lambda t: jr.flat_inverse(robot, racer_move, t))(t))
+    sol, _, _ = solve_directional(robot, q_d, qd_d, flat, 1e-3, 1e-14, "thesis", False)
+    assert bool(sol.converged), jr.status_name(sol.status)
+    planned = pl.ocp_motor_trajectory(sol.x, sol.u)
+    command = motor_commands(robot, t, {"ocp": planned})["ocp"]
+    simulated = jax.jit(jax.vmap(lambda c: jr.simulate(robot, t, c.theta, c.thetad, c.thetadd)[0]))(
+        jax.tree.map(lambda a, b: jnp.stack([a, b]), command, planned))
+    errors = jnp.abs(simulated - q_d).max(axis=(1, 2))
+    assert float(errors[0]) < 1e-6 and float(errors[1]) > 1e-4, errors
