@@ -21,7 +21,8 @@ Dynamic effects of the robot (`Robot.motor_lag`, `Robot.damping`; None leaves th
   solution `theta_p = sum_j (-tau)^j theta_cmd^(j)` (j <= 5, the series ends for a quintic). It is smooth in
   `tau` at 0 (`dtheta_m/dtau = -thetad_cmd` there), so a lag can be fitted from none. Its terms grow as
   `(tau/h)^j` times the command's j-th difference and cancel against the decay, so rounding grows with
-  `tau/h` (tested to `tau = 3 h`).
+  `tau/h` (tested to `tau = 3 h`). `lag_command` inverts this step: the command whose lagged motor passes the
+  samples of a planned motor trajectory.
 - Joint damping: the link receives `d (phid - qd)` besides `kappa(phi - q)`, `phid` the gear output's rate
   along the motor rate `thetad_m` (at a fixed flank weight where `directional`).
 
@@ -115,7 +116,9 @@ def lag_command(
     each sample; `thetadd_c` (which sets the motor's jerk there) by the exact step of each interval (module
     docstring) that takes the motor from `theta_k` to `theta_{k+1}`, one linear recursion per motor from
     `thetadd_c[0] = thetadd[0] + tau jerk_0` (the jerk of the Hermite interpolant of `theta` at `t[0]`). The
-    recursion's free mode alternates and decays by a factor `|a2 / a5| < 1` per sample (0.95 at `tau = 3 h`)."""
+    recursion's free mode alternates and decays by a factor `|a2 / a5| < 1` per sample (0.95 at `tau = 3 h`), so
+    rounding does not grow; `thetadd_c` is resolved to ~`eps |theta| / (a5 h^2)` (1e-5 rad/s^2 at `tau = 3 h`, where it
+    moves the motor by 1e-14 rad). docs/model.md (B.7)."""
     t, theta, thetad, thetadd = (jnp.asarray(a, float) for a in (t, theta, thetad, thetadd))
     n = robot.n_joints
     if t.ndim != 1 or theta.shape != t.shape + (n,) or thetad.shape != theta.shape or thetadd.shape != theta.shape:
@@ -139,8 +142,8 @@ def lag_command(
         nxt = (r - a[2] * acc) / a[5]
         return nxt, nxt
 
-    _, rest = jax.lax.scan(advance, thetadd[0] + tau * jerk0, rhs)
-    acc = jnp.concatenate([(thetadd[0] + tau * jerk0)[None], rest])
+    acc0 = thetadd[0] + tau * jerk0
+    acc = jnp.concatenate([acc0[None], jax.lax.scan(advance, acc0, rhs)[1]])
     return (jnp.where(lagged, theta + tau * thetad, theta), jnp.where(lagged, rate, thetad),
             jnp.where(lagged, acc, thetadd))
 
