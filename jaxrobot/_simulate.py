@@ -90,6 +90,16 @@ def _lag_response(
     return theta_p + start * decay, thetad_p - jnp.where(lagged, start / tau_safe, 0.0) * decay
 
 
+def _command(robot: Robot, caller: str, *arrays) -> tuple[Float[Array, "..."], ...]:
+    """`(t, theta, thetad, thetadd)` as float arrays, checked for the shapes (N,) and (N, n)."""
+    t, theta, thetad, thetadd = (jnp.asarray(a, float) for a in arrays)
+    n = robot.n_joints
+    if t.ndim != 1 or theta.shape != t.shape + (n,) or thetad.shape != theta.shape or thetadd.shape != theta.shape:
+        raise ValueError(f"{caller}: expected t (N,) and theta, thetad, thetadd (N, {n}), found t {t.shape}, "
+                         f"theta {theta.shape}, thetad {thetad.shape}, thetadd {thetadd.shape}")
+    return t, theta, thetad, thetadd
+
+
 def _lag_step_weights(tau: Float[Array, " n"], h: Float[Array, ""]) -> tuple[Float[Array, "6 n"], Float[Array, " n"]]:
     """The exact step of `_lag_response` over a whole interval: the motor angle at its end is
     `sum_i a[i] knots[i] + decay m0` (per joint, `tau > 0`) for the Hermite `knots` of its command and the start `m0`."""
@@ -119,11 +129,7 @@ def lag_command(
     recursion's free mode alternates and decays by a factor `|a2 / a5| < 1` per sample (0.95 at `tau = 3 h`), so
     rounding does not grow; `thetadd_c` is resolved to ~`eps |theta| / (a5 h^2)` (1e-5 rad/s^2 at `tau = 3 h`, where it
     moves the motor by 1e-14 rad). docs/model.md (B.7)."""
-    t, theta, thetad, thetadd = (jnp.asarray(a, float) for a in (t, theta, thetad, thetadd))
-    n = robot.n_joints
-    if t.ndim != 1 or theta.shape != t.shape + (n,) or thetad.shape != theta.shape or thetadd.shape != theta.shape:
-        raise ValueError(f"lag_command: expected t (N,) and theta, thetad, thetadd (N, {n}), found t {t.shape}, "
-                         f"theta {theta.shape}, thetad {thetad.shape}, thetadd {thetadd.shape}")
+    t, theta, thetad, thetadd = _command(robot, "lag_command", t, theta, thetad, thetadd)
     if robot.motor_lag is None:
         return theta, thetad, thetadd
     h = t[1] - t[0]
@@ -173,11 +179,8 @@ def simulate(
     (default `reversal_travel(robot)`) after a reversal and keeps its flank at rest; `q0` defaults to the
     rest pose on that flank. The default uses the cw set throughout (the planning model, eq. 4.1).
     """
-    t, theta, thetad, thetadd = (jnp.asarray(a, float) for a in (t, theta, thetad, thetadd))
+    t, theta, thetad, thetadd = _command(robot, "simulate", t, theta, thetad, thetadd)
     n = robot.n_joints
-    if t.ndim != 1 or theta.shape != t.shape + (n,) or thetad.shape != theta.shape or thetadd.shape != theta.shape:
-        raise ValueError(f"simulate: expected t (N,) and theta, thetad, thetadd (N, {n}), found t {t.shape}, "
-                         f"theta {theta.shape}, thetad {thetad.shape}, thetadd {thetadd.shape}")
     require_elastic(robot, "simulate")
     if substeps < 1:
         raise ValueError(f"simulate: substeps must be >= 1, found {substeps}")
