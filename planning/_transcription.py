@@ -506,7 +506,8 @@ def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 4*n"], Float[Array,
     """Initial guess from the samples `q_d` by the flat relation (docs/model.md (B.4)):
     `theta = Xi(q_d + kappa^{-1}(D qdd_d + C qd_d + g))`, with `qd_d`, `qdd_d`, `thetad` and
     `u = thetadd` from second-order finite differences of the samples (error O(T_s^2)); the two
-    end nodes take their boundary values (eq. 4.3e-j). For an exact warm start from a smooth
+    end nodes take their boundary values (eq. 4.3e-j); joint damping is left out (a start only). For an exact
+    warm start from a smooth
     `q_d(t)`, pass `jr.flat_inverse` results to `solve_ocp(warm_start=...)` instead."""
     r, q, ts = problem.robot, problem.q_d, problem.ts
     qd = _time_derivative(q, ts)

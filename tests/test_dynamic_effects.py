@@ -299,3 +299,22 @@ def test_plan_on_a_model_with_lag_and_damping_meets_the_move_on_it():
         jax.tree.map(lambda a, b: jnp.stack([a, b]), command, planned))
     errors = jnp.abs(simulated - q_d).max(axis=(1, 2))
     assert float(errors[0]) < 1e-6 and float(errors[1]) > 1e-4, errors
+
+
+def arm_link_move(t):
+    """A 0.3 s rest-to-rest link move of the arm (the blend of eq. 4.4) [rad]."""
+    s = jnp.clip(t / 0.3, 0.0, 1.0)
+    return jnp.array([0.3, -0.6]) + jnp.array([0.6, 0.4]) * s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3)
+
+
+def test_flat_inverse_of_a_damped_arm_is_exact():
+    """`jr.flat_inverse` of the arm with damped joints (time constants d/k of 3 and 1.9 ms), simulated on it: the
+    links follow the move within 1e-9 rad (RK4 at 0.1 ms on this arm errs by ~1e-11, the deflection's order-4 rule
+    by less); the undamped inverse on the damped arm misses by more than 1e-5 rad."""
+    robot = jr.robot_from_description(arm_description(damping=DAMPING))
+    t = jnp.arange(401) * 1e-3
+    q_d = jax.vmap(arm_link_move)(t)
+    flat = jax.jit(lambda r: jr.flat_inverse(r, arm_link_move, t))
+    q, _ = jax.jit(jr.simulate)(robot, t, *flat(robot))
+    q_undamped, _ = jax.jit(jr.simulate)(robot, t, *flat(dataclasses.replace(robot, damping=None)))
+    assert float(jnp.abs(q - q_d).max()) < 1e-9 and float(jnp.abs(q_undamped - q_d).max()) > 1e-5
