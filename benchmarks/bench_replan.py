@@ -3,7 +3,8 @@ plus the effects of `truth.json`, cw gear set throughout), the tool path error o
 start model, on the corrected model and on the true robot, each simulated on the true robot (`plan_task` with the
 true robot as the plant); written as a section of `benchmarks/results_runs.md`.
 
-`python benchmarks/bench_replan.py [--shared ../shared] [--tasks line spiral] [--corrected CASE=MODEL.toml ...]`.
+`python benchmarks/bench_replan.py [--shared ../shared] [--cases ...] [--tasks line spiral]
+[--corrected CASE=MODEL.toml ...]`; each case's section of results_runs.md is replaced by its new one.
 Without `--corrected`, the lag case's corrected model is `start.toml` plus the lags `diagnose_runs` reported
 (`FITTED_LAGS`); a case without a corrected model is planned on the start model and the true robot only.
 """
@@ -29,7 +30,7 @@ CASES = ("p2_motor_lag_j123", "p3_joint3_stiffness")
 FITTED_LAGS = (2.99970e-3, 3.06744e-3, 2.97469e-3)
 """[s] The lags of motors 1-3 `diagnose_runs` fitted on the lag case's four runs shortened to 700 samples
 (results_runs.md, "One compiled derivative program"; sigma 2.03e-5, 5.06e-5, 8.34e-5 s)."""
-SECTION = "## Re-plan on the corrected model"
+SECTION = "## Re-plan on the corrected model: "
 
 
 def true_robot(folder: Path) -> jr.Robot:
@@ -73,6 +74,7 @@ def replan_errors(folder: Path, task: str, corrected: jr.Robot | None) -> dict[s
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--shared", type=Path, default=Path(__file__).resolve().parents[2] / "shared")
+    parser.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES)
     parser.add_argument("--tasks", nargs="+", default=["line"], choices=["line", "spiral"])
     parser.add_argument("--corrected", nargs="*", default=[], metavar="CASE=MODEL.toml")
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results_runs.md"))
@@ -80,16 +82,8 @@ def main() -> None:
     root = args.shared / "independent" / "trajectories"
     given = dict(item.split("=", 1) for item in args.corrected)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    lines = [SECTION, "", f"`python benchmarks/bench_replan.py --tasks {' '.join(args.tasks)}"
-             + "".join(f" --corrected {k}={v}" for k, v in given.items()) + f"` at commit {commit}. Machine: "
-             f"{platform.machine()}, {jax.device_count()} device(s), JAX {jax.__version__}, backend "
-             f"{jax.default_backend()}. The nu = 1e-14 plan on each model, simulated by `jr.simulate` on the case's "
-             "true robot (`start.toml` plus truth.json's effects, cw set throughout); tool path error over the "
-             "motion [µm]. Goal (issue 32): corrected <= 1.5 x true, and >= 5 x below start where start > 10 µm.", "",
-             "| case | task | corrected model | start max / rms | corrected max / rms | true max / rms | "
-             "corrected / true (max) | start / corrected (max) | plan time [s] (start, corrected, true) |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    for case in CASES:
+    text = args.out.read_text() if args.out.exists() else ""
+    for case in args.cases:
         folder = root / case
         if case in given:
             corrected, label = jr.load_robot(given[case]), f"`{given[case]}`"
@@ -97,19 +91,30 @@ def main() -> None:
             corrected, label = with_fitted_lags(jr.load_robot(folder / "start.toml")), "start + fitted lags"
         else:
             corrected, label = None, "none"
+        lines = [SECTION + case, "", f"`python benchmarks/bench_replan.py --cases {case} --tasks {' '.join(args.tasks)}"
+                 + (f" --corrected {case}={given[case]}" if case in given else "") + f"` at commit {commit}. Machine: "
+                 f"{platform.machine()}, {jax.device_count()} device(s), JAX {jax.__version__}, backend "
+                 f"{jax.default_backend()}. The nu = 1e-14 plan on each model, simulated by `jr.simulate` on the "
+                 "case's true robot (`start.toml` plus truth.json's effects, cw set throughout); tool path error over "
+                 "the motion [µm]. Goal (issue 32): corrected <= 1.5 x true, and >= 5 x below start where start > "
+                 "10 µm.", "",
+                 "| task | corrected model | start max / rms | corrected max / rms | true max / rms | "
+                 "corrected / true (max) | start / corrected (max) | plan time [s] (start, corrected, true) |",
+                 "|---|---|---|---|---|---|---|---|"]
         for task in args.tasks:
             e = replan_errors(folder, task, corrected)
             um = {k: f"{1e6 * v[0]:.4g} / {1e6 * v[1]:.4g}" for k, v in e.items()}
             ratio = (f"{e['corrected'][0] / e['true'][0]:.3g}", f"{e['start'][0] / e['corrected'][0]:.3g}"
                      ) if "corrected" in e else ("-", "-")
             times = ", ".join(f"{v[2]:.0f}" for v in e.values())
-            lines.append(f"| {case} | {task} | {label} | {um['start']} | {um.get('corrected', '-')} | {um['true']} | "
+            lines.append(f"| {task} | {label} | {um['start']} | {um.get('corrected', '-')} | {um['true']} | "
                          f"{ratio[0]} | {ratio[1]} | {times} |")
             print(lines[-1], flush=True)
-    text = args.out.read_text() if args.out.exists() else ""
-    text = text.split(SECTION)[0].rstrip("\n")
-    args.out.write_text((text + "\n\n" if text else "") + "\n".join(lines) + "\n")
-    print("\n".join(lines))
+        head, found, tail = text.partition(SECTION + case)
+        tail = tail[tail.index("\n## "):] if found and "\n## " in tail else ""
+        text = head.rstrip("\n") + "\n\n" + "\n".join(lines) + "\n" + tail
+        args.out.write_text(text)
+        print("\n".join(lines))
 
 
 if __name__ == "__main__":
