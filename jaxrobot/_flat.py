@@ -25,7 +25,6 @@ from ._elasticity import elastic_deflection, elastic_stiffness, elastic_torque
 from ._gear import motor_angle
 from ._robot import Robot
 
-
 DAMPED_SUBSTEPS = 10
 """Steps per sample of the damped deflection (module docstring): at 0.1 ms the rule's error, ~`h^4` times the
 fifth derivative of the deflection, is below 1e-12 rad for the reference tasks."""

@@ -102,7 +102,8 @@ def _command(robot: Robot, caller: str, *arrays) -> tuple[Float[Array, "..."], .
 
 def _lag_step_weights(tau: Float[Array, " n"], h: Float[Array, ""]) -> tuple[Float[Array, "6 n"], Float[Array, " n"]]:
     """The exact step of `_lag_response` over a whole interval: the motor angle at its end is
-    `sum_i a[i] knots[i] + decay m0` (per joint, `tau > 0`) for the Hermite `knots` of its command and the start `m0`."""
+    `sum_i a[i] knots[i] + decay m0` (per joint, `tau > 0`) for the Hermite `knots` of its command and the start
+    `m0`."""
     ends = np.einsum("sjk,ik->sij", _power_derivatives(np.array([0.0, 1.0]), 6), _HERMITE)  # d^j/ds^j of knot i
     powers = (-tau / h)[None] ** np.arange(6)[:, None]  # (6, n)
     w = jnp.einsum("sij,jn->sin", ends, powers)  # the particular solution's weights at s = 0, 1

@@ -5,7 +5,7 @@ Decision variables: one node `z_k = [x_k, u_k]` (5n for n joints) per sample, th
 
 - cost (eq. 4.3a) `sum_k ||q_k - q_d,k||^2 + nu ||u_k||^2` over all N nodes (no T_s factor); with velocity-loop
   lags `tau` (`Robot.motor_lag`) plus `nu sum_k ||tau (u_{k+1} - u_k) / T_s||^2`, so that `nu` weighs the
-  acceleration of the command `theta + tau thetad` (`jr.lag_command`; docs/model.md (4.3a));
+  acceleration of the command `theta + tau thetad` (`jr.lag_command`; docs/model.md (B.7));
   variants `"jerk"` `sum_k ||q_k - q_d,k||^2 + nu sum_k ||u_{k+1} - u_k||^2` and `"flat"`
   `sum_k ||q_k - q_d,k||^2 + nu ||u_k - u_ref,k||^2` (docs/model.md (4.3a): ν on the whole `u`
   biases the tracking, these two do not);
@@ -255,7 +255,7 @@ def objective(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N 
     """The cost of eq. 4.3a (or its variant `problem.cost`), unscaled [rad^2]."""
     track = jnp.sum((State.of(x).q - problem.q_d) ** 2)
     lag = problem.robot.motor_lag
-    if problem.cost == "thesis" and lag is not None:  # the command's acceleration u + lag ud (docs/model.md (4.3a))
+    if problem.cost == "thesis" and lag is not None:  # the command's acceleration u + lag ud (docs/model.md (B.7))
         return track + problem.nu * (jnp.sum(u**2) + jnp.sum((lag * (u[1:] - u[:-1]) / problem.ts) ** 2))
     if problem.cost == "jerk":
         return track + problem.nu * jnp.sum((u[1:] - u[:-1]) ** 2)
@@ -419,8 +419,8 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     eq. 4.1 (as `half_step_jacobian`): with `s = D^{-1} w_qdd`,
     `(dqdd/dq)^T w_qdd = -(dID/dq)^T s - kappa' s`, `(dqdd/dqd)^T w_qdd = -(dID/dqd)^T s`,
     `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; with joint damping `d` also `-d s` on `qd`,
-    `d thetad (d(1/u)/dtheta) s` on `theta` and `d s / u(phi)` on `thetad`; `(dID/d(q, qd))^T s` is one reverse pass through
-    Newton-Euler alone (4.8x faster than reversing the mass matrix, its solve and `Xi^-1` too), whose
+    `d thetad (d(1/u)/dtheta) s` on `theta` and `d s / u(phi)` on `thetad`; `(dID/d(q, qd))^T s` is one reverse
+    pass through Newton-Euler alone (4.8x faster than reversing the mass matrix, its solve and `Xi^-1` too), whose
     forward pass is made once (`inverse_dynamics_vjp`, or `id_vjp` if already made) for every `w`."""
     r = problem.robot
     sz = variable_scale(problem)
@@ -438,8 +438,9 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
             out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / h.ratio, wf.theta, wf.thetad], -1)
         else:
             damp = r.damping * s
-            out = jnp.concatenate([-id_q - stiff, wf.q - id_qd - damp, stiff / h.ratio + damp * x.thetad * h.slope_rate,
-                                   wf.theta + damp / h.ratio, wf.thetad], -1)
+            out = jnp.concatenate([-id_q - stiff, wf.q - id_qd - damp,
+                                   stiff / h.ratio + damp * x.thetad * h.slope_rate, wf.theta + damp / h.ratio,
+                                   wf.thetad], -1)
         return out * sz
 
     return vjp
