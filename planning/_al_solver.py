@@ -247,10 +247,10 @@ def _normal_blocks(
     the iteration from ~100x to ~2x per step at nu = 1e-14 (the conditioning amplifies the error).
 
     From the structure `d c_k / d y_k = K_a - P_k`, `d c_k / d y_{k+1} = K_b - P_{k+1}` (`K_a = -E - S`,
-    `K_b = E - S`, `E = [I 0]`, `S = half_step_shift(j)`, `P_k` the j x 3j block of `half_step_jacobian`
+    `K_b = E - S`, `E = [I 0]`, `S = half_step_shift(j)`, `P_k` the j x m block of `half_step_jacobian`
     in rows j:2j, for j joints): the cross terms of `P` with `K_a` and `K_b` cancel on interior diagonal
     blocks, which are `K_a^T K_a + K_b^T K_b + 2 P_k^T P_k`, and the sub-diagonal block is
-    `K_b^T K_a - [P_k]_(j:2j, 0:3j) + [P_{k+1}^T]_(0:3j, j:2j) + P_{k+1}^T P_k`: 17x fewer flops
+    `K_b^T K_a - [P_k]_(j:2j, 0:m) + [P_{k+1}^T]_(0:m, j:2j) + P_{k+1}^T P_k`: 17x fewer flops
     than products of the 4j x 5j blocks."""
     n, nz = y.shape
     j = p.problem.n_joints
