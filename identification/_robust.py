@@ -11,7 +11,7 @@ fit vanishes (`cauchy`, the default: its weight falls as `1/z^2`) or is bounded 
 Once the reweighting has converged, the poses beyond the outlier bound get weight 0 and it goes on to
 convergence again: with few poses per parameter a gross error's leverage would otherwise still move
 the model by a fraction of a standard error. A pose whose `z_k` exceeds `outlier_bound`
-(clean noise exceeds it with probability `OUTLIER_FALSE_ALARM` per pose: 4.6 sigma for positions)
+(clean noise exceeds it with probability `OUTLIER_FALSE_ALARM` per pose: 4.59 sigma for positions)
 is reported as an outlier, whichever loss (`l2` keeps it in the fit).
 """
 

@@ -643,3 +643,37 @@ def test_fleet_screw_jacobian_matches_residual_fn(robots, bench):
                                                                           a[5])))(fleet, theta, pos, defl, q0, x)
     np.testing.assert_allclose(r, r_ref, rtol=0, atol=1e-9)  # both pose-major
     np.testing.assert_allclose(jac, jac_ref, rtol=0, atol=1e-9 * np.abs(jac_ref).max())
+
+
+def test_backward_elimination_by_bic_matches_exact_refits():
+    """`select_parameters` on a linear model (random design, 8 parameters of which 3 are zero and one is
+    at 1 standard error): each step's BIC change equals that of the exact least-squares refit without the
+    parameters set aside so far (the update is exact for a linear model), the zero parameters go, the
+    large ones stay, and removing any kept one would raise the exact BIC."""
+    from identification.calibration._selection import select_parameters
+
+    rng = np.random.default_rng(4)
+    n, sigma = 120, 0.5
+    jac = rng.normal(size=(n, 8)) + 0.5 * rng.normal(size=(n, 1))  # correlated columns
+    std0 = sigma * np.sqrt(np.diag(np.linalg.inv(jac.T @ jac)))
+    x_true = np.array([0, 0, 0, 1, 8, -10, 12, 15.0]) * std0
+    y = jac @ x_true + sigma * rng.normal(size=n)
+    names = [f"p{i}" for i in range(8)]
+
+    def chi2(cols):
+        r = y - jac[:, cols] @ np.linalg.lstsq(jac[:, cols], y, rcond=None)[0] if cols else y
+        return float(r @ r) / sigma**2
+
+    x_hat = np.linalg.lstsq(jac, y, rcond=None)[0]
+    sel = select_parameters(names, x_hat, sigma**2 * np.linalg.inv(jac.T @ jac), n)
+    kept = list(range(8))
+    for name, change in zip(sel.set_aside, sel.delta_bic):
+        rest = [c for c in kept if names[c] != name]
+        np.testing.assert_allclose(change, chi2(rest) - chi2(kept) - np.log(n), rtol=1e-9, atol=1e-9)
+        assert change <= 0
+        kept = rest
+    assert sel.kept == tuple(names[c] for c in kept) and set(sel.kept) | set(sel.set_aside) == set(names)
+    assert {"p0", "p1", "p2"} <= set(sel.set_aside) and {"p4", "p5", "p6", "p7"} <= set(sel.kept)
+    for c in kept:
+        assert chi2([k for k in kept if k != c]) - chi2(kept) > np.log(n)
+    assert sel.n_residuals == n and sel.candidates == tuple(names)
