@@ -122,7 +122,9 @@ def diagnose_row(d: Path, name: str) -> str:
 def expected_um(res, val, marker, floor: float) -> float:
     """Expected validation RMS [um] of a fit with the parameter covariance of `res`: the floor [um] plus
     what the parameter errors add at the validation poses, `sqrt(floor^2 + trace(J C J^T) / K)` (`J` the
-    (3K, m) validation Jacobian at the fitted robot; linearised)."""
+    (3K, m) validation Jacobian at the fitted robot; linearised); the floor where no parameter was fitted."""
+    if not res.names:
+        return floor
     params, th = ParameterMap(res.names), jnp.asarray(val.motor_angles)
     deflection = rest_deflection(res.robot, th)
     jac = np.asarray(jax.jacfwd(lambda x: predict_pose(params.set(res.robot, x), th, deflection,

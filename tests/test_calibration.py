@@ -422,9 +422,13 @@ def test_cli_json_schema(bench, tmp_path, capsys):
     assert re.search(r"^\[calibrate 2/3\] calibration: \d+ s elapsed, ETA \d+ s$", captured.err, re.M)
     assert re.search(r"^\[calibrate 3/3\] report: \d+ s elapsed, done$", captured.err, re.M)
     assert set(summary) == {"parameters", "identification", "validation", "loss", "noise_estimate_mm",
-                            "outlier_bound_mm", "outliers"}
+                            "outlier_bound_mm", "outliers", "parameter_selection"}
     assert summary["loss"] == "cauchy" and summary["outliers"] == []
-    assert set(summary["parameters"]) == set(DEFAULT_PARAMETERS)
+    sel = summary["parameter_selection"]
+    aside = [a["parameter"] for a in sel["set_aside"]]
+    assert sel["candidates"] == list(DEFAULT_PARAMETERS) and sorted(sel["kept"] + aside) == sorted(DEFAULT_PARAMETERS)
+    assert all(a["delta_bic"] <= 0 for a in sel["set_aside"]) and sel["n_residuals"] == 3 * len(ident.positions)
+    assert list(summary["parameters"]) == sel["kept"] and "a2" in sel["kept"]
     assert all(set(p) == {"value", "delta", "std"} for p in summary["parameters"].values())
     for part in ("identification", "validation"):
         assert set(summary[part]) == {"before_mm", "after_mm"}
