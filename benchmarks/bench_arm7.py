@@ -228,7 +228,8 @@ def main() -> None:
         for line in draws_rows(root, args.draws):
             print(line, flush=True)
     head = (f"## arm7: a 7-joint arm, real-tracker noise, tool frame (`../shared/independent/arm7/`)\n\n"
-            f"`python benchmarks/bench_arm7.py{f' --draws {args.draws}' if args.draws else ''}`, {platform.machine()}, {os.cpu_count()} cores, jax {jax.__version__}, "
+            f"`python benchmarks/bench_arm7.py{f' --draws {args.draws}' if args.draws else ''}`, {platform.machine()}, "
+            f"{os.cpu_count()} cores, jax {jax.__version__}, "
             f"commit {_commit()}; times include compilation where not cached, measured while other jobs shared the "
             "cores. Before: the start model; after: `diagnose`/`calibrate` with default options (robust loss "
             "`cauchy`); floor: the true model's validation RMS (truth.json); RMS norms over the 30 validation "

@@ -71,8 +71,9 @@ def _echo_report(report: dict, echo, truth: dict | None = None, poses: Path | st
          f"{1e3 * report['noise_estimate_m']:.4f} mm per axis")
     sel = report["parameter_selection"]
     if sel is not None:
+        aside = ", ".join(a["parameter"] for a in sel["set_aside"]) or "none"
         echo(f"parameters: {len(sel['kept'])} of the default {len(sel['candidates'])} kept ({sel['criterion']}; "
-             f"--all-parameters fits them all); set aside: {', '.join(a['parameter'] for a in sel['set_aside']) or 'none'}")
+             f"--all-parameters fits them all); set aside: {aside}")
     for o in report["outliers"]:
         echo(f"warning: {poses}:{o['row'] + 2}: residual {1e3 * o['residual_m']:.3f} mm ({o['sigmas']:.1f} sigma) "
              f"beyond the outlier bound {1e3 * report['outlier_bound_m']:.3f} mm: a gross measurement error?"
