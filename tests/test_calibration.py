@@ -649,6 +649,23 @@ def test_fleet_screw_jacobian_matches_residual_fn(robots, bench):
     np.testing.assert_allclose(jac, jac_ref, rtol=0, atol=1e-9 * np.abs(jac_ref).max())
 
 
+def test_nothing_hidden_keeps_the_start_robot(robots, thesis_theta):
+    """Bench data of the nominal robot itself at the 50 thesis poses: the BIC sets aside every parameter of
+    the default set (for this seed; noise alone keeps one or more in about half of the draws), and the
+    result is the start robot with its residuals, no outlier, a noise estimate within the chi-square spread
+    of the bench's 50 um over 150 residuals (+-12 %, 2 std) and the selection in the report."""
+    nominal, _ = robots
+    m = measure_poses(nominal, thesis_theta, seed=13)
+    res = calibrate(nominal, m.motor_angles, m.positions)
+    assert res.converged and res.names == () and res.selection.kept == ()
+    assert sorted(res.selection.set_aside) == sorted(DEFAULT_PARAMETERS)
+    assert res.robot is nominal and res.outliers == () and res.iterations == 0
+    np.testing.assert_allclose(res.errors_after, res.errors_before, rtol=0)
+    np.testing.assert_allclose(np.linalg.norm(res.residuals.reshape(-1, 3), axis=-1), res.errors_before, rtol=1e-9)
+    assert abs(res.noise_estimate / 5e-5 - 1) < 0.12
+    assert calibration_report(res)["parameter_selection"]["kept"] == []
+
+
 def test_backward_elimination_by_bic_matches_exact_refits():
     """`select_parameters` on a linear model (random design, 8 parameters of which 3 are zero and one is
     at 1 standard error): each step's BIC change equals that of the exact least-squares refit without the

@@ -8,7 +8,8 @@ of a gear ratio). By default the squared norms are replaced by a robust loss of 
 errors do not move the model; they are reported as outliers. The parameter covariance is
 `s^2 (J^T W J)^{-1}` (`W` the final pose weights) with the noise estimate `s^2 = ||r||^2 / (n - m)`
 over the `n` residuals of the poses within the outlier bound (all of them for `loss="l2"`), `m`
-parameters.
+parameters. The default parameter set is fitted, reduced by backward elimination by BIC (`_selection`)
+and the kept parameters fitted again.
 """
 
 from __future__ import annotations
