@@ -249,17 +249,18 @@ isotropic std. `whole default set`: `calibrate(..., all_parameters=True)`, the d
 elimination by BIC (34 parameters); `after`: the default options, the set reduced by BIC and fitted again
 (`params kept`). `expected after`: the floor plus what the fit's own parameter covariance adds at the
 validation poses (linearised), i.e. where an unbiased fit of the kept parameters lands on average; it
-leaves out the bias of the parameters set aside. `noise/*` and `tool_frame` hide nothing, so every fitted
-parameter only adds its estimation error and the BIC sets most or all of them aside (the start model is
-then the truth, 1.000x). `calibration/` hides deviations of all 32 of the generator's parameters; the BIC
-sets aside those within 2.3 standard errors of zero (u0_1 among them, a 3e-5 ratio error), which costs
-this draw 1.09x -> 1.14x; over the generator's draws (last table) the selection is as accurate as the
-whole set where everything deviates and far better where little does. `noise/drift`: the drift test of
-`diagnose` with the training file's `t_s` (truth: +3e-05 over the run). `failed LM fits`: candidates
-whose LM fit failed or ended above its start (a4: `joint_compliance j4 (cubic)`), each replaced in the
-shortlist by the next candidate. `two/...`: before `diagnose`'s parsimony rule (commit 408c84e, the same
-bench) `geometry` was added first, then `joint_compliance j2`: 50.0 um (1.093x) and 53.6 um (1.200x); with
-it, both true effects and no block.
+leaves out the bias of the parameters set aside. `noise/outliers`, `noise/anisotropic` and `tool_frame`
+hide nothing, so every fitted parameter only adds its estimation error and the BIC sets most or all of
+them aside (with none kept the result is the start model, here the truth: 1.000x); `noise/drift` hides a
+link-length growth in time that no static parameter describes. `calibration/` hides deviations of all 32
+of the generator's parameters; the BIC sets aside those within 2.3 standard errors of zero (u0_1 among
+them, a 3e-5 ratio error), which costs this draw 1.09x -> 1.14x; over the generator's draws (last table)
+the selection is as accurate as the whole set where everything deviates and far more accurate where
+nothing does. `noise/drift` in the diagnose table: the drift test of `diagnose` with the training file's
+`t_s` (truth: +3e-05 over the run). `failed LM fits`: candidates whose LM fit failed or ended above its
+start, each replaced in the shortlist by the next candidate. `two/...`: before `diagnose`'s parsimony
+rule (commit 408c84e, the same bench) `geometry` was added first, then `joint_compliance j2`: 50.0 um
+(1.093x) and 53.6 um (1.200x); with it, both true effects and no block.
 """
 
 
