@@ -259,7 +259,8 @@ def calibrate_fleet(
     `converged = False` and their `status` says why (`throw`: raise the message of the first such
     status instead); so has a robot whose residuals exceed the stated noise (`inconsistent`: the
     chi-square test of `diagnose`, `identification._noise.noise_test`, at the level `ALPHA / R`).
-    `max_steps`: of `LMConfig`. `parameters`: default `default_parameters` of the first robot. Under
+    `max_steps`: of `LMConfig`. `parameters`: default `default_parameters` of the first robot, all of them for
+    every robot (no backward elimination as in `calibrate`: one batched program over the robots). Under
     several processes (`jaxrobot.initialize_processes`) each process passes only its own robots
     (e.g. rows `jaxrobot.process_share(R)`, one robot or its own fleet rows in `robots`; none on a
     process whose robots all failed their checks) and every process receives the whole fleet in process
