@@ -1,0 +1,97 @@
+"""Runs and poses as evidence of the same fits (`diagnose_runs(..., poses=...)`, `diagnose --runs … POSES.csv`), the
+payload of the run catalogue, and the other cases of ../shared/independent/trajectories from their runs."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_dynamic_effects import arm_description, command
+
+import jaxrobot as jr
+import jaxrobot.bench as jb
+from identification.diagnosis._diagnose import Poses
+from identification.diagnosis._runs import _pose_rows, _prepare_poses, compare_run, diagnose_runs, payload_robot
+from jaxrobot.measurement import marker_pose
+
+
+def test_payload_is_a_point_mass_on_the_flange():
+    """`payload_robot` against a point mass written out independently: the mass matrix gains `m Jp^T Jp` and the
+    gravity torque `-m Jp^T gravity` (`Jp` the Jacobian of the point's world position), at two poses of the
+    Racer-7; zero payload leaves the robot as it is."""
+    robot = jr.racer7()
+    mass, point = 4.0, jnp.array([0.03, -0.05, 0.12])
+    loaded = payload_robot(robot, mass, mass * point)
+    same = payload_robot(robot, 0.0, jnp.zeros(3))
+    for field in ("mass", "com", "inertia"):
+        assert np.array_equal(getattr(same, field), getattr(robot, field)), field
+    for q in (jnp.array([0.1, 0.4, -0.3, 0.7, 0.5, -1.1]), jnp.array([-0.8, -0.2, 0.6, -1.4, 1.0, 0.3])):
+        jp = jax.jacfwd(lambda q: jr.point_position(robot, q, point))(q)
+        np.testing.assert_allclose(jr.mass_matrix(loaded, q), jr.mass_matrix(robot, q) + mass * jp.T @ jp,
+                                   rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(jr.gravity_torque(loaded, q),
+                                   jr.gravity_torque(robot, q) - mass * jp.T @ robot.gravity, rtol=1e-12, atol=1e-9)
+
+
+def arm_poses(robot, seed: int, k: int, marker, noise) -> Poses:
+    th = np.random.default_rng(seed).uniform(-1.2, 1.2, (k, 2)) * np.asarray(robot.u0)
+    return Poses.of(th, jb.measure_poses(robot, th, seed=seed, marker=marker, position_noise=noise).positions)
+
+
+def test_runs_and_poses_share_one_chi_square():
+    """The arm with a 0.3 kg payload, one short run and 12 + 4 poses: the start row's chi-square is the run's
+    (`compare_run`) plus the poses' in units of their own noise (twice the tracker's here), computed independently
+    from the bench's converged rest poses (`measure_poses` without noise); its degrees of freedom count every row;
+    a lag or damping moves no pose (their pose derivatives are exactly 0), a payload does."""
+    marker, noise = np.array([0.05, 0.0, 0.0]), 5e-5
+    start = jr.robot_from_description(arm_description())
+    truth = payload_robot(start, 0.3, 0.3 * jnp.array([0.04, 0.02, 0.0]))
+    t = np.arange(21) * 1e-3
+    cmd = (t, *command(t))
+    q, _, motors = jr.simulate(truth, *cmd, substeps=4, motor_angles=True)
+    rng = np.random.default_rng(3204)
+    positions = np.asarray(marker_pose(truth, q, jnp.asarray(marker))[0]) + noise * rng.standard_normal((21, 3))
+    run = (t, np.asarray(motors), positions)
+    poses = (arm_poses(truth, 1, 12, marker, 2 * noise), arm_poses(truth, 2, 4, marker, 2 * noise))
+    res = diagnose_runs(start, [(cmd, run)], [(cmd, run)], marker, noise, max_steps=0, poses=poses,
+                        pose_noise=2 * noise)
+
+    def pose_chi2(p: Poses) -> float:
+        model = jb.measure_poses(start, p.motor_angles, marker=marker, position_noise=0.0).true_positions
+        return float(np.sum((p.positions - model) ** 2)) / (2 * noise) ** 2
+
+    run_chi2 = compare_run(start, cmd, run, marker, noise).chi2
+    row = res.steps[0]
+    assert row.dof == 3 * 21 + 3 * 12 and row.bic == row.chi2
+    np.testing.assert_allclose(row.chi2_poses, pose_chi2(poses[0]), rtol=1e-9)
+    np.testing.assert_allclose(row.chi2, run_chi2 + pose_chi2(poses[0]), rtol=1e-9)
+    np.testing.assert_allclose(row.chi2_validation, run_chi2 + pose_chi2(poses[1]), rtol=1e-9)
+    assert row.chi2_poses > 3 * 3 * 12  # the payload shows in the poses
+    assert res.verdict == "not explained after 0 effects (--max-steps)" and res.estimates == []
+    base = dataclasses.replace(start, motor_lag=jnp.zeros(2), damping=jnp.zeros(2))
+    jac = np.asarray(_pose_rows(base, jnp.zeros(12), *_prepare_poses(start, poses[0], 2 * noise, marker, "poses"),
+                                jnp.asarray(marker))[1])
+    assert np.all(jac[:, :4] == 0) and np.all(np.linalg.norm(jac[:, 4:6], axis=0) > 0)  # lag, damping; stiffness
+    assert np.linalg.norm(jac[:, 8]) > 0  # the payload's mass
+
+
+def test_runs_with_poses_refuse_bad_input():
+    """Poses of the wrong joint count, too few poses, and a pair instead of (training, validation) are refused before
+    any simulation, naming the argument."""
+    marker, noise = np.array([0.05, 0.0, 0.0]), 5e-5
+    start = jr.robot_from_description(arm_description())
+    t = np.arange(5) * 1e-3
+    cmd = (t, *command(t))
+    run = (t, cmd[1], np.zeros((5, 3)))
+    good = arm_poses(start, 1, 6, marker, noise)
+    wrong = Poses.of(np.zeros((6, 3)), good.positions)
+    with pytest.raises(ValueError, match=r"training poses: expected at least 3 poses with motor_angles \(K, 2\)"):
+        diagnose_runs(start, [(cmd, run)], [(cmd, run)], marker, noise, poses=(wrong, good))
+    with pytest.raises(ValueError, match=r"validation poses: expected at least 3 poses .* found \(2, 2\)"):
+        diagnose_runs(start, [(cmd, run)], [(cmd, run)], marker, noise,
+                      poses=(good, Poses.of(good.motor_angles[:2], good.positions[:2])))
+    with pytest.raises(ValueError, match=r"poses: expected \(training, validation\) Poses, found 3 items"):
+        diagnose_runs(start, [(cmd, run)], [(cmd, run)], marker, noise, poses=(good, good, good))
