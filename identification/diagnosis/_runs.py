@@ -146,10 +146,11 @@ viscous damping of a joint spring (`Robot.damping`), `stiffness` the factor on t
 reported; the fit varies the compliance `c = 1/k1` by `1 + x/100`), `cubic` the joint's `k3` at a fixed `k1` (the
 value reported; the fit varies `e = k3/k1` [1/rad^2] by `1e5 x`). Besides them `PAYLOAD`; link-side friction is not
 in the model (`jr.simulate` has no friction term), so runs cannot name it."""
-PAYLOAD = (("mass", 1.0, "kg"), ("moment_x", 0.1, "kg m"), ("moment_y", 0.1, "kg m"), ("moment_z", 0.1, "kg m"))
-"""The payload effect's parameters (name, scale of its fit variable, unit): a point mass on the flange (the last link's
-frame), its mass and first moment `mass * position` (`payload_robot`); it acts on the runs through gravity and inertia
-and on the poses through gravity."""
+PAYLOAD = (("mass", 1.0, "kg"), ("x", 0.1, "m"), ("y", 0.1, "m"), ("z", 0.1, "m"))
+"""The payload effect's reported parameters (name, scale of its fit variable, unit): a point mass on the flange, its
+mass and its position in the last link's frame (`payload_robot`); it acts on the runs through gravity and inertia and
+on the poses through gravity. The fit varies the mass and the first moment `mass * position` (scales 1 kg, 0.1 kg m),
+in which the gravity torque is linear."""
 SCREENED = 3
 """Candidates per step fitted in full: those with the largest linearised chi-square decrease."""
 ENCODER_LAG_RAD = 1e-6
@@ -234,22 +235,24 @@ class RunDiagnosis:
     """The outcome in words."""
 
 
-def payload_robot(robot: jr.Robot, mass, moment) -> jr.Robot:
-    """`robot` carrying a point mass `mass` [kg] with first moment `moment` (3,) [kg m] (`mass` times its position)
-    in the frame of the last link: that link's mass, centre of mass and inertia about it (parallel-axis theorem).
-    The identity at `mass = 0`, `moment = 0`; a point mass of `mass <= 0` adds no inertia of its own."""
+def payload_robot(robot: jr.Robot, mass, position) -> jr.Robot:
+    """`robot` carrying a point mass `mass` [kg] at `position` (3,) [m] in the frame of the last link: that link's
+    mass, centre of mass and inertia about it (parallel-axis theorem). The identity at `mass = 0`."""
+    return _loaded(robot, mass, mass * jnp.asarray(position))
+
+
+def _loaded(robot: jr.Robot, mass, moment) -> jr.Robot:
+    """`payload_robot` of the first moment `moment = mass * position` [kg m]; a point of `mass <= 0` adds no inertia
+    of its own (smooth at 0: that inertia is of second order in the moment)."""
     m0, c0, i0 = robot.mass[-1], robot.com[-1], robot.inertia[-1]
     total = m0 + mass
     com = (m0 * c0 + moment) / total
     eye = jnp.eye(3)
-
-    def shifted(m, d):  # inertia of mass m at offset d from the centre: m (|d|^2 I - d d^T)
-        return m * (d @ d * eye - jnp.outer(d, d))
-
-    u = moment - mass * com  # mass times the point's offset from the new centre
+    d = c0 - com
+    u = moment - mass * com  # the point's mass times its offset from the new centre
     safe = jnp.where(mass > 0, mass, 1.0)
     point = jnp.where(mass > 0, (u @ u * eye - jnp.outer(u, u)) / safe, 0.0)
-    inertia = i0 + shifted(m0, c0 - com) + point
+    inertia = i0 + m0 * (d @ d * eye - jnp.outer(d, d)) + point
     return dataclasses.replace(robot, mass=robot.mass.at[-1].set(total), com=robot.com.at[-1].set(com),
                                inertia=robot.inertia.at[-1].set(inertia))
 
@@ -263,8 +266,7 @@ def _with_effects(robot: jr.Robot, z):
                                 damping=robot.damping + scale["damping"] * z[n:2 * n],
                                 c=robot.c * (1.0 + scale["stiffness"] * z[2 * n:3 * n]),
                                 e=robot.e + scale["cubic"] * z[3 * n:4 * n])
-    payload = jnp.asarray([s for _, s, _ in PAYLOAD]) * z[4 * n:]
-    return payload_robot(moved, payload[0], payload[1:])
+    return _loaded(moved, PAYLOAD[0][1] * z[4 * n], PAYLOAD[1][1] * z[4 * n + 1:])
 
 
 def _whitened(robot, z, cmd, white, measured, sigma, marker, substeps):
@@ -382,10 +384,11 @@ def _index(effect: RunEffect, n: int) -> list[int]:
     return [list(RUN_KINDS).index(effect.kind) * n + effect.joint]
 
 
-def _identifiable(cols, effects, n: int) -> bool:
-    """Whether the derivative columns (rows, 4n + 4) of the variables of `effects` are independent: the smallest
-    singular value of the unit-norm columns above 1e-6 of the largest (else the fit is singular)."""
-    a = cols[:, [i for e in effects for i in _index(e, n)]]
+def _identifiable(cols, effects, n: int, at=None) -> bool:
+    """Whether the derivative columns of the variables of `effects` are independent: the smallest singular value of
+    the unit-norm columns above 1e-6 of the largest (else the fit is singular). `cols` (rows, 4n + 4) holds every
+    variable's column, or those of `effects` in their order where `at` gives their positions."""
+    a = cols[:, [i for e in effects for i in _index(e, n)] if at is None else at]
     norms = np.linalg.norm(a, axis=0)
     if np.any(norms == 0):
         return False
@@ -395,9 +398,9 @@ def _identifiable(cols, effects, n: int) -> bool:
 
 def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0):
     """Levenberg-Marquardt on the variables of `effects` from `z0`, where the residual is `r0` and its derivatives
-    along those variables `jac0`: (z, chi2, std of the variables) or None where the fit leaves the physical range
-    (a negative lag, damping or payload mass) or fails to lower the chi-square. Derivatives are evaluated at accepted
-    steps only."""
+    along those variables `jac0`: (z, chi2, covariance of the variables) or None where the fit leaves the physical range
+    (a negative lag, damping or payload mass) or fails to lower the chi-square; the covariance of the variables is
+    `(J^T J)^-1` at the end. Derivatives are evaluated at accepted steps only."""
     n = robot.n_joints
     idx = np.array([i for e in effects for i in _index(e, n)])
     z, r, jac = jnp.asarray(z0), r0, jac0
@@ -419,22 +422,31 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0):
             if lam > 1e8:
                 break
     values = np.asarray(z)
-    if not chi2 < start or np.any(values[:2 * n] < 0) or values[len(RUN_KINDS) * n] < 0:
+    if not chi2 < start or np.any(values[:2 * n] < 0) or values[len(RUN_KINDS) * n] < 0 \
+            or not _identifiable(jac, effects, n, np.arange(jac.shape[1])):
         return None
-    return z, chi2, np.sqrt(np.diag(np.linalg.inv(jac.T @ jac)))
+    return z, chi2, np.linalg.inv(jac.T @ jac)
 
 
-def _estimate(robot, z, effects, std) -> list[RunEstimate]:
-    """The reported values of the added `effects` at `z`, with `std` (the fit variables' stds, in their order)."""
-    n, out = robot.n_joints, []
-    std = iter(std)
+def _estimate(robot, z, effects, cov) -> list[RunEstimate]:
+    """The reported values of the added `effects` at `z`, with their stds from `cov`, the fit variables' covariance
+    (in their order)."""
+    n, out, at = robot.n_joints, [], 0
     for e in effects:
+        i = _index(e, n)
         if e.kind == "payload":
-            for (name, scale, unit), i in zip(PAYLOAD, _index(e, n)):
-                out.append(RunEstimate(e, name, scale * float(z[i]), scale * float(next(std)), unit))
+            s_m, s_h = PAYLOAD[0][1], PAYLOAD[1][1]
+            m, h = s_m * float(z[i[0]]), s_h * np.asarray(z[i[1:]])
+            jac = np.zeros((4, 4))  # (mass, position) from the variables (mass, moment) in their scales
+            jac[0, 0], jac[1:, 0], jac[1:, 1:] = s_m, -s_m * h / m**2, s_h * np.eye(3) / m
+            std = np.sqrt(np.diag(jac @ cov[at:at + 4, at:at + 4] @ jac.T))
+            out += [RunEstimate(e, name, float(v), float(sd), unit)
+                    for (name, _, unit), v, sd in zip(PAYLOAD, [m, *(h / m)], std)]
+            at += 4
             continue
         scale, unit = RUN_KINDS[e.kind]
-        x, s = float(z[_index(e, n)[0]]), float(next(std))
+        x, s = float(z[i[0]]), float(np.sqrt(cov[at, at]))
+        at += 1
         if e.kind == "stiffness":  # k1 scales by 1 / (1 + scale x)
             value, sd = 1.0 / (1.0 + scale * x), scale * s / (1.0 + scale * x) ** 2
         elif e.kind == "cubic":  # k3 = e k1 at the final model
@@ -506,7 +518,7 @@ def diagnose_runs(
             progress(out)
         return out
 
-    z, added, std = jnp.zeros(size), [], np.zeros(0)
+    z, added, cov = jnp.zeros(size), [], np.zeros((0, 0))
     steps = [row(0, "start", z, 0)]
     verdict = "no significant discrepancy: the model explains the runs to the tracker noise"
     candidates = [RunEffect(k, j) for k in RUN_KINDS for j in range(n)] + [RunEffect("payload", None)]
@@ -529,9 +541,12 @@ def diagnose_runs(
         cols[:, needed] = part
         gain = []
         for c in eligible:  # the chi-square decrease of the candidate's own variables, linearised
-            a = cols[:, _index(c, n)]
+            own = _index(c, n)
+            a = cols[:, own]
             g = a.T @ res
-            gain.append(float(g @ np.linalg.pinv(a.T @ a) @ g) if _identifiable(cols, added + [c], n) else -np.inf)
+            rest = [i for e in added for i in _index(e, n)] + own
+            gain.append(float(g @ np.linalg.pinv(a.T @ a) @ g) if _identifiable(cols[:, rest], [], n,
+                                                                                  np.arange(len(rest))) else -np.inf)
         best = None
         for k in np.argsort(-np.asarray(gain), kind="stable")[:SCREENED]:
             if gain[k] == -np.inf:
@@ -545,7 +560,7 @@ def diagnose_runs(
         if best is None:
             verdict = "not explained: no candidate fit lowers the chi-square within the physical range"
             break
-        effect, (z_new, chi2_new, std_new) = best
+        effect, (z_new, chi2_new, cov_new) = best
         m_new = sum(len(_index(e, n)) for e in added + [effect])
         if not chi2_new + m_new * ln_n < last.bic - MIN_BIC_GAIN:
             verdict = f"not explained: the best candidate ({effect.label}) does not lower BIC by {MIN_BIC_GAIN}"
@@ -554,7 +569,7 @@ def diagnose_runs(
         if not new.chi2_validation < last.chi2_validation:
             verdict = f"not explained: {effect.label} does not lower the validation runs' chi-square"
             break
-        z, added, std = z_new, added + [effect], std_new
+        z, added, cov = z_new, added + [effect], cov_new
         steps.append(new)
     else:
         if added:
@@ -565,4 +580,4 @@ def diagnose_runs(
     final = dataclasses.replace(final, motor_lag=None if robot.motor_lag is None and "lag" not in kinds
                                 else final.motor_lag,
                                 damping=None if robot.damping is None and "damping" not in kinds else final.damping)
-    return RunDiagnosis(final, steps, _estimate(base, np.asarray(z), added, std), verdict)
+    return RunDiagnosis(final, steps, _estimate(base, np.asarray(z), added, cov), verdict)
