@@ -24,6 +24,7 @@ from identification.diagnosis._runs import (
     diagnose_runs,
     payload_robot,
 )
+from jaxrobot._cli import main
 
 
 def test_payload_is_a_point_mass_on_the_flange():
@@ -148,3 +149,50 @@ def test_the_other_cases_from_runs():
     est = res.estimates[0]
     assert abs(est.value - 0.8) < 3 * est.std and est.std < 0.02, est
     assert res.verdict.startswith("explained")
+
+
+@pytest.mark.extended
+@pytest.mark.timeout(3600)
+def test_payload_from_poses_and_lag_from_runs(tmp_path, capsys):
+    """The virtual bench: the clean case's robot with a hidden 4 kg payload at (0, 0.05, 0.12) m on the flange and a
+    1.5 ms lag of motor 2, run (our simulation, the tracker's noise, seeded) on the first 0.5 s of the line (training)
+    and spiral (validation) commands, and resting at 40 + 15 random poses. The runs alone name the lag and a payload
+    whose mass and position lie far outside their reported sigmas; with the poses (`diagnose --runs … POSES.csv
+    --validate …`), lag and payload are named, each parameter within 3 reported sigma. The poses alone cannot show
+    the lag (it moves no rest pose: `test_runs_and_poses_share_one_chi_square`)."""
+    folder, start, marker, noise, _, _ = case_runs("p0_clean")
+    truth = payload_robot(dataclasses.replace(start, motor_lag=jnp.array([0.0, 1.5e-3, 0, 0, 0, 0])), 4.0,
+                          jnp.array([0.0, 0.05, 0.12]))
+    expected = {"lag": 1.5e-3, "mass": 4.0, "x": 0.0, "y": 0.05, "z": 0.12}
+    rng = np.random.default_rng(3205)
+    files = {}
+    for name in ("line_nu1e-14", "spiral_nu1e-14"):
+        cmd = tuple(np.asarray(a)[:500] for a in jb.read_command_csv(folder / f"command_{name}.csv"))
+        positions, motors = _simulated(truth, *(jnp.asarray(a) for a in cmd), jnp.asarray(marker))
+        run = (cmd[0], np.asarray(motors), np.asarray(positions) + noise * rng.standard_normal((500, 3)))
+        files[name] = (tmp_path / f"command_{name}.csv", tmp_path / f"run_{name}.csv")
+        jb.write_command_csv(files[name][0], *cmd)
+        jb.write_trajectory_csv(files[name][1], *run)
+    theta = np.asarray(start.u0) * rng.uniform(-1, 1, (55, 6)) * np.array([1.5, 0.6, 0.6, 1.5, 1.2, 2.0])
+    poses = jb.measure_poses(truth, theta, seed=3206, marker=marker, position_noise=noise)
+    for part, rows in (("train", slice(0, 40)), ("val", slice(40, 55))):
+        jb.write_pose_csv(tmp_path / f"{part}.csv", theta[rows], poses.positions[rows])
+    train = [(jb.read_command_csv(files["line_nu1e-14"][0]), jb.read_trajectory_csv(files["line_nu1e-14"][1]))]
+    val = [(jb.read_command_csv(files["spiral_nu1e-14"][0]), jb.read_trajectory_csv(files["spiral_nu1e-14"][1]))]
+
+    alone = diagnose_runs(start, train, val, marker, noise)
+    found = {e.parameter: e for e in alone.estimates}
+    assert "lag" in found and "mass" in found, alone.verdict
+    assert max(abs(found[k].value - expected[k]) / found[k].std for k in ("mass", "x", "y", "z")) > 3
+
+    code = main(["diagnose", "--model", str(folder / "start.toml"), str(tmp_path / "train.csv"), "--validate",
+                 str(tmp_path / "val.csv"), "--runs", str(files["line_nu1e-14"][1]), "--commands",
+                 str(files["line_nu1e-14"][0]), "--validate-runs", str(files["spiral_nu1e-14"][1]),
+                 "--validate-commands", str(files["spiral_nu1e-14"][0]), "--json"])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    summary = json.loads(out.out)
+    assert sorted({(e["kind"], e["joint"]) for e in summary["effects"]}) == [("lag", 2), ("payload", None)]
+    for e in summary["effects"]:
+        assert abs(e["value"] - expected[e["parameter"]]) < 3 * e["std"], e
+    assert summary["verdict"].startswith("explained")

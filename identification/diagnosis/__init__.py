@@ -24,5 +24,6 @@ from ._runs import RunEstimate as RunEstimate
 from ._runs import RunStep as RunStep
 from ._runs import compare_run as compare_run
 from ._runs import diagnose_runs as diagnose_runs
+from ._runs import payload_robot as payload_robot
 
 _check_public(globals())

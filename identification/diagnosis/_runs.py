@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot.measurement import marker_pose
+from jaxrobot.measurement import marker_pose, rest_link_angles
 
 from .._noise import ALPHA, noise_model, noise_test
 from .._pose_files import check_pose_units
@@ -270,9 +270,10 @@ def _with_effects(robot: jr.Robot, z):
 
 
 def _whitened(robot, z, cmd, white, measured, sigma, marker, substeps):
-    q, _ = jr.simulate(_with_effects(robot, z), *cmd, substeps=substeps)
-    return (jnp.einsum("kij,kj->ki", white, measured - marker_pose(_with_effects(robot, z), q, marker)[0])
-            / sigma).ravel()
+    moved = _with_effects(robot, z)
+    q0 = rest_link_angles(moved, cmd[1][0], throw=False)  # NaN where a trial has no rest: the fit rejects it
+    q, _ = jr.simulate(moved, *cmd, substeps=substeps, q0=q0)
+    return (jnp.einsum("kij,kj->ki", white, measured - marker_pose(moved, q, marker)[0]) / sigma).ravel()
 
 
 @functools.partial(jax.jit, static_argnames="substeps")
