@@ -15,6 +15,7 @@ from test_dynamic_effects import arm_description, command
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
+from identification.diagnosis import payload_robot
 from identification.diagnosis._diagnose import Poses
 from identification.diagnosis._runs import (
     _pose_rows,
@@ -22,7 +23,6 @@ from identification.diagnosis._runs import (
     _simulated,
     compare_run,
     diagnose_runs,
-    payload_robot,
 )
 from jaxrobot._cli import main
 

@@ -15,6 +15,7 @@ from ._effects import CATALOGUE as CATALOGUE
 from ._effects import Effect as Effect
 from ._effects import Layout as Layout
 from ._effects import catalogue as catalogue
+from ._effects import payload_robot as payload_robot
 from ._report import progress_lines as progress_lines
 from ._report import summary as summary
 from ._runs import RunComparison as RunComparison
@@ -24,6 +25,5 @@ from ._runs import RunEstimate as RunEstimate
 from ._runs import RunStep as RunStep
 from ._runs import compare_run as compare_run
 from ._runs import diagnose_runs as diagnose_runs
-from ._runs import payload_robot as payload_robot
 
 _check_public(globals())

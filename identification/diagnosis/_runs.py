@@ -29,6 +29,7 @@ from jaxrobot.measurement import marker_pose, rest_link_angles
 from .._noise import ALPHA, noise_model, noise_test
 from .._pose_files import check_pose_units
 from ._diagnose import MIN_BIC_GAIN
+from ._effects import loaded
 from ._model import EXACT_ITERATIONS, rest_angles
 
 STEP_TOLERANCE = 1e-6
@@ -235,28 +236,6 @@ class RunDiagnosis:
     """The outcome in words."""
 
 
-def payload_robot(robot: jr.Robot, mass, position) -> jr.Robot:
-    """`robot` carrying a point mass `mass` [kg] at `position` (3,) [m] in the frame of the last link: that link's
-    mass, centre of mass and inertia about it (parallel-axis theorem). The identity at `mass = 0`."""
-    return _loaded(robot, mass, mass * jnp.asarray(position))
-
-
-def _loaded(robot: jr.Robot, mass, moment) -> jr.Robot:
-    """`payload_robot` of the first moment `moment = mass * position` [kg m]; a point of `mass <= 0` adds no inertia
-    of its own (smooth at 0: that inertia is of second order in the moment)."""
-    m0, c0, i0 = robot.mass[-1], robot.com[-1], robot.inertia[-1]
-    total = m0 + mass
-    com = (m0 * c0 + moment) / total
-    eye = jnp.eye(3)
-    d = c0 - com
-    u = moment - mass * com  # the point's mass times its offset from the new centre
-    safe = jnp.where(mass > 0, mass, 1.0)
-    point = jnp.where(mass > 0, (u @ u * eye - jnp.outer(u, u)) / safe, 0.0)
-    inertia = i0 + m0 * (d @ d * eye - jnp.outer(d, d)) + point
-    return dataclasses.replace(robot, mass=robot.mass.at[-1].set(total), com=robot.com.at[-1].set(com),
-                               inertia=robot.inertia.at[-1].set(inertia))
-
-
 def _with_effects(robot: jr.Robot, z):
     """`robot` (with lag and damping arrays) moved by the scaled effect variables `z` (4n + 4,): lag, damping,
     stiffness, cubic per joint, then the payload."""
@@ -266,7 +245,7 @@ def _with_effects(robot: jr.Robot, z):
                                 damping=robot.damping + scale["damping"] * z[n:2 * n],
                                 c=robot.c * (1.0 + scale["stiffness"] * z[2 * n:3 * n]),
                                 e=robot.e + scale["cubic"] * z[3 * n:4 * n])
-    return _loaded(moved, PAYLOAD[0][1] * z[4 * n], PAYLOAD[1][1] * z[4 * n + 1:])
+    return loaded(moved, PAYLOAD[0][1] * z[4 * n], PAYLOAD[1][1] * z[4 * n + 1:])
 
 
 def _whitened(robot, z, cmd, white, measured, sigma, marker, substeps):
