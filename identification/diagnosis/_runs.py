@@ -151,7 +151,8 @@ PAYLOAD = (("mass", 1.0, "kg"), ("x", 0.1, "m"), ("y", 0.1, "m"), ("z", 0.1, "m"
 """The payload effect's reported parameters (name, scale of its fit variable, unit): a point mass on the flange, its
 mass and its position in the last link's frame (`payload_robot`); it acts on the runs through gravity and inertia and
 on the poses through gravity. The fit varies the mass and the first moment `mass * position` (scales 1 kg, 0.1 kg m),
-in which the gravity torque is linear."""
+in which the gravity torque is linear. A candidate only where poses are given: short runs alone confuse it with a
+joint's stiffness (benchmarks/results_runs.md)."""
 SCREENED = 3
 """Candidates per step fitted in full: those with the largest linearised chi-square decrease."""
 ENCODER_LAG_RAD = 1e-6
@@ -463,12 +464,12 @@ def diagnose_runs(
     Each step compares the model with the training runs and poses (one chi-square over all their rows, each in
     units of its own noise, as `compare_run`); while the test fails, it screens every effect not yet added by the
     linearised chi-square decrease of its own variables (a lag only for a motor whose encoders depart from the
-    model's motor angles, `ENCODER_LAG_RAD`), fits the `SCREENED` best with the effects already added by
-    Levenberg-Marquardt through the simulation and the rest poses (forward-mode derivatives), and adds the one of
-    least BIC (over all rows) if it lowers BIC by more than `MIN_BIC_GAIN` and lowers the validation runs' and poses'
-    chi-square. The model without an effect is where each fit starts (lag, damping and payload 0). Static effects
-    that runs do not change (geometry, gear ripple, offsets: `diagnose`) are not candidates: diagnose the poses
-    alone for them first."""
+    model's motor angles, `ENCODER_LAG_RAD`; the payload only with poses, `PAYLOAD`), fits the `SCREENED` best
+    with the effects already added by Levenberg-Marquardt through the simulation and the rest poses (forward-mode
+    derivatives), and adds the one of least BIC (over all rows) if it lowers BIC by more than `MIN_BIC_GAIN` and
+    lowers the validation runs' and poses' chi-square. The model without an effect is where each fit starts (lag,
+    damping and payload 0). Static effects that runs do not change (geometry, gear ripple, offsets: `diagnose`) are
+    not candidates: diagnose the poses alone for them first."""
     n = robot.n_joints
     if max_steps < 0 or substeps < 1:
         raise ValueError(f"max_steps >= 0 and substeps >= 1 expected, found {max_steps}, {substeps}")
@@ -501,7 +502,8 @@ def diagnose_runs(
     z, added, cov = jnp.zeros(size), [], np.zeros((0, 0))
     steps = [row(0, "start", z, 0)]
     verdict = "no significant discrepancy: the model explains the runs to the tracker noise"
-    candidates = [RunEffect(k, j) for k in RUN_KINDS for j in range(n)] + [RunEffect("payload", None)]
+    candidates = [RunEffect(k, j) for k in RUN_KINDS for j in range(n)] + ([RunEffect("payload", None)]
+                                                                         if poses is not None else [])
     while steps[-1].p_value <= ALPHA:
         if len(added) == max_steps:
             verdict = f"not explained after {max_steps} effects (--max-steps)"
