@@ -125,16 +125,23 @@ def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int |
             out["check"][key] = np.atleast_1d(np.asarray(res.objective)).tolist()
         else:
             row["rate"] = ""
-        out["rows"].append(row)
-        print(row, flush=True)
+        _emit(out, row)
     out["capacity"] = {f"N = {k}": batch_capacity(k, 30, 80e9) for k in (2501, 10001)}
     out["capacity_here"] = batch_capacity(n, 30)
     out["concurrent"] = concurrent
 
 
-def worker(states: list[int], robots: list[int], repeat: int, ocp: bool, sizes: list[int], vmap: bool,
+def _emit(out: dict, row: dict) -> None:
+    """Append `row` to the worker's results, print it and save them all (`out["path"]`), so that a run
+    stopped at a time limit keeps every finished row."""
+    out["rows"].append(row)
+    print(row, flush=True)
+    Path(out["path"]).write_text(json.dumps(out))
+
+
+def worker(path: Path, states: list[int], robots: list[int], repeat: int, ocp: bool, sizes: list[int], vmap: bool,
            nodes: int | None, concurrent: bool) -> dict:
-    """The timings on this process' default backend."""
+    """The timings on this process' default backend, saved to `path` (JSON) as each row is done."""
     import jax
     import jax.numpy as jnp
     from _timing import timed
@@ -146,7 +153,7 @@ def worker(states: list[int], robots: list[int], repeat: int, ocp: bool, sizes: 
 
     dev = jax.devices()[0]
     out = {"device": f"{dev.platform} ({dev.device_kind}) x {len(jax.devices())}", "jax": jax.__version__,
-           "platform": dev.platform, "rows": [], "check": {}}
+           "platform": dev.platform, "rows": [], "check": {}, "path": str(path)}
     robot = jr.racer7()
     lo, hi = (np.asarray(x) for x in (robot.q_min, robot.q_max))
 
@@ -159,9 +166,8 @@ def worker(states: list[int], robots: list[int], repeat: int, ocp: bool, sizes: 
         q = jnp.asarray(rng.uniform(lo, hi, (n, 6)))
         qd = jnp.asarray(rng.uniform(-1.0, 1.0, (n, 6)))
         _, first, best = timed(lambda q=q, qd=qd: dynamics(q, qd), repeat)
-        out["rows"].append({"work": f"dynamics M, g, C qd: {n:,} states", "first_s": first, "run_s": best,
-                            "rate": f"{n / best:.3g} states/s"})
-        print(out["rows"][-1], flush=True)
+        _emit(out, {"work": f"dynamics M, g, C qd: {n:,} states", "first_s": first, "run_s": best,
+                    "rate": f"{n / best:.3g} states/s"})
 
     pool = random_feasible_poses(robot, 1000, seed=0) if robots else None
     for r in robots:
@@ -171,10 +177,9 @@ def worker(states: list[int], robots: list[int], repeat: int, ocp: bool, sizes: 
         meas = measure_poses(draw_fleet(r, seed=1), theta, seed=2)
         res, first, best = timed(lambda theta=theta, meas=meas: calibrate_fleet(robot, theta, meas.positions),
                                   repeat)
-        out["rows"].append({"work": f"calibrate_fleet: {r:,} robots x 50 poses", "first_s": first, "run_s": best,
-                            "rate": f"{r / best:.3g} robots/s", "converged": f"{int(np.sum(res.converged))}/{r}"})
         out["check"][f"fleet{r}"] = np.asarray(res.value[:20]).tolist()
-        print(out["rows"][-1], flush=True)
+        _emit(out, {"work": f"calibrate_fleet: {r:,} robots x 50 poses", "first_s": first, "run_s": best,
+                    "rate": f"{r / best:.3g} robots/s", "converged": f"{int(np.sum(res.converged))}/{r}"})
 
     if ocp:
         _ocp_rows(out, repeat, sizes, vmap, nodes, concurrent)
@@ -242,11 +247,11 @@ the `ceil(log2 N)` levels of cyclic reduction in the factor and twice that in th
 N = 2501), the Newton-Euler scans over the 6 links (forward and backward) and the fixed Newton steps of
 the gear inverse in each `half_step`. No scan or loop over the nodes runs in an iteration with cyclic
 reduction; with the scan, the factor and the solve are sequential over the N nodes (the
-`block-tridiagonal factor + solve` rows measure one of each). A sweep on an accelerator runs 4 batched
-waves of increasing nu one after the other (continuation chains of 4, batched across the chains); each
-wave is one `while_loop` over its members until the last is done, in which the refresh and step
-conditionals are selects, so every member refactors at every pass (a single solve refactors every
-`refresh_every` steps)."""
+`block-tridiagonal factor + solve` rows measure one of each). A sweep on an accelerator runs its B
+members in ceil(B / 4) lanes of one `while_loop` (`planning._al_solver._pool`): a lane whose member is
+done takes the next nu, warm-started from the lane's last two members; the loop's passes are at least
+those of the slowest lane. In a pass the refresh and step conditionals are selects, so every lane
+refactors at every pass (a single solve refactors every `refresh_every` steps)."""
 
 
 def main() -> None:
@@ -266,12 +271,13 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path(__file__).with_name("results_gpu.md"))
     args = ap.parse_args()
     if args.worker is not None:
-        args.worker.write_text(json.dumps(worker(args.states, args.robots, args.repeat, not args.no_ocp, args.sizes,
-                                                 args.vmap, args.nodes, args.concurrent)))
+        args.worker.write_text(json.dumps(worker(args.worker, args.states, args.robots, args.repeat, not args.no_ocp,
+                                                 args.sizes, args.vmap, args.nodes, args.concurrent)))
         return
-    cpu = _run_worker("cpu", args)
-    gpu = cpu["device"] != _run_worker_probe()
+    # the accelerator first: where its time is lent by the minute, its rows come back even if the CPU's run is cut
+    gpu = _run_worker_probe().split(" ")[0] not in ("cpu", "")
     acc = _run_worker(None, args) if gpu else None
+    cpu = _run_worker("cpu", args)
     commit = args.commit or subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                                            cwd=Path(__file__).parent).stdout.strip() or "unknown"
     gpu_smi = subprocess.run(["nvidia-smi", "--query-gpu=name,memory.total,driver_version", "--format=csv,noheader"],
@@ -291,8 +297,8 @@ def main() -> None:
         "the persistent compilation cache as set" + ("; the OCP rows' first calls ran concurrently in threads"
                                                      if args.concurrent else "") + ").",
         "Defaults by backend: on the CPU `solve_ocp` uses the scan and `solve_ocp_sweep` continuation chains "
-        "(one per core, `lax.map`/`while_loop`); on an accelerator cyclic reduction, and the sweep as continuation "
-        "chains of 4 batched across the chains (4 waves whose members advance together).",
+        "(one per core, `lax.map`/`while_loop`); on an accelerator cyclic reduction, and the sweep in "
+        "ceil(B / 4) lanes of one batched loop, each lane taking the next nu by continuation when its member is done.",
         "",
     ]
     if gpu:
@@ -312,8 +318,8 @@ def main() -> None:
     if "capacity" in cpu:
         cap = ", ".join(f"{v} members at {k}" for k, v in cpu["capacity"].items())
         lines += ["Memory of a batched solve (`planning._al_solver.batch_capacity`: `MEMBER_BLOCKS` 30 x 30 float64 "
-                  f"blocks per node and member): an 80 GB card holds {cap}; larger batches run in chunks of that "
-                  "size.", "", SEQUENTIAL, ""]
+                  f"blocks per node and lane): an 80 GB card holds {cap}; a larger batch runs in that many lanes, "
+                  "each taking the next member when its own is done.", "", SEQUENTIAL, ""]
     args.out.write_text("\n".join(lines))
     print("\n".join(lines))
 

@@ -74,6 +74,7 @@ from ._rotations import rotation_to_quaternion as rotation_to_quaternion  # noqa
 from ._rotations import rotvec_to_rotation as rotvec_to_rotation  # noqa: E402
 from ._rotations import rpy as rpy  # noqa: E402
 from ._rotations import vee as vee  # noqa: E402
+from ._simulate import lag_command as lag_command  # noqa: E402
 from ._simulate import simulate as simulate  # noqa: E402
 from ._status import RESULTS as RESULTS  # noqa: E402
 from ._status import status_message as status_message  # noqa: E402

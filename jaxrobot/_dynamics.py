@@ -244,10 +244,9 @@ def planning_dynamics(
     robot: Robot, x: Float[Array, "*b 4*n"], u: Float[Array, "*b n"], direction: Float[Array, "*b n"] | None = None
 ) -> Float[Array, "*b 4*n"]:
     """`xd = f(x, u)` of eq. 4.1, `x = [q, qd, theta, thetad]`, `u = thetadd`; cw gear set, or with `direction`
-    the flank weights `sigma` of the gears (`flank_output`, docs/model.md (B.0))."""
-    if robot.motor_lag is not None:
-        raise ValueError("planning_dynamics: the planning model (eq. 4.1) has no velocity-loop lag; found "
-                         "robot.motor_lag (the robot file's [motors] velocity_lag_s)")
+    the flank weights `sigma` of the gears (`flank_output`, docs/model.md (B.0)). With joint damping the link
+    receives `d (phid - qd)` (`link_acceleration`); a velocity-loop lag (`robot.motor_lag`) does not enter: `theta`
+    is the motor angle after it, which `lag_command` turns into the command."""
     q, qd, theta, thetad = jnp.split(x, 4, axis=-1)
     output = (lambda th: gear_output(robot, th)) if direction is None else (  # noqa: E731
         lambda th: flank_output(robot, th, direction))

@@ -21,7 +21,8 @@ Dynamic effects of the robot (`Robot.motor_lag`, `Robot.damping`; None leaves th
   solution `theta_p = sum_j (-tau)^j theta_cmd^(j)` (j <= 5, the series ends for a quintic). It is smooth in
   `tau` at 0 (`dtheta_m/dtau = -thetad_cmd` there), so a lag can be fitted from none. Its terms grow as
   `(tau/h)^j` times the command's j-th difference and cancel against the decay, so rounding grows with
-  `tau/h` (tested to `tau = 3 h`).
+  `tau/h` (tested to `tau = 3 h`). `lag_command` inverts this step: the command whose lagged motor passes the
+  samples of a planned motor trajectory.
 - Joint damping: the link receives `d (phid - qd)` besides `kappa(phi - q)`, `phid` the gear output's rate
   along the motor rate `thetad_m` (at a fixed flank weight where `directional`).
 
@@ -89,6 +90,71 @@ def _lag_response(
     return theta_p + start * decay, thetad_p - jnp.where(lagged, start / tau_safe, 0.0) * decay
 
 
+def _command(robot: Robot, caller: str, *arrays) -> tuple[Float[Array, "..."], ...]:
+    """`(t, theta, thetad, thetadd)` as float arrays, checked for the shapes (N,) and (N, n)."""
+    t, theta, thetad, thetadd = (jnp.asarray(a, float) for a in arrays)
+    n = robot.n_joints
+    if t.ndim != 1 or theta.shape != t.shape + (n,) or thetad.shape != theta.shape or thetadd.shape != theta.shape:
+        raise ValueError(f"{caller}: expected t (N,) and theta, thetad, thetadd (N, {n}), found t {t.shape}, "
+                         f"theta {theta.shape}, thetad {thetad.shape}, thetadd {thetadd.shape}")
+    return t, theta, thetad, thetadd
+
+
+def _lag_step_weights(tau: Float[Array, " n"], h: Float[Array, ""]) -> tuple[Float[Array, "6 n"], Float[Array, " n"]]:
+    """The exact step of `_lag_response` over a whole interval: the motor angle at its end is
+    `sum_i a[i] knots[i] + decay m0` (per joint, `tau > 0`) for the Hermite `knots` of its command and the start
+    `m0`."""
+    ends = np.einsum("sjk,ik->sij", _power_derivatives(np.array([0.0, 1.0]), 6), _HERMITE)  # d^j/ds^j of knot i
+    powers = (-tau / h)[None] ** np.arange(6)[:, None]  # (6, n)
+    w = jnp.einsum("sij,jn->sin", ends, powers)  # the particular solution's weights at s = 0, 1
+    decay = jnp.exp(-h / tau)
+    return w[1] - decay * w[0], decay
+
+
+def lag_command(
+    robot: Robot,
+    t: Float[Array, " N"],
+    theta: Float[Array, "N n"],
+    thetad: Float[Array, "N n"],
+    thetadd: Float[Array, "N n"],
+) -> tuple[Float[Array, "N n"], Float[Array, "N n"], Float[Array, "N n"]]:
+    """The command `(theta_c, thetad_c, thetadd_c)` (N, n) at the sample times `t` (uniform) whose motors, after the
+    velocity-loop lags `robot.motor_lag` as `simulate` solves them, pass every sample with the angles, rates and
+    accelerations `(theta, thetad, thetadd)` of a motor trajectory that starts at rest; the trajectory itself where
+    the robot has no lag (None, or a motor's `tau = 0`).
+
+    From `tau thetad_m + theta_m = theta_c`: `theta_c = theta + tau thetad` and `thetad_c = thetad + tau thetadd` at
+    each sample; `thetadd_c` (which sets the motor's jerk there) by the exact step of each interval (module
+    docstring) that takes the motor from `theta_k` to `theta_{k+1}`, one linear recursion per motor from
+    `thetadd_c[0] = thetadd[0] + tau jerk_0` (the jerk of the Hermite interpolant of `theta` at `t[0]`). The
+    recursion's free mode alternates and decays by a factor `|a2 / a5| < 1` per sample (0.95 at `tau = 3 h`), so
+    rounding does not grow; `thetadd_c` is resolved to ~`eps |theta| / (a5 h^2)` (1e-5 rad/s^2 at `tau = 3 h`, where it
+    moves the motor by 1e-14 rad). docs/model.md (B.7)."""
+    t, theta, thetad, thetadd = _command(robot, "lag_command", t, theta, thetad, thetadd)
+    if robot.motor_lag is None:
+        return theta, thetad, thetadd
+    h = t[1] - t[0]
+    lagged = robot.motor_lag > 0
+    tau = jnp.where(lagged, robot.motor_lag, h)
+    a, _ = _lag_step_weights(tau, h)
+    rate = thetad + tau * thetadd
+    step = theta[1:] - theta[:-1]
+    # theta_{k+1} - decay theta_k minus the value and rate knots' part, with a0 + a3 = 1 - decay
+    rhs = ((1 - a[3]) * step - tau * (a[0] * thetad[:-1] + a[3] * thetad[1:])
+           - h * (a[1] * rate[:-1] + a[4] * rate[1:])) / h**2
+    jerk0 = jnp.asarray(_HERMITE[:, 3] * 6, float) @ jnp.stack(
+        [theta[0], thetad[0] * h, thetadd[0] * h**2, theta[1], thetad[1] * h, thetadd[1] * h**2]) / h**3
+
+    def advance(acc, r):
+        nxt = (r - a[2] * acc) / a[5]
+        return nxt, nxt
+
+    acc0 = thetadd[0] + tau * jerk0
+    acc = jnp.concatenate([acc0[None], jax.lax.scan(advance, acc0, rhs)[1]])
+    return (jnp.where(lagged, theta + tau * thetad, theta), jnp.where(lagged, rate, thetad),
+            jnp.where(lagged, acc, thetadd))
+
+
 def simulate(
     robot: Robot,
     t: Float[Array, " N"],
@@ -114,11 +180,8 @@ def simulate(
     (default `reversal_travel(robot)`) after a reversal and keeps its flank at rest; `q0` defaults to the
     rest pose on that flank. The default uses the cw set throughout (the planning model, eq. 4.1).
     """
-    t, theta, thetad, thetadd = (jnp.asarray(a, float) for a in (t, theta, thetad, thetadd))
+    t, theta, thetad, thetadd = _command(robot, "simulate", t, theta, thetad, thetadd)
     n = robot.n_joints
-    if t.ndim != 1 or theta.shape != t.shape + (n,) or thetad.shape != theta.shape or thetadd.shape != theta.shape:
-        raise ValueError(f"simulate: expected t (N,) and theta, thetad, thetadd (N, {n}), found t {t.shape}, "
-                         f"theta {theta.shape}, thetad {thetad.shape}, thetadd {thetadd.shape}")
     require_elastic(robot, "simulate")
     if substeps < 1:
         raise ValueError(f"simulate: substeps must be >= 1, found {substeps}")

@@ -247,10 +247,10 @@ def _normal_blocks(
     the iteration from ~100x to ~2x per step at nu = 1e-14 (the conditioning amplifies the error).
 
     From the structure `d c_k / d y_k = K_a - P_k`, `d c_k / d y_{k+1} = K_b - P_{k+1}` (`K_a = -E - S`,
-    `K_b = E - S`, `E = [I 0]`, `S = half_step_shift(j)`, `P_k` the j x 3j block of `half_step_jacobian`
+    `K_b = E - S`, `E = [I 0]`, `S = half_step_shift(j)`, `P_k` the j x m block of `half_step_jacobian`
     in rows j:2j, for j joints): the cross terms of `P` with `K_a` and `K_b` cancel on interior diagonal
     blocks, which are `K_a^T K_a + K_b^T K_b + 2 P_k^T P_k`, and the sub-diagonal block is
-    `K_b^T K_a - [P_k]_(j:2j, 0:3j) + [P_{k+1}^T]_(0:3j, j:2j) + P_{k+1}^T P_k`: 17x fewer flops
+    `K_b^T K_a - [P_k]_(j:2j, 0:m) + [P_{k+1}^T]_(0:m, j:2j) + P_{k+1}^T P_k`: 17x fewer flops
     than products of the 4j x 5j blocks."""
     n, nz = y.shape
     j = p.problem.n_joints
@@ -336,12 +336,14 @@ def augmented_lagrangian(
     solve is already done for the new multipliers, it takes one LM step.
 
     Under `vmap` with the `"cyclic_reduction"` `linear_solver` (the default on an accelerator) the
-    members advance together in one batched `while_loop` (`chunked_vmap`), each from its own start with
-    its own status, iteration count and stopping (a member that is done is masked); the conditionals
-    of an iteration (factor refresh, step) then run for every member. A batch larger than the device
-    memory holds (`batch_capacity`) runs in chunks, one after the other. A batch that differs only in
-    the cost weights is solved in `WAVES` batched waves of increasing `nu` (`_waves`): the interleaved
-    continuation chains below, batched across the chains. With the `"scan"` (the default
+    members run in lanes that advance together in one batched `while_loop` (`_pool`), each member from
+    its own start with its own status, iteration count and stopping; a lane whose member is done takes
+    the next one, and a lane with none left is masked. The conditionals of a pass (factor refresh,
+    step) then run for every lane. At most `batch_capacity` lanes run at once. A batch that differs
+    only in the cost weights runs in `ceil(B / MEMBERS_PER_LANE)` lanes by continuation in increasing
+    `nu` (below), each member warm-started from the last two of its lane. A batch of one member is
+    the unbatched solve.
+    With the `"scan"` (the default
     on the CPU) the batch is solved one member after the other (a custom batching rule): each
     solve keeps its real conditionals (factor reuse, no evaluation of both branches) and stops at
     its own iteration count, and no LAPACK call is batched. A batched LAPACK call in jaxlib 0.10
@@ -385,16 +387,21 @@ def augmented_lagrangian(
             return jax.tree.unflatten(treedef, [next(it) if b else leaf
                                                 for leaf, b in zip(leaves, batched, strict=True)])
 
+        if axis_size == 1:  # one member: the unbatched solve, with its real conditionals
+            out = jax.tree.map(lambda a: a[None], solve(*member([x[0] for x in xs])))
+            return out, jax.tree.map(lambda _: True, out)
         arrays_b, y0_b, settings_b, dual_b = in_batched
         weights_only = not any(jax.tree.leaves((arrays_b.robot, arrays_b.q_d, arrays_b.ts, y0_b, settings_b, dual_b)))
         nu = jnp.broadcast_to(arrays.nu, (axis_size,))
         if linear_solver(settings) == "cyclic_reduction":
-            if weights_only and axis_size > 1:  # chains of the continuation, batched across the chains
-                out = _waves(lambda x, y, d: solve(member(x)[0], y, member(x)[2], d), axis_size, nu, xs, y0, dual, m)
-            else:
-                out = chunked_vmap(lambda x: _augmented_lagrangian(eqx.combine(member(x)[0], static), *member(x)[1:3],
-                                                                   m, member(x)[3]),
-                                   axis_size, xs, batch_capacity(n, nz))
+            def begin(k, y, d, cold):
+                arrays_k, y0_k, settings_k, dual_k = member([x[k] for x in xs])
+                d = jax.tree.map(lambda own, given: jnp.where(cold, own, given), dual_k, d)
+                return (*_start(eqx.combine(arrays_k, static), jnp.where(cold, y0_k, y), settings_k, m, d), settings_k)
+
+            continuation = weights_only and axis_size > 1
+            lanes = -(-axis_size // MEMBERS_PER_LANE) if continuation else axis_size
+            out = _pool(begin, axis_size, nu, min(lanes, batch_capacity(n, nz)), (n, nz), continuation)
             return out, jax.tree.map(lambda _: True, out)
         if not weights_only:
             out = jax.lax.map(lambda x: solve(*member(x)), xs)
@@ -407,7 +414,7 @@ def augmented_lagrangian(
 
 
 MEMBER_BLOCKS = 12
-"""Peak count of `5n x 5n` float64 blocks per node that one member of a batched solve (`chunked_vmap`)
+"""Peak count of `5n x 5n` float64 blocks per node that one lane of a batched solve (`_pool`)
 holds: the factor carried by the loop and the new one (both live when the refresh is a select under
 `vmap`, 3 blocks per node each for cyclic reduction), the diagonal and sub-diagonal blocks of the
 Gauss-Newton matrix and about 4 more for their assembly and the first reduction level."""
@@ -448,26 +455,88 @@ ACTIVE_SET_STEPS = 16
 """Most steps of one inner solve that continue because the last step changed the active bounds
 (`ALConfig.max_inner_iterations`)."""
 
-WAVES = 4
-"""Length of the continuation chains of a batched sweep (`_waves`): its members are solved in this many
-waves of increasing `nu`."""
+MEMBERS_PER_LANE = 4
+"""A batched solve on an accelerator (`_pool`) runs its B members in `ceil(B / MEMBERS_PER_LANE)` lanes
+(at most `batch_capacity`)."""
 
 
-def _waves(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[Array, "N 5*n"],
-           dual: tuple[Float[Array, "Nm1 4*n"], Float[Array, "N 5*n"]], m: int) -> ALResult:
-    """Solve a batch that differs only in the cost weights as `ceil(size / WAVES)` interleaved
-    continuation chains (`_continuation`) vmapped across the chains: chain `c` holds the members
-    `c, c + chains, ...` in increasing `nu` (a short chain repeats its largest), so that the members
-    advance in `WAVES` batched waves, each warm-started from the waves before it (arguments as
-    `_continuation`; `solve` is batched across the chains)."""
-    chains = -(-size // WAVES)
-    length = -(-size // chains)
-    order = jnp.argsort(nu)
-    index = order[np.minimum(np.arange(length) * chains + np.arange(chains)[:, None], size - 1)]  # (chains, length)
-    out = jax.vmap(lambda x, v: _continuation(solve, length, v, x, y0, dual, m))([x[index] for x in xs], nu[index])
-    # sorted member p is in chain p % chains at place p // chains
-    in_order = jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1).reshape(chains * length, *a.shape[2:])[:size], out)
-    return jax.tree.map(lambda a: a[jnp.argsort(order)], in_order)
+def _pool(begin, size: int, nu: Float[Array, " B"], lanes: int, shape: tuple[int, int], continuation: bool
+          ) -> ALResult:
+    """Solve the `size` members of a batch in `lanes` lanes that advance together in one `while_loop`,
+    one solver pass (`_pass`) per lane and loop pass: a lane whose member stops stores its result and
+    starts the next member not yet started, so no lane waits for another's member while members remain;
+    a lane with none left is masked. `begin(k, y, dual, cold)` gives `(p, state, config)` of member `k`
+    (`_start`) from the start `y`, `dual` or, where `cold`, from its own initial guess and multipliers
+    (`shape`: that of `y`, `(N, 5n)`).
+
+    With `continuation` (a batch that differs only in the cost weights) the members start in increasing
+    `nu`, the first `lanes` cold and every later one in the lane that finished the member before it,
+    from a prediction of its solution and multipliers by the last two members of that lane (as
+    `_continuation`); a continued member that does not converge is solved again from the cold start.
+    Without, the members start in their order, each cold. Results come back in the caller's order."""
+    order = jnp.argsort(nu) if continuation else jnp.arange(size)
+    log_nu = jnp.log(nu[order])
+    lane = jnp.arange(lanes)
+
+    def start(k, cold, known, last, before, last_nu, before_nu):
+        y, lam, gam = last
+        if continuation:  # secant in log nu from the lane's last two members (their multipliers divided by nu)
+            h = (log_nu[k] - last_nu) / (last_nu - before_nu)
+            h = jnp.where(known >= 2, jnp.clip(jnp.nan_to_num(h, posinf=0.0), 0.0, 2.0), 0.0)
+            y, lam, gam = (a + h * (a - b) for a, b in zip(last, before, strict=True))
+            scale = jnp.exp(log_nu[k])
+            lam, gam = scale * lam, scale * gam
+        return begin(order[k], y, (lam, gam), cold | (known == 0))
+
+    n, nz = shape
+    memory = (jnp.zeros((lanes, n, nz)), jnp.zeros((lanes, n - 1, 4 * nz // 5)), jnp.zeros((lanes, n, nz)))
+    p, s, config = jax.vmap(lambda k, y, lam, gam: begin(order[k], y, (lam, gam), True))(lane % size, *memory)
+    result = jax.eval_shape(lambda: jax.vmap(_result)(p, s))
+    out = jax.tree.map(lambda a: jnp.zeros((size, *a.shape[1:]), a.dtype), result)
+    state = dict(p=p, s=s, config=config, k=lane, active=lane < size, cold=jnp.ones(lanes, bool),
+                 known=jnp.zeros(lanes, int), last=memory, before=memory, last_nu=jnp.zeros(lanes),
+                 before_nu=jnp.zeros(lanes), next=jnp.array(lanes), out=out)
+
+    def settle(t):
+        """Store the results of the lanes whose member stopped and start their next members."""
+        res = jax.vmap(_result)(t["p"], t["s"])
+        stopped = t["active"] & t["s"].stop
+        ok = res.status == RESULTS.successful
+        done = stopped & (ok | t["cold"] | (not continuation))
+        retry = stopped & ~done
+        t["out"] = jax.tree.map(lambda o, r: o.at[jnp.where(done, t["k"], size)].set(r, mode="drop"), t["out"], res)
+        if continuation:
+            scale = jnp.exp(-log_nu[t["k"]])
+            now = (res.y, scale[:, None, None] * res.multipliers, scale[:, None, None] * res.bound_multipliers)
+            keep = done & ok
+            pick = lambda new, old: jax.tree.map(  # noqa: E731
+                lambda a, b: jnp.where(keep.reshape(-1, *[1] * (a.ndim - 1)), a, b), new, old)
+            t["before"], t["last"] = pick(t["last"], t["before"]), pick(now, t["last"])
+            t["before_nu"], t["last_nu"] = pick(t["last_nu"], t["before_nu"]), pick(log_nu[t["k"]], t["last_nu"])
+            t["known"] = jnp.where(keep, jnp.minimum(t["known"] + 1, 2), jnp.where(done, 0, t["known"]))
+        new_k = t["next"] + jnp.cumsum(done) - 1
+        fresh = done & (new_k < size)
+        t["next"] = t["next"] + jnp.sum(done)
+        t["k"] = jnp.where(fresh, new_k, t["k"])
+        t["active"] = t["active"] & ~(done & ~fresh)
+        restart = fresh | retry
+        t["cold"] = jnp.where(restart, retry | (t["known"] == 0) | (not continuation), t["cold"])
+        p, s, config = jax.vmap(start)(jnp.minimum(t["k"], size - 1), t["cold"], t["known"], t["last"], t["before"],
+                                       t["last_nu"], t["before_nu"])
+        pick = lambda new, old: jax.tree.map(  # noqa: E731
+            lambda a, b: jnp.where(restart.reshape(-1, *[1] * (a.ndim - 1)), a, b), new, old)
+        t["p"], t["s"], t["config"] = pick(p, t["p"]), pick(s, t["s"]), pick(config, t["config"])
+        return t
+
+    def body(t):
+        stepped = jax.vmap(_pass)(t["p"], t["config"], t["s"])
+        run = t["active"] & ~t["s"].stop
+        t = dict(t, s=jax.tree.map(lambda a, b: jnp.where(run.reshape(-1, *[1] * (a.ndim - 1)), a, b),
+                                   stepped, t["s"]))
+        return jax.lax.cond(jnp.any(t["active"] & t["s"].stop), settle, lambda t: t, t)
+
+    out = jax.lax.while_loop(lambda t: jnp.any(t["active"]), body, state)["out"]
+    return jax.tree.map(lambda a: a[jnp.argsort(order)], out)
 
 
 def _continuation(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[Array, "N 5*n"],
@@ -521,13 +590,58 @@ def _continuation(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[
     return jax.tree.map(lambda a: a[inverse], out)
 
 
+def _initial_penalty(p: _Parts, config: ALConfig):
+    """`rho` at the start (`ALConfig.penalty_per_weight`)."""
+    w_u = jnp.max(jnp.maximum(p.weight, p.edge)[4 * p.problem.n_joints:])
+    return jnp.maximum(jnp.asarray(config.penalty_init, float), config.penalty_per_weight * w_u)
+
+
+def _start(problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig, m: int,
+           dual: tuple[Float[Array, "Nm1 4*n"], Float[Array, "N 5*n"]]) -> tuple[_Parts, _State]:
+    """Problem data and the first state of a solve from `y0` and the multipliers `dual = (lam, gam)`
+    (zeros: a cold start; `m` the static history length)."""
+    p = _parts(problem, y0)
+    factorise = _FACTOR[linear_solver(config)][0]
+    n, nz = y0.shape
+    state = _State(
+        y=jnp.zeros_like(y0), lam=dual[0], gam=dual[1], rho=_initial_penalty(p, config),
+        mu=jnp.asarray(config.damping_init, float), it=jnp.array(0),
+        inner=jnp.array(0), steps=jnp.array(0), violation=jnp.array(jnp.inf), stationarity=jnp.array(jnp.inf),
+        status=RESULTS.nonlinear_max_steps_reached, stop=jnp.array(False), hist=jnp.full((4, m), jnp.nan),
+        # placeholder factor; the NaN key makes the first step factorise (one copy of the
+        # Jacobian code in the program: compile time)
+        factor=jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
+                            jax.eval_shape(factorise, jnp.zeros((n, nz, nz)), jnp.zeros((n - 1, nz, nz)))),
+        factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), switched=jnp.array(False),
+        forward=p.start,
+    )
+    return p, state
+
+
+def _result(p: _Parts, s: _State) -> ALResult:
+    """The `ALResult` of a solve that stopped in state `s`."""
+    return ALResult(
+        y=p.y0 + s.y, multipliers=s.lam, bound_multipliers=s.gam, status=s.status, iterations=s.it,
+        inner_iterations=s.steps, objective=_cost(p, s.y) * ANGLE_SCALE**2, violation=s.violation,
+        stationarity=s.stationarity, history_objective=s.hist[0], history_violation=s.hist[1],
+        history_penalty=s.hist[2], history_stationarity=s.hist[3],
+    )
+
+
 def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig, m: int,
                           dual: tuple[Float[Array, "Nm1 4*n"], Float[Array, "N 5*n"]]) -> ALResult:
     """`augmented_lagrangian` for one problem from `y0` and the multipliers `dual = (lam, gam)`
     (zeros: a cold start; `m` the static history length)."""
-    p = _parts(problem, y0)
+    p, s = _start(problem, y0, config, m, dual)
+    s = jax.lax.while_loop(lambda s: ~s.stop, lambda s: _pass(p, config, s), s)
+    return _result(p, s)
+
+
+def _pass(p: _Parts, config: ALConfig, s: _State) -> _State:
+    """One pass of the solver's loop (`augmented_lagrangian`) from state `s`."""
     factorise, solve = _FACTOR[linear_solver(config)]
-    n, nz = y0.shape
+    m = s.hist.shape[-1]
+    rho_max = config.penalty_max * _initial_penalty(p, config) / config.penalty_init
 
     def outer_update(s: _State, c_y, grad) -> _State:
         viol = jnp.maximum(jnp.max(jnp.abs(c_y)), _box_violation(p, s.y))
@@ -600,26 +714,4 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
         step = ~s.stop & ~inner_done(s, grad)
         return jax.lax.cond(step, lambda s: lm_step(s, c_y, grad, id_vjp), lambda s: s, s)
 
-    y_init = jnp.zeros_like(y0)
-    w_u = jnp.max(jnp.maximum(p.weight, p.edge)[4 * problem.n_joints:])
-    rho0 = jnp.maximum(jnp.asarray(config.penalty_init, float), config.penalty_per_weight * w_u)
-    rho_max = config.penalty_max * rho0 / config.penalty_init
-    mu0 = jnp.asarray(config.damping_init, float)
-    init = _State(
-        y=y_init, lam=dual[0], gam=dual[1], rho=rho0, mu=mu0, it=jnp.array(0),
-        inner=jnp.array(0), steps=jnp.array(0), violation=jnp.array(jnp.inf), stationarity=jnp.array(jnp.inf),
-        status=RESULTS.nonlinear_max_steps_reached, stop=jnp.array(False), hist=jnp.full((4, m), jnp.nan),
-        # placeholder factor; the NaN key makes the first step factorise (one copy of the
-        # Jacobian code in the program: compile time)
-        factor=jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
-                            jax.eval_shape(factorise, jnp.zeros((n, nz, nz)), jnp.zeros((n - 1, nz, nz)))),
-        factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), switched=jnp.array(False),
-        forward=p.start,
-    )
-    s = jax.lax.while_loop(lambda s: ~s.stop, body, init)
-    return ALResult(
-        y=p.y0 + s.y, multipliers=s.lam, bound_multipliers=s.gam, status=s.status, iterations=s.it,
-        inner_iterations=s.steps, objective=_cost(p, s.y) * ANGLE_SCALE**2, violation=s.violation,
-        stationarity=s.stationarity, history_objective=s.hist[0], history_violation=s.hist[1],
-        history_penalty=s.hist[2], history_stationarity=s.hist[3],
-    )
+    return body(s)

@@ -109,6 +109,23 @@ def ocp_motor_trajectory(x: Float[Array, "*b N 4*n"], u: Float[Array, "*b N n"])
     return MotorTrajectory(state.theta, state.thetad, u)
 
 
+def motor_commands(robot: jr.Robot, t: Float[Array, " N"], trajectories: dict[str, MotorTrajectory]
+                   ) -> dict[str, MotorTrajectory]:
+    """The commands that make the motors of `robot`, after its velocity-loop lags (`jr.lag_command`), follow the
+    motor `trajectories` (leading axes allowed); the trajectories themselves for a robot without lags."""
+    if robot.motor_lag is None:
+        return trajectories
+    return {k: _lag_commands(robot, jnp.asarray(t, float), v) for k, v in trajectories.items()}
+
+
+@jax.jit
+def _lag_commands(robot: jr.Robot, t, traj: MotorTrajectory) -> MotorTrajectory:
+    lead = traj.theta.shape[:-2]
+    flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[-2:]), traj)
+    out = jax.vmap(lambda *a: MotorTrajectory(*jr.lag_command(robot, t, *a)))(flat.theta, flat.thetad, flat.thetadd)
+    return jax.tree.map(lambda a: a.reshape(lead + a.shape[-2:]), out)
+
+
 def motor_reversals(theta: Float[Array, "N n"], resolution: float) -> Int[Array, " n"]:
     """Reversals of each motor along the angles `theta` [rad]: turns at which it travels back by more than
     `resolution` [rad] from its last extreme (one encoder count, docs/model.md (B.6)); the first move from

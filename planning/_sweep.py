@@ -10,9 +10,9 @@ its own thread, and merges the results in the caller's order. Each chain still w
 members from the previous ones (their `nu` are `workers` times further apart, so they take a few
 more iterations). On an accelerator the chains of several threads would queue on the one device,
 so there the default is one chain, which its default linear solver (cyclic reduction,
-`ALConfig.linear_solver`) makes one batched program: continuation chains of `WAVES` members
-batched across the chains, each member with its own stopping (`augmented_lagrangian`), in chunks
-where a wave exceeds the device memory (`batch_capacity`). Under several processes (`jax.distributed`,
+`ALConfig.linear_solver`) makes one batched program: lanes that each solve a continuation chain of
+members and take the next `nu` when their member is done (`augmented_lagrangian`), at most as many
+lanes as the device memory holds (`batch_capacity`). Under several processes (`jax.distributed`,
 `jaxrobot.initialize_processes`) the chains are one per device of all processes instead: one
 `shard_map` over the global mesh, the results gathered. Timings: `benchmarks/results_ocp.md`,
 `benchmarks/results_gpu.md`.

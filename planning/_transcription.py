@@ -3,7 +3,9 @@
 Decision variables: one node `z_k = [x_k, u_k]` (5n for n joints) per sample, the state
 `x = [q, qd, theta, thetad]` (4n, `State`, eq. 4.1), `u = thetadd` [motor rad/s^2], k = 0 ... N-1.
 
-- cost (eq. 4.3a) `sum_k ||q_k - q_d,k||^2 + nu ||u_k||^2` over all N nodes (no T_s factor);
+- cost (eq. 4.3a) `sum_k ||q_k - q_d,k||^2 + nu ||u_k||^2` over all N nodes (no T_s factor); with velocity-loop
+  lags `tau` (`Robot.motor_lag`) plus `nu sum_k ||tau (u_{k+1} - u_k) / T_s||^2`, so that `nu` weighs the
+  acceleration of the command `theta + tau thetad` (`jr.lag_command`; docs/model.md (B.7));
   variants `"jerk"` `sum_k ||q_k - q_d,k||^2 + nu sum_k ||u_{k+1} - u_k||^2` and `"flat"`
   `sum_k ||q_k - q_d,k||^2 + nu ||u_k - u_ref,k||^2` (docs/model.md (4.3a): ν on the whole `u`
   biases the tracking, these two do not);
@@ -252,6 +254,9 @@ def bounds(problem: OCPProblem) -> tuple[Float[Array, "N 5*n"], Float[Array, "N 
 def objective(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, ""]:
     """The cost of eq. 4.3a (or its variant `problem.cost`), unscaled [rad^2]."""
     track = jnp.sum((State.of(x).q - problem.q_d) ** 2)
+    lag = problem.robot.motor_lag
+    if problem.cost == "thesis" and lag is not None:  # the command's acceleration u + lag ud (docs/model.md (B.7))
+        return track + problem.nu * (jnp.sum(u**2) + jnp.sum((lag * (u[1:] - u[:-1]) / problem.ts) ** 2))
     if problem.cost == "jerk":
         return track + problem.nu * jnp.sum((u[1:] - u[:-1]) ** 2)
     if problem.cost == "flat":
@@ -336,14 +341,19 @@ def scaled_cost(problem: OCPProblem) -> ScaledQuadratic:
     else:
         node_w = jnp.concatenate([jnp.ones(j), zero3, w_u])
         edge_w = jnp.zeros(5 * j)
+        if problem.cost == "thesis" and problem.robot.motor_lag is not None:
+            edge_w = jnp.concatenate([zero, zero3, w_u * (problem.robot.motor_lag / problem.ts) ** 2])
         if problem.cost == "flat":
             target = target.at[:, 4 * j:].set(problem.u_ref / sz[4 * j:])
     return ScaledQuadratic(node_weight=node_w, node_target=target, edge_weight=edge_w)
 
 
-def _link_acceleration(robot: jr.Robot, q, qd, phi, d) -> Float[Array, "N n"]:
-    """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`)."""
+def _link_acceleration(robot: jr.Robot, q, qd, phi, d, phid=None) -> Float[Array, "N n"]:
+    """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`), plus `d (phid - qd)` in
+    the bracket for a robot with joint damping."""
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
+    if robot.damping is not None:
+        rhs = rhs + robot.damping * (phid - qd)
     return spd_solve(d, rhs[..., None])[..., 0]
 
 
@@ -370,6 +380,9 @@ class HalfStep(eqx.Module):
     """Gear ratios `dtheta/dphi` there."""
     mass: Float[Array, "*b n n"]
     qdd: Float[Array, "*b n"]
+    slope_rate: Float[Array, "*b n"] | None = None
+    """With joint damping: `d(1/ratio)/dtheta`, the change of the gear output rate `phid = thetad / ratio` with
+    the motor angle per unit motor rate; None without."""
 
 
 def half_step(problem: OCPProblem, y: Float[Array, "*b 5*n"]) -> HalfStep:
@@ -382,9 +395,13 @@ def half_step(problem: OCPProblem, y: Float[Array, "*b 5*n"]) -> HalfStep:
     x, u = State.of(z[..., :nx]), z[..., nx:]
     phi, ratio = gear(problem, x.theta)
     d = jr.mass_matrix(r, x.q)
-    qdd = _link_acceleration(r, x.q, x.qd, phi, d)
+    slope_rate = None
+    if r.damping is not None:
+        slope_rate = jax.jvp(lambda th: 1.0 / gear(problem, th)[1], (x.theta,), (jnp.ones_like(x.theta),))[1]
+    qdd = _link_acceleration(r, x.q, x.qd, phi, d, x.thetad / ratio)
     f = State(x.qd, qdd, x.thetad, u).pack()
-    return HalfStep(y=y, g=0.5 * problem.ts * f / sz[:nx], phi=phi, ratio=ratio, mass=d, qdd=qdd)
+    return HalfStep(y=y, g=0.5 * problem.ts * f / sz[:nx], phi=phi, ratio=ratio, mass=d, qdd=qdd,
+                    slope_rate=slope_rate)
 
 
 def inverse_dynamics_vjp(problem: OCPProblem, h: HalfStep
@@ -401,8 +418,9 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     """The map `w -> (d g_k / d y_k)^T w_k` at `h = half_step(problem, y)`, from the structure of
     eq. 4.1 (as `half_step_jacobian`): with `s = D^{-1} w_qdd`,
     `(dqdd/dq)^T w_qdd = -(dID/dq)^T s - kappa' s`, `(dqdd/dqd)^T w_qdd = -(dID/dqd)^T s`,
-    `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; `(dID/d(q, qd))^T s` is one reverse pass through
-    Newton-Euler alone (4.8x faster than reversing the mass matrix, its solve and `Xi^-1` too), whose
+    `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; with joint damping `d` also `-d s` on `qd`,
+    `d thetad (d(1/u)/dtheta) s` on `theta` and `d s / u(phi)` on `thetad`; `(dID/d(q, qd))^T s` is one reverse
+    pass through Newton-Euler alone (4.8x faster than reversing the mass matrix, its solve and `Xi^-1` too), whose
     forward pass is made once (`inverse_dynamics_vjp`, or `id_vjp` if already made) for every `w`."""
     r = problem.robot
     sz = variable_scale(problem)
@@ -416,8 +434,13 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
         s = spd_solve(h.mass, wf.qd[..., None])[..., 0]
         id_q, id_qd = id_vjp(s)
         stiff = jr.elastic_stiffness(r, h.phi - x.q) * s
-        out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / h.ratio, wf.theta, wf.thetad],
-                              -1)
+        if r.damping is None:
+            out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / h.ratio, wf.theta, wf.thetad], -1)
+        else:
+            damp = r.damping * s
+            out = jnp.concatenate([-id_q - stiff, wf.q - id_qd - damp,
+                                   stiff / h.ratio + damp * x.thetad * h.slope_rate, wf.theta + damp / h.ratio,
+                                   wf.thetad], -1)
         return out * sz
 
     return vjp
@@ -430,14 +453,16 @@ def half_step_shift(n: int) -> np.ndarray:
     return 0.5 * np.eye(4 * n, 5 * n, n) * (np.arange(4 * n) // n != 1)[:, None]
 
 
-def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = None) -> Float[Array, "N n 3*n"]:
+def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = None) -> Float[Array, "N n m"]:
     """The only state-dependent block of the Jacobian of `g` at `h = half_step(problem, y)`,
-    `p_k = d g_k[qd rows] / d y_k[q, qd, theta]` (scaled); `d g_k / d y_k` is `half_step_shift(n)` with
-    `p_k` in rows n:2n, columns 0:3n.
+    `p_k = d g_k[qd rows] / d y_k[q, qd, theta]` (scaled, m = 3n), with joint damping `d` also
+    `/ d y_k[thetad]` (m = 4n); `d g_k / d y_k` is `half_step_shift(n)` with `p_k` in rows n:2n, columns 0:m.
 
     With `ID(q, qd, qdd) = D qdd + C qd + g = kappa(phi - q)` at the model's `qdd`:
     `dqdd/dq = -D^{-1} (dID/dq + kappa')`, `dqdd/dqd = -D^{-1} dID/dqd`,
-    `dqdd/dtheta = D^{-1} kappa' / u(phi)`. The rows of `dID/d(q, qd)` come from n reverse passes
+    `dqdd/dtheta = D^{-1} kappa' / u(phi)`; damping adds `-D^{-1} d` to `dqdd/dqd`,
+    `D^{-1} d thetad d(1/u)/dtheta` to `dqdd/dtheta` and `dqdd/dthetad = D^{-1} d / u(phi)`. The rows of
+    `dID/d(q, qd)` come from n reverse passes
     through Newton-Euler (1.7x faster than 2n forward tangents; `id_vjp`: its linearisation at `h`,
     `inverse_dynamics_vjp`, if already made), the rest in closed form.
     """
@@ -450,10 +475,15 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
     id_vjp = inverse_dynamics_vjp(problem, h) if id_vjp is None else id_vjp
     rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(j)[:, None, :], (j, *q.shape)))  # row i of dID
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
-    rhs = jnp.concatenate([-(id_q + jax.vmap(jnp.diag)(stiff)), -id_qd,
-                           jax.vmap(jnp.diag)(stiff / h.ratio)], -1)
-    dqdd = spd_solve(h.mass, rhs)  # (N, n, 3n): d qdd / d (q, qd, theta)
-    return (0.5 * problem.ts / sz[j:2 * j, None]) * dqdd * sz[:3 * j]
+    diag = jax.vmap(jnp.diag)
+    if r.damping is None:
+        rhs = jnp.concatenate([-(id_q + diag(stiff)), -id_qd, diag(stiff / h.ratio)], -1)
+    else:
+        rhs = jnp.concatenate([-(id_q + diag(stiff)), -id_qd - jnp.diag(r.damping),
+                               diag(stiff / h.ratio + r.damping * x.thetad * h.slope_rate),
+                               diag(jnp.broadcast_to(r.damping / h.ratio, q.shape))], -1)
+    dqdd = spd_solve(h.mass, rhs)  # (N, n, m): d qdd / d (q, qd, theta[, thetad])
+    return (0.5 * problem.ts / sz[j:2 * j, None]) * dqdd * sz[:rhs.shape[-1]]
 
 
 def fixed_mask(problem: OCPProblem) -> Bool[Array, "N 5*n"]:
@@ -477,7 +507,8 @@ def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 4*n"], Float[Array,
     """Initial guess from the samples `q_d` by the flat relation (docs/model.md (B.4)):
     `theta = Xi(q_d + kappa^{-1}(D qdd_d + C qd_d + g))`, with `qd_d`, `qdd_d`, `thetad` and
     `u = thetadd` from second-order finite differences of the samples (error O(T_s^2)); the two
-    end nodes take their boundary values (eq. 4.3e-j). For an exact warm start from a smooth
+    end nodes take their boundary values (eq. 4.3e-j); joint damping is left out (a start only). For an exact
+    warm start from a smooth
     `q_d(t)`, pass `jr.flat_inverse` results to `solve_ocp(warm_start=...)` instead."""
     r, q, ts = problem.robot, problem.q_d, problem.ts
     qd = _time_derivative(q, ts)

@@ -24,6 +24,7 @@ from ._evaluation import (
     PlantError,
     PlantRun,
     baseline_trajectories,
+    motor_commands,
     ocp_motor_trajectory,
     simulate_plans,
     summarize,
@@ -87,7 +88,8 @@ class PlanResult:
     solution: OCPSolution
     """The OCP's solution."""
     trajectories: dict[str, MotorTrajectory]
-    """Name -> motor trajectory [rad, rad/s, rad/s^2] (the OCP's and the baselines')."""
+    """Name -> motor command [rad, rad/s, rad/s^2] (the OCP's and the baselines'): the planned motor trajectory,
+    through `jr.lag_command` where the model has velocity-loop lags (`motor_commands`)."""
     nu: float
     """Weight of the motor acceleration in the cost."""
     cost: str
@@ -220,11 +222,6 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
         if rigid:
             raise ValueError(f"{name}: planning needs elastic joints ([stiffness] k1 finite), found rigid joints "
                              f"{rigid} (k1 = inf); identify the stiffness first (e.g. jaxrobot diagnose)")
-    effects = [f for f, v in (("[motors] velocity_lag_s", robot.motor_lag), ("[stiffness] damping", robot.damping))
-               if v is not None]
-    if effects:  # the plant (jr.simulate) has them, the OCP's model (eq. 4.1) not yet
-        raise ValueError(f"model: the planning model has no velocity-loop lag or joint damping yet; found "
-                         f"{', '.join(effects)} in the robot to plan on (give them to the plant, or plan without them)")
     emit = on_event or (lambda event: None)
     start = time.perf_counter()
     jp = joint_path(robot, path, q_init)
@@ -258,10 +255,11 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
                    solve_time=solve_s, compile_time=compile_s))
     ocp = ocp_motor_trajectory(sol.x, sol.u)
     if not bool(sol.converged):
-        return PlanResult(path, jp, sol, {"ocp": ocp}, nu, cost, solve_s, compile_s, play=play)
+        return PlanResult(path, jp, sol, motor_commands(robot, jp.t, {"ocp": ocp}), nu, cost, solve_s, compile_s,
+                          play=play)
     p_d, r_d = jax.jit(lambda t: sample_path(path, t))(jp.t)
     plan_err = np.linalg.norm(np.asarray(_tool_position(robot, sol.q) - p_d), axis=-1)
-    trajectories = {**base, "ocp": ocp}
+    trajectories = motor_commands(robot, jp.t, {**base, "ocp": ocp})
     start = time.perf_counter()
     names, run = simulate_plans(plant, jp, trajectories, directional=directional)
     errors = summarize(run)
@@ -384,7 +382,8 @@ def sweep_task(robot: jr.Robot, plant: jr.Robot, path: Path, nus, costs: tuple[s
             break
         start = time.perf_counter()
         bw = np.asarray(bandwidth(sols.u, ts))
-        trajectories = {name: ocp_motor_trajectory(sols.x[i], sols.u[i]) for i, name in enumerate(names)}
+        trajectories = motor_commands(robot, jp.t, {name: ocp_motor_trajectory(sols.x[i], sols.u[i])
+                                                    for i, name in enumerate(names)})
         _, run = simulate_plans(plant, jp, trajectories, directional=directional)
         errors = summarize(run)
         out[cost] = SweepCost(sols, bw, names, run, errors)

@@ -10,6 +10,7 @@ import pytest
 
 import planning as pl
 from planning import _transcription as tr
+import planning._al_solver as al
 from planning._al_solver import batch_capacity, chunked_vmap, linear_solver
 from planning._block_tridiagonal import block_cholesky, block_cholesky_solve, block_tridiagonal_matvec
 from test_ocp_solver import _assert_same_optimum
@@ -140,6 +141,9 @@ def test_solve_ocp_cyclic_reduction_matches_scan():
     cr = pl.solve_ocp(robot, q_d, 1e-3, 1e-14, config=CR)
     assert bool(scan.converged) and bool(cr.converged)
     np.testing.assert_allclose(float(cr.objective), float(scan.objective), rtol=OBJECTIVE_RTOL)
+    one = jax.vmap(lambda nu: pl.solve_ocp(robot, q_d, 1e-3, nu, config=CR))(jnp.array([1e-14]))  # the unbatched solve
+    assert int(one.iterations[0]) == int(cr.iterations) and int(one.inner_iterations[0]) == int(cr.inner_iterations)
+    np.testing.assert_allclose(float(one.objective[0]), float(cr.objective), rtol=1e-12)
 
 
 def _task(name: str):
@@ -179,8 +183,8 @@ def test_batched_solves_match_separate_solves():
 
 @pytest.mark.extended  # compiles the batched program
 def test_batched_sweep_matches_separate_solves():
-    """`solve_ocp_sweep` with cyclic reduction in one chain (`workers=1`): 6 nu in 2 continuation chains
-    of 3 (`_waves`), batched across the chains, given out of nu's order; each member is the optimum
+    """`solve_ocp_sweep` with cyclic reduction in one chain (`workers=1`): 6 nu in 2 lanes of one batched
+    loop (`_pool`), each taking the next nu by continuation, given out of nu's order; each member is the optimum
     of its separate cold solve to the solver's tolerances (`test_ocp_solver._assert_same_optimum`)."""
     robot, q_d = jr.racer7(), _move()
     nus = np.logspace(-14, -10, 6)[[3, 0, 5, 1, 4, 2]]
@@ -190,3 +194,19 @@ def test_batched_sweep_matches_separate_solves():
         member = jax.tree.map(lambda a, i=i: a[i], sweep)
         assert bool(member.status == single.status)
         _assert_same_optimum(tr.ocp_problem(robot, q_d, 1e-3, float(nu)), member, single)
+
+
+@pytest.mark.extended  # compiles the batched program
+def test_lanes_take_the_next_member(monkeypatch):
+    """Three short moves in two lanes (`batch_capacity` 2): the lane whose member is done first takes the
+    third; each member equals its separate solve (status, iterations, objective)."""
+    monkeypatch.setattr(al, "batch_capacity", lambda *_: 2)
+    robot = jr.racer7()
+    moves = jnp.stack([_move(), _move()[::-1], _move() + jnp.array([0.2, 0, 0, 0, 0, 0])])
+    batched = jax.vmap(lambda q: pl.solve_ocp(robot, q, 1e-3, 1e-12, config=CR))(moves)
+    for i in range(3):
+        single = pl.solve_ocp(robot, moves[i], 1e-3, 1e-12, config=CR)
+        member = jax.tree.map(lambda a, i=i: a[i], batched)
+        assert bool(member.status == single.status) and bool(single.converged)
+        assert int(member.iterations) == int(single.iterations)
+        np.testing.assert_allclose(float(member.objective), float(single.objective), rtol=BATCH_OBJECTIVE_RTOL)

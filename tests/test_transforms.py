@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -36,16 +38,19 @@ FUNCTIONS = {
     "link_acceleration": (lambda r, q: jr.link_acceleration(r, q, QD[0], q + 1e-3), Q),
     "motor_torque": (lambda r, t: jr.motor_torque(r, jr.gear_output(r, t) - 1e-4, t, QDD[0]), THETA),
     "planning_dynamics": (lambda r, x: jr.planning_dynamics(r, x, QDD[0]), X),
+    "planning_dynamics_damped": (lambda r, x: jr.planning_dynamics(
+        dataclasses.replace(r, damping=2e-3 * jnp.sqrt(r.k1), motor_lag=jnp.full(6, 3e-3)), x, QDD[0]), X),
     "static_equilibrium": (jr.static_equilibrium, Q),
 }
 
 
-ACCELERATIONS = {"link_acceleration", "planning_dynamics"}
+ACCELERATIONS = {"link_acceleration", "planning_dynamics", "planning_dynamics_damped"}
 
 
-# the Coriolis matrix and the link acceleration (about 30 s each to compile their second derivatives) in CI's
-# extended step; planning_dynamics, which contains the link acceleration, stays in the suite
-SLOW_TRANSFORMS = {"coriolis_matrix", "link_acceleration"}
+# the Coriolis matrix, the link acceleration and the damped planning dynamics (about 30 s each to compile their
+# second derivatives) in CI's extended step; planning_dynamics, which contains the link acceleration, stays in the
+# suite, and the damped one's first derivatives are checked there (test_dynamic_effects)
+SLOW_TRANSFORMS = {"coriolis_matrix", "link_acceleration", "planning_dynamics_damped"}
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.extended) if n in SLOW_TRANSFORMS else n
