@@ -124,7 +124,7 @@ def case_runs(name: str, samples: int = SHORT):
             [pair("line_nu1e-10"), pair("spiral_nu1e-10")])
 
 
-@pytest.mark.extended
+@pytest.mark.slow  # ~12 min on 2 cores: three cases of runs diagnosed
 @pytest.mark.timeout(1800)
 def test_the_other_cases_from_runs():
     """The trajectories cases besides the lag (tests/test_runs.py) from their first 0.7 s. The clean case adds
@@ -155,7 +155,7 @@ def test_the_other_cases_from_runs():
     assert res.verdict.startswith("explained")
 
 
-@pytest.mark.extended
+@pytest.mark.slow  # ~15 min on 2 cores: two diagnoses (runs with poses, runs alone)
 @pytest.mark.timeout(3600)
 def test_payload_from_poses_and_lag_from_runs(tmp_path, capsys):
     """The virtual bench: the clean case's robot with a hidden 4 kg payload at (0, 0.05, 0.12) m on the flange and a
