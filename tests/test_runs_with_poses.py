@@ -155,7 +155,7 @@ def test_the_other_cases_from_runs():
     assert res.verdict.startswith("explained")
 
 
-@pytest.mark.slow  # ~15 min on 2 cores: two diagnoses (runs with poses, runs alone)
+@pytest.mark.slow  # ~15 min on 2 cores: runs with poses diagnosed through the CLI
 @pytest.mark.timeout(3600)
 def test_payload_from_poses_and_lag_from_runs(tmp_path, capsys):
     """The virtual bench: the clean case's robot with a hidden 4 kg payload at (0, 0.05, 0.12) m on the flange and a
