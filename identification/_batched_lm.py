@@ -26,7 +26,7 @@ rejected steps, each raising `mu` by `nu`.
 Each problem stops on its own (then frozen) when a step is small (`||h|| <= xtol (||x|| + xtol)`),
 the step is flat (actual and predicted reduction `<= ftol F`), or the gradient is orthogonal to
 the residual (`max_j |g_j| / (||J_j|| ||r||) <= gtol`); the loop ends when all have stopped or
-after `max_steps` (`LMConfig`).
+after `max_steps` (`LMConfig`); a chunk whose problems have all stopped is skipped.
 """
 
 from __future__ import annotations
@@ -96,7 +96,8 @@ def map_chunks(fn: Callable, args: PyTree, chunk: int, skip: Bool[Array, " R"] |
     chunks = _chunks(args, min(chunk, n))
     if skip is None:
         return _unchunk(jax.lax.map(fn, chunks), n)
-    zeros = jax.tree.map(lambda v: jnp.zeros(v.shape, v.dtype), jax.eval_shape(fn, jax.tree.map(lambda v: v[0], chunks)))
+    shapes = jax.eval_shape(fn, jax.tree.map(lambda v: v[0], chunks))
+    zeros = jax.tree.map(lambda v: jnp.zeros(v.shape, v.dtype), shapes)
     return _unchunk(jax.lax.map(lambda c: jax.lax.cond(jnp.all(c[0]), lambda: zeros, lambda: fn(c[1])),
                                 (_chunks(skip, min(chunk, n)), chunks)), n)
 

@@ -300,7 +300,8 @@ def calibrate_fleet(
     `loss`: as in `calibrate` (robust by default, thresholds in units of `position_noise`, the
     tracker's per-axis std, default `[sensors] tracker_position_noise_m`, or a laser tracker's
     `TrackerNoise`, whose covariance then whitens each pose's residual); each robot is reweighted on
-    its own, its outliers and robust noise estimate are in `outliers` and `noise_estimate`.
+    its own (a robot whose weights no longer change keeps its solution), its outliers and robust noise
+    estimate are in `outliers` and `noise_estimate`.
     """
     robust.check_loss(loss)
     joints = robots.n_joints
