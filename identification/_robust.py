@@ -58,6 +58,7 @@ def check_loss(loss: str) -> str:
     return loss
 
 
+@functools.cache
 def threshold(rows: int, level: float | None = None) -> float:
     """Whitened residual norm that clean noise on `rows` axes exceeds with probability `level`
     (default `ROBUST_LEVEL`: the loss threshold `c`)."""

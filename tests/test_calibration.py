@@ -583,11 +583,12 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
 def test_batched_lm_kernel():
     """Rosenbrock residuals `(10 (x2 - x1^2), 1 - x1)` (minimum (1, 1)), batch of starts: converged to
     the minimum, `nonlinear_max_steps_reached` when cut short, `nonfinite` from a NaN start; in chunks
-    (padded) the same; a config that differs only in its numbers reuses the compiled program (it is
+    (padded) the same; frozen problems are not started and leave the others unchanged; `map_chunks`
+    skips whole chunks; a config that differs only in its numbers reuses the compiled program (it is
     traced); Cholesky vs numpy."""
     import jax
 
-    from identification._batched_lm import LMConfig, batched_lm
+    from identification._batched_lm import LMConfig, batched_lm, map_chunks
     from jaxrobot._linalg import cholesky, cholesky_solve
 
     def rj(x, _):
@@ -612,6 +613,16 @@ def test_batched_lm_kernel():
     assert jr.status_name(short.status).tolist() == ["nonlinear_max_steps_reached"] * 2 + ["nonfinite"]
     assert np.asarray(short.steps).tolist() == [3, 3, 0]
     assert run._cache_size() == compiled  # the second config was not compiled again
+    frozen = jax.jit(batched_lm, static_argnums=0, static_argnames="chunk")(
+        rj, x0, None, LMConfig(max_steps=200), chunk=1, frozen=jnp.asarray([False, True, True]))
+    np.testing.assert_array_equal(np.asarray(frozen.x[0]), np.asarray(out.x[0]))  # the others' chunks skipped
+    assert np.asarray(frozen.steps).tolist() == [int(out.steps[0]), 0, 0]
+    # the frozen NaN start is never evaluated (else `nonfinite`)
+    assert jr.status_name(frozen.status).tolist() == ["successful"] + ["nonlinear_max_steps_reached"] * 2
+    np.testing.assert_array_equal(np.asarray(frozen.x[1]), np.asarray(x0[1]))
+    rows = jnp.arange(5.0)[:, None] * jnp.ones(3)
+    skipped = map_chunks(lambda v: 2 * v, rows, 2, skip=jnp.asarray([True, True, True, False, False]))
+    np.testing.assert_array_equal(np.asarray(skipped)[:, 0], [0, 0, 4, 6, 8])  # chunk 0 all skipped
     rng = np.random.default_rng(3)
     b = rng.normal(size=(4, 7, 7))
     a = b @ np.swapaxes(b, 1, 2) + 0.1 * np.eye(7)
