@@ -192,7 +192,8 @@ def test_lm_matches_scipy(robots, bench, calibrated):
     # + rippled u0_1..3 (the fleet's screw Jacobian with a rippled u0 is checked by default, below)
     pytest.param(tuple(n for n in all_parameters(6) if not n.startswith(("tool_", "base_"))), False,
                  marks=pytest.mark.slow),
-    (DEFAULT_PARAMETERS + ("tool_x", "base_rz"), True),  # autodiff path, orientation rows
+    pytest.param(DEFAULT_PARAMETERS + ("tool_x", "base_rz"), True,  # autodiff path, orientation rows
+                 marks=pytest.mark.extended),  # ~70 s; the suite keeps the default set
 ])
 def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
     """The LM's model (per-pose constants hoisted, joint-screw Jacobian) against `predict_pose`

@@ -126,6 +126,7 @@ def test_bad_effects_are_refused_naming_the_field(tmp_path, field, value, messag
         jr.load_robot(path)
 
 
+@pytest.mark.extended  # ~35 s; the suite keeps the absent effects and the lag's inverse
 def test_lag_and_damping_match_an_independent_integration():
     """The arm with a lag on both motors and damped joints against scipy's DOP853 on hand-written dynamics:
     the link angles agree to 1e-9 rad (RK4 at 0.1 ms on modes of at most 16 Hz: its error is ~1e-11), the
@@ -279,6 +280,7 @@ def racer_move(t):
             * s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3))
 
 
+@pytest.mark.extended  # a damped OCP program compiles (~90 s); the suite keeps the damped transcription's derivatives
 def test_plan_on_a_model_with_lag_and_damping_meets_the_move_on_it():
     """The OCP (nu = 1e-14) on the Racer-7 with lags and 3 % damping of each joint's mode, its command through the
     lags' inverse, simulated by `jr.simulate` on that model: the links follow the move within 1e-6 rad, the bound
@@ -308,6 +310,7 @@ def arm_link_move(t):
     return jnp.array([0.3, -0.6]) + jnp.array([0.6, 0.4]) * s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3)
 
 
+@pytest.mark.extended  # ~75 s; the suite keeps the damped transcription's derivatives
 def test_flat_inverse_of_a_damped_arm_is_exact():
     """`jr.flat_inverse` of the arm with damped joints (time constants d/k of 3 and 1.9 ms), simulated on it: the
     links follow the move within 1e-9 rad (RK4 at 0.1 ms on this arm errs by ~1e-11, the deflection's order-4 rule

@@ -50,6 +50,7 @@ def arm_poses(robot, seed: int, k: int, marker, noise) -> Poses:
     return Poses.of(th, jb.measure_poses(robot, th, seed=seed, marker=marker, position_noise=noise).positions)
 
 
+@pytest.mark.extended  # ~60 s: the run and pose programs compile; the suite keeps the payload model and the bad input
 def test_runs_and_poses_share_one_chi_square():
     """The arm with a 0.3 kg payload, one short run and 8 + 8 poses: the start row's chi-square is the run's
     (`compare_run`) plus the poses' in units of their own noise (twice the tracker's here), computed independently
