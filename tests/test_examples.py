@@ -89,7 +89,7 @@ def test_own_robot(tmp_path, monkeypatch):
     assert s["rigid_plant_max_m"] > 1e-4
 
 
-@pytest.mark.extended  # 268 s cold, 142-173 s warm cache, on the 2 shared cores (load 4-6): OCP, simulation, fit compile
+@pytest.mark.extended  # 268 s cold, 142-173 s warm cache, on the 2 shared cores (load 4-6): the programs compile
 def test_closed_loop(tmp_path, monkeypatch):
     """The hidden velocity-loop lag is named on the lagging motors only, each within 3 reported sigma of the
     truth; the plan on the corrected model misses the path by at most the plan on the true robot plus twice the
