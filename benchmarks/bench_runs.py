@@ -7,7 +7,9 @@ time per run, and optionally `diagnose_runs` on the lag case's four runs shorten
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
+import os
 import platform
 import subprocess
 import time
@@ -21,6 +23,36 @@ import jaxrobot.bench as jb
 from identification.diagnosis._runs import compare_run, diagnose_runs
 
 CASES = ("p0_clean", "p1_joint1_damping", "p2_motor_lag_j123", "p3_joint3_stiffness")
+
+
+def diagnose_section(folder: Path, samples: int) -> list[str]:
+    """`diagnose_runs` on the lag case's two training and two validation runs cut to `samples`: the elapsed time at
+    each step (printed as it is reached), the load average and the estimates."""
+    sensors = jr.read_description(folder / "start.toml")["sensors"]
+
+    def pair(name):
+        run = jb.read_trajectory_csv(folder / f"run_{name}.csv")
+        return jb.read_command_csv(folder / f"command_{name}.csv"), tuple(a[:samples] for a in run)
+
+    rows, loads = [], [os.getloadavg()[0]]
+    start = time.perf_counter()
+
+    def progress(step):
+        rows.append(f"| {step.step} | {step.effect} | {time.perf_counter() - start:.0f} | {step.chi2 / step.dof:.4f} |")
+        loads.append(os.getloadavg()[0])
+        print(rows[-1], f"load {loads[-1]:.1f}", flush=True)
+
+    res = diagnose_runs(jr.load_robot(folder / "start.toml"), [pair("line_nu1e-14"), pair("spiral_nu1e-14")],
+                        [pair("line_nu1e-10"), pair("spiral_nu1e-10")], sensors["tracker_marker_offset_m"],
+                        sensors["tracker_position_noise_m"], progress=progress)
+    elapsed = time.perf_counter() - start
+    loads.append(os.getloadavg()[0])
+    return [f"`diagnose_runs` on the lag case, 2 training + 2 validation runs of {samples} samples, "
+            f"{datetime.date.today()}, {os.cpu_count()} cores, load average (1 min) {min(loads):.1f}-{max(loads):.1f} "
+            f"at the steps: {elapsed:.0f} s in all (compiles included); {res.verdict}", "",
+            "| step | effect added | elapsed [s] | chi2/dof |", "|---|---|---|---|", *rows, "",
+            "| effect | value | std |", "|---|---|---|",
+            *(f"| {e.effect.label} | {e.value:.6g} | {e.std:.2g} |" for e in res.estimates)]
 
 
 def main() -> None:
@@ -48,23 +80,10 @@ def main() -> None:
             c, first, best = timed(lambda: compare_run(robot, command, run, marker, noise))  # noqa: B023
             lines.append(f"| {case} | {file} | {c.chi2 / c.dof:.4f} | {c.p_value:.3g} | {first:.2f} | {best:.2f} |")
     if args.diagnose_samples:
-        folder = root / "p2_motor_lag_j123"
-        sensors = jr.read_description(folder / "start.toml")["sensors"]
-
-        def pair(name):
-            run = jb.read_trajectory_csv(folder / f"run_{name}.csv")
-            return (jb.read_command_csv(folder / f"command_{name}.csv"),
-                    tuple(a[:args.diagnose_samples] for a in run))
-
-        start = time.perf_counter()
-        res = diagnose_runs(jr.load_robot(folder / "start.toml"), [pair("line_nu1e-14"), pair("spiral_nu1e-14")],
-                            [pair("line_nu1e-10"), pair("spiral_nu1e-10")], sensors["tracker_marker_offset_m"],
-                            sensors["tracker_position_noise_m"])
-        elapsed = time.perf_counter() - start
-        lines += ["", f"`diagnose_runs` on the lag case, 2 training + 2 validation runs of {args.diagnose_samples} "
-                  f"samples: {elapsed:.0f} s (compiles included); {res.verdict}", "",
-                  "| effect | value | std |", "|---|---|---|"]
-        lines += [f"| {e.effect.label} | {e.value:.6g} | {e.std:.2g} |" for e in res.estimates]
+        lines += ["", *diagnose_section(root / "p2_motor_lag_j123", args.diagnose_samples)]
+    kept = args.out.read_text().split("\n## ", 1) if args.out.exists() else []
+    if len(kept) == 2:  # the hand-written sections after the generated part stay
+        lines += ["", "## " + kept[1].rstrip("\n")]
     args.out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -17,6 +17,7 @@ from .calibration import FleetResult as FleetResult
 from .calibration import IdentifiabilityResult as IdentifiabilityResult
 from .calibration import ObservabilityIndices as ObservabilityIndices
 from .calibration import ParameterMap as ParameterMap
+from .calibration import ParameterSelection as ParameterSelection
 from .calibration import PoseConstraints as PoseConstraints
 from .calibration import calibrate as calibrate
 from .calibration import calibrate_fleet as calibrate_fleet

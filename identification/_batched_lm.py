@@ -26,7 +26,7 @@ rejected steps, each raising `mu` by `nu`.
 Each problem stops on its own (then frozen) when a step is small (`||h|| <= xtol (||x|| + xtol)`),
 the step is flat (actual and predicted reduction `<= ftol F`), or the gradient is orthogonal to
 the residual (`max_j |g_j| / (||J_j|| ||r||) <= gtol`); the loop ends when all have stopped or
-after `max_steps` (`LMConfig`).
+after `max_steps` (`LMConfig`); a chunk whose problems have all stopped is skipped.
 """
 
 from __future__ import annotations
@@ -88,11 +88,18 @@ def _unchunk(tree: PyTree, n: int) -> PyTree:
     return jax.tree.map(lambda v: v.reshape((-1,) + v.shape[2:])[:n], tree)
 
 
-def map_chunks(fn: Callable, args: PyTree, chunk: int) -> PyTree:
+def map_chunks(fn: Callable, args: PyTree, chunk: int, skip: Bool[Array, " R"] | None = None) -> PyTree:
     """`fn(args)` of a batch-first `fn` (row `i` of the result only from row `i` of `args`), in
-    chunks of `chunk` rows one after another (`lax.map`), so that each chunk's arrays stay in cache."""
+    chunks of `chunk` rows one after another (`lax.map`), so that each chunk's arrays stay in cache;
+    a chunk whose rows are all `skip` is not evaluated (its rows of the result are zero)."""
     n = jax.tree.leaves(args)[0].shape[0]
-    return _unchunk(jax.lax.map(fn, _chunks(args, min(chunk, n))), n)
+    chunks = _chunks(args, min(chunk, n))
+    if skip is None:
+        return _unchunk(jax.lax.map(fn, chunks), n)
+    shapes = jax.eval_shape(fn, jax.tree.map(lambda v: v[0], chunks))
+    zeros = jax.tree.map(lambda v: jnp.zeros(v.shape, v.dtype), shapes)
+    return _unchunk(jax.lax.map(lambda c: jax.lax.cond(jnp.all(c[0]), lambda: zeros, lambda: fn(c[1])),
+                                (_chunks(skip, min(chunk, n)), chunks)), n)
 
 
 def _step(residual_jacobian, s, data, first, config: LMConfig):
@@ -161,6 +168,7 @@ def batched_lm(
     config: LMConfig | None = None,
     *,
     chunk: int | None = None,
+    frozen: Bool[Array, " R"] | None = None,
     throw: bool = False,
 ) -> LMResult:
     """Minimise `||r_i(x_i)||^2 / 2` for every problem `i` of the batch (see the module docstring).
@@ -171,7 +179,10 @@ def batched_lm(
     - `x0` (R, m) start; `config`: `LMConfig` (default `LMConfig()`), traced.
     - `chunk`: problems per chunk (B); each step runs over the chunks in turn (`lax.map`), so that a
       chunk's Jacobian and normal equations stay in cache (R is padded to a multiple with copies of
-      the last problem). None: all at once.
+      the last problem). None: all at once. A chunk whose problems have all stopped is skipped.
+    - `frozen` (R,): problems not to solve (their rows of the result are `x0` with status
+      `nonlinear_max_steps_reached` and no residuals); default none. Placed together, they fill
+      whole chunks that cost nothing.
     - `throw`: raise the message of the first status that is not `successful` (at run time, also
       under `jit`); default False, the statuses are returned.
 
@@ -185,7 +196,8 @@ def batched_lm(
     state = _chunks({
         "x": x0, "r": jnp.zeros((n_rob, n)), "a": jnp.broadcast_to(jnp.eye(m), (n_rob, m, m)),
         "g": jnp.zeros((n_rob, m)), "cost": jnp.full(n_rob, jnp.inf), "d": jnp.ones((n_rob, m)),
-        "mu": jnp.ones(n_rob), "nu": jnp.full(n_rob, 2.0), "done": jnp.zeros(n_rob, bool),
+        "mu": jnp.ones(n_rob), "nu": jnp.full(n_rob, 2.0),
+        "done": jnp.zeros(n_rob, bool) if frozen is None else frozen,
         "status": full((n_rob,), RESULTS.nonlinear_max_steps_reached), "steps": jnp.zeros(n_rob, int),
         "accepted": jnp.zeros(n_rob, int)}, chunk)
     data = _chunks(data, chunk)
@@ -196,7 +208,12 @@ def batched_lm(
 
     def body(carry):
         k, s = carry
-        return k + 1, jax.lax.map(lambda c: _step(residual_jacobian, c[0], c[1], k == 0, config), (s, data))
+
+        def chunk_step(c):  # a chunk whose problems have all stopped is skipped (its outputs stay)
+            return jax.lax.cond(jnp.all(c[0]["done"]), lambda: c[0],
+                                lambda: _step(residual_jacobian, c[0], c[1], k == 0, config))
+
+        return k + 1, jax.lax.map(chunk_step, (s, data))
 
     _, s = jax.lax.while_loop(cond, body, (jnp.asarray(0), state))
     s = _unchunk(s, n_rob)

@@ -16,11 +16,44 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import gammaincc
+from jaxtyping import Array, Float
 
 ALPHA = 0.01
 """Significance level of the chi-square tests of residuals against the stated noise (`noise_test`)."""
+QUANTILE_STEPS = 60
+"""Safeguarded Newton steps of `chi2_quantile`: quadratic convergence from the start, bisection's halving of
+the bracket at worst (the bracket's width after 60 halvings is 1e-18 of its start)."""
+
+
+def chi2_quantile(p: Float[Array, "*b"] | float, dof: Float[Array, "*b"] | float) -> Float[Array, "*b"]:
+    """Upper `p` quantile of chi-square with `dof` degrees of freedom: the `x` with `P(chi2 > x) = p`, exact to
+    rounding (safeguarded Newton on `log Q(dof/2, x/2) = log p`, `Q` the regularised upper incomplete gamma
+    function, inside the bracket `[0, dof + 2 sqrt(dof t) + 2t]`, `t = -ln p`, whose upper end noise exceeds
+    with probability at most `p` (Laurent and Massart 2000)). Pure; jit/vmap/grad-able; broadcasts."""
+    return _chi2_quantile(*jnp.broadcast_arrays(jnp.asarray(p, float), jnp.asarray(dof, float)))
+
+
+@jax.jit
+def _chi2_quantile(p, dof):
+    t = -jnp.log(p)
+
+    def h(x):  # decreasing in x, zero at the quantile
+        return jnp.log(gammaincc(0.5 * dof, 0.5 * x)) - jnp.log(p)
+
+    def step(_, state):
+        lo, hi, x = state
+        v, dv = jax.jvp(h, (x,), (jnp.ones_like(x),))
+        lo, hi = jnp.where(v > 0, x, lo), jnp.where(v > 0, hi, x)
+        newton = x - v / dv
+        inside = jnp.isfinite(newton) & (newton > lo) & (newton < hi)
+        return lo, hi, jnp.where(inside, newton, 0.5 * (lo + hi))
+
+    hi = dof + 2.0 * jnp.sqrt(dof * t) + 2.0 * t
+    return jax.lax.fori_loop(0, QUANTILE_STEPS, step, (jnp.zeros_like(p), hi, 0.5 * hi))[2]
 
 
 @dataclasses.dataclass(frozen=True)

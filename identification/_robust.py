@@ -11,7 +11,7 @@ fit vanishes (`cauchy`, the default: its weight falls as `1/z^2`) or is bounded 
 Once the reweighting has converged, the poses beyond the outlier bound get weight 0 and it goes on to
 convergence again: with few poses per parameter a gross error's leverage would otherwise still move
 the model by a fraction of a standard error. A pose whose `z_k` exceeds `outlier_bound`
-(clean noise exceeds it with probability `OUTLIER_FALSE_ALARM` per pose: 4.6 sigma for positions)
+(clean noise exceeds it with probability `OUTLIER_FALSE_ALARM` per pose: 4.59 sigma for positions)
 is reported as an outlier, whichever loss (`l2` keeps it in the fit).
 """
 
@@ -23,10 +23,9 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.special import gammainc
 from jaxtyping import Array, Float
 
-from .gear._fit import chi2_quantile
+from ._noise import chi2_quantile
 
 LOSSES = ("cauchy", "huber", "l2")
 """The losses of `calibrate`, `calibrate_fleet` and `diagnose` (`--loss`); the first is the default."""
@@ -59,6 +58,7 @@ def check_loss(loss: str) -> str:
     return loss
 
 
+@functools.cache
 def threshold(rows: int, level: float | None = None) -> float:
     """Whitened residual norm that clean noise on `rows` axes exceeds with probability `level`
     (default `ROBUST_LEVEL`: the loss threshold `c`)."""
@@ -136,12 +136,8 @@ def irls(fit, weight, loss: str, rows: int):
 @functools.cache
 def median_norm(rows: int) -> float:
     """Median of the norm of standard normal noise on `rows` axes (`sqrt` of the median of chi-square
-    with `rows` degrees of freedom; bisection on its distribution function to 1e-12)."""
-    lo, hi = 0.0, float(rows) + 10.0
-    while hi - lo > 1e-12 * hi:
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if float(gammainc(0.5 * rows, 0.5 * mid)) < 0.5 else (lo, mid)
-    return float(np.sqrt(0.5 * (lo + hi)))
+    with `rows` degrees of freedom)."""
+    return float(np.sqrt(chi2_quantile(0.5, rows)))
 
 
 def spread(z: Float[Array, "*B K"], rows: int, axis: int = -1) -> Float[Array, "*B 1"]:

@@ -44,31 +44,36 @@ def _rms(err) -> float:
 
 @pytest.mark.extended
 def test_calibrate_names_and_rejects_gross_tracker_errors():
-    """3 of 60 poses 1.8-3.7 mm off along the tracker's line of sight: `calibrate` with its default
-    (robust) loss names exactly those rows and gives the model least squares finds without them (the
-    validation RMS within 1 %); plain least squares (`loss="l2"`) is pulled far off."""
+    """3 of 60 poses 1.8-3.7 mm off along the tracker's line of sight, nothing else hidden: `calibrate` with
+    its default options (robust loss, the default set reduced by BIC) names exactly those rows and ends
+    within 1.1x the floor; with the whole default set it gives the model least squares finds without them
+    (the validation RMS within 1 %); plain least squares (`loss="l2"`) is pulled far off."""
     d, robot, train, val, truth = _case("noise", "outliers")
     sensors = jr.read_description(d / "start.toml")["sensors"]
     kw = {"marker": sensors["tracker_marker_offset_m"], "position_noise": sensors["tracker_position_noise_m"],
           "validation": (val.motor_angles, val.positions)}
     res = calibrate(robot, train.motor_angles, train.positions, **kw)
-    assert res.converged and res.loss == "cauchy"
+    assert res.converged and res.loss == "cauchy" and res.selection.kept == res.names
     assert [o.row for o in res.outliers] == truth["outlier_rows_0based"]
     np.testing.assert_allclose([o.residual for o in res.outliers], 1e-3 * np.abs(truth["outlier_errors_mm"]),
                                atol=4 * sensors["tracker_position_noise_m"])
+    assert _rms(res.validation_after) < 1.1e-6 * truth["floor_um"]
+    full = calibrate(robot, train.motor_angles, train.positions, all_parameters=True, **kw)
     keep = np.setdiff1d(np.arange(len(train.positions)), truth["outlier_rows_0based"])
-    clean = calibrate(robot, train.motor_angles[keep], train.positions[keep], loss="l2", **kw)
-    assert abs(_rms(res.validation_after) / _rms(clean.validation_after) - 1) < 0.01
-    assert abs(res.noise_estimate / clean.noise_estimate - 1) < 0.05
-    plain = calibrate(robot, train.motor_angles, train.positions, loss="l2", **kw)
-    assert _rms(plain.validation_after) > 3 * _rms(res.validation_after)
+    clean = calibrate(robot, train.motor_angles[keep], train.positions[keep], loss="l2", all_parameters=True, **kw)
+    assert full.selection is None and len(full.names) > len(res.names)
+    assert abs(_rms(full.validation_after) / _rms(clean.validation_after) - 1) < 0.01
+    assert abs(full.noise_estimate / clean.noise_estimate - 1) < 0.05
+    plain = calibrate(robot, train.motor_angles, train.positions, loss="l2", all_parameters=True, **kw)
+    assert _rms(plain.validation_after) > 3 * _rms(full.validation_after)
 
 
 @pytest.mark.extended
 def test_laser_tracker_noise_model_whitens_the_fit():
-    """8 um along the line of sight, 35 um across: the calibration whitened by each pose's covariance
-    (`TrackerNoise`, as `[sensors]` states it) is more accurate than the isotropic fit with the same
-    total variance, and ends within 1.1x the floor (the RMS over 90 residuals: 1.1x is 1.3 std)."""
+    """8 um along the line of sight, 35 um across: the calibration of the whole default set whitened by each
+    pose's covariance (`TrackerNoise`, as `[sensors]` states it) is more accurate than the isotropic fit with
+    the same total variance, and it ends within 1.1x the floor (the RMS over 90 residuals: 1.1x is 1.3 std),
+    as does the default calibration (the set reduced by BIC)."""
     from identification._noise import TrackerNoise
 
     d, robot, train, val, truth = _case("noise", "anisotropic")
@@ -77,11 +82,13 @@ def test_laser_tracker_noise_model_whitens_the_fit():
                            1e-6 * truth["noise_perp_um"])
     assert abs(tracker.sigma / sensors["tracker_position_noise_m"] - 1) < 0.01
     kw = {"marker": sensors["tracker_marker_offset_m"], "validation": (val.motor_angles, val.positions)}
-    iso, white = (calibrate(robot, train.motor_angles, train.positions, position_noise=n, **kw)
-                  for n in (sensors["tracker_position_noise_m"], tracker))
-    assert iso.converged and white.converged and white.outliers == ()
+    iso, white, default = (calibrate(robot, train.motor_angles, train.positions, position_noise=n, all_parameters=a,
+                                     **kw) for n, a in ((sensors["tracker_position_noise_m"], True), (tracker, True),
+                                                        (tracker, False)))
+    assert iso.converged and white.converged and white.outliers == () == default.outliers
     assert _rms(white.validation_after) < _rms(iso.validation_after)
     assert _rms(white.validation_after) < 1.1e-6 * truth["floor_um"]
+    assert _rms(default.validation_after) < 1.1e-6 * truth["floor_um"]
 
 
 def _diagnose(*parts: str):
@@ -185,8 +192,8 @@ def test_diagnose_names_a_drift_in_acquisition_time():
 @pytest.mark.extended
 def test_fleet_with_the_laser_tracker_model_matches_calibrate():
     """`calibrate_fleet` whitens by the tracker's covariance as `calibrate` does: one robot of the
-    anisotropic case gives the same parameters (to the reweighting's tolerance, far below a standard
-    error) and the same outliers (none)."""
+    anisotropic case gives the same parameters as `calibrate` with the whole default set (to the
+    reweighting's tolerance, far below a standard error) and the same outliers (none)."""
     from identification import TrackerNoise, calibrate_fleet
 
     d, robot, train, val, truth = _case("noise", "anisotropic")
@@ -194,7 +201,7 @@ def test_fleet_with_the_laser_tracker_model_matches_calibrate():
     tracker = TrackerNoise(np.asarray(truth["tracker_position_m"]), 1e-6 * truth["noise_los_um"],
                            1e-6 * truth["noise_perp_um"])
     one = calibrate(robot, train.motor_angles, train.positions, marker=sensors["tracker_marker_offset_m"],
-                    position_noise=tracker)
+                    position_noise=tracker, all_parameters=True)
     fleet = calibrate_fleet(robot, train.motor_angles[None], train.positions[None], parameters=one.names,
                             marker=np.asarray(sensors["tracker_marker_offset_m"]), position_noise=tracker)
     assert fleet.converged.all() and fleet.outliers == ((),)

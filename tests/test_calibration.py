@@ -125,6 +125,24 @@ def test_map_covers_the_truth_on_the_bench(robots, thesis_theta, seed):
     assert all(rep["parameters"][n]["determined_by"] == "data" for n in THESIS_PARAMETERS if n != "beta3")
 
 
+def test_chi2_quantile_is_exact():
+    """`chi2_quantile`, the one chi-square quantile of the loss thresholds, the outlier bound, the noise
+    floor and the gear's significance: scipy's to 1e-10 relative from 1 to 5000 degrees of freedom and
+    upper probabilities from 1e-6 to 0.999 (a grid broadcast at once), the same under jit and vmap, and its
+    derivative in `p` is `-1 / pdf` at the quantile."""
+    import jax
+    from scipy.stats import chi2
+
+    from identification._noise import chi2_quantile
+
+    p, dof = np.meshgrid([1e-6, 1e-4, 1e-3, 0.01, 0.5, 0.999], [1, 2, 3, 7.5, 90, 5000])
+    q = np.asarray(chi2_quantile(p, dof))
+    np.testing.assert_allclose(q, chi2.isf(p, dof), rtol=1e-10)
+    np.testing.assert_array_equal(np.asarray(jax.jit(jax.vmap(chi2_quantile))(p.ravel(), dof.ravel())), q.ravel())
+    x = chi2.isf(0.01, 3)
+    np.testing.assert_allclose(float(jax.grad(chi2_quantile)(0.01, 3.0)), -1 / chi2.pdf(x, 3), rtol=1e-8)
+
+
 def test_robust_spread_is_measured_against_the_median_norm_of_clean_noise():
     """`_robust.spread`, the noise scale of the robust fits: the median of clean noise's whitened norms is
     `median_norm` (scipy's chi-square median), so clean norms give 1 and norms twice as large 2, per row of
@@ -404,9 +422,13 @@ def test_cli_json_schema(bench, tmp_path, capsys):
     assert re.search(r"^\[calibrate 2/3\] calibration: \d+ s elapsed, ETA \d+ s$", captured.err, re.M)
     assert re.search(r"^\[calibrate 3/3\] report: \d+ s elapsed, done$", captured.err, re.M)
     assert set(summary) == {"parameters", "identification", "validation", "loss", "noise_estimate_mm",
-                            "outlier_bound_mm", "outliers"}
+                            "outlier_bound_mm", "outliers", "parameter_selection"}
     assert summary["loss"] == "cauchy" and summary["outliers"] == []
-    assert set(summary["parameters"]) == set(DEFAULT_PARAMETERS)
+    sel = summary["parameter_selection"]
+    aside = [a["parameter"] for a in sel["set_aside"]]
+    assert sel["candidates"] == list(DEFAULT_PARAMETERS) and sorted(sel["kept"] + aside) == sorted(DEFAULT_PARAMETERS)
+    assert all(a["delta_bic"] <= 0 for a in sel["set_aside"]) and sel["n_residuals"] == 3 * len(ident.positions)
+    assert list(summary["parameters"]) == sel["kept"] and "a2" in sel["kept"]
     assert all(set(p) == {"value", "delta", "std"} for p in summary["parameters"].values())
     for part in ("identification", "validation"):
         assert set(summary[part]) == {"before_mm", "after_mm"}
@@ -561,11 +583,12 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
 def test_batched_lm_kernel():
     """Rosenbrock residuals `(10 (x2 - x1^2), 1 - x1)` (minimum (1, 1)), batch of starts: converged to
     the minimum, `nonlinear_max_steps_reached` when cut short, `nonfinite` from a NaN start; in chunks
-    (padded) the same; a config that differs only in its numbers reuses the compiled program (it is
+    (padded) the same; frozen problems are not started and leave the others unchanged; `map_chunks`
+    skips whole chunks; a config that differs only in its numbers reuses the compiled program (it is
     traced); Cholesky vs numpy."""
     import jax
 
-    from identification._batched_lm import LMConfig, batched_lm
+    from identification._batched_lm import LMConfig, batched_lm, map_chunks
     from jaxrobot._linalg import cholesky, cholesky_solve
 
     def rj(x, _):
@@ -590,6 +613,16 @@ def test_batched_lm_kernel():
     assert jr.status_name(short.status).tolist() == ["nonlinear_max_steps_reached"] * 2 + ["nonfinite"]
     assert np.asarray(short.steps).tolist() == [3, 3, 0]
     assert run._cache_size() == compiled  # the second config was not compiled again
+    frozen = jax.jit(batched_lm, static_argnums=0, static_argnames="chunk")(
+        rj, x0, None, LMConfig(max_steps=200), chunk=1, frozen=jnp.asarray([False, True, True]))
+    np.testing.assert_array_equal(np.asarray(frozen.x[0]), np.asarray(out.x[0]))  # the others' chunks skipped
+    assert np.asarray(frozen.steps).tolist() == [int(out.steps[0]), 0, 0]
+    # the frozen NaN start is never evaluated (else `nonfinite`)
+    assert jr.status_name(frozen.status).tolist() == ["successful"] + ["nonlinear_max_steps_reached"] * 2
+    np.testing.assert_array_equal(np.asarray(frozen.x[1]), np.asarray(x0[1]))
+    rows = jnp.arange(5.0)[:, None] * jnp.ones(3)
+    skipped = map_chunks(lambda v: 2 * v, rows, 2, skip=jnp.asarray([True, True, True, False, False]))
+    np.testing.assert_array_equal(np.asarray(skipped)[:, 0], [0, 0, 4, 6, 8])  # chunk 0 all skipped
     rng = np.random.default_rng(3)
     b = rng.normal(size=(4, 7, 7))
     a = b @ np.swapaxes(b, 1, 2) + 0.1 * np.eye(7)
@@ -625,3 +658,54 @@ def test_fleet_screw_jacobian_matches_residual_fn(robots, bench):
                                                                           a[5])))(fleet, theta, pos, defl, q0, x)
     np.testing.assert_allclose(r, r_ref, rtol=0, atol=1e-9)  # both pose-major
     np.testing.assert_allclose(jac, jac_ref, rtol=0, atol=1e-9 * np.abs(jac_ref).max())
+
+
+def test_nothing_hidden_keeps_the_start_robot(robots, thesis_theta):
+    """Bench data of the nominal robot itself at the 50 thesis poses: the BIC sets aside every parameter of
+    the default set (for this seed; noise alone keeps one or more in about half of the draws), and the
+    result is the start robot with its residuals, no outlier, a noise estimate within the chi-square spread
+    of the bench's 50 um over 150 residuals (+-12 %, 2 std) and the selection in the report."""
+    nominal, _ = robots
+    m = measure_poses(nominal, thesis_theta, seed=13)
+    res = calibrate(nominal, m.motor_angles, m.positions)
+    assert res.converged and res.names == () and res.selection.kept == ()
+    assert sorted(res.selection.set_aside) == sorted(DEFAULT_PARAMETERS)
+    assert res.robot is nominal and res.outliers == () and res.iterations == 0
+    np.testing.assert_allclose(res.errors_after, res.errors_before, rtol=0)
+    np.testing.assert_allclose(np.linalg.norm(res.residuals.reshape(-1, 3), axis=-1), res.errors_before, rtol=1e-9)
+    assert abs(res.noise_estimate / 5e-5 - 1) < 0.12
+    assert calibration_report(res)["parameter_selection"]["kept"] == []
+
+
+def test_backward_elimination_by_bic_matches_exact_refits():
+    """`select_parameters` on a linear model (random design, 8 parameters of which 3 are zero and one is
+    at 1 standard error): each step's BIC change equals that of the exact least-squares refit without the
+    parameters set aside so far (the update is exact for a linear model), the zero parameters go, the
+    large ones stay, and removing any kept one would raise the exact BIC."""
+    from identification.calibration._selection import select_parameters
+
+    rng = np.random.default_rng(4)
+    n, sigma = 120, 0.5
+    jac = rng.normal(size=(n, 8)) + 0.5 * rng.normal(size=(n, 1))  # correlated columns
+    std0 = sigma * np.sqrt(np.diag(np.linalg.inv(jac.T @ jac)))
+    x_true = np.array([0, 0, 0, 1, 8, -10, 12, 15.0]) * std0
+    y = jac @ x_true + sigma * rng.normal(size=n)
+    names = [f"p{i}" for i in range(8)]
+
+    def chi2(cols):
+        r = y - jac[:, cols] @ np.linalg.lstsq(jac[:, cols], y, rcond=None)[0] if cols else y
+        return float(r @ r) / sigma**2
+
+    x_hat = np.linalg.lstsq(jac, y, rcond=None)[0]
+    sel = select_parameters(names, x_hat, sigma**2 * np.linalg.inv(jac.T @ jac), n)
+    kept = list(range(8))
+    for name, change in zip(sel.set_aside, sel.delta_bic):
+        rest = [c for c in kept if names[c] != name]
+        np.testing.assert_allclose(change, chi2(rest) - chi2(kept) - np.log(n), rtol=1e-9, atol=1e-9)
+        assert change <= 0
+        kept = rest
+    assert sel.kept == tuple(names[c] for c in kept) and set(sel.kept) | set(sel.set_aside) == set(names)
+    assert {"p0", "p1", "p2"} <= set(sel.set_aside) and {"p4", "p5", "p6", "p7"} <= set(sel.kept)
+    for c in kept:
+        assert chi2([k for k in kept if k != c]) - chi2(kept) > np.log(n)
+    assert sel.n_residuals == n and sel.candidates == tuple(names)

@@ -254,3 +254,21 @@ def test_catalogue_is_extensible_by_one_class():
     np.testing.assert_array_equal(np.asarray(same.gravity), np.asarray(AS_BUILT.gravity))
     moved = layout.apply(AS_BUILT, v.at[block[0]].set(2e-3), jnp.zeros((6, 6)))
     np.testing.assert_allclose(np.asarray(moved.gravity), 1.002 * np.asarray(AS_BUILT.gravity), rtol=1e-15)
+
+
+def test_candidate_columns_fit_the_longest_label():
+    """A pair's label (two labels joined, here 46 characters) widens the candidate column of the table and
+    of the progress lines: every row's numbers start at the same column, after the whole label."""
+    from identification.diagnosis._diagnose import CandidateScore, DiagnoseEvent
+    from identification.diagnosis._report import candidate_table, progress_lines
+
+    pair = "joint_compliance j2 (linear) + joint_offset j6"
+    log = (CandidateScore(pair, 1.0, -2000.0, 5.0, -1990.5, 1e-5, 4.6e-5, "successful", None, 7),
+           CandidateScore("geometry", 2.0, -2100.0), CandidateScore("joint_offset j6", 3.0, -1500.0))
+    head, *rows = candidate_table(log).splitlines()
+    end = head.index("dBIC lin.") + len("dBIC lin.")
+    assert len(pair) == 46 and head.index("dBIC lin.") > len(pair)
+    assert [r[end - 11:end].strip() for r in rows] == ["-2000.0", "-2100.0", "-1500.0"]
+    assert rows[0].startswith(pair + " ") and rows[0].split()[-3:] == ["-2000.0", "-1990.5", "46.00"]
+    starts = {line.index("dBIC") for line in progress_lines(DiagnoseEvent("name", 1, 0.0, candidates=log))}
+    assert starts == {4 + len(pair) + 1}

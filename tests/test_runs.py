@@ -156,7 +156,7 @@ def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
 
 def test_cli_diagnose_runs_refuses_incomplete_input(tmp_path, capsys):
     """`diagnose --runs` names what is missing before any computation: the commands of the runs, the validation
-    runs, pose files mixed in; a command file with uneven steps is refused by its reader."""
+    runs, pose files without validation poses; a command file with uneven steps is refused by its reader."""
     folder = case("p0_clean")
     command, run = shortened(folder, "line_nu1e-14", 20)
     cmd, run_file = tmp_path / "command.csv", tmp_path / "run.csv"
@@ -167,7 +167,8 @@ def test_cli_diagnose_runs_refuses_incomplete_input(tmp_path, capsys):
         (["--runs", str(run_file), "--validate-runs", str(run_file)],
          "--commands: expected one command file per file of --runs (1), found 0"),
         (["--runs", str(run_file), "--commands", str(cmd)], "--validate-runs: required with --runs"),
-        ([str(run_file), "--runs", str(run_file)], "--runs with pose files: not supported yet"),
+        ([str(run_file), "--runs", str(run_file)], "--runs with poses: expected training pose files and --validate "
+         "pose files, found 1 pose files and 0 validation files"),
         ([], "diagnose: expected training pose files and --validate pose files (or --runs"),
     ]
     for argv, message in cases:

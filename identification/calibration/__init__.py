@@ -24,5 +24,6 @@ from ._pose_selection import detmax as detmax
 from ._pose_selection import random_feasible_poses as random_feasible_poses
 from ._pose_selection import rest_motor_angles as rest_motor_angles
 from ._report import calibration_report as calibration_report
+from ._selection import ParameterSelection as ParameterSelection
 
 _check_public(globals())

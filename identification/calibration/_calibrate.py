@@ -8,7 +8,8 @@ of a gear ratio). By default the squared norms are replaced by a robust loss of 
 errors do not move the model; they are reported as outliers. The parameter covariance is
 `s^2 (J^T W J)^{-1}` (`W` the final pose weights) with the noise estimate `s^2 = ||r||^2 / (n - m)`
 over the `n` residuals of the poses within the outlier bound (all of them for `loss="l2"`), `m`
-parameters.
+parameters. The default parameter set is fitted, reduced by backward elimination by BIC (`_selection`)
+and the kept parameters fitted again.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from ._model import (
 )
 from ._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection
 from ._pose_selection import default_marker
+from ._selection import ParameterSelection, select_parameters
 
 DEFAULT_PARAMETERS = THESIS_PARAMETERS + ("offset1", "offset2", "offset4", "offset5", "offset6", "d1",
                                           "d6", "a6")
@@ -313,6 +315,10 @@ class CalibrationResult:
     """`"lm"` or `"map"`."""
     prior_std: np.ndarray | None
     """(m,) the MAP priors (None for `method="lm"`)."""
+    selection: ParameterSelection | None = None
+    """Which parameters of the default set were kept, which set aside, and by what criterion (`_selection`);
+    None where none was selected (`parameters` given, `method="map"`, `all_parameters=True`, or a full-set
+    fit that did not converge)."""
 
     @property
     def delta(self) -> np.ndarray:
@@ -404,6 +410,7 @@ def calibrate(
     method: str = "lm",
     prior_std: dict | None = None,
     loss: str = "cauchy",
+    all_parameters: bool = False,
     throw: bool = False,
 ) -> CalibrationResult:
     """Calibrate the kinematic parameters from tracker measurements (thesis 3.2.3, eq. 3.12).
@@ -412,8 +419,11 @@ def calibrate(
     - `robot`: the initial (nominal) robot; also supplies the gravity deflection model.
     - `motor_angles` (K, n) rad at rest; `positions` (K, 3) m measured marker positions;
       `quaternions` (K, 4) optional measured orientation (qx, qy, qz, qw).
-    - `parameters`: free parameter names (default `default_parameters(robot)` for the measurement
-      type: positions, or positions and orientations when `quaternions` are given).
+    - `parameters`: free parameter names, fitted as given. Default: `default_parameters(robot)` for the
+      measurement type (positions, or positions and orientations when `quaternions` are given), fitted
+      together, then reduced by backward elimination while the BIC does not rise and the kept ones fitted
+      again (`_selection`; the result's `selection` names both sets); `all_parameters=True` keeps the whole
+      default set. `method="map"` fits the whole set too (its priors regularise it).
     - `marker`: marker offset in the tool frame [m] (default: the toml `[sensors]`).
     - `position_noise`, `orientation_noise`: stds that weight orientation rows against
       position rows (defaults: the toml tracker noise and 0.05 deg) and scale the robust loss;
@@ -444,6 +454,7 @@ def calibrate(
     from jaxrobot.bench import ORIENTATION_NOISE_RAD
 
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
+    select = parameters is None and method == "lm" and not all_parameters
     if parameters is None:
         _check_array(motor_angles, (robot.n_joints,), "motor_angles", "rad")
         _check_array(positions, (3,), "positions", "m")
@@ -479,39 +490,62 @@ def calibrate(
     defl_all = _deflection(robot, th_all, ccw_all)  # one evaluation for both sets
     th, defl = th_all[:k], defl_all[:k]
     ccw_id = ccw if np.ndim(ccw) == 0 else ccw_all[:k]
-    weight = None if prior is None else jnp.asarray(s_p / RESIDUAL_UNIT * np.asarray(params.scales(robot)) / prior)
     rows = 3 if rot is None else 6
 
-    def fit(pose_w):
-        out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw_id, max_steps=max_steps,
-                         rippled=rippled_joints(robot), prior_weight=weight,
-                         pose_weight=None if loss == "l2" else jnp.asarray(pose_w),
-                         whiten=None if white is None else jnp.asarray(white))
-        resid = np.asarray(out.residuals).reshape(k, rows)
-        return (out, resid), np.linalg.norm(resid, axis=-1) / s_p
+    def fit_set(params):  # the (robust) fit of one parameter set: estimate, residuals (K, rows) [m], pose weights
+        weight = None if prior is None else jnp.asarray(s_p / RESIDUAL_UNIT * np.asarray(params.scales(robot)) / prior)
 
-    pose_w = np.ones(k)
-    (out, resid), pose_w = (fit(pose_w)[0], pose_w) if loss == "l2" else robust.irls(fit, pose_w, loss, rows)
-    result = out.status
-    out = jax.tree.map(np.asarray, out)
-    if prior is None:
-        check_rank(out.jacobian, params)
-    check(result, result, throw)
-    noise = float(np.sqrt(out.noise_variance)) if loss == "l2" else robust.noise_estimate(resid, s_p, len(params))
-    cov = out.covariance * noise**2 / np.maximum(out.noise_variance, 1e-300)
-    calibrated = params.set(robot, jnp.asarray(out.value))
+        def fit(pose_w):
+            out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw_id, max_steps=max_steps,
+                             rippled=rippled_joints(robot), prior_weight=weight,
+                             pose_weight=None if loss == "l2" else jnp.asarray(pose_w),
+                             whiten=None if white is None else jnp.asarray(white))
+            resid = np.asarray(out.residuals).reshape(k, rows)
+            return (out, resid), np.linalg.norm(resid, axis=-1) / s_p
+
+        pose_w = np.ones(k)
+        (out, resid), pose_w = (fit(pose_w)[0], pose_w) if loss == "l2" else robust.irls(fit, pose_w, loss, rows)
+        result = out.status
+        out = jax.tree.map(np.asarray, out)
+        if prior is None:
+            check_rank(out.jacobian, params)
+        check(result, result, throw)
+        noise = float(np.sqrt(out.noise_variance)) if loss == "l2" else robust.noise_estimate(resid, s_p, len(params))
+        return out, resid, pose_w, noise, out.covariance * noise**2 / np.maximum(out.noise_variance, 1e-300)
+
+    out, resid, pose_w, noise, cov = fit_set(params)
+    selection = None
+    if select and out.converged:
+        selection = select_parameters(params.names, out.value - np.asarray(params.get(robot)), cov,
+                                      rows * int(np.sum(pose_w > 0)))
+        if selection.kept and selection.set_aside:
+            params = ParameterMap(selection.kept)
+            out, resid, pose_w, noise, cov = fit_set(params)
+        elif not selection.kept:  # every parameter set aside: the start robot, its residuals and weights
+            r = _residual_fn(robot, params, th, jnp.asarray(pos), rot, defl, marker, w_r, ccw_id,
+                             whiten=None if white is None else jnp.asarray(white))[0](jnp.zeros(len(params)), None)
+            resid = np.asarray(r).reshape(k, rows) * RESIDUAL_UNIT
+            z = np.linalg.norm(resid, axis=-1) / s_p
+            pose_w = np.ones(k) if loss == "l2" else robust.irls(lambda w: (None, z), np.ones(k), loss, rows)[1]
+            noise = float(np.sqrt(np.mean(resid**2))) if loss == "l2" else robust.noise_estimate(resid, s_p, 0)
+            out = ParameterEstimate(value=np.zeros(0), std=np.zeros(0), covariance=np.zeros((0, 0)),
+                                    status=RESULTS.successful, steps=np.asarray(0), rank=np.asarray(0),
+                                    residuals=resid.ravel(), noise_variance=np.asarray(noise**2))
+            cov, params = out.covariance, None
+    calibrated = robot if params is None else params.set(robot, jnp.asarray(out.value))
     p_all = np.concatenate([pos, vp])
     err0 = position_errors(robot, th_all, p_all, defl_all, marker, ccw_all)
     err1 = position_errors(calibrated, th_all, p_all, defl_all, marker, ccw_all)
     val = validation is not None
     return CalibrationResult(
-        robot=calibrated, names=params.names, value=out.value, start=np.asarray(params.get(robot)),
+        robot=calibrated, names=() if params is None else params.names, value=out.value,
+        start=np.zeros(0) if params is None else np.asarray(params.get(robot)),
         std=np.sqrt(np.diag(cov)), covariance=cov, residuals=resid.ravel(), converged=bool(out.converged),
         status=jr.status_name(out.status), iterations=int(out.steps), noise_estimate=noise, loss=loss,
         weights=pose_w, outliers=robust.outliers(resid, s_p), outlier_bound=s_p * robust.outlier_bound(rows),
         errors_before=err0[:k], errors_after=err1[:k],
         validation_before=err0[k:] if val else None, validation_after=err1[k:] if val else None,
-        beyond_limits=tuple(beyond), method=method, prior_std=prior)
+        beyond_limits=tuple(beyond), method=method, prior_std=prior, selection=selection)
 
 
 def map_parameters(parameters: Sequence[str], n_joints: int) -> tuple[str, ...]:

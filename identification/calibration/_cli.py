@@ -23,7 +23,10 @@ def configure(parser) -> None:
     parser.add_argument("--save-model", type=Path, default=None, help="write the calibrated robot (TOML)")
     add_model_option(parser, "initial robot description (default: the embedded Racer-7, nominal)", dest="robot")
     parser.add_argument("--parameters", default=None,
-                        help="comma-separated free parameters, e.g. a2,beta3,u0_5 (default: identifiable set)")
+                        help="comma-separated free parameters, fitted as given, e.g. a2,beta3,u0_5 (default: the "
+                             "identifiable set, reduced by backward elimination while the BIC does not rise)")
+    parser.add_argument("--all-parameters", action="store_true",
+                        help="fit the whole default (identifiable) set: no backward elimination")
     parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
                         help="marker offset in m in the tool frame (the flange without [tool]; default: [sensors])")
     parser.add_argument("--limits", choices=("flag", "raise"), default="flag",
@@ -51,6 +54,7 @@ def summary(report: dict, poses: Path | str = "") -> dict:
         "loss": report["loss"],
         "noise_estimate_mm": 1e3 * report["noise_estimate_m"],
         "outlier_bound_mm": 1e3 * report["outlier_bound_m"],
+        "parameter_selection": report["parameter_selection"],
         "outliers": [{"file": str(poses), "line": o["row"] + 2, "row": o["row"], "residual_mm": 1e3 * o["residual_m"],
                       "sigmas": o["sigmas"]} for o in report["outliers"]],
     }
@@ -65,6 +69,11 @@ def _echo_report(report: dict, echo, truth: dict | None = None, poses: Path | st
 
     echo(f"LM: {report['status']}, {report['iterations']} iterations, loss {report['loss']}, noise estimate "
          f"{1e3 * report['noise_estimate_m']:.4f} mm per axis")
+    sel = report["parameter_selection"]
+    if sel is not None:
+        aside = ", ".join(a["parameter"] for a in sel["set_aside"]) or "none"
+        echo(f"parameters: {len(sel['kept'])} of the default {len(sel['candidates'])} kept ({sel['criterion']}; "
+             f"--all-parameters fits them all); set aside: {aside}")
     for o in report["outliers"]:
         echo(f"warning: {poses}:{o['row'] + 2}: residual {1e3 * o['residual_m']:.3f} mm ({o['sigmas']:.1f} sigma) "
              f"beyond the outlier bound {1e3 * report['outlier_bound_m']:.3f} mm: a gross measurement error?"
@@ -143,7 +152,7 @@ def run(args, echo) -> dict:
                                robot.n_joints)
     res = calibrate(robot, data.motor_angles, data.positions, data.quaternions, parameters=names,
                     marker=marker, position_noise=noise, ccw=data.ccw, validation=val, limits=args.limits,
-                    method=args.method, prior_std=prior, loss=args.loss)
+                    method=args.method, prior_std=prior, loss=args.loss, all_parameters=args.all_parameters)
     report = calibration_report(res)
     progress.step("calibration")
     _echo_report(report, echo, poses=args.poses)

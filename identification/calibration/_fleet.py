@@ -152,12 +152,13 @@ def _constants(robots, theta, rippled, ccw=False):
     return q0, q0 - jr.gear_output(fleet, theta, ccw, rippled=rippled)
 
 
-def _local_solve(robots, theta, positions, marker, q0, defl, config, ccw=None, weight=None, x0=None, whiten=None, *,
-                 params, rippled):
+def _local_solve(robots, theta, positions, marker, q0, defl, config, ccw=None, weight=None, x0=None, whiten=None,
+                 frozen=None, *, params, rippled):
     """The fleet solve, batch-first: one `batched_lm` over all robots from scaled parameters `x0`
     (R, m) (default 0: the initial robots), then the covariances (`ccw`: as in `_constants`;
     `weight` (R, K): of each pose's squared residual, default 1; `whiten` (R, K, 3, 3): each pose's
-    residual times it, default none; the returned residuals are whitened, not weighted)."""
+    residual times it, default none; the returned residuals are whitened, not weighted; `frozen` (R,):
+    robots not solved, whose rows of the result are meaningless, default none)."""
     v0 = jax.vmap(params.get)(robots)
     scale = jax.vmap(params.scales)(robots)
     screws = analytic_names(params.names)
@@ -183,13 +184,19 @@ def _local_solve(robots, theta, positions, marker, q0, defl, config, ccw=None, w
     directed = () if ccw is None else (ccw,)
     out = batched_lm(residual_jacobian, jnp.zeros_like(v0) if x0 is None else x0,
                      (robots, theta, positions, q0, defl, v0, scale, root_w, *white, *directed), config,
-                     chunk=_chunk())
+                     chunk=_chunk(), frozen=frozen)
     n, m = out.residuals.shape[1], v0.shape[1]
     sigma2 = 2 * out.cost / max(n - m, 1)  # [mm^2], weighted
-    residuals = out.residuals if weight is None else map_chunks(  # unweighted
-        lambda a: residual_jacobian(a[0], (*a[1:8], jnp.ones_like(a[8]), *a[9:]))[0],
-        (out.x, robots, theta, positions, q0, defl, v0, scale, root_w, *white, *directed), _chunk())
-    cov_x, rank, full = map_chunks(lambda a: covariance(*a), (out.normal, sigma2), _chunk())
+    residuals = out.residuals
+    if weight is not None:  # unweighted: divided by the root weights, evaluated where a weight is 0 (or no fit)
+        rows = jnp.repeat(root_w, 3, axis=1)
+        evaluate = jnp.any(root_w == 0, 1) | ~jnp.isfinite(out.cost)
+        evaluated = map_chunks(
+            lambda a: residual_jacobian(a[0], (*a[1:8], jnp.ones_like(a[8]), *a[9:]))[0],
+            (out.x, robots, theta, positions, q0, defl, v0, scale, root_w, *white, *directed), _chunk(),
+            skip=~evaluate if frozen is None else ~evaluate | frozen)
+        residuals = jnp.where(evaluate[:, None], evaluated, residuals / jnp.where(rows > 0, rows, 1.0))
+    cov_x, rank, full = map_chunks(lambda a: covariance(*a), (out.normal, sigma2), _chunk(), skip=frozen)
     cov = cov_x * scale[:, :, None] * scale[:, None, :]
     finite = jnp.all(jnp.isfinite(out.x), 1) & jnp.all(jnp.isfinite(cov), (1, 2))
     ok = out.status == RESULTS.successful
@@ -213,14 +220,21 @@ def _fleet_constants(robots, theta, rippled, mesh, ccw=None):
 
 @eqx.filter_jit
 def _fleet_solve(robots, params, theta, positions, marker, q0, defl, config, rippled, mesh, ccw=None, weight=None,
-                 x0=None, whiten=None):
+                 x0=None, whiten=None, frozen=None):
     """`_local_solve`, every device on its own robots (`shard_map` over the `"fleet"` axis; each
-    device's LM loop runs until its own robots have stopped); `config` (`LMConfig`) is traced."""
+    device's LM loop runs until its own robots have stopped); `config` (`LMConfig`) is traced; the
+    `frozen` robots are placed last on each device, so that whole chunks of them cost nothing."""
     fleet, rep = PartitionSpec("fleet"), PartitionSpec()
-    optional = {k: a for k, a in (("ccw", ccw), ("weight", weight), ("x0", x0), ("whiten", whiten)) if a is not None}
+    optional = {k: a for k, a in (("ccw", ccw), ("weight", weight), ("x0", x0), ("whiten", whiten),
+                                  ("frozen", frozen)) if a is not None}
 
     def local(*args):
-        return _local_solve(*args[:7], **dict(zip(optional, args[7:])), params=params, rippled=rippled)
+        if frozen is None:
+            return _local_solve(*args[:7], **dict(zip(optional, args[7:])), params=params, rippled=rippled)
+        order = jnp.argsort(args[-1], stable=True)
+        args = [a if i in (3, 6) else jax.tree.map(lambda v: v[order], a) for i, a in enumerate(args)]
+        out = _local_solve(*args[:7], **dict(zip(optional, args[7:])), params=params, rippled=rippled)
+        return jax.tree.map(lambda v: v[jnp.argsort(order)], out)
 
     return jax.shard_map(local, mesh=mesh, in_specs=(fleet, fleet, fleet, rep, fleet, fleet, rep)
                          + (fleet,) * len(optional), out_specs=fleet,
@@ -234,6 +248,24 @@ def _pose_norms(residuals, sigma):
 
 
 _set_parameters = eqx.filter_jit(ParameterMap.set)  # one compiled call instead of ~m eager scatters
+
+
+@jax.jit
+def _unchanged(weight, previous):
+    """(R,) whether each robot's pose weights (R, K) equal its previous ones."""
+    return jnp.all(weight == previous, -1)
+
+
+@jax.jit
+def _keep(frozen, previous, new):
+    """The solve `new` with the rows of `previous` where `frozen` (R,)."""
+    return jax.tree.map(lambda o, n: jnp.where(frozen.reshape((-1,) + (1,) * (n.ndim - 1)), o, n), previous, new)
+
+
+@eqx.filter_jit
+def _values_scales(params, robots):
+    """The values (R, m) of the free parameters of the fleet `robots` and their scales (R, m)."""
+    return jax.vmap(params.get)(robots), jax.vmap(params.scales)(robots)
 
 
 def calibrate_fleet(
@@ -259,7 +291,8 @@ def calibrate_fleet(
     `converged = False` and their `status` says why (`throw`: raise the message of the first such
     status instead); so has a robot whose residuals exceed the stated noise (`inconsistent`: the
     chi-square test of `diagnose`, `identification._noise.noise_test`, at the level `ALPHA / R`).
-    `max_steps`: of `LMConfig`. `parameters`: default `default_parameters` of the first robot. Under
+    `max_steps`: of `LMConfig`. `parameters`: default `default_parameters` of the first robot, all of them for
+    every robot (no backward elimination as in `calibrate`: one batched program over the robots). Under
     several processes (`jaxrobot.initialize_processes`) each process passes only its own robots
     (e.g. rows `jaxrobot.process_share(R)`, one robot or its own fleet rows in `robots`; none on a
     process whose robots all failed their checks) and every process receives the whole fleet in process
@@ -268,7 +301,8 @@ def calibrate_fleet(
     `loss`: as in `calibrate` (robust by default, thresholds in units of `position_noise`, the
     tracker's per-axis std, default `[sensors] tracker_position_noise_m`, or a laser tracker's
     `TrackerNoise`, whose covariance then whitens each pose's residual); each robot is reweighted on
-    its own, its outliers and robust noise estimate are in `outliers` and `noise_estimate`.
+    its own (a robot whose weights no longer change keeps its solution), its outliers and robust noise
+    estimate are in `outliers` and `noise_estimate`.
     """
     robust.check_loss(loss)
     joints = robots.n_joints
@@ -318,12 +352,15 @@ def calibrate_fleet(
         out, robots = gather_rows((out, g_robots), origin)
         kept = None  # every pose
     else:
-        start = {"x0": None}
+        v0, scale = _values_scales(params, g_robots)
+        last = {"x0": jnp.zeros_like(v0), "weight": None, "out": None}  # every round runs one compiled solve
 
-        def fit(weight):
+        def fit(weight):  # a robot whose weights did not change keeps its solution
+            frozen = weight[:, 0] < 0 if last["out"] is None else _unchanged(weight, last["weight"])
             out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, config, rippled, mesh, g_ccw,
-                               weight, start["x0"], g_white)
-            start["x0"] = (out.value - jax.vmap(params.get)(g_robots)) / jax.vmap(params.scales)(g_robots)
+                               weight, last["x0"], g_white, frozen)
+            out = out if last["out"] is None else _keep(frozen, last["out"], out)
+            last.update(x0=(out.value - v0) / scale, weight=weight, out=out)
             return out, _pose_norms(out.residuals, sigma)
 
         out, weight = robust.irls(fit, jnp.ones_like(g_pos[..., 0]), loss, 3)

@@ -28,8 +28,9 @@ def calibration_report(res: CalibrationResult) -> dict:
     and for MAP prior_std, data_fraction, determined_by}}, `identification` and (with validation
     data) `validation` {before_m, after_m: {max, min, mean, std}}, `status`, `converged`,
     `iterations`, `noise_estimate_m`, `residual_rms_m`, `n_poses`, `beyond_limits`, `method`, `loss`,
-    `outliers` [{row (0-based data row), residual_m, sigmas}], `outlier_bound_m` and `errors_m` (the
-    errors per pose behind the statistics)."""
+    `outliers` [{row (0-based data row), residual_m, sigmas}], `outlier_bound_m`, `parameter_selection`
+    (None, or {criterion, candidates, kept, set_aside [{parameter, delta_bic}], n_residuals}: `selection`) and
+    `errors_m` (the errors per pose behind the statistics)."""
     params = {n: {"value": float(res.value[i]), "delta": float(res.delta[i]), "std": float(res.std[i])}
               for i, n in enumerate(res.names)}
     if res.prior_std is not None:
@@ -52,7 +53,14 @@ def calibration_report(res: CalibrationResult) -> dict:
         "loss": res.loss,
         "outliers": [{"row": o.row, "residual_m": o.residual, "sigmas": o.sigmas} for o in res.outliers],
         "outlier_bound_m": res.outlier_bound,
+        "parameter_selection": None,
     }
+    sel = res.selection
+    if sel is not None:
+        report["parameter_selection"] = {
+            "criterion": sel.criterion, "candidates": list(sel.candidates), "kept": list(sel.kept),
+            "set_aside": [{"parameter": n, "delta_bic": d} for n, d in zip(sel.set_aside, sel.delta_bic)],
+            "n_residuals": sel.n_residuals}
     if res.validation_before is not None:
         report["validation"] = {"before_m": error_stats(res.validation_before),
                                 "after_m": error_stats(res.validation_after), "n_poses": len(res.validation_before)}

@@ -15,6 +15,7 @@ from ._effects import CATALOGUE as CATALOGUE
 from ._effects import Effect as Effect
 from ._effects import Layout as Layout
 from ._effects import catalogue as catalogue
+from ._effects import payload_robot as payload_robot
 from ._report import progress_lines as progress_lines
 from ._report import summary as summary
 from ._runs import RunComparison as RunComparison

@@ -1,7 +1,7 @@
 """`jaxrobot diagnose --model START.toml TRAIN.csv… --validate VAL.csv…`: find the effects the
 model misses (compare, locate, name, add, repeat), with tables, plots and `--save-model`; with `--runs RUN.csv…
---commands CMD.csv… --validate-runs … --validate-commands …` the dynamic effects that trajectory runs show
-(`_runs.diagnose_runs`)."""
+--commands CMD.csv… --validate-runs … --validate-commands …` the dynamic effects that trajectory runs show, with
+pose files as further evidence where given (`_runs.diagnose_runs`)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,8 @@ def configure(parser) -> None:
     parser.add_argument("poses", type=Path, nargs="*", help="training pose CSV files (README, 'Measurement files')")
     parser.add_argument("--validate", type=Path, nargs="+", default=None, help="held-out validation pose CSV files")
     parser.add_argument("--runs", type=Path, nargs="+", default=None, metavar="RUN.csv",
-                        help="training trajectory runs (t_s, theta1_deg …, x_m, y_m, z_m) instead of poses")
+                        help="training trajectory runs (t_s, theta1_deg …, x_m, y_m, z_m); pose files given too (with "
+                             "--validate) are evidence of the same fits")
     parser.add_argument("--commands", type=Path, nargs="+", default=None, metavar="CMD.csv",
                         help="the motor commands of --runs, one per run in the same order (plan --save-trajectory)")
     parser.add_argument("--validate-runs", type=Path, nargs="+", default=None, metavar="RUN.csv",
@@ -90,38 +91,45 @@ def _run_pairs(runs, commands, option: str) -> list:
 
 
 def _diagnose_runs(args, echo) -> dict:
-    """`diagnose --runs`: the dynamic effects of `_runs.diagnose_runs`."""
+    """`diagnose --runs`: the dynamic effects of `_runs.diagnose_runs`, with the pose files as further evidence."""
     import jaxrobot as jr
 
     from ._runs import diagnose_runs
 
-    if args.poses or args.validate:
-        raise ValueError("--runs with pose files: not supported yet; diagnose the runs and the poses separately")
+    if bool(args.poses) != bool(args.validate):
+        raise ValueError(f"--runs with poses: expected training pose files and --validate pose files, found "
+                         f"{len(args.poses)} pose files and {0 if args.validate is None else len(args.validate)} "
+                         "validation files")
     if args.validate_runs is None:
         raise ValueError("--validate-runs: required with --runs (held-out runs, with --validate-commands)")
     train = _run_pairs(args.runs, args.commands, "")
     val = _run_pairs(args.validate_runs, args.validate_commands, "validate-")
+    poses = (_poses(args.poses, args.approach)[0], _poses(args.validate, args.approach)[0]) if args.poses else None
     robot, marker, noise = tracker_of(args)
     sensors = jr.read_description(args.model).get("sensors", {}) if args.model is not None else {}
     embedded = jr.read_description(None)["sensors"]
     marker = embedded["tracker_marker_offset_m"] if marker is None else marker
     noise = embedded["tracker_position_noise_m"] if noise is None else noise
     counts = sensors.get("encoder_counts_per_rev")
-    echo(f"diagnose: {len(train)} training and {len(val)} validation runs, start model {robot.name}")
+    echo(f"diagnose: {len(train)} training and {len(val)} validation runs"
+         + (f", {len(poses[0])} training and {len(poses[1])} validation poses" if poses else "")
+         + f", start model {robot.name}")
+    rows_val = sum(3 * len(p[1][0]) for p in val) + (3 * len(poses[1]) if poses else 0)
 
     def progress(row) -> None:
-        echo(f"step {row.step}: {row.effect:<34} chi2/dof {row.chi2 / row.dof:.4f} (p = {row.p_value:.3g}), BIC "
-             f"{row.bic:.1f}, validation chi2/dof {row.chi2_validation / sum(3 * len(p[1][0]) for p in val):.4f}")
+        echo(f"step {row.step}: {row.effect:<36} chi2/dof {row.chi2 / row.dof:.4f} (p = {row.p_value:.3g}"
+             + (f"; poses' chi2 {row.chi2_poses:.1f}" if poses else "")
+             + f"), BIC {row.bic:.1f}, validation chi2/dof {row.chi2_validation / rows_val:.4f}")
 
     res = diagnose_runs(robot, train, val, marker, noise, max_steps=args.max_steps,
-                        encoder_quantum=0.0 if counts is None else 2 * np.pi / counts, progress=progress)
+                        encoder_quantum=0.0 if counts is None else 2 * np.pi / counts, progress=progress, poses=poses)
     echo(f"verdict: {res.verdict}")
     effects = []
     for e in res.estimates:
-        unit = {"lag": "s", "damping": "N m s/rad", "stiffness": "x k1, k3"}[e.effect.kind]
-        echo(f"  {e.effect.label}: {e.value:.6g} +- {e.std:.2g} {unit}")
-        effects.append({"effect": e.effect.label, "kind": e.effect.kind, "joint": e.effect.joint + 1,
-                        "value": e.value, "std": e.std})
+        echo(f"  {e.effect.label}: {e.parameter} {e.value:.6g} +- {e.std:.2g} {e.unit}")
+        effects.append({"effect": e.effect.label, "kind": e.effect.kind,
+                        "joint": None if e.effect.joint is None else e.effect.joint + 1, "parameter": e.parameter,
+                        "value": e.value, "std": e.std, "unit": e.unit})
     if args.save_model is not None:
         jr.save_robot(res.robot, args.save_model, keep=jr.read_description(args.model) if args.model else None)
         echo(f"wrote {args.save_model}")

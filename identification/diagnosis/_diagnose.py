@@ -41,9 +41,8 @@ import jaxrobot as jr
 from jaxrobot.measurement import approach_directions, approach_sign
 
 from .. import _robust as robust
-from .._noise import ALPHA, TrackerNoise, noise_model, noise_test
+from .._noise import ALPHA, TrackerNoise, chi2_quantile, noise_model, noise_test
 from .._pose_files import check_pose_units
-from ..gear._fit import chi2_quantile
 from ._effects import RIPPLE_SLOTS, Layout, catalogue, with_ripple_slots
 from ._model import functions
 
@@ -286,7 +285,7 @@ def _drift(layout: Layout, jac: np.ndarray, r: np.ndarray, free: list[int], scal
     cov = np.linalg.pinv(a.T @ a)
     delta_bic = ln_n - gain
     return Drift(float(coef[-1] * scale[k] / duration), float(np.sqrt(cov[-1, -1]) * scale[k] / duration), duration,
-                 delta_bic, gain, gain > chi2_quantile(ALPHA, 1.0))
+                 delta_bic, gain, gain > float(chi2_quantile(ALPHA, 1.0)))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -341,9 +340,9 @@ class DiagnoseResult:
 
 def validation_bound(sigma: float, k_val: int, m: int, n_res: int) -> float:
     """Largest validation RMS [m] that noise alone explains at level `ALPHA`: `K RMS^2 / sigma^2`
-    is chi-square with `3K` dof (Wilson-Hilferty quantile), inflated by `1 + m / (n - m)` for the
+    is chi-square with `3K` dof (`chi2_quantile`), inflated by `1 + m / (n - m)` for the
     error of `m` parameters fitted to `n` residuals."""
-    q = chi2_quantile(ALPHA, 3.0 * k_val)
+    q = float(chi2_quantile(ALPHA, 3.0 * k_val))
     return sigma * float(np.sqrt(q / k_val * (1.0 + m / max(n_res - m, 1))))
 
 

@@ -221,18 +221,39 @@ class BaseOffset(Effect):
         return _robot_at(robot, ("base",), (t @ robot.base,))
 
 
+def payload_robot(robot: jr.Robot, mass, position) -> jr.Robot:
+    """`robot` carrying a point mass `mass` [kg] at `position` (3,) [m] in the frame of the last link: that link's
+    mass, centre of mass and inertia about it (parallel-axis theorem). The identity at `mass = 0`."""
+    return loaded(robot, mass, mass * jnp.asarray(position))
+
+
+def loaded(robot: jr.Robot, mass, moment) -> jr.Robot:
+    """`payload_robot` of the first moment `moment = mass * position` [kg m]; a point of `mass <= 0` adds no inertia
+    of its own (at mass and moment 0 that inertia and its derivatives vanish: it is of second order in the moment)."""
+    m0, c0, i0 = robot.mass[-1], robot.com[-1], robot.inertia[-1]
+    total = m0 + mass
+    com = (m0 * c0 + moment) / total
+    eye = jnp.eye(3)
+    d = c0 - com
+    u = moment - mass * com  # the point's mass times its offset from the new centre
+    safe = jnp.where(mass > 0, mass, 1.0)
+    point = jnp.where(mass > 0, (u @ u * eye - jnp.outer(u, u)) / safe, 0.0)
+    inertia = i0 + m0 * (d @ d * eye - jnp.outer(d, d)) + point
+    return dataclasses.replace(robot, mass=robot.mass.at[-1].set(total), com=robot.com.at[-1].set(com),
+                               inertia=robot.inertia.at[-1].set(inertia))
+
+
+
 class Payload(Effect):
     """Payload on the flange: mass [kg] and first moment `m c` [kg m] in the flange frame (the last
-    link); acts through the gravity torque on the compliant joints."""
+    link); acts through the gravity torque on the compliant joints (`loaded`: a point mass, whose inertia the
+    saved robot carries too)."""
 
     kind, per_joint = "payload", False
     names, scales, units = ("mass", "moment_x", "moment_y", "moment_z"), (1.0, 0.1, 0.1, 0.1), ("kg",) + ("kg m",) * 3
 
     def apply(self, robot, v, orders):
-        m_last = robot.mass[-1]
-        m = m_last + v[0]
-        com = (m_last * robot.com[-1] + v[1:]) / m
-        return _robot_at(robot, ("mass", "com"), (robot.mass.at[-1].set(m), robot.com.at[-1].set(com)))
+        return loaded(robot, v[0], v[1:])
 
 
 class ApproachDependentGearSet(Effect):

@@ -21,9 +21,16 @@ def progress_lines(event: DiagnoseEvent) -> list[str]:
         return [f"step {r.step}: {r.effect:<34} rms train {r.rms_train * UM:8.2f} um, validation "
                 f"{r.rms_validation * UM:8.2f} um, noise floor {event.noise_floor * UM:.2f} um, chi2/dof "
                 f"{r.chi2 / max(r.dof, 1):.3f} (p = {r.p_value:.3g}) [{event.elapsed:.1f} s]"]
-    return [f"    {e.candidate:<38} dBIC {_delta_bic(e):12.1f}"
+    best = event.candidates[:5]
+    width = _label_width(best, 38)
+    return [f"    {e.candidate:<{width}} dBIC {_delta_bic(e):12.1f}"
             + (f"  rms val {e.rms_validation * UM:8.2f} um" if e.rms_validation is not None else "")
-            + ("  <- added" if e.selected else "") + _failed(e) for e in event.candidates[:5]]
+            + ("  <- added" if e.selected else "") + _failed(e) for e in best]
+
+
+def _label_width(entries, least: int) -> int:
+    """Width of a column of candidate labels: the longest label (a pair's two joined labels), at least `least`."""
+    return max([least] + [len(e.candidate) for e in entries])
 
 
 def _failed(e: CandidateScore) -> str:
@@ -90,11 +97,12 @@ def loop_table(loop: tuple[LoopRow, ...], noise_floor: float) -> str:
 
 def candidate_table(log: tuple[CandidateScore, ...], top: int = 12) -> str:
     """Candidates of one step: BIC change (linearised for all, LM for the shortlist), validation RMS."""
-    lines = [f"{'candidate':<40} {'dBIC lin.':>11} {'dBIC LM':>11} {'rms val [um]':>12}  added"]
+    width = _label_width(log[:top], 40)
+    lines = [f"{'candidate':<{width}} {'dBIC lin.':>11} {'dBIC LM':>11} {'rms val [um]':>12}  added"]
     for e in log[:top]:
         lm = f"{e.delta_bic:>11.1f}" if e.delta_bic is not None else f"{'-':>11}"
         val = f"{e.rms_validation * UM:>12.2f}" if e.rms_validation is not None else f"{'-':>12}"
-        lines.append(f"{e.candidate:<40} {e.delta_bic_linearised:>11.1f} {lm} {val}  "
+        lines.append(f"{e.candidate:<{width}} {e.delta_bic_linearised:>11.1f} {lm} {val}  "
                      f"{'yes' if e.selected else ''}{_failed(e)}")
     return "\n".join(lines)
 

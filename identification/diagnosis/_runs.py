@@ -24,10 +24,13 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot.measurement import marker_pose
+from jaxrobot.measurement import marker_pose, rest_link_angles
 
 from .._noise import ALPHA, noise_model, noise_test
+from .._pose_files import check_pose_units
 from ._diagnose import MIN_BIC_GAIN
+from ._effects import loaded
+from ._model import EXACT_ITERATIONS, rest_angles
 
 STEP_TOLERANCE = 1e-6
 """Relative agreement of the run's and the command's sample times (the files keep 12 digits)."""
@@ -136,11 +139,20 @@ def compare_run(robot: jr.Robot, command, run, marker, noise) -> RunComparison:
 
 # ------------------------------------------------------------------ naming dynamic effects from runs
 
-RUN_KINDS = {"lag": (1e-3, "s"), "damping": (10.0, "N m s/rad"), "stiffness": (1e-2, "")}
-"""The dynamic effects a run can name, one parameter per joint, with the scale of its fit variable and the unit of
-its value: `lag` the velocity-loop time constant of a motor (`Robot.motor_lag`), `damping` the viscous damping of
-a joint spring (`Robot.damping`), `stiffness` the factor on the joint's `k1` and `k3` (the value reported; the fit
-varies the compliance `c = 1/k1` by `1 + x/100`)."""
+RUN_KINDS = {"lag": (1e-3, "s"), "damping": (10.0, "N m s/rad"), "stiffness": (1e-2, "x k1, k3"),
+             "cubic": (1e5, "N m/rad^3")}
+"""The per-joint dynamic effects a run can name, one parameter per joint, with the scale of its fit variable and the
+unit of its reported value: `lag` the velocity-loop time constant of a motor (`Robot.motor_lag`), `damping` the
+viscous damping of a joint spring (`Robot.damping`), `stiffness` the factor on the joint's `k1` and `k3` (the value
+reported; the fit varies the compliance `c = 1/k1` by `1 + x/100`), `cubic` the joint's `k3` at a fixed `k1` (the
+value reported; the fit varies `e = k3/k1` [1/rad^2] by `1e5 x`). Besides them `PAYLOAD`; link-side friction is not
+in the model (`jr.simulate` has no friction term), so runs cannot name it."""
+PAYLOAD = (("mass", 1.0, "kg"), ("x", 0.1, "m"), ("y", 0.1, "m"), ("z", 0.1, "m"))
+"""The payload effect's reported parameters (name, scale of its fit variable, unit): a point mass on the flange, its
+mass and its position in the last link's frame (`payload_robot`); it acts on the runs through gravity and inertia and
+on the poses through gravity. The fit varies the mass and the first moment `mass * position` (scales 1 kg, 0.1 kg m),
+in which the gravity torque is linear. A candidate only where poses are given: short runs alone confuse it with a
+joint's stiffness (benchmarks/results_runs.md)."""
 SCREENED = 3
 """Candidates per step fitted in full: those with the largest linearised chi-square decrease."""
 ENCODER_LAG_RAD = 1e-6
@@ -156,51 +168,59 @@ many at a time, zero-padded, so that one program serves every number of fitted e
 
 @dataclasses.dataclass(frozen=True)
 class RunEffect:
-    """A dynamic effect of one joint that runs can show (`RUN_KINDS`)."""
+    """A dynamic effect that runs can show: one of `RUN_KINDS` on one joint, or the payload."""
 
     kind: str
-    """`lag`, `damping` or `stiffness`."""
-    joint: int
-    """0-based joint (motor) index."""
+    """`lag`, `damping`, `stiffness`, `cubic` or `payload`."""
+    joint: int | None
+    """0-based joint (motor) index; None for the payload."""
 
     @property
     def label(self) -> str:
         """The effect in words."""
+        if self.kind == "payload":
+            return "payload (point mass on the flange)"
         what = {"lag": "velocity-loop lag, motor", "damping": "joint damping, joint",
-                "stiffness": "stiffness (k1, k3), joint"}[self.kind]
+                "stiffness": "stiffness (k1, k3), joint", "cubic": "cubic stiffness (k3), joint"}[self.kind]
         return f"{what} {self.joint + 1}"
 
 
 @dataclasses.dataclass(frozen=True)
 class RunEstimate:
-    """The fitted value of an added effect with its standard deviation."""
+    """A fitted parameter of an added effect with its standard deviation."""
 
     effect: RunEffect
     """The effect."""
+    parameter: str
+    """The parameter: the effect's kind for the per-joint effects, a `PAYLOAD` name for the payload."""
     value: float
-    """The value in the unit of `RUN_KINDS` (for `stiffness`: the factor on `k1` and `k3`)."""
+    """The value in `unit` (`stiffness`: the factor on `k1` and `k3`; `cubic`: the joint's `k3`)."""
     std: float
     """Its standard deviation from the fit's covariance (linearised, noise as stated)."""
+    unit: str
+    """The unit of `value` and `std` (`RUN_KINDS`, `PAYLOAD`)."""
 
 
 @dataclasses.dataclass(frozen=True)
 class RunStep:
-    """One model of the loop compared with the runs."""
+    """One model of the loop compared with the training runs (and poses, where given)."""
 
     step: int
     """0 for the start model, then one per added effect."""
     effect: str
     """What this step added (the start model: "start")."""
     chi2: float
-    """Chi-square of the training runs."""
+    """Chi-square of the training runs and poses, each residual in units of its own noise."""
     dof: int
     """Its degrees of freedom: residuals minus fitted parameters."""
     p_value: float
     """Probability of a chi-square with `dof` exceeding `chi2`; the test passes above `ALPHA`."""
     bic: float
-    """`chi2 + m ln(residuals)`."""
+    """`chi2 + m ln(residuals)`, over the rows of the runs and the poses together."""
     chi2_validation: float
-    """Chi-square of the validation runs (their degrees of freedom: `3 N` of them, nothing fitted)."""
+    """Chi-square of the validation runs and poses (their degrees of freedom: their residuals, nothing fitted)."""
+    chi2_poses: float
+    """The part of `chi2` from the training poses (0 without poses)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -212,23 +232,28 @@ class RunDiagnosis:
     steps: list[RunStep]
     """The loop, one row per model compared."""
     estimates: list[RunEstimate]
-    """The added effects with their fitted values at the final model."""
+    """The parameters of the added effects with their fitted values at the final model."""
     verdict: str
     """The outcome in words."""
 
 
 def _with_effects(robot: jr.Robot, z):
-    """`robot` (with lag and damping arrays) moved by the scaled effect variables `z` (3n,): lag, damping, stiffness."""
+    """`robot` (with lag and damping arrays) moved by the scaled effect variables `z` (4n + 4,): lag, damping,
+    stiffness, cubic per joint, then the payload."""
     n = robot.n_joints
-    return dataclasses.replace(robot, motor_lag=robot.motor_lag + RUN_KINDS["lag"][0] * z[:n],
-                               damping=robot.damping + RUN_KINDS["damping"][0] * z[n:2 * n],
-                               c=robot.c * (1.0 + RUN_KINDS["stiffness"][0] * z[2 * n:]))
+    scale = {k: v[0] for k, v in RUN_KINDS.items()}
+    moved = dataclasses.replace(robot, motor_lag=robot.motor_lag + scale["lag"] * z[:n],
+                                damping=robot.damping + scale["damping"] * z[n:2 * n],
+                                c=robot.c * (1.0 + scale["stiffness"] * z[2 * n:3 * n]),
+                                e=robot.e + scale["cubic"] * z[3 * n:4 * n])
+    return loaded(moved, PAYLOAD[0][1] * z[4 * n], PAYLOAD[1][1] * z[4 * n + 1:])
 
 
 def _whitened(robot, z, cmd, white, measured, sigma, marker, substeps):
-    q, _ = jr.simulate(_with_effects(robot, z), *cmd, substeps=substeps)
-    return (jnp.einsum("kij,kj->ki", white, measured - marker_pose(_with_effects(robot, z), q, marker)[0])
-            / sigma).ravel()
+    moved = _with_effects(robot, z)
+    q0 = rest_link_angles(moved, cmd[1][0], throw=False)  # NaN where a trial has no rest: the fit rejects it
+    q, _ = jr.simulate(moved, *cmd, substeps=substeps, q0=q0)
+    return (jnp.einsum("kij,kj->ki", white, measured - marker_pose(moved, q, marker)[0]) / sigma).ravel()
 
 
 @functools.partial(jax.jit, static_argnames="substeps")
@@ -238,10 +263,21 @@ def _residual(robot, z, cmd, white, measured, sigma, marker, substeps):
 
 @functools.partial(jax.jit, static_argnames="substeps")
 def _columns(robot, z, tangents, cmd, white, measured, sigma, marker, substeps):
-    """Residual (3N,) and its derivatives (3N, TANGENTS) along the `tangents` (3n, TANGENTS) of the variables."""
+    """Residual (3N,) and its derivatives (3N, TANGENTS) along the `tangents` (4n + 4, TANGENTS) of the variables."""
     f = lambda z: _whitened(robot, z, cmd, white, measured, sigma, marker, substeps)  # noqa: E731
     r = f(z)
     return r, jax.vmap(lambda t: jax.jvp(f, (z,), (t,))[1], in_axes=1, out_axes=1)(tangents)
+
+
+@jax.jit
+def _pose_rows(robot, z, theta, ccw, white, measured, marker):
+    """Whitened residuals (3K,) of poses at rest (`white` includes `1 / sigma`) and their derivatives (3K, 4n + 4)."""
+    def f(z):
+        moved = _with_effects(robot, z)
+        q = rest_angles(moved, jnp.zeros(()), theta, (ccw, ccw), None, EXACT_ITERATIONS)
+        return jnp.einsum("kij,kj->ki", white, measured - marker_pose(moved, q, marker)[0]).ravel()
+
+    return f(z), jax.jacfwd(f)(z)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -252,6 +288,20 @@ class _Run:
     white: jax.Array
     measured: jax.Array
     encoders: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class _Evidence:
+    """Runs (residuals in units of the tracker noise `sigma`) and poses at rest (motor angles, gear sets, whitening
+    (K, 3, 3) including their own noise's `1 / sigma`, positions), or None without poses."""
+
+    runs: list[_Run]
+    sigma: float
+    poses: tuple | None
+
+    @property
+    def rows(self) -> int:
+        return sum(r.measured.size for r in self.runs) + (0 if self.poses is None else self.poses[3].size)
 
 
 def _prepare(pairs, noise, where: str) -> tuple[list[_Run], float]:
@@ -267,50 +317,85 @@ def _prepare(pairs, noise, where: str) -> tuple[list[_Run], float]:
     return runs, sigma
 
 
-def _evaluate(robot, z, runs, sigma, marker, substeps, variables=None):
-    """Stacked whitened residuals of `runs` at `z`, and their derivatives (3N, m) along the effect `variables`
-    (m,) if given, `TANGENTS` at a time (zero-padded: one compiled program for any number of variables)."""
-    if variables is None:
-        return np.concatenate([np.asarray(_residual(robot, z, r.command, r.white, r.measured, sigma, marker,
-                                                    substeps)) for r in runs]), None
-    m, size = len(variables), len(z)
+def _prepare_poses(robot: jr.Robot, poses, noise, marker, where: str) -> tuple | None:
+    """The arrays of `_Evidence.poses` from `Poses`, after checking them against `robot` (None: no poses)."""
+    if poses is None:
+        return None
+    n = robot.n_joints
+    if poses.motor_angles.shape[1:] != (n,) or len(poses) < 3:
+        raise ValueError(f"{where}: expected at least 3 poses with motor_angles (K, {n}) rad of the {n}-joint robot, "
+                         f"found {poses.motor_angles.shape}")
+    check_pose_units(robot, poses.motor_angles, poses.positions, marker, where)
+    sigma, white = noise_model(noise, poses.positions, "pose_noise")
+    white = np.broadcast_to(np.eye(3), (len(poses), 3, 3)) if white is None else white
+    return (jnp.asarray(poses.motor_angles), jnp.asarray(poses.ccw), jnp.asarray(white / sigma),
+            jnp.asarray(poses.positions))
+
+
+def _evaluate(robot, z, ev: _Evidence, marker, substeps, variables=None):
+    """Stacked whitened residuals of the runs, then the poses, of `ev` at `z`, and their derivatives (rows, m) along
+    the effect `variables` (m,) if given: the runs' `TANGENTS` at a time (zero-padded: one compiled program for any
+    number of variables)."""
     res, cols = [], []
-    for r in runs:
+    for r in ev.runs:
+        if variables is None:
+            res.append(np.asarray(_residual(robot, z, r.command, r.white, r.measured, ev.sigma, marker, substeps)))
+            continue
         parts = []
-        for start in range(0, m, TANGENTS):
+        for start in range(0, len(variables), TANGENTS):
             chunk = variables[start:start + TANGENTS]
-            tangents = np.zeros((size, TANGENTS))
+            tangents = np.zeros((len(z), TANGENTS))
             tangents[chunk, np.arange(len(chunk))] = 1.0
-            out = _columns(robot, z, jnp.asarray(tangents), r.command, r.white, r.measured, sigma, marker,
+            out = _columns(robot, z, jnp.asarray(tangents), r.command, r.white, r.measured, ev.sigma, marker,
                            substeps)
             parts.append(np.asarray(out[1])[:, :len(chunk)])
         res.append(np.asarray(out[0]))
         cols.append(np.concatenate(parts, 1))
-    return np.concatenate(res), np.concatenate(cols)
+    if ev.poses is not None:
+        r_p, j_p = (np.asarray(a) for a in _pose_rows(robot, z, *ev.poses, marker))
+        res.append(r_p)
+        cols.append(j_p[:, variables] if variables is not None else None)
+    return np.concatenate(res), None if variables is None else np.concatenate(cols)
 
 
-def _index(effect: RunEffect, n: int) -> int:
-    return list(RUN_KINDS).index(effect.kind) * n + effect.joint
+def _index(effect: RunEffect, n: int) -> list[int]:
+    """The entries of the fit variables of `effect`."""
+    if effect.kind == "payload":
+        return list(range(len(RUN_KINDS) * n, len(RUN_KINDS) * n + len(PAYLOAD)))
+    return [list(RUN_KINDS).index(effect.kind) * n + effect.joint]
 
 
-def _fit(robot, z0, effects, runs, sigma, marker, substeps, r0, jac0):
+def _identifiable(cols, effects, n: int, at=None) -> bool:
+    """Whether the derivative columns of the variables of `effects` are independent: the smallest singular value of
+    the unit-norm columns above 1e-6 of the largest (else the fit is singular). `cols` (rows, 4n + 4) holds every
+    variable's column, or those of `effects` in their order where `at` gives their positions."""
+    a = cols[:, [i for e in effects for i in _index(e, n)] if at is None else at]
+    norms = np.linalg.norm(a, axis=0)
+    if np.any(norms == 0):
+        return False
+    s = np.linalg.svd(a / norms, compute_uv=False)
+    return bool(s[-1] > 1e-6 * s[0])
+
+
+def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0):
     """Levenberg-Marquardt on the variables of `effects` from `z0`, where the residual is `r0` and its derivatives
-    along those variables `jac0`: (z, chi2, std of the variables) or None where the fit leaves the physical range
-    (a negative lag or damping) or fails to lower the chi-square. Derivatives are evaluated at accepted steps only."""
+    along those variables `jac0`: (z, chi2, covariance of the variables) or None where the fit leaves the physical range
+    (a negative lag, damping or payload mass) or fails to lower the chi-square; the covariance of the variables is
+    `(J^T J)^-1` at the end. Derivatives are evaluated at accepted steps only."""
     n = robot.n_joints
-    idx = np.array([_index(e, n) for e in effects])
+    idx = np.array([i for e in effects for i in _index(e, n)])
     z, r, jac = jnp.asarray(z0), r0, jac0
     chi2, start, lam = float(r @ r), float(r @ r), 1e-3
     for _ in range(LM_STEPS):
         a, g = jac.T @ jac, jac.T @ r
         step = np.linalg.solve(a + lam * np.diag(np.diag(a)), -g)
         z_try = z.at[idx].add(step)
-        r_try = _evaluate(robot, z_try, runs, sigma, marker, substeps)[0]
+        r_try = _evaluate(robot, z_try, ev, marker, substeps)[0]
         chi2_try = float(r_try @ r_try)
         if chi2_try < chi2:
             done = chi2 - chi2_try < 1e-9 * chi2 + 1e-6
             z, r, chi2, lam = z_try, r_try, chi2_try, max(lam / 10.0, 1e-12)
-            jac = _evaluate(robot, z, runs, sigma, marker, substeps, idx)[1]
+            jac = _evaluate(robot, z, ev, marker, substeps, idx)[1]
             if done:
                 break
         else:
@@ -318,20 +403,39 @@ def _fit(robot, z0, effects, runs, sigma, marker, substeps, r0, jac0):
             if lam > 1e8:
                 break
     values = np.asarray(z)
-    if not chi2 < start or np.any(values[:2 * n] < 0):
+    if not chi2 < start or np.any(values[:2 * n] < 0) or values[len(RUN_KINDS) * n] < 0 \
+            or not _identifiable(jac, effects, n, np.arange(jac.shape[1])):
         return None
-    return z, chi2, np.sqrt(np.diag(np.linalg.inv(jac.T @ jac)))
+    return z, chi2, np.linalg.inv(jac.T @ jac)
 
 
-def _estimate(robot, z, effects, std) -> list[RunEstimate]:
-    n, out = robot.n_joints, []
-    for e, s in zip(effects, std):
-        scale = RUN_KINDS[e.kind][0]
-        x = float(z[_index(e, n)])
+def _estimate(robot, z, effects, cov) -> list[RunEstimate]:
+    """The reported values of the added `effects` at `z`, with their stds from `cov`, the fit variables' covariance
+    (in their order)."""
+    n, out, at = robot.n_joints, [], 0
+    for e in effects:
+        i = _index(e, n)
+        if e.kind == "payload":
+            s_m, s_h = PAYLOAD[0][1], PAYLOAD[1][1]
+            m, h = s_m * float(z[i[0]]), s_h * np.asarray(z[i[1:]])
+            jac = np.zeros((4, 4))  # (mass, position) from the variables (mass, moment) in their scales
+            jac[0, 0], jac[1:, 0], jac[1:, 1:] = s_m, -s_m * h / m**2, s_h * np.eye(3) / m
+            std = np.sqrt(np.diag(jac @ cov[at:at + 4, at:at + 4] @ jac.T))
+            out += [RunEstimate(e, name, float(v), float(sd), unit)
+                    for (name, _, unit), v, sd in zip(PAYLOAD, [m, *(h / m)], std)]
+            at += 4
+            continue
+        scale, unit = RUN_KINDS[e.kind]
+        x, s = float(z[i[0]]), float(np.sqrt(cov[at, at]))
+        at += 1
         if e.kind == "stiffness":  # k1 scales by 1 / (1 + scale x)
-            out.append(RunEstimate(e, 1.0 / (1.0 + scale * x), scale * float(s) / (1.0 + scale * x) ** 2))
+            value, sd = 1.0 / (1.0 + scale * x), scale * s / (1.0 + scale * x) ** 2
+        elif e.kind == "cubic":  # k3 = e k1 at the final model
+            k1 = float(_with_effects(robot, z).k1[e.joint])
+            value, sd = float(robot.e[e.joint] + scale * x) * k1, scale * s * k1
         else:
-            out.append(RunEstimate(e, scale * x, scale * float(s)))
+            value, sd = scale * x, scale * s
+        out.append(RunEstimate(e, e.kind, value, sd, unit))
     return out
 
 
@@ -345,42 +449,61 @@ def diagnose_runs(
     substeps: int = 4,
     encoder_quantum: float = 0.0,
     progress: Callable[[RunStep], None] | None = None,
+    poses: tuple | None = None,
+    pose_noise=None,
 ) -> RunDiagnosis:
-    """Name the dynamic effects (`RUN_KINDS`) that `robot` misses from trajectory runs, one per step.
+    """Name the dynamic effects (`RUN_KINDS`, `PAYLOAD`) that `robot` misses from trajectory runs, one per step,
+    with poses at rest as further evidence where given.
 
     `train`, `validation`: lists of `(command, run)` pairs (`jaxrobot.bench.read_command_csv`,
     `read_trajectory_csv`); `marker` (3,) [m] in the tool frame; `noise` the tracker's std per axis [m] or a
-    `TrackerNoise`; `substeps` of `jr.simulate` per sample; `encoder_quantum` [rad] the encoders' resolution.
+    `TrackerNoise`; `substeps` of `jr.simulate` per sample; `encoder_quantum` [rad] the encoders' resolution;
+    `poses`: `(training, validation)` `Poses` (`_diagnose.Poses`) measured with the same marker, each residual in
+    units of `pose_noise` (default `noise`).
 
-    Each step compares the model with the training runs (chi-square against the noise, as `compare_run`); while
-    the test fails, it screens every effect not yet added by the linearised chi-square decrease of its own
-    variable (a lag only for a motor whose encoders depart from the model's motor angles, `ENCODER_LAG_RAD`), fits
-    the `SCREENED` best with the effects already added by Levenberg-Marquardt through the simulation (forward-mode
-    derivatives), and adds the one of least BIC if it lowers BIC by more than `MIN_BIC_GAIN` and lowers the
-    validation runs' chi-square. The model without an effect is where each fit starts (lag and damping 0)."""
+    Each step compares the model with the training runs and poses (one chi-square over all their rows, each in
+    units of its own noise, as `compare_run`); while the test fails, it screens every effect not yet added by the
+    linearised chi-square decrease of its own variables (a lag only for a motor whose encoders depart from the
+    model's motor angles, `ENCODER_LAG_RAD`; the payload only with poses, `PAYLOAD`), fits the `SCREENED` best
+    with the effects already added by Levenberg-Marquardt through the simulation and the rest poses (forward-mode
+    derivatives), and adds the one of least BIC (over all rows) if it lowers BIC by more than `MIN_BIC_GAIN` and
+    lowers the validation runs' and poses' chi-square. The model without an effect is where each fit starts (lag,
+    damping and payload 0). Static effects that runs do not change (geometry, gear ripple, offsets: `diagnose`) are
+    not candidates: diagnose the poses alone for them first."""
     n = robot.n_joints
     if max_steps < 0 or substeps < 1:
         raise ValueError(f"max_steps >= 0 and substeps >= 1 expected, found {max_steps}, {substeps}")
+    if poses is not None and len(poses) != 2:
+        raise ValueError(f"poses: expected (training, validation) Poses, found {len(poses)} items")
     runs, sigma = _prepare(train, noise, "train")
     val, _ = _prepare(validation, noise, "validation")
     marker = jnp.asarray(marker, float)
+    pose_noise = noise if pose_noise is None else pose_noise
+    ev = _Evidence(runs, sigma, _prepare_poses(robot, None if poses is None else poses[0], pose_noise,
+                                               marker, "training poses"))
+    ev_val = _Evidence(val, sigma, _prepare_poses(robot, None if poses is None else poses[1], pose_noise,
+                                                  marker, "validation poses"))
     base = dataclasses.replace(robot, motor_lag=jnp.zeros(n) if robot.motor_lag is None else robot.motor_lag,
                                damping=jnp.zeros(n) if robot.damping is None else robot.damping)
-    n_res = sum(r.measured.size for r in runs)
-    ln_n = math.log(n_res)
+    ln_n = math.log(ev.rows)
     threshold = max(ENCODER_LAG_RAD, 2.0 * encoder_quantum)
+    size = len(RUN_KINDS) * n + len(PAYLOAD)
 
     def row(step, label, z, m):
-        chi2, dof, p_value = noise_test(_evaluate(base, z, runs, sigma, marker, substeps)[0].reshape(-1, 3), 1.0, m)
-        chi2_v = float(np.sum(_evaluate(base, z, val, sigma, marker, substeps)[0] ** 2))
-        out = RunStep(step, label, float(chi2), int(dof), float(p_value), float(chi2) + m * ln_n, chi2_v)
+        res = _evaluate(base, z, ev, marker, substeps)[0]
+        chi2, dof, p_value = noise_test(res.reshape(-1, 3), 1.0, m)
+        chi2_v = float(np.sum(_evaluate(base, z, ev_val, marker, substeps)[0] ** 2))
+        chi2_p = float(np.sum(res[res.size - (0 if ev.poses is None else ev.poses[3].size):] ** 2))
+        out = RunStep(step, label, float(chi2), int(dof), float(p_value), float(chi2) + m * ln_n, chi2_v, chi2_p)
         if progress is not None:
             progress(out)
         return out
 
-    z, added, std = jnp.zeros(3 * n), [], np.zeros(0)
+    z, added, cov = jnp.zeros(size), [], np.zeros((0, 0))
     steps = [row(0, "start", z, 0)]
     verdict = "no significant discrepancy: the model explains the runs to the tracker noise"
+    candidates = [RunEffect(k, j) for k in RUN_KINDS for j in range(n)] + ([RunEffect("payload", None)]
+                                                                         if poses is not None else [])
     while steps[-1].p_value <= ALPHA:
         if len(added) == max_steps:
             verdict = f"not explained after {max_steps} effects (--max-steps)"
@@ -390,35 +513,45 @@ def diagnose_runs(
         for r in runs:
             motors = np.asarray(_simulated(current, *r.command, marker)[1])
             departs |= np.max(np.abs(r.encoders - motors), 0) > threshold
-        candidates = [RunEffect(k, j) for k in RUN_KINDS for j in range(n)]  # in the order of the variables
-        eligible = np.array([c not in added and (c.kind != "lag" or departs[c.joint]) for c in candidates])
-        if not eligible.any():
+        eligible = [c for c in candidates if c not in added and (c.kind != "lag" or departs[c.joint])]
+        if not eligible:
             verdict = "not explained: no effect of the catalogue is left to add"
             break
-        needed = np.flatnonzero(eligible | np.array([c in added for c in candidates]))
-        res, part = _evaluate(base, z, runs, sigma, marker, substeps, needed)  # reused by the fits' first step
-        cols = np.zeros((len(res), 3 * n))
+        needed = sorted({i for c in eligible + added for i in _index(c, n)})
+        res, part = _evaluate(base, z, ev, marker, substeps, needed)  # reused by the fits' first step
+        cols = np.zeros((len(res), size))
         cols[:, needed] = part
-        gain = np.where(eligible, (cols.T @ res) ** 2 / np.maximum(np.sum(cols**2, 0), 1e-300), -np.inf)
+        gain = []
+        for c in eligible:  # the chi-square decrease of the candidate's own variables, linearised
+            own = _index(c, n)
+            a = cols[:, own]
+            g = a.T @ res
+            rest = [i for e in added for i in _index(e, n)] + own
+            gain.append(float(g @ np.linalg.pinv(a.T @ a) @ g) if _identifiable(cols[:, rest], [], n,
+                                                                                  np.arange(len(rest))) else -np.inf)
         best = None
-        for k in np.argsort(-gain)[:min(SCREENED, int(eligible.sum()))]:
-            effects = added + [candidates[k]]
-            fit = _fit(base, z, effects, runs, sigma, marker, substeps, res, cols[:, [_index(e, n) for e in effects]])
+        for k in np.argsort(-np.asarray(gain), kind="stable")[:SCREENED]:
+            if gain[k] == -np.inf:
+                break
+            effects = added + [eligible[k]]
+            fit = _fit(base, z, effects, ev, marker, substeps, res,
+                       cols[:, [i for e in effects for i in _index(e, n)]])
             if fit is not None and (best is None or fit[1] < best[1][1]):
-                best = (candidates[k], fit)
+                best = (eligible[k], fit)
         last = steps[-1]
         if best is None:
             verdict = "not explained: no candidate fit lowers the chi-square within the physical range"
             break
-        effect, (z_new, chi2_new, std_new) = best
-        if not chi2_new + (len(added) + 1) * ln_n < last.bic - MIN_BIC_GAIN:
+        effect, (z_new, chi2_new, cov_new) = best
+        m_new = sum(len(_index(e, n)) for e in added + [effect])
+        if not chi2_new + m_new * ln_n < last.bic - MIN_BIC_GAIN:
             verdict = f"not explained: the best candidate ({effect.label}) does not lower BIC by {MIN_BIC_GAIN}"
             break
-        new = row(len(added) + 1, effect.label, z_new, len(added) + 1)
+        new = row(len(added) + 1, effect.label, z_new, m_new)
         if not new.chi2_validation < last.chi2_validation:
             verdict = f"not explained: {effect.label} does not lower the validation runs' chi-square"
             break
-        z, added, std = z_new, added + [effect], std_new
+        z, added, cov = z_new, added + [effect], cov_new
         steps.append(new)
     else:
         if added:
@@ -429,4 +562,4 @@ def diagnose_runs(
     final = dataclasses.replace(final, motor_lag=None if robot.motor_lag is None and "lag" not in kinds
                                 else final.motor_lag,
                                 damping=None if robot.damping is None and "damping" not in kinds else final.damping)
-    return RunDiagnosis(final, steps, _estimate(robot, np.asarray(z), added, std), verdict)
+    return RunDiagnosis(final, steps, _estimate(base, np.asarray(z), added, cov), verdict)

@@ -33,6 +33,7 @@ from jaxrobot import (
 )
 from jaxrobot.linalg import map_matrices
 
+from .._noise import chi2_quantile
 from ._frequencies import fft_orders, group_samples, sparse_orders
 from ._processing import (
     GearBatch,
@@ -374,15 +375,6 @@ class Resolution:
                 "resolve it")
 
 
-def chi2_quantile(p: float, dof: float) -> float:
-    """Upper `p` quantile of chi-square with `dof` degrees of freedom (Wilson-Hilferty; 1e-3
-    relative for dof >= 6)."""
-    from jax.scipy.stats import norm
-
-    h = 2.0 / (9.0 * dof)
-    return dof * (1.0 - h + float(norm.ppf(1.0 - p)) * math.sqrt(h)) ** 3
-
-
 def _scatter(per_run: GearFit, rows: list[int]) -> tuple[float, float]:
     """Run-to-run scatter of one group's per-run fits `rows`: (chi2/dof of the coefficient
     differences of consecutive runs against their model covariance, floored at 1; variance of the
@@ -465,7 +457,7 @@ def _with_scatter(fit: GearFit, proc, batch, group, fit_run, joints, u0_model, i
         chi2 = float(coef @ np.linalg.pinv(cov) @ coef)
         dof = 2 * m
         p = float(gammaincc(dof / 2.0, chi2 / 2.0))
-        lam, need = chi2 - dof, chi2_quantile(SIGNIFICANCE, dof) - dof
+        lam, need = chi2 - dof, float(chi2_quantile(SIGNIFICANCE, dof)) - dof
         lam = max(lam, math.sqrt(2.0 * dof))  # no trace of it: one noise std at most
         more = max(1, math.ceil(len(members) * need / lam) - len(members))
         resolution.append(Resolution(chi2, dof, p, len(members), scale, more))
