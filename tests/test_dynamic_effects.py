@@ -238,6 +238,7 @@ def test_lag_command_moves_the_lagged_motors_through_the_samples():
     np.testing.assert_allclose(grad, plan[1].sum(0), rtol=1e-12)  # d theta_c / d tau = thetad
 
 
+@pytest.mark.extended  # ~30 s; the suite keeps the absent effects and the lag's inverse
 def test_damped_transcription_derivatives_match_autodiff():
     """With joint damping (and lags), the OCP's structured `half_step`, `half_step_vjp` and `half_step_jacobian`
     (now with the motor-rate columns) agree with forward-mode autodiff of the public `jr.planning_dynamics`

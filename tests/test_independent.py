@@ -56,6 +56,7 @@ def test_diagnose_names_the_hidden_effect(name):
     assert rep["final_rms_validation_um"] <= rep["validation_bound_um"]
 
 
+@pytest.mark.extended  # ~40 s: a diagnose on the independent poses
 def test_not_explained_when_validation_exceeds_its_bound():
     """p0's training poses pass the chi-square test; validation poses displaced by 0.2 mm (3 noise
     std per axis, which the training poses do not show) must not give "explained"/"no discrepancy"."""
@@ -155,11 +156,13 @@ def _ratio_errors(gear_stage):
     return out
 
 
+@pytest.mark.extended  # the gear stage on the independent runs (~60 s); the suite keeps the unit-mistake checks
 def test_gear_u0_within_three_reported_sigma(gear_stage):
     for key, (*_, err, std) in _ratio_errors(gear_stage).items():
         assert abs(err) <= 3 * std, key
 
 
+@pytest.mark.extended  # the gear stage on the independent runs (~60 s); the suite keeps the unit-mistake checks
 @pytest.mark.parametrize("key", [(1, "cw"), (1, "ccw"), (3, "cw"), (3, "ccw")])
 def test_gear_ripple_reduction_against_the_true_set(gear_stage, key):
     """Joints 1 and 3 remove >= 85 % of the true ripple's RMS over the validation runs' range."""
@@ -167,6 +170,7 @@ def test_gear_ripple_reduction_against_the_true_set(gear_stage, key):
     assert ratio_error <= 0.15 * ripple
 
 
+@pytest.mark.extended  # the gear stage on the independent runs (~60 s); the suite keeps the unit-mistake checks
 @pytest.mark.parametrize("direction", ["cw", "ccw"])
 def test_gear_joint2_never_worse_than_no_ripple(gear_stage, direction):
     ratio_error, _, constant, *_ = _ratio_errors(gear_stage)[(2, direction)]
@@ -260,6 +264,7 @@ def test_map_calibration_holds_on_independent_poses():
     assert mp["parameters"]["a2"]["determined_by"] == "data"  # a2 is seen at every pose
 
 
+@pytest.mark.extended  # the gear stage on the independent runs (~60 s); the suite keeps the unit-mistake checks
 def test_chained_cli_gear_calibrate(gear_stage, tmp_path, capsys):
     """identify-gear --save-model -> calibrate --robot gear.toml --method map --save-model: the
     calibrated file keeps the identified Fourier sets and the start file's [sensors]; MAP moves u0

@@ -47,6 +47,7 @@ def shortened(folder, name, samples):
     return jb.read_command_csv(folder / f"command_{name}.csv"), tuple(a[:samples] for a in run)
 
 
+@pytest.mark.extended  # ~20 s: run simulations compile; the suite keeps the run files' checks
 def test_lag_run_is_explained_by_the_true_lag_only():
     """The first 0.7 s of the lag case's line: the start model fails the chi-square test, the true robot with its
     3 ms lags passes it, and its motor angles are the run's encoder columns to their 12 digits (~1e-10 rad)."""

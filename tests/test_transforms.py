@@ -47,10 +47,10 @@ FUNCTIONS = {
 ACCELERATIONS = {"link_acceleration", "planning_dynamics", "planning_dynamics_damped"}
 
 
-# the Coriolis matrix, the link acceleration and the damped planning dynamics (about 30 s each to compile their
-# second derivatives) in CI's extended step; planning_dynamics, which contains the link acceleration, stays in the
-# suite, and the damped one's first derivatives are checked there (test_dynamic_effects)
-SLOW_TRANSFORMS = {"coriolis_matrix", "link_acceleration", "planning_dynamics_damped"}
+# the Coriolis matrix, the link acceleration and the planning dynamics, damped or not (about 30 s each to compile
+# their second derivatives), in CI's extended step; the suite keeps `planning_dynamics` under jit/vmap
+# (test_model: shapes and batching of robots)
+SLOW_TRANSFORMS = {"coriolis_matrix", "link_acceleration", "planning_dynamics", "planning_dynamics_damped"}
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.extended) if n in SLOW_TRANSFORMS else n

@@ -156,6 +156,7 @@ def terms():
     return errors
 
 
+@pytest.mark.extended  # ~40 s: 36 chains against pinocchio; the suite keeps the robots of example-robot-data
 def test_generated_chains_match_pinocchio(terms):
     """>= 30 random chains, n = 1..9: every term within 1e-12 of pinocchio on our URDF export."""
     assert len(CHAINS) >= 30 and {n for _, n in CHAINS} == set(range(1, 10))
