@@ -48,8 +48,8 @@ ACCELERATIONS = {"link_acceleration", "planning_dynamics", "planning_dynamics_da
 
 
 # the Coriolis matrix, the link acceleration and the planning dynamics, damped or not (about 30 s each to compile
-# their second derivatives), in CI's extended step; the suite keeps `planning_dynamics` under jit/vmap
-# (test_model: shapes and batching of robots)
+# their second derivatives), in CI's extended step; in the suite `planning_dynamics` is batched over robots
+# (test_model) and jitted and differentiated inside every OCP solve
 SLOW_TRANSFORMS = {"coriolis_matrix", "link_acceleration", "planning_dynamics", "planning_dynamics_damped"}
 
 
