@@ -24,6 +24,7 @@ HEADER_FIELDS = ("Command", "Commit", "Machine", "Device", "Date", "Versions", "
 """The header's fields: the command line, the commit of the code measured, the CPU (model, cores) with
 the 1-minute load average, the JAX device(s), the date (UTC), the versions of the packages timed, and
 the peer measured in the same run."""
+PACKAGES = ("jaxrobot", "identification", "planning")
 _START = (time.gmtime(), os.getloadavg()[0])  # the script's start (this module is imported first)
 
 
@@ -54,18 +55,21 @@ def cpu_model() -> str:
 
 def commit(source: Path | None = None) -> str:
     """The short commit of the code measured (`source`, default this repository); `+ local changes` when
-    tracked files differ from it."""
-    where = str(source or ROOT)
-    git = lambda *a: subprocess.run(["git", "-C", where, *a], capture_output=True, text=True).stdout.strip()
+    its packages, this module or the running script differ from it."""
+    where = source or ROOT
+    git = lambda *a: subprocess.run(["git", "-C", str(where), *a], capture_output=True, text=True).stdout.strip()
+    script = Path(sys.argv[0]).resolve()
+    paths = [*PACKAGES, str(Path(__file__).relative_to(ROOT))]
+    paths += [str(script.relative_to(where))] if script.is_relative_to(where) else []
     head = git("rev-parse", "--short", "HEAD") or "unknown"
-    return head + (" + local changes" if git("status", "--porcelain", "--untracked-files=no") else "")
+    return head + (" + local changes" if git("status", "--porcelain", "--untracked-files=no", "--", *paths) else "")
 
 
 def run_info(peer: str, packages: tuple[str, ...] = (), command: str | None = None,
              source: Path | None = None) -> dict[str, str]:
     """The header fields (`HEADER_FIELDS`) of this run, at its end: `peer` names what the same run
     measured beside jaxrobot; `packages` are versions to add to Python, jax and numpy; `command`
-    defaults to this process' command line."""
+    defaults to this process' command line; `source` is the code measured (default this repository)."""
     argv = [str(Path(sys.argv[0]).resolve().relative_to(ROOT)) if Path(sys.argv[0]).is_file() else sys.argv[0],
             *sys.argv[1:]]
     devices = jax.devices()
