@@ -13,6 +13,7 @@ import platform
 import shlex
 import subprocess
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -97,16 +98,16 @@ def header(info: dict[str, str]) -> str:
 
 
 def figure(title: str, info: dict[str, str]):
-    """`(fig, ax)` of a new figure (matplotlib, Agg backend) titled `title` and, below it, the machine and
-    device of `info`."""
+    """`(fig, ax)` of a new figure (matplotlib, Agg backend) titled `title` and, below it, the machine,
+    device and commit of `info`."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7.0, 4.6), layout="constrained")
-    machine = info["Machine"].split(";")[0]
-    ax.set_title(f"{title}\n{machine}; {info['Device']}", fontsize=9)
+    fig, ax = plt.subplots(figsize=(7.0, 4.8), layout="constrained")
+    where = textwrap.fill(f"{info['Machine'].split(';')[0]}; {info['Device']}; commit {info['Commit']}", 100)
+    ax.set_title(f"{title}\n{where}", fontsize=8)
     ax.grid(True, which="both", alpha=0.3)
     return fig, ax
 

@@ -196,7 +196,7 @@ def main() -> None:
         "",
         f"Speed-up of the batched LM (run) over the scipy loop: {rate_lm / (n_loop / t_sp):.1f}x with a jax "
         f"Jacobian for scipy, {rate_lm / (n_fd / t_fd):.1f}x "
-        "with scipy's default finite differences (the issue's `least_squares(method=\"lm\")` as called "
+        "with scipy's default finite differences (`least_squares(method=\"lm\")` called "
         f"without a Jacobian); including compile: {(n_rob / t_first) / (n_loop / t_sp):.1f}x. Both solve the whole "
         "problem from motor angles and positions; the LM solve alone "
         "(`_fleet_solve`) against the scipy loop's solves alone: "
