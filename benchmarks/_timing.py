@@ -26,7 +26,8 @@ HEADER_FIELDS = ("Command", "Commit", "Machine", "Device", "Date", "Versions", "
 the 1-minute load average, the JAX device(s), the date (UTC), the versions of the packages timed, and
 the peer measured in the same run."""
 PACKAGES = ("jaxrobot", "identification", "planning")
-_START = (time.gmtime(), os.getloadavg()[0])  # the script's start (this module is imported first)
+START_TIME, START_LOAD = time.gmtime(), os.getloadavg()[0]
+"""The script's start (it imports this module first) and the 1-minute load average then."""
 
 
 def timed(fn, repeat: int = 1):
@@ -81,9 +82,9 @@ def run_info(peer: str, packages: tuple[str, ...] = (), command: str | None = No
         "Command": f"`{command or 'python ' + shlex.join(argv)}`",
         "Commit": commit(source),
         "Machine": f"{cpu_model()}, {os.cpu_count()} cores ({platform.system()} {platform.machine()}); load average "
-                   f"(1 min) {_START[1]:.1f} at the start, {os.getloadavg()[0]:.1f} at the end",
+                   f"(1 min) {START_LOAD:.1f} at the start, {os.getloadavg()[0]:.1f} at the end",
         "Device": f"{devices[0].platform} ({devices[0].device_kind}) x {len(devices)}",
-        "Date": f"{fmt(_START[0])} to {time.strftime('%H:%M', time.gmtime())} UTC",
+        "Date": f"{fmt(START_TIME)} to {time.strftime('%H:%M', time.gmtime())} UTC",
         "Versions": ", ".join(versions),
         "Peer": peer,
     }
