@@ -251,9 +251,7 @@ them, a 3e-5 ratio error), which costs this draw 1.09x -> 1.14x; over the genera
 the selection is as accurate as the whole set where everything deviates and far more accurate where
 nothing does. `noise/drift` in the diagnose table: the drift test of `diagnose` with the training file's
 `t_s` (truth: +3e-05 over the run). `failed LM fits`: candidates whose LM fit failed or ended above its
-start, each replaced in the shortlist by the next candidate. `two/...`: before `diagnose`'s parsimony
-rule (commit 408c84e, the same bench) `geometry` was added first, then `joint_compliance j2`: 50.0 um
-(1.093x) and 53.6 um (1.200x); with it, both true effects and no block.
+start, each replaced in the shortlist by the next candidate.
 """
 
 
