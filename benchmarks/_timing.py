@@ -67,6 +67,10 @@ def commit(source: Path | None = None) -> str:
     return head + (" + local changes" if git("status", "--porcelain", "--untracked-files=no", "--", *paths) else "")
 
 
+START_COMMIT = commit()
+"""The commit of the code measured, at the script's start."""
+
+
 def run_info(peer: str, packages: tuple[str, ...] = (), command: str | None = None,
              source: Path | None = None) -> dict[str, str]:
     """The header fields (`HEADER_FIELDS`) of this run, at its end: `peer` names what the same run
@@ -80,7 +84,7 @@ def run_info(peer: str, packages: tuple[str, ...] = (), command: str | None = No
     fmt = lambda t: time.strftime("%Y-%m-%d %H:%M", t)
     return {
         "Command": f"`{command or 'python ' + shlex.join(argv)}`",
-        "Commit": commit(source),
+        "Commit": START_COMMIT if source is None else commit(source),
         "Machine": f"{cpu_model()}, {os.cpu_count()} cores ({platform.system()} {platform.machine()}); load average "
                    f"(1 min) {START_LOAD:.1f} at the start, {os.getloadavg()[0]:.1f} at the end",
         "Device": f"{devices[0].platform} ({devices[0].device_kind}) x {len(devices)}",
