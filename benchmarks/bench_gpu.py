@@ -315,7 +315,8 @@ def plot_crossover(data: dict, path: Path) -> None:
             ax.loglog(*zip(*pts), mark, label=f"{label}: {worker['device']}")
     ax.set_xlabel("members B (nu values in one sweep)")
     ax.set_ylabel("run time after compilation [s]")
-    ax.legend(fontsize=8)
+    if ax.lines:
+        ax.legend(fontsize=8)
     _timing.save(fig, path)
 
 
@@ -363,7 +364,8 @@ def main() -> None:
                                                   if gpu else "; no accelerator found")
     notes = [f"Run time: the best of {args.repeat} calls after the first; first call: compile + run (a fresh process, "
              "the persistent compilation cache as set" + ("; the OCP rows' first calls ran concurrently in threads"
-                                                          if args.concurrent else "") + ").", ""]
+                                                          if args.concurrent and not args.no_ocp else "")
+             + ").", ""]
     data = {"info": info, "cpu": cpu, "acc": acc, "notes": notes}
     args.rows.write_text(json.dumps(data, indent=1))
     write_results(data, args.out)
