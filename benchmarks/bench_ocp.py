@@ -286,7 +286,7 @@ def plot_front(front: list[dict], info: dict[str, str], path: Path) -> None:
     """Path error against control effort over the sweep's nu, each point labelled by its nu."""
     fig, ax = _timing.figure("Pareto front of the line's OCP over nu (solve_ocp_sweep, N = 2501)", info)
     effort, error = [m["rms_u"] for m in front], [m["path_um"] for m in front]
-    ax.loglog(effort, error, "o-")
+    ax.semilogy(effort, error, "o-")
     for m in front[::3]:
         ax.annotate(f"nu = {m['nu']:.0e}", (m["rms_u"], m["path_um"]), textcoords="offset points", xytext=(6, 4),
                     fontsize=7)
@@ -339,7 +339,7 @@ def write_markdown(out: Path, rows, sweep) -> dict[str, str]:
                   "motor accelerations' 2-norm).", "",
                   "| nu | status | outer iterations | path error [µm] | RMS motor acceleration [rad/s²] |",
                   "|---|---|---|---|---|",
-                  *(f"| {m['nu']:.1e} | {m['status']} | {m['iterations']} | {m['path_um']:.3f} | {m['rms_u']:.4g} |"
+                  *(f"| {m['nu']:.1e} | {m['status']} | {m['iterations']} | {m['path_um']:.3f} | {m['rms_u']:.5g} |"
                     for m in sweep["front"])]
     out.write_text("\n".join(lines) + "\n")
     return info
