@@ -18,8 +18,7 @@ true model's validation RMS) and, where the case has one, an oracle.
   with the whole default set and with the selected one: the mean and median validation RMS over the floor.
 
 Run: `python benchmarks/bench_arm7.py [--shared PATH] [--draws N]` (default: `../shared` beside the
-repository); prints the markdown tables and writes them as the section "## arm7" at the end of
-`benchmarks/results_identification.md`.
+repository); prints the markdown tables and writes them to `benchmarks/results_arm7.md`.
 """
 
 from __future__ import annotations
@@ -27,13 +26,11 @@ from __future__ import annotations
 import argparse
 import builtins
 import json
-import os
-import platform
-import subprocess
 import tempfile
 import time
 from pathlib import Path
 
+import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records the start)
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -227,19 +224,15 @@ def main() -> None:
         print("|---|---|---|---|---|---|---|---|---|---|")
         for line in draws_rows(root, args.draws):
             print(line, flush=True)
-    head = (f"## arm7: a 7-joint arm, real-tracker noise, tool frame (`../shared/independent/arm7/`)\n\n"
-            f"`python benchmarks/bench_arm7.py{f' --draws {args.draws}' if args.draws else ''}`, {platform.machine()}, "
-            f"{os.cpu_count()} cores, jax {jax.__version__}, "
-            f"commit {_commit()}; times include compilation where not cached, measured while other jobs shared the "
-            "cores. Before: the start model; after: `diagnose`/`calibrate` with default options (robust loss "
+    info = _timing.run_info("the true model (truth.json: the floor) and, where the case has one, an oracle fit")
+    head = ("# Identification on a 7-joint arm: real-tracker noise, tool frame (`../shared/independent/arm7/`)\n\n"
+            + _timing.header(info) + "\nTimes include compilation where the persistent compilation cache did not "
+            "hold it. Before: the start model; after: `diagnose`/`calibrate` with default options (robust loss "
             "`cauchy`); floor: the true model's validation RMS (truth.json); RMS norms over the 30 validation "
             "poses. Diagnose:\n\n")
-    path = Path(__file__).parent / "results_identification.md"
-    old = path.read_text() if path.is_file() else ""
-    keep = old[:old.index("## arm7")] if "## arm7" in old else old + "\n"
     text = "\n".join(lines).replace("\n\n| case | params", "\n\nCalibrate:\n\n| case | params").replace(
         "\n\n| hidden", "\n\nCalibrate on data sets drawn by the arm7 generator (`--draws`):\n\n| hidden")
-    path.write_text(keep + head + text + "\n\n" + NOTES)
+    (Path(__file__).parent / "results_arm7.md").write_text(head + text + "\n\n" + NOTES)
 
 
 NOTES = """Notes: `noise/anisotropic` in the calibrate table is fitted with the laser-tracker model of its
@@ -258,18 +251,8 @@ them, a 3e-5 ratio error), which costs this draw 1.09x -> 1.14x; over the genera
 the selection is as accurate as the whole set where everything deviates and far more accurate where
 nothing does. `noise/drift` in the diagnose table: the drift test of `diagnose` with the training file's
 `t_s` (truth: +3e-05 over the run). `failed LM fits`: candidates whose LM fit failed or ended above its
-start, each replaced in the shortlist by the next candidate. `two/...`: before `diagnose`'s parsimony
-rule (commit 408c84e, the same bench) `geometry` was added first, then `joint_compliance j2`: 50.0 um
-(1.093x) and 53.6 um (1.200x); with it, both true effects and no block.
+start, each replaced in the shortlist by the next candidate.
 """
-
-
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              cwd=Path(__file__).parent, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 if __name__ == "__main__":

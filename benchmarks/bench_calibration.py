@@ -1,22 +1,23 @@
-"""Fleet calibration benchmark (issue 4): R robots x K poses, the batched LM of the fleet path
+"""Fleet calibration benchmark: R robots x K poses, the batched LM of the fleet path
 (`identification._batched_lm`) vs a loop of
 scipy.optimize.least_squares(method="lm") on the same problems, in the same run.
 
     python benchmarks/bench_calibration.py [--robots 1000] [--poses 50] [--scipy-robots N] [--repeat 3]
+                                           [--sizes 10 100 1000]
 
-Writes a markdown table to benchmarks/results_calibration.md (or --out: machine, device, timings,
-robots/s, ratio, accuracy distribution).
+Writes benchmarks/results_calibration.md (or --out: timings, robots/s, ratio, accuracy distribution,
+throughput by fleet size) and beside it `calibration_throughput.png` (robots/s against the fleet size
+of `--sizes`: the first robots of the same fleet, batched LM and the scipy loop).
 """
 
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import sys
 import time
 from pathlib import Path
 
+import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records the start)
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -44,8 +45,12 @@ def main() -> None:
     ap.add_argument("--scipy-robots", type=int, default=None, help="robots for the scipy loop (default all)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--repeat", type=int, default=3, help="timed runs of each method (the fastest is reported)")
+    ap.add_argument("--sizes", type=int, nargs="*", default=[10, 100, 1000],
+                    help="fleet sizes of the throughput table and plot (the first robots of the fleet, <= --robots)")
     ap.add_argument("--out", type=Path, default=Path(__file__).with_name("results_calibration.md"))
     args = ap.parse_args()
+    if any(not 0 < s <= args.robots for s in args.sizes):
+        ap.error(f"--sizes: expected fleet sizes in 1..--robots ({args.robots}), found {args.sizes}")
     n_rob, k = args.robots, args.poses
     n_sp = n_rob if args.scipy_robots is None else min(args.scipy_robots, n_rob)
     nominal = jr.racer7()
@@ -112,11 +117,11 @@ def main() -> None:
     q0_0, de_0 = (np.asarray(v) for v in consts(theta[0]))
     f(x0, theta[0], meas.positions[0], de_0, q0_0).block_until_ready()
     jac(x0, theta[0], meas.positions[0], de_0, q0_0).block_until_ready()
-    sp = {}
-    n_loop = n_sp
-    for label, use_jac in (("scipy lm, jax Jacobian", True), ("scipy lm, finite differences", False)):
+
+    def scipy_loop(n_loop: int, use_jac: bool, repeat: int):
+        """(best wall time, robots, values, successes, time in the constants) of the scipy loop."""
         times = []
-        for _ in range(args.repeat if use_jac else 1):  # finite differences: slow, once
+        for _ in range(repeat):
             vals, ok, t_c = [], [], 0.0
             t = time.perf_counter()
             for r in range(n_loop):
@@ -131,8 +136,23 @@ def main() -> None:
                 ok.append(out.success)
             times.append((time.perf_counter() - t, t_c))
         t_best, t_c = min(times)
-        sp[label] = (t_best, n_loop, np.asarray(vals), np.asarray(ok), t_c)
+        return t_best, n_loop, np.asarray(vals), np.asarray(ok), t_c
+
+    sp = {}
+    n_loop = n_sp
+    for label, use_jac in (("scipy lm, jax Jacobian", True), ("scipy lm, finite differences", False)):
+        sp[label] = scipy_loop(n_loop, use_jac, args.repeat if use_jac else 1)  # finite differences: slow, once
         log(f"{label}: {n_loop} robots in {sp[label][0]:.1f} s")
+
+    # --- throughput by fleet size: the first s robots of the same fleet ------------------------
+    by_size = []
+    for size in args.sizes:
+        _, first_s, run_s = _timing.timed(lambda s=size: calibrate_fleet(nominal, theta[:s], meas.positions[:s]),
+                                          args.repeat)
+        n_s = min(size, n_sp)
+        loop_s = scipy_loop(n_s, True, args.repeat)[0]
+        by_size.append({"robots": size, "first_s": first_s, "run_s": run_s, "scipy_robots": n_s, "scipy_s": loop_s})
+        log(f"{size} robots: batched LM {run_s:.2f} s, scipy loop on {n_s}: {loop_s:.2f} s")
 
     # --- accuracy ------------------------------------------------------------------------------
     z = np.abs(res.value - v_true) / res.std
@@ -148,17 +168,12 @@ def main() -> None:
 
     rate_lm = n_rob / t_run
     t_fd, n_fd = sp["scipy lm, finite differences"][:2]
+    info = _timing.run_info("scipy.optimize.least_squares(method=\"lm\") in a loop over the same robots, with a "
+                            "jax Jacobian and with finite differences", ("scipy",))
     lines = [
         "# Fleet kinematic calibration benchmark",
         "",
-        f"Command: `python benchmarks/bench_calibration.py --robots {n_rob} --poses {k}"
-        + (f" --scipy-robots {args.scipy_robots}" if args.scipy_robots else "") + "`",
-        "",
-        f"Machine: {platform.platform()}, {platform.processor() or platform.machine()}, "
-        f"{os.cpu_count()} CPU cores; device: {jax.devices()[0].device_kind} x {len(jax.devices())} "
-        f"({jax.default_backend()}); jax {jax.__version__}, scipy {scipy.__version__}, numpy {np.__version__}; "
-        f"load average at the end {os.getloadavg()[0]:.1f}",
-        "",
+        _timing.header(info),
         f"Problem: {n_rob} random as-built robots (draw_fleet, Table 3.8-sized deviations), each with its "
         f"own {k} random feasible poses and tracker noise 0.05 mm/axis; {len(params)} free parameters "
         f"(DEFAULT_PARAMETERS). Data generation: {t_data:.1f} s.",
@@ -181,7 +196,7 @@ def main() -> None:
         "",
         f"Speed-up of the batched LM (run) over the scipy loop: {rate_lm / (n_loop / t_sp):.1f}x with a jax "
         f"Jacobian for scipy, {rate_lm / (n_fd / t_fd):.1f}x "
-        "with scipy's default finite differences (the issue's `least_squares(method=\"lm\")` as called "
+        "with scipy's default finite differences (`least_squares(method=\"lm\")` called "
         f"without a Jacobian); including compile: {(n_rob / t_first) / (n_loop / t_sp):.1f}x. Both solve the whole "
         "problem from motor angles and positions; the LM solve alone "
         "(`_fleet_solve`) against the scipy loop's solves alone: "
@@ -209,10 +224,41 @@ def main() -> None:
         "",
         f"All |z| of {z.size} parameter estimates: fraction within 3 standard errors "
         f"{np.mean(z <= 3):.4f} (Gaussian: 0.9973).",
+        "",
+        f"Throughput by fleet size (the first robots of the same fleet; best of {args.repeat} runs; the scipy loop "
+        f"with a jax Jacobian on at most {n_sp} robots; first call: compile, or a load from the persistent "
+        f"compilation cache, + run; `{PLOT}`):",
+        "",
+        "| robots | batched LM first call [s] | batched LM run [s] | batched LM robots/s | scipy loop robots | "
+        "scipy loop [s] | scipy loop robots/s | batched / scipy |",
+        "|---|---|---|---|---|---|---|---|",
+        *(f"| {r['robots']} | {r['first_s']:.2f} | {r['run_s']:.3f} | {r['robots'] / r['run_s']:.1f} | "
+          f"{r['scipy_robots']} | {r['scipy_s']:.3f} | {r['scipy_robots'] / r['scipy_s']:.1f} | "
+          f"{(r['robots'] / r['run_s']) / (r['scipy_robots'] / r['scipy_s']):.1f}x |" for r in by_size),
     ]
     text = "\n".join(lines) + "\n"
     args.out.write_text(text)
+    plot_throughput(by_size, info, args.out.with_name(PLOT))
     print(text)
+
+
+PLOT = "calibration_throughput.png"
+"""The throughput plot, written beside the results file."""
+
+
+def plot_throughput(by_size: list[dict], info: dict[str, str], path: Path) -> None:
+    """Robots per second against the fleet size: the batched LM's run and the scipy loop's (at the sizes
+    where it solved the whole fleet)."""
+    fig, ax = _timing.figure("Fleet calibration throughput (50 poses per robot, after compilation)", info)
+    ax.loglog([r["robots"] for r in by_size], [r["robots"] / r["run_s"] for r in by_size], "o-",
+              label="calibrate_fleet (batched LM)")
+    whole = [r for r in by_size if r["scipy_robots"] == r["robots"]]
+    ax.loglog([r["robots"] for r in whole], [r["robots"] / r["scipy_s"] for r in whole], "^-",
+              label="scipy least_squares(method='lm') loop, jax Jacobian")
+    ax.set_xlabel("fleet size [robots]")
+    ax.set_ylabel("throughput [robots/s]")
+    ax.legend(fontsize=8)
+    _timing.save(fig, path)
 
 
 if __name__ == "__main__":

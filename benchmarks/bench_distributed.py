@@ -1,4 +1,4 @@
-"""Fleet calibration on 1 and on 2 processes of this machine (issue 19), started as a user would:
+"""Fleet calibration on 1 and on 2 processes of this machine, started as a user would:
 once per process, coordinator on 127.0.0.1 (a free port).
 
     python benchmarks/bench_distributed.py [--robots 4000] [--poses 50]
@@ -19,7 +19,6 @@ import argparse
 import csv
 import json
 import os
-import platform
 import resource
 import socket
 import subprocess
@@ -28,6 +27,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records the start)
 import jax
 import numpy as np
 
@@ -116,7 +116,6 @@ def main() -> None:
     args = ap.parse_args()
     if args.worker is not None:
         return worker(*args.worker)
-    load_start = os.getloadavg()
     work = Path(tempfile.mkdtemp(prefix="bench_distributed_"))
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_") and k != "XLA_FLAGS"}
     env["JAXROBOT_CACHE_DIR"] = "off"  # every first call compiles
@@ -149,17 +148,13 @@ def main() -> None:
         others[f"Python API, {n} process(es)"] = (d["value"], d["status"].tolist())
     compare = {k: (float(np.max(np.abs(v - v_ref))), st == s_ref) for k, (v, st) in others.items()}
     status = runs[("`calibrate-fleet --bench`", 1)][0]["status"]
+    info = _timing.run_info("the 1-process jobs of the same run (the reference of the 2-process rows)")
+    info["Device"] = "cpu, one CPU device per process, collectives by gloo over 127.0.0.1"
 
     lines = [
         "# Fleet calibration on several processes (jax.distributed)",
         "",
-        f"Command: `python benchmarks/bench_distributed.py --robots {args.robots} --poses {args.poses}`",
-        "",
-        f"Machine: {platform.platform()}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores, "
-        f"shared with other jobs: load average (1 min) {load_start[0]:.1f} at the start, "
-        f"{os.getloadavg()[0]:.1f} at the end; device: CPU, one CPU device per process, collectives by gloo "
-        f"over 127.0.0.1; jax {jax.__version__}, numpy {np.__version__}, Python {platform.python_version()}.",
-        "",
+        _timing.header(info),
         f"Problem: {args.robots} random as-built robots (`draw_fleet`), each with its own {args.poses} random feasible "
         f"poses and tracker noise, {len(params)} free parameters; status of every robot: {status}.",
         "",

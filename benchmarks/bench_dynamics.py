@@ -1,4 +1,4 @@
-"""Batched mass matrix + gravity + Coriolis vector: jaxrobot (JAX) vs pinocchio (issues 2 and 14, "Measure").
+"""Batched mass matrix + gravity + Coriolis vector: jaxrobot (JAX) vs pinocchio.
 
 For n = 6, 7 and 12 joints (the default Racer-7; the Panda imported from example-robot-data, or
 a seeded random 7-joint chain without it; a seeded random 12-joint chain), times over the same
@@ -21,10 +21,9 @@ Run: `python benchmarks/bench_dynamics.py [--states 100000] [--joints 6 7 12]`.
 from __future__ import annotations
 
 import argparse
-import datetime
 import hashlib
 import os
-import platform
+import shlex
 import shutil
 import subprocess
 import sys
@@ -33,6 +32,7 @@ import time
 import timeit
 from pathlib import Path
 
+import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records the start)
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -115,28 +115,11 @@ int main(int argc, char** argv) {
 """
 
 
-def machine() -> dict[str, str]:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+def setting() -> list[str]:
+    """What the header does not say: the cores usable by this process, the persistent compilation cache."""
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    load = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
-    import pinocchio as pin
-
-    return {
-        "CPU": cpu,
-        "cores": f"{os.cpu_count()} logical, {usable} usable by this process",
-        "load average (1, 5, 15 min) at start": load,
-        "JAX devices": ", ".join(str(d) for d in jax.devices()),
-        "persistent compilation cache": jax.config.jax_compilation_cache_dir or "off (compile times are cold)",
-        "versions": f"python {platform.python_version()}, jax {jax.__version__}, "
-                    f"pinocchio {pin.__version__}, numpy {np.__version__}",
-    }
+    return [f"- cores usable by this process: {usable}",
+            f"- persistent compilation cache: {jax.config.jax_compilation_cache_dir or 'off (compile times are cold)'}"]
 
 
 def random_chain(n: int, seed: int) -> jr.Robot:
@@ -416,7 +399,6 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--states, --repeats, --chunk and --joints must be >= 1, found {args.states}, {args.repeats}, "
                      f"{args.chunk}, {args.joints}")
 
-    info = machine()
     binary: tuple[Path, str] | str = "skipped (--no-cpp)" if args.no_cpp else build_cpp(args.cache)
     cpp_note = binary if isinstance(binary, str) else f"g++ {binary[1]}, header-only pinocchio"
     results = {}
@@ -424,24 +406,22 @@ def main(argv: list[str] | None = None) -> int:
         robot, made = benchmark_robot(nj, args.seed)
         print(f"n = {nj}: {robot.name}", flush=True)
         results[nj] = (made, bench_one(robot, args, binary))
-    load_end = ", ".join(f"{x:.1f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
+    info = _timing.run_info("pinocchio on the same states: its C++ loop (built here), its Python bindings", ("pin",),
+                            command="python " + shlex.join(["benchmarks/bench_dynamics.py", *cli]))
 
     lines = [
         "# Dynamics benchmark: D(q), g(q), C(q, qd) qd over a batch of states, n = "
         + ", ".join(map(str, args.joints)) + " joints",
         "",
-        "Command: `" + " ".join(["python benchmarks/bench_dynamics.py", *cli]) + "`  ",
-        f"Date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M UTC}; {args.states:,} random states "
-        f"per robot (q uniform in the limits, qd uniform in +-qd_max), seed {args.seed}; best of {args.repeats} "
-        f"runs (pinocchio Python loop: best of {min(args.repeats, 3)}).",
+        _timing.header(info).rstrip("\n"),
+        *setting(),
         "",
-        *[f"- {k}: {v}" for k, v in info.items()],
-        f"- load average (1, 5, 15 min) at the end: {load_end}",
+        f"{args.states:,} random states per robot (q uniform in the limits, qd uniform in +-qd_max), seed "
+        f"{args.seed}; best of {args.repeats} runs (pinocchio Python loop: best of {min(args.repeats, 3)}).",
         *(["", f"Note: the 1-minute load average exceeded the core count ({os.cpu_count()}) during this run "
            "(other jobs shared the CPU): absolute times are inflated and noisy, the ratios less so, since every "
-           "peer ran in the same run."] if hasattr(os, "getloadavg") and max(
-            float(info["load average (1, 5, 15 min) at start"].split(",")[0]), os.getloadavg()[0])
-            > (os.cpu_count() or 1) else []),
+           "peer ran in the same run."] if max(_timing.START_LOAD, os.getloadavg()[0]) > (os.cpu_count() or 1)
+          else []),
         "",
         "## Ratio per joint count",
         "",

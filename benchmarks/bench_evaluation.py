@@ -1,10 +1,10 @@
 """Benchmark: the plant evaluation of a nu study's members, one batched simulation against one member after
-another (`planning.simulate_plans`, issue 27 item 4).
+another (`planning.simulate_plans`).
 
 Eight motor trajectories on the line (the as-built truth's flat inverse plus different small bumps, K = 8 as
 a sweep's members), simulated on the as-built Racer-7 with the cw set throughout and with its gears' flanks
 as states: all eight in one vmapped simulation, and one `simulate_plans` call per trajectory (the compiled
-program of one run, called eight times: what the evaluation did before). The calls alternate, three of each
+program of one run, called eight times). The calls alternate, three of each
 after a first (compiling) call; reported are the first call and the best of three, and the largest
 difference of the link angles between the two.
 
@@ -13,12 +13,10 @@ Run: `python benchmarks/bench_evaluation.py` (writes benchmarks/results_evaluati
 
 from __future__ import annotations
 
-import os
-import platform
-import subprocess
 import time
 from pathlib import Path
 
+import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records the start)
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -39,19 +37,7 @@ def main() -> None:
     bump = jnp.sin(np.pi * jp.t / jp.t[-1])[:, None] ** 4
     plans = {f"member {k}": pl.MotorTrajectory(flat.theta + 1e-5 * k * bump, flat.thetad, flat.thetadd)
              for k in range(MEMBERS)}
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                            cwd=Path(__file__).parent).stdout.strip()
-    lines = ["# Plant evaluation of a sweep's members: one batched simulation", "",
-             f"`python benchmarks/bench_evaluation.py` (this file; commit {commit}). {MEMBERS} motor trajectories "
-             "of the line (N = 2501, 0.5 s rest after it, 10 RK4 steps per sample) simulated on the as-built "
-             "Racer-7: `batched` is one `simulate_plans` call for all (one vmapped program), `one by one` a call "
-             "per trajectory (one compiled run, called "
-             f"{MEMBERS} times, as the evaluation ran before). First call (compile included) and the best of "
-             f"{REPEAT} alternating calls [s].", "",
-             f"Machine: {platform.machine()}, {os.cpu_count()} CPU cores, load average at start "
-             f"{os.getloadavg()[0]:.1f}, JAX {jax.__version__}, backend {jax.default_backend()}.", "",
-             "| plant | batched, first | batched, best | one by one, first | one by one, best | speed-up | "
-             "largest link-angle difference [rad] |", "|---|---|---|---|---|---|---|"]
+    rows = []
     for directional in (False, True):
         def batched():
             return pl.simulate_plans(truth, jp, plans, directional=directional)[1]
@@ -71,10 +57,19 @@ def main() -> None:
                 best[fn.__name__] = min(best[fn.__name__], time.perf_counter() - start)
         together, alone = batched(), one_by_one()
         diff = max(float(jnp.abs(together.q[k] - run.q[0]).max()) for k, run in enumerate(alone))
-        lines.append(f"| {'flanks' if directional else 'cw'} | {first['batched']:.1f} | {best['batched']:.2f} | "
-                     f"{first['one_by_one']:.1f} | {best['one_by_one']:.2f} | "
-                     f"{best['one_by_one'] / best['batched']:.1f}x | {diff:.1e} |")
-        print(lines[-1], flush=True)
+        rows.append(f"| {'flanks' if directional else 'cw'} | {first['batched']:.1f} | {best['batched']:.2f} | "
+                    f"{first['one_by_one']:.1f} | {best['one_by_one']:.2f} | "
+                    f"{best['one_by_one'] / best['batched']:.1f}x | {diff:.1e} |")
+        print(rows[-1], flush=True)
+    info = _timing.run_info("the same trajectories simulated one by one (one `simulate_plans` call each), "
+                            "alternating with the batched call in the same process")
+    lines = ["# Plant evaluation of a sweep's members: one batched simulation", "", _timing.header(info),
+             f"{MEMBERS} motor trajectories of the line (N = 2501, 0.5 s rest after it, 10 RK4 steps per sample) "
+             "simulated on the as-built Racer-7: `batched` is one `simulate_plans` call for all (one vmapped "
+             f"program), `one by one` a call per trajectory (one compiled run, called {MEMBERS} times). First call "
+             f"(compile included) and the best of {REPEAT} alternating calls [s].", "",
+             "| plant | batched, first | batched, best | one by one, first | one by one, best | speed-up | "
+             "largest link-angle difference [rad] |", "|---|---|---|---|---|---|---|", *rows]
     OUT.write_text("\n".join(lines) + "\n")
     print(f"wrote {OUT}")
 

@@ -20,8 +20,12 @@ runs them one after the other.
 Results are checked to agree between the backends (fleet parameters, OCP objectives).
 
 Run: `python benchmarks/bench_gpu.py [--states 10000 1000000] [--robots 1000 10000] [--sizes 1 4 16 64 256]`
-(writes benchmarks/results_gpu.md, or --out; `--nodes K` replaces the line by a short move of K
-nodes, for a quick check).
+(`--nodes K` replaces the line by a short move of K nodes, for a quick check). Writes the rows as JSON
+(`--rows`, default benchmarks/gpu_rows.json: `{"info": header fields, "cpu": worker, "acc": worker or null,
+"notes": [...], "notes_after": [...]}`, a worker `{"device", "jax", "platform", "rows", "check", ...}`, each row
+`{"work", "first_s", "run_s", "rate", "converged"?, "run"?}`), then from them benchmarks/results_gpu.md (`--out`)
+and beside it `gpu_crossover.png` (the sweeps' run time against their members B on both backends).
+`--plot-only ROWS.json` writes the results file and the plot from saved rows without measuring.
 """
 
 from __future__ import annotations
@@ -29,13 +33,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
+import re
 import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import _timing  # benchmarks/ is the script's folder
 import numpy as np
 
 NU = 1e-14
@@ -70,7 +75,6 @@ def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int |
     """The OCP rows of `worker` (module docstring), appended to `out`."""
     import jax
     import jax.numpy as jnp
-    from _timing import timed
 
     import planning as pl
     from planning._al_solver import batch_capacity
@@ -104,7 +108,7 @@ def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int |
     first: dict[str, float] = {}
     if concurrent:
         with ThreadPoolExecutor(len(work)) as pool:
-            first = dict(pool.map(lambda item: (item[0], timed(item[2], 0)[1]), work))
+            first = dict(pool.map(lambda item: (item[0], _timing.timed(item[2], 0)[1]), work))
     for key, label, fn, extra in work:
         if key in first:
             res, best = None, np.inf
@@ -114,7 +118,7 @@ def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int |
                 best = min(best, time.perf_counter() - start)
             first_s = first[key]
         else:
-            res, first_s, best = timed(fn, repeat)
+            res, first_s, best = _timing.timed(fn, repeat)
         row = {"work": label, "first_s": first_s, "run_s": best}
         if hasattr(res, "converged"):
             conv = np.asarray(res.converged)
@@ -144,7 +148,6 @@ def worker(path: Path, states: list[int], robots: list[int], repeat: int, ocp: b
     """The timings on this process' default backend, saved to `path` (JSON) as each row is done."""
     import jax
     import jax.numpy as jnp
-    from _timing import timed
 
     import jaxrobot as jr
     from identification import calibrate_fleet
@@ -165,7 +168,7 @@ def worker(path: Path, states: list[int], robots: list[int], repeat: int, ocp: b
         rng = np.random.default_rng(0)
         q = jnp.asarray(rng.uniform(lo, hi, (n, 6)))
         qd = jnp.asarray(rng.uniform(-1.0, 1.0, (n, 6)))
-        _, first, best = timed(lambda q=q, qd=qd: dynamics(q, qd), repeat)
+        _, first, best = _timing.timed(lambda q=q, qd=qd: dynamics(q, qd), repeat)
         _emit(out, {"work": f"dynamics M, g, C qd: {n:,} states", "first_s": first, "run_s": best,
                     "rate": f"{n / best:.3g} states/s"})
 
@@ -175,7 +178,7 @@ def worker(path: Path, states: list[int], robots: list[int], repeat: int, ocp: b
         q = np.stack([pool[rng.choice(len(pool), 50, replace=False)] for _ in range(r)])
         theta = np.asarray(jr.static_equilibrium(robot, jnp.asarray(q)))
         meas = measure_poses(draw_fleet(r, seed=1), theta, seed=2)
-        res, first, best = timed(lambda theta=theta, meas=meas: calibrate_fleet(robot, theta, meas.positions),
+        res, first, best = _timing.timed(lambda theta=theta, meas=meas: calibrate_fleet(robot, theta, meas.positions),
                                   repeat)
         out["check"][f"fleet{r}"] = np.asarray(res.value[:20]).tolist()
         _emit(out, {"work": f"calibrate_fleet: {r:,} robots x 50 poses", "first_s": first, "run_s": best,
@@ -227,7 +230,7 @@ def _run(rows: list[dict], key: str) -> float | None:
 
 
 def _goals(cpu: dict, acc: dict) -> list[str]:
-    """The issue's goals, checked on the rows of this run."""
+    """The goals of the GPU solver, checked on the rows of this run."""
     single = [r["run_s"] for r in acc["rows"] if r["work"].startswith("solve_ocp: ") and "cyclic" in r["work"]]
     if not single:
         return []
@@ -254,6 +257,76 @@ those of the slowest lane. In a pass the refresh and step conditionals are selec
 refactors at every pass (a single solve refactors every `refresh_every` steps)."""
 
 
+DEFAULTS = ("Defaults by backend: on the CPU `solve_ocp` uses the scan and `solve_ocp_sweep` continuation chains "
+            "(one per core, `lax.map`/`while_loop`); on an accelerator cyclic reduction, and the sweep in "
+            "ceil(B / 4) lanes of one batched loop, each lane taking the next nu by continuation when its member is "
+            "done.")
+PLOT = "gpu_crossover.png"
+"""The crossover plot, written beside the results file."""
+SWEEP_ROW = re.compile(r"solve_ocp_sweep: (\d+) nu")
+
+
+def results_text(data: dict) -> str:
+    """The results file of saved rows (`--rows` JSON): header, notes, the table (a GPU column "not run" where
+    the accelerator has no row of that work), goals, agreement, memory, the sequential parts."""
+    cpu, acc = data["cpu"], data["acc"]
+    lines = ["# Batched workloads: GPU against the CPU of the same machine", "", _timing.header(data["info"]),
+             *data.get("notes", []), DEFAULTS, ""]
+    if acc is not None:
+        by_work = {r["work"]: r for r in acc["rows"]}
+        runs = any("run" in r for r in acc["rows"])
+        lines += ["| work | CPU first call [s] | CPU run [s] | GPU first call [s] | GPU run [s] | GPU speed-up (run) "
+                  "| GPU | converged (CPU / GPU) |" + (" GPU row from |" if runs else ""),
+                  "|---|---|---|---|---|---|---|---|" + ("---|" if runs else "")]
+        for c in cpu["rows"]:
+            g = by_work.get(c["work"])
+            conv = (f"{c.get('converged', '')} / {'' if g is None else g.get('converged', '')}"
+                    if "converged" in c else "")
+            cells = ("not run | not run | | |" if g is None else
+                     f"{g['first_s']:.2f} | {g['run_s']:.3g} | {c['run_s'] / g['run_s']:.2f}x | {g['rate']} |")
+            lines.append(f"| {c['work']} | {c['first_s']:.2f} | {c['run_s']:.3g} | {cells} {conv} |"
+                         + (f" {'' if g is None else g.get('run', '')} |" if runs else ""))
+        agreement = _agreement(cpu, acc)
+        lines += ["", "Goals:", "", *_goals(cpu, acc), "",
+                  "Agreement of the results (the same inputs on both backends):", "",
+                  *(agreement or ["- not compared in this run"]), ""]
+    else:
+        lines += ["No GPU was found (the default backend is the CPU): CPU rows only.", "",
+                  "| work | CPU first call [s] | CPU run [s] | CPU | converged |", "|---|---|---|---|---|"]
+        lines += [f"| {c['work']} | {c['first_s']:.2f} | {c['run_s']:.3g} | {c['rate']} | {c.get('converged', '')} |"
+                  for c in cpu["rows"]]
+        lines.append("")
+    if "capacity" in cpu:
+        cap = ", ".join(f"{v} members at {k}" for k, v in cpu["capacity"].items())
+        lines += ["Memory of a batched solve (`planning._al_solver.batch_capacity`: `MEMBER_BLOCKS` 30 x 30 float64 "
+                  f"blocks per node and lane): an 80 GB card holds {cap}; a larger batch runs in that many lanes, "
+                  "each taking the next member when its own is done.", "", SEQUENTIAL, ""]
+    return "\n".join(lines + data.get("notes_after", [])) + "\n"
+
+
+def plot_crossover(data: dict, path: Path) -> None:
+    """Run time of `solve_ocp_sweep` against its members B, on each backend measured."""
+    fig, ax = _timing.figure("solve_ocp_sweep of the line (N = 2501): GPU against CPU", data["info"])
+    for worker, label, mark in ((data["cpu"], "CPU", "o-"), (data["acc"], "GPU", "s-")):
+        if worker is None:
+            continue
+        pts = sorted((int(m.group(1)), r["run_s"]) for r in worker["rows"] if (m := SWEEP_ROW.fullmatch(r["work"])))
+        if pts:
+            ax.loglog(*zip(*pts), mark, label=f"{label}: {worker['device']}")
+    ax.set_xlabel("members B (nu values in one sweep)")
+    ax.set_ylabel("run time after compilation [s]")
+    if ax.lines:
+        ax.legend(fontsize=8)
+    _timing.save(fig, path)
+
+
+def write_results(data: dict, out: Path) -> None:
+    """The results file and the crossover plot beside it, from saved rows."""
+    out.write_text(results_text(data))
+    plot_crossover(data, out.with_name(PLOT))
+    print(out.read_text())
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--states", type=int, nargs="*", default=[10_000, 1_000_000])
@@ -266,10 +339,15 @@ def main() -> None:
     ap.add_argument("--nodes", type=int, default=None, help="a short move of this many nodes instead of the line")
     ap.add_argument("--serial-compile", dest="concurrent", action="store_false",
                     help="first calls of the OCP rows one after the other (default: at once in threads)")
-    ap.add_argument("--commit", default=None, help="the commit to name (default: git rev-parse HEAD)")
     ap.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--rows", type=Path, default=Path(__file__).with_name("gpu_rows.json"),
+                    help="where the rows are saved as JSON")
+    ap.add_argument("--plot-only", type=Path, default=None, metavar="ROWS.json",
+                    help="write the results file and the plot from saved rows, measuring nothing")
     ap.add_argument("--out", type=Path, default=Path(__file__).with_name("results_gpu.md"))
     args = ap.parse_args()
+    if args.plot_only is not None:
+        return write_results(json.loads(args.plot_only.read_text()), args.out)
     if args.worker is not None:
         args.worker.write_text(json.dumps(worker(args.worker, args.states, args.robots, args.repeat, not args.no_ocp,
                                                  args.sizes, args.vmap, args.nodes, args.concurrent)))
@@ -278,50 +356,19 @@ def main() -> None:
     gpu = _run_worker_probe().split(" ")[0] not in ("cpu", "")
     acc = _run_worker(None, args) if gpu else None
     cpu = _run_worker("cpu", args)
-    commit = args.commit or subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                           cwd=Path(__file__).parent).stdout.strip() or "unknown"
-    gpu_smi = subprocess.run(["nvidia-smi", "--query-gpu=name,memory.total,driver_version", "--format=csv,noheader"],
-                             capture_output=True, text=True).stdout.strip() if gpu else ""
-    lines = [
-        "# Batched workloads: GPU against the CPU of the same machine",
-        "",
-        f"Command: `python benchmarks/bench_gpu.py {' '.join(_options(args))}` at commit {commit}.",
-        "",
-        f"Machine: {platform.platform()}, {os.cpu_count()} CPU cores; jax {cpu['jax']}; "
-        f"load average at the end {os.getloadavg()[0]:.1f}.",
-        f"CPU backend: {cpu['device']}. "
-        + (f"Accelerator backend: {acc['device']}" + (f" ({gpu_smi})." if gpu_smi else ".") if gpu
-           else "No GPU was found (the default backend is the CPU): CPU rows only, the GPU rows are open."),
-        "",
-        f"Run time: the best of {args.repeat} calls after the first; first call: compile + run (a fresh process, "
-        "the persistent compilation cache as set" + ("; the OCP rows' first calls ran concurrently in threads"
-                                                     if args.concurrent else "") + ").",
-        "Defaults by backend: on the CPU `solve_ocp` uses the scan and `solve_ocp_sweep` continuation chains "
-        "(one per core, `lax.map`/`while_loop`); on an accelerator cyclic reduction, and the sweep in "
-        "ceil(B / 4) lanes of one batched loop, each lane taking the next nu by continuation when its member is done.",
-        "",
-    ]
-    if gpu:
-        lines += ["| work | CPU first call [s] | CPU run [s] | GPU first call [s] | GPU run [s] | GPU speed-up (run) "
-                  "| GPU | converged (CPU / GPU) |", "|---|---|---|---|---|---|---|---|"]
-        for c, g in zip(cpu["rows"], acc["rows"], strict=True):
-            conv = f"{c.get('converged', '')} / {g.get('converged', '')}" if "converged" in c else ""
-            lines.append(f"| {c['work']} | {c['first_s']:.2f} | {c['run_s']:.3g} | {g['first_s']:.2f} | "
-                         f"{g['run_s']:.3g} | {c['run_s'] / g['run_s']:.2f}x | {g['rate']} | {conv} |")
-        lines += ["", "Goals:", "", *_goals(cpu, acc), "",
-                  "Agreement of the results (the same inputs on both backends):", "", *_agreement(cpu, acc), ""]
-    else:
-        lines += ["| work | CPU first call [s] | CPU run [s] | CPU | converged |", "|---|---|---|---|---|"]
-        lines += [f"| {c['work']} | {c['first_s']:.2f} | {c['run_s']:.3g} | {c['rate']} | {c.get('converged', '')} |"
-                  for c in cpu["rows"]]
-        lines.append("")
-    if "capacity" in cpu:
-        cap = ", ".join(f"{v} members at {k}" for k, v in cpu["capacity"].items())
-        lines += ["Memory of a batched solve (`planning._al_solver.batch_capacity`: `MEMBER_BLOCKS` 30 x 30 float64 "
-                  f"blocks per node and lane): an 80 GB card holds {cap}; a larger batch runs in that many lanes, "
-                  "each taking the next member when its own is done.", "", SEQUENTIAL, ""]
-    args.out.write_text("\n".join(lines))
-    print("\n".join(lines))
+    info = _timing.run_info("the CPU of the same machine (`JAX_PLATFORMS=cpu`, its own process), same inputs, "
+                            "same run")
+    smi = subprocess.run(["nvidia-smi", "--query-gpu=name,memory.total,driver_version", "--format=csv,noheader"],
+                         capture_output=True, text=True).stdout.strip() if gpu else ""
+    info["Device"] = f"CPU: {cpu['device']}" + (f"; accelerator: {acc['device']}" + (f" ({smi})" if smi else "")
+                                                  if gpu else "; no accelerator found")
+    notes = [f"Run time: the best of {args.repeat} calls after the first; first call: compile + run (a fresh process, "
+             "the persistent compilation cache as set" + ("; the OCP rows' first calls ran concurrently in threads"
+                                                          if args.concurrent and not args.no_ocp else "")
+             + ").", ""]
+    data = {"info": info, "cpu": cpu, "acc": acc, "notes": notes}
+    args.rows.write_text(json.dumps(data, indent=1))
+    write_results(data, args.out)
 
 
 def _run_worker_probe() -> str:

@@ -1,5 +1,5 @@
-"""Identification on the independent data of `../shared/independent/` (issue 15): one table per
-data set, with the time of every stage.
+"""Identification on the independent data of `../shared/independent/`: one table per data set, with the
+time of every stage.
 
 - poses p0-p4: `diagnose` from `start.toml` (approach `cw`, SPEC.md's default): effects added,
   validation RMS against the true model's, verdict;
@@ -10,8 +10,8 @@ data set, with the time of every stage.
   priors): validation mean error against the true robot's, true deviations beyond 3 sigma.
 
 Run: `python benchmarks/bench_identification.py [--shared PATH]` (default: `../shared` beside the
-repository, else `$JAXROBOT_SHARED`); writes `benchmarks/results_identification.md` (keeping the
-section of `bench_arm7.py`).
+repository, else `$JAXROBOT_SHARED`); writes `benchmarks/results_identification.md` (the 7-joint arm's
+data set: `bench_arm7.py`).
 """
 
 from __future__ import annotations
@@ -19,11 +19,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import time
 from pathlib import Path
 
-import jax
+import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records the start)
 import numpy as np
 
 import jaxrobot as jr
@@ -120,27 +119,21 @@ def calibration_table(root: Path) -> list[str]:
     return rows
 
 
-ARM7_HEADING = "## arm7"
-"""The section `bench_arm7.py` writes at the end of the results (kept when this script rewrites them)."""
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", default=None)
     root = shared_folder(ap.parse_args().shared)
-    parts = [f"# Identification on independent data\n\n`python benchmarks/bench_identification.py`, "
-             f"{platform.machine()}, {os.cpu_count()} cores, jax {jax.__version__}"
-             f"; times include compilation.\n"]
+    parts = []
     for title, table in (("Poses p0-p4: diagnose (approach cw)", poses_table),
                          ("Gear runs: identify-gear on r0, r1, validated on r2", gear_table),
                          ("Calibration: 50 thesis poses, 30 validation poses", calibration_table)):
         rows = table(root)
         print(f"## {title}\n" + "\n".join(rows) + "\n", flush=True)
         parts.append(f"## {title}\n\n" + "\n".join(rows) + "\n")
-    path = Path(__file__).parent / "results_identification.md"
-    old = path.read_text() if path.is_file() else ""
-    arm7 = old[old.index(ARM7_HEADING):] if ARM7_HEADING in old else ""  # bench_arm7.py's section
-    path.write_text("\n".join(parts) + ("\n" + arm7 if arm7 else ""))
+    info = _timing.run_info("the true models of the data sets (truth.json: their validation RMS and deviations)")
+    head = ("# Identification on independent data\n\n" + _timing.header(info)
+            + "\nTimes include compilation where the persistent compilation cache did not hold it.\n")
+    (Path(__file__).parent / "results_identification.md").write_text("\n".join([head, *parts]))
 
 
 if __name__ == "__main__":

@@ -4,24 +4,27 @@ Both solve the same scaled NLP (`planning._transcription`: angles in mrad, time 
 same warm start (the flat inverse) for the line and the spiral at nu = 1e-14 and 1e-10, N = 2501.
 The CasADi model is written anew with casadi symbols: mDH kinematics and Newton-Euler for the mass
 matrix (unit accelerations) and `C qd + g`, the gear inverse `Xi^-1` by the same Newton steps, and
-`kappa`. `cross_check` evaluates our objective and constraints at IPOPT's solution.
+`kappa`. `cross_check` evaluates our objective and constraints at IPOPT's solution. The nu sweep
+(line, 16 nu in [1e-15, 1e-9]) times one vmapped call, `planning.solve_ocp_sweep` and the separate
+solves, and gives the Pareto front of the planning objective: each member's path error on the model
+against its control effort (RMS motor acceleration).
 
-Run: `python benchmarks/bench_ocp.py [--quick]` (writes benchmarks/results_ocp.md).
+Run: `python benchmarks/bench_ocp.py [--quick] [--no-ipopt]` (writes benchmarks/results_ocp.md, or --out,
+and beside it `ocp_pareto.png`, the front of the sweep).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import platform
 import time
 from pathlib import Path
 
+import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records the start)
 import casadi as ca
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _timing import timed  # benchmarks/ is the script's folder
 
 import jaxrobot as jr
 import planning as pl
@@ -183,7 +186,8 @@ def directions(robot, tasks, nus, f) -> None:
         d = pl.motor_directions(flat.thetad)
         ts = float(path.sample_time)
         for nu in nus:
-            sol, _, ours_s = timed(lambda nu=nu: solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm, direction=d))
+            sol, _, ours_s = _timing.timed(
+                lambda nu=nu: solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm, direction=d))
             line = (f"{task} nu={nu:g} bounded: ours {jr.status_name(sol.status)}, {int(sol.iterations)} it, "
                     f"{ours_s:.2f} s, objective {float(sol.objective):.10e}")
             if f is not None:
@@ -207,15 +211,12 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results_ocp.md"))
     args = parser.parse_args()
     robot = jr.racer7()
-    device = f"{jax.devices()[0].platform} ({jax.devices()[0].device_kind})"
-    machine = (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}, "
-               f"load average at start {os.getloadavg()[0]:.1f}")
     tasks = TASKS[:1] if args.quick else TASKS
     nus = NUS[:1] if args.quick else NUS
     f = None if args.no_ipopt else casadi_dynamics(robot)
     if args.directions:
         return directions(robot, tasks, nus, f)
-    rows, notes = [], []
+    rows = []
     for task in tasks:
         path = pl.reference_path(task)
         jp = pl.joint_path(robot, path)
@@ -223,7 +224,7 @@ def main() -> None:
         warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
         ts = float(path.sample_time)
         for nu in nus:
-            sol, first, ours_s = timed(lambda nu=nu: solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm))
+            sol, first, ours_s = _timing.timed(lambda nu=nu: solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm))
             ours = {"wall_s": ours_s, "compile_s": max(first - ours_s, 0.0), "iterations": int(sol.iterations),
                     "objective": float(sol.objective), "violation": float(sol.max_constraint_violation),
                     "status": jr.status_message(sol.status),
@@ -238,7 +239,7 @@ def main() -> None:
                                 "status": ip["status"], "path_um": path_error_um(robot, path, jp.t, ip["x"][:, :6])}
                 print(f"{task} nu={nu:g} ipopt: {row['ipopt']}", flush=True)
             rows.append(row)
-            write_markdown(args.out, rows, None, machine, device, notes)  # keep partial results
+            write_markdown(args.out, rows, None)  # keep partial results
     sweep = None
     if not args.quick:
         path = pl.reference_path("line")
@@ -246,10 +247,10 @@ def main() -> None:
         flat = pl.flat_motor_trajectory(robot, jp)
         warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
         batched = jax.jit(jax.vmap(lambda nu: solve_ocp(robot, jp.q, 1e-3, nu=nu, warm_start=warm)))
-        sols, first, many = timed(lambda: batched(jnp.asarray(SWEEP)))
-        chained, chained_first, chained_s = timed(
+        sols, first, many = _timing.timed(lambda: batched(jnp.asarray(SWEEP)))
+        chained, chained_first, chained_s = _timing.timed(
             lambda: pl.solve_ocp_sweep(robot, jp.q, 1e-3, SWEEP, warm_start=warm))
-        singles = [timed(lambda nu=nu: solve_ocp(robot, jp.q, 1e-3, nu=float(nu), warm_start=warm))
+        singles = [_timing.timed(lambda nu=nu: solve_ocp(robot, jp.q, 1e-3, nu=float(nu), warm_start=warm))
                    for nu in SWEEP]
         sweep = {"n": len(SWEEP), "batched_s": many, "compile_s": max(first - many, 0.0),
                  "single_s": singles[0][2], "singles_total_s": sum(s[2] for s in singles),
@@ -259,15 +260,47 @@ def main() -> None:
                  "chains": min(os.cpu_count() or 1, len(SWEEP) // 2), "chained_s": chained_s,
                  "chained_compile_s": max(chained_first - chained_s, 0.0),
                  "chained_converged": int(np.sum(np.asarray(chained.converged))),
-                 "chained_iterations": int(np.sum(np.asarray(chained.iterations)))}
+                 "chained_iterations": int(np.sum(np.asarray(chained.iterations))),
+                 "front": pareto_front(robot, path, jp.t, chained)}
         print(f"sweep: {sweep}", flush=True)
-    write_markdown(args.out, rows, sweep, machine, device, notes)
+    info = write_markdown(args.out, rows, sweep)
+    if sweep is not None:
+        plot_front(sweep["front"], info, args.out.with_name(PLOT))
     print(f"wrote {args.out}")
 
 
-def write_markdown(out: Path, rows, sweep, machine, device, notes) -> None:
-    lines = ["# OCP benchmark: CasADi + IPOPT vs our augmented Lagrangian", "",
-             f"Machine: {machine}; JAX device: {device}; N = 2501, T_s = 1 ms; same scaled NLP and warm start "
+PLOT = "ocp_pareto.png"
+"""The Pareto front of the nu sweep, written beside the results file."""
+
+
+def pareto_front(robot, path, t, sols) -> list[dict]:
+    """Per member of a sweep (line): nu, status, path error on the model [um] and RMS motor acceleration
+    [rad/s^2] (the 2-norm over the motors, RMS over the nodes)."""
+    names = np.atleast_1d(jr.status_name(sols.status))
+    return [{"nu": float(nu), "status": str(names[i]), "iterations": int(sols.iterations[i]),
+             "path_um": path_error_um(robot, path, t, sols.x[i, :, :6]),
+             "rms_u": float(jnp.sqrt(jnp.mean(jnp.sum(sols.u[i] ** 2, -1))))} for i, nu in enumerate(SWEEP)]
+
+
+def plot_front(front: list[dict], info: dict[str, str], path: Path) -> None:
+    """Path error against control effort over the sweep's nu, each point labelled by its nu."""
+    fig, ax = _timing.figure("Pareto front of the line's OCP over nu (solve_ocp_sweep, N = 2501)", info)
+    effort, error = [m["rms_u"] for m in front], [m["path_um"] for m in front]
+    ax.semilogy(effort, error, "o-")
+    for m in front[::3]:
+        ax.annotate(f"nu = {m['nu']:.0e}", (m["rms_u"], m["path_um"]), textcoords="offset points", xytext=(6, 4),
+                    fontsize=7)
+    ax.set_xlabel("control effort: RMS motor acceleration [rad/s²]")
+    ax.set_ylabel("largest path error on the model [µm]")
+    _timing.save(fig, path)
+
+
+def write_markdown(out: Path, rows, sweep) -> dict[str, str]:
+    """Write the results file of these rows and sweep; returns its run info."""
+    info = _timing.run_info("CasADi + IPOPT (exact Hessian, MUMPS) on the same scaled NLP from the same warm start"
+                            if any("ipopt" in row for row in rows) else "none (`--no-ipopt`)", ("casadi",))
+    lines = ["# OCP benchmark: CasADi + IPOPT vs our augmented Lagrangian", "", _timing.header(info),
+             "N = 2501, T_s = 1 ms; same scaled NLP and warm start "
              "(flat inverse). Wall times exclude compilation (ours: second call; IPOPT: solver call only).", "",
              "| task | nu | solver | status | iterations | wall [s] | objective [rad²] | max violation (scaled) "
              "| path error [µm] |", "|---|---|---|---|---|---|---|---|---|"]
@@ -300,9 +333,16 @@ def write_markdown(out: Path, rows, sweep, machine, device, notes) -> None:
                   f"core): {sweep['chained_s']:.2f} s, {sweep['chained_converged']}/{sweep['n']} converged, "
                   f"{sweep['chained_iterations']} outer iterations; {sweep['chained_s'] / sweep['single_s']:.1f}x the "
                   f"fastest, {sweep['chained_s'] / mean:.1f}x the mean solve; "
-                  f"{sweep['batched_s'] / sweep['chained_s']:.2f}x faster than the vmapped call."]
-    lines += ["", f"Load average at the end: {os.getloadavg()[0]:.1f} (other jobs shared the cores)."] + notes
+                  f"{sweep['batched_s'] / sweep['chained_s']:.2f}x faster than the vmapped call.",
+                  "", f"Pareto front (the members of `solve_ocp_sweep`; `{PLOT}`): path error on the planning model "
+                  "(largest tool position error along the line) against the control effort (RMS over the nodes of the "
+                  "motor accelerations' 2-norm).", "",
+                  "| nu | status | outer iterations | path error [µm] | RMS motor acceleration [rad/s²] |",
+                  "|---|---|---|---|---|",
+                  *(f"| {m['nu']:.1e} | {m['status']} | {m['iterations']} | {m['path_um']:.3f} | {m['rms_u']:.5g} |"
+                    for m in sweep["front"])]
     out.write_text("\n".join(lines) + "\n")
+    return info
 
 
 if __name__ == "__main__":

@@ -18,11 +18,10 @@ nu = 1e-14 only, printed).
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import time
 from pathlib import Path
 
+import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records the start)
 import jax
 import numpy as np
 
@@ -165,7 +164,9 @@ def main() -> None:
     lines = [
         "# Plans on the direction-dependent as-built robot",
         "",
-        "`python benchmarks/bench_plant.py` (this file). Largest tool position error [µm] along the path of the",
+        _timing.header(_timing.run_info("none (the flat inverse of each model, the exact inverse, is each plan's "
+                                        "reference)")),
+        "Largest tool position error [µm] along the path of the",
         "plans of three planning models, simulated on the as-built Racer-7 (`jr.racer7(as_built=True)`) with the",
         "cw gear set throughout (`cw plant`) and with its gears' flanks as states (`flank plant`,",
         "`jr.simulate(directional=True)`, docs/model.md (B.0)); `rest`: the largest error during the 0.5 s",
@@ -177,9 +178,6 @@ def main() -> None:
         "`planning.motor_reversals`); flank changes: how often each gear of the as-built robot changes flank along",
         "the OCP's motor angles (`jr.direction_state` crossing 1/2, from rest on cw); the flat inverse's (the",
         "exact inverse of the same model) in brackets.",
-        "",
-        f"Machine: {platform.machine()}, {os.cpu_count()} CPU cores, JAX {jax.__version__}, "
-        f"backend {jax.default_backend()}.",
         "",
         "The directional simulator (`simulator_checks`):",
         "",

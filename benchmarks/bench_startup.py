@@ -1,14 +1,15 @@
-"""Start-up times (issue 17): `jaxrobot demo` and the first call of every CLI command, each in a new
-process, cold (an empty persistent compilation cache) and warm (a second process on the same cache).
+"""Start-up times: `jaxrobot demo` and the first call of every CLI command, each in a new process, cold
+(an empty persistent compilation cache) and warm (a second process on the same cache).
 
-    python benchmarks/bench_startup.py --label before --source /tmp/base --commit 66cc01c [--commands ...]
-    python benchmarks/bench_startup.py --label after
-    python benchmarks/bench_startup.py --table      # startup_*.json -> the table of results_startup.md
+    python benchmarks/bench_startup.py [--commands demo "plan line" ...] [--source DIR --commit SHA]
+                                       [--json RUNS.json] [--out results_startup.md]
 
 Each run records wall time, the CPU time of the process (user + sys, from `os.wait4`: less
 sensitive than wall time to other load on the machine) and the 1-minute load average before it.
-`--source DIR` runs the packages in DIR (e.g. `git archive` of an older commit). Bench data: the
-independent implementation's files (`shared/independent`).
+`--source DIR` runs the packages in DIR (e.g. `git archive` of an older commit, named by `--commit`).
+Bench data: the independent implementation's files (`shared/independent`). Writes the table to
+benchmarks/results_startup.md (or `--out`); `--json` also saves the runs (`{"runs": {command: {"cold": run,
+"warm": run}}}`, each run `wall_s`, `cpu_s`, `load`, `rc`, `error`) and the header fields (`"info"`).
 """
 
 from __future__ import annotations
@@ -16,15 +17,16 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+import _timing  # benchmarks/ is the script's folder
+
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results_startup.md"
+GOALS = "warm `demo` <= 25 s, cold `demo` <= 45 s, warm `plan line` <= 15 s (wall time, an otherwise idle machine)"
 
 
 def commands(data: Path, tmp: Path) -> dict[str, list[str]]:
@@ -69,88 +71,71 @@ def run_once(argv: list[str], cache: Path, source: Path | None, cwd: Path) -> di
     return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime, "load": load, "rc": rc, "error": tail}
 
 
-def measure(args) -> None:
-    data = args.data
-    results = {"label": args.label, "commit": args.commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-               "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-                          f"Python {platform.python_version()}", "runs": {}}
-    out = ROOT / "benchmarks" / f"startup_{args.label}.json"
-    if out.exists():
-        results["runs"] = json.loads(out.read_text())["runs"]
+def measure(data: Path, names: list[str] | None, source: Path | None) -> dict[str, dict]:
+    """`{command: {"cold": run, "warm": run}}` of `run_once` for the commands `names` (default all)."""
+    runs = {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         cmds = commands(data, tmp)
-        for name in args.commands or list(cmds):
+        unknown = sorted(set(names or []) - set(cmds))
+        if unknown:
+            raise SystemExit(f"--commands: unknown {unknown}; expected some of {list(cmds)}")
+        for name in names or list(cmds):
             cache = tmp / f"cache-{name.replace(' ', '-')}"
             row = {}
             for kind in ("cold", "warm"):  # cold: an empty cache; warm: a second process on it
-                row[kind] = run_once(cmds[name], cache, args.source, tmp)
+                row[kind] = run_once(cmds[name], cache, source, tmp)
                 r = row[kind]
                 print(f"[{time.strftime('%H:%M:%S')}] {name} {kind}: rc {r['rc']}, wall {r['wall_s']:.1f} s, "
                       f"cpu {r['cpu_s']:.1f} s, load {r['load']:.1f} {r['error']}", file=sys.stderr, flush=True)
-            results["runs"][name] = row
-            out.write_text(json.dumps(results, indent=1))
+            runs[name] = row
+    return runs
 
 
-def table(data: Path, labels: list[str]) -> None:
-    found = {json.loads(p.read_text())["label"]: json.loads(p.read_text())
-             for p in sorted((ROOT / "benchmarks").glob("startup_*.json"))}
-    found = {k: v for k, v in found.items() if k in labels}
-    labels = sorted(found, key=lambda k: found[k]["when"])  # in the order measured
-    lines = ["# Start-up times (`benchmarks/bench_startup.py`)", "",
+def table(data: Path, runs: dict[str, dict], info: dict[str, str]) -> str:
+    """The results file: header, one row per command, the command lines."""
+    lines = ["# Start-up times", "", _timing.header(info),
              "Each command in a new process: **cold** = an empty persistent compilation cache "
              "(`JAXROBOT_CACHE_DIR` a fresh folder), **warm** = a second process on the same cache. "
-             "Wall time and the process's CPU time (user + sys) in seconds; `load` = the 1-minute load "
-             "average just before the run (other work on the same 2 cores slows the wall time). "
-             "Goals (issue 17): warm demo <= 25 s, cold demo <= 45 s, `plan line` warm <= 15 s.", ""]
-    for label in labels:
-        res = found[label]
-        lines += [f"- **{label}**: commit {res['commit']}, {res['when']}, {res['machine']}"]
-    lines += ["", "| command | " + " | ".join(f"{lab} cold wall / cpu (load) | {lab} warm wall / cpu (load)"
-                                              for lab in labels) + " |",
-              "|---|" + "---|---|" * len(labels)]
-    names = list(dict.fromkeys(n for lab in labels for n in found[lab]["runs"]))
-    for name in names:
-        cells = []
-        for lab in labels:
-            row = found[lab]["runs"].get(name)
-            for kind in ("cold", "warm"):
-                r = None if row is None else row[kind]
-                cells.append("-" if r is None else f"{r['wall_s']:.1f} / {r['cpu_s']:.1f} ({r['load']:.1f})"
-                             + ("" if r["rc"] == 0 else f" rc {r['rc']}"))
+             "Wall time and the process's CPU time (user + sys, every thread) in seconds; `load` = the 1-minute "
+             "load average just before the run (other work on the same cores slows the wall time). "
+             f"Goals: {GOALS}.", "",
+             "| command | cold wall [s] | cold CPU [s] | cold load | warm wall [s] | warm CPU [s] | warm load |",
+             "|---|---|---|---|---|---|---|"]
+    for name, row in runs.items():
+        cells = [f"{r['wall_s']:.1f}" + ("" if r["rc"] == 0 else f" (exit {r['rc']})") + f" | {r['cpu_s']:.1f} | "
+                 f"{r['load']:.1f}" for r in (row["cold"], row["warm"])]
         lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
     cmds = commands(data, Path("TMP"))
     lines += ["", "Command lines (`DATA` = `shared/independent`, `TMP` a temporary folder):", ""]
     lines += [f"- `{name}`: `jaxrobot {' '.join(a.replace(str(data), 'DATA') for a in argv)}`"
-              for name, argv in cmds.items() if name != "import-urdf"]
-    lines += ["- `import-urdf`: `jaxrobot import-urdf panda.urdf --tip panda_link8 --out TMP/panda.toml` "
-              "(example-robot-data)"]
-    old = RESULTS.read_text() if RESULTS.exists() else ""
-    notes = old[old.index("\n## "):] if "\n## " in old else ""  # the sections after the table stay
-    RESULTS.write_text("\n".join(lines) + "\n" + notes)
-    print(RESULTS.read_text())
+              for name, argv in cmds.items() if name in runs and name != "import-urdf"]
+    if "import-urdf" in runs:
+        lines += ["- `import-urdf`: `jaxrobot import-urdf panda.urdf --tip panda_link8 --out TMP/panda.toml` "
+                  "(example-robot-data)"]
+    return "\n".join(lines) + "\n"
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--label", default="after", help="name of this measurement (before/after)")
-    ap.add_argument("--commit", default=None, help="commit measured (default: git HEAD of this tree)")
     ap.add_argument("--commands", nargs="*", default=None, help="commands to run (default: all)")
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "independent")
     ap.add_argument("--source", type=Path, default=None, help="run the packages in this folder instead")
-    ap.add_argument("--table", action="store_true", help="write results_startup.md from the measurements")
-    ap.add_argument("--labels", nargs="+", default=["s12-before", "s12-after"],
-                    help="measurements (startup_*.json labels) in the table of --table")
+    ap.add_argument("--commit", default=None, help="the commit of --source (default: its git HEAD, if any)")
+    ap.add_argument("--json", type=Path, default=None, help="also save the runs as JSON to this path")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results_startup.md")
     args = ap.parse_args()
     if not args.data.is_dir():
         args.data = Path("/work/shared/independent")
     args.data = args.data.resolve()  # the commands run in a temporary folder
-    if args.table:
-        return table(args.data, args.labels)
-    if args.commit is None:
-        args.commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
-                                     capture_output=True, text=True).stdout.strip()
-    measure(args)
+    runs = measure(args.data, args.commands, args.source)
+    info = _timing.run_info("none (start-up of this package's own commands)", source=args.source)
+    if args.commit:
+        info["Commit"] = args.commit
+    args.out.write_text(table(args.data, runs, info))
+    if args.json:
+        args.json.write_text(json.dumps({"info": info, "runs": runs}, indent=1))
+    print(args.out.read_text())
 
 
 if __name__ == "__main__":

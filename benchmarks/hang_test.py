@@ -1,17 +1,21 @@
-"""Hang test (issue 16): every CLI command on bench data, N times each, each run under a timeout.
+"""Hang test: every CLI command on bench data, N times each, each run under a timeout.
 
     python benchmarks/hang_test.py [--runs 20] [--runs-for plan=2 ...] [--timeout 900]
-                                   [--data DIR] [--source DIR] [--lapack] [--out results_hang.md]
+                                   [--data DIR] [--source DIR [--commit SHA]] [--lapack]
+                                   [--out results_hang.md]
 
 A run that exceeds the timeout is a hang (a deadlocked process sits at 0 % CPU forever; a slow one
 would also show up here, so the timeout is several times a normal run). `--source DIR` runs the
-code in DIR instead (e.g. an export of an older commit, for the time per run before a fix).
-`--lapack` dumps every module the commands lower (`JAX_DUMP_IR_TO`) and counts LAPACK custom
-calls with batch dimensions (the deadlock hazard; `tests/test_no_batched_lapack.py`).
+code in DIR instead (e.g. an export of an older commit, named by `--commit`). `--lapack` dumps every
+module the commands lower (`JAX_DUMP_IR_TO`) and counts LAPACK custom calls with batch dimensions
+(the deadlock hazard, `tests/test_no_batched_lapack.py`: jaxlib 0.10's batched LAPACK kernels wait on
+XLA's CPU thread pool from one of its own threads, so as many of them at once as the pool has threads
+deadlock).
 Bench data: the independent implementation's files (`shared/independent`, README there); for
 `import-urdf` the Panda of example-robot-data (else our Racer-7 exported as URDF); `calibrate-fleet`
 writes its own bench fleet (`--bench 200`).
-Appends a markdown table (command, runs, hangs, failures, time per run) to `--out`.
+Writes `--out` (default benchmarks/results_hang.md): the header and a table (command, runs, hangs,
+failures, time per run, load average), a row as each command is done.
 """
 
 from __future__ import annotations
@@ -19,13 +23,14 @@ from __future__ import annotations
 import argparse
 import importlib.metadata
 import os
-import platform
 import re
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+import _timing  # benchmarks/ is the script's folder
 
 ROOT = Path(__file__).resolve().parents[1]
 LAPACK_CALL = re.compile(r"custom_call @(lapack_\w+)\(.*\} : \(tensor<([0-9x]*?)x?[a-z]+\d*>")
@@ -96,7 +101,7 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "independent")
     ap.add_argument("--source", type=Path, default=None, help="run the packages in this folder instead")
     ap.add_argument("--lapack", action="store_true", help="also count batched LAPACK calls (first run of each)")
-    ap.add_argument("--label", default="", help="label of this run in the table (e.g. the commit)")
+    ap.add_argument("--commit", default=None, help="the commit of --source (default: its git HEAD, if any)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results_hang.md")
     args = ap.parse_args()
     urdf_dir = Path(tempfile.mkdtemp())
@@ -109,18 +114,21 @@ def main() -> None:
     for item in args.runs_for:
         name, _, n = item.partition("=")
         counts[name] = int(n)
-    if not args.out.exists():
-        args.out.write_text("# Hang test (`benchmarks/hang_test.py`)\n\nEvery CLI command on bench data, each run "
-                            "under a timeout; a run past it is a hang.\n")
-    with args.out.open("a") as f:  # one row per command as soon as it is done
-        f.write("\n".join([
-            f"\n## {args.label or 'run'} ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})", "",
-            f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python "
-            f"{platform.python_version()}; timeout {args.timeout:.0f} s per run; code: {args.source or ROOT}; "
-            f"data: {args.data}", "",
+    rows = []
+
+    def write() -> None:  # the file with every row done so far
+        info = _timing.run_info("none (every run's exit and time; a run past --timeout counts as a hang)",
+                                ("jaxlib",), source=args.source)
+        info["Commit"] = args.commit or info["Commit"]
+        args.out.write_text("\n".join([
+            "# Hang test", "", _timing.header(info),
+            f"Every CLI command on bench data, each run in a new process under a timeout of {args.timeout:.0f} s; a "
+            f"run past it is a hang. Data: {args.data}." + (" Batched LAPACK calls: those in the modules the first "
+                                                             "run of each command lowers." if args.lapack else ""), "",
             "| command | runs | hangs | failed (rc != 0) | time per run [s] median (min-max) | load average |"
             + (" batched LAPACK calls |" if args.lapack else ""),
-            "|---|---|---|---|---|---|" + ("---|" if args.lapack else "")]) + "\n")
+            "|---|---|---|---|---|---|" + ("---|" if args.lapack else ""), *rows]) + "\n")
+
     for name in names:
         times, loads, hangs, failures, lapack, last = [], [], 0, 0, [], []
         for i in range(counts[name]):
@@ -146,8 +154,8 @@ def main() -> None:
                f"{stat} | {min(loads):.1f}-{max(loads):.1f} |"
                + (f" {len(lapack)}{': ' + '; '.join(lapack[:4]) if lapack else ''} |" if args.lapack else ""))
         print(row)
-        with args.out.open("a") as f:
-            f.write(row + "\n")
+        rows.append(row)
+        write()
 
 
 if __name__ == "__main__":
