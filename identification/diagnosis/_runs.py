@@ -161,6 +161,10 @@ candidate (above the files' rounding, 12 digits, ~1e-10 rad; and at least two en
 encoder_counts_per_rev` states them): the encoders report the motor angle, so a lag shows there first."""
 LM_STEPS = 30
 """Most Levenberg-Marquardt iterations of a fit."""
+RANKING_TOLERANCE = 0.01
+"""Chi-square decrease of an accepted step below which a candidate's fit for ranking ends (`_fit` without
+`exact_end`); the best candidate's fit is then continued on exact derivatives to the tight tolerance. Far below
+`MIN_BIC_GAIN`: only candidates within it of each other could swap ranks."""
 TANGENTS = 3
 """Derivative columns per call of the fits' compiled derivative program: they evaluate theirs this many at a time,
 zero-padded, so that one program serves every number of fitted effects. The screening evaluates every variable's
@@ -378,19 +382,24 @@ def _identifiable(cols, effects, n: int, at=None) -> bool:
     return bool(s[-1] > 1e-6 * s[0])
 
 
-def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_end: bool = True):
+def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_end: bool = True,
+         chi2_before: float | None = None):
     """Levenberg-Marquardt on the variables of `effects` from `z0`, where the residual is `r0` and its exact derivatives
     along those variables `jac0`: (z, chi2, residual, derivatives, covariance of the variables) at the end, or None
-    where the fit leaves the physical range (a negative lag, damping or payload mass), fails to lower the chi-square or
-    ends on dependent derivatives. Between exact evaluations the derivatives follow Broyden's rank-one update at each
-    accepted step (exact again where a step fails on updated ones). The fit ends where an accepted step lowers the
-    chi-square by less than the tolerance; with `exact_end` only where that step was taken on exact derivatives or
-    the exact Gauss-Newton step predicts no more, and the covariance is `(J^T J)^-1` of the exact derivatives at the
-    end (None without `exact_end`)."""
+    where the fit leaves the physical range (a negative lag, damping or payload mass), ends on dependent derivatives
+    or fails to lower the chi-square below `chi2_before` (default: that at `z0`).
+
+    Between exact evaluations the derivatives follow Broyden's rank-one update at each accepted step. With
+    `exact_end` they are evaluated exactly again where a step fails on updated ones, the fit ends where a step on
+    exact derivatives lowers the chi-square by less than the tolerance or the exact Gauss-Newton step predicts no
+    more, and the covariance is `(J^T J)^-1` of the exact derivatives at the end. Without it (a candidate's fit for
+    ranking, `RANKING_TOLERANCE`) a failed step updates them too, only the trials' simulations run, and the
+    covariance is None."""
     n = robot.n_joints
     idx = np.array([i for e in effects for i in _index(e, n)])
     z, r, jac, exact = jnp.asarray(z0), r0, jac0, True
-    chi2, start, lam = float(r @ r), float(r @ r), 1e-3
+    chi2, lam = float(r @ r), 1e-3
+    start = chi2 if chi2_before is None else chi2_before
     tolerance = lambda chi2: 1e-9 * chi2 + 1e-6  # noqa: E731
     for _ in range(LM_STEPS):
         if exact and exact_end:
@@ -402,17 +411,22 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
         z_try = z.at[idx].add(step)
         r_try = _evaluate(robot, z_try, ev, marker, substeps)[0]
         chi2_try = float(r_try @ r_try)
+        secant = np.outer(r_try - r - jac @ step, step) / (step @ step) if np.isfinite(chi2_try) else 0.0
         if chi2_try < chi2:
-            done, on_exact = chi2 - chi2_try < tolerance(chi2), exact
-            jac = jac + np.outer(r_try - r - jac @ step, step) / (step @ step)
-            z, r, chi2, lam, exact = z_try, r_try, chi2_try, max(lam / 10.0, 1e-12), False
-            if done and (on_exact or not exact_end):
+            done = chi2 - chi2_try < (tolerance(chi2) if exact_end else RANKING_TOLERANCE)
+            if done and exact_end and exact:  # z is the end, where the derivatives are exact
                 break
+            z, r, chi2, lam = z_try, r_try, chi2_try, max(lam / 10.0, 1e-12)
+            if done and not exact_end:
+                break
+            jac, exact = jac + secant, False
             if done:
                 jac, exact = _evaluate(robot, z, ev, marker, substeps, idx)[1], True
-        elif not exact:
+        elif exact_end and not exact:
             jac, exact = _evaluate(robot, z, ev, marker, substeps, idx)[1], True
         else:
+            if not exact_end:
+                jac, exact = jac + secant, False
             lam *= 10.0
             if lam > 1e8:
                 break
@@ -559,7 +573,7 @@ def diagnose_runs(
             effects = added + [effect]
             variables = [i for e in effects for i in _index(e, n)]
             fit = _fit(base, z_fit, effects, ev, marker, substeps, r_fit,
-                       _evaluate(base, z_fit, ev, marker, substeps, variables)[1])
+                       _evaluate(base, z_fit, ev, marker, substeps, variables)[1], chi2_before=float(res @ res))
             if fit is not None:
                 best = (effect, fit)
                 break
