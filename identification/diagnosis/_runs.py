@@ -168,7 +168,7 @@ RANKING_TOLERANCE = 0.01
 TANGENTS = 3
 """Derivative columns per call of the fits' compiled derivative program: they evaluate theirs this many at a time,
 zero-padded, so that one program serves every number of fitted effects. The screening evaluates every variable's
-column in one call of a second program: per column it costs about half as much as calls of `TANGENTS`."""
+column in one call of a second program, cheaper per column than calls of `TANGENTS`."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -496,7 +496,8 @@ def diagnose_runs(
     linearised chi-square decrease of its own variables (a lag only for a motor whose encoders depart from the
     model's motor angles, `ENCODER_LAG_RAD`; the payload only with poses, `PAYLOAD`), fits the `SCREENED` best
     with the effects already added by Levenberg-Marquardt through the simulation and the rest poses (forward-mode
-    derivatives), and adds the one of least BIC (over all rows) if it lowers BIC by more than `MIN_BIC_GAIN` and
+    derivatives at the start, then Broyden's updates: `_fit`), continues the fit of least chi-square on exact
+    derivatives to convergence, and adds it (BIC over all rows) if it lowers BIC by more than `MIN_BIC_GAIN` and
     lowers the validation runs' and poses' chi-square. The model without an effect is where each fit starts (lag,
     damping and payload 0). Static effects that runs do not change (geometry, gear ripple, offsets: `diagnose`) are
     not candidates: diagnose the poses alone for them first."""
