@@ -125,8 +125,8 @@ def case_runs(name: str, samples: int = SHORT):
             [pair("line_nu1e-10"), pair("spiral_nu1e-10")])
 
 
-@pytest.mark.slow  # ~12 min on 2 cores: three cases of runs diagnosed
-@pytest.mark.timeout(1800)
+@pytest.mark.extended  # ~3 min on 2 shared cores: three cases of runs diagnosed
+@pytest.mark.timeout(1200)
 def test_the_other_cases_from_runs():
     """The trajectories cases besides the lag (tests/test_runs.py) from their first 0.7 s. The clean case adds
     nothing (its training runs fail the chi-square test at `ALPHA` by their noise draw, p = 0.0055, and no effect
