@@ -29,7 +29,7 @@ import planning as pl
 CASES = ("p2_motor_lag_j123", "p3_joint3_stiffness")
 FITTED_LAGS = (2.99970e-3, 3.06744e-3, 2.97469e-3)
 """[s] The lags of motors 1-3 `diagnose_runs` fitted on the lag case's four runs shortened to 700 samples
-(results_runs.md, "One compiled derivative program"; sigma 2.03e-5, 5.06e-5, 8.34e-5 s)."""
+(results_runs.md at commit 294365a; sigma 2.03e-5, 5.06e-5, 8.34e-5 s)."""
 SECTION = "## Re-plan on the corrected model: "
 
 

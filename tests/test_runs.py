@@ -128,8 +128,7 @@ def test_cli_compare_and_run_files_refused_as_poses(tmp_path, capsys):
 def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
     """`diagnose --runs` on the first 0.7 s of the lag case's four runs (line and spiral at nu = 1e-14 for training,
     1e-10 for validation): the lags of motors 1, 2 and 3, each within 3 reported sigma of truth.json's 3 ms, and
-    nothing else; the saved model carries them. 5 min on 2 shared cores (three steps of screening and fits, one
-    compiled derivative program)."""
+    nothing else; the saved model carries them. 5 min on 2 shared cores (three steps of screening and fits)."""
     folder = case("p2_motor_lag_j123")
     files = {}
     for name in ("line_nu1e-14", "spiral_nu1e-14", "line_nu1e-10", "spiral_nu1e-10"):

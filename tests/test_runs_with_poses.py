@@ -125,8 +125,8 @@ def case_runs(name: str, samples: int = SHORT):
             [pair("line_nu1e-10"), pair("spiral_nu1e-10")])
 
 
-@pytest.mark.slow  # ~12 min on 2 cores: three cases of runs diagnosed
-@pytest.mark.timeout(1800)
+@pytest.mark.extended  # ~3 min on 2 shared cores: three cases of runs diagnosed
+@pytest.mark.timeout(1200)
 def test_the_other_cases_from_runs():
     """The trajectories cases besides the lag (tests/test_runs.py) from their first 0.7 s. The clean case adds
     nothing (its training runs fail the chi-square test at `ALPHA` by their noise draw, p = 0.0055, and no effect
@@ -156,8 +156,8 @@ def test_the_other_cases_from_runs():
     assert res.verdict.startswith("explained")
 
 
-@pytest.mark.slow  # ~15 min on 2 cores: runs with poses diagnosed through the CLI
-@pytest.mark.timeout(3600)
+@pytest.mark.extended  # ~4 min on 2 shared cores: runs with poses diagnosed through the CLI
+@pytest.mark.timeout(1200)
 def test_payload_from_poses_and_lag_from_runs(tmp_path, capsys):
     """The virtual bench: the clean case's robot with a hidden 4 kg payload at (0, 0.05, 0.12) m on the flange and a
     3 ms lag of motor 1, run (our simulation, the tracker's noise, seeded) on the first 0.7 s of the line (training)
@@ -165,7 +165,7 @@ def test_payload_from_poses_and_lag_from_runs(tmp_path, capsys):
     POSES.csv --validate …`) payload and lag are named, each parameter within 3 reported sigma. The poses alone cannot
     show the lag (it moves no rest pose: `test_runs_and_poses_share_one_chi_square`); the runs alone do not offer the
     payload (`PAYLOAD`: on these runs, with it offered, they named joint 4's stiffness instead, which the validation
-    run refused). 15 min on 2 cores shared with other jobs."""
+    run refused)."""
     folder, start, marker, noise, _, _ = case_runs("p0_clean")
     truth = payload_robot(dataclasses.replace(start, motor_lag=jnp.array([3e-3, 0.0, 0, 0, 0, 0])), 4.0,
                           jnp.array([0.0, 0.05, 0.12]))

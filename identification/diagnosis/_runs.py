@@ -161,9 +161,14 @@ candidate (above the files' rounding, 12 digits, ~1e-10 rad; and at least two en
 encoder_counts_per_rev` states them): the encoders report the motor angle, so a lag shows there first."""
 LM_STEPS = 30
 """Most Levenberg-Marquardt iterations of a fit."""
+RANKING_TOLERANCE = 0.01
+"""Chi-square decrease of an accepted step below which a candidate's fit for ranking ends (`_fit` without
+`exact_end`); the best candidate's fit is then continued on exact derivatives to the tight tolerance. Far below
+`MIN_BIC_GAIN`: only candidates within it of each other could swap ranks."""
 TANGENTS = 3
-"""Derivative columns per call of the compiled derivative program: the screening and the fits evaluate theirs this
-many at a time, zero-padded, so that one program serves every number of fitted effects."""
+"""Derivative columns per call of the fits' compiled derivative program: they evaluate theirs this many at a time,
+zero-padded, so that one program serves every number of fitted effects. The screening evaluates every variable's
+column in one call of a second program, cheaper per column than calls of `TANGENTS`."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -263,7 +268,7 @@ def _residual(robot, z, cmd, white, measured, sigma, marker, substeps):
 
 @functools.partial(jax.jit, static_argnames="substeps")
 def _columns(robot, z, tangents, cmd, white, measured, sigma, marker, substeps):
-    """Residual (3N,) and its derivatives (3N, TANGENTS) along the `tangents` (4n + 4, TANGENTS) of the variables."""
+    """Residual (3N,) and its derivatives (3N, T) along the `tangents` (4n + 4, T) of the variables."""
     f = lambda z: _whitened(robot, z, cmd, white, measured, sigma, marker, substeps)  # noqa: E731
     r = f(z)
     return r, jax.vmap(lambda t: jax.jvp(f, (z,), (t,))[1], in_axes=1, out_axes=1)(tangents)
@@ -332,19 +337,19 @@ def _prepare_poses(robot: jr.Robot, poses, noise, marker, where: str) -> tuple |
             jnp.asarray(poses.positions))
 
 
-def _evaluate(robot, z, ev: _Evidence, marker, substeps, variables=None):
+def _evaluate(robot, z, ev: _Evidence, marker, substeps, variables=None, width: int = TANGENTS):
     """Stacked whitened residuals of the runs, then the poses, of `ev` at `z`, and their derivatives (rows, m) along
-    the effect `variables` (m,) if given: the runs' `TANGENTS` at a time (zero-padded: one compiled program for any
-    number of variables)."""
+    the effect `variables` (m,) if given: the runs' `width` at a time (zero-padded: one compiled program per `width`
+    for any number of variables)."""
     res, cols = [], []
     for r in ev.runs:
         if variables is None:
             res.append(np.asarray(_residual(robot, z, r.command, r.white, r.measured, ev.sigma, marker, substeps)))
             continue
         parts = []
-        for start in range(0, len(variables), TANGENTS):
-            chunk = variables[start:start + TANGENTS]
-            tangents = np.zeros((len(z), TANGENTS))
+        for start in range(0, len(variables), width):
+            chunk = variables[start:start + width]
+            tangents = np.zeros((len(z), width))
             tangents[chunk, np.arange(len(chunk))] = 1.0
             out = _columns(robot, z, jnp.asarray(tangents), r.command, r.white, r.measured, ev.sigma, marker,
                            substeps)
@@ -377,36 +382,61 @@ def _identifiable(cols, effects, n: int, at=None) -> bool:
     return bool(s[-1] > 1e-6 * s[0])
 
 
-def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0):
-    """Levenberg-Marquardt on the variables of `effects` from `z0`, where the residual is `r0` and its derivatives
-    along those variables `jac0`: (z, chi2, covariance of the variables) or None where the fit leaves the physical range
-    (a negative lag, damping or payload mass) or fails to lower the chi-square; the covariance of the variables is
-    `(J^T J)^-1` at the end. Derivatives are evaluated at accepted steps only."""
+def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_end: bool = True,
+         chi2_before: float | None = None):
+    """Levenberg-Marquardt on the variables of `effects` from `z0`, where the residual is `r0` and its exact derivatives
+    along those variables `jac0`: (z, chi2, residual, derivatives, covariance of the variables) at the end, or None
+    where the fit leaves the physical range (a negative lag, damping or payload mass), ends on dependent derivatives
+    or fails to lower the chi-square below `chi2_before` (default: that at `z0`).
+
+    Between exact evaluations the derivatives follow Broyden's rank-one update at each accepted step. With
+    `exact_end` they are evaluated exactly again where a step fails on updated ones, the fit ends where a step on
+    exact derivatives lowers the chi-square by less than the tolerance or the exact Gauss-Newton step predicts no
+    more, and the covariance is `(J^T J)^-1` of the exact derivatives at the end. Without it (a candidate's fit for
+    ranking, `RANKING_TOLERANCE`) a failed step updates them too, only the trials' simulations run, and the
+    covariance is None."""
     n = robot.n_joints
     idx = np.array([i for e in effects for i in _index(e, n)])
-    z, r, jac = jnp.asarray(z0), r0, jac0
-    chi2, start, lam = float(r @ r), float(r @ r), 1e-3
+    z, r, jac, exact = jnp.asarray(z0), r0, jac0, True
+    chi2, lam = float(r @ r), 1e-3
+    start = chi2 if chi2_before is None else chi2_before
+    tolerance = lambda chi2: 1e-9 * chi2 + 1e-6  # noqa: E731
     for _ in range(LM_STEPS):
+        if exact and exact_end:
+            predicted = jac @ np.linalg.lstsq(jac, r, rcond=None)[0]  # the Gauss-Newton step's decrease
+            if predicted @ predicted < tolerance(chi2):
+                break
         a, g = jac.T @ jac, jac.T @ r
         step = np.linalg.solve(a + lam * np.diag(np.diag(a)), -g)
         z_try = z.at[idx].add(step)
         r_try = _evaluate(robot, z_try, ev, marker, substeps)[0]
         chi2_try = float(r_try @ r_try)
+        secant = np.outer(r_try - r - jac @ step, step) / (step @ step) if np.isfinite(chi2_try) else 0.0
         if chi2_try < chi2:
-            done = chi2 - chi2_try < 1e-9 * chi2 + 1e-6
-            z, r, chi2, lam = z_try, r_try, chi2_try, max(lam / 10.0, 1e-12)
-            jac = _evaluate(robot, z, ev, marker, substeps, idx)[1]
-            if done:
+            done = chi2 - chi2_try < (tolerance(chi2) if exact_end else RANKING_TOLERANCE)
+            if done and exact_end and exact:  # z is the end, where the derivatives are exact
                 break
+            z, r, chi2, lam = z_try, r_try, chi2_try, max(lam / 10.0, 1e-12)
+            if done and not exact_end:
+                break
+            jac, exact = jac + secant, False
+            if done:
+                jac, exact = _evaluate(robot, z, ev, marker, substeps, idx)[1], True
+        elif exact_end and not exact:
+            jac, exact = _evaluate(robot, z, ev, marker, substeps, idx)[1], True
         else:
+            if not exact_end:
+                jac, exact = jac + secant, False
             lam *= 10.0
             if lam > 1e8:
                 break
+    if exact_end and not exact:
+        jac = _evaluate(robot, z, ev, marker, substeps, idx)[1]
     values = np.asarray(z)
     if not chi2 < start or np.any(values[:2 * n] < 0) or values[len(RUN_KINDS) * n] < 0 \
             or not _identifiable(jac, effects, n, np.arange(jac.shape[1])):
         return None
-    return z, chi2, np.linalg.inv(jac.T @ jac)
+    return z, chi2, r, jac, np.linalg.inv(jac.T @ jac) if exact_end else None
 
 
 def _estimate(robot, z, effects, cov) -> list[RunEstimate]:
@@ -466,7 +496,8 @@ def diagnose_runs(
     linearised chi-square decrease of its own variables (a lag only for a motor whose encoders depart from the
     model's motor angles, `ENCODER_LAG_RAD`; the payload only with poses, `PAYLOAD`), fits the `SCREENED` best
     with the effects already added by Levenberg-Marquardt through the simulation and the rest poses (forward-mode
-    derivatives), and adds the one of least BIC (over all rows) if it lowers BIC by more than `MIN_BIC_GAIN` and
+    derivatives at the start, then Broyden's updates: `_fit`), continues the fit of least chi-square on exact
+    derivatives to convergence, and adds it (BIC over all rows) if it lowers BIC by more than `MIN_BIC_GAIN` and
     lowers the validation runs' and poses' chi-square. The model without an effect is where each fit starts (lag,
     damping and payload 0). Static effects that runs do not change (geometry, gear ripple, offsets: `diagnose`) are
     not candidates: diagnose the poses alone for them first."""
@@ -518,7 +549,7 @@ def diagnose_runs(
             verdict = "not explained: no effect of the catalogue is left to add"
             break
         needed = sorted({i for c in eligible + added for i in _index(c, n)})
-        res, part = _evaluate(base, z, ev, marker, substeps, needed)  # reused by the fits' first step
+        res, part = _evaluate(base, z, ev, marker, substeps, needed, size)  # reused by the fits' first step
         cols = np.zeros((len(res), size))
         cols[:, needed] = part
         gain = []
@@ -529,20 +560,29 @@ def diagnose_runs(
             rest = [i for e in added for i in _index(e, n)] + own
             gain.append(float(g @ np.linalg.pinv(a.T @ a) @ g) if _identifiable(cols[:, rest], [], n,
                                                                                   np.arange(len(rest))) else -np.inf)
-        best = None
+        fits = []  # each candidate's fit ends on updated derivatives; the best is then confirmed on exact ones
         for k in np.argsort(-np.asarray(gain), kind="stable")[:SCREENED]:
             if gain[k] == -np.inf:
                 break
             effects = added + [eligible[k]]
             fit = _fit(base, z, effects, ev, marker, substeps, res,
-                       cols[:, [i for e in effects for i in _index(e, n)]])
-            if fit is not None and (best is None or fit[1] < best[1][1]):
-                best = (eligible[k], fit)
+                       cols[:, [i for e in effects for i in _index(e, n)]], exact_end=False)
+            if fit is not None:
+                fits.append((fit[1], eligible[k], fit))
+        best = None
+        for _, effect, (z_fit, _, r_fit, _, _) in sorted(fits, key=lambda f: f[0]):
+            effects = added + [effect]
+            variables = [i for e in effects for i in _index(e, n)]
+            fit = _fit(base, z_fit, effects, ev, marker, substeps, r_fit,
+                       _evaluate(base, z_fit, ev, marker, substeps, variables)[1], chi2_before=float(res @ res))
+            if fit is not None:
+                best = (effect, fit)
+                break
         last = steps[-1]
         if best is None:
             verdict = "not explained: no candidate fit lowers the chi-square within the physical range"
             break
-        effect, (z_new, chi2_new, cov_new) = best
+        effect, (z_new, chi2_new, _, _, cov_new) = best
         m_new = sum(len(_index(e, n)) for e in added + [effect])
         if not chi2_new + m_new * ln_n < last.bic - MIN_BIC_GAIN:
             verdict = f"not explained: the best candidate ({effect.label}) does not lower BIC by {MIN_BIC_GAIN}"
