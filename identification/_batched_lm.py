@@ -1,9 +1,8 @@
 """Levenberg-Marquardt over a batch of independent least-squares problems, batch-first.
 
-Why not `vmap(optx.least_squares)`: measured on the fleet benchmark (1000 robots x 50 poses, 25
-parameters, `benchmarks/results_calibration.md`), the vmapped optimistix LM ran every robot for
-as many steps as the slowest one needed (median 11-14, max 28-34: its trust region rejects steps
-near the optimum) at ~1 ms per robot and step, five times the cost of the joint-screw Jacobian.
+Why not `vmap(optx.least_squares)`: a vmapped `while_loop` runs every problem of the batch for as
+many steps as the slowest one needs (optimistix's trust region rejects steps near the optimum, so
+that one needs many), each step paying for every problem.
 Here one `lax.while_loop` carries the whole batch (optionally in chunks, each step a `lax.map`
 over them so that a chunk's arrays stay in cache): per step one evaluation of the residual `r`
 (R, n) and Jacobian `J` (R, n, m) at the trial points, the normal equations `A = J^T J`,
@@ -20,9 +19,8 @@ damping as Nielsen (1999): `mu *= max(1/3, 1 - (2 rho - 1)^3)`, `nu = 2` on acce
 "Methods for non-linear least squares problems", 2nd ed., IMM DTU 2004, Algorithm 3.16 and
 eq. 3.13-3.15; their `mu_0 = tau max(A_ii)` is for the unscaled `A + mu I`). The default
 `tau = 1e-6` is their choice for a start close to the optimum (a calibration starts from the
-nominal robot): on the fleet benchmark every robot then stops after 3 steps instead of 4-5 with
-`tau = 1e-3`, at the same optimum (4e-7 standard errors apart); a start far off only costs
-rejected steps, each raising `mu` by `nu`.
+nominal robot), where a smaller damping takes the Gauss-Newton step at once; a start far off only
+costs rejected steps, each raising `mu` by `nu`.
 Each problem stops on its own (then frozen) when a step is small (`||h|| <= xtol (||x|| + xtol)`),
 the step is flat (actual and predicted reduction `<= ftol F`), or the gradient is orthogonal to
 the residual (`max_j |g_j| / (||J_j|| ||r||) <= gtol`); the loop ends when all have stopped or

@@ -7,8 +7,8 @@ joints of this robot, found (5,)`. Only shapes and dtypes are read, so the check
 time under `jit`, `vmap` and `grad` and cost nothing inside compiled code. Lists and tuples of
 numbers are turned into arrays.
 
-Dimension names: with a robot argument, `n` (and `6`, while annotations still spell it) is its
-joint count and `24` or `4*n` the state size `4 n`; other numbers are fixed sizes; other names
+Dimension names: with a robot argument, `n` (and `6`, the joint count of annotations written for six joints) is
+its joint count and `24` or `4*n` the state size `4 n`; other numbers are fixed sizes; other names
 (and `n` without a robot) must agree between the arguments of one call; `*b` (any name after
 `*`) and `...` are batch dimensions, which must broadcast against each other.
 """

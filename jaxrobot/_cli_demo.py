@@ -96,6 +96,8 @@ def run_stages(stages: list[tuple[str, Callable]], out: Path, echo, workers: int
 
 
 def run(args, echo) -> dict:
+    """`jaxrobot demo`; the `--json` summary is `{label: summary}` (`run_stages`): `model` (`_cli_info.stage`)
+    and the registered stages (`gear_identification`, `calibration`, `planning`), each its stage's summary."""
     from . import _cli_info
     from ._cli import demo_stages
 

@@ -31,6 +31,10 @@ def _header(urdf: Path, base: str, tip: str, joints: list[str]) -> str:
 
 
 def run(args, echo) -> dict:
+    """`jaxrobot import-urdf`; the `--json` summary: `name` (str, the robot's), `urdf` and `out` (str, the
+    files read and written), `base` and `tip` (str, the chain's end links), `joints` (list of str, the URDF
+    joints that became joints 1..n) and `gear_ratios` (bool, whether `<transmission>` elements gave a `[gear]`
+    section)."""
     import tomli_w
 
     from ._cli_info import _table

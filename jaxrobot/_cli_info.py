@@ -40,8 +40,12 @@ def configure(parser) -> None:
 
 
 def summary(robot) -> dict:
-    """Numbers shown by `jaxrobot info` (SI units, deflections in µm); eigenfrequencies of the elastic
-    joints with the rigid ones held (`None` where every joint is rigid)."""
+    """Numbers shown by `jaxrobot info`, its `--json` summary and `info.json`: `name` (str),
+    `home_flange_position_m` (3 floats [m]) and `home_flange_rotation` (3 x 3 floats) at `q = 0`, and `poses`
+    (`{pose name: {"q_deg": [float], "static_deflection_um": float, "lowest_eigenfrequency_hz": float,
+    "highest_eigenfrequency_hz": float}}`): per pose of `poses_deg`, its joint coordinates [deg], the gravity
+    sag of the flange [µm] and the extreme eigenfrequencies of the elastic joints with the rigid ones held
+    [Hz] (None where every joint is rigid)."""
     poses = poses_deg(robot)
     numbers = pose_numbers(robot, np.deg2rad(np.asarray(list(poses.values()), float)))
     sag, freq, home = (None if a is None else np.asarray(a) for a in (numbers.sag, numbers.eigenfrequencies,
@@ -107,7 +111,8 @@ def run(args, echo) -> dict:
 
 
 def stage(out: Path, echo) -> dict:
-    """Demo stage 1: the model, and the flat inverse tracking a joint move on the simulated plant."""
+    """Demo stage 1: the model, and the flat inverse tracking a joint move on the simulated plant.
+    **Returns:** `summary` plus `flat_inverse_tracking_error_rad` (float [rad], `move_tracking_error`)."""
     from ._description import racer7
 
     robot = racer7()

@@ -273,7 +273,7 @@ def validate(data: dict) -> dict:
 
 def filter_cutoffs(data: dict) -> dict[int, float]:
     """Gaussian filter cut-offs [Hz] per 1-based joint from `[sensors] filter_cutoff_hz`: one value
-    per joint, or the older three values of joints 1-3; empty if the key is absent."""
+    per joint, or three values for joints 1-3 only; empty if the key is absent."""
     return {i + 1: float(c) for i, c in enumerate(data.get("sensors", {}).get("filter_cutoff_hz", []))}
 
 

@@ -124,7 +124,7 @@ def _gravity_t(robot, q_t):
 
 # Recursive Newton-Euler: its scans carry batch-last arrays, (..., 3, N) vectors and (..., 3, 3, N)
 # matrices, with the small products below; on the `_kinematics` entries XLA fuses each step into
-# one large concatenating kernel that recomputes shared terms, measurably slower.
+# one large concatenating kernel that recomputes shared terms.
 
 
 def _mm(a, b):  # (..., 3, 3, N) @ (..., 3, 3, N)
@@ -152,8 +152,8 @@ def _dot(u, v):  # (..., 3, N) . (..., 3, N)
 def _joints_t(robot, q_t):
     """Rotation (n, 3, 3, N) and origin (n, 3, N) of frame i in frame i-1, `Rz(q + offset) Tx(a)
     Tz(d) alpha_beta` (eq. 2.2-2.3, `joint_step`), batch last. `Rz` is one array that the products
-    read: on `joint_step`'s entries XLA recomputes the cosine and sine in every fusion that uses
-    them, measurably slower."""
+    read: on `joint_step`'s entries XLA would recompute the cosine and sine in every fusion that uses
+    them."""
     rz = jnp.moveaxis(rot_z(q_t + robot.offset), -3, -1)
     r_loc = _mm(rz, stack_mat(alpha_beta(robot.alpha, robot.beta), 1))
     p_loc = _mv(rz, jnp.stack([robot.a, jnp.zeros_like(robot.a), robot.d], -2))

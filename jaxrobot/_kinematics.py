@@ -142,8 +142,8 @@ def _frame_step(rot: Mat, pos: Vec, c, s, a, d, xy: Mat) -> tuple[Mat, Vec, Vec]
 def frame_chain(base_r: Mat, base_p: Vec, theta, a, d, alpha, beta, stacked: bool = False
                 ) -> tuple[tuple[Mat, Vec], Chain]:
     """World frames of the joints by `H_0^i = H_0^{i-1} H_{i-1}^i` (eq. 2.2-2.4) from the base
-    frame `base_r`, `base_p`, as a `lax.scan` over the joints (unrolled, its reverse mode compiles
-    several times longer). `stacked`: the scan carries one array per frame part instead of one per
+    frame `base_r`, `base_p`, as a `lax.scan` over the joints (one loop body to compile, where an unrolled chain
+    repeats its reverse mode per joint). `stacked`: the scan carries one array per frame part instead of one per
     entry (fewer kernels per step, for small batches such as the dynamics' chunks; separate entries
     suit large batches).
 

@@ -20,8 +20,8 @@ Steps are accepted by the gain ratio of the merit; `mu` grows on rejection or on
 that is not positive definite and falls back towards `damping_init` after good steps. After
 each inner solve, which ends only at an accepted step, the multipliers are updated
 (`lam += rho c`, `gam = rho (v - P(v))`) and `rho` grows when the violation did not fall by
-`violation_decrease` (updating them from a rejected iterate repeats the same `rho c` and drives
-the multipliers away: the spiral at nu = 1e-10 failed that way). `rho` starts in proportion to
+`violation_decrease` (updating them from a rejected iterate would repeat the same `rho c` and drive
+the multipliers away). `rho` starts in proportion to
 the control weight (`penalty_per_weight`). One forward pass through the dynamics (`half_step`) per
 trial point serves its merit and, once the step is accepted, the multiplier update, the gradient
 and the Gauss-Newton matrix there (reverse passes through Newton-Euler for each set of multipliers).
@@ -243,8 +243,8 @@ def _normal_blocks(
     """Diagonal and sub-diagonal blocks of the Gauss-Newton matrix of `Phi` plus `mu I` at `y` (`h`:
     `half_step` there; `id_vjp`: `inverse_dynamics_vjp` there, if made), fixed variables replaced by
     identity rows. The exact defect Jacobian is
-    needed: dropping the gravity/Coriolis/inertia derivatives (~1e-3 of the stiffness terms) slows
-    the iteration from ~100x to ~2x per step at nu = 1e-14 (the conditioning amplifies the error).
+    needed: dropping the gravity/Coriolis/inertia derivatives (~1e-3 of the stiffness terms) turns
+    the fast contraction of the steps into a slow one at small nu (the conditioning amplifies the error).
 
     From the structure `d c_k / d y_k = K_a - P_k`, `d c_k / d y_{k+1} = K_b - P_{k+1}` (`K_a = -E - S`,
     `K_b = E - S`, `E = [I 0]`, `S = half_step_shift(j)`, `P_k` the j x m block of `half_step_jacobian`
@@ -348,16 +348,16 @@ def augmented_lagrangian(
     solve keeps its real conditionals (factor reuse, no evaluation of both branches) and stops at
     its own iteration count, and no LAPACK call is batched. A batched LAPACK call in jaxlib 0.10
     fans out into XLA's CPU intra-op thread pool and blocks waiting for it; two of them at once
-    (the vmapped loop runs independent branches concurrently) deadlocked the pool of a 2-core
-    machine with zero CPU use (gdb: both pool threads in `lapack_dtrsm_ffi` -> `ParallelBatchMap`
-    -> `BlockingCounter::Wait`).
+    (the vmapped loop runs independent branches concurrently) can deadlock the pool when it has as
+    many threads (each pool thread in `ParallelBatchMap` -> `BlockingCounter::Wait`, the process at
+    zero CPU use; `jaxrobot.linalg`).
 
     When only the cost weights are batched (`nu`, `u_ref`: a sweep of eq. 4.3a on one robot,
     `q_d`, `T_s`, initial guess and config), the rule solves the members in increasing `nu` by
     continuation (`_continuation`): each starts from a prediction of its solution `y` and
-    multipliers `lam`, `gam` from the converged members before it instead of `y0` and zeros. The
-    line at 16 nu from 1e-15 to 1e-9 then takes 44 outer iterations instead of 71, most of them
-    at large nu, where the multipliers contract by only ~10x per update. Otherwise (different
+    multipliers `lam`, `gam` from the converged members before it instead of `y0` and zeros, which
+    saves outer iterations most at large nu, where each multiplier update contracts the dual error
+    least (`ALConfig.penalty_per_weight`). Otherwise (different
     robots, trajectories, guesses or settings) the members are independent cold solves
     (`lax.map`). Results come back in the caller's order, each with its own status, iterations
     and history; a continued member meets the same tolerances as a cold solve, so the two agree

@@ -9,9 +9,9 @@ The matrix has diagonal blocks `A_k` (N, n, n) and sub-diagonal blocks `B_k = M[
 The factor is stored as `W_k = L_k^{-1}`, `F_k = W_{k+1} C_k` and `E_k = C_k W_k`, so that the
 substitutions `y_{k+1} = W_{k+1} b_{k+1} - F_k y_k` and `x_k = W_k^T y_k - E_k^T x_{k+1}` take one
 matrix-vector product per sequential step, the products with `W` being batched over all
-nodes. On the CPU a scan step costs its call overheads more than its flops: for N = 2501,
-n = 30 the solve takes 5.5 ms instead of 28 ms with two triangular solves per step, the factor
-53 ms instead of 41 ms (the AL solver takes several solves per factor).
+nodes. On the CPU a scan step costs its call overheads more than its flops, so the solve takes one
+product per step instead of two triangular solves, and the factor pays for the inverses once (the AL
+solver takes several solves per factor; `benchmarks/results_ocp.md`).
 """
 
 from __future__ import annotations

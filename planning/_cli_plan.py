@@ -179,7 +179,16 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
 
 
 def summary(result: PlanResult) -> dict:
-    """The JSON summary of issue 6 (`plan --json`)."""
+    """The JSON summary of `plan` (`--json`):
+
+    - `status` (str, `jaxrobot.status_name`), `iterations` (int, outer iterations), `objective` (float
+      [rad^2], the cost), `max_constraint_violation` (float, scaled units of `planning._transcription`);
+    - `solve_time_s` (float [s], a compiled solve; with the compilation where not timed separately) and
+      `compile_time_s` (float [s], None where not timed separately);
+    - `path_error_um`: `{"max", "rms": float}` [um], the tool position error of the planned link angles on
+      the model;
+    - `plant`: `{method: {"max_um", "rms_um": float}}` for each of `METHODS`, the tool position error over
+      `[0, t_e]` of its motor trajectory simulated on the plant [um]."""
     sol, err, names = result.solution, result.errors, result.names
     plant = {k: {"max_um": 1e6 * float(err.position_max[names.index(k)]),
                  "rms_um": 1e6 * float(err.position_rms[names.index(k)])} for k in METHODS}
@@ -255,7 +264,7 @@ def demo_stage(out: Path, echo) -> dict:
     """Planning stage of `jaxrobot demo`: the line at nu = 1e-14 planned on the nominal model and evaluated on
     it (the model's own error), then planned on the model the demo calibrates (`bench_calibration`, as the
     calibration stage) and evaluated on the test bench's as-built robot with its gears' flanks (the error on
-    the robot)."""
+    the robot). **Returns:** `summary` of the first plan, with `on_the_robot` the `summary` of the second."""
     from identification.calibration import bench_calibration
 
     robot = jr.racer7()

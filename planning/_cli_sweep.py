@@ -83,7 +83,10 @@ def sweep(robot, plant, path, nus, costs, echo, directional: bool = False, q_ini
 
 
 def table(res: SweepResult) -> list[dict]:
-    """One row per cost and nu (µm, Hz): the CSV table and the `--json` rows."""
+    """One row per cost and nu: the CSV table and the `--json` rows, each `{"cost": str, "nu": float, "status":
+    str, "converged": bool, "iterations": int, "objective": float [rad^2], "bandwidth_hz": [float or None]
+    (per joint, None without control energy), "max_bandwidth_hz": float, "plant_max_um", "plant_rms_um":
+    float}` (the tool position error of the plan on the plant over `[0, t_e]`, max and RMS [µm])."""
     rows = []
     for cost, r in res.costs.items():
         status = jr.status_name(r.solutions.status)
@@ -138,6 +141,8 @@ def write_outputs(res: SweepResult, rows: list[dict], out: Path, label: str) -> 
 
 
 def run(args, echo) -> dict:
+    """`jaxrobot sweep`; the `--json` summary is `{"task": str, "plant": str, "rows": list}`: the task's name,
+    the `--plant` value and the rows of `table`."""
     robot, plant, path, q_init = load_task(args)
     echo(f"nu sweep on {path.name}: {len(args.nu)} values x costs {args.costs}, plant {args.plant}")
     res = sweep(robot, plant, path, args.nu, args.costs, echo, directional=args.plant != "model", q_init=q_init,

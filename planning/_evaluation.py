@@ -1,4 +1,4 @@
-"""Evaluation of motor trajectories on the plant (issue 6, item 7; docs/model.md (B.5)).
+"""Evaluation of motor trajectories on the plant (docs/model.md (B.5)).
 
 Four motor trajectories for one joint path `q_d`:
 (a) rigid planning `theta = Xi(q_d)`, (b) quasi-static `theta = Xi(q_d + kappa^{-1}(g(q_d)))`,
@@ -31,7 +31,7 @@ from ._trajectories import sample_path
 from ._transcription import State
 
 METHODS = ("rigid", "quasi_static", "flat_inverse", "ocp")
-"""Names of the compared motor trajectories, in the order of issue 6, item 7."""
+"""Names of the compared motor trajectories (a)-(d) of the module docstring, in that order."""
 SUBSTEPS = 10
 """RK4 steps per 1 ms sample of `jr.simulate` (h = 0.1 ms; see its module docstring)."""
 SETTLE_S = 0.5

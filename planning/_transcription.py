@@ -420,7 +420,7 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     `(dqdd/dq)^T w_qdd = -(dID/dq)^T s - kappa' s`, `(dqdd/dqd)^T w_qdd = -(dID/dqd)^T s`,
     `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; with joint damping `d` also `-d s` on `qd`,
     `d thetad (d(1/u)/dtheta) s` on `theta` and `d s / u(phi)` on `thetad`; `(dID/d(q, qd))^T s` is one reverse
-    pass through Newton-Euler alone (4.8x faster than reversing the mass matrix, its solve and `Xi^-1` too), whose
+    pass through Newton-Euler alone (not through the mass matrix, its solve and `Xi^-1`), whose
     forward pass is made once (`inverse_dynamics_vjp`, or `id_vjp` if already made) for every `w`."""
     r = problem.robot
     sz = variable_scale(problem)
@@ -463,7 +463,7 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
     `dqdd/dtheta = D^{-1} kappa' / u(phi)`; damping adds `-D^{-1} d` to `dqdd/dqd`,
     `D^{-1} d thetad d(1/u)/dtheta` to `dqdd/dtheta` and `dqdd/dthetad = D^{-1} d / u(phi)`. The rows of
     `dID/d(q, qd)` come from n reverse passes
-    through Newton-Euler (1.7x faster than 2n forward tangents; `id_vjp`: its linearisation at `h`,
+    through Newton-Euler (n passes where forward mode takes 2n tangents; `id_vjp`: its linearisation at `h`,
     `inverse_dynamics_vjp`, if already made), the rest in closed form.
     """
     r = problem.robot

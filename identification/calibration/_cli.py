@@ -44,7 +44,19 @@ def _mm(stats: dict) -> dict:
 
 
 def summary(report: dict, poses: Path | str = "") -> dict:
-    """The JSON summary from a calibration report; `poses`: the pose file the outliers' lines refer to."""
+    """The JSON summary of `calibrate` (`--json`) from a calibration report (`calibration_report`); `poses`:
+    the pose file the outliers' lines refer to. Lengths in mm, parameter values in their units (m, rad, 1):
+
+    - `parameters`: `{name: {"value", "delta", "std": float}}` (identified value, its change from the start
+      robot, standard error), with `method="map"` also `prior_std` (float), `data_fraction` (float, the share of
+      the prior variance the data remove) and `determined_by` ("data" or "prior");
+    - `identification`, `validation` (None without validation poses): `{"before_mm", "after_mm": {"max", "min",
+      "mean", "std": float}}`, the model-measurement distance per pose with the start and calibrated robot [mm];
+    - `loss` (str), `noise_estimate_mm` (float, per axis), `outlier_bound_mm` (float);
+    - `parameter_selection`: None, or `{"criterion": str, "candidates": [str], "kept": [str], "set_aside":
+      [{"parameter": str, "delta_bic": float}], "n_residuals": int}` (`ParameterSelection`);
+    - `outliers`: `[{"file": str, "line": int (header = line 1), "row": int (0-based data row), "residual_mm":
+      float, "sigmas": float (in units of the stated noise)}]`."""
     keep = ("value", "delta", "std", "prior_std", "data_fraction", "determined_by")
     out = {
         "parameters": {n: {k: p[k] for k in keep if k in p} for n, p in report["parameters"].items()},
@@ -119,6 +131,9 @@ def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions
 
 
 def run(args, echo) -> dict:
+    """`jaxrobot calibrate`; the `--json` summary is `summary`'s, plus `ripple_outside_identified_range` where
+    poses rest outside the range a gear's ripple was identified over (`_model_files.ripple_outside_range`:
+    `{joint: {"range_deg": [[lo, hi]], "direction": [str], "poses": int}}`)."""
     import jaxrobot as jr
     from jaxrobot.cli import Progress
 
@@ -180,7 +195,8 @@ def run(args, echo) -> dict:
 
 def demo_stage(out: Path, echo) -> dict:
     """Calibration stage of `jaxrobot demo` (`bench_calibration`): pose files, tables, plots and the
-    calibrated robot in `out`."""
+    calibrated robot in `out`. **Returns:** `summary` plus `files` (list of str, written into `out`) and
+    `seconds` (float [s], the stage's time)."""
     import jaxrobot as jr
     from jaxrobot.bench import write_pose_csv
 

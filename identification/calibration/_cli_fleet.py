@@ -132,6 +132,20 @@ def _failure_messages(res, files: list[str], sigma: float) -> dict[str, str]:
 
 
 def run(args, echo) -> dict:
+    """`jaxrobot calibrate-fleet`. The `--json` summary (also carried by `ItemsFailed` and `SolveFailed`):
+
+    - `robots` (int, pose files), `poses` (int, the fleet's pose count), `processes` (int), `process_id` (int),
+      `local_robots` (int, this process's files that passed their checks), `devices` (int, None when no robot
+      was calibrated), `parameters` (list of str, the free parameters), `loss` (str);
+    - `status`: `{status name: int}`, the robots per status (`rejected_input` for a file that failed a check);
+    - `failures`: `[{"file": str, "status": str, "check": str ("" after the checks), "lines": [int], "message":
+      str}]`, every robot that is not `successful`;
+    - `outliers`: `[{"file": str, "line": int (header = line 1), "row": int (0-based), "residual_mm": float,
+      "sigmas": float}]`, poses beyond the outlier bound;
+    - `fleet_outliers`: `[{"file": str, "quantities": [str]}]`, robots whose residual RMS ("rms") or parameters
+      lie far from the fleet's median (`_report.fleet_outliers`);
+    - `seconds`: `{"bench", "read", "calibrate": float}` [s] of the stages that ran; `peak_memory_mb` (float
+      [MiB], this process's peak resident memory)."""
     import jaxrobot as jr
 
     count = jr.initialize_processes(args.coordinator, args.num_processes, args.process_id)

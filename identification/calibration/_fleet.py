@@ -144,7 +144,7 @@ def _constants(robots, theta, rippled, ccw=False):
     """Per-pose constants of the solve, from the initial robots (thesis 3.2.3): the joint angles at
     rest `q0` (R, K, n) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, n) (`rest_deflection`;
     XLA evaluates the gear inversion once for both). `robots`: a fleet (R, ...) or one robot for all
-    (then its fields are not broadcast over the poses: ~2x faster); the gear inversion runs on the
+    (then its fields are not broadcast over the poses); the gear inversion runs on the
     `rippled` joints only (the others are `theta / u0`); `ccw` (R, K, n) the direction of approach
     (False: every gear's `cw` set)."""
     fleet = robots if robots.a.ndim == 1 else jax.tree.map(lambda f: f[:, None], robots)

@@ -91,7 +91,10 @@ def _run_pairs(runs, commands, option: str) -> list:
 
 
 def _diagnose_runs(args, echo) -> dict:
-    """`diagnose --runs`: the dynamic effects of `_runs.diagnose_runs`, with the pose files as further evidence."""
+    """`diagnose --runs`: the dynamic effects of `_runs.diagnose_runs`, with the pose files as further evidence.
+    **Returns** the `--json` summary: `verdict` (str), `effects` (`[{"effect": str (label), "kind": str, "joint":
+    int (1-based) or None, "parameter": str, "value": float, "std": float, "unit": str}]`, the fitted parameters
+    in their units) and `steps` (one `RunStep` per model compared, as a dict of its fields)."""
     import jaxrobot as jr
 
     from ._runs import diagnose_runs

@@ -67,6 +67,11 @@ def write_plots(out: Path, comparison, label: str) -> list[Path]:
 
 
 def run(args, echo) -> dict:
+    """`jaxrobot compare`. The `--json` summary: `consistent` (bool), `verdict` (str), `chi2` (float), `dof`
+    (int), `p_value` (float) of `RunComparison`; `rms_residual_um` (float [um], RMS norm of the whitened
+    residual), `noise_floor_um` (float [um], `sigma sqrt(3)`), `max_sigmas` (float, the largest residual norm
+    in units of `sigma`) at `t_max_sigmas_s` (float [s]), `encoder_deviation_rad` (list of float [rad], per
+    motor) and `plots` (list of str, the files written)."""
     import jaxrobot as jr
     from jaxrobot.bench import read_command_csv, read_trajectory_csv
 

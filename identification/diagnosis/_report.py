@@ -60,9 +60,20 @@ def _step(s: AddedEffect) -> dict:
 
 
 def summary(res: DiagnoseResult, lines: list[tuple[str, int]] | None = None) -> dict:
-    """The JSON of `jaxrobot diagnose` (residuals in um, parameters in their SI units): with the loss, the
-    outlier rows (0-based `row`; with `lines`, the (file, line) of each training row, their `file` and
-    `line` too) and the drift against the acquisition time (None without times)."""
+    """The JSON of `jaxrobot diagnose` (`--json`; residuals in um, parameters in their SI units); `lines`: the
+    (file, line) of each training row.
+
+    - `noise_floor_um`, `validation_bound_um`, `final_rms_validation_um` (float [um]): `DiagnoseResult`'s;
+    - `verdict` (str), `loss` (str), `n_poses`: `{"train": int, "validation": int}`;
+    - `start`: `{"rms_train_um", "rms_validation_um", "chi2_per_dof", "p_value": float}` of the start model;
+    - `steps`: one per added effect, `{"effect": str, "joint": int (1-based) or None, "variant": str,
+      "parameters": {name: {"value": float, "std": float (absent where derived), "unit": str, "note": str (only
+      where there is one)}}, "rms_train_um": float, "rms_validation_um": float}` (`AddedEffect`; `effect` is its
+      `Effect.kind`);
+    - `outliers`: `[{"row": int (0-based training row), "file": str, "line": int, "residual_um": float,
+      "sigmas": float}]` (`file` and `line` with `lines` only);
+    - `drift`: None without acquisition times, else `{"rate_per_s": float, "std_per_s": float [1/s],
+      "duration_s": float [s], "delta_bic": float, "named": bool}` (`Drift`)."""
     first = res.loop[0]
     outliers = [{"row": o.row, **({"file": lines[o.row][0], "line": lines[o.row][1]} if lines else {}),
                  "residual_um": o.residual * UM, "sigmas": o.sigmas} for o in res.outliers]

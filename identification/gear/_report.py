@@ -101,8 +101,17 @@ def resolution_table(res: GearIdentification) -> str:
 
 
 def summary(res: GearIdentification) -> dict:
-    """The JSON summary of `identify-gear` (schema of issue 3; RMS on the validation runs where
-    there are any, else on the identification runs; `a`, `b`, `orders` as in docs/model.md (2.10))."""
+    """The JSON summary of `identify-gear` (`--json`), SI units but for the RMS in deg/s:
+
+    - `joints`: `{joint: {direction: group}}`, `joint` the 1-based joint as a string, `direction` "cw" or
+      "ccw" (the directions with runs); each group holds `u0` (float) and `u0_std` (float, its standard
+      error), `orders` (list of int, cycles per output revolution), `a`, `b` (lists of float, the
+      dimensionless coefficients of docs/model.md (2.10)) and `a_std`, `b_std` (lists of float),
+      `rms_before_deg_s`, `rms_after_deg_s` (float [deg/s]: RMS of the kinematic error with the constant
+      ratio and with the identified ripple, on the validation runs where there are any, else on the
+      identification runs; NaN without runs) and `ripple` (str: "resolved", "none found", or how many
+      more runs would resolve it);
+    - `misalignment_rad`: `{joint: [alpha, beta]}` (floats [rad]), the gyroscope alignment of eq. 3.3."""
     joints: dict = {}
     for g, (joint, ccw) in enumerate(res.groups):
         used = np.asarray(res.fit.orders[g]) > 0
