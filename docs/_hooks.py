@@ -1,6 +1,7 @@
 """MkDocs hooks of the documentation site: the notebooks of `examples/` and the plots of `benchmarks/` are served
-beside the pages (the notebooks rendered by mkdocs-jupyter, not executed), and an API page that leaves out a name
-its package exports fails the build."""
+beside the pages (the notebooks rendered by mkdocs-jupyter, not executed), each `benchmarks/results_*.md` is a page
+of its own, listed on the performance page, and an API page that leaves out a name its package exports fails the
+build."""
 
 from __future__ import annotations
 
@@ -15,6 +16,10 @@ from mkdocs.structure.files import File
 ROOT = Path(__file__).resolve().parents[1]
 SERVED = {"examples": "*.ipynb", "benchmarks": "*.png"}
 """Folders of the repository served in the site under the same name, and the files of each."""
+RESULTS = "benchmarks/results_*.md"
+"""The benchmark tables, each a page `benchmarks/results_<name>.md` of the site."""
+RESULTS_LIST = "<!-- benchmark tables -->"
+"""Where the performance page lists the benchmark pages."""
 
 
 def exported_names(module: str, root: Path = ROOT) -> set[str]:
@@ -39,12 +44,23 @@ def on_files(files, config):
     for folder, pattern in SERVED.items():
         for path in sorted((ROOT / folder).glob(pattern)):
             files.append(File(f"{folder}/{path.name}", str(ROOT), config["site_dir"], config["use_directory_urls"]))
+    for path in sorted(ROOT.glob(RESULTS)):
+        files.append(File.generated(config, f"benchmarks/{path.name}", content=path.read_text()))
     return files
+
+
+def _title(path: Path) -> str:
+    """The first heading of a markdown file, else its name."""
+    m = re.search(r"^# (.+)$", path.read_text(), re.M)
+    return m.group(1).strip() if m else path.name
 
 
 def on_page_markdown(markdown, page, config, files):
     """On an API page, `::: module` renders the names the module exports (its submodules have their own
     directive), in the order of the source."""
+    if RESULTS_LIST in markdown:
+        return markdown.replace(RESULTS_LIST, "\n".join(
+            f"- [{_title(p)}]({p.relative_to(ROOT).as_posix()})" for p in sorted(ROOT.glob(RESULTS))))
     if not page.file.src_uri.startswith("api/"):
         return markdown
 
