@@ -41,8 +41,8 @@ def fenced_blocks(path: Path, language: str) -> list[tuple[int, str]]:
 BLOCKS = [(path, line, code) for path in DOCUMENTS for line, code in fenced_blocks(path, "python")]
 """(document, first line, code) of every Python block."""
 COMMANDS = [code for _, code in fenced_blocks(ROOT / "README.md", "bash")
-            if all(line.startswith("jaxrobot ") for line in code.splitlines() if line.strip())]
-"""The README's command-line example: its bash block of `jaxrobot` command lines only."""
+            if all(line.startswith(("jaxrobot ", "#")) for line in code.splitlines() if line.strip())]
+"""The README's command-line example: its bash block of `jaxrobot` command lines and comments only."""
 FLEET_ROBOTS = 3
 
 
@@ -117,8 +117,9 @@ def test_python_block(index, reader, monkeypatch):
 @pytest.mark.extended
 def test_readme_commands(tmp_path):
     """The README's command lines, each exiting 0, in one folder; then the files they name: the fleet's table (a row
-    per bench robot), the calibrated robot and the planned motor command (2501 samples of the 2.5 s line at 1 ms)."""
-    for line in COMMANDS[0].splitlines():
+    per bench robot), the calibrated robot, the planned motor command (2501 samples of the 2.5 s line at 1 ms) and
+    the sweep's table."""
+    for line in [c for c in COMMANDS[0].splitlines() if c.startswith("jaxrobot ")]:
         args = shlex.split(line, comments=True)[1:]
         done = subprocess.run([sys.executable, "-m", "jaxrobot._cli", *args], cwd=tmp_path, capture_output=True,
                               text=True, timeout=600)
@@ -127,12 +128,13 @@ def test_readme_commands(tmp_path):
     jr.load_robot(tmp_path / "robot0.toml")
     t, theta, _, _ = jb.read_command_csv(tmp_path / "line.csv")
     assert t.shape == (2501,) and theta.shape == (2501, 6)
+    assert (tmp_path / "sweep" / "line_sweep.csv").is_file()
 
 
 def test_blocks_are_found():
     """The extraction finds the blocks (a document reformatted into other fences would run nothing): the README's
     Python example and command lines, and the Python blocks of the pages."""
     assert [p for p, _, _ in BLOCKS].count(ROOT / "README.md") == 1
-    assert len(COMMANDS) == 1 and len(COMMANDS[0].splitlines()) >= 3
+    assert len(COMMANDS) == 1 and sum(c.startswith("jaxrobot ") for c in COMMANDS[0].splitlines()) >= 4
     assert len(BLOCKS) >= 5
     assert all(code.strip() for _, _, code in BLOCKS)
