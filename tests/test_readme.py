@@ -3,7 +3,7 @@ document (as a reader goes through a page), in a temporary working directory sha
 command-line example runs command by command (`python -m jaxrobot._cli`, as the `jaxrobot` script). The files a
 block reads are made first: `panda.toml` (example-robot-data's Panda imported, plus the TOML fragment of
 `docs/own-robot.md`) and `fleet/` (pose files of a few bench robots). The blocks and commands together compile the
-model, the flat inverse and simulator, the IK, the OCP and its sweep, the calibration and the fleet calibration
+model, the flat inverse and simulator, the IK, the OCP, the calibration and the fleet calibration
 (minutes on 2 cores): they are marked `extended`: CI runs them after the suite (`.ci/run`)."""
 
 from __future__ import annotations
@@ -117,8 +117,7 @@ def test_python_block(index, reader, monkeypatch):
 @pytest.mark.extended
 def test_readme_commands(tmp_path):
     """The README's command lines, each exiting 0, in one folder; then the files they name: the fleet's table (a row
-    per bench robot), the calibrated robot, the planned motor command (2501 samples of the 2.5 s line at 1 ms) and
-    the sweep's table."""
+    per bench robot), the calibrated robot and the planned motor command (2501 samples of the 2.5 s line at 1 ms)."""
     for line in [c for c in COMMANDS[0].splitlines() if c.startswith("jaxrobot ")]:
         args = shlex.split(line, comments=True)[1:]
         done = subprocess.run([sys.executable, "-m", "jaxrobot._cli", *args], cwd=tmp_path, capture_output=True,
@@ -128,13 +127,12 @@ def test_readme_commands(tmp_path):
     jr.load_robot(tmp_path / "robot0.toml")
     t, theta, _, _ = jb.read_command_csv(tmp_path / "line.csv")
     assert t.shape == (2501,) and theta.shape == (2501, 6)
-    assert (tmp_path / "sweep" / "line_sweep.csv").is_file()
 
 
 def test_blocks_are_found():
     """The extraction finds the blocks (a document reformatted into other fences would run nothing): the README's
     Python example and command lines, and the Python blocks of the pages."""
     assert [p for p, _, _ in BLOCKS].count(ROOT / "README.md") == 1
-    assert len(COMMANDS) == 1 and sum(c.startswith("jaxrobot ") for c in COMMANDS[0].splitlines()) >= 4
+    assert len(COMMANDS) == 1 and sum(c.startswith("jaxrobot ") for c in COMMANDS[0].splitlines()) == 4
     assert len(BLOCKS) >= 5
     assert all(code.strip() for _, _, code in BLOCKS)
