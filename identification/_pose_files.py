@@ -55,7 +55,7 @@ def approach_ccw(motor_angles, approach: str = "cw", column=None, name: str = "p
 
 
 def read_poses(path: str | Path, approach: str = "cw", *, reject_nan: bool = True) -> PoseFile:
-    """Read a pose file (README, "Measurement files") with the direction of approach of the convention
+    """Read a pose file (docs/file-formats.md) with the direction of approach of the convention
     `approach`: `jaxrobot.bench.read_pose_csv`'s `PoseFile` (`reject_nan` as there) with its `ccw` (K, n) set."""
     data = read_pose_csv(path, reject_nan=reject_nan)
     n = data.motor_angles.shape[1]

@@ -30,7 +30,7 @@ EXAMPLE = "jaxrobot calibrate-fleet fleet --bench 1000 --out fleet-out"
 
 def configure(parser) -> None:
     parser.add_argument("folder", type=Path,
-                        help="folder of pose CSVs (README, 'Measurement files'), one per robot, all with the same "
+                        help="folder of pose CSVs (docs/file-formats.md), one per robot, all with the same "
                              "pose count, robots in file-name order; or a text file listing them, one path per line "
                              "(relative to its folder; '#' starts a comment)")
     parser.add_argument("--bench", type=int, default=None, metavar="R",

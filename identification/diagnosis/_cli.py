@@ -18,7 +18,7 @@ EXAMPLE = "jaxrobot diagnose --model start.toml train.csv --validate val.csv --o
 
 
 def configure(parser) -> None:
-    parser.add_argument("poses", type=Path, nargs="*", help="training pose CSV files (README, 'Measurement files')")
+    parser.add_argument("poses", type=Path, nargs="*", help="training pose CSV files (docs/file-formats.md)")
     parser.add_argument("--validate", type=Path, nargs="+", default=None, help="held-out validation pose CSV files")
     parser.add_argument("--runs", type=Path, nargs="+", default=None, metavar="RUN.csv",
                         help="training trajectory runs (t_s, theta1_deg …, x_m, y_m, z_m); pose files given too (with "

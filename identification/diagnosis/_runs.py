@@ -1,7 +1,7 @@
 """Trajectory runs as evidence of the dynamics: simulate a motor command on the model and set the tracker's
 positions along the run against it, in units of the tracker noise (`jaxrobot compare`).
 
-Conventions of a run and its command (README, "Measurement files"; explicit here):
+Conventions of a run and its command (docs/file-formats.md; explicit here):
 
 - the run's `t_s` are the command's sample times: the same start and step (the tracker samples with the command);
 - after the command's last sample the robot holds its last angle (the command must end at rest to be held);

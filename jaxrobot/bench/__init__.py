@@ -1,6 +1,5 @@
 """The virtual test bench: encoder + gyroscope runs for gear identification, tracker pose measurements
-for calibration (fleets included), trajectory runs, and the CSV formats of their files (README,
-"Measurement files")."""
+for calibration (fleets included), trajectory runs, and the CSV formats of their files (docs/file-formats.md)."""
 
 from .._checks import check_public as _check_public
 from ._gear import GEAR_RUN_DEFAULTS as GEAR_RUN_DEFAULTS

@@ -10,7 +10,7 @@ uses the ripple set of its direction (`cw` for a positive, `ccw` for a negative 
 20-bit motor encoders are sampled at 1 kHz; a 3-axis gyroscope on the moving link measures the
 link's angular velocity in a frame misaligned from the joint axis by `Rx(alpha) Ry(beta)` (eq. 3.3,
 `jaxrobot.measurement.sensor_rotation`), with white noise and a small constant bias. Also: the
-gear-run CSV format (README, "Measurement files").
+gear-run CSV format (docs/file-formats.md).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from ._trajectory import file_joint_count, read_csv_columns, theta_columns
 
 
 def gear_run_columns(n: int) -> tuple[str, ...]:
-    """Columns of a gear-run file of an `n`-joint robot (README, "Measurement files"): time [s], motor angles [deg],
+    """Columns of a gear-run file of an `n`-joint robot (docs/file-formats.md): time [s], motor angles [deg],
     gyroscope [deg/s]."""
     return ("t_s", *theta_columns(n), "gyro_x_deg_s", "gyro_y_deg_s", "gyro_z_deg_s")
 
@@ -309,7 +309,7 @@ def gear_runs(
 def write_gear_run(
     path: str | Path, t: np.ndarray, theta: np.ndarray, gyro: np.ndarray
 ) -> None:
-    """Write one run in the gear-run format (README, "Measurement files"): `t` (N,) s, `theta` (N, n) rad,
+    """Write one run in the gear-run format (docs/file-formats.md): `t` (N,) s, `theta` (N, n) rad,
     `gyro` (N, 3) rad/s; the file holds degrees as its column names say."""
     t, theta, gyro = np.asarray(t, float), np.asarray(theta, float), np.asarray(gyro, float)
     n = t.shape[0] if t.ndim == 1 else -1
@@ -325,7 +325,7 @@ def write_gear_run(
 
 
 def read_gear_run(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Read one gear-run file (README, "Measurement files"; extra columns are ignored).
+    """Read one gear-run file (docs/file-formats.md; extra columns are ignored).
 
     **Returns:** `t` (N,) s, `theta` (N, n) rad, `gyro` (N, 3) rad/s. Empty cells and `nan`
     come back as NaN (the processing rejects them with the row named).

@@ -5,7 +5,7 @@ The as-built robot rests at commanded motor angles `theta`; its link angles are
 `Xi^{-1}(theta)` plus the gravity deflection (`jaxrobot.measurement`, thesis 3.2.3); the tracker
 reports the world position of a marker body fixed in the tool frame (the flange frame for the
 identity tool) with Gaussian noise, and optionally its orientation as a unit quaternion.
-Also: random fleets of as-built robots, and the pose CSV format (README, "Measurement files").
+Also: random fleets of as-built robots, and the pose CSV format (docs/file-formats.md).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ ORIENTATION_NOISE_RAD = float(np.deg2rad(0.05))
 specification quoted in thesis 3.2.1 (the thesis found its real orientation data unusable)."""
 
 POSITION_COLUMNS = ("x_m", "y_m", "z_m")
-"""Required columns of a pose file (README, "Measurement files") after the motor angles `theta1_deg … thetan_deg` [deg]:
+"""Required columns of a pose file (docs/file-formats.md) after the motor angles `theta1_deg … thetan_deg` [deg]:
 marker position [m]."""
 QUAT_COLUMNS = ("qx", "qy", "qz", "qw")
 """Optional columns: measured marker orientation as a unit quaternion (scalar last)."""
@@ -185,7 +185,7 @@ def write_pose_csv(
     positions: Float[Array, "K 3"],
     quaternions: Float[Array, "K 4"] | None = None,
 ) -> None:
-    """Write a pose file (README, "Measurement files"): `theta1_deg … thetan_deg, x_m, y_m, z_m[, qx, qy, qz, qw]`."""
+    """Write a pose file (docs/file-formats.md): `theta1_deg … thetan_deg, x_m, y_m, z_m[, qx, qy, qz, qw]`."""
     theta = np.rad2deg(np.asarray(motor_angles, float))
     pos = np.asarray(positions, float)
     if theta.ndim != 2 or pos.shape != (theta.shape[0], 3):
@@ -205,7 +205,7 @@ def write_pose_csv(
 
 @dataclasses.dataclass(frozen=True)
 class PoseFile:
-    """The measurements of a pose file (README, "Measurement files"), K poses of an n-joint robot."""
+    """The measurements of a pose file (docs/file-formats.md), K poses of an n-joint robot."""
 
     motor_angles: np.ndarray
     """(K, n) motor angles at rest [rad]."""
@@ -219,7 +219,7 @@ class PoseFile:
 
 
 def read_pose_csv(path: str | Path, *, reject_nan: bool = True) -> PoseFile:
-    """Read a pose file (README, "Measurement files"); extra columns are ignored.
+    """Read a pose file (docs/file-formats.md); extra columns are ignored.
 
     Raises `ValueError` naming missing columns, non-numeric cells and NaN rows (`read_csv_columns`;
     `reject_nan=False`: NaN where cells are empty or `nan`), and for a trajectory run

@@ -1,4 +1,4 @@
-"""Virtual test bench, trajectory runs (README, "Measurement files"): the motor follows a commanded `theta(t)`
+"""Virtual test bench, trajectory runs (docs/file-formats.md): the motor follows a commanded `theta(t)`
 exactly, the elastic model of the as-built robot is integrated finely, and the optical tracker
 reports the marker position along the path with Gaussian noise. Also the command files that `jaxrobot plan
 --save-trajectory` writes (`write_command_csv`, `read_command_csv`)."""
@@ -71,7 +71,7 @@ def read_csv_columns(
     path: str | Path, required: list[str], optional: list[str] = (), *, reject_nan: bool = True,
     min_rows: int = 1,
 ) -> dict[str, np.ndarray]:
-    """Read a measurement CSV with a header (the formats of README, "Measurement files"; extra columns are ignored).
+    """Read a measurement CSV with a header (the formats of docs/file-formats.md; extra columns are ignored).
 
     Returns the `required` columns, and the `optional` ones if the file has all of them. Empty
     cells and `nan` are NaN; with `reject_nan` rows holding them are rejected. Raises naming the
