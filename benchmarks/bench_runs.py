@@ -13,12 +13,10 @@ import dataclasses
 import datetime
 import json
 import os
-import platform
-import subprocess
 import time
 from pathlib import Path
 
-import jax
+import _timing
 import jax.numpy as jnp
 from _timing import timed
 
@@ -101,14 +99,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results_runs.md"))
     args = parser.parse_args()
     root = args.shared / "independent" / "trajectories"
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    lines = ["# Trajectory runs against the model (`jaxrobot compare`, `diagnose --runs`)", "",
-             f"`python benchmarks/bench_runs.py --diagnose-samples {args.diagnose_samples}` at commit {commit}. "
-             f"Machine: {platform.machine()}, {jax.device_count()} device(s), JAX {jax.__version__}, backend "
-             f"{jax.default_backend()}; the runs of ../shared/independent/trajectories (3001 samples at 1 kHz).", "",
-             "`compare_run` of each case's `start.toml` with its runs: chi-square per degree of freedom (9003) and "
-             "p-value; time of the first call (compile + run) and of a second call.", "",
-             "| case | run | chi2/dof | p | first call [s] | second call [s] |", "|---|---|---|---|---|---|"]
+    rows = []
     for case in CASES:
         folder = root / case
         sensors = jr.read_description(folder / "start.toml")["sensors"]
@@ -117,9 +108,17 @@ def main() -> None:
         for file, info in json.loads((folder / "truth.json").read_text())["runs"].items():
             command, run = jb.read_command_csv(folder / info["command"]), jb.read_trajectory_csv(folder / file)
             c, first, best = timed(lambda: compare_run(robot, command, run, marker, noise))  # noqa: B023
-            lines.append(f"| {case} | {file} | {c.chi2 / c.dof:.4f} | {c.p_value:.3g} | {first:.2f} | {best:.2f} |")
-    if args.diagnose_samples:
-        lines += ["", *diagnose_section(root / "p2_motor_lag_j123", args.diagnose_samples)]
+            rows.append(f"| {case} | {file} | {c.chi2 / c.dof:.4f} | {c.p_value:.3g} | {first:.2f} | {best:.2f} |")
+    diagnose = diagnose_section(root / "p2_motor_lag_j123", args.diagnose_samples) if args.diagnose_samples else []
+    info = _timing.run_info("none timed; the runs come from an independent simulator (scipy DOP853 on pinocchio), "
+                            "../shared/independent/trajectories")
+    lines = ["# Trajectory runs against the model (`jaxrobot compare`, `diagnose --runs`)", "", _timing.header(info),
+             "The runs of ../shared/independent/trajectories (3001 samples at 1 kHz).", "",
+             "`compare_run` of each case's `start.toml` with its runs: chi-square per degree of freedom (9003) and "
+             "p-value; time of the first call (compile + run) and of a second call.", "",
+             "| case | run | chi2/dof | p | first call [s] | second call [s] |", "|---|---|---|---|---|---|", *rows]
+    if diagnose:
+        lines += ["", *diagnose]
     kept = args.out.read_text().split("\n## ", 1) if args.out.exists() else []
     if len(kept) == 2:  # the hand-written sections after the generated part stay
         lines += ["", "## " + kept[1].rstrip("\n")]

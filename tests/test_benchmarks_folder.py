@@ -13,10 +13,6 @@ import pytest
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
 SCRIPTS = sorted(p for p in BENCH.glob("*.py") if p.name != "_timing.py")
 RESULTS = sorted(BENCH.glob("results_*.md"))
-NOT_YET_UNIFORM = {"results_runs.md"}
-"""Results written by a script that does not write the shared header yet (`bench_runs.py`)."""
-
-
 def _timing():
     spec = importlib.util.spec_from_file_location("_timing", BENCH / "_timing.py")
     module = importlib.util.module_from_spec(spec)
@@ -53,9 +49,7 @@ def test_benchmarks_holds_scripts_their_results_and_the_files_they_name():
 
 
 @pytest.mark.parametrize("path", RESULTS, ids=lambda p: p.name)
-def test_results_file_starts_with_the_header_of_its_run(path, request):
-    if path.name in NOT_YET_UNIFORM:
-        request.applymarker(pytest.mark.xfail(strict=True, reason="its script does not write the shared header yet"))
+def test_results_file_starts_with_the_header_of_its_run(path):
     fields = _timing().HEADER_FIELDS
     lines = path.read_text().splitlines()
     assert lines[0].startswith("# "), f"{path.name}: expected a title on line 1, found {lines[0]!r}"
