@@ -14,12 +14,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import platform
-import subprocess
 import time
 from pathlib import Path
 
-import jax
+import _timing
 import jax.numpy as jnp
 import numpy as np
 
@@ -81,7 +79,6 @@ def main() -> None:
     args = parser.parse_args()
     root = args.shared / "independent" / "trajectories"
     given = dict(item.split("=", 1) for item in args.corrected)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     text = args.out.read_text() if args.out.exists() else ""
     for case in args.cases:
         folder = root / case
@@ -91,13 +88,13 @@ def main() -> None:
             corrected, label = with_fitted_lags(jr.load_robot(folder / "start.toml")), "start + fitted lags"
         else:
             corrected, label = None, "none"
-        lines = [SECTION + case, "", f"`python benchmarks/bench_replan.py --cases {case} --tasks {' '.join(args.tasks)}"
-                 + (f" --corrected {case}={given[case]}" if case in given else "") + f"` at commit {commit}. Machine: "
-                 f"{platform.machine()}, {jax.device_count()} device(s), JAX {jax.__version__}, backend "
-                 f"{jax.default_backend()}. The nu = 1e-14 plan on each model, simulated by `jr.simulate` on the "
-                 "case's true robot (`start.toml` plus truth.json's effects, cw set throughout); tool path error over "
-                 "the motion [µm]. Goal (issue 32): corrected <= 1.5 x true, and >= 5 x below start where start > "
-                 "10 µm.", "",
+        command = (f"python benchmarks/bench_replan.py --cases {case} --tasks {' '.join(args.tasks)}"
+                   + (f" --corrected {case}={given[case]}" if case in given else ""))
+        info = _timing.run_info("the plan made on the case's true robot, simulated in the same run", command=command)
+        lines = [SECTION + case, "", _timing.header(info),
+                 "The nu = 1e-14 plan on each model, simulated by `jr.simulate` on the case's true robot (`start.toml` "
+                 "plus truth.json's effects, cw set throughout); tool path error over the motion [µm]. Goal: corrected "
+                 "<= 1.5 x true, and >= 5 x below start where start > 10 µm.", "",
                  "| task | corrected model | start max / rms | corrected max / rms | true max / rms | "
                  "corrected / true (max) | start / corrected (max) | plan time [s] (start, corrected, true) |",
                  "|---|---|---|---|---|---|---|---|"]

@@ -14,7 +14,8 @@ from helpers import independent_data
 
 BENCH_REPLAN = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_replan.py"
 CHILD = """
-import importlib.util, json, sys
+import importlib.util, json, pathlib, sys
+sys.path.insert(0, str(pathlib.Path(sys.argv[1]).parent))  # its _timing
 spec = importlib.util.spec_from_file_location("bench_replan", sys.argv[1])
 mod = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(mod)

@@ -385,7 +385,7 @@ def _identifiable(cols, effects, n: int, at=None) -> bool:
 def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_end: bool = True,
          chi2_before: float | None = None):
     """Levenberg-Marquardt on the variables of `effects` from `z0`, where the residual is `r0` and its exact derivatives
-    along those variables `jac0`: (z, chi2, residual, derivatives, covariance of the variables) at the end, or None
+    along those variables `jac0`: (z, chi2, residual, covariance of the variables) at the end, or None
     where the fit leaves the physical range (a negative lag, damping or payload mass), ends on dependent derivatives
     or fails to lower the chi-square below `chi2_before` (default: that at `z0`).
 
@@ -436,7 +436,7 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
     if not chi2 < start or np.any(values[:2 * n] < 0) or values[len(RUN_KINDS) * n] < 0 \
             or not _identifiable(jac, effects, n, np.arange(jac.shape[1])):
         return None
-    return z, chi2, r, jac, np.linalg.inv(jac.T @ jac) if exact_end else None
+    return z, chi2, r, np.linalg.inv(jac.T @ jac) if exact_end else None
 
 
 def _estimate(robot, z, effects, cov) -> list[RunEstimate]:
@@ -570,7 +570,7 @@ def diagnose_runs(
             if fit is not None:
                 fits.append((fit[1], eligible[k], fit))
         best = None
-        for _, effect, (z_fit, _, r_fit, _, _) in sorted(fits, key=lambda f: f[0]):
+        for _, effect, (z_fit, _, r_fit, _) in sorted(fits, key=lambda f: f[0]):
             effects = added + [effect]
             variables = [i for e in effects for i in _index(e, n)]
             fit = _fit(base, z_fit, effects, ev, marker, substeps, r_fit,
@@ -582,7 +582,7 @@ def diagnose_runs(
         if best is None:
             verdict = "not explained: no candidate fit lowers the chi-square within the physical range"
             break
-        effect, (z_new, chi2_new, _, _, cov_new) = best
+        effect, (z_new, chi2_new, _, cov_new) = best
         m_new = sum(len(_index(e, n)) for e in added + [effect])
         if not chi2_new + m_new * ln_n < last.bic - MIN_BIC_GAIN:
             verdict = f"not explained: the best candidate ({effect.label}) does not lower BIC by {MIN_BIC_GAIN}"
