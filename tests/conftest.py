@@ -9,7 +9,34 @@
 
 from __future__ import annotations
 
+import gc
+from pathlib import Path
+
 import pytest
+
+# Each program XLA compiles for the CPU maps its code into the process, and the maps stay while JAX's
+# caches hold the executable. A test process that compiles thousands of programs (a pytest-xdist worker
+# running many files) reaches the kernel's limit on memory maps per process (`vm.max_map_count`, 65530
+# by default); XLA's compiler then crashes (SIGSEGV in `backend_compile_and_load`) instead of raising.
+# Past half the limit the caches are cleared between tests; later compiles of the same programs come
+# from the persistent compilation cache.
+_MAPS = Path("/proc/self/maps")
+_MAP_LIMIT = Path("/proc/sys/vm/max_map_count")
+
+
+def _memory_maps() -> int:
+    with _MAPS.open() as maps:
+        return sum(1 for _ in maps)
+
+
+def pytest_runtest_teardown(item, nextitem):
+    if not (_MAPS.exists() and _MAP_LIMIT.exists()):
+        return
+    if _memory_maps() > int(_MAP_LIMIT.read_text()) // 2:
+        import jax
+
+        jax.clear_caches()
+        gc.collect()
 
 
 def pytest_addoption(parser):
