@@ -21,7 +21,6 @@ from .calibration import ParameterSelection as ParameterSelection
 from .calibration import PoseConstraints as PoseConstraints
 from .calibration import calibrate as calibrate
 from .calibration import calibrate_fleet as calibrate_fleet
-from .calibration import calibration_report as calibration_report
 from .calibration import default_parameters as default_parameters
 from .calibration import detmax as detmax
 from .calibration import identifiability as identifiability
@@ -54,3 +53,19 @@ from .gear import process_gear_runs as process_gear_runs
 from .gear import sparse_orders as sparse_orders
 
 _check_public(globals())
+
+
+_MOVED = {"calibration_report": "calibration_report"}
+"""Deprecated names of this package: the new name in `identification.cli` (kept for one release)."""
+
+
+def __getattr__(name: str):
+    if name not in _MOVED:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import warnings
+
+    from . import cli
+
+    warnings.warn(f"identification.{name} moved to identification.cli.{_MOVED[name]}; "
+                  "the old name goes in the next release", DeprecationWarning, stacklevel=2)
+    return getattr(cli, _MOVED[name])

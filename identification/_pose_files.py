@@ -66,14 +66,6 @@ def read_poses(path: str | Path, approach: str = "cw", *, reject_nan: bool = Tru
     return dataclasses.replace(data, ccw=approach_ccw(data.motor_angles, approach, column, str(path)))
 
 
-def add_approach_option(parser) -> None:
-    """`--approach {cw,order,column}` of every command that reads pose files."""
-    parser.add_argument("--approach", choices=APPROACHES, default="cw",
-                        help="direction of approach at rest: cw = every gear's cw set (docs/model.md (B.1), default); "
-                             "order = from the row order (rows in the order measured); column = the file's "
-                             "approach1..approachn columns (+1 cw, -1 ccw)")
-
-
 GROSS_ERROR_M = 0.05
 """Model and measured marker positions farther apart (RMS) than this mean wrong units or columns:
 kinematic deviations of a robot are millimetres, not centimetres."""

@@ -97,14 +97,6 @@ def noise_estimate(residuals: np.ndarray, sigma: float, m: int) -> float:
     return float(np.sqrt(np.sum(r[keep] ** 2) / max(n - m, 1)))
 
 
-def add_loss_option(parser) -> None:
-    """`--loss {cauchy,huber,l2}` of the commands that fit pose files."""
-    parser.add_argument("--loss", choices=LOSSES, default=LOSSES[0],
-                        help="loss on each pose's residual norm in units of the stated tracker noise: cauchy "
-                             "(default) or huber, robust to gross tracker errors (iteratively reweighted least "
-                             "squares), or l2 (plain least squares)")
-
-
 def irls(fit, weight, loss: str, rows: int):
     """Iteratively reweighted least squares: `fit(weight) -> (solution, z)` solves with the pose
     weights `weight` (numpy or jax, any shape: one fit per row along the last axis) and returns the

@@ -1,8 +1,7 @@
 """Plan one task and evaluate it on the plant: inverse kinematics, the four motor
 trajectories of `METHODS` (the OCP of eq. 4.3 warm-started by the flat inverse) and their tool-pose
 errors on a plant; and the nu study of thesis 4.3 (`sweep_task`). SI results and structured progress
-events; text, tables, JSON and figures are made by the `plan` and `sweep` commands (`_cli_plan.py`,
-`_cli_sweep.py`)."""
+events; text, tables, JSON and figures are made by the `plan` and `sweep` commands (`planning/cli/`)."""
 
 from __future__ import annotations
 

@@ -23,7 +23,22 @@ from ._pose_selection import PoseConstraints as PoseConstraints
 from ._pose_selection import detmax as detmax
 from ._pose_selection import random_feasible_poses as random_feasible_poses
 from ._pose_selection import rest_motor_angles as rest_motor_angles
-from ._report import calibration_report as calibration_report
 from ._selection import ParameterSelection as ParameterSelection
 
 _check_public(globals())
+
+
+_MOVED = {"calibration_report": "calibration_report"}
+"""Deprecated names of this package: the new name in `identification.cli` (kept for one release)."""
+
+
+def __getattr__(name: str):
+    if name not in _MOVED:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import warnings
+
+    from .. import cli
+
+    warnings.warn(f"identification.calibration.{name} moved to identification.cli.{_MOVED[name]}; "
+                  "the old name goes in the next release", DeprecationWarning, stacklevel=2)
+    return getattr(cli, _MOVED[name])

@@ -266,8 +266,8 @@ _solve_jit = cached_program(solve, filter=True)
 
 @dataclasses.dataclass(frozen=True)
 class CalibrationResult:
-    """Result of `calibrate` in SI units (m, rad; gear ratios and scales dimensionless; `_report`
-    turns it into tables and the JSON). `m` free parameters, `K` identification poses."""
+    """Result of `calibrate` in SI units (m, rad; gear ratios and scales dimensionless;
+    `identification.cli` turns it into tables and the JSON). `m` free parameters, `K` identification poses."""
 
     robot: jr.Robot
     """The calibrated robot."""
@@ -449,7 +449,7 @@ def calibrate(
     returned with `converged=False` and its `status` (a `jaxrobot.RESULTS` name), never as success;
     `throw=True` raises its message instead (`RESULTS.error_if`).
 
-    **Returns:** `CalibrationResult` (SI units; `calibration_report` gives the report dict).
+    **Returns:** `CalibrationResult` (SI units; `identification.cli.calibration_report` gives the report dict).
     """
     from jaxrobot.bench import ORIENTATION_NOISE_RAD
 

@@ -16,8 +16,6 @@ from ._effects import Effect as Effect
 from ._effects import Layout as Layout
 from ._effects import catalogue as catalogue
 from ._effects import payload_robot as payload_robot
-from ._report import progress_lines as progress_lines
-from ._report import summary as summary
 from ._runs import RunComparison as RunComparison
 from ._runs import RunDiagnosis as RunDiagnosis
 from ._runs import RunEffect as RunEffect
@@ -27,3 +25,19 @@ from ._runs import compare_run as compare_run
 from ._runs import diagnose_runs as diagnose_runs
 
 _check_public(globals())
+
+
+_MOVED = {"progress_lines": "progress_lines", "summary": "diagnosis_summary"}
+"""Deprecated names of this package: the new name in `identification.cli` (kept for one release)."""
+
+
+def __getattr__(name: str):
+    if name not in _MOVED:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import warnings
+
+    from .. import cli
+
+    warnings.warn(f"identification.diagnosis.{name} moved to identification.cli.{_MOVED[name]}; "
+                  "the old name goes in the next release", DeprecationWarning, stacklevel=2)
+    return getattr(cli, _MOVED[name])

@@ -461,9 +461,9 @@ def diagnose(
       times [s] (a pose file's `t_s`; the row order is never taken for time): the final model's
       residuals are then tested for a link-length scale linear in time (thermal drift, `Drift`);
       `progress`: receives a `DiagnoseEvent` per model
-      compared and per step's candidates (`_report.progress_lines` turns them into text).
+      compared and per step's candidates (`identification.cli.progress_lines` turns them into text).
 
-    **Returns:** `DiagnoseResult` in SI units (`_report.summary`: the JSON of `jaxrobot diagnose`).
+    **Returns:** `DiagnoseResult` in SI units (`identification.cli.diagnosis_summary`: the JSON of `jaxrobot diagnose`).
     """
     sigma, marker = _checked_inputs(start, train, validation, noise, marker)
     robust.check_loss(loss)

@@ -10,8 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._pose_files import add_approach_option
-from .._robust import add_loss_option
+from ._options import add_approach_option, add_loss_option, add_tracker_options, tracker_of
 
 HELP = "find where model and pose measurements (or trajectory runs) disagree, name the missing effect, add it, repeat"
 EXAMPLE = "jaxrobot diagnose --model start.toml train.csv --validate val.csv --out diagnose --save-model fixed.toml"
@@ -40,38 +39,12 @@ def configure(parser) -> None:
     parser.add_argument("--max-order", type=int, default=400, help="highest ripple order searched (default 400)")
 
 
-def add_tracker_options(parser) -> None:
-    """`--noise-um` and `--marker` of the commands that compare tracker positions with the model."""
-    parser.add_argument("--noise-um", type=float, default=None,
-                        help="tracker noise std per axis in um (default: the robot file's [sensors])")
-    parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
-                        help="marker offset in m in the tool frame (the flange without [tool]; default: [sensors])")
-
-
-def tracker_of(args):
-    """The start robot, marker offset [m] and tracker noise (std [m] or a `TrackerNoise`) of the options: the
-    robot file's `[sensors]` where `--marker`, `--noise-um` are not given (None: the embedded robot's)."""
-    import jaxrobot as jr
-
-    from .._noise import TrackerNoise
-
-    if args.noise_um is not None and not args.noise_um > 0:
-        raise ValueError(f"--noise-um: expected the tracker std per axis > 0 um, found {args.noise_um}")
-    robot = jr.racer7() if args.model is None else jr.load_robot(args.model)
-    marker, noise = args.marker, None if args.noise_um is None else 1e-6 * args.noise_um
-    if args.model is not None:
-        sensors = jr.read_description(args.model).get("sensors", {})
-        marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
-        noise = (TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")) if noise is None else noise
-    return robot, marker, noise
-
-
 def _poses(paths, approach: str):
     """The poses of the files `paths`, concatenated, and (file, line) of each row (header = line 1)."""
     from jaxrobot.bench import read_csv_columns
 
     from .._pose_files import read_poses
-    from ._diagnose import Poses
+    from ..diagnosis._diagnose import Poses
 
     data = [read_poses(p, approach) for p in paths]
     lines = [(str(p), k + 2) for p, d in zip(paths, data) for k in range(len(d.motor_angles))]
@@ -97,7 +70,7 @@ def _diagnose_runs(args, echo) -> dict:
     in their units) and `steps` (one `RunStep` per model compared, as a dict of its fields)."""
     import jaxrobot as jr
 
-    from ._runs import diagnose_runs
+    from ..diagnosis._runs import diagnose_runs
 
     if bool(args.poses) != bool(args.validate):
         raise ValueError(f"--runs with poses: expected training pose files and --validate pose files, found "
@@ -144,8 +117,8 @@ def run(args, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot.cli import Progress
 
-    from ._diagnose import diagnose
-    from ._report import loop_table, progress_lines, summary, write_outputs
+    from ..diagnosis._diagnose import diagnose
+    from ._diagnosis_report import diagnosis_summary, loop_table, progress_lines, write_outputs
 
     if args.max_steps < 0 or args.max_order < 1:
         raise ValueError(f"--max-steps >= 0 and --max-order >= 1 expected, found {args.max_steps}, {args.max_order}")
@@ -170,7 +143,7 @@ def run(args, echo) -> dict:
                    max_order=args.max_order, loss=args.loss, times=times, progress=progress)
     echo("\n" + loop_table(res.loop, res.noise_floor))
     echo(f"verdict: {res.verdict}")
-    rep = summary(res, lines)
+    rep = diagnosis_summary(res, lines)
     for o in rep["outliers"]:
         echo(f"warning: {o['file']}:{o['line']}: residual {o['residual_um']:.1f} um ({o['sigmas']:.1f} sigma) at the "
              "final model, beyond the outlier bound: a gross measurement error?"

@@ -11,12 +11,12 @@ import jaxrobot as jr
 from jaxrobot.bench import NOT_CONVERGED
 from jaxrobot.cli import Progress, SolveFailed, add_model_option
 
+from .._bandwidth import control_spectrum
+from .._sweep import check_nus
+from .._transcription import COSTS
+from .._workflow import SweepEvent, SweepResult, sweep_task
 from . import _plots
-from ._bandwidth import control_spectrum
-from ._cli_plan import PLANT_HELP, load_task, task_title
-from ._sweep import check_nus
-from ._transcription import COSTS
-from ._workflow import SweepEvent, SweepResult, sweep_task
+from ._plan import PLANT_HELP, load_task, task_title
 
 HELP = "sweep the weighting factor nu (one OCP sweep call per cost variant): table, plots, Pareto front"
 DEFAULT_NUS = tuple(float(v) for v in np.logspace(-16, -9, 8))

@@ -37,9 +37,9 @@ def run(args, echo) -> dict:
     section)."""
     import tomli_w
 
-    from ._cli_info import _table
-    from ._description import robot_from_description
-    from ._urdf import read_urdf, urdf_chain
+    from .._description import robot_from_description
+    from .._urdf import read_urdf, urdf_chain
+    from ._info import _table
 
     if args.out is None:
         raise ValueError("import-urdf: --out ARM.toml is required (the robot description to write)")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._diagnose import AddedEffect, CandidateScore, DiagnoseEvent, DiagnoseResult, Estimate, LoopRow
+from ..diagnosis._diagnose import AddedEffect, CandidateScore, DiagnoseEvent, DiagnoseResult, Estimate, LoopRow
 
 UM = 1e6
 """Micrometres per metre: residuals are reported in um."""
@@ -59,7 +59,7 @@ def _step(s: AddedEffect) -> dict:
             "rms_train_um": s.rms_train * UM, "rms_validation_um": s.rms_validation * UM}
 
 
-def summary(res: DiagnoseResult, lines: list[tuple[str, int]] | None = None) -> dict:
+def diagnosis_summary(res: DiagnoseResult, lines: list[tuple[str, int]] | None = None) -> dict:
     """The JSON of `jaxrobot diagnose` (`--json`; residuals in um, parameters in their SI units); `lines`: the
     (file, line) of each training row.
 

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._calibrate import DATA_FRACTION, CalibrationResult
-from ._parameters import parse_name, unit
+from ..calibration._calibrate import DATA_FRACTION, CalibrationResult
+from ..calibration._parameters import parse_name, unit
 
 
 def error_stats(err: np.ndarray) -> dict[str, float]:

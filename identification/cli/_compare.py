@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._cli import add_tracker_options, tracker_of
+from ._options import add_tracker_options, tracker_of
 
 HELP = "simulate a motor command on the model and compare it with a tracker's run of that command"
 EXAMPLE = "jaxrobot compare --model robot.toml --command line.csv --run run_line.csv --out compare"
@@ -75,7 +75,7 @@ def run(args, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot.bench import read_command_csv, read_trajectory_csv
 
-    from ._runs import compare_run
+    from ..diagnosis._runs import compare_run
 
     robot, marker, noise = tracker_of(args)
     sensors = jr.read_description(None)["sensors"]

@@ -40,7 +40,7 @@ def _cutoffs(desc: dict) -> dict[int, float]:
 
 
 def _echo_result(res, echo) -> None:
-    from ._report import order_table, resolution_table, rms_table, test_table
+    from ._gear_report import order_table, resolution_table, rms_table, test_table
 
     joints = sorted({j for j, _ in res.groups})
     for j in joints:
@@ -62,8 +62,8 @@ def run(args, echo) -> dict:
     from jaxrobot import bench
     from jaxrobot.cli import Progress
 
-    from ._fit import identify_gear
-    from ._report import summary, write_report
+    from ..gear._fit import identify_gear
+    from ._gear_report import summary, write_report
 
     progress = Progress(3, "identify-gear")
     desc = jr.read_description(args.robot)
@@ -100,9 +100,9 @@ def demo_stage(out: Path, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot import bench
 
-    from ._bench import bench_runs
-    from ._fit import identify_gear
-    from ._report import summary, write_report
+    from ..gear._bench import bench_runs
+    from ..gear._fit import identify_gear
+    from ._gear_report import summary, write_report
 
     start = time.perf_counter()
     runs = bench_runs(seed=0)

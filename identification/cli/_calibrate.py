@@ -10,8 +10,7 @@ import numpy as np
 
 from jaxrobot.cli import SolveFailed, add_model_option
 
-from .._pose_files import add_approach_option
-from .._robust import add_loss_option
+from ._options import add_approach_option, add_loss_option
 
 HELP = "calibrate the kinematic parameters from a pose file (docs/model.md (3.12), LM)"
 EXAMPLE = "jaxrobot calibrate poses.csv --validate validation.csv --out calibration --save-model calibrated.toml"
@@ -77,7 +76,7 @@ def summary(report: dict, poses: Path | str = "") -> dict:
 
 
 def _echo_report(report: dict, echo, truth: dict | None = None, poses: Path | str = "") -> None:
-    from ._report import error_table, outlier_table, parameter_table
+    from ._calibration_report import error_table, outlier_table, parameter_table
 
     echo(f"LM: {report['status']}, {report['iterations']} iterations, loss {report['loss']}, noise estimate "
          f"{1e3 * report['noise_estimate_m']:.4f} mm per axis")
@@ -108,7 +107,7 @@ def _echo_report(report: dict, echo, truth: dict | None = None, poses: Path | st
 
 def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions=None,
                    workspace=None) -> list[str]:
-    from ._report import error_table, parameter_table, plot_errors, plot_pose_set
+    from ._calibration_report import error_table, parameter_table, plot_errors, plot_pose_set
 
     files = []
     parts = [error_table(report["identification"], "Identification set (Table 3.6 format)")]
@@ -139,10 +138,10 @@ def run(args, echo) -> dict:
 
     from .._noise import TrackerNoise
     from .._pose_files import read_poses
-    from ._calibrate import PRIOR_KEYS, calibrate, map_parameters
-    from ._identifiability import default_parameters
-    from ._pose_selection import default_marker, workspace_positions
-    from ._report import calibration_report
+    from ..calibration._calibrate import PRIOR_KEYS, calibrate, map_parameters
+    from ..calibration._identifiability import default_parameters
+    from ..calibration._pose_selection import default_marker, workspace_positions
+    from ._calibration_report import calibration_report
 
     progress = Progress(3, "calibrate")
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
@@ -200,10 +199,10 @@ def demo_stage(out: Path, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot.bench import write_pose_csv
 
-    from ._bench import bench_calibration
-    from ._parameters import ParameterMap
-    from ._pose_selection import workspace_positions
-    from ._report import calibration_report, plot_pose_set
+    from ..calibration._bench import bench_calibration
+    from ..calibration._parameters import ParameterMap
+    from ..calibration._pose_selection import workspace_positions
+    from ._calibration_report import calibration_report, plot_pose_set
 
     start = time.perf_counter()
     bench = bench_calibration()

@@ -19,8 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._pose_files import add_approach_option
-from .._robust import add_loss_option
+from ._options import add_approach_option, add_loss_option
 
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
 TABLE = "fleet_calibration.csv"
@@ -73,7 +72,7 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
     import jaxrobot as jr
     from jaxrobot.bench import write_pose_csv
 
-    from ._bench import fleet_measurements
+    from ..calibration._bench import fleet_measurements
 
     if n_robots < 1 or n_poses < 1:
         raise ValueError(f"--bench/--poses: expected >= 1 robots and poses, found {n_robots} and {n_poses}")
@@ -154,10 +153,10 @@ def run(args, echo) -> dict:
     from jaxrobot.cli import ItemsFailed, Progress, SolveFailed
 
     from .._noise import TrackerNoise, noise_model
-    from ._fleet import calibrate_fleet
-    from ._fleet_files import check_fleet_files
-    from ._pose_selection import default_marker
-    from ._report import fleet_outliers, plot_fleet
+    from ..calibration._fleet import calibrate_fleet
+    from ..calibration._fleet_files import check_fleet_files
+    from ..calibration._pose_selection import default_marker
+    from ._calibration_report import fleet_outliers, plot_fleet
 
     pid = jax.process_index()
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)

@@ -1,6 +1,6 @@
 """What `jaxrobot info` and the model stage of `jaxrobot demo` compute, in SI units: the gravity sag
 and the elastic eigenfrequencies of a robot at given poses, and how closely the flat inverse of a
-joint move tracks on the simulated robot (`_cli_info` formats them)."""
+joint move tracks on the simulated robot (`_info` formats them)."""
 
 from __future__ import annotations
 
@@ -10,17 +10,17 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._dynamics import gravity_torque, mass_matrix
-from ._elasticity import elastic_deflection, elastic_stiffness
-from ._flat import flat_inverse
-from ._gear import motor_angle
-from ._kinematics import forward_kinematics
-from ._linalg import map_matrices
-from ._program_cache import cached_program
-from ._robot import Robot
-from ._simulate import simulate
-from ._status import RESULTS, require_successful
-from .measurement._model import rest_solution
+from .._dynamics import gravity_torque, mass_matrix
+from .._elasticity import elastic_deflection, elastic_stiffness
+from .._flat import flat_inverse
+from .._gear import motor_angle
+from .._kinematics import forward_kinematics
+from .._linalg import map_matrices
+from .._program_cache import cached_program
+from .._robot import Robot
+from .._simulate import simulate
+from .._status import RESULTS, require_successful
+from ..measurement._model import rest_solution
 
 
 class PoseNumbers(eqx.Module):

@@ -16,13 +16,13 @@ import jaxrobot as jr
 from jaxrobot.bench import read_csv_columns, write_command_csv
 from jaxrobot.cli import Progress, SolveFailed, add_model_option, suggestion
 
+from .._bandwidth import bandwidth, control_spectrum
+from .._evaluation import METHODS
+from .._ik import default_start, task_start
+from .._trajectories import check_task, reference_path, sampled_path
+from .._transcription import COSTS
+from .._workflow import PlanEvent, PlanResult, _tool_position, plan_task
 from . import _plots
-from ._bandwidth import bandwidth, control_spectrum
-from ._evaluation import METHODS
-from ._ik import default_start, task_start
-from ._trajectories import check_task, reference_path, sampled_path
-from ._transcription import COSTS
-from ._workflow import PlanEvent, PlanResult, _tool_position, plan_task
 
 HELP = "plan a task (line, spiral or a CSV of tool positions) with the OCP and evaluate it on the plant"
 EXAMPLE = "jaxrobot plan line --nu 1e-13 --plant as-built --out plan-line --save-trajectory line.csv"

@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._common import add_model_option, jsonable
 from ._summary import move_tracking_error, pose_numbers
 
 HELP = "summarise a robot: parameters, home pose, static deflection, eigenfrequencies"
@@ -33,8 +34,6 @@ def poses_deg(robot) -> dict[str, list[float]]:
 
 
 def configure(parser) -> None:
-    from ._cli import add_model_option
-
     add_model_option(parser)
     parser.add_argument("--as-built", action="store_true", help="the test bench's as-built robot")
 
@@ -97,23 +96,22 @@ def _report(robot, echo) -> dict:
 
 
 def run(args, echo) -> dict:
-    from ._description import load_robot, racer7
+    from .._description import load_robot, racer7
 
     robot = racer7(args.as_built) if args.model is None else load_robot(args.model, args.as_built)
     info = _report(robot, echo)
     if args.out is not None:
         import json
 
-        from ._cli import _jsonable
 
-        (args.out / "info.json").write_text(json.dumps(_jsonable(info), indent=2))
+        (args.out / "info.json").write_text(json.dumps(jsonable(info), indent=2))
     return info
 
 
 def stage(out: Path, echo) -> dict:
     """Demo stage 1: the model, and the flat inverse tracking a joint move on the simulated plant.
     **Returns:** `summary` plus `flat_inverse_tracking_error_rad` (float [rad], `move_tracking_error`)."""
-    from ._description import racer7
+    from .._description import racer7
 
     robot = racer7()
     info = _report(robot, echo)

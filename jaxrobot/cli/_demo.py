@@ -14,7 +14,11 @@ import os
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
+from importlib.metadata import entry_points
 from pathlib import Path
+
+from . import _info
+from ._common import Progress, jsonable, use_file_backend
 
 HELP = "run every stage (model, identification, calibration, planning) on the default robot"
 EXAMPLE = "jaxrobot demo --out jaxrobot-demo"
@@ -39,15 +43,19 @@ def default_workers(stages: int) -> int:
     return max(1, min(cores, stages))
 
 
+def demo_stages() -> list[tuple[str, Callable]]:
+    """The registered stages of `jaxrobot demo`, in order."""
+    return sorted(((ep.name, ep.load()) for ep in entry_points(group="jaxrobot.demo")),
+                  key=lambda item: item[0])
+
+
 def _run_stage(stage: Callable, out: Path) -> tuple[list[str], dict | None, float, BaseException | None]:
     """One stage with its echo collected: (lines, JSON-ready summary, seconds, the error it raised)."""
-    from ._cli import _jsonable, use_file_backend
-
     use_file_backend()
     lines: list[str] = []
     start = time.perf_counter()
     try:
-        summary = _jsonable(stage(out, lines.append))
+        summary = jsonable(stage(out, lines.append))
     except Exception as err:  # noqa: BLE001 - re-raised by the parent after the stage's output
         return lines, None, time.perf_counter() - start, err
     return lines, summary, time.perf_counter() - start, None
@@ -58,8 +66,6 @@ def run_stages(stages: list[tuple[str, Callable]], out: Path, echo, workers: int
     being the name without its `NN_` prefix. With `workers > 1`, in that many spawned processes (`stage`
     must then be a module-level function); the last stage, the longest (planning), is started first. Each
     stage's output is echoed as one block in stage order; an error of a stage is raised after its output."""
-    from ._cli import Progress
-
     summary = {}
     progress = Progress(len(stages), "demo")
 
@@ -96,14 +102,11 @@ def run_stages(stages: list[tuple[str, Callable]], out: Path, echo, workers: int
 
 
 def run(args, echo) -> dict:
-    """`jaxrobot demo`; the `--json` summary is `{label: summary}` (`run_stages`): `model` (`_cli_info.stage`)
+    """`jaxrobot demo`; the `--json` summary is `{label: summary}` (`run_stages`): `model` (`_info.stage`)
     and the registered stages (`gear_identification`, `calibration`, `planning`), each its stage's summary."""
-    from . import _cli_info
-    from ._cli import demo_stages
-
     out = args.out if args.out is not None else OUT
     out.mkdir(parents=True, exist_ok=True)
-    stages = [("10_model", _cli_info.stage), *demo_stages()]
+    stages = [("10_model", _info.stage), *demo_stages()]
     workers = args.workers if args.workers is not None else default_workers(len(stages))
     if workers < 1:
         raise ValueError(f"--workers: expected a number of processes >= 1, found {workers}")

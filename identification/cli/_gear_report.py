@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._fit import GearIdentification
+from ..gear._fit import GearIdentification
 
 
 def _deg(x: float) -> float:

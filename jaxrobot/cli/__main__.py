@@ -1,0 +1,7 @@
+"""`python -m jaxrobot.cli`: the `jaxrobot` command."""
+
+import sys
+
+from ._main import main
+
+sys.exit(main())
