@@ -119,7 +119,7 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="bench_distributed_"))
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_") and k != "XLA_FLAGS"}
     env["JAXROBOT_CACHE_DIR"] = "off"  # every first call compiles
-    cli = [sys.executable, "-m", "jaxrobot._cli", "calibrate-fleet", "--json", "--bench", str(args.robots),
+    cli = [sys.executable, "-m", "jaxrobot.cli", "calibrate-fleet", "--json", "--bench", str(args.robots),
            "--poses", str(args.poses)]
     api = [sys.executable, __file__, "--worker", str(work / "data1")]
     runs = {}

@@ -27,11 +27,11 @@ import numpy as np
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
-from identification import DEFAULT_PARAMETERS, calibrate, calibration_report, identify_gear
+from identification import DEFAULT_PARAMETERS, calibrate, identify_gear
 from identification._pose_files import read_poses
 from identification.calibration._calibrate import map_parameters
+from identification.cli import calibration_report, diagnosis_summary
 from identification.diagnosis import Poses, diagnose
-from identification.diagnosis import summary as diagnosis_summary
 
 
 def shared_folder(arg: str | None) -> Path:

@@ -62,7 +62,7 @@ def run_once(argv: list[str], cache: Path, source: Path | None, cwd: Path) -> di
     load = os.getloadavg()[0]
     start = time.perf_counter()
     with open(cwd / "stdout", "w") as out, open(cwd / "stderr", "w") as err:
-        proc = subprocess.Popen([sys.executable, "-m", "jaxrobot._cli", *argv], cwd=cwd, env=env,
+        proc = subprocess.Popen([sys.executable, "-m", "jaxrobot.cli", *argv], cwd=cwd, env=env,
                                 stdout=out, stderr=err)
         _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - start

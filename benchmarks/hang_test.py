@@ -85,7 +85,7 @@ def run_once(argv: list[str], timeout: float, source: Path | None, dump: Path | 
     start = time.perf_counter()
     try:
         out = cwd / ("arm.toml" if argv[0] == "import-urdf" else "out")
-        proc = subprocess.run([sys.executable, "-m", "jaxrobot._cli", *argv, "--json", "--out", str(out)],
+        proc = subprocess.run([sys.executable, "-m", "jaxrobot.cli", *argv, "--json", "--out", str(out)],
                               cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
         return time.perf_counter() - start, proc.returncode, proc.stderr.strip().splitlines()[-1:]
     except subprocess.TimeoutExpired:

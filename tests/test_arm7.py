@@ -105,7 +105,7 @@ def _diagnose(*parts: str):
 def test_diagnose_rejects_and_names_gross_tracker_errors():
     """Nothing hidden, 3 gross errors: `diagnose` (default loss) finds no discrepancy, names exactly the
     corrupted rows and keeps the start model (the truth) at the floor."""
-    from identification.diagnosis import summary
+    from identification.cli import diagnosis_summary as summary
 
     res, truth = _diagnose("noise", "outliers")
     assert res.steps == () and res.verdict.startswith("no significant discrepancy"), res.verdict
@@ -173,7 +173,8 @@ def test_diagnose_names_a_drift_in_acquisition_time():
     """Every link grows by 3e-5 linearly over the 1722 s of the training file (`t_s`): `diagnose` with
     the times names a link-length scale linear in time, its rate within 3 standard errors of the truth;
     without times there is no drift test (the row order is not taken for time)."""
-    from identification.diagnosis import Poses, diagnose, summary
+    from identification.cli import diagnosis_summary as summary
+    from identification.diagnosis import Poses, diagnose
     from jaxrobot.bench import read_csv_columns
 
     d, robot, train, val, truth = _case("noise", "drift")

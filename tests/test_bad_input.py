@@ -1,5 +1,5 @@
 """Bad input gets a clear error naming the argument or field, the expectation and what was found,
-before any compute (issue 16): one table for the command line (in-process `jaxrobot._cli.main`,
+before any compute (issue 16): one table for the command line (in-process `jaxrobot.cli._main.main`,
 exit code and message, no traceback) and one for the file readers and the Python API."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pytest
 import jaxrobot as jr
 import jaxrobot.bench as jb
 import planning as pl
-from jaxrobot._cli import main
+from jaxrobot.cli._main import main
 
 ROBOT = jr.racer7()
 LINE = pl.reference_path("line")

@@ -31,7 +31,7 @@ from identification.calibration._pose_selection import (
     rest_motor_angles,
     set_indices,
 )
-from identification.calibration._report import calibration_report, error_table, parameter_table
+from identification.cli._calibration_report import calibration_report, error_table, parameter_table
 from jaxrobot.bench import measure_poses, read_pose_csv, write_pose_csv
 
 N_SE = 3.0
@@ -410,7 +410,7 @@ def test_fleet_sharded_four_devices(robots, bench, tmp_path):
 
 
 def test_cli_json_schema(bench, tmp_path, capsys):
-    from jaxrobot._cli import main
+    from jaxrobot.cli._main import main
 
     ident, valid = bench
     write_pose_csv(tmp_path / "poses.csv", ident.motor_angles, ident.positions)

@@ -1,4 +1,4 @@
-"""`jaxrobot demo`'s stage runner (`jaxrobot._cli_demo.run_stages`): stages in worker processes give the
+"""`jaxrobot demo`'s stage runner (`jaxrobot.cli._demo.run_stages`): stages in worker processes give the
 summaries and output of the stages run one after the other, in stage order; a failing stage's error
 reaches the caller after its output. The stages here are tiny stand-ins (the real ones take minutes)."""
 
@@ -8,7 +8,7 @@ import os
 
 import pytest
 
-from jaxrobot._cli_demo import default_workers, run_stages
+from jaxrobot.cli._demo import default_workers, run_stages
 
 
 def _stage_a(out, echo):
@@ -65,7 +65,7 @@ def test_default_workers_one_per_core_at_most_one_per_stage():
 
 
 def test_bad_worker_count_is_refused(tmp_path, capsys):
-    from jaxrobot._cli import main
+    from jaxrobot.cli._main import main
 
     assert main(["demo", "--out", str(tmp_path / "d"), "--workers", "0"]) == 2
     assert "--workers: expected a number of processes >= 1, found 0" in capsys.readouterr().err

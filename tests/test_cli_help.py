@@ -10,15 +10,16 @@ from pathlib import Path
 
 import pytest
 
-from jaxrobot import _cli
-from jaxrobot._cli import HelpFormatter, Progress, main
+from jaxrobot.cli import _common, _main
+from jaxrobot.cli._common import HelpFormatter, Progress
+from jaxrobot.cli._main import main
 
-COMMANDS = _cli._commands()
+COMMANDS = _main._commands()
 WITHOUT_ROBOT = {"demo", "import-urdf"}
 
 
 def _subparsers() -> dict[str, argparse.ArgumentParser]:
-    top = _cli.parser(COMMANDS)
+    top = _main.parser(COMMANDS)
     return next(a for a in top._actions if isinstance(a, argparse._SubParsersAction)).choices
 
 
@@ -60,7 +61,7 @@ def test_help_states_the_default(name, option, shown, capsys):
 def test_example_parses(name):
     argv = shlex.split(COMMANDS[name].EXAMPLE)
     assert argv[:2] == ["jaxrobot", name]
-    args = _cli.parser(COMMANDS).parse_args(argv[1:])
+    args = _main.parser(COMMANDS).parse_args(argv[1:])
     assert args.command == name
 
 
@@ -68,7 +69,7 @@ def test_example_parses(name):
 def test_robot_is_an_alias_of_model(name):
     example = shlex.split(COMMANDS[name].EXAMPLE)[1:]
     example = [a for i, a in enumerate(example) if a != "--model" and (i == 0 or example[i - 1] != "--model")]
-    parser = _cli.parser(COMMANDS)
+    parser = _main.parser(COMMANDS)
     model, robot = (vars(parser.parse_args([*example, flag, "arm.toml"])) for flag in ("--model", "--robot"))
     assert model == robot
     assert Path("arm.toml") in model.values()
@@ -76,7 +77,7 @@ def test_robot_is_an_alias_of_model(name):
 
 def test_progress_reports_elapsed_time_and_eta(monkeypatch, capsys):
     clock = iter([100.0, 110.0, 130.0, 145.0])
-    monkeypatch.setattr(_cli.time, "perf_counter", lambda: next(clock))
+    monkeypatch.setattr(_common.time, "perf_counter", lambda: next(clock))
     progress = Progress(3, "sweep")
     for label in ("thesis", "jerk", "flat"):
         progress.step(f"cost {label}")
@@ -85,6 +86,6 @@ def test_progress_reports_elapsed_time_and_eta(monkeypatch, capsys):
     assert out.err.splitlines() == ["[sweep 1/3] cost thesis: 10 s elapsed, ETA 20 s",  # 10 s per step so far
                                     "[sweep 2/3] cost jerk: 30 s elapsed, ETA 15 s",
                                     "[sweep 3/3] cost flat: 45 s elapsed, done"]
-    monkeypatch.setattr(_cli.time, "perf_counter", iter([0.0, 4.0]).__next__)
+    monkeypatch.setattr(_common.time, "perf_counter", iter([0.0, 4.0]).__next__)
     Progress(6, "diagnose", at_most=True).step("step 0")
     assert capsys.readouterr().err == "[diagnose 1/6] step 0: 4 s elapsed, ETA at most 20 s\n"

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import jaxrobot as jr
-from jaxrobot._cli import main
+from jaxrobot.cli._main import main
 
 
 def test_info_json_summary(capsys):
@@ -28,7 +28,7 @@ def test_info_json_summary(capsys):
 
 
 def test_every_command_has_help(capsys):
-    from jaxrobot._cli import _commands
+    from jaxrobot.cli._main import _commands
 
     for name in _commands():
         with pytest.raises(SystemExit) as exit_info:

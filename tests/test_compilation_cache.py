@@ -125,7 +125,7 @@ def test_exported_program_static_leaves_and_fallbacks(tmp_path, monkeypatch):
 
 _PROGRAM_PROBE = """
 import sys, jax, jax.numpy as jnp, jaxrobot
-from jaxrobot import _summary
+from jaxrobot.cli import _summary
 if sys.argv[1] == "load":  # the second process must find the program of the first
     jax.export.export = None
 q, t = jnp.ones((5, 6)), jnp.linspace(0.0, 1.0, 5)

@@ -166,7 +166,7 @@ def test_cli_json_and_saved_model(bench, tmp_path, capsys):
         m = jb.measure_poses(truth, theta[name], seed=k, ccw=jr.measurement.approach_directions(theta[name]))
         jb.write_pose_csv(tmp_path / f"{name}.csv", m.motor_angles, m.positions)
     jr.save_robot(start, tmp_path / "start.toml")
-    from jaxrobot._cli import main
+    from jaxrobot.cli._main import main
 
     code = main(["diagnose", "--model", str(tmp_path / "start.toml"), str(tmp_path / "train.csv"),
                  "--validate", str(tmp_path / "validation.csv"), "--approach", "order", "--json",
@@ -194,7 +194,7 @@ def test_summary_reports_outliers_and_drift(bench):
     """The Python `summary` (the JSON of `jaxrobot diagnose`) carries the loss, each outlier row (with its
     file and line where the rows' origins are given) and the drift test, as the command prints them."""
     from identification._robust import Outlier
-    from identification.diagnosis import summary
+    from identification.cli import diagnosis_summary as summary
     from identification.diagnosis._diagnose import Drift
 
     res = _single(bench, "joint_offset_j5")
@@ -259,8 +259,8 @@ def test_catalogue_is_extensible_by_one_class():
 def test_candidate_columns_fit_the_longest_label():
     """A pair's label (two labels joined, here 46 characters) widens the candidate column of the table and
     of the progress lines: every row's numbers start at the same column, after the whole label."""
+    from identification.cli._diagnosis_report import candidate_table, progress_lines
     from identification.diagnosis._diagnose import CandidateScore, DiagnoseEvent
-    from identification.diagnosis._report import candidate_table, progress_lines
 
     pair = "joint_compliance j2 (linear) + joint_offset j6"
     log = (CandidateScore(pair, 1.0, -2000.0, 5.0, -1990.5, 1e-5, 4.6e-5, "successful", None, 7),

@@ -18,8 +18,8 @@ import pytest
 import jaxrobot as jr  # noqa: I001  (x64 first)
 import jaxrobot.bench as jb
 from identification import calibrate_fleet
-from identification.calibration._cli_fleet import TABLE, bench_fleet
-from jaxrobot._cli import main
+from identification.cli._calibrate_fleet import TABLE, bench_fleet
+from jaxrobot.cli._main import main
 
 JOB_TIMEOUT_S = 420
 """Wall-clock bound of a 2-process job (each compiles its program; ~40 s alone on 2 cores)."""
@@ -69,7 +69,7 @@ def test_two_process_fleet_equals_one_process(tmp_path, capsys):
     n_robots, n_poses = 7, 20
     data = tmp_path / "fleet"
     outs = _run_job(lambda p, address: [
-        sys.executable, "-m", "jaxrobot._cli", "calibrate-fleet", str(data), "--bench", str(n_robots), "--poses",
+        sys.executable, "-m", "jaxrobot.cli", "calibrate-fleet", str(data), "--bench", str(n_robots), "--poses",
         str(n_poses), "--out", str(tmp_path / "out"), "--json", "--coordinator", address, "--num-processes", "2",
         "--process-id", str(p)], tmp_path)
     summaries = [json.loads(o[o.index("{\n"):]) for o in outs]  # after gloo's lines on stdout
@@ -122,7 +122,7 @@ def test_two_process_fleet_with_a_spoiled_share(tmp_path):
     files[5].write_text("\n".join(files[5].read_text().splitlines()[:-2]) + "\n")
     (data / "fleet.txt").write_text("\n".join([f.name for f in files] + ["absent.csv"]) + "\n")
     outs = _run_job(lambda p, address: [
-        sys.executable, "-m", "jaxrobot._cli", "calibrate-fleet", str(data / "fleet.txt"), "--out",
+        sys.executable, "-m", "jaxrobot.cli", "calibrate-fleet", str(data / "fleet.txt"), "--out",
         str(tmp_path / "out"), "--json", "--coordinator", address, "--num-processes", "2", "--process-id", str(p)],
         tmp_path, code=4)
     summaries = [json.loads(o[o.index("{\n"):]) for o in outs]

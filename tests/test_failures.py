@@ -1,6 +1,6 @@
 """Failures are failures (issue 16): `plan`/`sweep` exit 3 on a solve that did not converge and
 write nothing unless `--save-failed` (then marked); tasks are checked for rest at both ends and
-smoothness before solving. The CLI runs in-process (`jaxrobot._cli.main`)."""
+smoothness before solving. The CLI runs in-process (`jaxrobot.cli._main.main`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 import jaxrobot as jr
 import jaxrobot.bench as jb
 import planning as pl
-from jaxrobot._cli import main
+from jaxrobot.cli._main import main
 
 LINE = pl.reference_path("line")
 
@@ -89,7 +89,7 @@ STAGES = ("inverse_kinematics", "flat_inverse", "solving", "ocp", "ocp_again", "
 @pytest.mark.extended  # IK, flat inverse and plant simulation at 5 ms compile; exit code 3 stays in the suite
 def test_plan_task_events_in_order_and_si_results_behind_the_summary(monkeypatch):
     import planning._ocp
-    from planning._cli_plan import summary
+    from planning.cli._plan import summary
 
     robot = jr.racer7()
     path = pl.sampled_path(*(jnp.asarray(a) for a in line_samples(5)))  # RK4 at T_s / 10 = 0.5 ms
@@ -154,7 +154,7 @@ def test_sweep_task_stops_at_a_failed_member(monkeypatch):
     the plan exit-3 test): the first cost with a failed member ends the sweep there, unevaluated, with
     its status and iterations in the event and the CLI's failure lines; bad `nus` are named first."""
     import planning._workflow
-    from planning._cli_sweep import failures
+    from planning.cli._sweep import failures
 
     robot = jr.racer7()
     path = pl.sampled_path(*(jnp.asarray(a) for a in line_samples(25)))
@@ -176,7 +176,7 @@ def test_sweep_task_events_and_si_results_behind_the_table(monkeypatch):
     """`sweep_task` with a converging stand-in: every member evaluated on the plant, one "solved" and one
     "evaluated" event per cost, and the CLI's table is the SI result in µm and Hz."""
     import planning._workflow
-    from planning._cli_sweep import failures, table
+    from planning.cli._sweep import failures, table
 
     robot = jr.racer7()
     path = pl.sampled_path(*(jnp.asarray(a) for a in line_samples(5)))

@@ -12,9 +12,9 @@ import pytest
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
 from identification._noise import ALPHA, noise_test
-from identification.calibration._cli_fleet import REPORT, TABLE, bench_fleet
-from identification.calibration._report import FLEET_OUTLIER_MIN_ROBOTS, FLEET_OUTLIER_SPREAD, fleet_outliers
-from jaxrobot._cli import main
+from identification.cli._calibrate_fleet import REPORT, TABLE, bench_fleet
+from identification.cli._calibration_report import FLEET_OUTLIER_MIN_ROBOTS, FLEET_OUTLIER_SPREAD, fleet_outliers
+from jaxrobot.cli._main import main
 
 K = 20
 """Poses per robot: 60 equations for the 25 default parameters."""

@@ -20,8 +20,8 @@ import pytest
 import jaxrobot as jr
 import jaxrobot.bench as jb
 from identification import check_gear_run, identify_gear, prepare_gear_runs
+from identification.cli._gear_report import summary
 from identification.gear._bench import bench_runs
-from identification.gear._report import summary
 
 MISALIGNMENT_TOL = 1e-3  # rad (issue 3)
 U0_TOL = 1e-4  # relative (issue 3)

@@ -18,8 +18,8 @@ from helpers import independent_data
 import jaxrobot as jr
 import jaxrobot.bench as jb
 from identification._pose_files import read_poses
+from identification.cli import diagnosis_summary
 from identification.diagnosis import Poses, diagnose
-from identification.diagnosis import summary as diagnosis_summary
 
 CASES = {"p0_clean": None, "p1_joint5_offset": ("joint_offset", 5), "p2_joint2_softer": ("joint_compliance", 2),
          "p3_base_shift": ("base_offset", None), "p4_link_scale": ("link_scale", None)}
@@ -97,7 +97,7 @@ def test_approach_conventions(tmp_path):
 
 
 def _cli(args, capsys):
-    from jaxrobot._cli import main
+    from jaxrobot.cli._main import main
 
     code = main([*args, "--json"])
     out = capsys.readouterr()
@@ -109,7 +109,7 @@ def _cli(args, capsys):
 def gear_stage(tmp_path_factory):
     """`identify-gear` on runs r0, r1 of joints 1-3, validated on r2, saving the robot (the chain's
     first stage; its JSON carries the sets and standard errors)."""
-    from jaxrobot._cli import main
+    from jaxrobot.cli._main import main
 
     d = independent_data() / "gear"
     out = tmp_path_factory.mktemp("gear")
@@ -220,7 +220,7 @@ def test_gear_unit_mistakes_are_named(tmp_path, mistake, column, factor, message
 
 
 def test_unit_mistake_fails_the_cli_before_fitting(tmp_path, capsys):
-    from jaxrobot._cli import main
+    from jaxrobot.cli._main import main
 
     data = read_poses(independent_data() / "calibration" / "train.csv")
     jb.write_pose_csv(tmp_path / "mm.csv", data.motor_angles, 1e3 * data.positions)
@@ -241,8 +241,9 @@ def test_map_calibration_holds_on_independent_poses():
     """50 thesis poses of a robot with random deviations: MAP (default set plus every offset and ratio)
     validates within 1.15x the true robot's mean error and no worse than plain LM (by more than one
     standard error of a 30-pose mean), and every true deviation lies within 3 posterior sigma."""
-    from identification import DEFAULT_PARAMETERS, calibrate, calibration_report
+    from identification import DEFAULT_PARAMETERS, calibrate
     from identification.calibration._calibrate import map_parameters
+    from identification.cli import calibration_report
 
     d = independent_data() / "calibration"
     train, val = (read_poses(d / f"{s}.csv") for s in ("train", "val"))
@@ -324,7 +325,7 @@ def test_calibrate_fleet_approach(tmp_path, capsys):
     default), the same poses would be off by more than twice that bound (checked on the noise-free
     positions of both conventions), so the fit shows the option was applied."""
     from identification.calibration._pose_selection import default_marker, random_feasible_poses
-    from jaxrobot._cli import main
+    from jaxrobot.cli._main import main
 
     robot = jr.racer7()
     sigma = float(jr.read_description(None)["sensors"]["tracker_position_noise_m"])

@@ -17,11 +17,11 @@ import tomli_w
 import jaxrobot as jr
 import jaxrobot.bench as jb
 import planning as pl
-from identification import calibrate, calibration_report, default_parameters
+from identification import calibrate, default_parameters
 from identification.calibration._parameters import ParameterMap
 from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
+from identification.cli import calibration_report, diagnosis_summary
 from identification.diagnosis import Poses, diagnose
-from identification.diagnosis import summary as diagnosis_summary
 from jaxrobot._description import filter_cutoffs, robot_from_description
 
 ARM7 = Path(__file__).parent / "data" / "arm7.toml"

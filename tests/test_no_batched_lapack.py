@@ -50,7 +50,7 @@ def _cases():
     from identification.calibration._observability import singular_values_from_gram
     from identification.calibration._pose_selection import _feasible
     from identification.gear._processing import normal_solve
-    from jaxrobot._summary import _numbers
+    from jaxrobot.cli._summary import _numbers
     from jaxrobot.linalg import cholesky, cholesky_solve, spd_solve
     from planning._ik import _starts, singular_values
 

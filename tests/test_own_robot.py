@@ -21,9 +21,9 @@ import jaxrobot as jr
 import jaxrobot.bench as jb
 import planning as pl
 from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
-from jaxrobot._cli import main
-from planning._cli_plan import read_task_csv
+from jaxrobot.cli._main import main
 from planning._ik import SINGULARITY_MARGIN, singular_values
+from planning.cli._plan import read_task_csv
 
 SIGMA = 5e-5
 """Tracker noise per axis of the bench pose files [m]."""

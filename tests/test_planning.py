@@ -273,7 +273,7 @@ def test_ocp_beats_quasi_static_beats_rigid(ocp_runs, name):
 
 
 def test_task_csv_round_trip_and_errors(tmp_path, paths):
-    from planning._cli_plan import read_task_csv
+    from planning.cli._plan import read_task_csv
 
     p = paths["line"]
     t = np.arange(11) * 1e-3

@@ -164,7 +164,7 @@ def test_reference_plans_reverse_only_where_the_task_does(task):
 def test_saved_robot_files_keep_the_tasks_and_plan_on_any_plant(tmp_path):
     """A robot written by `save_robot` (a calibrated model) keeps `[trajectories]`; `--plant as-built` on a
     file without `[as_built]` is the test bench's robot, `--plant FILE` a robot file."""
-    from planning._cli_plan import load_plant, task_path
+    from planning.cli._plan import load_plant, task_path
 
     nominal = jr.racer7()
     calibrated = eqx.tree_at(lambda r: r.a, nominal, nominal.a + 1e-4)

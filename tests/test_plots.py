@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planning import _plots
+from planning.cli import _plots
 
 
 def _line(deviation: float):

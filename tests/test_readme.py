@@ -1,6 +1,6 @@
 """Every ```python block of README.md and of the pages of `docs/` runs, top to bottom in one namespace per
 document (as a reader goes through a page), in a temporary working directory shared by all; the README's
-command-line example runs command by command (`python -m jaxrobot._cli`, as the `jaxrobot` script). The files a
+command-line example runs command by command (`python -m jaxrobot.cli`, as the `jaxrobot` script). The files a
 block reads are made first: `panda.toml` (example-robot-data's Panda imported, plus the TOML fragment of
 `docs/own-robot.md`) and `fleet/` (pose files of a few bench robots). The blocks and commands together compile the
 model, the flat inverse and simulator, the IK, the OCP, the calibration and the fleet calibration
@@ -120,7 +120,7 @@ def test_readme_commands(tmp_path):
     per bench robot), the calibrated robot and the planned motor command (2501 samples of the 2.5 s line at 1 ms)."""
     for line in [c for c in COMMANDS[0].splitlines() if c.startswith("jaxrobot ")]:
         args = shlex.split(line, comments=True)[1:]
-        done = subprocess.run([sys.executable, "-m", "jaxrobot._cli", *args], cwd=tmp_path, capture_output=True,
+        done = subprocess.run([sys.executable, "-m", "jaxrobot.cli", *args], cwd=tmp_path, capture_output=True,
                               text=True, timeout=600)
         assert done.returncode == 0, f"{line}\nexit {done.returncode}\n{done.stderr[-3000:]}"
     assert len((tmp_path / "fleet-out" / "fleet_calibration.csv").read_text().splitlines()) == 1 + 20

@@ -122,7 +122,7 @@ def test_stiffness_file_round_trip_keeps_k1(tmp_path):
 
 
 def test_planning_rejects_rigid_joints(tmp_path):
-    from planning._cli_plan import plan
+    from planning.cli._plan import plan
 
     robot = jr.load_robot(_rigid_file(tmp_path))
     with pytest.raises(ValueError, match=r"model: planning needs elastic joints.*rigid joints \[1, 2, 3, 4, 5, 6\]"):

@@ -16,7 +16,7 @@ import jaxrobot as jr
 import jaxrobot.bench as jb
 from identification.diagnosis._diagnose import ALPHA
 from identification.diagnosis._runs import compare_run, extend_command
-from jaxrobot._cli import main
+from jaxrobot.cli._main import main
 
 SHORT = 700
 """Samples of the shortened runs of the main suite (0.7 s: the lag's departure reaches ~10 sigma)."""

@@ -24,7 +24,7 @@ from identification.diagnosis._runs import (
     compare_run,
     diagnose_runs,
 )
-from jaxrobot._cli import main
+from jaxrobot.cli._main import main
 
 
 def test_payload_is_a_point_mass_on_the_flange():

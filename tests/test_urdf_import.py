@@ -274,7 +274,7 @@ def test_base_and_tip_only_for_urdf():
 # jaxrobot import-urdf
 
 def test_import_urdf_command_writes_a_loadable_description(tmp_path, capsys):
-    from jaxrobot._cli import main
+    from jaxrobot.cli._main import main
 
     urdf, out = example_urdf("panda.urdf"), tmp_path / "robots" / "panda.toml"
     assert main(["import-urdf", str(urdf), "--tip", "panda_link8", "--out", str(out), "--json"]) == 0
@@ -289,7 +289,7 @@ def test_import_urdf_command_writes_a_loadable_description(tmp_path, capsys):
 
 
 def test_import_urdf_command_reports_bad_input(tmp_path, capsys):
-    from jaxrobot._cli import main
+    from jaxrobot.cli._main import main
 
     assert main(["import-urdf", str(example_urdf("panda.urdf")), "--out", str(tmp_path / "p.toml")]) == 2
     assert "branches at link 'panda_hand'" in capsys.readouterr().err
