@@ -3,6 +3,7 @@ the discrepancy workflow (`diagnosis`). The workflows and the effect catalogue a
 
 from jaxrobot.checks import check_public as _check_public
 
+from ._deprecated import deprecated_aliases as _deprecated_aliases
 from ._noise import TrackerNoise as TrackerNoise
 from ._pose_files import APPROACHES as APPROACHES
 from ._pose_files import check_pose_units as check_pose_units
@@ -54,18 +55,4 @@ from .gear import sparse_orders as sparse_orders
 
 _check_public(globals())
 
-
-_MOVED = {"calibration_report": "calibration_report"}
-"""Deprecated names of this package: the new name in `identification.cli` (kept for one release)."""
-
-
-def __getattr__(name: str):
-    if name not in _MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import warnings
-
-    from . import cli
-
-    warnings.warn(f"identification.{name} moved to identification.cli.{_MOVED[name]}; "
-                  "the old name goes in the next release", DeprecationWarning, stacklevel=2)
-    return getattr(cli, _MOVED[name])
+__getattr__ = _deprecated_aliases(__name__, {"calibration_report": "identification.cli.calibration_report"})

@@ -2,6 +2,7 @@
 
 from jaxrobot.checks import check_public as _check_public
 
+from .._deprecated import deprecated_aliases as _deprecated_aliases
 from ._bench import BenchCalibration as BenchCalibration
 from ._bench import bench_calibration as bench_calibration
 from ._calibrate import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
@@ -27,18 +28,4 @@ from ._selection import ParameterSelection as ParameterSelection
 
 _check_public(globals())
 
-
-_MOVED = {"calibration_report": "calibration_report"}
-"""Deprecated names of this package: the new name in `identification.cli` (kept for one release)."""
-
-
-def __getattr__(name: str):
-    if name not in _MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import warnings
-
-    from .. import cli
-
-    warnings.warn(f"identification.calibration.{name} moved to identification.cli.{_MOVED[name]}; "
-                  "the old name goes in the next release", DeprecationWarning, stacklevel=2)
-    return getattr(cli, _MOVED[name])
+__getattr__ = _deprecated_aliases(__name__, {"calibration_report": "identification.cli.calibration_report"})

@@ -3,6 +3,7 @@ between the model and trajectory runs (`compare_run`, `diagnose_runs`)."""
 
 from jaxrobot.checks import check_public as _check_public
 
+from .._deprecated import deprecated_aliases as _deprecated_aliases
 from ._diagnose import AddedEffect as AddedEffect
 from ._diagnose import CandidateScore as CandidateScore
 from ._diagnose import DiagnoseEvent as DiagnoseEvent
@@ -26,18 +27,5 @@ from ._runs import diagnose_runs as diagnose_runs
 
 _check_public(globals())
 
-
-_MOVED = {"progress_lines": "progress_lines", "summary": "diagnosis_summary"}
-"""Deprecated names of this package: the new name in `identification.cli` (kept for one release)."""
-
-
-def __getattr__(name: str):
-    if name not in _MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import warnings
-
-    from .. import cli
-
-    warnings.warn(f"identification.diagnosis.{name} moved to identification.cli.{_MOVED[name]}; "
-                  "the old name goes in the next release", DeprecationWarning, stacklevel=2)
-    return getattr(cli, _MOVED[name])
+__getattr__ = _deprecated_aliases(__name__, {"progress_lines": "identification.cli.progress_lines",
+                                             "summary": "identification.cli.diagnosis_summary"})
