@@ -1,12 +1,13 @@
 """Identification from measurements: gear ratios (`gear`), kinematic calibration (`calibration`) and
 the discrepancy workflow (`diagnosis`). The workflows and the effect catalogue are exported here."""
 
+import importlib as _importlib
+import warnings as _warnings
+
 from jaxrobot.checks import check_public as _check_public
 
 from ._noise import TrackerNoise as TrackerNoise
-from ._pose_files import APPROACHES as APPROACHES
-from ._pose_files import check_pose_units as check_pose_units
-from ._pose_files import read_poses as read_poses
+from ._pose_checks import check_pose_units as check_pose_units
 from ._robust import LOSSES as LOSSES
 from ._robust import Outlier as Outlier
 from .calibration import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
@@ -35,7 +36,6 @@ from .diagnosis import DiagnoseEvent as DiagnoseEvent
 from .diagnosis import DiagnoseResult as DiagnoseResult
 from .diagnosis import Effect as Effect
 from .diagnosis import Layout as Layout
-from .diagnosis import Poses as Poses
 from .diagnosis import catalogue as catalogue
 from .diagnosis import diagnose as diagnose
 from .gear import DirectionTest as DirectionTest
@@ -54,3 +54,17 @@ from .gear import process_gear_runs as process_gear_runs
 from .gear import sparse_orders as sparse_orders
 
 _check_public(globals())
+
+
+_MOVED = {"Poses": "jaxrobot.measurement.Poses", "APPROACHES": "jaxrobot.measurement.APPROACHES",
+          "read_poses": "jaxrobot.io.read_poses"}
+"""Deprecated names of this module and their new homes (removed in the next release)."""
+
+
+def __getattr__(name: str):
+    if name not in _MOVED:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    module, _, attr = _MOVED[name].rpartition(".")
+    _warnings.warn(f"{__name__}.{name} moved to {_MOVED[name]}; the old name goes in the next release",
+                   DeprecationWarning, stacklevel=2)
+    return getattr(_importlib.import_module(module), attr)

@@ -38,8 +38,8 @@ def run(args, echo) -> dict:
     import tomli_w
 
     from ._cli_info import _table
-    from ._description import robot_from_description
-    from ._urdf import read_urdf, urdf_chain
+    from .io._description import robot_from_description
+    from .io._urdf import read_urdf, urdf_chain
 
     if args.out is None:
         raise ValueError("import-urdf: --out ARM.toml is required (the robot description to write)")

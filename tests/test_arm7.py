@@ -17,7 +17,8 @@ from helpers import independent_data
 
 import jaxrobot as jr
 from identification import calibrate
-from identification._pose_files import check_pose_units, read_poses
+from identification._pose_checks import check_pose_units
+from jaxrobot.io import read_poses
 from jaxrobot.measurement import measured_pose
 
 
@@ -174,7 +175,7 @@ def test_diagnose_names_a_drift_in_acquisition_time():
     the times names a link-length scale linear in time, its rate within 3 standard errors of the truth;
     without times there is no drift test (the row order is not taken for time)."""
     from identification.diagnosis import Poses, diagnose, summary
-    from jaxrobot.bench import read_csv_columns
+    from jaxrobot.io import read_csv_columns
 
     d, robot, train, val, truth = _case("noise", "drift")
     sensors = jr.read_description(d / "start.toml")["sensors"]

@@ -32,7 +32,8 @@ from identification.calibration._pose_selection import (
     set_indices,
 )
 from identification.calibration._report import calibration_report, error_table, parameter_table
-from jaxrobot.bench import measure_poses, read_pose_csv, write_pose_csv
+from jaxrobot.bench import measure_poses
+from jaxrobot.io import read_poses, write_poses
 
 N_SE = 3.0
 """Identified deviations must lie within this many standard errors of the truth."""
@@ -66,9 +67,9 @@ def bench(robots, thesis_theta):
     theta_val = rest_motor_angles(truth, q_val)
     both = measure_poses(truth, np.concatenate([thesis_theta, theta_val]), seed=11)
     split = lambda a, s: None if a is None else a[s]  # noqa: E731
-    part = lambda s: type(both)(*(split(getattr(both, f), s) for f in  # noqa: E731
-                                  ("motor_angles", "positions", "quaternions", "link_angles",
-                                   "true_positions")), both.metadata)
+    part = lambda s: type(both)(**{f: split(getattr(both, f), s) for f in  # noqa: E731
+                                   ("motor_angles", "positions", "quaternions", "ccw", "link_angles",
+                                    "true_positions")}, metadata=both.metadata)
     return part(slice(0, 50)), part(slice(50, None))
 
 
@@ -335,7 +336,7 @@ def test_bad_input(robots, bench, tmp_path):
         calibrate(nominal, fixed, fixed_pos)
     # pose files: NaN rows by row number, missing columns by name; extra columns ignored
     path = tmp_path / "poses.csv"
-    write_pose_csv(path, theta, pos)
+    write_poses(path, theta, pos)
     text = path.read_text().splitlines()
     text[0] += ",comment"
     text[1:] = [line + ",x" for line in text[1:]]
@@ -344,14 +345,14 @@ def test_bad_input(robots, bench, tmp_path):
     text[5] = ",".join(cells)
     path.write_text("\n".join(text) + "\n")
     with pytest.raises(ValueError, match=r"NaN or empty cells in line\(s\) \[6\]"):
-        read_pose_csv(path)
+        read_poses(path)
     text[5] = text[4]
     path.write_text("\n".join(text) + "\n")
-    data = read_pose_csv(path)
+    data = read_poses(path)
     np.testing.assert_allclose(data.motor_angles[:4], theta[:4], rtol=1e-15)
     (tmp_path / "short.csv").write_text("theta1_deg,theta2_deg,x_m\n1,2,3\n")
     with pytest.raises(ValueError, match=r"missing columns \['y_m', 'z_m'\]"):
-        read_pose_csv(tmp_path / "short.csv")
+        read_poses(tmp_path / "short.csv")
     with pytest.raises(ValueError, match=r"motor_angles: expected shape \(K, 6\) in rad, found \(4, 5\)"):
         calibrate(nominal, theta[:4, :5], pos[:4])
 
@@ -413,8 +414,8 @@ def test_cli_json_schema(bench, tmp_path, capsys):
     from jaxrobot._cli import main
 
     ident, valid = bench
-    write_pose_csv(tmp_path / "poses.csv", ident.motor_angles, ident.positions)
-    write_pose_csv(tmp_path / "val.csv", valid.motor_angles, valid.positions)
+    write_poses(tmp_path / "poses.csv", ident.motor_angles, ident.positions)
+    write_poses(tmp_path / "val.csv", valid.motor_angles, valid.positions)
     rc = main(["calibrate", str(tmp_path / "poses.csv"), "--validate", str(tmp_path / "val.csv"),
                "--save-model", str(tmp_path / "out.toml"), "--json", "--out", str(tmp_path / "out")])
     assert rc == 0

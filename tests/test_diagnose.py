@@ -21,7 +21,8 @@ import pytest
 import jaxrobot as jr
 import jaxrobot.bench as jb
 from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
-from identification.diagnosis._diagnose import Poses, diagnose
+from identification.diagnosis import diagnose
+from jaxrobot.measurement import Poses
 
 N_TRAIN, N_VAL = 150, 60
 
@@ -164,7 +165,7 @@ def test_cli_json_and_saved_model(bench, tmp_path, capsys):
     truth = _at(start, "offset", 4, start.offset[4] + 5e-4)
     for name, k in (("train", 1), ("validation", 2)):
         m = jb.measure_poses(truth, theta[name], seed=k, ccw=jr.measurement.approach_directions(theta[name]))
-        jb.write_pose_csv(tmp_path / f"{name}.csv", m.motor_angles, m.positions)
+        jr.io.write_poses(tmp_path / f"{name}.csv", m.motor_angles, m.positions)
     jr.save_robot(start, tmp_path / "start.toml")
     from jaxrobot._cli import main
 

@@ -1,14 +1,17 @@
 """Kinematic calibration of one robot and of fleets: parameters, identifiability, pose sets, LM/MAP (thesis ch. 3.3)."""
 
+import importlib as _importlib
+import warnings as _warnings
+
 from jaxrobot.checks import check_public as _check_public
 
-from ._bench import BenchCalibration as BenchCalibration
-from ._bench import bench_calibration as bench_calibration
 from ._calibrate import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
 from ._calibrate import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
 from ._calibrate import CalibrationResult as CalibrationResult
 from ._calibrate import calibrate as calibrate
 from ._calibrate import map_parameters as map_parameters
+from ._demo import DemoCalibration as DemoCalibration
+from ._demo import demo_calibration as demo_calibration
 from ._fleet import FleetResult as FleetResult
 from ._fleet import calibrate_fleet as calibrate_fleet
 from ._identifiability import IdentifiabilityResult as IdentifiabilityResult
@@ -27,3 +30,17 @@ from ._report import calibration_report as calibration_report
 from ._selection import ParameterSelection as ParameterSelection
 
 _check_public(globals())
+
+
+_MOVED = {"BenchCalibration": "identification.calibration.DemoCalibration",
+          "bench_calibration": "identification.calibration.demo_calibration"}
+"""Deprecated names of this module and their new homes (removed in the next release)."""
+
+
+def __getattr__(name: str):
+    if name not in _MOVED:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    module, _, attr = _MOVED[name].rpartition(".")
+    _warnings.warn(f"{__name__}.{name} moved to {_MOVED[name]}; the old name goes in the next release",
+                   DeprecationWarning, stacklevel=2)
+    return getattr(_importlib.import_module(module), attr)

@@ -26,12 +26,12 @@ from jaxtyping import Array, Bool, Float, Int
 
 import jaxrobot as jr
 from jaxrobot import RESULTS, cached_program
-from jaxrobot.measurement import marker_pose
+from jaxrobot.measurement import Poses, marker_pose, pose_arrays
 from jaxrobot.status import check
 
 from .. import _robust as robust
 from .._noise import noise_model
-from .._pose_files import check_pose_units
+from .._pose_checks import check_pose_units
 from .._robust import Outlier
 from ._identifiability import analyse, default_parameters
 from ._model import (
@@ -395,16 +395,16 @@ def check_rank(jac: np.ndarray, params: ParameterMap) -> None:
 
 def calibrate(
     robot: jr.Robot,
-    motor_angles: Float[Array, "K n"],
-    positions: Float[Array, "K 3"],
+    motor_angles: Float[Array, "K n"] | Poses,
+    positions: Float[Array, "K 3"] | None = None,
     quaternions: Float[Array, "K 4"] | None = None,
     *,
     parameters: Sequence[str] | None = None,
     marker: Float[Array, "3"] | None = None,
     position_noise: float | None = None,
     orientation_noise: float | None = None,
-    ccw: bool | Bool[Array, "K n"] = False,
-    validation: tuple | None = None,
+    ccw: bool | Bool[Array, "K n"] | None = None,
+    validation: tuple | Poses | None = None,
     limits: str = "flag",
     max_steps: int = 100,
     method: str = "lm",
@@ -418,7 +418,8 @@ def calibrate(
     **Arguments:**
     - `robot`: the initial (nominal) robot; also supplies the gravity deflection model.
     - `motor_angles` (K, n) rad at rest; `positions` (K, 3) m measured marker positions;
-      `quaternions` (K, 4) optional measured orientation (qx, qy, qz, qw).
+      `quaternions` (K, 4) optional measured orientation (qx, qy, qz, qw); or `Poses` as `motor_angles`
+      (then none of `positions`, `quaternions`, `ccw`: they come from the `Poses`).
     - `parameters`: free parameter names, fitted as given. Default: `default_parameters(robot)` for the
       measurement type (positions, or positions and orientations when `quaternions` are given), fitted
       together, then reduced by backward elimination while the BIC does not rise and the kept ones fitted
@@ -429,8 +430,8 @@ def calibrate(
       position rows (defaults: the toml tracker noise and 0.05 deg) and scale the robust loss;
       `position_noise` may be a laser tracker's `TrackerNoise` (`identification._noise`: std along and
       across the line of sight), whose covariance then whitens each pose's position residual.
-    - `ccw`: gear set of the approach direction. `validation`: `(motor_angles, positions)` or
-      `(motor_angles, positions, ccw)`.
+    - `ccw`: gear set of the approach direction (default `cw`). `validation`: `Poses`,
+      `(motor_angles, positions)` or `(motor_angles, positions, ccw)`.
     - `limits`: `"flag"` lists poses beyond the joint limits in `beyond_limits`,
       `"raise"` rejects them.
     - `method`: `"lm"` plain least squares, or `"map"` maximum a posteriori with the tolerance
@@ -453,6 +454,11 @@ def calibrate(
     """
     from jaxrobot.bench import ORIENTATION_NOISE_RAD
 
+    motor_angles, positions, quaternions, ccw = pose_arrays(motor_angles, positions, quaternions, ccw)
+    ccw = False if ccw is None else ccw
+    if isinstance(validation, Poses):
+        validation = (validation.motor_angles, validation.positions) + (
+            () if validation.ccw is None else (validation.ccw,))
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     select = parameters is None and method == "lm" and not all_parameters
     if parameters is None:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._pose_files import add_approach_option
+from .._cli_options import add_approach_option
 from .._robust import add_loss_option
 
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
@@ -71,9 +71,8 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
     """Bench data of a fleet (`fleet_measurements`), this process's share (`process_share`): writes
     `robot_{r:05d}.csv` of this share; returns all R paths. The files do not depend on the process count."""
     import jaxrobot as jr
-    from jaxrobot.bench import write_pose_csv
 
-    from ._bench import fleet_measurements
+    from ._demo import fleet_measurements
 
     if n_robots < 1 or n_poses < 1:
         raise ValueError(f"--bench/--poses: expected >= 1 robots and poses, found {n_robots} and {n_poses}")
@@ -83,7 +82,7 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
     rows = range(share.start, share.stop)
     meas = fleet_measurements(n_robots, n_poses, rows, seed, nominal, marker)
     for i, r in enumerate(rows):
-        write_pose_csv(paths[r], meas.motor_angles[i], meas.positions[i])
+        jr.io.write_poses(paths[r], meas.motor_angles[i], meas.positions[i])
     return paths
 
 

@@ -25,7 +25,7 @@ from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
 from jaxrobot import RESULTS, backend_kind, gather_rows, shard_rows
-from jaxrobot.measurement import rest_link_angles
+from jaxrobot.measurement import Poses, pose_arrays, rest_link_angles
 from jaxrobot.status import check, where
 
 from .. import _robust as robust
@@ -270,8 +270,8 @@ def _values_scales(params, robots):
 
 def calibrate_fleet(
     robots: jr.Robot,
-    motor_angles: Float[Array, "R K n"],
-    positions: Float[Array, "R K 3"],
+    motor_angles: Float[Array, "R K n"] | Poses,
+    positions: Float[Array, "R K 3"] | None = None,
     *,
     parameters: Sequence[str] | None = None,
     marker: Float[Array, "3"] | None = None,
@@ -286,6 +286,8 @@ def calibrate_fleet(
     `cw` set, or the set of the direction of approach `ccw` (R, K, n) where given).
 
     `robots`: the initial robots, a fleet pytree with leading axis R, or one robot used for all.
+    `motor_angles` (R, K, n) rad and `positions` (R, K, 3) m, or fleet `Poses` (leading axis R, as
+    `jaxrobot.bench.measure_poses` of a fleet gives them) as `motor_angles`, then without `positions` and `ccw`.
     The fleet axis is padded to `ROWS_MULTIPLE` robots per device and sharded over `mesh`
     (default: all devices). Robots whose solve failed or whose pose set is rank deficient have
     `converged = False` and their `status` says why (`throw`: raise the message of the first such
@@ -304,6 +306,10 @@ def calibrate_fleet(
     its own (a robot whose weights no longer change keeps its solution), its outliers and robust noise
     estimate are in `outliers` and `noise_estimate`.
     """
+    motor_angles, positions, quaternions, ccw = pose_arrays(motor_angles, positions, None, ccw)
+    if quaternions is not None:
+        raise ValueError("motor_angles: calibrate_fleet fits positions only; found Poses with quaternions "
+                         "(give Poses without them, or calibrate each robot with `calibrate`)")
     robust.check_loss(loss)
     joints = robots.n_joints
     theta = np.asarray(motor_angles, float)
