@@ -1,10 +1,8 @@
 """Identification from measurements: gear ratios (`gear`), kinematic calibration (`calibration`) and
 the discrepancy workflow (`diagnosis`). The workflows and the effect catalogue are exported here."""
 
-import importlib as _importlib
-import warnings as _warnings
-
 from jaxrobot.checks import check_public as _check_public
+from jaxrobot.checks import deprecated_aliases as _deprecated_aliases
 
 from ._noise import TrackerNoise as TrackerNoise
 from ._pose_checks import check_pose_units as check_pose_units
@@ -55,16 +53,8 @@ from .gear import sparse_orders as sparse_orders
 
 _check_public(globals())
 
-
-_MOVED = {"Poses": "jaxrobot.measurement.Poses", "APPROACHES": "jaxrobot.measurement.APPROACHES",
-          "read_poses": "jaxrobot.io.read_poses"}
-"""Deprecated names of this module and their new homes (removed in the next release)."""
-
-
-def __getattr__(name: str):
-    if name not in _MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    module, _, attr = _MOVED[name].rpartition(".")
-    _warnings.warn(f"{__name__}.{name} moved to {_MOVED[name]}; the old name goes in the next release",
-                   DeprecationWarning, stacklevel=2)
-    return getattr(_importlib.import_module(module), attr)
+__getattr__ = _deprecated_aliases(__name__, {
+    "Poses": "jaxrobot.measurement.Poses",
+    "APPROACHES": "jaxrobot.measurement.APPROACHES",
+    "read_poses": "jaxrobot.io.read_poses",
+})

@@ -1,9 +1,7 @@
 """Kinematic calibration of one robot and of fleets: parameters, identifiability, pose sets, LM/MAP (thesis ch. 3.3)."""
 
-import importlib as _importlib
-import warnings as _warnings
-
 from jaxrobot.checks import check_public as _check_public
+from jaxrobot.checks import deprecated_aliases as _deprecated_aliases
 
 from ._calibrate import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
 from ._calibrate import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
@@ -31,16 +29,7 @@ from ._selection import ParameterSelection as ParameterSelection
 
 _check_public(globals())
 
-
-_MOVED = {"BenchCalibration": "identification.calibration.DemoCalibration",
-          "bench_calibration": "identification.calibration.demo_calibration"}
-"""Deprecated names of this module and their new homes (removed in the next release)."""
-
-
-def __getattr__(name: str):
-    if name not in _MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    module, _, attr = _MOVED[name].rpartition(".")
-    _warnings.warn(f"{__name__}.{name} moved to {_MOVED[name]}; the old name goes in the next release",
-                   DeprecationWarning, stacklevel=2)
-    return getattr(_importlib.import_module(module), attr)
+__getattr__ = _deprecated_aliases(__name__, {
+    "BenchCalibration": "identification.calibration.DemoCalibration",
+    "bench_calibration": "identification.calibration.demo_calibration",
+})

@@ -1,10 +1,8 @@
 """Finding the effect that explains a gap between model and measurement (`diagnose`, the effect catalogue), and
 between the model and trajectory runs (`compare_run`, `diagnose_runs`)."""
 
-import importlib as _importlib
-import warnings as _warnings
-
 from jaxrobot.checks import check_public as _check_public
+from jaxrobot.checks import deprecated_aliases as _deprecated_aliases
 
 from ._diagnose import AddedEffect as AddedEffect
 from ._diagnose import CandidateScore as CandidateScore
@@ -30,15 +28,4 @@ from ._runs import diagnose_runs as diagnose_runs
 
 _check_public(globals())
 
-
-_MOVED = {"Poses": "jaxrobot.measurement.Poses"}
-"""Deprecated names of this module and their new homes (removed in the next release)."""
-
-
-def __getattr__(name: str):
-    if name not in _MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    module, _, attr = _MOVED[name].rpartition(".")
-    _warnings.warn(f"{__name__}.{name} moved to {_MOVED[name]}; the old name goes in the next release",
-                   DeprecationWarning, stacklevel=2)
-    return getattr(_importlib.import_module(module), attr)
+__getattr__ = _deprecated_aliases(__name__, {"Poses": "jaxrobot.measurement.Poses"})

@@ -1,10 +1,8 @@
 """The virtual test bench: simulated encoder + gyroscope runs for gear identification, tracker pose
 measurements for calibration (fleets included) and trajectory runs (their files: `jaxrobot.io`)."""
 
-import importlib as _importlib
-import warnings as _warnings
-
 from .._checks import check_public as _check_public
+from .._deprecation import deprecated_aliases as _deprecated_aliases
 from ._gear import GEAR_RUN_DEFAULTS as GEAR_RUN_DEFAULTS
 from ._gear import gear_runs as gear_runs
 from ._poses import ORIENTATION_NOISE_RAD as ORIENTATION_NOISE_RAD
@@ -14,7 +12,7 @@ from ._trajectory import trajectory_run as trajectory_run
 
 _check_public(globals())
 
-_MOVED = {
+__getattr__ = _deprecated_aliases(__name__, {
     "GearRuns": "jaxrobot.measurement.GearRun",
     "PoseMeasurements": "jaxrobot.measurement.Poses",
     "PoseFile": "jaxrobot.measurement.Poses",
@@ -23,14 +21,4 @@ _MOVED = {
     **{name: f"jaxrobot.io.{name}" for name in (
         "gear_run_columns", "read_gear_run", "write_gear_run", "NOT_CONVERGED", "command_columns",
         "read_command_csv", "read_csv_columns", "read_trajectory_csv", "write_command_csv", "write_trajectory_csv")},
-}
-"""Deprecated names of this module and their new homes (removed in the next release)."""
-
-
-def __getattr__(name: str):
-    if name not in _MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    module, _, attr = _MOVED[name].rpartition(".")
-    _warnings.warn(f"{__name__}.{name} moved to {_MOVED[name]}; the old name goes in the next release",
-                   DeprecationWarning, stacklevel=2)
-    return getattr(_importlib.import_module(module), attr)
+})
