@@ -140,6 +140,18 @@ def test_nothing_hidden_adds_nothing(bench):
     np.testing.assert_allclose(np.asarray(res.robot.a), np.asarray(AS_BUILT.a))
 
 
+def test_bench_poses_as_measured_equal_the_read_convention(bench):
+    """`measure_poses`' `Poses` as they come (their `ccw` the row order's directions) give what `Poses.of(...,
+    "order")` gives (`_run`): the same fits on the same numbers, to rounding."""
+    start, theta = bench
+    measured = [jb.measure_poses(AS_BUILT, theta[k], seed=s, ccw=jr.measurement.approach_directions(theta[k]))
+                for k, s in (("train", 1), ("validation", 2))]
+    res, ref = diagnose(start, *measured), _run(bench, AS_BUILT)
+    assert [r.chi2 for r in res.loop] == pytest.approx([r.chi2 for r in ref.loop], rel=1e-12)
+    np.testing.assert_allclose(res.residuals_after, ref.residuals_after, rtol=0, atol=1e-12)
+    assert res.verdict == ref.verdict
+
+
 def test_two_hidden_effects_found_in_order_of_size(bench):
     # joint 3 compliance (about 1 mm at the marker) and a joint-2 offset of 2e-4 rad (about 0.2 mm)
     truth = _at(AS_BUILT, "offset", 1, AS_BUILT.offset[1] + 2e-4)
