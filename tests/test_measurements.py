@@ -14,8 +14,8 @@ import jaxrobot.bench as jb
 from identification import calibrate, calibrate_fleet, identify_gear, prepare_gear_runs
 from jaxrobot.measurement import GearRun, Poses
 
-POSES = Poses(np.deg2rad(np.arange(36.0).reshape(6, 6) - 15.0), np.arange(18.0).reshape(6, 3) / 10.0)
-"""Six poses of a six-joint robot (arbitrary numbers: only shapes, conventions and files matter here)."""
+POSES = Poses(np.random.default_rng(0).uniform(-1.0, 1.0, (6, 6)), np.random.default_rng(1).uniform(-1.0, 1.0, (6, 3)))
+"""Six poses of a six-joint robot (random numbers: only shapes, conventions and files matter here)."""
 
 
 def _leaves_close(a, b, tol):
@@ -46,7 +46,7 @@ def test_pose_file_reader_returns_poses(tmp_path):
     np.testing.assert_array_equal(back.positions, POSES.positions)
     np.testing.assert_array_equal(back.ccw, np.asarray(jr.measurement.approach_directions(POSES.motor_angles)))
     np.testing.assert_array_equal(back.ccw, back.ccw_order)
-    assert back.ccw[1:].any() and not back.ccw[0].any()  # row 1 approached from zero (cw); later rows vary
+    assert back.ccw.any() and not back.ccw.all()  # both directions occur: the comparison above is not trivial
 
 
 def test_poses_checked_and_concatenated():
