@@ -34,8 +34,8 @@ def approach_ccw(motor_angles, approach: str = "cw", column=None, name: str = "p
     if approach == "order":
         return np.asarray(approach_directions(th))
     if column is None:
-        n = th.shape[-1]
-        raise ValueError(f"{name}: approach 'column' needs the columns approach1…approach{n} "
+        columns = [f"approach{j}" for j in range(1, th.shape[-1] + 1)]
+        raise ValueError(f"{name}: approach 'column' needs the columns {columns} "
                          "(+1 cw, -1 ccw per joint); the file has none; use --approach cw or order")
     col = np.asarray(column, float)
     bad = np.argwhere(~np.isin(col, (-1.0, 1.0)))
