@@ -13,7 +13,7 @@ import tomli_w
 
 from .._gear import shortest_reversal_travel
 from .._robot import Ripple, Robot
-from ._schema import RobotFileError, _fail, _inertia_matrix, _stiffness, joint_count, validate
+from ._schema import RobotFileError, fail_field, inertia_matrix, joint_count, stiffness_terms, validate
 from ._urdf import read_urdf
 
 
@@ -82,7 +82,7 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
             u0[3:] = dev["u0_wrist"]
     lim = np.deg2rad(np.asarray(data["limits"]["position_deg"], float))
     cw, ccw = _ripples(gear, n)
-    k1, k3 = _stiffness(data, n)
+    k1, k3 = stiffness_terms(data, n)
     c = 1.0 / k1  # the compliance form the robot stores; 0 for a rigid joint (k1 = inf)
     eye = np.eye(4)
     robot = Robot(
@@ -98,7 +98,7 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         c=jnp.asarray(c), e=jnp.asarray(k3 * c),
         mass=jnp.asarray(data["links"]["mass"], float),
         com=jnp.asarray(data["links"]["com"], float),
-        inertia=jnp.asarray(np.stack([_inertia_matrix(np.asarray(r, float))
+        inertia=jnp.asarray(np.stack([inertia_matrix(np.asarray(r, float))
                                       for r in data["links"]["inertia"]])),
         motor_inertia=jnp.asarray(data.get("motors", {}).get("inertia", np.zeros(n)), float),
         gravity=jnp.asarray(data["gravity"], float),
@@ -112,10 +112,11 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         short = np.asarray(robot.reversal_travel) <= shortest
         if short.any():
             j = int(np.argmax(short))
-            _fail(f"gear.reversal_travel_rad[{j}] (joint {j + 1})", f"a motor travel > {shortest[j]:.3g} rad, through "
-                  "which the gear output keeps following the motor across the gap between its flanks (1.875 (1 + "
-                  "ripple) u0 (lost motion + both sets' transmission-error bounds), docs/model.md (B.0))",
-                  float(robot.reversal_travel[j]))
+            fail_field(f"gear.reversal_travel_rad[{j}] (joint {j + 1})",
+                       f"a motor travel > {shortest[j]:.3g} rad, through which the gear output keeps following the "
+                       "motor across the gap between its flanks (1.875 (1 + ripple) u0 (lost motion + both sets' "
+                       "transmission-error bounds), docs/model.md (B.0))",
+                       float(robot.reversal_travel[j]))
     return robot
 
 

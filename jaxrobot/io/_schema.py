@@ -68,17 +68,18 @@ def joint_count(data: dict) -> int:
                              "their number sets the number of joints n)")
     a = kin["a"]
     if not isinstance(a, list) or not a or any(isinstance(x, list) for x in a):
-        _fail("kinematics.a", "a non-empty list of numbers, one per joint", a)
+        fail_field("kinematics.a", "a non-empty list of numbers, one per joint", a)
     return len(a)
 
 
-def _fail(field: str, expected: str, found: Any) -> None:
+def fail_field(field: str, expected: str, found: Any) -> None:
+    """Raise `RobotFileError` naming `field`, what it should be and what it is."""
     raise RobotFileError(f"{field}: expected {expected}, found {found!r}")
 
 
 def _check(data: Any, schema: dict[str, Any], where: str) -> None:
     if not isinstance(data, dict):
-        _fail(where or "file", "a table", data)
+        fail_field(where or "file", "a table", data)
     names = {k.lstrip("?"): k for k in schema}
     for key in data:
         if key not in names:
@@ -98,7 +99,7 @@ def _check(data: Any, schema: dict[str, Any], where: str) -> None:
         value = data[name]
         if spec == "str":
             if not isinstance(value, str):
-                _fail(field, "a string", value)
+                fail_field(field, "a string", value)
         elif isinstance(spec, dict):
             _check(value, spec, field)
         else:
@@ -121,20 +122,20 @@ def _check_array(value: Any, shape: tuple, field: str) -> None:
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        _fail(field, f"numbers of shape {_shape_text(shape)}", value)
+        fail_field(field, f"numbers of shape {_shape_text(shape)}", value)
     if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
-        _fail(field, f"shape {_shape_text(shape)}", f"shape {arr.shape}: {value}")
+        fail_field(field, f"shape {_shape_text(shape)}", f"shape {arr.shape}: {value}")
     if field == "stiffness.k1":  # inf marks a rigid joint
         arr = np.where(arr == np.inf, 0.0, arr)
     if not np.all(np.isfinite(arr)):
-        _fail(field, "finite numbers", value)
+        fail_field(field, "finite numbers", value)
 
 
 def _check_physics(data: dict, n: int) -> None:
     lim = np.asarray(data["limits"]["position_deg"], float)
     for i, (lo, hi) in enumerate(lim):
         if lo >= hi:
-            _fail(f"limits.position_deg[{i}] (joint {i + 1})", "lower < upper", [lo, hi])
+            fail_field(f"limits.position_deg[{i}] (joint {i + 1})", "lower < upper", [lo, hi])
     for key in ("velocity_deg_s", "acceleration_deg_s2"):
         if key in data["limits"]:
             _positive(data["limits"][key], f"limits.{key}")
@@ -146,17 +147,17 @@ def _check_physics(data: dict, n: int) -> None:
             rip = gear.get(f"joint{j}", {}).get(direction)
             if rip is not None:
                 _check_ripple(rip, f"gear.joint{j}.{direction}")
-    k1, k3 = _stiffness(data, n)
+    k1, k3 = stiffness_terms(data, n)
     for i in range(n):
         if not k1[i] > 0 or not k3[i] >= 0 or np.isinf(k3[i]):
-            _fail(
+            fail_field(
                 f"stiffness (joint {i + 1})",
                 "a monotone kappa(x) = k1 x + k3 x^3: k1 > 0 N m/rad (inf: rigid) and finite k3 >= 0 N m/rad^3",
                 {"k1": k1[i], "k3": k3[i]},
             )
     backlash = np.asarray(gear.get("backlash_rad", np.zeros(n)), float)
     if np.any(backlash < 0):
-        _fail("gear.backlash_rad", "lost motion >= 0 rad per joint", backlash.tolist())
+        fail_field("gear.backlash_rad", "lost motion >= 0 rad per joint", backlash.tolist())
     if "reversal_travel_rad" in gear:
         _positive(gear["reversal_travel_rad"], "gear.reversal_travel_rad", "rad of motor travel")
     _positive(data["links"]["mass"], "links.mass", "kg")
@@ -164,22 +165,22 @@ def _check_physics(data: dict, n: int) -> None:
         _check_inertia(row, f"links.inertia[{i}] (link {i + 1})")
     motors = data.get("motors", {})
     if "inertia" in motors and np.any(np.asarray(motors["inertia"], float) < 0):
-        _fail("motors.inertia", "rotor inertias >= 0 kg m^2", motors["inertia"])
+        fail_field("motors.inertia", "rotor inertias >= 0 kg m^2", motors["inertia"])
     if "velocity_lag_s" in motors and np.any(np.asarray(motors["velocity_lag_s"], float) < 0):
-        _fail("motors.velocity_lag_s", "velocity-loop time constants >= 0 s (0: the motor follows its command "
+        fail_field("motors.velocity_lag_s", "velocity-loop time constants >= 0 s (0: the motor follows its command "
               "exactly)", motors["velocity_lag_s"])
     damping = np.asarray(data.get("stiffness", {}).get("damping", np.zeros(n)), float)
     for i in range(n):
         if damping[i] < 0 or (damping[i] > 0 and np.isinf(k1[i])):
-            _fail(f"stiffness.damping[{i}] (joint {i + 1})",
+            fail_field(f"stiffness.damping[{i}] (joint {i + 1})",
                   "viscous damping >= 0 N m s/rad of an elastic joint (0 where k1 = inf, a rigid joint)",
                   float(damping[i]))
     dev = data.get("as_built", {})
     if "u0" in dev and "u0_wrist" in dev:
-        _fail("as_built", "either u0 (all joints) or the older u0_wrist (joints 4-6), not both",
+        fail_field("as_built", "either u0 (all joints) or the older u0_wrist (joints 4-6), not both",
               sorted(dev))
     if "u0_wrist" in dev and n != 6:
-        _fail("as_built.u0_wrist", "a six-joint robot (gears 4-6); use as_built.u0 with one ratio per joint",
+        fail_field("as_built.u0_wrist", "a six-joint robot (gears 4-6); use as_built.u0 with one ratio per joint",
               f"{n} joints")
     for key in ("u0", "u0_wrist"):
         if key in dev:
@@ -187,14 +188,14 @@ def _check_physics(data: dict, n: int) -> None:
     tracker = [k for k in ("tracker_position_m", "tracker_noise_along_m", "tracker_noise_across_m")
                if k in data.get("sensors", {})]
     if tracker and len(tracker) < 3:
-        _fail("sensors", "the laser-tracker model's keys together: tracker_position_m, tracker_noise_along_m, "
+        fail_field("sensors", "the laser-tracker model's keys together: tracker_position_m, tracker_noise_along_m, "
               "tracker_noise_across_m", f"only {tracker}")
     for key in tracker[1:]:
         _positive(data["sensors"][key], f"sensors.{key}", "m")
     cutoff = data.get("sensors", {}).get("filter_cutoff_hz")
     if cutoff is not None:
         if len(cutoff) not in (n, 3):
-            _fail("sensors.filter_cutoff_hz", f"one cut-off per joint (shape ({n})) or the older three "
+            fail_field("sensors.filter_cutoff_hz", f"one cut-off per joint (shape ({n})) or the older three "
                   "values of joints 1-3", f"shape ({len(cutoff)},)")
         _positive(cutoff, "sensors.filter_cutoff_hz", "Hz")
     for key in ("tool", "base"):
@@ -202,7 +203,7 @@ def _check_physics(data: dict, n: int) -> None:
             _check_transform(np.asarray(data[key]["transform"], float), f"{key}.transform")
 
 
-def _stiffness(data: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
+def stiffness_terms(data: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
     """`(k1, k3)`; no `[stiffness]` section means rigid joints (`k1 = inf`, `k3 = 0`)."""
     if "stiffness" not in data:
         return np.full(n, np.inf), np.zeros(n)
@@ -212,33 +213,34 @@ def _stiffness(data: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
 def _positive(values: Any, field: str, unit: str = "") -> None:
     for i, v in enumerate(np.atleast_1d(np.asarray(values, float))):
         if v <= 0:
-            _fail(f"{field}[{i}] (joint {i + 1})", f"a positive value{' in ' + unit if unit else ''}", v)
+            fail_field(f"{field}[{i}] (joint {i + 1})", f"a positive value{' in ' + unit if unit else ''}", v)
 
 
 def _check_ripple(rip: dict, field: str) -> None:
     n, a, b = (np.asarray(rip[k], float) for k in ("orders", "a", "b"))
     if not (len(n) == len(a) == len(b)):
-        _fail(field, "orders, a and b of equal length", (len(n), len(a), len(b)))
+        fail_field(field, "orders, a and b of equal length", (len(n), len(a), len(b)))
     if np.any(n < 1) or np.any(n != np.round(n)):
-        _fail(f"{field}.orders", "positive integers (cycles per output revolution)", rip["orders"])
+        fail_field(f"{field}.orders", "positive integers (cycles per output revolution)", rip["orders"])
     if np.sum(np.abs(a) + np.abs(b)) >= 1.0:
-        _fail(field, "relative ripple sum(|a| + |b|) < 1 so that the ratio stays positive",
+        fail_field(field, "relative ripple sum(|a| + |b|) < 1 so that the ratio stays positive",
               float(np.sum(np.abs(a) + np.abs(b))))
 
 
-def _inertia_matrix(row: np.ndarray) -> np.ndarray:
+def inertia_matrix(row: np.ndarray) -> np.ndarray:
+    """The symmetric 3x3 inertia matrix of a `links.inertia` row `(ixx, iyy, izz, ixy, ixz, iyz)`."""
     ixx, iyy, izz, ixy, ixz, iyz = row
     return np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
 
 
 def _check_inertia(row: np.ndarray, field: str) -> None:
-    eig = np.linalg.eigvalsh(_inertia_matrix(row))
+    eig = np.linalg.eigvalsh(inertia_matrix(row))
     if eig[0] <= 0:
-        _fail(field, "a positive definite inertia [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] in kg m^2",
+        fail_field(field, "a positive definite inertia [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] in kg m^2",
               f"{row.tolist()} with principal moments {eig.tolist()}")
     tol = 1e-12 * eig.sum()
     if eig[0] + eig[1] < eig[2] - tol:
-        _fail(field, "principal moments obeying the triangle inequality (I1 + I2 >= I3)",
+        fail_field(field, "principal moments obeying the triangle inequality (I1 + I2 >= I3)",
               f"{row.tolist()} with principal moments {eig.tolist()}")
 
 
@@ -246,7 +248,7 @@ def _check_transform(t: np.ndarray, field: str) -> None:
     r = t[:3, :3]
     if not (np.allclose(r @ r.T, np.eye(3), atol=1e-9) and np.linalg.det(r) > 0
             and np.allclose(t[3], [0, 0, 0, 1])):
-        _fail(field, "a homogeneous transform (rotation block orthonormal, det +1, last row 0 0 0 1)",
+        fail_field(field, "a homogeneous transform (rotation block orthonormal, det +1, last row 0 0 0 1)",
               t.tolist())
 
 
