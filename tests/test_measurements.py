@@ -84,6 +84,9 @@ def test_gear_runs_are_read_and_prepared_as_the_tuples(tmp_path, gear_run):
         other, other_infos = prepare_gear_runs(given, cutoffs, u0)
         _leaves_close(other, batch, 0.0)
         assert other_infos == infos
+    with pytest.warns(DeprecationWarning, match="unpacking a GearRun"):
+        t, theta, gyro = from_file
+    assert t is from_file.t and theta is from_file.theta and gyro is from_file.gyro
     with pytest.raises(ValueError, match=r"runs\[1\]: expected a GearRun or a tuple \(t, theta, gyro\), found dict"):
         prepare_gear_runs([tuples[0], {}], cutoffs, u0)
 

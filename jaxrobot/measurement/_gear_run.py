@@ -4,6 +4,7 @@ gyroscope on the moving link sampled over time."""
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 
@@ -34,6 +35,12 @@ class GearRun:
     `range_deg`, `centre_deg`, `ramp_s`, `rest_s`, `sample_time_s`, `encoder_counts_per_rev`,
     `gyro_noise_deg_s`, the drawn `gyro_bias_deg_s` (R, 3), `misalignment_rad` (alpha, beta), `hold_q_deg`,
     `directions` (R,), `seed` (None when a key was given); empty for measured runs."""
+
+    def __iter__(self):
+        """`t, theta, gyro = run`, the tuple `read_gear_run` returned before; deprecated."""
+        warnings.warn("unpacking a GearRun as (t, theta, gyro) is deprecated and goes in the next release: "
+                      "use its fields .t, .theta, .gyro", DeprecationWarning, stacklevel=2)
+        return iter((self.t, self.theta, self.gyro))
 
     def runs(self) -> list[GearRun]:
         """The single runs (measured fields; one for a run without the axis `R`)."""
