@@ -37,7 +37,7 @@ import numpy as np
 
 import jaxrobot as jr
 from identification import TrackerNoise, calibrate, read_poses
-from identification.calibration._parameters import ParameterMap, predict_pose, rest_deflection
+from identification.core._parameters import ParameterMap, predict_pose, rest_deflection
 from identification.diagnosis import Poses, diagnose
 from jaxrobot.io import read_csv_columns
 

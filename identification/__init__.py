@@ -4,10 +4,10 @@ the discrepancy workflow (`diagnosis`). The workflows and the effect catalogue a
 from jaxrobot.checks import check_public as _check_public
 from jaxrobot.checks import deprecated_aliases as _deprecated_aliases
 
-from ._noise import TrackerNoise as TrackerNoise
-from ._pose_checks import check_pose_units as check_pose_units
-from ._robust import LOSSES as LOSSES
-from ._robust import Outlier as Outlier
+from .core._noise import TrackerNoise as TrackerNoise
+from .core._pose_checks import check_pose_units as check_pose_units
+from .core._robust import LOSSES as LOSSES
+from .core._robust import Outlier as Outlier
 from .calibration import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
 from .calibration import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
 from .calibration import THESIS_PARAMETERS as THESIS_PARAMETERS

@@ -17,7 +17,7 @@ from helpers import independent_data
 
 import jaxrobot as jr
 from identification import calibrate
-from identification._pose_checks import check_pose_units
+from identification.core._pose_checks import check_pose_units
 from jaxrobot.io import read_poses
 from jaxrobot.measurement import measured_pose
 
@@ -75,7 +75,7 @@ def test_laser_tracker_noise_model_whitens_the_fit():
     pose's covariance (`TrackerNoise`, as `[sensors]` states it) is more accurate than the isotropic fit with
     the same total variance, and it ends within 1.1x the floor (the RMS over 90 residuals: 1.1x is 1.3 std),
     as does the default calibration (the set reduced by BIC)."""
-    from identification._noise import TrackerNoise
+    from identification.core._noise import TrackerNoise
 
     d, robot, train, val, truth = _case("noise", "anisotropic")
     sensors = jr.read_description(d / "start.toml")["sensors"]

@@ -17,14 +17,14 @@ import scipy.optimize
 import jaxrobot as jr  # noqa: I001  (x64 first)
 import jaxrobot.bench as jb
 from identification.calibration._calibrate import DEFAULT_PARAMETERS, _residual_fn, calibrate
-from identification.calibration._identifiability import (
+from identification.core._identifiability import (
     THESIS_PREFERENCE,
     analyse,
     default_parameters,
     kinematic_parameters,
 )
-from identification.calibration._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters
-from identification.calibration._pose_selection import (
+from identification.core._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters
+from identification.core._pose_selection import (
     default_marker,
     detmax,
     pose_jacobians,
@@ -148,7 +148,7 @@ def test_chi2_quantile_is_exact():
     import jax
     from scipy.stats import chi2
 
-    from identification._noise import chi2_quantile
+    from identification.core._noise import chi2_quantile
 
     p, dof = np.meshgrid([1e-6, 1e-4, 1e-3, 0.01, 0.5, 0.999], [1, 2, 3, 7.5, 90, 5000])
     q = np.asarray(chi2_quantile(p, dof))
@@ -164,7 +164,7 @@ def test_robust_spread_is_measured_against_the_median_norm_of_clean_noise():
     a batch, numpy and jax alike (the sample median of 20001 norms: 0.4 % relative std; 2 % is 5 std)."""
     from scipy.stats import chi2
 
-    from identification._robust import median_norm, spread
+    from identification.core._robust import median_norm, spread
 
     for rows in (3, 6):
         assert abs(median_norm(rows) / np.sqrt(chi2.median(rows)) - 1) < 1e-10
@@ -215,7 +215,7 @@ def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
     differentiated by jax, at a random point: equal to rounding (1e-12 mm, 1e-9 relative)."""
     import jax
 
-    from identification.calibration._parameters import predict_pose
+    from identification.core._parameters import predict_pose
 
     nominal, _ = robots
     ident, _ = bench
@@ -237,7 +237,7 @@ def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
 
 
 def calibrated_deflection(robot, theta):
-    from identification.calibration._parameters import rest_deflection
+    from identification.core._parameters import rest_deflection
 
     return rest_deflection(robot, jnp.asarray(theta))
 
@@ -455,7 +455,7 @@ def test_cli_json_schema(bench, tmp_path, capsys):
     assert (tmp_path / "out" / "calibration_errors.png").stat().st_size > 0
 
 
-# --- fleet: batched Levenberg-Marquardt (identification._batched_lm) --------------------------------
+# --- fleet: batched Levenberg-Marquardt (identification.core._batched_lm) --------------------------------
 
 FLEET_OPTIMUM_TOL = 1e-6
 """Batched LM vs the optimum (scipy's MINPACK LM polished by three Gauss-Newton steps), in
@@ -552,7 +552,7 @@ def test_fleet_constants_one_robot_and_fleet_agree_and_hold_statics(robots, flee
     import jax
 
     from identification.calibration._fleet import _constants
-    from identification.calibration._model import rippled_joints
+    from identification.core._forward import rippled_joints
 
     nominal, _ = robots
     theta = jnp.asarray(fleet_problem[0])
@@ -572,9 +572,9 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
     by `calibrate_fleet` (same shapes, shardings and statics)."""
     import jax
 
-    from identification._batched_lm import LMConfig
+    from identification.core._batched_lm import LMConfig
     from identification.calibration._fleet import _fleet_constants, _fleet_solve, fleet_mesh
-    from identification.calibration._model import rippled_joints
+    from identification.core._forward import rippled_joints
 
     nominal, _ = robots
     theta, meas, _ = fleet_problem
@@ -604,7 +604,7 @@ def test_batched_lm_kernel():
     traced); Cholesky vs numpy."""
     import jax
 
-    from identification._batched_lm import LMConfig, batched_lm, map_chunks
+    from identification.core._batched_lm import LMConfig, batched_lm, map_chunks
     from jaxrobot._linalg import cholesky, cholesky_solve
 
     def rj(x, _):
@@ -655,7 +655,7 @@ def test_fleet_screw_jacobian_matches_residual_fn(robots, bench):
     import jax
 
     from identification.calibration._fleet import _robot_residual_jacobian, _screw_residual_jacobian
-    from identification.calibration._model import rippled_joints
+    from identification.core._forward import rippled_joints
 
     nominal, truth = robots
     ident, _ = bench

@@ -20,7 +20,7 @@ import pytest
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
-from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
+from identification.core._pose_selection import random_feasible_poses, rest_motor_angles
 from identification.diagnosis import diagnose
 from jaxrobot.measurement import Poses
 
@@ -206,7 +206,7 @@ def test_cli_json_and_saved_model(bench, tmp_path, capsys):
 def test_summary_reports_outliers_and_drift(bench):
     """The Python `summary` (the JSON of `jaxrobot diagnose`) carries the loss, each outlier row (with its
     file and line where the rows' origins are given) and the drift test, as the command prints them."""
-    from identification._robust import Outlier
+    from identification.core._robust import Outlier
     from identification.diagnosis import summary
     from identification.diagnosis._diagnose import Drift
 

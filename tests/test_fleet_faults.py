@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
-from identification._noise import ALPHA, noise_test
+from identification.core._noise import ALPHA, noise_test
 from identification.calibration._cli_fleet import REPORT, TABLE, bench_fleet
 from identification.calibration._report import FLEET_OUTLIER_MIN_ROBOTS, FLEET_OUTLIER_SPREAD, fleet_outliers
 from jaxrobot._cli import main

@@ -186,8 +186,8 @@ def test_gear_joint2_never_worse_than_no_ripple(gear_stage, direction):
 ])
 def test_pose_unit_mistakes_are_named(mistake, transform, message):
     """Each common mistake, made on the independent calibration poses (motor degrees as in the file)."""
-    from identification._pose_checks import check_pose_units
-    from identification.calibration._pose_selection import default_marker
+    from identification.core._pose_checks import check_pose_units
+    from identification.core._pose_selection import default_marker
 
     robot = jr.racer7()
     data = read_poses(independent_data() / "calibration" / "train.csv")
@@ -325,7 +325,7 @@ def test_calibrate_fleet_approach(tmp_path, capsys):
     tracker noise (RMS within the chi-square mean + 3 std of 3K residuals). Read as `cw` (the
     default), the same poses would be off by more than twice that bound (checked on the noise-free
     positions of both conventions), so the fit shows the option was applied."""
-    from identification.calibration._pose_selection import default_marker, random_feasible_poses
+    from identification.core._pose_selection import default_marker, random_feasible_poses
     from jaxrobot._cli import main
 
     robot = jr.racer7()

@@ -20,7 +20,7 @@ from helpers import example_urdf
 import jaxrobot as jr
 import jaxrobot.bench as jb
 import planning as pl
-from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
+from identification.core._pose_selection import random_feasible_poses, rest_motor_angles
 from jaxrobot._cli import main
 from planning._cli_plan import read_task_csv
 from planning._ik import SINGULARITY_MARGIN, singular_values

@@ -11,7 +11,7 @@ import numpy as np
 from jaxrobot.cli import SolveFailed, add_model_option
 
 from .._cli_options import add_approach_option
-from .._robust import add_loss_option
+from ..core._robust import add_loss_option
 
 HELP = "calibrate the kinematic parameters from a pose file (docs/model.md (3.12), LM)"
 EXAMPLE = "jaxrobot calibrate poses.csv --validate validation.csv --out calibration --save-model calibrated.toml"
@@ -137,10 +137,10 @@ def run(args, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot.cli import Progress
 
-    from .._noise import TrackerNoise
+    from ..core._noise import TrackerNoise
     from ._calibrate import PRIOR_KEYS, calibrate, map_parameters
-    from ._identifiability import default_parameters
-    from ._pose_selection import default_marker, workspace_positions
+    from ..core._identifiability import default_parameters
+    from ..core._pose_selection import default_marker, workspace_positions
     from ._report import calibration_report
 
     progress = Progress(3, "calibrate")
@@ -197,8 +197,8 @@ def demo_stage(out: Path, echo) -> dict:
     import jaxrobot as jr
 
     from ._demo import demo_calibration
-    from ._parameters import ParameterMap
-    from ._pose_selection import workspace_positions
+    from ..core._parameters import ParameterMap
+    from ..core._pose_selection import workspace_positions
     from ._report import calibration_report, plot_pose_set
 
     start = time.perf_counter()

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .._cli_options import add_approach_option
-from .._robust import add_loss_option
+from ..core._robust import add_loss_option
 
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
 TABLE = "fleet_calibration.csv"
@@ -152,10 +152,10 @@ def run(args, echo) -> dict:
 
     from jaxrobot.cli import ItemsFailed, Progress, SolveFailed
 
-    from .._noise import TrackerNoise, noise_model
+    from ..core._noise import TrackerNoise, noise_model
     from ._fleet import calibrate_fleet
     from ._fleet_files import check_fleet_files
-    from ._pose_selection import default_marker
+    from ..core._pose_selection import default_marker
     from ._report import fleet_outliers, plot_fleet
 
     pid = jax.process_index()

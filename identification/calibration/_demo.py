@@ -18,8 +18,8 @@ from jaxrobot.measurement import Poses, measured_pose
 from jaxrobot.status import require_successful
 
 from ._calibrate import DEFAULT_PARAMETERS, CalibrationResult, calibrate
-from ._parameters import ParameterMap
-from ._pose_selection import DetmaxResult, default_marker, detmax, random_feasible_poses
+from ..core._parameters import ParameterMap
+from ..core._pose_selection import DetmaxResult, default_marker, detmax, random_feasible_poses
 
 
 @eqx.filter_jit

@@ -28,14 +28,14 @@ from jaxrobot import RESULTS, backend_kind, gather_rows, shard_rows
 from jaxrobot.measurement import Poses, pose_arrays, rest_link_angles
 from jaxrobot.status import check, where
 
-from .. import _robust as robust
-from .._batched_lm import LMConfig, batched_lm, covariance, map_chunks
-from .._noise import ALPHA, noise_model, noise_test
+from ..core import _robust as robust
+from ..core._batched_lm import LMConfig, batched_lm, covariance, map_chunks
+from ..core._noise import ALPHA, noise_model, noise_test
 from ._calibrate import RESIDUAL_UNIT, ParameterEstimate, _check_array, _residual_fn
-from ._identifiability import default_parameters
-from ._model import analytic_names, joint_angle_model, position_jacobian, rippled_joints
-from ._parameters import ParameterMap
-from ._pose_selection import default_marker
+from ..core._identifiability import default_parameters
+from ..core._forward import analytic_names, joint_angle_model, position_jacobian, rippled_joints
+from ..core._parameters import ParameterMap
+from ..core._pose_selection import default_marker
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,13 +78,13 @@ class FleetResult:
     """Per robot, its poses whose residual norm exceeds the outlier bound (`calibrate`'s)."""
     chi2: np.ndarray
     """(R,) `sum r^2 / sigma^2` of the residuals of the poses the robust loss kept (all for `l2`) against
-    the stated noise `sigma` (`identification._noise.noise_test`, as in `diagnose`)."""
+    the stated noise `sigma` (`identification.core._noise.noise_test`, as in `diagnose`)."""
     dof: np.ndarray
     """(R,) its degrees of freedom, 3 K' - m over the K' poses kept."""
     p_value: np.ndarray
     """(R,) probability that noise alone exceeds `chi2`."""
     inconsistent_below: float
-    """`identification._noise.ALPHA / R`: the p-value at or below which a robot is `inconsistent`, so
+    """`identification.core._noise.ALPHA / R`: the p-value at or below which a robot is `inconsistent`, so
     that noise alone marks any robot of a clean fleet with probability at most `ALPHA` (Bonferroni)."""
 
 
@@ -292,7 +292,7 @@ def calibrate_fleet(
     (default: all devices). Robots whose solve failed or whose pose set is rank deficient have
     `converged = False` and their `status` says why (`throw`: raise the message of the first such
     status instead); so has a robot whose residuals exceed the stated noise (`inconsistent`: the
-    chi-square test of `diagnose`, `identification._noise.noise_test`, at the level `ALPHA / R`).
+    chi-square test of `diagnose`, `identification.core._noise.noise_test`, at the level `ALPHA / R`).
     `max_steps`: of `LMConfig`. `parameters`: default `default_parameters` of the first robot, all of them for
     every robot (no backward elimination as in `calibrate`: one batched program over the robots). Under
     several processes (`jaxrobot.initialize_processes`) each process passes only its own robots

@@ -16,7 +16,7 @@ import numpy as np
 import jaxrobot as jr
 from jaxrobot.measurement import Poses
 
-from .._pose_checks import check_pose_units
+from ..core._pose_checks import check_pose_units
 
 FILE_CHECKS = {
     "missing": "the file does not exist",

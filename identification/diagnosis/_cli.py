@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .._cli_options import add_approach_option
-from .._robust import add_loss_option
+from ..core._robust import add_loss_option
 
 HELP = "find where model and pose measurements (or trajectory runs) disagree, name the missing effect, add it, repeat"
 EXAMPLE = "jaxrobot diagnose --model start.toml train.csv --validate val.csv --out diagnose --save-model fixed.toml"
@@ -53,7 +53,7 @@ def tracker_of(args):
     robot file's `[sensors]` where `--marker`, `--noise-um` are not given (None: the embedded robot's)."""
     import jaxrobot as jr
 
-    from .._noise import TrackerNoise
+    from ..core._noise import TrackerNoise
 
     if args.noise_um is not None and not args.noise_um > 0:
         raise ValueError(f"--noise-um: expected the tracker std per axis > 0 um, found {args.noise_um}")

@@ -40,9 +40,9 @@ from jaxtyping import Array
 import jaxrobot as jr
 from jaxrobot.measurement import Poses, approach_sign
 
-from .. import _robust as robust
-from .._noise import ALPHA, TrackerNoise, chi2_quantile, noise_model, noise_test
-from .._pose_checks import check_pose_units
+from ..core import _robust as robust
+from ..core._noise import ALPHA, TrackerNoise, chi2_quantile, noise_model, noise_test
+from ..core._pose_checks import check_pose_units
 from ._effects import RIPPLE_SLOTS, Layout, catalogue, with_ripple_slots
 from ._model import functions
 
@@ -404,7 +404,7 @@ def diagnose(
     - `train`, `validation`: `jaxrobot.measurement.Poses` (the validation poses only score candidates; `ccw` None:
       every gear's `cw` set).
     - `noise`: tracker std per axis [m] (default `[sensors] tracker_position_noise_m`), or a laser
-      tracker's `TrackerNoise` (`identification._noise`): each training pose's residual is then whitened
+      tracker's `TrackerNoise` (`identification.core._noise`): each training pose's residual is then whitened
       by its covariance in every fit, the chi-square test and BIC (noise floor and `sigma`: the isotropic
       std of the same total variance).
     - `marker`: marker offset in the tool frame [m] (default `[sensors]`).

@@ -26,8 +26,8 @@ import numpy as np
 import jaxrobot as jr
 from jaxrobot.measurement import marker_pose, rest_link_angles
 
-from .._noise import ALPHA, noise_model, noise_test
-from .._pose_checks import check_pose_units
+from ..core._noise import ALPHA, noise_model, noise_test
+from ..core._pose_checks import check_pose_units
 from ._diagnose import MIN_BIC_GAIN
 from ._effects import loaded
 from ._model import EXACT_ITERATIONS, rest_angles

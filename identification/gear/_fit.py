@@ -34,7 +34,7 @@ from jaxrobot import (
 from jaxrobot.linalg import map_matrices
 from jaxrobot.measurement import GearRun, gear_run_arrays
 
-from .._noise import chi2_quantile
+from ..core._noise import chi2_quantile
 from ._frequencies import fft_orders, group_samples, sparse_orders
 from ._processing import (
     GearBatch,
