@@ -37,9 +37,9 @@ import numpy as np
 
 import jaxrobot as jr
 from identification import TrackerNoise, calibrate, read_poses
-from identification.calibration._parameters import ParameterMap, predict_pose, rest_deflection
+from identification.core._parameters import ParameterMap, predict_pose, rest_deflection
 from identification.diagnosis import Poses, diagnose
-from jaxrobot.bench import read_csv_columns
+from jaxrobot.io import read_csv_columns
 
 DIAGNOSE = ("cases/a0_clean", "cases/a1_joint3_offset", "cases/a2_joint4_softer", "cases/a3_payload",
             "cases/a4_ratio1_softer4", "noise/outliers", "noise/anisotropic", "noise/drift", "tool_frame")

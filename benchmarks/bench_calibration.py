@@ -1,5 +1,5 @@
 """Fleet calibration benchmark: R robots x K poses, the batched LM of the fleet path
-(`identification._batched_lm`) vs a loop of
+(`identification.core._batched_lm`) vs a loop of
 scipy.optimize.least_squares(method="lm") on the same problems, in the same run.
 
     python benchmarks/bench_calibration.py [--robots 1000] [--poses 50] [--scipy-robots N] [--repeat 3]
@@ -25,12 +25,12 @@ import scipy
 import scipy.optimize
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
-from identification._batched_lm import LMConfig
+from identification.core._batched_lm import LMConfig
 from identification.calibration._calibrate import DEFAULT_PARAMETERS, _residual_fn
 from identification.calibration._fleet import _constants, _fleet_constants, _fleet_solve, calibrate_fleet, fleet_mesh
-from identification.calibration._model import rippled_joints
-from identification.calibration._parameters import ParameterMap
-from identification.calibration._pose_selection import default_marker, random_feasible_poses
+from identification.core._forward import rippled_joints
+from identification.core._parameters import ParameterMap
+from identification.core._pose_selection import default_marker, random_feasible_poses
 from jaxrobot.bench import draw_fleet, measure_poses
 
 

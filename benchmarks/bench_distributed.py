@@ -32,7 +32,6 @@ import jax
 import numpy as np
 
 import jaxrobot as jr
-import jaxrobot.bench as jb
 
 TIMEOUT_S = 1800
 
@@ -88,7 +87,7 @@ def worker(folder: Path, result: Path) -> None:
     files = sorted(folder.glob("*.csv"))
     share = jr.process_share(len(files))
     t = time.perf_counter()
-    data = [jb.read_pose_csv(f) for f in files[share]]
+    data = [jr.io.read_poses(f) for f in files[share]]
     theta, pos = np.stack([d.motor_angles for d in data]), np.stack([d.positions for d in data])
     seconds = {"read": time.perf_counter() - t}
     for call in ("first call", "second call"):

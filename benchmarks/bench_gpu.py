@@ -151,7 +151,7 @@ def worker(path: Path, states: list[int], robots: list[int], repeat: int, ocp: b
 
     import jaxrobot as jr
     from identification import calibrate_fleet
-    from identification.calibration._pose_selection import random_feasible_poses
+    from identification.core._pose_selection import random_feasible_poses
     from jaxrobot.bench import draw_fleet, measure_poses
 
     dev = jax.devices()[0]

@@ -26,12 +26,11 @@ import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records th
 import numpy as np
 
 import jaxrobot as jr
-import jaxrobot.bench as jb
 from identification import DEFAULT_PARAMETERS, calibrate, identify_gear
-from identification._pose_files import read_poses
 from identification.calibration._calibrate import map_parameters
 from identification.cli import calibration_report, diagnosis_summary
 from identification.diagnosis import Poses, diagnose
+from jaxrobot.io import read_poses
 
 
 def shared_folder(arg: str | None) -> Path:
@@ -65,8 +64,8 @@ def _ratio(u0, orders, a, b, phi):
 
 def gear_table(root: Path) -> list[str]:
     files = lambda r: [root / "gear" / f"j{j}_{s}_r{r}.csv" for j in (1, 2, 3) for s in ("pos", "neg")]
-    ident = [jb.read_gear_run(f) for r in (0, 1) for f in files(r)]
-    val = [jb.read_gear_run(f) for f in files(2)]
+    ident = [jr.io.read_gear_run(f) for r in (0, 1) for f in files(r)]
+    val = [jr.io.read_gear_run(f) for f in files(2)]
     truth = jr.racer7(as_built=True)
     rows = ["| orders | joint | dir | orders kept | ripple removed | vs constant ratio | u0 error / sigma | "
             "ripple | time [s] |", "|---|---|---|---|---|---|---|---|---|"]

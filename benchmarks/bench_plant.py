@@ -1,7 +1,7 @@
 """Benchmark: plans on the direction-dependent as-built robot (docs/model.md (B.0)).
 
 For the line and the spiral at nu = 1e-14 and 1e-10, three planning models (the nominal Racer-7, the model
-`jaxrobot demo` calibrates, `identification.calibration.bench_calibration`, and the as-built truth itself),
+`jaxrobot demo` calibrates, `identification.calibration.demo_calibration`, and the as-built truth itself),
 each planned twice: with the cw set throughout (the thesis, eq. 4.1) and on the gears' flanks along the
 motion (`planning._workflow.solve_directional`). Every plan (the OCP's, and the flat inverse of the same
 model) is simulated on the as-built robot twice: with the cw set throughout and with the gear flanks as
@@ -26,7 +26,7 @@ import jax
 import numpy as np
 
 import jaxrobot as jr
-from identification.calibration._bench import bench_calibration
+from identification.calibration import demo_calibration
 from planning._evaluation import (
     baseline_trajectories,
     motor_reversals,
@@ -130,7 +130,7 @@ def main() -> None:
     args = parser.parse_args()
     truth = jr.racer7(as_built=True)
     start = time.perf_counter()
-    models = {"nominal": jr.racer7(), "calibrated (demo)": bench_calibration().result.robot, "as-built truth": truth}
+    models = {"nominal": jr.racer7(), "calibrated (demo)": demo_calibration().result.robot, "as-built truth": truth}
     print(f"calibration: {time.perf_counter() - start:.0f} s", flush=True)
     cases = [("line", 1e-14)] if args.quick else [(t, nu) for t in ("line", "spiral") for nu in (1e-14, 1e-10)]
     rows = []

@@ -21,7 +21,6 @@ import jax.numpy as jnp
 from _timing import timed
 
 import jaxrobot as jr
-import jaxrobot.bench as jb
 from identification.diagnosis._runs import (
     RUN_KINDS,
     TANGENTS,
@@ -64,8 +63,8 @@ def diagnose_section(folder: Path, samples: int) -> list[str]:
     sensors = jr.read_description(folder / "start.toml")["sensors"]
 
     def pair(name):
-        run = jb.read_trajectory_csv(folder / f"run_{name}.csv")
-        return jb.read_command_csv(folder / f"command_{name}.csv"), tuple(a[:samples] for a in run)
+        run = jr.io.read_trajectory_csv(folder / f"run_{name}.csv")
+        return jr.io.read_command_csv(folder / f"command_{name}.csv"), tuple(a[:samples] for a in run)
 
     train, val = [pair("line_nu1e-14"), pair("spiral_nu1e-14")], [pair("line_nu1e-10"), pair("spiral_nu1e-10")]
     robot = jr.load_robot(folder / "start.toml")
@@ -106,7 +105,7 @@ def main() -> None:
         marker, noise = sensors["tracker_marker_offset_m"], sensors["tracker_position_noise_m"]
         robot = jr.load_robot(folder / "start.toml")
         for file, info in json.loads((folder / "truth.json").read_text())["runs"].items():
-            command, run = jb.read_command_csv(folder / info["command"]), jb.read_trajectory_csv(folder / file)
+            command, run = jr.io.read_command_csv(folder / info["command"]), jr.io.read_trajectory_csv(folder / file)
             c, first, best = timed(lambda: compare_run(robot, command, run, marker, noise))  # noqa: B023
             rows.append(f"| {case} | {file} | {c.chi2 / c.dof:.4f} | {c.p_value:.3g} | {first:.2f} | {best:.2f} |")
     diagnose = diagnose_section(root / "p2_motor_lag_j123", args.diagnose_samples) if args.diagnose_samples else []

@@ -2,14 +2,8 @@
 the discrepancy workflow (`diagnosis`). The workflows and the effect catalogue are exported here."""
 
 from jaxrobot.checks import check_public as _check_public
+from jaxrobot.checks import deprecated_aliases as _deprecated_aliases
 
-from ._deprecated import deprecated_aliases as _deprecated_aliases
-from ._noise import TrackerNoise as TrackerNoise
-from ._pose_files import APPROACHES as APPROACHES
-from ._pose_files import check_pose_units as check_pose_units
-from ._pose_files import read_poses as read_poses
-from ._robust import LOSSES as LOSSES
-from ._robust import Outlier as Outlier
 from .calibration import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
 from .calibration import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
 from .calibration import THESIS_PARAMETERS as THESIS_PARAMETERS
@@ -30,12 +24,15 @@ from .calibration import map_parameters as map_parameters
 from .calibration import observability_indices as observability_indices
 from .calibration import random_feasible_poses as random_feasible_poses
 from .calibration import rest_motor_angles as rest_motor_angles
+from .core._noise import TrackerNoise as TrackerNoise
+from .core._pose_checks import check_pose_units as check_pose_units
+from .core._robust import LOSSES as LOSSES
+from .core._robust import Outlier as Outlier
 from .diagnosis import CATALOGUE as CATALOGUE
 from .diagnosis import DiagnoseEvent as DiagnoseEvent
 from .diagnosis import DiagnoseResult as DiagnoseResult
 from .diagnosis import Effect as Effect
 from .diagnosis import Layout as Layout
-from .diagnosis import Poses as Poses
 from .diagnosis import catalogue as catalogue
 from .diagnosis import diagnose as diagnose
 from .gear import DirectionTest as DirectionTest
@@ -55,4 +52,9 @@ from .gear import sparse_orders as sparse_orders
 
 _check_public(globals())
 
-__getattr__ = _deprecated_aliases(__name__, {"calibration_report": "identification.cli.calibration_report"})
+__getattr__ = _deprecated_aliases(__name__, {
+    "Poses": "jaxrobot.measurement.Poses",
+    "APPROACHES": "jaxrobot.measurement.APPROACHES",
+    "read_poses": "jaxrobot.io.read_poses",
+    "calibration_report": "identification.cli.calibration_report",
+})

@@ -8,17 +8,10 @@ from ._compilation_cache import enable as _enable_compilation_cache  # noqa: E40
 
 _enable_compilation_cache()
 
+from . import io as io  # noqa: E402
 from . import measurement as measurement  # noqa: E402
 from ._batch import backend_kind as backend_kind  # noqa: E402
 from ._checks import check_public as _check_public  # noqa: E402
-from ._description import RobotFileError as RobotFileError  # noqa: E402
-from ._description import description_of as description_of  # noqa: E402
-from ._description import filter_cutoffs as filter_cutoffs  # noqa: E402
-from ._description import load_robot as load_robot  # noqa: E402
-from ._description import racer7 as racer7  # noqa: E402
-from ._description import read_description as read_description  # noqa: E402
-from ._description import robot_from_description as robot_from_description  # noqa: E402
-from ._description import save_robot as save_robot  # noqa: E402
 from ._distributed import PROCESS_ENV as PROCESS_ENV  # noqa: E402
 from ._distributed import gather_array as gather_array  # noqa: E402
 from ._distributed import gather_rows as gather_rows  # noqa: E402
@@ -79,7 +72,15 @@ from ._simulate import simulate as simulate  # noqa: E402
 from ._status import RESULTS as RESULTS  # noqa: E402
 from ._status import status_message as status_message  # noqa: E402
 from ._status import status_name as status_name  # noqa: E402
-from ._urdf import save_urdf as save_urdf  # noqa: E402
-from ._urdf import to_urdf as to_urdf  # noqa: E402
+from .io._description import RobotFileError as RobotFileError  # noqa: E402
+from .io._description import description_of as description_of  # noqa: E402
+from .io._description import filter_cutoffs as filter_cutoffs  # noqa: E402
+from .io._description import load_robot as load_robot  # noqa: E402
+from .io._description import racer7 as racer7  # noqa: E402
+from .io._description import read_description as read_description  # noqa: E402
+from .io._description import robot_from_description as robot_from_description  # noqa: E402
+from .io._description import save_robot as save_robot  # noqa: E402
+from .io._urdf import save_urdf as save_urdf  # noqa: E402
+from .io._urdf import to_urdf as to_urdf  # noqa: E402
 
 _check_public(globals())

@@ -38,6 +38,8 @@ class _Spec:
         self.scalar_bool = bool(re.search(r"(^|\|)\s*bool\s*($|\|)", annotation))
         self.robot = bool(re.fullmatch(r"\s*(jr\.|jaxrobot\.)?Robot\s*(\|\s*None\s*)?", annotation))
         self.flag = annotation.strip() == "bool"
+        # classes besides the array (`Float[Array, "K n"] | Poses`): an instance of one is not checked here
+        self.classes = set(re.findall(r"\b([A-Z]\w*)\b", _ARRAY.sub("", annotation))) - {"None", "Robot"}
 
     @property
     def used(self) -> bool:
@@ -97,6 +99,8 @@ def checked(fn: Callable) -> Callable:
                     raise TypeError(f"{name}: expected True or False, found {v!r}")
                 continue
             if v is None and spec.optional:
+                continue
+            if type(v).__name__ in spec.classes:
                 continue
             if spec.scalar_bool and isinstance(v, (bool, np.bool_)):
                 continue

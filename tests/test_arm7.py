@@ -17,7 +17,8 @@ from helpers import independent_data
 
 import jaxrobot as jr
 from identification import calibrate
-from identification._pose_files import check_pose_units, read_poses
+from identification.core._pose_checks import check_pose_units
+from jaxrobot.io import read_poses
 from jaxrobot.measurement import measured_pose
 
 
@@ -74,7 +75,7 @@ def test_laser_tracker_noise_model_whitens_the_fit():
     pose's covariance (`TrackerNoise`, as `[sensors]` states it) is more accurate than the isotropic fit with
     the same total variance, and it ends within 1.1x the floor (the RMS over 90 residuals: 1.1x is 1.3 std),
     as does the default calibration (the set reduced by BIC)."""
-    from identification._noise import TrackerNoise
+    from identification.core._noise import TrackerNoise
 
     d, robot, train, val, truth = _case("noise", "anisotropic")
     sensors = jr.read_description(d / "start.toml")["sensors"]
@@ -175,7 +176,7 @@ def test_diagnose_names_a_drift_in_acquisition_time():
     without times there is no drift test (the row order is not taken for time)."""
     from identification.cli import diagnosis_summary as summary
     from identification.diagnosis import Poses, diagnose
-    from jaxrobot.bench import read_csv_columns
+    from jaxrobot.io import read_csv_columns
 
     d, robot, train, val, truth = _case("noise", "drift")
     sensors = jr.read_description(d / "start.toml")["sensors"]

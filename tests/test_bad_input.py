@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 import jaxrobot as jr
-import jaxrobot.bench as jb
 import planning as pl
 from jaxrobot.cli._main import main
 
@@ -127,7 +126,7 @@ API = [  # (id, call, exception, message)
      ValueError, r"q_init: expected shape \(n,\) with n = 6 joints"),
     ("sampled path 2-D positions", lambda: pl.sampled_path(jnp.arange(10.0), jnp.zeros((10, 2))), ValueError,
      r"p_d: expected shape \(N, 3\), found \(10, 2\)"),
-    ("pose file missing", lambda: jb.read_pose_csv("missing.csv"), FileNotFoundError, "missing.csv"),
+    ("pose file missing", lambda: jr.io.read_poses("missing.csv"), FileNotFoundError, "missing.csv"),
     ("model file missing", lambda: jr.load_robot("missing.toml"), (FileNotFoundError, ValueError), "missing.toml"),
 ]
 
@@ -141,9 +140,9 @@ def test_api_bad_input(call, exc, message, tmp_path, monkeypatch):
 
 def test_non_converged_file_is_refused(tmp_path):
     f = tmp_path / "motor.csv"
-    f.write_text(f"{jb.NOT_CONVERGED}: status inner_failed\nt_s,x_m,y_m,z_m\n0,0,0,0\n")
+    f.write_text(f"{jr.io.NOT_CONVERGED}: status inner_failed\nt_s,x_m,y_m,z_m\n0,0,0,0\n")
     with pytest.raises(ValueError, match="written from a solve that did not converge"):
-        jb.read_trajectory_csv(f)
+        jr.io.read_trajectory_csv(f)
 
 
 def test_table_size():

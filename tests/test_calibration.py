@@ -8,6 +8,7 @@ import subprocess
 import sys
 import textwrap
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -16,14 +17,15 @@ import scipy.optimize
 import jaxrobot as jr  # noqa: I001  (x64 first)
 import jaxrobot.bench as jb
 from identification.calibration._calibrate import DEFAULT_PARAMETERS, _residual_fn, calibrate
-from identification.calibration._identifiability import (
+from identification.cli._calibration_report import calibration_report, error_table, parameter_table
+from identification.core._identifiability import (
     THESIS_PREFERENCE,
     analyse,
     default_parameters,
     kinematic_parameters,
 )
-from identification.calibration._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters
-from identification.calibration._pose_selection import (
+from identification.core._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters
+from identification.core._pose_selection import (
     default_marker,
     detmax,
     pose_jacobians,
@@ -31,8 +33,8 @@ from identification.calibration._pose_selection import (
     rest_motor_angles,
     set_indices,
 )
-from identification.cli._calibration_report import calibration_report, error_table, parameter_table
-from jaxrobot.bench import measure_poses, read_pose_csv, write_pose_csv
+from jaxrobot.bench import measure_poses
+from jaxrobot.io import read_poses, write_poses
 
 N_SE = 3.0
 """Identified deviations must lie within this many standard errors of the truth."""
@@ -66,9 +68,9 @@ def bench(robots, thesis_theta):
     theta_val = rest_motor_angles(truth, q_val)
     both = measure_poses(truth, np.concatenate([thesis_theta, theta_val]), seed=11)
     split = lambda a, s: None if a is None else a[s]  # noqa: E731
-    part = lambda s: type(both)(*(split(getattr(both, f), s) for f in  # noqa: E731
-                                  ("motor_angles", "positions", "quaternions", "link_angles",
-                                   "true_positions")), both.metadata)
+    part = lambda s: type(both)(**{f: split(getattr(both, f), s) for f in  # noqa: E731
+                                   ("motor_angles", "positions", "quaternions", "ccw", "link_angles",
+                                    "true_positions")}, metadata=both.metadata)
     return part(slice(0, 50)), part(slice(50, None))
 
 
@@ -78,6 +80,19 @@ def calibrated(robots, bench):
     ident, valid = bench
     return calibrate(nominal, ident.motor_angles, ident.positions,
                      validation=(valid.motor_angles, valid.positions))
+
+
+def test_calibrate_with_poses_equals_the_arrays(robots, bench, calibrated):
+    """`Poses` (as `measure_poses` gives them) in place of the arrays: the same compiled fit on the same
+    numbers, so the same result to rounding (1e-12 in m and rad)."""
+    nominal, _ = robots
+    ident, valid = bench
+    res = calibrate(nominal, ident, validation=valid)
+    assert res.converged and res.names == calibrated.names
+    for got, want in zip(jax.tree.leaves(res.robot), jax.tree.leaves(calibrated.robot), strict=True):
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(res.residuals, calibrated.residuals, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(res.validation_after, calibrated.validation_after, rtol=0, atol=1e-12)
 
 
 def test_calibration_thesis_poses(robots, bench, calibrated):
@@ -133,7 +148,7 @@ def test_chi2_quantile_is_exact():
     import jax
     from scipy.stats import chi2
 
-    from identification._noise import chi2_quantile
+    from identification.core._noise import chi2_quantile
 
     p, dof = np.meshgrid([1e-6, 1e-4, 1e-3, 0.01, 0.5, 0.999], [1, 2, 3, 7.5, 90, 5000])
     q = np.asarray(chi2_quantile(p, dof))
@@ -149,7 +164,7 @@ def test_robust_spread_is_measured_against_the_median_norm_of_clean_noise():
     a batch, numpy and jax alike (the sample median of 20001 norms: 0.4 % relative std; 2 % is 5 std)."""
     from scipy.stats import chi2
 
-    from identification._robust import median_norm, spread
+    from identification.core._robust import median_norm, spread
 
     for rows in (3, 6):
         assert abs(median_norm(rows) / np.sqrt(chi2.median(rows)) - 1) < 1e-10
@@ -200,7 +215,7 @@ def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
     differentiated by jax, at a random point: equal to rounding (1e-12 mm, 1e-9 relative)."""
     import jax
 
-    from identification.calibration._parameters import predict_pose
+    from identification.core._parameters import predict_pose
 
     nominal, _ = robots
     ident, _ = bench
@@ -222,7 +237,7 @@ def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
 
 
 def calibrated_deflection(robot, theta):
-    from identification.calibration._parameters import rest_deflection
+    from identification.core._parameters import rest_deflection
 
     return rest_deflection(robot, jnp.asarray(theta))
 
@@ -335,7 +350,7 @@ def test_bad_input(robots, bench, tmp_path):
         calibrate(nominal, fixed, fixed_pos)
     # pose files: NaN rows by row number, missing columns by name; extra columns ignored
     path = tmp_path / "poses.csv"
-    write_pose_csv(path, theta, pos)
+    write_poses(path, theta, pos)
     text = path.read_text().splitlines()
     text[0] += ",comment"
     text[1:] = [line + ",x" for line in text[1:]]
@@ -344,14 +359,14 @@ def test_bad_input(robots, bench, tmp_path):
     text[5] = ",".join(cells)
     path.write_text("\n".join(text) + "\n")
     with pytest.raises(ValueError, match=r"NaN or empty cells in line\(s\) \[6\]"):
-        read_pose_csv(path)
+        read_poses(path)
     text[5] = text[4]
     path.write_text("\n".join(text) + "\n")
-    data = read_pose_csv(path)
+    data = read_poses(path)
     np.testing.assert_allclose(data.motor_angles[:4], theta[:4], rtol=1e-15)
     (tmp_path / "short.csv").write_text("theta1_deg,theta2_deg,x_m\n1,2,3\n")
     with pytest.raises(ValueError, match=r"missing columns \['y_m', 'z_m'\]"):
-        read_pose_csv(tmp_path / "short.csv")
+        read_poses(tmp_path / "short.csv")
     with pytest.raises(ValueError, match=r"motor_angles: expected shape \(K, 6\) in rad, found \(4, 5\)"):
         calibrate(nominal, theta[:4, :5], pos[:4])
 
@@ -413,8 +428,8 @@ def test_cli_json_schema(bench, tmp_path, capsys):
     from jaxrobot.cli._main import main
 
     ident, valid = bench
-    write_pose_csv(tmp_path / "poses.csv", ident.motor_angles, ident.positions)
-    write_pose_csv(tmp_path / "val.csv", valid.motor_angles, valid.positions)
+    write_poses(tmp_path / "poses.csv", ident.motor_angles, ident.positions)
+    write_poses(tmp_path / "val.csv", valid.motor_angles, valid.positions)
     rc = main(["calibrate", str(tmp_path / "poses.csv"), "--validate", str(tmp_path / "val.csv"),
                "--save-model", str(tmp_path / "out.toml"), "--json", "--out", str(tmp_path / "out")])
     assert rc == 0
@@ -440,7 +455,7 @@ def test_cli_json_schema(bench, tmp_path, capsys):
     assert (tmp_path / "out" / "calibration_errors.png").stat().st_size > 0
 
 
-# --- fleet: batched Levenberg-Marquardt (identification._batched_lm) --------------------------------
+# --- fleet: batched Levenberg-Marquardt (identification.core._batched_lm) --------------------------------
 
 FLEET_OPTIMUM_TOL = 1e-6
 """Batched LM vs the optimum (scipy's MINPACK LM polished by three Gauss-Newton steps), in
@@ -537,7 +552,7 @@ def test_fleet_constants_one_robot_and_fleet_agree_and_hold_statics(robots, flee
     import jax
 
     from identification.calibration._fleet import _constants
-    from identification.calibration._model import rippled_joints
+    from identification.core._forward import rippled_joints
 
     nominal, _ = robots
     theta = jnp.asarray(fleet_problem[0])
@@ -557,9 +572,9 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
     by `calibrate_fleet` (same shapes, shardings and statics)."""
     import jax
 
-    from identification._batched_lm import LMConfig
     from identification.calibration._fleet import _fleet_constants, _fleet_solve, fleet_mesh
-    from identification.calibration._model import rippled_joints
+    from identification.core._batched_lm import LMConfig
+    from identification.core._forward import rippled_joints
 
     nominal, _ = robots
     theta, meas, _ = fleet_problem
@@ -589,7 +604,7 @@ def test_batched_lm_kernel():
     traced); Cholesky vs numpy."""
     import jax
 
-    from identification._batched_lm import LMConfig, batched_lm, map_chunks
+    from identification.core._batched_lm import LMConfig, batched_lm, map_chunks
     from jaxrobot._linalg import cholesky, cholesky_solve
 
     def rj(x, _):
@@ -640,7 +655,7 @@ def test_fleet_screw_jacobian_matches_residual_fn(robots, bench):
     import jax
 
     from identification.calibration._fleet import _robot_residual_jacobian, _screw_residual_jacobian
-    from identification.calibration._model import rippled_joints
+    from identification.core._forward import rippled_joints
 
     nominal, truth = robots
     ident, _ = bench

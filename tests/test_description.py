@@ -119,7 +119,7 @@ def test_package_data_equals_the_shared_racer7_file():
 def test_laser_tracker_model(tmp_path):
     """A full laser-tracker model in `[sensors]` loads; `TrackerNoise` whitens its covariance to the
     isotropic std of the same total variance; a non-positive std is named."""
-    from identification._noise import TrackerNoise
+    from identification.core._noise import TrackerNoise
 
     data = copy.deepcopy(BASE)
     sensors = {"tracker_position_m": [2.5, 1.0, 0.8], "tracker_noise_along_m": 8e-6, "tracker_noise_across_m": 35e-6}

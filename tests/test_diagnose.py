@@ -20,8 +20,9 @@ import pytest
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
-from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
-from identification.diagnosis._diagnose import Poses, diagnose
+from identification.core._pose_selection import random_feasible_poses, rest_motor_angles
+from identification.diagnosis import diagnose
+from jaxrobot.measurement import Poses
 
 N_TRAIN, N_VAL = 150, 60
 
@@ -139,6 +140,18 @@ def test_nothing_hidden_adds_nothing(bench):
     np.testing.assert_allclose(np.asarray(res.robot.a), np.asarray(AS_BUILT.a))
 
 
+def test_bench_poses_as_measured_equal_the_read_convention(bench):
+    """`measure_poses`' `Poses` as they come (their `ccw` the row order's directions) give what `Poses.of(...,
+    "order")` gives (`_run`): the same fits on the same numbers, to rounding."""
+    start, theta = bench
+    measured = [jb.measure_poses(AS_BUILT, theta[k], seed=s, ccw=jr.measurement.approach_directions(theta[k]))
+                for k, s in (("train", 1), ("validation", 2))]
+    res, ref = diagnose(start, *measured), _run(bench, AS_BUILT)
+    assert [r.chi2 for r in res.loop] == pytest.approx([r.chi2 for r in ref.loop], rel=1e-12)
+    np.testing.assert_allclose(res.residuals_after, ref.residuals_after, rtol=0, atol=1e-12)
+    assert res.verdict == ref.verdict
+
+
 def test_two_hidden_effects_found_in_order_of_size(bench):
     # joint 3 compliance (about 1 mm at the marker) and a joint-2 offset of 2e-4 rad (about 0.2 mm)
     truth = _at(AS_BUILT, "offset", 1, AS_BUILT.offset[1] + 2e-4)
@@ -164,7 +177,7 @@ def test_cli_json_and_saved_model(bench, tmp_path, capsys):
     truth = _at(start, "offset", 4, start.offset[4] + 5e-4)
     for name, k in (("train", 1), ("validation", 2)):
         m = jb.measure_poses(truth, theta[name], seed=k, ccw=jr.measurement.approach_directions(theta[name]))
-        jb.write_pose_csv(tmp_path / f"{name}.csv", m.motor_angles, m.positions)
+        jr.io.write_poses(tmp_path / f"{name}.csv", m.motor_angles, m.positions)
     jr.save_robot(start, tmp_path / "start.toml")
     from jaxrobot.cli._main import main
 
@@ -193,8 +206,8 @@ def test_cli_json_and_saved_model(bench, tmp_path, capsys):
 def test_summary_reports_outliers_and_drift(bench):
     """The Python `summary` (the JSON of `jaxrobot diagnose`) carries the loss, each outlier row (with its
     file and line where the rows' origins are given) and the drift test, as the command prints them."""
-    from identification._robust import Outlier
     from identification.cli import diagnosis_summary as summary
+    from identification.core._robust import Outlier
     from identification.diagnosis._diagnose import Drift
 
     res = _single(bench, "joint_offset_j5")

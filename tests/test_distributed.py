@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
-import jaxrobot.bench as jb
 from identification import calibrate_fleet
 from identification.cli._calibrate_fleet import TABLE, bench_fleet
 from jaxrobot.cli._main import main
@@ -82,7 +81,7 @@ def test_two_process_fleet_equals_one_process(tmp_path, capsys):
     assert [f.name for f in files] == [f.name for f in reference]
     assert all(f.read_bytes() == g.read_bytes() for f, g in zip(files, reference))
 
-    poses = [jb.read_pose_csv(f) for f in files]
+    poses = [jr.io.read_poses(f) for f in files]
     one = calibrate_fleet(jr.racer7(), np.stack([p.motor_angles for p in poses]),
                           np.stack([p.positions for p in poses]))
     with (tmp_path / "out" / TABLE).open() as f:
@@ -135,7 +134,7 @@ def test_two_process_fleet_with_a_spoiled_share(tmp_path):
     with (tmp_path / "out" / TABLE).open() as f:
         table = {r["file"]: r for r in csv.DictReader(f)}
     assert {n: table[n]["check"] for n in checks} == checks
-    poses = [jb.read_pose_csv(f) for f in files[:3]]
+    poses = [jr.io.read_poses(f) for f in files[:3]]
     one = calibrate_fleet(jr.racer7(), np.stack([p.motor_angles for p in poses]),
                           np.stack([p.positions for p in poses]))
     two = np.asarray([[float(table[f.name][n]) for n in one.names] for f in files[:3]])

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 import jaxrobot as jr
-import jaxrobot.bench as jb
 import planning as pl
 from jaxrobot.cli._main import main
 
@@ -69,9 +68,9 @@ def test_plan_failed_solve_exits_3_and_writes_only_with_save_failed(tmp_path, ca
     assert not out.exists()
     assert main(["plan", str(task), "--save-trajectory", str(out), "--save-failed"]) == 3
     assert "marked as not converged" in capsys.readouterr().err
-    assert out.read_text().startswith(jb.NOT_CONVERGED + ": the OCP did not converge: status inner_failed")
+    assert out.read_text().startswith(jr.io.NOT_CONVERGED + ": the OCP did not converge: status inner_failed")
     with pytest.raises(ValueError, match="written from a solve that did not converge"):
-        jb.read_csv_columns(out, ["t_s"])
+        jr.io.read_csv_columns(out, ["t_s"])
 
 
 def _converged_solve(*args, **kwargs):

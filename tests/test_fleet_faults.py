@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
-from identification._noise import ALPHA, noise_test
 from identification.cli._calibrate_fleet import REPORT, TABLE, bench_fleet
 from identification.cli._calibration_report import FLEET_OUTLIER_MIN_ROBOTS, FLEET_OUTLIER_SPREAD, fleet_outliers
+from identification.core._noise import ALPHA, noise_test
 from jaxrobot.cli._main import main
 
 K = 20

@@ -21,7 +21,7 @@ import jaxrobot as jr
 import jaxrobot.bench as jb
 from identification import check_gear_run, identify_gear, prepare_gear_runs
 from identification.cli._gear_report import summary
-from identification.gear._bench import bench_runs
+from identification.gear._demo import demo_runs
 
 MISALIGNMENT_TOL = 1e-3  # rad (issue 3)
 U0_TOL = 1e-4  # relative (issue 3)
@@ -56,7 +56,7 @@ def cutoffs():
 def bench(truth):
     """Identification runs (`IDENTIFICATION_RUNS` per direction), noisy validation runs (1 per
     direction at each speed) and the same without noise."""
-    runs = bench_runs(seed=7, repetitions={"identification": 4, "validation": 1, "other_speed": 1})
+    runs = demo_runs(seed=7, repetitions={"identification": 4, "validation": 1, "other_speed": 1})
     ident, val, ident_names, val_names = runs.runs, runs.validation_runs, runs.names, runs.validation_names
     quiet = []
     for joint in (1, 2, 3):
@@ -212,14 +212,14 @@ def test_summary_schema(result):
 def test_csv_round_trip(tmp_path, bench):
     t, theta, gyro = bench["ident"][0]
     path = tmp_path / "run.csv"
-    jb.write_gear_run(path, t, theta, gyro)
-    t2, theta2, gyro2 = jb.read_gear_run(path)
-    np.testing.assert_allclose(t2, t, atol=1e-9)
-    np.testing.assert_allclose(theta2, theta, atol=1e-9)  # 12 digits of degrees
-    np.testing.assert_allclose(gyro2, gyro, atol=1e-9)
+    jr.io.write_gear_run(path, t, theta, gyro)
+    back = jr.io.read_gear_run(path)
+    np.testing.assert_allclose(back.t, t, atol=1e-9)
+    np.testing.assert_allclose(back.theta, theta, atol=1e-9)  # 12 digits of degrees
+    np.testing.assert_allclose(back.gyro, gyro, atol=1e-9)
     path.write_text("t_s,theta1_deg\n0,1\n")
     with pytest.raises(ValueError, match="missing column"):
-        jb.read_gear_run(path)
+        jr.io.read_gear_run(path)
 
 
 def _run(bench):

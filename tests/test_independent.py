@@ -17,9 +17,10 @@ from helpers import independent_data
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
-from identification._pose_files import read_poses
 from identification.cli import diagnosis_summary
-from identification.diagnosis import Poses, diagnose
+from identification.diagnosis import diagnose
+from jaxrobot.io import read_poses
+from jaxrobot.measurement import Poses
 
 CASES = {"p0_clean": None, "p1_joint5_offset": ("joint_offset", 5), "p2_joint2_softer": ("joint_compliance", 2),
          "p3_base_shift": ("base_offset", None), "p4_link_scale": ("link_scale", None)}
@@ -72,14 +73,14 @@ def test_not_explained_when_validation_exceeds_its_bound():
 
 def test_approach_conventions(tmp_path):
     """cw: no ccw at rest; order: `approach_directions` of the rows; column: the file's +-1 columns."""
-    from identification._pose_files import approach_ccw, approach_columns
+    from jaxrobot.io._poses import approach_ccw, approach_columns
 
     theta = np.deg2rad([[10.0, -5, 3, 0, 1, 2], [4.0, -2, 5, 0, 1, 1], [6.0, -8, 5, 1, 0, 1]])
     assert not approach_ccw(theta, "cw").any()
     np.testing.assert_array_equal(approach_ccw(theta, "order"), np.asarray(jr.measurement.approach_directions(theta)))
     sign = np.where(np.asarray(jr.measurement.approach_directions(theta)), -1, 1)
     path = tmp_path / "poses.csv"
-    jb.write_pose_csv(path, theta, np.zeros((3, 3)))
+    jr.io.write_poses(path, theta, np.zeros((3, 3)))
     lines = path.read_text().splitlines()
     cols = approach_columns(6)
     text = [lines[0] + "," + ",".join(cols)] + [ln + "," + ",".join(map(str, s)) for ln, s in zip(lines[1:], sign)]
@@ -89,7 +90,7 @@ def test_approach_conventions(tmp_path):
     path.write_text("\n".join(text).replace(",-1\n", ",0\n", 1) + "\n")
     with pytest.raises(ValueError, match=r"approach\d in data row \d: expected \+1 \(cw\) or -1 \(ccw\), found 0"):
         read_poses(path, "column")
-    jb.write_pose_csv(path, theta, np.zeros((3, 3)))
+    jr.io.write_poses(path, theta, np.zeros((3, 3)))
     with pytest.raises(ValueError, match=r"approach 'column' needs the columns \['approach1'"):
         read_poses(path, "column")
     with pytest.raises(ValueError, match=r"approach: expected one of \['cw', 'order', 'column'\], found 'up'"):
@@ -124,7 +125,7 @@ def gear_stage(tmp_path_factory):
     assert code == 0
     assert re.search(r"^\[identify-gear 2/3\] identification: \d+ s elapsed, ETA \d+ s$", err.getvalue(), re.M)
     assert re.search(r"^\[identify-gear 3/3\] report: \d+ s elapsed, done$", err.getvalue(), re.M)
-    runs = {f: jb.read_gear_run(f) for f in files(2)}
+    runs = {f: jr.io.read_gear_run(f) for f in files(2)}
     return json.loads(buf.getvalue()), out / "gear.toml", runs
 
 
@@ -145,7 +146,7 @@ def _ratio_errors(gear_stage):
         j = int(joint) - 1
         for direction, s in sets.items():
             rip = truth.ccw if direction == "ccw" else truth.cw
-            theta = np.concatenate([th[:, j] for f, (_, th, _) in runs.items()
+            theta = np.concatenate([r.theta[:, j] for f, r in runs.items()
                                     if f"j{joint}_{'neg' if direction == 'ccw' else 'pos'}" in f])
             phi = np.linspace(theta.min(), theta.max(), 20001) / float(truth.u0[j])
             used = np.asarray(rip.orders[j]) > 0
@@ -185,8 +186,8 @@ def test_gear_joint2_never_worse_than_no_ripple(gear_stage, direction):
 ])
 def test_pose_unit_mistakes_are_named(mistake, transform, message):
     """Each common mistake, made on the independent calibration poses (motor degrees as in the file)."""
-    from identification._pose_files import check_pose_units
-    from identification.calibration._pose_selection import default_marker
+    from identification.core._pose_checks import check_pose_units
+    from identification.core._pose_selection import default_marker
 
     robot = jr.racer7()
     data = read_poses(independent_data() / "calibration" / "train.csv")
@@ -206,7 +207,8 @@ def test_gear_unit_mistakes_are_named(tmp_path, mistake, column, factor, message
     """Each mistake written into a copy of an independent gear run, read through the CLI's reader."""
     from identification.gear._processing import prepare_gear_runs
 
-    t, theta, gyro = jb.read_gear_run(independent_data() / "gear" / "j3_pos_r0.csv")
+    run = jr.io.read_gear_run(independent_data() / "gear" / "j3_pos_r0.csv")
+    t, theta, gyro = run.t, run.theta, run.gyro
     u0 = np.asarray(jr.racer7().u0)
     cut = {3: 57.5}
     prepare_gear_runs([(t, theta, gyro)], cut, u0)  # the file as it is
@@ -214,16 +216,16 @@ def test_gear_unit_mistakes_are_named(tmp_path, mistake, column, factor, message
         theta = theta / u0 if factor == "link" else theta * factor
     else:
         gyro = gyro * factor
-    jb.write_gear_run(tmp_path / "run.csv", t, theta, gyro)
+    jr.io.write_gear_run(tmp_path / "run.csv", t, theta, gyro)
     with pytest.raises(ValueError, match=message):
-        prepare_gear_runs([jb.read_gear_run(tmp_path / "run.csv")], cut, u0, ["run.csv"])
+        prepare_gear_runs([jr.io.read_gear_run(tmp_path / "run.csv")], cut, u0, ["run.csv"])
 
 
 def test_unit_mistake_fails_the_cli_before_fitting(tmp_path, capsys):
     from jaxrobot.cli._main import main
 
     data = read_poses(independent_data() / "calibration" / "train.csv")
-    jb.write_pose_csv(tmp_path / "mm.csv", data.motor_angles, 1e3 * data.positions)
+    jr.io.write_poses(tmp_path / "mm.csv", data.motor_angles, 1e3 * data.positions)
     assert main(["calibrate", str(tmp_path / "mm.csv")]) == 2
     assert "millimetres in the _m columns" in capsys.readouterr().err
 
@@ -298,7 +300,7 @@ def test_chained_cli_gear_calibrate(gear_stage, tmp_path, capsys):
     for desc in (jr.read_description(gear_toml), jr.read_description(tmp_path / "cal.toml")):
         for direction, key in (("cw", "pos"), ("ccw", "neg")):
             lo, hi = desc["gear"]["joint3"][direction]["identified_range_deg"]
-            theta = np.concatenate([th[:, 2] for f, (_, th, _) in runs.items() if f"j3_{key}" in f])
+            theta = np.concatenate([r.theta[:, 2] for f, r in runs.items() if f"j3_{key}" in f])
             u0 = float(jr.racer7(as_built=True).u0[2])
             assert np.rad2deg(theta.min()) / u0 - 1.0 <= lo < hi <= np.rad2deg(theta.max()) / u0 + 1.0
     phi3 = np.rad2deg(read_poses(d / "train.csv").motor_angles[:, 2]) / float(gear.u0[2])
@@ -324,7 +326,7 @@ def test_calibrate_fleet_approach(tmp_path, capsys):
     tracker noise (RMS within the chi-square mean + 3 std of 3K residuals). Read as `cw` (the
     default), the same poses would be off by more than twice that bound (checked on the noise-free
     positions of both conventions), so the fit shows the option was applied."""
-    from identification.calibration._pose_selection import default_marker, random_feasible_poses
+    from identification.core._pose_selection import default_marker, random_feasible_poses
     from jaxrobot.cli._main import main
 
     robot = jr.racer7()
@@ -338,7 +340,7 @@ def test_calibrate_fleet_approach(tmp_path, capsys):
         m = jb.measure_poses(robot, theta, seed=r, ccw=ccw)
         exact = [jb.measure_poses(robot, theta, ccw=c, position_noise=0.0).positions for c in (ccw, False)]
         assert np.sqrt(np.mean(np.sum((exact[0] - exact[1]) ** 2, -1) / 3)) > 2 * bound
-        jb.write_pose_csv(tmp_path / f"robot_{r}.csv", theta, m.positions)
+        jr.io.write_poses(tmp_path / f"robot_{r}.csv", theta, m.positions)
     assert main(["calibrate-fleet", str(tmp_path), "--approach", "order", "--out", str(tmp_path), "--json"]) == 0
     capsys.readouterr()
     table = np.genfromtxt(tmp_path / "fleet_calibration.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")

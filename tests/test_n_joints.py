@@ -18,11 +18,12 @@ import jaxrobot as jr
 import jaxrobot.bench as jb
 import planning as pl
 from identification import calibrate, default_parameters
-from identification.calibration._parameters import ParameterMap
-from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
 from identification.cli import calibration_report, diagnosis_summary
-from identification.diagnosis import Poses, diagnose
-from jaxrobot._description import filter_cutoffs, robot_from_description
+from identification.core._parameters import ParameterMap
+from identification.core._pose_selection import random_feasible_poses, rest_motor_angles
+from identification.diagnosis import diagnose
+from jaxrobot.io._description import filter_cutoffs, robot_from_description
+from jaxrobot.measurement import Poses
 
 ARM7 = Path(__file__).parent / "data" / "arm7.toml"
 
@@ -67,10 +68,10 @@ def test_model_functions_and_bench_for_n_joints(n, tmp_path):
     tip = jr.tool_pose(robot, q) @ jnp.array([0.0, 0.0, 0.1, 1.0])
     np.testing.assert_allclose(meas.positions, tip[:, :3], atol=1e-12)
     # pose files carry theta1_deg .. thetan_deg
-    jb.write_pose_csv(tmp_path / "poses.csv", meas.motor_angles, meas.positions)
+    jr.io.write_poses(tmp_path / "poses.csv", meas.motor_angles, meas.positions)
     assert (tmp_path / "poses.csv").read_text().splitlines()[0].startswith(
         ",".join(f"theta{i}_deg" for i in range(1, n + 1)) + ",x_m")
-    back = jb.read_pose_csv(tmp_path / "poses.csv")
+    back = jr.io.read_poses(tmp_path / "poses.csv")
     np.testing.assert_allclose(back.motor_angles, meas.motor_angles, rtol=1e-15)
 
 
@@ -142,10 +143,10 @@ def test_seven_joint_gear_run_on_the_bench(tmp_path):
     rate = runs.link_rate[0]
     integral = np.sum(0.5 * (rate[1:] + rate[:-1]) * np.diff(runs.t))
     assert abs(integral - travel) < 1e-6
-    jb.write_gear_run(tmp_path / "run.csv", runs.t, runs.theta[0], runs.gyro[0])
-    assert (tmp_path / "run.csv").read_text().splitlines()[0] == ",".join(jb.gear_run_columns(7))
-    t, theta, gyro = jb.read_gear_run(tmp_path / "run.csv")
-    np.testing.assert_allclose(theta, runs.theta[0], rtol=1e-11, atol=1e-12)
+    jr.io.write_gear_run(tmp_path / "run.csv", runs.t, runs.theta[0], runs.gyro[0])
+    assert (tmp_path / "run.csv").read_text().splitlines()[0] == ",".join(jr.io.gear_run_columns(7))
+    back = jr.io.read_gear_run(tmp_path / "run.csv")
+    np.testing.assert_allclose(back.theta, runs.theta[0], rtol=1e-11, atol=1e-12)
 
 
 @pytest.fixture(scope="module")

@@ -47,8 +47,8 @@ def _line(n: int = 6):
 
 
 def _cases():
-    from identification.calibration._observability import singular_values_from_gram
-    from identification.calibration._pose_selection import _feasible
+    from identification.core._observability import singular_values_from_gram
+    from identification.core._pose_selection import _feasible
     from identification.gear._processing import normal_solve
     from jaxrobot.cli._summary import _numbers
     from jaxrobot.linalg import cholesky, cholesky_solve, spd_solve

@@ -20,7 +20,7 @@ from helpers import example_urdf
 import jaxrobot as jr
 import jaxrobot.bench as jb
 import planning as pl
-from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
+from identification.core._pose_selection import random_feasible_poses, rest_motor_angles
 from jaxrobot.cli._main import main
 from planning._ik import SINGULARITY_MARGIN, singular_values
 from planning.cli._plan import read_task_csv
@@ -73,8 +73,8 @@ def chain(tmp_path_factory):
                          nominal.alpha + rng.normal(0.0, 3e-4, 7)))
     theta = rest_motor_angles(truth, random_feasible_poses(nominal, 80, seed=1))
     meas = jb.measure_poses(truth, theta, seed=2, marker=jnp.asarray(MARKER), position_noise=SIGMA)
-    jb.write_pose_csv(d / "poses.csv", meas.motor_angles[:60], meas.positions[:60])
-    jb.write_pose_csv(d / "validation.csv", meas.motor_angles[60:], meas.positions[60:])
+    jr.io.write_poses(d / "poses.csv", meas.motor_angles[:60], meas.positions[:60])
+    jr.io.write_poses(d / "validation.csv", meas.motor_angles[60:], meas.positions[60:])
     rc, report = _cli(["calibrate", str(d / "poses.csv"), "--validate", str(d / "validation.csv"),
                        "--robot", str(d / "panda.toml"), "--save-model", str(d / "panda-calibrated.toml")])
     return d, rc, report

@@ -17,7 +17,7 @@ from helpers import pinocchio_terms
 from scipy.spatial.transform import Rotation
 
 import jaxrobot as jr
-from jaxrobot._urdf import EFFORT_LIMIT, _rpy
+from jaxrobot.io._urdf import EFFORT_LIMIT, _rpy
 
 pin = pytest.importorskip("pinocchio")
 

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 import jaxrobot as jr
-import jaxrobot.bench as jb
 import planning as pl
 
 DESC = jr.read_description()
@@ -289,10 +288,10 @@ def test_task_csv_round_trip_and_errors(tmp_path, paths):
         read_task_csv(bad)
     out = tmp_path / "motor.csv"
     z = np.zeros((11, 6))
-    jb.write_command_csv(out, t, z + np.pi, z + 0.5, z - 2.0)
+    jr.io.write_command_csv(out, t, z + np.pi, z + 0.5, z - 2.0)
     header = out.read_text().splitlines()[0].split(",")
     assert header[:7] == ["t_s"] + [f"theta{i}_deg" for i in range(1, 7)] and len(header) == 19
     assert np.allclose(np.loadtxt(out, delimiter=",", skiprows=1)[:, 1:7], 180.0)
-    back = jb.read_command_csv(out)  # the reader inverts the writer to its 12 digits
+    back = jr.io.read_command_csv(out)  # the reader inverts the writer to its 12 digits
     for a, b in zip(back, (t, z + np.pi, z + 0.5, z - 2.0)):
         np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-15)

@@ -64,7 +64,7 @@ def _fleet(folder: Path) -> None:
     theta = np.deg2rad(np.asarray(jr.read_description()["poses"]["motor_deg"], float))
     m = jb.measure_poses(jb.draw_fleet(FLEET_ROBOTS, seed=0), theta, seed=1)
     for r in range(FLEET_ROBOTS):
-        jb.write_pose_csv(folder / f"robot{r}.csv", m.motor_angles[r], m.positions[r])
+        jr.io.write_poses(folder / f"robot{r}.csv", m.motor_angles[r], m.positions[r])
 
 
 @pytest.fixture(scope="module")
@@ -125,7 +125,7 @@ def test_readme_commands(tmp_path):
         assert done.returncode == 0, f"{line}\nexit {done.returncode}\n{done.stderr[-3000:]}"
     assert len((tmp_path / "fleet-out" / "fleet_calibration.csv").read_text().splitlines()) == 1 + 20
     jr.load_robot(tmp_path / "robot0.toml")
-    t, theta, _, _ = jb.read_command_csv(tmp_path / "line.csv")
+    t, theta, _, _ = jr.io.read_command_csv(tmp_path / "line.csv")
     assert t.shape == (2501,) and theta.shape == (2501, 6)
 
 

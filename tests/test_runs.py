@@ -13,7 +13,6 @@ import pytest
 from helpers import independent_data
 
 import jaxrobot as jr
-import jaxrobot.bench as jb
 from identification.diagnosis._diagnose import ALPHA
 from identification.diagnosis._runs import compare_run, extend_command
 from jaxrobot.cli._main import main
@@ -43,8 +42,8 @@ def sensors(folder):
 
 
 def shortened(folder, name, samples):
-    run = jb.read_trajectory_csv(folder / f"run_{name}.csv")
-    return jb.read_command_csv(folder / f"command_{name}.csv"), tuple(a[:samples] for a in run)
+    run = jr.io.read_trajectory_csv(folder / f"run_{name}.csv")
+    return jr.io.read_command_csv(folder / f"command_{name}.csv"), tuple(a[:samples] for a in run)
 
 
 @pytest.mark.extended  # ~20 s: run simulations compile; the suite keeps the run files' checks
@@ -79,7 +78,7 @@ def test_every_case_against_start_and_truth(name):
     runs = json.loads((folder / "truth.json").read_text())["runs"]
     start, truth = jr.load_robot(folder / "start.toml"), true_robot(folder)
     for file, info in runs.items():
-        command, run = jb.read_command_csv(folder / info["command"]), jb.read_trajectory_csv(folder / file)
+        command, run = jr.io.read_command_csv(folder / info["command"]), jr.io.read_trajectory_csv(folder / file)
         assert compare_run(truth, command, run, marker, noise).p_value > FAMILY_P, file
         p_start = compare_run(start, command, run, marker, noise).p_value
         assert p_start > FAMILY_P if info["signature_chi2"] < 100 else p_start < 1e-10, (file, p_start)
@@ -104,8 +103,8 @@ def test_cli_compare_and_run_files_refused_as_poses(tmp_path, capsys):
     folder = case("p2_motor_lag_j123")
     command, run = shortened(folder, "line_nu1e-14", SHORT)
     cmd, run_file = tmp_path / "command.csv", tmp_path / "run.csv"
-    jb.write_command_csv(cmd, *command)
-    jb.write_trajectory_csv(run_file, run[0], run[1], run[2])
+    jr.io.write_command_csv(cmd, *command)
+    jr.io.write_trajectory_csv(run_file, run[0], run[1], run[2])
     code = main(["compare", "--model", str(folder / "start.toml"), "--command", str(cmd), "--run", str(run_file),
                  "--out", str(tmp_path / "out"), "--json"])
     out = capsys.readouterr()
@@ -120,7 +119,7 @@ def test_cli_compare_and_run_files_refused_as_poses(tmp_path, capsys):
     assert code == 2 and "a trajectory run (t_s in equal steps of 1 ms" in err
     assert "jaxrobot diagnose --runs RUN.csv --commands CMD.csv" in err and "jaxrobot compare --run" in err
     with pytest.raises(ValueError, match=r"a trajectory run \(columns x_m, y_m, z_m"):
-        jb.read_command_csv(run_file)
+        jr.io.read_command_csv(run_file)
 
 
 @pytest.mark.extended
@@ -134,8 +133,8 @@ def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
     for name in ("line_nu1e-14", "spiral_nu1e-14", "line_nu1e-10", "spiral_nu1e-10"):
         command, run = shortened(folder, name, SHORT)
         files[name] = (tmp_path / f"command_{name}.csv", tmp_path / f"run_{name}.csv")
-        jb.write_command_csv(files[name][0], *command)
-        jb.write_trajectory_csv(files[name][1], *run)
+        jr.io.write_command_csv(files[name][0], *command)
+        jr.io.write_trajectory_csv(files[name][1], *run)
     train, val = ("line_nu1e-14", "spiral_nu1e-14"), ("line_nu1e-10", "spiral_nu1e-10")
     code = main(["diagnose", "--model", str(folder / "start.toml"), "--runs", *(str(files[k][1]) for k in train),
                  "--commands", *(str(files[k][0]) for k in train), "--validate-runs", *(str(files[k][1]) for k in val),
@@ -160,8 +159,8 @@ def test_cli_diagnose_runs_refuses_incomplete_input(tmp_path, capsys):
     folder = case("p0_clean")
     command, run = shortened(folder, "line_nu1e-14", 20)
     cmd, run_file = tmp_path / "command.csv", tmp_path / "run.csv"
-    jb.write_command_csv(cmd, *(a[:20] for a in command))
-    jb.write_trajectory_csv(run_file, *run)
+    jr.io.write_command_csv(cmd, *(a[:20] for a in command))
+    jr.io.write_trajectory_csv(run_file, *run)
     model = ["--model", str(folder / "start.toml")]
     cases = [
         (["--runs", str(run_file), "--validate-runs", str(run_file)],
@@ -177,6 +176,6 @@ def test_cli_diagnose_runs_refuses_incomplete_input(tmp_path, capsys):
     uneven = tmp_path / "uneven.csv"
     t = command[0][:20].copy()
     t[5] += 2e-4
-    jb.write_command_csv(uneven, t, *(a[:20] for a in command[1:]))
+    jr.io.write_command_csv(uneven, t, *(a[:20] for a in command[1:]))
     with pytest.raises(ValueError, match=r"uneven.csv: t_s must increase in equal steps"):
-        jb.read_command_csv(uneven)
+        jr.io.read_command_csv(uneven)

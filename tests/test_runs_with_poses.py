@@ -16,7 +16,6 @@ from test_dynamic_effects import arm_description, command
 import jaxrobot as jr
 import jaxrobot.bench as jb
 from identification.diagnosis import payload_robot
-from identification.diagnosis._diagnose import Poses
 from identification.diagnosis._runs import (
     _pose_rows,
     _prepare_poses,
@@ -25,6 +24,7 @@ from identification.diagnosis._runs import (
     diagnose_runs,
 )
 from jaxrobot.cli._main import main
+from jaxrobot.measurement import Poses
 
 
 def test_payload_is_a_point_mass_on_the_flange():
@@ -117,8 +117,8 @@ def case_runs(name: str, samples: int = SHORT):
     sensors = jr.read_description(folder / "start.toml")["sensors"]
 
     def pair(run):
-        data = jb.read_trajectory_csv(folder / f"run_{run}.csv")
-        return jb.read_command_csv(folder / f"command_{run}.csv"), tuple(a[:samples] for a in data)
+        data = jr.io.read_trajectory_csv(folder / f"run_{run}.csv")
+        return jr.io.read_command_csv(folder / f"command_{run}.csv"), tuple(a[:samples] for a in data)
 
     return (folder, jr.load_robot(folder / "start.toml"), sensors["tracker_marker_offset_m"],
             sensors["tracker_position_noise_m"], [pair("line_nu1e-14"), pair("spiral_nu1e-14")],
@@ -173,16 +173,16 @@ def test_payload_from_poses_and_lag_from_runs(tmp_path, capsys):
     rng = np.random.default_rng(3205)
     files = {}
     for name in ("line_nu1e-14", "spiral_nu1e-14"):
-        cmd = tuple(np.asarray(a)[:SHORT] for a in jb.read_command_csv(folder / f"command_{name}.csv"))
+        cmd = tuple(np.asarray(a)[:SHORT] for a in jr.io.read_command_csv(folder / f"command_{name}.csv"))
         positions, motors = _simulated(truth, *(jnp.asarray(a) for a in cmd), jnp.asarray(marker))
         run = (cmd[0], np.asarray(motors), np.asarray(positions) + noise * rng.standard_normal((SHORT, 3)))
         files[name] = (tmp_path / f"command_{name}.csv", tmp_path / f"run_{name}.csv")
-        jb.write_command_csv(files[name][0], *cmd)
-        jb.write_trajectory_csv(files[name][1], *run)
+        jr.io.write_command_csv(files[name][0], *cmd)
+        jr.io.write_trajectory_csv(files[name][1], *run)
     theta = np.asarray(start.u0) * rng.uniform(-1, 1, (55, 6)) * np.array([1.5, 0.6, 0.6, 1.5, 1.2, 2.0])
     poses = jb.measure_poses(truth, theta, seed=3206, marker=marker, position_noise=noise)
     for part, rows in (("train", slice(0, 40)), ("val", slice(40, 55))):
-        jb.write_pose_csv(tmp_path / f"{part}.csv", theta[rows], poses.positions[rows])
+        jr.io.write_poses(tmp_path / f"{part}.csv", theta[rows], poses.positions[rows])
 
     code = main(["diagnose", "--model", str(folder / "start.toml"), str(tmp_path / "train.csv"), "--validate",
                  str(tmp_path / "val.csv"), "--runs", str(files["line_nu1e-14"][1]), "--commands",

@@ -77,18 +77,18 @@ def test_trajectory_run_and_csv_round_trip(tmp_path, flat):
     residual = p - jr.point_position(truth, q, marker)
     assert abs(float(jnp.std(residual)) / noise - 1) < 0.1  # the tracker's noise, nothing else
     path = tmp_path / "run.csv"
-    jb.write_trajectory_csv(path, args[0], args[1], p)
-    t2, theta2, p2 = jb.read_trajectory_csv(path)
+    jr.io.write_trajectory_csv(path, args[0], args[1], p)
+    t2, theta2, p2 = jr.io.read_trajectory_csv(path)
     np.testing.assert_allclose(theta2, args[1], rtol=1e-11)
     np.testing.assert_allclose(p2, p, atol=1e-12)
     lines = path.read_text().splitlines()
     lines[5] = lines[5].replace(lines[5].split(",")[3], "nan", 1)
     path.write_text("\n".join(lines))
     with pytest.raises(ValueError, match=r"NaN or empty cells in line\(s\) \[6\]"):
-        jb.read_trajectory_csv(path)
+        jr.io.read_trajectory_csv(path)
     path.write_text("t_s,theta1_deg\n0,1\n")
     with pytest.raises(ValueError, match=r"missing columns \['x_m', 'y_m', 'z_m'\]"):
-        jb.read_trajectory_csv(path)
+        jr.io.read_trajectory_csv(path)
 
 
 AS_BUILT = jr.racer7(as_built=True)

@@ -22,7 +22,7 @@ from helpers import example_urdf, pinocchio_terms
 from scipy.spatial.transform import Rotation
 
 import jaxrobot as jr
-from jaxrobot._description import RobotFileError
+from jaxrobot.io._schema import RobotFileError
 
 pin = pytest.importorskip("pinocchio")
 

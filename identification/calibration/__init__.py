@@ -1,31 +1,35 @@
 """Kinematic calibration of one robot and of fleets: parameters, identifiability, pose sets, LM/MAP (thesis ch. 3.3)."""
 
 from jaxrobot.checks import check_public as _check_public
+from jaxrobot.checks import deprecated_aliases as _deprecated_aliases
 
-from .._deprecated import deprecated_aliases as _deprecated_aliases
-from ._bench import BenchCalibration as BenchCalibration
-from ._bench import bench_calibration as bench_calibration
+from ..core._identifiability import IdentifiabilityResult as IdentifiabilityResult
+from ..core._identifiability import default_parameters as default_parameters
+from ..core._identifiability import identifiability as identifiability
+from ..core._identifiability import kinematic_parameters as kinematic_parameters
+from ..core._observability import ObservabilityIndices as ObservabilityIndices
+from ..core._observability import observability_indices as observability_indices
+from ..core._parameters import THESIS_PARAMETERS as THESIS_PARAMETERS
+from ..core._parameters import ParameterMap as ParameterMap
+from ..core._pose_selection import PoseConstraints as PoseConstraints
+from ..core._pose_selection import detmax as detmax
+from ..core._pose_selection import random_feasible_poses as random_feasible_poses
+from ..core._pose_selection import rest_motor_angles as rest_motor_angles
 from ._calibrate import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
 from ._calibrate import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
 from ._calibrate import CalibrationResult as CalibrationResult
 from ._calibrate import calibrate as calibrate
 from ._calibrate import map_parameters as map_parameters
+from ._demo import DemoCalibration as DemoCalibration
+from ._demo import demo_calibration as demo_calibration
 from ._fleet import FleetResult as FleetResult
 from ._fleet import calibrate_fleet as calibrate_fleet
-from ._identifiability import IdentifiabilityResult as IdentifiabilityResult
-from ._identifiability import default_parameters as default_parameters
-from ._identifiability import identifiability as identifiability
-from ._identifiability import kinematic_parameters as kinematic_parameters
-from ._observability import ObservabilityIndices as ObservabilityIndices
-from ._observability import observability_indices as observability_indices
-from ._parameters import THESIS_PARAMETERS as THESIS_PARAMETERS
-from ._parameters import ParameterMap as ParameterMap
-from ._pose_selection import PoseConstraints as PoseConstraints
-from ._pose_selection import detmax as detmax
-from ._pose_selection import random_feasible_poses as random_feasible_poses
-from ._pose_selection import rest_motor_angles as rest_motor_angles
 from ._selection import ParameterSelection as ParameterSelection
 
 _check_public(globals())
 
-__getattr__ = _deprecated_aliases(__name__, {"calibration_report": "identification.cli.calibration_report"})
+__getattr__ = _deprecated_aliases(__name__, {
+    "BenchCalibration": "identification.calibration.DemoCalibration",
+    "bench_calibration": "identification.calibration.demo_calibration",
+    "calibration_report": "identification.cli.calibration_report",
+})

@@ -4,7 +4,7 @@
 model of `predict_pose` (motor angles -> `Xi^{-1}` -> plus gravity deflection -> marker), solved
 with `optx.least_squares` + `optx.LevenbergMarquardt` in scaled variables (1 mm, 1 mrad, 1e-3
 of a gear ratio). By default the squared norms are replaced by a robust loss of each pose's residual
-(Cauchy, by iteratively reweighted least squares, `identification._robust`), so that gross tracker
+(Cauchy, by iteratively reweighted least squares, `identification.core._robust`), so that gross tracker
 errors do not move the model; they are reported as outliers. The parameter covariance is
 `s^2 (J^T W J)^{-1}` (`W` the final pose weights) with the noise estimate `s^2 = ||r||^2 / (n - m)`
 over the `n` residuals of the poses within the outlier bound (all of them for `loss="l2"`), `m`
@@ -26,22 +26,22 @@ from jaxtyping import Array, Bool, Float, Int
 
 import jaxrobot as jr
 from jaxrobot import RESULTS, cached_program
-from jaxrobot.measurement import marker_pose
+from jaxrobot.measurement import Poses, marker_pose, pose_arrays
 from jaxrobot.status import check
 
-from .. import _robust as robust
-from .._noise import noise_model
-from .._pose_files import check_pose_units
-from .._robust import Outlier
-from ._identifiability import analyse, default_parameters
-from ._model import (
+from ..core import _robust as robust
+from ..core._noise import noise_model
+from ..core._pose_checks import check_pose_units
+from ..core._robust import Outlier
+from ..core._identifiability import analyse, default_parameters
+from ..core._forward import (
     analytic_names,
     joint_angle_model,
     position_jacobian,
     rippled_joints,
 )
-from ._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection
-from ._pose_selection import default_marker
+from ..core._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection
+from ..core._pose_selection import default_marker
 from ._selection import ParameterSelection, select_parameters
 
 DEFAULT_PARAMETERS = THESIS_PARAMETERS + ("offset1", "offset2", "offset4", "offset5", "offset6", "d1",
@@ -220,9 +220,9 @@ def solve(
     residual's mm); `None` is plain least squares.
 
     `pose_weight`: the weight of each pose's squared residual (the robust losses' reweighting,
-    `identification._robust`); `None` weights all alike. The returned residuals are unweighted, the
+    `identification.core._robust`); `None` weights all alike. The returned residuals are unweighted, the
     noise variance and covariance those of the weighted rows. `whiten`: each pose's position rows times
-    this matrix (`identification._noise`: an anisotropic tracker's `sigma Sigma_k^{-1/2}`), residuals too.
+    this matrix (`identification.core._noise`: an anisotropic tracker's `sigma Sigma_k^{-1/2}`), residuals too.
 
     `rippled`: the joints whose gears have ripple (`rippled_joints`; static), needed when `robot0`
     is traced (e.g. under `vmap`), else found from `robot0`; a free `u0` of a ripple-free gear then
@@ -395,16 +395,16 @@ def check_rank(jac: np.ndarray, params: ParameterMap) -> None:
 
 def calibrate(
     robot: jr.Robot,
-    motor_angles: Float[Array, "K n"],
-    positions: Float[Array, "K 3"],
+    motor_angles: Float[Array, "K n"] | Poses,
+    positions: Float[Array, "K 3"] | None = None,
     quaternions: Float[Array, "K 4"] | None = None,
     *,
     parameters: Sequence[str] | None = None,
     marker: Float[Array, "3"] | None = None,
     position_noise: float | None = None,
     orientation_noise: float | None = None,
-    ccw: bool | Bool[Array, "K n"] = False,
-    validation: tuple | None = None,
+    ccw: bool | Bool[Array, "K n"] | None = None,
+    validation: tuple | Poses | None = None,
     limits: str = "flag",
     max_steps: int = 100,
     method: str = "lm",
@@ -418,7 +418,8 @@ def calibrate(
     **Arguments:**
     - `robot`: the initial (nominal) robot; also supplies the gravity deflection model.
     - `motor_angles` (K, n) rad at rest; `positions` (K, 3) m measured marker positions;
-      `quaternions` (K, 4) optional measured orientation (qx, qy, qz, qw).
+      `quaternions` (K, 4) optional measured orientation (qx, qy, qz, qw); or `Poses` as `motor_angles`
+      (then none of `positions`, `quaternions`, `ccw`: they come from the `Poses`).
     - `parameters`: free parameter names, fitted as given. Default: `default_parameters(robot)` for the
       measurement type (positions, or positions and orientations when `quaternions` are given), fitted
       together, then reduced by backward elimination while the BIC does not rise and the kept ones fitted
@@ -427,10 +428,10 @@ def calibrate(
     - `marker`: marker offset in the tool frame [m] (default: the toml `[sensors]`).
     - `position_noise`, `orientation_noise`: stds that weight orientation rows against
       position rows (defaults: the toml tracker noise and 0.05 deg) and scale the robust loss;
-      `position_noise` may be a laser tracker's `TrackerNoise` (`identification._noise`: std along and
+      `position_noise` may be a laser tracker's `TrackerNoise` (`identification.core._noise`: std along and
       across the line of sight), whose covariance then whitens each pose's position residual.
-    - `ccw`: gear set of the approach direction. `validation`: `(motor_angles, positions)` or
-      `(motor_angles, positions, ccw)`.
+    - `ccw`: gear set of the approach direction (default `cw`). `validation`: `Poses`,
+      `(motor_angles, positions)` or `(motor_angles, positions, ccw)`.
     - `limits`: `"flag"` lists poses beyond the joint limits in `beyond_limits`,
       `"raise"` rejects them.
     - `method`: `"lm"` plain least squares, or `"map"` maximum a posteriori with the tolerance
@@ -438,7 +439,7 @@ def calibrate(
       parameter's prior std and the fraction of its prior variance the data remove (`data_fraction`;
       the data determine it above `DATA_FRACTION`).
     - `loss`: `"cauchy"` (default) or `"huber"`, robust losses on each pose's residual norm in units of
-      `position_noise`, by iteratively reweighted least squares (`identification._robust`: thresholds,
+      `position_noise`, by iteratively reweighted least squares (`identification.core._robust`: thresholds,
       outlier bound); `"l2"` plain least squares. Poses beyond the outlier bound are listed in
       `outliers` whichever the loss; the noise estimate leaves them out.
 
@@ -453,6 +454,11 @@ def calibrate(
     """
     from jaxrobot.bench import ORIENTATION_NOISE_RAD
 
+    motor_angles, positions, quaternions, ccw = pose_arrays(motor_angles, positions, quaternions, ccw)
+    ccw = False if ccw is None else ccw
+    if isinstance(validation, Poses):
+        validation = (validation.motor_angles, validation.positions) + (
+            () if validation.ccw is None else (validation.ccw,))
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     select = parameters is None and method == "lm" and not all_parameters
     if parameters is None:

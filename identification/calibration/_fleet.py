@@ -25,17 +25,17 @@ from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
 from jaxrobot import RESULTS, backend_kind, gather_rows, shard_rows
-from jaxrobot.measurement import rest_link_angles
+from jaxrobot.measurement import Poses, pose_arrays, rest_link_angles
 from jaxrobot.status import check, where
 
-from .. import _robust as robust
-from .._batched_lm import LMConfig, batched_lm, covariance, map_chunks
-from .._noise import ALPHA, noise_model, noise_test
+from ..core import _robust as robust
+from ..core._batched_lm import LMConfig, batched_lm, covariance, map_chunks
+from ..core._noise import ALPHA, noise_model, noise_test
 from ._calibrate import RESIDUAL_UNIT, ParameterEstimate, _check_array, _residual_fn
-from ._identifiability import default_parameters
-from ._model import analytic_names, joint_angle_model, position_jacobian, rippled_joints
-from ._parameters import ParameterMap
-from ._pose_selection import default_marker
+from ..core._identifiability import default_parameters
+from ..core._forward import analytic_names, joint_angle_model, position_jacobian, rippled_joints
+from ..core._parameters import ParameterMap
+from ..core._pose_selection import default_marker
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,13 +78,13 @@ class FleetResult:
     """Per robot, its poses whose residual norm exceeds the outlier bound (`calibrate`'s)."""
     chi2: np.ndarray
     """(R,) `sum r^2 / sigma^2` of the residuals of the poses the robust loss kept (all for `l2`) against
-    the stated noise `sigma` (`identification._noise.noise_test`, as in `diagnose`)."""
+    the stated noise `sigma` (`identification.core._noise.noise_test`, as in `diagnose`)."""
     dof: np.ndarray
     """(R,) its degrees of freedom, 3 K' - m over the K' poses kept."""
     p_value: np.ndarray
     """(R,) probability that noise alone exceeds `chi2`."""
     inconsistent_below: float
-    """`identification._noise.ALPHA / R`: the p-value at or below which a robot is `inconsistent`, so
+    """`identification.core._noise.ALPHA / R`: the p-value at or below which a robot is `inconsistent`, so
     that noise alone marks any robot of a clean fleet with probability at most `ALPHA` (Bonferroni)."""
 
 
@@ -270,8 +270,8 @@ def _values_scales(params, robots):
 
 def calibrate_fleet(
     robots: jr.Robot,
-    motor_angles: Float[Array, "R K n"],
-    positions: Float[Array, "R K 3"],
+    motor_angles: Float[Array, "R K n"] | Poses,
+    positions: Float[Array, "R K 3"] | None = None,
     *,
     parameters: Sequence[str] | None = None,
     marker: Float[Array, "3"] | None = None,
@@ -286,11 +286,13 @@ def calibrate_fleet(
     `cw` set, or the set of the direction of approach `ccw` (R, K, n) where given).
 
     `robots`: the initial robots, a fleet pytree with leading axis R, or one robot used for all.
+    `motor_angles` (R, K, n) rad and `positions` (R, K, 3) m, or fleet `Poses` (leading axis R, as
+    `jaxrobot.bench.measure_poses` of a fleet gives them) as `motor_angles`, then without `positions` and `ccw`.
     The fleet axis is padded to `ROWS_MULTIPLE` robots per device and sharded over `mesh`
     (default: all devices). Robots whose solve failed or whose pose set is rank deficient have
     `converged = False` and their `status` says why (`throw`: raise the message of the first such
     status instead); so has a robot whose residuals exceed the stated noise (`inconsistent`: the
-    chi-square test of `diagnose`, `identification._noise.noise_test`, at the level `ALPHA / R`).
+    chi-square test of `diagnose`, `identification.core._noise.noise_test`, at the level `ALPHA / R`).
     `max_steps`: of `LMConfig`. `parameters`: default `default_parameters` of the first robot, all of them for
     every robot (no backward elimination as in `calibrate`: one batched program over the robots). Under
     several processes (`jaxrobot.initialize_processes`) each process passes only its own robots
@@ -304,6 +306,10 @@ def calibrate_fleet(
     its own (a robot whose weights no longer change keeps its solution), its outliers and robust noise
     estimate are in `outliers` and `noise_estimate`.
     """
+    motor_angles, positions, quaternions, ccw = pose_arrays(motor_angles, positions, None, ccw)
+    if quaternions is not None:
+        raise ValueError("motor_angles: calibrate_fleet fits positions only; found Poses with quaternions "
+                         "(give Poses without them, or calibrate each robot with `calibrate`)")
     robust.check_loss(loss)
     joints = robots.n_joints
     theta = np.asarray(motor_angles, float)

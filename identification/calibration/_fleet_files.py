@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot.bench import PoseFile
+from jaxrobot.measurement import Poses
 
-from .._pose_files import check_pose_units, read_poses
+from ..core._pose_checks import check_pose_units
 
 FILE_CHECKS = {
     "missing": "the file does not exist",
@@ -52,7 +52,7 @@ class FleetFiles:
 
     checks: tuple[FileCheck, ...]
     """Every file's outcome, in the order of the files (all processes' shares)."""
-    data: tuple[PoseFile, ...]
+    data: tuple[Poses, ...]
     """The measurements of this process's files that passed every check, in file order."""
     poses: int
     """The fleet's pose count: the count most of the files that passed the other checks have (0: none)."""
@@ -65,7 +65,7 @@ def _duplicates(positions: np.ndarray) -> list[tuple[int, int]]:
     return [(k, int(first[inverse[k]])) for k in range(len(positions)) if first[inverse[k]] != k]
 
 
-def check_pose_file(path: Path, robot: jr.Robot, marker, approach: str = "cw") -> tuple[PoseFile | None, FileCheck]:
+def check_pose_file(path: Path, robot: jr.Robot, marker, approach: str = "cw") -> tuple[Poses | None, FileCheck]:
     """Read one pose file and run the per-file checks of `FILE_CHECKS` (all but the pose count) on it.
     **Returns:** its measurements (None where a check failed) and its `FileCheck`."""
     def failed(check: str, message: str, lines=(), poses: int = 0):
@@ -74,7 +74,7 @@ def check_pose_file(path: Path, robot: jr.Robot, marker, approach: str = "cw") -
     if not Path(path).is_file():
         return failed("missing", f"{path}: no such file")
     try:
-        data = read_poses(path, approach, reject_nan=False)
+        data = jr.io.read_poses(path, approach, reject_nan=False)
     except (ValueError, OSError, UnicodeDecodeError) as err:
         return failed("unreadable", str(err))
     k = data.motor_angles.shape[0]

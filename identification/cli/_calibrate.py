@@ -131,24 +131,23 @@ def _write_outputs(out: Path, report: dict, truth: dict | None = None, positions
 
 def run(args, echo) -> dict:
     """`jaxrobot calibrate`; the `--json` summary is `summary`'s, plus `ripple_outside_identified_range` where
-    poses rest outside the range a gear's ripple was identified over (`_model_files.ripple_outside_range`:
+    poses rest outside the range a gear's ripple was identified over (`jaxrobot.io.ripple_outside_range`:
     `{joint: {"range_deg": [[lo, hi]], "direction": [str], "poses": int}}`)."""
     import jaxrobot as jr
     from jaxrobot.cli import Progress
 
-    from .._noise import TrackerNoise
-    from .._pose_files import read_poses
     from ..calibration._calibrate import PRIOR_KEYS, calibrate, map_parameters
-    from ..calibration._identifiability import default_parameters
-    from ..calibration._pose_selection import default_marker, workspace_positions
+    from ..core._identifiability import default_parameters
+    from ..core._noise import TrackerNoise
+    from ..core._pose_selection import default_marker, workspace_positions
     from ._calibration_report import calibration_report
 
     progress = Progress(3, "calibrate")
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
-    data = read_poses(args.poses, args.approach)
+    data = jr.io.read_poses(args.poses, args.approach)
     val = None
     if args.validate is not None:
-        v = read_poses(args.validate, args.approach)
+        v = jr.io.read_poses(args.validate, args.approach)
         val = (v.motor_angles, v.positions, v.ccw)
     progress.step(f"read {len(data.motor_angles)} poses" + ("" if val is None else f" + {len(val[0])} validation"))
     names = None if args.parameters is None else [
@@ -170,9 +169,8 @@ def run(args, echo) -> dict:
     report = calibration_report(res)
     progress.step("calibration")
     _echo_report(report, echo, poses=args.poses)
-    from .._model_files import ripple_outside_range
 
-    outside = ripple_outside_range(args.robot, data.motor_angles, data.ccw, robot.u0)
+    outside = jr.io.ripple_outside_range(args.robot, data.motor_angles, data.ccw, robot.u0)
     for j, o in outside.items():
         echo(f"warning: joint {j}: {o['poses']} poses rest outside the range {o['range_deg']} deg where its "
              f"gear ripple ({'/'.join(o['direction'])}) was identified; there the Fourier set is an extrapolation "
@@ -184,34 +182,32 @@ def run(args, echo) -> dict:
         for f in _write_outputs(args.out, report, positions=data.positions, workspace=workspace):
             echo(f"wrote {args.out / f}")
     if args.save_model is not None:
-        from .._model_files import save_model
 
-        save_model(res.robot, args.save_model, args.robot)
+        jr.io.save_model(res.robot, args.save_model, args.robot)
         echo(f"wrote {args.save_model}")
     progress.step("report")
     return {**summary(report, args.poses), **({"ripple_outside_identified_range": outside} if outside else {})}
 
 
 def demo_stage(out: Path, echo) -> dict:
-    """Calibration stage of `jaxrobot demo` (`bench_calibration`): pose files, tables, plots and the
+    """Calibration stage of `jaxrobot demo` (`demo_calibration`): pose files, tables, plots and the
     calibrated robot in `out`. **Returns:** `summary` plus `files` (list of str, written into `out`) and
     `seconds` (float [s], the stage's time)."""
     import jaxrobot as jr
-    from jaxrobot.bench import write_pose_csv
 
-    from ..calibration._bench import bench_calibration
-    from ..calibration._parameters import ParameterMap
-    from ..calibration._pose_selection import workspace_positions
+    from ..calibration._demo import demo_calibration
+    from ..core._parameters import ParameterMap
+    from ..core._pose_selection import workspace_positions
     from ._calibration_report import calibration_report, plot_pose_set
 
     start = time.perf_counter()
-    bench = bench_calibration()
+    bench = demo_calibration()
     truth, nominal, sel, both, k, res = (bench.truth, bench.nominal, bench.selection, bench.measurements,
                                          bench.n_identification, bench.result)
     echo(f"DETMAX: 13 validation poses, {sel.iterations} iterations, O1 {sel.indices.O1:.4g}, "
          f"O4 {sel.indices.O4:.4g}")
-    write_pose_csv(out / "bench_poses.csv", both.motor_angles[:k], both.positions[:k])
-    write_pose_csv(out / "bench_validation.csv", both.motor_angles[k:], both.positions[k:])
+    jr.io.write_poses(out / "bench_poses.csv", both.motor_angles[:k], both.positions[:k])
+    jr.io.write_poses(out / "bench_validation.csv", both.motor_angles[k:], both.positions[k:])
     echo(f"bench: as-built Racer-7, {k} thesis poses + {len(sel.q)} validation poses, tracker noise "
          f"{1e3 * both.metadata['position_noise_m']:.3f} mm per axis")
     params = ParameterMap(res.names)

@@ -70,9 +70,8 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
     """Bench data of a fleet (`fleet_measurements`), this process's share (`process_share`): writes
     `robot_{r:05d}.csv` of this share; returns all R paths. The files do not depend on the process count."""
     import jaxrobot as jr
-    from jaxrobot.bench import write_pose_csv
 
-    from ..calibration._bench import fleet_measurements
+    from ..calibration._demo import fleet_measurements
 
     if n_robots < 1 or n_poses < 1:
         raise ValueError(f"--bench/--poses: expected >= 1 robots and poses, found {n_robots} and {n_poses}")
@@ -82,7 +81,7 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
     rows = range(share.start, share.stop)
     meas = fleet_measurements(n_robots, n_poses, rows, seed, nominal, marker)
     for i, r in enumerate(rows):
-        write_pose_csv(paths[r], meas.motor_angles[i], meas.positions[i])
+        jr.io.write_poses(paths[r], meas.motor_angles[i], meas.positions[i])
     return paths
 
 
@@ -152,10 +151,10 @@ def run(args, echo) -> dict:
 
     from jaxrobot.cli import ItemsFailed, Progress, SolveFailed
 
-    from .._noise import TrackerNoise, noise_model
     from ..calibration._fleet import calibrate_fleet
     from ..calibration._fleet_files import check_fleet_files
-    from ..calibration._pose_selection import default_marker
+    from ..core._noise import TrackerNoise, noise_model
+    from ..core._pose_selection import default_marker
     from ._calibration_report import fleet_outliers, plot_fleet
 
     pid = jax.process_index()

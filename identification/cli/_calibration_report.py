@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..calibration._calibrate import DATA_FRACTION, CalibrationResult
-from ..calibration._parameters import parse_name, unit
+from ..core._parameters import parse_name, unit
 
 
 def error_stats(err: np.ndarray) -> dict[str, float]:

@@ -73,7 +73,7 @@ def run(args, echo) -> dict:
     in units of `sigma`) at `t_max_sigmas_s` (float [s]), `encoder_deviation_rad` (list of float [rad], per
     motor) and `plots` (list of str, the files written)."""
     import jaxrobot as jr
-    from jaxrobot.bench import read_command_csv, read_trajectory_csv
+    from jaxrobot.io import read_command_csv, read_trajectory_csv
 
     from ..diagnosis._runs import compare_run
 

@@ -41,21 +41,19 @@ def configure(parser) -> None:
 
 def _poses(paths, approach: str):
     """The poses of the files `paths`, concatenated, and (file, line) of each row (header = line 1)."""
-    from jaxrobot.bench import read_csv_columns
+    import jaxrobot as jr
+    from jaxrobot.measurement import Poses
 
-    from .._pose_files import read_poses
-    from ..diagnosis._diagnose import Poses
-
-    data = [read_poses(p, approach) for p in paths]
+    data = [jr.io.read_poses(p, approach) for p in paths]
     lines = [(str(p), k + 2) for p, d in zip(paths, data) for k in range(len(d.motor_angles))]
-    times = [read_csv_columns(p, [], ["t_s"]).get("t_s") for p in paths]
+    times = [jr.io.read_csv_columns(p, [], ["t_s"]).get("t_s") for p in paths]
     times = np.concatenate(times) if all(t is not None for t in times) else None
-    return Poses.concatenate([Poses.of(d.motor_angles, d.positions, "column", d.ccw) for d in data]), lines, times
+    return Poses.concatenate(data), lines, times
 
 
 def _run_pairs(runs, commands, option: str) -> list:
     """(command, run) pairs of the files of `--runs`/`--commands` (or their `--validate-` forms)."""
-    from jaxrobot.bench import read_command_csv, read_trajectory_csv
+    from jaxrobot.io import read_command_csv, read_trajectory_csv
 
     if commands is None or len(commands) != len(runs):
         raise ValueError(f"--{option}commands: expected one command file per file of --{option}runs ({len(runs)}), "

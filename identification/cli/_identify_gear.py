@@ -59,7 +59,6 @@ def _echo_result(res, echo) -> None:
 
 def run(args, echo) -> dict:
     import jaxrobot as jr
-    from jaxrobot import bench
     from jaxrobot.cli import Progress
 
     from ..gear._fit import identify_gear
@@ -71,8 +70,8 @@ def run(args, echo) -> dict:
     for p in [*args.runs, *args.validate]:
         if not p.is_file():
             raise FileNotFoundError(f"gear-run file not found: {p}")
-    runs = [bench.read_gear_run(p) for p in args.runs]
-    val = [bench.read_gear_run(p) for p in args.validate]
+    runs = [jr.io.read_gear_run(p) for p in args.runs]
+    val = [jr.io.read_gear_run(p) for p in args.validate]
     progress.step(f"read {len(runs)} + {len(val)} runs")
     res = identify_gear(robot, runs, val, _cutoffs(desc), method=args.method,
                         names=[str(p) for p in args.runs], validation_names=[str(p) for p in args.validate])
@@ -82,9 +81,8 @@ def run(args, echo) -> dict:
         for f in write_report(res, args.out):
             echo(f"wrote {f}")
     if args.save_model is not None:
-        from .._model_files import save_model
 
-        save_model(res.robot(robot), args.save_model, args.robot, res.identified_ranges())
+        jr.io.save_model(res.robot(robot), args.save_model, args.robot, res.identified_ranges())
         echo(f"wrote {args.save_model}")
     progress.step("report")
     return summary(res)
@@ -98,19 +96,18 @@ def demo_stage(out: Path, echo) -> dict:
     (`{joint: {"p_value": float, "significant": bool}}`, cw against ccw), `misalignment_error_rad`
     (float [rad], the largest error of the alignment angles) and `seconds` (float [s], the stage's time)."""
     import jaxrobot as jr
-    from jaxrobot import bench
 
-    from ..gear._bench import bench_runs
+    from ..gear._demo import demo_runs
     from ..gear._fit import identify_gear
     from ._gear_report import summary, write_report
 
     start = time.perf_counter()
-    runs = bench_runs(seed=0)
+    runs = demo_runs(seed=0)
     ident, val, ident_names, val_names = runs.runs, runs.validation_runs, runs.names, runs.validation_names
     echo(f"bench: {len(ident)} identification and {len(val)} validation runs of joints 1-3 "
          f"({time.perf_counter() - start:.1f} s)")
     sample = out / "gear_run_example.csv"
-    bench.write_gear_run(sample, *ident[0])
+    jr.io.write_gear_run(sample, *ident[0])
     res = identify_gear(jr.racer7(), ident, val, names=ident_names, validation_names=val_names)
     _echo_result(res, echo)
     files = write_report(res, out)

@@ -4,10 +4,10 @@ the tracker's marker and noise."""
 from __future__ import annotations
 
 import jaxrobot as jr
+from jaxrobot.measurement import APPROACHES
 
-from .._noise import TrackerNoise
-from .._pose_files import APPROACHES
-from .._robust import LOSSES
+from ..core._noise import TrackerNoise
+from ..core._robust import LOSSES
 
 
 def add_approach_option(parser) -> None:

@@ -2,15 +2,14 @@
 between the model and trajectory runs (`compare_run`, `diagnose_runs`)."""
 
 from jaxrobot.checks import check_public as _check_public
+from jaxrobot.checks import deprecated_aliases as _deprecated_aliases
 
-from .._deprecated import deprecated_aliases as _deprecated_aliases
 from ._diagnose import AddedEffect as AddedEffect
 from ._diagnose import CandidateScore as CandidateScore
 from ._diagnose import DiagnoseEvent as DiagnoseEvent
 from ._diagnose import DiagnoseResult as DiagnoseResult
 from ._diagnose import Estimate as Estimate
 from ._diagnose import LoopRow as LoopRow
-from ._diagnose import Poses as Poses
 from ._diagnose import diagnose as diagnose
 from ._effects import CATALOGUE as CATALOGUE
 from ._effects import Effect as Effect
@@ -27,5 +26,8 @@ from ._runs import diagnose_runs as diagnose_runs
 
 _check_public(globals())
 
-__getattr__ = _deprecated_aliases(__name__, {"progress_lines": "identification.cli.progress_lines",
-                                             "summary": "identification.cli.diagnosis_summary"})
+__getattr__ = _deprecated_aliases(__name__, {
+    "Poses": "jaxrobot.measurement.Poses",
+    "progress_lines": "identification.cli.progress_lines",
+    "summary": "identification.cli.diagnosis_summary",
+})

@@ -38,11 +38,11 @@ import numpy as np
 from jaxtyping import Array
 
 import jaxrobot as jr
-from jaxrobot.measurement import approach_directions, approach_sign
+from jaxrobot.measurement import Poses, approach_sign
 
-from .. import _robust as robust
-from .._noise import ALPHA, TrackerNoise, chi2_quantile, noise_model, noise_test
-from .._pose_files import check_pose_units
+from ..core import _robust as robust
+from ..core._noise import ALPHA, TrackerNoise, chi2_quantile, noise_model, noise_test
+from ..core._pose_checks import check_pose_units
 from ._effects import RIPPLE_SLOTS, Layout, catalogue, with_ripple_slots
 from ._model import functions
 
@@ -53,51 +53,6 @@ ORDER_FALSE_ALARM = 1e-3
 BLOCKS = ("geometry", "link_scale")
 """Effects on every link at once: one is added only where it explains the training poses better (BIC) and
 the validation poses better (RMS) than every combination of at most two single-joint effects."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Poses:
-    """Measured poses of an n-joint robot (K of them) with their directions of approach (`Poses.of`)."""
-
-    motor_angles: np.ndarray
-    """(K, n) motor angles at rest [rad]."""
-    positions: np.ndarray
-    """(K, 3) measured world positions of the marker [m]."""
-    ccw: np.ndarray
-    """(K, n) bool direction of approach of the stated convention (`_pose_files.APPROACHES`, `cw` by
-    default, docs/model.md (B.1)); True: the ccw gear set."""
-    ccw_order: np.ndarray
-    """(K, n) bool direction of approach the row order would give (`jaxrobot.approach_directions`),
-    which the hypothesis `approach_dependent_gear_set` tests."""
-
-    @classmethod
-    def of(cls, motor_angles, positions, approach: str = "cw", ccw=None) -> Poses:
-        """`approach`: "cw", "order" or "column" (then `ccw` (K, n) bool, e.g. `read_poses`'s)."""
-        from .._pose_files import approach_ccw
-
-        th = np.asarray(motor_angles, float)
-        pos = np.asarray(positions, float)
-        if th.ndim != 2 or pos.shape != (th.shape[0], 3):
-            raise ValueError(f"poses: expected motor_angles (K, n) rad and positions (K, 3) m, "
-                             f"found {th.shape} and {pos.shape}")
-        bad = np.nonzero(~np.isfinite(np.concatenate([th, pos], 1)).all(1))[0]
-        if bad.size:
-            raise ValueError(f"poses: NaN/inf in rows {bad.tolist()} (0-based); remove these poses")
-        if approach == "column":
-            if ccw is None or np.shape(ccw) != th.shape:
-                raise ValueError(f"ccw: approach 'column' needs the direction per pose and joint, shape {th.shape}, "
-                                 f"found {None if ccw is None else np.shape(ccw)}")
-            ccw = np.asarray(ccw, bool)
-        else:
-            ccw = approach_ccw(th, approach)
-        return cls(th, pos, ccw, np.asarray(approach_directions(th)))
-
-    @classmethod
-    def concatenate(cls, parts: list[Poses]) -> Poses:
-        return cls(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(cls)))
-
-    def __len__(self) -> int:
-        return self.motor_angles.shape[0]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -446,9 +401,10 @@ def diagnose(
 
     **Arguments:**
     - `start`: the model to test (may have rigid joints and constant gear ratios).
-    - `train`, `validation`: `Poses` (the validation poses only score candidates).
+    - `train`, `validation`: `jaxrobot.measurement.Poses` (the validation poses only score candidates; `ccw` None:
+      every gear's `cw` set).
     - `noise`: tracker std per axis [m] (default `[sensors] tracker_position_noise_m`), or a laser
-      tracker's `TrackerNoise` (`identification._noise`): each training pose's residual is then whitened
+      tracker's `TrackerNoise` (`identification.core._noise`): each training pose's residual is then whitened
       by its covariance in every fit, the chi-square test and BIC (noise floor and `sigma`: the isotropic
       std of the same total variance).
     - `marker`: marker offset in the tool frame [m] (default `[sensors]`).
@@ -465,6 +421,7 @@ def diagnose(
 
     **Returns:** `DiagnoseResult` in SI units (`identification.cli.diagnosis_summary`: the JSON of `jaxrobot diagnose`).
     """
+    train, validation = train.checked(), validation.checked()
     sigma, marker = _checked_inputs(start, train, validation, noise, marker)
     robust.check_loss(loss)
     white = noise_model(noise, train.positions)[1] if isinstance(noise, TrackerNoise) else None

@@ -21,7 +21,7 @@ from jaxtyping import Array, Float
 
 import jaxrobot as jr
 
-from ..calibration._parameters import parse_name
+from ..core._parameters import parse_name
 
 RIPPLE_SLOTS = 3
 """Orders per ripple effect and joint (found from the residual spectrum)."""
@@ -157,7 +157,7 @@ the 25 of `identification.DEFAULT_PARAMETERS` less offsets and wrist ratios)."""
 def geometry_names(robot: jr.Robot) -> tuple[str, ...]:
     """The mDH parameters (a, d, alpha, beta) of `default_parameters(robot)`, by field then joint
     (`GEOMETRY` for the Racer-7)."""
-    from ..calibration._identifiability import default_parameters
+    from ..core._identifiability import default_parameters
 
     fields = ("a", "d", "alpha", "beta")
     geo = [parse_name(n) for n in default_parameters(robot) if parse_name(n)[0] in fields]

@@ -26,8 +26,8 @@ import numpy as np
 import jaxrobot as jr
 from jaxrobot.measurement import marker_pose, rest_link_angles
 
-from .._noise import ALPHA, noise_model, noise_test
-from .._pose_files import check_pose_units
+from ..core._noise import ALPHA, noise_model, noise_test
+from ..core._pose_checks import check_pose_units
 from ._diagnose import MIN_BIC_GAIN
 from ._effects import loaded
 from ._model import EXACT_ITERATIONS, rest_angles
@@ -115,8 +115,8 @@ def _simulated(robot: jr.Robot, t, theta, thetad, thetadd, marker):
 
 
 def compare_run(robot: jr.Robot, command, run, marker, noise) -> RunComparison:
-    """Simulate `command` `(t, theta, thetad, thetadd)` (`jaxrobot.bench.read_command_csv`) on `robot` and compare
-    the marker's positions with the `run` `(t, theta, positions)` (`jaxrobot.bench.read_trajectory_csv`).
+    """Simulate `command` `(t, theta, thetad, thetadd)` (`jaxrobot.io.read_command_csv`) on `robot` and compare
+    the marker's positions with the `run` `(t, theta, positions)` (`jaxrobot.io.read_trajectory_csv`).
 
     `marker` (3,) [m] in the tool frame; `noise`: the tracker's std per axis [m] or a `TrackerNoise`. Conventions:
     the module docstring."""
@@ -326,6 +326,7 @@ def _prepare_poses(robot: jr.Robot, poses, noise, marker, where: str) -> tuple |
     """The arrays of `_Evidence.poses` from `Poses`, after checking them against `robot` (None: no poses)."""
     if poses is None:
         return None
+    poses = poses.checked()
     n = robot.n_joints
     if poses.motor_angles.shape[1:] != (n,) or len(poses) < 3:
         raise ValueError(f"{where}: expected at least 3 poses with motor_angles (K, {n}) rad of the {n}-joint robot, "
@@ -485,11 +486,11 @@ def diagnose_runs(
     """Name the dynamic effects (`RUN_KINDS`, `PAYLOAD`) that `robot` misses from trajectory runs, one per step,
     with poses at rest as further evidence where given.
 
-    `train`, `validation`: lists of `(command, run)` pairs (`jaxrobot.bench.read_command_csv`,
+    `train`, `validation`: lists of `(command, run)` pairs (`jaxrobot.io.read_command_csv`,
     `read_trajectory_csv`); `marker` (3,) [m] in the tool frame; `noise` the tracker's std per axis [m] or a
     `TrackerNoise`; `substeps` of `jr.simulate` per sample; `encoder_quantum` [rad] the encoders' resolution;
-    `poses`: `(training, validation)` `Poses` (`_diagnose.Poses`) measured with the same marker, each residual in
-    units of `pose_noise` (default `noise`).
+    `poses`: `(training, validation)` `jaxrobot.measurement.Poses` measured with the same marker, each residual
+    in units of `pose_noise` (default `noise`).
 
     Each step compares the model with the training runs and poses (one chi-square over all their rows, each in
     units of its own noise, as `compare_run`); while the test fails, it screens every effect not yet added by the

@@ -32,8 +32,9 @@ from jaxrobot import (
     status_message,
 )
 from jaxrobot.linalg import map_matrices
+from jaxrobot.measurement import GearRun, gear_run_arrays
 
-from .._noise import chi2_quantile
+from ..core._noise import chi2_quantile
 from ._frequencies import fft_orders, group_samples, sparse_orders
 from ._processing import (
     GearBatch,
@@ -468,8 +469,8 @@ def _with_scatter(fit: GearFit, proc, batch, group, fit_run, joints, u0_model, i
 
 def identify_gear(
     robot: Robot,
-    runs: list,
-    validation_runs: list | None = None,
+    runs: GearRun | list,
+    validation_runs: GearRun | list | None = None,
     cutoff_hz: dict[int, float] | None = None,
     method: str = "sparse",
     names: list[str] | None = None,
@@ -481,8 +482,9 @@ def identify_gear(
     **Arguments:**
     - `robot`: the model (nominal): its `u0`, kinematics, masses and stiffness are used; its ripple
       is not.
-    - `runs`, `validation_runs`: `(t (N,) s, theta (N, n) rad, gyro (N, 3) rad/s)` per run; each
-      validation run needs identification runs of the same joint and direction.
+    - `runs`, `validation_runs`: a `GearRun` (one run, or the bench's runs with a leading axis), or a list of
+      `GearRun`s and `(t (N,) s, theta (N, n) rad, gyro (N, 3) rad/s)` tuples; each validation run needs
+      identification runs of the same joint and direction.
     - `cutoff_hz`: filter cut-off per 1-based joint (default: `[sensors] filter_cutoff_hz` of the
       embedded description, joints 1-3).
     - `method`: "sparse" (ours) or "fft" (the thesis') order search for the final fit.
@@ -498,7 +500,8 @@ def identify_gear(
         raise ValueError(f"method: expected 'sparse' or 'fft', found {method!r}")
     if cutoff_hz is None:
         cutoff_hz = filter_cutoffs(read_description(None))
-    validation_runs = validation_runs or []
+    runs = gear_run_arrays(runs, "runs")
+    validation_runs = gear_run_arrays([] if validation_runs is None else validation_runs, "validation_runs")
     names = names or [f"run {k + 1}" for k in range(len(runs))]
     validation_names = validation_names or [f"validation run {k + 1}" for k in range(len(validation_runs))]
     u0_model = np.asarray(robot.u0, float)

@@ -27,7 +27,13 @@ from jaxtyping import Array, Bool, Float, Int
 
 from jaxrobot import RESULTS, Ripple, Robot, cached_program
 from jaxrobot.linalg import map_matrices
-from jaxrobot.measurement import mount_angular_velocity, quasi_static_link_angles, sensor_rotation
+from jaxrobot.measurement import (
+    GearRun,
+    gear_run_arrays,
+    mount_angular_velocity,
+    quasi_static_link_angles,
+    sensor_rotation,
+)
 from jaxrobot.status import check
 
 MOVE_THRESHOLD_RAD = math.radians(1.0)
@@ -200,7 +206,7 @@ def _rest_samples(theta: np.ndarray, ts: float) -> np.ndarray:
 
 
 def prepare_gear_runs(
-    runs: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    runs: GearRun | list,
     cutoff_hz: dict[int, float],
     u0: np.ndarray,
     names: list[str] | None = None,
@@ -208,7 +214,8 @@ def prepare_gear_runs(
     """Check raw runs and pack them into a padded `GearBatch`.
 
     **Arguments:**
-    - `runs`: `(t (N,) s, theta (N, n) rad, gyro (N, 3) rad/s)` per run, lengths may differ.
+    - `runs`: a `GearRun` or a list of `GearRun`s and `(t (N,) s, theta (N, n) rad, gyro (N, 3) rad/s)` tuples
+      (`jaxrobot.measurement.gear_run_arrays`), lengths may differ.
     - `cutoff_hz`: 3 dB cut-off of the Gaussian filter per 1-based joint (eq. 3.2, Table A.4).
     - `u0`: (n,) basic ratios of the model, to express segment lengths on the link side.
     - `names`: labels for error messages (file names).
@@ -217,6 +224,7 @@ def prepare_gear_runs(
     constant-speed segment too short
     to resolve any gear order (`MIN_CYCLES` cycles of the highest order in the passband).
     """
+    runs = gear_run_arrays(runs, "runs")
     if not runs:
         raise ValueError("runs: expected at least one gear run, found none")
     names = names or [f"run {k}" for k in range(len(runs))]

@@ -9,36 +9,25 @@ quasi-static rest angles of the as-built robot, `q = phi - kappa^{-1}(g(q))` wit
 uses the ripple set of its direction (`cw` for a positive, `ccw` for a negative motor speed). The
 20-bit motor encoders are sampled at 1 kHz; a 3-axis gyroscope on the moving link measures the
 link's angular velocity in a frame misaligned from the joint axis by `Rx(alpha) Ry(beta)` (eq. 3.3,
-`jaxrobot.measurement.sensor_rotation`), with white noise and a small constant bias. Also: the
-gear-run CSV format (docs/file-formats.md).
+`jaxrobot.measurement.sensor_rotation`), with white noise and a small constant bias.
 """
 
 from __future__ import annotations
 
-import csv
-import dataclasses
 import math
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._description import read_description
 from .._gear import gear_output, gear_ratio
 from .._program_cache import cached_program
 from .._robot import Robot
+from ..io._description import read_description
+from ..measurement._gear_run import GearRun
 from ..measurement._gyroscope import mount_angular_velocity, sensor_rotation
 from ..measurement._model import quasi_static_link_angles
-from ._trajectory import file_joint_count, read_csv_columns, theta_columns
-
-
-def gear_run_columns(n: int) -> tuple[str, ...]:
-    """Columns of a gear-run file of an `n`-joint robot (docs/file-formats.md): time [s], motor angles [deg],
-    gyroscope [deg/s]."""
-    return ("t_s", *theta_columns(n), "gyro_x_deg_s", "gyro_y_deg_s", "gyro_z_deg_s")
-
 
 GEAR_RUN_DEFAULTS = {
     1: {"motor_speed_deg_s": 7468.0, "range_deg": 220.0, "centre_deg": 0.0, "validation_speed_deg_s": 3734.0},
@@ -60,33 +49,6 @@ GYRO_BIAS_DEG_S = 0.005
 
 REST_S = 0.2
 """Rest before and after the motion [s]; lets the processing estimate the gyroscope bias."""
-
-
-@dataclasses.dataclass(frozen=True)
-class GearRuns:
-    """Plain arrays of `R` runs of one joint (`gear_runs`), all of `N` samples of an `n`-joint robot:
-    the measurements and their noise-free truth."""
-
-    t: np.ndarray
-    """(N,) sample times from the start of each run [s] (the same for every run)."""
-    theta: np.ndarray
-    """(R, N, n) measured motor angles, quantised to the encoder's counts per revolution [rad]."""
-    gyro: np.ndarray
-    """(R, N, 3) measured angular velocity of the moving link in the (misaligned) gyroscope frame,
-    with white noise and a constant bias per run [rad/s]."""
-    ccw: np.ndarray
-    """(R,) bool direction of each run: True for a negative motor speed (the `ccw` gear set)."""
-    link_angles: np.ndarray
-    """(R, N, n) noise-free link angles at quasi-static rest under gravity [rad]."""
-    link_rate: np.ndarray
-    """(R, N) noise-free angular velocity of the moving link about its joint axis [rad/s]."""
-    gyro_true: np.ndarray
-    """(R, N, 3) noise-free, bias-free `gyro` [rad/s]."""
-    metadata: dict
-    """The settings, units in the key names: `joint` (1-based), `motor_speed_deg_s`, `range_deg`,
-    `centre_deg`, `ramp_s`, `rest_s`, `sample_time_s`, `encoder_counts_per_rev`, `gyro_noise_deg_s`, the
-    drawn `gyro_bias_deg_s` (R, 3), `misalignment_rad` (alpha, beta), `hold_q_deg`, `directions` (R,),
-    `seed` (None when a key was given)."""
 
 
 def motion_profile(
@@ -196,7 +158,7 @@ def gear_runs(
     misalignment_rad: tuple[float, float] | None = None,
     rest_s: float = REST_S,
     description: dict | None = None,
-) -> GearRuns:
+) -> GearRun:
     """Bench runs of one joint (thesis 3.1.1): `repetitions` runs per direction.
 
     **Arguments:**
@@ -211,7 +173,7 @@ def gear_runs(
     - `gyro_noise_deg_s`, `misalignment_rad`: default `description["sensors"]` (racer7.toml's where absent).
     - `gyro_bias_deg_s`: std of the constant bias per axis and run.
 
-    **Returns:** `GearRuns`.
+    **Returns:** `GearRun` of the `R` runs (leading axis), with their noise-free truth.
     """
     desc = read_description(None) if description is None else description
     sensors = {**read_description(None)["sensors"], **desc.get("sensors", {})}  # missing keys: the bench's
@@ -300,37 +262,7 @@ def gear_runs(
         "misalignment_rad": mis, "hold_q_deg": tuple(hold_q_deg), "directions": tuple(dirs),
         "seed": seed if isinstance(seed, int) else None,
     }
-    return GearRuns(
+    return GearRun(
         t=np.asarray(t), theta=np.stack(out["theta"]), gyro=np.stack(out["gyro"]),
         ccw=np.array([d == "ccw" for d in dirs]), link_angles=np.stack(out["q"]),
         link_rate=np.stack(out["rate"]), gyro_true=np.stack(out["gyro_true"]), metadata=meta)
-
-
-def write_gear_run(
-    path: str | Path, t: np.ndarray, theta: np.ndarray, gyro: np.ndarray
-) -> None:
-    """Write one run in the gear-run format (docs/file-formats.md): `t` (N,) s, `theta` (N, n) rad,
-    `gyro` (N, 3) rad/s; the file holds degrees as its column names say."""
-    t, theta, gyro = np.asarray(t, float), np.asarray(theta, float), np.asarray(gyro, float)
-    n = t.shape[0] if t.ndim == 1 else -1
-    if t.ndim != 1 or theta.ndim != 2 or theta.shape[0] != n or gyro.shape != (n, 3):
-        raise ValueError(f"write_gear_run: expected t (N,), theta (N, n), gyro (N, 3), found "
-                         f"{t.shape}, {theta.shape}, {gyro.shape}")
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(gear_run_columns(theta.shape[1]))
-        th, gy = np.rad2deg(theta), np.rad2deg(gyro)
-        for k in range(n):
-            w.writerow([f"{t[k]:.6f}", *(f"{x:.12g}" for x in th[k]), *(f"{x:.9g}" for x in gy[k])])
-
-
-def read_gear_run(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Read one gear-run file (docs/file-formats.md; extra columns are ignored).
-
-    **Returns:** `t` (N,) s, `theta` (N, n) rad, `gyro` (N, 3) rad/s. Empty cells and `nan`
-    come back as NaN (the processing rejects them with the row named).
-    """
-    columns = gear_run_columns(file_joint_count(path))
-    cols = read_csv_columns(path, list(columns), reject_nan=False, min_rows=2)
-    data = np.column_stack([cols[c] for c in columns])
-    return data[:, 0], np.deg2rad(data[:, 1:-3]), np.deg2rad(data[:, -3:])

@@ -5,14 +5,10 @@ The as-built robot rests at commanded motor angles `theta`; its link angles are
 `Xi^{-1}(theta)` plus the gravity deflection (`jaxrobot.measurement`, thesis 3.2.3); the tracker
 reports the world position of a marker body fixed in the tool frame (the flange frame for the
 identity tool) with Gaussian noise, and optionally its orientation as a unit quaternion.
-Also: random fleets of as-built robots, and the pose CSV format (docs/file-formats.md).
+Also: random fleets of as-built robots.
 """
 
 from __future__ import annotations
-
-import csv
-import dataclasses
-from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -20,23 +16,17 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from .._description import read_description
 from .._program_cache import cached_program
 from .._robot import Robot
 from .._rotations import rotation_to_quaternion, rotvec_to_rotation
 from .._status import require_successful
+from ..io._description import read_description
 from ..measurement._model import measured_pose
-from ._trajectory import file_joint_count, read_csv_columns, theta_columns, trajectory_run_step
+from ..measurement._poses import Poses
 
 ORIENTATION_NOISE_RAD = float(np.deg2rad(0.05))
 """Default std per axis of the tracker's orientation error [rad]: the 0.05 deg camera
 specification quoted in thesis 3.2.1 (the thesis found its real orientation data unusable)."""
-
-POSITION_COLUMNS = ("x_m", "y_m", "z_m")
-"""Required columns of a pose file (docs/file-formats.md) after the motor angles `theta1_deg … thetan_deg` [deg]:
-marker position [m]."""
-QUAT_COLUMNS = ("qx", "qy", "qz", "qw")
-"""Optional columns: measured marker orientation as a unit quaternion (scalar last)."""
 
 # Parameters of the Racer-7 that deviate in the as-built robot (the entries of thesis Table 3.8);
 # `draw_fleet` puts random deviations on them (on all but the last joint for other robots).
@@ -46,27 +36,6 @@ _FLEET_MASK = {
     "alpha": np.array([1, 1, 1, 1, 1, 0], bool),
     "beta": np.array([0, 0, 1, 0, 0, 0], bool),
 }
-
-
-@dataclasses.dataclass(frozen=True)
-class PoseMeasurements:
-    """Plain arrays of one bench session (`measure_poses`): K poses of an n-joint robot, leading axes
-    `*b` = robots of a fleet, if any; the measurements and their noise-free truth."""
-
-    motor_angles: np.ndarray
-    """(*b, K, n) commanded motor angles at rest [rad] (broadcast to the fleet)."""
-    positions: np.ndarray
-    """(*b, K, 3) measured world positions of the marker, with Gaussian noise [m]."""
-    quaternions: np.ndarray | None
-    """(*b, K, 4) measured world orientations of the marker as unit quaternions (qx, qy, qz, qw),
-    with a random rotation error; None unless `orientation`."""
-    link_angles: np.ndarray
-    """(*b, K, n) noise-free link angles at rest under gravity [rad]."""
-    true_positions: np.ndarray
-    """(*b, K, 3) noise-free world positions of the marker [m]."""
-    metadata: dict
-    """The settings, units in the key names: `seed`, `position_noise_m`, `orientation_noise_rad` (None
-    without orientation), `marker_offset_m`, `ccw` (as given) and `robot` (its name)."""
 
 
 _measure = cached_program(filter=True)(measured_pose)
@@ -86,7 +55,7 @@ def measure_poses(
     orientation: bool = False,
     orientation_noise: float = ORIENTATION_NOISE_RAD,
     ccw: bool | Bool[Array, "*b K n"] = False,
-) -> PoseMeasurements:
+) -> Poses:
     """Tracker measurements of `truth` resting at `motor_angles` (thesis 3.2.3, docs/model.md (3.6)).
 
     **Arguments:**
@@ -99,8 +68,9 @@ def measure_poses(
       rotated by a random rotation vector with this std per axis [rad].
     - `ccw`: gear set of the last approach direction (default `cw`, docs/model.md (B.1)).
 
-    **Returns:** `PoseMeasurements` (plain numpy arrays plus metadata). Raises the status message
-    where the rest fixed point failed (`jaxrobot.measurement.rest_link_angles`; never for the default robot).
+    **Returns:** `Poses` (plain numpy arrays; `ccw` broadcast to the poses, None for the default `cw`) with
+    their noise-free truth and metadata. Raises the status message where the rest fixed point failed
+    (`jaxrobot.measurement.rest_link_angles`; never for the default robot).
     """
     sensors = read_description(None)["sensors"]
     marker = np.asarray(sensors["tracker_marker_offset_m"] if marker is None else marker, float)
@@ -127,7 +97,9 @@ def measure_poses(
             "orientation_noise_rad": orientation_noise if orientation else None,
             "marker_offset_m": marker.tolist(), "ccw": np.asarray(ccw).tolist(),
             "robot": truth.name}
-    return PoseMeasurements(np.asarray(theta), np.asarray(noisy), quat, np.asarray(q), np.asarray(p), meta)
+    given = None if np.ndim(ccw) == 0 and not ccw else np.broadcast_to(np.asarray(ccw, bool), theta.shape)
+    return Poses(np.asarray(theta), np.asarray(noisy), quat, given,
+                 link_angles=np.asarray(q), true_positions=np.asarray(p), metadata=meta)
 
 
 def draw_fleet(
@@ -150,7 +122,7 @@ def draw_fleet(
     """
     data = read_description(None)
     if robot is None:
-        from .._description import racer7
+        from ..io._description import racer7
 
         robot = racer7()
     dev = data["as_built"]
@@ -177,64 +149,3 @@ def draw_fleet(
     names = tuple(upd)
     return eqx.tree_at(lambda r: tuple(getattr(r, k) for k in names), fleet,
                        tuple(jnp.asarray(upd[k]) for k in names))
-
-
-def write_pose_csv(
-    path: str | Path,
-    motor_angles: Float[Array, "K n"],
-    positions: Float[Array, "K 3"],
-    quaternions: Float[Array, "K 4"] | None = None,
-) -> None:
-    """Write a pose file (docs/file-formats.md): `theta1_deg … thetan_deg, x_m, y_m, z_m[, qx, qy, qz, qw]`."""
-    theta = np.rad2deg(np.asarray(motor_angles, float))
-    pos = np.asarray(positions, float)
-    if theta.ndim != 2 or pos.shape != (theta.shape[0], 3):
-        raise ValueError(f"write_pose_csv: expected motor_angles (K, n) and positions (K, 3), "
-                         f"found {theta.shape} and {pos.shape}")
-    cols = [theta, pos]
-    header = [*theta_columns(theta.shape[1]), *POSITION_COLUMNS]
-    if quaternions is not None:
-        cols.append(np.asarray(quaternions, float).reshape(-1, 4))
-        header += list(QUAT_COLUMNS)
-    table = np.concatenate(cols, 1)
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        w.writerows([[repr(float(v)) for v in row] for row in table])
-
-
-@dataclasses.dataclass(frozen=True)
-class PoseFile:
-    """The measurements of a pose file (docs/file-formats.md), K poses of an n-joint robot."""
-
-    motor_angles: np.ndarray
-    """(K, n) motor angles at rest [rad]."""
-    positions: np.ndarray
-    """(K, 3) measured marker positions [m]."""
-    quaternions: np.ndarray | None = None
-    """(K, 4) measured marker orientations (qx, qy, qz, qw), None without the columns."""
-    ccw: np.ndarray | None = None
-    """(K, n) bool direction of approach per joint (True: ccw gear set), as `identification.read_poses`
-    finds it by its convention; None from `read_pose_csv`."""
-
-
-def read_pose_csv(path: str | Path, *, reject_nan: bool = True) -> PoseFile:
-    """Read a pose file (docs/file-formats.md); extra columns are ignored.
-
-    Raises `ValueError` naming missing columns, non-numeric cells and NaN rows (`read_csv_columns`;
-    `reject_nan=False`: NaN where cells are empty or `nan`), and for a trajectory run
-    (`trajectory_run_step`), which is evidence of the motion, never a set of poses.
-    """
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"pose file {path} does not exist")
-    step = trajectory_run_step(path)
-    if step is not None:
-        raise ValueError(f"{path}: a trajectory run (t_s in equal steps of {1e3 * step:g} ms: a moving robot sampled "
-                         "by the tracker), not static poses; give it as a run with its command: `jaxrobot diagnose "
-                         "--runs RUN.csv --commands CMD.csv` or `jaxrobot compare --run RUN.csv --command CMD.csv`")
-    thetas = theta_columns(file_joint_count(path))
-    cols = read_csv_columns(path, [*thetas, *POSITION_COLUMNS], list(QUAT_COLUMNS), reject_nan=reject_nan)
-    quat = np.column_stack([cols[c] for c in QUAT_COLUMNS]) if QUAT_COLUMNS[0] in cols else None
-    return PoseFile(np.deg2rad(np.column_stack([cols[c] for c in thetas])),
-                    np.column_stack([cols[c] for c in POSITION_COLUMNS]), quat)

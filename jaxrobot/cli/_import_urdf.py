@@ -37,8 +37,8 @@ def run(args, echo) -> dict:
     section)."""
     import tomli_w
 
-    from .._description import robot_from_description
-    from .._urdf import read_urdf, urdf_chain
+    from ..io._description import robot_from_description
+    from ..io._urdf import read_urdf, urdf_chain
     from ._info import _table
 
     if args.out is None:

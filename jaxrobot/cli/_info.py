@@ -96,7 +96,7 @@ def _report(robot, echo) -> dict:
 
 
 def run(args, echo) -> dict:
-    from .._description import load_robot, racer7
+    from ..io._description import load_robot, racer7
 
     robot = racer7(args.as_built) if args.model is None else load_robot(args.model, args.as_built)
     info = _report(robot, echo)
@@ -111,7 +111,7 @@ def run(args, echo) -> dict:
 def stage(out: Path, echo) -> dict:
     """Demo stage 1: the model, and the flat inverse tracking a joint move on the simulated plant.
     **Returns:** `summary` plus `flat_inverse_tracking_error_rad` (float [rad], `move_tracking_error`)."""
-    from .._description import racer7
+    from ..io._description import racer7
 
     robot = racer7()
     info = _report(robot, echo)

@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot.bench import read_csv_columns, write_command_csv
 from jaxrobot.cli import Progress, SolveFailed, add_model_option, suggestion
+from jaxrobot.io import read_csv_columns, write_command_csv
 
 from .._bandwidth import bandwidth, control_spectrum
 from .._evaluation import METHODS
@@ -262,10 +262,10 @@ def run(args, echo) -> dict:
 
 def demo_stage(out: Path, echo) -> dict:
     """Planning stage of `jaxrobot demo`: the line at nu = 1e-14 planned on the nominal model and evaluated on
-    it (the model's own error), then planned on the model the demo calibrates (`bench_calibration`, as the
+    it (the model's own error), then planned on the model the demo calibrates (`demo_calibration`, as the
     calibration stage) and evaluated on the test bench's as-built robot with its gears' flanks (the error on
     the robot). **Returns:** `summary` of the first plan, with `on_the_robot` the `summary` of the second."""
-    from identification.calibration import bench_calibration
+    from identification.calibration import demo_calibration
 
     robot = jr.racer7()
     echo("line, nu = 1e-14, planned on the nominal model, evaluated on it")
@@ -273,7 +273,7 @@ def demo_stage(out: Path, echo) -> dict:
     write_plots(result, out, "planning_line")
     tr = result.trajectories["ocp"]
     write_command_csv(out / "planning_line_motor.csv", result.joint_path.t, tr.theta, tr.thetad, tr.thetadd)
-    calibrated = bench_calibration().result.robot
+    calibrated = demo_calibration().result.robot
     echo("line, nu = 1e-14, planned on the calibrated model, evaluated on the as-built robot (gear flanks as states)")
     bench = plan(calibrated, jr.racer7(as_built=True), reference_path("line"), 1e-14, "thesis", echo, timing=False,
                  directional=True)

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot.bench import NOT_CONVERGED
 from jaxrobot.cli import Progress, SolveFailed, add_model_option
+from jaxrobot.io import NOT_CONVERGED
 
 from .._bandwidth import control_spectrum
 from .._sweep import check_nus

@@ -1,70 +1,14 @@
-"""Pose files for identification: the direction of approach as an explicit convention.
-
-docs/model.md (B.1): at rest a gear uses its `cw` set unless a direction of approach is given. A pose file
-carries no such information by itself: its rows may be re-sorted, merged, or measured along paths
-that do not move joint by joint. So the direction is a convention the user states (`approach`):
-
-- `cw`: every gear at rest uses its `cw` set (the default, docs/model.md (B.1));
-- `order`: the rows are in the order measured, each joint approached from the previous row
-  (`jaxrobot.approach_directions`);
-- `column`: the file gives it, one column `approach1…approachn` per joint, +1 (cw) or -1 (ccw).
-"""
+"""Checks of pose data before any fit: magnitudes that betray a unit mistake (millimetres in the metre
+columns, link or radian angles in the motor-degree columns)."""
 
 from __future__ import annotations
-
-import dataclasses
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot.bench import PoseFile, read_csv_columns, read_pose_csv
-from jaxrobot.measurement import approach_directions, marker_pose
-
-APPROACHES = ("cw", "order", "column")
-"""The conventions for the direction of approach of a pose file (`--approach`)."""
-
-
-def approach_columns(n: int) -> list[str]:
-    """Names of the optional per-joint direction columns of a pose file."""
-    return [f"approach{j}" for j in range(1, n + 1)]
-
-
-def approach_ccw(motor_angles, approach: str = "cw", column=None, name: str = "poses") -> np.ndarray:
-    """Direction of approach `ccw` (K, n) of poses under the convention `approach` (see the module);
-    `column` (K, n) holds the file's `approach1…n` values (+1 cw, -1 ccw) for `approach="column"`."""
-    th = np.asarray(motor_angles, float)
-    if approach not in APPROACHES:
-        raise ValueError(f"approach: expected one of {list(APPROACHES)}, found {approach!r}")
-    if approach == "cw":
-        return np.zeros(th.shape, bool)
-    if approach == "order":
-        return np.asarray(approach_directions(th))
-    if column is None:
-        raise ValueError(f"{name}: approach 'column' needs the columns {approach_columns(th.shape[-1])} "
-                         "(+1 cw, -1 ccw per joint); the file has none; use --approach cw or order")
-    col = np.asarray(column, float)
-    bad = np.argwhere(~np.isin(col, (-1.0, 1.0)))
-    if bad.size:
-        r, j = bad[0]
-        raise ValueError(f"{name}: approach{j + 1} in data row {r + 1}: expected +1 (cw) or -1 (ccw), "
-                         f"found {col[r, j]:g}")
-    return col < 0
-
-
-def read_poses(path: str | Path, approach: str = "cw", *, reject_nan: bool = True) -> PoseFile:
-    """Read a pose file (docs/file-formats.md) with the direction of approach of the convention
-    `approach`: `jaxrobot.bench.read_pose_csv`'s `PoseFile` (`reject_nan` as there) with its `ccw` (K, n) set."""
-    data = read_pose_csv(path, reject_nan=reject_nan)
-    n = data.motor_angles.shape[1]
-    column = None
-    if approach == "column":
-        cols = read_csv_columns(path, [], approach_columns(n))
-        column = np.column_stack([cols[c] for c in approach_columns(n)]) if cols else None
-    return dataclasses.replace(data, ccw=approach_ccw(data.motor_angles, approach, column, str(path)))
-
+from jaxrobot.measurement import marker_pose
 
 GROSS_ERROR_M = 0.05
 """Model and measured marker positions farther apart (RMS) than this mean wrong units or columns:

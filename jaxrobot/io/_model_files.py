@@ -6,20 +6,22 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import tomli_w
 
-import jaxrobot as jr
+from .._robot import Robot
+from ._description import description_of, read_description
 
 KEPT_SECTIONS = ("sensors", "calibration", "poses", "trajectories")
 """Sections of the start file that describe the cell, not the robot: carried over unchanged."""
 
 
-def save_model(robot: jr.Robot, path: str | Path, start: str | Path | None = None, ranges: dict | None = None) -> None:
+def save_model(robot: Robot, path: str | Path, start: str | Path | None = None, ranges: dict | None = None) -> None:
     """Write `robot` (format of `racer7.toml`) keeping `KEPT_SECTIONS` of the start file `start`
     (default: the embedded description); `ranges` `{(joint, "cw"/"ccw"): (lo, hi) deg}` become the
     sets' `identified_range_deg`."""
-    data = jr.description_of(robot)
-    desc = jr.read_description(start)
+    data = description_of(robot)
+    desc = read_description(start)
     ranges = dict(ranges or {})
     for name, sets in desc.get("gear", {}).items():  # a set carried over unchanged keeps its range
         for direction, rip in (sets.items() if name.startswith("joint") else ()):
@@ -43,9 +45,7 @@ def ripple_outside_range(path: str | Path | None, motor_angles, ccw, u0) -> dict
     they rest on (robot file `path`): `{joint: {"range_deg", "direction", "poses"}}`, only joints with
     such poses. There the identified Fourier set is an extrapolation (a short range fixes a cluster
     of close orders only inside it)."""
-    import numpy as np
-
-    gear = jr.read_description(path).get("gear", {})
+    gear = read_description(path).get("gear", {})
     phi = np.degrees(np.asarray(motor_angles, float) / np.asarray(u0, float))
     ccw = np.broadcast_to(np.asarray(ccw, bool), phi.shape)
     out = {}

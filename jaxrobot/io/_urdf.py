@@ -48,10 +48,10 @@ from typing import Any
 
 import numpy as np
 
-from ._description import RobotFileError, validate
-from ._kinematics import dh_transform
-from ._robot import Robot
-from ._rotations import pose_matrix, rot_x, rot_z
+from .._kinematics import dh_transform
+from .._robot import Robot
+from .._rotations import pose_matrix, rot_x, rot_z
+from ._schema import RobotFileError, validate
 
 EFFORT_LIMIT = 1.0e4
 """URDF `<limit effort>` [N m] of every joint. The model has no torque limits, so this is a

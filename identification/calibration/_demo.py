@@ -1,4 +1,5 @@
-"""Bench data of the calibration workflows: tracker measurements of a fleet of drawn robots
+"""Demo data of the calibration workflows, drawn on the virtual test bench (`jaxrobot.bench`): tracker
+measurements of a fleet of drawn robots
 (`calibrate-fleet --bench`), independent of the process count, and the calibration of the as-built
 Racer-7 on the bench (`jaxrobot demo`)."""
 
@@ -12,13 +13,13 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
-from jaxrobot.bench import PoseMeasurements, draw_fleet, measure_poses
-from jaxrobot.measurement import measured_pose
+from jaxrobot.bench import draw_fleet, measure_poses
+from jaxrobot.measurement import Poses, measured_pose
 from jaxrobot.status import require_successful
 
 from ._calibrate import DEFAULT_PARAMETERS, CalibrationResult, calibrate
-from ._parameters import ParameterMap
-from ._pose_selection import DetmaxResult, default_marker, detmax, random_feasible_poses
+from ..core._parameters import ParameterMap
+from ..core._pose_selection import DetmaxResult, default_marker, detmax, random_feasible_poses
 
 
 @eqx.filter_jit
@@ -38,12 +39,12 @@ def _rest_poses(nominal, truth, q, marker):
 
 
 def fleet_measurements(n_robots: int, n_poses: int, rows: range, seed: int = 0, nominal: jr.Robot | None = None,
-                       marker=None) -> PoseMeasurements:
+                       marker=None) -> Poses:
     """Tracker measurements of the robots `rows` of `draw_fleet(n_robots, seed, nominal)` (default the
     nominal Racer-7), each at its own `n_poses` random feasible poses (one pool,
     `random_feasible_poses`) held at the nominal robot's static equilibrium, the marker at `marker`
     (default `[sensors]`), with noise of its own seed: a robot's data do not depend on `rows`.
-    `PoseMeasurements` with leading axis `len(rows)` (`link_angles` are the nominal robot's held `q`)."""
+    `Poses` with leading axis `len(rows)` (`link_angles` are the nominal robot's held `q`)."""
     if n_robots < 1 or n_poses < 1:
         raise ValueError(f"n_robots, n_poses: expected >= 1 robots and poses, found {n_robots} and {n_poses}")
     nominal = jr.racer7() if nominal is None else nominal
@@ -58,12 +59,12 @@ def fleet_measurements(n_robots: int, n_poses: int, rows: range, seed: int = 0, 
     noise = np.stack([sigma * np.random.default_rng([seed, r, 1]).standard_normal((n_poses, 3)) for r in rows])
     meta = {"seed": seed, "position_noise_m": sigma, "orientation_noise_rad": None,
             "marker_offset_m": marker.tolist(), "ccw": False, "robot": nominal.name}
-    return PoseMeasurements(theta, exact + noise, None, q, exact, meta)
+    return Poses(theta, exact + noise, link_angles=q, true_positions=exact, metadata=meta)
 
 
 @dataclasses.dataclass(frozen=True)
-class BenchCalibration:
-    """The calibration of the as-built Racer-7 on the bench (`bench_calibration`)."""
+class DemoCalibration:
+    """The calibration of the as-built Racer-7 on the bench (`demo_calibration`)."""
 
     truth: jr.Robot
     """The as-built robot that was measured."""
@@ -71,7 +72,7 @@ class BenchCalibration:
     """The start robot of the calibration."""
     selection: DetmaxResult
     """The validation poses DETMAX chose."""
-    measurements: PoseMeasurements
+    measurements: Poses
     """One bench session: the identification poses first, then the validation poses."""
     n_identification: int
     """Identification poses at the start of `measurements`."""
@@ -79,7 +80,7 @@ class BenchCalibration:
     """The calibration of `nominal` on them."""
 
 
-def bench_calibration() -> BenchCalibration:
+def demo_calibration() -> DemoCalibration:
     """The calibration workflow of `jaxrobot demo`: bench data of the as-built Racer-7 at the 50 thesis
     poses (toml `[poses]`) and 13 validation poses chosen by DETMAX, one bench session; the nominal
     robot calibrated on them."""
@@ -90,4 +91,4 @@ def bench_calibration() -> BenchCalibration:
     k = theta.shape[0]
     res = calibrate(nominal, both.motor_angles[:k], both.positions[:k],
                     validation=(both.motor_angles[k:], both.positions[k:]))
-    return BenchCalibration(truth, nominal, sel, both, k, res)
+    return DemoCalibration(truth, nominal, sel, both, k, res)

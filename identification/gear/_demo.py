@@ -1,4 +1,4 @@
-"""Bench runs of the gear identification workflow (`jaxrobot demo`, tests): joints 1-3 of the as-built
+"""Demo runs of the gear identification workflow (`jaxrobot demo`, tests): joints 1-3 of the as-built
 Racer-7 on the virtual test bench."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ the other speed (`GEAR_RUN_DEFAULTS`)."""
 
 
 @dataclasses.dataclass(frozen=True)
-class BenchGearRuns:
+class DemoGearRuns:
     """Gear runs of the bench, each `(t (N,) s, theta (N, n) rad, gyro (N, 3) rad/s)` (`identify_gear`'s)."""
 
     runs: list
@@ -27,7 +27,7 @@ class BenchGearRuns:
     """Name of each validation run."""
 
 
-def bench_runs(seed: int = 0, repetitions: dict | None = None) -> BenchGearRuns:
+def demo_runs(seed: int = 0, repetitions: dict | None = None) -> DemoGearRuns:
     """Bench runs of joints 1-3 of the as-built Racer-7: identification runs and validation runs
     (same speed, then the other speed), with names; `repetitions` updates `DEMO_REPETITIONS`."""
     reps = dict(DEMO_REPETITIONS, **(repetitions or {}))
@@ -50,4 +50,4 @@ def bench_runs(seed: int = 0, repetitions: dict | None = None) -> BenchGearRuns:
             for k, ccw in enumerate(other.ccw):
                 val.append((other.t, other.theta[k], other.gyro[k]))
                 val_names.append(f"joint{joint}_{'ccw' if ccw else 'cw'}_{slow:.0f}_{k + 1}")
-    return BenchGearRuns(ident, val, ident_names, val_names)
+    return DemoGearRuns(ident, val, ident_names, val_names)

@@ -1,0 +1,16 @@
+"""What the identification workflows share; `gear`, `calibration` and `diagnosis` import this package,
+never each other.
+
+- `_parameters`: parameter maps (`ParameterMap`, names such as `a3`, `u0_5`, `tool_x`), the robot with
+  them applied, and the rest-pose + marker forward model of a pose (`predict_pose`, thesis 3.2.3).
+- `_forward`: the same chain with the per-pose constants of an LM solve hoisted, and the identification
+  Jacobian of the marker position by the joint parameters (`position_jacobian`, thesis 3.2.2).
+- `_identifiability`, `_observability`, `_pose_selection`: which parameters the poses identify (QR
+  pivoting of the scaled Jacobian), observability indices, random feasible poses and DETMAX.
+- `_batched_lm`: Levenberg-Marquardt on a batch of independent problems (fleets, candidate fits).
+- `_noise`, `_robust`, `_pose_checks`: the tracker's noise model and chi-square test, robust losses
+  (IRLS weights, outliers), and the unit and consistency checks of pose measurements.
+
+The discrepancy workflow's own chain (rest pose with backlash, compliance and approach-dependent gear
+sets, `identification.diagnosis._model`) is a layout of effects on top of these parameters.
+"""
