@@ -1,8 +1,8 @@
 """Identification from measurements: gear ratios (`gear`), kinematic calibration (`calibration`) and
 the discrepancy workflow (`diagnosis`). The workflows and the effect catalogue are exported here."""
 
-from jaxrobot.checks import check_public as _check_public
-from jaxrobot.checks import deprecated_aliases as _deprecated_aliases
+from jaxrobot.internal import check_public as _check_public
+from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
 from ._noise import TrackerNoise as TrackerNoise
 from ._pose_checks import check_pose_units as check_pose_units

@@ -34,6 +34,7 @@ from identification.calibration._pose_selection import (
 )
 from identification.calibration._report import calibration_report, error_table, parameter_table
 from jaxrobot.bench import measure_poses
+from jaxrobot.internal import shard_rows
 from jaxrobot.io import read_poses, write_poses
 
 N_SE = 3.0
@@ -582,7 +583,7 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
     pos[1, 4, 0] = np.nan
     mesh = fleet_mesh()
     fleet = jax.tree.map(lambda x: np.broadcast_to(x, (3,) + np.shape(x)), nominal)
-    (fleet, g_theta, g_pos), _ = jr.shard_rows((fleet, theta, pos), mesh)
+    (fleet, g_theta, g_pos), _ = shard_rows((fleet, theta, pos), mesh)
     params, rippled = ParameterMap(DEFAULT_PARAMETERS), rippled_joints(nominal)
     q0, defl = _fleet_constants(fleet, g_theta, rippled, mesh)
     config = jax.tree.map(jnp.asarray, LMConfig())

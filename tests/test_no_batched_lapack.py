@@ -51,7 +51,7 @@ def _cases():
     from identification.calibration._pose_selection import _feasible
     from identification.gear._processing import normal_solve
     from jaxrobot._summary import _numbers
-    from jaxrobot.linalg import cholesky, cholesky_solve, spd_solve
+    from jaxrobot.internal import cholesky, cholesky_solve, spd_solve
     from planning._ik import _starts, singular_values
 
     path, t = _line()

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import planning as pl
+from planning.internal import motor_directions
 from planning import _transcription as tr
 from planning._block_tridiagonal import block_cholesky, block_tridiagonal_matvec, block_tridiagonal_solve
 from planning._al_solver import history_length
@@ -375,7 +376,7 @@ def test_motor_directions_keep_the_plan_to_the_task(robot, q_d):
     rates reach the task's reversals), and the cost rises by less than 1 %."""
     t = jnp.arange(N) * TS
     flat = pl.MotorTrajectory(*jax.jit(lambda t: jr.flat_inverse(robot, lambda x: _move_at(x / t[-1]), t))(t))
-    direction = pl.motor_directions(flat.thetad)
+    direction = motor_directions(flat.thetad)
     free, bound = (pl.solve_ocp(robot, q_d, TS, 1e-10, direction=d) for d in (None, direction))
     assert bool(free.converged) and bool(bound.converged), (jr.status_name(free.status), jr.status_name(bound.status))
     wrong_way = lambda sol: float(jnp.max(-direction * sol.thetad))  # noqa: E731

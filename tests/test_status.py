@@ -43,7 +43,7 @@ def test_throw_raises_the_message_under_jit_and_vmap():
 
 
 def test_require_successful_raises_on_the_host_with_the_first_failure():
-    from jaxrobot.status import require_successful
+    from jaxrobot.internal import require_successful
 
     ok = where(jnp.ones((2, 3), bool), jr.RESULTS.successful, jr.RESULTS.nonfinite)
     require_successful(ok, "poses")  # all successful: no error

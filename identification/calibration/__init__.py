@@ -1,7 +1,7 @@
 """Kinematic calibration of one robot and of fleets: parameters, identifiability, pose sets, LM/MAP (thesis ch. 3.3)."""
 
-from jaxrobot.checks import check_public as _check_public
-from jaxrobot.checks import deprecated_aliases as _deprecated_aliases
+from jaxrobot.internal import check_public as _check_public
+from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
 from ._calibrate import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
 from ._calibrate import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD

@@ -25,9 +25,9 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
 import jaxrobot as jr
-from jaxrobot import RESULTS, cached_program
+from jaxrobot import RESULTS
+from jaxrobot.internal import cached_program, check
 from jaxrobot.measurement import Poses, marker_pose, pose_arrays
-from jaxrobot.status import check
 
 from .. import _robust as robust
 from .._noise import noise_model

@@ -1,8 +1,8 @@
 """Finding the effect that explains a gap between model and measurement (`diagnose`, the effect catalogue), and
 between the model and trajectory runs (`compare_run`, `diagnose_runs`)."""
 
-from jaxrobot.checks import check_public as _check_public
-from jaxrobot.checks import deprecated_aliases as _deprecated_aliases
+from jaxrobot.internal import check_public as _check_public
+from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
 from ._diagnose import AddedEffect as AddedEffect
 from ._diagnose import CandidateScore as CandidateScore

@@ -1,6 +1,6 @@
 """Gear-ratio identification from encoder + gyroscope runs (thesis ch. 3.2)."""
 
-from jaxrobot.checks import check_public as _check_public
+from jaxrobot.internal import check_public as _check_public
 
 from ._fit import DirectionTest as DirectionTest
 from ._fit import GearFit as GearFit

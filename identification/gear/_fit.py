@@ -31,7 +31,7 @@ from jaxrobot import (
     read_description,
     status_message,
 )
-from jaxrobot.linalg import map_matrices
+from jaxrobot.internal import map_matrices
 from jaxrobot.measurement import GearRun, gear_run_arrays
 
 from .._noise import chi2_quantile

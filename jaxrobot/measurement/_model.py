@@ -138,6 +138,6 @@ def measured_pose(
 ) -> tuple[Float[Array, "*b n"], Float[Array, "*b 3"], Float[Array, "*b 3 3"], RESULTS]:
     """Noise-free measurement at motor angles `theta`: link angles at rest, the marker's position and
     rotation there (`marker_pose`) and the status of the rest fixed point (`rest_solution`; the
-    caller raises on it, e.g. `jaxrobot.status.require_successful`)."""
+    caller raises on it, e.g. `jaxrobot.internal.require_successful`)."""
     q, result = rest_solution(robot, theta, ccw)
     return (q, *marker_pose(robot, q, marker), result)
