@@ -36,9 +36,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
-from identification import TrackerNoise, calibrate, read_poses
+from identification import TrackerNoise, calibrate, diagnose, read_poses
 from identification.calibration._parameters import ParameterMap, predict_pose, rest_deflection
-from identification.diagnosis import Poses, diagnose
+from identification.diagnosis import Poses
 from jaxrobot.io import read_csv_columns
 
 DIAGNOSE = ("cases/a0_clean", "cases/a1_joint3_offset", "cases/a2_joint4_softer", "cases/a3_payload",

@@ -124,7 +124,7 @@ def test_calibration_thesis_poses(robots, bench, calibrated):
 def test_map_covers_the_truth_on_the_bench(robots, thesis_theta, seed):
     """MAP (default set plus every offset and ratio, tolerance priors) on bench data of the as-built
     robot: every true deviation within 3 posterior sigma; the data determine what they can."""
-    from identification import map_parameters
+    from identification.calibration import map_parameters
 
     nominal, truth = robots
     m = measure_poses(truth, thesis_theta, seed=seed)
@@ -301,7 +301,7 @@ def test_observability_indices_of_known_singular_values_under_jit():
     = 1 for both, O2 = 1/4 and 1, O3 = 1 and 2, O4 = 1/4 and 2, O5 = 4/7 and 2/3; a pytree through jit."""
     import jax
 
-    from identification import ObservabilityIndices, observability_indices
+    from identification.calibration import ObservabilityIndices, observability_indices
 
     idx = jax.jit(observability_indices)(jnp.asarray([[1.0, 2.0, 4.0], [2.0, 2.0, 2.0]]), 4)
     assert isinstance(idx, ObservabilityIndices)

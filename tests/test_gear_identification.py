@@ -19,7 +19,8 @@ import pytest
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
-from identification import check_gear_run, identify_gear, prepare_gear_runs
+from identification import identify_gear
+from identification.gear import check_gear_run, prepare_gear_runs
 from identification.gear._demo import demo_runs
 from identification.gear._report import summary
 

@@ -17,7 +17,7 @@ from helpers import independent_data
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
-from identification.diagnosis import diagnose
+from identification import diagnose
 from identification.diagnosis import summary as diagnosis_summary
 from jaxrobot.io import read_poses
 from jaxrobot.measurement import Poses

@@ -3,15 +3,9 @@
 from jaxrobot.internal import check_public as _check_public
 from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
-from ._calibrate import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
-from ._calibrate import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
-from ._calibrate import CalibrationResult as CalibrationResult
-from ._calibrate import calibrate as calibrate
 from ._calibrate import map_parameters as map_parameters
 from ._demo import DemoCalibration as DemoCalibration
 from ._demo import demo_calibration as demo_calibration
-from ._fleet import FleetResult as FleetResult
-from ._fleet import calibrate_fleet as calibrate_fleet
 from ._identifiability import IdentifiabilityResult as IdentifiabilityResult
 from ._identifiability import default_parameters as default_parameters
 from ._identifiability import identifiability as identifiability
@@ -30,6 +24,12 @@ from ._selection import ParameterSelection as ParameterSelection
 _check_public(globals())
 
 __getattr__ = _deprecated_aliases(__name__, {
+    "CalibrationResult": "identification.CalibrationResult",
+    "DEFAULT_PARAMETERS": "identification.DEFAULT_PARAMETERS",
+    "DEFAULT_PRIOR_STD": "identification.DEFAULT_PRIOR_STD",
+    "FleetResult": "identification.FleetResult",
+    "calibrate": "identification.calibrate",
+    "calibrate_fleet": "identification.calibrate_fleet",
     "BenchCalibration": "identification.calibration.DemoCalibration",
     "bench_calibration": "identification.calibration.demo_calibration",
 })

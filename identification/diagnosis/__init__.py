@@ -6,11 +6,8 @@ from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
 from ._diagnose import AddedEffect as AddedEffect
 from ._diagnose import CandidateScore as CandidateScore
-from ._diagnose import DiagnoseEvent as DiagnoseEvent
-from ._diagnose import DiagnoseResult as DiagnoseResult
 from ._diagnose import Estimate as Estimate
 from ._diagnose import LoopRow as LoopRow
-from ._diagnose import diagnose as diagnose
 from ._effects import CATALOGUE as CATALOGUE
 from ._effects import Effect as Effect
 from ._effects import Layout as Layout
@@ -28,4 +25,9 @@ from ._runs import diagnose_runs as diagnose_runs
 
 _check_public(globals())
 
-__getattr__ = _deprecated_aliases(__name__, {"Poses": "jaxrobot.measurement.Poses"})
+__getattr__ = _deprecated_aliases(__name__, {
+    "DiagnoseEvent": "identification.DiagnoseEvent",
+    "DiagnoseResult": "identification.DiagnoseResult",
+    "diagnose": "identification.diagnose",
+    "Poses": "jaxrobot.measurement.Poses",
+})

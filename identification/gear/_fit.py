@@ -24,14 +24,13 @@ from jaxrobot import (
     RESULTS,
     Ripple,
     Robot,
-    cached_program,
     filter_cutoffs,
     fourier_ratio,
     fourier_xi_inverse,
     read_description,
     status_message,
 )
-from jaxrobot.internal import map_matrices
+from jaxrobot.internal import cached_program, map_matrices
 from jaxrobot.measurement import GearRun, gear_run_arrays
 
 from .._noise import chi2_quantile
