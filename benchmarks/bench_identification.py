@@ -26,7 +26,8 @@ import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records th
 import numpy as np
 
 import jaxrobot as jr
-from identification import DEFAULT_PARAMETERS, calibrate, calibration_report, diagnose, identify_gear
+from identification import DEFAULT_PARAMETERS, calibrate, diagnose, identify_gear
+from identification.calibration import calibration_report
 from identification.calibration._calibrate import map_parameters
 from identification.diagnosis import Poses
 from identification.diagnosis import summary as diagnosis_summary

@@ -9,7 +9,6 @@ from ._noise import TrackerNoise as TrackerNoise
 from ._pose_checks import check_pose_units as check_pose_units
 from ._robust import LOSSES as LOSSES
 from ._robust import Outlier as Outlier
-from .calibration import calibration_report as calibration_report
 from .calibration._calibrate import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
 from .calibration._calibrate import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
 from .calibration._calibrate import CalibrationResult as CalibrationResult
@@ -25,6 +24,7 @@ from .gear._fit import identify_gear as identify_gear
 _check_public(globals())
 
 __getattr__ = _deprecated_aliases(__name__, {
+    "calibration_report": "identification.calibration.calibration_report",
     "CATALOGUE": "identification.diagnosis.CATALOGUE",
     "DirectionTest": "identification.gear.DirectionTest",
     "Effect": "identification.diagnosis.Effect",

@@ -23,16 +23,10 @@ from ._evaluation import simulate_plans as simulate_plans
 from ._evaluation import summarize as summarize
 from ._ik import IKResult as IKResult
 from ._ik import JointPath as JointPath
-from ._ik import check_joint_path as check_joint_path
 from ._ik import default_start as default_start
 from ._ik import inverse_kinematics as inverse_kinematics
-from ._ik import joint_derivatives as joint_derivatives
 from ._ik import joint_path as joint_path
-from ._ik import pose_residual as pose_residual
-from ._ik import smooth_joint_path as smooth_joint_path
 from ._ik import task_start as task_start
-from ._ik import taylor_joint_path as taylor_joint_path
-from ._ocp import RESULTS as RESULTS
 from ._ocp import OCPSolution as OCPSolution
 from ._ocp import solve_ocp as solve_ocp
 from ._sweep import solve_ocp_sweep as solve_ocp_sweep
@@ -60,6 +54,11 @@ from ._workflow import sweep_task as sweep_task
 _check_public(globals())
 
 __getattr__ = _deprecated_aliases(__name__, {name: f"planning.internal.{name}" for name in (
+    "check_joint_path",
+    "joint_derivatives",
+    "pose_residual",
+    "smooth_joint_path",
+    "taylor_joint_path",
     "BlockCholesky",
     "block_cholesky",
     "block_cholesky_solve",
@@ -75,4 +74,4 @@ __getattr__ = _deprecated_aliases(__name__, {name: f"planning.internal.{name}" f
     "objective",
     "variable_scale",
     "warm_start",
-)})
+)} | {"RESULTS": "jaxrobot.RESULTS"})

@@ -185,5 +185,5 @@ def test_two_process_sweep_equals_separate_solves(tmp_path):
     assert sweep["u"].shape == (4,) + q_d.shape
     for i, nu in enumerate(nus):
         fields = {k: sweep[k][i] for k in sweep.files if k != "status"}
-        member = pl.OCPSolution(status=getattr(pl.RESULTS, str(sweep["status"][i])), **fields)
+        member = pl.OCPSolution(status=getattr(jr.RESULTS, str(sweep["status"][i])), **fields)
         _assert_same_optimum(tr.ocp_problem(robot, q_d, TS, float(nu)), member, pl.solve_ocp(robot, q_d, TS, float(nu)))

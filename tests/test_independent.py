@@ -243,7 +243,8 @@ def test_map_calibration_holds_on_independent_poses():
     """50 thesis poses of a robot with random deviations: MAP (default set plus every offset and ratio)
     validates within 1.15x the true robot's mean error and no worse than plain LM (by more than one
     standard error of a 30-pose mean), and every true deviation lies within 3 posterior sigma."""
-    from identification import DEFAULT_PARAMETERS, calibrate, calibration_report
+    from identification import DEFAULT_PARAMETERS, calibrate
+    from identification.calibration import calibration_report
     from identification.calibration._calibrate import map_parameters
 
     d = independent_data() / "calibration"

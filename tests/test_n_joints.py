@@ -17,8 +17,8 @@ import tomli_w
 import jaxrobot as jr
 import jaxrobot.bench as jb
 import planning as pl
-from identification import calibrate, calibration_report, diagnose
-from identification.calibration import default_parameters
+from identification import calibrate, diagnose
+from identification.calibration import calibration_report, default_parameters
 from identification.calibration._parameters import ParameterMap
 from identification.calibration._pose_selection import random_feasible_poses, rest_motor_angles
 from identification.diagnosis import summary as diagnosis_summary

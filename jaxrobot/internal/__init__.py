@@ -1,12 +1,11 @@
 """Infrastructure shared by `jaxrobot`, `identification` and `planning`, not part of the modelling API
 (as `optimistix.internal`): small linear algebra that never hands LAPACK a batch of matrices, the
 status helpers beside `jaxrobot.RESULTS`, argument checks, deprecated aliases, processes and the
-program and compilation caches. Names here may change between releases without an alias."""
+program cache. Names here may change between releases without an alias."""
 
 from .._batch import backend_kind as backend_kind
 from .._checks import check_public as check_public
 from .._checks import checked as checked
-from .._compilation_cache import enable as enable_compilation_cache
 from .._deprecation import deprecated_aliases as deprecated_aliases
 from .._deprecation import public_names as public_names
 from .._distributed import PROCESS_ENV as PROCESS_ENV

@@ -1,0 +1,108 @@
+"""The public faces: what each public package and module exports, counted, and one public path per name.
+
+`python tests/test_public_faces.py` prints the table of counts (the coordinator's and CONTRIBUTING's
+before/after table); it imports the packages found on `sys.path`, so it counts any checkout."""
+
+from __future__ import annotations
+
+import importlib
+import types
+import warnings
+
+import pytest
+
+PUBLIC = ("jaxrobot", "jaxrobot.measurement", "jaxrobot.io", "jaxrobot.bench", "jaxrobot.cli", "jaxrobot.internal",
+          "jaxrobot.linalg", "jaxrobot.status", "jaxrobot.checks", "identification", "identification.gear",
+          "identification.calibration", "identification.diagnosis", "planning", "planning.internal")
+"""Every module that is or was public; one that a checkout lacks is left out of the count."""
+
+ROOT_BUDGET = {"jaxrobot": 70, "identification": 20, "planning": 50}
+"""The most names a package root exports (optimistix exports about 60)."""
+
+
+def face(module: types.ModuleType) -> dict[str, object]:
+    """The names a module exports: its namespace without `_` names, submodules and imported modules
+    (deprecated aliases, served by the module's `__getattr__`, are not in the namespace)."""
+    return {k: v for k, v in vars(module).items() if not k.startswith("_") and not isinstance(v, types.ModuleType)}
+
+
+def faces() -> dict[str, dict[str, object]]:
+    """`face` of each module of `PUBLIC` that can be imported."""
+    out = {}
+    for name in PUBLIC:
+        try:
+            out[name] = face(importlib.import_module(name))
+        except ImportError:
+            continue
+    return out
+
+
+def _shared(found: dict[str, dict[str, object]]) -> dict[str, list[str]]:
+    """`module.name` paths that reach one object from more than one public module, by object (numbers,
+    strings and `None`, equal by value rather than identity, are left out)."""
+    paths: dict[int, list[str]] = {}
+    for module, names in found.items():
+        for name, obj in names.items():
+            if not isinstance(obj, (int, float, str, type(None))):
+                paths.setdefault(id(obj), []).append(f"{module}.{name}")
+    return {p[0]: p for p in paths.values() if len(p) > 1}
+
+
+@pytest.fixture(scope="module")
+def found():
+    return faces()
+
+
+def test_one_public_path_per_name(found):
+    assert _shared(found) == {}
+
+
+@pytest.mark.parametrize("root", sorted(ROOT_BUDGET))
+def test_package_roots_stay_small(found, root):
+    assert 10 <= len(found[root]) <= ROOT_BUDGET[root], sorted(found[root])
+
+
+def test_old_infrastructure_modules_export_nothing(found):
+    """`jaxrobot.linalg`, `.status`, `.checks` hold only deprecated aliases of `jaxrobot.internal`."""
+    assert {m: found[m] for m in ("jaxrobot.linalg", "jaxrobot.status", "jaxrobot.checks")} == dict.fromkeys(
+        ("jaxrobot.linalg", "jaxrobot.status", "jaxrobot.checks"), {})
+
+
+@pytest.mark.parametrize("module", ["jaxrobot", "identification", "identification.gear", "planning"])
+def test_dir_lists_the_face(found, module):
+    assert dir(importlib.import_module(module)) == sorted(found[module])
+
+
+@pytest.mark.parametrize(("old", "new"), [
+    ("jaxrobot.cached_program", "jaxrobot.internal.cached_program"),
+    ("jaxrobot.linalg.spd_solve", "jaxrobot.internal.spd_solve"),
+    ("jaxrobot.status.check", "jaxrobot.internal.check"),
+    ("jaxrobot.checks.check_public", "jaxrobot.internal.check_public"),
+    ("planning.defects", "planning.internal.defects"),
+    ("planning.CyclicReduction", "planning.internal.CyclicReduction"),
+    ("identification.detmax", "identification.calibration.detmax"),
+    ("identification.calibration.calibrate", "identification.calibrate"),
+    ("identification.gear.identify_gear", "identification.identify_gear"),
+])
+def test_alias_warns_and_returns_the_moved_object(old, new):
+    module, _, name = old.rpartition(".")
+    new_module, _, new_name = new.rpartition(".")
+    with pytest.warns(DeprecationWarning, match=rf"^{old} moved to {new}; the old name goes in the next release$"):
+        obj = getattr(importlib.import_module(module), name)
+    assert obj is getattr(importlib.import_module(new_module), new_name)
+    assert name not in dir(importlib.import_module(module))
+
+
+def test_unknown_name_is_an_attribute_error():
+    with pytest.raises(AttributeError, match="module 'planning' has no attribute 'defect'"):
+        importlib.import_module("planning").defect  # noqa: B018
+
+
+if __name__ == "__main__":
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        counts = {m: len(names) for m, names in faces().items()}
+    for module, n in counts.items():
+        print(f"| `{module}` | {n} |")
+    print(f"| all | {sum(counts.values())} |")
+    print(f"| reachable from two public paths | {len(_shared(faces()))} |")
