@@ -37,3 +37,15 @@ def public_names(namespace: dict[str, object]) -> list[str]:
     """The public face of a module namespace: its names without a leading underscore, its submodules
     and the modules it imports left out, sorted."""
     return sorted(k for k, v in namespace.items() if not k.startswith("_") and not isinstance(v, type(sys)))
+
+
+def renamed_argument(function: str, old: str, new: str, old_value, new_value):
+    """The value of keyword `new` of `function` when callers may still pass it under its old name `old`
+    (for one release, with a `DeprecationWarning` naming both); `ValueError` when both are given."""
+    if old_value is None:
+        return new_value
+    if new_value is not None:
+        raise ValueError(f"{function}: `{old}=` is the old name of `{new}=`; pass only `{new}=`")
+    warnings.warn(f"{function}({old}=...) is now {function}({new}=...); the old name goes in the next release",
+                  DeprecationWarning, stacklevel=3)
+    return old_value

@@ -6,6 +6,7 @@ before/after table); it imports the packages found on `sys.path`, so it counts a
 from __future__ import annotations
 
 import importlib
+import inspect
 import types
 import warnings
 
@@ -96,6 +97,50 @@ def test_alias_warns_and_returns_the_moved_object(old, new):
 def test_unknown_name_is_an_attribute_error():
     with pytest.raises(AttributeError, match="module 'planning' has no attribute 'defect'"):
         importlib.import_module("planning").defect  # noqa: B018
+
+
+def _functions(found):
+    """`(module.name, signature)` of every public function and class (their constructors) of the faces."""
+    out = []
+    for module, names in found.items():
+        for name, obj in names.items():
+            if callable(obj):
+                try:
+                    out.append((f"{module}.{name}", inspect.signature(obj)))
+                except (TypeError, ValueError):
+                    continue
+    return out
+
+
+def test_throw_defaults_to_false_everywhere(found):
+    throws = {path: sig.parameters["throw"].default for path, sig in _functions(found) if "throw" in sig.parameters}
+    assert "jaxrobot.measurement.rest_link_angles" in throws and "planning.solve_ocp" in throws
+    assert {path: d for path, d in throws.items() if d not in (False, inspect.Parameter.empty)} == {}
+
+
+def test_on_event_is_the_one_callback_name(found):
+    """A callback is `on_event=`; `progress=` survives only as the deprecated old name beside it."""
+    named = {path: set(sig.parameters) & {"on_event", "progress", "callback"} for path, sig in _functions(found)}
+    assert {p for p, s in named.items() if s and "on_event" not in s} == set()
+    assert {p for p, s in named.items() if "progress" in s} == {"identification.diagnose",
+                                                                 "identification.diagnosis.diagnose_runs"}
+
+
+@pytest.mark.parametrize("workflow", ["identification.diagnose", "identification.diagnosis.diagnose_runs"])
+def test_progress_is_the_deprecated_name_of_on_event(workflow):
+    """Both names at once is an error, before any work; `progress=` alone warns (and then the empty
+    measurements are rejected, which shows the call went on)."""
+    module, _, name = workflow.rpartition(".")
+    fn = getattr(importlib.import_module(module), name)
+    import jaxrobot as jr
+
+    robot = jr.racer7()
+    extra = {} if name == "diagnose" else {"marker": None, "noise": None}
+    with pytest.raises(ValueError, match="`progress=` is the old name of `on_event=`"):
+        fn(robot, [], [], on_event=print, progress=print, **extra)
+    with pytest.warns(DeprecationWarning, match=rf"^{name}\(progress=...\) is now {name}\(on_event=...\); the old"):
+        with pytest.raises((ValueError, AttributeError, TypeError)):
+            fn(robot, [], [], progress=print, **extra)
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ from .._checks import check_public as check_public
 from .._checks import checked as checked
 from .._deprecation import deprecated_aliases as deprecated_aliases
 from .._deprecation import public_names as public_names
+from .._deprecation import renamed_argument as renamed_argument
 from .._distributed import PROCESS_ENV as PROCESS_ENV
 from .._distributed import gather_array as gather_array
 from .._distributed import gather_rows as gather_rows
