@@ -8,6 +8,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import types
+import typing
 import warnings
 
 import pytest
@@ -141,6 +142,40 @@ def test_progress_is_the_deprecated_name_of_on_event(workflow):
     with pytest.warns(DeprecationWarning, match=rf"^{name}\(progress=...\) is now {name}\(on_event=...\); the old"):
         with pytest.raises((ValueError, AttributeError, TypeError)):
             fn(robot, [], [], progress=print, **extra)
+
+
+RESULT_TYPES = ("identification.CalibrationResult", "identification.FleetResult", "identification.DiagnoseResult",
+                "identification.GearIdentification", "planning.OCPSolution", "planning.PlanResult",
+                "planning.SweepResult", "planning.SweepCost")
+
+
+@pytest.mark.parametrize("path", RESULT_TYPES)
+def test_every_result_carries_a_results_status(path):
+    """`status` of each workflow and solver result is a `jaxrobot.RESULTS` (per cost variant for a sweep), as a
+    field or a property; names for JSON and tables come from `jaxrobot.status_name`."""
+    import jaxrobot as jr
+
+    module, _, name = path.rpartition(".")
+    cls = getattr(importlib.import_module(module), name)
+    attr = inspect.getattr_static(cls, "status", None)
+    hint = (typing.get_type_hints(attr.fget, vars(importlib.import_module(attr.fget.__module__)))["return"]
+            if isinstance(attr, property) else typing.get_type_hints(cls)["status"])
+    assert hint is jr.RESULTS or typing.get_args(hint) == (str, jr.RESULTS), hint
+
+
+@pytest.mark.parametrize(("verdict", "expected"), [
+    ("no significant discrepancy: the model explains the data to the noise floor", "successful"),
+    ("explained: residuals at the noise floor after adding ripple1", "successful"),
+    ("not explained: training residuals at the noise floor, but the validation RMS ...", "inconsistent"),
+    ("discrepancy remains after 6 effects (max_steps)", "inconsistent"),
+])
+def test_diagnose_status_follows_the_verdict(verdict, expected):
+    import jaxrobot as jr
+    from identification import DiagnoseResult
+
+    res = object.__new__(DiagnoseResult)
+    object.__setattr__(res, "verdict", verdict)
+    assert jr.status_name(res.status) == expected and res.converged == (expected == "successful")
 
 
 if __name__ == "__main__":

@@ -87,7 +87,8 @@ def test_calibrate_throw_raises_a_non_converged_solve():
     args = (jr.racer7(), m.motor_angles, m.positions)
     kwargs = dict(parameters=("offset2", "offset3"), max_steps=1)
     res = calibrate(*args, **kwargs)
-    assert (res.converged, res.status, res.iterations) == (False, "nonlinear_max_steps_reached", 1)
+    assert (res.converged, jr.status_name(res.status), res.iterations) == (False, "nonlinear_max_steps_reached", 1)
+    assert isinstance(res.status, jr.RESULTS)
     with pytest.raises(Exception, match="maximum number of steps"):
         calibrate(*args, **kwargs, throw=True)
 

@@ -284,6 +284,18 @@ class DiagnoseResult:
     larger (`_robust.spread`; `Outlier.sigmas` in the same unit), by row."""
 
     @property
+    def status(self) -> jr.RESULTS:
+        """`successful` when the final model explains the data to the noise floor (`verdict` "no significant
+        discrepancy" or "explained"), else `inconsistent` (residuals or validation above the noise)."""
+        explained = self.verdict.startswith(("no significant discrepancy", "explained"))
+        return jr.RESULTS.successful if explained else jr.RESULTS.inconsistent
+
+    @property
+    def converged(self) -> bool:
+        """True when `status` is `successful`."""
+        return bool(self.status == jr.RESULTS.successful)
+
+    @property
     def noise_floor(self) -> float:
         """RMS norm of the tracker noise `sigma sqrt(3)` [m]."""
         return self.noise * float(np.sqrt(3.0))
