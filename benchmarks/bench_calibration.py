@@ -32,6 +32,7 @@ from identification.core._forward import rippled_joints
 from identification.core._parameters import ParameterMap
 from identification.core._pose_selection import default_marker, random_feasible_poses
 from jaxrobot.bench import draw_fleet, measure_poses
+from jaxrobot.internal import shard_rows
 
 
 def log(text: str) -> None:
@@ -86,7 +87,7 @@ def main() -> None:
     # then the LM solve with covariances
     mesh = fleet_mesh()
     g_robots = jax.tree.map(lambda x: np.broadcast_to(x, (n_rob,) + np.shape(x)), nominal)
-    (g_robots, g_theta, g_pos), _ = jr.shard_rows((g_robots, theta, meas.positions), mesh)
+    (g_robots, g_theta, g_pos), _ = shard_rows((g_robots, theta, meas.positions), mesh)
     rippled = rippled_joints(nominal)
     t_const, t_solve = [], []
     for _ in range(args.repeat):

@@ -32,6 +32,7 @@ import jax
 import numpy as np
 
 import jaxrobot as jr
+from jaxrobot.internal import PROCESS_ENV, initialize_processes, process_share
 
 TIMEOUT_S = 1800
 
@@ -51,7 +52,7 @@ def job(n: int, argv: list[str], env: dict, logs: Path, flags: bool) -> list[dic
         out, err = logs.with_name(f"{logs.name}.{p}.out"), logs.with_name(f"{logs.name}.{p}.err")
         files.append((out, err))
         place = ["--coordinator", address, "--num-processes", str(n), "--process-id", str(p)]
-        env_p = dict(env, **dict(zip(jr.PROCESS_ENV, (address, str(n), str(p))))) if n > 1 and not flags else env
+        env_p = dict(env, **dict(zip(PROCESS_ENV, (address, str(n), str(p))))) if n > 1 and not flags else env
         with out.open("w") as fo, err.open("w") as fe:
             procs.append((subprocess.Popen(argv + (place if n > 1 and flags else []), stdout=fo, stderr=fe,
                                            env=env_p), time.perf_counter()))
@@ -81,11 +82,11 @@ def job(n: int, argv: list[str], env: dict, logs: Path, flags: bool) -> list[dic
 def worker(folder: Path, result: Path) -> None:
     """One process of the Python-API jobs: its share of the files, `calibrate_fleet` twice; process 0
     saves the parameters and statuses."""
-    jr.initialize_processes()  # from PROCESS_ENV
+    initialize_processes()  # from PROCESS_ENV
     from identification import calibrate_fleet
 
     files = sorted(folder.glob("*.csv"))
-    share = jr.process_share(len(files))
+    share = process_share(len(files))
     t = time.perf_counter()
     data = [jr.io.read_poses(f) for f in files[share]]
     theta, pos = np.stack([d.motor_angles for d in data]), np.stack([d.positions for d in data])

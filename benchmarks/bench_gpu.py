@@ -79,6 +79,7 @@ def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int |
     import planning as pl
     from planning._al_solver import batch_capacity
     from planning._block_tridiagonal import block_cholesky, block_cholesky_solve
+    from planning.internal import cyclic_reduction, cyclic_reduction_solve
 
     robot, q, ts, warm, name = _ocp_task(nodes)
     n = q.shape[0]
@@ -92,7 +93,7 @@ def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int |
     diag = jnp.asarray(np.einsum("kij,klj->kil", a, a) + 120.0 * np.eye(30))
     lower, rhs = jnp.asarray(rng.normal(size=(n - 1, 30, 30))), jnp.asarray(rng.normal(size=(n, 30)))
     scan_solve = jax.jit(lambda d, lo, r: block_cholesky_solve(block_cholesky(d, lo), r))
-    cr_solve = jax.jit(lambda d, lo, r: pl.cyclic_reduction_solve(pl.cyclic_reduction(d, lo), r))
+    cr_solve = jax.jit(lambda d, lo, r: cyclic_reduction_solve(cyclic_reduction(d, lo), r))
     work.append(("kkt_scan", f"block-tridiagonal factor + solve, N = {n}, 30 x 30 blocks, scan",
                  lambda: scan_solve(diag, lower, rhs), {}))
     work.append(("kkt_cyclic_reduction", f"block-tridiagonal factor + solve, N = {n}, 30 x 30 blocks, cyclic reduction",

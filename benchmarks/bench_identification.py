@@ -26,10 +26,10 @@ import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records th
 import numpy as np
 
 import jaxrobot as jr
-from identification import DEFAULT_PARAMETERS, calibrate, identify_gear
+from identification import DEFAULT_PARAMETERS, calibrate, diagnose, identify_gear
 from identification.calibration._calibrate import map_parameters
 from identification.cli import calibration_report, diagnosis_summary
-from identification.diagnosis import Poses, diagnose
+from jaxrobot.measurement import Poses
 from jaxrobot.io import read_poses
 
 

@@ -41,6 +41,7 @@ from planning._transcription import (
     ocp_problem,
     variable_scale,
 )
+from planning.internal import motor_directions
 
 NUS = (1e-14, 1e-10)
 TASKS = ("line", "spiral")
@@ -183,7 +184,7 @@ def directions(robot, tasks, nus, f) -> None:
         jp = pl.joint_path(robot, path)
         flat = pl.flat_motor_trajectory(robot, jp)
         warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
-        d = pl.motor_directions(flat.thetad)
+        d = motor_directions(flat.thetad)
         ts = float(path.sample_time)
         for nu in nus:
             sol, _, ours_s = _timing.timed(
@@ -206,7 +207,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="the line at nu = 1e-14 only, no sweep")
     parser.add_argument("--no-ipopt", action="store_true", help="skip IPOPT (our solver only)")
     parser.add_argument("--directions", action="store_true",
-                        help="the plans bounded to the task's motor directions (planning.motor_directions, as "
+                        help="the plans bounded to the task's motor directions (planning.internal.motor_directions, as "
                         "plan_task makes them) against IPOPT with the same bounds, printed; no file written")
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results_ocp.md"))
     args = parser.parse_args()

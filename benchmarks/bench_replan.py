@@ -56,7 +56,7 @@ def path_error(model: jr.Robot, truth: jr.Robot, task: str, description: dict) -
     res = pl.plan_task(model, truth, pl.reference_path(task, description), 1e-14, timing=False,
                        q_init=pl.default_start(description))
     if not res.converged:
-        raise RuntimeError(f"{task} on {model.name}: the OCP did not converge ({res.status})")
+        raise RuntimeError(f"{task} on {model.name}: the OCP did not converge ({jr.status_name(res.status)})")
     i = res.names.index("ocp")
     return float(res.errors.position_max[i]), float(res.errors.position_rms[i]), time.perf_counter() - start
 

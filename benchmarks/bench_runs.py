@@ -78,7 +78,7 @@ def diagnose_section(folder: Path, samples: int) -> list[str]:
         loads.append(os.getloadavg()[0])
         print(rows[-1], f"load {loads[-1]:.1f}", flush=True)
 
-    res = diagnose_runs(robot, train, val, marker, noise, progress=progress)
+    res = diagnose_runs(robot, train, val, marker, noise, on_event=progress)
     elapsed = time.perf_counter() - start
     loads.append(os.getloadavg()[0])
     return [f"`diagnose_runs` on the lag case, 2 training + 2 validation runs of {samples} samples, "

@@ -1,58 +1,59 @@
 """Identification from measurements: gear ratios (`gear`), kinematic calibration (`calibration`) and
-the discrepancy workflow (`diagnosis`). The workflows and the effect catalogue are exported here."""
+the discrepancy workflow (`diagnosis`). The three workflows,
+their results and the noise and loss models are exported here; everything else of a stage from its subpackage."""
 
-from jaxrobot.checks import check_public as _check_public
-from jaxrobot.checks import deprecated_aliases as _deprecated_aliases
+from jaxrobot.internal import check_public as _check_public
+from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
-from .calibration import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
-from .calibration import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
-from .calibration import THESIS_PARAMETERS as THESIS_PARAMETERS
-from .calibration import CalibrationResult as CalibrationResult
-from .calibration import FleetResult as FleetResult
-from .calibration import IdentifiabilityResult as IdentifiabilityResult
-from .calibration import ObservabilityIndices as ObservabilityIndices
-from .calibration import ParameterMap as ParameterMap
-from .calibration import ParameterSelection as ParameterSelection
-from .calibration import PoseConstraints as PoseConstraints
-from .calibration import calibrate as calibrate
-from .calibration import calibrate_fleet as calibrate_fleet
-from .calibration import default_parameters as default_parameters
-from .calibration import detmax as detmax
-from .calibration import identifiability as identifiability
-from .calibration import kinematic_parameters as kinematic_parameters
-from .calibration import map_parameters as map_parameters
-from .calibration import observability_indices as observability_indices
-from .calibration import random_feasible_poses as random_feasible_poses
-from .calibration import rest_motor_angles as rest_motor_angles
+from .calibration._calibrate import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
+from .calibration._calibrate import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
+from .calibration._calibrate import CalibrationResult as CalibrationResult
+from .calibration._calibrate import calibrate as calibrate
+from .calibration._fleet import FleetResult as FleetResult
+from .calibration._fleet import calibrate_fleet as calibrate_fleet
 from .core._noise import TrackerNoise as TrackerNoise
 from .core._pose_checks import check_pose_units as check_pose_units
 from .core._robust import LOSSES as LOSSES
 from .core._robust import Outlier as Outlier
-from .diagnosis import CATALOGUE as CATALOGUE
-from .diagnosis import DiagnoseEvent as DiagnoseEvent
-from .diagnosis import DiagnoseResult as DiagnoseResult
-from .diagnosis import Effect as Effect
-from .diagnosis import Layout as Layout
-from .diagnosis import catalogue as catalogue
-from .diagnosis import diagnose as diagnose
-from .gear import DirectionTest as DirectionTest
-from .gear import GearBatch as GearBatch
-from .gear import GearFit as GearFit
-from .gear import GearIdentification as GearIdentification
-from .gear import Resolution as Resolution
-from .gear import check_gear_run as check_gear_run
-from .gear import check_gear_units as check_gear_units
-from .gear import fft_orders as fft_orders
-from .gear import fit_gear_ratio as fit_gear_ratio
-from .gear import identify_gear as identify_gear
-from .gear import kinematic_errors as kinematic_errors
-from .gear import prepare_gear_runs as prepare_gear_runs
-from .gear import process_gear_runs as process_gear_runs
-from .gear import sparse_orders as sparse_orders
+from .diagnosis._diagnose import DiagnoseEvent as DiagnoseEvent
+from .diagnosis._diagnose import DiagnoseResult as DiagnoseResult
+from .diagnosis._diagnose import diagnose as diagnose
+from .gear._fit import GearIdentification as GearIdentification
+from .gear._fit import identify_gear as identify_gear
 
 _check_public(globals())
 
 __getattr__ = _deprecated_aliases(__name__, {
+    "CATALOGUE": "identification.diagnosis.CATALOGUE",
+    "DirectionTest": "identification.gear.DirectionTest",
+    "Effect": "identification.diagnosis.Effect",
+    "GearBatch": "identification.gear.GearBatch",
+    "GearFit": "identification.gear.GearFit",
+    "IdentifiabilityResult": "identification.calibration.IdentifiabilityResult",
+    "Layout": "identification.diagnosis.Layout",
+    "ObservabilityIndices": "identification.calibration.ObservabilityIndices",
+    "ParameterMap": "identification.calibration.ParameterMap",
+    "ParameterSelection": "identification.calibration.ParameterSelection",
+    "PoseConstraints": "identification.calibration.PoseConstraints",
+    "Resolution": "identification.gear.Resolution",
+    "THESIS_PARAMETERS": "identification.calibration.THESIS_PARAMETERS",
+    "catalogue": "identification.diagnosis.catalogue",
+    "check_gear_run": "identification.gear.check_gear_run",
+    "check_gear_units": "identification.gear.check_gear_units",
+    "default_parameters": "identification.calibration.default_parameters",
+    "detmax": "identification.calibration.detmax",
+    "fft_orders": "identification.gear.fft_orders",
+    "fit_gear_ratio": "identification.gear.fit_gear_ratio",
+    "identifiability": "identification.calibration.identifiability",
+    "kinematic_errors": "identification.gear.kinematic_errors",
+    "kinematic_parameters": "identification.calibration.kinematic_parameters",
+    "map_parameters": "identification.calibration.map_parameters",
+    "observability_indices": "identification.calibration.observability_indices",
+    "prepare_gear_runs": "identification.gear.prepare_gear_runs",
+    "process_gear_runs": "identification.gear.process_gear_runs",
+    "random_feasible_poses": "identification.calibration.random_feasible_poses",
+    "rest_motor_angles": "identification.calibration.rest_motor_angles",
+    "sparse_orders": "identification.gear.sparse_orders",
     "Poses": "jaxrobot.measurement.Poses",
     "APPROACHES": "jaxrobot.measurement.APPROACHES",
     "read_poses": "jaxrobot.io.read_poses",

@@ -10,15 +10,8 @@ _enable_compilation_cache()
 
 from . import io as io  # noqa: E402
 from . import measurement as measurement  # noqa: E402
-from ._batch import backend_kind as backend_kind  # noqa: E402
 from ._checks import check_public as _check_public  # noqa: E402
-from ._distributed import PROCESS_ENV as PROCESS_ENV  # noqa: E402
-from ._distributed import gather_array as gather_array  # noqa: E402
-from ._distributed import gather_rows as gather_rows  # noqa: E402
-from ._distributed import gather_texts as gather_texts  # noqa: E402
-from ._distributed import initialize_processes as initialize_processes  # noqa: E402
-from ._distributed import process_share as process_share  # noqa: E402
-from ._distributed import shard_rows as shard_rows  # noqa: E402
+from ._deprecation import deprecated_aliases as _deprecated_aliases  # noqa: E402
 from ._dynamics import coriolis_matrix as coriolis_matrix  # noqa: E402
 from ._dynamics import coriolis_vector as coriolis_vector  # noqa: E402
 from ._dynamics import gravity_torque as gravity_torque  # noqa: E402
@@ -52,7 +45,6 @@ from ._kinematics import identification_jacobian as identification_jacobian  # n
 from ._kinematics import link_frames as link_frames  # noqa: E402
 from ._kinematics import point_position as point_position  # noqa: E402
 from ._kinematics import tool_pose as tool_pose  # noqa: E402
-from ._program_cache import cached_program as cached_program  # noqa: E402
 from ._robot import Ripple as Ripple  # noqa: E402
 from ._robot import Robot as Robot  # noqa: E402
 from ._rotations import homogeneous as homogeneous  # noqa: E402
@@ -84,3 +76,15 @@ from .io._urdf import save_urdf as save_urdf  # noqa: E402
 from .io._urdf import to_urdf as to_urdf  # noqa: E402
 
 _check_public(globals())
+
+__getattr__ = _deprecated_aliases(__name__, {name: f"jaxrobot.internal.{name}" for name in (
+    "backend_kind",
+    "PROCESS_ENV",
+    "gather_array",
+    "gather_rows",
+    "gather_texts",
+    "initialize_processes",
+    "process_share",
+    "shard_rows",
+    "cached_program",
+)})

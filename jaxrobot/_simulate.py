@@ -187,11 +187,11 @@ def simulate(
         raise ValueError(f"simulate: substeps must be >= 1, found {substeps}")
     h = t[1] - t[0]
     if directional:
-        q0 = rest_link_angles(robot, theta[0], jnp.broadcast_to(ccw0, (n,))) if q0 is None else q0
+        q0 = rest_link_angles(robot, theta[0], jnp.broadcast_to(ccw0, (n,)), throw=True) if q0 is None else q0
         wt = reversal_travel(robot) if travel is None else jnp.asarray(travel, float)
         p0 = play_start(theta[0], wt, ccw0)
     else:
-        q0 = rest_link_angles(robot, theta[0]) if q0 is None else q0
+        q0 = rest_link_angles(robot, theta[0], throw=True) if q0 is None else q0
         p0 = jnp.zeros(n)
     qd0 = jnp.zeros(n) if qd0 is None else qd0
     stages = np.arange(2 * substeps + 1) / (2 * substeps)

@@ -1,9 +1,10 @@
-"""Argument checks for the packages built on `jaxrobot`: `check_public(globals())` at the end of a
-package's `__init__` checks the shapes and dtypes of every public function's arguments from its
-jaxtyping annotations (`jaxrobot._checks`); `require_elastic` rejects rigid joints where the
-elastic model is integrated; `deprecated_aliases` keeps a moved public name at its old path for one release."""
+"""Deprecated: `jaxrobot.internal` moved to `jaxrobot.internal`; the old names go in the next release."""
 
-from ._checks import check_public as check_public
-from ._checks import checked as checked
-from ._deprecation import deprecated_aliases as deprecated_aliases
-from ._elasticity import require_elastic as require_elastic
+from ._deprecation import deprecated_aliases as _deprecated_aliases
+
+__getattr__ = _deprecated_aliases(__name__, {name: f"jaxrobot.internal.{name}" for name in (
+    "check_public",
+    "checked",
+    "deprecated_aliases",
+    "require_elastic",
+)})

@@ -1,9 +1,12 @@
-"""Small dense linear algebra that never hands LAPACK a batch of matrices (`jaxrobot._linalg`): use
-these on every CPU path instead of batched `jnp.linalg` calls."""
+"""Deprecated: `jaxrobot.internal` moved to `jaxrobot.internal`; the old names go in the next release."""
 
-from ._linalg import cholesky as cholesky
-from ._linalg import cholesky_solve as cholesky_solve
-from ._linalg import inverse_cholesky_factor as inverse_cholesky_factor
-from ._linalg import map_matrices as map_matrices
-from ._linalg import solve as solve
-from ._linalg import spd_solve as spd_solve
+from ._deprecation import deprecated_aliases as _deprecated_aliases
+
+__getattr__ = _deprecated_aliases(__name__, {name: f"jaxrobot.internal.{name}" for name in (
+    "cholesky",
+    "cholesky_solve",
+    "inverse_cholesky_factor",
+    "map_matrices",
+    "solve",
+    "spd_solve",
+)})

@@ -1,8 +1,10 @@
-"""What a solver needs besides `jaxrobot.RESULTS` (`jaxrobot._status`): `check` raises a status's
-message for `throw=True` (also under `jit`), `where` and `full` select and broadcast statuses,
-`require_successful` raises on the host for a concrete status."""
+"""Deprecated: `jaxrobot.status` moved to `jaxrobot.internal`; the old names go in the next release."""
 
-from ._status import check as check
-from ._status import full as full
-from ._status import require_successful as require_successful
-from ._status import where as where
+from ._deprecation import deprecated_aliases as _deprecated_aliases
+
+__getattr__ = _deprecated_aliases(__name__, {name: f"jaxrobot.internal.{name}" for name in (
+    "check",
+    "full",
+    "require_successful",
+    "where",
+)})

@@ -1,15 +1,13 @@
-from jaxrobot.checks import check_public as _check_public
+"""Offline trajectory planning of elastic-joint robots: paths, inverse kinematics, the optimal control
+problem and its solver, the comparison on the plant and the plan and sweep workflows. Transcription pieces
+and block solvers are in `planning.internal`."""
+
+from jaxrobot.internal import check_public as _check_public
+from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
 from ._al_solver import ALConfig as ALConfig
 from ._bandwidth import bandwidth as bandwidth
 from ._bandwidth import control_spectrum as control_spectrum
-from ._block_tridiagonal import BlockCholesky as BlockCholesky
-from ._block_tridiagonal import block_cholesky as block_cholesky
-from ._block_tridiagonal import block_cholesky_solve as block_cholesky_solve
-from ._block_tridiagonal import block_tridiagonal_solve as block_tridiagonal_solve
-from ._cyclic_reduction import CyclicReduction as CyclicReduction
-from ._cyclic_reduction import cyclic_reduction as cyclic_reduction
-from ._cyclic_reduction import cyclic_reduction_solve as cyclic_reduction_solve
 from ._evaluation import METHODS as METHODS
 from ._evaluation import MotorTrajectory as MotorTrajectory
 from ._evaluation import PlantError as PlantError
@@ -25,16 +23,10 @@ from ._evaluation import simulate_plans as simulate_plans
 from ._evaluation import summarize as summarize
 from ._ik import IKResult as IKResult
 from ._ik import JointPath as JointPath
-from ._ik import check_joint_path as check_joint_path
 from ._ik import default_start as default_start
 from ._ik import inverse_kinematics as inverse_kinematics
-from ._ik import joint_derivatives as joint_derivatives
 from ._ik import joint_path as joint_path
-from ._ik import pose_residual as pose_residual
-from ._ik import smooth_joint_path as smooth_joint_path
 from ._ik import task_start as task_start
-from ._ik import taylor_joint_path as taylor_joint_path
-from ._ocp import RESULTS as RESULTS
 from ._ocp import OCPSolution as OCPSolution
 from ._ocp import solve_ocp as solve_ocp
 from ._sweep import solve_ocp_sweep as solve_ocp_sweep
@@ -50,15 +42,7 @@ from ._trajectories import task_orientation as task_orientation
 from ._trajectories import time_grid as time_grid
 from ._transcription import OCPProblem as OCPProblem
 from ._transcription import State as State
-from ._transcription import boundary_states as boundary_states
-from ._transcription import bounds as bounds
-from ._transcription import defects as defects
-from ._transcription import max_violation as max_violation
-from ._transcription import motor_directions as motor_directions
-from ._transcription import objective as objective
 from ._transcription import ocp_problem as ocp_problem
-from ._transcription import variable_scale as variable_scale
-from ._transcription import warm_start as warm_start
 from ._workflow import PlanEvent as PlanEvent
 from ._workflow import PlanResult as PlanResult
 from ._workflow import SweepCost as SweepCost
@@ -68,3 +52,26 @@ from ._workflow import plan_task as plan_task
 from ._workflow import sweep_task as sweep_task
 
 _check_public(globals())
+
+__getattr__ = _deprecated_aliases(__name__, {name: f"planning.internal.{name}" for name in (
+    "check_joint_path",
+    "joint_derivatives",
+    "pose_residual",
+    "smooth_joint_path",
+    "taylor_joint_path",
+    "BlockCholesky",
+    "block_cholesky",
+    "block_cholesky_solve",
+    "block_tridiagonal_solve",
+    "CyclicReduction",
+    "cyclic_reduction",
+    "cyclic_reduction_solve",
+    "boundary_states",
+    "bounds",
+    "defects",
+    "max_violation",
+    "motor_directions",
+    "objective",
+    "variable_scale",
+    "warm_start",
+)} | {"RESULTS": "jaxrobot.RESULTS"})

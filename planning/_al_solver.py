@@ -41,8 +41,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxrobot import RESULTS, backend_kind
-from jaxrobot.status import full
+from jaxrobot import RESULTS
+from jaxrobot.internal import backend_kind, full
 
 from ._block_tridiagonal import BlockCholesky, block_cholesky, block_cholesky_solve
 from ._cyclic_reduction import CyclicReduction, cyclic_reduction, cyclic_reduction_solve
@@ -115,7 +115,7 @@ class ALConfig(eqx.Module):
     linear_solver: str | None = eqx.field(static=True, default=None)
     """Static. Factor and solve of the block-tridiagonal Gauss-Newton matrix: `"scan"` (sequential
     block Cholesky, a `lax.scan` over the nodes), `"cyclic_reduction"` (`ceil(log2 N)` levels of batched
-    dense operations) or `None`: by the backend (`jaxrobot.backend_kind()`), the scan on the CPU and
+    dense operations) or `None`: by the backend (`jaxrobot.internal.backend_kind()`), the scan on the CPU and
     cyclic reduction on an accelerator. It also decides how a `vmap` is solved (`augmented_lagrangian`)."""
 
     def __check_init__(self):
@@ -350,7 +350,7 @@ def augmented_lagrangian(
     fans out into XLA's CPU intra-op thread pool and blocks waiting for it; two of them at once
     (the vmapped loop runs independent branches concurrently) can deadlock the pool when it has as
     many threads (each pool thread in `ParallelBatchMap` -> `BlockingCounter::Wait`, the process at
-    zero CPU use; `jaxrobot.linalg`).
+    zero CPU use; `jaxrobot.internal`).
 
     When only the cost weights are batched (`nu`, `u_ref`: a sweep of eq. 4.3a on one robot,
     `q_d`, `T_s`, initial guess and config), the rule solves the members in increasing `nu` by

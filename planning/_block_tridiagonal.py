@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from jaxrobot.linalg import inverse_cholesky_factor
+from jaxrobot.internal import inverse_cholesky_factor
 
 
 class BlockCholesky(eqx.Module):

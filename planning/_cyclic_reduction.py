@@ -15,8 +15,8 @@ dense n x n operations over its nodes. The solve eliminates `z_i = W_i r_i` leve
 `x_i = W_i^T (z_i - X_i x_{i-1} - Y_i x_{i+1})`.
 
 The batched Cholesky factors are chosen per backend in one place (`_inverse_cholesky_factors`):
-LAPACK on an accelerator, the LAPACK-free kernels of `jaxrobot.linalg` on the CPU (batched LAPACK
-is a hazard there, `jaxrobot.linalg`).
+LAPACK on an accelerator, the LAPACK-free kernels of `jaxrobot.internal` on the CPU (batched LAPACK
+is a hazard there, `jaxrobot.internal`).
 """
 
 from __future__ import annotations
@@ -27,8 +27,7 @@ import jax.numpy as jnp
 from jax.scipy.linalg import solve_triangular
 from jaxtyping import Array, Bool, Float
 
-from jaxrobot import backend_kind
-from jaxrobot.linalg import cholesky
+from jaxrobot.internal import backend_kind, cholesky
 
 
 class CyclicReduction(eqx.Module):
@@ -64,7 +63,7 @@ def _lower_inverse(low: Float[Array, "*b m m"]) -> Float[Array, "*b m m"]:
 
 def _inverse_cholesky_factors(a: Float[Array, "h n n"]) -> Float[Array, "h n n"]:
     """`L^{-1}` for the lower Cholesky factors `L` of a batch of SPD matrices; NaN where one is not
-    positive definite. LAPACK on an accelerator; on the CPU the LAPACK-free `jaxrobot.linalg.cholesky`
+    positive definite. LAPACK on an accelerator; on the CPU the LAPACK-free `jaxrobot.internal.cholesky`
     and a forward substitution."""
     if backend_kind() == "cpu":
         return _lower_inverse(cholesky(a))

@@ -21,9 +21,8 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 import jaxrobot as jr
-from jaxrobot import cached_program
+from jaxrobot.internal import cached_program, require_successful
 from jaxrobot.measurement import rest_solution
-from jaxrobot.status import require_successful
 
 from ._al_solver import chunked_vmap, device_memory
 from ._ik import JointPath, taylor_joint_path

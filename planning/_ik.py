@@ -25,9 +25,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, Real
 
 import jaxrobot as jr
-from jaxrobot import cached_program
-from jaxrobot.linalg import map_matrices, solve
-from jaxrobot.status import check
+from jaxrobot.internal import cached_program, check, map_matrices, solve
 
 from ._trajectories import Path, nested_derivatives, path_derivatives, sample_path, time_grid
 

@@ -10,9 +10,8 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 import jaxrobot as jr
-from jaxrobot import RESULTS, cached_program
-from jaxrobot.checks import require_elastic
-from jaxrobot.status import check
+from jaxrobot import RESULTS
+from jaxrobot.internal import cached_program, check, require_elastic
 
 from ._al_solver import ALConfig, augmented_lagrangian, history_length
 from ._transcription import Cost, State, boundary_states, max_violations, objective, ocp_problem, variable_scale

@@ -13,7 +13,7 @@ so there the default is one chain, which its default linear solver (cyclic reduc
 `ALConfig.linear_solver`) makes one batched program: lanes that each solve a continuation chain of
 members and take the next `nu` when their member is done (`augmented_lagrangian`), at most as many
 lanes as the device memory holds (`batch_capacity`). Under several processes (`jax.distributed`,
-`jaxrobot.initialize_processes`) the chains are one per device of all processes instead: one
+`jaxrobot.internal.initialize_processes`) the chains are one per device of all processes instead: one
 `shard_map` over the global mesh, the results gathered. Timings: `benchmarks/results_ocp.md`,
 `benchmarks/results_gpu.md`.
 """
@@ -31,8 +31,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
-from jaxrobot import backend_kind, gather_array
-from jaxrobot.status import check
+from jaxrobot.internal import backend_kind, check, gather_array
 
 from ._al_solver import ALConfig, history_length
 from ._ocp import OCPSolution, _solve_ocp
@@ -111,7 +110,7 @@ def solve_ocp_sweep(
     so that every chain has a member to warm-start; 1 gives `jax.vmap(solve_ocp)` itself). A chain shorter
     than the others repeats its largest `nu` (one more warm member, solved in an iteration or two),
     so all chains share one compiled program. Not jittable: it is a driver of compiled calls.
-    Under several processes (`jaxrobot.initialize_processes`) every process passes the same
+    Under several processes (`jaxrobot.internal.initialize_processes`) every process passes the same
     arguments and receives all members; the chains are one per device of all processes (`workers`
     is not used). `config` is traced: sweeps that differ only in their settings (of the same
     `history_length`) share one compiled program. `throw`: raise the message of the first member

@@ -41,7 +41,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
-from jaxrobot.linalg import spd_solve
+from jaxrobot.internal import spd_solve
 
 ANGLE_SCALE = 1e-3
 """Angle unit of the scaled problem [rad] (mrad)."""

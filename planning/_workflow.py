@@ -121,9 +121,9 @@ class PlanResult:
         return bool(self.solution.converged)
 
     @property
-    def status(self) -> str:
-        """The OCP's status name (`jaxrobot.status_name`)."""
-        return jr.status_name(self.solution.status)
+    def status(self) -> jr.RESULTS:
+        """The OCP's status (`jaxrobot.status_name` gives its name)."""
+        return self.solution.status
 
 
 @jax.jit
@@ -316,6 +316,11 @@ class SweepCost:
         """(M,) True for the members whose solve converged."""
         return np.asarray(self.solutions.converged)
 
+    @property
+    def status(self) -> jr.RESULTS:
+        """The M members' statuses (one batched `jaxrobot.RESULTS`)."""
+        return self.solutions.status
+
 
 @dataclasses.dataclass(frozen=True)
 class SweepResult:
@@ -334,6 +339,11 @@ class SweepResult:
     def converged(self) -> bool:
         """True when every member of every cost variant converged."""
         return all(bool(c.converged.all()) for c in self.costs.values())
+
+    @property
+    def status(self) -> dict[str, jr.RESULTS]:
+        """Per cost variant, its members' statuses (`SweepCost.status`)."""
+        return {cost: c.status for cost, c in self.costs.items()}
 
 
 def sweep_task(robot: jr.Robot, plant: jr.Robot, path: Path, nus, costs: tuple[str, ...] = COSTS,

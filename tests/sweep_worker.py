@@ -8,8 +8,9 @@ import dataclasses
 import sys
 
 import jaxrobot as jr
+from jaxrobot.internal import initialize_processes
 
-jr.initialize_processes(sys.argv[1], 2, int(sys.argv[2]))
+initialize_processes(sys.argv[1], 2, int(sys.argv[2]))
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402

@@ -93,7 +93,8 @@ def test_laser_tracker_noise_model_whitens_the_fit():
 
 
 def _diagnose(*parts: str):
-    from identification.diagnosis import Poses, diagnose
+    from identification import diagnose
+    from identification.diagnosis import Poses
 
     d, robot, train, val, truth = _case(*parts)
     sensors = jr.read_description(d / "start.toml")["sensors"]
@@ -149,7 +150,8 @@ def test_diagnose_prefers_two_joint_effects_to_a_geometry_block():
     (its README's conventions; seeded): the 20-parameter `geometry` block fits better (BIC) than either
     effect alone, but the two together fit better still, so `diagnose` names both, adds no block and
     ends within 1.1x the floor (the true model's validation RMS)."""
-    from identification.diagnosis import Poses, diagnose
+    from identification import diagnose
+    from identification.diagnosis import Poses
 
     g = _generator()
     rng = np.random.default_rng(1)
@@ -174,8 +176,9 @@ def test_diagnose_names_a_drift_in_acquisition_time():
     """Every link grows by 3e-5 linearly over the 1722 s of the training file (`t_s`): `diagnose` with
     the times names a link-length scale linear in time, its rate within 3 standard errors of the truth;
     without times there is no drift test (the row order is not taken for time)."""
+    from identification import diagnose
     from identification.cli import diagnosis_summary as summary
-    from identification.diagnosis import Poses, diagnose
+    from jaxrobot.measurement import Poses
     from jaxrobot.io import read_csv_columns
 
     d, robot, train, val, truth = _case("noise", "drift")

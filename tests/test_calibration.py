@@ -34,6 +34,7 @@ from identification.core._pose_selection import (
     set_indices,
 )
 from jaxrobot.bench import measure_poses
+from jaxrobot.internal import shard_rows
 from jaxrobot.io import read_poses, write_poses
 
 N_SE = 3.0
@@ -123,7 +124,7 @@ def test_calibration_thesis_poses(robots, bench, calibrated):
 def test_map_covers_the_truth_on_the_bench(robots, thesis_theta, seed):
     """MAP (default set plus every offset and ratio, tolerance priors) on bench data of the as-built
     robot: every true deviation within 3 posterior sigma; the data determine what they can."""
-    from identification import map_parameters
+    from identification.calibration import map_parameters
 
     nominal, truth = robots
     m = measure_poses(truth, thesis_theta, seed=seed)
@@ -300,7 +301,7 @@ def test_observability_indices_of_known_singular_values_under_jit():
     = 1 for both, O2 = 1/4 and 1, O3 = 1 and 2, O4 = 1/4 and 2, O5 = 4/7 and 2/3; a pytree through jit."""
     import jax
 
-    from identification import ObservabilityIndices, observability_indices
+    from identification.calibration import ObservabilityIndices, observability_indices
 
     idx = jax.jit(observability_indices)(jnp.asarray([[1.0, 2.0, 4.0], [2.0, 2.0, 2.0]]), 4)
     assert isinstance(idx, ObservabilityIndices)
@@ -582,7 +583,7 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
     pos[1, 4, 0] = np.nan
     mesh = fleet_mesh()
     fleet = jax.tree.map(lambda x: np.broadcast_to(x, (3,) + np.shape(x)), nominal)
-    (fleet, g_theta, g_pos), _ = jr.shard_rows((fleet, theta, pos), mesh)
+    (fleet, g_theta, g_pos), _ = shard_rows((fleet, theta, pos), mesh)
     params, rippled = ParameterMap(DEFAULT_PARAMETERS), rippled_joints(nominal)
     q0, defl = _fleet_constants(fleet, g_theta, rippled, mesh)
     config = jax.tree.map(jnp.asarray, LMConfig())

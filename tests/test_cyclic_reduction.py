@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import planning as pl
+from planning.internal import cyclic_reduction, cyclic_reduction_solve
 from planning import _transcription as tr
 import planning._al_solver as al
 from planning._al_solver import batch_capacity, chunked_vmap, linear_solver
@@ -49,8 +50,8 @@ def _dense(diag, lower):
 @jax.jit
 def _both(diag, lower, rhs):
     """Solutions by cyclic reduction and by the scan, and whether the reduction found the matrix SPD."""
-    factor = pl.cyclic_reduction(diag, lower)
-    return (pl.cyclic_reduction_solve(factor, rhs), block_cholesky_solve(block_cholesky(diag, lower), rhs),
+    factor = cyclic_reduction(diag, lower)
+    return (cyclic_reduction_solve(factor, rhs), block_cholesky_solve(block_cholesky(diag, lower), rhs),
             factor.positive_definite)
 
 
@@ -91,11 +92,11 @@ def test_cyclic_reduction_batched_matches_scan(n_blocks, n):
 def test_cyclic_reduction_flags_indefinite_matrix():
     rng = np.random.default_rng(3)
     diag, lower, _ = _system(rng, 6, 4)
-    assert bool(pl.cyclic_reduction(jnp.asarray(diag), jnp.asarray(lower)).positive_definite)
+    assert bool(cyclic_reduction(jnp.asarray(diag), jnp.asarray(lower)).positive_definite)
     for k in (0, 3, 5):  # an eliminated node, the last level's one, the remaining one
         bad = diag.copy()
         bad[k] -= 1e3 * np.eye(4)
-        assert not bool(pl.cyclic_reduction(jnp.asarray(bad), jnp.asarray(lower)).positive_definite), k
+        assert not bool(cyclic_reduction(jnp.asarray(bad), jnp.asarray(lower)).positive_definite), k
 
 
 def test_linear_solver_by_backend_and_bad_name():

@@ -20,8 +20,8 @@ import pytest
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
+from identification import diagnose
 from identification.core._pose_selection import random_feasible_poses, rest_motor_angles
-from identification.diagnosis import diagnose
 from jaxrobot.measurement import Poses
 
 N_TRAIN, N_VAL = 150, 60

@@ -19,6 +19,7 @@ import jaxrobot as jr  # noqa: I001  (x64 first)
 from identification import calibrate_fleet
 from identification.cli._calibrate_fleet import TABLE, bench_fleet
 from jaxrobot.cli._main import main
+from jaxrobot.internal import PROCESS_ENV, initialize_processes
 
 JOB_TIMEOUT_S = 420
 """Wall-clock bound of a 2-process job (each compiles its program; ~40 s alone on 2 cores)."""
@@ -35,7 +36,7 @@ def _run_job(argv, tmp_path: Path, n: int = 2, code: int = 0) -> list[str]:
     on an exit code other than `code` or the timeout kill the others and fail with their output.
     Returns the stdouts."""
     address = f"127.0.0.1:{_free_port()}"
-    env = {k: v for k, v in os.environ.items() if k not in jr.PROCESS_ENV and k != "XLA_FLAGS"}
+    env = {k: v for k, v in os.environ.items() if k not in PROCESS_ENV and k != "XLA_FLAGS"}
     logs = [(tmp_path / f"process{p}.out", tmp_path / f"process{p}.err") for p in range(n)]
     procs = []
     try:
@@ -150,13 +151,13 @@ def test_two_process_fleet_with_a_spoiled_share(tmp_path):
 ])
 def test_bad_launch_arguments_are_named(kwargs, match):
     with pytest.raises(ValueError, match=match):
-        jr.initialize_processes(**kwargs)
+        initialize_processes(**kwargs)
 
 
 def test_bad_launch_environment_is_named(monkeypatch):
     monkeypatch.setenv("JAX_NUM_PROCESSES", "two")
     with pytest.raises(ValueError, match="JAX_NUM_PROCESSES.*'two'"):
-        jr.initialize_processes()
+        initialize_processes()
 
 
 def test_calibrate_fleet_cli_empty_folder(tmp_path, capsys):
@@ -184,5 +185,5 @@ def test_two_process_sweep_equals_separate_solves(tmp_path):
     assert sweep["u"].shape == (4,) + q_d.shape
     for i, nu in enumerate(nus):
         fields = {k: sweep[k][i] for k in sweep.files if k != "status"}
-        member = pl.OCPSolution(status=getattr(pl.RESULTS, str(sweep["status"][i])), **fields)
+        member = pl.OCPSolution(status=getattr(jr.RESULTS, str(sweep["status"][i])), **fields)
         _assert_same_optimum(tr.ocp_problem(robot, q_d, TS, float(nu)), member, pl.solve_ocp(robot, q_d, TS, float(nu)))

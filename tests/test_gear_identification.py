@@ -19,8 +19,9 @@ import pytest
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
-from identification import check_gear_run, identify_gear, prepare_gear_runs
+from identification import identify_gear
 from identification.cli._gear_report import summary
+from identification.gear import check_gear_run, prepare_gear_runs
 from identification.gear._demo import demo_runs
 
 MISALIGNMENT_TOL = 1e-3  # rad (issue 3)

@@ -17,8 +17,8 @@ from helpers import independent_data
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
+from identification import diagnose
 from identification.cli import diagnosis_summary
-from identification.diagnosis import diagnose
 from jaxrobot.io import read_poses
 from jaxrobot.measurement import Poses
 

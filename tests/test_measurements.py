@@ -11,7 +11,8 @@ import pytest
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
-from identification import calibrate, calibrate_fleet, identify_gear, prepare_gear_runs
+from identification import calibrate, calibrate_fleet, identify_gear
+from identification.gear import prepare_gear_runs
 from jaxrobot.measurement import GearRun, Poses
 
 POSES = Poses(np.random.default_rng(0).uniform(-1.0, 1.0, (6, 6)), np.random.default_rng(1).uniform(-1.0, 1.0, (6, 3)))

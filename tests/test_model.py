@@ -10,7 +10,7 @@ import pytest
 from helpers import numpy_flange, random_states
 
 import jaxrobot as jr
-from jaxrobot.linalg import spd_solve
+from jaxrobot.internal import spd_solve
 
 ROBOT = jr.racer7()
 TRUTH = jr.racer7(as_built=True)
@@ -195,7 +195,7 @@ def test_planning_dynamics_shapes_and_batching_of_robots():
 
 
 def test_spd_solve_matches_numpy_on_mass_matrices():
-    """The LAPACK-free Cholesky solve (`jaxrobot.linalg.spd_solve`) against numpy's LU solve, batched."""
+    """The LAPACK-free Cholesky solve (`jaxrobot.internal.spd_solve`) against numpy's LU solve, batched."""
     robot = jr.racer7()
     q, _, _ = random_states(40, seed=17)
     d = np.asarray(jr.mass_matrix(robot, jnp.asarray(q)))

@@ -17,11 +17,11 @@ import tomli_w
 import jaxrobot as jr
 import jaxrobot.bench as jb
 import planning as pl
-from identification import calibrate, default_parameters
+from identification import calibrate, diagnose
+from identification.calibration import default_parameters
 from identification.cli import calibration_report, diagnosis_summary
 from identification.core._parameters import ParameterMap
 from identification.core._pose_selection import random_feasible_poses, rest_motor_angles
-from identification.diagnosis import diagnose
 from jaxrobot.io._description import filter_cutoffs, robot_from_description
 from jaxrobot.measurement import Poses
 

@@ -21,6 +21,7 @@ import pytest
 
 import jaxrobot as jr
 import planning as pl
+from planning.internal import joint_derivatives, smooth_joint_path
 
 LAPACK_CALL = re.compile(r"custom_call @(lapack_\w+)\(.*\} : \(tensor<([0-9x]*?)x?[a-z]+\d*>")
 
@@ -51,7 +52,7 @@ def _cases():
     from identification.core._pose_selection import _feasible
     from identification.gear._processing import normal_solve
     from jaxrobot.cli._summary import _numbers
-    from jaxrobot.linalg import cholesky, cholesky_solve, spd_solve
+    from jaxrobot.internal import cholesky, cholesky_solve, spd_solve
     from planning._ik import _starts, singular_values
 
     path, t = _line()
@@ -69,8 +70,8 @@ def _cases():
     yield "inverse kinematics, 7 joints", pl.inverse_kinematics, (arm7, p_d, r_d, jnp.zeros(7))
     yield "IK start from seeds", _starts, (ROBOT, p_d[0], r_d[0], Q[:3])
     q_path = Q[:1].repeat(6, 0)
-    yield "joint derivatives", lambda r, q: pl.joint_derivatives(r, path, q, t, 4), (ROBOT, q_path)
-    yield "smooth joint path", lambda r, q: jax.vmap(pl.smooth_joint_path(r, path, t, q))(t), (ROBOT, q_path)
+    yield "joint derivatives", lambda r, q: joint_derivatives(r, path, q, t, 4), (ROBOT, q_path)
+    yield "smooth joint path", lambda r, q: jax.vmap(smooth_joint_path(r, path, t, q))(t), (ROBOT, q_path)
     yield "jacobian singular values", singular_values, (ROBOT, Q)
     yield "feasible poses", lambda r, q: _feasible(r, q, jnp.zeros(3), 0.1, 0.2, 1e-3), (ROBOT, Q)
     yield "observability", singular_values_from_gram, (spd,)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import planning as pl
+from planning.internal import motor_directions
 from planning import _transcription as tr
 from planning._block_tridiagonal import block_cholesky, block_tridiagonal_matvec, block_tridiagonal_solve
 from planning._al_solver import history_length
@@ -233,8 +234,8 @@ def test_structured_linearisation_matches_autodiff(robot, q_d):
 
 
 def test_solution_converges_and_satisfies_constraints(robot, q_d, solution):
-    assert bool(solution.converged), pl.RESULTS[solution.status]
-    assert bool(solution.status == pl.RESULTS.successful)
+    assert bool(solution.converged), jr.RESULTS[solution.status]
+    assert bool(solution.status == jr.RESULTS.successful)
     problem = tr.ocp_problem(robot, q_d, TS, NU)
     scaled = jax.jit(lambda p, x, u: tr.defects(p, x, u) / tr.defect_scale(p))(problem, solution.x, solution.u)
     assert float(jnp.max(jnp.abs(scaled))) <= DEFECT_TOL
@@ -258,7 +259,7 @@ def test_same_optimum_as_dense_newton_kkt(robot, q_d, solution, nu):
     # nu = 1e-10: the control weight is 1e4 times larger, far from the warm start (the spiral at this
     # nu failed when the multipliers were updated after rejected steps)
     sol = solution if nu == NU else pl.solve_ocp(robot, q_d, TS, nu)
-    assert bool(sol.converged), pl.RESULTS[sol.status]
+    assert bool(sol.converged), jr.RESULTS[sol.status]
     assert float(sol.max_constraint_violation) <= DEFECT_TOL
     problem = tr.ocp_problem(robot, q_d, TS, nu)
     x0, u0 = jax.jit(tr.warm_start)(problem)
@@ -360,7 +361,7 @@ def test_sweep_bad_input_names_the_field(robot, q_d, kwargs, field):
 def test_non_converged_solve_is_not_success(robot, q_d):
     sol = pl.solve_ocp(robot, q_d, TS, NU, config=pl.ALConfig(max_outer_iterations=1))
     assert int(sol.iterations) == 1
-    assert bool(sol.status == pl.RESULTS.nonlinear_max_steps_reached)
+    assert bool(sol.status == jr.RESULTS.nonlinear_max_steps_reached)
     assert not bool(sol.converged)
     assert "maximum number of steps" in jr.status_message(sol.status)
     with pytest.raises(Exception, match="maximum number of steps"):  # throw=True: RESULTS.error_if
@@ -375,7 +376,7 @@ def test_motor_directions_keep_the_plan_to_the_task(robot, q_d):
     rates reach the task's reversals), and the cost rises by less than 1 %."""
     t = jnp.arange(N) * TS
     flat = pl.MotorTrajectory(*jax.jit(lambda t: jr.flat_inverse(robot, lambda x: _move_at(x / t[-1]), t))(t))
-    direction = pl.motor_directions(flat.thetad)
+    direction = motor_directions(flat.thetad)
     free, bound = (pl.solve_ocp(robot, q_d, TS, 1e-10, direction=d) for d in (None, direction))
     assert bool(free.converged) and bool(bound.converged), (jr.status_name(free.status), jr.status_name(bound.status))
     wrong_way = lambda sol: float(jnp.max(-direction * sol.thetad))  # noqa: E731
@@ -390,7 +391,7 @@ def test_motor_directions_keep_the_plan_to_the_task(robot, q_d):
 @pytest.mark.parametrize("cost", ["jerk", "flat"])
 def test_cost_variants_converge(robot, q_d, cost):
     sol = pl.solve_ocp(robot, q_d, TS, NU, cost=cost)
-    assert bool(sol.converged), pl.RESULTS[sol.status]
+    assert bool(sol.converged), jr.RESULTS[sol.status]
     u_ref = jax.jit(tr.warm_start)(tr.ocp_problem(robot, q_d, TS))[1]
     problem = tr.ocp_problem(robot, q_d, TS, NU, cost=cost, u_ref=u_ref)
     assert float(sol.objective) == pytest.approx(float(jax.jit(tr.objective)(problem, sol.x, sol.u)), rel=1e-12)

@@ -12,6 +12,7 @@ import pytest
 
 import jaxrobot as jr
 import planning as pl
+from planning.internal import check_joint_path, smooth_joint_path
 
 DESC = jr.read_description()
 TRAJ = DESC["trajectories"]
@@ -129,7 +130,7 @@ def test_joint_derivatives_match_finite_differences(joint_paths, name):
 
 def test_smooth_q_d_is_the_implicit_function(robot, joint_paths):
     jp = joint_paths["spiral"]
-    exact = pl.smooth_joint_path(robot, jp.path, jp.t, jp.q)
+    exact = smooth_joint_path(robot, jp.path, jp.t, jp.q)
     s = jnp.array([0.0, 0.2503, 1.2345, 2.5])  # on and off the grid
     d_exact = jax.jit(lambda s: pl.path_derivatives(exact, s, 1))(s)
     d_taylor = jax.jit(lambda s: pl.path_derivatives(jp.fn, s, 1))(s)
@@ -152,15 +153,15 @@ def test_ik_errors_name_sample_and_joint(robot, paths, joint_paths):
     jp = joint_paths["line"]
     low = eqx.tree_at(lambda r: r.q_max, robot, robot.q_max.at[0].set(0.3))
     with pytest.raises(ValueError, match=r"joint 1 position .* at sample \d+"):
-        pl.check_joint_path(low, jp)
+        check_joint_path(low, jp)
     slow = eqx.tree_at(lambda r: r.qd_max, robot, robot.qd_max.at[2].set(0.1))
     with pytest.raises(ValueError, match=r"joint 3 velocity .* at sample \d+"):
-        pl.check_joint_path(slow, jp)
+        check_joint_path(slow, jp)
     weak = eqx.tree_at(lambda r: r.qdd_max, robot, robot.qdd_max.at[1].set(0.1))
     with pytest.raises(ValueError, match=r"joint 2 acceleration"):
-        pl.check_joint_path(weak, jp)
+        check_joint_path(weak, jp)
     with pytest.raises(ValueError, match="near a singularity"):
-        pl.check_joint_path(robot, jp, singularity_margin=10.0)
+        check_joint_path(robot, jp, singularity_margin=10.0)
     far = pl.Path(lambda t: jnp.array([3.0, 0.0, 1.0]) + 0 * t, paths["line"].orientation, 2.5, 1e-3, "far")
     with pytest.raises(ValueError, match="inverse kinematics failed at sample 0"):
         pl.joint_path(robot, far)

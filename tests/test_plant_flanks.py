@@ -12,6 +12,7 @@ import pytest
 import jaxrobot as jr
 import planning as pl
 from planning._workflow import solve_directional
+from planning.internal import boundary_states, defects, motor_directions
 
 TRUTH = jr.racer7(as_built=True)
 QA = jnp.array([0.1, 0.2, -1.3, 0.2, 0.9, 0.1])
@@ -37,7 +38,7 @@ def reversals(theta) -> list[int]:
 
 
 def wrong_way_rate(sol, direction) -> float:
-    """[rad/s] Largest motor rate against the direction of the task (`pl.motor_directions`)."""
+    """[rad/s] Largest motor rate against the direction of the task (`motor_directions`)."""
     return float(jnp.max(-direction * sol.thetad))
 
 
@@ -57,7 +58,7 @@ def test_reversals_count_back_travel_beyond_the_resolution():
     assert reversals(theta) == [6, 0, 0]
     assert np.asarray(pl.motor_reversals(theta, 0.0)).tolist() == [6, 0, 100]
     rate = jnp.array([[0.0, 0.0], [2.0, 0.0], [0.0, 0.0], [-1.0, 0.0], [0.0, 0.0]])
-    np.testing.assert_array_equal(pl.motor_directions(rate), [[1, 0], [1, 0], [-1, 0], [-1, 0], [-1, 0]])
+    np.testing.assert_array_equal(motor_directions(rate), [[1, 0], [1, 0], [-1, 0], [-1, 0], [-1, 0]])
 
 
 def flank_changes(robot, theta) -> list[int]:
@@ -76,12 +77,12 @@ def test_transcription_uses_the_flanks_it_is_given():
     swapped = eqx.tree_at(lambda r: r.cw, TRUTH, TRUTH.ccw)
     w, theta = jr.reversal_travel(TRUTH), x[:, 12:18]
     on_cw, on_ccw = theta - 0.5 * w, theta + 0.5 * w  # play states of a gear that last moved cw / ccw
-    cw = pl.defects(pl.ocp_problem(TRUTH, q, 1e-3), x, u)
-    np.testing.assert_array_equal(pl.defects(pl.ocp_problem(TRUTH, q, 1e-3, play=on_cw), x, u), cw)
-    ccw = pl.defects(pl.ocp_problem(TRUTH, q, 1e-3, play=on_ccw), x, u)
-    np.testing.assert_allclose(ccw, pl.defects(pl.ocp_problem(swapped, q, 1e-3), x, u), rtol=1e-12, atol=1e-15)
+    cw = defects(pl.ocp_problem(TRUTH, q, 1e-3), x, u)
+    np.testing.assert_array_equal(defects(pl.ocp_problem(TRUTH, q, 1e-3, play=on_cw), x, u), cw)
+    ccw = defects(pl.ocp_problem(TRUTH, q, 1e-3, play=on_ccw), x, u)
+    np.testing.assert_allclose(ccw, defects(pl.ocp_problem(swapped, q, 1e-3), x, u), rtol=1e-12, atol=1e-15)
     assert float(jnp.abs(ccw - cw).max()) > 1e-3  # joint 3's link acceleration: k1 (phi_ccw - phi_cw) / D
-    start, _ = pl.boundary_states(pl.ocp_problem(TRUTH, q, 1e-3, play=jr.static_equilibrium(TRUTH, q) + w))
+    start, _ = boundary_states(pl.ocp_problem(TRUTH, q, 1e-3, play=jr.static_equilibrium(TRUTH, q) + w))
     rest = jr.measurement.rest_link_angles(TRUTH, start[12:18], jnp.ones(6, bool))
     np.testing.assert_allclose(rest, q[0], atol=1e-12)
 
@@ -135,7 +136,7 @@ def test_motor_reverses_only_where_the_motion_does(reversal_task):
     for sol, _, _ in plans.values():
         assert flank_changes(TRUTH, sol.theta)[:3] == want[:3]
         assert reversals(sol.theta) == reversals(flat.theta)
-        assert wrong_way_rate(sol, pl.motor_directions(flat.thetad)) <= rate_tolerance(TRUTH)
+        assert wrong_way_rate(sol, motor_directions(flat.thetad)) <= rate_tolerance(TRUTH)
 
 
 @pytest.mark.extended
@@ -150,7 +151,7 @@ def test_reference_plans_reverse_only_where_the_task_does(task):
     jp = pl.joint_path(TRUTH, reference_path(task))
     flat = pl.baseline_trajectories(TRUTH, jp)["flat_inverse"]
     warm = (pl.State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
-    direction = pl.motor_directions(flat.thetad)
+    direction = motor_directions(flat.thetad)
     free = pl.solve_ocp(TRUTH, jp.q, 1e-3, 1e-10, warm_start=warm)
     sol, _, _ = solve_directional(TRUTH, jp.q, jp.qd, flat, 1e-3, 1e-10, "thesis", False)
     assert bool(free.converged) and bool(sol.converged), (jr.status_name(free.status), jr.status_name(sol.status))

@@ -24,7 +24,7 @@ from helpers import example_urdf
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
-from identification import CATALOGUE
+from identification.diagnosis import CATALOGUE
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]

@@ -1,7 +1,7 @@
 """Kinematic calibration of one robot and of fleets: parameters, identifiability, pose sets, LM/MAP (thesis ch. 3.3)."""
 
-from jaxrobot.checks import check_public as _check_public
-from jaxrobot.checks import deprecated_aliases as _deprecated_aliases
+from jaxrobot.internal import check_public as _check_public
+from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
 from ..core._identifiability import IdentifiabilityResult as IdentifiabilityResult
 from ..core._identifiability import default_parameters as default_parameters
@@ -15,20 +15,20 @@ from ..core._pose_selection import PoseConstraints as PoseConstraints
 from ..core._pose_selection import detmax as detmax
 from ..core._pose_selection import random_feasible_poses as random_feasible_poses
 from ..core._pose_selection import rest_motor_angles as rest_motor_angles
-from ._calibrate import DEFAULT_PARAMETERS as DEFAULT_PARAMETERS
-from ._calibrate import DEFAULT_PRIOR_STD as DEFAULT_PRIOR_STD
-from ._calibrate import CalibrationResult as CalibrationResult
-from ._calibrate import calibrate as calibrate
 from ._calibrate import map_parameters as map_parameters
 from ._demo import DemoCalibration as DemoCalibration
 from ._demo import demo_calibration as demo_calibration
-from ._fleet import FleetResult as FleetResult
-from ._fleet import calibrate_fleet as calibrate_fleet
 from ._selection import ParameterSelection as ParameterSelection
 
 _check_public(globals())
 
 __getattr__ = _deprecated_aliases(__name__, {
+    "CalibrationResult": "identification.CalibrationResult",
+    "DEFAULT_PARAMETERS": "identification.DEFAULT_PARAMETERS",
+    "DEFAULT_PRIOR_STD": "identification.DEFAULT_PRIOR_STD",
+    "FleetResult": "identification.FleetResult",
+    "calibrate": "identification.calibrate",
+    "calibrate_fleet": "identification.calibrate_fleet",
     "BenchCalibration": "identification.calibration.DemoCalibration",
     "bench_calibration": "identification.calibration.demo_calibration",
     "calibration_report": "identification.cli.calibration_report",

@@ -25,9 +25,9 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
 import jaxrobot as jr
-from jaxrobot import RESULTS, cached_program
+from jaxrobot import RESULTS
+from jaxrobot.internal import cached_program, check
 from jaxrobot.measurement import Poses, marker_pose, pose_arrays
-from jaxrobot.status import check
 
 from ..core import _robust as robust
 from ..core._noise import noise_model
@@ -284,10 +284,8 @@ class CalibrationResult:
     residuals: np.ndarray
     """[m] data residuals at the solution (3 per pose, plus the orientation rows scaled by the
     noise ratio when orientations are given), unweighted by the robust loss."""
-    converged: bool
-    """True only for status `successful`."""
-    status: str
-    """Name of the solve's `jaxrobot.RESULTS`."""
+    status: RESULTS
+    """The solve's status (`jaxrobot.status_name` gives its name, `jaxrobot.status_message` its message)."""
     iterations: int
     """Levenberg-Marquardt steps."""
     noise_estimate: float
@@ -319,6 +317,11 @@ class CalibrationResult:
     """Which parameters of the default set were kept, which set aside, and by what criterion (`_selection`);
     None where none was selected (`parameters` given, `method="map"`, `all_parameters=True`, or a full-set
     fit that did not converge)."""
+
+    @property
+    def converged(self) -> bool:
+        """True only for status `successful`."""
+        return bool(self.status == RESULTS.successful)
 
     @property
     def delta(self) -> np.ndarray:
@@ -447,7 +450,7 @@ def calibrate(
     parameters, unit mistakes (`check_pose_units`), and, with
     `limits="raise"`, poses beyond the joint limits (by row); after the solve, for a
     rank-deficient pose set (naming the unidentifiable directions). A solve that does not converge is
-    returned with `converged=False` and its `status` (a `jaxrobot.RESULTS` name), never as success;
+    returned with its `status` (a `jaxrobot.RESULTS`; `converged` False), never as success;
     `throw=True` raises its message instead (`RESULTS.error_if`).
 
     **Returns:** `CalibrationResult` (SI units; `identification.cli.calibration_report` gives the report dict).
@@ -546,8 +549,8 @@ def calibrate(
     return CalibrationResult(
         robot=calibrated, names=() if params is None else params.names, value=out.value,
         start=np.zeros(0) if params is None else np.asarray(params.get(robot)),
-        std=np.sqrt(np.diag(cov)), covariance=cov, residuals=resid.ravel(), converged=bool(out.converged),
-        status=jr.status_name(out.status), iterations=int(out.steps), noise_estimate=noise, loss=loss,
+        std=np.sqrt(np.diag(cov)), covariance=cov, residuals=resid.ravel(),
+        status=out.status, iterations=int(out.steps), noise_estimate=noise, loss=loss,
         weights=pose_w, outliers=robust.outliers(resid, s_p), outlier_bound=s_p * robust.outlier_bound(rows),
         errors_before=err0[:k], errors_after=err1[:k],
         validation_before=err0[k:] if val else None, validation_after=err1[k:] if val else None,

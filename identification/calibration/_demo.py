@@ -14,8 +14,8 @@ import numpy as np
 
 import jaxrobot as jr
 from jaxrobot.bench import draw_fleet, measure_poses
+from jaxrobot.internal import require_successful
 from jaxrobot.measurement import Poses, measured_pose
-from jaxrobot.status import require_successful
 
 from ._calibrate import DEFAULT_PARAMETERS, CalibrationResult, calibrate
 from ..core._parameters import ParameterMap

@@ -7,8 +7,8 @@ poses, `_model.position_jacobian`), each robot stopping on its own tolerances. T
 fleet axis is sharded across all devices with `jax.sharding` (a 1-D mesh named `"fleet"`,
 `shard_map`: each device runs its own LM loop on its own robots, no communication), so that the
 same call uses one CPU, several GPUs, or several processes and hosts under `jax.distributed`
-(`jaxrobot.initialize_processes`): each process passes only its own robots, the global arrays
-are assembled from the processes' rows (`jaxrobot.shard_rows`) and the results gathered back.
+(`jaxrobot.internal.initialize_processes`): each process passes only its own robots, the global arrays
+are assembled from the processes' rows (`jaxrobot.internal.shard_rows`) and the results gathered back.
 """
 
 from __future__ import annotations
@@ -24,9 +24,9 @@ from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
-from jaxrobot import RESULTS, backend_kind, gather_rows, shard_rows
+from jaxrobot import RESULTS
+from jaxrobot.internal import backend_kind, check, gather_rows, shard_rows, where
 from jaxrobot.measurement import Poses, pose_arrays, rest_link_angles
-from jaxrobot.status import check, where
 
 from ..core import _robust as robust
 from ..core._batched_lm import LMConfig, batched_lm, covariance, map_chunks
@@ -295,8 +295,8 @@ def calibrate_fleet(
     chi-square test of `diagnose`, `identification.core._noise.noise_test`, at the level `ALPHA / R`).
     `max_steps`: of `LMConfig`. `parameters`: default `default_parameters` of the first robot, all of them for
     every robot (no backward elimination as in `calibrate`: one batched program over the robots). Under
-    several processes (`jaxrobot.initialize_processes`) each process passes only its own robots
-    (e.g. rows `jaxrobot.process_share(R)`, one robot or its own fleet rows in `robots`; none on a
+    several processes (`jaxrobot.internal.initialize_processes`) each process passes only its own robots
+    (e.g. rows `jaxrobot.internal.process_share(R)`, one robot or its own fleet rows in `robots`; none on a
     process whose robots all failed their checks) and every process receives the whole fleet in process
     order.
 

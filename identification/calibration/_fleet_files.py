@@ -1,7 +1,7 @@
 """The pose files of a fleet, each read and checked on its own (`jaxrobot calibrate-fleet`): a file
 that fails a check is named with the check, what was found and where, and left out; the others are
 calibrated. Under several processes each process checks its own share and every process receives
-the outcomes of all files (`jaxrobot.gather_texts`)."""
+the outcomes of all files (`jaxrobot.internal.gather_texts`)."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 import jaxrobot as jr
+from jaxrobot.internal import gather_texts, process_share
 from jaxrobot.measurement import Poses
 
 from ..core._pose_checks import check_pose_units
@@ -96,12 +97,12 @@ def check_pose_file(path: Path, robot: jr.Robot, marker, approach: str = "cw") -
 
 
 def check_fleet_files(files: Sequence[Path], robot: jr.Robot, marker, approach: str = "cw") -> FleetFiles:
-    """Read and check this process's share (`jaxrobot.process_share`) of the fleet's pose files
+    """Read and check this process's share (`jaxrobot.internal.process_share`) of the fleet's pose files
     `files` (all processes pass the same list), each on its own (`check_pose_file`), gather every
     file's outcome on every process and reject the files whose pose count is not the fleet's."""
-    share = jr.process_share(len(files))
+    share = process_share(len(files))
     local = [check_pose_file(f, robot, marker, approach) for f in files[share]]
-    texts = jr.gather_texts([json.dumps(dataclasses.asdict(c)) for _, c in local])
+    texts = gather_texts([json.dumps(dataclasses.asdict(c)) for _, c in local])
     checks = [FileCheck(**{**d, "lines": tuple(d["lines"])}) for d in map(json.loads, texts)]
     counts = collections.Counter(c.poses for c in checks if not c.check)
     poses = max(counts, key=lambda k: (counts[k], k)) if counts else 0

@@ -176,7 +176,7 @@ def run(args, echo) -> dict:
              f"gear ripple ({'/'.join(o['direction'])}) was identified; there the Fourier set is an extrapolation "
              "(identify the gear over the poses' range)")
     if not res.converged:
-        raise SolveFailed(f"calibration did not converge ({res.status}); the model was not saved")
+        raise SolveFailed(f"calibration did not converge ({jr.status_name(res.status)}); the model was not saved")
     if args.out is not None:
         workspace = workspace_positions(robot, marker)
         for f in _write_outputs(args.out, report, positions=data.positions, workspace=workspace):

@@ -1,7 +1,7 @@
 """`jaxrobot calibrate-fleet FOLDER`: kinematic calibration of a fleet, one pose file per robot, on
 one process or on several (`jax.distributed`): started once per process with the same arguments
-and the coordinator address, process count and id (flags or `jaxrobot.PROCESS_ENV`); each process
-reads only its share of the files (`jaxrobot.process_share`), the fleet call runs on the global
+and the coordinator address, process count and id (flags or `jaxrobot.internal.PROCESS_ENV`); each process
+reads only its share of the files (`jaxrobot.internal.process_share`), the fleet call runs on the global
 mesh, and process 0 writes the gathered table once. `--bench R` first writes bench data of R random
 as-built robots, each process its own share.
 
@@ -70,6 +70,7 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
     """Bench data of a fleet (`fleet_measurements`), this process's share (`process_share`): writes
     `robot_{r:05d}.csv` of this share; returns all R paths. The files do not depend on the process count."""
     import jaxrobot as jr
+    from jaxrobot.internal import process_share
 
     from ..calibration._demo import fleet_measurements
 
@@ -77,7 +78,7 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
         raise ValueError(f"--bench/--poses: expected >= 1 robots and poses, found {n_robots} and {n_poses}")
     paths = [folder / f"robot_{r:05d}.csv" for r in range(n_robots)]
     folder.mkdir(parents=True, exist_ok=True)
-    share = jr.process_share(n_robots)
+    share = process_share(n_robots)
     rows = range(share.start, share.stop)
     meas = fleet_measurements(n_robots, n_poses, rows, seed, nominal, marker)
     for i, r in enumerate(rows):
@@ -145,8 +146,9 @@ def run(args, echo) -> dict:
     - `seconds`: `{"bench", "read", "calibrate": float}` [s] of the stages that ran; `peak_memory_mb` (float
       [MiB], this process's peak resident memory)."""
     import jaxrobot as jr
+    from jaxrobot.internal import initialize_processes
 
-    count = jr.initialize_processes(args.coordinator, args.num_processes, args.process_id)
+    count = initialize_processes(args.coordinator, args.num_processes, args.process_id)
     import jax
 
     from jaxrobot.cli import ItemsFailed, Progress, SolveFailed

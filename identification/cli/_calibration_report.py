@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+import jaxrobot as jr
+
 from ..calibration._calibrate import DATA_FRACTION, CalibrationResult
 from ..core._parameters import parse_name, unit
 
@@ -42,7 +44,7 @@ def calibration_report(res: CalibrationResult) -> dict:
         "parameters": params,
         "identification": {"before_m": error_stats(res.errors_before), "after_m": error_stats(res.errors_after)},
         "converged": res.converged,
-        "status": res.status,
+        "status": jr.status_name(res.status),
         "iterations": res.iterations,
         "noise_estimate_m": res.noise_estimate,
         "residual_rms_m": res.residual_rms,

@@ -96,7 +96,7 @@ def _diagnose_runs(args, echo) -> dict:
              + f"), BIC {row.bic:.1f}, validation chi2/dof {row.chi2_validation / rows_val:.4f}")
 
     res = diagnose_runs(robot, train, val, marker, noise, max_steps=args.max_steps,
-                        encoder_quantum=0.0 if counts is None else 2 * np.pi / counts, progress=progress, poses=poses)
+                        encoder_quantum=0.0 if counts is None else 2 * np.pi / counts, on_event=progress, poses=poses)
     echo(f"verdict: {res.verdict}")
     effects = []
     for e in res.estimates:
@@ -138,7 +138,7 @@ def run(args, echo) -> dict:
             steps.step(f"step {event.step}")
 
     res = diagnose(robot, train, val, noise=noise, marker=marker, max_steps=args.max_steps,
-                   max_order=args.max_order, loss=args.loss, times=times, progress=progress)
+                   max_order=args.max_order, loss=args.loss, times=times, on_event=progress)
     echo("\n" + loop_table(res.loop, res.noise_floor))
     echo(f"verdict: {res.verdict}")
     rep = diagnosis_summary(res, lines)

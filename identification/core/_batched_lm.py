@@ -37,8 +37,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PyTree
 
 from jaxrobot import RESULTS
-from jaxrobot.linalg import cholesky, cholesky_solve
-from jaxrobot.status import check, full, where
+from jaxrobot.internal import check, cholesky, cholesky_solve, full, where
 
 
 class LMConfig(eqx.Module):

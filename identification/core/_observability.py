@@ -11,7 +11,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from jaxrobot.linalg import map_matrices
+from jaxrobot.internal import map_matrices
 
 
 class ObservabilityIndices(eqx.Module):

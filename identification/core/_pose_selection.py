@@ -18,8 +18,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
-from jaxrobot import cached_program
-from jaxrobot.linalg import map_matrices
+from jaxrobot.internal import cached_program, map_matrices
 from jaxrobot.measurement import marker_pose
 
 from ._observability import ObservabilityIndices, observability_indices, singular_values_from_gram

@@ -1,16 +1,13 @@
 """Finding the effect that explains a gap between model and measurement (`diagnose`, the effect catalogue), and
 between the model and trajectory runs (`compare_run`, `diagnose_runs`)."""
 
-from jaxrobot.checks import check_public as _check_public
-from jaxrobot.checks import deprecated_aliases as _deprecated_aliases
+from jaxrobot.internal import check_public as _check_public
+from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
 from ._diagnose import AddedEffect as AddedEffect
 from ._diagnose import CandidateScore as CandidateScore
-from ._diagnose import DiagnoseEvent as DiagnoseEvent
-from ._diagnose import DiagnoseResult as DiagnoseResult
 from ._diagnose import Estimate as Estimate
 from ._diagnose import LoopRow as LoopRow
-from ._diagnose import diagnose as diagnose
 from ._effects import CATALOGUE as CATALOGUE
 from ._effects import Effect as Effect
 from ._effects import Layout as Layout
@@ -27,6 +24,9 @@ from ._runs import diagnose_runs as diagnose_runs
 _check_public(globals())
 
 __getattr__ = _deprecated_aliases(__name__, {
+    "DiagnoseEvent": "identification.DiagnoseEvent",
+    "DiagnoseResult": "identification.DiagnoseResult",
+    "diagnose": "identification.diagnose",
     "Poses": "jaxrobot.measurement.Poses",
     "progress_lines": "identification.cli.progress_lines",
     "summary": "identification.cli.diagnosis_summary",

@@ -38,6 +38,7 @@ import numpy as np
 from jaxtyping import Array
 
 import jaxrobot as jr
+from jaxrobot.internal import renamed_argument
 from jaxrobot.measurement import Poses, approach_sign
 
 from ..core import _robust as robust
@@ -283,6 +284,18 @@ class DiagnoseResult:
     larger (`_robust.spread`; `Outlier.sigmas` in the same unit), by row."""
 
     @property
+    def status(self) -> jr.RESULTS:
+        """`successful` when the final model explains the data to the noise floor (`verdict` "no significant
+        discrepancy" or "explained"), else `inconsistent` (residuals or validation above the noise)."""
+        explained = self.verdict.startswith(("no significant discrepancy", "explained"))
+        return jr.RESULTS.successful if explained else jr.RESULTS.inconsistent
+
+    @property
+    def converged(self) -> bool:
+        """True when `status` is `successful`."""
+        return bool(self.status == jr.RESULTS.successful)
+
+    @property
     def noise_floor(self) -> float:
         """RMS norm of the tracker noise `sigma sqrt(3)` [m]."""
         return self.noise * float(np.sqrt(3.0))
@@ -395,6 +408,7 @@ def diagnose(
     shortlist: int = 4,
     loss: str = robust.LOSSES[0],
     times=None,
+    on_event: Callable[[DiagnoseEvent], None] | None = None,
     progress: Callable[[DiagnoseEvent], None] | None = None,
 ) -> DiagnoseResult:
     """Find, name and add the effects that `start` misses, from tracker pose measurements.
@@ -416,11 +430,12 @@ def diagnose(
       score the others unweighted; `"l2"` weighs all alike; `times`: the training poses' acquisition
       times [s] (a pose file's `t_s`; the row order is never taken for time): the final model's
       residuals are then tested for a link-length scale linear in time (thermal drift, `Drift`);
-      `progress`: receives a `DiagnoseEvent` per model
-      compared and per step's candidates (`identification.cli.progress_lines` turns them into text).
+      `on_event`: receives a `DiagnoseEvent` per model compared and per step's candidates
+      (`identification.cli.progress_lines` turns them into text); `progress`: its deprecated old name.
 
     **Returns:** `DiagnoseResult` in SI units (`identification.cli.diagnosis_summary`: the JSON of `jaxrobot diagnose`).
     """
+    on_event = renamed_argument("diagnose", "progress", "on_event", progress, on_event)
     train, validation = train.checked(), validation.checked()
     sigma, marker = _checked_inputs(start, train, validation, noise, marker)
     robust.check_loss(loss)
@@ -430,7 +445,7 @@ def diagnose(
     def _white(err):  # each training pose's residual whitened (the isotropic equivalent sigma per axis)
         return np.einsum("kij,kj->ki", white, err)
     joints = start.n_joints
-    emit = progress or (lambda _: None)
+    emit = on_event or (lambda _: None)
     layout = Layout.of(catalogue(start), joints)
     fns = functions(layout)
     robot0 = with_ripple_slots(start)

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
+from jaxrobot.internal import renamed_argument
 from jaxrobot.measurement import marker_pose, rest_link_angles
 
 from ..core._noise import ALPHA, noise_model, noise_test
@@ -479,9 +480,10 @@ def diagnose_runs(
     max_steps: int = 6,
     substeps: int = 4,
     encoder_quantum: float = 0.0,
-    progress: Callable[[RunStep], None] | None = None,
+    on_event: Callable[[RunStep], None] | None = None,
     poses: tuple | None = None,
     pose_noise=None,
+    progress: Callable[[RunStep], None] | None = None,
 ) -> RunDiagnosis:
     """Name the dynamic effects (`RUN_KINDS`, `PAYLOAD`) that `robot` misses from trajectory runs, one per step,
     with poses at rest as further evidence where given.
@@ -490,7 +492,8 @@ def diagnose_runs(
     `read_trajectory_csv`); `marker` (3,) [m] in the tool frame; `noise` the tracker's std per axis [m] or a
     `TrackerNoise`; `substeps` of `jr.simulate` per sample; `encoder_quantum` [rad] the encoders' resolution;
     `poses`: `(training, validation)` `jaxrobot.measurement.Poses` measured with the same marker, each residual
-    in units of `pose_noise` (default `noise`).
+    in units of `pose_noise` (default `noise`); `on_event` receives each `RunStep` as it is scored (`progress`: its
+    deprecated old name).
 
     Each step compares the model with the training runs and poses (one chi-square over all their rows, each in
     units of its own noise, as `compare_run`); while the test fails, it screens every effect not yet added by the
@@ -502,6 +505,7 @@ def diagnose_runs(
     lowers the validation runs' and poses' chi-square. The model without an effect is where each fit starts (lag,
     damping and payload 0). Static effects that runs do not change (geometry, gear ripple, offsets: `diagnose`) are
     not candidates: diagnose the poses alone for them first."""
+    on_event = renamed_argument("diagnose_runs", "progress", "on_event", progress, on_event)
     n = robot.n_joints
     if max_steps < 0 or substeps < 1:
         raise ValueError(f"max_steps >= 0 and substeps >= 1 expected, found {max_steps}, {substeps}")
@@ -527,8 +531,8 @@ def diagnose_runs(
         chi2_v = float(np.sum(_evaluate(base, z, ev_val, marker, substeps)[0] ** 2))
         chi2_p = float(np.sum(res[res.size - (0 if ev.poses is None else ev.poses[3].size):] ** 2))
         out = RunStep(step, label, float(chi2), int(dof), float(p_value), float(chi2) + m * ln_n, chi2_v, chi2_p)
-        if progress is not None:
-            progress(out)
+        if on_event is not None:
+            on_event(out)
         return out
 
     z, added, cov = jnp.zeros(size), [], np.zeros((0, 0))

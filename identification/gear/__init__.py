@@ -1,13 +1,12 @@
 """Gear-ratio identification from encoder + gyroscope runs (thesis ch. 3.2)."""
 
-from jaxrobot.checks import check_public as _check_public
+from jaxrobot.internal import check_public as _check_public
+from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
 from ._fit import DirectionTest as DirectionTest
 from ._fit import GearFit as GearFit
-from ._fit import GearIdentification as GearIdentification
 from ._fit import Resolution as Resolution
 from ._fit import fit_gear_ratio as fit_gear_ratio
-from ._fit import identify_gear as identify_gear
 from ._fit import kinematic_errors as kinematic_errors
 from ._frequencies import fft_orders as fft_orders
 from ._frequencies import sparse_orders as sparse_orders
@@ -18,3 +17,8 @@ from ._processing import prepare_gear_runs as prepare_gear_runs
 from ._processing import process_gear_runs as process_gear_runs
 
 _check_public(globals())
+
+__getattr__ = _deprecated_aliases(__name__, {
+    "GearIdentification": "identification.GearIdentification",
+    "identify_gear": "identification.identify_gear",
+})

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 
 import equinox as eqx
 import jax
@@ -24,14 +25,13 @@ from jaxrobot import (
     RESULTS,
     Ripple,
     Robot,
-    cached_program,
     filter_cutoffs,
     fourier_ratio,
     fourier_xi_inverse,
     read_description,
     status_message,
 )
-from jaxrobot.linalg import map_matrices
+from jaxrobot.internal import cached_program, map_matrices
 from jaxrobot.measurement import GearRun, gear_run_arrays
 
 from ..core._noise import chi2_quantile
@@ -259,8 +259,8 @@ class GearIdentification:
     """Per group: the basic ratio `u0` and the Fourier ripple set with the orders of `method`."""
     misalignment: np.ndarray
     """(n, 2) gyroscope alignment angles `(alpha, beta)` per joint [rad] (eq. 3.3)."""
-    align_ok: bool
-    """True when the alignment solve converged."""
+    status: RESULTS
+    """Status of the alignment solve (`identify_gear` raises when it did not converge, so `successful`)."""
     method: str
     """The order search whose orders were fitted: "sparse" (ours) or "fft" (the thesis')."""
     orders_fft: list
@@ -289,6 +289,18 @@ class GearIdentification:
     ranges: list = dataclasses.field(default_factory=list)
     """Per group: `(lo, hi)` gear output angle [rad] over the identification runs' segments, the
     range where its Fourier set is measured (outside: an extrapolation)."""
+
+    @property
+    def converged(self) -> bool:
+        """True when the alignment solve converged."""
+        return bool(self.status == RESULTS.successful)
+
+    @property
+    def align_ok(self) -> bool:
+        """Deprecated name of `converged`; it goes in the next release."""
+        warnings.warn("GearIdentification.align_ok is now GearIdentification.converged; the old name goes in the "
+                      "next release", DeprecationWarning, stacklevel=2)
+        return self.converged
 
     def identified_ranges(self) -> dict:
         """`{(joint, "cw"/"ccw"): (lo, hi) deg}` of the groups whose ripple was kept."""
@@ -517,8 +529,7 @@ def identify_gear(
     group = np.array([groups.index((i.joint, i.ccw)) for i in infos])
     fit_run = ~is_val
     proc = process_gear_runs(robot, batch)
-    align_ok = bool(proc.align_result == RESULTS.successful)
-    if not align_ok:
+    if not bool(proc.align_result == RESULTS.successful):
         raise ValueError("gyroscope alignment (eq. 3.3) did not converge: "
                          f"{status_message(proc.align_result)}; check the gyroscope columns")
     n_groups = len(groups)
@@ -609,7 +620,7 @@ def identify_gear(
     ranges = [(float(phi[(group == g)[:, None] & seg].min()), float(phi[(group == g)[:, None] & seg].max()))
               for g in range(n_groups)]
     return GearIdentification(
-        groups=groups, fit=fit, misalignment=np.asarray(proc.misalignment), align_ok=align_ok, method=method,
+        groups=groups, fit=fit, misalignment=np.asarray(proc.misalignment), status=proc.align_result, method=method,
         orders_fft=orders_fft, orders_sparse=orders_sparse, spectra=[(f[1], f[2]) for f in fft],
         cv_curves=np.asarray(cv), tests=tests, resolution=resolution, infos=infos, group=group, validation=is_val,
         errors=errors,

@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from jaxrobot import cached_program
+from jaxrobot.internal import cached_program
 
 from ._processing import GearBatch, ProcessedRuns, normal_solve
 

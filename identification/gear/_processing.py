@@ -25,8 +25,8 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
-from jaxrobot import RESULTS, Ripple, Robot, cached_program
-from jaxrobot.linalg import map_matrices
+from jaxrobot import RESULTS, Ripple, Robot
+from jaxrobot.internal import cached_program, check, map_matrices
 from jaxrobot.measurement import (
     GearRun,
     gear_run_arrays,
@@ -34,7 +34,6 @@ from jaxrobot.measurement import (
     quasi_static_link_angles,
     sensor_rotation,
 )
-from jaxrobot.status import check
 
 MOVE_THRESHOLD_RAD = math.radians(1.0)
 """A joint moves in a run if its motor angle spans more than this [rad, motor side]."""

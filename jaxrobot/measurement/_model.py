@@ -110,13 +110,13 @@ def rest_link_angles(
     theta: Float[Array, "*b n"],
     ccw: bool | Bool[Array, "*b n"] = False,
     rippled: tuple[int, ...] | None = None,
-    throw: bool = True,
+    throw: bool = False,
 ) -> Float[Array, "*b n"]:
     """Link angles `q` at rest at motor angles `theta` (`rest_solution`).
 
-    `throw`: raise the status's message (at run time, also under `jit`) when the fixed point did
-    not converge; False gives NaN there instead, for batched solves that report a non-finite
-    start in their own status (the fleet calibration).
+    Where the fixed point did not converge the angles are NaN, for batched solves that report a
+    non-finite start in their own status (the fleet calibration); `throw=True` raises the status's
+    message there instead (at run time, also under `jit`).
     """
     q, result = rest_solution(robot, theta, ccw, rippled)
     ok = result == RESULTS.successful
@@ -138,6 +138,6 @@ def measured_pose(
 ) -> tuple[Float[Array, "*b n"], Float[Array, "*b 3"], Float[Array, "*b 3 3"], RESULTS]:
     """Noise-free measurement at motor angles `theta`: link angles at rest, the marker's position and
     rotation there (`marker_pose`) and the status of the rest fixed point (`rest_solution`; the
-    caller raises on it, e.g. `jaxrobot.status.require_successful`)."""
+    caller raises on it, e.g. `jaxrobot.internal.require_successful`)."""
     q, result = rest_solution(robot, theta, ccw)
     return (q, *marker_pose(robot, q, marker), result)

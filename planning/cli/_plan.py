@@ -194,7 +194,7 @@ def summary(result: PlanResult) -> dict:
                  "rms_um": 1e6 * float(err.position_rms[names.index(k)])} for k in METHODS}
     e = result.plan_error
     return {
-        "status": result.status, "iterations": int(sol.iterations), "solve_time_s": result.solve_time,
+        "status": jr.status_name(result.status), "iterations": int(sol.iterations), "solve_time_s": result.solve_time,
         "compile_time_s": result.compile_time, "objective": float(sol.objective),
         "max_constraint_violation": float(sol.max_constraint_violation),
         "path_error_um": {"max": 1e6 * float(e.max()), "rms": 1e6 * float(np.sqrt(np.mean(e**2)))},
