@@ -13,7 +13,7 @@ import pytest
 nbformat = pytest.importorskip("nbformat")
 nbclient = pytest.importorskip("nbclient")
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 SIGMA_SQRT3 = np.sqrt(3.0)
 """RMS norm of 3-D Gaussian noise of std `sigma` per axis, in units of `sigma`."""
 
