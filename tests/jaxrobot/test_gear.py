@@ -6,12 +6,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 import jaxrobot as jr
 
 ROBOT = jr.racer7()
-
-
 TRUTH = jr.racer7(as_built=True)
 
 
@@ -78,3 +79,27 @@ def test_gear_sincos_matches_numpy_and_differentiates_exactly():
         jax.vmap(jax.grad(lambda t: _sincos(t)[1]))(jnp.asarray(x[:100]))
     np.testing.assert_array_equal(ds, c[:100])
     np.testing.assert_array_equal(dc, -s[:100])
+
+
+_motor_angle = jax.jit(jr.motor_angle, static_argnames="ccw")
+_gear_output = jax.jit(jr.gear_output, static_argnames="ccw")
+GEAR_AXIOMS = settings(max_examples=60, deadline=None, derandomize=True, database=None)
+fractions = arrays(np.float64, 6, elements=st.floats(0.0, 1.0, allow_nan=False))
+"""A point of the joint ranges as the fraction of the way from each lower to each upper limit."""
+
+
+@GEAR_AXIOMS
+@given(fractions, st.booleans(), st.booleans())
+def test_gear_inverse_axioms(fraction, ccw, as_built):
+    """For link angles `phi` anywhere in the joint ranges (drawn by hypothesis, derandomized), either flank
+    and the nominal or the as-built gears: `gear_output(motor_angle(phi)) = phi` and
+    `motor_angle(gear_output(theta)) = theta` (Newton to float64: ~eps |theta| with |theta| up to ~500 rad,
+    the bound of the ranges test above), and `motor_angle` keeps the order of the angles (u(phi) > 0)."""
+    robot = TRUTH if as_built else ROBOT
+    phi = np.asarray(robot.q_min) + fraction * (np.asarray(robot.q_max) - np.asarray(robot.q_min))
+    theta = _motor_angle(robot, jnp.asarray(phi), ccw)
+    np.testing.assert_allclose(_gear_output(robot, theta, ccw), phi, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(_motor_angle(robot, _gear_output(robot, theta, ccw), ccw), theta, rtol=0, atol=1e-12)
+    step = _motor_angle(robot, jnp.asarray(phi) + 1e-3, ccw) - theta
+    assert np.all(np.asarray(step) > 0)
+
