@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import numpy_flange, random_states
+from helpers import numpy_flange, random_chain, random_states
 
 import jaxrobot as jr
 
@@ -49,3 +50,13 @@ def test_geometric_jacobian_maps_rates_to_twist():
         w = np.array([w_hat[2, 1], w_hat[0, 2], w_hat[1, 0]])
         np.testing.assert_allclose(jr.geometric_jacobian(ROBOT, jnp.asarray(qi)) @ qdi,
                                    np.concatenate([v, w]), atol=1e-7)
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 12])
+def test_forward_kinematics_of_n_joint_chains_matches_explicit_product(n):
+    """Random seeded chains of n joints (`helpers.random_chain`) against the numpy product of eq. 2.2-2.4."""
+    robot = jr.robot_from_description(random_chain(n, seed=n))
+    q, _, _ = random_states(5, seed=n, robot=robot)
+    ours = np.asarray(jax.jit(jr.forward_kinematics)(robot, jnp.asarray(q)))
+    for i in range(len(q)):
+        np.testing.assert_allclose(ours[i], numpy_flange(robot, q[i]), atol=1e-13, err_msg=f"state {i}")
