@@ -38,9 +38,8 @@ import numpy as np
 import jaxrobot as jr
 from identification import TrackerNoise, calibrate, diagnose
 from identification.core._parameters import ParameterMap, predict_pose, rest_deflection
-from jaxrobot.io import read_poses
+from jaxrobot.io import read_csv_columns, read_poses
 from jaxrobot.measurement import Poses
-from jaxrobot.io import read_csv_columns
 
 DIAGNOSE = ("cases/a0_clean", "cases/a1_joint3_offset", "cases/a2_joint4_softer", "cases/a3_payload",
             "cases/a4_ratio1_softer4", "noise/outliers", "noise/anisotropic", "noise/drift", "tool_frame")

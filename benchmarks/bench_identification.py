@@ -29,8 +29,8 @@ import jaxrobot as jr
 from identification import DEFAULT_PARAMETERS, calibrate, diagnose, identify_gear
 from identification.calibration._calibrate import map_parameters
 from identification.cli import calibration_report, diagnosis_summary
-from jaxrobot.measurement import Poses
 from jaxrobot.io import read_poses
+from jaxrobot.measurement import Poses
 
 
 def shared_folder(arg: str | None) -> Path:

@@ -1,7 +1,7 @@
 """The one place where this package uses a JAX internal, for want of a public API.
 
 Written for jax 0.10.2 to 0.12.0.1 and tested on each version CI installs
-(`tests/test_jax_internals.py`). Every name here has a fallback, so that a JAX release that moves
+(`tests/jaxrobot/test_jax_internals.py`). Every name here has a fallback, so that a JAX release that moves
 the internal costs the documented loss and nothing else.
 """
 

@@ -45,7 +45,7 @@ NAMES: tuple[str, ...] = (
     "nonlinear_max_steps_reached", "nonlinear_divergence", "nonfinite", "inner_failed", "rank_deficient",
     "inconsistent", "rejected_input",
 )
-"""The names of `RESULTS` in the order of their codes (`tests/test_status.py` checks it against the
+"""The names of `RESULTS` in the order of their codes (`tests/jaxrobot/test_status.py` checks it against the
 enumeration); a status is written under its name in JSON and tables."""
 
 

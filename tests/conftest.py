@@ -10,9 +10,18 @@
 from __future__ import annotations
 
 import gc
+import sys
 from pathlib import Path
 
 import pytest
+
+# Tests import `helpers` and each other's module-level helpers by module name (`from test_ocp import _move`),
+# across folders and whichever file pytest runs alone: every test folder is on the import path (the test
+# files' names are unique across the folders).
+TESTS = Path(__file__).resolve().parent
+for _folder in ("integration", "planning", "identification", "jaxrobot", ""):
+    if str(TESTS / _folder) not in sys.path:
+        sys.path.insert(0, str(TESTS / _folder))
 
 # Each program XLA compiles for the CPU maps its code into the process, and the maps stay while JAX's
 # caches hold the executable. A test process that compiles thousands of programs (a pytest-xdist worker

@@ -1,5 +1,5 @@
-"""Shared test helpers: seeded random states, an independent numpy forward kinematics, pinocchio's
-rigid-body terms and the example-robot-data URDFs."""
+"""Shared test helpers: seeded random n-joint chains and states, an independent numpy forward kinematics,
+pinocchio's rigid-body terms, the test robot files and the example-robot-data URDFs."""
 
 from __future__ import annotations
 
@@ -12,14 +12,38 @@ import pytest
 
 import jaxrobot as jr
 
+ARM7 = Path(__file__).parent / "data" / "arm7.toml"
+"""A Racer-like seven-joint arm (an extra wrist joint) with every optional section of a robot file."""
+
+
+def random_chain(n: int, seed: int = 0) -> dict:
+    """A random elastic `n`-joint robot description (seeded): DH with twists near 0 and +-pi/2, a rippled
+    gear on joint 1, positive definite inertias."""
+    rng = np.random.default_rng(seed)
+    alpha = rng.choice([0.0, np.pi / 2, -np.pi / 2], n) + rng.normal(0.0, 0.05, n)
+    inertia = [[*(0.03 + 0.01 * rng.random(3)), 0.0, 0.0, 0.0] for _ in range(n)]
+    return {
+        "name": f"chain{n}", "gravity": [0.0, 0.0, -9.81],
+        "kinematics": {"a": (0.05 + 0.25 * rng.random(n)).tolist(), "d": (0.3 * rng.random(n)).tolist(),
+                       "alpha": alpha.tolist(), "beta": [0.0] * n, "offset": rng.normal(0.0, 0.1, n).tolist()},
+        "limits": {"position_deg": [[-170.0, 170.0]] * n, "velocity_deg_s": [200.0] * n,
+                   "acceleration_deg_s2": [500.0] * n},
+        "gear": {"u0": (50.0 + 50.0 * rng.random(n)).tolist(),
+                 "joint1": {d: {"orders": [1, 80], "a": [2e-3, -1e-3], "b": [1e-3, 5e-4]} for d in ("cw", "ccw")}},
+        "stiffness": {"k1": [1e5] * n, "k3": [1e9] * n},
+        "links": {"mass": (1.0 + 4.0 * rng.random(n)).tolist(), "com": rng.normal(0.0, 0.05, (n, 3)).tolist(),
+                  "inertia": inertia},
+        "motors": {"inertia": [1e-4] * n},
+    }
+
 
 def random_states(n: int, seed: int, robot: jr.Robot | None = None):
     """`n` joint positions inside the limits, rates and accelerations of a few rad/s (seeded)."""
     robot = jr.racer7() if robot is None else robot
     rng = np.random.default_rng(seed)
     lo, hi = np.asarray(robot.q_min), np.asarray(robot.q_max)
-    q = lo + (hi - lo) * rng.random((n, 6))
-    return q, rng.normal(scale=2.0, size=(n, 6)), rng.normal(scale=5.0, size=(n, 6))
+    q = lo + (hi - lo) * rng.random((n, robot.n_joints))
+    return q, rng.normal(scale=2.0, size=(n, robot.n_joints)), rng.normal(scale=5.0, size=(n, robot.n_joints))
 
 
 def numpy_flange(robot: jr.Robot, q: np.ndarray) -> np.ndarray:
@@ -44,7 +68,7 @@ def numpy_flange(robot: jr.Robot, q: np.ndarray) -> np.ndarray:
 
     pose = np.asarray(robot.base, float)
     a, d, al, be, off = (np.asarray(getattr(robot, k)) for k in ("a", "d", "alpha", "beta", "offset"))
-    for i in range(6):
+    for i in range(robot.n_joints):
         pose = pose @ rz(q[i] + off[i]) @ trans(a[i], d[i]) @ rx(al[i]) @ ry(be[i])
     return pose
 

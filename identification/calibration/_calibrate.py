@@ -30,18 +30,18 @@ from jaxrobot.internal import cached_program, check
 from jaxrobot.measurement import Poses, marker_pose, pose_arrays
 
 from ..core import _robust as robust
-from ..core._noise import noise_model
-from ..core._pose_checks import check_pose_units
-from ..core._robust import Outlier
-from ..core._identifiability import analyse, default_parameters
 from ..core._forward import (
     analytic_names,
     joint_angle_model,
     position_jacobian,
     rippled_joints,
 )
+from ..core._identifiability import analyse, default_parameters
+from ..core._noise import noise_model
 from ..core._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection
+from ..core._pose_checks import check_pose_units
 from ..core._pose_selection import default_marker
+from ..core._robust import Outlier
 from ._selection import ParameterSelection, select_parameters
 
 DEFAULT_PARAMETERS = THESIS_PARAMETERS + ("offset1", "offset2", "offset4", "offset5", "offset6", "d1",

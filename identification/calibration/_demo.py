@@ -17,9 +17,9 @@ from jaxrobot.bench import draw_fleet, measure_poses
 from jaxrobot.internal import require_successful
 from jaxrobot.measurement import Poses, measured_pose
 
-from ._calibrate import DEFAULT_PARAMETERS, CalibrationResult, calibrate
 from ..core._parameters import ParameterMap
 from ..core._pose_selection import DetmaxResult, default_marker, detmax, random_feasible_poses
+from ._calibrate import DEFAULT_PARAMETERS, CalibrationResult, calibrate
 
 
 @eqx.filter_jit

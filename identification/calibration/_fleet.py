@@ -30,12 +30,12 @@ from jaxrobot.measurement import Poses, pose_arrays, rest_link_angles
 
 from ..core import _robust as robust
 from ..core._batched_lm import LMConfig, batched_lm, covariance, map_chunks
-from ..core._noise import ALPHA, noise_model, noise_test
-from ._calibrate import RESIDUAL_UNIT, ParameterEstimate, _check_array, _residual_fn
-from ..core._identifiability import default_parameters
 from ..core._forward import analytic_names, joint_angle_model, position_jacobian, rippled_joints
+from ..core._identifiability import default_parameters
+from ..core._noise import ALPHA, noise_model, noise_test
 from ..core._parameters import ParameterMap
 from ..core._pose_selection import default_marker
+from ._calibrate import RESIDUAL_UNIT, ParameterEstimate, _check_array, _residual_fn
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from helpers import independent_data
 
-BENCH_REPLAN = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_replan.py"
+BENCH_REPLAN = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_replan.py"
 CHILD = """
 import importlib.util, json, pathlib, sys
 sys.path.insert(0, str(pathlib.Path(sys.argv[1]).parent))  # its _timing

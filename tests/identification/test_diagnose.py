@@ -21,6 +21,7 @@ import pytest
 import jaxrobot as jr
 import jaxrobot.bench as jb
 from identification import diagnose
+from identification.cli import diagnosis_summary
 from identification.core._pose_selection import random_feasible_poses, rest_motor_angles
 from jaxrobot.measurement import Poses
 
@@ -285,3 +286,22 @@ def test_candidate_columns_fit_the_longest_label():
     assert rows[0].startswith(pair + " ") and rows[0].split()[-3:] == ["-2000.0", "-1990.5", "46.00"]
     starts = {line.index("dBIC") for line in progress_lines(DiagnoseEvent("name", 1, 0.0, candidates=log))}
     assert starts == {4 + len(pair) + 1}
+
+
+@pytest.mark.slow  # keeps the added default-suite time near its 60 s budget
+def test_diagnose_names_a_hidden_offset_on_joint_seven(arm7):
+    """Joint 7 turns the marker (5.4 cm off its axis) by 2e-3 rad: ~0.1 mm at 50 um tracker noise."""
+    _, start = arm7
+    truth = eqx.tree_at(lambda r: r.offset, start, start.offset.at[6].add(2e-3))
+
+    def poses(k, seed):
+        theta = rest_motor_angles(start, random_feasible_poses(start, k, seed=seed))
+        m = jb.measure_poses(truth, theta, seed=seed, ccw=jr.measurement.approach_directions(theta))
+        return Poses.of(theta, m.positions)
+
+    res = diagnose(start, poses(150, 21), poses(60, 22), max_steps=2)
+    rep = diagnosis_summary(res)
+    assert [(s["effect"], s["joint"]) for s in rep["steps"]] == [("joint_offset", 7)], rep["verdict"]
+    p = rep["steps"][0]["parameters"]["offset"]
+    assert abs(p["value"] - 2e-3) < 3 * p["std"]
+    assert rep["final_rms_validation_um"] <= 1.3 * rep["noise_floor_um"]

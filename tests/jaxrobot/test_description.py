@@ -6,11 +6,15 @@ import copy
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import tomli_w
+from helpers import ARM7
 
 import jaxrobot as jr
+import planning as pl
+from jaxrobot.io._description import filter_cutoffs
 
 BASE = jr.read_description()
 
@@ -107,7 +111,7 @@ def test_save_and_load_round_trip(tmp_path, as_built):
     assert again.name == robot.name
 
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "racer7" / "racer7.toml"
+SHARED = Path(__file__).resolve().parents[3] / "shared" / "racer7" / "racer7.toml"
 
 
 @pytest.mark.skipif(not SHARED.is_file(), reason="shared/racer7/racer7.toml is not beside the checkout")
@@ -154,3 +158,37 @@ def test_reversal_travel_from_the_robot_file(tmp_path):
     jr.save_robot(robot, tmp_path / "again.toml")
     assert jr.read_description(tmp_path / "again.toml")["gear"]["reversal_travel_rad"] == travel
     np.testing.assert_array_equal(jr.reversal_travel(jr.load_robot(tmp_path / "again.toml")), travel)
+
+
+def test_seven_joint_description_and_optional_sections(tmp_path):
+    data = jr.read_description(ARM7)
+    robot = jr.load_robot(ARM7)
+    assert robot.n_joints == 7 and robot.mass.shape == (7,) and robot.inertia.shape == (7, 3, 3)
+    built = jr.load_robot(ARM7, as_built=True)
+    np.testing.assert_array_equal(built.u0, data["as_built"]["u0"])
+    assert sorted(filter_cutoffs(data)) == list(range(1, 8))
+    jr.save_robot(built, tmp_path / "again.toml")
+    for ours, theirs in zip(jax.tree.leaves(built), jax.tree.leaves(jr.load_robot(tmp_path / "again.toml"))):
+        np.testing.assert_allclose(ours, theirs, rtol=1e-15, atol=1e-15)  # deg <-> rad of the limits
+    # a rigid-body description: no gears, stiffness or motors
+    rigid = copy.deepcopy(data)
+    for key in ("gear", "stiffness", "motors"):
+        del rigid[key]
+    r = jr.load_robot(_write(tmp_path, rigid))
+    np.testing.assert_array_equal(r.u0, np.ones(7))
+    assert np.all(np.isinf(r.k1)) and np.all(np.asarray(r.motor_inertia) == 0)
+    np.testing.assert_allclose(jr.mass_matrix(r, jnp.zeros(7)), jr.mass_matrix(robot, jnp.zeros(7)), rtol=1e-15)
+    t = jnp.arange(3) * 1e-3
+    with pytest.raises(ValueError, match=r"simulate: needs elastic joints.*\[stiffness\]"):
+        jr.simulate(r, t, jnp.zeros((3, 7)), jnp.zeros((3, 7)), jnp.zeros((3, 7)))
+    with pytest.raises(ValueError, match=r"solve_ocp: needs elastic joints"):
+        pl.solve_ocp(r, jnp.zeros((5, 7)), 1e-3)
+    # the Racer's older as-built key is for six joints only
+    old = copy.deepcopy(data)
+    old["as_built"]["u0_wrist"] = old["as_built"].pop("u0")[4:]
+    with pytest.raises(jr.RobotFileError, match=r"as_built\.u0_wrist: expected a six-joint robot"):
+        jr.load_robot(_write(tmp_path, old))
+    bad = copy.deepcopy(data)
+    bad["links"]["mass"] = bad["links"]["mass"][:6]
+    with pytest.raises(jr.RobotFileError, match=r"links\.mass: expected shape \(7\)"):
+        jr.load_robot(_write(tmp_path, bad))

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import ARM7
 
 import jaxrobot as jr
 from jaxrobot.cli._main import main
@@ -48,7 +48,7 @@ def test_info_on_a_rigid_robot_says_so(tmp_path, capsys):
     """A robot without [stiffness] (an imported URDF) has no elastic modes: a line saying so, no NaN."""
     import tomli_w
 
-    desc = jr.read_description(Path(__file__).parent / "data" / "arm7.toml")
+    desc = jr.read_description(ARM7)
     del desc["stiffness"]
     (tmp_path / "rigid.toml").write_text(tomli_w.dumps(desc))
     assert main(["info", "--model", str(tmp_path / "rigid.toml")]) == 0
@@ -64,7 +64,7 @@ def test_info_holds_rigid_joints_of_a_partly_elastic_robot(tmp_path, capsys):
     constraints the lowest frequency does not drop and the highest does not rise (interlacing)."""
     import tomli_w
 
-    desc = jr.read_description(Path(__file__).parent / "data" / "arm7.toml")
+    desc = jr.read_description(ARM7)
 
     def freqs(name):
         (tmp_path / name).write_text(tomli_w.dumps(desc))

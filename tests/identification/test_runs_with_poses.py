@@ -107,7 +107,7 @@ def test_runs_with_poses_refuse_bad_input():
 
 
 SHORT = 700
-"""Samples of the runs cut for the extended tests (as tests/test_runs.py): 0.7 s of each."""
+"""Samples of the runs cut for the extended tests (as tests/identification/test_runs.py): 0.7 s of each."""
 
 
 def case_runs(name: str, samples: int = SHORT):
@@ -128,7 +128,7 @@ def case_runs(name: str, samples: int = SHORT):
 @pytest.mark.extended  # ~3 min on 2 shared cores: three cases of runs diagnosed
 @pytest.mark.timeout(1200)
 def test_the_other_cases_from_runs():
-    """The trajectories cases besides the lag (tests/test_runs.py) from their first 0.7 s. The clean case adds
+    """The trajectories cases besides the lag (`test_runs.py`) from their first 0.7 s. The clean case adds
     nothing (its training runs fail the chi-square test at `ALPHA` by their noise draw, p = 0.0055, and no effect
     lowers BIC by `MIN_BIC_GAIN`). The joint-1 damping adds nothing, because its runs cannot show it: its noise-free
     signature (the true robot against the start model, our simulation) is a chi-square far below the spread of the

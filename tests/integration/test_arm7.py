@@ -94,7 +94,7 @@ def test_laser_tracker_noise_model_whitens_the_fit():
 
 def _diagnose(*parts: str):
     from identification import diagnose
-    from identification.diagnosis import Poses
+    from jaxrobot.measurement import Poses
 
     d, robot, train, val, truth = _case(*parts)
     sensors = jr.read_description(d / "start.toml")["sensors"]
@@ -151,7 +151,7 @@ def test_diagnose_prefers_two_joint_effects_to_a_geometry_block():
     effect alone, but the two together fit better still, so `diagnose` names both, adds no block and
     ends within 1.1x the floor (the true model's validation RMS)."""
     from identification import diagnose
-    from identification.diagnosis import Poses
+    from jaxrobot.measurement import Poses
 
     g = _generator()
     rng = np.random.default_rng(1)
@@ -178,8 +178,8 @@ def test_diagnose_names_a_drift_in_acquisition_time():
     without times there is no drift test (the row order is not taken for time)."""
     from identification import diagnose
     from identification.cli import diagnosis_summary as summary
-    from jaxrobot.measurement import Poses
     from jaxrobot.io import read_csv_columns
+    from jaxrobot.measurement import Poses
 
     d, robot, train, val, truth = _case("noise", "drift")
     sensors = jr.read_description(d / "start.toml")["sensors"]

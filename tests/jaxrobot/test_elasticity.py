@@ -1,5 +1,5 @@
-"""Model hooks of the discrepancy workflow: rigid joints (no `[stiffness]`), backlash by the
-direction of approach from the pose order, and the compliance form of the joint spring."""
+"""The joint spring: the deflection and stiffness of kappa (thesis eq. 2.17), rigid joints (no `[stiffness]`),
+backlash by the direction of approach from the pose order, and the compliance form of the spring."""
 
 from __future__ import annotations
 
@@ -13,6 +13,8 @@ import pytest
 import tomli_w
 
 import jaxrobot as jr
+
+ROBOT = jr.racer7()
 
 
 def test_approach_directions_follow_pose_order():
@@ -127,3 +129,24 @@ def test_planning_rejects_rigid_joints(tmp_path):
     robot = jr.load_robot(_rigid_file(tmp_path))
     with pytest.raises(ValueError, match=r"model: planning needs elastic joints.*rigid joints \[1, 2, 3, 4, 5, 6\]"):
         plan(robot, jr.racer7(), None, 1e-14, "default", print)
+
+
+def test_elastic_deflection_inverts_kappa():
+    tau = jnp.asarray(np.linspace(-5e3, 5e3, 2001))[:, None] * jnp.ones(6)
+    x = jr.elastic_deflection(ROBOT, tau)
+    np.testing.assert_allclose(jr.elastic_torque(ROBOT, x), tau, rtol=1e-12, atol=1e-9)
+    # closed form for the linear joints: x = tau / k1
+    np.testing.assert_allclose(x[:, 0], tau[:, 0] / ROBOT.k1[0], rtol=1e-14)
+
+
+def test_elastic_stiffness_is_the_slope_of_kappa_and_infinite_for_rigid_joints():
+    x = jnp.asarray(np.random.default_rng(40).uniform(-2e-3, 2e-3, (50, 6)))
+    k = jax.jit(jax.vmap(jr.elastic_stiffness, (None, 0)))(ROBOT, x)
+    # the derivative of kappa by forward AD, an independent route through elastic_torque
+    slope = jax.vmap(lambda x: jnp.diag(jax.jacfwd(lambda y: jr.elastic_torque(ROBOT, y))(x)))(x)
+    np.testing.assert_allclose(k, slope, rtol=1e-13)
+    np.testing.assert_allclose(k, ROBOT.k1 + 3 * ROBOT.k3 * x**2, rtol=1e-13)  # eq. 2.17
+    rigid = eqx.tree_at(lambda r: r.c, ROBOT, ROBOT.c.at[3].set(0.0))
+    assert np.isinf(np.asarray(jr.elastic_stiffness(rigid, x))[:, 3]).all()
+    dc = jax.grad(lambda c: jr.elastic_stiffness(eqx.tree_at(lambda r: r.c, rigid, c), x)[:, :3].sum())(rigid.c)
+    assert np.isfinite(np.asarray(dc)).all() and float(dc[3]) == 0.0

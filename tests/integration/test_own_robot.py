@@ -80,7 +80,7 @@ def chain(tmp_path_factory):
     return d, rc, report
 
 
-@pytest.mark.extended  # a 7-joint import and calibration compile; other robots run in test_n_joints
+@pytest.mark.extended  # a 7-joint import and calibration compile; other robots run in test_bench
 def test_import_and_calibrate_an_elastic_panda(chain):
     """Exit 0 means LM converged; the validation error falls from the geometric-error level to the
     noise floor: mean marker error of 3-D Gaussian noise, `sigma sqrt(8/pi)`, times 1.2 (as the Racer)."""

@@ -26,7 +26,7 @@ import jaxrobot as jr
 import jaxrobot.bench as jb
 from identification.diagnosis import CATALOGUE
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 """The documents whose Python blocks run: the README, then the documentation pages."""
 FENCE = re.compile(r"^```(\w+)\n(.*?)^```", re.S | re.M)

@@ -13,7 +13,7 @@ import pytest
 nbformat = pytest.importorskip("nbformat")
 nbclient = pytest.importorskip("nbclient")
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 SIGMA_SQRT3 = np.sqrt(3.0)
 """RMS norm of 3-D Gaussian noise of std `sigma` per axis, in units of `sigma`."""
 
@@ -36,7 +36,7 @@ def test_every_notebook_is_tested():
 
 @pytest.mark.extended  # ~35 s cold
 def test_model_tour(tmp_path, monkeypatch):
-    """The flat inverse, simulated on the elastic model, tracks to < 1e-6 rad (as tests/test_simulation)."""
+    """The flat inverse, simulated on the elastic model, tracks to < 1e-6 rad (as tests/jaxrobot/test_simulate)."""
     s = _run("01_model_tour.ipynb", tmp_path, monkeypatch)
     assert s["tracking_error_rad"] < 1e-6
 
@@ -54,7 +54,7 @@ def test_gear_identification(tmp_path, monkeypatch):
 @pytest.mark.extended  # 81-84 s cold on the 2 shared cores (load 6-10): two LM programs and DETMAX compile
 def test_calibration(tmp_path, monkeypatch):
     """One robot: mean validation error within 1.2x the mean norm of the tracker noise
-    (`sigma sqrt(8/pi)`, as tests/test_own_robot); the fleet: every robot converged and predicts the
+    (`sigma sqrt(8/pi)`, as tests/integration/test_own_robot); the fleet: every robot converged and predicts the
     true robot at the DETMAX poses to better than one tracker measurement (`sigma sqrt(3)`)."""
     s = _run("03_calibration.ipynb", tmp_path, monkeypatch)
     assert s["validation_after_mean_m"] <= 1.2 * s["sigma_m"] * np.sqrt(8 / np.pi)
@@ -82,7 +82,7 @@ def test_diagnose(tmp_path, monkeypatch):
 @pytest.mark.extended  # 88-125 s cold on the 2 shared cores (load 6-10): an OCP program for a new robot compiles
 def test_own_robot(tmp_path, monkeypatch):
     """The OCP on the imported arm converged and its plan, simulated on the model, stays within 1 µm
-    of the path (as tests/test_own_robot), where the rigid plan misses by more than 100 µm."""
+    of the path (as tests/integration/test_own_robot), where the rigid plan misses by more than 100 µm."""
     s = _run("06_own_robot.ipynb", tmp_path, monkeypatch)
     assert s["converged"]
     assert s["ocp_plant_max_m"] < 1e-6

@@ -1,6 +1,5 @@
-"""Failures are failures (issue 16): `plan`/`sweep` exit 3 on a solve that did not converge and
-write nothing unless `--save-failed` (then marked); tasks are checked for rest at both ends and
-smoothness before solving. The CLI runs in-process (`jaxrobot.cli._main.main`)."""
+"""The plan and sweep tasks of the workflow: their events in order, their results in SI units behind the
+summary and table, and a sweep stopped at its first failed member."""
 
 from __future__ import annotations
 
@@ -10,32 +9,13 @@ import pytest
 
 import jaxrobot as jr
 import planning as pl
-from jaxrobot.cli._main import main
 
 LINE = pl.reference_path("line")
-
-
-def write_task(path, t, pos):
-    np.savetxt(path, np.column_stack([t, pos]), delimiter=",", header="t_s,x_m,y_m,z_m", comments="")
-    return path
 
 
 def line_samples(step: int):
     t = pl.time_grid(LINE)[::step]
     return np.asarray(t), np.asarray(pl.sample_path(LINE, t)[0])
-
-
-def test_plan_rejects_a_task_not_at_rest(tmp_path, capsys):
-    """The second half of the line starts moving (0.19 m/s from the closed form of eq. 4.7 at
-    mid-path, > the 1 mm/s rest limit): exit 2 before any solve, the cause named, no file."""
-    t, pos = line_samples(10)
-    half = len(t) // 2
-    task = write_task(tmp_path / "moving.csv", t[: len(t) - half], pos[half:])
-    out = tmp_path / "motor.csv"
-    assert main(["plan", str(task), "--save-trajectory", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert "the task must start and end at rest: velocity at t = 0 is" in err and "m/s" in err
-    assert "Traceback" not in err and not out.exists()
 
 
 def _failed_solve(robot, q_d, ts, nu=1e-14, cost="thesis", config=None, warm_start=None, u_ref=None, throw=False,
@@ -51,26 +31,6 @@ def _failed_solve(robot, q_d, ts, nu=1e-14, cost="thesis", config=None, warm_sta
                        max_constraint_violation_unscaled=z + 1.0, stationarity=z,
                        multipliers=jnp.zeros((x.shape[0] - 1, 24)), history_objective=h, history_violation=h,
                        history_penalty=h, history_stationarity=h)
-
-
-@pytest.mark.extended  # the whole plan command at T_s = 25 ms; the sweep's failed member and test_status stay
-def test_plan_failed_solve_exits_3_and_writes_only_with_save_failed(tmp_path, capsys, monkeypatch):
-    import planning._ocp
-
-    monkeypatch.setattr(planning._ocp, "solve_ocp", _failed_solve)
-    t, pos = line_samples(25)  # the line at T_s = 25 ms: at rest at both ends
-    task = write_task(tmp_path / "line.csv", t, pos)
-    out = tmp_path / "motor.csv"
-    assert main(["plan", str(task), "--save-trajectory", str(out)]) == 3
-    err = capsys.readouterr().err
-    assert "the OCP did not converge: status inner_failed after 17 outer iterations" in err
-    assert "no descent step" in err and "likely cause" in err and "nothing written" in err
-    assert not out.exists()
-    assert main(["plan", str(task), "--save-trajectory", str(out), "--save-failed"]) == 3
-    assert "marked as not converged" in capsys.readouterr().err
-    assert out.read_text().startswith(jr.io.NOT_CONVERGED + ": the OCP did not converge: status inner_failed")
-    with pytest.raises(ValueError, match="written from a solve that did not converge"):
-        jr.io.read_csv_columns(out, ["t_s"])
 
 
 def _converged_solve(*args, **kwargs):
@@ -114,25 +74,6 @@ def test_plan_task_events_in_order_and_si_results_behind_the_summary(monkeypatch
     assert rep["path_error_um"]["max"] == pytest.approx(1e6 * float(res.plan_error.max()), rel=1e-15)
     assert rep["solve_time_s"] == res.solve_time == events[4].elapsed
     assert rep["compile_time_s"] == res.compile_time == pytest.approx(max(events[3].elapsed - events[4].elapsed, 0))
-
-
-@pytest.mark.slow
-def test_sweep_failed_member_exits_3_and_writes_nothing(tmp_path, capsys, monkeypatch):
-    import planning._workflow
-
-    def failed_sweep(robot, q_d, ts, nus, cost="thesis", warm_start=None):
-        sols = [_failed_solve(robot, q_d, ts, warm_start=warm_start) for _ in nus]
-        return jax_stack(sols)
-
-    monkeypatch.setattr(planning._workflow, "solve_ocp_sweep", failed_sweep)
-    t, pos = line_samples(25)
-    task = write_task(tmp_path / "line.csv", t, pos)
-    out = tmp_path / "sweep"
-    assert main(["sweep", str(task), "--nu", "1e-14", "1e-12", "--costs", "thesis", "--out", str(out)]) == 3
-    err = capsys.readouterr().err
-    assert "the OCP did not converge for cost thesis, nu 1e-14: status inner_failed" in err
-    assert "nu 1e-12: status inner_failed" in err and "nothing written" in err
-    assert list(out.iterdir()) == []
 
 
 def jax_stack(trees):

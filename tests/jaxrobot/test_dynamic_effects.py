@@ -1,5 +1,6 @@
-"""Dynamic effects of the robot file (velocity-loop lag, joint damping) in `jr.simulate`, against an
-independent integration (scipy on a hand-written two-joint arm) and the trajectory runs of ../shared."""
+"""Dynamic effects of the robot file (velocity-loop lag, joint damping) in `jr.simulate`, `jr.lag_command` and
+`jr.flat_inverse`, against an independent integration (scipy on a hand-written two-joint arm). The arm and its
+commands serve the tests of the effects in diagnosis (`test_runs`) and planning (`test_transcription`)."""
 
 from __future__ import annotations
 
@@ -15,9 +16,6 @@ from scipy.interpolate import BPoly
 from scipy.optimize import fsolve
 
 import jaxrobot as jr
-import planning as pl
-from planning._evaluation import motor_commands
-from planning._workflow import solve_directional
 
 # A two-joint arm turning about parallel vertical axes in a vertical plane (gravity along -y): links of length
 # L, centres of mass LC from each joint, inertias IZ about them; gears without ripple, stiff and soft springs.
@@ -164,42 +162,6 @@ def test_lag_is_differentiable_from_none():
     np.testing.assert_allclose(jac1[:, 1, 1], fd[:, 1], rtol=1e-6, atol=1e-6)
 
 
-@pytest.mark.extended
-def test_diagnose_runs_names_a_lag_on_the_arm():
-    """`diagnose_runs` on synthetic runs of the arm (our simulation, the tracker's 50 um noise, seeded): with a
-    2 ms lag on motor 1 it adds that lag alone, its value within 3 of its reported sigma, and passes the chi-square
-    test; on the arm without it, it adds nothing; the screening compiles one derivative program (every variable at
-    once) and every fit shares a second. Extended: its four programs (the simulation, the residual, the two
-    derivatives) compile in ~1 min each on 2 cores."""
-    from identification.diagnosis._runs import _columns, diagnose_runs
-    from jaxrobot.measurement import marker_pose
-
-    marker, noise = np.array([0.05, 0.0, 0.0]), 5e-5
-    rng = np.random.default_rng(3201)
-    t = np.arange(401) * 1e-3
-    truth = jr.robot_from_description(arm_description(lag=[0.002, 0.0]))
-
-    def pair(scale):
-        theta, thetad, thetadd = command(t)
-        cmd = (t, theta[0] + scale * (theta - theta[0]), scale * thetad, scale * thetadd)
-        q, _, motors = jr.simulate(truth, *cmd, substeps=4, motor_angles=True)
-        positions = np.asarray(marker_pose(truth, q, jnp.asarray(marker))[0])
-        return cmd, (t, np.asarray(motors), positions + noise * rng.standard_normal(positions.shape))
-
-    train, val = [pair(1.0)], [pair(0.7)]
-    start = jr.robot_from_description(arm_description())
-    programs = _columns._cache_size()
-    res = diagnose_runs(start, train, val, marker, noise)
-    assert _columns._cache_size() == programs + 2
-    assert [e.effect.label for e in res.estimates] == ["velocity-loop lag, motor 1"], res.verdict
-    est = res.estimates[0]
-    assert abs(est.value - 0.002) < 3 * est.std and est.std < 1e-4
-    assert res.steps[-1].p_value > 1e-3 and res.verdict.startswith("explained")
-    assert res.robot.damping is None and float(res.robot.motor_lag[1]) == 0.0
-    clean = diagnose_runs(truth, train, val, marker, noise)
-    assert clean.estimates == [] and len(clean.steps) == 1 and clean.verdict.startswith("no significant")
-
-
 # ----------------------------------------------------------------------------- the effects in planning
 
 
@@ -239,71 +201,7 @@ def test_lag_command_moves_the_lagged_motors_through_the_samples():
     np.testing.assert_allclose(grad, plan[1].sum(0), rtol=1e-12)  # d theta_c / d tau = thetad
 
 
-@pytest.mark.extended  # ~30 s; the suite keeps the absent effects and the lag's inverse
-def test_damped_transcription_derivatives_match_autodiff():
-    """With joint damping (and lags), the OCP's structured `half_step`, `half_step_vjp` and `half_step_jacobian`
-    (now with the motor-rate columns) agree with forward-mode autodiff of the public `jr.planning_dynamics`
-    to rounding (1e-11 of the largest entry; both are sums of O(1) scaled terms); the lags' cost term is the
-    scaled quadratic's."""
-    from planning import _transcription as tr
-
-    robot = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING))
-    t = np.arange(6) * 1e-3
-    q_d = np.asarray(rest_to_rest(t)[0]) / U0
-    problem = tr.ocp_problem(robot, q_d, 1e-3, 1e-12)
-    sz = tr.variable_scale(problem)
-    rng = np.random.default_rng(5)
-    y = jnp.concatenate(jax.jit(tr.warm_start)(problem), -1) / sz + rng.normal(size=(6, 10))
-    node_f = lambda yk: jr.planning_dynamics(robot, yk[:8] * sz[:8], yk[8:] * sz[8:])  # noqa: E731
-    f, jac = jax.jit(jax.vmap(lambda yk: (node_f(yk), jax.jacfwd(node_f)(yk))))(y)
-    jac = jac * (0.5 * 1e-3 / sz[:8])[:, None]
-    w = jnp.asarray(rng.normal(size=(6, 8)))
-    h, gw, pk = jax.jit(lambda p, y: (lambda h: (h, tr.half_step_vjp(p, h)(w), tr.half_step_jacobian(p, h)))(
-        tr.half_step(p, y)))(problem, y)
-    close = lambda a, b: float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))) <= 1e-11  # noqa: E731
-    assert close(h.g, f * 0.5 * 1e-3 / sz[:8])
-    assert close(gw, jnp.einsum("kij,ki->kj", jac, w))
-    assert pk.shape == (6, 2, 8) and close(pk, jac[:, 2:4, :8])
-    x, u = tr.State.of(y[:, :8] * sz[:8]).pack(), y[:, 8:] * sz[8:]
-    cost = tr.scaled_cost(problem)
-    scaled = (jnp.sum(cost.node_weight * (y - cost.node_target) ** 2)
-              + jnp.sum(cost.edge_weight * (y[1:] - y[:-1]) ** 2)) * tr.ANGLE_SCALE**2
-    np.testing.assert_allclose(scaled, tr.objective(problem, x, u), rtol=1e-12)
-
-
-RACER_LAG = jnp.array([3e-3, 3e-3, 3e-3, 0.0, 0.0, 1.5e-3])
 """[s] Velocity-loop lags of the planning test: the trajectory runs' 3 ms on motors 1-3, half of it on motor 6."""
-
-
-def racer_move(t):
-    """A 0.5 s rest-to-rest move of all six Racer-7 joints (the blend of eq. 4.4), within its limits."""
-    s = jnp.clip(t / 0.5, 0.0, 1.0)
-    return (jnp.array([0.1, 0.2, -1.3, 0.2, 0.9, 0.1]) + jnp.array([0.1, -0.08, 0.1, 0.1, -0.1, 0.1])
-            * s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3))
-
-
-@pytest.mark.extended  # a damped OCP program compiles (~90 s); the suite keeps the damped transcription's derivatives
-def test_plan_on_a_model_with_lag_and_damping_meets_the_move_on_it():
-    """The OCP (nu = 1e-14) on the Racer-7 with lags and 3 % damping of each joint's mode, its command through the
-    lags' inverse, simulated by `jr.simulate` on that model: the links follow the move within 1e-6 rad, the bound
-    of today's plans on the trapezoidal discretisation (`test_plant_flanks`; on this move without the effects
-    2.6e-7 rad measured, with them 3.2e-7); the planned motor trajectory given as the command misses by the lag
-    (> 1e-4 rad, measured 1.3e-3; the plan without damping, lag-inverted, missed by 4.1e-6 rad)."""
-    plain = jr.racer7()
-    start = racer_move(0.0)
-    damping = 2 * 0.03 * jnp.sqrt(plain.k1 * jnp.diag(jr.mass_matrix(plain, start)))  # N m s/rad
-    robot = dataclasses.replace(plain, motor_lag=RACER_LAG, damping=damping)
-    t = jnp.arange(501) * 1e-3
-    q_d, qd_d = jax.vmap(racer_move)(t), jax.vmap(jax.jacfwd(racer_move))(t)
-    flat = pl.MotorTrajectory(*jax.jit(lambda t: jr.flat_inverse(robot, racer_move, t))(t))
-    sol, _, _ = solve_directional(robot, q_d, qd_d, flat, 1e-3, 1e-14, "thesis", False)
-    assert bool(sol.converged), jr.status_name(sol.status)
-    planned = pl.ocp_motor_trajectory(sol.x, sol.u)
-    command = motor_commands(robot, t, {"ocp": planned})["ocp"]
-    simulated = jax.jit(jax.vmap(lambda c: jr.simulate(robot, t, c.theta, c.thetad, c.thetadd)[0]))(
-        jax.tree.map(lambda a, b: jnp.stack([a, b]), command, planned))
-    errors = jnp.abs(simulated - q_d).max(axis=(1, 2))
-    assert float(errors[0]) < 1e-6 and float(errors[1]) > 1e-4, errors
 
 
 def arm_link_move(t):

@@ -14,7 +14,7 @@ from planning import _transcription as tr
 import planning._al_solver as al
 from planning._al_solver import batch_capacity, chunked_vmap, linear_solver
 from planning._block_tridiagonal import block_cholesky, block_cholesky_solve, block_tridiagonal_matvec
-from test_ocp_solver import _assert_same_optimum
+from test_ocp import _assert_same_optimum
 
 SOLVE_RTOL = 1e-12
 """Agreement of two backward-stable solves of one system, relative to the largest entry of the
@@ -128,7 +128,7 @@ CR = pl.ALConfig(linear_solver="cyclic_reduction")
 
 
 def _move(n: int = 51):
-    """The short smooth joint move of `tests/test_ocp_solver.py` (no bound active)."""
+    """The short smooth joint move of `tests/planning/test_ocp.py` (no bound active)."""
     q_a = jnp.array([0.1, 0.2, -1.4, 0.1, 1.4, 0.1])
     s = jnp.arange(n) / (n - 1)
     blend = s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3)
@@ -190,7 +190,7 @@ def test_batched_solves_match_separate_solves(monkeypatch, lanes):
 def test_batched_sweep_matches_separate_solves():
     """`solve_ocp_sweep` with cyclic reduction in one chain (`workers=1`): 6 nu in 2 lanes of one batched
     loop (`_pool`), each taking the next nu by continuation, given out of nu's order; each member is the optimum
-    of its separate cold solve to the solver's tolerances (`test_ocp_solver._assert_same_optimum`)."""
+    of its separate cold solve to the solver's tolerances (`test_ocp._assert_same_optimum`)."""
     robot, q_d = jr.racer7(), _move()
     nus = np.logspace(-14, -10, 6)[[3, 0, 5, 1, 4, 2]]
     sweep = pl.solve_ocp_sweep(robot, q_d, 1e-3, nus, config=CR, workers=1)

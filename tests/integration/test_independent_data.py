@@ -35,7 +35,7 @@ def _diagnose_case(name: str):
 
 EXTENDED = ("p0_clean", "p2_joint2_softer")
 """In CI's extended step (nothing hidden, one hidden effect; ~50 s each); the others `--runslow`. The suite's
-diagnose checks are tests/test_diagnose.py's."""
+diagnose checks are tests/identification/test_diagnose.py's."""
 
 
 def _mark(name: str):
@@ -319,7 +319,7 @@ def test_chained_cli_plan_uses_the_calibrated_model(gear_stage, tmp_path, capsys
     assert out["status"] == "successful"
 
 
-@pytest.mark.extended  # two robust fleet fits through the CLI; the fleet CLI's fast checks are in test_fleet_faults
+@pytest.mark.extended  # two robust fleet fits through the CLI; the fleet CLI's fast checks are in test_calibrate_fleet
 def test_calibrate_fleet_approach(tmp_path, capsys):
     """`calibrate-fleet --approach order`: bench poses of two robots measured in row order, each gear
     at rest on the set of its direction of approach from that order; read so, the fit reaches the

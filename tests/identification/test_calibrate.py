@@ -726,3 +726,33 @@ def test_backward_elimination_by_bic_matches_exact_refits():
     for c in kept:
         assert chi2([k for k in kept if k != c]) - chi2(kept) > np.log(n)
     assert sel.n_residuals == n and sel.candidates == tuple(names)
+
+
+@pytest.mark.extended  # the pose bench and LM of a 7-joint arm compile; the suite keeps the 7-joint model
+def test_seven_joint_calibration_recovers_the_as_built_arm(arm7):
+    """Bench poses of the as-built arm: the calibrated deviations of the whole default set within 3 reported
+    standard errors of the truth, and the validation error at the noise floor (the as-built arm's own error on the
+    same noisy data, 1.2x as in the Racer's test)."""
+    nominal, truth = arm7
+    q = random_feasible_poses(nominal, 80, seed=3)
+    theta = rest_motor_angles(truth, q)
+    meas = jb.measure_poses(truth, theta, seed=4)
+    k = 60
+    res = calibrate(nominal, meas.motor_angles[:k], meas.positions[:k], all_parameters=True,
+                    validation=(meas.motor_angles[k:], meas.positions[k:]))
+    rep = calibration_report(res)
+    assert rep["converged"], rep["status"]
+    names = default_parameters(nominal)
+    assert set(rep["parameters"]) == set(names)
+    assert {f"offset{j}" for j in range(1, 8)} - {"offset3"} <= set(names)  # offset3 = beta3 - a3 d4 as on the Racer
+    params = ParameterMap(names)
+    true_delta = np.asarray(params.get(truth) - params.get(nominal))
+    for i, name in enumerate(names):
+        p = rep["parameters"][name]
+        assert abs(p["delta"] - true_delta[i]) < 3 * p["std"], (name, p, true_delta[i])
+    from identification.calibration._calibrate import position_errors
+
+    defl = np.asarray(meas.link_angles[k:]) - np.asarray(jr.gear_output(truth, jnp.asarray(meas.motor_angles[k:])))
+    floor = position_errors(truth, meas.motor_angles[k:], meas.positions[k:], defl,
+                            np.asarray(meas.metadata["marker_offset_m"]))
+    assert rep["validation"]["after_m"]["mean"] <= 1.2 * floor.mean()

@@ -169,7 +169,7 @@ def test_calibrate_fleet_cli_empty_folder(tmp_path, capsys):
 def test_two_process_sweep_equals_separate_solves(tmp_path):
     """4 nu given out of order on 2 processes (one chain each, 2 members, warm-started): every member
     is the separate solve's optimum to the tolerances of the 1-process sweep tests."""
-    from test_ocp_solver import TS, _assert_same_optimum, _move
+    from test_ocp import TS, _assert_same_optimum, _move
 
     import planning as pl
     from planning import _transcription as tr

@@ -1,0 +1,30 @@
+"""Fixtures shared by the planning tests: the Racer-7, its reference paths, their joint paths and the
+baseline trajectories of the line."""
+
+from __future__ import annotations
+
+import pytest
+
+import jaxrobot as jr
+import planning as pl
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return jr.racer7()
+
+
+@pytest.fixture(scope="module")
+def paths():
+    return {name: pl.reference_path(name) for name in ("line", "spiral")}
+
+
+@pytest.fixture(scope="module")
+def joint_paths(robot, paths):
+    return {name: pl.joint_path(robot, p) for name, p in paths.items()}
+
+
+@pytest.fixture(scope="module")
+def line_baselines(robot, joint_paths):
+    jp = joint_paths["line"]
+    return pl.baseline_trajectories(robot, jp)

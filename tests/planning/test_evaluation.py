@@ -1,0 +1,50 @@
+"""Motor trajectories evaluated on the plant: the flat inverse is exact on the model (SPEC.md "Facts"), the
+baselines' order, batched simulation, and bad trajectories refused."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import planning as pl
+
+
+@pytest.fixture(scope="module")
+def line_model_errors(robot, joint_paths, line_baselines):
+    return pl.evaluate_on_plant(robot, joint_paths["line"], line_baselines)
+
+
+def test_flat_inverse_is_exact_on_the_model(line_model_errors):
+    e = line_model_errors["flat_inverse"]
+    assert float(e.position_max) < 1e-9  # exact in continuous time; RK4 at 0.1 ms
+    assert float(e.orientation_max) < 1e-9
+
+
+def test_baselines_order_on_the_model(line_model_errors):
+    rigid, qs = line_model_errors["rigid"], line_model_errors["quasi_static"]
+    # rigid planning ignores gravity deflection (~1 mm, SPEC.md); quasi-static removes it
+    assert 2e-4 < float(rigid.position_max) < 5e-3
+    assert float(qs.position_max) < 0.2 * float(rigid.position_max)
+    # at rest after t_e the quasi-static command is exact up to the residual vibration
+    assert float(qs.settle_position_max) < 0.05 * float(rigid.settle_position_max)
+
+
+@pytest.mark.extended  # compiles the one-wide simulation beside the batched one; the LAPACK guard runs the batch
+def test_plans_simulated_in_one_batch_equal_one_by_one(robot, joint_paths, line_baselines, monkeypatch):
+    """`simulate_plans` runs all trajectories in one vmapped simulation; each run equals the same trajectory
+    simulated on its own (`simulation_capacity` forced to 1: chunks of one, one after the other) to round-off."""
+    jp = joint_paths["line"]
+    names, batch = pl.simulate_plans(robot, jp, line_baselines)
+    monkeypatch.setattr("planning._evaluation.simulation_capacity", lambda *args: 1)
+    _, alone = pl.simulate_plans(robot, jp, line_baselines)
+    for k, name in enumerate(names):
+        np.testing.assert_allclose(batch.q[k], alone.q[k], rtol=0, atol=1e-13, err_msg=f"{name}: link angles")
+        np.testing.assert_allclose(batch.position[k], alone.position[k], rtol=0, atol=1e-13,
+                                   err_msg=f"{name}: tool position error")
+
+
+def test_evaluation_rejects_bad_trajectories(robot, joint_paths):
+    bad = pl.MotorTrajectory(jnp.zeros((10, 6)), jnp.zeros((10, 6)), jnp.zeros((10, 6)))
+    with pytest.raises(ValueError, match="theta must have shape"):
+        pl.evaluate_on_plant(robot, joint_paths["line"], {"x": bad})

@@ -1,0 +1,57 @@
+"""The transcription's state: `planning.State` packs and unpacks the OCP state of any number of joints."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_dynamic_effects import DAMPING, LAG, U0, arm_description, rest_to_rest
+
+import jaxrobot as jr
+import planning as pl
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 12])
+def test_planning_state_packs_any_n(n):
+    x = jnp.asarray(np.random.default_rng(n).normal(size=(3, 4 * n)))
+    s = pl.State.of(x)
+    assert s.q.shape == s.thetad.shape == (3, n)
+    np.testing.assert_array_equal(s.pack(), x)
+    np.testing.assert_array_equal(jax.jit(jax.vmap(lambda x: pl.State.of(x).theta))(x), x[:, 2 * n:3 * n])
+    grad = jax.grad(lambda x: jnp.sum(pl.State.of(x).thetad ** 2))(x[0])
+    np.testing.assert_array_equal(grad, jnp.zeros(4 * n).at[3 * n:].set(2 * x[0, 3 * n:]))
+    with pytest.raises(ValueError, match="size 4n"):
+        pl.State.of(jnp.zeros(4 * n + 1))
+
+
+@pytest.mark.extended  # ~30 s; the suite keeps the absent effects and the lag's inverse
+def test_damped_transcription_derivatives_match_autodiff():
+    """With joint damping (and lags), the OCP's structured `half_step`, `half_step_vjp` and `half_step_jacobian`
+    (now with the motor-rate columns) agree with forward-mode autodiff of the public `jr.planning_dynamics`
+    to rounding (1e-11 of the largest entry; both are sums of O(1) scaled terms); the lags' cost term is the
+    scaled quadratic's."""
+    from planning import _transcription as tr
+
+    robot = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING))
+    t = np.arange(6) * 1e-3
+    q_d = np.asarray(rest_to_rest(t)[0]) / U0
+    problem = tr.ocp_problem(robot, q_d, 1e-3, 1e-12)
+    sz = tr.variable_scale(problem)
+    rng = np.random.default_rng(5)
+    y = jnp.concatenate(jax.jit(tr.warm_start)(problem), -1) / sz + rng.normal(size=(6, 10))
+    node_f = lambda yk: jr.planning_dynamics(robot, yk[:8] * sz[:8], yk[8:] * sz[8:])  # noqa: E731
+    f, jac = jax.jit(jax.vmap(lambda yk: (node_f(yk), jax.jacfwd(node_f)(yk))))(y)
+    jac = jac * (0.5 * 1e-3 / sz[:8])[:, None]
+    w = jnp.asarray(rng.normal(size=(6, 8)))
+    h, gw, pk = jax.jit(lambda p, y: (lambda h: (h, tr.half_step_vjp(p, h)(w), tr.half_step_jacobian(p, h)))(
+        tr.half_step(p, y)))(problem, y)
+    close = lambda a, b: float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))) <= 1e-11  # noqa: E731
+    assert close(h.g, f * 0.5 * 1e-3 / sz[:8])
+    assert close(gw, jnp.einsum("kij,ki->kj", jac, w))
+    assert pk.shape == (6, 2, 8) and close(pk, jac[:, 2:4, :8])
+    x, u = tr.State.of(y[:, :8] * sz[:8]).pack(), y[:, 8:] * sz[8:]
+    cost = tr.scaled_cost(problem)
+    scaled = (jnp.sum(cost.node_weight * (y - cost.node_target) ** 2)
+              + jnp.sum(cost.edge_weight * (y[1:] - y[:-1]) ** 2)) * tr.ANGLE_SCALE**2
+    np.testing.assert_allclose(scaled, tr.objective(problem, x, u), rtol=1e-12)
