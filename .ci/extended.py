@@ -64,7 +64,8 @@ def main() -> int:
     for name, returncode, seconds in sorted(rows):
         print(f"| {name} | {outcome(returncode)} | {seconds:.0f} |")
     failed = [name for name, returncode, _ in rows if returncode != 0]
-    print(f"\nextended: {len(rows) - len(failed)} of {len(rows)} files passed" + (f"; failed: {' '.join(failed)}" if failed else ""))
+    print(f"\nextended: {len(rows) - len(failed)} of {len(rows)} files passed"
+          + (f"; failed: {' '.join(failed)}" if failed else ""))
     return 1 if failed else 0
 
 
