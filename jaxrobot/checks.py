@@ -1,4 +1,4 @@
-"""Deprecated: `jaxrobot.internal` moved to `jaxrobot.internal`; the old names go in the next release."""
+"""Deprecated: the names of `jaxrobot.checks` moved to `jaxrobot.internal`; the old names go in the next release."""
 
 from ._deprecation import deprecated_aliases as _deprecated_aliases
 
