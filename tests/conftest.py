@@ -31,6 +31,7 @@ for _folder in ("integration", "planning", "identification", "jaxrobot", ""):
 # from the persistent compilation cache.
 _MAPS = Path("/proc/self/maps")
 _MAP_LIMIT = Path("/proc/sys/vm/max_map_count")
+_CLEAR_ABOVE = int(_MAP_LIMIT.read_text()) // 2 if _MAPS.exists() and _MAP_LIMIT.exists() else None
 
 
 def _memory_maps() -> int:
@@ -39,9 +40,7 @@ def _memory_maps() -> int:
 
 
 def pytest_runtest_teardown(item, nextitem):
-    if not (_MAPS.exists() and _MAP_LIMIT.exists()):
-        return
-    if _memory_maps() > int(_MAP_LIMIT.read_text()) // 2:
+    if _CLEAR_ABOVE is not None and _memory_maps() > _CLEAR_ABOVE:
         import jax
 
         jax.clear_caches()
