@@ -51,11 +51,6 @@ def _move():
 
 
 @pytest.fixture(scope="module")
-def robot():
-    return jr.racer7()
-
-
-@pytest.fixture(scope="module")
 def q_d():
     return _move()
 
