@@ -9,7 +9,6 @@ its programs are compiled ahead of time (timed; into the persistent compilation 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime
 import json
 import os
@@ -28,6 +27,7 @@ from identification.diagnosis._runs import (
     _prepare,
     _residual,
     _simulated,
+    _with_effect_arrays,
     compare_run,
     diagnose_runs,
 )
@@ -40,7 +40,7 @@ def compile_programs(robot, train, marker, noise) -> dict[str, float]:
     persistent cache keeps them): the seconds each took."""
     (run, *_), sigma = _prepare(train, noise, "train")
     n = robot.n_joints
-    base = dataclasses.replace(robot, motor_lag=jnp.zeros(n), damping=jnp.zeros(n))
+    base = _with_effect_arrays(robot)
     z = jnp.zeros(len(RUN_KINDS) * n + 4)
     data = (run.command, run.white, run.measured, sigma, marker)
     lowered = {"simulation": _simulated.lower(base, *run.command, marker),

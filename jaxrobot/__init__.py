@@ -12,11 +12,13 @@ from . import io as io  # noqa: E402
 from . import measurement as measurement  # noqa: E402
 from ._checks import check_public as _check_public  # noqa: E402
 from ._deprecation import deprecated_aliases as _deprecated_aliases  # noqa: E402
+from ._dynamics import COULOMB_VELOCITY as COULOMB_VELOCITY  # noqa: E402
 from ._dynamics import coriolis_matrix as coriolis_matrix  # noqa: E402
 from ._dynamics import coriolis_vector as coriolis_vector  # noqa: E402
 from ._dynamics import gravity_torque as gravity_torque  # noqa: E402
 from ._dynamics import inverse_dynamics as inverse_dynamics  # noqa: E402
 from ._dynamics import link_acceleration as link_acceleration  # noqa: E402
+from ._dynamics import link_friction as link_friction  # noqa: E402
 from ._dynamics import mass_matrix as mass_matrix  # noqa: E402
 from ._dynamics import motor_torque as motor_torque  # noqa: E402
 from ._dynamics import planning_dynamics as planning_dynamics  # noqa: E402

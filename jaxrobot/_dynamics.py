@@ -1,7 +1,8 @@
 """Rigid-body and elastic-joint dynamics, eq. 2.15-2.23 and 4.1 (docs/model.md, section 4).
 
 Link side: `D(q) qdd + C(q, qd) qd + g(q) = kappa(phi - q)` (eq. 2.23a, no friction), plus `d (phid - qd)`
-on the right for a robot with joint damping (`Robot.damping`);
+on the right for a robot with joint damping (`Robot.damping`) and `-link_friction(qd)` for one with link-side
+friction (`Robot.viscous_friction`, `Robot.coulomb_friction`);
 motor side: `J_m thetadd = tau_motor - kappa(phi - q) / u(phi)`.
 All functions broadcast over leading batch axes of `robot` and the states.
 """
@@ -42,6 +43,14 @@ from ._rotations import rot_z
 # contiguous states and vectorise, and they process large batches in chunks of `_chunk()` states
 # (lax.map) so that the intermediates of a chunk stay in cache (on the CPU; an accelerator takes far
 # larger chunks, since every chunk is a sequential step of kernel launches there).
+COULOMB_VELOCITY = 0.01
+"""[rad/s] The link rate at which smoothed Coulomb friction reaches tanh(1) = 76 % of `f_c` (`link_friction`):
+small against the rates of a motion, so the friction is at full strength while a joint moves, and smooth, so the
+simulation's RK4 keeps its order through a reversal. At rest its slope `f_c / COULOMB_VELOCITY` is a viscous
+friction with the time constant `J COULOMB_VELOCITY / f_c` on a link of inertia `J`: `simulate` stays stable while
+its step is below 2.8 times it, and the OCP resolves it where it is longer than the sample time (docs/model.md
+(2.23c))."""
+
 _CHUNK = {"cpu": 256, "accelerator": 65536}
 """States per chunk of the batched rigid-body terms, by backend (`benchmarks/results_dynamics.md`,
 `benchmarks/results_gpu.md`)."""
@@ -245,8 +254,9 @@ def planning_dynamics(
 ) -> Float[Array, "*b 4*n"]:
     """`xd = f(x, u)` of eq. 4.1, `x = [q, qd, theta, thetad]`, `u = thetadd`; cw gear set, or with `direction`
     the flank weights `sigma` of the gears (`flank_output`, docs/model.md (B.0)). With joint damping the link
-    receives `d (phid - qd)` (`link_acceleration`); a velocity-loop lag (`robot.motor_lag`) does not enter: `theta`
-    is the motor angle after it, which `lag_command` turns into the command."""
+    receives `d (phid - qd)`, with link-side friction `-link_friction(qd)` (`link_acceleration`); a velocity-loop
+    lag (`robot.motor_lag`) does not enter: `theta` is the motor angle after it, which `lag_command` turns into
+    the command."""
     q, qd, theta, thetad = jnp.split(x, 4, axis=-1)
     output = (lambda th: gear_output(robot, th)) if direction is None else (  # noqa: E731
         lambda th: flank_output(robot, th, direction))
@@ -255,13 +265,32 @@ def planning_dynamics(
     return jnp.concatenate([qd, qdd, thetad, jnp.broadcast_to(u, thetad.shape)], -1)
 
 
+def link_friction(robot: Robot, qd: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+    """Link-side friction torques `f_v qd + f_c tanh(qd / COULOMB_VELOCITY)` [N m] that oppose the link rates `qd`
+    (`Robot.viscous_friction`, `Robot.coulomb_friction`; a None field adds nothing); zero at rest."""
+    out = jnp.zeros_like(qd)
+    if robot.viscous_friction is not None:
+        out = out + robot.viscous_friction * qd
+    if robot.coulomb_friction is not None:
+        out = out + robot.coulomb_friction * jnp.tanh(qd / COULOMB_VELOCITY)
+    return out
+
+
+def has_friction(robot: Robot) -> bool:
+    """Whether `robot` has a link-side friction term (either field not None)."""
+    return robot.viscous_friction is not None or robot.coulomb_friction is not None
+
+
 def link_acceleration(
     robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"], phi: Float[Array, "*b n"],
     phid: Float[Array, "*b n"] | None = None,
 ) -> Float[Array, "*b n"]:
     """`qdd = D(q)^{-1} (kappa(phi - q) - g(q) - C(q, qd) qd)` (eq. 2.23a); a robot with joint damping
-    (`robot.damping`) adds `d (phid - qd)` to the bracket and needs the gear output rate `phid`."""
+    (`robot.damping`) adds `d (phid - qd)` to the bracket and needs the gear output rate `phid`; link-side friction
+    subtracts `link_friction(robot, qd)`."""
     rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
+    if has_friction(robot):
+        rhs = rhs - link_friction(robot, qd)
     if robot.damping is not None:
         if phid is None:
             raise ValueError("link_acceleration: phid (the gear output rates, shape (..., n)) is required for a "

@@ -1,7 +1,8 @@
 """The flat inverse of the planning model (docs/model.md (B.4); not in the thesis).
 
 The link angle is a flat output of eq. 4.1: for a smooth `q_d(t)`,
-`phi = q_d + kappa^{-1}(D q̈_d + C q̇_d + g)`, `theta = Xi(phi)`, `u = θ̈`. It tracks exactly in
+`phi = q_d + kappa^{-1}(D q̈_d + C q̇_d + g)`, `theta = Xi(phi)`, `u = θ̈`; link-side friction
+(`link_friction`, a function of `q̇_d`) adds to the bracket. It tracks exactly in
 continuous time, ignores limits and the boundary conditions on `u`; it is the baseline and
 the warm start of the optimal control problem.
 
@@ -20,7 +21,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._dynamics import inverse_dynamics
+from ._dynamics import has_friction, inverse_dynamics, link_friction
 from ._elasticity import elastic_deflection, elastic_stiffness, elastic_torque
 from ._gear import motor_angle
 from ._robot import Robot
@@ -51,7 +52,8 @@ def flat_inverse(
 
     def torque(s):
         q, qd, qdd = q_d(s), _derivative(q_d)(s), _derivative(_derivative(q_d))(s)
-        return inverse_dynamics(robot, q, qd, qdd)
+        tau = inverse_dynamics(robot, q, qd, qdd)
+        return tau + link_friction(robot, qd) if has_friction(robot) else tau
 
     if robot.damping is None:
         def theta(s):

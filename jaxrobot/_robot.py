@@ -33,9 +33,9 @@ class Robot(eqx.Module):
 
     Every field is an array (SI units, radians) whose joint axis has length `n`
     (`n_joints`), so a fleet of robots is the same pytree with a leading batch axis; the dynamic
-    effects `damping` and `motor_lag` may be None (absent: the model without them, exactly). Kinematics
-    follow eq. 2.2-2.4: standard DH plus the Hayati angle `beta` (eq. 2.3), not Craig's modified DH;
-    the joint transform is `Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`.
+    effects `damping`, `motor_lag`, `viscous_friction` and `coulomb_friction` may be None (absent: the model
+    without them, exactly). Kinematics follow eq. 2.2-2.4: standard DH plus the Hayati angle `beta` (eq. 2.3),
+    not Craig's modified DH; the joint transform is `Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`.
     """
 
     a: Float[Array, "*batch n"]
@@ -99,6 +99,12 @@ class Robot(eqx.Module):
     """Velocity-loop time constants `tau` [s]: motor i follows its command through the first-order lag
     `tau_i thetad_m + theta_m = theta_cmd`, and its encoder reports `theta_m` (the robot file's
     `[motors] velocity_lag_s`); None: the motors follow the command exactly."""
+    viscous_friction: Float[Array, "*batch n"] | None = None
+    """Link-side viscous friction `f_v` [N m s/rad]: the link receives `-f_v qd` (`link_friction`; the robot
+    file's `[friction] viscous`, a URDF's `<dynamics damping>`); None: no term."""
+    coulomb_friction: Float[Array, "*batch n"] | None = None
+    """Link-side Coulomb friction `f_c` [N m]: the link receives `-f_c tanh(qd / COULOMB_VELOCITY)`
+    (`link_friction`; the robot file's `[friction] coulomb`, a URDF's `<dynamics friction>`); None: no term."""
 
     @property
     def k1(self) -> Float[Array, "*batch n"]:

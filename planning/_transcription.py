@@ -350,11 +350,24 @@ def scaled_cost(problem: OCPProblem) -> ScaledQuadratic:
 
 def _link_acceleration(robot: jr.Robot, q, qd, phi, d, phid=None) -> Float[Array, "N n"]:
     """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`), plus `d (phid - qd)` in
-    the bracket for a robot with joint damping."""
+    the bracket for a robot with joint damping and `-jr.link_friction(qd)` for one with link-side friction."""
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
     if robot.damping is not None:
         rhs = rhs + robot.damping * (phid - qd)
+    if _has_friction(robot):
+        rhs = rhs - jr.link_friction(robot, qd)
     return spd_solve(d, rhs[..., None])[..., 0]
+
+
+def _has_friction(robot: jr.Robot) -> bool:
+    return robot.viscous_friction is not None or robot.coulomb_friction is not None
+
+
+def _friction_slope(robot: jr.Robot, qd: Float[Array, "N n"]) -> Float[Array, "N n"]:
+    """`d link_friction / d qd` (diagonal: each joint's friction depends on its own rate); 0 without friction."""
+    if not _has_friction(robot):
+        return jnp.zeros_like(qd)
+    return jax.jvp(lambda v: jr.link_friction(robot, v), (qd,), (jnp.ones_like(qd),))[1]
 
 
 def gear(problem: OCPProblem, theta: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
@@ -419,7 +432,8 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     eq. 4.1 (as `half_step_jacobian`): with `s = D^{-1} w_qdd`,
     `(dqdd/dq)^T w_qdd = -(dID/dq)^T s - kappa' s`, `(dqdd/dqd)^T w_qdd = -(dID/dqd)^T s`,
     `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; with joint damping `d` also `-d s` on `qd`,
-    `d thetad (d(1/u)/dtheta) s` on `theta` and `d s / u(phi)` on `thetad`; `(dID/d(q, qd))^T s` is one reverse
+    `d thetad (d(1/u)/dtheta) s` on `theta` and `d s / u(phi)` on `thetad`; with link-side friction `-f' s` on `qd`
+    (`f'` its slope in the link rate); `(dID/d(q, qd))^T s` is one reverse
     pass through Newton-Euler alone (not through the mass matrix, its solve and `Xi^-1`), whose
     forward pass is made once (`inverse_dynamics_vjp`, or `id_vjp` if already made) for every `w`."""
     r = problem.robot
@@ -428,12 +442,14 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     x = State.of((h.y * sz)[:, :nx])
     half = 0.5 * problem.ts / sz[:nx]
     id_vjp = inverse_dynamics_vjp(problem, h) if id_vjp is None else id_vjp
+    friction = _friction_slope(r, x.qd)
 
     def vjp(w):
         wf = State.of(half * w)  # cotangent of f = [qd, qdd, thetad, u]
         s = spd_solve(h.mass, wf.qd[..., None])[..., 0]
         id_q, id_qd = id_vjp(s)
         stiff = jr.elastic_stiffness(r, h.phi - x.q) * s
+        id_qd = id_qd + friction * s
         if r.damping is None:
             out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / h.ratio, wf.theta, wf.thetad], -1)
         else:
@@ -461,7 +477,8 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
     With `ID(q, qd, qdd) = D qdd + C qd + g = kappa(phi - q)` at the model's `qdd`:
     `dqdd/dq = -D^{-1} (dID/dq + kappa')`, `dqdd/dqd = -D^{-1} dID/dqd`,
     `dqdd/dtheta = D^{-1} kappa' / u(phi)`; damping adds `-D^{-1} d` to `dqdd/dqd`,
-    `D^{-1} d thetad d(1/u)/dtheta` to `dqdd/dtheta` and `dqdd/dthetad = D^{-1} d / u(phi)`. The rows of
+    `D^{-1} d thetad d(1/u)/dtheta` to `dqdd/dtheta` and `dqdd/dthetad = D^{-1} d / u(phi)`; link-side friction
+    adds `-D^{-1} diag(f')` to `dqdd/dqd` (`f'` its slope in the link rate). The rows of
     `dID/d(q, qd)` come from n reverse passes
     through Newton-Euler (n passes where forward mode takes 2n tangents; `id_vjp`: its linearisation at `h`,
     `inverse_dynamics_vjp`, if already made), the rest in closed form.
@@ -476,6 +493,8 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
     rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(j)[:, None, :], (j, *q.shape)))  # row i of dID
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
     diag = jax.vmap(jnp.diag)
+    if _has_friction(r):
+        id_qd = id_qd + diag(_friction_slope(r, x.qd))
     if r.damping is None:
         rhs = jnp.concatenate([-(id_q + diag(stiff)), -id_qd, diag(stiff / h.ratio)], -1)
     else:

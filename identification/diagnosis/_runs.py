@@ -141,13 +141,19 @@ def compare_run(robot: jr.Robot, command, run, marker, noise) -> RunComparison:
 # ------------------------------------------------------------------ naming dynamic effects from runs
 
 RUN_KINDS = {"lag": (1e-3, "s"), "damping": (10.0, "N m s/rad"), "stiffness": (1e-2, "x k1, k3"),
-             "cubic": (1e5, "N m/rad^3")}
+             "cubic": (1e5, "N m/rad^3"), "viscous": (1.0, "N m s/rad"), "coulomb": (1.0, "N m"),
+             "inertia": (1e-1, "x inertia")}
 """The per-joint dynamic effects a run can name, one parameter per joint, with the scale of its fit variable and the
 unit of its reported value: `lag` the velocity-loop time constant of a motor (`Robot.motor_lag`), `damping` the
 viscous damping of a joint spring (`Robot.damping`), `stiffness` the factor on the joint's `k1` and `k3` (the value
 reported; the fit varies the compliance `c = 1/k1` by `1 + x/100`), `cubic` the joint's `k3` at a fixed `k1` (the
-value reported; the fit varies `e = k3/k1` [1/rad^2] by `1e5 x`). Besides them `PAYLOAD`; link-side friction is not
-in the model (`jr.simulate` has no friction term), so runs cannot name it."""
+value reported; the fit varies `e = k3/k1` [1/rad^2] by `1e5 x`), `viscous` and `coulomb` the link-side friction
+(`Robot.viscous_friction`, `Robot.coulomb_friction`), `inertia` the factor on the link's inertia tensor about its
+centre of mass (the value reported; the fit varies it by `1 + x/10`). Besides them `PAYLOAD`. The rotor inertia is
+not a candidate: the motors follow their commands kinematically (ideal velocity loops, or the first-order lag), so
+it changes only the motor torques, which neither the tracker nor the encoders see (motor currents would show it)."""
+NONNEGATIVE = ("lag", "damping", "viscous", "coulomb")
+"""The kinds whose value is physical only at or above 0 (a fit that leaves that range is refused)."""
 PAYLOAD = (("mass", 1.0, "kg"), ("x", 0.1, "m"), ("y", 0.1, "m"), ("z", 0.1, "m"))
 """The payload effect's reported parameters (name, scale of its fit variable, unit): a point mass on the flange, its
 mass and its position in the last link's frame (`payload_robot`); it acts on the runs through gravity and inertia and
@@ -177,7 +183,7 @@ class RunEffect:
     """A dynamic effect that runs can show: one of `RUN_KINDS` on one joint, or the payload."""
 
     kind: str
-    """`lag`, `damping`, `stiffness`, `cubic` or `payload`."""
+    """One of `RUN_KINDS`, or `payload`."""
     joint: int | None
     """0-based joint (motor) index; None for the payload."""
 
@@ -187,7 +193,9 @@ class RunEffect:
         if self.kind == "payload":
             return "payload (point mass on the flange)"
         what = {"lag": "velocity-loop lag, motor", "damping": "joint damping, joint",
-                "stiffness": "stiffness (k1, k3), joint", "cubic": "cubic stiffness (k3), joint"}[self.kind]
+                "stiffness": "stiffness (k1, k3), joint", "cubic": "cubic stiffness (k3), joint",
+                "viscous": "viscous link friction, joint", "coulomb": "Coulomb link friction, joint",
+                "inertia": "link inertia, link"}[self.kind]
         return f"{what} {self.joint + 1}"
 
 
@@ -200,7 +208,8 @@ class RunEstimate:
     parameter: str
     """The parameter: the effect's kind for the per-joint effects, a `PAYLOAD` name for the payload."""
     value: float
-    """The value in `unit` (`stiffness`: the factor on `k1` and `k3`; `cubic`: the joint's `k3`)."""
+    """The value in `unit` (`stiffness`: the factor on `k1` and `k3`; `cubic`: the joint's `k3`; `inertia`: the
+    factor on the link's inertia tensor)."""
     std: float
     """Its standard deviation from the fit's covariance (linearised, noise as stated)."""
     unit: str
@@ -241,18 +250,51 @@ class RunDiagnosis:
     """The parameters of the added effects with their fitted values at the final model."""
     verdict: str
     """The outcome in words."""
+    covariance: np.ndarray
+    """(m, m) the covariance of the `estimates`' values in their order and units (linearised, the noise as stated;
+    the stds are the roots of its diagonal)."""
+    fit: tuple = dataclasses.field(repr=False, compare=False)
+    """`(start, variables, indices, covariance)`: the start robot with zeros in its absent effect fields, the fit's
+    scaled effect variables, the indices of the added effects' ones and their covariance (what `sample` draws)."""
+
+    def sample(self, count: int, seed: int) -> list[jr.Robot]:
+        """`count` robots consistent with the runs: the added effects' fit variables drawn (seeded) from a normal
+        with their fitted values and covariance, the rest of the model as fitted (the fit's linearised uncertainty,
+        to carry into what the model is used for); `count` copies of `robot` when no effect was added."""
+        start, z, indices, cov = self.fit
+        if not indices:
+            return [self.robot] * count
+        draws = np.random.default_rng(seed).multivariate_normal(z[indices], cov, size=count)
+        fields = [f for f in _EFFECT_FIELDS if getattr(self.robot, f) is None]
+        return [dataclasses.replace(_with_effects(start, jnp.asarray(z).at[np.asarray(indices)].set(d)),
+                                    **{f: None for f in fields}) for d in draws]
 
 
 def _with_effects(robot: jr.Robot, z):
-    """`robot` (with lag and damping arrays) moved by the scaled effect variables `z` (4n + 4,): lag, damping,
-    stiffness, cubic per joint, then the payload."""
+    """`robot` (with lag, damping and friction arrays) moved by the scaled effect variables `z` (len(RUN_KINDS) n
+    + 4,): each kind of `RUN_KINDS` per joint in its order, then the payload."""
     n = robot.n_joints
-    scale = {k: v[0] for k, v in RUN_KINDS.items()}
-    moved = dataclasses.replace(robot, motor_lag=robot.motor_lag + scale["lag"] * z[:n],
-                                damping=robot.damping + scale["damping"] * z[n:2 * n],
-                                c=robot.c * (1.0 + scale["stiffness"] * z[2 * n:3 * n]),
-                                e=robot.e + scale["cubic"] * z[3 * n:4 * n])
-    return loaded(moved, PAYLOAD[0][1] * z[4 * n], PAYLOAD[1][1] * z[4 * n + 1:])
+    x = {k: v[0] * z[i * n:(i + 1) * n] for i, (k, v) in enumerate(RUN_KINDS.items())}
+    moved = dataclasses.replace(robot, motor_lag=robot.motor_lag + x["lag"], damping=robot.damping + x["damping"],
+                                c=robot.c * (1.0 + x["stiffness"]), e=robot.e + x["cubic"],
+                                viscous_friction=robot.viscous_friction + x["viscous"],
+                                coulomb_friction=robot.coulomb_friction + x["coulomb"],
+                                inertia=robot.inertia * (1.0 + x["inertia"])[:, None, None])
+    at = len(RUN_KINDS) * n
+    return loaded(moved, PAYLOAD[0][1] * z[at], PAYLOAD[1][1] * z[at + 1:])
+
+
+_EFFECT_FIELDS = {"motor_lag": "lag", "damping": "damping", "viscous_friction": "viscous",
+                  "coulomb_friction": "coulomb"}
+"""The robot's optional effect fields (None: no term) and the kind of `RUN_KINDS` that fills each."""
+
+
+def _with_effect_arrays(robot: jr.Robot) -> jr.Robot:
+    """`robot` with zeros in each optional effect field that is None (the same model: a zero term adds nothing),
+    so that `_with_effects` can move them."""
+    n = robot.n_joints
+    return dataclasses.replace(robot, **{field: jnp.zeros(n) for field in _EFFECT_FIELDS
+                                         if getattr(robot, field) is None})
 
 
 def _whitened(robot, z, cmd, white, measured, sigma, marker, substeps):
@@ -435,16 +477,19 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
     if exact_end and not exact:
         jac = _evaluate(robot, z, ev, marker, substeps, idx)[1]
     values = np.asarray(z)
-    if not chi2 < start or np.any(values[:2 * n] < 0) or values[len(RUN_KINDS) * n] < 0 \
+    kinds = list(RUN_KINDS)
+    nonnegative = np.concatenate([values[kinds.index(k) * n:(kinds.index(k) + 1) * n] for k in NONNEGATIVE])
+    if not chi2 < start or np.any(nonnegative < 0) or values[len(RUN_KINDS) * n] < 0 \
             or not _identifiable(jac, effects, n, np.arange(jac.shape[1])):
         return None
     return z, chi2, r, np.linalg.inv(jac.T @ jac) if exact_end else None
 
 
-def _estimate(robot, z, effects, cov) -> list[RunEstimate]:
-    """The reported values of the added `effects` at `z`, with their stds from `cov`, the fit variables' covariance
-    (in their order)."""
-    n, out, at = robot.n_joints, [], 0
+def _estimate(robot, z, effects, cov) -> tuple[list[RunEstimate], np.ndarray]:
+    """The reported values of the added `effects` at `z`, with their stds, and their covariance (m, m) in their
+    order and units, from `cov`, the fit variables' covariance (in their order), through the derivatives of the
+    values in the variables."""
+    n, values, rows = robot.n_joints, [], []
     for e in effects:
         i = _index(e, n)
         if e.kind == "payload":
@@ -452,23 +497,32 @@ def _estimate(robot, z, effects, cov) -> list[RunEstimate]:
             m, h = s_m * float(z[i[0]]), s_h * np.asarray(z[i[1:]])
             jac = np.zeros((4, 4))  # (mass, position) from the variables (mass, moment) in their scales
             jac[0, 0], jac[1:, 0], jac[1:, 1:] = s_m, -s_m * h / m**2, s_h * np.eye(3) / m
-            std = np.sqrt(np.diag(jac @ cov[at:at + 4, at:at + 4] @ jac.T))
-            out += [RunEstimate(e, name, float(v), float(sd), unit)
-                    for (name, _, unit), v, sd in zip(PAYLOAD, [m, *(h / m)], std)]
-            at += 4
+            values += [(e, name, v, unit) for (name, _, unit), v in zip(PAYLOAD, [m, *(h / m)])]
+            rows.append(jac)
             continue
         scale, unit = RUN_KINDS[e.kind]
-        x, s = float(z[i[0]]), float(np.sqrt(cov[at, at]))
-        at += 1
+        x = float(z[i[0]])
         if e.kind == "stiffness":  # k1 scales by 1 / (1 + scale x)
-            value, sd = 1.0 / (1.0 + scale * x), scale * s / (1.0 + scale * x) ** 2
+            value, slope = 1.0 / (1.0 + scale * x), -scale / (1.0 + scale * x) ** 2
+        elif e.kind == "inertia":
+            value, slope = 1.0 + scale * x, scale
         elif e.kind == "cubic":  # k3 = e k1 at the final model
             k1 = float(_with_effects(robot, z).k1[e.joint])
-            value, sd = float(robot.e[e.joint] + scale * x) * k1, scale * s * k1
+            value, slope = float(robot.e[e.joint] + scale * x) * k1, scale * k1
         else:
-            value, sd = scale * x, scale * s
-        out.append(RunEstimate(e, e.kind, value, sd, unit))
-    return out
+            value, slope = scale * x, scale
+        values.append((e, e.kind, value, unit))
+        rows.append(np.array([[slope]]))
+    if not rows:
+        return [], np.zeros((0, 0))
+    jac = np.zeros((len(values), len(values)))
+    at = 0
+    for block in rows:
+        jac[at:at + len(block), at:at + len(block)] = block
+        at += len(block)
+    covariance = jac @ cov @ jac.T
+    std = np.sqrt(np.diag(covariance))
+    return [RunEstimate(e, name, float(v), float(sd), unit) for (e, name, v, unit), sd in zip(values, std)], covariance
 
 
 def diagnose_runs(
@@ -519,8 +573,7 @@ def diagnose_runs(
                                                marker, "training poses"))
     ev_val = _Evidence(val, sigma, _prepare_poses(robot, None if poses is None else poses[1], pose_noise,
                                                   marker, "validation poses"))
-    base = dataclasses.replace(robot, motor_lag=jnp.zeros(n) if robot.motor_lag is None else robot.motor_lag,
-                               damping=jnp.zeros(n) if robot.damping is None else robot.damping)
+    base = _with_effect_arrays(robot)
     ln_n = math.log(ev.rows)
     threshold = max(ENCODER_LAG_RAD, 2.0 * encoder_quantum)
     size = len(RUN_KINDS) * n + len(PAYLOAD)
@@ -602,9 +655,9 @@ def diagnose_runs(
         if added:
             verdict = "explained: the runs agree with the model to the tracker noise after adding " + ", ".join(
                 e.label for e in added)
-    final = _with_effects(base, z)
     kinds = {e.kind for e in added}
-    final = dataclasses.replace(final, motor_lag=None if robot.motor_lag is None and "lag" not in kinds
-                                else final.motor_lag,
-                                damping=None if robot.damping is None and "damping" not in kinds else final.damping)
-    return RunDiagnosis(final, steps, _estimate(base, np.asarray(z), added, cov), verdict)
+    final = dataclasses.replace(_with_effects(base, z), **{
+        field: None for field, kind in _EFFECT_FIELDS.items() if getattr(robot, field) is None and kind not in kinds})
+    estimates, covariance = _estimate(base, np.asarray(z), added, cov)
+    variables = [i for e in added for i in _index(e, n)]
+    return RunDiagnosis(final, steps, estimates, verdict, covariance, (base, np.asarray(z), variables, cov))

@@ -105,6 +105,8 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         name=data["name"],
         damping=_optional(data.get("stiffness", {}), "damping"),
         motor_lag=_optional(data.get("motors", {}), "velocity_lag_s"),
+        viscous_friction=_optional(data.get("friction", {}), "viscous"),
+        coulomb_friction=_optional(data.get("friction", {}), "coulomb"),
         reversal_travel=_optional(gear, "reversal_travel_rad"),
     )
     if robot.reversal_travel is not None:
@@ -193,6 +195,10 @@ def description_of(robot: Robot) -> dict:
         motors["velocity_lag_s"] = f(robot.motor_lag)
     if motors:  # else no [motors] section
         data["motors"] = motors
+    friction = {key: f(value) for key, value in (("viscous", robot.viscous_friction),
+                                                 ("coulomb", robot.coulomb_friction)) if value is not None}
+    if friction:  # else no [friction] section
+        data["friction"] = friction
     c, e = np.asarray(robot.c, float), np.asarray(robot.e, float)
     if np.any(c != 0) or robot.damping is not None:  # else rigid: no [stiffness] section
         k1, k3 = np.asarray(robot.k1, float), np.asarray(robot.k3, float)

@@ -32,6 +32,7 @@ def _schema(n: int) -> dict[str, Any]:
         "?stiffness": {"k1": vn, "k3": vn, "?damping": vn},
         "links": {"mass": vn, "com": (n, 3), "inertia": (n, 6)},
         "?motors": {"?inertia": vn, "?velocity_lag_s": vn},
+        "?friction": {"?viscous": vn, "?coulomb": vn},
         "?tool": {"transform": (4, 4)},
         "?base": {"transform": (4, 4)},
         "?as_built": {
@@ -169,6 +170,11 @@ def _check_physics(data: dict, n: int) -> None:
     if "velocity_lag_s" in motors and np.any(np.asarray(motors["velocity_lag_s"], float) < 0):
         fail_field("motors.velocity_lag_s", "velocity-loop time constants >= 0 s (0: the motor follows its command "
               "exactly)", motors["velocity_lag_s"])
+    for key, what in (("viscous", "viscous friction >= 0 N m s/rad"), ("coulomb", "Coulomb friction >= 0 N m")):
+        values = np.asarray(data.get("friction", {}).get(key, np.zeros(n)), float)
+        for i in range(n):
+            if values[i] < 0:
+                fail_field(f"friction.{key}[{i}] (joint {i + 1})", f"link-side {what}", float(values[i]))
     damping = np.asarray(data.get("stiffness", {}).get("damping", np.zeros(n)), float)
     for i in range(n):
         if damping[i] < 0 or (damping[i] > 0 and np.isinf(k1[i])):
@@ -258,8 +264,8 @@ def validate(data: dict) -> dict:
     The number of joints `n` is the length of `kinematics.a`; every per-joint field has `n` rows.
     Kinematics, limits and links are required; without `[gear]` the ratios are 1 with no ripple,
     without `[stiffness]` the joints are rigid, without `[motors]` the rotors have no inertia; without
-    `[stiffness] damping` or `[motors] velocity_lag_s` the model has no such term (`Robot.damping`,
-    `Robot.motor_lag`)."""
+    `[stiffness] damping`, `[motors] velocity_lag_s` or `[friction] viscous` / `coulomb` the model has no such
+    term (`Robot.damping`, `Robot.motor_lag`, `Robot.viscous_friction`, `Robot.coulomb_friction`)."""
     n = joint_count(data)
     _check(data, _schema(n), "")
     _check_physics(data, n)

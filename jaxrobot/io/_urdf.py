@@ -1,4 +1,6 @@
-"""URDF export and import of the rigid part of a `Robot` (links, inertias, joint placements, limits).
+"""URDF export and import of the rigid part of a `Robot` (links, inertias, joint placements, limits) and its
+link-side friction (`<dynamics damping friction>`: URDF's joint damping is our viscous friction `f_v`, its
+friction our Coulomb friction `f_c`, both acting on the link).
 
 Export. The joint transform (eq. 2.2-2.3, standard DH plus the Hayati angle)
 `Rz(q_i + offset_i) Tx(a_i) Tz(d_i) Rx(alpha_i) Ry(beta_i)` is split into the joint rotation
@@ -142,6 +144,10 @@ def to_urdf(robot: Robot) -> str:
         ET.SubElement(joint, "axis", xyz="0 0 1")
         ET.SubElement(joint, "limit", lower=_num(num["q_min"][i]), upper=_num(num["q_max"][i]),
                       velocity=_num(num["qd_max"][i]), effort=_num(EFFORT_LIMIT))
+        if robot.viscous_friction is not None or robot.coulomb_friction is not None:
+            ET.SubElement(joint, "dynamics", **{theirs: _num(0.0 if value is None else np.asarray(value)[i])
+                                                for theirs, value in (("damping", robot.viscous_friction),
+                                                                      ("friction", robot.coulomb_friction))})
         placement = _placement(num, i)
         body = ET.SubElement(root, "link", name=link)
         inertial = ET.SubElement(body, "inertial")
@@ -200,6 +206,7 @@ class _Joint:
     axis: np.ndarray  # (3,) unit axis in the joint frame
     limit: dict[str, float]
     mimic: bool
+    dynamics: dict[str, float]  # <dynamics damping friction>: link-side viscous [N m s/rad], Coulomb [N m]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -264,8 +271,12 @@ def _parse(text: str) -> tuple[str, dict[str, _Inertial | None], list[_Joint], d
         limit_el = el.find("limit")
         limit = {} if limit_el is None else {
             k: _floats(limit_el, k, (0.0,), where)[0] for k in ("lower", "upper", "velocity") if k in limit_el.attrib}
+        dyn_el = el.find("dynamics")
+        dynamics = {} if dyn_el is None else {
+            k: _floats(dyn_el, k, (0.0,), f"{where} <dynamics>")[0] for k in ("damping", "friction")
+            if k in dyn_el.attrib}
         joints.append(_Joint(name, kind, ends[0].get("link"), ends[1].get("link"), _frame(el.find("origin"), where),
-                             axis / (np.linalg.norm(axis) or 1.0), limit, el.find("mimic") is not None))
+                             axis / (np.linalg.norm(axis) or 1.0), limit, el.find("mimic") is not None, dynamics))
     ratios = {}
     for el in root.findall("transmission"):
         names = [j.get("name") for j in el.findall("joint")]
@@ -535,6 +546,10 @@ def description_from_urdf(text: str, base: str | None = None, tip: str | None = 
                 raise RobotFileError(f"transmission '{ratios[j.name][0]}' of joint '{j.name}': mechanicalReduction "
                                      f"must be a positive gear ratio, found {ratios[j.name][1]}")
         data["gear"] = {"u0": [ratios.get(j.name, ("", 1.0))[1] for j in chain]}
+    friction = {ours: [float(j.dynamics.get(theirs, 0.0)) for j in chain] for ours, theirs in
+                (("viscous", "damping"), ("coulomb", "friction")) if any(theirs in j.dynamics for j in chain)}
+    if friction:  # URDF's joint damping and friction act on the link: our link-side friction
+        data["friction"] = friction
     for key, t in (("base", frames[0]), ("tool", _inverse(frames[-1]) @ pose[tip])):
         if not np.array_equal(t, np.eye(4)):
             data[key] = {"transform": f(t)}

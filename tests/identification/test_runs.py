@@ -182,20 +182,35 @@ def test_cli_diagnose_runs_refuses_incomplete_input(tmp_path, capsys):
         jr.io.read_command_csv(uneven)
 
 
+ARM_EFFECTS = {
+    "lag": ({"lag": [0.002, 0.0]}, None, "velocity-loop lag, motor 1", 0.002),
+    "coulomb": ({"coulomb": [0.0, 0.2]}, None, "Coulomb link friction, joint 2", 0.2),
+    "inertia": ({}, 1.5, "link inertia, link 1", 1.5),
+}
+"""Hidden effects of the arm in `test_diagnose_runs_names_an_effect_on_the_arm`: the description's fields, the factor
+on link 1's inertia tensor (or None), the label and the value `diagnose_runs` should report."""
+
+
 @pytest.mark.extended
-def test_diagnose_runs_names_a_lag_on_the_arm():
-    """`diagnose_runs` on synthetic runs of the arm (our simulation, the tracker's 50 um noise, seeded): with a
-    2 ms lag on motor 1 it adds that lag alone, its value within 3 of its reported sigma, and passes the chi-square
-    test; on the arm without it, it adds nothing; the screening compiles one derivative program (every variable at
-    once) and every fit shares a second. Extended: its four programs (the simulation, the residual, the two
-    derivatives) compile in ~1 min each on 2 cores."""
+@pytest.mark.parametrize("hidden", list(ARM_EFFECTS))
+def test_diagnose_runs_names_an_effect_on_the_arm(hidden):
+    """`diagnose_runs` on synthetic runs of the arm (our simulation, the tracker's 50 um noise, seeded): with a 2 ms
+    lag on motor 1, a Coulomb friction of 0.2 N m on joint 2 (a few % of its gravity torque) or link 1's inertia
+    tensor x1.5 hidden, it adds that effect alone, its value within 3 of its reported sigma, and passes the
+    chi-square test; with the lag, the arm without it adds nothing; every case compiles at most two derivative
+    programs (the screening's, every variable at once, and the one every fit shares), the same for every hidden
+    effect. Extended: its four programs (the simulation, the residual, the two derivatives) compile in ~1 min each
+    on 2 cores."""
     from identification.diagnosis._runs import _columns, diagnose_runs
     from jaxrobot.measurement import marker_pose
 
+    fields, inertia, label, value = ARM_EFFECTS[hidden]
     marker, noise = np.array([0.05, 0.0, 0.0]), 5e-5
     rng = np.random.default_rng(3201)
     t = np.arange(401) * 1e-3
-    truth = jr.robot_from_description(arm_description(lag=[0.002, 0.0]))
+    truth = jr.robot_from_description(arm_description(**fields))
+    if inertia is not None:
+        truth = dataclasses.replace(truth, inertia=truth.inertia.at[0].multiply(inertia))
 
     def pair(scale):
         theta, thetad, thetadd = command(t)
@@ -208,11 +223,19 @@ def test_diagnose_runs_names_a_lag_on_the_arm():
     start = jr.robot_from_description(arm_description())
     programs = _columns._cache_size()
     res = diagnose_runs(start, train, val, marker, noise)
-    assert _columns._cache_size() == programs + 2
-    assert [e.effect.label for e in res.estimates] == ["velocity-loop lag, motor 1"], res.verdict
+    assert _columns._cache_size() <= programs + 2
+    assert [e.effect.label for e in res.estimates] == [label], res.verdict
     est = res.estimates[0]
-    assert abs(est.value - 0.002) < 3 * est.std and est.std < 1e-4
+    assert abs(est.value - value) < 3 * est.std and est.std < 0.05 * value
     assert res.steps[-1].p_value > 1e-3 and res.verdict.startswith("explained")
-    assert res.robot.damping is None and float(res.robot.motor_lag[1]) == 0.0
-    clean = diagnose_runs(truth, train, val, marker, noise)
-    assert clean.estimates == [] and len(clean.steps) == 1 and clean.verdict.startswith("no significant")
+    assert res.robot.damping is None and res.covariance.shape == (1, 1)
+    np.testing.assert_allclose(np.sqrt(res.covariance[0, 0]), est.std, rtol=1e-12)
+    read = {"lag": lambda r: r.motor_lag[0], "coulomb": lambda r: r.coulomb_friction[1],
+            "inertia": lambda r: r.inertia[0, 0, 0] / start.inertia[0, 0, 0]}[hidden]
+    drawn = np.array([float(read(r)) for r in res.sample(200, seed=5)])  # the fit's uncertainty, drawn
+    assert abs(np.mean(drawn) - est.value) < 4 * est.std / np.sqrt(200) and 0.8 < np.std(drawn) / est.std < 1.2
+    if hidden == "lag":
+        assert float(res.robot.motor_lag[1]) == 0.0 and res.robot.coulomb_friction is None
+        clean = diagnose_runs(truth, train, val, marker, noise)
+        assert clean.estimates == [] and len(clean.steps) == 1 and clean.verdict.startswith("no significant")
+        assert clean.sample(2, seed=0) == [clean.robot, clean.robot]

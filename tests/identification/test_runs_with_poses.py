@@ -17,9 +17,12 @@ import jaxrobot as jr
 import jaxrobot.bench as jb
 from identification.diagnosis import payload_robot
 from identification.diagnosis._runs import (
+    PAYLOAD,
+    RUN_KINDS,
     _pose_rows,
     _prepare_poses,
     _simulated,
+    _with_effect_arrays,
     compare_run,
     diagnose_runs,
 )
@@ -80,11 +83,14 @@ def test_runs_and_poses_share_one_chi_square():
     np.testing.assert_allclose(row.chi2_validation, run_chi2 + pose_chi2(poses[1]), rtol=1e-9)
     assert row.chi2_poses > 3 * 3 * 8  # the payload shows in the poses
     assert res.verdict == "not explained after 0 effects (--max-steps)" and res.estimates == []
-    base = dataclasses.replace(start, motor_lag=jnp.zeros(2), damping=jnp.zeros(2))
-    jac = np.asarray(_pose_rows(base, jnp.zeros(12), *_prepare_poses(start, poses[0], 2 * noise, marker, "poses"),
-                                jnp.asarray(marker))[1])
-    assert np.all(jac[:, :4] == 0) and np.all(np.linalg.norm(jac[:, 4:6], axis=0) > 0)  # lag, damping; stiffness
-    assert np.linalg.norm(jac[:, 8]) > 0  # the payload's mass
+    size = len(RUN_KINDS) * 2 + len(PAYLOAD)
+    jac = np.asarray(_pose_rows(_with_effect_arrays(start), jnp.zeros(size),
+                                *_prepare_poses(start, poses[0], 2 * noise, marker, "poses"), jnp.asarray(marker))[1])
+    columns = {k: jac[:, 2 * i:2 * i + 2] for i, k in enumerate(RUN_KINDS)}
+    for kind in ("lag", "damping", "viscous", "coulomb", "inertia"):  # nothing moves at rest
+        assert np.all(columns[kind] == 0), kind
+    assert np.all(np.linalg.norm(columns["stiffness"], axis=0) > 0)
+    assert np.linalg.norm(jac[:, len(RUN_KINDS) * 2]) > 0  # the payload's mass
 
 
 def test_runs_with_poses_refuse_bad_input():

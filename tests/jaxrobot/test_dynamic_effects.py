@@ -23,9 +23,11 @@ L, LC, MASS, IZ = np.array([0.5, 0.4]), np.array([0.25, 0.15]), np.array([3.0, 2
 U0, K1, K3 = np.array([50.0, 40.0]), np.array([2.0e3, 8.0e2]), np.array([0.0, 1.0e4])
 G = 9.81
 LAG, DAMPING = np.array([0.003, 0.0015]), np.array([6.0, 1.5])
+VISCOUS, COULOMB = np.array([0.8, 0.2]), np.array([1.5, 0.3])
+"""Link-side friction of the arm [N m s/rad], [N m]: a few % of the gravity torques (~15 and 3 N m)."""
 
 
-def arm_description(lag=None, damping=None) -> dict:
+def arm_description(lag=None, damping=None, viscous=None, coulomb=None) -> dict:
     data = {
         "name": "arm2", "gravity": [0.0, -G, 0.0],
         "kinematics": {"a": L.tolist(), "d": [0.0, 0.0], "alpha": [0.0, 0.0], "beta": [0.0, 0.0],
@@ -40,6 +42,9 @@ def arm_description(lag=None, damping=None) -> dict:
         data["motors"] = {"velocity_lag_s": list(lag)}
     if damping is not None:
         data["stiffness"]["damping"] = list(damping)
+    friction = {k: list(v) for k, v in (("viscous", viscous), ("coulomb", coulomb)) if v is not None}
+    if friction:
+        data["friction"] = friction
     return data
 
 
@@ -64,9 +69,10 @@ def command(t):
     return U0 * q, U0 * qd, U0 * qdd
 
 
-def scipy_run(t, theta, thetad, thetadd, lag, damping):
+def scipy_run(t, theta, thetad, thetadd, lag, damping, viscous=0.0, coulomb=0.0):
     """Link angles of the arm under the sampled command, integrated by DOP853 with the motor angles as states
-    (`lag thetad_m = theta_cmd - theta_m`), the command between samples scipy's quintic Hermite interpolant."""
+    (`lag thetad_m = theta_cmd - theta_m`), the command between samples scipy's quintic Hermite interpolant;
+    link-side friction `viscous qd + coulomb tanh(qd / jr.COULOMB_VELOCITY)`."""
     cmd = [BPoly.from_derivatives(t, np.stack([theta[:, i], thetad[:, i], thetadd[:, i]], 1)) for i in range(2)]
 
     def kappa(x):
@@ -79,7 +85,8 @@ def scipy_run(t, theta, thetad, thetadd, lag, damping):
         q, qd, m = y[:2], y[2:4], y[4:]
         u = np.array([c(s) for c in cmd])
         md = (u - m) / lag
-        torque = kappa(m / U0 - q) + damping * (md / U0 - qd)
+        torque = kappa(m / U0 - q) + damping * (md / U0 - qd) - viscous * qd - coulomb * np.tanh(
+            qd / jr.COULOMB_VELOCITY)
         bias, mass = arm_link_torque(q, qd, np.zeros(2))
         return np.concatenate([qd, np.linalg.solve(mass, torque - bias), md])
 
@@ -93,8 +100,11 @@ def test_absent_effects_are_the_model_without_them(tmp_path):
     """Absent from the file: no field (None), the code of the model without the effects; written as zeros:
     the same motion to rounding; saved and loaded, the effects come back exactly."""
     plain = jr.robot_from_description(arm_description())
-    zeros = jr.robot_from_description(arm_description(lag=[0.0, 0.0], damping=[0.0, 0.0]))
+    zeros = jr.robot_from_description(arm_description(lag=[0.0, 0.0], damping=[0.0, 0.0], viscous=[0.0, 0.0],
+                                                      coulomb=[0.0, 0.0]))
     assert plain.motor_lag is None and plain.damping is None
+    assert plain.viscous_friction is None and plain.coulomb_friction is None
+    assert "friction" not in jr.description_of(plain)
     assert "velocity_lag_s" not in str(jr.description_of(plain)) and "damping" not in str(jr.description_of(plain))
     t = np.arange(301) * 1e-3
     args = (t, *command(t))
@@ -104,18 +114,48 @@ def test_absent_effects_are_the_model_without_them(tmp_path):
     np.testing.assert_allclose(q_zero, q_plain, rtol=0, atol=1e-14)
     np.testing.assert_allclose(qd_zero, qd_plain, rtol=0, atol=1e-12)
     np.testing.assert_allclose(m, args[1], rtol=1e-14, atol=0)  # no lag: the encoders report the command
-    both = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING))
+    every = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING, viscous=VISCOUS, coulomb=COULOMB))
     path = tmp_path / "arm.toml"
-    jr.save_robot(both, path, keep={})
+    jr.save_robot(every, path, keep={})
     back = jr.load_robot(path)
     np.testing.assert_array_equal(back.motor_lag, LAG)
     np.testing.assert_array_equal(back.damping, DAMPING)
+    np.testing.assert_array_equal(back.viscous_friction, VISCOUS)
+    np.testing.assert_array_equal(back.coulomb_friction, COULOMB)
+
+
+def test_link_friction_enters_the_link_bracket_and_the_urdf(tmp_path):
+    """Link-side friction opposes the link rate in `link_acceleration`: `D(q) (qdd_plain - qdd) = f_v qd +
+    f_c tanh(qd / COULOMB_VELOCITY)` against the hand-written arm's mass matrix (rounding of ~1e-13 N m), zero at
+    rest; `link_friction` is jit-, vmap- and grad-able; a URDF's `<dynamics damping friction>` is read into it and
+    written back."""
+    plain = jr.robot_from_description(arm_description())
+    robot = jr.robot_from_description(arm_description(viscous=VISCOUS, coulomb=COULOMB))
+    q, qd, phi = np.array([0.3, -0.5]), np.array([0.7, -0.004]), np.array([0.302, -0.497])
+    drop = jr.link_acceleration(plain, q, qd, phi) - jr.link_acceleration(robot, q, qd, phi)
+    expected = VISCOUS * qd + COULOMB * np.tanh(qd / jr.COULOMB_VELOCITY)
+    np.testing.assert_allclose(arm_link_torque(q, qd, np.zeros(2))[1] @ np.asarray(drop), expected, rtol=0,
+                               atol=1e-12)
+    np.testing.assert_array_equal(jr.link_friction(robot, jnp.zeros(2)), 0.0)
+    rates = jnp.asarray(np.random.default_rng(7).normal(size=(5, 2)))
+    np.testing.assert_allclose(jax.jit(jax.vmap(lambda v: jr.link_friction(robot, v)))(rates),
+                               VISCOUS * rates + COULOMB * np.tanh(rates / jr.COULOMB_VELOCITY), rtol=1e-14)
+    slope = jax.grad(lambda v: jr.link_friction(robot, v).sum())(jnp.zeros(2))
+    np.testing.assert_allclose(slope, VISCOUS + COULOMB / jr.COULOMB_VELOCITY, rtol=1e-14)
+    path = tmp_path / "arm.urdf"
+    path.write_text(jr.to_urdf(robot))
+    back = jr.load_robot(path)
+    np.testing.assert_allclose(back.viscous_friction, VISCOUS, rtol=1e-12)
+    np.testing.assert_allclose(back.coulomb_friction, COULOMB, rtol=1e-12)
+    assert "<dynamics" not in jr.to_urdf(plain)
 
 
 @pytest.mark.parametrize("field, value, message", [
     ("lag", [0.003, -0.001], r"motors.velocity_lag_s: expected velocity-loop time constants >= 0 s"),
     ("damping", [-1.0, 0.0], r"stiffness.damping\[0\] \(joint 1\): expected viscous damping >= 0 N m s/rad"),
     ("lag", [0.003], r"motors.velocity_lag_s: expected shape \(2\)"),
+    ("coulomb", [-1.0, 0.0], r"friction.coulomb\[0\] \(joint 1\): expected link-side Coulomb friction >= 0 N m"),
+    ("viscous", [0.0, float("nan")], r"friction.viscous: expected finite numbers"),
 ])
 def test_bad_effects_are_refused_naming_the_field(tmp_path, field, value, message):
     path = tmp_path / "bad.toml"
@@ -125,19 +165,24 @@ def test_bad_effects_are_refused_naming_the_field(tmp_path, field, value, messag
 
 
 @pytest.mark.extended  # ~35 s; the suite keeps the absent effects and the lag's inverse
-def test_lag_and_damping_match_an_independent_integration():
-    """The arm with a lag on both motors and damped joints against scipy's DOP853 on hand-written dynamics:
-    the link angles agree to 1e-9 rad (RK4 at 0.1 ms on modes of at most 16 Hz: its error is ~1e-11), the
-    encoder angles to 1e-10 rad; the effects move the links by far more (~1e-3 rad)."""
-    robot = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING))
+def test_lag_damping_and_friction_match_an_independent_integration():
+    """The arm with a lag on both motors, damped joints and link-side friction against scipy's DOP853 on
+    hand-written dynamics: the link angles agree to 1e-9 rad (RK4 at 0.1 ms on modes of at most 16 Hz: its error
+    is ~1e-11; the friction's slope at rest, `f_c / COULOMB_VELOCITY` over the link inertia, is ~1e3 1/s, far
+    inside RK4's stable step), the encoder angles to 1e-10 rad; the effects move the links by far more (~1e-3
+    rad), the friction alone by more than 1e-5 rad."""
+    robot = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING, viscous=VISCOUS, coulomb=COULOMB))
     t = np.arange(601) * 1e-3
     args = (t, *command(t))
     q, _, m = jax.jit(jr.simulate, static_argnames="motor_angles")(robot, *args, motor_angles=True)
-    q_ref, m_ref = scipy_run(*args, LAG, DAMPING)
+    q_ref, m_ref = scipy_run(*args, LAG, DAMPING, VISCOUS, COULOMB)
     np.testing.assert_allclose(q, q_ref, rtol=0, atol=1e-9)
     np.testing.assert_allclose(m, m_ref, rtol=0, atol=1e-10)
-    q_plain, _ = jax.jit(jr.simulate)(dataclasses.replace(robot, motor_lag=None, damping=None), *args)
+    simulate = jax.jit(jr.simulate)
+    q_plain, _ = simulate(dataclasses.replace(robot, motor_lag=None, damping=None), *args)
     assert float(np.max(np.abs(q_plain - q_ref))) > 1e-4
+    q_frictionless, _ = simulate(dataclasses.replace(robot, viscous_friction=None, coulomb_friction=None), *args)
+    assert float(np.max(np.abs(q_frictionless - q_ref))) > 1e-5
 
 
 @pytest.mark.extended  # a forward derivative through the lagged simulation compiles for 20 s
@@ -211,14 +256,19 @@ def arm_link_move(t):
 
 
 @pytest.mark.extended  # ~75 s; the suite keeps the damped transcription's derivatives
-def test_flat_inverse_of_a_damped_arm_is_exact():
-    """`jr.flat_inverse` of the arm with damped joints (time constants d/k of 3 and 1.9 ms), simulated on it: the
-    links follow the move within 1e-9 rad (RK4 at 0.1 ms on this arm errs by ~1e-11, the deflection's order-4 rule
-    by less); the undamped inverse on the damped arm misses by more than 1e-5 rad."""
-    robot = jr.robot_from_description(arm_description(damping=DAMPING))
+def test_flat_inverse_of_a_damped_arm_with_friction_is_exact():
+    """`jr.flat_inverse` of the arm with damped joints (time constants d/k of 3 and 1.9 ms) and link-side friction,
+    simulated on it: the links follow the move within 1e-9 rad (RK4 at 0.1 ms on this arm errs by ~1e-11, the
+    deflection's order-4 rule by less); the inverse that ignores the damping, or the friction, misses by more than
+    1e-5 rad."""
+    robot = jr.robot_from_description(arm_description(damping=DAMPING, viscous=VISCOUS, coulomb=COULOMB))
     t = jnp.arange(401) * 1e-3
     q_d = jax.vmap(arm_link_move)(t)
     flat = jax.jit(lambda r: jr.flat_inverse(r, arm_link_move, t))
-    q, _ = jax.jit(jr.simulate)(robot, t, *flat(robot))
-    q_undamped, _ = jax.jit(jr.simulate)(robot, t, *flat(dataclasses.replace(robot, damping=None)))
-    assert float(jnp.abs(q - q_d).max()) < 1e-9 and float(jnp.abs(q_undamped - q_d).max()) > 1e-5
+    simulate = jax.jit(jr.simulate)
+    q, _ = simulate(robot, t, *flat(robot))
+    q_undamped, _ = simulate(robot, t, *flat(dataclasses.replace(robot, damping=None)))
+    q_frictionless, _ = simulate(robot, t, *flat(dataclasses.replace(robot, viscous_friction=None,
+                                                                     coulomb_friction=None)))
+    assert float(jnp.abs(q - q_d).max()) < 1e-9
+    assert float(jnp.abs(q_undamped - q_d).max()) > 1e-5 and float(jnp.abs(q_frictionless - q_d).max()) > 1e-5

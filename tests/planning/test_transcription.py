@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_dynamic_effects import DAMPING, LAG, U0, arm_description, rest_to_rest
+from test_dynamic_effects import COULOMB, DAMPING, LAG, U0, VISCOUS, arm_description, rest_to_rest
 
 import jaxrobot as jr
 import planning as pl
@@ -26,14 +26,14 @@ def test_planning_state_packs_any_n(n):
 
 
 @pytest.mark.extended  # ~30 s; the suite keeps the absent effects and the lag's inverse
-def test_damped_transcription_derivatives_match_autodiff():
-    """With joint damping (and lags), the OCP's structured `half_step`, `half_step_vjp` and `half_step_jacobian`
-    (now with the motor-rate columns) agree with forward-mode autodiff of the public `jr.planning_dynamics`
-    to rounding (1e-11 of the largest entry; both are sums of O(1) scaled terms); the lags' cost term is the
-    scaled quadratic's."""
+def test_damped_transcription_with_friction_derivatives_match_autodiff():
+    """With joint damping, link-side friction (and lags), the OCP's structured `half_step`, `half_step_vjp` and
+    `half_step_jacobian` (with the motor-rate columns) agree with forward-mode autodiff of the public
+    `jr.planning_dynamics` to rounding (1e-11 of the largest entry; both are sums of O(1) scaled terms); the lags'
+    cost term is the scaled quadratic's."""
     from planning import _transcription as tr
 
-    robot = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING))
+    robot = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING, viscous=VISCOUS, coulomb=COULOMB))
     t = np.arange(6) * 1e-3
     q_d = np.asarray(rest_to_rest(t)[0]) / U0
     problem = tr.ocp_problem(robot, q_d, 1e-3, 1e-12)
