@@ -552,13 +552,14 @@ def diagnose_runs(
     Each step compares the model with the training runs and poses (one chi-square over all their rows, each in
     units of its own noise, as `compare_run`); while the test fails, it screens every effect not yet added by the
     linearised chi-square decrease of its own variables (a lag only for a motor whose encoders depart from the
-    model's motor angles, `ENCODER_LAG_RAD`; the payload only with poses, `PAYLOAD`), fits the `SCREENED` best
-    with the effects already added by Levenberg-Marquardt through the simulation and the rest poses (forward-mode
-    derivatives at the start, then Broyden's updates: `_fit`), continues the fit of least chi-square on exact
-    derivatives to convergence, and adds it (BIC over all rows) if it lowers BIC by more than `MIN_BIC_GAIN` and
-    lowers the validation runs' and poses' chi-square. The model without an effect is where each fit starts (lag,
-    damping and payload 0). Static effects that runs do not change (geometry, gear ripple, offsets: `diagnose`) are
-    not candidates: diagnose the poses alone for them first."""
+    model's motor angles, `ENCODER_LAG_RAD`, and while one does, the lags alone: no other effect moves the motors,
+    while others can mimic a lag's effect on the tool over a short run; the payload only with poses, `PAYLOAD`),
+    fits the `SCREENED` best with the effects already added by Levenberg-Marquardt through the simulation and the
+    rest poses (forward-mode derivatives at the start, then Broyden's updates: `_fit`), continues the fit of least
+    chi-square on exact derivatives to convergence, and adds it (BIC over all rows) if it lowers BIC by more than
+    `MIN_BIC_GAIN` and lowers the validation runs' and poses' chi-square. The model without an effect is where each
+    fit starts (lag, damping, friction and payload 0). Static effects that runs do not change (geometry, gear
+    ripple, offsets: `diagnose`) are not candidates: diagnose the poses alone for them first."""
     on_event = renamed_argument("diagnose_runs", "progress", "on_event", progress, on_event)
     n = robot.n_joints
     if max_steps < 0 or substeps < 1:
@@ -603,6 +604,8 @@ def diagnose_runs(
             motors = np.asarray(_simulated(current, *r.command, marker)[1])
             departs |= np.max(np.abs(r.encoders - motors), 0) > threshold
         eligible = [c for c in candidates if c not in added and (c.kind != "lag" or departs[c.joint])]
+        if any(c.kind == "lag" for c in eligible):  # only a lag moves the motors: departing encoders need one first
+            eligible = [c for c in eligible if c.kind == "lag"]
         if not eligible:
             verdict = "not explained: no effect of the catalogue is left to add"
             break
