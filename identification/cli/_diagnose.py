@@ -34,6 +34,9 @@ def configure(parser) -> None:
     parser.add_argument("--save-model", type=Path, default=None, help="write the augmented robot (TOML)")
     add_tracker_options(parser)
     parser.add_argument("--max-steps", type=int, default=6, help="most effects to add (default 6)")
+    parser.add_argument("--run-kinds", nargs="+", default=None, metavar="KIND",
+                        help="the per-joint effects --runs screens (default: lag damping stiffness cubic; also "
+                             "viscous coulomb inertia: link-side friction and link inertia)")
     add_approach_option(parser)
     add_loss_option(parser)
     parser.add_argument("--max-order", type=int, default=400, help="highest ripple order searched (default 400)")
@@ -96,7 +99,8 @@ def _diagnose_runs(args, echo) -> dict:
              + f"), BIC {row.bic:.1f}, validation chi2/dof {row.chi2_validation / rows_val:.4f}")
 
     res = diagnose_runs(robot, train, val, marker, noise, max_steps=args.max_steps,
-                        encoder_quantum=0.0 if counts is None else 2 * np.pi / counts, on_event=progress, poses=poses)
+                        encoder_quantum=0.0 if counts is None else 2 * np.pi / counts, on_event=progress, poses=poses,
+                        **({} if args.run_kinds is None else {"kinds": tuple(args.run_kinds)}))
     echo(f"verdict: {res.verdict}")
     effects = []
     for e in res.estimates:

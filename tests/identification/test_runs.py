@@ -154,6 +154,14 @@ def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
     assert fixed.damping is None and np.all(np.asarray(fixed.motor_lag[3:]) == 0)
 
 
+def test_diagnose_runs_refuses_unknown_kinds():
+    """`kinds` outside the catalogue is refused naming the argument and the catalogue, before any run is read."""
+    from identification.diagnosis._runs import diagnose_runs
+
+    with pytest.raises(ValueError, match=r"kinds: expected one or more of \['lag', .*'inertia'\], found \['friction'"):
+        diagnose_runs(jr.racer7(), [], [], np.zeros(3), 5e-5, kinds=("friction",))
+
+
 def test_cli_diagnose_runs_refuses_incomplete_input(tmp_path, capsys):
     """`diagnose --runs` names what is missing before any computation: the commands of the runs, the validation
     runs, pose files without validation poses; a command file with uneven steps is refused by its reader."""
@@ -197,11 +205,12 @@ def test_diagnose_runs_names_an_effect_on_the_arm(hidden):
     """`diagnose_runs` on synthetic runs of the arm (our simulation, the tracker's 50 um noise, seeded): with a 2 ms
     lag on motor 1, a Coulomb friction of 0.2 N m on joint 2 (a few % of its gravity torque) or link 1's inertia
     tensor x1.5 hidden, it adds that effect alone, its value within 3 of its reported sigma, and passes the
-    chi-square test; with the lag, the arm without it adds nothing; every case compiles at most two derivative
+    chi-square test, screening every kind of `RUN_KINDS` (the friction and inertia kinds are offered on request);
+    with the lag, the arm without it adds nothing; every case compiles at most two derivative
     programs (the screening's, every variable at once, and the one every fit shares), the same for every hidden
     effect. Extended: its four programs (the simulation, the residual, the two derivatives) compile in ~1 min each
     on 2 cores."""
-    from identification.diagnosis._runs import _columns, diagnose_runs
+    from identification.diagnosis._runs import RUN_KINDS, _columns, diagnose_runs
     from jaxrobot.measurement import marker_pose
 
     fields, inertia, label, value = ARM_EFFECTS[hidden]
@@ -222,7 +231,7 @@ def test_diagnose_runs_names_an_effect_on_the_arm(hidden):
     train, val = [pair(1.0)], [pair(0.7)]
     start = jr.robot_from_description(arm_description())
     programs = _columns._cache_size()
-    res = diagnose_runs(start, train, val, marker, noise)
+    res = diagnose_runs(start, train, val, marker, noise, kinds=tuple(RUN_KINDS))
     assert _columns._cache_size() <= programs + 2
     assert [e.effect.label for e in res.estimates] == [label], res.verdict
     est = res.estimates[0]
@@ -236,6 +245,6 @@ def test_diagnose_runs_names_an_effect_on_the_arm(hidden):
     assert abs(np.mean(drawn) - est.value) < 4 * est.std / np.sqrt(200) and 0.8 < np.std(drawn) / est.std < 1.2
     if hidden == "lag":
         assert float(res.robot.motor_lag[1]) == 0.0 and res.robot.coulomb_friction is None
-        clean = diagnose_runs(truth, train, val, marker, noise)
+        clean = diagnose_runs(truth, train, val, marker, noise, kinds=tuple(RUN_KINDS))
         assert clean.estimates == [] and len(clean.steps) == 1 and clean.verdict.startswith("no significant")
         assert clean.sample(2, seed=0) == [clean.robot, clean.robot]
