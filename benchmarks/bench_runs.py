@@ -22,6 +22,7 @@ from _timing import timed
 import jaxrobot as jr
 from identification.diagnosis._runs import (
     RUN_KINDS,
+    SCREENED_KINDS,
     TANGENTS,
     _columns,
     _prepare,
@@ -42,13 +43,14 @@ def compile_programs(robot, train, marker, noise) -> dict[str, float]:
     n = robot.n_joints
     base = _with_effect_arrays(robot)
     z = jnp.zeros(len(RUN_KINDS) * n + 4)
+    width = len(SCREENED_KINDS) * n  # the screening's columns without poses
     data = (run.command, run.white, run.measured, sigma, marker)
     lowered = {"simulation": _simulated.lower(base, *run.command, marker),
                "residual": _residual.lower(base, z, *data, substeps=4),
                f"derivatives ({TANGENTS} columns)": _columns.lower(base, z, jnp.zeros((z.size, TANGENTS)), *data,
                                                                   substeps=4),
-               f"derivatives ({z.size} columns)": _columns.lower(base, z, jnp.zeros((z.size, z.size)), *data,
-                                                                substeps=4)}
+               f"derivatives ({width} columns)": _columns.lower(base, z, jnp.zeros((z.size, width)), *data,
+                                                               substeps=4)}
     seconds = {}
     for name, program in lowered.items():
         begin = time.perf_counter()

@@ -607,6 +607,7 @@ def diagnose_runs(
     verdict = "no significant discrepancy: the model explains the runs to the tracker noise"
     candidates = [RunEffect(k, j) for k in RUN_KINDS if k in kinds for j in range(n)] + ([RunEffect("payload", None)]
                                                                          if poses is not None else [])
+    width = sum(len(_index(c, n)) for c in candidates)  # the screening's columns: one program for every step
     while steps[-1].p_value <= ALPHA:
         if len(added) == max_steps:
             verdict = f"not explained after {max_steps} effects (--max-steps)"
@@ -623,7 +624,7 @@ def diagnose_runs(
             verdict = "not explained: no effect of the catalogue is left to add"
             break
         needed = sorted({i for c in eligible + added for i in _index(c, n)})
-        res, part = _evaluate(base, z, ev, marker, substeps, needed, size)  # reused by the fits' first step
+        res, part = _evaluate(base, z, ev, marker, substeps, needed, width)  # reused by the fits' first step
         cols = np.zeros((len(res), size))
         cols[:, needed] = part
         gain = []
