@@ -103,8 +103,11 @@ class Robot(eqx.Module):
     """Link-side viscous friction `f_v` [N m s/rad]: the link receives `-f_v qd` (`link_friction`; the robot
     file's `[friction] viscous`, a URDF's `<dynamics damping>`); None: no term."""
     coulomb_friction: Float[Array, "*batch n"] | None = None
-    """Link-side Coulomb friction `f_c` [N m]: the link receives `-f_c tanh(qd / COULOMB_VELOCITY)`
+    """Link-side Coulomb friction `f_c` [N m]: the link receives `-f_c tanh(qd / v_s)`
     (`link_friction`; the robot file's `[friction] coulomb`, a URDF's `<dynamics friction>`); None: no term."""
+    friction_velocity: Float[Array, "*batch n"] | None = None
+    """Smoothing velocity `v_s` [rad/s] of each joint's Coulomb friction, `f_c tanh(qd / v_s)` (the robot file's
+    `[friction] smoothing_velocity`); None: `COULOMB_VELOCITY`."""
 
     @property
     def k1(self) -> Float[Array, "*batch n"]:
