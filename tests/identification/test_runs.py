@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -248,3 +249,59 @@ def test_diagnose_runs_names_an_effect_on_the_arm(hidden):
         clean = diagnose_runs(truth, train, val, marker, noise, kinds=tuple(RUN_KINDS))
         assert clean.estimates == [] and len(clean.steps) == 1 and clean.verdict.startswith("no significant")
         assert clean.sample(2, seed=0) == [clean.robot, clean.robot]
+
+
+RUN_KIND_READS = {
+    "lag": (lambda r, s, j: r.motor_lag[j], "velocity-loop lag, motor 2"),
+    "damping": (lambda r, s, j: r.damping[j], "joint damping, joint 2"),
+    "stiffness": (lambda r, s, j: r.k1[j] / s.k1[j], "stiffness (k1, k3), joint 2"),
+    "cubic": (lambda r, s, j: r.k3[j], "cubic stiffness (k3), joint 2"),
+    "viscous": (lambda r, s, j: r.viscous_friction[j], "viscous link friction, joint 2"),
+    "coulomb": (lambda r, s, j: r.coulomb_friction[j], "Coulomb link friction, joint 2"),
+    "inertia": (lambda r, s, j: r.inertia[j, 0, 0] / s.inertia[j, 0, 0], "link inertia, link 2"),
+}
+"""Each kind of `RUN_KINDS` read from a moved robot `r` (start `s`) at joint `j`: the value `diagnose_runs` reports,
+and the label of that effect on the second joint."""
+
+
+@pytest.mark.parametrize("kind", list(RUN_KIND_READS))
+def test_each_run_kind_moves_its_field_alone_and_reports_it(kind):
+    """The arm with its optional effect fields at zero: its variable of one kind on joint 2 moves the field that
+    kind names, on that joint alone (every other leaf of the robot stays exactly); `_estimate` reports the value
+    read from the moved robot, with the std its derivative in the variable (by autodiff) carries from the
+    variable's; all variables zero, the robot is the start's exactly."""
+    from identification.diagnosis._runs import (
+        PAYLOAD,
+        RUN_KINDS,
+        RunEffect,
+        _estimate,
+        _index,
+        _with_effect_arrays,
+        _with_effects,
+    )
+
+    read, label = RUN_KIND_READS[kind]
+    start = dataclasses.replace(jr.robot_from_description(arm_description(coulomb=[0.1, 0.3])), e=jnp.array([0.0, 4.0]))
+    base = _with_effect_arrays(start)
+    assert base.coulomb_friction is start.coulomb_friction and float(base.motor_lag[1]) == 0.0
+    size = len(RUN_KINDS) * 2 + len(PAYLOAD)
+    effect = RunEffect(kind, 1)
+    assert effect.label == label
+    z = jnp.zeros(size).at[_index(effect, 2)[0]].set(0.7)
+    moved = _with_effects(base, z)
+    leaves = jax.tree_util.tree_leaves_with_path(moved)
+    changed = [jax.tree_util.keystr(p) for (p, a), b in zip(leaves, jax.tree_util.tree_leaves(base))
+               if not np.array_equal(a, b)]
+    field = {"lag": "motor_lag", "damping": "damping", "stiffness": "c", "cubic": "e", "viscous": "viscous_friction",
+             "coulomb": "coulomb_friction", "inertia": "inertia"}[kind]
+    assert changed == [f".{field}"], changed
+    assert np.array_equal(np.asarray(getattr(moved, field))[0], np.asarray(getattr(base, field))[0])
+    for a, b in zip(jax.tree_util.tree_leaves(_with_effects(base, jnp.zeros(size))), jax.tree_util.tree_leaves(base)):
+        np.testing.assert_array_equal(a, b)
+    std = 0.05
+    (est,), cov = _estimate(base, np.asarray(z), [effect], np.array([[std**2]]))
+    value, slope = jax.value_and_grad(lambda x: read(_with_effects(base, z.at[_index(effect, 2)[0]].set(x)),
+                                                     base, 1))(0.7)
+    assert (est.effect, est.parameter, est.unit) == (effect, kind, RUN_KINDS[kind][1])
+    np.testing.assert_allclose([est.value, est.std], [value, abs(slope) * std], rtol=1e-12)
+    np.testing.assert_allclose(cov, [[est.std**2]], rtol=1e-12)

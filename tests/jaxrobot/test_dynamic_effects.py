@@ -1,6 +1,7 @@
-"""Dynamic effects of the robot file (velocity-loop lag, joint damping, link-side friction) in `jr.simulate`, `jr.lag_command` and
-`jr.flat_inverse`, against an independent integration (scipy on a hand-written two-joint arm). The arm and its
-commands serve the tests of the effects in diagnosis (`test_runs`) and planning (`test_transcription`)."""
+"""Dynamic effects of the robot file (velocity-loop lag, joint damping, link-side friction) in `jr.simulate`,
+`jr.lag_command` and `jr.flat_inverse`, against an independent integration (scipy on a hand-written two-joint
+arm). The arm and its commands serve the tests of the effects in diagnosis (`test_runs`) and planning
+(`test_transcription`)."""
 
 from __future__ import annotations
 
@@ -11,9 +12,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import tomli_w
+from helpers import random_chain
 from scipy.integrate import solve_ivp
 from scipy.interpolate import BPoly
-from helpers import random_chain
 from scipy.optimize import fsolve
 
 import jaxrobot as jr
