@@ -279,11 +279,6 @@ def link_friction(robot: Robot, qd: Float[Array, "*b n"]) -> Float[Array, "*b n"
     return out
 
 
-def has_friction(robot: Robot) -> bool:
-    """Whether `robot` has a link-side friction term (either field not None)."""
-    return robot.viscous_friction is not None or robot.coulomb_friction is not None
-
-
 def link_acceleration(
     robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"], phi: Float[Array, "*b n"],
     phid: Float[Array, "*b n"] | None = None,
@@ -292,7 +287,7 @@ def link_acceleration(
     (`robot.damping`) adds `d (phid - qd)` to the bracket and needs the gear output rate `phid`; link-side friction
     subtracts `link_friction(robot, qd)`."""
     rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
-    if has_friction(robot):
+    if robot.has_friction:
         rhs = rhs - link_friction(robot, qd)
     if robot.damping is not None:
         if phid is None:

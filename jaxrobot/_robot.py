@@ -34,8 +34,9 @@ class Robot(eqx.Module):
     Every field is an array (SI units, radians) whose joint axis has length `n`
     (`n_joints`), so a fleet of robots is the same pytree with a leading batch axis; the dynamic
     effects `damping`, `motor_lag`, `viscous_friction` and `coulomb_friction` may be None (absent: the model
-    without them, exactly). Kinematics follow eq. 2.2-2.4: standard DH plus the Hayati angle `beta` (eq. 2.3),
-    not Craig's modified DH; the joint transform is `Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`.
+    without them, exactly), and so may `friction_velocity` (the default smoothing velocity). Kinematics follow
+    eq. 2.2-2.4: standard DH plus the Hayati angle `beta` (eq. 2.3), not Craig's modified DH; the joint
+    transform is `Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`.
     """
 
     a: Float[Array, "*batch n"]
@@ -108,6 +109,11 @@ class Robot(eqx.Module):
     friction_velocity: Float[Array, "*batch n"] | None = None
     """Smoothing velocity `v_s` [rad/s] of each joint's Coulomb friction, `f_c tanh(qd / v_s)` (the robot file's
     `[friction] smoothing_velocity`); None: `COULOMB_VELOCITY`."""
+
+    @property
+    def has_friction(self) -> bool:
+        """Whether the links feel friction (`viscous_friction` or `coulomb_friction` not None)."""
+        return self.viscous_friction is not None or self.coulomb_friction is not None
 
     @property
     def k1(self) -> Float[Array, "*batch n"]:

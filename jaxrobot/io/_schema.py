@@ -270,7 +270,8 @@ def validate(data: dict) -> dict:
     Kinematics, limits and links are required; without `[gear]` the ratios are 1 with no ripple,
     without `[stiffness]` the joints are rigid, without `[motors]` the rotors have no inertia; without
     `[stiffness] damping`, `[motors] velocity_lag_s` or `[friction] viscous` / `coulomb` the model has no such
-    term (`Robot.damping`, `Robot.motor_lag`, `Robot.viscous_friction`, `Robot.coulomb_friction`)."""
+    term (`Robot.damping`, `Robot.motor_lag`, `Robot.viscous_friction`, `Robot.coulomb_friction`); without
+    `[friction] smoothing_velocity` the Coulomb friction takes `COULOMB_VELOCITY`."""
     n = joint_count(data)
     _check(data, _schema(n), "")
     _check_physics(data, n)

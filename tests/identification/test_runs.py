@@ -192,29 +192,35 @@ def test_cli_diagnose_runs_refuses_incomplete_input(tmp_path, capsys):
 
 
 ARM_EFFECTS = {
-    "lag": ({"lag": [0.002, 0.0]}, None, "velocity-loop lag, motor 1", 0.002),
-    "coulomb": ({"coulomb": [0.0, 0.2]}, None, "Coulomb link friction, joint 2", 0.2),
-    "inertia": ({}, 1.5, "link inertia, link 1", 1.5),
+    "lag": ({"lag": [0.002, 0.0]}, None, "velocity-loop lag, motor 1", 0.002, 0.002),
+    "coulomb": ({"coulomb": [0.0, 0.08]}, None, "Coulomb link friction, joint 2", 0.08, 0.08),
+    "inertia": ({}, 1.04, "link inertia, link 1", 1.04, 0.04),
 }
 """Hidden effects of the arm in `test_diagnose_runs_names_an_effect_on_the_arm`: the description's fields, the factor
-on link 1's inertia tensor (or None), the label and the value `diagnose_runs` should report."""
+on link 1's inertia tensor (or None), the label, the value `diagnose_runs` should report and the size of the effect
+(its departure from the start model). On the training run the Coulomb friction moves the marker by 87 um at most
+(50 um RMS), the inertia by 110 um (52 um RMS), against the tracker's 50 um noise (measured: the marker's distance
+between `jr.simulate` of the training command with and without the effect). Half those values (44 and 55 um at
+most, 25 and 26 um RMS) leave the start model's chi-square consistent with the noise on this 0.4 s run: nothing is
+named."""
 
 
 @pytest.mark.extended
 @pytest.mark.parametrize("hidden", list(ARM_EFFECTS))
 def test_diagnose_runs_names_an_effect_on_the_arm(hidden):
     """`diagnose_runs` on synthetic runs of the arm (our simulation, the tracker's 50 um noise, seeded): with a 2 ms
-    lag on motor 1, a Coulomb friction of 0.2 N m on joint 2 (a few % of its gravity torque) or link 1's inertia
-    tensor x1.5 hidden, it adds that effect alone, its value within 3 of its reported sigma, and passes the
-    chi-square test, screening every kind of `RUN_KINDS` (the friction and inertia kinds are offered on request);
-    with the lag, the arm without it adds nothing; every case compiles at most two derivative
+    lag on motor 1, a Coulomb friction of 0.08 N m on joint 2 (~1 % of its gravity torque) or link 1's inertia
+    tensor x1.04 hidden (the marker moved by ~100 um), it adds that effect alone, its value within 3 of its
+    reported sigma and that sigma below a fifth of the effect's size, and passes the chi-square test, screening
+    every kind of `RUN_KINDS` (the friction and inertia kinds are offered on request); with the lag, the arm
+    without it adds nothing; every case compiles at most two derivative
     programs (the screening's, every variable at once, and the one every fit shares), the same for every hidden
     effect. Extended: its four programs (the simulation, the residual, the two derivatives) compile in ~1 min each
     on 2 cores."""
     from identification.diagnosis._runs import RUN_KINDS, _columns, diagnose_runs
     from jaxrobot.measurement import marker_pose
 
-    fields, inertia, label, value = ARM_EFFECTS[hidden]
+    fields, inertia, label, value, size = ARM_EFFECTS[hidden]
     marker, noise = np.array([0.05, 0.0, 0.0]), 5e-5
     rng = np.random.default_rng(3201)
     t = np.arange(401) * 1e-3
@@ -236,7 +242,7 @@ def test_diagnose_runs_names_an_effect_on_the_arm(hidden):
     assert _columns._cache_size() <= programs + 2
     assert [e.effect.label for e in res.estimates] == [label], res.verdict
     est = res.estimates[0]
-    assert abs(est.value - value) < 3 * est.std and est.std < 0.05 * value
+    assert abs(est.value - value) < 3 * est.std and est.std < 0.2 * size, (est.value, est.std)
     assert res.steps[-1].p_value > 1e-3 and res.verdict.startswith("explained")
     assert res.robot.damping is None and res.covariance.shape == (1, 1)
     np.testing.assert_allclose(np.sqrt(res.covariance[0, 0]), est.std, rtol=1e-12)

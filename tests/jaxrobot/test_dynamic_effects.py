@@ -289,7 +289,26 @@ def arm_link_move(t):
     return jnp.array([0.3, -0.6]) + jnp.array([0.6, 0.4]) * s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3)
 
 
-@pytest.mark.extended  # ~75 s; the suite keeps the damped transcription's derivatives
+def test_flat_inverse_of_an_arm_with_friction_balances_it():
+    """`jr.flat_inverse` of the undamped arm with link-side friction (per-joint smoothing velocities) at instants of
+    the move: the gear output balances the hand-written arm's torque plus `f_v qd + f_c tanh(qd / v_s)`,
+    `theta = u0 (q_d + kappa^{-1}(tau + friction))` (to the rounding of ~30 rad motor angles); the friction moves
+    the motors by more than 1e-4 rad (zero friction: the inverse without it)."""
+    v_s = np.array([0.01, 0.03])
+    robot = jr.robot_from_description(arm_description(viscous=VISCOUS, coulomb=COULOMB, smoothing_velocity=v_s))
+    t = jnp.array([0.0, 0.08, 0.15, 0.3])
+    flat = jax.jit(lambda r: jr.flat_inverse(r, arm_link_move, t)[0])
+    theta = flat(robot)
+    plain = flat(dataclasses.replace(robot, viscous_friction=jnp.zeros(2), coulomb_friction=jnp.zeros(2)))
+    for k, tk in enumerate(t):
+        q, qd, qdd = (np.asarray(d(tk)) for d in (arm_link_move, jax.jacfwd(arm_link_move),
+                                                  jax.jacfwd(jax.jacfwd(arm_link_move))))
+        torque = arm_link_torque(q, qd, qdd)[0] + VISCOUS * qd + COULOMB * np.tanh(qd / v_s)
+        np.testing.assert_allclose(theta[k], U0 * (q + np.asarray(jr.elastic_deflection(robot, torque))), rtol=1e-13)
+    assert float(jnp.abs(theta - plain).max()) > 1e-4
+
+
+@pytest.mark.extended  # ~75 s; the suite keeps the undamped inverse with friction and the damped derivatives
 def test_flat_inverse_of_a_damped_arm_with_friction_is_exact():
     """`jr.flat_inverse` of the arm with damped joints (time constants d/k of 3 and 1.9 ms) and link-side friction,
     simulated on it: the links follow the move within 1e-9 rad (RK4 at 0.1 ms on this arm errs by ~1e-11, the
