@@ -44,12 +44,13 @@ from ._rotations import rot_z
 # (lax.map) so that the intermediates of a chunk stay in cache (on the CPU; an accelerator takes far
 # larger chunks, since every chunk is a sequential step of kernel launches there).
 COULOMB_VELOCITY = 0.01
-"""[rad/s] The link rate at which smoothed Coulomb friction reaches tanh(1) = 76 % of `f_c` (`link_friction`):
-small against the rates of a motion, so the friction is at full strength while a joint moves, and smooth, so the
-simulation's RK4 keeps its order through a reversal. At rest its slope `f_c / COULOMB_VELOCITY` is a viscous
-friction with the time constant `J COULOMB_VELOCITY / f_c` on a link of inertia `J`: `simulate` stays stable while
-its step is below 2.8 times it, and the OCP resolves it where it is longer than the sample time (docs/model.md
-(2.23c))."""
+"""[rad/s] The default smoothing velocity `v_s` of Coulomb friction (`Robot.friction_velocity` None), the link rate
+at which `f_c tanh(qd / v_s)` reaches tanh(1) = 76 % of `f_c` (`link_friction`): small against the rates of a
+motion, so the friction is at full strength while a joint moves, and smooth, so the simulation's RK4 keeps its
+order through a reversal. At rest its slope `f_c / v_s` is a viscous friction with the time constant `J v_s / f_c`
+on a link of inertia `J`: `simulate` stays stable while its step is below 2.8 times it, and the OCP resolves it
+where it is longer than the sample time (docs/model.md (2.23c)); a joint with a large `f_c` on a light link takes a
+larger `v_s`."""
 
 _CHUNK = {"cpu": 256, "accelerator": 65536}
 """States per chunk of the batched rigid-body terms, by backend (`benchmarks/results_dynamics.md`,
@@ -266,19 +267,16 @@ def planning_dynamics(
 
 
 def link_friction(robot: Robot, qd: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
-    """Link-side friction torques `f_v qd + f_c tanh(qd / COULOMB_VELOCITY)` [N m] that oppose the link rates `qd`
-    (`Robot.viscous_friction`, `Robot.coulomb_friction`; a None field adds nothing); zero at rest."""
+    """Link-side friction torques `f_v qd + f_c tanh(qd / v_s)` [N m] that oppose the link rates `qd`
+    (`Robot.viscous_friction`, `Robot.coulomb_friction`, `v_s` = `Robot.friction_velocity` or `COULOMB_VELOCITY`;
+    a None friction field adds nothing); zero at rest."""
     out = jnp.zeros_like(qd)
     if robot.viscous_friction is not None:
         out = out + robot.viscous_friction * qd
     if robot.coulomb_friction is not None:
-        out = out + robot.coulomb_friction * jnp.tanh(qd / COULOMB_VELOCITY)
+        v_s = COULOMB_VELOCITY if robot.friction_velocity is None else robot.friction_velocity
+        out = out + robot.coulomb_friction * jnp.tanh(qd / v_s)
     return out
-
-
-def has_friction(robot: Robot) -> bool:
-    """Whether `robot` has a link-side friction term (either field not None)."""
-    return robot.viscous_friction is not None or robot.coulomb_friction is not None
 
 
 def link_acceleration(
@@ -289,7 +287,7 @@ def link_acceleration(
     (`robot.damping`) adds `d (phid - qd)` to the bracket and needs the gear output rate `phid`; link-side friction
     subtracts `link_friction(robot, qd)`."""
     rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
-    if has_friction(robot):
+    if robot.has_friction:
         rhs = rhs - link_friction(robot, qd)
     if robot.damping is not None:
         if phid is None:

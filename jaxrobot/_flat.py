@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._dynamics import has_friction, inverse_dynamics, link_friction
+from ._dynamics import inverse_dynamics, link_friction
 from ._elasticity import elastic_deflection, elastic_stiffness, elastic_torque
 from ._gear import motor_angle
 from ._robot import Robot
@@ -53,7 +53,7 @@ def flat_inverse(
     def torque(s):
         q, qd, qdd = q_d(s), _derivative(q_d)(s), _derivative(_derivative(q_d))(s)
         tau = inverse_dynamics(robot, q, qd, qdd)
-        return tau + link_friction(robot, qd) if has_friction(robot) else tau
+        return tau + link_friction(robot, qd) if robot.has_friction else tau
 
     if robot.damping is None:
         def theta(s):

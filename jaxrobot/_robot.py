@@ -34,8 +34,9 @@ class Robot(eqx.Module):
     Every field is an array (SI units, radians) whose joint axis has length `n`
     (`n_joints`), so a fleet of robots is the same pytree with a leading batch axis; the dynamic
     effects `damping`, `motor_lag`, `viscous_friction` and `coulomb_friction` may be None (absent: the model
-    without them, exactly). Kinematics follow eq. 2.2-2.4: standard DH plus the Hayati angle `beta` (eq. 2.3),
-    not Craig's modified DH; the joint transform is `Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`.
+    without them, exactly), and so may `friction_velocity` (the default smoothing velocity). Kinematics follow
+    eq. 2.2-2.4: standard DH plus the Hayati angle `beta` (eq. 2.3), not Craig's modified DH; the joint
+    transform is `Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`.
     """
 
     a: Float[Array, "*batch n"]
@@ -103,8 +104,16 @@ class Robot(eqx.Module):
     """Link-side viscous friction `f_v` [N m s/rad]: the link receives `-f_v qd` (`link_friction`; the robot
     file's `[friction] viscous`, a URDF's `<dynamics damping>`); None: no term."""
     coulomb_friction: Float[Array, "*batch n"] | None = None
-    """Link-side Coulomb friction `f_c` [N m]: the link receives `-f_c tanh(qd / COULOMB_VELOCITY)`
+    """Link-side Coulomb friction `f_c` [N m]: the link receives `-f_c tanh(qd / v_s)`
     (`link_friction`; the robot file's `[friction] coulomb`, a URDF's `<dynamics friction>`); None: no term."""
+    friction_velocity: Float[Array, "*batch n"] | None = None
+    """Smoothing velocity `v_s` [rad/s] of each joint's Coulomb friction, `f_c tanh(qd / v_s)` (the robot file's
+    `[friction] smoothing_velocity`); None: `COULOMB_VELOCITY`."""
+
+    @property
+    def has_friction(self) -> bool:
+        """Whether the links feel friction (`viscous_friction` or `coulomb_friction` not None)."""
+        return self.viscous_friction is not None or self.coulomb_friction is not None
 
     @property
     def k1(self) -> Float[Array, "*batch n"]:

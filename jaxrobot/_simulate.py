@@ -26,7 +26,7 @@ Dynamic effects of the robot (`Robot.motor_lag`, `Robot.damping`; None leaves th
 - Joint damping: the link receives `d (phid - qd)` besides `kappa(phi - q)`, `phid` the gear output's rate
   along the motor rate `thetad_m` (at a fixed flank weight where `directional`).
 - Link-side friction (`Robot.viscous_friction`, `Robot.coulomb_friction`): the link receives `-link_friction(qd)`,
-  smooth in `qd` (`COULOMB_VELOCITY`), so the scheme keeps its order through a reversal and at rest.
+  smooth in `qd` (`Robot.friction_velocity`), so the scheme keeps its order through a reversal and at rest.
 
 `directional=True` adds the flank of each gear as a state (docs/model.md (B.0)): the play operator runs
 along the motor angle at every stage point of the scheme, and the gear output is `flank_output` at its

@@ -354,18 +354,14 @@ def _link_acceleration(robot: jr.Robot, q, qd, phi, d, phid=None) -> Float[Array
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
     if robot.damping is not None:
         rhs = rhs + robot.damping * (phid - qd)
-    if _has_friction(robot):
+    if robot.has_friction:
         rhs = rhs - jr.link_friction(robot, qd)
     return spd_solve(d, rhs[..., None])[..., 0]
 
 
-def _has_friction(robot: jr.Robot) -> bool:
-    return robot.viscous_friction is not None or robot.coulomb_friction is not None
-
-
 def _friction_slope(robot: jr.Robot, qd: Float[Array, "N n"]) -> Float[Array, "N n"]:
     """`d link_friction / d qd` (diagonal: each joint's friction depends on its own rate); 0 without friction."""
-    if not _has_friction(robot):
+    if not robot.has_friction:
         return jnp.zeros_like(qd)
     return jax.jvp(lambda v: jr.link_friction(robot, v), (qd,), (jnp.ones_like(qd),))[1]
 
@@ -493,7 +489,7 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
     rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(j)[:, None, :], (j, *q.shape)))  # row i of dID
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
     diag = jax.vmap(jnp.diag)
-    if _has_friction(r):
+    if r.has_friction:
         id_qd = id_qd + diag(_friction_slope(r, x.qd))
     if r.damping is None:
         rhs = jnp.concatenate([-(id_q + diag(stiff)), -id_qd, diag(stiff / h.ratio)], -1)

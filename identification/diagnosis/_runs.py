@@ -214,7 +214,7 @@ class RunEstimate:
     """The parameter: the effect's kind for the per-joint effects, a `PAYLOAD` name for the payload."""
     value: float
     """The value in `unit` (`stiffness`: the factor on `k1` and `k3`; `cubic`: the joint's `k3`; `inertia`: the
-    factor on the link's inertia tensor)."""
+    factor on the link's inertia tensor; the others: the field's value in the fitted model)."""
     std: float
     """Its standard deviation from the fit's covariance (linearised, noise as stated)."""
     unit: str
@@ -517,8 +517,9 @@ def _estimate(robot, z, effects, cov) -> tuple[list[RunEstimate], np.ndarray]:
         elif e.kind == "cubic":  # k3 = e k1 at the final model
             k1 = float(_with_effects(robot, z).k1[e.joint])
             value, slope = float(robot.e[e.joint] + scale * x) * k1, scale * k1
-        else:
-            value, slope = scale * x, scale
+        else:  # an additive field: its value in the fitted model
+            field = next(f for f, kind in _EFFECT_FIELDS.items() if kind == e.kind)
+            value, slope = float(getattr(robot, field)[e.joint]) + scale * x, scale
         values.append((e, e.kind, value, unit))
         rows.append(np.array([[slope]]))
     if not rows:

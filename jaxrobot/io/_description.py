@@ -107,6 +107,7 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         motor_lag=_optional(data.get("motors", {}), "velocity_lag_s"),
         viscous_friction=_optional(data.get("friction", {}), "viscous"),
         coulomb_friction=_optional(data.get("friction", {}), "coulomb"),
+        friction_velocity=_optional(data.get("friction", {}), "smoothing_velocity"),
         reversal_travel=_optional(gear, "reversal_travel_rad"),
     )
     if robot.reversal_travel is not None:
@@ -196,7 +197,8 @@ def description_of(robot: Robot) -> dict:
     if motors:  # else no [motors] section
         data["motors"] = motors
     friction = {key: f(value) for key, value in (("viscous", robot.viscous_friction),
-                                                 ("coulomb", robot.coulomb_friction)) if value is not None}
+                                                 ("coulomb", robot.coulomb_friction),
+                                                 ("smoothing_velocity", robot.friction_velocity)) if value is not None}
     if friction:  # else no [friction] section
         data["friction"] = friction
     c, e = np.asarray(robot.c, float), np.asarray(robot.e, float)

@@ -32,7 +32,7 @@ def _schema(n: int) -> dict[str, Any]:
         "?stiffness": {"k1": vn, "k3": vn, "?damping": vn},
         "links": {"mass": vn, "com": (n, 3), "inertia": (n, 6)},
         "?motors": {"?inertia": vn, "?velocity_lag_s": vn},
-        "?friction": {"?viscous": vn, "?coulomb": vn},
+        "?friction": {"?viscous": vn, "?coulomb": vn, "?smoothing_velocity": vn},
         "?tool": {"transform": (4, 4)},
         "?base": {"transform": (4, 4)},
         "?as_built": {
@@ -175,6 +175,11 @@ def _check_physics(data: dict, n: int) -> None:
         for i in range(n):
             if values[i] < 0:
                 fail_field(f"friction.{key}[{i}] (joint {i + 1})", f"link-side {what}", float(values[i]))
+    smoothing = np.asarray(data.get("friction", {}).get("smoothing_velocity", np.ones(n)), float)
+    for i in range(n):
+        if smoothing[i] <= 0:
+            fail_field(f"friction.smoothing_velocity[{i}] (joint {i + 1})", "a smoothing velocity of the Coulomb "
+                       "friction > 0 rad/s", float(smoothing[i]))
     damping = np.asarray(data.get("stiffness", {}).get("damping", np.zeros(n)), float)
     for i in range(n):
         if damping[i] < 0 or (damping[i] > 0 and np.isinf(k1[i])):
@@ -265,7 +270,8 @@ def validate(data: dict) -> dict:
     Kinematics, limits and links are required; without `[gear]` the ratios are 1 with no ripple,
     without `[stiffness]` the joints are rigid, without `[motors]` the rotors have no inertia; without
     `[stiffness] damping`, `[motors] velocity_lag_s` or `[friction] viscous` / `coulomb` the model has no such
-    term (`Robot.damping`, `Robot.motor_lag`, `Robot.viscous_friction`, `Robot.coulomb_friction`)."""
+    term (`Robot.damping`, `Robot.motor_lag`, `Robot.viscous_friction`, `Robot.coulomb_friction`); without
+    `[friction] smoothing_velocity` the Coulomb friction takes `COULOMB_VELOCITY`."""
     n = joint_count(data)
     _check(data, _schema(n), "")
     _check_physics(data, n)

@@ -1,6 +1,7 @@
-"""Dynamic effects of the robot file (velocity-loop lag, joint damping) in `jr.simulate`, `jr.lag_command` and
-`jr.flat_inverse`, against an independent integration (scipy on a hand-written two-joint arm). The arm and its
-commands serve the tests of the effects in diagnosis (`test_runs`) and planning (`test_transcription`)."""
+"""Dynamic effects of the robot file (velocity-loop lag, joint damping, link-side friction) in `jr.simulate`,
+`jr.lag_command` and `jr.flat_inverse`, against an independent integration (scipy on a hand-written two-joint
+arm). The arm and its commands serve the tests of the effects in diagnosis (`test_runs`) and planning
+(`test_transcription`)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import tomli_w
+from helpers import random_chain
 from scipy.integrate import solve_ivp
 from scipy.interpolate import BPoly
 from scipy.optimize import fsolve
@@ -27,7 +29,7 @@ VISCOUS, COULOMB = np.array([0.8, 0.2]), np.array([1.5, 0.3])
 """Link-side friction of the arm [N m s/rad], [N m]: a few % of the gravity torques (~15 and 3 N m)."""
 
 
-def arm_description(lag=None, damping=None, viscous=None, coulomb=None) -> dict:
+def arm_description(lag=None, damping=None, viscous=None, coulomb=None, smoothing_velocity=None) -> dict:
     data = {
         "name": "arm2", "gravity": [0.0, -G, 0.0],
         "kinematics": {"a": L.tolist(), "d": [0.0, 0.0], "alpha": [0.0, 0.0], "beta": [0.0, 0.0],
@@ -42,7 +44,8 @@ def arm_description(lag=None, damping=None, viscous=None, coulomb=None) -> dict:
         data["motors"] = {"velocity_lag_s": list(lag)}
     if damping is not None:
         data["stiffness"]["damping"] = list(damping)
-    friction = {k: list(v) for k, v in (("viscous", viscous), ("coulomb", coulomb)) if v is not None}
+    friction = {k: list(v) for k, v in (("viscous", viscous), ("coulomb", coulomb),
+                                        ("smoothing_velocity", smoothing_velocity)) if v is not None}
     if friction:
         data["friction"] = friction
     return data
@@ -114,7 +117,9 @@ def test_absent_effects_are_the_model_without_them(tmp_path):
     np.testing.assert_allclose(q_zero, q_plain, rtol=0, atol=1e-14)
     np.testing.assert_allclose(qd_zero, qd_plain, rtol=0, atol=1e-12)
     np.testing.assert_allclose(m, args[1], rtol=1e-14, atol=0)  # no lag: the encoders report the command
-    every = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING, viscous=VISCOUS, coulomb=COULOMB))
+    assert plain.friction_velocity is None and "smoothing_velocity" not in str(jr.description_of(zeros))
+    every = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING, viscous=VISCOUS, coulomb=COULOMB,
+                                                      smoothing_velocity=[0.01, 0.04]))
     path = tmp_path / "arm.toml"
     jr.save_robot(every, path, keep={})
     back = jr.load_robot(path)
@@ -122,6 +127,7 @@ def test_absent_effects_are_the_model_without_them(tmp_path):
     np.testing.assert_array_equal(back.damping, DAMPING)
     np.testing.assert_array_equal(back.viscous_friction, VISCOUS)
     np.testing.assert_array_equal(back.coulomb_friction, COULOMB)
+    np.testing.assert_array_equal(back.friction_velocity, [0.01, 0.04])
 
 
 def test_link_friction_enters_the_link_bracket_and_the_urdf(tmp_path):
@@ -150,12 +156,40 @@ def test_link_friction_enters_the_link_bracket_and_the_urdf(tmp_path):
     assert "<dynamics" not in jr.to_urdf(plain)
 
 
+@pytest.mark.parametrize("n", [1, 7])
+def test_link_friction_on_any_chain(n):
+    """On a random `n`-joint chain with link-side friction and per-joint smoothing velocities `v_s` (seeded):
+    `D(q) (qdd_plain - qdd) = f_v qd + f_c tanh(qd / v_s)` under jit and vmap over states (rounding: the
+    bracket's terms are O(1) N m), and the reverse-mode derivative of that drop in `qd` at rest is
+    `D^{-1} diag(f_v + f_c / v_s)` (the Coriolis term is quadratic in `qd`, tanh's slope at 0 is 1)."""
+    rng = np.random.default_rng(40 + n)
+    plain = jr.robot_from_description(random_chain(n, seed=n))
+    f_v, f_c, v_s = rng.uniform(0.1, 2.0, n), rng.uniform(0.5, 5.0, n), rng.uniform(0.005, 0.05, n)
+    robot = dataclasses.replace(plain, viscous_friction=jnp.asarray(f_v), coulomb_friction=jnp.asarray(f_c),
+                                friction_velocity=jnp.asarray(v_s))
+    q = jnp.asarray(rng.uniform(-1.0, 1.0, (4, n)))
+    qd = jnp.asarray(rng.normal(0.0, 0.03, (4, n)))
+    phi = q + 1e-4 * jnp.asarray(rng.normal(size=(4, n)))
+
+    def drop(r, q, qd, phi):
+        return jr.link_acceleration(plain, q, qd, phi) - jr.link_acceleration(r, q, qd, phi)
+
+    torque = jnp.einsum("bij,bj->bi", jr.mass_matrix(robot, q), jax.jit(jax.vmap(drop, (None, 0, 0, 0)))(
+        robot, q, qd, phi))
+    np.testing.assert_allclose(torque, f_v * qd + f_c * np.tanh(qd / v_s), rtol=0, atol=1e-11)
+    slope = jax.jacrev(lambda v: drop(robot, q[0], v, phi[0]))(jnp.zeros(n))
+    expected = np.linalg.solve(jr.mass_matrix(robot, q[0]), np.diag(f_v + f_c / v_s))
+    np.testing.assert_allclose(slope, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+
+
 @pytest.mark.parametrize("field, value, message", [
     ("lag", [0.003, -0.001], r"motors.velocity_lag_s: expected velocity-loop time constants >= 0 s"),
     ("damping", [-1.0, 0.0], r"stiffness.damping\[0\] \(joint 1\): expected viscous damping >= 0 N m s/rad"),
     ("lag", [0.003], r"motors.velocity_lag_s: expected shape \(2\)"),
     ("coulomb", [-1.0, 0.0], r"friction.coulomb\[0\] \(joint 1\): expected link-side Coulomb friction >= 0 N m"),
     ("viscous", [0.0, float("nan")], r"friction.viscous: expected finite numbers"),
+    ("smoothing_velocity", [0.01, 0.0],
+     r"friction.smoothing_velocity\[1\] \(joint 2\): expected a smoothing velocity of the Coulomb friction > 0"),
 ])
 def test_bad_effects_are_refused_naming_the_field(tmp_path, field, value, message):
     path = tmp_path / "bad.toml"
@@ -255,7 +289,26 @@ def arm_link_move(t):
     return jnp.array([0.3, -0.6]) + jnp.array([0.6, 0.4]) * s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3)
 
 
-@pytest.mark.extended  # ~75 s; the suite keeps the damped transcription's derivatives
+def test_flat_inverse_of_an_arm_with_friction_balances_it():
+    """`jr.flat_inverse` of the undamped arm with link-side friction (per-joint smoothing velocities) at instants of
+    the move: the gear output balances the hand-written arm's torque plus `f_v qd + f_c tanh(qd / v_s)`,
+    `theta = u0 (q_d + kappa^{-1}(tau + friction))` (to the rounding of ~30 rad motor angles); the friction moves
+    the motors by more than 1e-4 rad (zero friction: the inverse without it)."""
+    v_s = np.array([0.01, 0.03])
+    robot = jr.robot_from_description(arm_description(viscous=VISCOUS, coulomb=COULOMB, smoothing_velocity=v_s))
+    t = jnp.array([0.0, 0.08, 0.15, 0.3])
+    flat = jax.jit(lambda r: jr.flat_inverse(r, arm_link_move, t)[0])
+    theta = flat(robot)
+    plain = flat(dataclasses.replace(robot, viscous_friction=jnp.zeros(2), coulomb_friction=jnp.zeros(2)))
+    for k, tk in enumerate(t):
+        q, qd, qdd = (np.asarray(d(tk)) for d in (arm_link_move, jax.jacfwd(arm_link_move),
+                                                  jax.jacfwd(jax.jacfwd(arm_link_move))))
+        torque = arm_link_torque(q, qd, qdd)[0] + VISCOUS * qd + COULOMB * np.tanh(qd / v_s)
+        np.testing.assert_allclose(theta[k], U0 * (q + np.asarray(jr.elastic_deflection(robot, torque))), rtol=1e-13)
+    assert float(jnp.abs(theta - plain).max()) > 1e-4
+
+
+@pytest.mark.extended  # ~75 s; the suite keeps the undamped inverse with friction and the damped derivatives
 def test_flat_inverse_of_a_damped_arm_with_friction_is_exact():
     """`jr.flat_inverse` of the arm with damped joints (time constants d/k of 3 and 1.9 ms) and link-side friction,
     simulated on it: the links follow the move within 1e-9 rad (RK4 at 0.1 ms on this arm errs by ~1e-11, the

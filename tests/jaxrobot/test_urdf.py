@@ -131,7 +131,8 @@ def terms():
         refs[seed] = (q, qd, qdd), _pinocchio(model, "tool", q, qd, qdd)
     for name, tip, tip_link, n in REAL:
         path = example_urdf(name)
-        robots[name] = dataclasses.replace(jr.load_robot(path, tip=tip), name="robot")
+        robots[name] = dataclasses.replace(jr.load_robot(path, tip=tip), name="robot", viscous_friction=None,
+                                           coulomb_friction=None)  # the rigid-body terms: no <dynamics> friction
         assert robots[name].n_joints == n
         full = pin.buildModelFromUrdf(str(path))
         chain = list(full.supports[full.frames[full.getFrameId(tip_link)].parentJoint])[1:]

@@ -25,15 +25,13 @@ def test_planning_state_packs_any_n(n):
         pl.State.of(jnp.zeros(4 * n + 1))
 
 
-@pytest.mark.extended  # ~30 s; the suite keeps the absent effects and the lag's inverse
-def test_damped_transcription_with_friction_derivatives_match_autodiff():
-    """With joint damping, link-side friction (and lags), the OCP's structured `half_step`, `half_step_vjp` and
-    `half_step_jacobian` (with the motor-rate columns) agree with forward-mode autodiff of the public
-    `jr.planning_dynamics` to rounding (1e-11 of the largest entry; both are sums of O(1) scaled terms); the lags'
-    cost term is the scaled quadratic's."""
+def transcription_derivatives_match_autodiff(robot: jr.Robot):
+    """The OCP's structured `half_step`, `half_step_vjp` and `half_step_jacobian` on the arm `robot` (6 nodes of a
+    rest-to-rest move, perturbed, seeded) against forward-mode autodiff of the public `jr.planning_dynamics`, to
+    rounding (1e-11 of the largest entry; both are sums of O(1) scaled terms). **Returns** the problem and its
+    scaled variables."""
     from planning import _transcription as tr
 
-    robot = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING, viscous=VISCOUS, coulomb=COULOMB))
     t = np.arange(6) * 1e-3
     q_d = np.asarray(rest_to_rest(t)[0]) / U0
     problem = tr.ocp_problem(robot, q_d, 1e-3, 1e-12)
@@ -49,7 +47,27 @@ def test_damped_transcription_with_friction_derivatives_match_autodiff():
     close = lambda a, b: float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))) <= 1e-11  # noqa: E731
     assert close(h.g, f * 0.5 * 1e-3 / sz[:8])
     assert close(gw, jnp.einsum("kij,ki->kj", jac, w))
-    assert pk.shape == (6, 2, 8) and close(pk, jac[:, 2:4, :8])
+    columns = 8 if robot.damping is not None else 6  # the motor rates enter through the damping alone
+    assert pk.shape == (6, 2, columns) and close(pk, jac[:, 2:4, :columns])
+    return problem, y, sz
+
+
+def test_transcription_derivatives_with_friction_match_autodiff():
+    """With link-side friction alone (no damping: the undamped branch, where the friction's slope joins the link
+    rates' column), the OCP's structured derivatives match autodiff of `jr.planning_dynamics` to rounding."""
+    transcription_derivatives_match_autodiff(
+        jr.robot_from_description(arm_description(viscous=VISCOUS, coulomb=COULOMB)))
+
+
+@pytest.mark.extended  # ~30 s; the suite keeps friction alone and the lag's inverse
+def test_damped_transcription_with_friction_derivatives_match_autodiff():
+    """With joint damping, link-side friction (and lags), the OCP's structured `half_step`, `half_step_vjp` and
+    `half_step_jacobian` (with the motor-rate columns) agree with forward-mode autodiff of the public
+    `jr.planning_dynamics` to rounding; the lags' cost term is the scaled quadratic's."""
+    from planning import _transcription as tr
+
+    robot = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING, viscous=VISCOUS, coulomb=COULOMB))
+    problem, y, sz = transcription_derivatives_match_autodiff(robot)
     x, u = tr.State.of(y[:, :8] * sz[:8]).pack(), y[:, 8:] * sz[8:]
     cost = tr.scaled_cost(problem)
     scaled = (jnp.sum(cost.node_weight * (y - cost.node_target) ** 2)
