@@ -77,15 +77,17 @@ def ocp_error(res: pl.PlanResult) -> tuple[float, float]:
 
 
 def floor(res: pl.PlanResult, model: jr.Robot, robots: list[jr.Robot]) -> np.ndarray:
-    """Largest tool position deviation [m] of the plan's OCP command simulated on each of `robots` from the same
-    command simulated on `model`, the robot it was planned on (the plan's own error there is removed)."""
+    """Largest distance [m] over the motion between the tool positions of the plan's OCP command simulated on each of
+    `robots` and of the same command simulated on `model`, the robot it was planned on (the plan's own error there
+    is removed)."""
     command = {"ocp": res.trajectories["ocp"]}
-    _, own = pl.simulate_plans(model, res.joint_path, command)
-    out = []
-    for robot in robots:
+
+    def tool_positions(robot: jr.Robot):
         _, run = pl.simulate_plans(robot, res.joint_path, command)
-        out.append(float(jnp.max(jnp.linalg.norm(run.position - own.position, axis=-1))))
-    return np.asarray(out)
+        return jr.tool_pose(robot, run.q[0, :run.n])[:, :3, 3]
+
+    own = tool_positions(model)
+    return np.asarray([float(jnp.max(jnp.linalg.norm(tool_positions(r) - own, axis=-1))) for r in robots])
 
 
 def replan_case(folder: Path, tasks: list[str], samples: int, draws: int):
