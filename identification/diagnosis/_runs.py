@@ -524,11 +524,7 @@ def _estimate(robot, z, effects, cov) -> tuple[list[RunEstimate], np.ndarray]:
         rows.append(np.array([[slope]]))
     if not rows:
         return [], np.zeros((0, 0))
-    jac = np.zeros((len(values), len(values)))
-    at = 0
-    for block in rows:
-        jac[at:at + len(block), at:at + len(block)] = block
-        at += len(block)
+    jac = np.asarray(jax.scipy.linalg.block_diag(*rows))
     covariance = jac @ cov @ jac.T
     std = np.sqrt(np.diag(covariance))
     return [RunEstimate(e, name, float(v), float(sd), unit) for (e, name, v, unit), sd in zip(values, std)], covariance
