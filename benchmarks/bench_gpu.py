@@ -195,7 +195,7 @@ def _run_worker(platforms: str | None, args) -> dict:
     env.pop("JAX_PLATFORMS", None)
     if platforms:
         env["JAX_PLATFORMS"] = platforms
-    with_out = Path(os.environ.get("TMPDIR", "/tmp")) / f"bench_gpu_{platforms or 'default'}.json"
+    with_out = args.rows.with_name(f"{args.rows.stem}_{platforms or 'default'}.json")  # kept if the run is cut
     cmd = [sys.executable, __file__, "--worker", str(with_out), *_options(args)]
     print(f"$ {'JAX_PLATFORMS=' + platforms + ' ' if platforms else ''}{' '.join(cmd)}", file=sys.stderr, flush=True)
     subprocess.run(cmd, env=env, check=True)
@@ -254,8 +254,10 @@ reduction; with the scan, the factor and the solve are sequential over the N nod
 `block-tridiagonal factor + solve` rows measure one of each). A sweep on an accelerator runs its B
 members in ceil(B / 4) lanes of one `while_loop` (`planning._al_solver._pool`): a lane whose member is
 done takes the next nu, warm-started from the lane's last two members; the loop's passes are at least
-those of the slowest lane. In a pass the refresh and step conditionals are selects, so every lane
-refactors at every pass (a single solve refactors every `refresh_every` steps)."""
+those of the slowest lane. A pass makes the Gauss-Newton blocks and their factor (most of its work) only
+for the lanes that need a fresh one, at most half of them, gathered into a smaller batch; the other lanes
+that need one wait a pass. The other parts of a pass (linearisation, solve with the factor, trial point)
+run for every lane, also those masked."""
 
 
 DEFAULTS = ("Defaults by backend: on the CPU `solve_ocp` uses the scan and `solve_ocp_sweep` continuation chains "

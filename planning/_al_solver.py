@@ -338,8 +338,9 @@ def augmented_lagrangian(
     Under `vmap` with the `"cyclic_reduction"` `linear_solver` (the default on an accelerator) the
     members run in lanes that advance together in one batched `while_loop` (`_pool`), each member from
     its own start with its own status, iteration count and stopping; a lane whose member is done takes
-    the next one, and a lane with none left is masked. The conditionals of a pass (factor refresh,
-    step) then run for every lane. At most `batch_capacity` lanes run at once. A batch that differs
+    the next one, and a lane with none left is masked. A pass makes fresh factors only for the lanes that need
+    one, at most `ceil(lanes / REFRESH_SHARE)` of them (the others wait a pass); its other parts run for every
+    lane. At most `batch_capacity` lanes run at once. A batch that differs
     only in the cost weights runs in `ceil(B / MEMBERS_PER_LANE)` lanes by continuation in increasing
     `nu` (below), each member warm-started from the last two of its lane. A batch of one member is
     the unbatched solve.
@@ -459,6 +460,15 @@ MEMBERS_PER_LANE = 4
 """A batched solve on an accelerator (`_pool`) runs its B members in `ceil(B / MEMBERS_PER_LANE)` lanes
 (at most `batch_capacity`)."""
 
+REFRESH_SHARE = 2
+"""In a pass of a batched solve (`_pool`) at most `ceil(lanes / REFRESH_SHARE)` lanes make a fresh factor
+(the Gauss-Newton blocks and their factorisation, most of a pass's work); the others that need one wait a
+pass. Lanes need one at about every second or third step (`ALConfig.refresh_every`)."""
+
+RESTART_SHARE = 4
+"""In a pass of a batched solve (`_pool`) at most `ceil(lanes / RESTART_SHARE)` lanes whose member stopped
+store its result and start their next member; the others wait a pass."""
+
 
 def _pool(begin, size: int, nu: Float[Array, " B"], lanes: int, shape: tuple[int, int], continuation: bool
           ) -> ALResult:
@@ -473,7 +483,12 @@ def _pool(begin, size: int, nu: Float[Array, " B"], lanes: int, shape: tuple[int
     `nu`, the first `lanes` cold and every later one in the lane that finished the member before it,
     from a prediction of its solution and multipliers by the last two members of that lane (as
     `_continuation`); a continued member that does not converge is solved again from the cold start.
-    Without, the members start in their order, each cold. Results come back in the caller's order."""
+    Without, the members start in their order, each cold. Results come back in the caller's order.
+
+    The work of a pass is shared out where not every lane needs it: the fresh factors (`_refactor`) of at most
+    `ceil(lanes / REFRESH_SHARE)` lanes that need one, gathered into a smaller batch (the others wait a pass,
+    their state as after `_prepare`), and the results and next members of at most
+    `ceil(lanes / RESTART_SHARE)` lanes whose member stopped."""
     order = jnp.argsort(nu) if continuation else jnp.arange(size)
     log_nu = jnp.log(nu[order])
     lane = jnp.arange(lanes)
@@ -497,42 +512,66 @@ def _pool(begin, size: int, nu: Float[Array, " B"], lanes: int, shape: tuple[int
                  known=jnp.zeros(lanes, int), last=memory, before=memory, last_nu=jnp.zeros(lanes),
                  before_nu=jnp.zeros(lanes), next=jnp.array(lanes), out=out)
 
+    refreshes, restarts = -(-lanes // REFRESH_SHARE), -(-lanes // RESTART_SHARE)
+    take = lambda tree, idx: jax.tree.map(lambda a: a[idx], tree)  # noqa: E731
+
+    def put(tree, idx, new, where):
+        """`tree` with the lanes `idx` (distinct) replaced by `new` where `where`."""
+        return jax.tree.map(lambda a, b: a.at[jnp.where(where, idx, lanes)].set(b, mode="drop"), tree, new)
+
     def settle(t):
-        """Store the results of the lanes whose member stopped and start their next members."""
-        res = jax.vmap(_result)(t["p"], t["s"])
+        """Store the results of (at most `restarts` of) the lanes whose member stopped and start their next
+        members; the others wait for the next pass."""
         stopped = t["active"] & t["s"].stop
+        handle = stopped & (jnp.cumsum(stopped) <= restarts)
+        idx = jnp.argsort(~handle, stable=True)[:restarts]  # the lanes handled first, each once
+        res = jax.vmap(_result)(take(t["p"], idx), take(t["s"], idx))
         ok = res.status == RESULTS.successful
-        done = stopped & (ok | t["cold"] | (not continuation))
-        retry = stopped & ~done
-        t["out"] = jax.tree.map(lambda o, r: o.at[jnp.where(done, t["k"], size)].set(r, mode="drop"), t["out"], res)
+        done = handle[idx] & (ok | t["cold"][idx] | (not continuation))
+        retry = handle[idx] & ~done
+        t["out"] = jax.tree.map(lambda o, r: o.at[jnp.where(done, t["k"][idx], size)].set(r, mode="drop"),
+                                t["out"], res)
         if continuation:
-            scale = jnp.exp(-log_nu[t["k"]])
+            scale = jnp.exp(-log_nu[t["k"][idx]])
             now = (res.y, scale[:, None, None] * res.multipliers, scale[:, None, None] * res.bound_multipliers)
             keep = done & ok
-            pick = lambda new, old: jax.tree.map(  # noqa: E731
-                lambda a, b: jnp.where(keep.reshape(-1, *[1] * (a.ndim - 1)), a, b), new, old)
-            t["before"], t["last"] = pick(t["last"], t["before"]), pick(now, t["last"])
-            t["before_nu"], t["last_nu"] = pick(t["last_nu"], t["before_nu"]), pick(log_nu[t["k"]], t["last_nu"])
-            t["known"] = jnp.where(keep, jnp.minimum(t["known"] + 1, 2), jnp.where(done, 0, t["known"]))
-        new_k = t["next"] + jnp.cumsum(done) - 1
-        fresh = done & (new_k < size)
-        t["next"] = t["next"] + jnp.sum(done)
+            t["before"], t["last"] = put(t["before"], idx, take(t["last"], idx), keep), put(t["last"], idx, now, keep)
+            t["before_nu"] = put(t["before_nu"], idx, t["last_nu"][idx], keep)
+            t["last_nu"] = put(t["last_nu"], idx, log_nu[t["k"][idx]], keep)
+            known = t["known"][idx]
+            t["known"] = put(t["known"], idx, jnp.where(keep, jnp.minimum(known + 1, 2), 0), done)
+        lane_done = jnp.zeros(lanes, bool).at[idx].set(done)
+        new_k = t["next"] + jnp.cumsum(lane_done) - 1
+        fresh = lane_done & (new_k < size)
+        t["next"] = t["next"] + jnp.sum(lane_done)
         t["k"] = jnp.where(fresh, new_k, t["k"])
-        t["active"] = t["active"] & ~(done & ~fresh)
-        restart = fresh | retry
-        t["cold"] = jnp.where(restart, retry | (t["known"] == 0) | (not continuation), t["cold"])
-        p, s, config = jax.vmap(start)(jnp.minimum(t["k"], size - 1), t["cold"], t["known"], t["last"], t["before"],
-                                       t["last_nu"], t["before_nu"])
-        pick = lambda new, old: jax.tree.map(  # noqa: E731
-            lambda a, b: jnp.where(restart.reshape(-1, *[1] * (a.ndim - 1)), a, b), new, old)
-        t["p"], t["s"], t["config"] = pick(p, t["p"]), pick(s, t["s"]), pick(config, t["config"])
+        t["active"] = t["active"] & ~(lane_done & ~fresh)
+        restart = fresh[idx] | retry
+        t["cold"] = put(t["cold"], idx, retry | (t["known"][idx] == 0) | (not continuation), restart)
+        p, s, config = jax.vmap(start)(jnp.minimum(t["k"][idx], size - 1), t["cold"][idx], t["known"][idx],
+                                       take(t["last"], idx), take(t["before"], idx), t["last_nu"][idx],
+                                       t["before_nu"][idx])
+        t["p"], t["s"], t["config"] = put(t["p"], idx, p, restart), put(t["s"], idx, s, restart), put(
+            t["config"], idx, config, restart)
         return t
 
     def body(t):
-        stepped = jax.vmap(_pass)(t["p"], t["config"], t["s"])
+        """One pass of every lane; fresh factors for at most `refreshes` lanes (the others that need one wait)."""
         run = t["active"] & ~t["s"].stop
-        t = dict(t, s=jax.tree.map(lambda a, b: jnp.where(run.reshape(-1, *[1] * (a.ndim - 1)), a, b),
-                                   stepped, t["s"]))
+        s, c_y, grad, _, step, fresh = jax.vmap(_prepare)(t["p"], t["config"], t["s"])
+        need = run & step & fresh
+        idx = jnp.argsort(~need, stable=True)[:refreshes]  # the lanes that need a factor first, each once
+        served = need[idx]
+
+        def refactor(factor):
+            new = jax.vmap(_refactor)(take(t["p"], idx), take(t["config"], idx), take(s, idx))
+            return put(factor, idx, new, served)
+
+        factor = jax.lax.cond(jnp.any(need), refactor, lambda f: f, s.factor)
+        go = run & step & (~fresh | jnp.zeros(lanes, bool).at[idx].set(served))
+        stepped = jax.vmap(_lm_step)(t["p"], t["config"], s, c_y, grad, factor, fresh)
+        pick = lambda mask, a, b: jnp.where(mask.reshape(-1, *[1] * (a.ndim - 1)), a, b)  # noqa: E731
+        t = dict(t, s=jax.tree.map(lambda a, b, c: pick(go, a, pick(run, b, c)), stepped, s, t["s"]))
         return jax.lax.cond(jnp.any(t["active"] & t["s"].stop), settle, lambda t: t, t)
 
     out = jax.lax.while_loop(lambda t: jnp.any(t["active"]), body, state)["out"]
@@ -638,12 +677,38 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
 
 
 def _pass(p: _Parts, config: ALConfig, s: _State) -> _State:
-    """One pass of the solver's loop (`augmented_lagrangian`) from state `s`."""
-    factorise, solve = _FACTOR[linear_solver(config)]
+    """One pass of the solver's loop (`augmented_lagrangian`) from state `s`: `_prepare`, then, where it
+    says so, an LM step (`_lm_step`) on a factor refreshed (`_refactor`) where it says so."""
+    s, c_y, grad, id_vjp, step, fresh = _prepare(p, config, s)
+
+    def lm(s):
+        factor = jax.lax.cond(fresh, lambda: _refactor(p, config, s, id_vjp), lambda: s.factor)
+        return _lm_step(p, config, s, c_y, grad, factor, fresh)
+
+    return jax.lax.cond(step, lm, lambda s: s, s)
+
+
+def _inner_done(config: ALConfig, s: _State, grad) -> Bool[Array, ""]:
+    """The inner solve at `s` (gradient of `Phi` `grad`) is done. The multipliers move only from an iterate
+    it accepted (never after a rejection), once the active bounds settled: updated from a step that switched
+    them, they cycle between two active sets."""
+    settled = ~s.switched | (s.inner >= ACTIVE_SET_STEPS)
+    return (jnp.max(jnp.abs(grad)) <= config.inner_tol) | ((s.inner >= config.max_inner_iterations) & s.accepted
+                                                           & settled)
+
+
+def _prepare(p: _Parts, config: ALConfig, s: _State):
+    """The first part of a pass (`_pass`): linearise at `y` (one linearisation serves the multiplier update
+    and the LM step that follows it), update the multipliers and the penalty where the inner solve is done.
+    Returns the state, the defects and the gradient of `Phi` at `y` (for the multipliers now), the
+    linearisation of Newton-Euler, whether to take an LM step and whether it needs a fresh factor (`rho` or
+    `mu` changed since the factor was made, or it is `refresh_every` steps old)."""
     m = s.hist.shape[-1]
     rho_max = config.penalty_max * _initial_penalty(p, config) / config.penalty_init
+    c_y, vjp, id_vjp = _linearise(p, s.y, s.forward)
+    grad = _gradient(p, s.y, c_y, vjp, s.lam, s.gam, s.rho)
 
-    def outer_update(s: _State, c_y, grad) -> _State:
+    def update(s: _State):
         viol = jnp.maximum(jnp.max(jnp.abs(c_y)), _box_violation(p, s.y))
         stat = jnp.max(jnp.abs(grad))  # = gradient of the Lagrangian at the updated multipliers
         lam = s.lam + s.rho * c_y
@@ -659,59 +724,50 @@ def _pass(p: _Parts, config: ALConfig, s: _State) -> _State:
                                RESULTS.where(finite, RESULTS.nonlinear_max_steps_reached, RESULTS.nonfinite))
         record = jnp.stack([_cost(p, s.y) * ANGLE_SCALE**2, viol, s.rho, stat])
         hist = s.hist.at[:, jnp.minimum(s.it, m - 1)].set(record)
-        return eqx.tree_at(
+        s = eqx.tree_at(
             lambda t: (t.lam, t.gam, t.rho, t.it, t.inner, t.violation, t.stationarity, t.status, t.stop, t.hist),
             s, (lam, gam, rho, it, jnp.array(0), viol, stat, status, converged | ~finite | out_of_iterations, hist))
+        return s, _gradient(p, s.y, c_y, vjp, s.lam, s.gam, s.rho)
 
-    def lm_step(s: _State, c_y, grad, id_vjp) -> _State:
-        key = jnp.stack([s.rho, s.mu])
-        fresh = jnp.any(key != s.factor_key) | (s.factor_age >= config.refresh_every)
-        factor = jax.lax.cond(fresh, lambda: factorise(*_normal_blocks(p, s.y, s.forward, s.gam, s.rho, s.mu, id_vjp)),
-                              lambda: s.factor)
-        dy = -solve(factor, grad)
-        phi = _merit_from(p, s.y, c_y, s.lam, s.gam, s.rho)
-        y_try = s.y + dy
-        h_new = half_step(p.problem, p.y0 + y_try)
-        phi_new = _merit_from(p, y_try, _defects(p, y_try, h_new.g), s.lam, s.gam, s.rho)
-        predicted = 0.5 * (-jnp.sum(grad * dy) + s.mu * jnp.sum(dy**2))
-        actual = phi - phi_new
-        noise = 1e-13 * (jnp.abs(phi) + 1.0)  # merit differences at roundoff: take the GN step
-        ok = factor.positive_definite & jnp.isfinite(phi_new) & jnp.all(jnp.isfinite(dy))
-        accept = ok & ((actual >= config.accept_ratio * predicted) | (jnp.abs(actual) <= noise))
-        good = accept & ((actual >= config.good_ratio * predicted) | (jnp.abs(actual) <= noise))
-        # a rejected step from a reused factor is retried with a fresh one at the same damping
-        retry = ~accept & ~fresh
-        switched = accept & jnp.any(_active(p, y_try, s.gam, s.rho) != _active(p, s.y, s.gam, s.rho))
-        y = jnp.where(accept, y_try, s.y)
-        forward = jax.tree.map(lambda new, old: jnp.where(accept, new, old), h_new, s.forward)
-        mu_down = jnp.maximum(s.mu / config.damping_down, config.damping_init)
-        mu = jnp.where(good, mu_down, jnp.where(accept | retry, s.mu, s.mu * config.damping_up))
-        failed = mu > config.damping_max
-        status = RESULTS.where(failed, RESULTS.inner_failed, s.status)
-        age = jnp.where(retry | switched, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))
-        return eqx.tree_at(
-            lambda t: (t.y, t.mu, t.inner, t.steps, t.status, t.stop, t.factor, t.factor_key, t.factor_age, t.accepted,
-                       t.switched, t.forward),
-            s, (y, mu, s.inner + 1, s.steps + 1, status, failed, factor, key, age, accept, switched, forward))
+    s, grad = jax.lax.cond(_inner_done(config, s, grad), update, lambda s: (s, grad), s)
+    step = ~s.stop & ~_inner_done(config, s, grad)
+    fresh = jnp.any(jnp.stack([s.rho, s.mu]) != s.factor_key) | (s.factor_age >= config.refresh_every)
+    return s, c_y, grad, id_vjp, step, fresh
 
-    def inner_done(s: _State, grad):
-        # the multipliers move only from an iterate the inner solve accepted (never after a rejection), once the
-        # active bounds settled: updated from a step that switched them, they cycle between two active sets
-        settled = ~s.switched | (s.inner >= ACTIVE_SET_STEPS)
-        return (jnp.max(jnp.abs(grad)) <= config.inner_tol) | ((s.inner >= config.max_inner_iterations) & s.accepted
-                                                               & settled)
 
-    def body(s: _State) -> _State:
-        # one linearisation at `y` serves the multiplier update and the LM step that follows it
-        c_y, vjp, id_vjp = _linearise(p, s.y, s.forward)
-        grad = _gradient(p, s.y, c_y, vjp, s.lam, s.gam, s.rho)
+def _refactor(p: _Parts, config: ALConfig, s: _State, id_vjp=None) -> BlockCholesky | CyclicReduction:
+    """The factor of the Gauss-Newton matrix at `s` (`id_vjp`: the linearisation of Newton-Euler there, if
+    made)."""
+    return _FACTOR[linear_solver(config)][0](*_normal_blocks(p, s.y, s.forward, s.gam, s.rho, s.mu, id_vjp))
 
-        def update(s):
-            s = outer_update(s, c_y, grad)
-            return s, _gradient(p, s.y, c_y, vjp, s.lam, s.gam, s.rho)
 
-        s, grad = jax.lax.cond(inner_done(s, grad), update, lambda s: (s, grad), s)
-        step = ~s.stop & ~inner_done(s, grad)
-        return jax.lax.cond(step, lambda s: lm_step(s, c_y, grad, id_vjp), lambda s: s, s)
-
-    return body(s)
+def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -> _State:
+    """One Levenberg-Marquardt step from `s` (defects `c_y`, gradient of `Phi` `grad`) with `factor`, made
+    at `s` where `fresh`: accepted by the gain ratio of the merit, the damping adapted."""
+    solve = _FACTOR[linear_solver(config)][1]
+    dy = -solve(factor, grad)
+    phi = _merit_from(p, s.y, c_y, s.lam, s.gam, s.rho)
+    y_try = s.y + dy
+    h_new = half_step(p.problem, p.y0 + y_try)
+    phi_new = _merit_from(p, y_try, _defects(p, y_try, h_new.g), s.lam, s.gam, s.rho)
+    predicted = 0.5 * (-jnp.sum(grad * dy) + s.mu * jnp.sum(dy**2))
+    actual = phi - phi_new
+    noise = 1e-13 * (jnp.abs(phi) + 1.0)  # merit differences at roundoff: take the GN step
+    ok = factor.positive_definite & jnp.isfinite(phi_new) & jnp.all(jnp.isfinite(dy))
+    accept = ok & ((actual >= config.accept_ratio * predicted) | (jnp.abs(actual) <= noise))
+    good = accept & ((actual >= config.good_ratio * predicted) | (jnp.abs(actual) <= noise))
+    # a rejected step from a reused factor is retried with a fresh one at the same damping
+    retry = ~accept & ~fresh
+    switched = accept & jnp.any(_active(p, y_try, s.gam, s.rho) != _active(p, s.y, s.gam, s.rho))
+    y = jnp.where(accept, y_try, s.y)
+    forward = jax.tree.map(lambda new, old: jnp.where(accept, new, old), h_new, s.forward)
+    mu_down = jnp.maximum(s.mu / config.damping_down, config.damping_init)
+    mu = jnp.where(good, mu_down, jnp.where(accept | retry, s.mu, s.mu * config.damping_up))
+    failed = mu > config.damping_max
+    status = RESULTS.where(failed, RESULTS.inner_failed, s.status)
+    age = jnp.where(retry | switched, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))
+    key = jnp.stack([s.rho, s.mu])  # equal to the factor's own where it is not fresh
+    return eqx.tree_at(
+        lambda t: (t.y, t.mu, t.inner, t.steps, t.status, t.stop, t.factor, t.factor_key, t.factor_age, t.accepted,
+                   t.switched, t.forward),
+        s, (y, mu, s.inner + 1, s.steps + 1, status, failed, factor, key, age, accept, switched, forward))
