@@ -416,8 +416,8 @@ def augmented_lagrangian(
 
 MEMBER_BLOCKS = 12
 """Peak count of `5n x 5n` float64 blocks per node that one lane of a batched solve (`_pool`)
-holds: the factor carried by the loop and the new one (both live when the refresh is a select under
-`vmap`, 3 blocks per node each for cyclic reduction), the diagonal and sub-diagonal blocks of the
+holds, rounded up: the factor carried by the loop and the new one (3 blocks per node each for cyclic
+reduction; new ones for at most half the lanes, `REFRESH_SHARE`), the diagonal and sub-diagonal blocks of the
 Gauss-Newton matrix and about 4 more for their assembly and the first reduction level."""
 
 DEFAULT_MEMORY = 16 * 2**30
