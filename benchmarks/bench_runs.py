@@ -48,9 +48,9 @@ def compile_programs(robot, train, marker, noise) -> dict[str, float]:
     lowered = {"simulation": _simulated.lower(base, *run.command, marker),
                "residual": _residual.lower(base, z, *data, substeps=4),
                f"derivatives ({TANGENTS} columns)": _columns.lower(base, z, jnp.zeros((z.size, TANGENTS)), *data,
-                                                                  substeps=4),
+                                                                  substeps=4, batch=TANGENTS),
                f"derivatives ({width} columns)": _columns.lower(base, z, jnp.zeros((z.size, width)), *data,
-                                                               substeps=4)}
+                                                               substeps=4, batch=width)}
     seconds = {}
     for name, program in lowered.items():
         begin = time.perf_counter()

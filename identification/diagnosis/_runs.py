@@ -177,10 +177,11 @@ RANKING_TOLERANCE = 0.01
 """Chi-square decrease of an accepted step below which a candidate's fit for ranking ends (`_fit` without
 `exact_end`); the best candidate's fit is then continued on exact derivatives to the tight tolerance. Far below
 `MIN_BIC_GAIN`: only candidates within it of each other could swap ranks."""
-TANGENTS = 3
+TANGENTS = 1
 """Derivative columns per call of the fits' compiled derivative program: they evaluate theirs this many at a time,
-zero-padded, so that one program serves every number of fitted effects. The screening evaluates every variable's
-column in one call of a second program, cheaper per column than calls of `TANGENTS`."""
+zero-padded, so that one program serves every number of fitted effects (one: a single forward-mode pass per call).
+The screening evaluates every variable's column in one batch of a second program, cheaper per column than single
+passes (`_columns`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -314,12 +315,14 @@ def _residual(robot, z, cmd, white, measured, sigma, marker, substeps):
     return _whitened(robot, z, cmd, white, measured, sigma, marker, substeps)
 
 
-@functools.partial(jax.jit, static_argnames="substeps")
-def _columns(robot, z, tangents, cmd, white, measured, sigma, marker, substeps):
-    """Residual (3N,) and its derivatives (3N, T) along the `tangents` (4n + 4, T) of the variables."""
+@functools.partial(jax.jit, static_argnames=("substeps", "batch"))
+def _columns(robot, z, tangents, cmd, white, measured, sigma, marker, substeps, batch=1):
+    """Residual (3N,) and its derivatives (3N, T) along the `tangents` (4n + 4, T >= 1) of the variables: forward-mode
+    passes `batch` tangents at a time (`lax.map`; one batch gives every operation of the simulation a tangent axis,
+    which XLA's CPU backend runs slower per column than single passes for a few tangents, faster for many)."""
     f = lambda z: _whitened(robot, z, cmd, white, measured, sigma, marker, substeps)  # noqa: E731
-    r = f(z)
-    return r, jax.vmap(lambda t: jax.jvp(f, (z,), (t,))[1], in_axes=1, out_axes=1)(tangents)
+    r, cols = jax.lax.map(lambda t: jax.jvp(f, (z,), (t,)), tangents.T, batch_size=batch)
+    return r[0], cols.T
 
 
 @jax.jit
@@ -401,7 +404,7 @@ def _evaluate(robot, z, ev: _Evidence, marker, substeps, variables=None, width: 
             tangents = np.zeros((len(z), width))
             tangents[chunk, np.arange(len(chunk))] = 1.0
             out = _columns(robot, z, jnp.asarray(tangents), r.command, r.white, r.measured, ev.sigma, marker,
-                           substeps)
+                           substeps, width)
             parts.append(np.asarray(out[1])[:, :len(chunk)])
         res.append(np.asarray(out[0]))
         cols.append(np.concatenate(parts, 1))
