@@ -20,7 +20,8 @@ runs them one after the other.
 Results are checked to agree between the backends (fleet parameters, OCP objectives).
 
 Run: `python benchmarks/bench_gpu.py [--states 10000 1000000] [--robots 1000 10000] [--sizes 1 4 16 64 256]`
-(`--nodes K` replaces the line by a short move of K nodes, for a quick check). Writes the rows as JSON
+(`--nodes K` replaces the line by a short move of K nodes, for a quick check; `--trace` adds, on an accelerator, the
+device time of one call of the 64-nu sweep, else the largest, by kernel kind). Writes the rows as JSON
 (`--rows`, default benchmarks/gpu_rows.json: `{"info": header fields, "cpu": worker, "acc": worker or null,
 "notes": [...], "notes_after": [...]}`, a worker `{"device", "jax", "platform", "rows", "check", ...}`, each row
 `{"work", "first_s", "run_s", "rate", "converged"?, "run"?}`), then from them benchmarks/results_gpu.md (`--out`)
@@ -71,7 +72,8 @@ def _ocp_task(nodes: int | None):
     return robot, q, 1e-3, None, "short move"
 
 
-def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int | None, concurrent: bool) -> None:
+def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int | None, concurrent: bool,
+              trace: bool = False) -> None:
     """The OCP rows of `worker` (module docstring), appended to `out`."""
     import jax
     import jax.numpy as jnp
@@ -131,9 +133,53 @@ def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int |
         else:
             row["rate"] = ""
         _emit(out, row)
+    sweeps = [(extra["members"], fn, label) for key, label, fn, extra in work if key.startswith("sweep")]
+    if trace and sweeps and jax.devices()[0].platform != "cpu":
+        out["trace"] = _trace(*max(sweeps, key=lambda w: (w[0] == 64, w[0]))[1:])
+        Path(out["path"]).write_text(json.dumps(out))
     out["capacity"] = {f"N = {k}": batch_capacity(k, 30, 80e9) for k in (2501, 10001)}
     out["capacity_here"] = batch_capacity(n, 30)
     out["concurrent"] = concurrent
+
+
+def _kernel_kind(name: str) -> str:
+    """The kind of a device kernel by its name: a library routine, a copy, or XLA's fusion by its kind and first op."""
+    low = name.lower()
+    for key, kind in (("potrf", "Cholesky (potrf)"), ("trsm", "triangular solve (trsm)"), ("memcpy", "copy")):
+        if key in low:
+            return kind
+    if "gemm" in low or "cutlass" in low or "sm90" in low:
+        return "matrix product (gemm)"
+    if "fusion" in low:
+        return "fusion: " + name.split("_fusion")[0]
+    return name.split(".")[0].rstrip("_0123456789")
+
+
+def _trace(fn, label: str) -> dict:
+    """Device time of one call of `fn` (after a first call), by kernel kind, from JAX's profiler (Perfetto trace)."""
+    import gzip
+    import tempfile
+
+    import jax
+
+    jax.block_until_ready(fn())
+    with tempfile.TemporaryDirectory() as folder:
+        with jax.profiler.trace(folder, create_perfetto_trace=True):
+            start = time.perf_counter()
+            jax.block_until_ready(fn())
+            wall = time.perf_counter() - start
+        trace = json.load(gzip.open(next(Path(folder).rglob("perfetto_trace.json.gz"))))
+    events = trace["traceEvents"] if isinstance(trace, dict) else trace
+    device = {e.get("pid") for e in events if e.get("ph") == "M" and e.get("name") == "process_name"
+              and "/device:" in str(e.get("args", {}).get("name"))}
+    kinds: dict[str, list] = {}
+    for e in events:
+        if e.get("ph") == "X" and e.get("pid") in device:
+            entry = kinds.setdefault(_kernel_kind(e["name"]), [0, 0.0])
+            entry[0] += 1
+            entry[1] += e["dur"] * 1e-6
+    return {"work": label, "wall_s": wall, "busy_s": sum(v[1] for v in kinds.values()),
+            "kernels": sum(v[0] for v in kinds.values()), "kinds": kinds}
 
 
 def _emit(out: dict, row: dict) -> None:
@@ -145,7 +191,7 @@ def _emit(out: dict, row: dict) -> None:
 
 
 def worker(path: Path, states: list[int], robots: list[int], repeat: int, ocp: bool, sizes: list[int], vmap: bool,
-           nodes: int | None, concurrent: bool) -> dict:
+           nodes: int | None, concurrent: bool, trace: bool = False) -> dict:
     """The timings on this process' default backend, saved to `path` (JSON) as each row is done."""
     import jax
     import jax.numpy as jnp
@@ -186,7 +232,7 @@ def worker(path: Path, states: list[int], robots: list[int], repeat: int, ocp: b
                     "rate": f"{r / best:.3g} robots/s", "converged": f"{int(np.sum(res.converged))}/{r}"})
 
     if ocp:
-        _ocp_rows(out, repeat, sizes, vmap, nodes, concurrent)
+        _ocp_rows(out, repeat, sizes, vmap, nodes, concurrent, trace)
     return out
 
 
@@ -210,6 +256,7 @@ def _options(args) -> list[str]:
     opts += ["--vmap"] if args.vmap else []
     opts += ["--serial-compile"] if not args.concurrent else []
     opts += ["--nodes", str(args.nodes)] if args.nodes else []
+    opts += ["--trace"] if args.trace else []
     return opts
 
 
@@ -264,6 +311,8 @@ DEFAULTS = ("Defaults by backend: on the CPU `solve_ocp` uses the scan and `solv
             "(one per core, `lax.map`/`while_loop`); on an accelerator cyclic reduction, and the sweep in "
             "ceil(B / 4) lanes of one batched loop, each lane taking the next nu by continuation when its member is "
             "done.")
+TRACE_ROWS = 12
+"""Kernel kinds listed in the results file's trace table (the largest)."""
 PLOT = "gpu_crossover.png"
 """The crossover plot, written beside the results file."""
 SWEEP_ROW = re.compile(r"solve_ocp_sweep: (\d+) nu")
@@ -298,6 +347,15 @@ def results_text(data: dict) -> str:
                   "| work | CPU first call [s] | CPU run [s] | CPU | converged |", "|---|---|---|---|---|"]
         lines += [f"| {c['work']} | {c['first_s']:.2f} | {c['run_s']:.3g} | {c['rate']} | {c.get('converged', '')} |"
                   for c in cpu["rows"]]
+        lines.append("")
+    if acc is not None and "trace" in acc:
+        tr = acc["trace"]
+        lines += [f"Device time of one call of `{tr['work']}` on the accelerator by kernel kind (JAX's profiler, "
+                  f"a call after the timed ones): wall {tr['wall_s']:.3g} s, device busy {tr['busy_s']:.3g} s in "
+                  f"{tr['kernels']:,} kernels.", "",
+                  "| kernel kind | kernels | time [s] | share of busy |", "|---|---|---|---|"]
+        for kind, (count, sec) in sorted(tr["kinds"].items(), key=lambda kv: -kv[1][1])[:TRACE_ROWS]:
+            lines.append(f"| {kind} | {count:,} | {sec:.3g} | {sec / tr['busy_s']:.0%} |")
         lines.append("")
     if "capacity" in cpu:
         cap = ", ".join(f"{v} members at {k}" for k, v in cpu["capacity"].items())
@@ -342,6 +400,9 @@ def main() -> None:
     ap.add_argument("--nodes", type=int, default=None, help="a short move of this many nodes instead of the line")
     ap.add_argument("--serial-compile", dest="concurrent", action="store_false",
                     help="first calls of the OCP rows one after the other (default: at once in threads)")
+    ap.add_argument("--trace", action="store_true",
+                    help="on an accelerator, the device time of one call of the 64-nu sweep (else the largest) "
+                    "by kernel kind")
     ap.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--rows", type=Path, default=Path(__file__).with_name("gpu_rows.json"),
                     help="where the rows are saved as JSON")
@@ -353,7 +414,7 @@ def main() -> None:
         return write_results(json.loads(args.plot_only.read_text()), args.out)
     if args.worker is not None:
         args.worker.write_text(json.dumps(worker(args.worker, args.states, args.robots, args.repeat, not args.no_ocp,
-                                                 args.sizes, args.vmap, args.nodes, args.concurrent)))
+                                                 args.sizes, args.vmap, args.nodes, args.concurrent, args.trace)))
         return
     # the accelerator first: where its time is lent by the minute, its rows come back even if the CPU's run is cut
     gpu = _run_worker_probe().split(" ")[0] not in ("cpu", "")
