@@ -60,6 +60,13 @@ def _chain_index(order: np.ndarray, chains: int) -> np.ndarray:
     return np.stack([order[_padded(np.arange(min(c, b - 1), b, chains), length)] for c in range(chains)])
 
 
+@jax.jit
+def _merge(parts: list[OCPSolution], places) -> OCPSolution:
+    """The chains' solutions `parts` as one, its members at `places` of their concatenation (one compiled
+    program: on an accelerator a gather per leaf would each be a dispatch)."""
+    return jax.tree.map(lambda *leaves: jnp.concatenate(leaves)[places], *parts)
+
+
 def _first_places(index: np.ndarray) -> np.ndarray:
     """Each member's first place in the chains, flattened."""
     return np.unique(index.reshape(-1), return_index=True)[1]
@@ -153,5 +160,5 @@ def solve_ocp_sweep(
     compiled = _chain.lower(*args[0], cost=cost, history=history).compile()  # cached after the first call
     with ThreadPoolExecutor(chains) as pool:
         parts = list(pool.map(lambda a: jax.block_until_ready(compiled(*a)), args))
-    out = jax.tree.map(lambda *leaves: jnp.concatenate(leaves)[_first_places(index)], *parts)
+    out = _merge(parts, jnp.asarray(_first_places(index)))
     return check(out.status, out, throw)
