@@ -156,13 +156,13 @@ def _kernel_kind(name: str) -> str:
 
 
 def _trace(fn, label: str) -> dict:
-    """Device time of one call of `fn` (after a first call), by kernel kind, from JAX's profiler (Perfetto trace)."""
+    """Device time of one call of `fn` (compiled already: its row was timed), by kernel kind, from JAX's profiler
+    (Perfetto trace)."""
     import gzip
     import tempfile
 
     import jax
 
-    jax.block_until_ready(fn())
     with tempfile.TemporaryDirectory() as folder:
         with jax.profiler.trace(folder, create_perfetto_trace=True):
             start = time.perf_counter()

@@ -558,13 +558,14 @@ def _pool(begin, size: int, nu: Float[Array, " B"], lanes: int, shape: tuple[int
     def body(t):
         """One pass of every lane; fresh factors for at most `refreshes` lanes (the others that need one wait)."""
         run = t["active"] & ~t["s"].stop
-        s, c_y, grad, _, step, fresh = jax.vmap(_prepare)(t["p"], t["config"], t["s"])
+        s, c_y, grad, id_vjp, step, fresh = jax.vmap(_prepare)(t["p"], t["config"], t["s"])
         need = run & step & fresh
         idx = jnp.argsort(~need, stable=True)[:refreshes]  # the lanes that need a factor first, each once
         served = need[idx]
 
         def refactor(factor):
-            new = jax.vmap(_refactor)(take(t["p"], idx), take(t["config"], idx), take(s, idx))
+            new = jax.vmap(_refactor)(take(t["p"], idx), take(t["config"], idx), take(s, idx),
+                                      take(id_vjp, idx))
             return put(factor, idx, new, served)
 
         factor = jax.lax.cond(jnp.any(need), refactor, lambda f: f, s.factor)
