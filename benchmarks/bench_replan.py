@@ -47,7 +47,9 @@ def true_robot(folder: Path) -> jr.Robot:
 
 
 def diagnose_case(folder: Path, samples: int):
-    """`diagnose_runs` of the case's start model on its runs cut to `samples`, and its time [s]."""
+    """`diagnose_runs` of the case's start model on its runs cut to `samples` (the encoders as rows in units of
+    the quantisation of `[sensors] encoder_counts_per_rev`, as `jaxrobot diagnose --runs` takes them), and its time
+    [s]."""
     sensors = jr.read_description(folder / "start.toml")["sensors"]
 
     def pair(name):
@@ -57,7 +59,8 @@ def diagnose_case(folder: Path, samples: int):
     train, val = [pair("line_nu1e-14"), pair("spiral_nu1e-14")], [pair("line_nu1e-10"), pair("spiral_nu1e-10")]
     begin = time.perf_counter()
     res = diagnose_runs(jr.load_robot(folder / "start.toml"), train, val,
-                        jnp.asarray(sensors["tracker_marker_offset_m"], float), sensors["tracker_position_noise_m"])
+                        jnp.asarray(sensors["tracker_marker_offset_m"], float), sensors["tracker_position_noise_m"],
+                        encoder_quantum=2 * np.pi / sensors["encoder_counts_per_rev"])
     return res, time.perf_counter() - begin
 
 

@@ -231,17 +231,23 @@ class RunStep:
     effect: str
     """What this step added (the start model: "start")."""
     chi2: float
-    """Chi-square of the training runs and poses, each residual in units of its own noise."""
+    """Chi-square of the training runs' tracker positions and the poses, each residual in units of its own noise."""
     dof: int
     """Its degrees of freedom: residuals minus fitted parameters."""
     p_value: float
     """Probability of a chi-square with `dof` exceeding `chi2`; the test passes above `ALPHA`."""
     bic: float
-    """`chi2 + m ln(residuals)`, over the rows of the runs and the poses together."""
+    """`chi2 + chi2_encoders + m ln(residuals)`, over the rows of the runs (encoders included) and the poses."""
     chi2_validation: float
-    """Chi-square of the validation runs and poses (their degrees of freedom: their residuals, nothing fitted)."""
+    """Chi-square of the validation runs (encoders included) and poses (nothing fitted)."""
     chi2_poses: float
     """The part of `chi2` from the training poses (0 without poses)."""
+    chi2_encoders: float = 0.0
+    """Chi-square of the training runs' encoder angles against the model's motor angles in units of the encoders'
+    quantisation std (0 where they are not rows: no `encoder_quantum`)."""
+    encoder_departure: float = 0.0
+    """[rad] the largest departure of a training run's encoder from the model's motor angle (the test of the
+    encoders: at most `ENCODER_LAG_RAD` or two quanta)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -303,24 +309,31 @@ def _with_effect_arrays(robot: jr.Robot) -> jr.Robot:
                                          if getattr(robot, field) is None})
 
 
-def _whitened(robot, z, cmd, white, measured, sigma, marker, substeps):
+def _whitened(robot, z, cmd, white, measured, sigma, marker, substeps, encoders, encoder_sigma):
+    """The run's tracker residuals (3N,) in units of `sigma`, then, where `encoders` (N, n) are given, the encoders'
+    residuals against the model's motor angles (N n,) in units of `encoder_sigma`."""
     moved = _with_effects(robot, z)
     q0 = rest_link_angles(moved, cmd[1][0], throw=False)  # NaN where a trial has no rest: the fit rejects it
-    q, _ = jr.simulate(moved, *cmd, substeps=substeps, q0=q0)
-    return (jnp.einsum("kij,kj->ki", white, measured - marker_pose(moved, q, marker)[0]) / sigma).ravel()
+    q, _, motors = jr.simulate(moved, *cmd, substeps=substeps, q0=q0, motor_angles=True)
+    tracker = (jnp.einsum("kij,kj->ki", white, measured - marker_pose(moved, q, marker)[0]) / sigma).ravel()
+    if encoders is None:
+        return tracker
+    return jnp.concatenate([tracker, ((encoders - motors) / encoder_sigma).ravel()])
 
 
 @functools.partial(jax.jit, static_argnames="substeps")
-def _residual(robot, z, cmd, white, measured, sigma, marker, substeps):
-    return _whitened(robot, z, cmd, white, measured, sigma, marker, substeps)
+def _residual(robot, z, cmd, white, measured, sigma, marker, substeps, encoders, encoder_sigma):
+    return _whitened(robot, z, cmd, white, measured, sigma, marker, substeps, encoders, encoder_sigma)
 
 
 @functools.partial(jax.jit, static_argnames=("substeps", "batch"))
-def _columns(robot, z, tangents, cmd, white, measured, sigma, marker, substeps, batch=1):
-    """Residual (3N,) and its derivatives (3N, T) along the `tangents` (4n + 4, T >= 1) of the variables: forward-mode
-    passes `batch` tangents at a time (`lax.map`; one batch gives every operation of the simulation a tangent axis,
-    which XLA's CPU backend runs slower per column than single passes for a few tangents, faster for many)."""
-    f = lambda z: _whitened(robot, z, cmd, white, measured, sigma, marker, substeps)  # noqa: E731
+def _columns(robot, z, tangents, cmd, white, measured, sigma, marker, substeps, encoders, encoder_sigma, batch=1):
+    """Residual (`_whitened`) and its derivatives (rows, T) along the `tangents` (4n + 4, T >= 1) of the variables:
+    forward-mode passes `batch` tangents at a time (`lax.map`; one batch gives every operation of the simulation a
+    tangent axis, which XLA's CPU backend runs slower per column than single passes for a few tangents, faster for
+    many)."""
+    f = lambda z: _whitened(robot, z, cmd, white, measured, sigma, marker, substeps, encoders,  # noqa: E731
+                            encoder_sigma)
     r, cols = jax.lax.map(lambda t: jax.jvp(f, (z,), (t,)), tangents.T, batch_size=batch)
     return r[0], cols.T
 
@@ -348,16 +361,34 @@ class _Run:
 
 @dataclasses.dataclass(frozen=True)
 class _Evidence:
-    """Runs (residuals in units of the tracker noise `sigma`) and poses at rest (motor angles, gear sets, whitening
-    (K, 3, 3) including their own noise's `1 / sigma`, positions), or None without poses."""
+    """Runs (residuals in units of the tracker noise `sigma`; their encoders' in units of `encoder_sigma`, or not
+    rows where it is None) and poses at rest (motor angles, gear sets, whitening (K, 3, 3) including their own
+    noise's `1 / sigma`, positions), or None without poses."""
 
     runs: list[_Run]
     sigma: float
     poses: tuple | None
+    encoder_sigma: float | None = None
 
     @property
     def rows(self) -> int:
-        return sum(r.measured.size for r in self.runs) + (0 if self.poses is None else self.poses[3].size)
+        """The residuals of the fits: the tracker's, the encoders' and the poses'."""
+        return self.encoder_mask.size
+
+    @functools.cached_property
+    def encoder_mask(self) -> np.ndarray:
+        """(rows,) whether each residual of `_evaluate` is an encoder's."""
+        parts = []
+        for r in self.runs:
+            parts.append(np.zeros(r.measured.size, bool))
+            if self.encoder_sigma is not None:
+                parts.append(np.ones(r.encoders.size, bool))
+        parts.append(np.zeros(0 if self.poses is None else self.poses[3].size, bool))
+        return np.concatenate(parts)
+
+    def encoders(self, run: _Run) -> jax.Array | None:
+        """The encoder angles of `run` as the fits' rows take them (None: not rows)."""
+        return None if self.encoder_sigma is None else jnp.asarray(run.encoders)
 
 
 def _prepare(pairs, noise, where: str) -> tuple[list[_Run], float]:
@@ -365,6 +396,9 @@ def _prepare(pairs, noise, where: str) -> tuple[list[_Run], float]:
     for k, (command, run) in enumerate(pairs):
         t, encoders, measured = (np.asarray(a, float) for a in run)
         cmd = extend_command(command, t, f"{where}[{k}]")
+        if encoders.shape != cmd[1].shape or measured.shape != (len(t), 3):
+            raise ValueError(f"{where}[{k}]: expected encoder angles {cmd[1].shape} of the command's motors and "
+                             f"positions ({len(t)}, 3), found {encoders.shape} and {measured.shape}")
         sigma, white = noise_model(noise, measured, "noise")
         white = np.broadcast_to(np.eye(3), (len(t), 3, 3)) if white is None else white
         runs.append(_Run(tuple(jnp.asarray(a) for a in cmd), jnp.asarray(white), jnp.asarray(measured), encoders))
@@ -390,13 +424,14 @@ def _prepare_poses(robot: jr.Robot, poses, noise, marker, where: str) -> tuple |
 
 
 def _evaluate(robot, z, ev: _Evidence, marker, substeps, variables=None, width: int = TANGENTS):
-    """Stacked whitened residuals of the runs, then the poses, of `ev` at `z`, and their derivatives (rows, m) along
-    the effect `variables` (m,) if given: the runs' `width` at a time (zero-padded: one compiled program per `width`
-    for any number of variables)."""
+    """Stacked whitened residuals of the runs (each its tracker's, then its encoders'), then the poses, of `ev` at
+    `z`, and their derivatives (rows, m) along the effect `variables` (m,) if given: the runs' `width` at a time
+    (zero-padded: one compiled program per `width` for any number of variables)."""
     res, cols = [], []
     for r in ev.runs:
         if variables is None:
-            res.append(np.asarray(_residual(robot, z, r.command, r.white, r.measured, ev.sigma, marker, substeps)))
+            res.append(np.asarray(_residual(robot, z, r.command, r.white, r.measured, ev.sigma, marker, substeps,
+                                            ev.encoders(r), ev.encoder_sigma)))
             continue
         parts = []
         for start in range(0, len(variables), width):
@@ -404,7 +439,7 @@ def _evaluate(robot, z, ev: _Evidence, marker, substeps, variables=None, width: 
             tangents = np.zeros((len(z), width))
             tangents[chunk, np.arange(len(chunk))] = 1.0
             out = _columns(robot, z, jnp.asarray(tangents), r.command, r.white, r.measured, ev.sigma, marker,
-                           substeps, width)
+                           substeps, ev.encoders(r), ev.encoder_sigma, width)
             parts.append(np.asarray(out[1])[:, :len(chunk)])
         res.append(np.asarray(out[0]))
         cols.append(np.concatenate(parts, 1))
@@ -553,17 +588,19 @@ def diagnose_runs(
 
     `train`, `validation`: lists of `(command, run)` pairs (`jaxrobot.io.read_command_csv`,
     `read_trajectory_csv`); `marker` (3,) [m] in the tool frame; `noise` the tracker's std per axis [m] or a
-    `TrackerNoise`; `substeps` of `jr.simulate` per sample; `encoder_quantum` [rad] the encoders' resolution;
-    `poses`: `(training, validation)` `jaxrobot.measurement.Poses` measured with the same marker, each residual
-    in units of `pose_noise` (default `noise`); `kinds` the per-joint kinds screened (default `SCREENED_KINDS`);
-    `on_event` receives each `RunStep` as it is scored (`progress`: its
-    deprecated old name).
+    `TrackerNoise`; `substeps` of `jr.simulate` per sample; `encoder_quantum` [rad] the encoders' resolution (0:
+    unknown): where given, the runs' encoder angles are residuals of the fits beside the tracker's, in units of the
+    quantisation's std `encoder_quantum / sqrt(12)` (they fix a lag far better than the tracker can); `poses`:
+    `(training, validation)` `jaxrobot.measurement.Poses` measured with the same marker, each residual in units of
+    `pose_noise` (default `noise`); `kinds` the per-joint kinds screened (default `SCREENED_KINDS`); `on_event`
+    receives each `RunStep` as it is scored (`progress`: its deprecated old name).
 
-    Each step compares the model with the training runs and poses (one chi-square over all their rows, each in
-    units of its own noise, as `compare_run`); while the test fails, it screens every effect not yet added by the
-    linearised chi-square decrease of its own variables (a lag only for a motor whose encoders depart from the
-    model's motor angles, `ENCODER_LAG_RAD`, and while one does, the lags alone: no other effect moves the motors,
-    while others can mimic a lag's effect on the tool over a short run; the payload only with poses, `PAYLOAD`),
+    Each step compares the model with the training runs and poses (one chi-square over the tracker's and the poses'
+    rows, each in units of its own noise, as `compare_run`) and the encoders with the model's motor angles (their
+    largest departure against `ENCODER_LAG_RAD` or two quanta); while either test fails, it screens every effect not
+    yet added by the linearised chi-square decrease of its own variables (a lag only for a motor whose encoders
+    depart, and while one does, the lags alone: no other effect moves the motors, while others can mimic a lag's
+    effect on the tool over a short run; the payload only with poses, `PAYLOAD`),
     fits the `SCREENED` best with the effects already added by Levenberg-Marquardt through the simulation and the
     rest poses (forward-mode derivatives at the start, then Broyden's updates: `_fit`), continues the fit of least
     chi-square on exact derivatives to convergence, and adds it (BIC over all rows) if it lowers BIC by more than
@@ -583,40 +620,47 @@ def diagnose_runs(
     val, _ = _prepare(validation, noise, "validation")
     marker = jnp.asarray(marker, float)
     pose_noise = noise if pose_noise is None else pose_noise
+    if encoder_quantum < 0:
+        raise ValueError(f"encoder_quantum: expected the encoders' resolution >= 0 rad, found {encoder_quantum}")
+    encoder_sigma = encoder_quantum / math.sqrt(12.0) if encoder_quantum > 0 else None
     ev = _Evidence(runs, sigma, _prepare_poses(robot, None if poses is None else poses[0], pose_noise,
-                                               marker, "training poses"))
+                                               marker, "training poses"), encoder_sigma)
     ev_val = _Evidence(val, sigma, _prepare_poses(robot, None if poses is None else poses[1], pose_noise,
-                                                  marker, "validation poses"))
+                                                  marker, "validation poses"), encoder_sigma)
     base = _with_effect_arrays(robot)
     ln_n = math.log(ev.rows)
     threshold = max(ENCODER_LAG_RAD, 2.0 * encoder_quantum)
     size = len(RUN_KINDS) * n + len(PAYLOAD)
 
+    departs = np.zeros(n, bool)  # per motor, whether the encoders depart beyond `threshold` at the last row's model
+
     def row(step, label, z, m):
+        nonlocal departs
+        current = _with_effects(base, z)
+        departure = np.max([np.max(np.abs(r.encoders - np.asarray(_simulated(current, *r.command, marker)[1])), 0)
+                            for r in runs], 0)
         res = _evaluate(base, z, ev, marker, substeps)[0]
-        chi2, dof, p_value = noise_test(res.reshape(-1, 3), 1.0, m)
+        chi2, dof, p_value = noise_test(res[~ev.encoder_mask].reshape(-1, 3), 1.0, m)
+        chi2_e = float(np.sum(res[ev.encoder_mask] ** 2))
         chi2_v = float(np.sum(_evaluate(base, z, ev_val, marker, substeps)[0] ** 2))
         chi2_p = float(np.sum(res[res.size - (0 if ev.poses is None else ev.poses[3].size):] ** 2))
-        out = RunStep(step, label, float(chi2), int(dof), float(p_value), float(chi2) + m * ln_n, chi2_v, chi2_p)
+        out = RunStep(step, label, float(chi2), int(dof), float(p_value), float(chi2) + chi2_e + m * ln_n, chi2_v,
+                      chi2_p, chi2_e, float(np.max(departure)))
         if on_event is not None:
             on_event(out)
+        departs = departure > threshold
         return out
 
     z, added, cov = jnp.zeros(size), [], np.zeros((0, 0))
     steps = [row(0, "start", z, 0)]
-    verdict = "no significant discrepancy: the model explains the runs to the tracker noise"
+    verdict = "no significant discrepancy: the model explains the runs to the tracker and encoder noise"
     candidates = [RunEffect(k, j) for k in RUN_KINDS if k in kinds for j in range(n)] + ([RunEffect("payload", None)]
                                                                          if poses is not None else [])
     width = sum(len(_index(c, n)) for c in candidates)  # the screening's columns: one program for every step
-    while steps[-1].p_value <= ALPHA:
+    while steps[-1].p_value <= ALPHA or steps[-1].encoder_departure > threshold:
         if len(added) == max_steps:
             verdict = f"not explained after {max_steps} effects (--max-steps)"
             break
-        current = _with_effects(base, z)
-        departs = np.zeros(n, bool)
-        for r in runs:
-            motors = np.asarray(_simulated(current, *r.command, marker)[1])
-            departs |= np.max(np.abs(r.encoders - motors), 0) > threshold
         eligible = [c for c in candidates if c not in added and (c.kind != "lag" or departs[c.joint])]
         if any(c.kind == "lag" for c in eligible):  # only a lag moves the motors: departing encoders need one first
             eligible = [c for c in eligible if c.kind == "lag"]
@@ -670,8 +714,8 @@ def diagnose_runs(
         steps.append(new)
     else:
         if added:
-            verdict = "explained: the runs agree with the model to the tracker noise after adding " + ", ".join(
-                e.label for e in added)
+            verdict = ("explained: the runs agree with the model to the tracker and encoder noise after adding "
+                       + ", ".join(e.label for e in added))
     kinds = {e.kind for e in added}
     final = dataclasses.replace(_with_effects(base, z), **{
         field: None for field, kind in _EFFECT_FIELDS.items() if getattr(robot, field) is None and kind not in kinds})
