@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import math
 import os
 import time
 from pathlib import Path
@@ -36,7 +37,7 @@ from identification.diagnosis._runs import (
 CASES = ("p0_clean", "p1_joint1_damping", "p2_motor_lag_j123", "p3_joint3_stiffness")
 
 
-def compile_programs(robot, train, marker, noise) -> dict[str, float]:
+def compile_programs(robot, train, marker, noise, encoder_quantum) -> dict[str, float]:
     """Compile `diagnose_runs`' programs for the runs of `train` ahead of time, as its call will use them (the
     persistent cache keeps them): the seconds each took."""
     (run, *_), sigma = _prepare(train, noise, "train")
@@ -45,12 +46,13 @@ def compile_programs(robot, train, marker, noise) -> dict[str, float]:
     z = jnp.zeros(len(RUN_KINDS) * n + 4)
     width = len(SCREENED_KINDS) * n  # the screening's columns without poses
     data = (run.command, run.white, run.measured, sigma, marker)
+    encoders = {"encoders": jnp.asarray(run.encoders), "encoder_sigma": encoder_quantum / math.sqrt(12.0)}
     lowered = {"simulation": _simulated.lower(base, *run.command, marker),
-               "residual": _residual.lower(base, z, *data, substeps=4),
+               "residual": _residual.lower(base, z, *data, substeps=4, **encoders),
                f"derivatives ({TANGENTS} columns)": _columns.lower(base, z, jnp.zeros((z.size, TANGENTS)), *data,
-                                                                  substeps=4, batch=TANGENTS),
+                                                                  substeps=4, batch=TANGENTS, **encoders),
                f"derivatives ({width} columns)": _columns.lower(base, z, jnp.zeros((z.size, width)), *data,
-                                                               substeps=4, batch=width)}
+                                                               substeps=4, batch=width, **encoders)}
     seconds = {}
     for name, program in lowered.items():
         begin = time.perf_counter()
@@ -60,8 +62,9 @@ def compile_programs(robot, train, marker, noise) -> dict[str, float]:
 
 
 def diagnose_section(folder: Path, samples: int) -> list[str]:
-    """`diagnose_runs` on the lag case's two training and two validation runs cut to `samples`: the elapsed time at
-    each step (printed as it is reached), the load average and the estimates."""
+    """`diagnose_runs` on the lag case's two training and two validation runs cut to `samples`, the encoders as rows
+    (in units of the quantisation of `[sensors] encoder_counts_per_rev`): the elapsed time at each step (printed as
+    it is reached), the load average and the estimates."""
     sensors = jr.read_description(folder / "start.toml")["sensors"]
 
     def pair(name):
@@ -71,16 +74,18 @@ def diagnose_section(folder: Path, samples: int) -> list[str]:
     train, val = [pair("line_nu1e-14"), pair("spiral_nu1e-14")], [pair("line_nu1e-10"), pair("spiral_nu1e-10")]
     robot = jr.load_robot(folder / "start.toml")
     marker, noise = jnp.asarray(sensors["tracker_marker_offset_m"], float), sensors["tracker_position_noise_m"]
-    compile_s = compile_programs(robot, train, marker, noise)
+    quantum = 2 * math.pi / sensors["encoder_counts_per_rev"]
+    compile_s = compile_programs(robot, train, marker, noise, quantum)
     rows, loads = [], [os.getloadavg()[0]]
     start = time.perf_counter()
 
     def progress(step):
-        rows.append(f"| {step.step} | {step.effect} | {time.perf_counter() - start:.0f} | {step.chi2 / step.dof:.4f} |")
+        rows.append(f"| {step.step} | {step.effect} | {time.perf_counter() - start:.0f} | {step.chi2 / step.dof:.4f} | "
+                    f"{step.chi2_encoders:.4g} |")
         loads.append(os.getloadavg()[0])
         print(rows[-1], f"load {loads[-1]:.1f}", flush=True)
 
-    res = diagnose_runs(robot, train, val, marker, noise, on_event=progress)
+    res = diagnose_runs(robot, train, val, marker, noise, encoder_quantum=quantum, on_event=progress)
     elapsed = time.perf_counter() - start
     loads.append(os.getloadavg()[0])
     return [f"`diagnose_runs` on the lag case, 2 training + 2 validation runs of {samples} samples, "
@@ -88,7 +93,8 @@ def diagnose_section(folder: Path, samples: int) -> list[str]:
             f"at the steps: compiling its programs ahead of time took {sum(compile_s.values()):.0f} s ("
             + ", ".join(f"{k} {v:.0f} s" for k, v in compile_s.items()) + f"); the call, loading them from the "
             f"persistent cache, {elapsed:.0f} s; {res.verdict}", "",
-            "| step | effect added | elapsed [s] | chi2/dof |", "|---|---|---|---|", *rows, "",
+            "| step | effect added | elapsed [s] | chi2/dof (tracker) | chi2 (encoders) |", "|---|---|---|---|---|",
+            *rows, "",
             "| effect | value | std |", "|---|---|---|",
             *(f"| {e.effect.label} | {e.value:.6g} | {e.std:.2g} |" for e in res.estimates)]
 

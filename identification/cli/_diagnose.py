@@ -96,6 +96,7 @@ def _diagnose_runs(args, echo) -> dict:
     def progress(row) -> None:
         echo(f"step {row.step}: {row.effect:<36} chi2/dof {row.chi2 / row.dof:.4f} (p = {row.p_value:.3g}"
              + (f"; poses' chi2 {row.chi2_poses:.1f}" if poses else "")
+             + (f"; encoders' chi2 {row.chi2_encoders:.4g}" if counts is not None else "")
              + f"), BIC {row.bic:.1f}, validation chi2/dof {row.chi2_validation / rows_val:.4f}")
 
     res = diagnose_runs(robot, train, val, marker, noise, max_steps=args.max_steps,

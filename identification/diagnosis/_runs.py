@@ -616,12 +616,12 @@ def diagnose_runs(
     unknown = [k for k in kinds if k not in RUN_KINDS]
     if unknown or not kinds:
         raise ValueError(f"kinds: expected one or more of {list(RUN_KINDS)}, found {list(kinds)}")
+    if encoder_quantum < 0:
+        raise ValueError(f"encoder_quantum: expected the encoders' resolution >= 0 rad, found {encoder_quantum}")
     runs, sigma = _prepare(train, noise, "train")
     val, _ = _prepare(validation, noise, "validation")
     marker = jnp.asarray(marker, float)
     pose_noise = noise if pose_noise is None else pose_noise
-    if encoder_quantum < 0:
-        raise ValueError(f"encoder_quantum: expected the encoders' resolution >= 0 rad, found {encoder_quantum}")
     encoder_sigma = encoder_quantum / math.sqrt(12.0) if encoder_quantum > 0 else None
     ev = _Evidence(runs, sigma, _prepare_poses(robot, None if poses is None else poses[0], pose_noise,
                                                marker, "training poses"), encoder_sigma)

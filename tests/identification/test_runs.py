@@ -129,7 +129,10 @@ def test_cli_compare_and_run_files_refused_as_poses(tmp_path, capsys):
 def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
     """`diagnose --runs` on the first 0.7 s of the lag case's four runs (line and spiral at nu = 1e-14 for training,
     1e-10 for validation): the lags of motors 1, 2 and 3, each within 3 reported sigma of truth.json's 3 ms, and
-    nothing else; the saved model carries them. 5 min on 2 shared cores (three steps of screening and fits)."""
+    nothing else; the saved model carries them. The encoders are rows of the fits in units of the quantisation of
+    `start.toml`'s `[sensors] encoder_counts_per_rev`, so each lag's std is the encoders' bound `(q / sqrt(12)) /
+    sqrt(sum thetad^2)` over the training commands (within 10 %: the tracker adds little, the motor's rate lags its
+    command's). 2 min on 2 cores (three steps of screening and fits)."""
     folder = case("p2_motor_lag_j123")
     files = {}
     for name in ("line_nu1e-14", "spiral_nu1e-14", "line_nu1e-10", "spiral_nu1e-10"):
@@ -147,8 +150,11 @@ def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
     summary = json.loads(out.out)
     truth = json.loads((folder / "truth.json").read_text())["effects"]["lag"]
     assert sorted((e["kind"], e["joint"]) for e in summary["effects"]) == [("lag", 1), ("lag", 2), ("lag", 3)]
+    quantum = 2 * np.pi / jr.read_description(folder / "start.toml")["sensors"]["encoder_counts_per_rev"]
     for e in summary["effects"]:
         assert abs(e["value"] - truth[e["joint"] - 1]) < 3 * e["std"], e
+        rates = np.concatenate([shortened(folder, k, SHORT)[0][2][:, e["joint"] - 1] for k in train])
+        assert 0.9 < e["std"] / (quantum / np.sqrt(12.0) / np.sqrt(np.sum(rates**2))) < 1.1, e
     assert summary["verdict"].startswith("explained")
     fixed = jr.load_robot(tmp_path / "fixed.toml")
     np.testing.assert_allclose(fixed.motor_lag[:3], 3e-3, rtol=0.1)
