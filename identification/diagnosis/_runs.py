@@ -175,13 +175,18 @@ LM_STEPS = 30
 """Most Levenberg-Marquardt iterations of a fit."""
 RANKING_TOLERANCE = 0.01
 """Chi-square decrease of an accepted step below which a candidate's fit for ranking ends (`_fit` without
-`exact_end`); the best candidate's fit is then continued on exact derivatives to the tight tolerance. Far below
-`MIN_BIC_GAIN`: only candidates within it of each other could swap ranks."""
+`exact_end`), or the exact fits' tolerance (1e-9 of the chi-square) where that is larger: a ranking is not resolved
+finer than a fit's end. The best candidate's fit is then continued on exact derivatives to that tolerance. Far
+below `MIN_BIC_GAIN`: only candidates within it of each other could swap ranks."""
 TANGENTS = 1
 """Derivative columns per call of the fits' compiled derivative program: they evaluate theirs this many at a time,
 zero-padded, so that one program serves every number of fitted effects (one: a single forward-mode pass per call).
 The screening evaluates every variable's column in one batch of a second program, cheaper per column than single
-passes (`_columns`)."""
+passes (`_columns`), where it needs more than `BATCH_COLUMN_COST` of them."""
+BATCH_COLUMN_COST = 0.5
+"""The cost of a column in the screening's batch, in single forward-mode passes (`benchmarks/results_runs.md`): the
+screening evaluates its columns in one batch of every candidate's where it needs more than this share of them
+(while only lags are eligible, a few), else one pass per column."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -481,8 +486,8 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
     `exact_end` they are evaluated exactly again where a step fails on updated ones, the fit ends where a step on
     exact derivatives lowers the chi-square by less than the tolerance or the exact Gauss-Newton step predicts no
     more, and the covariance is `(J^T J)^-1` of the exact derivatives at the end. Without it (a candidate's fit for
-    ranking, `RANKING_TOLERANCE`) a failed step updates them too, only the trials' simulations run, and the
-    covariance is None."""
+    ranking, `RANKING_TOLERANCE`) a failed step updates them too, only the trials' simulations run, the fit ends
+    where the step's predicted decrease is below the ranking tolerance, and the covariance is None."""
     n = robot.n_joints
     idx = np.array([i for e in effects for i in _index(e, n)])
     z, r, jac, exact = jnp.asarray(z0), r0, jac0, True
@@ -496,12 +501,14 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
                 break
         a, g = jac.T @ jac, jac.T @ r
         step = np.linalg.solve(a + lam * np.diag(np.diag(a)), -g)
+        if not exact_end and chi2 - float(np.sum((r + jac @ step) ** 2)) < max(RANKING_TOLERANCE, tolerance(chi2)):
+            break  # the step's predicted decrease is below the ranking's resolution
         z_try = z.at[idx].add(step)
         r_try = _evaluate(robot, z_try, ev, marker, substeps)[0]
         chi2_try = float(r_try @ r_try)
         secant = np.outer(r_try - r - jac @ step, step) / (step @ step) if np.isfinite(chi2_try) else 0.0
         if chi2_try < chi2:
-            done = chi2 - chi2_try < (tolerance(chi2) if exact_end else RANKING_TOLERANCE)
+            done = chi2 - chi2_try < (tolerance(chi2) if exact_end else max(RANKING_TOLERANCE, tolerance(chi2)))
             if done and exact_end and exact:  # z is the end, where the derivatives are exact
                 break
             z, r, chi2, lam = z_try, r_try, chi2_try, max(lam / 10.0, 1e-12)
@@ -597,11 +604,11 @@ def diagnose_runs(
 
     Each step compares the model with the training runs and poses (one chi-square over the tracker's and the poses'
     rows, each in units of its own noise, as `compare_run`) and the encoders with the model's motor angles (their
-    largest departure against `ENCODER_LAG_RAD` or two quanta); while either test fails, it screens every effect not
-    yet added by the linearised chi-square decrease of its own variables (a lag only for a motor whose encoders
-    depart, and while one does, the lags alone: no other effect moves the motors, while others can mimic a lag's
-    effect on the tool over a short run; the payload only with poses, `PAYLOAD`),
-    fits the `SCREENED` best with the effects already added by Levenberg-Marquardt through the simulation and the
+    departure against `ENCODER_LAG_RAD` or two quanta); while the test fails, or a motor without a lag departs, it
+    screens every effect not yet added by the linearised chi-square decrease of its own variables (a lag only for a
+    motor whose encoders depart, and while one does, the lags alone: no other effect moves the motors, while others
+    can mimic a lag's effect on the tool over a short run; the payload only with poses, `PAYLOAD`), fits the
+    `SCREENED` best with the effects already added by Levenberg-Marquardt through the simulation and the
     rest poses (forward-mode derivatives at the start, then Broyden's updates: `_fit`), continues the fit of least
     chi-square on exact derivatives to convergence, and adds it (BIC over all rows) if it lowers BIC by more than
     `MIN_BIC_GAIN` and lowers the validation runs' and poses' chi-square. The model without an effect is where each
@@ -657,7 +664,8 @@ def diagnose_runs(
     candidates = [RunEffect(k, j) for k in RUN_KINDS if k in kinds for j in range(n)] + ([RunEffect("payload", None)]
                                                                          if poses is not None else [])
     width = sum(len(_index(c, n)) for c in candidates)  # the screening's columns: one program for every step
-    while steps[-1].p_value <= ALPHA or steps[-1].encoder_departure > threshold:
+    while steps[-1].p_value <= ALPHA or ("lag" in kinds and any(d and RunEffect("lag", j) not in added
+                                                                 for j, d in enumerate(departs))):
         if len(added) == max_steps:
             verdict = f"not explained after {max_steps} effects (--max-steps)"
             break
@@ -668,7 +676,8 @@ def diagnose_runs(
             verdict = "not explained: no effect of the catalogue is left to add"
             break
         needed = sorted({i for c in eligible + added for i in _index(c, n)})
-        res, part = _evaluate(base, z, ev, marker, substeps, needed, width)  # reused by the fits' first step
+        batch = width if len(needed) > BATCH_COLUMN_COST * width else TANGENTS
+        res, part = _evaluate(base, z, ev, marker, substeps, needed, batch)  # reused by the fits' first step
         cols = np.zeros((len(res), size))
         cols[:, needed] = part
         gain = []
