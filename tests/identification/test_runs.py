@@ -153,7 +153,7 @@ def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
     quantum = 2 * np.pi / jr.read_description(folder / "start.toml")["sensors"]["encoder_counts_per_rev"]
     for e in summary["effects"]:
         assert abs(e["value"] - truth[e["joint"] - 1]) < 3 * e["std"], e
-        rates = np.concatenate([shortened(folder, k, SHORT)[0][2][:, e["joint"] - 1] for k in train])
+        rates = np.concatenate([shortened(folder, k, SHORT)[0][2][:SHORT, e["joint"] - 1] for k in train])
         assert 0.9 < e["std"] / (quantum / np.sqrt(12.0) / np.sqrt(np.sum(rates**2))) < 1.1, e
     assert summary["verdict"].startswith("explained")
     fixed = jr.load_robot(tmp_path / "fixed.toml")

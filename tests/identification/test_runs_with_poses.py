@@ -99,10 +99,11 @@ def test_encoders_are_rows_in_units_of_their_quantisation():
     revolution) and whose tracker has 50 um of noise. With `encoder_quantum=q` the start row's encoder chi-square is
     the encoders' departure from the command (the start model has no lag) in units of the quantisation's std
     `q / sqrt(12)`, computed here without a simulation; the chi-square test and its degrees of freedom are the
-    tracker's alone (`compare_run`), BIC counts both. The lag of motor 1 is then named alone, within 3 reported sigma
-    of 2 ms, its std that of the encoders alone: `(q / sqrt(12)) / sqrt(sum thetad_m^2)`, the lag moving the motor
-    angle by `-thetad_m` per second of lag (within 10 %: the tracker adds little, the motor's rate lags its
-    command's); the fitted model's motor angles depart from the encoders by at most half a count."""
+    tracker's alone (`compare_run`, to its finer integration), BIC counts both. The lag of motor 1 is then named
+    alone, within 3 reported sigma of 2 ms, its std that of the encoders alone: `(q / sqrt(12)) / sqrt(sum
+    thetad_m^2)`, the lag moving the motor angle by `-thetad_m` per second of lag (within 10 %: the tracker adds
+    little, the motor's rate lags its command's); the fitted model's motor angles depart from the encoders by at
+    most half a count plus what 3 sigma of the lag moves the motor."""
     marker, noise, samples, lag = np.array([0.05, 0.0, 0.0]), 5e-5, 200, 2e-3
     start = jr.robot_from_description(arm_description())
     truth = dataclasses.replace(start, motor_lag=jnp.array([lag, 0.0]))
@@ -120,14 +121,15 @@ def test_encoders_are_rows_in_units_of_their_quantisation():
     row, sigma_e = res.steps[0], q / np.sqrt(12.0)
     np.testing.assert_allclose(row.chi2_encoders, np.sum(((train[1] - cmd[1]) / sigma_e) ** 2), rtol=1e-9)
     assert row.dof == 3 * samples
-    np.testing.assert_allclose(row.chi2, compare_run(start, cmd, train, marker, noise).chi2, rtol=1e-9)
+    # `compare_run` integrates with 10 RK4 substeps per sample, the fits with 4: ~1e-8 of the chi-square apart here
+    np.testing.assert_allclose(row.chi2, compare_run(start, cmd, train, marker, noise).chi2, rtol=1e-7)
     np.testing.assert_allclose(row.bic, row.chi2 + row.chi2_encoders, rtol=1e-12)
     assert [(e.effect.kind, e.effect.joint) for e in res.estimates] == [("lag", 0)], res.verdict
     est = res.estimates[0]
     assert abs(est.value - lag) < 3 * est.std, est
     bound = sigma_e / np.sqrt(np.sum(cmd[2][:, 0] ** 2))
     assert 0.9 < est.std / bound < 1.1, (est.std, bound)
-    assert res.steps[-1].encoder_departure <= 0.5 * q * (1 + 1e-6), res.steps[-1]
+    assert res.steps[-1].encoder_departure <= 0.5 * q + 3 * est.std * np.max(np.abs(cmd[2][:, 0])), res.steps[-1]
     assert res.verdict.startswith("explained")
 
 
