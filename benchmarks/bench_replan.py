@@ -121,7 +121,9 @@ def table_row(case: str, task: str, e: dict) -> str:
     goal_true = "met" if ratio <= 1.5 else (
         "not met; within the floor" if spread is not None and e["corrected"][0] <= e["true"][0] + np.quantile(
             spread, 0.9) else "not met")
-    goal_start = "met" if gain >= 5 else ("-" if e["start"][0] <= 10e-6 else "not met")
+    # the second goal where the start model's plan has an error of its own to remove: above 10 µm, and beyond the
+    # first goal (the clean case's start model is the true robot: its plan's error is the plan's, not the model's)
+    goal_start = "met" if gain >= 5 else ("-" if e["start"][0] <= max(10e-6, 1.5 * e["true"][0]) else "not met")
     return (f"| {case} | {task} | {um['start']} | {um['corrected']} | {um['true']} | {low} | {ratio:.3g} "
             f"({goal_true}) | {gain:.3g} ({goal_start}) |")
 
@@ -151,7 +153,7 @@ def main() -> None:
                    f"nu = {NU:g} plan made on each model; floor: the largest deviation of the corrected plan's "
                    f"command on robots drawn from the fit's uncertainty ({args.draws} draws), median / 90th "
                    "percentile. Goals: corrected <= 1.5 x true (where missed: whether corrected <= true + the "
-                   "floor's 90th percentile), and >= 5 x below start where start > 10 µm.", "",
+                   "floor's 90th percentile), and >= 5 x below start where start > 10 µm and > 1.5 x true.", "",
                    "| case | task | start | corrected | true robot | floor | corrected / true | "
                    "start / corrected |", "|---|---|---|---|---|---|---|---|", *rows]
         head, found, tail = text.partition(SECTION + case)
