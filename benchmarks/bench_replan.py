@@ -7,8 +7,11 @@ from the fit's uncertainty (`RunDiagnosis.sample`) against the same command simu
 the path error the runs' noise leaves in any model fitted from them. Written as a section of
 `benchmarks/results_runs.md` per case.
 
+`--tracker-noise SIGMA_M` measures the runs anew on the true robot (our simulation) with that tracker noise instead:
+how the floor and the re-plan scale with the runs' information.
+
 `python benchmarks/bench_replan.py [--shared ../shared] [--cases ...] [--tasks line spiral] [--samples 3001]
-[--draws 16]`.
+[--draws 16] [--tracker-noise SIGMA_M]`.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import numpy as np
 import jaxrobot as jr
 import planning as pl
 from identification.diagnosis import diagnose_runs
+from identification.diagnosis._runs import _simulated, extend_command
 
 CASES = ("p0_clean", "p1_joint1_damping", "p2_motor_lag_j123", "p3_joint3_stiffness")
 NU = 1e-14
@@ -46,20 +50,30 @@ def true_robot(folder: Path) -> jr.Robot:
                                damping=jnp.asarray(effects["damping"]) if any(effects["damping"]) else None)
 
 
-def diagnose_case(folder: Path, samples: int):
+def diagnose_case(folder: Path, samples: int, tracker_noise: float | None = None):
     """`diagnose_runs` of the case's start model on its runs cut to `samples` (the encoders as rows in units of
     the quantisation of `[sensors] encoder_counts_per_rev`, as `jaxrobot diagnose --runs` takes them), and its time
-    [s]."""
+    [s]. With `tracker_noise` [m] the runs are measured anew: each command simulated on the case's true robot (our
+    simulation; the encoders its motor angles), the marker with that Gaussian noise per axis (seeded)."""
     sensors = jr.read_description(folder / "start.toml")["sensors"]
+    marker = jnp.asarray(sensors["tracker_marker_offset_m"], float)
+    truth = true_robot(folder) if tracker_noise is not None else None
 
-    def pair(name):
+    def pair(name, seed):
+        command = jr.io.read_command_csv(folder / f"command_{name}.csv")
         run = jr.io.read_trajectory_csv(folder / f"run_{name}.csv")
-        return jr.io.read_command_csv(folder / f"command_{name}.csv"), tuple(a[:samples] for a in run)
+        if truth is not None:
+            cmd = extend_command(command, run[0])
+            positions, motors = (np.asarray(a) for a in _simulated(truth, *(jnp.asarray(a) for a in cmd), marker))
+            noise = tracker_noise * np.random.default_rng(seed).standard_normal(positions.shape)
+            run = (run[0], motors, positions + noise)
+        return command, tuple(a[:samples] for a in run)
 
-    train, val = [pair("line_nu1e-14"), pair("spiral_nu1e-14")], [pair("line_nu1e-10"), pair("spiral_nu1e-10")]
+    train = [pair("line_nu1e-14", 3301), pair("spiral_nu1e-14", 3302)]
+    val = [pair("line_nu1e-10", 3303), pair("spiral_nu1e-10", 3304)]
     begin = time.perf_counter()
-    res = diagnose_runs(jr.load_robot(folder / "start.toml"), train, val,
-                        jnp.asarray(sensors["tracker_marker_offset_m"], float), sensors["tracker_position_noise_m"],
+    res = diagnose_runs(jr.load_robot(folder / "start.toml"), train, val, marker,
+                        sensors["tracker_position_noise_m"] if tracker_noise is None else tracker_noise,
                         encoder_quantum=2 * np.pi / sensors["encoder_counts_per_rev"])
     return res, time.perf_counter() - begin
 
@@ -93,13 +107,13 @@ def floor(res: pl.PlanResult, model: jr.Robot, robots: list[jr.Robot]) -> np.nda
     return np.asarray([float(jnp.max(jnp.linalg.norm(tool_positions(r) - own, axis=-1))) for r in robots])
 
 
-def replan_case(folder: Path, tasks: list[str], samples: int, draws: int):
-    """The case's diagnosis, its time [s], and per task the (max, RMS) path errors [m] on the true robot of the plans
-    made on the start model, the corrected model (the start model's plan where nothing was added) and the true robot,
-    with the identification floor (`floor` on `draws` robots; None where nothing was added)."""
+def replan_case(folder: Path, tasks: list[str], samples: int, draws: int, tracker_noise: float | None = None):
+    """The case's diagnosis (`diagnose_case`), its time [s], and per task the (max, RMS) path errors [m] on the true
+    robot of the plans made on the start model, the corrected model (the start model's plan where nothing was added)
+    and the true robot, with the identification floor (`floor` on `draws` robots; None where nothing was added)."""
     description = jr.read_description(folder / "start.toml")
     truth, start = true_robot(folder), jr.load_robot(folder / "start.toml")
-    diagnosis, seconds = diagnose_case(folder, samples)
+    diagnosis, seconds = diagnose_case(folder, samples, tracker_noise)
     robots = diagnosis.sample(draws, seed=32) if diagnosis.estimates else []
     out = {}
     for task in tasks:
@@ -135,20 +149,28 @@ def main() -> None:
     parser.add_argument("--tasks", nargs="+", default=["line", "spiral"], choices=["line", "spiral"])
     parser.add_argument("--samples", type=int, default=3001, help="samples of each run the diagnosis uses")
     parser.add_argument("--draws", type=int, default=16, help="robots drawn from the fit's uncertainty")
+    parser.add_argument("--tracker-noise", type=float, default=None, metavar="SIGMA_M",
+                        help="measure the runs anew on the case's true robot (our simulation) with this tracker noise "
+                             "per axis [m] instead of reading the case's files: how the floor scales with the noise")
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results_runs.md"))
     args = parser.parse_args()
+    if args.tracker_noise is not None and not args.tracker_noise > 0:
+        parser.error(f"--tracker-noise: expected a noise std > 0 m, found {args.tracker_noise}")
     root = args.shared / "independent" / "trajectories"
     text = args.out.read_text() if args.out.exists() else ""
     for case in args.cases:
-        diagnosis, seconds, errors = replan_case(root / case, args.tasks, args.samples, args.draws)
+        diagnosis, seconds, errors = replan_case(root / case, args.tasks, args.samples, args.draws, args.tracker_noise)
+        title = case if args.tracker_noise is None else (
+            f"{case}, runs measured anew with {1e6 * args.tracker_noise:g} µm of tracker noise")
         effects = "; ".join(f"{e.effect.label} {e.value:.6g} ± {e.std:.2g} {e.unit}" for e in diagnosis.estimates)
         lines = [f"`diagnose_runs` on {args.samples} samples of each run: {seconds:.0f} s; {diagnosis.verdict}"
                  + (f" ({effects})" if effects else ""), ""]
         rows = [table_row(case, task, e) for task, e in errors.items()]
         command = (f"python benchmarks/bench_replan.py --cases {case} --tasks {' '.join(args.tasks)} "
-                   f"--samples {args.samples} --draws {args.draws}")
+                   f"--samples {args.samples} --draws {args.draws}"
+                   + ("" if args.tracker_noise is None else f" --tracker-noise {args.tracker_noise:g}"))
         info = _timing.run_info("the plan made on the case's true robot, simulated in the same run", command=command)
-        section = [SECTION + case, "", _timing.header(info), *lines,
+        section = [SECTION + title, "", _timing.header(info), *lines,
                    "Tool path error over the motion on the case's true robot [µm], max / RMS, of the "
                    f"nu = {NU:g} plan made on each model; floor: the largest deviation of the corrected plan's "
                    f"command on robots drawn from the fit's uncertainty ({args.draws} draws), median / 90th "
@@ -156,7 +178,7 @@ def main() -> None:
                    "floor's 90th percentile), and >= 5 x below start where start > 10 µm and > 1.5 x true.", "",
                    "| case | task | start | corrected | true robot | floor | corrected / true | "
                    "start / corrected |", "|---|---|---|---|---|---|---|---|", *rows]
-        head, found, tail = text.partition(SECTION + case)
+        head, found, tail = text.partition(SECTION + title + "\n")
         tail = tail[tail.index("\n## "):] if found and "\n## " in tail else ""
         text = head.rstrip("\n") + "\n\n" + "\n".join(section) + "\n" + tail
         args.out.write_text(text)
