@@ -162,7 +162,7 @@ def main() -> None:
         diagnosis, seconds, errors = replan_case(root / case, args.tasks, args.samples, args.draws, args.tracker_noise)
         title = case if args.tracker_noise is None else (
             f"{case}, runs measured anew with {1e6 * args.tracker_noise:g} µm of tracker noise")
-        effects = "; ".join(f"{e.effect.label} {e.value:.6g} ± {e.std:.2g} {e.unit}" for e in diagnosis.estimates)
+        effects = "; ".join(f"{e.effect.label} {e.shown} ± {e.std:.2g} {e.unit}" for e in diagnosis.estimates)
         lines = [f"`diagnose_runs` on {args.samples} samples of each run: {seconds:.0f} s; {diagnosis.verdict}"
                  + (f" ({effects})" if effects else ""), ""]
         rows = [table_row(case, task, e) for task, e in errors.items()]

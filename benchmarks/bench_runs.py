@@ -96,7 +96,7 @@ def diagnose_section(folder: Path, samples: int) -> list[str]:
             "| step | effect added | elapsed [s] | chi2/dof (tracker) | chi2 (encoders) |", "|---|---|---|---|---|",
             *rows, "",
             "| effect | value | std |", "|---|---|---|",
-            *(f"| {e.effect.label} | {e.value:.6g} | {e.std:.2g} |" for e in res.estimates)]
+            *(f"| {e.effect.label} | {e.shown} | {e.std:.2g} |" for e in res.estimates)]
 
 
 def main() -> None:

@@ -105,7 +105,7 @@ def _diagnose_runs(args, echo) -> dict:
     echo(f"verdict: {res.verdict}")
     effects = []
     for e in res.estimates:
-        echo(f"  {e.effect.label}: {e.parameter} {e.value:.6g} +- {e.std:.2g} {e.unit}")
+        echo(f"  {e.effect.label}: {e.parameter} {e.shown} +- {e.std:.2g} {e.unit}")
         effects.append({"effect": e.effect.label, "kind": e.effect.kind,
                         "joint": None if e.effect.joint is None else e.effect.joint + 1, "parameter": e.parameter,
                         "value": e.value, "std": e.std, "unit": e.unit})

@@ -226,6 +226,13 @@ class RunEstimate:
     unit: str
     """The unit of `value` and `std` (`RUN_KINDS`, `PAYLOAD`)."""
 
+    @property
+    def shown(self) -> str:
+        """`value` in words: 6 significant digits, more where `std` resolves them (a 3 ms lag known to 1 ns shows
+        nine), so that a value and its std can be read against each other."""
+        resolved = math.ceil(math.log10(abs(self.value) / self.std)) + 2 if self.std > 0 and self.value != 0 else 0
+        return f"{self.value:.{max(6, resolved)}g}"
+
 
 @dataclasses.dataclass(frozen=True)
 class RunStep:
