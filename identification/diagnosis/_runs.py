@@ -229,9 +229,9 @@ class RunEstimate:
     @property
     def shown(self) -> str:
         """`value` in words: 6 significant digits, more where `std` resolves them (a 3 ms lag known to 1 ns shows
-        nine), so that a value and its std can be read against each other."""
+        nine), trailing zeros kept, so that a value and its std can be read against each other."""
         resolved = math.ceil(math.log10(abs(self.value) / self.std)) + 2 if self.std > 0 and self.value != 0 else 0
-        return f"{self.value:.{max(6, resolved)}g}"
+        return f"{self.value:#.{max(6, resolved)}g}"
 
 
 @dataclasses.dataclass(frozen=True)

@@ -163,15 +163,15 @@ def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
 
 def test_estimate_shows_the_digits_its_std_resolves():
     """`RunEstimate.shown`: 6 significant digits, and two beyond those its std resolves where that is more (a 3 ms
-    lag known to 1.3 ns: log10(3e-3 / 1.3e-9) = 6.4, so 9 digits)."""
+    lag known to 1.3 ns: log10(3e-3 / 1.3e-9) = 6.4, so 9 digits), trailing zeros kept."""
     from identification.diagnosis._runs import RunEffect, RunEstimate
 
     def shown(value, std):
         return RunEstimate(RunEffect("lag", 0), "lag", value, std, "s").shown
 
-    assert shown(3.0000000092e-3, 1.3e-9) == "0.00300000001"
+    assert shown(3.0000000092e-3, 1.3e-9) == "0.00300000001" and shown(3e-3, 1.3e-9) == "0.00300000000"
     assert shown(0.79922712, 0.0014) == "0.799227"
-    assert shown(142.2, 0.0) == "142.2" and shown(0.0, 1e-9) == "0"
+    assert shown(142.2, 0.0) == "142.200" and shown(0.0, 1e-9) == "0.00000"
 
 
 def test_diagnose_runs_refuses_unknown_kinds():
