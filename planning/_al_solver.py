@@ -35,6 +35,8 @@ accumulated from those of the warm start so that their roundoff scales with the 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -316,6 +318,21 @@ class _State(eqx.Module):
     """`half_step` at `y0 + y`."""
 
 
+class _Outer(NamedTuple):
+    """The fields of `_State` that a multiplier update (`_prepare`) changes."""
+
+    lam: Float[Array, "Nm1 4*n"]
+    gam: Float[Array, "N 5*n"]
+    rho: Float[Array, ""]
+    it: Int[Array, ""]
+    inner: Int[Array, ""]
+    violation: Float[Array, ""]
+    stationarity: Float[Array, ""]
+    status: RESULTS
+    stop: Bool[Array, ""]
+    hist: Float[Array, "4 M"]
+
+
 def history_length(config: ALConfig) -> int:
     """Static length of the history arrays for `config`."""
     return HISTORY_CHUNK * max(1, -(-int(config.max_outer_iterations) // HISTORY_CHUNK))
@@ -551,8 +568,10 @@ def _pool(begin, size: int, nu: Float[Array, " B"], lanes: int, shape: tuple[int
         p, s, config = jax.vmap(start)(jnp.minimum(t["k"][idx], size - 1), t["cold"][idx], t["known"][idx],
                                        take(t["last"], idx), take(t["before"], idx), t["last_nu"][idx],
                                        t["before_nu"][idx])
-        t["p"], t["s"], t["config"] = put(t["p"], idx, p, restart), put(t["s"], idx, s, restart), put(
-            t["config"], idx, config, restart)
+        # a started member's factor is made at its first step (NaN key): its lane keeps the old one until then
+        s = eqx.tree_at(lambda u: u.factor, put(_unfactored(t["s"]), idx, _unfactored(s), restart), t["s"].factor,
+                        is_leaf=_none)
+        t["p"], t["s"], t["config"] = put(t["p"], idx, p, restart), s, put(t["config"], idx, config, restart)
         return t
 
     def body(t):
@@ -572,11 +591,22 @@ def _pool(begin, size: int, nu: Float[Array, " B"], lanes: int, shape: tuple[int
         go = run & step & (~fresh | jnp.zeros(lanes, bool).at[idx].set(served))
         stepped = jax.vmap(_lm_step)(t["p"], t["config"], s, c_y, grad, factor, fresh)
         pick = lambda mask, a, b: jnp.where(mask.reshape(-1, *[1] * (a.ndim - 1)), a, b)  # noqa: E731
-        t = dict(t, s=jax.tree.map(lambda a, b, c: pick(go, a, pick(run, b, c)), stepped, s, t["s"]))
+        # `factor` is already every lane's own: new where served (all of which step), else the one carried
+        merged = jax.tree.map(lambda a, b, c: pick(go, a, pick(run, b, c)), *map(_unfactored, (stepped, s, t["s"])))
+        t = dict(t, s=eqx.tree_at(lambda u: u.factor, merged, factor, is_leaf=_none))
         return jax.lax.cond(jnp.any(t["active"] & t["s"].stop), settle, lambda t: t, t)
 
     out = jax.lax.while_loop(lambda t: jnp.any(t["active"]), body, state)["out"]
     return jax.tree.map(lambda a: a[jnp.argsort(order)], out)
+
+
+def _unfactored(s: _State) -> _State:
+    """`s` without its factor (None): selects and scatters over the lanes of `_pool` leave the factor out."""
+    return eqx.tree_at(lambda u: u.factor, s, None)
+
+
+def _none(x) -> bool:
+    return x is None
 
 
 def _continuation(solve, size: int, nu: Float[Array, " B"], xs: list, y0: Float[Array, "N 5*n"],
@@ -706,14 +736,15 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
     `mu` changed since the factor was made, or it is `refresh_every` steps old)."""
     m = s.hist.shape[-1]
     rho_max = config.penalty_max * _initial_penalty(p, config) / config.penalty_init
-    c_y, vjp, id_vjp = _linearise(p, s.y, s.forward)
-    grad = _gradient(p, s.y, c_y, vjp, s.lam, s.gam, s.rho)
+    y = s.y
+    c_y, vjp, id_vjp = _linearise(p, y, s.forward)
+    grad = _gradient(p, y, c_y, vjp, s.lam, s.gam, s.rho)
 
-    def update(s: _State):
-        viol = jnp.maximum(jnp.max(jnp.abs(c_y)), _box_violation(p, s.y))
+    def update(s: _Outer):
+        viol = jnp.maximum(jnp.max(jnp.abs(c_y)), _box_violation(p, y))
         stat = jnp.max(jnp.abs(grad))  # = gradient of the Lagrangian at the updated multipliers
         lam = s.lam + s.rho * c_y
-        v = s.y + s.gam / s.rho
+        v = y + s.gam / s.rho
         gam = s.rho * (v - jnp.clip(v, p.lower, p.upper))
         rho = jnp.where((viol > config.violation_decrease * s.violation) & (viol > config.tol_violation),
                         jnp.minimum(s.rho * config.penalty_growth, rho_max), s.rho)
@@ -723,14 +754,16 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
         out_of_iterations = it >= config.max_outer_iterations
         status = RESULTS.where(converged, RESULTS.successful,
                                RESULTS.where(finite, RESULTS.nonlinear_max_steps_reached, RESULTS.nonfinite))
-        record = jnp.stack([_cost(p, s.y) * ANGLE_SCALE**2, viol, s.rho, stat])
+        record = jnp.stack([_cost(p, y) * ANGLE_SCALE**2, viol, s.rho, stat])
         hist = s.hist.at[:, jnp.minimum(s.it, m - 1)].set(record)
-        s = eqx.tree_at(
-            lambda t: (t.lam, t.gam, t.rho, t.it, t.inner, t.violation, t.stationarity, t.status, t.stop, t.hist),
-            s, (lam, gam, rho, it, jnp.array(0), viol, stat, status, converged | ~finite | out_of_iterations, hist))
-        return s, _gradient(p, s.y, c_y, vjp, s.lam, s.gam, s.rho)
+        s = _Outer(lam, gam, rho, it, jnp.array(0), viol, stat, status, converged | ~finite | out_of_iterations, hist)
+        return s, _gradient(p, y, c_y, vjp, s.lam, s.gam, s.rho)
 
-    s, grad = jax.lax.cond(_inner_done(config, s, grad), update, lambda s: (s, grad), s)
+    # the branch carries only what the update changes: under `vmap` a `cond` selects every leaf it returns
+    outer = _Outer(s.lam, s.gam, s.rho, s.it, s.inner, s.violation, s.stationarity, s.status, s.stop, s.hist)
+    outer, grad = jax.lax.cond(_inner_done(config, s, grad), update, lambda o: (o, grad), outer)
+    s = eqx.tree_at(lambda t: (t.lam, t.gam, t.rho, t.it, t.inner, t.violation, t.stationarity, t.status, t.stop,
+                               t.hist), s, tuple(outer))
     step = ~s.stop & ~_inner_done(config, s, grad)
     fresh = jnp.any(jnp.stack([s.rho, s.mu]) != s.factor_key) | (s.factor_age >= config.refresh_every)
     return s, c_y, grad, id_vjp, step, fresh

@@ -33,12 +33,8 @@ class BlockCholesky(eqx.Module):
     """`F_k = W_{k+1} C_k` (forward substitution)."""
     backward: Float[Array, "Nm1 n n"]
     """`E_k = C_k W_k` (backward substitution)."""
-
-    @property
-    def positive_definite(self) -> Bool[Array, ""]:
-        """True when every Schur complement had a Cholesky factor (finite, positive pivots)."""
-        d = jnp.diagonal(self.inverse, axis1=-2, axis2=-1)
-        return jnp.all(jnp.isfinite(self.inverse)) & jnp.all(d > 0)
+    positive_definite: Bool[Array, ""]
+    """True when every Schur complement had a Cholesky factor (finite, positive pivots)."""
 
 
 def block_cholesky(diag: Float[Array, "N n n"], lower: Float[Array, "Nm1 n n"]) -> BlockCholesky:
@@ -54,7 +50,13 @@ def block_cholesky(diag: Float[Array, "N n n"], lower: Float[Array, "Nm1 n n"]) 
         return w_next, (w_next, w_next @ c_k, c_k @ w_k)
 
     _, (ws, fs, es) = jax.lax.scan(step, w0, (lower, diag[1:]))
-    return BlockCholesky(inverse=jnp.concatenate([w0[None], ws]), forward=fs, backward=es)
+    ws = jnp.concatenate([w0[None], ws])
+    return BlockCholesky(inverse=ws, forward=fs, backward=es, positive_definite=factorised(ws))
+
+
+def factorised(inverse: Float[Array, "N n n"]) -> Bool[Array, ""]:
+    """Every inverse Cholesky factor in `inverse` is finite with positive pivots."""
+    return jnp.all(jnp.isfinite(inverse)) & jnp.all(jnp.diagonal(inverse, axis1=-2, axis2=-1) > 0)
 
 
 def block_cholesky_solve(factor: BlockCholesky, rhs: Float[Array, "N n"]) -> Float[Array, "N n"]:

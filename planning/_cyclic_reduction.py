@@ -29,6 +29,8 @@ from jaxtyping import Array, Bool, Float
 
 from jaxrobot.internal import backend_kind, cholesky
 
+from ._block_tridiagonal import factorised
+
 
 class CyclicReduction(eqx.Module):
     """Factor of a block-tridiagonal SPD matrix by block cyclic reduction (module docstring): per
@@ -40,12 +42,8 @@ class CyclicReduction(eqx.Module):
     """`X_i = W_i M[i, i-1]` of the eliminated nodes of each level but the last."""
     right: tuple[Float[Array, "h n n"], ...]
     """`Y_i = W_i M[i, i+1]` (zero beyond the last node) of each level but the last."""
-
-    @property
-    def positive_definite(self) -> Bool[Array, ""]:
-        """True when every eliminated block had a Cholesky factor (finite, positive pivots)."""
-        return jnp.all(jnp.stack([jnp.all(jnp.isfinite(w)) & jnp.all(jnp.diagonal(w, axis1=-2, axis2=-1) > 0)
-                                  for w in self.inverse]))
+    positive_definite: Bool[Array, ""]
+    """True when every eliminated block had a Cholesky factor (finite, positive pivots)."""
 
 
 def _lower_inverse(low: Float[Array, "*b m m"]) -> Float[Array, "*b m m"]:
@@ -100,7 +98,8 @@ def cyclic_reduction(diag: Float[Array, "N n n"], lower: Float[Array, "Nm1 n n"]
         xs.append(x)
         ys.append(y)
     ws.append(_inverse_cholesky_factors(diag))
-    return CyclicReduction(inverse=tuple(ws), left=tuple(xs), right=tuple(ys))
+    return CyclicReduction(inverse=tuple(ws), left=tuple(xs), right=tuple(ys),
+                           positive_definite=jnp.all(jnp.stack([factorised(w) for w in ws])))
 
 
 def cyclic_reduction_solve(factor: CyclicReduction, rhs: Float[Array, "N n"]) -> Float[Array, "N n"]:
