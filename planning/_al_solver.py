@@ -482,9 +482,11 @@ REFRESH_SHARE = 2
 (the Gauss-Newton blocks and their factorisation, most of a pass's work); the others that need one wait a
 pass. Lanes need one at about every second or third step (`ALConfig.refresh_every`)."""
 
-RESTART_SHARE = 4
+RESTART_SHARE = 2
 """In a pass of a batched solve (`_pool`) at most `ceil(lanes / RESTART_SHARE)` lanes whose member stopped
-store its result and start their next member; the others wait a pass."""
+store its result and start their next member; the others wait a pass, as costly as a pass of a running lane.
+As many as make fresh factors (`REFRESH_SHARE`): the first members, staggered by the factors they wait for,
+then stop at most that many at once."""
 
 
 def _pool(begin, size: int, nu: Float[Array, " B"], lanes: int, shape: tuple[int, int], continuation: bool

@@ -172,7 +172,7 @@ def test_batched_solves_match_separate_solves(monkeypatch, lanes):
     """`jax.vmap(solve_ocp)` over three trajectories with cyclic reduction, advancing together in the lanes of
     one `while_loop` (`_pool`) from their cold starts: a lane each, or two lanes (`batch_capacity` 2), where
     the lane whose member is done first takes the third. Fewer lanes than need them make fresh factors and
-    restart in a pass (`REFRESH_SHARE`, `RESTART_SHARE`: 2 of 3 and 1, 1 of 2 and 1), so lanes wait; each
+    restart in a pass (`REFRESH_SHARE`, `RESTART_SHARE`: 2 of 3 and 2, 1 of 2 and 1), so lanes wait; each
     member equals its separate solve (status, iterations, objective)."""
     if lanes is not None:
         monkeypatch.setattr(al, "batch_capacity", lambda *_: lanes)
