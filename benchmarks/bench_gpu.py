@@ -10,8 +10,9 @@ GPU where JAX sees one), on the same seeded inputs:
   `"cyclic_reduction"`); one factor + solve of its block-tridiagonal system (30 x 30 blocks) by
   each; the crossover: `solve_ocp_sweep` over B nu in [1e-15, 1e-9] for each B of `--sizes` with the
   backend's defaults (the CPU: continuation chains on the cores with the scan; an accelerator: the
-  chains batched across the chains with cyclic reduction); with `--vmap`, `jax.vmap(solve_ocp)` over
-  16 nu.
+  chains batched across the chains with cyclic reduction); where B = 64 is among them, each of its members
+  solved alone with the backend's defaults, the slowest of them a row (a lower bound on the sweep that no
+  schedule of its members beats without continuation); with `--vmap`, `jax.vmap(solve_ocp)` over 16 nu.
 
 Times: first call (compile + run) and the best of `--repeat` further runs, `block_until_ready`.
 The first calls of the OCP rows run at once in threads (XLA compiles them in parallel; their
@@ -133,6 +134,8 @@ def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int |
         else:
             row["rate"] = ""
         _emit(out, row)
+    if 64 in sizes:
+        _emit(out, _slowest_member(robot, q, ts, warm, _sweep_nus(64), repeat))
     sweeps = [(extra["members"], fn, label) for key, label, fn, extra in work if key.startswith("sweep")]
     if trace and sweeps and jax.devices()[0].platform != "cpu":
         out["trace"] = _trace(*max(sweeps, key=lambda w: (w[0] == 64, w[0]))[1:])
@@ -140,6 +143,27 @@ def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int |
     out["capacity"] = {f"N = {k}": batch_capacity(k, 30, 80e9) for k in (2501, 10001)}
     out["capacity_here"] = batch_capacity(n, 30)
     out["concurrent"] = concurrent
+
+
+def _slowest_member(robot, q, ts, warm, nus: np.ndarray, repeat: int) -> dict:
+    """The row of the sweep's member that takes longest solved alone (`solve_ocp`, the backend's default solver,
+    from the sweep's start), the best of `repeat` calls after the first (nu is traced: one compilation serves
+    all): no schedule of the sweep's members finishes before that member does, unless a continuation makes it
+    cheaper. `first_s`: the first member's first call."""
+    import planning as pl
+
+    first, times, outer, converged = [], [], [], 0
+    for nu in nus:
+        res, first_s, best = _timing.timed(lambda nu=nu: pl.solve_ocp(robot, q, ts, nu=float(nu), warm_start=warm),
+                                           repeat)
+        first.append(first_s)
+        times.append(best)
+        outer.append(int(res.iterations))
+        converged += bool(res.converged)
+    k = int(np.argmax(times))
+    return {"work": f"solve_ocp alone, each nu of the {len(nus)}-nu sweep: the slowest", "first_s": first[0],
+            "run_s": times[k], "rate": f"nu = {nus[k]:.3g}, {outer[k]} outer iterations (all: {min(outer)} to "
+            f"{max(outer)})", "converged": f"{converged}/{len(nus)}"}
 
 
 def _kernel_kind(name: str) -> str:
@@ -289,6 +313,10 @@ def _goals(cpu: dict, acc: dict) -> list[str]:
     if sweep is not None:
         lines.append(f"- `solve_ocp_sweep` with 64 nu on the GPU: {sweep:.3g} s = {sweep / t:.1f} single GPU "
                      f"solves (goal <= 3); {sweep_cpu / sweep:.2f}x the CPU's sweep (goal >= 10x)")
+    slowest = _run(acc["rows"], "solve_ocp alone, each nu of the 64-nu sweep")
+    if slowest is not None:
+        lines.append(f"- the 64-nu sweep's slowest member solved alone on the GPU: {1e3 * slowest:.1f} ms = "
+                     f"{slowest / t:.1f} single GPU solves at nu = {NU:g}")
     return lines
 
 
