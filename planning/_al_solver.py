@@ -762,10 +762,9 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
         return s, _gradient(p, y, c_y, vjp, s.lam, s.gam, s.rho)
 
     # the branch carries only what the update changes: under `vmap` a `cond` selects every leaf it returns
-    outer = _Outer(s.lam, s.gam, s.rho, s.it, s.inner, s.violation, s.stationarity, s.status, s.stop, s.hist)
-    outer, grad = jax.lax.cond(_inner_done(config, s, grad), update, lambda o: (o, grad), outer)
-    s = eqx.tree_at(lambda t: (t.lam, t.gam, t.rho, t.it, t.inner, t.violation, t.stationarity, t.status, t.stop,
-                               t.hist), s, tuple(outer))
+    fields = lambda t: tuple(getattr(t, f) for f in _Outer._fields)  # noqa: E731
+    outer, grad = jax.lax.cond(_inner_done(config, s, grad), update, lambda o: (o, grad), _Outer(*fields(s)))
+    s = eqx.tree_at(fields, s, tuple(outer))
     step = ~s.stop & ~_inner_done(config, s, grad)
     fresh = jnp.any(jnp.stack([s.rho, s.mu]) != s.factor_key) | (s.factor_age >= config.refresh_every)
     return s, c_y, grad, id_vjp, step, fresh
