@@ -35,8 +35,6 @@ accumulated from those of the warm start so that their roundoff scales with the 
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -316,21 +314,6 @@ class _State(eqx.Module):
     """The last accepted step changed the set of active bounds."""
     forward: HalfStep
     """`half_step` at `y0 + y`."""
-
-
-class _Outer(NamedTuple):
-    """The fields of `_State` that a multiplier update (`_prepare`) changes."""
-
-    lam: Float[Array, "Nm1 4*n"]
-    gam: Float[Array, "N 5*n"]
-    rho: Float[Array, ""]
-    it: Int[Array, ""]
-    inner: Int[Array, ""]
-    violation: Float[Array, ""]
-    stationarity: Float[Array, ""]
-    status: RESULTS
-    stop: Bool[Array, ""]
-    hist: Float[Array, "4 M"]
 
 
 def history_length(config: ALConfig) -> int:
@@ -738,15 +721,17 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
     `mu` changed since the factor was made, or it is `refresh_every` steps old)."""
     m = s.hist.shape[-1]
     rho_max = config.penalty_max * _initial_penalty(p, config) / config.penalty_init
-    y = s.y
-    c_y, vjp, id_vjp = _linearise(p, y, s.forward)
-    grad = _gradient(p, y, c_y, vjp, s.lam, s.gam, s.rho)
+    c_y, vjp, id_vjp = _linearise(p, s.y, s.forward)
+    grad = _gradient(p, s.y, c_y, vjp, s.lam, s.gam, s.rho)
+    # what the update changes, the only outputs of its `cond` (under `vmap` it selects every leaf it returns)
+    changed = lambda t: (t.lam, t.gam, t.rho, t.it, t.inner, t.violation, t.stationarity, t.status, t.stop,  # noqa: E731
+                         t.hist)
 
-    def update(s: _Outer):
-        viol = jnp.maximum(jnp.max(jnp.abs(c_y)), _box_violation(p, y))
+    def update():
+        viol = jnp.maximum(jnp.max(jnp.abs(c_y)), _box_violation(p, s.y))
         stat = jnp.max(jnp.abs(grad))  # = gradient of the Lagrangian at the updated multipliers
         lam = s.lam + s.rho * c_y
-        v = y + s.gam / s.rho
+        v = s.y + s.gam / s.rho
         gam = s.rho * (v - jnp.clip(v, p.lower, p.upper))
         rho = jnp.where((viol > config.violation_decrease * s.violation) & (viol > config.tol_violation),
                         jnp.minimum(s.rho * config.penalty_growth, rho_max), s.rho)
@@ -756,15 +741,14 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
         out_of_iterations = it >= config.max_outer_iterations
         status = RESULTS.where(converged, RESULTS.successful,
                                RESULTS.where(finite, RESULTS.nonlinear_max_steps_reached, RESULTS.nonfinite))
-        record = jnp.stack([_cost(p, y) * ANGLE_SCALE**2, viol, s.rho, stat])
+        record = jnp.stack([_cost(p, s.y) * ANGLE_SCALE**2, viol, s.rho, stat])
         hist = s.hist.at[:, jnp.minimum(s.it, m - 1)].set(record)
-        s = _Outer(lam, gam, rho, it, jnp.array(0), viol, stat, status, converged | ~finite | out_of_iterations, hist)
-        return s, _gradient(p, y, c_y, vjp, s.lam, s.gam, s.rho)
+        new = eqx.tree_at(changed, s, (lam, gam, rho, it, jnp.array(0), viol, stat, status,
+                                       converged | ~finite | out_of_iterations, hist))
+        return changed(new), _gradient(p, new.y, c_y, vjp, new.lam, new.gam, new.rho)
 
-    # the branch carries only what the update changes: under `vmap` a `cond` selects every leaf it returns
-    fields = lambda t: tuple(getattr(t, f) for f in _Outer._fields)  # noqa: E731
-    outer, grad = jax.lax.cond(_inner_done(config, s, grad), update, lambda o: (o, grad), _Outer(*fields(s)))
-    s = eqx.tree_at(fields, s, tuple(outer))
+    values, grad = jax.lax.cond(_inner_done(config, s, grad), update, lambda: (changed(s), grad))
+    s = eqx.tree_at(changed, s, values)
     step = ~s.stop & ~_inner_done(config, s, grad)
     fresh = jnp.any(jnp.stack([s.rho, s.mu]) != s.factor_key) | (s.factor_age >= config.refresh_every)
     return s, c_y, grad, id_vjp, step, fresh
