@@ -135,7 +135,7 @@ def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int |
             row["rate"] = ""
         _emit(out, row)
     if 64 in sizes:
-        _emit(out, _slowest_member(robot, q, ts, warm, _sweep_nus(64), repeat))
+        _emit(out, _slowest_member(robot, q, ts, warm, _sweep_nus(64)))
     sweeps = [(extra["members"], fn, label) for key, label, fn, extra in work if key.startswith("sweep")]
     if trace and sweeps and jax.devices()[0].platform != "cpu":
         out["trace"] = _trace(*max(sweeps, key=lambda w: (w[0] == 64, w[0]))[1:])
@@ -145,17 +145,17 @@ def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int |
     out["concurrent"] = concurrent
 
 
-def _slowest_member(robot, q, ts, warm, nus: np.ndarray, repeat: int) -> dict:
+def _slowest_member(robot, q, ts, warm, nus: np.ndarray) -> dict:
     """The row of the sweep's member that takes longest solved alone (`solve_ocp`, the backend's default solver,
-    from the sweep's start), the best of `repeat` calls after the first (nu is traced: one compilation serves
-    all): no schedule of the sweep's members finishes before that member does, unless a continuation makes it
-    cheaper. `first_s`: the first member's first call."""
+    from the sweep's start), one call after the first of each member (nu is traced: one compilation serves all;
+    one call keeps the 64 members' solves near a minute on a 16-core CPU): no schedule of the sweep's members
+    finishes before that member does, unless a continuation makes it cheaper. `first_s`: the first member's
+    first call."""
     import planning as pl
 
     first, times, outer, converged = [], [], [], 0
     for nu in nus:
-        res, first_s, best = _timing.timed(lambda nu=nu: pl.solve_ocp(robot, q, ts, nu=float(nu), warm_start=warm),
-                                           repeat)
+        res, first_s, best = _timing.timed(lambda nu=nu: pl.solve_ocp(robot, q, ts, nu=float(nu), warm_start=warm), 1)
         first.append(first_s)
         times.append(best)
         outer.append(int(res.iterations))
