@@ -147,10 +147,9 @@ def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int |
 
 def _slowest_member(robot, q, ts, warm, nus: np.ndarray) -> dict:
     """The row of the sweep's member that takes longest solved alone (`solve_ocp`, the backend's default solver,
-    from the sweep's start), one call after the first of each member (nu is traced: one compilation serves all;
-    one call keeps the 64 members' solves near a minute on a 16-core CPU): no schedule of the sweep's members
-    finishes before that member does, unless a continuation makes it cheaper. `first_s`: the first member's
-    first call."""
+    from the sweep's start), one call after the first of each member (nu is traced: one compilation serves all):
+    no schedule of the sweep's members finishes before that member does, unless a continuation makes it
+    cheaper. `first_s`: the first member's first call."""
     import planning as pl
 
     first, times, outer, converged = [], [], [], 0
