@@ -29,7 +29,7 @@ import numpy as np
 import jaxrobot as jr
 import planning as pl
 from identification.diagnosis import diagnose_runs
-from identification.diagnosis._runs import _simulated, extend_command
+from identification.diagnosis._runs import simulate_run
 
 CASES = ("p0_clean", "p1_joint1_damping", "p2_motor_lag_j123", "p3_joint3_stiffness")
 NU = 1e-14
@@ -63,8 +63,7 @@ def diagnose_case(folder: Path, samples: int, tracker_noise: float | None = None
         command = jr.io.read_command_csv(folder / f"command_{name}.csv")
         run = jr.io.read_trajectory_csv(folder / f"run_{name}.csv")
         if truth is not None:
-            cmd = extend_command(command, run[0])
-            positions, motors = (np.asarray(a) for a in _simulated(truth, *(jnp.asarray(a) for a in cmd), marker))
+            positions, motors = simulate_run(truth, command, run[0], marker)
             noise = tracker_noise * np.random.default_rng(seed).standard_normal(positions.shape)
             run = (run[0], motors, positions + noise)
         return command, tuple(a[:samples] for a in run)

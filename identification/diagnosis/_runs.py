@@ -115,6 +115,15 @@ def _simulated(robot: jr.Robot, t, theta, thetad, thetadd, marker):
     return marker_pose(robot, q, marker)[0], motors
 
 
+def simulate_run(robot: jr.Robot, command, t_run: np.ndarray, marker) -> tuple[np.ndarray, np.ndarray]:
+    """The marker's positions (N, 3) [m] and the motor angles (N, n) [rad] of `command` `(t, theta, thetad,
+    thetadd)` simulated on `robot` at the run's times `t_run` (`extend_command`); `marker` (3,) [m] in the tool
+    frame."""
+    cmd = extend_command(command, t_run)
+    positions, motors = _simulated(robot, *(jnp.asarray(a) for a in cmd), jnp.asarray(marker, float))
+    return np.asarray(positions), np.asarray(motors)
+
+
 def compare_run(robot: jr.Robot, command, run, marker, noise) -> RunComparison:
     """Simulate `command` `(t, theta, thetad, thetadd)` (`jaxrobot.io.read_command_csv`) on `robot` and compare
     the marker's positions with the `run` `(t, theta, positions)` (`jaxrobot.io.read_trajectory_csv`).
@@ -126,9 +135,7 @@ def compare_run(robot: jr.Robot, command, run, marker, noise) -> RunComparison:
     if encoders.shape[1:] != (n,) or np.shape(command[1])[1:] != (n,):
         raise ValueError(f"run, command: expected motor angles (N, {n}) of the {n}-joint robot, found "
                          f"{encoders.shape} in the run and {np.shape(command[1])} in the command")
-    cmd = extend_command(command, t_run)
-    predicted, motors = (np.asarray(a) for a in _simulated(robot, *(jnp.asarray(a) for a in cmd),
-                                                            jnp.asarray(marker, float)))
+    predicted, motors = simulate_run(robot, command, t_run, marker)
     sigma, white = noise_model(noise, measured, "noise")
     residual = measured - predicted
     if white is not None:
