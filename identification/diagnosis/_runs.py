@@ -507,7 +507,8 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
     z, r, jac, exact = jnp.asarray(z0), r0, jac0, True
     chi2, lam = float(r @ r), 1e-3
     start = chi2 if chi2_before is None else chi2_before
-    tolerance = lambda chi2: 1e-9 * chi2 + 1e-6  # noqa: E731
+    # the end: exact fits at 1e-9 of the chi-square; ranking fits not finer than that nor than `RANKING_TOLERANCE`
+    tolerance = lambda chi2: max(1e-9 * chi2 + 1e-6, 0.0 if exact_end else RANKING_TOLERANCE)  # noqa: E731
     for _ in range(LM_STEPS):
         if exact and exact_end:
             predicted = jac @ np.linalg.lstsq(jac, r, rcond=None)[0]  # the Gauss-Newton step's decrease
@@ -515,14 +516,14 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
                 break
         a, g = jac.T @ jac, jac.T @ r
         step = np.linalg.solve(a + lam * np.diag(np.diag(a)), -g)
-        if not exact_end and chi2 - float(np.sum((r + jac @ step) ** 2)) < max(RANKING_TOLERANCE, tolerance(chi2)):
+        if not exact_end and chi2 - float(np.sum((r + jac @ step) ** 2)) < tolerance(chi2):
             break  # the step's predicted decrease is below the ranking's resolution
         z_try = z.at[idx].add(step)
         r_try = _evaluate(robot, z_try, ev, marker, substeps)[0]
         chi2_try = float(r_try @ r_try)
         secant = np.outer(r_try - r - jac @ step, step) / (step @ step) if np.isfinite(chi2_try) else 0.0
         if chi2_try < chi2:
-            done = chi2 - chi2_try < (tolerance(chi2) if exact_end else max(RANKING_TOLERANCE, tolerance(chi2)))
+            done = chi2 - chi2_try < tolerance(chi2)
             if done and exact_end and exact:  # z is the end, where the derivatives are exact
                 break
             z, r, chi2, lam = z_try, r_try, chi2_try, max(lam / 10.0, 1e-12)
