@@ -260,15 +260,23 @@ def worker(path: Path, states: list[int], robots: list[int], repeat: int, ocp: b
 
 
 def _run_worker(platforms: str | None, args) -> dict:
+    """The rows of one backend's worker process. An accelerator's worker that stops after saving rows gives
+    them marked `failed`, so that its CPU peer still runs; any other failure ends the run."""
     env = dict(os.environ)
     env.pop("JAX_PLATFORMS", None)
     if platforms:
         env["JAX_PLATFORMS"] = platforms
     with_out = args.rows.with_name(f"{args.rows.stem}_{platforms or 'default'}.json")  # kept if the run is cut
+    with_out.unlink(missing_ok=True)
     cmd = [sys.executable, __file__, "--worker", str(with_out), *_options(args)]
     print(f"$ {'JAX_PLATFORMS=' + platforms + ' ' if platforms else ''}{' '.join(cmd)}", file=sys.stderr, flush=True)
-    subprocess.run(cmd, env=env, check=True)
-    return json.loads(with_out.read_text())
+    status = subprocess.run(cmd, env=env).returncode
+    if status and (platforms == "cpu" or not with_out.exists()):
+        raise SystemExit(f"the {platforms or 'default'} backend's worker failed (exit status {status})")
+    data = json.loads(with_out.read_text())
+    if status:  # the accelerator's rows so far, stated as cut short; the CPU peer still runs
+        data["failed"] = f"its worker stopped with exit status {status} after the rows shown (its error: the run's log)"
+    return data
 
 
 def _options(args) -> list[str]:
@@ -375,6 +383,8 @@ def results_text(data: dict) -> str:
         lines += [f"| {c['work']} | {c['first_s']:.2f} | {c['run_s']:.3g} | {c['rate']} | {c.get('converged', '')} |"
                   for c in cpu["rows"]]
         lines.append("")
+    if acc is not None and "failed" in acc:
+        lines += [f"The accelerator's run is incomplete: {acc['failed']}.", ""]
     if acc is not None and "trace" in acc:
         tr = acc["trace"]
         lines += [f"Device time of one call of `{tr['work']}` on the accelerator by kernel kind (JAX's profiler, "
