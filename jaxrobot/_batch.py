@@ -17,6 +17,17 @@ def backend_kind() -> str:
     return "cpu" if jax.default_backend() == "cpu" else "accelerator"
 
 
+UNROLL_LINKS = False
+"""Unroll the loops over a robot's links (the frame chain, Newton-Euler) in the programs traced from now on:
+XLA then fuses across the links (fewer, larger kernels on an accelerator), but the programs are larger and
+compile longer. Off on every backend; `benchmarks/bench_link_unroll.py` measures both."""
+
+
+def link_unroll() -> bool:
+    """`unroll` of the `lax.scan`s over a robot's links (`UNROLL_LINKS` when the program is traced)."""
+    return UNROLL_LINKS
+
+
 def unbatched(robot: Robot, q: Float[Array, "*b n"], fn: Callable, *args):
     """Map `fn(robot, q, *args)`, written for one robot and one `q` of shape (n,), over the
     broadcast leading axes of `robot`, `q` and `args` (each `args[i]` has `q`'s core rank 1)."""

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from ._batch import backend_kind, unbatched
+from ._batch import backend_kind, link_unroll, unbatched
 from ._elasticity import elastic_deflection, elastic_torque
 from ._gear import flank_output, gear_output, gear_ratio, motor_angle
 from ._kinematics import (
@@ -190,7 +190,7 @@ def _rnea_t(robot, q_t, qd_t, qdd_t, with_gravity: bool):
         return (w_i, dw_i, acc_i), (m_i * acc_c, moment)
 
     xs = (r_loc, p_loc, qd_t[:, None], qdd_t[:, None], robot.com, robot.inertia, robot.mass[:, None])
-    _, (force, moment) = jax.lax.scan(forward, (zero, zero, zero + acc0), xs)
+    _, (force, moment) = jax.lax.scan(forward, (zero, zero, zero + acc0), xs, unroll=link_unroll())
 
     def backward(carry, x):
         f_next, m_next, r_next = carry  # link i+1 in frame i+1; r_next = R_{i+1}
@@ -202,7 +202,7 @@ def _rnea_t(robot, q_t, qd_t, qdd_t, with_gravity: bool):
     eye = jnp.broadcast_to(jnp.eye(3)[..., None], (3,) + shape)
     com = jnp.broadcast_to(robot.com, force.shape[:1] + jnp.broadcast_shapes(robot.com.shape[1:], shape))
     _, tau = jax.lax.scan(backward, (zero, zero, eye), (force, moment, com, _mtv(r_loc, p_loc), r_loc),
-                          reverse=True)
+                          reverse=True, unroll=link_unroll())
     return (tau,)
 
 

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._batch import unbatched
+from ._batch import link_unroll, unbatched
 from ._robot import Robot
 from ._rotations import rpy
 
@@ -164,7 +164,8 @@ def frame_chain(base_r: Mat, base_p: Vec, theta, a, d, alpha, beta, stacked: boo
         new = (sm(rot), sv(pos))
         return new, (*new, sv(x1))
 
-    end, (rots, origins, x1) = jax.lax.scan(step, (sm(frame0[0]), sv(frame0[1])), (c, s, a, d, stack_mat(xy, 1)))
+    end, (rots, origins, x1) = jax.lax.scan(step, (sm(frame0[0]), sv(frame0[1])), (c, s, a, d, stack_mat(xy, 1)),
+                                            unroll=link_unroll())
     end = (um(end[0]), uv(end[1]))
     if stacked:
         rots, origins, x1 = mat(rots, 1), vec(origins, 1), vec(x1, 1)

@@ -567,12 +567,12 @@ def _pool(begin, size: int, nu: Float[Array, " B"], lanes: int, shape: tuple[int
         idx = jnp.argsort(~need, stable=True)[:refreshes]  # the lanes that need a factor first, each once
         served = need[idx]
 
-        def refactor(factor):
-            new = jax.vmap(_refactor)(take(t["p"], idx), take(t["config"], idx), take(s, idx),
-                                      take(id_vjp, idx))
-            return put(factor, idx, new, served)
+        def refactor():
+            return jax.vmap(_refactor)(take(t["p"], idx), take(t["config"], idx), take(s, idx), take(id_vjp, idx))
 
-        factor = jax.lax.cond(jnp.any(need), refactor, lambda f: f, s.factor)
+        # the lanes' factors are updated outside the `cond`, in place (a `cond` would return a copy of all lanes)
+        new = jax.lax.cond(jnp.any(need), refactor, lambda: jax.tree.map(lambda a: jnp.zeros_like(a[idx]), s.factor))
+        factor = put(s.factor, idx, new, served)
         go = run & step & (~fresh | jnp.zeros(lanes, bool).at[idx].set(served))
         stepped = jax.vmap(_lm_step)(t["p"], t["config"], s, c_y, grad, factor, fresh)
         pick = lambda mask, a, b: jnp.where(mask.reshape(-1, *[1] * (a.ndim - 1)), a, b)  # noqa: E731

@@ -84,3 +84,23 @@ def test_planning_dynamics_shapes_and_batching_of_robots():
     np.testing.assert_allclose(d[1], jr.mass_matrix(TRUTH, q[1]), rtol=1e-14)
     x = jnp.concatenate([q, q, 80 * q, q], -1)
     assert jr.planning_dynamics(fleet, x, jnp.ones((2, 6))).shape == (2, 24)
+
+
+def test_unrolled_link_loops_equal_the_loops(monkeypatch):
+    """`UNROLL_LINKS` (the benchmark's variant) removes the loops over the links from the program and changes no
+    number: frames, inverse dynamics and its reverse pass as with the loops, to round-off."""
+    import jaxrobot._batch
+
+    q, qd, qdd = (jnp.asarray(x) for x in random_states(20, seed=11))
+
+    def evaluate():  # a new `jit` traces under the current setting
+        fn = jax.jit(lambda q, qd, qdd: (jr.link_frames(TRUTH, q), jr.inverse_dynamics(TRUTH, q, qd, qdd),
+                                         jax.grad(lambda q: jnp.sum(jr.inverse_dynamics(TRUTH, q, qd, qdd)))(q)))
+        return "while" in fn.lower(q, qd, qdd).as_text(), fn(q, qd, qdd)
+
+    looped, loops = evaluate()
+    monkeypatch.setattr(jaxrobot._batch, "UNROLL_LINKS", True)
+    still_looped, unrolled = evaluate()
+    assert looped and not still_looped
+    for a, b in zip(loops, unrolled, strict=True):
+        np.testing.assert_allclose(b, a, rtol=1e-13, atol=1e-12 * float(jnp.max(jnp.abs(a))))
