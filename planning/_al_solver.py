@@ -570,7 +570,7 @@ def _pool(begin, size: int, nu: Float[Array, " B"], lanes: int, shape: tuple[int
         def refactor():
             return jax.vmap(_refactor)(take(t["p"], idx), take(t["config"], idx), take(s, idx), take(id_vjp, idx))
 
-        # the lanes' factors are updated outside the `cond`, in place (a `cond` would return a copy of all lanes)
+        # the lanes' new factors are put in outside the `cond`, where the scatter can update the loop's buffers
         new = jax.lax.cond(jnp.any(need), refactor, lambda: jax.tree.map(lambda a: jnp.zeros_like(a[idx]), s.factor))
         factor = put(s.factor, idx, new, served)
         go = run & step & (~fresh | jnp.zeros(lanes, bool).at[idx].set(served))
