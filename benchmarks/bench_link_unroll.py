@@ -16,7 +16,7 @@ Objectives are compared between variants.
 
 Run: `python benchmarks/bench_link_unroll.py [--variants gpu:loops gpu:unrolled cpu:loops] [--repeat 3]`
 (`--nodes K`: a short move of K nodes instead of the line, for a quick check);
-writes `benchmarks/results_link_unroll.md` (`--out`) and the rows as JSON beside it.
+writes `benchmarks/results_link_unroll.md` (`--out`).
 """
 
 from __future__ import annotations
@@ -24,8 +24,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -126,10 +128,7 @@ def main() -> None:
         out = worker(variant, int(rank), int(count), Path(folder), args.repeat, args.nodes)
         (Path(folder) / f"rows.{rank}.json").write_text(json.dumps(out))
         return
-    folder = args.out.with_name(args.out.stem + "_work")
-    folder.mkdir(exist_ok=True)
-    for f in folder.iterdir():
-        f.unlink()
+    folder = Path(tempfile.mkdtemp(prefix="link_unroll_"))  # the workers' marks and rows
     procs = []
     for rank, v in enumerate(args.variants):
         env = dict(os.environ, JAX_PLATFORMS=v.split(":")[0].replace("gpu", "cuda"), JAXROBOT_CACHE_DIR="off",
@@ -142,10 +141,10 @@ def main() -> None:
     if failed:
         raise SystemExit(f"the workers of {failed} failed")
     workers = [json.loads((folder / f"rows.{r}.json").read_text()) for r in range(len(args.variants))]
+    shutil.rmtree(folder)
     data = {"info": _timing.run_info("the same work with the links' loops kept (`loops`) and unrolled "
                                      "(`unrolled`), on each backend named, same inputs, same run"),
             "workers": workers, "repeat": args.repeat}
-    args.out.with_suffix(".json").write_text(json.dumps(data, indent=1))
     args.out.write_text(results_text(data))
     print(args.out.read_text())
 
