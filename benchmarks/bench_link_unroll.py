@@ -42,6 +42,7 @@ WAIT_S = 900
 
 
 def _wait(path: Path) -> None:
+    """Return once `path` exists (another worker's mark)."""
     start = time.monotonic()
     while not path.exists():
         if time.monotonic() - start > WAIT_S:
@@ -109,7 +110,7 @@ def results_text(data: dict) -> str:
             a, b = np.asarray(ref["rows"][key]["objective"]), np.asarray(w["rows"][key]["objective"])
             rel = float(np.max(np.abs(a - b) / np.maximum(np.abs(a), 1e-300)))
             lines.append(f"- {w['variant']}, {key}: largest relative difference {rel:.1e}")
-    return "\n".join(lines + [""] + data.get("notes", [])) + "\n"
+    return "\n".join(lines) + "\n"
 
 
 def main() -> None:
@@ -121,7 +122,8 @@ def main() -> None:
     ap.add_argument("--worker", nargs=4, default=None, help=argparse.SUPPRESS)  # variant rank count folder
     args = ap.parse_args()
     for v in args.variants:
-        if v.split(":")[0] not in ("cpu", "gpu") or v.split(":")[-1] not in ("loops", "unrolled") or ":" not in v:
+        backend, _, kind = v.partition(":")
+        if backend not in ("cpu", "gpu") or kind not in ("loops", "unrolled"):
             raise SystemExit(f"--variants: expected BACKEND:loops|unrolled with BACKEND cpu or gpu, found {v!r}")
     if args.worker is not None:
         variant, rank, count, folder = args.worker
