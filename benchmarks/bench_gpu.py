@@ -337,8 +337,8 @@ reduction; with the scan, the factor and the solve are sequential over the N nod
 members in ceil(B / 4) lanes of one `while_loop` (`planning._al_solver._pool`): a lane whose member is
 done takes the next nu, warm-started from the lane's last two members; the loop's passes are at least
 those of the slowest lane. A pass makes the Gauss-Newton blocks and their factor (most of its work on
-the CPU) only for the lanes that need a fresh one, at most half of them, gathered into a smaller batch; the other lanes
-that need one wait a pass. The other parts of a pass (linearisation, solve with the factor, trial point)
+the CPU) only for the lanes that need a fresh one, at most half of them, gathered into a smaller batch;
+the other lanes that need one wait a pass. The other parts of a pass (linearisation, solve with the factor, trial point)
 run for every lane, also those masked."""
 
 
