@@ -44,6 +44,12 @@ def timed(fn, repeat: int = 1):
     return out, first, best
 
 
+def largest_relative_difference(a, b) -> float:
+    """The largest `|a - b| / |a|` over the entries of two results of the same work (`a` the reference)."""
+    a, b = np.asarray(a), np.asarray(b)
+    return float(np.max(np.abs(a - b) / np.maximum(np.abs(a), 1e-300)))
+
+
 def cpu_model() -> str:
     """The CPU's model name (`/proc/cpuinfo`), else what `platform` knows."""
     try:

@@ -297,8 +297,7 @@ def _agreement(cpu: dict, acc: dict) -> list[str]:
         b = acc["check"].get(key)
         if b is None:
             continue
-        a, b = np.asarray(a), np.asarray(b)
-        rel = float(np.max(np.abs(a - b) / np.maximum(np.abs(a), 1e-300)))
+        rel = _timing.largest_relative_difference(a, b)
         lines.append(f"- `{key}`: largest relative difference between the backends {rel:.1e}")
     return lines
 

@@ -107,8 +107,7 @@ def results_text(data: dict) -> str:
     ref = data["workers"][0]
     for w in data["workers"][1:]:
         for key in ref["rows"]:
-            a, b = np.asarray(ref["rows"][key]["objective"]), np.asarray(w["rows"][key]["objective"])
-            rel = float(np.max(np.abs(a - b) / np.maximum(np.abs(a), 1e-300)))
+            rel = _timing.largest_relative_difference(ref["rows"][key]["objective"], w["rows"][key]["objective"])
             lines.append(f"- {w['variant']}, {key}: largest relative difference {rel:.1e}")
     return "\n".join(lines) + "\n"
 
