@@ -46,7 +46,8 @@ SCIPY_TOL = 1e-3
 minimise the same cost, so the optima agree to far below their standard errors."""
 
 # Candidate set of the identifiability analysis: the thesis' model (mDH d, a, alpha per joint,
-# the Hayati beta3, joint offsets = its Delta q, wrist ratios) plus base_z.
+# the Hayati angles beta2 and beta3 of the parallel axes 2-3, joint offsets = its Delta q, wrist ratios)
+# plus base_z.
 CANDIDATES = kinematic_parameters(jr.racer7()) + ("base_z",)
 
 
