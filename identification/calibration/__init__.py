@@ -3,7 +3,9 @@
 from jaxrobot.internal import check_public as _check_public
 from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
+from ..core._identifiability import DroppedParameter as DroppedParameter
 from ..core._identifiability import IdentifiabilityResult as IdentifiabilityResult
+from ..core._identifiability import ParameterCheck as ParameterCheck
 from ..core._identifiability import default_parameters as default_parameters
 from ..core._identifiability import identifiability as identifiability
 from ..core._identifiability import kinematic_parameters as kinematic_parameters

@@ -36,21 +36,29 @@ from ..core._forward import (
     position_jacobian,
     rippled_joints,
 )
-from ..core._identifiability import analyse, default_parameters
-from ..core._noise import noise_model
+from ..core._identifiability import (
+    ParameterCheck,
+    analyse,
+    check_parameters,
+    default_analysis,
+    default_parameters,
+    kinematic_parameters,
+)
+from ..core._noise import ALPHA, noise_model, noise_test
 from ..core._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection
 from ..core._pose_checks import check_pose_units
-from ..core._pose_selection import default_marker
+from ..core._pose_selection import default_marker, pose_jacobians
 from ..core._robust import Outlier
 from ._selection import ParameterSelection, select_parameters
 
 DEFAULT_PARAMETERS = THESIS_PARAMETERS + ("offset1", "offset2", "offset4", "offset5", "offset6", "d1",
-                                          "d6", "a6")
+                                          "d6", "a6", "beta2")
 """The Racer-7's default set, what `default_parameters` computes for it from marker positions:
 the thesis' 17 (Table 3.5) plus what else the identifiability analysis finds identifiable
-from marker positions with the bench's marker offset (25): offsets 1, 2, 4, 5, 6 (offset 3 is
+from marker positions with the bench's marker offset (26): offsets 1, 2, 4, 5, 6 (offset 3 is
 `beta3 - a3 d4`), d1 (the base frame is known), d6 and a6 (the marker sits off the joint-6
-axis; `alpha6` is then a combination of d6, a6 and offset6)."""
+axis; `alpha6` is then a combination of d6, a6 and offset6), and `beta2`, the tilt of axis 3 out of the
+plane of the parallel axes 2 and 3 (`kinematic_parameters`)."""
 
 DEFAULT_PRIOR_STD = {"a": 1e-3, "d": 1e-3, "alpha": 1e-3, "beta": 1e-3, "offset": 2e-3, "u0": 1e-3,
                      "tool_xyz": 1e-3, "tool_rpy": 1e-3, "base_xyz": 1e-3, "base_rpy": 1e-3}
@@ -313,10 +321,27 @@ class CalibrationResult:
     """`"lm"` or `"map"`."""
     prior_std: np.ndarray | None
     """(m,) the MAP priors (None for `method="lm"`)."""
+    chi2: float
+    """Chi-square of the tracker's residuals at the solution against the stated noise, `sum r^2 / sigma^2` over
+    the poses within the outlier bound (all for `loss="l2"`; whitened for a `TrackerNoise`; orientation rows in
+    units of their own noise)."""
+    dof: int
+    """Its degrees of freedom: the residuals of those poses less the free parameters."""
+    p_value: float
+    """Probability that the tracker's noise alone exceeds `chi2` (`consistent` above `ALPHA`)."""
     selection: ParameterSelection | None = None
     """Which parameters of the default set were kept, which set aside, and by what criterion (`_selection`);
     None where none was selected (`parameters` given, `method="map"`, `all_parameters=True`, or a full-set
     fit that did not converge)."""
+    parameter_check: ParameterCheck | None = None
+    """How the default set came about (`method="lm"` without `parameters`): the candidates of the chain, those
+    left out by the geometry and those dropped on these poses by rank or conditioning, with the reasons
+    (`identification.core._identifiability.check_parameters`); None where `parameters` were given or for MAP."""
+
+    @property
+    def consistent(self) -> bool:
+        """Whether the residuals agree with the stated tracker noise (the chi-square test at `ALPHA`)."""
+        return bool(self.p_value > ALPHA)
 
     @property
     def converged(self) -> bool:
@@ -464,6 +489,7 @@ def calibrate(
             () if validation.ccw is None else (validation.ccw,))
     marker = jnp.asarray(default_marker() if marker is None else marker, float)
     select = parameters is None and method == "lm" and not all_parameters
+    checked = parameters is None and method == "lm"
     if parameters is None:
         _check_array(motor_angles, (robot.n_joints,), "motor_angles", "rad")
         _check_array(positions, (3,), "positions", "m")
@@ -500,6 +526,11 @@ def calibrate(
     th, defl = th_all[:k], defl_all[:k]
     ccw_id = ccw if np.ndim(ccw) == 0 else ccw_all[:k]
     rows = 3 if rot is None else 6
+    check_out = None
+    if checked:
+        check_out = check_default(robot, params.names, th, defl, marker, rot is not None, white, float(w_r), s_p,
+                                  prior_std, ccw_id)
+        params = ParameterMap(check_out.kept)
 
     def fit_set(params):  # the (robust) fit of one parameter set: estimate, residuals (K, rows) [m], pose weights
         weight = None if prior is None else jnp.asarray(s_p / RESIDUAL_UNIT * np.asarray(params.scales(robot)) / prior)
@@ -546,6 +577,7 @@ def calibrate(
     err0 = position_errors(robot, th_all, p_all, defl_all, marker, ccw_all)
     err1 = position_errors(calibrated, th_all, p_all, defl_all, marker, ccw_all)
     val = validation is not None
+    chi2, dof, p_value = noise_test(resid, s_p, len(out.value), pose_w > 0)
     return CalibrationResult(
         robot=calibrated, names=() if params is None else params.names, value=out.value,
         start=np.zeros(0) if params is None else np.asarray(params.get(robot)),
@@ -554,7 +586,29 @@ def calibrate(
         weights=pose_w, outliers=robust.outliers(resid, s_p), outlier_bound=s_p * robust.outlier_bound(rows),
         errors_before=err0[:k], errors_after=err1[:k],
         validation_before=err0[k:] if val else None, validation_after=err1[k:] if val else None,
-        beyond_limits=tuple(beyond), method=method, prior_std=prior, selection=selection)
+        beyond_limits=tuple(beyond), method=method, prior_std=prior, chi2=float(chi2), dof=int(dof),
+        p_value=float(p_value), selection=selection, parameter_check=check_out)
+
+
+def check_default(
+    robot: jr.Robot, names: Sequence[str], theta, deflection, marker, orientation: bool, whiten, weight_r: float,
+    noise: float, prior_std: dict | None = None, ccw=False,
+) -> ParameterCheck:
+    """`check_parameters` of the default set `names` on a calibration's own poses (motor angles `theta` (K, n),
+    their gravity `deflection`), the Jacobian of every candidate (`kinematic_parameters`) at the start robot with
+    the rows of the fit (position rows times `whiten` (K, 3, 3) where given, orientation rows times `weight_r`),
+    each parameter against its tolerance prior (`prior_stds`); the geometry stage's left-out candidates are
+    reported with it."""
+    candidates = kinematic_parameters(robot)
+    q = np.asarray(jr.gear_output(robot, jnp.asarray(theta), ccw) + jnp.asarray(deflection))
+    blocks = pose_jacobians(robot, ParameterMap(candidates), q, marker, orientation)
+    b = blocks[..., [candidates.index(n) for n in names]]
+    pos = b[:, :3] if whiten is None else np.einsum("kij,kjm->kim", np.asarray(whiten), b[:, :3])
+    rows = np.concatenate([pos, weight_r * b[:, 3:]], 1) if orientation else pos
+    params = ParameterMap(names)
+    return check_parameters(rows.reshape(-1, len(names)), names, noise, prior_stds(robot, params, prior_std),
+                            len(q), analysis=default_analysis(robot, orientation=orientation, marker=marker),
+                            candidates=candidates)
 
 
 def map_parameters(parameters: Sequence[str], n_joints: int) -> tuple[str, ...]:

@@ -31,11 +31,11 @@ from jaxrobot.measurement import Poses, pose_arrays, rest_link_angles
 from ..core import _robust as robust
 from ..core._batched_lm import LMConfig, batched_lm, covariance, map_chunks
 from ..core._forward import analytic_names, joint_angle_model, position_jacobian, rippled_joints
-from ..core._identifiability import default_parameters
+from ..core._identifiability import ParameterCheck, default_parameters
 from ..core._noise import ALPHA, noise_model, noise_test
 from ..core._parameters import ParameterMap
 from ..core._pose_selection import default_marker
-from ._calibrate import RESIDUAL_UNIT, ParameterEstimate, _check_array, _residual_fn
+from ._calibrate import RESIDUAL_UNIT, ParameterEstimate, _check_array, _deflection, _residual_fn, check_default
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,8 +77,8 @@ class FleetResult:
     outliers: tuple[tuple[robust.Outlier, ...], ...]
     """Per robot, its poses whose residual norm exceeds the outlier bound (`calibrate`'s)."""
     chi2: np.ndarray
-    """(R,) `sum r^2 / sigma^2` of the residuals of the poses the robust loss kept (all for `l2`) against
-    the stated noise `sigma` (`identification.core._noise.noise_test`, as in `diagnose`)."""
+    """(R,) the tracker's chi-square: `sum r^2 / sigma^2` of the residuals of the poses the robust loss kept (all
+    for `l2`) against the stated noise `sigma` (`identification.core._noise.noise_test`, as in `diagnose`)."""
     dof: np.ndarray
     """(R,) its degrees of freedom, 3 K' - m over the K' poses kept."""
     p_value: np.ndarray
@@ -86,6 +86,10 @@ class FleetResult:
     inconsistent_below: float
     """`identification.core._noise.ALPHA / R`: the p-value at or below which a robot is `inconsistent`, so
     that noise alone marks any robot of a clean fleet with probability at most `ALPHA` (Bonferroni)."""
+    parameter_check: ParameterCheck | None = None
+    """How the default set came about (without `parameters`): the chain's candidates, those left out by the
+    geometry and those dropped by rank or conditioning on the first robot's poses, with the reasons (as in
+    `calibrate`); None where `parameters` were given."""
 
 
 def fleet_mesh(devices: Sequence | None = None) -> Mesh:
@@ -327,9 +331,17 @@ def calibrate_fleet(
     if ccw.shape != theta.shape or ccw.dtype != bool:
         raise ValueError(f"ccw: expected a bool array of shape {theta.shape} (robots, poses, joints), found "
                          f"{ccw.dtype} {ccw.shape}")
+    checked = None
     if parameters is None:
         first = robots if np.ndim(robots.a) == 1 else jax.tree.map(lambda x: x[0], robots)
         parameters = default_parameters(first, marker=marker)
+        sigma0, white0 = noise_model(jr.read_description(None)["sensors"]["tracker_position_noise_m"]
+                                     if position_noise is None else position_noise, pos[0], "position_noise")
+        mk = jnp.asarray(default_marker() if marker is None else marker, float)
+        th0 = jnp.asarray(theta[0])
+        checked = check_default(first, parameters, th0, _deflection(first, th0, jnp.asarray(ccw[0])), mk, False,
+                                white0, 1.0, sigma0, None, jnp.asarray(ccw[0]))
+        parameters = checked.kept
     params = ParameterMap(parameters)
     if 3 * k < len(params):
         raise ValueError(f"motor_angles: {k} poses per robot give {3 * k} equations for {len(params)} "
@@ -389,4 +401,4 @@ def calibrate_fleet(
         iterations=out.steps, rank=out.rank, rms_m=np.sqrt(np.mean(resid**2, -1)), residuals=resid,
         names=params.names, n_devices=n_dev, loss=loss, noise_estimate=noise,
         outliers=tuple(robust.outliers(r.reshape(-1, 3), sigma) for r in resid), chi2=chi2, dof=dof,
-        p_value=p_value, inconsistent_below=level)
+        p_value=p_value, inconsistent_below=level, parameter_check=checked)

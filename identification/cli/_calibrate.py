@@ -55,7 +55,13 @@ def summary(report: dict, poses: Path | str = "") -> dict:
     - `parameter_selection`: None, or `{"criterion": str, "candidates": [str], "kept": [str], "set_aside":
       [{"parameter": str, "delta_bic": float}], "n_residuals": int}` (`ParameterSelection`);
     - `outliers`: `[{"file": str, "line": int (header = line 1), "row": int (0-based data row), "residual_mm":
-      float, "sigmas": float (in units of the stated noise)}]`."""
+      float, "sigmas": float (in units of the stated noise)}]`;
+    - `tracker_chi2`: `{"chi2": float, "dof": int, "chi2_per_dof": float, "p_value": float, "consistent": bool}`,
+      the tracker's residuals at the solution against the stated noise (`CalibrationResult.chi2`);
+    - `parameter_check`: None (parameters given, MAP), or `{"candidates", "kept": [str], "rank": int, "condition":
+      float, "n_poses": int, "dropped": [{"parameter": str, "reason": str, "stage": str, "combination": {str:
+      float}, "std": float or None, "tolerance": float or None}]}`: why the default set left out what it did
+      (`ParameterCheck`)."""
     keep = ("value", "delta", "std", "prior_std", "data_fraction", "determined_by")
     out = {
         "parameters": {n: {k: p[k] for k in keep if k in p} for n, p in report["parameters"].items()},
@@ -66,6 +72,8 @@ def summary(report: dict, poses: Path | str = "") -> dict:
         "noise_estimate_mm": 1e3 * report["noise_estimate_m"],
         "outlier_bound_mm": 1e3 * report["outlier_bound_m"],
         "parameter_selection": report["parameter_selection"],
+        "tracker_chi2": report["tracker_chi2"],
+        "parameter_check": report["parameter_check"],
         "outliers": [{"file": str(poses), "line": o["row"] + 2, "row": o["row"], "residual_mm": 1e3 * o["residual_m"],
                       "sigmas": o["sigmas"]} for o in report["outliers"]],
     }
@@ -76,10 +84,16 @@ def summary(report: dict, poses: Path | str = "") -> dict:
 
 
 def _echo_report(report: dict, echo, truth: dict | None = None, poses: Path | str = "") -> None:
-    from ._calibration_report import error_table, outlier_table, parameter_table
+    from ._calibration_report import error_table, outlier_table, parameter_check_lines, parameter_table
 
     echo(f"LM: {report['status']}, {report['iterations']} iterations, loss {report['loss']}, noise estimate "
          f"{1e3 * report['noise_estimate_m']:.4f} mm per axis")
+    c = report["tracker_chi2"]
+    echo(f"tracker chi2/dof {c['chi2_per_dof']:.3f} over {c['dof']} dof (p = {c['p_value']:.3g}): "
+         + ("consistent with the stated noise" if c["consistent"] else "beyond the stated noise (inconsistent)"))
+    if report["parameter_check"] is not None:
+        for line in parameter_check_lines(report["parameter_check"]):
+            echo(line)
     sel = report["parameter_selection"]
     if sel is not None:
         aside = ", ".join(a["parameter"] for a in sel["set_aside"]) or "none"

@@ -122,8 +122,9 @@ def _failure_messages(res, files: list[str], sigma: float) -> dict[str, str]:
     out = {}
     for r, (f, name) in enumerate(zip(files, jr.status_name(res.status))):
         if name == "inconsistent":
-            out[f] = (f"{f}: residuals beyond the stated tracker noise ({1e3 * sigma:.4g} mm per axis): chi2/dof "
-                      f"{res.chi2[r] / max(res.dof[r], 1):.3g} over {int(res.dof[r])} dof, p = {res.p_value[r]:.2g} "
+            out[f] = (f"{f}: residuals beyond the stated tracker noise ({1e3 * sigma:.4g} mm per axis): tracker "
+                      f"chi2/dof {res.chi2[r] / max(res.dof[r], 1):.3g} over {int(res.dof[r])} dof, "
+                      f"p = {res.p_value[r]:.2g} "
                       f"<= {res.inconsistent_below:.2g}; residual RMS {1e3 * res.rms_m[r]:.4g} mm")
         elif name != "successful":
             out[f] = f"{f}: {jr.status_message(res.status)[r]}"
@@ -143,8 +144,11 @@ def run(args, echo) -> dict:
       "sigmas": float}]`, poses beyond the outlier bound;
     - `fleet_outliers`: `[{"file": str, "quantities": [str]}]`, robots whose residual RMS ("rms") or parameters
       lie far from the fleet's median (`_report.fleet_outliers`);
+    - `parameter_check`: None (parameters given, or no robot calibrated), or why the default set left out what it
+      did, as in `calibrate --json` (`parameter_check_report` of `FleetResult.parameter_check`);
     - `seconds`: `{"bench", "read", "calibrate": float}` [s] of the stages that ran; `peak_memory_mb` (float
-      [MiB], this process's peak resident memory)."""
+      [MiB], this process's peak resident memory). The table's `chi2_per_dof` and `p_value` are the tracker's
+      chi-square test (the only rows of a pose file)."""
     import jaxrobot as jr
     from jaxrobot.internal import initialize_processes
 
@@ -157,7 +161,7 @@ def run(args, echo) -> dict:
     from ..calibration._fleet_files import check_fleet_files
     from ..core._noise import TrackerNoise, noise_model
     from ..core._pose_selection import default_marker
-    from ._calibration_report import fleet_outliers, plot_fleet
+    from ._calibration_report import fleet_outliers, parameter_check_lines, parameter_check_report, plot_fleet
 
     pid = jax.process_index()
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
@@ -216,6 +220,9 @@ def run(args, echo) -> dict:
                              f"{res.iterations.max()}; residual rms median {1e3 * np.median(res.rms_m):.4f} mm; "
                              f"{seconds['calibrate']:.1f} s")
         echo(summary_line)
+        if res is not None and res.parameter_check is not None:
+            for line in parameter_check_lines(parameter_check_report(res.parameter_check)):
+                echo(line)
         for x in failures:
             left_out = f", check {x['check']}; left out" if x["check"] else ""
             echo(f"warning: {x['message']} ({x['status']}{left_out})")
@@ -239,6 +246,8 @@ def run(args, echo) -> dict:
                    for f, found in zip(good, res.outliers) for o in found],
                "fleet_outliers": [{"file": f, "quantities": [q for q, m in zip(quantities, mk) if m]}
                                   for f, mk in zip(good, marked) if mk.any()],
+               "parameter_check": None if res is None or res.parameter_check is None
+               else parameter_check_report(res.parameter_check),
                "peak_memory_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
     failed = len(failures)
     if failed:

@@ -15,6 +15,7 @@ import numpy as np
 import jaxrobot as jr
 
 from ..calibration._calibrate import DATA_FRACTION, CalibrationResult
+from ..core._identifiability import ParameterCheck
 from ..core._parameters import parse_name, unit
 
 
@@ -31,8 +32,10 @@ def calibration_report(res: CalibrationResult) -> dict:
     data) `validation` {before_m, after_m: {max, min, mean, std}}, `status`, `converged`,
     `iterations`, `noise_estimate_m`, `residual_rms_m`, `n_poses`, `beyond_limits`, `method`, `loss`,
     `outliers` [{row (0-based data row), residual_m, sigmas}], `outlier_bound_m`, `parameter_selection`
-    (None, or {criterion, candidates, kept, set_aside [{parameter, delta_bic}], n_residuals}: `selection`) and
-    `errors_m` (the errors per pose behind the statistics)."""
+    (None, or {criterion, candidates, kept, set_aside [{parameter, delta_bic}], n_residuals}: `selection`),
+    `tracker_chi2` ({chi2, dof, chi2_per_dof, p_value, consistent}: the tracker's residuals against the stated
+    noise), `parameter_check` (None, or `parameter_check_report` of `parameter_check`) and `errors_m` (the errors
+    per pose behind the statistics)."""
     params = {n: {"value": float(res.value[i]), "delta": float(res.delta[i]), "std": float(res.std[i])}
               for i, n in enumerate(res.names)}
     if res.prior_std is not None:
@@ -56,6 +59,9 @@ def calibration_report(res: CalibrationResult) -> dict:
         "outliers": [{"row": o.row, "residual_m": o.residual, "sigmas": o.sigmas} for o in res.outliers],
         "outlier_bound_m": res.outlier_bound,
         "parameter_selection": None,
+        "tracker_chi2": {"chi2": res.chi2, "dof": res.dof, "chi2_per_dof": res.chi2 / max(res.dof, 1),
+                         "p_value": res.p_value, "consistent": res.consistent},
+        "parameter_check": None if res.parameter_check is None else parameter_check_report(res.parameter_check),
     }
     sel = res.selection
     if sel is not None:
@@ -68,6 +74,36 @@ def calibration_report(res: CalibrationResult) -> dict:
                                 "after_m": error_stats(res.validation_after), "n_poses": len(res.validation_before)}
         report["errors_m"]["validation"] = {"before": res.validation_before, "after": res.validation_after}
     return report
+
+
+def parameter_check_report(check: ParameterCheck) -> dict:
+    """A `ParameterCheck` as plain numbers: `{candidates, kept: [str], rank: int, condition: float, n_poses: int,
+    dropped: [{parameter, reason, stage, combination: {name: coefficient}, std, tolerance}]}` (`std` and
+    `tolerance` None unless ill-conditioned)."""
+    return {"candidates": list(check.candidates), "kept": list(check.kept), "rank": check.rank,
+            "condition": check.condition, "n_poses": check.n_poses,
+            "dropped": [{"parameter": d.name, "reason": d.reason, "stage": d.stage, "combination": dict(d.combination),
+                         "std": None if np.isnan(d.std) else d.std,
+                         "tolerance": None if np.isnan(d.tolerance) else d.tolerance} for d in check.dropped]}
+
+
+def parameter_check_lines(check: dict) -> list[str]:
+    """The text of a `parameter_check_report`: the set, its rank and conditioning, one line per dropped parameter
+    with its reason (`a ~ +1*b`: its column is that combination of the kept ones')."""
+    lines = [f"default parameters: {len(check['kept'])} of the chain's {len(check['candidates'])} candidates; on "
+             f"the {check['n_poses']} poses rank {check['rank']}, condition number {check['condition']:.3g} "
+             "(column-scaled)"]
+    for d in check["dropped"]:
+        where = "by the geometry" if d["stage"] == "geometry" else "on these poses"
+        if d["reason"] == "redundant":
+            why = "redundant with " + " ".join(f"{c:+.3g}*{n}" for n, c in d["combination"].items())
+        elif d["reason"] == "ill-conditioned":
+            why = (f"ill-conditioned: standard error {d['std']:.3g} {unit(d['parameter'])} > its tolerance "
+                   f"{d['tolerance']:.3g}")
+        else:
+            why = "no effect on the marker"
+        lines.append(f"  dropped {d['parameter']} ({where}): {why}")
+    return lines
 
 
 def outlier_table(outliers: list[dict], bound: float, file: str = "") -> str:

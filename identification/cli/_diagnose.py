@@ -94,10 +94,11 @@ def _diagnose_runs(args, echo) -> dict:
     rows_val = sum(3 * len(p[1][0]) for p in val) + (3 * len(poses[1]) if poses else 0)
 
     def progress(row) -> None:
-        echo(f"step {row.step}: {row.effect:<36} chi2/dof {row.chi2 / row.dof:.4f} (p = {row.p_value:.3g}"
+        echo(f"step {row.step}: {row.effect:<36} tracker chi2/dof {row.chi2 / row.dof:.4f} (p = {row.p_value:.3g}"
              + (f"; poses' chi2 {row.chi2_poses:.1f}" if poses else "")
              + (f"; encoders' chi2 {row.chi2_encoders:.4g}" if counts is not None else "")
-             + f"), BIC {row.bic:.1f}, validation chi2/dof {row.chi2_validation / rows_val:.4f}")
+             + f"), BIC {row.bic:.1f}, validation tracker chi2/dof {row.chi2_validation / rows_val:.4f}"
+             + (f", encoders' chi2 {row.chi2_validation_encoders:.4g}" if counts is not None else ""))
 
     res = diagnose_runs(robot, train, val, marker, noise, max_steps=args.max_steps,
                         encoder_quantum=0.0 if counts is None else 2 * np.pi / counts, on_event=progress, poses=poses,

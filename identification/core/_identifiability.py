@@ -25,18 +25,33 @@ PARALLEL_TOL = 1e-2
 as-built robot deviates by ~1e-3 rad; the DH common normal is ill-defined long before parallel)."""
 
 
-def kinematic_parameters(robot: jr.Robot) -> tuple[str, ...]:
-    """The parameters of the thesis' model for any robot (Table 3.5): d, a, alpha per joint, a
-    Hayati angle `beta_{j+1}` after each pair of nominally parallel axes `j, j+1` (the thesis'
-    numbering: `beta3` for the Racer-7's joints 2 and 3), the joint offsets (its `Delta q`) and the
-    basic ratios of the gears without ripple (those with ripple are identified on the gear bench)."""
+def parallel_pairs(robot: jr.Robot) -> tuple[int, ...]:
+    """The joints `j` (1-based) whose axis is nominally parallel to that of joint `j + 1`: `alpha_j`
+    within `PARALLEL_TOL` of 0 or pi (the axis of joint `j + 1` is the z axis of frame `j`)."""
     n = robot.n_joints
     alpha = np.asarray(robot.alpha, float).reshape(-1, n)[0]
+    return tuple(j for j in range(1, n) if abs(np.sin(alpha[j - 1])) < PARALLEL_TOL)
+
+
+def kinematic_parameters(robot: jr.Robot) -> tuple[str, ...]:
+    """The parameters of the thesis' model for any robot (Table 3.5): d, a, alpha per joint, the Hayati
+    angles of every pair of nominally parallel axes `j, j + 1` (`parallel_pairs`), the joint offsets (its
+    `Delta q`) and the basic ratios of the gears without ripple (those with ripple are identified on the
+    gear bench).
+
+    A pair `j, j + 1` gets two Hayati candidates: `beta_j`, the rotation about `y_j` after `alpha_j ~ 0`,
+    i.e. the tilt of axis `j + 1` out of the plane of the common normal, which no DH parameter represents
+    (`d_j` and `d_{j+1}` only shift along the parallel axes); and `beta_{j+1}`, the thesis' numbering
+    (`beta3` for the Racer-7's joints 2 and 3), a rotation about `y_{j+1}`, which where `alpha_{j+1}` is
+    +-pi/2 is parallel to axis `j + 1` and therefore a combination of `offset_{j+1}` and lengths (exactly
+    `offset_{j+1}` where `a_{j+1} = 0`). The identifiability analysis keeps of each what is independent."""
+    n = robot.n_joints
     rippled = np.any(np.asarray(robot.cw.orders).reshape(-1, n, np.shape(robot.cw.orders)[-1]) > 0, (0, 2)) | np.any(
         np.asarray(robot.ccw.orders).reshape(-1, n, np.shape(robot.ccw.orders)[-1]) > 0, (0, 2))
-    parallel = [j + 1 for j in range(1, n) if abs(np.sin(alpha[j - 1])) < PARALLEL_TOL]
+    pairs = parallel_pairs(robot)
+    beta = sorted({j for p in pairs for j in (p, p + 1)})
     return (tuple(f"{f}{j}" for j in range(1, n + 1) for f in ("d", "a", "alpha"))
-            + tuple(f"beta{j}" for j in parallel)
+            + tuple(f"beta{j}" for j in beta)
             + tuple(f"offset{j}" for j in range(1, n + 1))
             + tuple(f"u0_{j}" for j in range(1, n + 1) if not rippled[j - 1]))
 
@@ -203,24 +218,138 @@ def default_parameters(
     robot: jr.Robot, *, orientation: bool = False, marker=None, n_poses: int = DEFAULT_POSES, seed: int = 0
 ) -> tuple[str, ...]:
     """The default free parameters of a calibration: the identifiable subset of
-    `kinematic_parameters(robot)` for marker positions (and orientations) at random feasible
-    poses, in the pivot order of `THESIS_PREFERENCE` followed by every joint offset (for the
-    Racer-7 from positions: the 25 of `DEFAULT_PARAMETERS`)."""
-    marker = None if marker is None else tuple(np.asarray(marker, float).tolist())
-    key = (tuple(np.asarray(x).tobytes() for x in jax.tree.leaves(robot)), orientation, marker, n_poses, seed)
-    if key not in _DEFAULTS:
-        _DEFAULTS[key] = _default_parameters(robot, orientation, marker, n_poses, seed)
-    return _DEFAULTS[key]
-
-
-_DEFAULTS: dict[tuple, tuple[str, ...]] = {}
-"""`default_parameters` per robot (its array bytes) and settings: computed once per process."""
-
-
-def _default_parameters(robot, orientation, marker, n_poses, seed) -> tuple[str, ...]:
+    `kinematic_parameters(robot)` (Hayati angles of every pair of parallel axes included) for marker
+    positions (and orientations) at random feasible poses, in the pivot order of `THESIS_PREFERENCE`
+    followed by every joint offset and then the candidates' order (for the Racer-7 from positions:
+    `DEFAULT_PARAMETERS`). `default_analysis` says why the others are left out."""
+    res = default_analysis(robot, orientation=orientation, marker=marker, n_poses=n_poses, seed=seed)
     prefer = THESIS_PREFERENCE + tuple(f"offset{j}" for j in range(1, robot.n_joints + 1))
-    res = identifiability(robot, orientation=orientation, n_poses=n_poses, seed=seed, marker=marker, prefer=prefer)
     rank: dict[str, int] = {}
     for k, name in enumerate(prefer + res.names):
         rank.setdefault(name, k)
     return tuple(sorted(res.identifiable, key=rank.__getitem__))
+
+
+def default_analysis(
+    robot: jr.Robot, *, orientation: bool = False, marker=None, n_poses: int = DEFAULT_POSES, seed: int = 0
+) -> IdentifiabilityResult:
+    """The identifiability analysis behind `default_parameters` (computed once per robot and settings): its
+    `unidentifiable` candidates and their `dependencies` are the parameters the default set leaves out."""
+    marker = None if marker is None else tuple(np.asarray(marker, float).tolist())
+    key = (tuple(np.asarray(x).tobytes() for x in jax.tree.leaves(robot)), orientation, marker, n_poses, seed)
+    if key not in _DEFAULTS:
+        prefer = THESIS_PREFERENCE + tuple(f"offset{j}" for j in range(1, robot.n_joints + 1))
+        _DEFAULTS[key] = identifiability(robot, orientation=orientation, n_poses=n_poses, seed=seed, marker=marker,
+                                         prefer=prefer)
+    return _DEFAULTS[key]
+
+
+_DEFAULTS: dict[tuple, IdentifiabilityResult] = {}
+"""`default_analysis` per robot (its array bytes) and settings: computed once per process."""
+
+
+@dataclasses.dataclass(frozen=True)
+class DroppedParameter:
+    """A candidate parameter that a calibration leaves at its start value, and why."""
+
+    name: str
+    """The parameter (names of `ParameterMap`)."""
+    reason: str
+    """`"redundant"`: its Jacobian column is a combination of kept parameters' (`combination`); `"no effect"`:
+    its column is zero; `"ill-conditioned"`: independent, but its standard error on the poses exceeds its
+    `tolerance`."""
+    stage: str
+    """`"geometry"`: left out of `default_parameters` by the analysis at random feasible poses (`default_analysis`);
+    `"poses"`: by the check on the calibration's own poses (`check_parameters`)."""
+    combination: dict[str, float]
+    """`kept name -> coefficient` (physical units): its column equals this combination of the kept parameters'
+    (the direction the data cannot see); empty unless `"redundant"`."""
+    std: float
+    """Its standard error at the stated noise on the poses with the kept parameters (units of the parameter);
+    NaN unless `"ill-conditioned"`."""
+    tolerance: float
+    """The manufacturing tolerance its standard error is compared with (units of the parameter); NaN unless
+    `"ill-conditioned"`."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ParameterCheck:
+    """How a calibration's default parameter set came about: the candidates, those kept and those dropped."""
+
+    candidates: tuple[str, ...]
+    """`kinematic_parameters(robot)`: every parameter the model has for this chain."""
+    kept: tuple[str, ...]
+    """The parameters fitted (before the backward elimination of `calibrate`)."""
+    dropped: tuple[DroppedParameter, ...]
+    """The others, each with its reason; in the order of `candidates`."""
+    rank: int
+    """Numerical rank of the column-scaled Jacobian of the default set on the calibration's poses."""
+    condition: float
+    """Condition number of the column-scaled Jacobian of `kept` on the calibration's poses."""
+    n_poses: int
+    """The poses checked."""
+
+
+DROP_TOLERANCE = 1.0
+"""A parameter is ill-conditioned on a pose set when its standard error there exceeds this many times its
+tolerance: the data then remove less than half of its tolerance variance (`DATA_FRACTION` of the MAP calibration),
+so a fit of it follows the noise more than the robot."""
+
+
+def check_parameters(
+    jacobian: np.ndarray,
+    names: Sequence[str],
+    noise: float,
+    tolerance: np.ndarray,
+    n_poses: int,
+    *,
+    analysis: IdentifiabilityResult | None = None,
+    candidates: Sequence[str] | None = None,
+    rtol: float = DEFAULT_RTOL,
+) -> ParameterCheck:
+    """Check a default parameter set on the calibration's own poses: by rank, then by conditioning.
+
+    `jacobian` (rows, m): residual [m] per unit of each parameter of `names` at the start robot (rows whitened to
+    the per-axis `noise` [m], the tracker's std); `tolerance` (m,): each parameter's manufacturing tolerance in its
+    units (`DEFAULT_PRIOR_STD`); `n_poses` the poses behind the rows. Columns that are combinations of earlier
+    ones (pivoted QR in the order of `names`) are dropped as redundant; then, while a kept parameter's standard
+    error `noise sqrt((J^T J)^-1_ii)` exceeds `DROP_TOLERANCE` times its tolerance, the one with the largest
+    ratio is dropped as ill-conditioned.
+    `analysis` (`default_analysis`), `candidates`: the geometry stage, whose left-out candidates are reported too.
+    """
+    names = tuple(names)
+    tolerance = np.asarray(tolerance, float)
+    res = analyse(np.asarray(jacobian, float)[None], names, rtol, prefer=names)
+    dropped = {}
+    if analysis is not None:
+        for n in analysis.unidentifiable:
+            dep = analysis.dependencies[n]
+            dropped[n] = DroppedParameter(n, "redundant" if dep else "no effect", "geometry", dep, float("nan"),
+                                          float("nan"))
+    for n in res.unidentifiable:
+        dep = res.dependencies[n]
+        dropped[n] = DroppedParameter(n, "redundant" if dep else "no effect", "poses", dep, float("nan"),
+                                      float("nan"))
+    kept = [n for n in names if n in res.identifiable]
+    j = np.asarray(jacobian, float)
+    while kept:
+        cols = [names.index(n) for n in kept]
+        jk = j[:, cols]
+        scale = np.linalg.norm(jk, axis=0)
+        gram = (jk / scale).T @ (jk / scale)
+        std = noise * np.sqrt(np.diag(np.linalg.inv(gram))) / scale
+        ratio = std / tolerance[cols]
+        worst = int(np.argmax(ratio))
+        if ratio[worst] <= DROP_TOLERANCE:
+            break
+        n = kept.pop(worst)
+        dropped[n] = DroppedParameter(n, "ill-conditioned", "poses", {}, float(std[worst]),
+                                      float(tolerance[cols[worst]]))
+    cols = [names.index(n) for n in kept]
+    js = j[:, cols] / np.linalg.norm(j[:, cols], axis=0) if cols else np.zeros((1, 1))
+    s = np.linalg.svd(js, compute_uv=False)
+    order = tuple(candidates) if candidates is not None else names
+    order = order + tuple(n for n in names + tuple(dropped) if n not in order)
+    return ParameterCheck(
+        candidates=order, kept=tuple(kept), dropped=tuple(dropped[n] for n in order if n in dropped),
+        rank=res.rank, condition=float(s[0] / s[-1]) if s[-1] > 0 else float("inf"), n_poses=n_poses)

@@ -149,9 +149,9 @@ class DirectionDependentRipple(Effect):
 
 
 GEOMETRY = ("a1", "a2", "a3", "a4", "a5", "a6", "d1", "d2", "d4", "d5", "d6",
-            "alpha1", "alpha2", "alpha3", "alpha4", "alpha5", "beta3")
+            "alpha1", "alpha2", "alpha3", "alpha4", "alpha5", "beta2", "beta3")
 """The mDH parameters of the Racer-7 identifiable from marker positions (with the joint offsets:
-the 25 of `identification.DEFAULT_PARAMETERS` less offsets and wrist ratios)."""
+the 26 of `identification.DEFAULT_PARAMETERS` less offsets and wrist ratios)."""
 
 
 def geometry_names(robot: jr.Robot) -> tuple[str, ...]:

@@ -258,7 +258,7 @@ class RunStep:
     bic: float
     """`chi2 + chi2_encoders + m ln(residuals)`, over the rows of the runs (encoders included) and the poses."""
     chi2_validation: float
-    """Chi-square of the validation runs (encoders included) and poses (nothing fitted)."""
+    """Chi-square of the validation runs' tracker positions and poses (nothing fitted)."""
     chi2_poses: float
     """The part of `chi2` from the training poses (0 without poses)."""
     chi2_encoders: float = 0.0
@@ -267,6 +267,8 @@ class RunStep:
     encoder_departure: float = 0.0
     """[rad] the largest departure of a training run's encoder from the model's motor angle (the test of the
     encoders: at most `ENCODER_LAG_RAD` or two quanta)."""
+    chi2_validation_encoders: float = 0.0
+    """Chi-square of the validation runs' encoder angles, as `chi2_encoders` (0 where they are not rows)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -664,10 +666,11 @@ def diagnose_runs(
         res = _evaluate(base, z, ev, marker, substeps)[0]
         chi2, dof, p_value = noise_test(res[~ev.encoder_mask].reshape(-1, 3), 1.0, m)
         chi2_e = float(np.sum(res[ev.encoder_mask] ** 2))
-        chi2_v = float(np.sum(_evaluate(base, z, ev_val, marker, substeps)[0] ** 2))
+        res_v = _evaluate(base, z, ev_val, marker, substeps)[0]
+        chi2_v, chi2_ve = (float(np.sum(res_v[mask] ** 2)) for mask in (~ev_val.encoder_mask, ev_val.encoder_mask))
         chi2_p = float(np.sum(res[res.size - (0 if ev.poses is None else ev.poses[3].size):] ** 2))
         out = RunStep(step, label, float(chi2), int(dof), float(p_value), float(chi2) + chi2_e + m * ln_n, chi2_v,
-                      chi2_p, chi2_e, float(np.max(departure)))
+                      chi2_p, chi2_e, float(np.max(departure)), chi2_ve)
         if on_event is not None:
             on_event(out)
         departs = departure > threshold
@@ -731,7 +734,8 @@ def diagnose_runs(
             verdict = f"not explained: the best candidate ({effect.label}) does not lower BIC by {MIN_BIC_GAIN}"
             break
         new = row(len(added) + 1, effect.label, z_new, m_new)
-        if not new.chi2_validation < last.chi2_validation:
+        validation = lambda r: r.chi2_validation + r.chi2_validation_encoders  # noqa: E731  (tracker and encoders)
+        if not validation(new) < validation(last):
             verdict = f"not explained: {effect.label} does not lower the validation runs' chi-square"
             break
         z, added, cov = z_new, added + [effect], cov_new

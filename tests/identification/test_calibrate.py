@@ -24,6 +24,7 @@ from identification.core._identifiability import (
     default_parameters,
     kinematic_parameters,
 )
+from identification.core._noise import ALPHA
 from identification.core._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters
 from identification.core._pose_selection import (
     default_marker,
@@ -46,7 +47,8 @@ SCIPY_TOL = 1e-3
 minimise the same cost, so the optima agree to far below their standard errors."""
 
 # Candidate set of the identifiability analysis: the thesis' model (mDH d, a, alpha per joint,
-# the Hayati beta3, joint offsets = its Delta q, wrist ratios) plus base_z.
+# the Hayati angles beta2 and beta3 of the parallel axes 2-3, joint offsets = its Delta q, wrist ratios)
+# plus base_z.
 CANDIDATES = kinematic_parameters(jr.racer7()) + ("base_z",)
 
 
@@ -348,7 +350,16 @@ def test_bad_input(robots, bench, tmp_path):
     fixed[:, 5] = 0.4  # joint 6 never moves: its gear ratio and offset cannot be told apart
     fixed_pos = jb.measure_poses(robots[1], fixed, seed=3).positions  # consistent data (else: unit check)
     with pytest.raises(ValueError, match=r"rank deficient.*u0_6 ~ .*offset6|rank deficient.*offset6 ~ .*u0_6"):
-        calibrate(nominal, fixed, fixed_pos)
+        calibrate(nominal, fixed, fixed_pos, parameters=DEFAULT_PARAMETERS)  # a set given is fitted as given
+    # the default set is checked on the poses: with joint 6 fixed, what only joint 6's motion separates from the
+    # fixed transform after joint 5 goes, each named with the kept parameters it is a combination of
+    res = calibrate(nominal, fixed, fixed_pos, all_parameters=True)
+    check = res.parameter_check
+    on_poses = {d.name: d for d in check.dropped if d.stage == "poses"}
+    assert set(on_poses) == {"d6", "a6", "offset5", "offset6", "u0_6"}
+    assert all(d.reason == "redundant" and set(d.combination) <= set(check.kept) for d in on_poses.values())
+    assert check.rank == len(check.kept) == len(DEFAULT_PARAMETERS) - 5 and res.names == check.kept
+    assert res.converged and res.consistent
     # pose files: NaN rows by row number, missing columns by name; extra columns ignored
     path = tmp_path / "poses.csv"
     write_poses(path, theta, pos)
@@ -439,7 +450,17 @@ def test_cli_json_schema(bench, tmp_path, capsys):
     assert re.search(r"^\[calibrate 2/3\] calibration: \d+ s elapsed, ETA \d+ s$", captured.err, re.M)
     assert re.search(r"^\[calibrate 3/3\] report: \d+ s elapsed, done$", captured.err, re.M)
     assert set(summary) == {"parameters", "identification", "validation", "loss", "noise_estimate_mm",
-                            "outlier_bound_mm", "outliers", "parameter_selection"}
+                            "outlier_bound_mm", "outliers", "parameter_selection", "tracker_chi2", "parameter_check"}
+    chi2 = summary["tracker_chi2"]
+    assert chi2["consistent"] == (chi2["p_value"] > ALPHA) and chi2["dof"] == 3 * len(ident.positions) - len(
+        summary["parameters"])
+    check = summary["parameter_check"]
+    assert check["kept"] == list(DEFAULT_PARAMETERS) and check["rank"] == len(DEFAULT_PARAMETERS)
+    assert {d["parameter"]: (d["reason"], d["stage"]) for d in check["dropped"]} == {
+        n: ("redundant", "geometry") for n in ("d3", "alpha6", "offset3")}
+    assert re.search(r"^tracker chi2/dof \d+\.\d+ over \d+ dof \(p = ", captured.err, re.M)
+    assert "default parameters: 26 of the chain's 29 candidates" in captured.err
+    assert "dropped d3 (by the geometry): redundant with +1*d2" in captured.err
     assert summary["loss"] == "cauchy" and summary["outliers"] == []
     sel = summary["parameter_selection"]
     aside = [a["parameter"] for a in sel["set_aside"]]

@@ -145,6 +145,10 @@ def test_clean_robots_as_the_fleet_without_the_faulty_ones(fleet_runs):
     code, summary, clean, err, _ = runs["clean"]
     assert code == 0, err
     assert summary["status"] == {"successful": CLEAN}
+    check = summary["parameter_check"]  # the default set, checked on the first robot's poses
+    assert check["kept"] == summary["parameters"] and check["rank"] == len(summary["parameters"])
+    assert [d["parameter"] for d in check["dropped"]] == ["d3", "alpha6", "offset3"]
+    assert "default parameters: 26 of the chain's 29 candidates; on the 20 poses rank 26" in err
     spoiled = runs["spoiled"][2]
     names = summary["parameters"]
     for i in range(CLEAN):

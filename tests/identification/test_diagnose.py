@@ -161,7 +161,7 @@ def test_two_hidden_effects_found_in_order_of_size(bench):
 
 
 def test_two_joint_effects_are_preferred_to_a_geometry_block(bench):
-    """Joint 2 compliance x1.2 and a joint 5 offset of 6e-4 rad: the 17-parameter `geometry` block fits the
+    """Joint 2 compliance x1.2 and a joint 5 offset of 6e-4 rad: the 18-parameter `geometry` block fits the
     training poses better (BIC) than either effect alone, the two together better still, so both are
     named and no block is added."""
     truth = _at(_at(AS_BUILT, "c", 1, AS_BUILT.c[1] * 1.2), "offset", 4, AS_BUILT.offset[4] + 6e-4)

@@ -124,6 +124,9 @@ def test_encoders_are_rows_in_units_of_their_quantisation():
     # `compare_run` integrates with 10 RK4 substeps per sample, the fits with 4: ~1e-8 of the chi-square apart here
     np.testing.assert_allclose(row.chi2, compare_run(start, cmd, train, marker, noise).chi2, rtol=1e-7)
     np.testing.assert_allclose(row.bic, row.chi2 + row.chi2_encoders, rtol=1e-12)
+    # the validation run's tracker and encoders apart: the tracker's chi-square is `compare_run`'s
+    np.testing.assert_allclose(row.chi2_validation_encoders, np.sum(((val[1] - cmd[1]) / sigma_e) ** 2), rtol=1e-9)
+    np.testing.assert_allclose(row.chi2_validation, compare_run(start, cmd, val, marker, noise).chi2, rtol=1e-7)
     assert [(e.effect.kind, e.effect.joint) for e in res.estimates] == [("lag", 0)], res.verdict
     est = res.estimates[0]
     assert abs(est.value - lag) < 3 * est.std, est
