@@ -62,7 +62,7 @@ def plans() -> dict[str, pl.PlanResult]:
     return plans
 
 
-def home(out: Path) -> None:
+def home(out: Path, work: Path) -> None:
     """The headline: the tool position error on the as-built robot of the line planned on each model."""
     curves = {}
     for label, res in plans().items():
@@ -129,7 +129,8 @@ def _compare(out: Path, work: Path, plan: pl.PlanResult) -> None:
 
 
 PAGES = {"index.md": home, "cli.md": cli}
-"""Page of the site -> the function writing its figures."""
+"""Page of the site -> the function writing its figures, `function(out, work)` (`work`: a scratch folder); the
+command-line page's are also shown on the pages on `diagnose`, the closed loop and scaling out."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -144,8 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as work:
         for page in args.pages:
             start = time.perf_counter()
-            function = PAGES[page]
-            function(args.out) if function is home else function(args.out, Path(work))
+            PAGES[page](args.out, Path(work))
             print(f"figures of {page}: {time.perf_counter() - start:.0f} s", flush=True)
     print(f"figures: {len(list(args.out.glob('*.png')))} in {time.perf_counter() - total:.0f} s", flush=True)
     return 0
