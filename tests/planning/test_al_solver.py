@@ -3,6 +3,7 @@ recorded histories, and the roundoff floor of the stationarity against the round
 measured on the solver's own defects."""
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -86,3 +87,19 @@ def test_roundoff_floor_is_the_defects_roundoff_through_their_jacobian():
     columns[:, j:2 * j] += w
     reference = 1e6 * np.max(columns * np.asarray(p.free)[:, :3 * j])
     assert floor == pytest.approx(reference, rel=0.1)
+
+
+def test_infeasible_move_ends_stalled():
+    """A 0.3 mrad move of 50 ms (`test_ocp`'s) under motor acceleration bounds of 0.05 rad/s^2 per link, a
+    tenth of what the move needs: the violation stops falling at the largest penalty, and the solve says
+    `stalled` within the iteration limit instead of running into it."""
+    robot = jr.racer7()
+    s = jnp.linspace(0.0, 1.0, 51)[:, None]
+    q_d = (jnp.array([0.1, 0.2, -1.4, 0.1, 1.4, 0.1]) + 3e-4 * s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3)
+           * jnp.array([1.0, -1.0, 1.0, 1.0, -1.0, 1.0]))
+    slow = eqx.tree_at(lambda r: r.qdd_max, robot, jnp.full(6, 0.05))
+    sol = pl.solve_ocp(slow, q_d, 1e-3, 1e-14)
+    assert jr.status_name(sol.status) == "stalled", jr.status_name(sol.status)
+    assert int(sol.iterations) < pl.ALConfig().max_outer_iterations
+    assert float(sol.max_constraint_violation) > 1e3 * pl.ALConfig().tol_violation
+    assert "infeasible" in jr.status_message(sol.status)
