@@ -90,14 +90,14 @@ def test_roundoff_floor_is_the_defects_roundoff_through_their_jacobian():
 
 
 def test_infeasible_move_ends_stalled():
-    """A 0.3 mrad move of 50 ms (`test_ocp`'s) under motor acceleration bounds of 0.05 rad/s^2 per link, a
-    tenth of what the move needs: the violation stops falling at the largest penalty, and the solve says
-    `stalled` within the iteration limit instead of running into it."""
+    """A 0.3 mrad move of 50 ms (`test_ocp`'s, 0.9 rad/s^2 at its peak) under motor acceleration bounds of
+    0.3 rad/s^2 per link: the violation stops falling at the largest penalty, and the solve says `stalled`
+    within the iteration limit instead of running into it."""
     robot = jr.racer7()
     s = jnp.linspace(0.0, 1.0, 51)[:, None]
     q_d = (jnp.array([0.1, 0.2, -1.4, 0.1, 1.4, 0.1]) + 3e-4 * s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3)
            * jnp.array([1.0, -1.0, 1.0, 1.0, -1.0, 1.0]))
-    slow = eqx.tree_at(lambda r: r.qdd_max, robot, jnp.full(6, 0.05))
+    slow = eqx.tree_at(lambda r: r.qdd_max, robot, jnp.full(6, 0.3))
     sol = pl.solve_ocp(slow, q_d, 1e-3, 1e-14)
     assert jr.status_name(sol.status) == "stalled", jr.status_name(sol.status)
     assert int(sol.iterations) < pl.ALConfig().max_outer_iterations
