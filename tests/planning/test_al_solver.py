@@ -48,15 +48,20 @@ def test_stall_with_constraints_met_and_stationarity_at_its_floor():
 
 
 def test_stall_with_constraints_not_met_at_the_largest_penalty():
-    """The violation not falling below 3.5e-3 in three outer iterations at the largest `rho` (a history of
-    an infeasible move): stalled, while the objective grows with the multipliers. Below the largest penalty
-    (it can still grow), or with the violation still falling, however slowly, not."""
+    """The violation not falling below 3.5e-3 in three outer iterations at the largest `rho` while the
+    objective rises with the multipliers (a history of an infeasible move): stalled. Below the largest
+    penalty (it can still grow), with the violation still falling, however slowly, or with an objective that
+    settles (the Racer-7's spiral at nu = 1e-10, which converges two outer iterations later), not."""
     obj = [5.06e-4, 5.07e-4, 8.63e-4, 9.16e-4, 1.05e-3]
     stuck = [3.5e-3, 3.5e-3, 9.73e-3, 9.03e-3, 5.5e-3]
     stat = [6.1e2, 1.2e3, 9.8e4, 7.1e3, 5.5e4]
     assert _stalled(obj, stuck, [RHO_MAX] * 5, stat)
     assert not _stalled(obj, stuck, [1e5, 1e5, 1e6, 1e6, RHO_MAX], stat)
     assert not _stalled(obj, [1.1e-3, 1.05e-3, 1.02e-3, 1.01e-3, 1.0e-3], [RHO_MAX] * 5, stat)
+    spiral = ([1.470997734617673e-02, 1.472028646240768e-02, 1.472036918233155e-02, 1.472036851979520e-02,
+               1.472036859625503e-02], [1.32e-05, 1.30e-05, 1.84e-06, 3.49e-09, 1.30e-08], [RHO_MAX] * 5,
+              [1.5e3, 1.8e2, 3.8e-1, 5.4e-1, 6.8e-1])
+    assert not _stalled(*spiral)
 
 def _move(n_nodes=21):
     """A smooth 20 ms move of every Racer-7 joint by 0.2 mrad (eq. 4.4 blend) at a pose with large angles."""
