@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import tomli_w
-from helpers import example_urdf
+from helpers import example_urdf, independent_data
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
@@ -137,8 +137,8 @@ VENDOR_ARMS = {
                                      "inertia": [2e-4] * 3 + [5e-5] * 3, "acc": [860.0] * 3 + [1145.0] * 3},
             (0.4, 0.3)),
     "ur10": ("ur10_robot.urdf", None, {"u0": [101.0] * 6, "k1": [6e5, 6e5, 4e5, 1e5, 1e5, 1e5],
-                                       "inertia": [4e-4] * 3 + [5e-5] * 3, "acc": [430.0] * 3 + [860.0] * 3},
-             (0.6, 0.4)),
+                                       "inertia": [4e-4] * 3 + [5e-5] * 3, "acc": [600.0] * 3 + [860.0] * 3},
+             (0.5, 0.6)),
     "panda": ("panda.urdf", "panda_link8", {"u0": [100.0] * 7, "k1": [3e5, 3e5, 2e5, 2e5, 1e5, 1e5, 1e5],
                                             "inertia": [2e-4] * 4 + [5e-5] * 3, "acc": ACCELERATION_DEG_S2},
               (0.4, 0.5)),
@@ -154,12 +154,7 @@ VENDOR_ARMS = {
 def _vendor_arm(name: str, d: Path) -> Path:
     """`import-urdf` of `VENDOR_ARMS[name]` and its step-2 fragment added: the robot file."""
     urdf, tip, frag, _ = VENDOR_ARMS[name]
-    if name == "baxter_left":
-        path = Path(__file__).parents[2].parent / "shared" / "independent" / "arm7" / urdf
-        if not path.is_file():
-            pytest.skip(f"{path} not found (the independent data beside the repository)")
-    else:
-        path = example_urdf(urdf)
+    path = independent_data() / "arm7" / urdf if name == "baxter_left" else example_urdf(urdf)
     out = d / f"{name}.toml"
     assert main(["import-urdf", str(path), "--out", str(out)] + (["--tip", tip] if tip else [])) == 0
     desc = tomllib.loads(out.read_text())
