@@ -38,12 +38,18 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "The input failed a check before the solve (unreadable, non-finite cells, wrong units, duplicated "
         "rows, a size other than the batch's) and was left out; the message names the check and the lines."
     )
+    stalled = (
+        "The solve stalled: over its last outer iterations the objective and the constraint violation "
+        "stopped changing, with the constraints not met at the largest penalty (the problem is likely "
+        "infeasible: check the limits, the task and its boundary conditions) or with the gradient of the "
+        "Lagrangian above its roundoff floor."
+    )
 
 
 NAMES: tuple[str, ...] = (
     "successful", "max_steps_reached", "singular", "breakdown", "stagnation", "conlim", "nonfinite_input",
     "nonlinear_max_steps_reached", "nonlinear_divergence", "nonfinite", "inner_failed", "rank_deficient",
-    "inconsistent", "rejected_input",
+    "inconsistent", "rejected_input", "stalled",
 )
 """The names of `RESULTS` in the order of their codes (`tests/jaxrobot/test_status.py` checks it against the
 enumeration); a status is written under its name in JSON and tables."""

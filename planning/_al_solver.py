@@ -25,12 +25,17 @@ the multipliers away). `rho` starts in proportion to
 the control weight (`penalty_per_weight`). One forward pass through the dynamics (`half_step`) per
 trial point serves its merit and, once the step is accepted, the multiplier update, the gradient
 and the Gauss-Newton matrix there (reverse passes through Newton-Euler for each set of multipliers).
-Stops when the largest scaled violation and the largest scaled gradient of the Lagrangian
-(stationarity) are below their tolerances.
+Stops when the largest scaled violation is at most `tol_violation` and the largest scaled gradient of
+the Lagrangian (stationarity) at most `tol_stationarity` relative to the gradient's own scale plus the
+floor that roundoff of the defects puts under it (`roundoff_floor`: a defect is exact only to the
+roundoff of `phi - q` amplified by the spring over the link inertia, and the multiplier update carries
+`rho` times it into the gradient); both tolerances thus follow the robot, the task and `rho`. A solve
+whose objective, violation and stationarity stop changing over `STALL_WINDOW` outer iterations without
+meeting them ends `RESULTS.stalled` (`_stalled`), not at `max_outer_iterations`.
 
 Numbers (nu = 1e-14): in the scaled units the control weight is O(10-100) and a defect is
-exact to ~1e-12 (roundoff of `phi - q` amplified by the stiff wrist joints); defects are
-accumulated from those of the warm start so that their roundoff scales with the correction.
+exact to ~1e-12; defects are accumulated from those of the warm start so that their roundoff
+scales with the correction.
 """
 
 from __future__ import annotations
@@ -41,8 +46,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+import jaxrobot as jr
 from jaxrobot import RESULTS
-from jaxrobot.internal import backend_kind, full
+from jaxrobot.internal import backend_kind, full, spd_solve
 
 from ._block_tridiagonal import BlockCholesky, block_cholesky, block_cholesky_solve
 from ._cyclic_reduction import CyclicReduction, cyclic_reduction, cyclic_reduction_solve
@@ -90,10 +96,9 @@ class ALConfig(eqx.Module):
     tol_violation: float = 1e-9
     """Stop when the largest scaled violation (defects, bounds) is at most this."""
     tol_stationarity: float = 1e-6
-    """... and the largest scaled gradient of the Lagrangian at most this plus `rho defect_noise`."""
-    defect_noise: float = 1e-11
-    """Roundoff of a scaled defect (stiff wrist joints amplify that of `phi - q`); the multiplier
-    update `lam += rho c` carries `rho` times it into the gradient of the Lagrangian."""
+    """... and the largest scaled gradient of the Lagrangian at most this times its scale,
+    `max(1, |grad J|, |gam|)` (largest entries: the cost's gradient and the bounds' multipliers, which the
+    defects' term `Jc^T lam` balances at a stationary point), plus its roundoff floor (`roundoff_floor`)."""
     inner_tol: float = 1e-9
     """An inner solve ends when the largest scaled gradient of `Phi` is at most this."""
     damping_init: float = 1e-9
@@ -735,16 +740,19 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
         gam = s.rho * (v - jnp.clip(v, p.lower, p.upper))
         rho = jnp.where((viol > config.violation_decrease * s.violation) & (viol > config.tol_violation),
                         jnp.minimum(s.rho * config.penalty_growth, rho_max), s.rho)
-        converged = (viol <= config.tol_violation) & (stat <= config.tol_stationarity + s.rho * config.defect_noise)
+        scale = jnp.maximum(1.0, jnp.maximum(jnp.max(jnp.abs(_cost_gradient(p, s.y))), jnp.max(jnp.abs(gam * p.free))))
+        met = viol <= config.tol_violation
+        converged = met & (stat <= config.tol_stationarity * scale + roundoff_floor(p, s.y, s.forward, s.rho))
         finite = jnp.isfinite(viol) & jnp.isfinite(stat)
         it = s.it + 1
         out_of_iterations = it >= config.max_outer_iterations
-        status = RESULTS.where(converged, RESULTS.successful,
-                               RESULTS.where(finite, RESULTS.nonlinear_max_steps_reached, RESULTS.nonfinite))
         record = jnp.stack([_cost(p, s.y) * ANGLE_SCALE**2, viol, s.rho, stat])
         hist = s.hist.at[:, jnp.minimum(s.it, m - 1)].set(record)
+        stalled = ~converged & _stalled(config, hist, s.it, lam, rho_max)
+        status = RESULTS.where(converged, RESULTS.successful, RESULTS.where(
+            finite, RESULTS.where(stalled, RESULTS.stalled, RESULTS.nonlinear_max_steps_reached), RESULTS.nonfinite))
         new = eqx.tree_at(changed, s, (lam, gam, rho, it, jnp.array(0), viol, stat, status,
-                                       converged | ~finite | out_of_iterations, hist))
+                                       converged | stalled | ~finite | out_of_iterations, hist))
         return changed(new), _gradient(p, new.y, c_y, vjp, new.lam, new.gam, new.rho)
 
     values, grad = jax.lax.cond(_inner_done(config, s, grad), update, lambda: (changed(s), grad))
@@ -752,6 +760,73 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
     step = ~s.stop & ~_inner_done(config, s, grad)
     fresh = jnp.any(jnp.stack([s.rho, s.mu]) != s.factor_key) | (s.factor_age >= config.refresh_every)
     return s, c_y, grad, id_vjp, step, fresh
+
+
+def _cost_gradient(p: _Parts, y) -> Float[Array, "N 5*n"]:
+    """The gradient of the scaled cost `J` at `y`, zero on fixed variables."""
+    d = (p.y0[1:] - p.y0[:-1]) + (y[1:] - y[:-1])
+    zero = jnp.zeros((1, y.shape[-1]))
+    grad = 2 * p.weight * (y - p.target)
+    grad = grad + jnp.concatenate([-2 * p.edge * d, zero]) + jnp.concatenate([zero, 2 * p.edge * d])
+    return grad * p.free
+
+
+def roundoff_floor(p: _Parts, y, h: HalfStep, rho) -> Float[Array, ""]:
+    """The largest scaled gradient of the Lagrangian that roundoff of the defects explains at `y` (`h`:
+    `half_step` there) and penalty `rho`, to first order in the machine epsilon `eps`.
+
+    The spring torque `kappa(phi - q)` is formed from angles of size `|q|` and `|theta| / u`, so it is exact
+    only to `kappa' eps (|q| + |theta| / u)`; through `qdd = D^{-1} (...)` a half step `g_k` (its `qd` rows) is
+    exact to `dg_k = A_k (kappa' eps (|q_k| + |theta_k| / u))` with `A_k = T_s / 2 |D_k^{-1}|` in the scaled
+    units, and a defect to `dc_k = dg_k + dg_{k+1}` (the other terms of the defects are linear and their
+    roundoff is `eps` times the correction, `_defects`). The multiplier update and the gradient carry
+    `rho (dc/dy)^T dc`: at node `k`, with `w_k = dc_{k-1} + dc_k`, `rho w_k` on the `qd` variables (the
+    identity of the defects) and `rho kappa' (A_k^T w_k)` per link angle (the spring's columns, `kappa'` per
+    link angle, `kappa' / u` per motor angle). The floor is the largest of these over the free variables."""
+    problem = p.problem
+    j = problem.n_joints
+    sz = variable_scale(problem)
+    x = (p.y0 + y)[:, :4 * j] * sz[:4 * j]
+    q, theta = x[:, :j], x[:, 2 * j:3 * j]
+    stiffness = jr.elastic_stiffness(problem.robot, h.phi - q)
+    eps = jnp.finfo(y.dtype).eps
+    inverse = jnp.abs(spd_solve(h.mass, jnp.broadcast_to(jnp.eye(j), h.mass.shape)))
+    a = (0.5 * problem.ts / sz[j:2 * j])[:, None] * inverse
+    dg = jnp.einsum("kij,kj->ki", a, stiffness * eps * (jnp.abs(q) + jnp.abs(theta) / h.ratio))
+    dc = dg[1:] + dg[:-1]
+    w = jnp.pad(dc, ((1, 0), (0, 0))) + jnp.pad(dc, ((0, 1), (0, 0)))
+    spring = stiffness * jnp.einsum("kij,ki->kj", a, w)
+    free = p.free.reshape(y.shape[0], 5, j)
+    columns = jnp.stack([spring * sz[:j] * free[:, 0], w * free[:, 1],
+                         spring * sz[2 * j:3 * j] / h.ratio * free[:, 2]])
+    return rho * jnp.max(columns)
+
+
+STALL_WINDOW = 3
+"""Outer iterations over which a solve must have stopped changing to end `RESULTS.stalled` (`_stalled`)."""
+
+
+def _stalled(config: ALConfig, hist, it, lam, rho_max) -> Bool[Array, ""]:
+    """The solve has stopped improving over the `STALL_WINDOW` outer iterations before the one recorded at
+    `hist[:, it]` (rows: objective, violation, penalty, stationarity; `lam`: the updated multipliers): either
+    the constraints are met throughout, the objective changed by at most what the tolerated defects leave
+    open to first order (`sum |lam| tol_violation`, in the units of the objective) and the stationarity did
+    not fall below its smallest value in the window; or the constraints are not met, at the largest penalty
+    `rho_max` throughout, the violation did not fall below its smallest value in the window and the objective
+    rose at every outer iteration of it (infeasible: the update `lam += rho c` with a violation that does not
+    vanish makes the multipliers grow without bound, and the cost the iterates pay for the violation they
+    remove with them; a feasible solve's objective settles). The tests of `_prepare` have already not
+    accepted it as converged."""
+    window = jax.lax.dynamic_slice_in_dim(hist, jnp.maximum(it - STALL_WINDOW, 0), STALL_WINDOW, axis=1)
+    objective, violation, penalty, stationarity = hist[:, jnp.minimum(it, hist.shape[-1] - 1)]
+    open_objective = jnp.sum(jnp.abs(lam)) * config.tol_violation * ANGLE_SCALE**2
+    flat = jnp.abs(objective - window[0, 0]) <= open_objective
+    met = (violation <= config.tol_violation) & jnp.all(window[1] <= config.tol_violation)
+    at_floor = met & flat & (stationarity >= jnp.min(window[3]))
+    rising = jnp.all(jnp.diff(jnp.append(window[0], objective)) > 0)
+    infeasible = ((violation > config.tol_violation) & jnp.all(jnp.append(window[2], penalty) >= rho_max)
+                  & (violation >= jnp.min(window[1])) & rising)
+    return (it >= STALL_WINDOW) & (at_floor | infeasible)
 
 
 def _refactor(p: _Parts, config: ALConfig, s: _State, id_vjp=None) -> BlockCholesky | CyclicReduction:

@@ -26,8 +26,9 @@ class OCPSolution(eqx.Module):
     u: Float[Array, "N n"]
     """Optimal motor accelerations `thetadd` [rad/s^2]."""
     status: RESULTS
-    """`RESULTS.successful` only when converged, else why not (`RESULTS.nonlinear_max_steps_reached`,
-    `RESULTS.inner_failed`, `RESULTS.nonfinite`); `RESULTS[status]` is the message."""
+    """`RESULTS.successful` only when converged, else why not (`RESULTS.stalled`,
+    `RESULTS.nonlinear_max_steps_reached`, `RESULTS.inner_failed`, `RESULTS.nonfinite`); `RESULTS[status]` is the
+    message."""
     iterations: Int[Array, ""]
     """Outer (multiplier/penalty) iterations."""
     inner_iterations: Int[Array, ""]
