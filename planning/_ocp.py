@@ -172,9 +172,10 @@ def solve_ocp(
 
 
 def _solve_ocp(robot, q_d, ts, nu, cost: Cost, config: ALConfig, warm_start, u_ref, throw: bool,
-               history: int, play=None, travel=None, direction=None) -> OCPSolution:
+               history: int, play=None, travel=None, direction=None, nodes=None) -> OCPSolution:
     """`solve_ocp` with the static history length given (`history_length`), so that `config` may be
-    traced."""
+    traced; `nodes`: the inputs are already padded after the task's `nodes` nodes (`pad_problem`), and the
+    solution is returned padded."""
     problem = ocp_problem(robot, q_d, ts, nu, cost, u_ref, play, travel, direction)
     require_elastic(robot, "solve_ocp")
     n, j = problem.n_nodes, problem.n_joints
@@ -187,11 +188,16 @@ def _solve_ocp(robot, q_d, ts, nu, cost: Cost, config: ALConfig, warm_start, u_r
         start = (jnp.asarray(x0, float), jnp.asarray(u0, float))
     # the settings and the task's node count are traced: one compilation serves every ALConfig of the same
     # history length and every N of the same padded size
+    config = jax.tree.map(jnp.asarray, config)
+    reference_from_start = cost == "flat" and u_ref is None
+    if nodes is not None:
+        sol = _solve(eqx.tree_at(lambda p: p.nodes, problem, nodes, is_leaf=lambda x: x is None), start, config,
+                     history, reference_from_start)
+        return check(sol.status, sol, throw)
     size = padded_nodes(n)
     if start is not None:
         start = tuple(pad_edge(a, size) for a in start)
-    sol = _solve(pad_problem(problem, size), start, jax.tree.map(jnp.asarray, config), history,
-                 cost == "flat" and u_ref is None)
+    sol = _solve(pad_problem(problem, size), start, config, history, reference_from_start)
     sol = eqx.tree_at(lambda s: (s.x, s.u, s.multipliers), sol,
                       (*head((sol.x, sol.u), n), head(sol.multipliers, n - 1)))
     return check(sol.status, sol, throw)
