@@ -63,6 +63,7 @@ from ._transcription import (
     half_step_shift,
     half_step_vjp,
     inverse_dynamics_vjp,
+    node_mask,
     scaled_cost,
     variable_scale,
 )
@@ -192,7 +193,7 @@ def _parts(problem: OCPProblem, y0) -> _Parts:
     upper = jnp.where(fixed, jnp.inf, hi / sz)
     start = half_step(problem, y0)
     nx = 4 * problem.n_joints
-    c0 = y0[1:, :nx] - y0[:-1, :nx] - start.g[1:] - start.g[:-1]
+    c0 = (y0[1:, :nx] - y0[:-1, :nx] - start.g[1:] - start.g[:-1]) * node_mask(problem)[1:, None]  # 0 on padding
     return _Parts(problem, cost.node_weight, cost.node_target - y0, cost.edge_weight, lower - y0, upper - y0,
                   (~fixed).astype(float), y0, start, c0)
 

@@ -26,6 +26,7 @@ from jaxrobot.measurement import rest_solution
 
 from ._al_solver import chunked_vmap, device_memory
 from ._ik import JointPath, taylor_joint_path
+from ._padding import head, pad_edge, pad_grid, pad_zeros, padded_nodes
 from ._trajectories import sample_path
 from ._transcription import State
 
@@ -77,18 +78,34 @@ def _along(fn: Callable, q: Float[Array, "N n"], qd: Float[Array, "N n"], qdd: F
     return MotorTrajectory(*jax.vmap(single)(q, qd, qdd))
 
 
+def _padded(program, n: int, *args, axes: tuple[int, ...]) -> MotorTrajectory:
+    """`program(robot, *args)` on the node axes `axes` of `args` padded to `padded_nodes(n)` (a time grid, the
+    first argument with axis None, continued), its result sliced back to `n` samples."""
+    size = padded_nodes(n)
+    padded = [pad_grid(a, size) if axis is None else pad_edge(a, size, axis) for a, axis in zip(args[1:], axes)]
+    return head(program(args[0], *padded), n)
+
+
 @cached_program
-def rigid_motor_trajectory(robot: jr.Robot, q: Float[Array, "N n"], qd: Float[Array, "N n"],
-                           qdd: Float[Array, "N n"]) -> MotorTrajectory:
-    """(a) Rigid planning: `theta = Xi(q_d)` (gear ripple, no elasticity)."""
+def _rigid(robot, q, qd, qdd):
     return _along(lambda q: jr.motor_angle(robot, q), q, qd, qdd)
 
 
 @cached_program
+def _quasi_static(robot, q, qd, qdd):
+    return _along(lambda q: jr.static_equilibrium(robot, q), q, qd, qdd)
+
+
+def rigid_motor_trajectory(robot: jr.Robot, q: Float[Array, "N n"], qd: Float[Array, "N n"],
+                           qdd: Float[Array, "N n"]) -> MotorTrajectory:
+    """(a) Rigid planning: `theta = Xi(q_d)` (gear ripple, no elasticity)."""
+    return _padded(_rigid, np.shape(q)[0], robot, q, qd, qdd, axes=(0, 0, 0))
+
+
 def quasi_static_motor_trajectory(robot: jr.Robot, q: Float[Array, "N n"], qd: Float[Array, "N n"],
                                   qdd: Float[Array, "N n"]) -> MotorTrajectory:
     """(b) Quasi-static planning: `theta = Xi(q_d + kappa^{-1}(g(q_d)))` (gravity deflection only)."""
-    return _along(lambda q: jr.static_equilibrium(robot, q), q, qd, qdd)
+    return _padded(_quasi_static, np.shape(q)[0], robot, q, qd, qdd, axes=(0, 0, 0))
 
 
 @cached_program
@@ -98,8 +115,8 @@ def _flat(robot, t, derivatives):
 
 def flat_motor_trajectory(robot: jr.Robot, jp: JointPath) -> MotorTrajectory:
     """(c) The flat inverse of the planning model along the smooth `q_d(t)` (`jr.flat_inverse` of
-    `jp.fn`; compiled once per grid size, whatever the path)."""
-    return _flat(robot, jp.t, jp.derivatives)
+    `jp.fn`; compiled once per padded grid size, `planning._padding`, whatever the path)."""
+    return _padded(_flat, jp.t.shape[0], robot, jp.t, jp.derivatives, axes=(None, 1))
 
 
 def ocp_motor_trajectory(x: Float[Array, "*b N 4*n"], u: Float[Array, "*b N n"]) -> MotorTrajectory:
@@ -160,10 +177,10 @@ def _orientation_angle(r_d: Float[Array, "*b 3 3"], r: Float[Array, "*b 3 3"]) -
     return jnp.arctan2(jnp.linalg.norm(s, axis=-1), 0.5 * (jnp.trace(w, axis1=-2, axis2=-1) - 1.0))
 
 
-def _extend(traj: MotorTrajectory, settle_samples: int) -> MotorTrajectory:
-    """Hold the last motor angle at rest for `settle_samples` more samples."""
-    hold = lambda a, v: jnp.concatenate([a, jnp.broadcast_to(v, (settle_samples,) + a.shape[-1:])], -2)  # noqa: E731
-    return MotorTrajectory(hold(traj.theta, traj.theta[-1]), hold(traj.thetad, 0.0), hold(traj.thetadd, 0.0))
+def _extend(traj: MotorTrajectory, samples: int) -> MotorTrajectory:
+    """The trajectories (..., N, n) with their last motor angles held at rest up to `samples` samples."""
+    return MotorTrajectory(pad_edge(traj.theta, samples, -2), pad_zeros(traj.thetad, samples, -2),
+                           pad_zeros(traj.thetadd, samples, -2))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -195,17 +212,14 @@ def simulation_capacity(samples: int, n_joints: int, memory: float | None = None
     return max(1, int(memory // (SIMULATION_FLOATS * samples * (n_joints + 16) * 8)))
 
 
-@partial(cached_program, static_argnames=("extra", "substeps", "directional", "capacity"))
-def _runs(plant, t, p_d, r_d, trajectories: MotorTrajectory, extra: int, substeps: int, directional: bool,
-          capacity: int):
-    """The K stacked `trajectories` from rest (on cw), held for `extra` samples, simulated on `plant` in one
-    vmapped program (in chunks of `capacity`): the rest status of each start, link angles and tool-pose
-    errors."""
+@partial(cached_program, static_argnames=("substeps", "directional", "capacity"))
+def _runs(plant, t, p_d, r_d, trajectories: MotorTrajectory, substeps: int, directional: bool, capacity: int):
+    """The K stacked `trajectories` (on the samples `t`) from rest (on cw) simulated on `plant` in one vmapped
+    program (in chunks of `capacity`): the rest status of each start, link angles and tool-pose errors."""
     q0, status = rest_solution(plant, trajectories.theta[:, 0])
 
     def run(x):
         traj, q_start = MotorTrajectory(*x[:3]), x[3]
-        traj = _extend(traj, extra)
         q, _ = jr.simulate(plant, t, traj.theta, traj.thetad, traj.thetadd, substeps=substeps, q0=q_start,
                            directional=directional)
         pose = jr.tool_pose(plant, q)
@@ -241,30 +255,39 @@ def simulate_plans(
     if settle_s < 0:
         raise ValueError(f"settle_s must be >= 0 s, got {settle_s}")
     ts = float(jp.path.sample_time)
-    extra = int(round(settle_s / ts))
-    t = np.arange(n + extra) * ts
+    samples = n + int(round(settle_s / ts))
+    # simulated on `padded_nodes(samples)` samples (the command held longer) and sliced: one program serves
+    # paths of other lengths; the scan is causal, so the samples kept are those of an unpadded run
+    size = padded_nodes(samples)
+    t = np.arange(size) * ts
     p_d, r_d = jax.jit(lambda tk: sample_path(jp.path, tk))(np.minimum(t, np.asarray(jp.t)[-1]))
     names = list(trajectories)
-    stacked = jax.tree.map(lambda *a: jnp.stack(a), *trajectories.values())
-    status, (q, dp, da) = _runs(plant, jnp.asarray(t), p_d, r_d, stacked, extra, substeps, bool(directional),
-                                simulation_capacity(t.size, plant.n_joints))
+    stacked = _extend(jax.tree.map(lambda *a: jnp.stack(a), *trajectories.values()), size)
+    status, (q, dp, da) = _runs(plant, jnp.asarray(t), p_d, r_d, stacked, substeps, bool(directional),
+                                simulation_capacity(size, plant.n_joints))
     failed = np.flatnonzero(np.asarray(status != jr.RESULTS.successful))
     if failed.size:
         require_successful(status, f"simulate_plans: rest pose of the plant at the start of {names[failed[0]]!r}")
-    return names, PlantRun(jnp.asarray(t), q, dp, da, n)
+    return names, PlantRun(jnp.asarray(t[:samples]), *head((q, dp, da), samples, 1), n)
 
 
 def summarize(run: PlantRun) -> PlantError:
     """Max/RMS errors along the path and the max after `t_e` of every run (leading axis K)."""
-    return _summarize(run.position, run.orientation, run.n)
+    samples = run.position.shape[-1]
+    size = padded_nodes(samples)
+    return _summarize(pad_zeros(run.position, size, -1), pad_zeros(run.orientation, size, -1), jnp.asarray(run.n),
+                      jnp.asarray(samples))
 
 
-@partial(jax.jit, static_argnums=2)
-def _summarize(position, orientation, n: int) -> PlantError:
-    rms = lambda e: jnp.sqrt(jnp.mean(e[:, :n] ** 2, axis=-1))  # noqa: E731
-    after = lambda e: e[:, n:].max(axis=-1, initial=0.0)  # noqa: E731
-    return PlantError(position[:, :n].max(-1), rms(position), orientation[:, :n].max(-1),
-                      rms(orientation), after(position), after(orientation))
+@jax.jit
+def _summarize(position, orientation, n, samples) -> PlantError:
+    """`summarize` on errors padded with zeros after `samples`; `n` and `samples` traced."""
+    k = jnp.arange(position.shape[-1])
+    on, after = k < n, (k >= n) & (k < samples)
+    rms = lambda e: jnp.sqrt(jnp.sum(jnp.where(on, e, 0.0) ** 2, axis=-1) / n)  # noqa: E731
+    peak = lambda e, mask: jnp.where(mask, e, 0.0).max(axis=-1)  # noqa: E731  (errors are >= 0)
+    return PlantError(peak(position, on), rms(position), peak(orientation, on), rms(orientation),
+                      peak(position, after), peak(orientation, after))
 
 
 def evaluate_on_plant(

@@ -27,6 +27,7 @@ from jaxtyping import Array, Bool, Float, Real
 import jaxrobot as jr
 from jaxrobot.internal import cached_program, check, map_matrices, solve
 
+from ._padding import head, pad_edge, padded_nodes
 from ._trajectories import Path, nested_derivatives, path_derivatives, sample_path, time_grid
 
 TOL = 1e-14
@@ -123,8 +124,13 @@ def inverse_kinematics(
     keeps its null-space coordinates of the first sample, see the module docstring).
 
     `throw`: raise the message of the first sample's `status` that is not `successful` (at run time,
-    also under `jit`). Default False: the result carries the status of every sample."""
-    ik = _inverse_kinematics(robot, p_d, r_d, q_init)
+    also under `jit`). Default False: the result carries the status of every sample. Runs padded to
+    `padded_nodes(N)` samples (`planning._padding`), so that paths of other lengths share a compiled program."""
+    n = np.shape(p_d)[0]
+    size = padded_nodes(n)
+    ik = _inverse_kinematics(robot, pad_edge(p_d, size), pad_edge(r_d, size), q_init)
+    ik = eqx.tree_at(lambda r: (r.q, r.position_residual, r.orientation_residual, r.status), ik,
+                     head((ik.q, ik.position_residual, ik.orientation_residual, ik.status), n))
     return check(ik.status, ik, throw)
 
 
@@ -307,7 +313,10 @@ def joint_derivatives(
         raise ValueError(f"order must be >= 0, got {order}")
     # the task enters only by its Taylor coefficients at the samples: the program below is data-only
     task = _task_taylor(path.position, t, order), _task_taylor(path.orientation, t, order)
-    return list(_joint_taylor(robot, q, *task, _redundancy_or_none(redundancy, q), order))
+    n, size = q.shape[0], padded_nodes(q.shape[0])  # samples padded: one program serves paths of other lengths
+    out = _joint_taylor(robot, pad_edge(q, size), *(pad_edge(a, size, 1) for a in task),
+                        _redundancy_or_none(redundancy, q), order)
+    return list(head(out, n))
 
 
 @partial(jax.jit, static_argnums=(0, 2))
@@ -386,7 +395,7 @@ def check_joint_path(robot: jr.Robot, jp: JointPath, singularity_margin: float =
                 f"joint {j + 1} {what} {x[k, j]:.6g} {unit} at sample {k} (t = {t[k]:.4f} s) is outside "
                 f"its limits [{lo[j]:.6g}, {hi[j]:.6g}] {unit} ({table}); slow the path down (longer duration) "
                 "or move it")
-    sigma = np.asarray(singular_values(robot, jp.q))[:, -1]
+    sigma = np.asarray(singular_values(robot, pad_edge(jp.q, padded_nodes(jp.q.shape[0]))))[:jp.q.shape[0], -1]
     if (sigma < singularity_margin).any():
         k = int(np.argmax(sigma < singularity_margin))
         j = int(np.argmax(np.abs(np.linalg.svd(np.asarray(jr.geometric_jacobian(robot, jp.q[k])))[2][-1])))

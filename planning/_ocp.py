@@ -14,7 +14,18 @@ from jaxrobot import RESULTS
 from jaxrobot.internal import cached_program, check, require_elastic
 
 from ._al_solver import ALConfig, augmented_lagrangian, history_length
-from ._transcription import Cost, State, boundary_states, max_violations, objective, ocp_problem, variable_scale
+from ._padding import head, pad_edge, padded_nodes
+from ._transcription import (
+    Cost,
+    State,
+    fix_ends,
+    fixed_nodes,
+    max_violations,
+    objective,
+    ocp_problem,
+    pad_problem,
+    variable_scale,
+)
 from ._transcription import warm_start as default_warm_start
 
 
@@ -83,19 +94,17 @@ def _solve(problem, start, config: ALConfig, history: int, reference_from_start:
     if start is None:
         x0, u0 = default_warm_start(problem)
     else:
-        x0, u0 = start
-        xa, xb = boundary_states(problem)
-        x0 = x0.at[0].set(xa).at[-1].set(xb)
-        u0 = u0.at[0].set(0.0).at[-1].set(0.0)
+        x0, u0 = fix_ends(problem, *start)
     if reference_from_start:
         problem = eqx.tree_at(lambda p: p.u_ref, problem, u0)
     sz = variable_scale(problem)
     res = augmented_lagrangian(problem, jnp.concatenate([x0, u0], -1) / sz, config, history)
     z = res.y * sz
-    # the end nodes are fixed (eq. 4.3e-j): restore them exactly after the scaling round trip
+    # the end nodes (and the padding) are fixed (eq. 4.3e-j): restore them exactly after the scaling round trip
     nx = x0.shape[-1]
-    x = z[:, :nx].at[0].set(x0[0]).at[-1].set(x0[-1])
-    u = z[:, nx:].at[0].set(0.0).at[-1].set(0.0)
+    fixed = fixed_nodes(problem)[:, None]
+    x = jnp.where(fixed, x0, z[:, :nx])
+    u = jnp.where(fixed, 0.0, z[:, nx:])
     violation, violation_unscaled = max_violations(problem, x, u)
     return OCPSolution(
         x=x, u=u, status=res.status, iterations=res.iterations, inner_iterations=res.inner_iterations,
@@ -150,7 +159,9 @@ def solve_ocp(
     never reported as successful). `jit`/`vmap` over `nu`, `q_d` or `robot` work (range
     checks then apply only to concrete inputs); with the scan (`ALConfig.linear_solver`, the CPU's
     default) a `vmap` over `nu` alone is solved by continuation in increasing `nu`, with cyclic
-    reduction (an accelerator's) as one batched program (`augmented_lagrangian`).
+    reduction (an accelerator's) as one batched program (`augmented_lagrangian`). The problem is solved
+    padded to `padded_nodes(N)` nodes (`planning._padding`; `pad_problem`: the same optimum), so that tasks
+    of other lengths share a compiled program.
 
     **Raises:** `ValueError` naming the field for bad inputs (shapes, NaN, `ts <= 0`, `nu <= 0`).
     """
@@ -162,9 +173,10 @@ def solve_ocp(
 
 
 def _solve_ocp(robot, q_d, ts, nu, cost: Cost, config: ALConfig, warm_start, u_ref, throw: bool,
-               history: int, play=None, travel=None, direction=None) -> OCPSolution:
+               history: int, play=None, travel=None, direction=None, nodes=None) -> OCPSolution:
     """`solve_ocp` with the static history length given (`history_length`), so that `config` may be
-    traced."""
+    traced; `nodes`: the inputs are already padded after the task's `nodes` nodes (`pad_problem`), and the
+    solution is returned padded."""
     problem = ocp_problem(robot, q_d, ts, nu, cost, u_ref, play, travel, direction)
     require_elastic(robot, "solve_ocp")
     n, j = problem.n_nodes, problem.n_joints
@@ -175,6 +187,18 @@ def _solve_ocp(robot, q_d, ts, nu, cost: Cost, config: ALConfig, warm_start, u_r
             raise ValueError(f"warm_start: expected (x, u) of shapes ({n}, {4 * j}), ({n}, {j}), "
                              f"found {np.shape(x0)}, {np.shape(u0)}")
         start = (jnp.asarray(x0, float), jnp.asarray(u0, float))
-    # the settings are traced: one compilation serves every ALConfig of the same history length
-    sol = _solve(problem, start, jax.tree.map(jnp.asarray, config), history, cost == "flat" and u_ref is None)
+    # the settings and the task's node count are traced: one compilation serves every ALConfig of the same
+    # history length and every N of the same padded size
+    config = jax.tree.map(jnp.asarray, config)
+    reference_from_start = cost == "flat" and u_ref is None
+    if nodes is not None:
+        sol = _solve(eqx.tree_at(lambda p: p.nodes, problem, nodes, is_leaf=lambda x: x is None), start, config,
+                     history, reference_from_start)
+        return check(sol.status, sol, throw)
+    size = padded_nodes(n)
+    if start is not None:
+        start = tuple(pad_edge(a, size) for a in start)
+    sol = _solve(pad_problem(problem, size), start, config, history, reference_from_start)
+    sol = eqx.tree_at(lambda s: (s.x, s.u, s.multipliers), sol,
+                      (*head((sol.x, sol.u), n), head(sol.multipliers, n - 1)))
     return check(sol.status, sol, throw)

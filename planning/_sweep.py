@@ -24,6 +24,7 @@ import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -35,16 +36,19 @@ from jaxrobot.internal import backend_kind, check, gather_array
 
 from ._al_solver import ALConfig, history_length
 from ._ocp import OCPSolution, _solve_ocp
+from ._padding import head, pad_edge, pad_zeros, padded_nodes
 from ._transcription import Cost, ocp_problem
 
 
 @functools.partial(jax.jit, static_argnames=("cost", "history"))
-def _chain(robot, q_d, ts, nus, warm_start, u_ref, config, play, direction, cost, history) -> OCPSolution:
-    """One continuation chain: `solve_ocp` vmapped over `nus` (and the members' `play`, if any); `config` is
-    traced, so chains that differ only in their settings share one compiled program (`history`:
-    `history_length(config)`)."""
+def _chain(robot, q_d, ts, nus, warm_start, u_ref, config, play, direction, nodes=None, *, cost, history
+           ) -> OCPSolution:
+    """One continuation chain: `solve_ocp` vmapped over `nus` (and the members' `play`, if any) on inputs
+    padded after the task's `nodes` nodes (traced; None: unpadded, each member padded by `solve_ocp`); `config`
+    is traced, so chains that differ only in their settings or their task's length (of one padded size) share
+    one compiled program (`history`: `history_length(config)`)."""
     return jax.vmap(lambda nu, p: _solve_ocp(robot, q_d, ts, nu, cost, config, warm_start, u_ref, False, history, p,
-                                             None, direction))(nus, play)
+                                             None, direction, nodes))(nus, play)
 
 
 def _padded(positions: np.ndarray, length: int) -> np.ndarray:
@@ -73,14 +77,14 @@ def _first_places(index: np.ndarray) -> np.ndarray:
 
 
 @functools.partial(jax.jit, static_argnames=("cost", "history", "mesh"))
-def _sharded_chains(robot, q_d, ts, nus, warm_start, u_ref, config, play, direction, cost, history, mesh
+def _sharded_chains(robot, q_d, ts, nus, warm_start, u_ref, config, play, direction, nodes, cost, history, mesh
                     ) -> OCPSolution:
     """`_chain` on every device of `mesh` for its own members (`shard_map`, no communication); the
     other arguments (but the members' `play`) are replicated."""
     one, rep = PartitionSpec("sweep"), PartitionSpec()
     return jax.shard_map(functools.partial(_chain, cost=cost, history=history), mesh=mesh,
-                         in_specs=(rep, rep, rep, one, rep, rep, rep, one, rep), out_specs=one, check_vma=False)(
-        robot, q_d, ts, nus, warm_start, u_ref, config, play, direction)
+                         in_specs=(rep, rep, rep, one, rep, rep, rep, one, rep, rep), out_specs=one, check_vma=False)(
+        robot, q_d, ts, nus, warm_start, u_ref, config, play, direction, nodes)
 
 
 def check_nus(nus, name: str = "nus", distinct: bool = False) -> np.ndarray:
@@ -142,23 +146,37 @@ def solve_ocp_sweep(
         raise ValueError(f"config: expected an ALConfig, found {type(config).__name__}")
     history = history_length(config)
     order = np.argsort(nus)
+    # the node axis padded (`planning._padding`): sweeps of tasks of other lengths share the compiled chain
+    n = np.shape(q_d)[0]
+    size = padded_nodes(n)
+    nodes = jnp.asarray(n)
+    q_d, direction = (None if a is None else pad_edge(jnp.asarray(a, float), size) for a in (q_d, direction))
+    warm_start = None if warm_start is None else tuple(pad_edge(jnp.asarray(a, float), size) for a in warm_start)
+    u_ref = None if u_ref is None else pad_zeros(jnp.asarray(u_ref, float), size)
+    play = None if play is None else pad_edge(jnp.asarray(play, float), size, 1)
     if jax.process_count() > 1:
         mesh = Mesh(np.asarray(jax.devices()), ("sweep",))
         index = _chain_index(order, mesh.size).reshape(-1)
         spread = lambda a: jax.make_array_from_callback(  # noqa: E731
             a[index].shape, NamedSharding(mesh, PartitionSpec("sweep")), lambda idx: a[index][idx])
         out = _sharded_chains(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), spread(nus), warm_start, u_ref,
-                              config, None if play is None else spread(np.asarray(play, float)), direction, cost,
-                              history, mesh)
-        out = jax.tree.map(lambda leaf: jnp.asarray(leaf[_first_places(index)]), gather_array(out))
+                              config, None if play is None else spread(np.asarray(play, float)), direction, nodes,
+                              cost, history, mesh)
+        out = _cut(jax.tree.map(lambda leaf: jnp.asarray(leaf[_first_places(index)]), gather_array(out)), n)
         return check(out.status, out, throw)
     chains = max(1, min(int(workers), nus.size // 2))
     index = _chain_index(order, chains)
     config = jax.tree.map(jnp.asarray, config)
     args = [(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), jnp.asarray(nus[idx]), warm_start, u_ref, config,
-             None if play is None else jnp.asarray(play, float)[idx], direction) for idx in index]
+             None if play is None else jnp.asarray(play, float)[idx], direction, nodes) for idx in index]
     compiled = _chain.lower(*args[0], cost=cost, history=history).compile()  # cached after the first call
     with ThreadPoolExecutor(chains) as pool:
         parts = list(pool.map(lambda a: jax.block_until_ready(compiled(*a)), args))
-    out = _merge(parts, jnp.asarray(_first_places(index)))
+    out = _cut(_merge(parts, jnp.asarray(_first_places(index))), n)
     return check(out.status, out, throw)
+
+
+def _cut(sol: OCPSolution, n: int) -> OCPSolution:
+    """The members of a padded sweep cut to the task's `n` nodes."""
+    return eqx.tree_at(lambda s: (s.x, s.u, s.multipliers), sol,
+                       (*head((sol.x, sol.u), n, 1), head(sol.multipliers, n - 1, 1)))

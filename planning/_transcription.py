@@ -38,10 +38,12 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 import jaxrobot as jr
 from jaxrobot.internal import spd_solve
+
+from ._padding import head, pad_edge, pad_zeros, padded_nodes
 
 ANGLE_SCALE = 1e-3
 """Angle unit of the scaled problem [rad] (mrad)."""
@@ -99,9 +101,13 @@ class OCPProblem(eqx.Module):
     direction: Float[Array, "N n"] | None = None
     """Direction each motor may turn at each node (`motor_directions`): +1 only forward (`thetad >= 0`), -1
     only backward, 0 either way (also where None)."""
+    nodes: Int[Array, ""] | None = None
+    """The task's nodes, traced (`pad_problem`): the nodes from `nodes - 1` on are fixed at the end's rest
+    state, with zero control, zero defects and zero cost; None: all `n_nodes`."""
 
     @property
     def n_nodes(self) -> int:
+        """Length of the node axis (with padding)."""
         return self.q_d.shape[-2]
 
     @property
@@ -154,7 +160,7 @@ def ocp_problem(
             raise ValueError(f"{name}: expected a finite value > 0{unit}, found {float(val)}")
     n = q_shape[0]
     if u_ref is None:
-        u_ref = jnp.zeros((n, joints))
+        u_ref = np.zeros((n, joints))
     elif np.shape(u_ref) != (n, joints):
         raise ValueError(f"u_ref: expected motor accelerations of shape ({n}, {joints}) [rad/s^2], "
                          f"found {np.shape(u_ref)}")
@@ -171,7 +177,7 @@ def ocp_problem(
             raise ValueError(f"travel: expected reversal travels > 0 [motor rad], found {np.asarray(travel)}")
         play, travel = jnp.asarray(play, float), jnp.asarray(travel, float)
     if direction is None:
-        direction = jnp.zeros((n, joints))
+        direction = np.zeros((n, joints))
     elif np.shape(direction) != (n, joints):
         raise ValueError(f"direction: expected motor directions of shape ({n}, {joints}), found {np.shape(direction)}")
     elif _concrete(direction) and not np.all(np.isin(np.asarray(direction), (-1.0, 0.0, 1.0))):
@@ -187,11 +193,17 @@ def motor_directions(thetad: Float[Array, "N n"]) -> Float[Array, "N n"]:
     flat inverse's): the rate's sign, where it is 0 the sign of the next sample that moves (after the last
     one, of the last): it changes only where the motion reverses (docs/model.md (B.6))."""
 
+    n = np.shape(thetad)[0]  # padded (the last rate repeated: the same directions), one program per padded size
+    return head(_motor_directions(pad_edge(jnp.asarray(thetad, float), padded_nodes(n))), n)
+
+
+@jax.jit
+def _motor_directions(thetad):
     def fill(last, s):
         last = jnp.where(s != 0, s, last)
         return last, last
 
-    sign = jnp.sign(jnp.asarray(thetad, float))
+    sign = jnp.sign(thetad)
     zero = jnp.zeros(sign.shape[-1:])
     return jax.lax.scan(fill, zero, jax.lax.scan(fill, zero, sign, reverse=True)[1])[1]
 
@@ -232,7 +244,7 @@ def boundary_states(problem: OCPProblem) -> tuple[Float[Array, " 4*n"], Float[Ar
                 theta = theta - (out - phi) / slope
         return State(q, z, theta, z).pack()
 
-    return rest(0), rest(-1)
+    return rest(0), rest(-1 if problem.nodes is None else problem.nodes - 1)
 
 
 def bounds(problem: OCPProblem) -> tuple[Float[Array, "N 5*n"], Float[Array, "N 5*n"]]:
@@ -267,14 +279,15 @@ def objective(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N 
 def defects(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, "Nm1 4*n"]:
     """Trapezoidal collocation defects `x_{k+1} - x_k - T_s/2 (f_k + f_{k+1})` (eq. 4.3b), unscaled."""
     f = jr.planning_dynamics(problem.robot, x, u, flank_weights(problem, State.of(x).theta))
-    return x[1:] - x[:-1] - 0.5 * problem.ts * (f[1:] + f[:-1])
+    return (x[1:] - x[:-1] - 0.5 * problem.ts * (f[1:] + f[:-1])) * node_mask(problem)[1:, None]
 
 
 def boundary_defects(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]
                      ) -> Float[Array, "2 5*n"]:
-    """`[x, u]` of the first and last node minus their fixed values (eq. 4.3e-j), unscaled."""
+    """`[x, u]` of the first and the task's last node minus their fixed values (eq. 4.3e-j), unscaled."""
     x0, x1 = boundary_states(problem)
-    return jnp.stack([jnp.concatenate([x[0] - x0, u[0]]), jnp.concatenate([x[-1] - x1, u[-1]])])
+    last = -1 if problem.nodes is None else problem.nodes - 1
+    return jnp.stack([jnp.concatenate([x[0] - x0, u[0]]), jnp.concatenate([x[last] - x1, u[last]])])
 
 
 def bound_violation(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, "N 5*n"]:
@@ -501,21 +514,61 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
     return (0.5 * problem.ts / sz[j:2 * j, None]) * dqdd * sz[:rhs.shape[-1]]
 
 
+def node_mask(problem: OCPProblem) -> Float[Array, " N"]:
+    """1 for the task's nodes, 0 for the padding after them (`OCPProblem.nodes`); a defect `k` (between nodes
+    `k` and `k + 1`) is the task's where `node_mask[k + 1]` is 1."""
+    k = jnp.arange(problem.n_nodes)
+    return jnp.ones(problem.n_nodes) if problem.nodes is None else (k < problem.nodes).astype(float)
+
+
+def fixed_nodes(problem: OCPProblem) -> Bool[Array, " N"]:
+    """True for the nodes fixed by the boundary conditions: the first, the task's last and the padding."""
+    k = jnp.arange(problem.n_nodes)
+    last = problem.n_nodes - 1 if problem.nodes is None else problem.nodes - 1
+    return (k == 0) | (k >= last)
+
+
 def fixed_mask(problem: OCPProblem) -> Bool[Array, "N 5*n"]:
-    """True for the variables fixed by the boundary conditions (all of nodes 0 and N-1)."""
+    """True for the variables fixed by the boundary conditions (all of the `fixed_nodes`)."""
+    return jnp.broadcast_to(fixed_nodes(problem)[:, None], (problem.n_nodes, 5 * problem.n_joints))
+
+
+def fix_ends(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]
+             ) -> tuple[Float[Array, "N 4*n"], Float[Array, "N n"]]:
+    """`x`, `u` with the `fixed_nodes` set to their values: the boundary states (eq. 4.3e-i; the padding at
+    the end's) and `u = 0` (eq. 4.3j)."""
+    x0, x1 = boundary_states(problem)
+    k = jnp.arange(problem.n_nodes)[:, None]
+    fixed = fixed_nodes(problem)[:, None]
+    return jnp.where(k == 0, x0, jnp.where(fixed, x1, x)), jnp.where(fixed, 0.0, u)
+
+
+def pad_problem(problem: OCPProblem, size: int) -> OCPProblem:
+    """`problem` with `size - n_nodes` nodes appended (`OCPProblem.nodes`): `q_d`, `play` and `direction` repeat
+    the last node's, `u_ref` is 0 there. The padded problem's cost, defects, violations and optimum over
+    the task's nodes are those of `problem`."""
     n = problem.n_nodes
-    return jnp.zeros((n, 5 * problem.n_joints), bool).at[0].set(True).at[-1].set(True)
+    if problem.nodes is not None or size < n:
+        raise ValueError(f"size: expected an unpadded problem and size >= {n}, found size {size}")
+    edge = lambda a: None if a is None else pad_edge(a, size)  # noqa: E731
+    return eqx.tree_at(lambda p: (p.q_d, p.u_ref, p.play, p.direction, p.nodes), problem,
+                       (edge(problem.q_d), pad_zeros(problem.u_ref, size), edge(problem.play),
+                        edge(problem.direction), jnp.asarray(n)), is_leaf=lambda x: x is None)
 
 
 # ----------------------------------------------------------------------------- warm start
 
 
-def _time_derivative(v: Float[Array, "N m"], ts: Float[Array, ""]) -> Float[Array, "N m"]:
-    """Second-order finite differences: central inside, one-sided at the ends."""
+def _time_derivative(v: Float[Array, "N m"], ts: Float[Array, ""], end: Int[Array, ""] | int = -1
+                     ) -> Float[Array, "N m"]:
+    """Second-order finite differences: central inside, one-sided at the first node and at node `end` (the
+    task's last; the nodes after it take its value)."""
+    end = v.shape[0] - 1 if isinstance(end, int) and end < 0 else end
     inner = (v[2:] - v[:-2]) / (2 * ts)
     first = (-3 * v[0] + 4 * v[1] - v[2]) / (2 * ts)
-    last = (3 * v[-1] - 4 * v[-2] + v[-3]) / (2 * ts)
-    return jnp.concatenate([first[None], inner, last[None]])
+    last = (3 * v[end] - 4 * v[end - 1] + v[end - 2]) / (2 * ts)
+    out = jnp.concatenate([first[None], inner, last[None]])
+    return jnp.where(jnp.arange(v.shape[0])[:, None] >= end, last, out)
 
 
 def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 4*n"], Float[Array, "N n"]]:
@@ -526,17 +579,14 @@ def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 4*n"], Float[Array,
     warm start from a smooth
     `q_d(t)`, pass `jr.flat_inverse` results to `solve_ocp(warm_start=...)` instead."""
     r, q, ts = problem.robot, problem.q_d, problem.ts
-    qd = _time_derivative(q, ts)
-    qdd = _time_derivative(qd, ts)
+    end = -1 if problem.nodes is None else problem.nodes - 1
+    qd = _time_derivative(q, ts, end)
+    qdd = _time_derivative(qd, ts, end)
     tau = jr.inverse_dynamics(r, q, qd, qdd)
     phi = q + jr.elastic_deflection(r, tau)
     theta = jr.motor_angle(r, phi)
     if problem.play is not None:
         theta = jr.flank_motor_angle(r, phi, flank_weights(problem, theta))
-    thetad = _time_derivative(theta, ts)
-    u = _time_derivative(thetad, ts)
-    x = State(q, qd, theta, thetad).pack()
-    x0, x1 = boundary_states(problem)
-    x = x.at[0].set(x0).at[-1].set(x1)
-    u = u.at[0].set(0.0).at[-1].set(0.0)
-    return x, u
+    thetad = _time_derivative(theta, ts, end)
+    u = _time_derivative(thetad, ts, end)
+    return fix_ends(problem, State(q, qd, theta, thetad).pack(), u)

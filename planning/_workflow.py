@@ -29,6 +29,7 @@ from ._evaluation import (
     summarize,
 )
 from ._ik import JointPath, joint_path
+from ._padding import head, pad_edge, padded_nodes
 from ._sweep import check_nus, solve_ocp_sweep
 from ._trajectories import Path, sample_path
 from ._transcription import COSTS, State, motor_directions
@@ -126,8 +127,15 @@ class PlanResult:
         return self.solution.status
 
 
+def _tool_position(robot: jr.Robot, q: Float[Array, "N n"]) -> Float[Array, "N 3"]:
+    """Tool positions [m] at the link angles `q`, on samples padded to `padded_nodes(N)` (one program per
+    padded size)."""
+    n = np.shape(q)[0]
+    return head(_tool_positions(robot, pad_edge(q, padded_nodes(n))), n)
+
+
 @jax.jit
-def _tool_position(robot, q):
+def _tool_positions(robot, q):
     return jr.tool_pose(robot, q)[:, :3, 3]
 
 
