@@ -184,6 +184,10 @@ candidate (above the files' rounding, 12 digits, ~1e-10 rad; and at least two en
 encoder_counts_per_rev` states them): the encoders report the motor angle, so a lag shows there first."""
 LM_STEPS = 30
 """Most Levenberg-Marquardt iterations of a fit."""
+RANKING_STEPS = 10
+"""Most iterations of a candidate's fit for ranking (`_fit` without `exact_end`): on updated derivatives a fit of
+several variables (the payload's four) can creep on for all `LM_STEPS`, a simulation each; the chosen fit is
+continued on fresh derivatives."""
 RANKING_TOLERANCE = 0.01
 """Chi-square decrease of an accepted step below which a candidate's fit for ranking ends (`_fit` without
 `exact_end`), or the exact fits' tolerance (1e-9 of the chi-square) where that is larger: a ranking is not resolved
@@ -578,7 +582,29 @@ def _identifiable(cols, effects, n: int, at=None) -> bool:
 
 def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_end: bool = True,
          chi2_before: float | None = None):
-    """Levenberg-Marquardt on the variables of `effects` from `z0`, where the residual is `r0` and its derivatives
+    """`_fit_variables` of the variables of `effects`; a payload that starts at zero is fitted in two stages: its
+    mass first (at the flange's origin, the centre of mass fixed), then with its centre of mass. From zero mass the
+    linearisation lacks the point's inertia, which grows with the square of its distance: a first step on every
+    variable can throw the centre of mass into a far minimum (on the p4 case's runs 0.64 m along the flange axis,
+    a chi-square 293 above that of the minimum near the true 0.06 m)."""
+    n = robot.n_joints
+    idx = np.array([i for e in effects for i in _index(e, n)])
+    moments = _index(RunEffect("payload", None), n)[1:]
+    if RunEffect("payload", None) not in effects or np.any(np.asarray(z0)[_index(RunEffect("payload", None), n)]):
+        return _fit_variables(robot, z0, idx, ev, marker, substeps, r0, jac0, exact_end, chi2_before)
+    keep = np.flatnonzero(~np.isin(idx, moments))
+    first = _fit_variables(robot, z0, idx[keep], ev, marker, substeps, r0, jac0[:, keep], exact_end=False,
+                           chi2_before=chi2_before)
+    if first is None:
+        return None
+    jac = np.array(jac0, float)
+    jac[:, keep] = first[4]
+    return _fit_variables(robot, first[0], idx, ev, marker, substeps, first[2], jac, exact_end, chi2_before)
+
+
+def _fit_variables(robot, z0, idx, ev: _Evidence, marker, substeps, r0, jac0, exact_end: bool = True,
+                   chi2_before: float | None = None):
+    """Levenberg-Marquardt on the variables `idx` from `z0`, where the residual is `r0` and its derivatives
     along those variables `jac0` (`_evaluate`): (z, chi2, residual, covariance of the variables, derivatives) at the
     end, or None where the fit leaves the physical range (a negative lag, damping, friction or payload mass, a
     compliance or inertia factor at or below 0), ends on dependent derivatives or fails to lower the chi-square below
@@ -592,13 +618,12 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
     run, the fit ends where the step's predicted decrease is below the ranking tolerance, and the covariance is
     None."""
     n = robot.n_joints
-    idx = np.array([i for e in effects for i in _index(e, n)])
     z, r, jac, exact = jnp.asarray(z0), r0, jac0, True
     chi2, lam = float(r @ r), 1e-3
     start = chi2 if chi2_before is None else chi2_before
     # the end: exact fits at 1e-9 of the chi-square; ranking fits not finer than that nor than `RANKING_TOLERANCE`
     tolerance = lambda chi2: max(1e-9 * chi2 + 1e-6, 0.0 if exact_end else RANKING_TOLERANCE)  # noqa: E731
-    for _ in range(LM_STEPS):
+    for _ in range(LM_STEPS if exact_end else RANKING_STEPS):
         if exact and exact_end:
             predicted = jac @ np.linalg.lstsq(jac, r, rcond=None)[0]  # the Gauss-Newton step's decrease
             if predicted @ predicted < tolerance(chi2):
@@ -637,7 +662,7 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
     factors = np.concatenate([1.0 + RUN_KINDS[k][0] * values[kinds.index(k) * n:(kinds.index(k) + 1) * n]
                               for k in ("stiffness", "inertia")])  # compliance and inertia stay positive
     if not chi2 < start or np.any(nonnegative < 0) or np.any(factors <= 0) or values[len(RUN_KINDS) * n] < 0 \
-            or not _identifiable(jac, effects, n, np.arange(jac.shape[1])):
+            or not _identifiable(jac, [], n, np.arange(jac.shape[1])):
         return None
     return z, chi2, r, np.linalg.inv(jac.T @ jac) if exact_end else None, jac
 
