@@ -585,8 +585,7 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
     """`_fit_variables` of the variables of `effects`; a payload that starts at zero is fitted in two stages: its
     mass first (at the flange's origin, the centre of mass fixed), then with its centre of mass. From zero mass the
     linearisation lacks the point's inertia, which grows with the square of its distance: a first step on every
-    variable can throw the centre of mass into a far minimum (on the p4 case's runs 0.64 m along the flange axis,
-    a chi-square 293 above that of the minimum near the true 0.06 m)."""
+    variable can throw the centre of mass into a far local minimum (benchmarks/results_runs.md)."""
     n = robot.n_joints
     idx = np.array([i for e in effects for i in _index(e, n)])
     moments = _index(RunEffect("payload", None), n)[1:]
