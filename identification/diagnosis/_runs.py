@@ -603,11 +603,11 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
 
 def _fit_variables(robot, z0, idx, ev: _Evidence, marker, substeps, r0, jac0, exact_end: bool = True,
                    chi2_before: float | None = None):
-    """Levenberg-Marquardt on the variables `idx` from `z0`, where the residual is `r0` and its derivatives
-    along those variables `jac0` (`_evaluate`): (z, chi2, residual, covariance of the variables, derivatives) at the
-    end, or None where the fit leaves the physical range (a negative lag, damping, friction or payload mass, a
-    compliance or inertia factor at or below 0), ends on dependent derivatives or fails to lower the chi-square below
-    `chi2_before` (default: that at `z0`).
+    """Levenberg-Marquardt on the variables `idx` from `z0`, where the residual is `r0` and its derivatives along
+    those variables `jac0` (`_evaluate`): (z, chi2, residual, covariance of the variables, derivatives) at the end,
+    or None where it starts without a rest pose (a residual that is not finite), leaves the physical range (a
+    negative lag, damping, friction or payload mass, a compliance or inertia factor at or below 0), ends on dependent
+    derivatives or fails to lower the chi-square below `chi2_before` (default: that at `z0`).
 
     Between evaluations (`_evaluate`: "fresh" derivatives) the derivatives follow Broyden's rank-one update at each
     accepted step. With `exact_end` they are evaluated afresh where a step fails on updated ones, the fit ends where
@@ -617,6 +617,8 @@ def _fit_variables(robot, z0, idx, ev: _Evidence, marker, substeps, r0, jac0, ex
     run, the fit ends where the step's predicted decrease is below the ranking tolerance, and the covariance is
     None."""
     n = robot.n_joints
+    if not (np.all(np.isfinite(r0)) and np.all(np.isfinite(jac0))):  # a model without a rest pose
+        return None
     z, r, jac, exact = jnp.asarray(z0), r0, jac0, True
     chi2, lam = float(r @ r), 1e-3
     start = chi2 if chi2_before is None else chi2_before
@@ -769,7 +771,8 @@ def diagnose_runs(
     screens every effect not yet added by the linearised BIC change of its own variables (a lag only for a motor
     whose encoders depart, and while one does, the lags alone: no other effect moves the motors, while others can
     mimic a lag's effect on the tool over a short run; no lag of a motor whose command does not move), fits the
-    `SCREENED` best with the effects already added by Levenberg-Marquardt through the simulation and the rest poses
+    `SCREENED` best, and the payload (its gain linearised at zero mass lacks the point's inertia), with the effects
+    already added by Levenberg-Marquardt through the simulation and the rest poses
     (derivatives by forward differences, `FD_STEP`, at the start, then Broyden's updates: `_fit`), and ranks the fits
     by BIC: of those within `MIN_BIC_GAIN` of the best, the one of fewest parameters (the data cannot tell them
     apart: `RunConfound`, with the correlation of their signatures). That one's fit is continued on fresh derivatives
@@ -867,9 +870,11 @@ def diagnose_runs(
             gain.append(float(g @ np.linalg.pinv(a.T @ a) @ g) - len(own) * ln_n
                         if _identifiable(cols[:, rest], [], n, np.arange(len(rest))) else -np.inf)
         fits = []  # each candidate's fit ends on updated derivatives; the chosen one is then confirmed on fresh ones
-        for k in np.argsort(-np.asarray(gain), kind="stable")[:SCREENED]:
+        shortlist = list(np.argsort(-np.asarray(gain), kind="stable")[:SCREENED])
+        shortlist += [k for k, c in enumerate(eligible) if c.kind == "payload" and k not in shortlist]
+        for k in shortlist:  # the payload always: its gain linearised at zero mass lacks the point's inertia
             if gain[k] == -np.inf:
-                break
+                continue
             effects = added + [eligible[k]]
             fit = _fit(base, z, effects, ev, marker, substeps, res,
                        cols[:, [i for e in effects for i in _index(e, n)]], exact_end=False)

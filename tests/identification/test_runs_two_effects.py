@@ -121,7 +121,7 @@ def test_ur5_lag_and_payload_with_a_still_motor(tmp_path):
     train = [pair([0.4, 0.3, -0.4, 0.0, 0.5, 0.6], 5.0), pair([-0.3, 0.4, 0.3, 0.0, -0.4, 0.5], 7.0)]
     val = [pair([0.3, -0.3, 0.35, 0.0, 0.4, -0.5], 6.0)]
     res = diagnose_runs(start, train, val, marker, noise, encoder_quantum=2 * np.pi / sensors["encoder_counts_per_rev"])
-    assert named(res) == [("lag", 1), ("payload", None)], res.verdict
+    assert named(res) == [("lag", 1), ("payload", None)], (res.verdict, [s.effect for s in res.steps], res.estimates)
     for e in res.estimates:
         if e.effect.kind == "lag":
             assert abs(e.value - 2e-3) < 3 * e.std, e
