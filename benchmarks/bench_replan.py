@@ -28,26 +28,30 @@ import numpy as np
 
 import jaxrobot as jr
 import planning as pl
-from identification.diagnosis import diagnose_runs
+from identification.diagnosis import diagnose_runs, payload_robot
 from identification.diagnosis._runs import simulate_run
 
-CASES = ("p0_clean", "p1_joint1_damping", "p2_motor_lag_j123", "p3_joint3_stiffness")
+CASES = ("p0_clean", "p1_joint1_damping", "p2_motor_lag_j123", "p3_joint3_stiffness", "p4_lag_j2_j4_payload",
+         "p5_joint2_stiffness_joint1_friction")
 NU = 1e-14
 """The weighting factor of the plans: the nu of the runs that train the diagnosis."""
 SECTION = "## Re-plan on the corrected model: "
 
 
 def true_robot(folder: Path) -> jr.Robot:
-    """The case's true robot in our format: `start.toml` plus the lag, damping and stiffness of `truth.json` (k1 and
-    k3 scaled alike); refuses effects our robot file cannot hold."""
+    """The case's true robot in our format: `start.toml` plus the lag, damping, stiffness (k1 and k3 scaled alike),
+    link-side viscous friction and point payload of `truth.json`; refuses a k3 change our robot file cannot hold."""
     robot = jr.load_robot(folder / "start.toml")
     effects = json.loads((folder / "truth.json").read_text())["effects"]
-    if any(effects["k3_delta"]) or effects["payload_mass"] or any(effects["link_friction"]):
-        raise ValueError(f"{folder.name}: truth.json holds effects beyond lag, damping and stiffness scale")
+    if any(effects["k3_delta"]):
+        raise ValueError(f"{folder.name}: truth.json holds a k3 change beyond the stiffness scale")
     scale = np.asarray(effects["stiffness_scale"])
-    return dataclasses.replace(robot, c=robot.c / scale,
-                               motor_lag=jnp.asarray(effects["lag"]) if any(effects["lag"]) else None,
-                               damping=jnp.asarray(effects["damping"]) if any(effects["damping"]) else None)
+    robot = dataclasses.replace(robot, c=robot.c / scale,
+                                motor_lag=jnp.asarray(effects["lag"]) if any(effects["lag"]) else None,
+                                damping=jnp.asarray(effects["damping"]) if any(effects["damping"]) else None,
+                                viscous_friction=jnp.asarray(effects["link_friction"])
+                                if any(effects["link_friction"]) else None)
+    return payload_robot(robot, effects["payload_mass"], jnp.asarray(effects["payload_com"]))
 
 
 def diagnose_case(folder: Path, samples: int, tracker_noise: float | None = None):

@@ -35,8 +35,8 @@ def configure(parser) -> None:
     add_tracker_options(parser)
     parser.add_argument("--max-steps", type=int, default=6, help="most effects to add (default 6)")
     parser.add_argument("--run-kinds", nargs="+", default=None, metavar="KIND",
-                        help="the per-joint effects --runs screens (default: lag damping stiffness cubic; also "
-                             "viscous coulomb inertia: link-side friction and link inertia)")
+                        help="the effects --runs screens (default: lag damping stiffness cubic viscous coulomb "
+                             "payload; also inertia: the link inertia)")
     add_approach_option(parser)
     add_loss_option(parser)
     parser.add_argument("--max-order", type=int, default=400, help="highest ripple order searched (default 400)")
@@ -68,7 +68,11 @@ def _diagnose_runs(args, echo) -> dict:
     """`diagnose --runs`: the dynamic effects of `_runs.diagnose_runs`, with the pose files as further evidence.
     **Returns** the `--json` summary: `verdict` (str), `effects` (`[{"effect": str (label), "kind": str, "joint":
     int (1-based) or None, "parameter": str, "value": float, "std": float, "unit": str}]`, the fitted parameters
-    in their units) and `steps` (one `RunStep` per model compared, as a dict of its fields)."""
+    in their units), `steps` (one `RunStep` per model compared, as a dict of its fields), `confounds` (`[{"kept": str,
+    "rival": str (labels), "delta_bic": float, "correlation": float, "removed": bool}]`, `RunConfound`) and
+    `untested`: `{"not_screened": [str] (kinds), "still_motors": [int] (1-based), "limits": [{"effect": str, "kind":
+    str, "joint": int (1-based) or None, "parameter": str, "value": float (None: it cannot show at all), "unit": str}]}`
+    (`RunDiagnosis`)."""
     import jaxrobot as jr
 
     from ..diagnosis._runs import diagnose_runs
@@ -104,6 +108,10 @@ def _diagnose_runs(args, echo) -> dict:
                         encoder_quantum=0.0 if counts is None else 2 * np.pi / counts, on_event=progress, poses=poses,
                         **({} if args.run_kinds is None else {"kinds": tuple(args.run_kinds)}))
     echo(f"verdict: {res.verdict}")
+    for c in res.confounds:
+        echo(f"  {c.text}")
+    for line in res.untested:
+        echo(f"  could not test: {line}")
     effects = []
     for e in res.estimates:
         echo(f"  {e.effect.label}: {e.parameter} {e.shown} +- {e.std:.2g} {e.unit}")
@@ -114,7 +122,15 @@ def _diagnose_runs(args, echo) -> dict:
         jr.save_robot(res.robot, args.save_model, keep=jr.read_description(args.model) if args.model else None)
         echo(f"wrote {args.save_model}")
     return {"verdict": res.verdict, "effects": effects,
-            "steps": [dataclasses.asdict(s) for s in res.steps]}
+            "steps": [dataclasses.asdict(s) for s in res.steps],
+            "confounds": [{"kept": c.kept.label, "rival": c.rival.label, "delta_bic": c.delta_bic,
+                           "correlation": c.correlation, "removed": c.removed} for c in res.confounds],
+            "untested": {"not_screened": list(res.not_screened), "still_motors": [j + 1 for j in res.still_motors],
+                         "limits": [{"effect": lim.effect.label, "kind": lim.effect.kind,
+                                     "joint": None if lim.effect.joint is None else lim.effect.joint + 1,
+                                     "parameter": lim.parameter,
+                                     "value": lim.value if np.isfinite(lim.value) else None, "unit": lim.unit}
+                                    for lim in res.limits]}}
 
 
 def run(args, echo) -> dict:

@@ -159,19 +159,23 @@ value reported; the fit varies `e = k3/k1` [1/rad^2] by `1e5 x`), `viscous` and 
 centre of mass (the value reported; the fit varies it by `1 + x/10`). Besides them `PAYLOAD`. The rotor inertia is
 not a candidate: the motors follow their commands kinematically (ideal velocity loops, or the first-order lag), so
 it changes only the motor torques, which neither the tracker nor the encoders see (motor currents would show it)."""
-SCREENED_KINDS = ("lag", "damping", "stiffness", "cubic")
-"""The kinds `diagnose_runs` screens unless told otherwise (`kinds`): those validated on the independent runs. The
-friction and inertia kinds are offered on request: over short runs they can mimic a lag or a stiffness (a link
-inertia or a large viscous friction absorbed most of the lag case's 3 ms lags on 0.7 s of its runs, with a negative
-inertia factor), so ask for them where the robot is known to rub or to carry unknown masses."""
+SCREENED_KINDS = ("lag", "damping", "stiffness", "cubic", "viscous", "coulomb", "payload")
+"""The kinds `diagnose_runs` screens unless told otherwise (`kinds`): every per-joint kind of `RUN_KINDS` but the link
+inertia, and the payload (`PAYLOAD`). Kinds that can mimic each other over short runs (a payload and a joint's
+stiffness, a lag and a damping, a friction and a lag) are fitted against each other on the same footing (BIC), and
+the one of fewer parameters is kept where the data cannot tell them apart (`RunConfound`). The link inertia is
+offered on request: a link inertia factor absorbs a lag's or a payload's effect on the tool over short runs."""
+KINDS = (*RUN_KINDS, "payload")
+"""Every kind `diagnose_runs` can screen: the per-joint ones of `RUN_KINDS` and the payload."""
 NONNEGATIVE = ("lag", "damping", "viscous", "coulomb")
 """The kinds whose value is physical only at or above 0 (a fit that leaves that range is refused)."""
 PAYLOAD = (("mass", 1.0, "kg"), ("x", 0.1, "m"), ("y", 0.1, "m"), ("z", 0.1, "m"))
 """The payload effect's reported parameters (name, scale of its fit variable, unit): a point mass on the flange, its
 mass and its position in the last link's frame (`payload_robot`); it acts on the runs through gravity and inertia and
 on the poses through gravity. The fit varies the mass and the first moment `mass * position` (scales 1 kg, 0.1 kg m),
-in which the gravity torque is linear. A candidate only where poses are given: short runs alone confuse it with a
-joint's stiffness (benchmarks/results_runs.md)."""
+in which the gravity torque is linear. Short runs alone can confuse it with a joint's stiffness: where they cannot tell
+them apart, the stiffness (one parameter) is kept and the confusion reported (`RunConfound`); poses at rest separate
+them (benchmarks/results_runs.md)."""
 SCREENED = 3
 """Candidates per step fitted in full: those with the largest linearised chi-square decrease."""
 ENCODER_LAG_RAD = 1e-6
@@ -180,20 +184,31 @@ candidate (above the files' rounding, 12 digits, ~1e-10 rad; and at least two en
 encoder_counts_per_rev` states them): the encoders report the motor angle, so a lag shows there first."""
 LM_STEPS = 30
 """Most Levenberg-Marquardt iterations of a fit."""
+RANKING_STEPS = 10
+"""Most iterations of a candidate's fit for ranking (`_fit` without `exact_end`): on updated derivatives a fit of
+several variables (the payload's four) can creep on for all `LM_STEPS`, a simulation each; the chosen fit is
+continued on fresh derivatives."""
 RANKING_TOLERANCE = 0.01
 """Chi-square decrease of an accepted step below which a candidate's fit for ranking ends (`_fit` without
 `exact_end`), or the exact fits' tolerance (1e-9 of the chi-square) where that is larger: a ranking is not resolved
 finer than a fit's end. The best candidate's fit is then continued on exact derivatives to that tolerance. Far
 below `MIN_BIC_GAIN`: only candidates within it of each other could swap ranks."""
-TANGENTS = 1
-"""Derivative columns per call of the fits' compiled derivative program: they evaluate theirs this many at a time,
-zero-padded, so that one program serves every number of fitted effects (one: a single forward-mode pass per call).
-The screening evaluates every variable's column in one batch of a second program, cheaper per column than single
-passes (`_columns`), where it needs more than `BATCH_COLUMN_COST` of them."""
-BATCH_COLUMN_COST = 0.5
-"""The cost of a column in the screening's batch, in single forward-mode passes (`benchmarks/results_runs.md`): the
-screening evaluates its columns in one batch of every candidate's where it needs more than this share of them
-(while only lags are eligible, a few), else one pass per column."""
+FD_STEP = 1e-4
+"""Step of the forward differences that give the fits' derivative columns, in units of each variable's scale
+(`RUN_KINDS`, `PAYLOAD`; upwards, so that a lag, damping, friction or mass at 0 stays physical): their truncation error
+is ~1e-4 of a column, below the fits' resolution, and the rounding error of a residual of 1e6 noise units ~1e-6 of
+one. A forward difference costs one simulation per column, a forward-mode derivative pass about seven
+(benchmarks/results_runs.md)."""
+BATCH = 8
+"""Perturbed models simulated per call of the batched program (`_perturbed`: one `vmap` of the simulation, one
+compiled program for any number of columns); a remainder of fewer than `SINGLE_BELOW` columns runs as single
+simulations of the residual's program instead."""
+SINGLE_BELOW = 4
+"""A batch of `BATCH` perturbed simulations costs about four single ones on the CPU (benchmarks/results_runs.md):
+fewer columns than this run one simulation each."""
+DETECTION = MIN_BIC_GAIN
+"""Chi-square rise, beyond a parameter's BIC cost `ln(rows)`, that an effect must cause to be added: the size of a
+candidate at which its linearised chi-square reaches this is its detection limit (`RunDiagnosis.limits`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -239,6 +254,49 @@ class RunEstimate:
         nine), trailing zeros kept, so that a value and its std can be read against each other."""
         resolved = math.ceil(math.log10(abs(self.value) / self.std)) + 2 if self.std > 0 and self.value != 0 else 0
         return f"{self.value:#.{max(6, resolved)}g}"
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfound:
+    """Two explanations of the runs that the data could hardly tell apart, and which one the loop kept."""
+
+    kept: RunEffect
+    """The effect kept (of the two, the one of fewer parameters where their BIC differs by less than
+    `MIN_BIC_GAIN`, else the one of lower BIC)."""
+    rival: RunEffect
+    """The effect it was fitted against: a candidate of the same step, or an effect added earlier and removed."""
+    delta_bic: float
+    """BIC of the model with `rival` instead of `kept` minus that with `kept` (negative: the rival fits better but
+    costs more parameters than its gain is worth)."""
+    correlation: float
+    """Correlation of the two effects' signatures on the data: the changes of the whitened residual each one's fit
+    makes, in [-1, 1]; near 1 the runs show them alike."""
+    removed: bool = False
+    """Whether `rival` had been added at an earlier step and was removed because `kept` explains what it did."""
+
+    @property
+    def text(self) -> str:
+        """In words."""
+        if self.removed:
+            return (f"{self.rival.label} removed: {self.kept.label} explains what it did (BIC {self.delta_bic:+.1f} "
+                    f"with it kept instead, signatures correlated {self.correlation:.3f})")
+        return (f"{self.kept.label} kept against {self.rival.label} (BIC {self.delta_bic:+.1f} with the rival, "
+                f"signatures correlated {self.correlation:.3f})")
+
+
+@dataclasses.dataclass(frozen=True)
+class RunLimit:
+    """The least size of a candidate effect that the runs would have shown (`DETECTION`): smaller, it is below the
+    noise."""
+
+    effect: RunEffect
+    """The candidate (not added)."""
+    parameter: str
+    """Its parameter: the kind for a per-joint effect, `mass` for the payload (at the flange's origin)."""
+    value: float
+    """The least departure from the model's value, in `unit` (`stiffness`, `inertia`: of the factor from 1)."""
+    unit: str
+    """The unit of `value` (`RUN_KINDS`, `PAYLOAD`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -289,6 +347,34 @@ class RunDiagnosis:
     fit: tuple = dataclasses.field(repr=False, compare=False)
     """`(start, variables, indices, covariance)`: the start robot with zeros in its absent effect fields, the fit's
     scaled effect variables, the indices of the added effects' ones and their covariance (what `sample` draws)."""
+    not_screened: tuple[str, ...] = ()
+    """The kinds of `KINDS` that were not candidates (`kinds`)."""
+    still_motors: tuple[int, ...] = ()
+    """0-based motors whose commands do not move in the training runs (by less than the encoders' test): their lag
+    cannot show, so it is not a candidate."""
+    limits: list[RunLimit] = dataclasses.field(default_factory=list)
+    """Per candidate not added, the least size the training runs would have shown (each alone, linearised at the
+    model of the last screening that had it, else at the final model): effects below these are below the noise."""
+    confounds: list[RunConfound] = dataclasses.field(default_factory=list)
+    """The explanations that competed for the same signature, and which the loop kept."""
+
+    @property
+    def untested(self) -> list[str]:
+        """What the runs could not test, in words: the kinds not screened, the motors that did not move, and per
+        kind the least sizes that would have shown."""
+        out = []
+        if self.not_screened:
+            out.append("not screened: " + ", ".join(self.not_screened))
+        if self.still_motors:
+            out.append("did not move (their lag cannot show): motor "
+                       + ", ".join(str(j + 1) for j in self.still_motors))
+        for kind in KINDS:
+            rows = [lim for lim in self.limits if lim.effect.kind == kind]
+            if rows:
+                where = ", ".join(f"{lim.value:.2g}" + ("" if lim.effect.joint is None
+                                                        else f" (j{lim.effect.joint + 1})") for lim in rows)
+                out.append(f"below the noise under: {kind} {where} {rows[0].unit}")
+        return out
 
     def sample(self, count: int, seed: int) -> list[jr.Robot]:
         """`count` robots consistent with the runs: the added effects' fit variables drawn (seeded) from a normal
@@ -347,16 +433,11 @@ def _residual(robot, z, cmd, white, measured, sigma, marker, substeps, encoders,
     return _whitened(robot, z, cmd, white, measured, sigma, marker, substeps, encoders, encoder_sigma)
 
 
-@functools.partial(jax.jit, static_argnames=("substeps", "batch"))
-def _columns(robot, z, tangents, cmd, white, measured, sigma, marker, substeps, encoders, encoder_sigma, batch=1):
-    """Residual (`_whitened`) and its derivatives (rows, T) along the `tangents` (4n + 4, T >= 1) of the variables:
-    forward-mode passes `batch` tangents at a time (`lax.map`; one batch gives every operation of the simulation a
-    tangent axis, which XLA's CPU backend runs slower per column than single passes for a few tangents, faster for
-    many)."""
-    f = lambda z: _whitened(robot, z, cmd, white, measured, sigma, marker, substeps, encoders,  # noqa: E731
-                            encoder_sigma)
-    r, cols = jax.lax.map(lambda t: jax.jvp(f, (z,), (t,)), tangents.T, batch_size=batch)
-    return r[0], cols.T
+@functools.partial(jax.jit, static_argnames="substeps")
+def _perturbed(robot, zs, cmd, white, measured, sigma, marker, substeps, encoders, encoder_sigma):
+    """`_whitened` at each row of `zs` (`BATCH`, 7n + 4): one batched simulation of the perturbed models."""
+    return jax.vmap(lambda z: _whitened(robot, z, cmd, white, measured, sigma, marker, substeps, encoders,
+                                        encoder_sigma))(zs)
 
 
 @jax.jit
@@ -444,28 +525,39 @@ def _prepare_poses(robot: jr.Robot, poses, noise, marker, where: str) -> tuple |
             jnp.asarray(poses.positions))
 
 
-def _evaluate(robot, z, ev: _Evidence, marker, substeps, variables=None, width: int = TANGENTS):
+def _evaluate(robot, z, ev: _Evidence, marker, substeps, variables=None):
     """Stacked whitened residuals of the runs (each its tracker's, then its encoders'), then the poses, of `ev` at
-    `z`, and their derivatives (rows, m) along the effect `variables` (m,) if given: the runs' `width` at a time
-    (zero-padded: one compiled program per `width` for any number of variables)."""
-    res, cols = [], []
+    `z`, and their derivatives (rows, m) along the effect `variables` (m,) if given: the runs' by forward differences
+    (`FD_STEP`; `BATCH` perturbed models per call), the poses' by forward-mode autodiff. Every simulation is
+    dispatched before any is read, so that independent ones can run at once."""
+    z = np.asarray(z, float)
+    chunks = []
+    if variables is not None:
+        variables = np.asarray(variables, int)
+        shifted = z[variables] + FD_STEP
+        steps = shifted - z[variables]  # the step as represented
+        chunks = [np.arange(k, min(k + BATCH, len(variables))) for k in range(0, len(variables), BATCH)]
+    pending = []
     for r in ev.runs:
-        if variables is None:
-            res.append(np.asarray(_residual(robot, z, r.command, r.white, r.measured, ev.sigma, marker, substeps,
-                                            ev.encoders(r), ev.encoder_sigma)))
-            continue
-        parts = []
-        for start in range(0, len(variables), width):
-            chunk = variables[start:start + width]
-            tangents = np.zeros((len(z), width))
-            tangents[chunk, np.arange(len(chunk))] = 1.0
-            out = _columns(robot, z, jnp.asarray(tangents), r.command, r.white, r.measured, ev.sigma, marker,
-                           substeps, ev.encoders(r), ev.encoder_sigma, width)
-            parts.append(np.asarray(out[1])[:, :len(chunk)])
-        res.append(np.asarray(out[0]))
-        cols.append(np.concatenate(parts, 1))
-    if ev.poses is not None:
-        r_p, j_p = (np.asarray(a) for a in _pose_rows(robot, z, *ev.poses, marker))
+        data = (r.command, r.white, r.measured, ev.sigma, marker, substeps, ev.encoders(r), ev.encoder_sigma)
+        calls = []
+        for chunk in chunks:
+            zs = np.repeat(z[None], BATCH if len(chunk) >= SINGLE_BELOW else len(chunk), 0)
+            zs[np.arange(len(chunk)), variables[chunk]] = shifted[chunk]
+            calls.append([_perturbed(robot, jnp.asarray(zs), *data)] if len(chunk) >= SINGLE_BELOW
+                         else [_residual(robot, jnp.asarray(zk), *data) for zk in zs])
+        pending.append((_residual(robot, jnp.asarray(z), *data), calls))
+    poses = None if ev.poses is None else _pose_rows(robot, jnp.asarray(z), *ev.poses, marker)
+    res, cols = [], []
+    for base, calls in pending:
+        base = np.asarray(base)
+        res.append(base)
+        if variables is not None:
+            parts = [((np.concatenate([np.asarray(c).reshape(-1, base.size) for c in call])[:len(chunk)] - base)
+                      / steps[chunk, None]).T for chunk, call in zip(chunks, calls)]
+            cols.append(np.concatenate(parts, 1) if parts else np.zeros((base.size, 0)))
+    if poses is not None:
+        r_p, j_p = (np.asarray(a) for a in poses)
         res.append(r_p)
         cols.append(j_p[:, variables] if variables is not None else None)
     return np.concatenate(res), None if variables is None else np.concatenate(cols)
@@ -492,26 +584,49 @@ def _identifiable(cols, effects, n: int, at=None) -> bool:
 
 def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_end: bool = True,
          chi2_before: float | None = None):
-    """Levenberg-Marquardt on the variables of `effects` from `z0`, where the residual is `r0` and its exact derivatives
-    along those variables `jac0`: (z, chi2, residual, covariance of the variables) at the end, or None
-    where the fit leaves the physical range (a negative lag, damping, friction or payload mass, a compliance or
-    inertia factor at or below 0), ends on dependent derivatives
-    or fails to lower the chi-square below `chi2_before` (default: that at `z0`).
-
-    Between exact evaluations the derivatives follow Broyden's rank-one update at each accepted step. With
-    `exact_end` they are evaluated exactly again where a step fails on updated ones, the fit ends where a step on
-    exact derivatives lowers the chi-square by less than the tolerance or the exact Gauss-Newton step predicts no
-    more, and the covariance is `(J^T J)^-1` of the exact derivatives at the end. Without it (a candidate's fit for
-    ranking, `RANKING_TOLERANCE`) a failed step updates them too, only the trials' simulations run, the fit ends
-    where the step's predicted decrease is below the ranking tolerance, and the covariance is None."""
+    """`_fit_variables` of the variables of `effects`; a payload that starts at zero is fitted in two stages: its
+    mass first (at the flange's origin, the centre of mass fixed), then with its centre of mass. From zero mass the
+    linearisation lacks the point's inertia, which grows with the square of its distance: a first step on every
+    variable can throw the centre of mass into a far local minimum (benchmarks/results_runs.md)."""
     n = robot.n_joints
     idx = np.array([i for e in effects for i in _index(e, n)])
+    moments = _index(RunEffect("payload", None), n)[1:]
+    if RunEffect("payload", None) not in effects or np.any(np.asarray(z0)[_index(RunEffect("payload", None), n)]):
+        return _fit_variables(robot, z0, idx, ev, marker, substeps, r0, jac0, exact_end, chi2_before)
+    keep = np.flatnonzero(~np.isin(idx, moments))
+    first = _fit_variables(robot, z0, idx[keep], ev, marker, substeps, r0, jac0[:, keep], exact_end=False,
+                           chi2_before=chi2_before)
+    if first is None:
+        return None
+    jac = np.array(jac0, float)
+    jac[:, keep] = first[4]
+    return _fit_variables(robot, first[0], idx, ev, marker, substeps, first[2], jac, exact_end, chi2_before)
+
+
+def _fit_variables(robot, z0, idx, ev: _Evidence, marker, substeps, r0, jac0, exact_end: bool = True,
+                   chi2_before: float | None = None):
+    """Levenberg-Marquardt on the variables `idx` from `z0`, where the residual is `r0` and its derivatives along
+    those variables `jac0` (`_evaluate`): (z, chi2, residual, covariance of the variables, derivatives) at the end,
+    or None where it starts without a rest pose (a residual that is not finite), leaves the physical range (a
+    negative lag, damping, friction or payload mass, a compliance or inertia factor at or below 0), ends on dependent
+    derivatives or fails to lower the chi-square below `chi2_before` (default: that at `z0`).
+
+    Between evaluations (`_evaluate`: "fresh" derivatives) the derivatives follow Broyden's rank-one update at each
+    accepted step. With `exact_end` they are evaluated afresh where a step fails on updated ones, the fit ends where
+    a step on fresh derivatives lowers the chi-square by less than the tolerance or the Gauss-Newton step on them
+    predicts no more, and the covariance is `(J^T J)^-1` of the fresh derivatives at the end. Without it (a
+    candidate's fit for ranking, `RANKING_TOLERANCE`) a failed step updates them too, only the trials' simulations
+    run, the fit ends where the step's predicted decrease is below the ranking tolerance, and the covariance is
+    None."""
+    n = robot.n_joints
+    if not (np.all(np.isfinite(r0)) and np.all(np.isfinite(jac0))):  # a model without a rest pose
+        return None
     z, r, jac, exact = jnp.asarray(z0), r0, jac0, True
     chi2, lam = float(r @ r), 1e-3
     start = chi2 if chi2_before is None else chi2_before
     # the end: exact fits at 1e-9 of the chi-square; ranking fits not finer than that nor than `RANKING_TOLERANCE`
     tolerance = lambda chi2: max(1e-9 * chi2 + 1e-6, 0.0 if exact_end else RANKING_TOLERANCE)  # noqa: E731
-    for _ in range(LM_STEPS):
+    for _ in range(LM_STEPS if exact_end else RANKING_STEPS):
         if exact and exact_end:
             predicted = jac @ np.linalg.lstsq(jac, r, rcond=None)[0]  # the Gauss-Newton step's decrease
             if predicted @ predicted < tolerance(chi2):
@@ -550,9 +665,9 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
     factors = np.concatenate([1.0 + RUN_KINDS[k][0] * values[kinds.index(k) * n:(kinds.index(k) + 1) * n]
                               for k in ("stiffness", "inertia")])  # compliance and inertia stay positive
     if not chi2 < start or np.any(nonnegative < 0) or np.any(factors <= 0) or values[len(RUN_KINDS) * n] < 0 \
-            or not _identifiable(jac, effects, n, np.arange(jac.shape[1])):
+            or not _identifiable(jac, [], n, np.arange(jac.shape[1])):
         return None
-    return z, chi2, r, np.linalg.inv(jac.T @ jac) if exact_end else None
+    return z, chi2, r, np.linalg.inv(jac.T @ jac) if exact_end else None, jac
 
 
 def _estimate(robot, z, effects, cov) -> tuple[list[RunEstimate], np.ndarray]:
@@ -592,6 +707,39 @@ def _estimate(robot, z, effects, cov) -> tuple[list[RunEstimate], np.ndarray]:
     return [RunEstimate(e, name, float(v), float(sd), unit) for (e, name, v, unit), sd in zip(values, std)], covariance
 
 
+def _signature_correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Correlation of two changes of the whitened residual (0 where one is zero)."""
+    norm = float(np.linalg.norm(a) * np.linalg.norm(b))
+    return float(a @ b) / norm if norm > 0 else 0.0
+
+
+def _still_motors(runs: list[_Run], threshold: float) -> np.ndarray:
+    """(n,) per motor, whether its commanded angle moves by at most `threshold` [rad] over every run."""
+    return np.all([np.ptp(np.asarray(r.command[1]), 0) <= threshold for r in runs], 0)
+
+
+def _limits(robot, z, effects: list[RunEffect], cols: np.ndarray, ln_n: float) -> list[RunLimit]:
+    """The detection limit of each of `effects` (one column each in `cols`, the payload's mass column) at `z`: the
+    size whose linearised chi-square rise alone is `DETECTION + ln_n`, in its reported unit."""
+    n, out = robot.n_joints, []
+    z = np.asarray(z, float)
+    for e, col in zip(effects, cols.T):
+        norm = float(np.linalg.norm(col))
+        step = math.sqrt(DETECTION + ln_n) / norm if norm > 0 else math.inf
+        i = _index(e, n)[0]
+        if e.kind == "payload":
+            out.append(RunLimit(e, "mass", PAYLOAD[0][1] * step, PAYLOAD[0][2]))
+            continue
+        if not math.isfinite(step):
+            out.append(RunLimit(e, e.kind, math.inf, RUN_KINDS[e.kind][1]))
+            continue
+        moved = z.copy()
+        moved[i] += step
+        here, there = (_estimate(robot, at, [e], np.zeros((1, 1)))[0][0].value for at in (z, moved))
+        out.append(RunLimit(e, e.kind, abs(there - here), RUN_KINDS[e.kind][1]))
+    return out
+
+
 def diagnose_runs(
     robot: jr.Robot,
     train: list,
@@ -607,8 +755,8 @@ def diagnose_runs(
     progress: Callable[[RunStep], None] | None = None,
     kinds: tuple[str, ...] = SCREENED_KINDS,
 ) -> RunDiagnosis:
-    """Name the dynamic effects (`kinds` of `RUN_KINDS`, `PAYLOAD`) that `robot` misses from trajectory runs, one per
-    step, with poses at rest as further evidence where given.
+    """Name the dynamic effects (`kinds` of `KINDS`) that `robot` misses from trajectory runs, one per step, with
+    poses at rest as further evidence where given.
 
     `train`, `validation`: lists of `(command, run)` pairs (`jaxrobot.io.read_command_csv`,
     `read_trajectory_csv`); `marker` (3,) [m] in the tool frame; `noise` the tracker's std per axis [m] or a
@@ -616,30 +764,38 @@ def diagnose_runs(
     unknown): where given, the runs' encoder angles are residuals of the fits beside the tracker's, in units of the
     quantisation's std `encoder_quantum / sqrt(12)` (they fix a lag far better than the tracker can); `poses`:
     `(training, validation)` `jaxrobot.measurement.Poses` measured with the same marker, each residual in units of
-    `pose_noise` (default `noise`); `kinds` the per-joint kinds screened (default `SCREENED_KINDS`); `on_event`
-    receives each `RunStep` as it is scored (`progress`: its deprecated old name).
+    `pose_noise` (default `noise`); `kinds` the kinds screened (default `SCREENED_KINDS`); `on_event` receives each
+    `RunStep` as it is scored (`progress`: its deprecated old name).
 
     Each step compares the model with the training runs and poses (one chi-square over the tracker's and the poses'
     rows, each in units of its own noise, as `compare_run`) and the encoders with the model's motor angles (their
     departure against `ENCODER_LAG_RAD` or two quanta); while the test fails, or a motor without a lag departs, it
-    screens every effect not yet added by the linearised chi-square decrease of its own variables (a lag only for a
-    motor whose encoders depart, and while one does, the lags alone: no other effect moves the motors, while others
-    can mimic a lag's effect on the tool over a short run; the payload only with poses, `PAYLOAD`), fits the
-    `SCREENED` best with the effects already added by Levenberg-Marquardt through the simulation and the
-    rest poses (forward-mode derivatives at the start, then Broyden's updates: `_fit`), continues the fit of least
-    chi-square on exact derivatives to convergence, and adds it (BIC over all rows) if it lowers BIC by more than
-    `MIN_BIC_GAIN` and lowers the validation runs' and poses' chi-square. The model without an effect is where each
-    fit starts (lag, damping, friction and payload 0). Static effects that runs do not change (geometry, gear
-    ripple, offsets: `diagnose`) are not candidates: diagnose the poses alone for them first."""
+    screens every effect not yet added by the linearised BIC change of its own variables (a lag only for a motor
+    whose encoders depart, and while one does, the lags alone: no other effect moves the motors, while others can
+    mimic a lag's effect on the tool over a short run; no lag of a motor whose command does not move), fits the
+    `SCREENED` best, and the payload (its gain linearised at zero mass lacks the point's inertia), with the effects
+    already added by Levenberg-Marquardt through the simulation and the rest poses
+    (derivatives by forward differences, `FD_STEP`, at the start, then Broyden's updates: `_fit`), and ranks the fits
+    by BIC: of those within `MIN_BIC_GAIN` of the best, the one of fewest parameters (the data cannot tell them
+    apart: `RunConfound`, with the correlation of their signatures). That one's fit is continued on fresh derivatives
+    to convergence and added if it lowers BIC by more than `MIN_BIC_GAIN` and lowers the validation runs' and poses'
+    chi-square. Each effect added before it (but the lags, which the encoders fix) is then fitted out again: where
+    the model without it is within `MIN_BIC_GAIN` of the BIC with it, it is removed (the new effect explains what it
+    did) and not offered again. The model without an effect is where each fit starts (lag, damping, friction and
+    payload 0). Static effects that runs do not change (geometry, gear ripple, offsets: `diagnose`) are not
+    candidates: diagnose the poses alone for them first.
+
+    The result lists what the runs could not test: the kinds not screened, the motors that did not move, and the
+    detection limit of each candidate not added (`RunDiagnosis.untested`)."""
     on_event = renamed_argument("diagnose_runs", "progress", "on_event", progress, on_event)
     n = robot.n_joints
     if max_steps < 0 or substeps < 1:
         raise ValueError(f"max_steps >= 0 and substeps >= 1 expected, found {max_steps}, {substeps}")
     if poses is not None and len(poses) != 2:
         raise ValueError(f"poses: expected (training, validation) Poses, found {len(poses)} items")
-    unknown = [k for k in kinds if k not in RUN_KINDS]
+    unknown = [k for k in kinds if k not in KINDS]
     if unknown or not kinds:
-        raise ValueError(f"kinds: expected one or more of {list(RUN_KINDS)}, found {list(kinds)}")
+        raise ValueError(f"kinds: expected one or more of {list(KINDS)}, found {list(kinds)}")
     if encoder_quantum < 0:
         raise ValueError(f"encoder_quantum: expected the encoders' resolution >= 0 rad, found {encoder_quantum}")
     runs, sigma = _prepare(train, noise, "train")
@@ -655,15 +811,19 @@ def diagnose_runs(
     ln_n = math.log(ev.rows)
     threshold = max(ENCODER_LAG_RAD, 2.0 * encoder_quantum)
     size = len(RUN_KINDS) * n + len(PAYLOAD)
+    still = _still_motors(runs, threshold)
 
     departs = np.zeros(n, bool)  # per motor, whether the encoders depart beyond `threshold` at the last row's model
 
     def row(step, label, z, m):
         nonlocal departs
-        current = _with_effects(base, z)
-        departure = np.max([np.max(np.abs(r.encoders - np.asarray(_simulated(current, *r.command, marker)[1])), 0)
-                            for r in runs], 0)
         res = _evaluate(base, z, ev, marker, substeps)[0]
+        if encoder_sigma is not None:  # the encoder rows are the departures in units of `encoder_sigma`
+            departure = np.max(np.abs(res[ev.encoder_mask]).reshape(-1, n), 0) * encoder_sigma
+        else:
+            current = _with_effects(base, z)
+            departure = np.max([np.max(np.abs(r.encoders - np.asarray(_simulated(current, *r.command, marker)[1])),
+                                       0) for r in runs], 0)
         chi2, dof, p_value = noise_test(res[~ev.encoder_mask].reshape(-1, 3), 1.0, m)
         chi2_e = float(np.sum(res[ev.encoder_mask] ** 2))
         res_v = _evaluate(base, z, ev_val, marker, substeps)[0]
@@ -676,77 +836,117 @@ def diagnose_runs(
         departs = departure > threshold
         return out
 
+    def params(effects) -> int:
+        return sum(len(_index(e, n)) for e in effects)
+
     z, added, cov = jnp.zeros(size), [], np.zeros((0, 0))
     steps = [row(0, "start", z, 0)]
     verdict = "no significant discrepancy: the model explains the runs to the tracker and encoder noise"
-    candidates = [RunEffect(k, j) for k in RUN_KINDS if k in kinds for j in range(n)] + ([RunEffect("payload", None)]
-                                                                         if poses is not None else [])
-    width = sum(len(_index(c, n)) for c in candidates)  # the screening's columns: one program for every step
+    candidates = [RunEffect(k, j) for k in RUN_KINDS if k in kinds for j in range(n)
+                  if not (k == "lag" and still[j])] + ([RunEffect("payload", None)] if "payload" in kinds else [])
+    removed: set[RunEffect] = set()
+    seen: dict[int, np.ndarray] = {}  # the latest screening's derivative column of each variable
+    confounds: list[RunConfound] = []
     while steps[-1].p_value <= ALPHA or ("lag" in kinds and any(d and RunEffect("lag", j) not in added
                                                                  for j, d in enumerate(departs))):
         if len(added) == max_steps:
             verdict = f"not explained after {max_steps} effects (--max-steps)"
             break
-        eligible = [c for c in candidates if c not in added and (c.kind != "lag" or departs[c.joint])]
+        eligible = [c for c in candidates if c not in added and c not in removed
+                    and (c.kind != "lag" or departs[c.joint])]
         if any(c.kind == "lag" for c in eligible):  # only a lag moves the motors: departing encoders need one first
             eligible = [c for c in eligible if c.kind == "lag"]
         if not eligible:
             verdict = "not explained: no effect of the catalogue is left to add"
             break
         needed = sorted({i for c in eligible + added for i in _index(c, n)})
-        batch = width if len(needed) > BATCH_COLUMN_COST * width else TANGENTS
-        res, part = _evaluate(base, z, ev, marker, substeps, needed, batch)  # reused by the fits' first step
+        res, part = _evaluate(base, z, ev, marker, substeps, needed)  # reused by the fits' first step
         cols = np.zeros((len(res), size))
         cols[:, needed] = part
+        seen.update({i: cols[:, i] for i in needed})
         gain = []
-        for c in eligible:  # the chi-square decrease of the candidate's own variables, linearised
+        for c in eligible:  # the BIC change of the candidate's own variables, linearised
             own = _index(c, n)
             a = cols[:, own]
             g = a.T @ res
             rest = [i for e in added for i in _index(e, n)] + own
-            gain.append(float(g @ np.linalg.pinv(a.T @ a) @ g) if _identifiable(cols[:, rest], [], n,
-                                                                                  np.arange(len(rest))) else -np.inf)
-        fits = []  # each candidate's fit ends on updated derivatives; the best is then confirmed on exact ones
-        for k in np.argsort(-np.asarray(gain), kind="stable")[:SCREENED]:
+            gain.append(float(g @ np.linalg.pinv(a.T @ a) @ g) - len(own) * ln_n
+                        if _identifiable(cols[:, rest], [], n, np.arange(len(rest))) else -np.inf)
+        fits = []  # each candidate's fit ends on updated derivatives; the chosen one is then confirmed on fresh ones
+        shortlist = list(np.argsort(-np.asarray(gain), kind="stable")[:SCREENED])
+        shortlist += [k for k, c in enumerate(eligible) if c.kind == "payload" and k not in shortlist]
+        for k in shortlist:  # the payload always: its gain linearised at zero mass lacks the point's inertia
             if gain[k] == -np.inf:
-                break
+                continue
             effects = added + [eligible[k]]
             fit = _fit(base, z, effects, ev, marker, substeps, res,
                        cols[:, [i for e in effects for i in _index(e, n)]], exact_end=False)
             if fit is not None:
-                fits.append((fit[1], eligible[k], fit))
+                fits.append((fit[1] + params(effects) * ln_n, eligible[k], fit))
+        fits.sort(key=lambda f: f[0])
+        # the same footing: of the fits within MIN_BIC_GAIN of the best BIC, the one of fewest parameters first
+        close = sorted((f for f in fits if f[0] < fits[0][0] + MIN_BIC_GAIN), key=lambda f: (params([f[1]]), f[0]))
         best = None
-        for _, effect, (z_fit, _, r_fit, _) in sorted(fits, key=lambda f: f[0]):
+        for bic_rank, effect, (z_fit, _, r_fit, _, _) in close + [f for f in fits if f not in close]:
             effects = added + [effect]
             variables = [i for e in effects for i in _index(e, n)]
             fit = _fit(base, z_fit, effects, ev, marker, substeps, r_fit,
                        _evaluate(base, z_fit, ev, marker, substeps, variables)[1], chi2_before=float(res @ res))
             if fit is not None:
-                best = (effect, fit)
+                best = (effect, fit, [(f[0] - bic_rank, f[1], f[2][2]) for f in close if f[1] != effect], r_fit)
                 break
         last = steps[-1]
         if best is None:
             verdict = "not explained: no candidate fit lowers the chi-square within the physical range"
             break
-        effect, (z_new, chi2_new, _, cov_new) = best
-        m_new = sum(len(_index(e, n)) for e in added + [effect])
+        effect, (z_new, chi2_new, _, cov_new, jac_new), rivals, r_kept = best
+        m_new = params(added + [effect])
         if not chi2_new + m_new * ln_n < last.bic - MIN_BIC_GAIN:
             verdict = f"not explained: the best candidate ({effect.label}) does not lower BIC by {MIN_BIC_GAIN}"
             break
-        new = row(len(added) + 1, effect.label, z_new, m_new)
+        new = row(len(steps), effect.label, z_new, m_new)
         validation = lambda r: r.chi2_validation + r.chi2_validation_encoders  # noqa: E731  (tracker and encoders)
         if not validation(new) < validation(last):
             verdict = f"not explained: {effect.label} does not lower the validation runs' chi-square"
             break
+        confounds += [RunConfound(effect, rival, float(delta), _signature_correlation(r_kept - res, r_rival - res))
+                      for delta, rival, r_rival in rivals]
         z, added, cov = z_new, added + [effect], cov_new
         steps.append(new)
+        bic, at = chi2_new + m_new * ln_n, [i for e in added for i in _index(e, n)]
+        signature = {e: jac_new[:, [at.index(i) for i in _index(e, n)]] @ np.asarray(z_new)[_index(e, n)]
+                     for e in added}  # each effect's linearised change of the residual at the new fit
+        for old in [e for e in added[:-1] if e.kind != "lag"]:  # fitted out again: does the new effect explain it?
+            rest = [e for e in added if e != old]
+            variables = [i for e in rest for i in _index(e, n)]
+            z_out = jnp.asarray(z).at[np.asarray(_index(old, n))].set(0.0)
+            r_out, jac_out = _evaluate(base, z_out, ev, marker, substeps, variables)
+            fit = _fit(base, z_out, rest, ev, marker, substeps, r_out, jac_out, chi2_before=math.inf)
+            if fit is None or not fit[1] + params(rest) * ln_n < bic + MIN_BIC_GAIN:
+                continue
+            confounds.append(RunConfound(effect, old, float(bic - (fit[1] + params(rest) * ln_n)),
+                                         _signature_correlation(signature[effect], signature[old]), removed=True))
+            z, added, cov, removed = fit[0], rest, fit[3], removed | {old}
+            bic = fit[1] + params(rest) * ln_n
+            steps.append(row(len(steps), f"without {old.label}", z, params(rest)))
     else:
         if added:
             verdict = ("explained: the runs agree with the model to the tracker and encoder noise after adding "
                        + ", ".join(e.label for e in added))
-    kinds = {e.kind for e in added}
+    added_kinds = {e.kind for e in added}
     final = dataclasses.replace(_with_effects(base, z), **{
-        field: None for field, kind in _EFFECT_FIELDS.items() if getattr(robot, field) is None and kind not in kinds})
+        field: None for field, kind in _EFFECT_FIELDS.items() if getattr(robot, field) is None
+        and kind not in added_kinds})
     estimates, covariance = _estimate(base, np.asarray(z), added, cov)
     variables = [i for e in added for i in _index(e, n)]
-    return RunDiagnosis(final, steps, estimates, verdict, covariance, (base, np.asarray(z), variables, cov))
+    unseen = [c for c in candidates if c not in added]
+    limits = []
+    if unseen:  # one column each (the payload's mass): the latest screening's, else at the final model
+        first = [_index(c, n)[0] for c in unseen]
+        missing = [i for i in first if i not in seen]
+        if missing:
+            seen.update(zip(missing, _evaluate(base, z, ev, marker, substeps, missing)[1].T))
+        limits = _limits(base, np.asarray(z), unseen, np.stack([seen[i] for i in first], 1), ln_n)
+    return RunDiagnosis(final, steps, estimates, verdict, covariance, (base, np.asarray(z), variables, cov),
+                        tuple(k for k in KINDS if k not in kinds), tuple(int(j) for j in np.flatnonzero(still)),
+                        limits, confounds)

@@ -178,7 +178,8 @@ def test_diagnose_runs_refuses_unknown_kinds():
     """`kinds` outside the catalogue is refused naming the argument and the catalogue, before any run is read."""
     from identification.diagnosis._runs import diagnose_runs
 
-    with pytest.raises(ValueError, match=r"kinds: expected one or more of \['lag', .*'inertia'\], found \['friction'"):
+    with pytest.raises(ValueError,
+                       match=r"kinds: expected one or more of \['lag', .*'inertia', 'payload'\], found \['friction'"):
         diagnose_runs(jr.racer7(), [], [], np.zeros(3), 5e-5, kinds=("friction",))
 
 
@@ -231,12 +232,11 @@ def test_diagnose_runs_names_an_effect_on_the_arm(hidden):
     lag on motor 1, a Coulomb friction of 0.08 N m on joint 2 (~1 % of its gravity torque) or link 1's inertia
     tensor x1.04 hidden (the marker moved by ~100 um), it adds that effect alone, its value within 3 of its
     reported sigma and that sigma below a fifth of the effect's size, and passes the chi-square test, screening
-    every kind of `RUN_KINDS` (the friction and inertia kinds are offered on request); with the lag, the arm
-    without it adds nothing; every case compiles at most two derivative
-    programs (the screening's, every variable at once, and the one every fit shares), the same for every hidden
-    effect. Extended: its four programs (the simulation, the residual, the two derivatives) compile in ~1 min each
-    on 2 cores."""
-    from identification.diagnosis._runs import RUN_KINDS, _columns, diagnose_runs
+    every kind of `RUN_KINDS` (the inertia kind is offered on request); with the lag, the arm
+    without it adds nothing; every case compiles at most one derivative program (the batch of perturbed models
+    every fit and the screening share), the same for every hidden effect. Extended: its three programs (the
+    simulation, the residual, the perturbed batch) compile in ~1 min each on 2 cores."""
+    from identification.diagnosis._runs import RUN_KINDS, _perturbed, diagnose_runs
     from jaxrobot.measurement import marker_pose
 
     fields, inertia, label, value, size = ARM_EFFECTS[hidden]
@@ -256,9 +256,9 @@ def test_diagnose_runs_names_an_effect_on_the_arm(hidden):
 
     train, val = [pair(1.0)], [pair(0.7)]
     start = jr.robot_from_description(arm_description())
-    programs = _columns._cache_size()
+    programs = _perturbed._cache_size()
     res = diagnose_runs(start, train, val, marker, noise, kinds=tuple(RUN_KINDS))
-    assert _columns._cache_size() <= programs + 2
+    assert _perturbed._cache_size() <= programs + 1
     assert [e.effect.label for e in res.estimates] == [label], res.verdict
     est = res.estimates[0]
     assert abs(est.value - value) < 3 * est.std and est.std < 0.2 * size, (est.value, est.std)
@@ -330,3 +330,43 @@ def test_each_run_kind_moves_its_field_alone_and_reports_it(kind):
     assert (est.effect, est.parameter, est.unit) == (effect, kind, RUN_KINDS[kind][1])
     np.testing.assert_allclose([est.value, est.std], [value, abs(slope) * std], rtol=1e-12)
     np.testing.assert_allclose(cov, [[est.std**2]], rtol=1e-12)
+
+
+def test_derivative_columns_by_forward_differences_match_autodiff():
+    """`_evaluate`'s derivative columns (forward differences of `FD_STEP`, in batches of `BATCH` perturbed models and
+    single simulations for a remainder) against forward-mode autodiff of the same residual, on the arm's short run
+    with encoder rows at a model with every kind and the payload nonzero: each column within 1e-3 of its norm (the
+    truncation error of a step of 1e-4 of each variable's scale, where the residual curves over the variable's own
+    scale)."""
+    from identification.diagnosis._runs import (
+        BATCH,
+        PAYLOAD,
+        RUN_KINDS,
+        SINGLE_BELOW,
+        _evaluate,
+        _Evidence,
+        _prepare,
+        _whitened,
+        _with_effect_arrays,
+    )
+
+    marker, noise = jnp.array([0.05, 0.0, 0.0]), 5e-5
+    base = _with_effect_arrays(jr.robot_from_description(arm_description()))
+    t = np.arange(40) * 1e-3
+    cmd = (t, *command(t))
+    rng = np.random.default_rng(3208)
+    run = (t, cmd[1] + 1e-4 * rng.standard_normal(cmd[1].shape), 0.3 + 1e-3 * rng.standard_normal((40, 3)))
+    runs, sigma = _prepare([(cmd, run)], noise, "train")
+    ev = _Evidence(runs, sigma, None, 1e-5)
+    size = len(RUN_KINDS) * 2 + len(PAYLOAD)
+    z = 0.3 * np.ones(size)
+    variables = [*range(0, 2 * len(RUN_KINDS), 2), *range(size - len(PAYLOAD), size)]  # joint 1's kinds, payload
+    assert len(variables) == BATCH + SINGLE_BELOW - 1  # one batch, then single simulations
+    res, cols = _evaluate(base, z, ev, marker, 4, variables)
+    r = runs[0]
+    exact = jax.jacfwd(lambda z: _whitened(base, z, r.command, r.white, r.measured, sigma, marker, 4,
+                                           jnp.asarray(r.encoders), 1e-5))(jnp.asarray(z))
+    np.testing.assert_allclose(res, _whitened(base, jnp.asarray(z), r.command, r.white, r.measured, sigma, marker, 4,
+                                              jnp.asarray(r.encoders), 1e-5), rtol=1e-8)
+    for k, i in enumerate(variables):  # (the planar arm's payload moment along z moves nothing: a zero column)
+        assert np.linalg.norm(cols[:, k] - exact[:, i]) <= 1e-3 * np.linalg.norm(exact[:, i]) + 1e-9, i

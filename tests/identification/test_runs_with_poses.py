@@ -217,9 +217,9 @@ def test_payload_from_poses_and_lag_from_runs(tmp_path, capsys):
     3 ms lag of motor 1, run (our simulation, the tracker's noise, seeded) on the first 0.7 s of the line (training)
     and spiral (validation) commands, and resting at 40 + 15 random poses. With the poses (`diagnose --runs …
     POSES.csv --validate …`) payload and lag are named, each parameter within 3 reported sigma. The poses alone cannot
-    show the lag (it moves no rest pose: `test_runs_and_poses_share_one_chi_square`); the runs alone do not offer the
-    payload (`PAYLOAD`: on these runs, with it offered, they named joint 4's stiffness instead, which the validation
-    run refused)."""
+    show the lag (it moves no rest pose: `test_runs_and_poses_share_one_chi_square`); the runs alone, the payload
+    offered, named joint 4's stiffness instead on these 0.7 s, which the validation run refused
+    (benchmarks/results_runs.md)."""
     folder, start, marker, noise, _, _ = case_runs("p0_clean")
     truth = payload_robot(dataclasses.replace(start, motor_lag=jnp.array([3e-3, 0.0, 0, 0, 0, 0])), 4.0,
                           jnp.array([0.0, 0.05, 0.12]))
