@@ -13,7 +13,7 @@ matrix (unit accelerations) and `C qd + g`, the gear inverse `Xi^-1` by the same
 solves, and gives the Pareto front of the planning objective: each member's path error on the model
 against its control effort (RMS motor acceleration).
 
-Run: `python benchmarks/bench_ocp.py [--quick] [--no-ipopt]` (writes benchmarks/results_ocp.md, or --out,
+Run: `python benchmarks/bench_ocp.py [--quick] [--no-ipopt] [--no-sweep]` (writes benchmarks/results_ocp.md, or --out,
 and beside it `ocp_pareto.png`, the front of the sweep).
 """
 
@@ -187,6 +187,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="the line at nu = 1e-14 only, no sweep")
     parser.add_argument("--no-ipopt", action="store_true", help="skip IPOPT (our solver only)")
+    parser.add_argument("--no-sweep", action="store_true", help="skip the nu sweep and its Pareto front")
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results_ocp.md"))
     args = parser.parse_args()
     robot = jr.racer7()
@@ -225,7 +226,7 @@ def main() -> None:
             rows.append(row)
             write_markdown(args.out, rows, None)  # keep partial results
     sweep = None
-    if not args.quick:
+    if not (args.quick or args.no_sweep):
         path = pl.reference_path("line")
         jp = pl.joint_path(robot, path)
         flat = pl.flat_motor_trajectory(robot, jp)

@@ -16,11 +16,12 @@ variables and `mu I`, assembled from the one dense 6x18 block per node of the de
 `_cyclic_reduction` (`ceil(log2 N)` levels of batched dense operations; `ALConfig.linear_solver`),
 and reused for `refresh_every` steps while `rho` and `mu` stay put (the iterates move by
 micro-radians, so a factor from a few steps back is as good).
-Steps are accepted by the gain ratio of the merit, halving the step length while it is too low (the
-bound terms make `Phi` piecewise quadratic: a full step across the kinks of many bounds is often poor,
-a shorter one costs one evaluation of the dynamics, a larger `mu` a new factor); `mu` grows when no step
-length is accepted or on a matrix that is not positive definite and falls back towards `damping_init`
-after good full steps. After
+Steps are accepted by the gain ratio of the merit; a step that changes the active direction bounds
+(motor rates at 0) is halved while the ratio is too low (the bound terms make `Phi` piecewise quadratic:
+a full step across the kinks of many bounds is often poor, a shorter one costs one evaluation of the
+dynamics, a larger `mu` a new
+factor). `mu` grows after a shortened step, when no step length is accepted or on a matrix that is not
+positive definite, and falls back towards `damping_init` after good full steps. After
 each inner solve, which ends only at an accepted step, the multipliers are updated
 (`lam += rho c`, `gam = rho (v - P(v))`) and `rho` grows when the violation did not fall by
 `violation_decrease` (updating them from a rejected iterate would repeat the same `rho c` and drive
@@ -179,6 +180,8 @@ class _Parts(eqx.Module):
     y0: Float[Array, "N 5*n"]
     start: HalfStep
     c0: Float[Array, "Nm1 4*n"]
+    directed: Bool[Array, "N 5*n"]
+    """The motor rates bounded at 0 by a direction of motion (`OCPProblem.direction`)."""
 
 
 def _parts(problem: OCPProblem, y0) -> _Parts:
@@ -191,8 +194,12 @@ def _parts(problem: OCPProblem, y0) -> _Parts:
     start = half_step(problem, y0)
     nx = 4 * problem.n_joints
     c0 = y0[1:, :nx] - y0[:-1, :nx] - start.g[1:] - start.g[:-1]
+    j = problem.n_joints
+    directed = jnp.zeros(y0.shape, bool)
+    if problem.direction is not None:
+        directed = directed.at[:, 3 * j:4 * j].set(problem.direction != 0)
     return _Parts(problem, cost.node_weight, cost.node_target - y0, cost.edge_weight, lower - y0, upper - y0,
-                  (~fixed).astype(float), y0, start, c0)
+                  (~fixed).astype(float), y0, start, c0, directed)
 
 
 def _cost(p: _Parts, y):
@@ -292,12 +299,13 @@ def _active(p: _Parts, y, gam, rho) -> Bool[Array, "N 5*n"]:
     return _outside(p, y, gam, rho) != 0
 
 
-def _switched(p: _Parts, config: ALConfig, y_new, y_old, gam, rho) -> Bool[Array, ""]:
-    """A bound entered or left the active set between `y_old` and `y_new` with a term `rho |v - P(v)|` in the
-    gradient of `Phi` above `tol_stationarity` on one side of the step: a bound that crosses below it changes the
-    gradient by less than the stationarity asked of the solution (bounds at 0 by rounding cross at every step)."""
+def _switched(p: _Parts, config: ALConfig, y_new, y_old, gam, rho, where=True) -> Bool[Array, ""]:
+    """A bound (of those `where`) entered or left the active set between `y_old` and `y_new` with a term
+    `rho |v - P(v)|` in the gradient of `Phi` above `tol_stationarity` on one side of the step: a bound that
+    crosses below it changes the gradient by less than the stationarity asked of the solution (bounds at 0 by
+    rounding cross at every step)."""
     new, old = jnp.abs(_outside(p, y_new, gam, rho)), jnp.abs(_outside(p, y_old, gam, rho))
-    return jnp.any(((new > 0) != (old > 0)) & (rho * jnp.maximum(new, old) > config.tol_stationarity))
+    return jnp.any(((new > 0) != (old > 0)) & (rho * jnp.maximum(new, old) > config.tol_stationarity) & where)
 
 
 def _merit_from(p: _Parts, y, c, lam, gam, rho):
@@ -781,10 +789,12 @@ def _refactor(p: _Parts, config: ALConfig, s: _State, id_vjp=None) -> BlockChole
 def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -> _State:
     """One Levenberg-Marquardt step from `s` (defects `c_y`, gradient of `Phi` `grad`) with `factor`, made
     at `s` where `fresh`: `dy` from the factor, the trial point `y + t dy` accepted by the gain ratio of the
-    merit against the decrease its quadratic model predicts, halving `t` from 1 while it is not (up to
-    `LINE_SEARCH_STEPS` times: across the kinks of the bound terms, where active bounds change, the model of the
-    full step is poor, and a shorter step costs one evaluation of the dynamics instead of a new factor); the
-    damping falls after a good full step and grows when no trial point is accepted."""
+    merit against the decrease its quadratic model predicts; where the full step changes which direction bounds
+    (motor rates at 0, `_Parts.directed`) are active, `t` halves from 1 while it is not accepted (up to
+    `LINE_SEARCH_STEPS` times: across the kinks of these degenerate bounds, at 0 where the exact inverse's rate
+    is, the model of the full step is poor, and a shorter step costs one evaluation of the dynamics instead of
+    a new factor). The damping falls after a good full step and grows after a shortened one or when no trial
+    point is accepted."""
     solve = _FACTOR[linear_solver(config)][1]
     dy = -solve(factor, grad)
     phi = _merit_from(p, s.y, c_y, s.lam, s.gam, s.rho)
@@ -805,8 +815,10 @@ def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -
         good = accept & (t == 1.0) & ((actual >= config.good_ratio * predicted) | at_noise)
         return t, y_try, h_new, accept, good
 
-    searching = lambda c: ok & ~c[3] & (c[0] > 2.0**-LINE_SEARCH_STEPS)  # noqa: E731
-    _, y_try, h_new, accept, good = jax.lax.while_loop(
+    # shorter steps only where the full one moves direction bounds in or out; elsewhere the damping turns the step
+    kinks = _switched(p, config, s.y + dy, s.y, s.gam, s.rho, p.directed)
+    searching = lambda c: ok & ~c[3] & ((c[0] > 1.0) | (kinks & (c[0] > 2.0**-LINE_SEARCH_STEPS)))  # noqa: E731
+    t, y_try, h_new, accept, good = jax.lax.while_loop(
         searching, trial, (jnp.array(2.0), s.y, s.forward, jnp.array(False), jnp.array(False)))
     # a rejected step from a reused factor is retried with a fresh one at the same damping
     retry = ~accept & ~fresh
@@ -814,7 +826,9 @@ def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -
     y = jnp.where(accept, y_try, s.y)
     forward = jax.tree.map(lambda new, old: jnp.where(accept, new, old), h_new, s.forward)
     mu_down = jnp.maximum(s.mu / config.damping_down, config.damping_init)
-    mu = jnp.where(good, mu_down, jnp.where(accept | retry, s.mu, s.mu * config.damping_up))
+    # a shortened step is kept, and the damping grows as after a rejection: the next step is damped, as the
+    # multipliers, updated from this iterate, assume a solved inner problem
+    mu = jnp.where(good, mu_down, jnp.where((accept & (t == 1.0)) | retry, s.mu, s.mu * config.damping_up))
     failed = mu > config.damping_max
     status = RESULTS.where(failed, RESULTS.inner_failed, s.status)
     age = jnp.where(retry | switched, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))
