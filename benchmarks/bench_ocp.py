@@ -1,7 +1,11 @@
 """Benchmark: the OCP of eq. 4.3 in CasADi + IPOPT (exact Hessian, MUMPS) vs our augmented Lagrangian.
 
 Both solve the same scaled NLP (`planning._transcription`: angles in mrad, time in samples) from the
-same warm start (the flat inverse) for the line and the spiral at nu = 1e-14 and 1e-10, N = 2501.
+same warm start (the flat inverse) for the line and the spiral at nu = 1e-14 and 1e-10, N = 2501, each
+without and with the motor-direction bounds that `plan_task` sets (`motor_directions` of the flat inverse's
+rates): our solve unbounded and bounded alternately row by row (each compiled by its first call, the best of
+`REPEAT` further calls timed), then IPOPT on the same two problems. acados is not run (no transcription of
+this OCP for it here); the results file says so.
 The CasADi model is written anew with casadi symbols: mDH kinematics and Newton-Euler for the mass
 matrix (unit accelerations) and `C qd + g`, the gear inverse `Xi^-1` by the same Newton steps, and
 `kappa`. `cross_check` evaluates our objective and constraints at IPOPT's solution. The nu sweep
@@ -9,7 +13,7 @@ matrix (unit accelerations) and `C qd + g`, the gear inverse `Xi^-1` by the same
 solves, and gives the Pareto front of the planning objective: each member's path error on the model
 against its control effort (RMS motor acceleration).
 
-Run: `python benchmarks/bench_ocp.py [--quick] [--no-ipopt]` (writes benchmarks/results_ocp.md, or --out,
+Run: `python benchmarks/bench_ocp.py [--quick] [--no-ipopt] [--no-sweep]` (writes benchmarks/results_ocp.md, or --out,
 and beside it `ocp_pareto.png`, the front of the sweep).
 """
 
@@ -46,6 +50,8 @@ from planning.internal import motor_directions
 NUS = (1e-14, 1e-10)
 TASKS = ("line", "spiral")
 SWEEP = np.logspace(-15, -9, 16)
+REPEAT = 3
+"""Timed calls of our solve per row after the compiling one (the best counts)."""
 
 
 # ----------------------------------------------------------------------------- CasADi model
@@ -177,46 +183,17 @@ def path_error_um(robot, path, t, q) -> float:
 # ----------------------------------------------------------------------------- benchmark
 
 
-def directions(robot, tasks, nus, f) -> None:
-    """Print our solve and IPOPT's of each task and nu with the motor-direction bounds of `plan_task`."""
-    for task in tasks:
-        path = pl.reference_path(task)
-        jp = pl.joint_path(robot, path)
-        flat = pl.flat_motor_trajectory(robot, jp)
-        warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
-        d = motor_directions(flat.thetad)
-        ts = float(path.sample_time)
-        for nu in nus:
-            sol, _, ours_s = _timing.timed(
-                lambda nu=nu: solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm, direction=d))
-            line = (f"{task} nu={nu:g} bounded: ours {jr.status_name(sol.status)}, {int(sol.iterations)} it, "
-                    f"{ours_s:.2f} s, objective {float(sol.objective):.10e}")
-            if f is not None:
-                ip = solve_ipopt(robot, jp.q, ts, nu, warm, f, direction=d)
-                chk = cross_check(robot, jp.q, ts, nu, ip["x"], ip["u"], direction=d)
-                line += (f"; ipopt {ip['status']}, {ip['iterations']} it, {ip['wall_s']:.1f} s, objective "
-                         f"{chk['objective']:.10e} (rel. difference "
-                         f"{abs(chk['objective'] / float(sol.objective) - 1):.1e}), violation "
-                         f"{max(chk['max_defect'], chk['max_bound'], chk['max_boundary']):.1e}")
-            print(line, flush=True)
-
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="the line at nu = 1e-14 only, no sweep")
     parser.add_argument("--no-ipopt", action="store_true", help="skip IPOPT (our solver only)")
-    parser.add_argument("--directions", action="store_true",
-                        help="the plans bounded to the task's motor directions (planning.internal.motor_directions, as "
-                        "plan_task makes them) against IPOPT with the same bounds, printed; no file written")
+    parser.add_argument("--no-sweep", action="store_true", help="skip the nu sweep and its Pareto front")
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results_ocp.md"))
     args = parser.parse_args()
     robot = jr.racer7()
     tasks = TASKS[:1] if args.quick else TASKS
     nus = NUS[:1] if args.quick else NUS
     f = None if args.no_ipopt else casadi_dynamics(robot)
-    if args.directions:
-        return directions(robot, tasks, nus, f)
     rows = []
     for task in tasks:
         path = pl.reference_path(task)
@@ -224,25 +201,32 @@ def main() -> None:
         flat = pl.flat_motor_trajectory(robot, jp)
         warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
         ts = float(path.sample_time)
+        d = motor_directions(flat.thetad)
         for nu in nus:
-            sol, first, ours_s = _timing.timed(lambda nu=nu: solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm))
-            ours = {"wall_s": ours_s, "compile_s": max(first - ours_s, 0.0), "iterations": int(sol.iterations),
-                    "objective": float(sol.objective), "violation": float(sol.max_constraint_violation),
-                    "status": jr.status_message(sol.status),
-                    "path_um": path_error_um(robot, path, jp.t, sol.x[:, :6])}
-            row = {"task": task, "nu": nu, "ours": ours}
-            print(f"{task} nu={nu:g} ours: {ours}", flush=True)
+            row = {"task": task, "nu": nu, "load": os.getloadavg()[0]}
+            for name, direction in (("ours", None), ("ours bounded", d)):
+                sol, first, ours_s = _timing.timed(
+                    lambda nu=nu, direction=direction: solve_ocp(robot, jp.q, ts, nu=nu, warm_start=warm,
+                                                                 direction=direction), REPEAT)
+                row[name] = {"wall_s": ours_s, "compile_s": max(first - ours_s, 0.0),
+                             "iterations": f"{int(sol.iterations)} / {int(sol.inner_iterations)}",
+                             "objective": float(sol.objective), "violation": float(sol.max_constraint_violation),
+                             "status": jr.status_message(sol.status),
+                             "path_um": path_error_um(robot, path, jp.t, sol.x[:, :6])}
+                print(f"{task} nu={nu:g} {name}: {row[name]}", flush=True)
             if f is not None:
-                ip = solve_ipopt(robot, jp.q, ts, nu, warm, f)
-                chk = cross_check(robot, jp.q, ts, nu, ip["x"], ip["u"])
-                row["ipopt"] = {"wall_s": ip["wall_s"], "iterations": ip["iterations"], "objective": chk["objective"],
-                                "violation": max(chk["max_defect"], chk["max_bound"], chk["max_boundary"]),
-                                "status": ip["status"], "path_um": path_error_um(robot, path, jp.t, ip["x"][:, :6])}
-                print(f"{task} nu={nu:g} ipopt: {row['ipopt']}", flush=True)
+                for name, direction in (("ipopt", None), ("ipopt bounded", d)):
+                    ip = solve_ipopt(robot, jp.q, ts, nu, warm, f, direction=direction)
+                    chk = cross_check(robot, jp.q, ts, nu, ip["x"], ip["u"], direction=direction)
+                    row[name] = {"wall_s": ip["wall_s"], "iterations": str(ip["iterations"]),
+                                 "objective": chk["objective"], "compile_s": None,
+                                 "violation": max(chk["max_defect"], chk["max_bound"], chk["max_boundary"]),
+                                 "status": ip["status"], "path_um": path_error_um(robot, path, jp.t, ip["x"][:, :6])}
+                    print(f"{task} nu={nu:g} {name}: {row[name]}", flush=True)
             rows.append(row)
             write_markdown(args.out, rows, None)  # keep partial results
     sweep = None
-    if not args.quick:
+    if not (args.quick or args.no_sweep):
         path = pl.reference_path("line")
         jp = pl.joint_path(robot, path)
         flat = pl.flat_motor_trajectory(robot, jp)
@@ -301,23 +285,36 @@ def write_markdown(out: Path, rows, sweep) -> dict[str, str]:
     info = _timing.run_info("CasADi + IPOPT (exact Hessian, MUMPS) on the same scaled NLP from the same warm start"
                             if any("ipopt" in row for row in rows) else "none (`--no-ipopt`)", ("casadi",))
     lines = ["# OCP benchmark: CasADi + IPOPT vs our augmented Lagrangian", "", _timing.header(info),
-             "N = 2501, T_s = 1 ms; same scaled NLP and warm start "
-             "(flat inverse). Wall times exclude compilation (ours: second call; IPOPT: solver call only).", "",
-             "| task | nu | solver | status | iterations | wall [s] | objective [rad²] | max violation (scaled) "
-             "| path error [µm] |", "|---|---|---|---|---|---|---|---|---|"]
+             "N = 2501, T_s = 1 ms; same scaled NLP and warm start (flat inverse); \"bounded\": with the "
+             "motor-direction bounds of `plan_task` (`planning.internal.motor_directions` of the flat inverse's "
+             "rates). "
+             f"Ours: the best of {REPEAT} calls after the compiling one (compile: the first call's excess), unbounded "
+             "and bounded alternately row by row; iterations outer / inner (LM steps). IPOPT: solver call only. "
+             "acados: not run (`comma-deps-acados` is not installed here, and this benchmark has no acados "
+             "transcription of the OCP). Load: the 1-minute load average at the start of the row (2 cores; other "
+             "jobs shared the machine, so compare the ratios of one row, not seconds across rows).", "",
+             "| task | nu | solver | status | iterations | wall [s] | compile [s] | objective [rad²] "
+             "| max violation (scaled) | path error [µm] |", "|---|---|---|---|---|---|---|---|---|---|"]
+    names = ("ours", "ours bounded", "ipopt", "ipopt bounded")
     for row in rows:
-        for name in ("ours", "ipopt"):
+        for name in names:
             if name in row:
                 r = row[name]
+                compile_s = "" if r["compile_s"] is None else f"{r['compile_s']:.1f}"
                 lines.append(f"| {row['task']} | {row['nu']:.0e} | {name} | {r['status']} | {r['iterations']} | "
-                             f"{r['wall_s']:.2f} | {r['objective']:.10e} | {r['violation']:.1e} | {r['path_um']:.3f} |")
-    if any("ipopt" in row for row in rows):
-        lines += ["", "| task | nu | speed-up (IPOPT / ours) | objective rel. difference |", "|---|---|---|---|"]
-        for row in rows:
-            if "ipopt" in row:
-                o, i = row["ours"], row["ipopt"]
-                rel = abs(o["objective"] - i["objective"]) / abs(i["objective"])
-                lines.append(f"| {row['task']} | {row['nu']:.0e} | {i['wall_s'] / o['wall_s']:.1f}x | {rel:.1e} |")
+                             f"{r['wall_s']:.2f} | {compile_s} | {r['objective']:.10e} | {r['violation']:.1e} | "
+                             f"{r['path_um']:.3f} |")
+    lines += ["", "| task | nu | load | ours bounded / unbounded (time) | IPOPT / ours | IPOPT / ours, bounded "
+              "| objective rel. difference to IPOPT: unbounded, bounded |", "|---|---|---|---|---|---|---|"]
+    for row in rows:
+        o, b = row["ours"], row["ours bounded"]
+        cells = [f"{b['wall_s'] / o['wall_s']:.2f}x"]
+        for ours, peer in ((o, row.get("ipopt")), (b, row.get("ipopt bounded"))):
+            cells.append("" if peer is None else f"{peer['wall_s'] / ours['wall_s']:.1f}x")
+        rel = [f"{abs(ours['objective'] - peer['objective']) / abs(peer['objective']):.1e}"
+               for ours, peer in ((o, row.get("ipopt")), (b, row.get("ipopt bounded"))) if peer is not None]
+        lines.append(f"| {row['task']} | {row['nu']:.0e} | {row['load']:.1f} | {' | '.join(cells)} | "
+                     f"{', '.join(rel)} |")
     if sweep is not None:
         mean = sweep["singles_total_s"] / sweep["n"]
         lines += ["", f"nu sweep (line, {sweep['n']} values 1e-15..1e-9, one vmapped call): "

@@ -16,8 +16,12 @@ variables and `mu I`, assembled from the one dense 6x18 block per node of the de
 `_cyclic_reduction` (`ceil(log2 N)` levels of batched dense operations; `ALConfig.linear_solver`),
 and reused for `refresh_every` steps while `rho` and `mu` stay put (the iterates move by
 micro-radians, so a factor from a few steps back is as good).
-Steps are accepted by the gain ratio of the merit; `mu` grows on rejection or on a matrix
-that is not positive definite and falls back towards `damping_init` after good steps. After
+Steps are accepted by the gain ratio of the merit; a step that changes the active direction bounds
+(motor rates at 0) is halved while the ratio is too low (the bound terms make `Phi` piecewise quadratic:
+a full step across the kinks of many bounds is often poor, a shorter one costs one evaluation of the
+dynamics, a larger `mu` a new
+factor). `mu` grows after a shortened step, when no step length is accepted or on a matrix that is not
+positive definite, and falls back towards `damping_init` after good full steps. After
 each inner solve, which ends only at an accepted step, the multipliers are updated
 (`lam += rho c`, `gam = rho (v - P(v))`) and `rho` grows when the violation did not fall by
 `violation_decrease` (updating them from a rejected iterate would repeat the same `rho c` and drive
@@ -80,7 +84,7 @@ class ALConfig(eqx.Module):
     max_inner_iterations: int = 1
     """Gauss-Newton/LM steps per outer iteration; more follow while steps are rejected (the
     multipliers move only from an accepted iterate), until the damping exceeds `damping_max`, and while
-    the last step changed which bounds are active (up to `ACTIVE_SET_STEPS`)."""
+    the last step changed which bounds are active (up to `ACTIVE_SET_STEPS`; `_switched`)."""
     penalty_init: float = 1e6
     """Initial penalty `rho` (at least; see `penalty_per_weight`)."""
     penalty_per_weight: float = 10.0
@@ -182,6 +186,8 @@ class _Parts(eqx.Module):
     y0: Float[Array, "N 5*n"]
     start: HalfStep
     c0: Float[Array, "Nm1 4*n"]
+    directed: Bool[Array, "N 5*n"]
+    """The motor rates bounded at 0 by a direction of motion (`OCPProblem.direction`)."""
 
 
 def _parts(problem: OCPProblem, y0) -> _Parts:
@@ -194,8 +200,12 @@ def _parts(problem: OCPProblem, y0) -> _Parts:
     start = half_step(problem, y0)
     nx = 4 * problem.n_joints
     c0 = (y0[1:, :nx] - y0[:-1, :nx] - start.g[1:] - start.g[:-1]) * node_mask(problem)[1:, None]  # 0 on padding
+    j = problem.n_joints
+    directed = jnp.zeros(y0.shape, bool)
+    if problem.direction is not None:
+        directed = directed.at[:, 3 * j:4 * j].set(problem.direction != 0)
     return _Parts(problem, cost.node_weight, cost.node_target - y0, cost.edge_weight, lower - y0, upper - y0,
-                  (~fixed).astype(float), y0, start, c0)
+                  (~fixed).astype(float), y0, start, c0, directed)
 
 
 def _cost(p: _Parts, y):
@@ -284,16 +294,29 @@ def _normal_blocks(
     return diag, lower
 
 
+def _outside(p: _Parts, y, gam, rho) -> Float[Array, "N 5*n"]:
+    """`v - P(v)` at `y` (`v = y + gam / rho`): nonzero where a bound is active in `Phi`."""
+    v = y + gam / rho
+    return v - jnp.clip(v, p.lower, p.upper)
+
+
 def _active(p: _Parts, y, gam, rho) -> Bool[Array, "N 5*n"]:
     """The bounds active in `Phi` at `y`: those that `v = y + gam / rho` violates."""
-    v = y + gam / rho
-    return v != jnp.clip(v, p.lower, p.upper)
+    return _outside(p, y, gam, rho) != 0
+
+
+def _switched(p: _Parts, config: ALConfig, y_new, y_old, gam, rho, where=True) -> Bool[Array, ""]:
+    """A bound (of those `where`) entered or left the active set between `y_old` and `y_new` with a term
+    `rho |v - P(v)|` in the gradient of `Phi` above `tol_stationarity` on one side of the step: a bound that
+    crosses below it changes the gradient by less than the stationarity asked of the solution (bounds at 0 by
+    rounding cross at every step)."""
+    new, old = jnp.abs(_outside(p, y_new, gam, rho)), jnp.abs(_outside(p, y_old, gam, rho))
+    return jnp.any(((new > 0) != (old > 0)) & (rho * jnp.maximum(new, old) > config.tol_stationarity) & where)
 
 
 def _merit_from(p: _Parts, y, c, lam, gam, rho):
     """`Phi` at `y` with its defects `c` already known."""
-    v = y + gam / rho
-    out = v - jnp.clip(v, p.lower, p.upper)
+    out = _outside(p, y, gam, rho)
     penalty = 0.5 * rho * (jnp.sum(c**2) + jnp.sum(out**2)) - jnp.sum(gam**2) / (2 * rho)
     return _cost(p, y) + jnp.sum(lam * c) + penalty
 
@@ -457,6 +480,9 @@ def chunked_vmap(solve, size: int, xs: list, capacity: int):
     out = jax.lax.map(jax.vmap(solve), xs)
     return jax.tree.map(lambda a: a.reshape(chunks * width, *a.shape[2:])[:size], out)
 
+
+LINE_SEARCH_STEPS = 5
+"""Most halvings of the step length in one LM step (`_lm_step`) before the damping grows."""
 
 ACTIVE_SET_STEPS = 16
 """Most steps of one inner solve that continue because the last step changed the active bounds
@@ -838,26 +864,47 @@ def _refactor(p: _Parts, config: ALConfig, s: _State, id_vjp=None) -> BlockChole
 
 def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -> _State:
     """One Levenberg-Marquardt step from `s` (defects `c_y`, gradient of `Phi` `grad`) with `factor`, made
-    at `s` where `fresh`: accepted by the gain ratio of the merit, the damping adapted."""
+    at `s` where `fresh`: `dy` from the factor, the trial point `y + t dy` accepted by the gain ratio of the
+    merit against the decrease its quadratic model predicts; where the full step changes which direction bounds
+    (motor rates at 0, `_Parts.directed`) are active, `t` halves from 1 while it is not accepted (up to
+    `LINE_SEARCH_STEPS` times: across the kinks of these degenerate bounds, at 0 where the exact inverse's rate
+    is, the model of the full step is poor, and a shorter step costs one evaluation of the dynamics instead of
+    a new factor). The damping falls after a good full step and grows after a shortened one or when no trial
+    point is accepted."""
     solve = _FACTOR[linear_solver(config)][1]
     dy = -solve(factor, grad)
     phi = _merit_from(p, s.y, c_y, s.lam, s.gam, s.rho)
-    y_try = s.y + dy
-    h_new = half_step(p.problem, p.y0 + y_try)
-    phi_new = _merit_from(p, y_try, _defects(p, y_try, h_new.g), s.lam, s.gam, s.rho)
-    predicted = 0.5 * (-jnp.sum(grad * dy) + s.mu * jnp.sum(dy**2))
-    actual = phi - phi_new
+    slope = -jnp.sum(grad * dy)  # dy^T (H + mu I) dy, H the Gauss-Newton matrix
+    curvature = slope - s.mu * jnp.sum(dy**2)  # dy^T H dy
     noise = 1e-13 * (jnp.abs(phi) + 1.0)  # merit differences at roundoff: take the GN step
-    ok = factor.positive_definite & jnp.isfinite(phi_new) & jnp.all(jnp.isfinite(dy))
-    accept = ok & ((actual >= config.accept_ratio * predicted) | (jnp.abs(actual) <= noise))
-    good = accept & ((actual >= config.good_ratio * predicted) | (jnp.abs(actual) <= noise))
+    ok = factor.positive_definite & jnp.all(jnp.isfinite(dy))
+
+    def trial(c):
+        t = 0.5 * c[0]
+        y_try = s.y + t * dy
+        h_new = half_step(p.problem, p.y0 + y_try)
+        phi_new = _merit_from(p, y_try, _defects(p, y_try, h_new.g), s.lam, s.gam, s.rho)
+        predicted = t * slope - 0.5 * t**2 * curvature
+        actual = phi - phi_new
+        at_noise = jnp.abs(actual) <= noise
+        accept = jnp.isfinite(phi_new) & ((actual >= config.accept_ratio * predicted) | at_noise)
+        good = accept & (t == 1.0) & ((actual >= config.good_ratio * predicted) | at_noise)
+        return t, y_try, h_new, accept, good
+
+    # shorter steps only where the full one moves direction bounds in or out; elsewhere the damping turns the step
+    kinks = _switched(p, config, s.y + dy, s.y, s.gam, s.rho, p.directed)
+    searching = lambda c: ok & ~c[3] & ((c[0] > 1.0) | (kinks & (c[0] > 2.0**-LINE_SEARCH_STEPS)))  # noqa: E731
+    t, y_try, h_new, accept, good = jax.lax.while_loop(
+        searching, trial, (jnp.array(2.0), s.y, s.forward, jnp.array(False), jnp.array(False)))
     # a rejected step from a reused factor is retried with a fresh one at the same damping
     retry = ~accept & ~fresh
-    switched = accept & jnp.any(_active(p, y_try, s.gam, s.rho) != _active(p, s.y, s.gam, s.rho))
+    switched = accept & _switched(p, config, y_try, s.y, s.gam, s.rho)
     y = jnp.where(accept, y_try, s.y)
     forward = jax.tree.map(lambda new, old: jnp.where(accept, new, old), h_new, s.forward)
     mu_down = jnp.maximum(s.mu / config.damping_down, config.damping_init)
-    mu = jnp.where(good, mu_down, jnp.where(accept | retry, s.mu, s.mu * config.damping_up))
+    # a shortened step is kept, and the damping grows as after a rejection: the next step is damped, as the
+    # multipliers, updated from this iterate, assume a solved inner problem
+    mu = jnp.where(good, mu_down, jnp.where((accept & (t == 1.0)) | retry, s.mu, s.mu * config.damping_up))
     failed = mu > config.damping_max
     status = RESULTS.where(failed, RESULTS.inner_failed, s.status)
     age = jnp.where(retry | switched, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))

@@ -388,6 +388,30 @@ def test_motor_directions_keep_the_plan_to_the_task(robot, q_d):
     assert float(free.objective) < float(bound.objective) < 1.01 * float(free.objective)
 
 
+MOVE_BOUNDED = (1.120943364503e-04, 18, 29)
+"""The bounded solve of `test_motor_directions_keep_the_plan_to_the_task`: its objective [rad²] before the line
+search of the LM steps (commit b851182: 24 outer, 55 inner iterations), and the most outer and inner iterations
+now, about 1.25 times those measured (14, 23)."""
+BOUND_OBJECTIVE_RTOL = 1e-5
+"""Agreement of the objective of two converged bounded solves: each meets the bounds only to `tol_violation`
+(1e-9 scaled), and the active bounds' multipliers turn that into an objective difference (measured 7.9e-7 on
+the move at nu = 1e-10; on the reference tasks at most 2.4e-9)."""
+
+
+def test_bounded_solve_takes_few_steps_to_the_same_optimum(robot, q_d):
+    """The move of `test_motor_directions_keep_the_plan_to_the_task` bounded to its motor directions: the optimum
+    of before in at most `MOVE_BOUNDED` outer and inner iterations."""
+    t = jnp.arange(N) * TS
+    flat = pl.MotorTrajectory(*jax.jit(lambda t: jr.flat_inverse(robot, lambda x: _move_at(x / t[-1]), t))(t))
+    sol = pl.solve_ocp(robot, q_d, TS, 1e-10, direction=motor_directions(flat.thetad))
+    before, outer, inner = MOVE_BOUNDED
+    assert bool(sol.converged), jr.status_name(sol.status)
+    assert float(sol.max_constraint_violation) <= DEFECT_TOL
+    assert float(sol.objective) == pytest.approx(before, rel=BOUND_OBJECTIVE_RTOL)
+    assert int(sol.iterations) <= outer and int(sol.inner_iterations) <= inner, (int(sol.iterations),
+                                                                               int(sol.inner_iterations))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("cost", ["jerk", "flat"])
 def test_cost_variants_converge(robot, q_d, cost):
@@ -549,3 +573,85 @@ def test_ocp_beats_quasi_static_beats_rigid(ocp_runs, name):
     assert e["ocp 1e-14"] < e["quasi_static"] < e["rigid"], e
     if name == "line":
         assert e["ocp 1e-14"] < 1e-6, e  # sub-µm on the line (SPEC.md "Facts")
+
+
+TODAY = {("line", 1e-14): (7.132803044817e-08, 7.132803044845e-08),
+         ("line", 1e-10): (7.048699798575e-04, 7.048712322280e-04),
+         ("spiral", 1e-14): (1.704127517700e-06, 1.704127596280e-06),
+         ("spiral", 1e-10): (1.472036851584e-02, 1.472059547822e-02)}
+"""Objectives [rad²] (unbounded, bounded to the motor directions) of the default solve from the flat inverse
+before the line search of the LM steps (commit b851182; it took 2-9 outer and 2-12 inner iterations unbounded,
+2-8 outer and 18-44 inner bounded)."""
+BOUNDED_STEPS = {("line", 1e-14): (3, 9), ("line", 1e-10): (7, 40), ("spiral", 1e-14): (4, 9),
+                 ("spiral", 1e-10): (10, 30)}
+"""Most outer and inner (LM step) iterations of the bounded solves, about 1.25 times those measured (2/7, 5/32,
+3/7, 8/24): bounds on rates at 0 that cross within the stationarity tolerance do not hold the inner solve, and a
+step across the kinks of the bound terms is shortened instead of damped."""
+
+
+@pytest.fixture(scope="module")
+def bounded_runs(robot, joint_paths):
+    """Both reference tasks at nu = 1e-14 and 1e-10 bounded to the flat inverse's motor directions (as
+    `plan_task`), with the flat inverse."""
+    out = {}
+    for k, jp in joint_paths.items():
+        flat = pl.flat_motor_trajectory(robot, jp)
+        warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+        direction = motor_directions(flat.thetad)
+        out[k] = (flat, [pl.solve_ocp(robot, jp.q, 1e-3, nu=nu, warm_start=warm, direction=direction) for nu in NUS])
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["line", "spiral"])
+def test_bounded_and_unbounded_solves_reach_the_same_optimum_in_few_steps(robot, ocp_runs, bounded_runs, name):
+    """The unbounded and the bounded solves reach the optimum of before (objective, violation), the bounded ones in
+    at most `BOUNDED_STEPS` outer and inner iterations and with the flat inverse's motor reversals, no more."""
+    free, _ = ocp_runs[name]
+    flat, bound = bounded_runs[name]
+    count = 2 * np.pi / 2**20  # one count of a 20-bit motor encoder (docs/model.md (B.6))
+    for i, nu in enumerate(NUS):
+        before_free, before_bound = TODAY[(name, nu)]
+        assert float(free.objective[i]) == pytest.approx(before_free, rel=OBJECTIVE_RTOL)
+        sol = bound[i]
+        assert bool(sol.converged), jr.status_name(sol.status)
+        assert float(sol.max_constraint_violation) <= DEFECT_TOL
+        assert float(sol.objective) == pytest.approx(before_bound, rel=OBJECTIVE_RTOL)
+        outer, inner = BOUNDED_STEPS[(name, nu)]
+        assert int(sol.iterations) <= outer and int(sol.inner_iterations) <= inner, (
+            int(sol.iterations), int(sol.inner_iterations))
+        np.testing.assert_array_equal(pl.motor_reversals(sol.theta, count), pl.motor_reversals(flat.theta, count))
+
+
+TODAY_CSV = {1e-14: (7.132803044817e-08, 7.132803044845e-08), 1e-10: (7.048699798575e-04, 7.048712321814e-04)}
+"""Objectives [rad²] (unbounded, bounded) of the line run backwards, read as a task CSV, at `NUS` before the line
+search of the LM steps (commit b851182; bounded: 2 outer / 9 inner, 5 / 43)."""
+CSV_BOUNDED_STEPS = {1e-14: (3, 9), 1e-10: (7, 39)}
+"""Most outer and inner iterations of its bounded solves, about 1.25 times those measured (2 / 7, 5 / 31)."""
+
+
+@pytest.mark.slow
+def test_csv_task_bounded_and_unbounded_reach_the_same_optimum(robot, tmp_path):
+    """A task CSV (`plan`'s format; the line backwards, so every motor turns the other way): the unbounded and the
+    bounded solves reach the optimum of before, the bounded ones in at most `CSV_BOUNDED_STEPS` iterations."""
+    from planning.cli._plan import read_task_csv
+
+    line = pl.reference_path("line")
+    t = np.asarray(pl.time_grid(line))
+    file = tmp_path / "backwards.csv"
+    np.savetxt(file, np.column_stack([t, np.asarray(pl.sample_path(line, jnp.asarray(t))[0])[::-1]]), delimiter=",",
+               header="t_s,x_m,y_m,z_m", comments="")
+    path = read_task_csv(file)
+    jp = pl.joint_path(robot, path)
+    flat = pl.flat_motor_trajectory(robot, jp)
+    warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+    direction = motor_directions(flat.thetad)
+    for nu in NUS:
+        for d, before in zip((None, direction), TODAY_CSV[nu], strict=True):
+            sol = pl.solve_ocp(robot, jp.q, float(path.sample_time), nu=nu, warm_start=warm, direction=d)
+            assert bool(sol.converged), jr.status_name(sol.status)
+            assert float(sol.max_constraint_violation) <= DEFECT_TOL
+            assert float(sol.objective) == pytest.approx(before, rel=OBJECTIVE_RTOL)
+        outer, inner = CSV_BOUNDED_STEPS[nu]
+        assert int(sol.iterations) <= outer and int(sol.inner_iterations) <= inner, (
+            int(sol.iterations), int(sol.inner_iterations))
