@@ -81,7 +81,7 @@ def _cases():
     traj = pl.MotorTrajectory(*(jnp.broadcast_to(Q[:1].repeat(6, 0), (2, 6, 6)),) * 3)
     for directional in (False, True):
         yield f"plant simulations, batched{', directional' if directional else ''}", lambda r, m, d=directional: _runs(
-            r, jnp.arange(8) * 1e-3, jnp.zeros((8, 3)), jnp.broadcast_to(jnp.eye(3), (8, 3, 3)), m, 2, d, 2), (
+            r, jnp.arange(6) * 1e-3, jnp.zeros((6, 3)), jnp.broadcast_to(jnp.eye(3), (6, 3, 3)), m, 2, d, 2), (
             ROBOT, traj)
     yield "OCP, vmap over nu", lambda r, q: jax.vmap(lambda nu: pl.solve_ocp(r, q, 0.01, nu=nu).u)(
         jnp.array([1e-14, 1e-12])), (ROBOT, Q[:1].repeat(8, 0))
