@@ -25,7 +25,7 @@ from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
 from jaxrobot import RESULTS
-from jaxrobot.internal import backend_kind, check, gather_rows, shard_rows, where
+from jaxrobot.internal import backend_kind, check, gather_array, gather_rows, shard_rows, where
 from jaxrobot.measurement import Poses, pose_arrays, rest_link_angles
 
 from ..core import _robust as robust
@@ -89,7 +89,8 @@ class FleetResult:
     parameter_check: ParameterCheck | None = None
     """How the default set came about (without `parameters`): the chain's candidates, those left out by the
     geometry and those dropped by rank or conditioning on the first robot's poses, with the reasons (as in
-    `calibrate`); None where `parameters` were given."""
+    `calibrate`); None where `parameters` were given. Under several processes every process fits the set of the
+    first process that has robots (a process without any reports None)."""
 
 
 def fleet_mesh(devices: Sequence | None = None) -> Mesh:
@@ -335,13 +336,19 @@ def calibrate_fleet(
     if parameters is None:
         first = robots if np.ndim(robots.a) == 1 else jax.tree.map(lambda x: x[0], robots)
         parameters = default_parameters(first, marker=marker)
-        sigma0, white0 = noise_model(jr.read_description(None)["sensors"]["tracker_position_noise_m"]
-                                     if position_noise is None else position_noise, pos[0], "position_noise")
-        mk = jnp.asarray(default_marker() if marker is None else marker, float)
-        th0 = jnp.asarray(theta[0])
-        checked = check_default(first, parameters, th0, _deflection(first, th0, jnp.asarray(ccw[0])), mk, False,
-                                white0, 1.0, sigma0, None, jnp.asarray(ccw[0]))
-        parameters = checked.kept
+        keep = np.ones(len(parameters), bool)
+        if n_rob:  # a process whose share was all left out has no poses to check the set on
+            sigma0, white0 = noise_model(jr.read_description(None)["sensors"]["tracker_position_noise_m"]
+                                         if position_noise is None else position_noise, pos[0], "position_noise")
+            mk = jnp.asarray(default_marker() if marker is None else marker, float)
+            th0 = jnp.asarray(theta[0])
+            checked = check_default(first, parameters, th0, _deflection(first, th0, jnp.asarray(ccw[0])), mk,
+                                    False, white0, 1.0, sigma0, None, jnp.asarray(ccw[0]))
+            keep = np.array([p in checked.kept for p in parameters])
+        # every process fits one set: the check of the first process that has robots decides
+        has_robots, keeps = gather_array((np.array([n_rob > 0]), keep[None]))
+        keep = np.asarray(keeps)[int(np.argmax(np.asarray(has_robots)))]
+        parameters = tuple(p for p, k in zip(parameters, keep) if k)
     params = ParameterMap(parameters)
     if 3 * k < len(params):
         raise ValueError(f"motor_angles: {k} poses per robot give {3 * k} equations for {len(params)} "

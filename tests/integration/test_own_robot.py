@@ -186,6 +186,7 @@ def _plan_vendor_arm(name: str, d: Path, duration: float, length: float) -> None
     assert theta.shape == (len(t), len(VENDOR_ARMS[name][2]["u0"]))
 
 
+@pytest.mark.extended  # the solve, IK and plant programs of a new robot compile (minutes on 2 cores)
 def test_plan_converges_on_a_stiff_ur5(tmp_path):
     """A 1 cm move in 0.2 s on the UR5 with industrial springs (`VENDOR_ARMS`): the roundoff of the defects
     (the spring over the light wrist links) holds the stationarity at a few 1e-5 from the first outer
