@@ -14,7 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import tomli_w
-from helpers import example_urdf, independent_data
+from helpers import example_urdf
+from test_runs_with_poses import case_runs
 
 import jaxrobot as jr
 from identification.diagnosis import payload_robot
@@ -23,18 +24,10 @@ from jaxrobot.cli._main import main
 
 
 def case_pairs(name: str, samples: int, validation: int = 1):
-    """The case's start robot, marker, noise, encoder quantum and (command, run) pairs cut to `samples`: the
-    nu = 1e-14 line and spiral for training, the nu = 1e-10 line (and spiral) for validation."""
-    folder = independent_data() / "trajectories" / name
-    sensors = jr.read_description(folder / "start.toml")["sensors"]
-
-    def pair(run):
-        data = jr.io.read_trajectory_csv(folder / f"run_{run}.csv")
-        return jr.io.read_command_csv(folder / f"command_{run}.csv"), tuple(a[:samples] for a in data)
-
-    return (folder, jr.load_robot(folder / "start.toml"), sensors["tracker_marker_offset_m"],
-            sensors["tracker_position_noise_m"], 2 * math.pi / sensors["encoder_counts_per_rev"],
-            [pair("line_nu1e-14"), pair("spiral_nu1e-14")], [pair("line_nu1e-10"), pair("spiral_nu1e-10")][:validation])
+    """`test_runs_with_poses.case_runs` with the case's encoder quantum [rad] and `validation` validation pairs."""
+    folder, start, marker, noise, train, val = case_runs(name, samples)
+    quantum = 2 * math.pi / jr.read_description(folder / "start.toml")["sensors"]["encoder_counts_per_rev"]
+    return folder, start, marker, noise, quantum, train, val[:validation]
 
 
 def named(res) -> list[tuple[str, int | None]]:
