@@ -839,11 +839,12 @@ def _stalled(config: ALConfig, hist, it, lam, rho_max) -> Bool[Array, ""]:
     the constraints are met throughout, the objective changed by at most what the tolerated defects leave
     open to first order (`sum |lam| tol_violation`, in the units of the objective) and the stationarity did
     not fall below its smallest value in the window; or the constraints are not met, at the largest penalty
-    `rho_max` throughout, the violation did not fall below its smallest value in the window and the objective
-    rose at every outer iteration of it (infeasible: the update `lam += rho c` with a violation that does not
-    vanish makes the multipliers grow without bound, and the cost the iterates pay for the violation they
-    remove with them; a feasible solve's objective settles). The tests of `_prepare` have already not
-    accepted it as converged."""
+    `rho_max` throughout, the violation did not fall below its smallest value in the window, stays beyond
+    one required decrease of the tolerance (`tol_violation / violation_decrease`: closer, the next update
+    may meet it; bounds at 0 by rounding make a feasible solve's violation fluctuate there) and the
+    objective rose at every outer iteration of it (infeasible: the update `lam += rho c` with a violation
+    that does not vanish makes the multipliers grow without bound, and the cost the iterates pay for the
+    violation they remove with them). The tests of `_prepare` have already not accepted it as converged."""
     window = jax.lax.dynamic_slice_in_dim(hist, jnp.maximum(it - STALL_WINDOW, 0), STALL_WINDOW, axis=1)
     objective, violation, penalty, stationarity = hist[:, jnp.minimum(it, hist.shape[-1] - 1)]
     open_objective = jnp.sum(jnp.abs(lam)) * config.tol_violation * ANGLE_SCALE**2
@@ -851,7 +852,8 @@ def _stalled(config: ALConfig, hist, it, lam, rho_max) -> Bool[Array, ""]:
     met = (violation <= config.tol_violation) & jnp.all(window[1] <= config.tol_violation)
     at_floor = met & flat & (stationarity >= jnp.min(window[3]))
     rising = jnp.all(jnp.diff(jnp.append(window[0], objective)) > 0)
-    infeasible = ((violation > config.tol_violation) & jnp.all(jnp.append(window[2], penalty) >= rho_max)
+    beyond = config.tol_violation / config.violation_decrease
+    infeasible = ((violation > beyond) & jnp.all(jnp.append(window[2], penalty) >= rho_max)
                   & (violation >= jnp.min(window[1])) & rising)
     return (it >= STALL_WINDOW) & (at_floor | infeasible)
 

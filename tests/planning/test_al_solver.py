@@ -51,7 +51,8 @@ def test_stall_with_constraints_not_met_at_the_largest_penalty():
     """The violation not falling below 3.5e-3 in three outer iterations at the largest `rho` while the
     objective rises with the multipliers (a history of an infeasible move): stalled. Below the largest
     penalty (it can still grow), with the violation still falling, however slowly, or with an objective that
-    settles (the Racer-7's spiral at nu = 1e-10, which converges two outer iterations later), not."""
+    settles (the Racer-7's spiral at nu = 1e-10, which converges two outer iterations later) or a violation
+    within one required decrease of the tolerance (the spiral with direction bounds), not."""
     obj = [5.06e-4, 5.07e-4, 8.63e-4, 9.16e-4, 1.05e-3]
     stuck = [3.5e-3, 3.5e-3, 9.73e-3, 9.03e-3, 5.5e-3]
     stat = [6.1e2, 1.2e3, 9.8e4, 7.1e3, 5.5e4]
@@ -62,6 +63,9 @@ def test_stall_with_constraints_not_met_at_the_largest_penalty():
                1.472036859625503e-02], [1.32e-05, 1.30e-05, 1.84e-06, 3.49e-09, 1.30e-08], [RHO_MAX] * 5,
               [1.5e3, 1.8e2, 3.8e-1, 5.4e-1, 6.8e-1])
     assert not _stalled(*spiral)
+    bounded = ([1.4776157078544407e-02, 1.4776339574234780e-02, 1.4776342921772672e-02, 1.4776342984013084e-02],
+               [4.82e-08, 3.54e-09, 1.96e-09, 2.46e-09], [RHO_MAX] * 4, [1.3e-01, 3.0e-01, 3.4e-01, 8.5e-05])
+    assert not _stalled(*bounded)  # the same spiral with direction bounds: converges one outer iteration later
 
 def _move(n_nodes=21):
     """A smooth 20 ms move of every Racer-7 joint by 0.2 mrad (eq. 4.4 blend) at a pose with large angles."""
