@@ -129,12 +129,22 @@ def casadi_dynamics(robot: jr.Robot) -> ca.Function:
     return ca.Function("f", [x, u], [ca.vertcat(qd, qdd, thetad, u)])
 
 
+def scaled_nlp(robot, q_d, ts, nu, direction=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What every peer shares of the scaled NLP: the variable scale (30,) and each node's lower and upper
+    bounds of the scaled `[x, u]` (N, 30), the first and last node fixed to the boundary states with u = 0."""
+    problem = ocp_problem(robot, q_d, ts, nu, direction=direction)
+    sz = np.asarray(variable_scale(problem))
+    lower, upper = (np.array(np.asarray(b) / sz) for b in bounds(problem))
+    for k, xe in zip((0, -1), boundary_states(problem)):
+        lower[k] = upper[k] = np.concatenate([np.asarray(xe), np.zeros(6)]) / sz
+    return sz, lower, upper
+
+
 def solve_ipopt(robot, q_d, ts, nu, warm, f=None, max_iter=100, print_level=0, direction=None):
     """Eq. 4.3 (thesis cost) in the scaled variables of `planning._transcription`, by IPOPT (`direction`: the
     motor directions of `solve_ocp`, as bounds)."""
-    problem = ocp_problem(robot, q_d, ts, nu, direction=direction)
     n = q_d.shape[0]
-    sz = np.asarray(variable_scale(problem))
+    sz, lower, upper = scaled_nlp(robot, q_d, ts, nu, direction)
     f = casadi_dynamics(robot) if f is None else f
     fmap = f.map(n, "thread", os.cpu_count() or 1)
     y = ca.MX.sym("y", 30, n)  # scaled [x; u] per node (column)
@@ -144,11 +154,7 @@ def solve_ipopt(robot, q_d, ts, nu, warm, f=None, max_iter=100, print_level=0, d
     dfx = (xs[:, 1:] - xs[:, :-1] - 0.5 * ts * (fx[:, 1:] + fx[:, :-1])) / ca.DM(sz[:24])
     track = (xs[:6, :] - ca.DM(np.asarray(q_d).T)) / ANGLE_SCALE
     cost = ca.sumsqr(track) + nu / ANGLE_SCALE**2 * ca.sumsqr(us)
-    lbx, ubx = (np.array((np.asarray(b) / sz).T) for b in bounds(problem))  # (30, N), node per column
-    xa, xb = (np.asarray(b) for b in boundary_states(problem))
-    for k, xe in ((0, xa), (n - 1, xb)):
-        fixed = np.concatenate([xe, np.zeros(6)]) / sz
-        lbx[:, k], ubx[:, k] = fixed, fixed
+    lbx, ubx = lower.T, upper.T  # (30, N), node per column
     nlp = {"x": ca.vec(y), "f": cost, "g": ca.vec(dfx)}
     opts = {"ipopt.hessian_approximation": "exact", "ipopt.linear_solver": "mumps", "ipopt.mumps_pivtol": 1e-4,
             "ipopt.mumps_pivtolmax": 0.1, "ipopt.tol": 1e-10, "ipopt.constr_viol_tol": 1e-10,
