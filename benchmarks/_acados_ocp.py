@@ -22,6 +22,7 @@ import ctypes
 import multiprocessing
 import os
 import time
+import warnings
 from pathlib import Path
 
 import casadi as ca
@@ -51,14 +52,14 @@ def load():
     return acados_template
 
 
-def version(at) -> str:
-    """The acados distribution's version (the wheel's, else 'upstream')."""
-    from importlib.metadata import PackageNotFoundError
-    from importlib.metadata import version as dist_version
+def distribution() -> str | None:
+    """The installed distribution that `load` finds acados in, where it has one."""
+    from importlib.metadata import PackageNotFoundError, version
     try:
-        return f"comma-deps-acados {dist_version('comma-deps-acados')}"
+        version("comma-deps-acados")
     except PackageNotFoundError:
-        return "acados (upstream acados_template)"
+        return None
+    return "comma-deps-acados"
 
 
 class AcadosOCP:
@@ -155,7 +156,9 @@ def _forked(fn, time_limit: float) -> dict:
     receive, send = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=lambda: send.send(fn()), daemon=True)
     start = time.perf_counter()
-    proc.start()
+    with warnings.catch_warnings():  # the child runs acados' C code only, none of JAX's threads
+        warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
+        proc.start()
     send.close()
     try:
         result = receive.recv() if receive.poll(time_limit) else None

@@ -4,8 +4,9 @@ Both solve the same scaled NLP (`planning._transcription`: angles in mrad, time 
 same warm start (the flat inverse) for the line and the spiral at nu = 1e-14 and 1e-10, N = 2501, each
 without and with the motor-direction bounds that `plan_task` sets (`motor_directions` of the flat inverse's
 rates): our solve unbounded and bounded alternately row by row (each compiled by its first call, the best of
-`REPEAT` further calls timed), then IPOPT on the same two problems. acados is not run (no transcription of
-this OCP for it here); the results file says so.
+`REPEAT` further calls timed), then IPOPT on the same two problems, then, where it is installed, acados
+(`_acados_ocp.py`: SQP, Gauss-Newton Hessian, HPIPM; generated and compiled once per N, each solve stopped after
+`--acados-time-limit` s).
 The CasADi model is written anew with casadi symbols: mDH kinematics and Newton-Euler for the mass
 matrix (unit accelerations) and `C qd + g`, the gear inverse `Xi^-1` by the same Newton steps, and
 `kappa`. `cross_check` evaluates our objective and constraints at IPOPT's solution. The nu sweep
@@ -13,17 +14,19 @@ matrix (unit accelerations) and `C qd + g`, the gear inverse `Xi^-1` by the same
 solves, and gives the Pareto front of the planning objective: each member's path error on the model
 against its control effort (RMS motor acceleration).
 
-Run: `python benchmarks/bench_ocp.py [--quick] [--no-ipopt] [--no-sweep]` (writes benchmarks/results_ocp.md, or --out,
-and beside it `ocp_pareto.png`, the front of the sweep).
+Run: `python benchmarks/bench_ocp.py [--quick] [--no-ipopt] [--no-acados] [--no-sweep]` (writes
+benchmarks/results_ocp.md, or --out, and beside it `ocp_pareto.png`, the front of the sweep).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import tempfile
 import time
 from pathlib import Path
 
+import _acados_ocp
 import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records the start)
 import casadi as ca
 import jax
@@ -52,6 +55,9 @@ TASKS = ("line", "spiral")
 SWEEP = np.logspace(-15, -9, 16)
 REPEAT = 3
 """Timed calls of our solve per row after the compiling one (the best counts)."""
+ACADOS_REPEAT = 2
+"""acados solves per row (the best counts); one where the first ran past `ACADOS_SINGLE_S`."""
+ACADOS_SINGLE_S = 60.0
 
 
 # ----------------------------------------------------------------------------- CasADi model
@@ -181,6 +187,28 @@ def cross_check(robot, q_d, ts, nu, x, u, direction=None) -> dict:
             "max_boundary": float(jnp.max(jnp.abs(boundary_defects(problem, x, u) / sz)))}
 
 
+def solve_acados(peer, robot, path, jp, ts, nu, warm, direction, time_limit) -> dict:
+    """A row of `peer` (an `_acados_ocp.AcadosOCP` of this N): the best of `ACADOS_REPEAT` solves (one where the
+    first ran past `ACADOS_SINGLE_S` or failed), checked by `cross_check`; a solve past `time_limit` or not
+    converged keeps its status and no objective."""
+    sz, lower, upper = scaled_nlp(robot, jp.q, ts, nu, direction)
+    y0 = np.concatenate([np.asarray(warm[0]), np.asarray(warm[1])], -1) / sz
+    best = None
+    for _ in range(ACADOS_REPEAT):
+        r = peer.solve(np.asarray(jp.q), nu, lower, upper, y0, ANGLE_SCALE, time_limit)
+        best = r if best is None or (r["success"] and r["wall_s"] < best["wall_s"]) else best
+        if not r["success"] or r["wall_s"] > ACADOS_SINGLE_S:
+            break
+    row = {"wall_s": best["wall_s"], "iterations": "" if best["iterations"] is None else str(best["iterations"]),
+           "status": best["status"], "objective": None, "violation": None, "path_um": None}
+    if best["success"]:
+        chk = cross_check(robot, jp.q, ts, nu, best["x"], best["u"], direction=direction)
+        row.update(objective=chk["objective"], violation=max(chk["max_defect"], chk["max_bound"],
+                                                             chk["max_boundary"]),
+                   path_um=path_error_um(robot, path, jp.t, best["x"][:, :6]))
+    return row
+
+
 def path_error_um(robot, path, t, q) -> float:
     p_d, _ = pl.sample_path(path, t)
     return 1e6 * float(jnp.max(jnp.linalg.norm(jr.tool_pose(robot, jnp.asarray(q))[:, :3, 3] - p_d, axis=-1)))
@@ -193,13 +221,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="the line at nu = 1e-14 only, no sweep")
     parser.add_argument("--no-ipopt", action="store_true", help="skip IPOPT (our solver only)")
+    parser.add_argument("--no-acados", action="store_true", help="skip acados (run where it is installed)")
+    parser.add_argument("--acados-time-limit", type=float, default=600.0, help="seconds per acados solve")
     parser.add_argument("--no-sweep", action="store_true", help="skip the nu sweep and its Pareto front")
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results_ocp.md"))
     args = parser.parse_args()
     robot = jr.racer7()
     tasks = TASKS[:1] if args.quick else TASKS
     nus = NUS[:1] if args.quick else NUS
-    f = None if args.no_ipopt else casadi_dynamics(robot)
+    acados = None if args.no_acados else _acados_ocp.load()
+    f = None if args.no_ipopt and acados is None else casadi_dynamics(robot)
+    peers, build = {}, Path(tempfile.mkdtemp(prefix="bench_ocp_acados_"))
     rows = []
     for task in tasks:
         path = pl.reference_path(task)
@@ -220,7 +252,7 @@ def main() -> None:
                              "status": jr.status_message(sol.status),
                              "path_um": path_error_um(robot, path, jp.t, sol.x[:, :6])}
                 print(f"{task} nu={nu:g} {name}: {row[name]}", flush=True)
-            if f is not None:
+            if not args.no_ipopt:
                 for name, direction in (("ipopt", None), ("ipopt bounded", d)):
                     ip = solve_ipopt(robot, jp.q, ts, nu, warm, f, direction=direction)
                     chk = cross_check(robot, jp.q, ts, nu, ip["x"], ip["u"], direction=direction)
@@ -228,6 +260,18 @@ def main() -> None:
                                  "objective": chk["objective"], "compile_s": None,
                                  "violation": max(chk["max_defect"], chk["max_bound"], chk["max_boundary"]),
                                  "status": ip["status"], "path_um": path_error_um(robot, path, jp.t, ip["x"][:, :6])}
+                    print(f"{task} nu={nu:g} {name}: {row[name]}", flush=True)
+            if acados is not None:
+                n = jp.q.shape[0]
+                compile_s = None
+                if n not in peers:
+                    peers[n] = _acados_ocp.AcadosOCP(acados, f, scaled_nlp(robot, jp.q, ts, nu)[0], n, ts,
+                                                     build / f"n{n}")
+                    compile_s = peers[n].compile_s
+                for name, direction in (("acados", None), ("acados bounded", d)):
+                    row[name] = solve_acados(peers[n], robot, path, jp, ts, nu, warm, direction,
+                                             args.acados_time_limit)
+                    row[name]["compile_s"], compile_s = compile_s, None
                     print(f"{task} nu={nu:g} {name}: {row[name]}", flush=True)
             rows.append(row)
             write_markdown(args.out, rows, None)  # keep partial results
@@ -288,39 +332,60 @@ def plot_front(front: list[dict], info: dict[str, str], path: Path) -> None:
 
 def write_markdown(out: Path, rows, sweep) -> dict[str, str]:
     """Write the results file of these rows and sweep; returns its run info."""
-    info = _timing.run_info("CasADi + IPOPT (exact Hessian, MUMPS) on the same scaled NLP from the same warm start"
-                            if any("ipopt" in row for row in rows) else "none (`--no-ipopt`)", ("casadi",))
-    lines = ["# OCP benchmark: CasADi + IPOPT vs our augmented Lagrangian", "", _timing.header(info),
+    peers = [p for key, p in (("ipopt", "CasADi + IPOPT (exact Hessian, MUMPS)"),
+                              ("acados", "acados (SQP, Gauss-Newton Hessian, HPIPM)")) if any(key in r for r in rows)]
+    ran_acados = any("acados" in row for row in rows)
+    dist = _acados_ocp.distribution() if ran_acados else None
+    info = _timing.run_info(" and ".join(peers) + " on the same scaled NLP from the same warm start" if peers
+                            else "none", ("casadi",) + ((dist,) if dist else ()))
+    acados_text = (
+        "acados: SQP with a Gauss-Newton Hessian and PARTIAL_CONDENSING_HPIPM on the same transcription "
+        "(`_acados_ocp.py`: the state of a stage is a node's scaled `[x, u]`, the control the next node's "
+        "`[qd, u]`, the explicit parts of the trapezoidal step its discrete dynamics, the qd defect a path "
+        f"equality), tolerances 1e-10, at most 50 SQP iterations, the best of {ACADOS_REPEAT} solver calls (one "
+        f"where the first took over {ACADOS_SINGLE_S:.0f} s), each in a forked process with a time limit; "
+        "compile: code generation and C compilation, once per N, on the row that built it. Its objective and "
+        "violation are ours evaluated at its solution." if ran_acados else
+        "acados: not run (not installed, or `--no-acados`; `_acados_ocp.py` says how to install it).")
+    lines = ["# OCP benchmark: CasADi + IPOPT and acados vs our augmented Lagrangian", "", _timing.header(info),
              "N = 2501, T_s = 1 ms; same scaled NLP and warm start (flat inverse); \"bounded\": with the "
              "motor-direction bounds of `plan_task` (`planning.internal.motor_directions` of the flat inverse's "
              "rates). "
              f"Ours: the best of {REPEAT} calls after the compiling one (compile: the first call's excess), unbounded "
              "and bounded alternately row by row; iterations outer / inner (LM steps). IPOPT: solver call only. "
-             "acados: not run (`comma-deps-acados` is not installed here, and this benchmark has no acados "
-             "transcription of the OCP). Load: the 1-minute load average at the start of the row (2 cores; other "
+             f"{acados_text} Load: the 1-minute load average at the start of the row (2 cores; other "
              "jobs shared the machine, so compare the ratios of one row, not seconds across rows).", "",
              "| task | nu | solver | status | iterations | wall [s] | compile [s] | objective [rad²] "
              "| max violation (scaled) | path error [µm] |", "|---|---|---|---|---|---|---|---|---|---|"]
-    names = ("ours", "ours bounded", "ipopt", "ipopt bounded")
+    names = ("ours", "ours bounded", "ipopt", "ipopt bounded", "acados", "acados bounded")
+
+    def cell(value, fmt):
+        return "" if value is None else format(value, fmt)
+
     for row in rows:
         for name in names:
             if name in row:
                 r = row[name]
-                compile_s = "" if r["compile_s"] is None else f"{r['compile_s']:.1f}"
                 lines.append(f"| {row['task']} | {row['nu']:.0e} | {name} | {r['status']} | {r['iterations']} | "
-                             f"{r['wall_s']:.2f} | {compile_s} | {r['objective']:.10e} | {r['violation']:.1e} | "
-                             f"{r['path_um']:.3f} |")
+                             f"{r['wall_s']:.2f} | {cell(r['compile_s'], '.1f')} | {cell(r['objective'], '.10e')} | "
+                             f"{cell(r['violation'], '.1e')} | {cell(r['path_um'], '.3f')} |")
     lines += ["", "| task | nu | load | ours bounded / unbounded (time) | IPOPT / ours | IPOPT / ours, bounded "
-              "| objective rel. difference to IPOPT: unbounded, bounded |", "|---|---|---|---|---|---|---|"]
+              "| acados / ours | acados / ours, bounded | objective rel. difference to IPOPT: unbounded, bounded "
+              "| to acados: unbounded, bounded |", "|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         o, b = row["ours"], row["ours bounded"]
         cells = [f"{b['wall_s'] / o['wall_s']:.2f}x"]
-        for ours, peer in ((o, row.get("ipopt")), (b, row.get("ipopt bounded"))):
-            cells.append("" if peer is None else f"{peer['wall_s'] / ours['wall_s']:.1f}x")
-        rel = [f"{abs(ours['objective'] - peer['objective']) / abs(peer['objective']):.1e}"
-               for ours, peer in ((o, row.get("ipopt")), (b, row.get("ipopt bounded"))) if peer is not None]
-        lines.append(f"| {row['task']} | {row['nu']:.0e} | {row['load']:.1f} | {' | '.join(cells)} | "
-                     f"{', '.join(rel)} |")
+        for peer in ("ipopt", "acados"):
+            for ours, other in ((o, row.get(peer)), (b, row.get(f"{peer} bounded"))):
+                # a peer stopped by its limit or not converged: its time is a lower bound
+                mark = "" if other is None or other["objective"] is not None else "> "
+                cells.append("" if other is None else f"{mark}{other['wall_s'] / ours['wall_s']:.1f}x")
+        for peer in ("ipopt", "acados"):
+            rel = [f"{abs(ours['objective'] - other['objective']) / abs(other['objective']):.1e}"
+                   if other["objective"] is not None else "-"
+                   for ours, other in ((o, row.get(peer)), (b, row.get(f"{peer} bounded"))) if other is not None]
+            cells.append(", ".join(rel))
+        lines.append(f"| {row['task']} | {row['nu']:.0e} | {row['load']:.1f} | {' | '.join(cells)} |")
     if sweep is not None:
         mean = sweep["singles_total_s"] / sweep["n"]
         lines += ["", f"nu sweep (line, {sweep['n']} values 1e-15..1e-9, one vmapped call): "
