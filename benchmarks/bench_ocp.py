@@ -4,8 +4,9 @@ Both solve the same scaled NLP (`planning._transcription`: angles in mrad, time 
 same warm start (the flat inverse) for the line and the spiral at nu = 1e-14 and 1e-10, N = 2501, each
 without and with the motor-direction bounds that `plan_task` sets (`motor_directions` of the flat inverse's
 rates): our solve unbounded and bounded alternately row by row (each compiled by its first call, the best of
-`REPEAT` further calls timed), then IPOPT on the same two problems. acados is not run (no transcription of
-this OCP for it here); the results file says so.
+`REPEAT` further calls timed), then IPOPT on the same two problems, then, where it is installed, acados
+(SQP, Gauss-Newton Hessian, HPIPM; generated and compiled once per N, each solve stopped after
+`--acados-time-limit` s).
 The CasADi model is written anew with casadi symbols: mDH kinematics and Newton-Euler for the mass
 matrix (unit accelerations) and `C qd + g`, the gear inverse `Xi^-1` by the same Newton steps, and
 `kappa`. `cross_check` evaluates our objective and constraints at IPOPT's solution. The nu sweep
@@ -13,15 +14,19 @@ matrix (unit accelerations) and `C qd + g`, the gear inverse `Xi^-1` by the same
 solves, and gives the Pareto front of the planning objective: each member's path error on the model
 against its control effort (RMS motor acceleration).
 
-Run: `python benchmarks/bench_ocp.py [--quick] [--no-ipopt] [--no-sweep]` (writes benchmarks/results_ocp.md, or --out,
-and beside it `ocp_pareto.png`, the front of the sweep).
+Run: `python benchmarks/bench_ocp.py [--quick] [--no-ipopt] [--no-acados] [--no-sweep]` (writes
+benchmarks/results_ocp.md, or --out, and beside it `ocp_pareto.png`, the front of the sweep).
 """
 
 from __future__ import annotations
 
 import argparse
+import ctypes
+import multiprocessing
 import os
+import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records the start)
@@ -52,6 +57,9 @@ TASKS = ("line", "spiral")
 SWEEP = np.logspace(-15, -9, 16)
 REPEAT = 3
 """Timed calls of our solve per row after the compiling one (the best counts)."""
+ACADOS_REPEAT = 2
+"""acados solves per row (the best counts); one where the first ran past `ACADOS_SINGLE_S`."""
+ACADOS_SINGLE_S = 60.0
 
 
 # ----------------------------------------------------------------------------- CasADi model
@@ -129,12 +137,22 @@ def casadi_dynamics(robot: jr.Robot) -> ca.Function:
     return ca.Function("f", [x, u], [ca.vertcat(qd, qdd, thetad, u)])
 
 
+def scaled_nlp(robot, q_d, ts, nu, direction=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What every peer shares of the scaled NLP: the variable scale (30,) and each node's lower and upper
+    bounds of the scaled `[x, u]` (N, 30), the first and last node fixed to the boundary states with u = 0."""
+    problem = ocp_problem(robot, q_d, ts, nu, direction=direction)
+    sz = np.asarray(variable_scale(problem))
+    lower, upper = (np.array(np.asarray(b) / sz) for b in bounds(problem))
+    for k, xe in zip((0, -1), boundary_states(problem)):
+        lower[k] = upper[k] = np.concatenate([np.asarray(xe), np.zeros(6)]) / sz
+    return sz, lower, upper
+
+
 def solve_ipopt(robot, q_d, ts, nu, warm, f=None, max_iter=100, print_level=0, direction=None):
     """Eq. 4.3 (thesis cost) in the scaled variables of `planning._transcription`, by IPOPT (`direction`: the
     motor directions of `solve_ocp`, as bounds)."""
-    problem = ocp_problem(robot, q_d, ts, nu, direction=direction)
     n = q_d.shape[0]
-    sz = np.asarray(variable_scale(problem))
+    sz, lower, upper = scaled_nlp(robot, q_d, ts, nu, direction)
     f = casadi_dynamics(robot) if f is None else f
     fmap = f.map(n, "thread", os.cpu_count() or 1)
     y = ca.MX.sym("y", 30, n)  # scaled [x; u] per node (column)
@@ -144,11 +162,7 @@ def solve_ipopt(robot, q_d, ts, nu, warm, f=None, max_iter=100, print_level=0, d
     dfx = (xs[:, 1:] - xs[:, :-1] - 0.5 * ts * (fx[:, 1:] + fx[:, :-1])) / ca.DM(sz[:24])
     track = (xs[:6, :] - ca.DM(np.asarray(q_d).T)) / ANGLE_SCALE
     cost = ca.sumsqr(track) + nu / ANGLE_SCALE**2 * ca.sumsqr(us)
-    lbx, ubx = (np.array((np.asarray(b) / sz).T) for b in bounds(problem))  # (30, N), node per column
-    xa, xb = (np.asarray(b) for b in boundary_states(problem))
-    for k, xe in ((0, xa), (n - 1, xb)):
-        fixed = np.concatenate([xe, np.zeros(6)]) / sz
-        lbx[:, k], ubx[:, k] = fixed, fixed
+    lbx, ubx = lower.T, upper.T  # (30, N), node per column
     nlp = {"x": ca.vec(y), "f": cost, "g": ca.vec(dfx)}
     opts = {"ipopt.hessian_approximation": "exact", "ipopt.linear_solver": "mumps", "ipopt.mumps_pivtol": 1e-4,
             "ipopt.mumps_pivtolmax": 0.1, "ipopt.tol": 1e-10, "ipopt.constr_viol_tol": 1e-10,
@@ -175,9 +189,194 @@ def cross_check(robot, q_d, ts, nu, x, u, direction=None) -> dict:
             "max_boundary": float(jnp.max(jnp.abs(boundary_defects(problem, x, u) / sz)))}
 
 
+def solve_acados(peer, robot, path, jp, ts, nu, warm, direction, time_limit) -> dict:
+    """A row of `peer` (an `AcadosOCP` of this N): the best of `ACADOS_REPEAT` solves (one where the
+    first ran past `ACADOS_SINGLE_S` or failed), checked by `cross_check`; a solve past `time_limit` or not
+    converged keeps its status and no objective."""
+    sz, lower, upper = scaled_nlp(robot, jp.q, ts, nu, direction)
+    y0 = np.concatenate([np.asarray(warm[0]), np.asarray(warm[1])], -1) / sz
+    best = None
+    for _ in range(ACADOS_REPEAT):
+        r = peer.solve(np.asarray(jp.q), nu, lower, upper, y0, ANGLE_SCALE, time_limit)
+        best = r if best is None or (r["success"] and r["wall_s"] < best["wall_s"]) else best
+        if not r["success"] or r["wall_s"] > ACADOS_SINGLE_S:
+            break
+    row = {"wall_s": best["wall_s"], "iterations": "" if best["iterations"] is None else str(best["iterations"]),
+           "status": best["status"], "objective": None, "violation": None, "path_um": None}
+    if best["success"]:
+        chk = cross_check(robot, jp.q, ts, nu, best["x"], best["u"], direction=direction)
+        row.update(objective=chk["objective"], violation=max(chk["max_defect"], chk["max_bound"],
+                                                             chk["max_boundary"]),
+                   path_um=path_error_um(robot, path, jp.t, best["x"][:, :6]))
+    return row
+
+
 def path_error_um(robot, path, t, q) -> float:
     p_d, _ = pl.sample_path(path, t)
     return 1e6 * float(jnp.max(jnp.linalg.norm(jr.tool_pose(robot, jnp.asarray(q))[:, :3, 3] - p_d, axis=-1)))
+
+
+# ----------------------------------------------------------------------------- acados (optional peer)
+
+# The same trapezoidal transcription in acados' stage-wise form: the state of stage k is node k's scaled
+# `[x, u]` (30), the control the next node's scaled `[qd, u]` (12). The parts of the trapezoidal step that are
+# explicit in these (q, theta from the rates, thetad from u) are the discrete dynamics; the implicit one (qd, with
+# the link accelerations at both nodes) is a path equality `h = 0`, scaled as the NLP's defect. So the feasible
+# set, the variables and the cost are the NLP's; only the q, theta and thetad defects hold by construction
+# instead of as constraints. Cost: linear least squares equal to the scaled cost of every node (unit time steps,
+# so acados' cost scaling is 1). Bounds: every node's box of the scaled `[x, u]`, set per stage at run time, the
+# first and last node fixed; one compiled solver serves every nu, task and bound set of one N.
+#
+# acados is found as upstream's `acados_template` (with `ACADOS_SOURCE_DIR` set) or as the `acados` package of
+# the `comma-deps-acados` wheel, whose install tree, tera renderer and shared libraries are located here. That
+# wheel also writes a slim casadi (3.6.7, no IPOPT) into `site-packages/casadi`, over the files of the casadi this
+# benchmark needs; install it beside the environment instead (`pip install --no-deps --target DIR
+# comma-deps-acados`, delete `DIR/casadi`, put `DIR` on `PYTHONPATH`).
+
+ACADOS_STATUS = {0: "success", 1: "NaN", 2: "max iterations", 3: "minimum step", 4: "QP failure", 5: "ready"}
+"""acados' SQP return codes."""
+
+
+def load_acados():
+    """acados' `acados_template` module, or None where acados is not installed."""
+    try:
+        import acados_template  # upstream's interface; the user sets ACADOS_SOURCE_DIR
+        return acados_template
+    except ImportError:
+        pass
+    try:
+        import acados  # the comma-deps-acados wheel: the interface inside, an install tree beside it
+    except ImportError:
+        return None
+    os.environ.setdefault("ACADOS_SOURCE_DIR", acados.DIR)
+    os.environ.setdefault("ACADOS_PYTHON_INTERFACE_PATH", acados.TEMPLATE_DIR)
+    os.environ.setdefault("TERA_PATH", acados.TERA_PATH)
+    for lib in ("libblasfeo.so", "libhpipm.so", "libqpOASES_e.so.3.1"):  # libacados' dependencies, by soname
+        ctypes.CDLL(os.path.join(acados.LIB_DIR, lib), mode=ctypes.RTLD_GLOBAL)
+    from acados import acados_template
+    return acados_template
+
+
+def acados_distribution() -> str | None:
+    """The installed distribution that `load_acados` finds acados in, where it has one."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        version("comma-deps-acados")
+    except PackageNotFoundError:
+        return None
+    return "comma-deps-acados"
+
+
+class AcadosOCP:
+    """The scaled OCP of N nodes for acados, generated and compiled once (`compile_s`); `solve` sets a task's
+    reference, nu, bounds and warm start."""
+
+    def __init__(self, at, f: ca.Function, sz: np.ndarray, n_nodes: int, ts: float, directory: Path,
+                 max_iter: int = 50, tol: float = 1e-10):
+        self.sz, self.n_nodes, self.max_iter = np.asarray(sz, float), n_nodes, max_iter
+        sz, n = self.sz, 6
+        y, v = ca.SX.sym("y", 5 * n), ca.SX.sym("v", 2 * n)
+        z = y * ca.DM(sz)
+        q, qd, th, thd, u = (z[i * n:(i + 1) * n] for i in range(5))
+        qd1, u1 = v[:n] * ca.DM(sz[n:2 * n]), v[n:] * ca.DM(sz[4 * n:])
+        thd1 = thd + 0.5 * ts * (u + u1)
+        x1 = ca.vertcat(q + 0.5 * ts * (qd + qd1), qd1, th + 0.5 * ts * (thd + thd1), thd1)
+        qdd0, qdd1 = f(z[:4 * n], u)[n:2 * n], f(x1, u1)[n:2 * n]
+        model = at.AcadosModel()
+        model.name = f"ocp{n_nodes}"
+        model.x, model.u = y, v
+        model.disc_dyn_expr = ca.vertcat(x1, u1) / ca.DM(sz)
+        model.con_h_expr = (qd1 - qd - 0.5 * ts * (qdd0 + qdd1)) / ca.DM(sz[n:2 * n])
+        ocp = at.AcadosOcp()
+        ocp.model = model
+        ocp.dims.N = n_nodes - 1
+        select = np.zeros((2 * n, 5 * n))
+        select[:n, :n], select[n:, 4 * n:] = np.eye(n), np.eye(n)
+        for suffix in ("", "_e"):
+            setattr(ocp.cost, "cost_type" + suffix, "LINEAR_LS")
+            setattr(ocp.cost, "Vx" + suffix, select)
+            setattr(ocp.cost, "W" + suffix, np.eye(2 * n))
+            setattr(ocp.cost, "yref" + suffix, np.zeros(2 * n))
+        ocp.cost.Vu = np.zeros((2 * n, 2 * n))
+        c = ocp.constraints
+        c.x0 = np.zeros(5 * n)
+        c.idxbx, c.lbx, c.ubx = np.arange(5 * n), -np.ones(5 * n), np.ones(5 * n)
+        c.idxbx_e, c.lbx_e, c.ubx_e = np.arange(5 * n), -np.ones(5 * n), np.ones(5 * n)
+        c.lh, c.uh = np.zeros(n), np.zeros(n)
+        o = ocp.solver_options
+        o.tf = float(n_nodes - 1)  # unit time steps: acados scales each stage's cost by its step
+        o.integrator_type = "DISCRETE"
+        o.nlp_solver_type = "SQP"
+        o.hessian_approx = "GAUSS_NEWTON"
+        o.qp_solver = "PARTIAL_CONDENSING_HPIPM"
+        o.nlp_solver_max_iter = max_iter
+        o.nlp_solver_tol_eq = o.nlp_solver_tol_ineq = tol
+        o.nlp_solver_tol_stat = o.nlp_solver_tol_comp = tol
+        o.qp_solver_iter_max = 200
+        o.print_level = 0
+        directory.mkdir(parents=True, exist_ok=True)
+        ocp.code_export_directory = str(directory / "c_generated_code")
+        start = time.perf_counter()
+        self.solver = at.AcadosOcpSolver(ocp, json_file=str(directory / f"{model.name}.json"), verbose=False)
+        self.compile_s = time.perf_counter() - start
+
+    def solve(self, q_d, nu: float, lower: np.ndarray, upper: np.ndarray, warm: np.ndarray, angle_scale: float,
+              time_limit: float) -> dict:
+        """One SQP solve from the scaled warm start `warm` (N, 30) with the scaled bounds `lower`, `upper`
+        (N, 30; the first and last rows fixed) and the cost `sum |q - q_d|^2 / a^2 + nu / a^2 |u|^2`
+        (a = `angle_scale`), in a forked process stopped after `time_limit` s. Returns status, iterations,
+        wall (the solver call), the unscaled x, u, or status 'time limit' and no solution."""
+        s, sz, n, last = self.solver, self.sz, 6, self.n_nodes - 1
+        w = 2.0 * np.concatenate([sz[:n] ** 2, nu * sz[4 * n:] ** 2]) / angle_scale**2
+        q_d = np.asarray(q_d) / sz[:n]
+        s.reset()
+        for k in range(last + 1):
+            yref = np.concatenate([q_d[k], np.zeros(n)])
+            s.cost_set(k, "W", np.diag(w), api="new")
+            s.cost_set(k, "yref", yref, api="new")
+            if 0 < k:
+                s.constraints_set(k, "lbx", lower[k], api="new")
+                s.constraints_set(k, "ubx", upper[k], api="new")
+            s.set(k, "x", warm[k])
+            if k < last:
+                s.set(k, "u", np.concatenate([warm[k + 1, n:2 * n], warm[k + 1, 4 * n:]]))
+        s.constraints_set(0, "lbx", lower[0], api="new")
+        s.constraints_set(0, "ubx", upper[0], api="new")
+
+        def run():
+            start = time.perf_counter()
+            status = s.solve()
+            wall = time.perf_counter() - start
+            y = np.stack([s.get(k, "x") for k in range(last + 1)]) * sz
+            return {"status": ACADOS_STATUS.get(status, str(status)), "success": status == 0, "wall_s": wall,
+                    "iterations": int(np.ravel(s.get_stats("sqp_iter"))[0]), "x": y[:, :4 * n], "u": y[:, 4 * n:],
+                    "scaled_cost": float(s.get_cost())}
+
+        return _forked(run, time_limit)
+
+
+def _forked(fn, time_limit: float) -> dict:
+    """`fn()` in a forked process, its result or {'status': 'time limit'} when it runs past `time_limit` s."""
+    ctx = multiprocessing.get_context("fork")
+    receive, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=lambda: send.send(fn()), daemon=True)
+    start = time.perf_counter()
+    with warnings.catch_warnings():  # the child runs acados' C code only, none of JAX's threads
+        warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
+        proc.start()
+    send.close()
+    try:
+        result = receive.recv() if receive.poll(time_limit) else None
+    except EOFError:  # the child died without a result
+        result = None
+    if result is None:
+        proc.kill()
+    proc.join()
+    if result is None:
+        wall = time.perf_counter() - start
+        status = f"time limit ({time_limit:.0f} s)" if wall >= time_limit else "process ended without a result"
+        return {"status": status, "success": False, "wall_s": wall, "iterations": None}
+    return result
 
 
 # ----------------------------------------------------------------------------- benchmark
@@ -187,13 +386,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="the line at nu = 1e-14 only, no sweep")
     parser.add_argument("--no-ipopt", action="store_true", help="skip IPOPT (our solver only)")
+    parser.add_argument("--no-acados", action="store_true", help="skip acados (run where it is installed)")
+    parser.add_argument("--acados-time-limit", type=float, default=600.0, help="seconds per acados solve")
     parser.add_argument("--no-sweep", action="store_true", help="skip the nu sweep and its Pareto front")
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results_ocp.md"))
     args = parser.parse_args()
     robot = jr.racer7()
     tasks = TASKS[:1] if args.quick else TASKS
     nus = NUS[:1] if args.quick else NUS
-    f = None if args.no_ipopt else casadi_dynamics(robot)
+    acados = None if args.no_acados else load_acados()
+    f = None if args.no_ipopt and acados is None else casadi_dynamics(robot)
+    peers, build = {}, Path(tempfile.mkdtemp(prefix="bench_ocp_acados_"))
     rows = []
     for task in tasks:
         path = pl.reference_path(task)
@@ -214,7 +417,7 @@ def main() -> None:
                              "status": jr.status_message(sol.status),
                              "path_um": path_error_um(robot, path, jp.t, sol.x[:, :6])}
                 print(f"{task} nu={nu:g} {name}: {row[name]}", flush=True)
-            if f is not None:
+            if not args.no_ipopt:
                 for name, direction in (("ipopt", None), ("ipopt bounded", d)):
                     ip = solve_ipopt(robot, jp.q, ts, nu, warm, f, direction=direction)
                     chk = cross_check(robot, jp.q, ts, nu, ip["x"], ip["u"], direction=direction)
@@ -222,6 +425,18 @@ def main() -> None:
                                  "objective": chk["objective"], "compile_s": None,
                                  "violation": max(chk["max_defect"], chk["max_bound"], chk["max_boundary"]),
                                  "status": ip["status"], "path_um": path_error_um(robot, path, jp.t, ip["x"][:, :6])}
+                    print(f"{task} nu={nu:g} {name}: {row[name]}", flush=True)
+            if acados is not None:
+                n = jp.q.shape[0]
+                compile_s = None
+                if n not in peers:
+                    peers[n] = AcadosOCP(acados, f, scaled_nlp(robot, jp.q, ts, nu)[0], n, ts,
+                                                     build / f"n{n}")
+                    compile_s = peers[n].compile_s
+                for name, direction in (("acados", None), ("acados bounded", d)):
+                    row[name] = solve_acados(peers[n], robot, path, jp, ts, nu, warm, direction,
+                                             args.acados_time_limit)
+                    row[name]["compile_s"], compile_s = compile_s, None
                     print(f"{task} nu={nu:g} {name}: {row[name]}", flush=True)
             rows.append(row)
             write_markdown(args.out, rows, None)  # keep partial results
@@ -282,39 +497,64 @@ def plot_front(front: list[dict], info: dict[str, str], path: Path) -> None:
 
 def write_markdown(out: Path, rows, sweep) -> dict[str, str]:
     """Write the results file of these rows and sweep; returns its run info."""
-    info = _timing.run_info("CasADi + IPOPT (exact Hessian, MUMPS) on the same scaled NLP from the same warm start"
-                            if any("ipopt" in row for row in rows) else "none (`--no-ipopt`)", ("casadi",))
-    lines = ["# OCP benchmark: CasADi + IPOPT vs our augmented Lagrangian", "", _timing.header(info),
+    peers = [p for key, p in (("ipopt", "CasADi + IPOPT (exact Hessian, MUMPS)"),
+                              ("acados", "acados (SQP, Gauss-Newton Hessian, HPIPM)")) if any(key in r for r in rows)]
+    ran_acados = any("acados" in row for row in rows)
+    dist = acados_distribution() if ran_acados else None
+    info = _timing.run_info(" and ".join(peers) + " on the same scaled NLP from the same warm start" if peers
+                            else "none", ("casadi",) + ((dist,) if dist else ()))
+    acados_text = (
+        "acados: SQP with a Gauss-Newton Hessian and PARTIAL_CONDENSING_HPIPM on the same transcription "
+        "(the state of a stage is a node's scaled `[x, u]`, the control the next node's "
+        "`[qd, u]`, the explicit parts of the trapezoidal step its discrete dynamics, the qd defect a path "
+        f"equality), tolerances 1e-10, at most 50 SQP iterations, the best of {ACADOS_REPEAT} solver calls (one "
+        f"where the first took over {ACADOS_SINGLE_S:.0f} s), each in a forked process with a time limit; "
+        "compile: code generation and C compilation, once per N, on the row that built it. Its objective and "
+        "violation are ours evaluated at its solution." if ran_acados else
+        "acados: not run (not installed, or `--no-acados`; `bench_ocp.py` says how to install it).")
+    lines = ["# OCP benchmark: CasADi + IPOPT and acados vs our augmented Lagrangian", "", _timing.header(info),
              "N = 2501, T_s = 1 ms; same scaled NLP and warm start (flat inverse); \"bounded\": with the "
              "motor-direction bounds of `plan_task` (`planning.internal.motor_directions` of the flat inverse's "
              "rates). "
              f"Ours: the best of {REPEAT} calls after the compiling one (compile: the first call's excess), unbounded "
              "and bounded alternately row by row; iterations outer / inner (LM steps). IPOPT: solver call only. "
-             "acados: not run (`comma-deps-acados` is not installed here, and this benchmark has no acados "
-             "transcription of the OCP). Load: the 1-minute load average at the start of the row (2 cores; other "
+             f"{acados_text} Load: the 1-minute load average at the start of the row (2 cores; other "
              "jobs shared the machine, so compare the ratios of one row, not seconds across rows).", "",
              "| task | nu | solver | status | iterations | wall [s] | compile [s] | objective [rad²] "
              "| max violation (scaled) | path error [µm] |", "|---|---|---|---|---|---|---|---|---|---|"]
-    names = ("ours", "ours bounded", "ipopt", "ipopt bounded")
+    names = ("ours", "ours bounded", "ipopt", "ipopt bounded", "acados", "acados bounded")
+
+    def cell(value, fmt):
+        return "" if value is None else format(value, fmt)
+
     for row in rows:
         for name in names:
             if name in row:
                 r = row[name]
-                compile_s = "" if r["compile_s"] is None else f"{r['compile_s']:.1f}"
                 lines.append(f"| {row['task']} | {row['nu']:.0e} | {name} | {r['status']} | {r['iterations']} | "
-                             f"{r['wall_s']:.2f} | {compile_s} | {r['objective']:.10e} | {r['violation']:.1e} | "
-                             f"{r['path_um']:.3f} |")
+                             f"{r['wall_s']:.2f} | {cell(r['compile_s'], '.1f')} | {cell(r['objective'], '.10e')} | "
+                             f"{cell(r['violation'], '.1e')} | {cell(r['path_um'], '.3f')} |")
     lines += ["", "| task | nu | load | ours bounded / unbounded (time) | IPOPT / ours | IPOPT / ours, bounded "
-              "| objective rel. difference to IPOPT: unbounded, bounded |", "|---|---|---|---|---|---|---|"]
+              "| acados / ours | acados / ours, bounded | acados unbounded / ours bounded "
+              "| objective rel. difference to IPOPT: unbounded, bounded | to acados: unbounded, bounded |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         o, b = row["ours"], row["ours bounded"]
         cells = [f"{b['wall_s'] / o['wall_s']:.2f}x"]
-        for ours, peer in ((o, row.get("ipopt")), (b, row.get("ipopt bounded"))):
-            cells.append("" if peer is None else f"{peer['wall_s'] / ours['wall_s']:.1f}x")
-        rel = [f"{abs(ours['objective'] - peer['objective']) / abs(peer['objective']):.1e}"
-               for ours, peer in ((o, row.get("ipopt")), (b, row.get("ipopt bounded"))) if peer is not None]
-        lines.append(f"| {row['task']} | {row['nu']:.0e} | {row['load']:.1f} | {' | '.join(cells)} | "
-                     f"{', '.join(rel)} |")
+        for peer in ("ipopt", "acados"):
+            for ours, other in ((o, row.get(peer)), (b, row.get(f"{peer} bounded"))):
+                # a peer stopped by its limit or not converged: its time is a lower bound
+                mark = "" if other is None or other["objective"] is not None else "> "
+                cells.append("" if other is None else f"{mark}{other['wall_s'] / ours['wall_s']:.1f}x")
+        peer = row.get("acados")
+        mark = "" if peer is None or peer["objective"] is not None else "> "
+        cells.append("" if peer is None else f"{mark}{peer['wall_s'] / b['wall_s']:.1f}x")
+        for peer in ("ipopt", "acados"):
+            rel = [f"{abs(ours['objective'] - other['objective']) / abs(other['objective']):.1e}"
+                   if other["objective"] is not None else "-"
+                   for ours, other in ((o, row.get(peer)), (b, row.get(f"{peer} bounded"))) if other is not None]
+            cells.append(", ".join(rel))
+        lines.append(f"| {row['task']} | {row['nu']:.0e} | {row['load']:.1f} | {' | '.join(cells)} |")
     if sweep is not None:
         mean = sweep["singles_total_s"] / sweep["n"]
         lines += ["", f"nu sweep (line, {sweep['n']} values 1e-15..1e-9, one vmapped call): "
