@@ -4,7 +4,8 @@ corrects its `start.toml`; the nu = 1e-14 plan made on the start model, on the c
 model and on the true robot (`start.toml` plus the effects of `truth.json`, cw gear set throughout), each simulated
 on the true robot; and the identification floor: the corrected plan's command simulated on `--draws` robots drawn
 from the fit's uncertainty (`RunDiagnosis.sample`) against the same command simulated on the corrected model,
-the path error the runs' noise leaves in any model fitted from them. Written as a section of
+the path error the runs' noise leaves in any model fitted from them, beside the same deviation on the true robot
+(a fit consistent with its covariance puts it within the floor's spread). Written as a section of
 `benchmarks/results_runs.md` per case.
 
 `--tracker-noise SIGMA_M` measures the runs anew on the true robot (our simulation) with that tracker noise instead:
@@ -125,6 +126,7 @@ def replan_case(folder: Path, tasks: list[str], samples: int, draws: int, tracke
         corrected = plan(diagnosis.robot, truth, task, description) if diagnosis.estimates else None
         e["corrected"] = ocp_error(corrected) if corrected is not None else e["start"]
         e["floor"] = floor(corrected, diagnosis.robot, robots) if corrected is not None else None
+        e["deviation"] = floor(corrected, diagnosis.robot, [truth])[0] if corrected is not None else None
         out[task] = e
     return diagnosis, seconds, out
 
@@ -141,8 +143,10 @@ def table_row(case: str, task: str, e: dict) -> str:
     # the second goal where the start model's plan has an error of its own to remove: above 10 µm, and beyond the
     # first goal (the clean case's start model is the true robot: its plan's error is the plan's, not the model's)
     goal_start = "met" if gain >= 5 else ("-" if e["start"][0] <= max(10e-6, 1.5 * e["true"][0]) else "not met")
-    return (f"| {case} | {task} | {um['start']} | {um['corrected']} | {um['true']} | {low} | {ratio:.3g} "
-            f"({goal_true}) | {gain:.3g} ({goal_start}) |")
+    deviation = "-" if e["deviation"] is None else (
+        f"{1e6 * e['deviation']:.3g} ({e['deviation'] / np.median(spread):.3g})")
+    return (f"| {case} | {task} | {um['start']} | {um['corrected']} | {um['true']} | {low} | {deviation} | "
+            f"{ratio:.3g} ({goal_true}) | {gain:.3g} ({goal_start}) |")
 
 
 def main() -> None:
@@ -177,10 +181,11 @@ def main() -> None:
                    "Tool path error over the motion on the case's true robot [µm], max / RMS, of the "
                    f"nu = {NU:g} plan made on each model; floor: the largest deviation of the corrected plan's "
                    f"command on robots drawn from the fit's uncertainty ({args.draws} draws), median / 90th "
-                   "percentile. Goals: corrected <= 1.5 x true (where missed: whether corrected <= true + the "
+                   "percentile; the true robot's deviation: the same for the true robot (and its ratio to the "
+                   "floor's median). Goals: corrected <= 1.5 x true (where missed: whether corrected <= true + the "
                    "floor's 90th percentile), and >= 5 x below start where start > 10 µm and > 1.5 x true.", "",
-                   "| case | task | start | corrected | true robot | floor | corrected / true | "
-                   "start / corrected |", "|---|---|---|---|---|---|---|---|", *rows]
+                   "| case | task | start | corrected | true robot | floor | true robot's deviation | corrected / true "
+                   "| start / corrected |", "|---|---|---|---|---|---|---|---|---|", *rows]
         head, found, tail = text.partition(SECTION + title + "\n")
         tail = tail[tail.index("\n## "):] if found and "\n## " in tail else ""
         text = head.rstrip("\n") + "\n\n" + "\n".join(section) + "\n" + tail

@@ -206,6 +206,8 @@ simulations of the residual's program instead."""
 SINGLE_BELOW = 4
 """A batch of `BATCH` perturbed simulations costs about four single ones on the CPU (benchmarks/results_runs.md):
 fewer columns than this run one simulation each."""
+KNOWN = 64
+"""Points whose runs' residuals `_Evidence.known` keeps (each 3 + n numbers per sample of every run)."""
 DETECTION = MIN_BIC_GAIN
 """Chi-square rise, beyond a parameter's BIC cost `ln(rows)`, that an effect must cause to be added: the size of a
 candidate at which its linearised chi-square reaches this is its detection limit (`RunDiagnosis.limits`)."""
@@ -471,6 +473,10 @@ class _Evidence:
     sigma: float
     poses: tuple | None
     encoder_sigma: float | None = None
+    known: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
+    """The runs' residuals at the latest `KNOWN` points evaluated (by robot, marker, substeps and the bytes of `z`),
+    so that a point is simulated once: a fit's accepted trial, its derivatives there, the step's scores and the next
+    screening share it."""
 
     @property
     def rows(self) -> int:
@@ -529,7 +535,8 @@ def _evaluate(robot, z, ev: _Evidence, marker, substeps, variables=None):
     """Stacked whitened residuals of the runs (each its tracker's, then its encoders'), then the poses, of `ev` at
     `z`, and their derivatives (rows, m) along the effect `variables` (m,) if given: the runs' by forward differences
     (`FD_STEP`; `BATCH` perturbed models per call), the poses' by forward-mode autodiff. Every simulation is
-    dispatched before any is read, so that independent ones can run at once."""
+    dispatched before any is read, so that independent ones can run at once; the runs' residuals at a point of
+    `ev.known` are not simulated again."""
     z = np.asarray(z, float)
     chunks = []
     if variables is not None:
@@ -538,7 +545,10 @@ def _evaluate(robot, z, ev: _Evidence, marker, substeps, variables=None):
         steps = shifted - z[variables]  # the step as represented
         chunks = [np.arange(k, min(k + BATCH, len(variables))) for k in range(0, len(variables), BATCH)]
     pending = []
-    for r in ev.runs:
+    key = (id(robot), id(marker), substeps, z.tobytes())
+    known = ev.known.get(key)
+    known = known[2] if known is not None and known[0] is robot and known[1] is marker else None
+    for k, r in enumerate(ev.runs):
         data = (r.command, r.white, r.measured, ev.sigma, marker, substeps, ev.encoders(r), ev.encoder_sigma)
         calls = []
         for chunk in chunks:
@@ -546,7 +556,7 @@ def _evaluate(robot, z, ev: _Evidence, marker, substeps, variables=None):
             zs[np.arange(len(chunk)), variables[chunk]] = shifted[chunk]
             calls.append([_perturbed(robot, jnp.asarray(zs), *data)] if len(chunk) >= SINGLE_BELOW
                          else [_residual(robot, jnp.asarray(zk), *data) for zk in zs])
-        pending.append((_residual(robot, jnp.asarray(z), *data), calls))
+        pending.append((_residual(robot, jnp.asarray(z), *data) if known is None else known[k], calls))
     poses = None if ev.poses is None else _pose_rows(robot, jnp.asarray(z), *ev.poses, marker)
     res, cols = [], []
     for base, calls in pending:
@@ -556,6 +566,10 @@ def _evaluate(robot, z, ev: _Evidence, marker, substeps, variables=None):
             parts = [((np.concatenate([np.asarray(c).reshape(-1, base.size) for c in call])[:len(chunk)] - base)
                       / steps[chunk, None]).T for chunk, call in zip(chunks, calls)]
             cols.append(np.concatenate(parts, 1) if parts else np.zeros((base.size, 0)))
+    if known is None:
+        ev.known[key] = (robot, marker, res[:len(ev.runs)])
+        while len(ev.known) > KNOWN:
+            del ev.known[next(iter(ev.known))]
     if poses is not None:
         r_p, j_p = (np.asarray(a) for a in poses)
         res.append(r_p)

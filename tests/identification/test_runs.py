@@ -370,3 +370,35 @@ def test_derivative_columns_by_forward_differences_match_autodiff():
                                               jnp.asarray(r.encoders), 1e-5), rtol=1e-8)
     for k, i in enumerate(variables):  # (the planar arm's payload moment along z moves nothing: a zero column)
         assert np.linalg.norm(cols[:, k] - exact[:, i]) <= 1e-3 * np.linalg.norm(exact[:, i]) + 1e-9, i
+
+
+def test_a_point_is_simulated_once(monkeypatch):
+    """`_evaluate` at a point whose runs' residuals `_Evidence.known` holds simulates only the perturbed models, and
+    returns exactly what a fresh evaluation returns; another marker is another point; the memory keeps `KNOWN`
+    points."""
+    from identification.diagnosis import _runs
+
+    marker, noise = jnp.array([0.05, 0.0, 0.0]), 5e-5
+    base = _runs._with_effect_arrays(jr.robot_from_description(arm_description()))
+    t = np.arange(40) * 1e-3
+    cmd = (t, *command(t))
+    rng = np.random.default_rng(3209)
+    run = (t, cmd[1] + 1e-4 * rng.standard_normal(cmd[1].shape), 0.3 + 1e-3 * rng.standard_normal((40, 3)))
+    runs, sigma = _runs._prepare([(cmd, run)], noise, "train")
+    ev = _runs._Evidence(runs, sigma, None, 1e-5)
+    size = len(_runs.RUN_KINDS) * 2 + len(_runs.PAYLOAD)
+    z, variables = 0.2 * np.ones(size), [0, size - len(_runs.PAYLOAD)]  # fewer than SINGLE_BELOW: single runs
+    calls = []
+    residual = _runs._residual
+    monkeypatch.setattr(_runs, "_residual", lambda *a, **k: calls.append(a[1]) or residual(*a, **k))
+    first = _runs._evaluate(base, z, ev, marker, 4)[0]
+    res, cols = _runs._evaluate(base, z, ev, marker, 4, variables)
+    assert len(calls) == 1 + len(variables)  # the point once, then its perturbed models
+    fresh = _runs._evaluate(base, z, _runs._Evidence(runs, sigma, None, 1e-5), marker, 4, variables)
+    assert np.array_equal(first, res) and np.array_equal(res, fresh[0]) and np.array_equal(cols, fresh[1])
+    _runs._evaluate(base, z, ev, jnp.array([0.05, 0.0, 0.0]), 4)  # an equal marker, another object: simulated
+    assert len(calls) == 2 * (1 + len(variables)) + 1
+    for k in range(_runs.KNOWN + 1):
+        ev.known[(k,)] = None
+    _runs._evaluate(base, 0.1 * np.ones(size), ev, marker, 4)
+    assert len(ev.known) == _runs.KNOWN and (0,) not in ev.known
