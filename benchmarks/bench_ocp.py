@@ -191,7 +191,7 @@ def cross_check(robot, q_d, ts, nu, x, u, direction=None) -> dict:
 
 def solve_acados(peer, robot, path, jp, ts, nu, warm, direction, time_limit) -> dict:
     """A row of `peer` (an `AcadosOCP` of this N): the best of `ACADOS_REPEAT` solves (one where the
-    first ran past `ACADOS_SINGLE_S` or failed), checked by `cross_check`; a solve past `time_limit` or not
+    first ran past `ACADOS_SINGLE_S` or failed), measured by `peer_figures`; a solve past `time_limit` or not
     converged keeps its status and no objective."""
     sz, lower, upper = scaled_nlp(robot, jp.q, ts, nu, direction)
     y0 = np.concatenate([np.asarray(warm[0]), np.asarray(warm[1])], -1) / sz
@@ -204,11 +204,16 @@ def solve_acados(peer, robot, path, jp, ts, nu, warm, direction, time_limit) -> 
     row = {"wall_s": best["wall_s"], "iterations": "" if best["iterations"] is None else str(best["iterations"]),
            "status": best["status"], "objective": None, "violation": None, "path_um": None}
     if best["success"]:
-        chk = cross_check(robot, jp.q, ts, nu, best["x"], best["u"], direction=direction)
-        row.update(objective=chk["objective"], violation=max(chk["max_defect"], chk["max_bound"],
-                                                             chk["max_boundary"]),
-                   path_um=path_error_um(robot, path, jp.t, best["x"][:, :6]))
+        row.update(peer_figures(robot, path, jp, ts, nu, best["x"], best["u"], direction))
     return row
+
+
+def peer_figures(robot, path, jp, ts, nu, x, u, direction=None) -> dict:
+    """A peer's solution `x`, `u` of the task `jp` measured as ours: our objective and largest scaled violation
+    there (`cross_check`) and its path error on the model."""
+    chk = cross_check(robot, jp.q, ts, nu, x, u, direction=direction)
+    return {"objective": chk["objective"], "violation": max(chk["max_defect"], chk["max_bound"], chk["max_boundary"]),
+            "path_um": path_error_um(robot, path, jp.t, x[:, :6])}
 
 
 def path_error_um(robot, path, t, q) -> float:
@@ -420,18 +425,15 @@ def main() -> None:
             if not args.no_ipopt:
                 for name, direction in (("ipopt", None), ("ipopt bounded", d)):
                     ip = solve_ipopt(robot, jp.q, ts, nu, warm, f, direction=direction)
-                    chk = cross_check(robot, jp.q, ts, nu, ip["x"], ip["u"], direction=direction)
-                    row[name] = {"wall_s": ip["wall_s"], "iterations": str(ip["iterations"]),
-                                 "objective": chk["objective"], "compile_s": None,
-                                 "violation": max(chk["max_defect"], chk["max_bound"], chk["max_boundary"]),
-                                 "status": ip["status"], "path_um": path_error_um(robot, path, jp.t, ip["x"][:, :6])}
+                    row[name] = {"wall_s": ip["wall_s"], "iterations": str(ip["iterations"]), "compile_s": None,
+                                 "status": ip["status"],
+                                 **peer_figures(robot, path, jp, ts, nu, ip["x"], ip["u"], direction)}
                     print(f"{task} nu={nu:g} {name}: {row[name]}", flush=True)
             if acados is not None:
                 n = jp.q.shape[0]
                 compile_s = None
                 if n not in peers:
-                    peers[n] = AcadosOCP(acados, f, scaled_nlp(robot, jp.q, ts, nu)[0], n, ts,
-                                                     build / f"n{n}")
+                    peers[n] = AcadosOCP(acados, f, scaled_nlp(robot, jp.q, ts, nu)[0], n, ts, build / f"n{n}")
                     compile_s = peers[n].compile_s
                 for name, direction in (("acados", None), ("acados bounded", d)):
                     row[name] = solve_acados(peers[n], robot, path, jp, ts, nu, warm, direction,
