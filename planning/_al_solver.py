@@ -244,13 +244,7 @@ def _box_violation(p: _Parts, y):
 def _gradient(p: _Parts, y, c, vjp, lam, gam, rho):
     """The exact gradient of `Phi` at `y` (`vjp` of `_linearise` at `y`, with defects `c`), zero on
     fixed variables."""
-    d = (p.y0[1:] - p.y0[:-1]) + (y[1:] - y[:-1])
-    zero = jnp.zeros((1, y.shape[-1]))
-    grad = 2 * p.weight * (y - p.target) + vjp(lam + rho * c)
-    grad = grad + jnp.concatenate([-2 * p.edge * d, zero]) + jnp.concatenate([zero, 2 * p.edge * d])
-    v = y + gam / rho
-    grad = grad + rho * (v - jnp.clip(v, p.lower, p.upper))
-    return grad * p.free
+    return _cost_gradient(p, y) + (vjp(lam + rho * c) + rho * _outside(p, y, gam, rho)) * p.free
 
 
 def _normal_blocks(
@@ -763,8 +757,7 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
         viol = jnp.maximum(jnp.max(jnp.abs(c_y)), _box_violation(p, s.y))
         stat = jnp.max(jnp.abs(grad))  # = gradient of the Lagrangian at the updated multipliers
         lam = s.lam + s.rho * c_y
-        v = s.y + s.gam / s.rho
-        gam = s.rho * (v - jnp.clip(v, p.lower, p.upper))
+        gam = s.rho * _outside(p, s.y, s.gam, s.rho)
         rho = jnp.where((viol > config.violation_decrease * s.violation) & (viol > config.tol_violation),
                         jnp.minimum(s.rho * config.penalty_growth, rho_max), s.rho)
         scale = jnp.maximum(1.0, jnp.maximum(jnp.max(jnp.abs(_cost_gradient(p, s.y))), jnp.max(jnp.abs(gam * p.free))))
