@@ -16,6 +16,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
+from jaxrobot.internal import compile_timer
 
 from ._bandwidth import bandwidth
 from ._evaluation import (
@@ -44,10 +45,9 @@ class PlanEvent:
 
     stage: str
     """One of "inverse_kinematics", "flat_inverse" (the warm start), "solving" (before the OCP), "ocp" (the
-    first solve, compile included), "ocp_again" (the compiled solve, with `timing`), "solved" (the solution)
-    or "plant_simulation"."""
+    solve, compile included), "solved" (the solution) or "plant_simulation"."""
     elapsed: float = 0.0
-    """The stage's time [s] ("ocp_again": the solve without compile); 0 for "solving" and "solved"."""
+    """The stage's time [s]; 0 for "solving" and "solved"."""
     samples: int = 0
     """At "inverse_kinematics" and "solving": the samples `N` of the task's time grid."""
     ik_residual: float = 0.0
@@ -68,9 +68,10 @@ class PlanEvent:
     """At "solved": per outer iteration (as far as the solver records them), (objective, largest scaled
     violation, penalty `rho`)."""
     solve_time: float = 0.0
-    """At "solved": time of a compiled solve [s] (with `timing`, else including the compilation)."""
+    """At "solved": time of the solve without its compilation [s] (with `timing`, else including it)."""
     compile_time: float | None = None
-    """At "solved": time of the compilation [s] (None without `timing`)."""
+    """At "solved": time of the solve's compilation [s] (`jaxrobot.internal.compile_timer`; None without
+    `timing`)."""
     errors: tuple[tuple[str, float, float, float], ...] = ()
     """At "plant_simulation": per trajectory, (name, max, rms over `[0, t_e]`, max after `t_e`) of the tool
     position error on the plant [m]."""
@@ -95,9 +96,9 @@ class PlanResult:
     cost: str
     """Cost variant."""
     solve_time: float
-    """[s] of a compiled solve (with `timing`, else including the compilation)."""
+    """[s] of the solve without its compilation (with `timing`, else including it)."""
     compile_time: float | None
-    """[s] of the compilation (None without `timing`)."""
+    """[s] of the solve's compilation (None without `timing`)."""
     plant: jr.Robot | None = None
     """The robot the trajectories were simulated on."""
     names: tuple[str, ...] | None = None
@@ -216,12 +217,11 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
 
     IK from `q_init` (default the embedded description's start), the flat inverse as warm start, the OCP
     at weighting `nu` with `cost` (`directional`: on the gear flanks along the planned motion,
-    `solve_directional`), solved twice with `timing` to separate compile and solve time, then a fine
+    `solve_directional`), solved once (with `timing`, its compile time measured apart from its solve time,
+    `jaxrobot.internal.compile_timer`), then a fine
     simulation on `plant` (`directional`: with its gear flanks as states, `jr.simulate`). A solve that did not converge
     is returned without plant evaluation (`converged` False). `on_event` receives a `PlanEvent` per stage.
     """
-    from ._ocp import solve_ocp
-
     if not (np.isfinite(nu) and nu > 0):
         raise ValueError(f"nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
     for name, r in (("model", robot), ("plant", plant)):
@@ -242,18 +242,15 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     ts = float(path.sample_time)
     emit(PlanEvent("solving", samples=jp.t.shape[0], nu=nu, cost=cost))
     start = time.perf_counter()
-    sol, play, warm = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
-    jax.block_until_ready(sol.u)
+    with compile_timer() as compiling:
+        sol, play, _ = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
+        jax.block_until_ready(sol.u)
     first = time.perf_counter() - start
     emit(PlanEvent("ocp", first))
-    solve_s, compile_s = first, None  # one call: compile and solve together
-    if timing:  # a second, compiled call separates compile and solve time
-        start = time.perf_counter()
-        jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm, play=play,
-                                        direction=motor_directions(flat.thetad)).u)
-        solve_s = time.perf_counter() - start
-        compile_s = max(first - solve_s, 0.0)
-        emit(PlanEvent("ocp_again", solve_s))
+    solve_s, compile_s = first, None  # without timing: compile and solve together
+    if timing:
+        compile_s = min(compiling.seconds, first)
+        solve_s = first - compile_s
     it = int(sol.iterations)
     hist = np.stack([np.asarray(a) for a in (sol.history_objective, sol.history_violation, sol.history_penalty)], -1)
     emit(PlanEvent("solved", status=jr.status_name(sol.status), iterations=it, objective=float(sol.objective),

@@ -126,7 +126,7 @@ def failure_report(robot, jp, sol, nu: float) -> str:
 
 
 _STAGES = {"inverse_kinematics": "inverse kinematics", "flat_inverse": "flat inverse",
-           "ocp": "OCP (incl. compile)", "ocp_again": "OCP again (solve time without compile)",
+           "ocp": "OCP (incl. compile)",
            "plant_simulation": "plant simulation"}
 """`Progress` label of each `PlanEvent` stage that ends a step."""
 
@@ -162,7 +162,7 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
     `SolveFailed`, or with `keep_failed` returns its result (the OCP trajectory only, no plant evaluation)."""
     if not (np.isfinite(nu) and nu > 0):
         raise ValueError(f"--nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
-    progress = Progress(5 if timing else 4, "plan")
+    progress = Progress(4, "plan")
 
     def on_event(event: PlanEvent) -> None:
         for line in progress_lines(event, plant.name, directional):
