@@ -67,12 +67,11 @@ class CompileTime:
 
     def __init__(self) -> None:
         self._spans: list[tuple[float, float]] = []
-        self._lock = threading.Lock()
+        self._thread = threading.get_ident()
 
     def _add(self, event: str, start: float, end: float, **_) -> None:
-        if event in _COMPILE_EVENTS:
-            with self._lock:
-                self._spans.append((start, end))
+        if event in _COMPILE_EVENTS and threading.get_ident() == self._thread:
+            self._spans.append((start, end))
 
     @property
     def seconds(self) -> float:
@@ -88,7 +87,8 @@ class CompileTime:
 def compile_timer() -> Iterator[CompileTime]:
     """A block's time spent making programs ready: tracing, lowering, XLA compilation (or its fetch from the
     persistent compilation cache) and the loading and exporting of `cached_program`s, from JAX's monitoring
-    events (every thread); the union of their time spans, so `elapsed - seconds` is the block's run time."""
+    events of the calling thread (JAX compiles in the thread that calls); the union of their time spans, so
+    `elapsed - seconds` is the block's run time."""
     timer = CompileTime()
     jax.monitoring.register_event_time_span_listener(timer._add)
     try:

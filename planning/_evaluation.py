@@ -134,7 +134,7 @@ def motor_commands(robot: jr.Robot, t: Float[Array, " N"], trajectories: dict[st
     return {k: _lag_commands(robot, jnp.asarray(t, float), v) for k, v in trajectories.items()}
 
 
-@jax.jit
+@cached_program
 def _lag_commands(robot: jr.Robot, t, traj: MotorTrajectory) -> MotorTrajectory:
     lead = traj.theta.shape[:-2]
     flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[-2:]), traj)
@@ -283,7 +283,7 @@ def summarize(run: PlantRun) -> PlantError:
                       jnp.asarray(samples))
 
 
-@jax.jit
+@cached_program
 def _summarize(position, orientation, n, samples) -> PlantError:
     """`summarize` on errors padded with zeros after `samples`; `n` and `samples` traced."""
     k = jnp.arange(position.shape[-1])

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
 import jax
@@ -16,7 +17,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
-from jaxrobot.internal import compile_timer
+from jaxrobot.internal import backend_kind, cached_program, compile_timer
 
 from ._bandwidth import bandwidth
 from ._evaluation import (
@@ -24,8 +25,11 @@ from ._evaluation import (
     PlantError,
     PlantRun,
     baseline_trajectories,
+    flat_motor_trajectory,
     motor_commands,
     ocp_motor_trajectory,
+    quasi_static_motor_trajectory,
+    rigid_motor_trajectory,
     simulate_plans,
     summarize,
 )
@@ -135,7 +139,7 @@ def _tool_position(robot: jr.Robot, q: Float[Array, "N n"]) -> Float[Array, "N 3
     return head(_tool_positions(robot, pad_edge(q, padded_nodes(n))), n)
 
 
-@jax.jit
+@cached_program
 def _tool_positions(robot, q):
     return jr.tool_pose(robot, q)[:, :3, 3]
 
@@ -210,6 +214,15 @@ def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Arr
     return sol, play, warm
 
 
+def _plant_runs(plant: jr.Robot, jp: JointPath, trajectories: dict[str, MotorTrajectory], directional: bool
+                ) -> PlantRun:
+    """`simulate_plans` of each of `trajectories` on its own (one program of one run serves them all), stacked in
+    their order."""
+    runs = [simulate_plans(plant, jp, {k: v}, directional=directional)[1] for k, v in trajectories.items()]
+    return dataclasses.replace(runs[0], **{f: jnp.concatenate([getattr(r, f) for r in runs])
+                                          for f in ("q", "position", "orientation")})
+
+
 def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str = "thesis",
               q_init=None, timing: bool = True, directional: bool = False,
               on_event: Callable[[PlanEvent], None] | None = None) -> PlanResult:
@@ -218,9 +231,11 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     IK from `q_init` (default the embedded description's start), the flat inverse as warm start, the OCP
     at weighting `nu` with `cost` (`directional`: on the gear flanks along the planned motion,
     `solve_directional`), solved once (with `timing`, its compile time measured apart from its solve time,
-    `jaxrobot.internal.compile_timer`), then a fine
-    simulation on `plant` (`directional`: with its gear flanks as states, `jr.simulate`). A solve that did not converge
-    is returned without plant evaluation (`converged` False). `on_event` receives a `PlanEvent` per stage.
+    `jaxrobot.internal.compile_timer`), then a fine simulation on `plant` (`directional`: with its gear flanks as
+    states, `jr.simulate`). The rigid and quasi-static trajectories, and on the CPU (which simulates one run at a
+    time) the plant runs of the three baselines, are computed in a thread beside the OCP; the "plant_simulation"
+    stage is what is left after it. A solve that did not converge is returned without plant evaluation
+    (`converged` False). `on_event` receives a `PlanEvent` per stage.
     """
     if not (np.isfinite(nu) and nu > 0):
         raise ValueError(f"nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
@@ -235,37 +250,52 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     emit(PlanEvent("inverse_kinematics", time.perf_counter() - start, samples=jp.t.shape[0],
                    ik_residual=float(jp.ik.position_residual.max())))
     start = time.perf_counter()
-    base = baseline_trajectories(robot, jp)
-    flat = base["flat_inverse"]
+    flat = flat_motor_trajectory(robot, jp)
     jax.block_until_ready(flat)
     emit(PlanEvent("flat_inverse", time.perf_counter() - start))
     ts = float(path.sample_time)
     emit(PlanEvent("solving", samples=jp.t.shape[0], nu=nu, cost=cost))
-    start = time.perf_counter()
-    with compile_timer() as compiling:
-        sol, play, _ = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
-        jax.block_until_ready(sol.u)
-    first = time.perf_counter() - start
-    emit(PlanEvent("ocp", first))
-    solve_s, compile_s = first, None  # without timing: compile and solve together
-    if timing:
-        compile_s = min(compiling.seconds, first)
-        solve_s = first - compile_s
-    it = int(sol.iterations)
-    hist = np.stack([np.asarray(a) for a in (sol.history_objective, sol.history_violation, sol.history_penalty)], -1)
-    emit(PlanEvent("solved", status=jr.status_name(sol.status), iterations=it, objective=float(sol.objective),
-                   max_violation=float(sol.max_constraint_violation),
-                   history=tuple(tuple(map(float, h)) for h in hist[:min(it, hist.shape[0])]),
-                   solve_time=solve_s, compile_time=compile_s))
-    ocp = ocp_motor_trajectory(sol.x, sol.u)
-    if not bool(sol.converged):
-        return PlanResult(path, jp, sol, motor_commands(robot, jp.t, {"ocp": ocp}), nu, cost, solve_s, compile_s,
-                          play=play)
-    p_d, r_d = jax.jit(lambda t: sample_path(path, t))(jp.t)
-    plan_err = np.linalg.norm(np.asarray(_tool_position(robot, sol.q) - p_d), axis=-1)
-    trajectories = motor_commands(robot, jp.t, {**base, "ocp": ocp})
-    start = time.perf_counter()
-    names, run = simulate_plans(plant, jp, trajectories, directional=directional)
+    one_by_one = backend_kind() == "cpu"  # the CPU simulates one run at a time: the baselines' beside the OCP
+
+    def baselines():
+        base = motor_commands(robot, jp.t, {"rigid": rigid_motor_trajectory(robot, jp.q, jp.qd, jp.qdd),
+                                            "quasi_static": quasi_static_motor_trajectory(robot, jp.q, jp.qd, jp.qdd),
+                                            "flat_inverse": flat})
+        return base, _plant_runs(plant, jp, base, directional) if one_by_one else None
+
+    with ThreadPoolExecutor(1) as pool:  # the baselines (and on the CPU their plant runs) overlap the OCP
+        pending = pool.submit(baselines)
+        start = time.perf_counter()
+        with compile_timer() as compiling:
+            sol, play, _ = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
+            jax.block_until_ready(sol.u)
+        first = time.perf_counter() - start
+        emit(PlanEvent("ocp", first))
+        solve_s, compile_s = first, None  # without timing: compile and solve together
+        if timing:
+            compile_s = min(compiling.seconds, first)
+            solve_s = first - compile_s
+        it = int(sol.iterations)
+        hist = np.stack([np.asarray(a) for a in (sol.history_objective, sol.history_violation, sol.history_penalty)],
+                        -1)
+        emit(PlanEvent("solved", status=jr.status_name(sol.status), iterations=it, objective=float(sol.objective),
+                       max_violation=float(sol.max_constraint_violation),
+                       history=tuple(tuple(map(float, h)) for h in hist[:min(it, hist.shape[0])]),
+                       solve_time=solve_s, compile_time=compile_s))
+        ocp = motor_commands(robot, jp.t, {"ocp": ocp_motor_trajectory(sol.x, sol.u)})
+        if not bool(sol.converged):
+            return PlanResult(path, jp, sol, ocp, nu, cost, solve_s, compile_s, play=play)
+        p_d, r_d = jax.jit(lambda t: sample_path(path, t))(jp.t)
+        plan_err = np.linalg.norm(np.asarray(_tool_position(robot, sol.q) - p_d), axis=-1)
+        start = time.perf_counter()
+        base, base_run = pending.result()
+    trajectories = {**base, **ocp}
+    if one_by_one:
+        ocp_run = _plant_runs(plant, jp, ocp, directional)
+        names, run = list(trajectories), dataclasses.replace(base_run, **{
+            f: jnp.concatenate([getattr(base_run, f), getattr(ocp_run, f)]) for f in ("q", "position", "orientation")})
+    else:
+        names, run = simulate_plans(plant, jp, trajectories, directional=directional)
     errors = summarize(run)
     emit(PlanEvent("plant_simulation", time.perf_counter() - start, errors=tuple(
         (k, float(errors.position_max[i]), float(errors.position_rms[i]), float(errors.settle_position_max[i]))
