@@ -233,9 +233,10 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     `solve_directional`), solved once (with `timing`, its compile time measured apart from its solve time,
     `jaxrobot.internal.compile_timer`), then a fine simulation on `plant` (`directional`: with its gear flanks as
     states, `jr.simulate`). The rigid and quasi-static trajectories, and on the CPU (which simulates one run at a
-    time) the plant runs of the three baselines, are computed in a thread beside the OCP; the "plant_simulation"
-    stage is what is left after it. A solve that did not converge is returned without plant evaluation
-    (`converged` False). `on_event` receives a `PlanEvent` per stage.
+    time) the plant runs of the three baselines, are computed in a thread beside the flat inverse and the OCP; the
+    "plant_simulation" stage is what is left after the OCP (the OCP's run beside the baselines' left). A solve that
+    did not converge is returned without plant evaluation (`converged` False). `on_event` receives a `PlanEvent` per
+    stage.
     """
     if not (np.isfinite(nu) and nu > 0):
         raise ValueError(f"nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
@@ -249,22 +250,22 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     jp = joint_path(robot, path, q_init)
     emit(PlanEvent("inverse_kinematics", time.perf_counter() - start, samples=jp.t.shape[0],
                    ik_residual=float(jp.ik.position_residual.max())))
-    start = time.perf_counter()
-    flat = flat_motor_trajectory(robot, jp)
-    jax.block_until_ready(flat)
-    emit(PlanEvent("flat_inverse", time.perf_counter() - start))
-    ts = float(path.sample_time)
-    emit(PlanEvent("solving", samples=jp.t.shape[0], nu=nu, cost=cost))
     one_by_one = backend_kind() == "cpu"  # the CPU simulates one run at a time: the baselines' beside the OCP
+    with ThreadPoolExecutor(1) as pool:  # the baselines (and on the CPU their plant runs) beside the flat inverse, OCP
+        others = pool.submit(lambda: {"rigid": rigid_motor_trajectory(robot, jp.q, jp.qd, jp.qdd),
+                                      "quasi_static": quasi_static_motor_trajectory(robot, jp.q, jp.qd, jp.qdd)})
+        start = time.perf_counter()
+        flat = flat_motor_trajectory(robot, jp)
+        jax.block_until_ready(flat)
+        emit(PlanEvent("flat_inverse", time.perf_counter() - start))
 
-    def baselines():
-        base = motor_commands(robot, jp.t, {"rigid": rigid_motor_trajectory(robot, jp.q, jp.qd, jp.qdd),
-                                            "quasi_static": quasi_static_motor_trajectory(robot, jp.q, jp.qd, jp.qdd),
-                                            "flat_inverse": flat})
-        return base, _plant_runs(plant, jp, base, directional) if one_by_one else None
+        def baselines():
+            base = motor_commands(robot, jp.t, {**others.result(), "flat_inverse": flat})
+            return base, _plant_runs(plant, jp, base, directional) if one_by_one else None
 
-    with ThreadPoolExecutor(1) as pool:  # the baselines (and on the CPU their plant runs) overlap the OCP
         pending = pool.submit(baselines)
+        ts = float(path.sample_time)
+        emit(PlanEvent("solving", samples=jp.t.shape[0], nu=nu, cost=cost))
         start = time.perf_counter()
         with compile_timer() as compiling:
             sol, play, _ = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
@@ -288,10 +289,10 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
         p_d, r_d = jax.jit(lambda t: sample_path(path, t))(jp.t)
         plan_err = np.linalg.norm(np.asarray(_tool_position(robot, sol.q) - p_d), axis=-1)
         start = time.perf_counter()
+        ocp_run = _plant_runs(plant, jp, ocp, directional) if one_by_one else None  # beside the baselines' left
         base, base_run = pending.result()
     trajectories = {**base, **ocp}
     if one_by_one:
-        ocp_run = _plant_runs(plant, jp, ocp, directional)
         names, run = list(trajectories), dataclasses.replace(base_run, **{
             f: jnp.concatenate([getattr(base_run, f), getattr(ocp_run, f)]) for f in ("q", "position", "orientation")})
     else:
