@@ -21,22 +21,30 @@ under a transformation (`jit`, `vmap`, `grad`: tracers among the arguments) run 
 function.
 
 The switch is the compilation cache's: `JAXROBOT_CACHE_DIR=off` turns both off.
+
+`compile_timer` measures the time a block spends making programs ready (tracing, lowering, XLA compilation
+or its fetch from the compilation cache, and the loading and storing of exported programs here), so that
+one call gives both its compile and its run time.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import inspect
 import os
 import pickle
-from collections.abc import Callable
+import threading
+import time
+from collections.abc import Callable, Iterator
 from importlib.util import find_spec
 from pathlib import Path
 
 import equinox as eqx
 import jax
 import jax.export
+import jax.monitoring
 import jaxlib
 
 from ._compilation_cache import cache_dir
@@ -46,6 +54,47 @@ _PACKAGES = ("jaxrobot", "planning", "identification")
 _UNSHOWN = (" at 0x", "...", "object>")
 _ANY_CUSTOM_CALL = (jax.export.DisabledSafetyCheck.custom_call("ALL"),)
 _NOT_EXPORTABLE = object()  # stored as a pickled `None`: later processes do not try again
+_PROGRAM_EVENT = "/jaxrobot/program_cache/ready"
+"""The time span of loading or exporting a program (`compile_timer`)."""
+_COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration",
+                   "/jax/core/compile/backend_compile_duration", _PROGRAM_EVENT)
+"""The JAX monitoring events whose time spans `compile_timer` counts (the backend compile's includes a fetch from the
+persistent compilation cache)."""
+
+
+class CompileTime:
+    """The time [s] that the block of a `compile_timer` spent making programs ready."""
+
+    def __init__(self) -> None:
+        self._spans: list[tuple[float, float]] = []
+        self._thread = threading.get_ident()
+
+    def _add(self, event: str, start: float, end: float, **_) -> None:
+        if event in _COMPILE_EVENTS and threading.get_ident() == self._thread:
+            self._spans.append((start, end))
+
+    @property
+    def seconds(self) -> float:
+        """The length of the union of the compile events' time spans (nested events counted once)."""
+        total, reach = 0.0, -float("inf")
+        for start, end in sorted(self._spans):
+            total += max(end - max(start, reach), 0.0)
+            reach = max(reach, end)
+        return total
+
+
+@contextlib.contextmanager
+def compile_timer() -> Iterator[CompileTime]:
+    """A block's time spent making programs ready: tracing, lowering, XLA compilation (or its fetch from the
+    persistent compilation cache) and the loading and exporting of `cached_program`s, from JAX's monitoring
+    events of the calling thread (JAX compiles in the thread that calls); the union of their time spans, so
+    `elapsed - seconds` is the block's run time."""
+    timer = CompileTime()
+    jax.monitoring.register_event_time_span_listener(timer._add)
+    try:
+        yield timer
+    finally:
+        jax.monitoring.unregister_event_time_span_listener(timer._add)
 
 
 def program_dir() -> Path | None:
@@ -109,8 +158,10 @@ def cached_program(fn: Callable | None = None, *, static_argnames: tuple[str, ..
         except _Uncacheable:
             return jitted(*args, **kwargs)
         if key not in loaded:
+            start = time.time()  # the clock of JAX's own time spans
             loaded[key] = (_load(folder, key, fn.__name__)
                            or _export(folder, key, fn, sig, tree, static, leaves, traced, dynamic))
+            jax.monitoring.record_event_time_span(_PROGRAM_EVENT, start, time.time(), fun_name=fn.__name__)
         if loaded[key] is _NOT_EXPORTABLE:
             return jitted(*args, **kwargs)
         call, out_tree = loaded[key]

@@ -21,7 +21,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 import jaxrobot as jr
-from jaxrobot.internal import cached_program, require_successful
+from jaxrobot.internal import backend_kind, cached_program, require_successful
 from jaxrobot.measurement import rest_solution
 
 from ._al_solver import chunked_vmap, device_memory
@@ -134,7 +134,7 @@ def motor_commands(robot: jr.Robot, t: Float[Array, " N"], trajectories: dict[st
     return {k: _lag_commands(robot, jnp.asarray(t, float), v) for k, v in trajectories.items()}
 
 
-@jax.jit
+@cached_program
 def _lag_commands(robot: jr.Robot, t, traj: MotorTrajectory) -> MotorTrajectory:
     lead = traj.theta.shape[:-2]
     flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[-2:]), traj)
@@ -214,8 +214,9 @@ def simulation_capacity(samples: int, n_joints: int, memory: float | None = None
 
 @partial(cached_program, static_argnames=("substeps", "directional", "capacity"))
 def _runs(plant, t, p_d, r_d, trajectories: MotorTrajectory, substeps: int, directional: bool, capacity: int):
-    """The K stacked `trajectories` (on the samples `t`) from rest (on cw) simulated on `plant` in one vmapped
-    program (in chunks of `capacity`): the rest status of each start, link angles and tool-pose errors."""
+    """The K stacked `trajectories` (on the samples `t`) from rest (on cw) simulated on `plant` in one program, on
+    the CPU one run after the other, on an accelerator vmapped (in chunks of `capacity`): the rest status of each
+    start, link angles and tool-pose errors."""
     q0, status = rest_solution(plant, trajectories.theta[:, 0])
 
     def run(x):
@@ -226,6 +227,8 @@ def _runs(plant, t, p_d, r_d, trajectories: MotorTrajectory, substeps: int, dire
         return q, jnp.linalg.norm(pose[:, :3, 3] - p_d, axis=-1), _orientation_angle(r_d, pose[:, :3, :3])
 
     xs = [trajectories.theta, trajectories.thetad, trajectories.thetadd, q0]
+    if backend_kind() == "cpu":  # one run after the other: a vmapped batch of the small steps costs more per run
+        return status, jax.lax.map(run, xs)
     return status, chunked_vmap(run, q0.shape[0], xs, capacity)
 
 
@@ -237,9 +240,10 @@ def simulate_plans(
     settle_s: float = SETTLE_S,
     directional: bool = False,
 ) -> tuple[list[str], PlantRun]:
-    """Simulate every motor trajectory on `plant` in one batched simulation (`jax.vmap` over the runs, in chunks
-    of `simulation_capacity`), holding the last command at rest for `settle_s` after `t_e`, and measure the
-    tool-pose error against the task of `jp`.
+    """Simulate every motor trajectory on `plant` in one program (on the CPU one run after the other, whose small
+    sequential steps cost less per run than in a vmapped batch; on an accelerator `jax.vmap` over the runs, in
+    chunks of `simulation_capacity`), holding the last command at rest for `settle_s` after `t_e`, and measure
+    the tool-pose error against the task of `jp`.
 
     `directional=True` gives the gears their flanks as states, as the test bench's as-built robot has them
     (pass it for `jr.racer7(as_built=True)`; `jr.simulate`); the planning model uses the cw set throughout.
@@ -279,7 +283,7 @@ def summarize(run: PlantRun) -> PlantError:
                       jnp.asarray(samples))
 
 
-@jax.jit
+@cached_program
 def _summarize(position, orientation, n, samples) -> PlantError:
     """`summarize` on errors padded with zeros after `samples`; `n` and `samples` traced."""
     k = jnp.arange(position.shape[-1])

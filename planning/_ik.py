@@ -356,7 +356,7 @@ def _polynomial(c: Float[Array, "K ..."], s: Real[Array, ""]) -> Float[Array, ".
     return value
 
 
-@jax.jit
+@cached_program
 def singular_values(robot: jr.Robot, q: Float[Array, "*b n"]) -> Float[Array, "*b 6"]:
     """Singular values of the geometric Jacobian, descending (m/rad rows, then rad/rad rows)."""
     return map_matrices(lambda j: jnp.linalg.svd(j, compute_uv=False), jr.geometric_jacobian(robot, q))

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
 import jax
@@ -16,6 +17,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
+from jaxrobot.internal import backend_kind, cached_program, compile_timer
 
 from ._bandwidth import bandwidth
 from ._evaluation import (
@@ -23,8 +25,11 @@ from ._evaluation import (
     PlantError,
     PlantRun,
     baseline_trajectories,
+    flat_motor_trajectory,
     motor_commands,
     ocp_motor_trajectory,
+    quasi_static_motor_trajectory,
+    rigid_motor_trajectory,
     simulate_plans,
     summarize,
 )
@@ -44,10 +49,9 @@ class PlanEvent:
 
     stage: str
     """One of "inverse_kinematics", "flat_inverse" (the warm start), "solving" (before the OCP), "ocp" (the
-    first solve, compile included), "ocp_again" (the compiled solve, with `timing`), "solved" (the solution)
-    or "plant_simulation"."""
+    solve, compile included), "solved" (the solution) or "plant_simulation"."""
     elapsed: float = 0.0
-    """The stage's time [s] ("ocp_again": the solve without compile); 0 for "solving" and "solved"."""
+    """The stage's time [s]; 0 for "solving" and "solved"."""
     samples: int = 0
     """At "inverse_kinematics" and "solving": the samples `N` of the task's time grid."""
     ik_residual: float = 0.0
@@ -68,9 +72,10 @@ class PlanEvent:
     """At "solved": per outer iteration (as far as the solver records them), (objective, largest scaled
     violation, penalty `rho`)."""
     solve_time: float = 0.0
-    """At "solved": time of a compiled solve [s] (with `timing`, else including the compilation)."""
+    """At "solved": time of the solve without its compilation [s] (with `timing`, else including it)."""
     compile_time: float | None = None
-    """At "solved": time of the compilation [s] (None without `timing`)."""
+    """At "solved": time of the solve's compilation [s] (`jaxrobot.internal.compile_timer`; None without
+    `timing`)."""
     errors: tuple[tuple[str, float, float, float], ...] = ()
     """At "plant_simulation": per trajectory, (name, max, rms over `[0, t_e]`, max after `t_e`) of the tool
     position error on the plant [m]."""
@@ -95,9 +100,9 @@ class PlanResult:
     cost: str
     """Cost variant."""
     solve_time: float
-    """[s] of a compiled solve (with `timing`, else including the compilation)."""
+    """[s] of the solve without its compilation (with `timing`, else including it)."""
     compile_time: float | None
-    """[s] of the compilation (None without `timing`)."""
+    """[s] of the solve's compilation (None without `timing`)."""
     plant: jr.Robot | None = None
     """The robot the trajectories were simulated on."""
     names: tuple[str, ...] | None = None
@@ -134,7 +139,7 @@ def _tool_position(robot: jr.Robot, q: Float[Array, "N n"]) -> Float[Array, "N 3
     return head(_tool_positions(robot, pad_edge(q, padded_nodes(n))), n)
 
 
-@jax.jit
+@cached_program
 def _tool_positions(robot, q):
     return jr.tool_pose(robot, q)[:, :3, 3]
 
@@ -209,6 +214,15 @@ def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Arr
     return sol, play, warm
 
 
+def _plant_runs(plant: jr.Robot, jp: JointPath, trajectories: dict[str, MotorTrajectory], directional: bool
+                ) -> PlantRun:
+    """`simulate_plans` of each of `trajectories` on its own (one program of one run serves them all), stacked in
+    their order."""
+    runs = [simulate_plans(plant, jp, {k: v}, directional=directional)[1] for k, v in trajectories.items()]
+    return dataclasses.replace(runs[0], **{f: jnp.concatenate([getattr(r, f) for r in runs])
+                                          for f in ("q", "position", "orientation")})
+
+
 def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str = "thesis",
               q_init=None, timing: bool = True, directional: bool = False,
               on_event: Callable[[PlanEvent], None] | None = None) -> PlanResult:
@@ -216,12 +230,14 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
 
     IK from `q_init` (default the embedded description's start), the flat inverse as warm start, the OCP
     at weighting `nu` with `cost` (`directional`: on the gear flanks along the planned motion,
-    `solve_directional`), solved twice with `timing` to separate compile and solve time, then a fine
-    simulation on `plant` (`directional`: with its gear flanks as states, `jr.simulate`). A solve that did not converge
-    is returned without plant evaluation (`converged` False). `on_event` receives a `PlanEvent` per stage.
+    `solve_directional`), solved once (with `timing`, its compile time measured apart from its solve time,
+    `jaxrobot.internal.compile_timer`), then a fine simulation on `plant` (`directional`: with its gear flanks as
+    states, `jr.simulate`). The rigid and quasi-static trajectories, and on the CPU (which simulates one run at a
+    time) the plant runs of the three baselines, are computed in a thread beside the flat inverse and the OCP; the
+    "plant_simulation" stage is what is left after the OCP (the OCP's run beside the baselines' left). A solve that
+    did not converge is returned without plant evaluation (`converged` False). `on_event` receives a `PlanEvent` per
+    stage.
     """
-    from ._ocp import solve_ocp
-
     if not (np.isfinite(nu) and nu > 0):
         raise ValueError(f"nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
     for name, r in (("model", robot), ("plant", plant)):
@@ -234,41 +250,53 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     jp = joint_path(robot, path, q_init)
     emit(PlanEvent("inverse_kinematics", time.perf_counter() - start, samples=jp.t.shape[0],
                    ik_residual=float(jp.ik.position_residual.max())))
-    start = time.perf_counter()
-    base = baseline_trajectories(robot, jp)
-    flat = base["flat_inverse"]
-    jax.block_until_ready(flat)
-    emit(PlanEvent("flat_inverse", time.perf_counter() - start))
-    ts = float(path.sample_time)
-    emit(PlanEvent("solving", samples=jp.t.shape[0], nu=nu, cost=cost))
-    start = time.perf_counter()
-    sol, play, warm = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
-    jax.block_until_ready(sol.u)
-    first = time.perf_counter() - start
-    emit(PlanEvent("ocp", first))
-    solve_s, compile_s = first, None  # one call: compile and solve together
-    if timing:  # a second, compiled call separates compile and solve time
+    one_by_one = backend_kind() == "cpu"  # the CPU simulates one run at a time: the baselines' beside the OCP
+    with ThreadPoolExecutor(1) as pool:  # the baselines (and on the CPU their plant runs) beside the flat inverse, OCP
+        others = pool.submit(lambda: {"rigid": rigid_motor_trajectory(robot, jp.q, jp.qd, jp.qdd),
+                                      "quasi_static": quasi_static_motor_trajectory(robot, jp.q, jp.qd, jp.qdd)})
         start = time.perf_counter()
-        jax.block_until_ready(solve_ocp(robot, jp.q, ts, nu=nu, cost=cost, warm_start=warm, play=play,
-                                        direction=motor_directions(flat.thetad)).u)
-        solve_s = time.perf_counter() - start
-        compile_s = max(first - solve_s, 0.0)
-        emit(PlanEvent("ocp_again", solve_s))
-    it = int(sol.iterations)
-    hist = np.stack([np.asarray(a) for a in (sol.history_objective, sol.history_violation, sol.history_penalty)], -1)
-    emit(PlanEvent("solved", status=jr.status_name(sol.status), iterations=it, objective=float(sol.objective),
-                   max_violation=float(sol.max_constraint_violation),
-                   history=tuple(tuple(map(float, h)) for h in hist[:min(it, hist.shape[0])]),
-                   solve_time=solve_s, compile_time=compile_s))
-    ocp = ocp_motor_trajectory(sol.x, sol.u)
-    if not bool(sol.converged):
-        return PlanResult(path, jp, sol, motor_commands(robot, jp.t, {"ocp": ocp}), nu, cost, solve_s, compile_s,
-                          play=play)
-    p_d, r_d = jax.jit(lambda t: sample_path(path, t))(jp.t)
-    plan_err = np.linalg.norm(np.asarray(_tool_position(robot, sol.q) - p_d), axis=-1)
-    trajectories = motor_commands(robot, jp.t, {**base, "ocp": ocp})
-    start = time.perf_counter()
-    names, run = simulate_plans(plant, jp, trajectories, directional=directional)
+        flat = flat_motor_trajectory(robot, jp)
+        jax.block_until_ready(flat)
+        emit(PlanEvent("flat_inverse", time.perf_counter() - start))
+
+        def baselines():
+            base = motor_commands(robot, jp.t, {**others.result(), "flat_inverse": flat})
+            return base, _plant_runs(plant, jp, base, directional) if one_by_one else None
+
+        pending = pool.submit(baselines)
+        ts = float(path.sample_time)
+        emit(PlanEvent("solving", samples=jp.t.shape[0], nu=nu, cost=cost))
+        start = time.perf_counter()
+        with compile_timer() as compiling:
+            sol, play, _ = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
+            jax.block_until_ready(sol.u)
+        first = time.perf_counter() - start
+        emit(PlanEvent("ocp", first))
+        solve_s, compile_s = first, None  # without timing: compile and solve together
+        if timing:
+            compile_s = min(compiling.seconds, first)
+            solve_s = first - compile_s
+        it = int(sol.iterations)
+        hist = np.stack([np.asarray(a) for a in (sol.history_objective, sol.history_violation, sol.history_penalty)],
+                        -1)
+        emit(PlanEvent("solved", status=jr.status_name(sol.status), iterations=it, objective=float(sol.objective),
+                       max_violation=float(sol.max_constraint_violation),
+                       history=tuple(tuple(map(float, h)) for h in hist[:min(it, hist.shape[0])]),
+                       solve_time=solve_s, compile_time=compile_s))
+        ocp = motor_commands(robot, jp.t, {"ocp": ocp_motor_trajectory(sol.x, sol.u)})
+        if not bool(sol.converged):
+            return PlanResult(path, jp, sol, ocp, nu, cost, solve_s, compile_s, play=play)
+        p_d, r_d = jax.jit(lambda t: sample_path(path, t))(jp.t)
+        plan_err = np.linalg.norm(np.asarray(_tool_position(robot, sol.q) - p_d), axis=-1)
+        start = time.perf_counter()
+        ocp_run = _plant_runs(plant, jp, ocp, directional) if one_by_one else None  # beside the baselines' left
+        base, base_run = pending.result()
+    trajectories = {**base, **ocp}
+    if one_by_one:
+        names, run = list(trajectories), dataclasses.replace(base_run, **{
+            f: jnp.concatenate([getattr(base_run, f), getattr(ocp_run, f)]) for f in ("q", "position", "orientation")})
+    else:
+        names, run = simulate_plans(plant, jp, trajectories, directional=directional)
     errors = summarize(run)
     emit(PlanEvent("plant_simulation", time.perf_counter() - start, errors=tuple(
         (k, float(errors.position_max[i]), float(errors.position_rms[i]), float(errors.settle_position_max[i]))

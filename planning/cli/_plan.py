@@ -22,7 +22,6 @@ from .._ik import default_start, task_start
 from .._trajectories import check_task, reference_path, sampled_path
 from .._transcription import COSTS
 from .._workflow import PlanEvent, PlanResult, _tool_position, plan_task
-from . import _plots
 
 HELP = "plan a task (line, spiral or a CSV of tool positions) with the OCP and evaluate it on the plant"
 EXAMPLE = "jaxrobot plan line --nu 1e-13 --plant as-built --out plan-line --save-trajectory line.csv"
@@ -126,7 +125,7 @@ def failure_report(robot, jp, sol, nu: float) -> str:
 
 
 _STAGES = {"inverse_kinematics": "inverse kinematics", "flat_inverse": "flat inverse",
-           "ocp": "OCP (incl. compile)", "ocp_again": "OCP again (solve time without compile)",
+           "ocp": "OCP (incl. compile)",
            "plant_simulation": "plant simulation"}
 """`Progress` label of each `PlanEvent` stage that ends a step."""
 
@@ -162,7 +161,7 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
     `SolveFailed`, or with `keep_failed` returns its result (the OCP trajectory only, no plant evaluation)."""
     if not (np.isfinite(nu) and nu > 0):
         raise ValueError(f"--nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
-    progress = Progress(5 if timing else 4, "plan")
+    progress = Progress(4, "plan")
 
     def on_event(event: PlanEvent) -> None:
         for line in progress_lines(event, plant.name, directional):
@@ -209,6 +208,8 @@ def task_title(name: str) -> str:
 
 def write_plots(result: PlanResult, out: Path, label: str) -> list[Path]:
     """Figures in the spirit of thesis Figs. 4.1 and 4.5-4.9 for one planned task, `out/{label}_*.png`."""
+    from . import _plots  # matplotlib only where a figure is drawn
+
     jp, sol, run, names = result.joint_path, result.solution, result.run, result.names
     t, n = np.asarray(jp.t), run.n
     task = f"{task_title(jp.path.name)}, ν = {result.nu:.0e}" + (

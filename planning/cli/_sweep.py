@@ -15,7 +15,6 @@ from .._bandwidth import control_spectrum
 from .._sweep import check_nus
 from .._transcription import COSTS
 from .._workflow import SweepEvent, SweepResult, sweep_task
-from . import _plots
 from ._plan import PLANT_HELP, load_task, task_title
 
 HELP = "sweep the weighting factor nu (one OCP sweep call per cost variant): table, plots, Pareto front"
@@ -104,6 +103,8 @@ def table(res: SweepResult) -> list[dict]:
 
 def write_outputs(res: SweepResult, rows: list[dict], out: Path, label: str) -> list[Path]:
     """The table as CSV and the figures of thesis Figs. 4.2-4.4 and 4.10-4.12, `out/{label}_*`."""
+    from . import _plots  # matplotlib only where a figure is drawn
+
     header = "cost,nu,converged,iterations,objective,max_bandwidth_hz,plant_max_um,plant_rms_um"
     failed = [f"cost {r['cost']} nu {r['nu']:.0e}" for r in rows if not r["converged"]]
     if failed:

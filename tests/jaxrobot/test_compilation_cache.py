@@ -145,3 +145,37 @@ def test_exported_program_found_by_a_new_process(tmp_path):
         outs.append(done.stdout.strip())
         assert len(_programs(tmp_path)) == 1
     assert outs[0] == outs[1]
+
+
+def _sine_loop(x):
+    """A program whose run takes a measurable time: a long sequential loop."""
+    import jax
+    import jax.numpy as jnp
+
+    return jax.lax.fori_loop(0, 300_000, lambda i, v: jnp.sin(v) + 1e-3, x)
+
+
+def test_compile_timer_counts_compilation_not_the_run(tmp_path, monkeypatch):
+    """`compile_timer`: a first call's export, tracing, lowering and compilation are counted, its run is not; a
+    second call of the compiled program counts nothing."""
+    import time
+
+    import jax
+    import jax.numpy as jnp
+
+    from jaxrobot._program_cache import cached_program, compile_timer
+
+    monkeypatch.setenv("JAXROBOT_CACHE_DIR", str(tmp_path))
+    program = cached_program(_sine_loop)
+    x = jnp.ones(4)
+    start = time.perf_counter()
+    with compile_timer() as first:
+        jax.block_until_ready(program(x))
+    elapsed = time.perf_counter() - start
+    start = time.perf_counter()
+    with compile_timer() as second:
+        jax.block_until_ready(program(x))
+    run = time.perf_counter() - start
+    assert second.seconds == 0.0 and len(_programs(tmp_path)) == 1
+    assert 0.0 < first.seconds < elapsed
+    assert elapsed - first.seconds >= 0.5 * run  # the first call's run is not counted as compilation

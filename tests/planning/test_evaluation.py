@@ -30,14 +30,16 @@ def test_baselines_order_on_the_model(line_model_errors):
     assert float(qs.settle_position_max) < 0.05 * float(rigid.settle_position_max)
 
 
-@pytest.mark.extended  # compiles the one-wide simulation beside the batched one; the LAPACK guard runs the batch
-def test_plans_simulated_in_one_batch_equal_one_by_one(robot, joint_paths, line_baselines, monkeypatch):
-    """`simulate_plans` runs all trajectories in one vmapped simulation; each run equals the same trajectory
-    simulated on its own (`simulation_capacity` forced to 1: chunks of one, one after the other) to round-off."""
+@pytest.mark.extended  # compiles the vmapped simulation beside the CPU's; the LAPACK guard runs the CPU's
+def test_plans_simulated_one_by_one_equal_the_vmapped_batch(robot, joint_paths, line_baselines, monkeypatch):
+    """`simulate_plans` runs the trajectories one after the other on the CPU, vmapped on an accelerator (in chunks of
+    `simulation_capacity`, here 2 for 3 runs: two chunks, the last padded); each run agrees to round-off."""
     jp = joint_paths["line"]
-    names, batch = pl.simulate_plans(robot, jp, line_baselines)
-    monkeypatch.setattr("planning._evaluation.simulation_capacity", lambda *args: 1)
-    _, alone = pl.simulate_plans(robot, jp, line_baselines)
+    names, alone = pl.simulate_plans(robot, jp, line_baselines)
+    monkeypatch.setattr("planning._evaluation.backend_kind", lambda: "accelerator")
+    monkeypatch.setattr("planning._evaluation.simulation_capacity", lambda *args: 2)
+    _, batch = pl.simulate_plans(robot, jp, line_baselines)
+    assert len(names) == 3
     for k, name in enumerate(names):
         np.testing.assert_allclose(batch.q[k], alone.q[k], rtol=0, atol=1e-13, err_msg=f"{name}: link angles")
         np.testing.assert_allclose(batch.position[k], alone.position[k], rtol=0, atol=1e-13,

@@ -42,7 +42,7 @@ def _converged_solve(*args, **kwargs):
     return eqx.tree_at(lambda s: s.status, _failed_solve(*args, **kwargs), RESULTS.successful)
 
 
-STAGES = ("inverse_kinematics", "flat_inverse", "solving", "ocp", "ocp_again", "solved")
+STAGES = ("inverse_kinematics", "flat_inverse", "solving", "ocp", "solved")
 
 
 @pytest.mark.extended  # IK, flat inverse and plant simulation at 5 ms compile; exit code 3 stays in the suite
@@ -72,8 +72,10 @@ def test_plan_task_events_in_order_and_si_results_behind_the_summary(monkeypatch
         np.testing.assert_allclose([rep["plant"][k]["max_um"], rep["plant"][k]["rms_um"]],
                                    [1e6 * v for v in sim[k]], rtol=1e-15)
     assert rep["path_error_um"]["max"] == pytest.approx(1e6 * float(res.plan_error.max()), rel=1e-15)
-    assert rep["solve_time_s"] == res.solve_time == events[4].elapsed
-    assert rep["compile_time_s"] == res.compile_time == pytest.approx(max(events[3].elapsed - events[4].elapsed, 0))
+    # one solve: its compile and its solve time add up to the stage's time
+    assert rep["solve_time_s"] == res.solve_time == events[4].solve_time >= 0
+    assert rep["compile_time_s"] == res.compile_time == events[4].compile_time >= 0
+    assert res.solve_time + res.compile_time == pytest.approx(events[3].elapsed, rel=1e-12)
 
 
 def jax_stack(trees):
