@@ -800,20 +800,20 @@ def diagnose_runs(
     Each step compares the model with the training runs and poses (one chi-square over the tracker's and the poses'
     rows, each in units of its own noise, as `compare_run`) and the encoders with the model's motor angles (their
     departure against `ENCODER_LAG_RAD` or two quanta); while the test fails, or a motor without a lag departs, it
-    screens every effect not yet added by the linearised BIC change of its own variables (a lag only for a motor
-    whose encoders depart, and while one does, the lags alone: no other effect moves the motors, while others can
-    mimic a lag's effect on the tool over a short run; no lag of a motor whose command does not move), fits the
-    `SCREENED` best, and the payload (its gain linearised at zero mass lacks the point's inertia), with the effects
-    already added by Levenberg-Marquardt through the simulation and the rest poses
-    (derivatives by forward differences, `FD_STEP`, at the start, then Broyden's updates: `_fit`), and ranks the fits
-    by BIC: of those within `MIN_BIC_GAIN` of the best, the one of fewest parameters (the data cannot tell them
-    apart: `RunConfound`, with the correlation of their signatures). That one's fit is continued on fresh derivatives
-    to convergence and added if it lowers BIC by more than `MIN_BIC_GAIN` and lowers the validation runs' and poses'
-    chi-square. Each effect added before it (but the lags, which the encoders fix) is then fitted out again: where
-    the model without it is within `MIN_BIC_GAIN` of the BIC with it, it is removed (the new effect explains what it
-    did) and not offered again. The model without an effect is where each fit starts (lag, damping, friction and
-    payload 0). Static effects that runs do not change (geometry, gear ripple, offsets: `diagnose`) are not
-    candidates: diagnose the poses alone for them first.
+    screens every effect not yet added by the linearised BIC change of its own variables (a lag only for a motor whose
+    encoders depart, and while one does, the lags alone: no other effect moves the motors, while others can mimic a
+    lag's effect on the tool over a short run; no lag of a motor whose command does not move), fits the `SCREENED` best,
+    and the payload (its gain linearised at zero mass lacks the point's inertia), with the effects already added by
+    Levenberg-Marquardt through the simulation and the rest poses (derivatives by forward differences, `FD_STEP`, at the
+    start, then Broyden's updates: `_fit`; a fit that cannot come within `MIN_BIC_GAIN` of the best so far is abandoned,
+    `RANKING_REACH`), and ranks the fits by BIC: of those within `MIN_BIC_GAIN` of the best, the one of fewest
+    parameters (the data cannot tell them apart: `RunConfound`, with the correlation of their signatures). That one's
+    fit is continued on fresh derivatives to convergence (`EXACT_TOLERANCE`) and added if it lowers BIC by more than
+    `MIN_BIC_GAIN` and lowers the validation runs' and poses' chi-square. Each effect added before it (but the lags,
+    which the encoders fix) is then fitted out again: where the model without it is within `MIN_BIC_GAIN` of the BIC
+    with it, it is removed (the new effect explains what it did) and not offered again. The model without an effect is
+    where each fit starts (lag, damping, friction and payload 0). Static effects that runs do not change (geometry, gear
+    ripple, offsets: `diagnose`) are not candidates: diagnose the poses alone for them first.
 
     The result lists what the runs could not test: the kinds not screened, the motors that did not move, and the
     detection limit of each candidate not added (`RunDiagnosis.untested`)."""
