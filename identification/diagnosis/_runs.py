@@ -188,11 +188,17 @@ RANKING_STEPS = 10
 """Most iterations of a candidate's fit for ranking (`_fit` without `exact_end`): on updated derivatives a fit of
 several variables (the payload's four) can creep on for all `LM_STEPS`, a simulation each; the chosen fit is
 continued on fresh derivatives."""
-RANKING_TOLERANCE = 0.01
+EXACT_TOLERANCE = 1e-3
+"""Chi-square decrease below which an exact fit (`_fit` with `exact_end`) ends, or `FD_STEP`^2 of the chi-square
+where that is larger: within it of the minimum every estimate lies within sqrt(1e-3) = 0.03 of its std of the
+minimum's, and the forward differences' truncation error (`FD_STEP` of a column) resolves a Gauss-Newton step's
+decrease to about `FD_STEP`^2 of the chi-square, no finer."""
+RANKING_TOLERANCE = 0.1 * MIN_BIC_GAIN
 """Chi-square decrease of an accepted step below which a candidate's fit for ranking ends (`_fit` without
-`exact_end`), or the exact fits' tolerance (1e-9 of the chi-square) where that is larger: a ranking is not resolved
-finer than a fit's end. The best candidate's fit is then continued on exact derivatives to that tolerance. Far
-below `MIN_BIC_GAIN`: only candidates within it of each other could swap ranks."""
+`exact_end`), or the exact fits' tolerance where that is larger: a tenth of `MIN_BIC_GAIN`, the resolution the ranking
+needs (fits within `MIN_BIC_GAIN` of each other are told apart by their parameter count). On updated derivatives a
+fit near its minimum creeps (several failed trials for a decrease of ~1); the chosen fit is then continued on fresh
+derivatives to `EXACT_TOLERANCE`."""
 FD_STEP = 1e-4
 """Step of the forward differences that give the fits' derivative columns, in units of each variable's scale
 (`RUN_KINDS`, `PAYLOAD`; upwards, so that a lag, damping, friction or mass at 0 stays physical): their truncation error
@@ -203,9 +209,14 @@ BATCH = 8
 """Perturbed models simulated per call of the batched program (`_perturbed`: one `vmap` of the simulation, one
 compiled program for any number of columns); a remainder of fewer than `SINGLE_BELOW` columns runs as single
 simulations of the residual's program instead."""
-SINGLE_BELOW = 4
-"""A batch of `BATCH` perturbed simulations costs about four single ones on the CPU (benchmarks/results_runs.md):
-fewer columns than this run one simulation each."""
+SINGLE_BELOW = 7
+"""A batch of `BATCH` perturbed simulations costs about seven single ones' CPU time (6.5-7.2 measured:
+benchmarks/results_runs.md): fewer columns than this run one simulation each."""
+RANKING_REACH = 10.0
+"""A candidate's fit for ranking is abandoned where its chi-square, lowered by this many times the decrease its
+Gauss-Newton step predicts, stays above what it needs to come within `MIN_BIC_GAIN` of the best BIC fitted so far at
+that step: it cannot rank among the close ones. The factor covers the linearisation's underestimate over a nonlinear
+fit (a cubic stiffness term went 5.5 times as far as its first step predicted, benchmarks/results_runs.md)."""
 KNOWN = 64
 """Points whose runs' residuals `_Evidence.known` keeps (each 3 + n numbers per sample of every run)."""
 DETECTION = MIN_BIC_GAIN
@@ -597,7 +608,7 @@ def _identifiable(cols, effects, n: int, at=None) -> bool:
 
 
 def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_end: bool = True,
-         chi2_before: float | None = None):
+         chi2_before: float | None = None, bound: float = math.inf):
     """`_fit_variables` of the variables of `effects`; a payload that starts at zero is fitted in two stages: its
     mass first (at the flange's origin, the centre of mass fixed), then with its centre of mass. From zero mass the
     linearisation lacks the point's inertia, which grows with the square of its distance: a first step on every
@@ -606,7 +617,7 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
     idx = np.array([i for e in effects for i in _index(e, n)])
     moments = _index(RunEffect("payload", None), n)[1:]
     if RunEffect("payload", None) not in effects or np.any(np.asarray(z0)[_index(RunEffect("payload", None), n)]):
-        return _fit_variables(robot, z0, idx, ev, marker, substeps, r0, jac0, exact_end, chi2_before)
+        return _fit_variables(robot, z0, idx, ev, marker, substeps, r0, jac0, exact_end, chi2_before, bound)
     keep = np.flatnonzero(~np.isin(idx, moments))
     first = _fit_variables(robot, z0, idx[keep], ev, marker, substeps, r0, jac0[:, keep], exact_end=False,
                            chi2_before=chi2_before)
@@ -614,16 +625,17 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
         return None
     jac = np.array(jac0, float)
     jac[:, keep] = first[4]
-    return _fit_variables(robot, first[0], idx, ev, marker, substeps, first[2], jac, exact_end, chi2_before)
+    return _fit_variables(robot, first[0], idx, ev, marker, substeps, first[2], jac, exact_end, chi2_before, bound)
 
 
 def _fit_variables(robot, z0, idx, ev: _Evidence, marker, substeps, r0, jac0, exact_end: bool = True,
-                   chi2_before: float | None = None):
+                   chi2_before: float | None = None, bound: float = math.inf):
     """Levenberg-Marquardt on the variables `idx` from `z0`, where the residual is `r0` and its derivatives along
     those variables `jac0` (`_evaluate`): (z, chi2, residual, covariance of the variables, derivatives) at the end,
     or None where it starts without a rest pose (a residual that is not finite), leaves the physical range (a
     negative lag, damping, friction or payload mass, a compliance or inertia factor at or below 0), ends on dependent
-    derivatives or fails to lower the chi-square below `chi2_before` (default: that at `z0`).
+    derivatives or fails to lower the chi-square below `chi2_before` (default: that at `z0`); a fit for ranking also
+    where `RANKING_REACH` times its Gauss-Newton step's decrease would leave its chi-square above `bound`.
 
     Between evaluations (`_evaluate`: "fresh" derivatives) the derivatives follow Broyden's rank-one update at each
     accepted step. With `exact_end` they are evaluated afresh where a step fails on updated ones, the fit ends where
@@ -638,9 +650,13 @@ def _fit_variables(robot, z0, idx, ev: _Evidence, marker, substeps, r0, jac0, ex
     z, r, jac, exact = jnp.asarray(z0), r0, jac0, True
     chi2, lam = float(r @ r), 1e-3
     start = chi2 if chi2_before is None else chi2_before
-    # the end: exact fits at 1e-9 of the chi-square; ranking fits not finer than that nor than `RANKING_TOLERANCE`
-    tolerance = lambda chi2: max(1e-9 * chi2 + 1e-6, 0.0 if exact_end else RANKING_TOLERANCE)  # noqa: E731
+    # the end: exact fits at `EXACT_TOLERANCE`; ranking fits not finer than that nor than `RANKING_TOLERANCE`
+    tolerance = lambda chi2: max(FD_STEP**2 * chi2, EXACT_TOLERANCE if exact_end else RANKING_TOLERANCE)  # noqa: E731
     for _ in range(LM_STEPS if exact_end else RANKING_STEPS):
+        if not exact_end and bound < math.inf:  # a loser: `RANKING_REACH` times its step's decrease misses `bound`
+            reach = jac @ np.linalg.lstsq(jac, r, rcond=None)[0]
+            if chi2 - RANKING_REACH * float(reach @ reach) > bound:
+                return None
         if exact and exact_end:
             predicted = jac @ np.linalg.lstsq(jac, r, rcond=None)[0]  # the Gauss-Newton step's decrease
             if predicted @ predicted < tolerance(chi2):
@@ -784,20 +800,20 @@ def diagnose_runs(
     Each step compares the model with the training runs and poses (one chi-square over the tracker's and the poses'
     rows, each in units of its own noise, as `compare_run`) and the encoders with the model's motor angles (their
     departure against `ENCODER_LAG_RAD` or two quanta); while the test fails, or a motor without a lag departs, it
-    screens every effect not yet added by the linearised BIC change of its own variables (a lag only for a motor
-    whose encoders depart, and while one does, the lags alone: no other effect moves the motors, while others can
-    mimic a lag's effect on the tool over a short run; no lag of a motor whose command does not move), fits the
-    `SCREENED` best, and the payload (its gain linearised at zero mass lacks the point's inertia), with the effects
-    already added by Levenberg-Marquardt through the simulation and the rest poses
-    (derivatives by forward differences, `FD_STEP`, at the start, then Broyden's updates: `_fit`), and ranks the fits
-    by BIC: of those within `MIN_BIC_GAIN` of the best, the one of fewest parameters (the data cannot tell them
-    apart: `RunConfound`, with the correlation of their signatures). That one's fit is continued on fresh derivatives
-    to convergence and added if it lowers BIC by more than `MIN_BIC_GAIN` and lowers the validation runs' and poses'
-    chi-square. Each effect added before it (but the lags, which the encoders fix) is then fitted out again: where
-    the model without it is within `MIN_BIC_GAIN` of the BIC with it, it is removed (the new effect explains what it
-    did) and not offered again. The model without an effect is where each fit starts (lag, damping, friction and
-    payload 0). Static effects that runs do not change (geometry, gear ripple, offsets: `diagnose`) are not
-    candidates: diagnose the poses alone for them first.
+    screens every effect not yet added by the linearised BIC change of its own variables (a lag only for a motor whose
+    encoders depart, and while one does, the lags alone: no other effect moves the motors, while others can mimic a
+    lag's effect on the tool over a short run; no lag of a motor whose command does not move), fits the `SCREENED` best,
+    and the payload (its gain linearised at zero mass lacks the point's inertia), with the effects already added by
+    Levenberg-Marquardt through the simulation and the rest poses (derivatives by forward differences, `FD_STEP`, at the
+    start, then Broyden's updates: `_fit`; a fit that cannot come within `MIN_BIC_GAIN` of the best so far is abandoned,
+    `RANKING_REACH`), and ranks the fits by BIC: of those within `MIN_BIC_GAIN` of the best, the one of fewest
+    parameters (the data cannot tell them apart: `RunConfound`, with the correlation of their signatures). That one's
+    fit is continued on fresh derivatives to convergence (`EXACT_TOLERANCE`) and added if it lowers BIC by more than
+    `MIN_BIC_GAIN` and lowers the validation runs' and poses' chi-square. Each effect added before it (but the lags,
+    which the encoders fix) is then fitted out again: where the model without it is within `MIN_BIC_GAIN` of the BIC
+    with it, it is removed (the new effect explains what it did) and not offered again. The model without an effect is
+    where each fit starts (lag, damping, friction and payload 0). Static effects that runs do not change (geometry, gear
+    ripple, offsets: `diagnose`) are not candidates: diagnose the poses alone for them first.
 
     The result lists what the runs could not test: the kinds not screened, the motors that did not move, and the
     detection limit of each candidate not added (`RunDiagnosis.untested`)."""
@@ -874,6 +890,10 @@ def diagnose_runs(
             verdict = "not explained: no effect of the catalogue is left to add"
             break
         needed = sorted({i for c in eligible + added for i in _index(c, n)})
+        spare = [_index(c, n)[0] for c in candidates  # lags whose motors do not depart: for their detection limits
+                 if c.kind == "lag" and c not in added and not departs[c.joint]][:-len(needed) % BATCH]
+        if len(needed) % BATCH + len(spare) >= SINGLE_BELOW:  # they fill the last batch
+            needed += spare
         res, part = _evaluate(base, z, ev, marker, substeps, needed)  # reused by the fits' first step
         cols = np.zeros((len(res), size))
         cols[:, needed] = part
@@ -893,8 +913,9 @@ def diagnose_runs(
             if gain[k] == -np.inf:
                 continue
             effects = added + [eligible[k]]
+            bound = min((f[0] for f in fits), default=math.inf) + MIN_BIC_GAIN - params(effects) * ln_n
             fit = _fit(base, z, effects, ev, marker, substeps, res,
-                       cols[:, [i for e in effects for i in _index(e, n)]], exact_end=False)
+                       cols[:, [i for e in effects for i in _index(e, n)]], exact_end=False, bound=bound)
             if fit is not None:
                 fits.append((fit[1] + params(effects) * ln_n, eligible[k], fit))
         fits.sort(key=lambda f: f[0])
