@@ -26,7 +26,8 @@ each inner solve, which ends only at an accepted step, the multipliers are updat
 (`lam += rho c`, `c` the defects at the iterate or, where the curvature remainder of the last step exceeds
 them, those its linearisation predicted: `_multiplier_defects`; `gam = rho (v - P(v))`) and `rho` grows when
 the violation did not fall by
-`violation_decrease` (updating them from a rejected iterate would repeat the same `rho c` and drive
+`violation_decrease` (with direction bounds only while `rho c` stays within the multipliers: `_penalty_grows`)
+(updating them from a rejected iterate would repeat the same `rho c` and drive
 the multipliers away). `rho` starts in proportion to
 the control weight (`penalty_per_weight`). One forward pass through the dynamics (`half_step`) per
 trial point serves its merit and, once the step is accepted, the multiplier update, the gradient
