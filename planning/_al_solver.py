@@ -23,12 +23,16 @@ dynamics, a larger `mu` a new
 factor). `mu` grows after a shortened step, when no step length is accepted or on a matrix that is not
 positive definite, and falls back towards `damping_init` after good full steps. After
 each inner solve, which ends only at an accepted step, the multipliers are updated
-(`lam += rho c`, `gam = rho (v - P(v))`) and `rho` grows when the violation did not fall by
-`violation_decrease` (updating them from a rejected iterate would repeat the same `rho c` and drive
+(`lam += rho c`, `c` the defects at the iterate or, where the curvature remainder of the last step exceeds
+them, those its linearisation predicted: `_multiplier_defects`; `gam = rho (v - P(v))`) and `rho` grows when
+the violation did not fall by
+`violation_decrease` (with direction bounds only while `rho c` stays within the multipliers: `_penalty_grows`)
+(updating them from a rejected iterate would repeat the same `rho c` and drive
 the multipliers away). `rho` starts in proportion to
 the control weight (`penalty_per_weight`). One forward pass through the dynamics (`half_step`) per
 trial point serves its merit and, once the step is accepted, the multiplier update, the gradient
-and the Gauss-Newton matrix there (reverse passes through Newton-Euler for each set of multipliers).
+and the Gauss-Newton matrix there (reverse passes through Newton-Euler for each set of multipliers); one
+forward-mode pass per step gives the defects its linearisation predicts.
 Stops when the largest scaled violation is at most `tol_violation` and the largest scaled gradient of
 the Lagrangian (stationarity) at most `tol_stationarity` relative to the gradient's own scale plus the
 floor that roundoff of the defects puts under it (`roundoff_floor`: a defect is exact only to the
@@ -87,10 +91,11 @@ class ALConfig(eqx.Module):
     the last step changed which bounds are active (up to `ACTIVE_SET_STEPS`; `_switched`)."""
     penalty_init: float = 1e6
     """Initial penalty `rho` (at least; see `penalty_per_weight`)."""
-    penalty_per_weight: float = 10.0
+    penalty_per_weight: float = 100.0
     """`rho` starts at `max(penalty_init, penalty_per_weight w_u)`, `w_u` the largest scaled control
     weight (`nu u0^2 / T_s^4`): the multiplier update contracts the dual error by about
-    `w_u / (w_u + rho)` per outer iteration, so a fixed `rho` gets slow at large `nu`."""
+    `w_u / (w_u + rho)` per outer iteration, so a fixed `rho` gets slow at large `nu`; 100 makes it about
+    two decades per outer iteration."""
     penalty_growth: float = 10.0
     """Factor on `rho` when the violation did not fall enough."""
     penalty_max: float = 1e7
@@ -337,6 +342,8 @@ class _State(eqx.Module):
     """The last accepted step changed the set of active bounds."""
     forward: HalfStep
     """`half_step` at `y0 + y`."""
+    predicted: Float[Array, "Nm1 4*n"]
+    """The defects at `y` as the linearisation of the step that led there predicted them."""
 
 
 def history_length(config: ALConfig) -> int:
@@ -694,7 +701,7 @@ def _start(problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig, m: 
         factor=jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
                             jax.eval_shape(factorise, jnp.zeros((n, nz, nz)), jnp.zeros((n - 1, nz, nz)))),
         factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), switched=jnp.array(False),
-        forward=p.start,
+        forward=p.start, predicted=p.c0,
     )
     return p, state
 
@@ -755,11 +762,16 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
 
     def update():
         viol = jnp.maximum(jnp.max(jnp.abs(c_y)), _box_violation(p, s.y))
-        stat = jnp.max(jnp.abs(grad))  # = gradient of the Lagrangian at the updated multipliers
-        lam = s.lam + s.rho * c_y
+        # the defects the multipliers follow: those the step's linearisation predicted where its remainder (the
+        # constraints' curvature over the step) exceeds them, else the defects at `y` (`_multiplier_defects`)
+        shift = _multiplier_defects(c_y, s.predicted) - c_y
+        lam = s.lam + s.rho * (c_y + shift)
+        # the gradient of the Lagrangian at the updated multipliers: `grad` with `rho (c_y + shift)` for `rho c_y`
+        stat = jnp.max(jnp.abs(grad + s.rho * vjp(shift) * p.free))
         gam = s.rho * _outside(p, s.y, s.gam, s.rho)
-        rho = jnp.where((viol > config.violation_decrease * s.violation) & (viol > config.tol_violation),
-                        jnp.minimum(s.rho * config.penalty_growth, rho_max), s.rho)
+        # with direction bounds, not while the grown penalty's term would exceed the multipliers (`_penalty_grows`)
+        grown = jnp.minimum(s.rho * config.penalty_growth, rho_max)
+        rho = jnp.where(_penalty_grows(p, config, viol, s.violation, grown, lam), grown, s.rho)
         scale = jnp.maximum(1.0, jnp.maximum(jnp.max(jnp.abs(_cost_gradient(p, s.y))), jnp.max(jnp.abs(gam * p.free))))
         met = viol <= config.tol_violation
         converged = met & (stat <= config.tol_stationarity * scale + roundoff_floor(p, s.y, s.forward, s.rho))
@@ -780,6 +792,29 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
     step = ~s.stop & ~_inner_done(config, s, grad)
     fresh = jnp.any(jnp.stack([s.rho, s.mu]) != s.factor_key) | (s.factor_age >= config.refresh_every)
     return s, c_y, grad, id_vjp, step, fresh
+
+
+def _penalty_grows(p: _Parts, config: ALConfig, viol, previous, grown, lam) -> Bool[Array, ""]:
+    """`rho` grows to `grown`: the violation `viol` did not fall below `violation_decrease` times the `previous`
+    one nor to `tol_violation`, and, where direction bounds are set (`_Parts.directed`), `grown viol` is at most
+    the largest multiplier `lam`. The Gauss-Newton matrix drops the constraints' curvature times `lam + rho c`;
+    with the kinks of the direction bounds in the merit, an early growth while `rho c` dominates `lam` leaves
+    steps that are rejected until the damping exceeds `damping_max` (the 51-node move at nu = 1e-10 with `rho`
+    from 100 to 1000 times the control weight). Without direction bounds the early growth is what converges."""
+    late = ~jnp.any(p.directed) | (grown * viol <= jnp.max(jnp.abs(lam)))
+    return (viol > config.violation_decrease * previous) & (viol > config.tol_violation) & late
+
+
+def _multiplier_defects(c_y, predicted):
+    """The defects whose `rho` multiple the first-order update adds to the multipliers, from those at `y` (`c_y`)
+    and those the linearisation of the step to `y` predicted (`predicted`): the predicted ones where the remainder
+    `c_y - predicted` is the larger, else `c_y`. The update `lam += rho c` assumes an iterate that minimises `Phi`;
+    after one Gauss-Newton step from far away the defects are mostly the step's curvature remainder, which the
+    next step removes anyway; added to `lam` it reappears there with the opposite sign and costs an outer
+    iteration. The predicted defects give the multipliers of the step's penalised quadratic model (those of an
+    SQP step). Near the solution the remainder is second order and the update is the classical one."""
+    remainder = jnp.max(jnp.abs(c_y - predicted))
+    return jnp.where(remainder > jnp.max(jnp.abs(predicted)), predicted, c_y)
 
 
 def _cost_gradient(p: _Parts, y) -> Float[Array, "N 5*n"]:
@@ -865,7 +900,8 @@ def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -
     `LINE_SEARCH_STEPS` times: across the kinks of these degenerate bounds, at 0 where the exact inverse's rate
     is, the model of the full step is poor, and a shorter step costs one evaluation of the dynamics instead of
     a new factor). The damping falls after a good full step and grows after a shortened one or when no trial
-    point is accepted."""
+    point is accepted. An accepted step records the defects its linearisation predicts at the new point
+    (`_State.predicted`, `_multiplier_defects`)."""
     solve = _FACTOR[linear_solver(config)][1]
     dy = -solve(factor, grad)
     phi = _merit_from(p, s.y, c_y, s.lam, s.gam, s.rho)
@@ -895,6 +931,9 @@ def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -
     retry = ~accept & ~fresh
     switched = accept & _switched(p, config, y_try, s.y, s.gam, s.rho)
     y = jnp.where(accept, y_try, s.y)
+    nx = c_y.shape[-1]
+    dg = jax.jvp(lambda v: half_step(p.problem, p.y0 + v).g, (s.y,), (t * dy,))[1]
+    predicted = jnp.where(accept, c_y + (t * dy[1:, :nx] - t * dy[:-1, :nx]) - dg[1:] - dg[:-1], s.predicted)
     forward = jax.tree.map(lambda new, old: jnp.where(accept, new, old), h_new, s.forward)
     mu_down = jnp.maximum(s.mu / config.damping_down, config.damping_init)
     # a shortened step is kept, and the damping grows as after a rejection: the next step is damped, as the
@@ -906,5 +945,5 @@ def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -
     key = jnp.stack([s.rho, s.mu])  # equal to the factor's own where it is not fresh
     return eqx.tree_at(
         lambda t: (t.y, t.mu, t.inner, t.steps, t.status, t.stop, t.factor, t.factor_key, t.factor_age, t.accepted,
-                   t.switched, t.forward),
-        s, (y, mu, s.inner + 1, s.steps + 1, status, failed, factor, key, age, accept, switched, forward))
+                   t.switched, t.forward, t.predicted),
+        s, (y, mu, s.inner + 1, s.steps + 1, status, failed, factor, key, age, accept, switched, forward, predicted))
