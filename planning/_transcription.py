@@ -247,7 +247,6 @@ def boundary_states(problem: OCPProblem) -> tuple[Float[Array, " 4*n"], Float[Ar
             theta = jax.lax.fori_loop(0, REST_NEWTON_STEPS, newton, theta)  # a loop, not unrolled: compile time
         return State(q, z, theta, z).pack()
 
-    # both ends by one traced `rest` (compile time)
     return rest(0), rest(-1 if problem.nodes is None else problem.nodes - 1)
 
 
