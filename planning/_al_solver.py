@@ -272,7 +272,7 @@ def _normal_blocks(
     pk = half_step_jacobian(p.problem, h, id_vjp)
     e, shift = np.eye(4 * j, nz), half_step_shift(j)
     ka, kb = -e - shift, e - shift
-    k = np.arange(n)[:, None, None]
+    k = jnp.arange(n)[:, None, None]  # traced, not numpy: an (N, 5n, 5n) constant would be baked into the program
     first, last = (k < n - 1) * 1.0, (k > 0) * 1.0  # node k enters c_k, c_{k-1}
     place = lambda a, r, c: jnp.pad(a, ((0, 0), (r, nz - r - a.shape[1]), (c, nz - c - a.shape[2])))  # noqa: E731
     pkt = jnp.swapaxes(pk, 1, 2)

@@ -239,9 +239,12 @@ def boundary_states(problem: OCPProblem) -> tuple[Float[Array, " 4*n"], Float[Ar
         theta = jr.static_equilibrium(r, q)
         if problem.play is not None:  # Newton on the gear output, the flank weight following theta
             phi = q + jr.elastic_deflection(r, jr.gravity_torque(r, q))
-            for _ in range(REST_NEWTON_STEPS):
+
+            def newton(_, theta):
                 out, slope = jax.jvp(lambda th: _flank_output(problem, th, k), (theta,), (jnp.ones_like(theta),))
-                theta = theta - (out - phi) / slope
+                return theta - (out - phi) / slope
+
+            theta = jax.lax.fori_loop(0, REST_NEWTON_STEPS, newton, theta)  # a loop, not unrolled: compile time
         return State(q, z, theta, z).pack()
 
     return rest(0), rest(-1 if problem.nodes is None else problem.nodes - 1)
