@@ -370,7 +370,7 @@ class RunFinalFit:
         """In words."""
         runs = (f"all {self.training_runs + self.validation_runs} runs ({self.training_runs} training, "
                 f"{self.validation_runs} validation)" if self.validation_runs else
-                f"the {self.training_runs} training runs")
+                f"the {self.training_runs} training run" + "s" * (self.training_runs != 1))
         return (f"estimates from {runs}" + (f" and {self.poses} poses" if self.poses else "")
                 + f": tracker chi2/dof {self.chi2 / self.dof:.4f} (p = {self.p_value:.3g})"
                 + (f", encoders' chi2 {self.chi2_encoders:.4g}" if self.chi2_encoders else "")
