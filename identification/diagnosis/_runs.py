@@ -392,11 +392,11 @@ class RunDiagnosis:
     """The outcome in words."""
     covariance: np.ndarray
     """(m, m) the covariance of the `estimates`' values in their order and units from the final fit (linearised, the
-    noise as stated;
-    the stds are the roots of its diagonal)."""
+    noise as stated; the stds are the roots of its diagonal)."""
     fit: tuple = dataclasses.field(repr=False, compare=False)
-    """`(start, variables, indices, covariance)`: the start robot with zeros in its absent effect fields, the fit's
-    scaled effect variables, the indices of the added effects' ones and their covariance (what `sample` draws)."""
+    """`(start, variables, indices, covariance)`: the start robot with zeros in its absent effect fields, the final
+    fit's scaled effect variables, the indices of the added effects' ones and their covariance (what `sample`
+    draws)."""
     not_screened: tuple[str, ...] = ()
     """The kinds of `KINDS` that were not candidates (`kinds`)."""
     still_motors: tuple[int, ...] = ()
@@ -404,7 +404,8 @@ class RunDiagnosis:
     cannot show, so it is not a candidate."""
     limits: list[RunLimit] = dataclasses.field(default_factory=list)
     """Per candidate not added, the least size the training runs would have shown (each alone, linearised at the
-    model of the last screening that had it, else at the final model): effects below these are below the noise."""
+    model of the last screening that had it, else at the training fit of the chosen effects): effects below these
+    are below the noise."""
     confounds: list[RunConfound] = dataclasses.field(default_factory=list)
     """The explanations that competed for the same signature, and which the loop kept."""
     final_fit: RunFinalFit | None = None
@@ -763,8 +764,7 @@ def _final_fit(robot, z, effects, ev: _Evidence, ev_val: _Evidence, r, jac, cov,
     count = lambda e: 0 if e is None else len(e[0])  # noqa: E731  (poses)
     training = RunFinalFit(len(ev.runs), 0, count(ev.poses), last.chi2, last.dof, last.p_value, last.chi2_encoders)
     if not runs and poses is None:
-        return z, cov, dataclasses.replace(
-            training, note="the validation runs repeat the training runs")
+        return z, cov, dataclasses.replace(training, note="the validation runs repeat the training runs")
     extra = ev_val if len(runs) == len(ev_val.runs) and poses is ev_val.poses else _Evidence(
         runs, ev_val.sigma, poses, ev_val.encoder_sigma)
     r_v, jac_v = _evaluate(robot, z, extra, marker, substeps, variables)
@@ -1070,7 +1070,7 @@ def diagnose_runs(
     variables = [i for e in added for i in _index(e, n)]
     unseen = [c for c in candidates if c not in added]
     limits = []
-    if unseen:  # one column each (the payload's mass): the latest screening's, else at the final model
+    if unseen:  # one column each (the payload's mass): the latest screening's, else at the training fit
         first = [_index(c, n)[0] for c in unseen]
         missing = [i for i in first if i not in seen]
         if missing:
