@@ -131,8 +131,9 @@ def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
     1e-10 for validation): the lags of motors 1, 2 and 3, each within 3 reported sigma of truth.json's 3 ms, and
     nothing else; the saved model carries them. The encoders are rows of the fits in units of the quantisation of
     `start.toml`'s `[sensors] encoder_counts_per_rev`, so each lag's std is the encoders' bound `(q / sqrt(12)) /
-    sqrt(sum thetad^2)` over the training commands (within 10 %: the tracker adds little, the motor's rate lags its
-    command's). 2 min on 2 cores (three steps of screening and fits)."""
+    sqrt(sum thetad^2)` over the four commands, the lags chosen on the training runs and estimated on all four
+    (`final_fit`; within 10 %: the tracker adds little, the motor's rate lags its command's). 2 min on 2 cores
+    (three steps of screening and fits)."""
     folder = case("p2_motor_lag_j123")
     files = {}
     for name in ("line_nu1e-14", "spiral_nu1e-14", "line_nu1e-10", "spiral_nu1e-10"):
@@ -153,9 +154,11 @@ def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
     quantum = 2 * np.pi / jr.read_description(folder / "start.toml")["sensors"]["encoder_counts_per_rev"]
     for e in summary["effects"]:
         assert abs(e["value"] - truth[e["joint"] - 1]) < 3 * e["std"], e
-        rates = np.concatenate([shortened(folder, k, SHORT)[0][2][:SHORT, e["joint"] - 1] for k in train])
+        rates = np.concatenate([shortened(folder, k, SHORT)[0][2][:SHORT, e["joint"] - 1] for k in train + val])
         assert 0.9 < e["std"] / (quantum / np.sqrt(12.0) / np.sqrt(np.sum(rates**2))) < 1.1, e
     assert summary["verdict"].startswith("explained")
+    assert (summary["final_fit"]["training_runs"], summary["final_fit"]["validation_runs"]) == (2, 2)
+    assert "estimates from all 4 runs (2 training, 2 validation)" in out.err
     fixed = jr.load_robot(tmp_path / "fixed.toml")
     np.testing.assert_allclose(fixed.motor_lag[:3], 3e-3, rtol=0.1)
     assert fixed.damping is None and np.all(np.asarray(fixed.motor_lag[3:]) == 0)
