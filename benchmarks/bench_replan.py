@@ -171,7 +171,7 @@ def main() -> None:
             f"{case}, runs measured anew with {1e6 * args.tracker_noise:g} µm of tracker noise")
         effects = "; ".join(f"{e.effect.label} {e.shown} ± {e.std:.2g} {e.unit}" for e in diagnosis.estimates)
         lines = [f"`diagnose_runs` on {args.samples} samples of each run: {seconds:.0f} s; {diagnosis.verdict}"
-                 + (f" ({effects})" if effects else ""), ""]
+                 + (f" ({effects}; {diagnosis.final_fit.text})" if effects else ""), ""]
         rows = [table_row(case, task, e) for task, e in errors.items()]
         command = (f"python benchmarks/bench_replan.py --cases {case} --tasks {' '.join(args.tasks)} "
                    f"--samples {args.samples} --draws {args.draws}"

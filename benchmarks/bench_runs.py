@@ -100,7 +100,8 @@ def diagnose_section(folder: Path, samples: int, validation: int) -> list[str]:
             "|---|---|---|---|---|---|", *rows, "",
             "| effect | parameter | value | std | unit |", "|---|---|---|---|---|",
             *(f"| {e.effect.label} | {e.parameter} | {e.shown} | {e.std:.2g} | {e.unit} |" for e in res.estimates),
-            "", *(f"- {c.text}" for c in res.confounds), *(f"- could not test: {u}" for u in res.untested)]
+            "", *([f"- {res.final_fit.text}"] if res.final_fit is not None else []),
+            *(f"- {c.text}" for c in res.confounds), *(f"- could not test: {u}" for u in res.untested)]
 
 
 def main() -> None:

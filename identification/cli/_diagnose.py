@@ -71,8 +71,9 @@ def _diagnose_runs(args, echo) -> dict:
     in their units), `steps` (one `RunStep` per model compared, as a dict of its fields), `confounds` (`[{"kept": str,
     "rival": str (labels), "delta_bic": float, "correlation": float, "removed": bool}]`, `RunConfound`) and
     `untested`: `{"not_screened": [str] (kinds), "still_motors": [int] (1-based), "limits": [{"effect": str, "kind":
-    str, "joint": int (1-based) or None, "parameter": str, "value": float (None: it cannot show at all), "unit": str}]}`
-    (`RunDiagnosis`)."""
+    str, "joint": int (1-based) or None, "parameter": str, "value": float (None: it cannot show at all), "unit": str}]},
+    and `final_fit`: the runs and poses the estimates come from (`RunFinalFit` as a dict of its fields; None where no
+    effect was added) (`RunDiagnosis`)."""
     import jaxrobot as jr
 
     from ..diagnosis._runs import diagnose_runs
@@ -113,6 +114,8 @@ def _diagnose_runs(args, echo) -> dict:
     for line in res.untested:
         echo(f"  could not test: {line}")
     effects = []
+    if res.final_fit is not None:
+        echo(f"  {res.final_fit.text}")
     for e in res.estimates:
         echo(f"  {e.effect.label}: {e.parameter} {e.shown} +- {e.std:.2g} {e.unit}")
         effects.append({"effect": e.effect.label, "kind": e.effect.kind,
@@ -122,6 +125,7 @@ def _diagnose_runs(args, echo) -> dict:
         jr.save_robot(res.robot, args.save_model, keep=jr.read_description(args.model) if args.model else None)
         echo(f"wrote {args.save_model}")
     return {"verdict": res.verdict, "effects": effects,
+            "final_fit": None if res.final_fit is None else dataclasses.asdict(res.final_fit),
             "steps": [dataclasses.asdict(s) for s in res.steps],
             "confounds": [{"kept": c.kept.label, "rival": c.rival.label, "delta_bic": c.delta_bic,
                            "correlation": c.correlation, "removed": c.removed} for c in res.confounds],

@@ -343,23 +343,60 @@ class RunStep:
 
 
 @dataclasses.dataclass(frozen=True)
+class RunFinalFit:
+    """The fit that gives the estimates: once the loop has chosen its effects on the training runs (validated on the
+    held-out ones), they are estimated again on every run and pose set, training and validation together."""
+
+    training_runs: int
+    """Training runs in the fit."""
+    validation_runs: int
+    """Validation runs in the fit besides them (0: the training fit is the final one; a validation run equal to a
+    training run counts once)."""
+    poses: int
+    """Poses in the fit (training and validation)."""
+    chi2: float
+    """Chi-square of the fit's tracker positions and poses, each residual in units of its own noise."""
+    dof: int
+    """Its degrees of freedom: those residuals minus the fitted parameters."""
+    p_value: float
+    """Probability of a chi-square with `dof` exceeding `chi2`."""
+    chi2_encoders: float = 0.0
+    """Chi-square of the fit's encoder angles in units of their quantisation's std (0 where they are not rows)."""
+    note: str = ""
+    """Why the validation runs are not in it, where they are not."""
+
+    @property
+    def text(self) -> str:
+        """In words."""
+        runs = (f"all {self.training_runs + self.validation_runs} runs ({self.training_runs} training, "
+                f"{self.validation_runs} validation)" if self.validation_runs else
+                f"the {self.training_runs} training run" + "s" * (self.training_runs != 1))
+        return (f"estimates from {runs}" + (f" and {self.poses} poses" if self.poses else "")
+                + f": tracker chi2/dof {self.chi2 / self.dof:.4f} (p = {self.p_value:.3g})"
+                + (f", encoders' chi2 {self.chi2_encoders:.4g}" if self.chi2_encoders else "")
+                + (f"; {self.note}" if self.note else ""))
+
+
+@dataclasses.dataclass(frozen=True)
 class RunDiagnosis:
     """What `diagnose_runs` found."""
 
     robot: jr.Robot
-    """The start robot with the added effects (a field the start lacked and no effect filled stays None)."""
+    """The start robot with the added effects at their final estimates (`final_fit`; a field the start lacked and no
+    effect filled stays None)."""
     steps: list[RunStep]
     """The loop, one row per model compared."""
     estimates: list[RunEstimate]
-    """The parameters of the added effects with their fitted values at the final model."""
+    """The parameters of the added effects with their values from the final fit (`final_fit`)."""
     verdict: str
     """The outcome in words."""
     covariance: np.ndarray
-    """(m, m) the covariance of the `estimates`' values in their order and units (linearised, the noise as stated;
-    the stds are the roots of its diagonal)."""
+    """(m, m) the covariance of the `estimates`' values in their order and units from the final fit (linearised, the
+    noise as stated; the stds are the roots of its diagonal)."""
     fit: tuple = dataclasses.field(repr=False, compare=False)
-    """`(start, variables, indices, covariance)`: the start robot with zeros in its absent effect fields, the fit's
-    scaled effect variables, the indices of the added effects' ones and their covariance (what `sample` draws)."""
+    """`(start, variables, indices, covariance)`: the start robot with zeros in its absent effect fields, the final
+    fit's scaled effect variables, the indices of the added effects' ones and their covariance (what `sample`
+    draws)."""
     not_screened: tuple[str, ...] = ()
     """The kinds of `KINDS` that were not candidates (`kinds`)."""
     still_motors: tuple[int, ...] = ()
@@ -367,9 +404,12 @@ class RunDiagnosis:
     cannot show, so it is not a candidate."""
     limits: list[RunLimit] = dataclasses.field(default_factory=list)
     """Per candidate not added, the least size the training runs would have shown (each alone, linearised at the
-    model of the last screening that had it, else at the final model): effects below these are below the noise."""
+    model of the last screening that had it, else at the training fit of the chosen effects): effects below these
+    are below the noise."""
     confounds: list[RunConfound] = dataclasses.field(default_factory=list)
     """The explanations that competed for the same signature, and which the loop kept."""
+    final_fit: RunFinalFit | None = None
+    """The runs and poses the `estimates`, their `covariance` and `robot` come from (None: no effect added)."""
 
     @property
     def untested(self) -> list[str]:
@@ -700,6 +740,50 @@ def _fit_variables(robot, z0, idx, ev: _Evidence, marker, substeps, r0, jac0, ex
     return z, chi2, r, np.linalg.inv(jac.T @ jac) if exact_end else None, jac
 
 
+def _same_run(a: _Run, b: _Run) -> bool:
+    """Whether two prepared runs hold the same command and measurements."""
+    return (np.array_equal(a.encoders, b.encoders) and np.array_equal(np.asarray(a.measured), np.asarray(b.measured))
+            and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(a.command, b.command)))
+
+
+def _final_fit(robot, z, effects, ev: _Evidence, ev_val: _Evidence, r, jac, cov, marker, substeps, last: RunStep):
+    """The variables of `effects` fitted on the runs and poses of `ev` and `ev_val` together, from the training fit
+    `z` (its residual `r`, fresh derivatives `jac` and covariance `cov` on `ev`): `(z, covariance of the variables,
+    RunFinalFit)`.
+    The training rows' derivatives at `z` are reused and only the validation rows' are evaluated (a validation run
+    or pose set equal to a training one counts once); `_fit` then ends at `EXACT_TOLERANCE` on fresh derivatives of
+    every row, whose covariance it returns. Where the joint fit fails (`_fit`: the physical range left, no rest pose,
+    dependent derivatives) or the validation evidence repeats the training's, the training fit is the final one
+    (`last`, its row)."""
+    n = robot.n_joints
+    variables = [i for e in effects for i in _index(e, n)]
+    runs = [v for v in ev_val.runs if not any(_same_run(v, t) for t in ev.runs)]
+    poses = ev_val.poses if ev_val.poses is not None and not (
+        ev.poses is not None and all(np.array_equal(np.asarray(a), np.asarray(b))
+                                     for a, b in zip(ev.poses, ev_val.poses))) else None
+    count = lambda e: 0 if e is None else len(e[0])  # noqa: E731  (poses)
+    training = RunFinalFit(len(ev.runs), 0, count(ev.poses), last.chi2, last.dof, last.p_value, last.chi2_encoders)
+    if not runs and poses is None:
+        return z, cov, dataclasses.replace(training, note="the validation runs repeat the training runs")
+    extra = ev_val if len(runs) == len(ev_val.runs) and poses is ev_val.poses else _Evidence(
+        runs, ev_val.sigma, poses, ev_val.encoder_sigma)
+    r_v, jac_v = _evaluate(robot, z, extra, marker, substeps, variables)
+    cut, cut_v = (res.size - (0 if e.poses is None else e.poses[3].size) for res, e in ((r, ev), (r_v, extra)))
+    joined = [p for p in (ev.poses, extra.poses) if p is not None]
+    ev_all = _Evidence(ev.runs + extra.runs, ev.sigma, tuple(jnp.concatenate(parts) for parts in zip(*joined))
+                       if joined else None, ev.encoder_sigma)
+    r0 = np.concatenate([r[:cut], r_v[:cut_v], r[cut:], r_v[cut_v:]])  # the rows in `ev_all`'s order
+    jac0 = np.concatenate([jac[:cut], jac_v[:cut_v], jac[cut:], jac_v[cut_v:]])
+    fit = _fit(robot, z, effects, ev_all, marker, substeps, r0, jac0, chi2_before=math.inf)
+    if fit is None:
+        return z, cov, dataclasses.replace(
+            training, note="the fit on all runs left the physical range or its derivatives were dependent")
+    mask = ev_all.encoder_mask
+    chi2, dof, p_value = noise_test(fit[2][~mask].reshape(-1, 3), 1.0, len(variables))
+    return fit[0], fit[3], RunFinalFit(len(ev.runs), len(extra.runs), count(ev_all.poses), float(chi2), int(dof),
+                                       float(p_value), float(np.sum(fit[2][mask] ** 2)))
+
+
 def _estimate(robot, z, effects, cov) -> tuple[list[RunEstimate], np.ndarray]:
     """The reported values of the added `effects` at `z`, with their stds, and their covariance (m, m) in their
     order and units, from `cov`, the fit variables' covariance (in their order), through the derivatives of the
@@ -815,6 +899,11 @@ def diagnose_runs(
     where each fit starts (lag, damping, friction and payload 0). Static effects that runs do not change (geometry, gear
     ripple, offsets: `diagnose`) are not candidates: diagnose the poses alone for them first.
 
+    The effects chosen, they are estimated on the training and validation runs and poses together (select on held-out
+    data, then estimate on all of it: `_final_fit`, from the training fit, its derivatives reused): the estimates,
+    their covariance, the robot and `RunDiagnosis.sample` come from that fit, which `RunDiagnosis.final_fit`
+    describes; the steps, the verdict and the validation chi-squares are the selection's.
+
     The result lists what the runs could not test: the kinds not screened, the motors that did not move, and the
     detection limit of each candidate not added (`RunDiagnosis.untested`)."""
     on_event = renamed_argument("diagnose_runs", "progress", "on_event", progress, on_event)
@@ -870,6 +959,7 @@ def diagnose_runs(
         return sum(len(_index(e, n)) for e in effects)
 
     z, added, cov = jnp.zeros(size), [], np.zeros((0, 0))
+    r_z, jac_z = None, None  # the training fit's residual and derivatives (fresh) at z
     steps = [row(0, "start", z, 0)]
     verdict = "no significant discrepancy: the model explains the runs to the tracker and encoder noise"
     candidates = [RunEffect(k, j) for k in RUN_KINDS if k in kinds for j in range(n)
@@ -934,7 +1024,7 @@ def diagnose_runs(
         if best is None:
             verdict = "not explained: no candidate fit lowers the chi-square within the physical range"
             break
-        effect, (z_new, chi2_new, _, cov_new, jac_new), rivals, r_kept = best
+        effect, (z_new, chi2_new, r_new, cov_new, jac_new), rivals, r_kept = best
         m_new = params(added + [effect])
         if not chi2_new + m_new * ln_n < last.bic - MIN_BIC_GAIN:
             verdict = f"not explained: the best candidate ({effect.label}) does not lower BIC by {MIN_BIC_GAIN}"
@@ -946,7 +1036,7 @@ def diagnose_runs(
             break
         confounds += [RunConfound(effect, rival, float(delta), _signature_correlation(r_kept - res, r_rival - res))
                       for delta, rival, r_rival in rivals]
-        z, added, cov = z_new, added + [effect], cov_new
+        z, added, cov, r_z, jac_z = z_new, added + [effect], cov_new, r_new, jac_new
         steps.append(new)
         bic, at = chi2_new + m_new * ln_n, [i for e in added for i in _index(e, n)]
         signature = {e: jac_new[:, [at.index(i) for i in _index(e, n)]] @ np.asarray(z_new)[_index(e, n)]
@@ -961,27 +1051,31 @@ def diagnose_runs(
                 continue
             confounds.append(RunConfound(effect, old, float(bic - (fit[1] + params(rest) * ln_n)),
                                          _signature_correlation(signature[effect], signature[old]), removed=True))
-            z, added, cov, removed = fit[0], rest, fit[3], removed | {old}
+            z, added, cov, r_z, jac_z, removed = fit[0], rest, fit[3], fit[2], fit[4], removed | {old}
             bic = fit[1] + params(rest) * ln_n
             steps.append(row(len(steps), f"without {old.label}", z, params(rest)))
     else:
         if added:
             verdict = ("explained: the runs agree with the model to the tracker and encoder noise after adding "
                        + ", ".join(e.label for e in added))
+    z_all, cov_all, final_fit = z, cov, None
+    if added:  # chosen on the training runs, validated on the held-out ones: estimated on all of them
+        z_all, cov_all, final_fit = _final_fit(base, z, added, ev, ev_val, r_z, jac_z, cov, marker, substeps,
+                                              steps[-1])
     added_kinds = {e.kind for e in added}
-    final = dataclasses.replace(_with_effects(base, z), **{
+    final = dataclasses.replace(_with_effects(base, z_all), **{
         field: None for field, kind in _EFFECT_FIELDS.items() if getattr(robot, field) is None
         and kind not in added_kinds})
-    estimates, covariance = _estimate(base, np.asarray(z), added, cov)
+    estimates, covariance = _estimate(base, np.asarray(z_all), added, cov_all)
     variables = [i for e in added for i in _index(e, n)]
     unseen = [c for c in candidates if c not in added]
     limits = []
-    if unseen:  # one column each (the payload's mass): the latest screening's, else at the final model
+    if unseen:  # one column each (the payload's mass): the latest screening's, else at the training fit
         first = [_index(c, n)[0] for c in unseen]
         missing = [i for i in first if i not in seen]
         if missing:
             seen.update(zip(missing, _evaluate(base, z, ev, marker, substeps, missing)[1].T))
         limits = _limits(base, np.asarray(z), unseen, np.stack([seen[i] for i in first], 1), ln_n)
-    return RunDiagnosis(final, steps, estimates, verdict, covariance, (base, np.asarray(z), variables, cov),
+    return RunDiagnosis(final, steps, estimates, verdict, covariance, (base, np.asarray(z_all), variables, cov_all),
                         tuple(k for k in KINDS if k not in kinds), tuple(int(j) for j in np.flatnonzero(still)),
-                        limits, confounds)
+                        limits, confounds, final_fit)

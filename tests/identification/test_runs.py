@@ -131,8 +131,9 @@ def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
     1e-10 for validation): the lags of motors 1, 2 and 3, each within 3 reported sigma of truth.json's 3 ms, and
     nothing else; the saved model carries them. The encoders are rows of the fits in units of the quantisation of
     `start.toml`'s `[sensors] encoder_counts_per_rev`, so each lag's std is the encoders' bound `(q / sqrt(12)) /
-    sqrt(sum thetad^2)` over the training commands (within 10 %: the tracker adds little, the motor's rate lags its
-    command's). 2 min on 2 cores (three steps of screening and fits)."""
+    sqrt(sum thetad^2)` over the four commands, the lags chosen on the training runs and estimated on all four
+    (`final_fit`; within 10 %: the tracker adds little, the motor's rate lags its command's). 2 min on 2 cores
+    (three steps of screening and fits)."""
     folder = case("p2_motor_lag_j123")
     files = {}
     for name in ("line_nu1e-14", "spiral_nu1e-14", "line_nu1e-10", "spiral_nu1e-10"):
@@ -153,9 +154,11 @@ def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
     quantum = 2 * np.pi / jr.read_description(folder / "start.toml")["sensors"]["encoder_counts_per_rev"]
     for e in summary["effects"]:
         assert abs(e["value"] - truth[e["joint"] - 1]) < 3 * e["std"], e
-        rates = np.concatenate([shortened(folder, k, SHORT)[0][2][:SHORT, e["joint"] - 1] for k in train])
+        rates = np.concatenate([shortened(folder, k, SHORT)[0][2][:SHORT, e["joint"] - 1] for k in train + val])
         assert 0.9 < e["std"] / (quantum / np.sqrt(12.0) / np.sqrt(np.sum(rates**2))) < 1.1, e
     assert summary["verdict"].startswith("explained")
+    assert (summary["final_fit"]["training_runs"], summary["final_fit"]["validation_runs"]) == (2, 2)
+    assert "estimates from all 4 runs (2 training, 2 validation)" in out.err
     fixed = jr.load_robot(tmp_path / "fixed.toml")
     np.testing.assert_allclose(fixed.motor_lag[:3], 3e-3, rtol=0.1)
     assert fixed.damping is None and np.all(np.asarray(fixed.motor_lag[3:]) == 0)
@@ -403,3 +406,56 @@ def test_a_point_is_simulated_once(monkeypatch):
         ev.known[(k,)] = None
     _runs._evaluate(base, 0.1 * np.ones(size), ev, marker, 4)
     assert len(ev.known) == _runs.KNOWN and (0,) not in ev.known
+
+
+@pytest.mark.extended  # ~1 min: the run programs compile for the arm
+def test_final_estimate_is_fitted_on_every_run():
+    """The arm with a hidden viscous link friction of 0.3 N m s/rad on joint 2, one training and one validation run
+    (our simulation, the tracker's 50 um noise, seeded). The friction named, its estimate is the fit on both runs:
+    `final_fit` says so, its chi-square is the two runs' `compare_run` chi-square at the final robot (10 substeps
+    against the fits' 4: ~1e-8 apart), and that chi-square, the friction moved by -1 and +1 reported std, rises by
+    1 on average (the two sides' mean cancels the estimate's offset from the minimum; a quadratic's rise at 1 std of
+    its own covariance, to 1 %: the all-run covariance), their difference puts the estimate within
+    sqrt(`EXACT_TOLERANCE`) std of the minimum. The training run alone rises by less (the validation run adds
+    information), and a validation run equal to the training run counts once: the fit is then the training run's,
+    its std larger by 1 / sqrt(that rise) (the ratio of the two covariances)."""
+    from identification.diagnosis._runs import EXACT_TOLERANCE, diagnose_runs
+    from jaxrobot.measurement import marker_pose
+
+    marker, noise = np.array([0.05, 0.0, 0.0]), 5e-5
+    rng = np.random.default_rng(4302)
+    t = np.arange(401) * 1e-3
+    truth = jr.robot_from_description(arm_description(viscous=[0.0, 0.3]))
+
+    def pair(scale):
+        theta, thetad, thetadd = command(t)
+        cmd = (t, theta[0] + scale * (theta - theta[0]), scale * thetad, scale * thetadd)
+        q, _, motors = jr.simulate(truth, *cmd, substeps=4, motor_angles=True)
+        positions = np.asarray(marker_pose(truth, q, jnp.asarray(marker))[0])
+        return cmd, (t, np.asarray(motors), positions + noise * rng.standard_normal(positions.shape))
+
+    train, val = [pair(1.0)], [pair(0.7)]
+    start = jr.robot_from_description(arm_description())
+    res = diagnose_runs(start, train, val, marker, noise, kinds=("viscous", "coulomb"))
+    assert [e.effect.label for e in res.estimates] == ["viscous link friction, joint 2"], res.verdict
+    est, fit = res.estimates[0], res.final_fit
+    assert (fit.training_runs, fit.validation_runs, fit.poses, fit.note) == (1, 1, 0, ""), fit
+    assert fit.text.startswith("estimates from all 2 runs (1 training, 1 validation)"), fit.text
+    assert abs(est.value - 0.3) < 3 * est.std and float(res.robot.viscous_friction[1]) == est.value
+
+    def chi2(pairs, value):
+        robot = dataclasses.replace(res.robot, viscous_friction=res.robot.viscous_friction.at[1].set(value))
+        return sum(compare_run(robot, c, r, marker, noise).chi2 for c, r in pairs)
+
+    at = chi2(train + val, est.value)
+    np.testing.assert_allclose(fit.chi2, at, rtol=1e-7)
+    low, high = (chi2(train + val, est.value + k * est.std) - at for k in (-1.0, 1.0))
+    assert abs((low + high) / 2 - 1.0) < 0.01, (low, high)
+    assert abs(low - high) / 4 < np.sqrt(EXACT_TOLERANCE), (low, high)
+    alone = chi2(train, est.value)
+    rise = sum(chi2(train, est.value + k * est.std) - alone for k in (-1.0, 1.0)) / 2
+    assert rise < 0.9, rise
+    same = diagnose_runs(start, train, train, marker, noise, kinds=("viscous", "coulomb"))
+    assert (same.final_fit.validation_runs, same.final_fit.note) == (0, "the validation runs repeat the training "
+                                                                        "runs"), same.final_fit
+    np.testing.assert_allclose(same.estimates[0].std / est.std, 1 / np.sqrt(rise), rtol=0.01)
