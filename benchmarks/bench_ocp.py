@@ -148,6 +148,16 @@ def scaled_nlp(robot, q_d, ts, nu, direction=None) -> tuple[np.ndarray, np.ndarr
     return sz, lower, upper
 
 
+def task_start(robot: jr.Robot, task: str):
+    """The reference task's path, its joint path, the flat inverse's warm start `(y0, u0)` and its motor
+    directions (`plan_task`'s bounds)."""
+    path = pl.reference_path(task)
+    jp = pl.joint_path(robot, path)
+    flat = pl.flat_motor_trajectory(robot, jp)
+    return path, jp, (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd), \
+        motor_directions(flat.thetad)
+
+
 def solve_ipopt(robot, q_d, ts, nu, warm, f=None, max_iter=100, print_level=0, direction=None):
     """Eq. 4.3 (thesis cost) in the scaled variables of `planning._transcription`, by IPOPT (`direction`: the
     motor directions of `solve_ocp`, as bounds)."""
@@ -404,12 +414,8 @@ def main() -> None:
     peers, build = {}, Path(tempfile.mkdtemp(prefix="bench_ocp_acados_"))
     rows = []
     for task in tasks:
-        path = pl.reference_path(task)
-        jp = pl.joint_path(robot, path)
-        flat = pl.flat_motor_trajectory(robot, jp)
-        warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+        path, jp, warm, d = task_start(robot, task)
         ts = float(path.sample_time)
-        d = motor_directions(flat.thetad)
         for nu in nus:
             row = {"task": task, "nu": nu, "load": os.getloadavg()[0]}
             for name, direction in (("ours", None), ("ours bounded", d)):
@@ -444,10 +450,7 @@ def main() -> None:
             write_markdown(args.out, rows, None)  # keep partial results
     sweep = None
     if not (args.quick or args.no_sweep):
-        path = pl.reference_path("line")
-        jp = pl.joint_path(robot, path)
-        flat = pl.flat_motor_trajectory(robot, jp)
-        warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
+        path, jp, warm, _ = task_start(robot, "line")
         batched = jax.jit(jax.vmap(lambda nu: solve_ocp(robot, jp.q, 1e-3, nu=nu, warm_start=warm)))
         sols, first, many = _timing.timed(lambda: batched(jnp.asarray(SWEEP)))
         chained, chained_first, chained_s = _timing.timed(

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import _timing  # noqa: I001  (first: the start time and load)
 import jax.numpy as jnp
+from bench_ocp import task_start
 
 import jaxrobot as jr
 import planning as pl
-from planning.internal import motor_directions
 
 NUS = tuple(10.0**-k for k in range(16, 8, -1))
 TASKS = ("line", "spiral")
@@ -30,11 +30,7 @@ def rows() -> list[dict]:
     robot = jr.racer7()
     out = []
     for task in TASKS:
-        path = pl.reference_path(task)
-        jp = pl.joint_path(robot, path)
-        flat = pl.flat_motor_trajectory(robot, jp)
-        warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)
-        d = motor_directions(flat.thetad)
+        path, jp, warm, d = task_start(robot, task)
         for bounded in (True, False):
             direction = d if bounded else jnp.zeros_like(d)
             for nu in NUS:

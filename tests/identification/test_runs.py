@@ -23,6 +23,18 @@ SHORT = 700
 """Samples of the shortened runs of the main suite (0.7 s: the lag's departure reaches ~10 sigma)."""
 
 
+def run_pair(truth: jr.Robot, t, scale: float, marker, noise: float, rng):
+    """`command(t)` scaled about its start by `scale`, and what `truth` does with it: (t, theta, thetad, thetadd),
+    (t, motor angles, marker positions with isotropic tracker noise `noise` [m])."""
+    from jaxrobot.measurement import marker_pose
+
+    theta, thetad, thetadd = command(t)
+    cmd = (t, theta[0] + scale * (theta - theta[0]), scale * thetad, scale * thetadd)
+    q, _, motors = jr.simulate(truth, *cmd, substeps=4, motor_angles=True)
+    positions = np.asarray(marker_pose(truth, q, jnp.asarray(marker))[0])
+    return cmd, (t, np.asarray(motors), positions + noise * rng.standard_normal(positions.shape))
+
+
 def case(name: str):
     return independent_data() / "trajectories" / name
 
@@ -240,7 +252,6 @@ def test_diagnose_runs_names_an_effect_on_the_arm(hidden):
     every fit and the screening share), the same for every hidden effect. Extended: its three programs (the
     simulation, the residual, the perturbed batch) compile in ~1 min each on 2 cores."""
     from identification.diagnosis._runs import RUN_KINDS, _perturbed, diagnose_runs
-    from jaxrobot.measurement import marker_pose
 
     fields, inertia, label, value, size = ARM_EFFECTS[hidden]
     marker, noise = np.array([0.05, 0.0, 0.0]), 5e-5
@@ -251,11 +262,7 @@ def test_diagnose_runs_names_an_effect_on_the_arm(hidden):
         truth = dataclasses.replace(truth, inertia=truth.inertia.at[0].multiply(inertia))
 
     def pair(scale):
-        theta, thetad, thetadd = command(t)
-        cmd = (t, theta[0] + scale * (theta - theta[0]), scale * thetad, scale * thetadd)
-        q, _, motors = jr.simulate(truth, *cmd, substeps=4, motor_angles=True)
-        positions = np.asarray(marker_pose(truth, q, jnp.asarray(marker))[0])
-        return cmd, (t, np.asarray(motors), positions + noise * rng.standard_normal(positions.shape))
+        return run_pair(truth, t, scale, marker, noise, rng)
 
     train, val = [pair(1.0)], [pair(0.7)]
     start = jr.robot_from_description(arm_description())
@@ -420,7 +427,6 @@ def test_final_estimate_is_fitted_on_every_run():
     information), and a validation run equal to the training run counts once: the fit is then the training run's,
     its std larger by 1 / sqrt(that rise) (the ratio of the two covariances)."""
     from identification.diagnosis._runs import EXACT_TOLERANCE, diagnose_runs
-    from jaxrobot.measurement import marker_pose
 
     marker, noise = np.array([0.05, 0.0, 0.0]), 5e-5
     rng = np.random.default_rng(4302)
@@ -428,11 +434,7 @@ def test_final_estimate_is_fitted_on_every_run():
     truth = jr.robot_from_description(arm_description(viscous=[0.0, 0.3]))
 
     def pair(scale):
-        theta, thetad, thetadd = command(t)
-        cmd = (t, theta[0] + scale * (theta - theta[0]), scale * thetad, scale * thetadd)
-        q, _, motors = jr.simulate(truth, *cmd, substeps=4, motor_angles=True)
-        positions = np.asarray(marker_pose(truth, q, jnp.asarray(marker))[0])
-        return cmd, (t, np.asarray(motors), positions + noise * rng.standard_normal(positions.shape))
+        return run_pair(truth, t, scale, marker, noise, rng)
 
     train, val = [pair(1.0)], [pair(0.7)]
     start = jr.robot_from_description(arm_description())
