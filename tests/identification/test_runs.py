@@ -261,10 +261,7 @@ def test_diagnose_runs_names_an_effect_on_the_arm(hidden):
     if inertia is not None:
         truth = dataclasses.replace(truth, inertia=truth.inertia.at[0].multiply(inertia))
 
-    def pair(scale):
-        return run_pair(truth, t, scale, marker, noise, rng)
-
-    train, val = [pair(1.0)], [pair(0.7)]
+    train, val = [run_pair(truth, t, 1.0, marker, noise, rng)], [run_pair(truth, t, 0.7, marker, noise, rng)]
     start = jr.robot_from_description(arm_description())
     programs = _perturbed._cache_size()
     res = diagnose_runs(start, train, val, marker, noise, kinds=tuple(RUN_KINDS))
@@ -433,10 +430,7 @@ def test_final_estimate_is_fitted_on_every_run():
     t = np.arange(401) * 1e-3
     truth = jr.robot_from_description(arm_description(viscous=[0.0, 0.3]))
 
-    def pair(scale):
-        return run_pair(truth, t, scale, marker, noise, rng)
-
-    train, val = [pair(1.0)], [pair(0.7)]
+    train, val = [run_pair(truth, t, 1.0, marker, noise, rng)], [run_pair(truth, t, 0.7, marker, noise, rng)]
     start = jr.robot_from_description(arm_description())
     res = diagnose_runs(start, train, val, marker, noise, kinds=("viscous", "coulomb"))
     assert [e.effect.label for e in res.estimates] == ["viscous link friction, joint 2"], res.verdict
