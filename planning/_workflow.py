@@ -215,10 +215,14 @@ def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Arr
 
 
 def _plant_runs(plant: jr.Robot, jp: JointPath, trajectories: dict[str, MotorTrajectory], directional: bool
-                ) -> PlantRun:
-    """`simulate_plans` of each of `trajectories` on its own (one program of one run serves them all), stacked in
-    their order."""
-    runs = [simulate_plans(plant, jp, {k: v}, directional=directional)[1] for k, v in trajectories.items()]
+                ) -> list[PlantRun]:
+    """`simulate_plans` of each of `trajectories` on its own (one program of one run serves them all), in their
+    order."""
+    return [simulate_plans(plant, jp, {k: v}, directional=directional)[1] for k, v in trajectories.items()]
+
+
+def _stacked(runs: list[PlantRun]) -> PlantRun:
+    """The runs of `_plant_runs` as one `PlantRun`, in their order."""
     return dataclasses.replace(runs[0], **{f: jnp.concatenate([getattr(r, f) for r in runs])
                                           for f in ("q", "position", "orientation")})
 
@@ -293,8 +297,7 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
         base, base_run = pending.result()
     trajectories = {**base, **ocp}
     if one_by_one:
-        names, run = list(trajectories), dataclasses.replace(base_run, **{
-            f: jnp.concatenate([getattr(base_run, f), getattr(ocp_run, f)]) for f in ("q", "position", "orientation")})
+        names, run = list(trajectories), _stacked(base_run + ocp_run)
     else:
         names, run = simulate_plans(plant, jp, trajectories, directional=directional)
     errors = summarize(run)
