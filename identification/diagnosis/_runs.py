@@ -778,10 +778,15 @@ def _final_fit(robot, z, effects, ev: _Evidence, ev_val: _Evidence, r, jac, cov,
     if fit is None:
         return z, cov, dataclasses.replace(
             training, note="the fit on all runs left the physical range or its derivatives were dependent")
-    mask = ev_all.encoder_mask
-    chi2, dof, p_value = noise_test(fit[2][~mask].reshape(-1, 3), 1.0, len(variables))
-    return fit[0], fit[3], RunFinalFit(len(ev.runs), len(extra.runs), count(ev_all.poses), float(chi2), int(dof),
-                                       float(p_value), float(np.sum(fit[2][mask] ** 2)))
+    return fit[0], fit[3], RunFinalFit(len(ev.runs), len(extra.runs), count(ev_all.poses),
+                                       *_chi2_split(fit[2], ev_all.encoder_mask, len(variables)))
+
+
+def _chi2_split(res, encoder_mask, m: int) -> tuple[float, int, float, float]:
+    """The tracker's (and poses') chi-square test of the scaled residual `res` with `m` fitted variables (chi2, dof,
+    p), and the encoder rows' chi-square (`encoder_mask`)."""
+    chi2, dof, p_value = noise_test(res[~encoder_mask].reshape(-1, 3), 1.0, m)
+    return float(chi2), int(dof), float(p_value), float(np.sum(res[encoder_mask] ** 2))
 
 
 def _estimate(robot, z, effects, cov) -> tuple[list[RunEstimate], np.ndarray]:
@@ -943,12 +948,11 @@ def diagnose_runs(
             current = _with_effects(base, z)
             departure = np.max([np.max(np.abs(r.encoders - np.asarray(_simulated(current, *r.command, marker)[1])),
                                        0) for r in runs], 0)
-        chi2, dof, p_value = noise_test(res[~ev.encoder_mask].reshape(-1, 3), 1.0, m)
-        chi2_e = float(np.sum(res[ev.encoder_mask] ** 2))
+        chi2, dof, p_value, chi2_e = _chi2_split(res, ev.encoder_mask, m)
         res_v = _evaluate(base, z, ev_val, marker, substeps)[0]
         chi2_v, chi2_ve = (float(np.sum(res_v[mask] ** 2)) for mask in (~ev_val.encoder_mask, ev_val.encoder_mask))
         chi2_p = float(np.sum(res[res.size - (0 if ev.poses is None else ev.poses[3].size):] ** 2))
-        out = RunStep(step, label, float(chi2), int(dof), float(p_value), float(chi2) + chi2_e + m * ln_n, chi2_v,
+        out = RunStep(step, label, chi2, dof, p_value, chi2 + chi2_e + m * ln_n, chi2_v,
                       chi2_p, chi2_e, float(np.max(departure)), chi2_ve)
         if on_event is not None:
             on_event(out)
