@@ -30,7 +30,7 @@ import numpy as np
 import jaxrobot as jr
 import planning as pl
 from identification.diagnosis import diagnose_runs, payload_robot
-from identification.diagnosis._runs import simulate_run
+from identification.diagnosis._run_comparison import simulate_run
 
 CASES = ("p0_clean", "p1_joint1_damping", "p2_motor_lag_j123", "p3_joint3_stiffness", "p4_lag_j2_j4_payload",
          "p5_joint2_stiffness_joint1_friction")

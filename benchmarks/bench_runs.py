@@ -24,18 +24,10 @@ import jax.numpy as jnp
 from _timing import timed
 
 import jaxrobot as jr
-from identification.diagnosis._runs import (
-    BATCH,
-    PAYLOAD,
-    RUN_KINDS,
-    _perturbed,
-    _prepare,
-    _residual,
-    _simulated,
-    _with_effect_arrays,
-    compare_run,
-    diagnose_runs,
-)
+from identification.diagnosis._run_comparison import _simulated, compare_run
+from identification.diagnosis._run_evidence import BATCH, _perturbed, _prepare, _residual
+from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS, with_effect_arrays
+from identification.diagnosis._runs import diagnose_runs
 
 CASES = ("p0_clean", "p1_joint1_damping", "p2_motor_lag_j123", "p3_joint3_stiffness", "p4_lag_j2_j4_payload",
          "p5_joint2_stiffness_joint1_friction")
@@ -46,7 +38,7 @@ def compile_programs(robot, train, marker, noise, encoder_quantum) -> dict[str, 
     persistent cache keeps them): the seconds each took."""
     (run, *_), sigma = _prepare(train, noise, "train")
     n = robot.n_joints
-    base = _with_effect_arrays(robot)
+    base = with_effect_arrays(robot)
     z = jnp.zeros(len(RUN_KINDS) * n + len(PAYLOAD))
     data = (run.command, run.white, run.measured, sigma, marker)
     encoders = {"encoders": jnp.asarray(run.encoders), "encoder_sigma": encoder_quantum / math.sqrt(12.0)}

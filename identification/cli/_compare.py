@@ -75,7 +75,7 @@ def run(args, echo) -> dict:
     import jaxrobot as jr
     from jaxrobot.io import read_command_csv, read_trajectory_csv
 
-    from ..diagnosis._runs import compare_run
+    from ..diagnosis._run_comparison import compare_run
 
     robot, marker, noise = tracker_of(args)
     sensors = jr.read_description(None)["sensors"]

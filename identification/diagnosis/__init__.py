@@ -13,12 +13,12 @@ from ._effects import Effect as Effect
 from ._effects import Layout as Layout
 from ._effects import catalogue as catalogue
 from ._effects import payload_robot as payload_robot
-from ._runs import RunComparison as RunComparison
-from ._runs import RunDiagnosis as RunDiagnosis
-from ._runs import RunEffect as RunEffect
-from ._runs import RunEstimate as RunEstimate
-from ._runs import RunStep as RunStep
-from ._runs import compare_run as compare_run
+from ._run_comparison import RunComparison as RunComparison
+from ._run_comparison import compare_run as compare_run
+from ._run_results import RunDiagnosis as RunDiagnosis
+from ._run_results import RunEffect as RunEffect
+from ._run_results import RunEstimate as RunEstimate
+from ._run_results import RunStep as RunStep
 from ._runs import diagnose_runs as diagnose_runs
 
 _check_public(globals())

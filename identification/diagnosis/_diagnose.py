@@ -30,6 +30,7 @@ the row order carries the direction is itself a hypothesis (`approach_dependent_
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Callable
 
@@ -39,18 +40,27 @@ from jaxtyping import Array
 
 import jaxrobot as jr
 from jaxrobot.internal import renamed_argument
-from jaxrobot.measurement import Poses, approach_sign
+from jaxrobot.measurement import Poses
 
 from ..core import _robust as robust
 from ..core._noise import ALPHA, TrackerNoise, chi2_quantile, noise_model, noise_test
 from ..core._pose_checks import check_pose_units
+from ._diagnose_results import (
+    AddedEffect,
+    CandidateScore,
+    DiagnoseEvent,
+    DiagnoseResult,
+    Drift,
+    Estimate,
+    LoopRow,
+    validation_bound,
+)
 from ._effects import RIPPLE_SLOTS, Layout, catalogue, with_ripple_slots
-from ._model import functions
+from ._model import Functions, functions
+from ._ripple_orders import DIRECTIONAL, locate_orders
 
 MIN_BIC_GAIN = 10.0
 """Least BIC decrease for adding an effect ("very strong" evidence, Kass and Raftery 1995)."""
-ORDER_FALSE_ALARM = 1e-3
-"""Probability that noise alone yields a ripple order over the whole order search."""
 BLOCKS = ("geometry", "link_scale")
 """Effects on every link at once: one is added only where it explains the training poses better (BIC) and
 the validation poses better (RMS) than every combination of at most two single-joint effects."""
@@ -85,144 +95,10 @@ class Combination:
         return " + ".join(c.label(layout) for c in self.parts)
 
 
-@dataclasses.dataclass(frozen=True)
-class LoopRow:
-    """One model of the loop (the start model, then after each added effect) and its evidence: the
-    chi-square test and BIC on the K training poses."""
-
-    step: int
-    """Effects added so far (0: the start model)."""
-    effect: str
-    """Label of the last effect added (`kind jJ (variant)`), "(start)" for the start model."""
-    parameters: int
-    """Parameters `m` fitted, those of all effects added."""
-    rms_train: float
-    """RMS norm of the training position residuals [m]."""
-    rms_validation: float
-    """RMS norm of the validation position residuals [m]."""
-    chi2: float
-    """`sum r^2 / sigma^2` of the residuals of the `K'` training poses that the robust loss does not
-    reject (all `K` for `l2`; `sigma`: tracker noise per axis)."""
-    dof: int
-    """Degrees of freedom `3K' - m`."""
-    p_value: float
-    """Probability of a chi-square with `dof` exceeding `chi2`; the test passes above `ALPHA`."""
-    bic: float
-    """Bayesian information criterion `chi2 + m ln(3K)`."""
-
-
-@dataclasses.dataclass(frozen=True)
-class CandidateScore:
-    """One candidate effect of a step, fitted with the effects already added: scored linearised (every
-    candidate) and after its LM fit (the `shortlist` only; the LM fields are None for the others). Where
-    a block (`BLOCKS`) was best, the pairs of single-joint candidates it was compared with, too."""
-
-    candidate: str
-    """Label of the candidate: `kind jJ (variant)` (no joint for a global effect, no variant for one); a
-    pair: both labels joined by " + " (never `selected`)."""
-    bic_linearised: float
-    """BIC after one Gauss-Newton step from the current model."""
-    delta_bic_linearised: float
-    """`bic_linearised` minus the current model's BIC (negative: better)."""
-    bic: float | None = None
-    """BIC of the exact model after the LM fit (training poses)."""
-    delta_bic: float | None = None
-    """`bic` minus the current model's BIC."""
-    rms_train: float | None = None
-    """RMS norm of the training position residuals after the LM fit [m]."""
-    rms_validation: float | None = None
-    """RMS norm of the validation position residuals after the LM fit [m]."""
-    lm_status: str | None = None
-    """Status name of the LM fit (`jaxrobot.status_name` of a `jaxrobot.RESULTS`); `nonlinear_divergence`
-    where the fit ended with a larger chi-square than the current model's, its start."""
-    lm_message: str | None = None
-    """The message of `lm_status` (`jaxrobot.status_message`; for a divergence, both chi-squares)."""
-    lm_steps: int | None = None
-    """Steps of the LM fit."""
-    selected: bool = False
-    """True for the candidate added in this step."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Estimate:
-    """An identified parameter of an added effect, in SI units."""
-
-    value: float
-    """Fitted value [`unit`] of the effect's parameter (`Effect.apply`: 0 leaves the start model as it
-    is), or of a derived quantity (`k1`: the joint's stiffness `1 / c` [N m/rad])."""
-    unit: str
-    """Unit of `value` and `std`: the effect's `units` entry ("1" for a pure number), "N m/rad" for `k1`."""
-    std: float | None = None
-    """Standard error [`unit`] from the Gauss-Newton covariance `(J^T J)^+` of the training residuals
-    over the noise `sigma` (`J` at the model before this step's fit); None where derived (`k1` from `c`)."""
-    note: str = ""
-    """A remark for the report, e.g. why the weight of `approach_dependent_gear_set` cannot go into a
-    robot file; usually empty."""
-
-
-@dataclasses.dataclass(frozen=True)
-class AddedEffect:
-    """An effect the workflow added, with its fitted parameters and the residuals after adding it."""
-
-    kind: str
-    """The effect's `Effect.kind`."""
-    joint: int | None
-    """The joint it acts on (1-based); None for a global effect."""
-    variant: str
-    """Which parameter subset was fitted ("linear" or "cubic" for `joint_compliance`), else ""."""
-    parameters: dict[str, Estimate]
-    """Parameter name (`Effect.names`; a ripple amplitude with its order instead of its slot, e.g.
-    `A_order70`) -> fitted value; `joint_compliance` adds the derived `k1`."""
-    rms_train: float
-    """RMS norm of the training position residuals after adding it [m]."""
-    rms_validation: float
-    """RMS norm of the validation position residuals after adding it [m]."""
-
-
-@dataclasses.dataclass(frozen=True)
-class DiagnoseEvent:
-    """Progress of `diagnose`: one event per model compared and one per step's scored candidates."""
-
-    stage: str
-    """Either "compare" (a model against the measurements) or "name" (the candidates of a step scored)."""
-    step: int
-    """At "compare" the effects in the model (`row.step`); at "name" the step (1-based) whose effect is
-    sought."""
-    elapsed: float
-    """Time since the loop began [s]."""
-    row: LoopRow | None = None
-    """At "compare" the model's row; None at "name"."""
-    noise_floor: float = 0.0
-    """At "compare" the RMS norm of the tracker noise `sigma sqrt(3)` [m]; 0 at "name"."""
-    candidates: tuple[CandidateScore, ...] = ()
-    """At "name" the scored candidates, best (linearised BIC) first; empty at "compare"."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Drift:
-    """The residual trend against the acquisition time: a link-length scale linear in time (thermal
-    growth, `1 + rate (t - mean t)`), fitted to the final model's training residuals together with a
-    constant scale and the effects added."""
-
-    rate: float
-    """[1/s] the fitted growth of the link-length scale per second."""
-    std: float
-    """[1/s] its standard error."""
-    duration: float
-    """[s] the span of the acquisition times."""
-    delta_bic: float
-    """BIC change of adding the trend (negative: the data support it)."""
-    chi2_gain: float
-    """Decrease of the chi-square by the trend: the likelihood-ratio statistic of "no drift" (chi-square
-    with 1 degree of freedom)."""
-    named: bool
-    """True where the likelihood-ratio test rejects "no drift" at level `ALPHA` (one hypothesis stated
-    in advance, not a search over a catalogue)."""
-
-
-def _drift(layout: Layout, jac: np.ndarray, r: np.ndarray, free: list[int], scale: np.ndarray, times,
-           ln_n: float) -> Drift:
-    """`Drift` from the whitened residuals `r` (3K,) and Jacobian `jac` (3K, P+1) at the final model."""
+def _drift(data: _Data, v, ev, free: list[int], times) -> Drift:
+    """`Drift` from the whitened residuals and Jacobian (3K, P+1) at the final model (`v`, `ev`)."""
+    fit = data.weights(ev)
+    layout, jac, r, scale, ln_n = data.layout, data.jacobian(v, fit), fit.r, np.asarray(data.scale), data.ln_n
     t = np.asarray(times, float)
     if t.shape != (r.size // 3,) or not np.all(np.isfinite(t)):
         raise ValueError(f"times: expected one finite acquisition time per training pose, shape ({r.size // 3},) s, "
@@ -242,122 +118,6 @@ def _drift(layout: Layout, jac: np.ndarray, r: np.ndarray, free: list[int], scal
     delta_bic = ln_n - gain
     return Drift(float(coef[-1] * scale[k] / duration), float(np.sqrt(cov[-1, -1]) * scale[k] / duration), duration,
                  delta_bic, gain, gain > float(chi2_quantile(ALPHA, 1.0)))
-
-
-@dataclasses.dataclass(frozen=True)
-class DiagnoseResult:
-    """What `diagnose` found: the model it ended with, each step of the loop and the evidence."""
-
-    robot: jr.Robot
-    """The start robot with the added effects (`steps`) at their fitted values."""
-    verdict: str
-    """The conclusion in words, starting with "no significant discrepancy", "explained", "not
-    explained" (validation above `validation_bound`) or "discrepancy remains" (and why)."""
-    steps: tuple[AddedEffect, ...]
-    """The effects added, in order."""
-    loop: tuple[LoopRow, ...]
-    """One row per model: the start model, then after each added effect."""
-    candidates: tuple[tuple[CandidateScore, ...], ...]
-    """Per step, the scored candidate effects, best (linearised BIC) first, with the pairs a block was
-    compared with (`BLOCKS`)."""
-    residuals_before: np.ndarray
-    """Validation residual norm of each pose with the start model [m]."""
-    residuals_after: np.ndarray
-    """Validation residual norm of each pose with the final model [m]."""
-    spectra: tuple[dict, ...]
-    """Per step, `{(kind, joint): chi2 decrease per ripple order 1..max_order}` of the residuals."""
-    noise: float
-    """Tracker noise, standard deviation per axis [m]."""
-    validation_bound: float
-    """Largest validation RMS that the noise alone explains [m] (`validation_bound`)."""
-    n_train: int
-    """Training poses."""
-    n_validation: int
-    """Validation poses."""
-    loss: str = "l2"
-    """The loss of the fits (`"cauchy"`, `"huber"` or `"l2"`)."""
-    drift: Drift | None = None
-    """The residual trend against the acquisition time (None without `times`)."""
-    outliers: tuple[robust.Outlier, ...] = ()
-    """The training poses whose residual at the final model exceeds the outlier bound
-    (`_robust.outlier_bound`) in units of the noise, or of the residuals' robust spread where that is
-    larger (`_robust.spread`; `Outlier.sigmas` in the same unit), by row."""
-
-    @property
-    def status(self) -> jr.RESULTS:
-        """`successful` when the final model explains the data to the noise floor (`verdict` "no significant
-        discrepancy" or "explained"), else `inconsistent` (residuals or validation above the noise)."""
-        explained = self.verdict.startswith(("no significant discrepancy", "explained"))
-        return jr.RESULTS.successful if explained else jr.RESULTS.inconsistent
-
-    @property
-    def converged(self) -> bool:
-        """True when `status` is `successful`."""
-        return bool(self.status == jr.RESULTS.successful)
-
-    @property
-    def noise_floor(self) -> float:
-        """RMS norm of the tracker noise `sigma sqrt(3)` [m]."""
-        return self.noise * float(np.sqrt(3.0))
-
-    @property
-    def final_rms_validation(self) -> float:
-        """RMS norm of the validation residuals of the final model [m]."""
-        return self.loop[-1].rms_validation
-
-
-def validation_bound(sigma: float, k_val: int, m: int, n_res: int) -> float:
-    """Largest validation RMS [m] that noise alone explains at level `ALPHA`: `K RMS^2 / sigma^2`
-    is chi-square with `3K` dof (`chi2_quantile`), inflated by `1 + m / (n - m)` for the
-    error of `m` parameters fitted to `n` residuals."""
-    q = float(chi2_quantile(ALPHA, 3.0 * k_val))
-    return sigma * float(np.sqrt(q / k_val * (1.0 + m / max(n_res - m, 1))))
-
-
-def _orthonormal(a: np.ndarray) -> np.ndarray:
-    if a.shape[1] == 0:
-        return a
-    u, s, _ = np.linalg.svd(a, full_matrices=False)
-    return u[:, s > 1e-10 * s[0]]
-
-
-def _spectrum(g: np.ndarray, phi: np.ndarray, r: np.ndarray, q: np.ndarray, orders: np.ndarray,
-              sign: np.ndarray | None) -> np.ndarray:
-    """chi2 decrease (N,) of fitting `A cos(n phi) + B sin(n phi)` joint-angle errors of one joint
-    (position columns `g` (K, 3) = dp/dq_j, times `sign` for a direction-dependent error) to the
-    residual `r` (3K,), both projected off the columns `q` (3K, k) already fitted."""
-    w = g if sign is None else g * sign[:, None]
-    arg = orders[:, None] * phi[None, :]
-    cols = np.stack([np.cos(arg)[..., None] * w, np.sin(arg)[..., None] * w], -1).reshape(len(orders), -1, 2)
-    if q.shape[1]:
-        cols = cols - q @ np.einsum("ik,nil->nkl", q, cols)
-    m = np.einsum("nil,nim->nlm", cols, cols) + 1e-300 * np.eye(2)
-    b = np.einsum("nil,i->nl", cols, r)
-    return np.einsum("nl,nl->n", b, np.linalg.solve(m, b[..., None])[..., 0])
-
-
-def _find_orders(g, phi, r, q, max_order: int, sign, threshold: float) -> tuple[list[int], np.ndarray]:
-    """Up to `RIPPLE_SLOTS` significant orders, greedily (each refitted with the previous ones)."""
-    orders = np.arange(1, max_order + 1, dtype=float)
-    found: list[int] = []
-    first = None
-    w = g if sign is None else g * sign[:, None]
-    for _ in range(RIPPLE_SLOTS):
-        d = _spectrum(g, phi, r, q, orders, sign)
-        first = d if first is None else first
-        k = int(np.argmax(d))
-        if d[k] < threshold:
-            break
-        n = int(orders[k])
-        found.append(n)
-        new = np.stack([(np.cos(n * phi)[:, None] * w).ravel(), (np.sin(n * phi)[:, None] * w).ravel()], 1)
-        q = _orthonormal(np.concatenate([q, new], 1))
-        r = r - q @ (q.T @ r)
-    return found, first
-
-
-DIRECTIONAL = ("backlash", "direction_dependent_ripple")
-"""Effects that need a varying direction of approach (with a constant one they alias others)."""
 
 
 def _candidates(layout: Layout, free: set, ripple_orders: dict, varying: np.ndarray) -> list[Candidate]:
@@ -439,165 +199,242 @@ def diagnose(
     train, validation = train.checked(), validation.checked()
     sigma, marker = _checked_inputs(start, train, validation, noise, marker)
     robust.check_loss(loss)
-    white = noise_model(noise, train.positions)[1] if isinstance(noise, TrackerNoise) else None
-    white = np.broadcast_to(np.eye(3), (len(train), 3, 3)) if white is None else white
-
-    def _white(err):  # each training pose's residual whitened (the isotropic equivalent sigma per axis)
-        return np.einsum("kij,kj->ki", white, err)
-    joints = start.n_joints
+    data = _Data.of(start, train, validation, noise, sigma, marker, loss, shortlist)
     emit = on_event or (lambda _: None)
-    layout = Layout.of(catalogue(start), joints)
-    fns = functions(layout)
-    robot0 = with_ripple_slots(start)
-    spare = layout.size
-    scale = jnp.asarray(layout.scales())
-    v = jnp.zeros(spare + 1)
-    orders = np.zeros((joints, 2 * RIPPLE_SLOTS))
-    both = Poses.concatenate([train, validation])  # one compiled shape for both sets
-    th_all, ccw_all = jnp.asarray(both.motor_angles), (jnp.asarray(both.ccw), jnp.asarray(both.ccw_order))
-    k_tr = len(train)
-    th, ccw, pos = th_all[:k_tr], tuple(c[:k_tr] for c in ccw_all), jnp.asarray(train.positions)
-    varying = np.any(train.ccw != train.ccw[:1], axis=0)
-    n_res = 3 * k_tr
-    ln_n = float(np.log(n_res))
+    v = jnp.zeros(data.layout.size + 1)
     free: list[int] = []
     accepted: list[Candidate] = []
     loop, cand_log, spectra, steps = [], [], [], []
-
-    def evaluate(vv):
-        q, p = fns.exact(robot0, vv, jnp.asarray(orders), th_all, ccw_all, marker)
-        err = both.positions - np.asarray(p)
-        return {"train": (np.asarray(q)[:k_tr], err[:k_tr]), "validation": (np.asarray(q)[k_tr:], err[k_tr:])}
-
-    ev = evaluate(v)
+    ev = data.evaluate(v)
     residual_before = np.linalg.norm(ev["validation"][1], axis=-1)
     t0 = time.perf_counter()
     while True:
-        e_w = _white(ev["train"][1])
-        w = robust.scaled_weights(np.linalg.norm(e_w, axis=-1) / sigma, loss)
-        fit_white = jnp.asarray(white * (np.sqrt(w) / sigma)[:, None, None])
-        keep = w > 0  # the chi-square test and BIC: over the poses not rejected, unweighted
-        chi2, dof, p_value = (float(x) for x in noise_test(e_w, sigma, len(free), keep))
-        row = LoopRow(len(accepted), accepted[-1].label(layout) if accepted else "(start)", len(free),
-                      _rms(ev["train"][1]), _rms(ev["validation"][1]), chi2, int(dof), p_value,
-                      chi2 + len(free) * ln_n)
+        row, fit = data.compare(ev, len(accepted), accepted[-1].label(data.layout) if accepted else "(start)", free)
         loop.append(row)
         emit(DiagnoseEvent("compare", row.step, time.perf_counter() - t0, row=row,
                            noise_floor=sigma * float(np.sqrt(3.0))))
         if row.p_value > ALPHA:
-            verdict = _verdict_at_noise_floor(row, validation_bound(sigma, len(validation), len(free), n_res),
-                                              [c.label(layout) for c in accepted])
+            verdict = _verdict_at_noise_floor(row, validation_bound(sigma, len(validation), len(free), data.n_res),
+                                              [c.label(data.layout) for c in accepted])
             break
         if len(accepted) >= max_steps:
             verdict = f"discrepancy remains after {max_steps} effects (max_steps)"
             break
-        q_cur = jnp.asarray(ev["train"][0])
-        r = (e_w * np.sqrt(w)[:, None]).ravel() / sigma
-        jac = _rows(np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)),
-                    np.asarray(fit_white))
-        found, spec_step = _locate_orders(layout, jac, r, free, accepted, orders, np.asarray(q_cur), ccw[0],
-                                          varying, max_order)
-        spectra.append(spec_step)
-        if any(found[k] for k in found):
-            jac = _rows(np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale)),
-                        np.asarray(fit_white))
-        # name: linearised fit of every candidate, then LM on the shortlist
-        scored = _rank_linearised(_candidates(layout, set(free), found, varying), free, jac, r, ln_n)
-        log = [CandidateScore(c.label(layout), b, b - row.bic) for b, c, _ in scored]
-
-        def lm(column_sets: list[list[int]]) -> list[tuple[dict, Array]]:
-            """LM fits (`shortlist` at a time) from the current model: each one's `CandidateScore` fields
-            and fitted `v`; a fit whose chi-square rose is a `nonlinear_divergence`."""
-            out = []
-            for at in range(0, len(column_sets), shortlist):
-                sets = column_sets[at: at + shortlist]
-                idx = _pad(sets, spare)
-                idx = np.concatenate([idx, np.repeat(idx[-1:], shortlist - len(sets), 0)])  # one batch size
-                vs, status, nsteps = fns.fit(robot0, v, jnp.asarray(orders), th, ccw, q_cur, marker, scale,
-                                             pos, fit_white, jnp.asarray(idx))
-                status = np.atleast_1d(jr.status_name(status))
-                pos_fit = np.asarray(fns.exact_batch(robot0, vs, jnp.asarray(orders), th_all, ccw_all, marker))
-                for i, cols in enumerate(sets):
-                    err_t = train.positions - pos_fit[i, :k_tr]
-                    chi2_k = float(noise_test(_white(err_t), sigma, len(cols), keep)[0])
-                    bic_k = chi2_k + len(cols) * ln_n
-                    name, message = str(status[i]), None
-                    if name == "successful" and not chi2_k <= row.chi2:
-                        name = "nonlinear_divergence"
-                        message = (f"{jr.status_message(jr.RESULTS.nonlinear_divergence)} (chi-square "
-                                   f"{chi2_k:.6g} after the fit, {row.chi2:.6g} at its start)")
-                    out.append(({"bic": bic_k, "delta_bic": bic_k - row.bic, "rms_train": _rms(err_t),
-                                 "rms_validation": _rms(validation.positions - pos_fit[i, k_tr:]),
-                                 "lm_status": name,
-                                 "lm_message": message or str(jr.status_message(getattr(jr.RESULTS, name))),
-                                 "lm_steps": int(nsteps[i])}, vs[i]))
-            return out
-
-        fits, sound, start = {}, 0, 0
-        while sound < shortlist and start < len(scored):  # a failed fit gives its place to the next candidate
-            batch = list(range(start, min(len(scored), start + shortlist - sound)))
-            start = batch[-1] + 1
-            for k, (fields, fits[k]) in zip(batch, lm([scored[k][2] for k in batch])):
-                log[k] = dataclasses.replace(log[k], **fields)
-                sound += fields["lm_status"] == "successful"
-        best = min((k for k in fits if _improves(log[k], row)), key=lambda k: log[k].bic, default=None)
-        combos: list[CandidateScore] = []
-        if best is not None and layout.effects[scored[best][1].effect].kind in BLOCKS:
-            # parsimony: the block against the combinations of at most two single-joint effects
-            singles = [c for _, c, _ in scored if layout.effects[c.effect].per_joint]
-            pairs = _rank_linearised([Combination((a, b)) for i, a in enumerate(singles) for b in singles[i + 1:]
-                                      if not set(a.params) & set(b.params)], free, jac, r, ln_n)[:shortlist]
-            members = [k for k, t in enumerate(scored) if pairs and t[1] in pairs[0][1].parts and k not in fits]
-            results = lm([cols for _, _, cols in pairs] + [scored[k][2] for k in members])
-            for k, (fields, fits[k]) in zip(members, results[len(pairs):]):
-                log[k] = dataclasses.replace(log[k], **fields)
-            combos = [CandidateScore(c.label(layout), b, b - row.bic, **fields)
-                      for (b, c, _), (fields, _) in zip(pairs, results)]
-            small = [k for k in fits if layout.effects[scored[k][1].effect].kind not in BLOCKS]
-            rivals = [e for e in combos + [log[k] for k in small] if e.lm_status == "successful"]
-            if any(e.bic <= log[best].bic or e.rms_validation <= log[best].rms_validation for e in rivals):
-                sound_pairs = [i for i, e in enumerate(combos) if e.lm_status == "successful"]
-                i = min(sound_pairs, key=lambda i: combos[i].bic, default=None)
-                parts = () if i is None else pairs[i][1].parts
-                best = min((k for k in small if _improves(log[k], row)),
-                           key=lambda k: (scored[k][1] not in parts, log[k].bic), default=best)
-        winner = None
-        if best is not None:
-            winner = scored[best]
-            log[best] = dataclasses.replace(log[best], selected=True)
-            v_new = jnp.asarray(fits[best])
-        log = sorted(log + combos, key=lambda e: e.bic_linearised)
-        cand_log.append(tuple(log))
-        emit(DiagnoseEvent("name", len(accepted) + 1, time.perf_counter() - t0, candidates=tuple(log)))
+        jac, r, found, spectrum = _locate(data, v, ev, fit, free, accepted, max_order)
+        spectra.append(spectrum)
+        log, winner, v_new = _name(data, v, fit, row, free, jac, r, found)
+        cand_log.append(log)
+        emit(DiagnoseEvent("name", len(accepted) + 1, time.perf_counter() - t0, candidates=log))
         if winner is None:
             verdict = "discrepancy remains: no candidate effect lowers the BIC and the validation error"
             break
         _, c, cols = winner
         a = jac[:, cols]
-        std = np.sqrt(np.diag(np.linalg.pinv(a.T @ a))) * np.asarray(scale)[cols]
+        std = np.sqrt(np.diag(np.linalg.pinv(a.T @ a))) * np.asarray(data.scale)[cols]
         free, v = cols, v_new
         accepted.append(c)
-        ev = evaluate(v)
-        steps.append(_added_effect(layout, robot0, c, v, orders, dict(zip(cols, std)), ev))
-    drift = None
-    if times is not None:
-        e_w = _white(ev["train"][1])
-        w = robust.scaled_weights(np.linalg.norm(e_w, axis=-1) / sigma, loss)
-        fit_white = white * (np.sqrt(w) / sigma)[:, None, None]
-        jac = _rows(np.asarray(fns.jacobian(robot0, v, jnp.asarray(orders), th, ccw, jnp.asarray(ev["train"][0]),
-                                            marker, scale)), fit_white)
-        drift = _drift(layout, jac, (e_w * np.sqrt(w)[:, None]).ravel() / sigma, free, np.asarray(scale), times, ln_n)
-        if drift.named:
-            verdict += (f"; the residuals drift with the acquisition time as a link-length scale growing by "
-                        f"{drift.rate * drift.duration:.3g} over {drift.duration:.0f} s (chi-square decrease "
-                        f"{drift.chi2_gain:.1f})")
+        ev = data.evaluate(v)
+        steps.append(_added_effect(data.layout, data.robot0, c, v, data.orders, dict(zip(cols, std)), ev))
+    drift = None if times is None else _drift(data, v, ev, free, times)
+    if drift is not None and drift.named:
+        verdict += (f"; the residuals drift with the acquisition time as a link-length scale growing by "
+                    f"{drift.rate * drift.duration:.3g} over {drift.duration:.0f} s (chi-square decrease "
+                    f"{drift.chi2_gain:.1f})")
     return DiagnoseResult(
-        robot=layout.apply(robot0, v, jnp.asarray(orders)), verdict=verdict, steps=tuple(steps), loop=tuple(loop),
-        candidates=tuple(cand_log), residuals_before=residual_before,
+        robot=data.layout.apply(data.robot0, v, jnp.asarray(data.orders)), verdict=verdict, steps=tuple(steps),
+        loop=tuple(loop), candidates=tuple(cand_log), residuals_before=residual_before,
         residuals_after=np.linalg.norm(ev["validation"][1], axis=-1), spectra=tuple(spectra), noise=sigma,
-        validation_bound=validation_bound(sigma, len(validation), len(free), n_res), n_train=len(train),
+        validation_bound=validation_bound(sigma, len(validation), len(free), data.n_res), n_train=len(train),
         n_validation=len(validation), loss=loss, drift=drift, outliers=robust.outliers(
             ev["train"][1], sigma * robust.spread(np.linalg.norm(ev["train"][1], axis=-1) / sigma, 3).item()))
+
+
+@dataclasses.dataclass(frozen=True)
+class _Fit:
+    """The training poses' weights at the current model: the whitening of each pose for the fits, the poses the
+    chi-square keeps, the weighted whitened residual and the current rest angles."""
+
+    white: Array
+    """(K, 3, 3) each pose's whitening times the root of its robust weight, over `sigma`."""
+    keep: np.ndarray
+    """(K,) the poses not rejected by the robust loss (the chi-square test and BIC are over these)."""
+    r: np.ndarray
+    """(3K,) the weighted whitened residual in units of `sigma`."""
+    q: Array
+    """(K, n) the training poses' rest angles at the current model."""
+
+
+@dataclasses.dataclass(frozen=True)
+class _Data:
+    """The poses, the noise and the compiled model of one diagnosis; `orders` (n, 2 `RIPPLE_SLOTS`) holds the ripple
+    orders found so far (written by `locate_orders`)."""
+
+    layout: Layout
+    fns: Functions
+    robot0: jr.Robot
+    train: Poses
+    validation: Poses
+    both: Poses
+    white: np.ndarray
+    sigma: float
+    marker: Array
+    loss: str
+    shortlist: int
+    orders: np.ndarray
+    varying: np.ndarray
+
+    @classmethod
+    def of(cls, start, train, validation, noise, sigma, marker, loss, shortlist) -> _Data:
+        white = noise_model(noise, train.positions)[1] if isinstance(noise, TrackerNoise) else None
+        white = np.broadcast_to(np.eye(3), (len(train), 3, 3)) if white is None else white
+        layout = Layout.of(catalogue(start), start.n_joints)
+        return cls(layout, functions(layout), with_ripple_slots(start), train, validation,
+                   Poses.concatenate([train, validation]),  # one compiled shape for both sets
+                   white, sigma, marker, loss, shortlist, np.zeros((start.n_joints, 2 * RIPPLE_SLOTS)),
+                   np.any(train.ccw != train.ccw[:1], axis=0))
+
+    @functools.cached_property
+    def poses(self) -> tuple:
+        """Motor angles and gear sets of both pose sets, and those of the training poses with their positions."""
+        th_all = jnp.asarray(self.both.motor_angles)
+        ccw_all = (jnp.asarray(self.both.ccw), jnp.asarray(self.both.ccw_order))
+        k = len(self.train)
+        return th_all, ccw_all, th_all[:k], tuple(c[:k] for c in ccw_all), jnp.asarray(self.train.positions)
+
+    @property
+    def n_res(self) -> int:
+        return 3 * len(self.train)
+
+    @property
+    def ln_n(self) -> float:
+        return float(np.log(self.n_res))
+
+    @property
+    def scale(self) -> Array:
+        return jnp.asarray(self.layout.scales())
+
+    def whiten(self, err: np.ndarray) -> np.ndarray:
+        """Each training pose's residual whitened (the isotropic equivalent sigma per axis)."""
+        return np.einsum("kij,kj->ki", self.white, err)
+
+    def evaluate(self, v) -> dict:
+        """Rest angles and position residuals of the training and validation poses at `v`."""
+        th_all, ccw_all = self.poses[:2]
+        q, p = self.fns.exact(self.robot0, v, jnp.asarray(self.orders), th_all, ccw_all, self.marker)
+        err = self.both.positions - np.asarray(p)
+        k = len(self.train)
+        return {"train": (np.asarray(q)[:k], err[:k]), "validation": (np.asarray(q)[k:], err[k:])}
+
+    def weights(self, ev) -> _Fit:
+        """The robust weights of the training poses at the model of `ev`."""
+        e_w = self.whiten(ev["train"][1])
+        w = robust.scaled_weights(np.linalg.norm(e_w, axis=-1) / self.sigma, self.loss)
+        return _Fit(jnp.asarray(self.white * (np.sqrt(w) / self.sigma)[:, None, None]), w > 0,
+                    (e_w * np.sqrt(w)[:, None]).ravel() / self.sigma, jnp.asarray(ev["train"][0]))
+
+    def compare(self, ev, step: int, label: str, free: list[int]) -> tuple[LoopRow, _Fit]:
+        """The model of `ev` against the poses: its row of the loop, and its weights."""
+        fit = self.weights(ev)
+        chi2, dof, p_value = (float(x) for x in noise_test(self.whiten(ev["train"][1]), self.sigma, len(free),
+                                                            fit.keep))
+        return LoopRow(step, label, len(free), _rms(ev["train"][1]), _rms(ev["validation"][1]), chi2, int(dof),
+                       p_value, chi2 + len(free) * self.ln_n), fit
+
+    def jacobian(self, v, fit: _Fit) -> np.ndarray:
+        """The whitened Jacobian (3K, P+1) of the training positions in the scaled effect values at `v`."""
+        _, _, th, ccw, _ = self.poses
+        return _rows(np.asarray(self.fns.jacobian(self.robot0, v, jnp.asarray(self.orders), th, ccw, fit.q,
+                                                  self.marker, self.scale)), np.asarray(fit.white))
+
+    def lm(self, v, fit: _Fit, row: LoopRow, column_sets: list[list[int]]) -> list[tuple[dict, Array]]:
+        """LM fits (`shortlist` at a time) from the current model: each one's `CandidateScore` fields
+        and fitted `v`; a fit whose chi-square rose is a `nonlinear_divergence`."""
+        th_all, ccw_all, th, ccw, pos = self.poses
+        k_tr, out = len(self.train), []
+        for at in range(0, len(column_sets), self.shortlist):
+            sets = column_sets[at: at + self.shortlist]
+            idx = _pad(sets, self.layout.size)
+            idx = np.concatenate([idx, np.repeat(idx[-1:], self.shortlist - len(sets), 0)])  # one batch size
+            vs, status, nsteps = self.fns.fit(self.robot0, v, jnp.asarray(self.orders), th, ccw, fit.q, self.marker,
+                                              self.scale, pos, fit.white, jnp.asarray(idx))
+            status = np.atleast_1d(jr.status_name(status))
+            pos_fit = np.asarray(self.fns.exact_batch(self.robot0, vs, jnp.asarray(self.orders), th_all, ccw_all,
+                                                      self.marker))
+            for i, cols in enumerate(sets):
+                err_t = self.train.positions - pos_fit[i, :k_tr]
+                chi2_k = float(noise_test(self.whiten(err_t), self.sigma, len(cols), fit.keep)[0])
+                bic_k = chi2_k + len(cols) * self.ln_n
+                name, message = str(status[i]), None
+                if name == "successful" and not chi2_k <= row.chi2:
+                    name = "nonlinear_divergence"
+                    message = (f"{jr.status_message(jr.RESULTS.nonlinear_divergence)} (chi-square "
+                               f"{chi2_k:.6g} after the fit, {row.chi2:.6g} at its start)")
+                out.append(({"bic": bic_k, "delta_bic": bic_k - row.bic, "rms_train": _rms(err_t),
+                             "rms_validation": _rms(self.validation.positions - pos_fit[i, k_tr:]),
+                             "lm_status": name,
+                             "lm_message": message or str(jr.status_message(getattr(jr.RESULTS, name))),
+                             "lm_steps": int(nsteps[i])}, vs[i]))
+        return out
+
+
+def _locate(data: _Data, v, ev, fit: _Fit, free: list[int], accepted: list[Candidate], max_order: int):
+    """The Jacobian and residual at the current model, with the ripple orders of the residual spectra (written into
+    `data.orders`; the Jacobian evaluated again where new orders were found)."""
+    jac = data.jacobian(v, fit)
+    found, spectrum = locate_orders(data.layout, jac, fit.r, free, accepted, data.orders, np.asarray(fit.q),
+                                    data.poses[3][0], data.varying, max_order)
+    if any(found[k] for k in found):
+        jac = data.jacobian(v, fit)
+    return jac, fit.r, found, spectrum
+
+
+def _name(data: _Data, v, fit: _Fit, row: LoopRow, free: list[int], jac, r, found):
+    """Name this step's effect: every candidate ranked linearised, the best `shortlist` fitted by LM (a failed fit
+    gives its place to the next), a block set against pairs of single-joint candidates (`BLOCKS`). **Returns:** the
+    scored candidates (best linearised BIC first), the winner `(BIC, candidate, columns)` or None, its fitted `v`."""
+    layout, shortlist = data.layout, data.shortlist
+    scored = _rank_linearised(_candidates(layout, set(free), found, data.varying), free, jac, r, data.ln_n)
+    log = [CandidateScore(c.label(layout), b, b - row.bic) for b, c, _ in scored]
+    fits, sound, start = {}, 0, 0
+    while sound < shortlist and start < len(scored):  # a failed fit gives its place to the next candidate
+        batch = list(range(start, min(len(scored), start + shortlist - sound)))
+        start = batch[-1] + 1
+        for k, (fields, fits[k]) in zip(batch, data.lm(v, fit, row, [scored[k][2] for k in batch])):
+            log[k] = dataclasses.replace(log[k], **fields)
+            sound += fields["lm_status"] == "successful"
+    best = min((k for k in fits if _improves(log[k], row)), key=lambda k: log[k].bic, default=None)
+    combos: list[CandidateScore] = []
+    if best is not None and layout.effects[scored[best][1].effect].kind in BLOCKS:
+        best, combos = _parsimony(data, v, fit, row, free, jac, r, scored, log, fits, best)
+    if best is not None:
+        log[best] = dataclasses.replace(log[best], selected=True)
+    log = sorted(log + combos, key=lambda e: e.bic_linearised)
+    return tuple(log), None if best is None else scored[best], None if best is None else jnp.asarray(fits[best])
+
+
+def _parsimony(data: _Data, v, fit: _Fit, row: LoopRow, free, jac, r, scored, log, fits, best):
+    """The block `scored[best]` against the combinations of at most two single-joint effects: where a pair or another
+    candidate has a BIC or a validation RMS at most the block's, the best other candidate that lowers both (a member
+    of the best pair first). Updates `log` and `fits`; **returns:** the chosen index and the pairs' scores."""
+    layout = data.layout
+    singles = [c for _, c, _ in scored if layout.effects[c.effect].per_joint]
+    pairs = _rank_linearised([Combination((a, b)) for i, a in enumerate(singles) for b in singles[i + 1:]
+                              if not set(a.params) & set(b.params)], free, jac, r, data.ln_n)[:data.shortlist]
+    members = [k for k, t in enumerate(scored) if pairs and t[1] in pairs[0][1].parts and k not in fits]
+    results = data.lm(v, fit, row, [cols for _, _, cols in pairs] + [scored[k][2] for k in members])
+    for k, (fields, fits[k]) in zip(members, results[len(pairs):]):
+        log[k] = dataclasses.replace(log[k], **fields)
+    combos = [CandidateScore(c.label(layout), b, b - row.bic, **fields)
+              for (b, c, _), (fields, _) in zip(pairs, results)]
+    small = [k for k in fits if layout.effects[scored[k][1].effect].kind not in BLOCKS]
+    rivals = [e for e in combos + [log[k] for k in small] if e.lm_status == "successful"]
+    if any(e.bic <= log[best].bic or e.rms_validation <= log[best].rms_validation for e in rivals):
+        sound_pairs = [i for i, e in enumerate(combos) if e.lm_status == "successful"]
+        i = min(sound_pairs, key=lambda i: combos[i].bic, default=None)
+        parts = () if i is None else pairs[i][1].parts
+        best = min((k for k in small if _improves(log[k], row)),
+                   key=lambda k: (scored[k][1] not in parts, log[k].bic), default=best)
+    return best, combos
 
 
 def _checked_inputs(start: jr.Robot, train: Poses, validation: Poses, noise, marker) -> tuple[float, Array]:
@@ -629,35 +466,6 @@ def _verdict_at_noise_floor(row: LoopRow, bound: float, added: list[str]) -> str
                 "effect the training poses do not excite)")
     return ("no significant discrepancy: the model explains the data to the noise floor" if not added
             else "explained: residuals at the noise floor after adding " + names)
-
-
-def _locate_orders(layout: Layout, jac, r, free: list[int], accepted: list[Candidate], orders: np.ndarray,
-                   q_cur: np.ndarray, ccw, varying: np.ndarray, max_order: int) -> tuple[dict, dict]:
-    """Ripple orders per joint from the residual spectra (joints without a ripple effect yet); writes
-    them into `orders`. **Returns:** {kind: {joint: orders}} and the first spectrum per (kind, joint)."""
-    joints = orders.shape[0]
-    qe = _orthonormal(jac[:, free]) if free else np.zeros((jac.shape[0], 0))
-    threshold = 2.0 * np.log(joints * max_order / ORDER_FALSE_ALARM)
-    off = layout.blocks[layout.index("joint_offset")]
-    sign = np.asarray(approach_sign(np.asarray(ccw)))
-    found: dict[str, dict[int, list[int]]] = {"gear_ripple": {}, "direction_dependent_ripple": {}}
-    spec_step = {}
-    for j in range(joints):
-        g = jac[:, off[j, 0]].reshape(-1, 3)
-        phi = q_cur[:, j]
-        for kind, col, sgn in (("gear_ripple", 0, None), ("direction_dependent_ripple", RIPPLE_SLOTS, sign[:, j])):
-            if any(c.joint == j and layout.effects[c.effect].kind == kind for c in accepted):
-                found[kind][j] = [int(n) for n in orders[j, col: col + RIPPLE_SLOTS] if n > 0]
-                continue
-            if kind in DIRECTIONAL and not varying[j]:
-                found[kind][j] = []
-                continue
-            ns, first = _find_orders(g, phi, r, qe, max_order, sgn, threshold)
-            spec_step[(kind, j + 1)] = first
-            found[kind][j] = ns
-            orders[j, col: col + RIPPLE_SLOTS] = 0.0
-            orders[j, col: col + len(ns)] = ns
-    return found, spec_step
 
 
 def _improves(e: CandidateScore, row: LoopRow) -> bool:

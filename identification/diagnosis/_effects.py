@@ -1,9 +1,11 @@
-"""Catalogue of model effects for the discrepancy workflow (`diagnose`).
+"""The one catalogue of candidate effects, for poses (`diagnose`) and trajectory runs (`diagnose_runs`).
 
-Each effect is a small model extension: its parameter names and typical sizes, and a hook
-`apply(robot, v, orders) -> robot` that is the identity at `v = 0`. Per-joint effects get `v` of
-shape (joints, p) (one row per joint; the workflow frees one row at a time), global ones (p,).
-Adding an effect = one subclass of `Effect` appended to `CATALOGUE`.
+Each effect is a small model extension declared once: its parameter names, typical sizes and units, where it can
+be seen (`seen_in`: poses at rest, runs, or both), which parameters are physical only at or above 0, and a hook
+`apply(robot, v, orders) -> robot` that is the identity at `v = 0`. Per-joint effects get `v` of shape
+(joints, p) (one row per joint; the pose workflow frees one row at a time), global ones (p,). Adding an effect =
+one subclass of `Effect` appended to `CATALOGUE`; `catalogue(robot, "poses")` and `catalogue(robot, "runs")` are
+what each workflow draws from it.
 
 Effects act on the `jaxrobot.Robot` itself: its joint compliance is stored as `c = 1/k1`,
 `e = k3/k1` (`c = 0` rigid), so compliance can be identified from a rigid start.
@@ -12,6 +14,7 @@ Effects act on the `jaxrobot.Robot` itself: its joint compliance is stored as `c
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import ClassVar
 
 import equinox as eqx
@@ -50,9 +53,21 @@ class Effect:
     names: ClassVar[tuple[str, ...]]
     """(p,) parameter names."""
     scales: ClassVar[tuple[float, ...]]
-    """(p,) typical sizes of the parameters, in `units` (the LM works in units of these)."""
+    """(p,) typical sizes of the parameters, in `units` (the fits work in units of these)."""
     units: ClassVar[tuple[str, ...]]
     """(p,) SI unit of each parameter ("1" for a pure number)."""
+    seen_in: ClassVar[tuple[str, ...]] = ("poses",)
+    """Where it can be seen: `"poses"` (at rest: `diagnose`), `"runs"` (trajectory runs: `diagnose_runs`), or both."""
+    nonnegative: ClassVar[tuple[int, ...]] = ()
+    """The parameters (indices) physical only at or above 0 (a run fit that leaves that range is refused)."""
+    field: ClassVar[str | None] = None
+    """The optional `Robot` field it fills (None there: no term; a run fit starts it at zero), if any."""
+    label: ClassVar[str] = ""
+    """The effect in words, for the runs' reports (a per-joint effect's label ends with its joint or motor)."""
+    screened: ClassVar[bool] = True
+    """Whether `diagnose_runs` screens it unless told otherwise (its `kinds`)."""
+    reported_units: ClassVar[tuple[str, ...] | None] = None
+    """(p,) the units of the values a run fit reports (`run_values`) where they are not `units`."""
 
     def apply(self, robot: jr.Robot, v: Array, orders: Float[Array, "n S"]) -> jr.Robot:
         raise NotImplementedError
@@ -60,6 +75,18 @@ class Effect:
     def variants(self) -> tuple[tuple[int, ...], ...]:
         """Parameter subsets offered as separate candidates (default: all parameters)."""
         return (tuple(range(len(self.names))),)
+
+    def physical(self, v: np.ndarray) -> bool:
+        """Whether the values `v` (…, p) lie in the physical range (`nonnegative`)."""
+        return not np.any(v[..., list(self.nonnegative)] < 0)
+
+    def run_values(self, start: jr.Robot, moved: Callable[[], jr.Robot], joint: int | None,
+                   x: np.ndarray) -> tuple[list[tuple[str, float, str]], np.ndarray]:
+        """The values a run fit reports at its variables `x` (p,) (the parameters in units of `scales`) on `joint`:
+        `(name, value, unit)` each and their derivatives (p, p) in `x`; `start` the robot without the effects,
+        `moved()` with every effect at the fit's values. Default: the field's value in the fitted model (`field`)."""
+        value = float(getattr(start, self.field)[joint]) + self.scales[0] * float(x[0])
+        return [(self.names[0], value, self.units[0])], np.array([[self.scales[0]]])
 
 
 def _robot_at(robot: jr.Robot, fields: tuple[str, ...], values: tuple) -> jr.Robot:
@@ -221,6 +248,97 @@ class BaseOffset(Effect):
         return _robot_at(robot, ("base",), (t @ robot.base,))
 
 
+class _FieldTerm(Effect):
+    """A per-joint term of the dynamics in an optional `Robot` field (`field`), physical at or above 0: `v` is added
+    to it. At rest it acts on nothing, so only runs show it."""
+
+    per_joint, seen_in, nonnegative = True, ("runs",), (0,)
+
+    def apply(self, robot, v, orders):
+        return _robot_at(robot, (self.field,), (getattr(robot, self.field) + v[:, 0],))
+
+
+class MotorLag(_FieldTerm):
+    """Velocity-loop time constant of a motor [s] (`Robot.motor_lag`): the motor follows its command with a
+    first-order lag, which its encoder shows first."""
+
+    kind, names, scales, units, field, label = "lag", ("lag",), (1e-3,), ("s",), "motor_lag", \
+        "velocity-loop lag, motor"
+
+
+class JointDamping(_FieldTerm):
+    """Viscous damping of a joint spring [N m s/rad] (`Robot.damping`)."""
+
+    kind, names, scales, units, field, label = "damping", ("damping",), (10.0,), ("N m s/rad",), "damping", \
+        "joint damping, joint"
+
+
+class JointStiffness(Effect):
+    """A factor on the joint's `k1` and `k3`: the compliance `c = 1/k1` scaled by `1 + v` (reported: the factor
+    `1 / (1 + v)` on the stiffness). Runs see it through the joint's deflection under the moving loads."""
+
+    kind, per_joint, names, scales, units = "stiffness", True, ("stiffness",), (1e-2,), ("1",)
+    seen_in, label, reported_units = ("runs",), "stiffness (k1, k3), joint", ("x k1, k3",)
+
+    def apply(self, robot, v, orders):
+        return _robot_at(robot, ("c",), (robot.c * (1.0 + v[:, 0]),))
+
+    def physical(self, v):
+        return bool(np.all(1.0 + v > 0))
+
+    def run_values(self, start, moved, joint, x):
+        s, x = self.scales[0], float(x[0])
+        return [(self.kind, 1.0 / (1.0 + s * x), self.reported_units[0])], np.array([[-s / (1.0 + s * x) ** 2]])
+
+
+class CubicStiffness(Effect):
+    """The joint's `k3` at a fixed `k1`: `e = k3/k1` [1/rad^2] moved by `v` (reported: `k3` [N m/rad^3] of the
+    fitted model)."""
+
+    kind, per_joint, names, scales, units = "cubic", True, ("cubic",), (1e5,), ("1/rad^2",)
+    seen_in, label, reported_units = ("runs",), "cubic stiffness (k3), joint", ("N m/rad^3",)
+
+    def apply(self, robot, v, orders):
+        return _robot_at(robot, ("e",), (robot.e + v[:, 0],))
+
+    def run_values(self, start, moved, joint, x):
+        k1 = float(moved().k1[joint])  # k3 = e k1 at the final model
+        value = float(start.e[joint] + self.scales[0] * float(x[0])) * k1
+        return [(self.kind, value, self.reported_units[0])], np.array([[self.scales[0] * k1]])
+
+
+class ViscousFriction(_FieldTerm):
+    """Viscous friction of a link [N m s/rad] (`Robot.viscous_friction`)."""
+
+    kind, names, scales, units, field, label = "viscous", ("viscous",), (1.0,), ("N m s/rad",), \
+        "viscous_friction", "viscous link friction, joint"
+
+
+class CoulombFriction(_FieldTerm):
+    """Coulomb friction of a link [N m] (`Robot.coulomb_friction`)."""
+
+    kind, names, scales, units, field, label = "coulomb", ("coulomb",), (1.0,), ("N m",), "coulomb_friction", \
+        "Coulomb link friction, joint"
+
+
+class LinkInertia(Effect):
+    """A factor `1 + v` on the link's inertia tensor about its centre of mass. Offered to runs on request only
+    (`screened` False): over short runs it absorbs a lag's or a payload's effect on the tool."""
+
+    kind, per_joint, names, scales, units = "inertia", True, ("inertia",), (1e-1,), ("1",)
+    seen_in, label, screened, reported_units = ("runs",), "link inertia, link", False, ("x inertia",)
+
+    def apply(self, robot, v, orders):
+        return _robot_at(robot, ("inertia",), (robot.inertia * (1.0 + v[:, 0])[:, None, None],))
+
+    def physical(self, v):
+        return bool(np.all(1.0 + v > 0))
+
+    def run_values(self, start, moved, joint, x):
+        s = self.scales[0]
+        return [(self.kind, 1.0 + s * float(x[0]), self.reported_units[0])], np.array([[s]])
+
+
 def payload_robot(robot: jr.Robot, mass, position) -> jr.Robot:
     """`robot` carrying a point mass `mass` [kg] at `position` (3,) [m] in the frame of the last link: that link's
     mass, centre of mass and inertia about it (parallel-axis theorem). The identity at `mass = 0`."""
@@ -246,14 +364,25 @@ def loaded(robot: jr.Robot, mass, moment) -> jr.Robot:
 
 class Payload(Effect):
     """Payload on the flange: mass [kg] and first moment `m c` [kg m] in the flange frame (the last
-    link); acts through the gravity torque on the compliant joints (`loaded`: a point mass, whose inertia the
-    saved robot carries too)."""
+    link); acts through the gravity torque on the compliant joints at rest (`loaded`: a point mass, whose inertia the
+    saved robot carries too), and through gravity and inertia on runs. In the first moment the gravity torque is
+    linear; a run fit reports the mass and the position [m] (`payload_robot`). Short runs alone can confuse it with
+    a joint's stiffness; poses at rest separate them (benchmarks/results_runs.md)."""
 
     kind, per_joint = "payload", False
     names, scales, units = ("mass", "moment_x", "moment_y", "moment_z"), (1.0, 0.1, 0.1, 0.1), ("kg",) + ("kg m",) * 3
+    seen_in, nonnegative, label = ("poses", "runs"), (0,), "payload (point mass on the flange)"
+    reported_names, reported_units = ("mass", "x", "y", "z"), ("kg", "m", "m", "m")
 
     def apply(self, robot, v, orders):
         return loaded(robot, v[0], v[1:])
+
+    def run_values(self, start, moved, joint, x):
+        s_m, s_h = self.scales[0], self.scales[1]
+        m, h = s_m * float(x[0]), s_h * np.asarray(x[1:])
+        jac = np.zeros((4, 4))  # (mass, position) from the variables (mass, moment) in their scales
+        jac[0, 0], jac[1:, 0], jac[1:, 1:] = s_m, -s_m * h / m**2, s_h * np.eye(3) / m
+        return list(zip(self.reported_names, [m, *(h / m)], self.reported_units)), jac
 
 
 class ApproachDependentGearSet(Effect):
@@ -270,14 +399,18 @@ class ApproachDependentGearSet(Effect):
 
 
 CATALOGUE: list[Effect] = [JointOffset(), GearRatio(), Backlash(), JointCompliance(), GearRipple(),
-                           DirectionDependentRipple(), Geometry(), LinkScale(), ToolOffset(), BaseOffset(),
-                           Payload(), ApproachDependentGearSet()]
-"""The effects the workflow tries, in this order (ties keep the earlier one); `catalogue(robot)`
-sizes the geometry effect for a robot."""
+                           DirectionDependentRipple(), Geometry(), LinkScale(), ToolOffset(), BaseOffset(), MotorLag(),
+                           JointDamping(), JointStiffness(), CubicStiffness(), ViscousFriction(), CoulombFriction(),
+                           LinkInertia(), Payload(), ApproachDependentGearSet()]
+"""Every candidate effect, for poses and runs (`Effect.seen_in`), in the order the workflows try them (ties keep
+the earlier one; the runs' fit variables follow it); `catalogue(robot, seen_in)` draws a workflow's candidates."""
 
-def catalogue(robot: jr.Robot) -> list[Effect]:
-    """`CATALOGUE` with the geometry effect on the identifiable mDH parameters of `robot`."""
-    return [Geometry(geometry_names(robot)) if isinstance(e, Geometry) else e for e in CATALOGUE]
+
+def catalogue(robot: jr.Robot, seen_in: str = "poses") -> list[Effect]:
+    """The effects of `CATALOGUE` that `seen_in` (`"poses"` or `"runs"`) can show, the geometry effect on the
+    identifiable mDH parameters of `robot`."""
+    return [Geometry(geometry_names(robot)) if isinstance(e, Geometry) else e for e in CATALOGUE
+            if seen_in in e.seen_in]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -294,7 +427,8 @@ class Layout:
 
     @classmethod
     def of(cls, effects=None, joints: int = 6) -> Layout:
-        effects = tuple(CATALOGUE if effects is None else effects)
+        """The layout of `effects` (default: the pose candidates of `CATALOGUE`) on a robot of `joints` joints."""
+        effects = tuple([e for e in CATALOGUE if "poses" in e.seen_in] if effects is None else effects)
         blocks, start = [], 0
         for e in effects:
             shape = (joints, len(e.names)) if e.per_joint else (len(e.names),)

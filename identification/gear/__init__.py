@@ -3,9 +3,7 @@
 from jaxrobot.internal import check_public as _check_public
 from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
-from ._fit import DirectionTest as DirectionTest
 from ._fit import GearFit as GearFit
-from ._fit import Resolution as Resolution
 from ._fit import fit_gear_ratio as fit_gear_ratio
 from ._fit import kinematic_errors as kinematic_errors
 from ._frequencies import fft_orders as fft_orders
@@ -15,6 +13,8 @@ from ._processing import check_gear_run as check_gear_run
 from ._processing import check_gear_units as check_gear_units
 from ._processing import prepare_gear_runs as prepare_gear_runs
 from ._processing import process_gear_runs as process_gear_runs
+from ._significance import DirectionTest as DirectionTest
+from ._significance import Resolution as Resolution
 
 _check_public(globals())
 

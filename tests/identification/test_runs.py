@@ -16,7 +16,7 @@ from test_dynamic_effects import arm_description, command
 
 import jaxrobot as jr
 from identification.diagnosis._diagnose import ALPHA
-from identification.diagnosis._runs import compare_run, extend_command
+from identification.diagnosis._run_comparison import compare_run, extend_command
 from jaxrobot.cli._main import main
 
 SHORT = 700
@@ -179,7 +179,7 @@ def test_diagnose_names_the_lagging_motors(tmp_path, capsys):
 def test_estimate_shows_the_digits_its_std_resolves():
     """`RunEstimate.shown`: 6 significant digits, and two beyond those its std resolves where that is more (a 3 ms
     lag known to 1.3 ns: log10(3e-3 / 1.3e-9) = 6.4, so 9 digits), trailing zeros kept."""
-    from identification.diagnosis._runs import RunEffect, RunEstimate
+    from identification.diagnosis._run_results import RunEffect, RunEstimate
 
     def shown(value, std):
         return RunEstimate(RunEffect("lag", 0), "lag", value, std, "s").shown
@@ -251,7 +251,9 @@ def test_diagnose_runs_names_an_effect_on_the_arm(hidden):
     without it adds nothing; every case compiles at most one derivative program (the batch of perturbed models
     every fit and the screening share), the same for every hidden effect. Extended: its three programs (the
     simulation, the residual, the perturbed batch) compile in ~1 min each on 2 cores."""
-    from identification.diagnosis._runs import RUN_KINDS, _perturbed, diagnose_runs
+    from identification.diagnosis._run_evidence import _perturbed
+    from identification.diagnosis._run_model import RUN_KINDS
+    from identification.diagnosis._runs import diagnose_runs
 
     fields, inertia, label, value, size = ARM_EFFECTS[hidden]
     marker, noise = np.array([0.05, 0.0, 0.0]), 5e-5
@@ -302,25 +304,19 @@ def test_each_run_kind_moves_its_field_alone_and_reports_it(kind):
     kind names, on that joint alone (every other leaf of the robot stays exactly); `_estimate` reports the value
     read from the moved robot, with the std its derivative in the variable (by autodiff) carries from the
     variable's; all variables zero, the robot is the start's exactly."""
-    from identification.diagnosis._runs import (
-        PAYLOAD,
-        RUN_KINDS,
-        RunEffect,
-        _estimate,
-        _index,
-        _with_effect_arrays,
-        _with_effects,
-    )
+    from identification.diagnosis._run_fits import _estimate
+    from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS, index, with_effect_arrays, with_effects
+    from identification.diagnosis._run_results import RunEffect
 
     read, label = RUN_KIND_READS[kind]
     start = dataclasses.replace(jr.robot_from_description(arm_description(coulomb=[0.1, 0.3])), e=jnp.array([0.0, 4.0]))
-    base = _with_effect_arrays(start)
+    base = with_effect_arrays(start)
     assert base.coulomb_friction is start.coulomb_friction and float(base.motor_lag[1]) == 0.0
     size = len(RUN_KINDS) * 2 + len(PAYLOAD)
     effect = RunEffect(kind, 1)
     assert effect.label == label
-    z = jnp.zeros(size).at[_index(effect, 2)[0]].set(0.7)
-    moved = _with_effects(base, z)
+    z = jnp.zeros(size).at[index(effect, 2)[0]].set(0.7)
+    moved = with_effects(base, z)
     leaves = jax.tree_util.tree_leaves_with_path(moved)
     changed = [jax.tree_util.keystr(p) for (p, a), b in zip(leaves, jax.tree_util.tree_leaves(base))
                if not np.array_equal(a, b)]
@@ -328,11 +324,11 @@ def test_each_run_kind_moves_its_field_alone_and_reports_it(kind):
              "coulomb": "coulomb_friction", "inertia": "inertia"}[kind]
     assert changed == [f".{field}"], changed
     assert np.array_equal(np.asarray(getattr(moved, field))[0], np.asarray(getattr(base, field))[0])
-    for a, b in zip(jax.tree_util.tree_leaves(_with_effects(base, jnp.zeros(size))), jax.tree_util.tree_leaves(base)):
+    for a, b in zip(jax.tree_util.tree_leaves(with_effects(base, jnp.zeros(size))), jax.tree_util.tree_leaves(base)):
         np.testing.assert_array_equal(a, b)
     std = 0.05
     (est,), cov = _estimate(base, np.asarray(z), [effect], np.array([[std**2]]))
-    value, slope = jax.value_and_grad(lambda x: read(_with_effects(base, z.at[_index(effect, 2)[0]].set(x)),
+    value, slope = jax.value_and_grad(lambda x: read(with_effects(base, z.at[index(effect, 2)[0]].set(x)),
                                                      base, 1))(0.7)
     assert (est.effect, est.parameter, est.unit) == (effect, kind, RUN_KINDS[kind][1])
     np.testing.assert_allclose([est.value, est.std], [value, abs(slope) * std], rtol=1e-12)
@@ -345,20 +341,11 @@ def test_derivative_columns_by_forward_differences_match_autodiff():
     with encoder rows at a model with every kind and the payload nonzero: each column within 1e-3 of its norm (the
     truncation error of a step of 1e-4 of each variable's scale, where the residual curves over the variable's own
     scale)."""
-    from identification.diagnosis._runs import (
-        BATCH,
-        PAYLOAD,
-        RUN_KINDS,
-        SINGLE_BELOW,
-        _evaluate,
-        _Evidence,
-        _prepare,
-        _whitened,
-        _with_effect_arrays,
-    )
+    from identification.diagnosis._run_evidence import BATCH, SINGLE_BELOW, _evaluate, _Evidence, _prepare, _whitened
+    from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS, with_effect_arrays
 
     marker, noise = jnp.array([0.05, 0.0, 0.0]), 5e-5
-    base = _with_effect_arrays(jr.robot_from_description(arm_description()))
+    base = with_effect_arrays(jr.robot_from_description(arm_description()))
     t = np.arange(40) * 1e-3
     cmd = (t, *command(t))
     rng = np.random.default_rng(3208)
@@ -384,32 +371,33 @@ def test_a_point_is_simulated_once(monkeypatch):
     """`_evaluate` at a point whose runs' residuals `_Evidence.known` holds simulates only the perturbed models, and
     returns exactly what a fresh evaluation returns; another marker is another point; the memory keeps `KNOWN`
     points."""
-    from identification.diagnosis import _runs
+    from identification.diagnosis import _run_evidence as evidence
+    from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS, with_effect_arrays
 
     marker, noise = jnp.array([0.05, 0.0, 0.0]), 5e-5
-    base = _runs._with_effect_arrays(jr.robot_from_description(arm_description()))
+    base = with_effect_arrays(jr.robot_from_description(arm_description()))
     t = np.arange(40) * 1e-3
     cmd = (t, *command(t))
     rng = np.random.default_rng(3209)
     run = (t, cmd[1] + 1e-4 * rng.standard_normal(cmd[1].shape), 0.3 + 1e-3 * rng.standard_normal((40, 3)))
-    runs, sigma = _runs._prepare([(cmd, run)], noise, "train")
-    ev = _runs._Evidence(runs, sigma, None, 1e-5)
-    size = len(_runs.RUN_KINDS) * 2 + len(_runs.PAYLOAD)
-    z, variables = 0.2 * np.ones(size), [0, size - len(_runs.PAYLOAD)]  # fewer than SINGLE_BELOW: single runs
+    runs, sigma = evidence._prepare([(cmd, run)], noise, "train")
+    ev = evidence._Evidence(runs, sigma, None, 1e-5)
+    size = len(RUN_KINDS) * 2 + len(PAYLOAD)
+    z, variables = 0.2 * np.ones(size), [0, size - len(PAYLOAD)]  # fewer than SINGLE_BELOW: single runs
     calls = []
-    residual = _runs._residual
-    monkeypatch.setattr(_runs, "_residual", lambda *a, **k: calls.append(a[1]) or residual(*a, **k))
-    first = _runs._evaluate(base, z, ev, marker, 4)[0]
-    res, cols = _runs._evaluate(base, z, ev, marker, 4, variables)
+    residual = evidence._residual
+    monkeypatch.setattr(evidence, "_residual", lambda *a, **k: calls.append(a[1]) or residual(*a, **k))
+    first = evidence._evaluate(base, z, ev, marker, 4)[0]
+    res, cols = evidence._evaluate(base, z, ev, marker, 4, variables)
     assert len(calls) == 1 + len(variables)  # the point once, then its perturbed models
-    fresh = _runs._evaluate(base, z, _runs._Evidence(runs, sigma, None, 1e-5), marker, 4, variables)
+    fresh = evidence._evaluate(base, z, evidence._Evidence(runs, sigma, None, 1e-5), marker, 4, variables)
     assert np.array_equal(first, res) and np.array_equal(res, fresh[0]) and np.array_equal(cols, fresh[1])
-    _runs._evaluate(base, z, ev, jnp.array([0.05, 0.0, 0.0]), 4)  # an equal marker, another object: simulated
+    evidence._evaluate(base, z, ev, jnp.array([0.05, 0.0, 0.0]), 4)  # an equal marker, another object: simulated
     assert len(calls) == 2 * (1 + len(variables)) + 1
-    for k in range(_runs.KNOWN + 1):
+    for k in range(evidence.KNOWN + 1):
         ev.known[(k,)] = None
-    _runs._evaluate(base, 0.1 * np.ones(size), ev, marker, 4)
-    assert len(ev.known) == _runs.KNOWN and (0,) not in ev.known
+    evidence._evaluate(base, 0.1 * np.ones(size), ev, marker, 4)
+    assert len(ev.known) == evidence.KNOWN and (0,) not in ev.known
 
 
 @pytest.mark.extended  # ~1 min: the run programs compile for the arm
@@ -423,7 +411,8 @@ def test_final_estimate_is_fitted_on_every_run():
     sqrt(`EXACT_TOLERANCE`) std of the minimum. The training run alone rises by less (the validation run adds
     information), and a validation run equal to the training run counts once: the fit is then the training run's,
     its std larger by 1 / sqrt(that rise) (the ratio of the two covariances)."""
-    from identification.diagnosis._runs import EXACT_TOLERANCE, diagnose_runs
+    from identification.diagnosis._run_fits import EXACT_TOLERANCE
+    from identification.diagnosis._runs import diagnose_runs
 
     marker, noise = np.array([0.05, 0.0, 0.0]), 5e-5
     rng = np.random.default_rng(4302)

@@ -19,7 +19,9 @@ from test_runs_with_poses import case_runs
 
 import jaxrobot as jr
 from identification.diagnosis import payload_robot
-from identification.diagnosis._runs import SCREENED_KINDS, _simulated, diagnose_runs
+from identification.diagnosis._run_comparison import _simulated
+from identification.diagnosis._run_model import SCREENED_KINDS
+from identification.diagnosis._runs import diagnose_runs
 from jaxrobot.cli._main import main
 
 

@@ -16,16 +16,10 @@ from test_dynamic_effects import arm_description, command
 import jaxrobot as jr
 import jaxrobot.bench as jb
 from identification.diagnosis import payload_robot
-from identification.diagnosis._runs import (
-    PAYLOAD,
-    RUN_KINDS,
-    _pose_rows,
-    _prepare_poses,
-    _simulated,
-    _with_effect_arrays,
-    compare_run,
-    diagnose_runs,
-)
+from identification.diagnosis._run_comparison import _simulated, compare_run
+from identification.diagnosis._run_evidence import _pose_rows, _prepare_poses
+from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS, with_effect_arrays
+from identification.diagnosis._runs import diagnose_runs
 from jaxrobot.cli._main import main
 from jaxrobot.measurement import Poses
 
@@ -84,7 +78,7 @@ def test_runs_and_poses_share_one_chi_square():
     assert row.chi2_poses > 3 * 3 * 8  # the payload shows in the poses
     assert res.verdict == "not explained after 0 effects (--max-steps)" and res.estimates == []
     size = len(RUN_KINDS) * 2 + len(PAYLOAD)
-    jac = np.asarray(_pose_rows(_with_effect_arrays(start), jnp.zeros(size),
+    jac = np.asarray(_pose_rows(with_effect_arrays(start), jnp.zeros(size),
                                 *_prepare_poses(start, poses[0], 2 * noise, marker, "poses"), jnp.asarray(marker))[1])
     columns = {k: jac[:, 2 * i:2 * i + 2] for i, k in enumerate(RUN_KINDS)}
     for kind in ("lag", "damping", "viscous", "coulomb", "inertia"):  # nothing moves at rest
