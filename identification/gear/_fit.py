@@ -46,7 +46,7 @@ from ._processing import (
     process_gear_runs,
     segment_windows,
 )
-from ._significance import SIGNIFICANCE, DirectionTest, Resolution, direction_test, f_test, scatter
+from ._significance import SIGNIFICANCE, DirectionTest, Resolution, direction_test, f_test
 
 ITERATIONS = 3
 """Fits, each with `phi = Xi^{-1}(theta)` of the previous one (the phase error of `theta / u0` is
@@ -299,6 +299,22 @@ class GearIdentification:
         return quad(self.errors.rms_before), quad(self.errors.rms_after), quad(self.errors.noise_floor)
 
 
+def _scatter(per_run: GearFit, rows: list[int]) -> tuple[float, float]:
+    """Run-to-run scatter of one group's per-run fits `rows`: (chi2/dof of the coefficient
+    differences of consecutive runs against their model covariance, floored at 1; variance of the
+    mean `u0` from the spread of the runs, 0 with one run)."""
+    if len(rows) < 2:
+        return 1.0, 0.0
+    used = np.asarray(per_run.orders[rows[0]]) > 0
+    chi2, dof = 0.0, 0.0
+    for r1, r2 in zip(rows[:-1], rows[1:]):
+        c, d, _ = direction_test(per_run.a[r1], per_run.b[r1], per_run.cov_ab[r1], per_run.a[r2], per_run.b[r2],
+                                 per_run.cov_ab[r2], jnp.asarray(used))
+        chi2, dof = chi2 + float(c), dof + float(d)
+    u0 = np.asarray(per_run.u0)[rows]
+    return (max(1.0, chi2 / dof) if dof else 1.0), float(np.var(u0, ddof=1) / len(rows))
+
+
 def _padded(sets: list[list[int]]) -> np.ndarray:
     m = max(1, max(len(s) for s in sets))
     out = np.zeros((len(sets), m))
@@ -346,7 +362,7 @@ def _with_scatter(fit: GearFit, proc, batch, group, fit_run, joints, u0_model, i
     scales, se_u0, resolution = [], [], []
     for g in range(n_groups):
         members = [int(k) for k in np.flatnonzero(group[rows] == g)]
-        scale, var_emp = scatter(per_run, members)
+        scale, var_emp = _scatter(per_run, members)
         u0 = float(fit.u0[g])
         speed = np.array([abs(math.radians(infos[rows[k]].motor_speed_deg_s)) / u0_model[joints[g] - 1]
                           for k in members])

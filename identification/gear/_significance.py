@@ -4,17 +4,12 @@ the runs resolve a group's ripple (`Resolution`, from the run-to-run scatter).""
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
 
 import jax.numpy as jnp
-import numpy as np
 from jax.scipy.special import betainc, gammaincc
 from jaxtyping import Array, Bool, Float
 
 from ._processing import pinv_psd
-
-if TYPE_CHECKING:
-    from ._fit import GearFit
 
 SIGNIFICANCE = 0.01
 """cw and ccw sets differ significantly when the Wald test's p-value is below this; a group's
@@ -104,19 +99,3 @@ class Resolution:
             return ""
         return (f"ripple below the noise with these runs: {self.more_runs} more runs per direction would "
                 "resolve it")
-
-
-def scatter(per_run: GearFit, rows: list[int]) -> tuple[float, float]:
-    """Run-to-run scatter of one group's per-run fits `rows`: (chi2/dof of the coefficient
-    differences of consecutive runs against their model covariance, floored at 1; variance of the
-    mean `u0` from the spread of the runs, 0 with one run)."""
-    if len(rows) < 2:
-        return 1.0, 0.0
-    used = np.asarray(per_run.orders[rows[0]]) > 0
-    chi2, dof = 0.0, 0.0
-    for r1, r2 in zip(rows[:-1], rows[1:]):
-        c, d, _ = direction_test(per_run.a[r1], per_run.b[r1], per_run.cov_ab[r1], per_run.a[r2], per_run.b[r2],
-                                 per_run.cov_ab[r2], jnp.asarray(used))
-        chi2, dof = chi2 + float(c), dof + float(d)
-    u0 = np.asarray(per_run.u0)[rows]
-    return (max(1.0, chi2 / dof) if dof else 1.0), float(np.var(u0, ddof=1) / len(rows))

@@ -258,9 +258,9 @@ def test_catalogue_is_extensible_by_one_class():
         def apply(self, robot, v, orders):
             return eqx.tree_at(lambda r: r.gravity, robot, robot.gravity * (1 + v[0]))
 
-    from identification.diagnosis._effects import CATALOGUE
+    from identification.diagnosis._effects import catalogue
 
-    layout = Layout.of([*CATALOGUE, GravityScale()])
+    layout = Layout.of([*catalogue(AS_BUILT), GravityScale()])
     block = layout.blocks[layout.index("gravity_scale")]
     assert block.tolist() == [layout.size - 1]
     v = jnp.zeros(layout.size + 1)
