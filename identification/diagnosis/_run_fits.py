@@ -15,7 +15,7 @@ import jaxrobot as jr
 from ..core._noise import noise_test
 from ._diagnose import MIN_BIC_GAIN
 from ._run_evidence import FD_STEP, _evaluate, _Evidence, _Run
-from ._run_model import RUN_EFFECTS, index, physical, with_effects
+from ._run_model import index, physical, run_effects, with_effects
 from ._run_results import RunEffect, RunEstimate, RunFinalFit, RunStep
 
 LM_STEPS = 30
@@ -229,7 +229,7 @@ def _estimate(robot, z, effects, cov) -> tuple[list[RunEstimate], np.ndarray]:
     n, values, rows = robot.n_joints, [], []
     moved = lambda: with_effects(robot, z)  # noqa: E731  (the fitted model, where an effect's value needs it)
     for e in effects:
-        reported, jac = RUN_EFFECTS[e.kind].run_values(robot, moved, e.joint, np.asarray(z)[index(e, n)])
+        reported, jac = run_effects()[e.kind].run_values(robot, moved, e.joint, np.asarray(z)[index(e, n)])
         values += [(e, *item) for item in reported]
         rows.append(jac)
     if not rows:

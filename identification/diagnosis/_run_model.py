@@ -16,31 +16,52 @@ import jaxrobot as jr
 
 from ._effects import CATALOGUE, Effect, Layout, Payload
 
-RUN_EFFECTS: dict[str, Effect] = {e.kind: e for e in CATALOGUE if "runs" in e.seen_in}
-"""The effects of the built-in `CATALOGUE` that runs can show, by kind."""
-RUN_KINDS = {k: (e.scales[0], (e.reported_units or e.units)[0]) for k, e in RUN_EFFECTS.items() if e.per_joint}
-"""The per-joint effects a run can name, one parameter per joint, with the scale of its fit variable and the unit of
-its reported value (`Effect.run_values`). The rotor inertia is not a candidate: the motors follow their commands
-kinematically (ideal velocity loops, or the first-order lag), so it changes only the motor torques, which neither the
-tracker nor the encoders see (motor currents would show it)."""
-KINDS = tuple(RUN_EFFECTS)
-"""Every kind `diagnose_runs` can screen: the per-joint ones of `RUN_KINDS` and the payload."""
-SCREENED_KINDS = tuple(k for k, e in RUN_EFFECTS.items() if e.screened)
-"""The kinds `diagnose_runs` screens unless told otherwise (`kinds`): every kind but the link inertia
-(`Effect.screened`). Kinds that can mimic each other over short runs (a payload and a joint's stiffness, a lag and a
-damping, a friction and a lag) are fitted against each other on the same footing (BIC), and the one of fewer
-parameters is kept where the data cannot tell them apart (`RunConfound`)."""
+
+def run_effects() -> dict[str, Effect]:
+    """The effects of `CATALOGUE` that runs can show, by kind, in its order (read at each call: an effect appended to
+    the catalogue joins the runs' candidates)."""
+    return {e.kind: e for e in CATALOGUE if "runs" in e.seen_in}
+
+
+def screened_kinds() -> tuple[str, ...]:
+    """The kinds `diagnose_runs` screens unless told otherwise (`Effect.screened`): every kind of `run_effects` but
+    the link inertia. Kinds that can mimic each other over short runs (a payload and a joint's stiffness, a lag and a
+    damping, a friction and a lag) are fitted against each other on the same footing (BIC), and the one of fewer
+    parameters is kept where the data cannot tell them apart (`RunConfound`)."""
+    return tuple(k for k, e in run_effects().items() if e.screened)
+
+
+def optional_fields() -> dict[str, str]:
+    """The robot's optional effect fields (None: no term) and the kind of `run_effects` that fills each."""
+    return {e.field: k for k, e in run_effects().items() if e.field is not None}
+
+
+def reported_unit(kind: str) -> str:
+    """The unit of the first value a run fit of `kind` reports (`Effect.run_values`)."""
+    effect = run_effects()[kind]
+    return (effect.reported_units or effect.units)[0]
+
+
+RUN_KINDS = {k: (e.scales[0], reported_unit(k)) for k, e in run_effects().items() if e.per_joint}
+"""The per-joint effects of the built-in catalogue that a run can name, one parameter per joint, with the scale of its
+fit variable and the unit of its reported value. The rotor inertia is not a candidate: the motors follow their
+commands kinematically (ideal velocity loops, or the first-order lag), so it changes only the motor torques, which
+neither the tracker nor the encoders see (motor currents would show it)."""
+SCREENED_KINDS = screened_kinds()
+"""The kinds of the built-in catalogue that `diagnose_runs` screens by default."""
 PAYLOAD = tuple(zip(Payload.reported_names, Payload.scales, Payload.reported_units))
 """The payload's reported parameters (name, scale of its fit variable, unit): the fit varies the mass and the first
 moment `mass * position` (`Payload`), and reports the mass and the position in the last link's frame."""
-OPTIONAL_FIELDS = {e.field: k for k, e in RUN_EFFECTS.items() if e.field is not None}
-"""The robot's optional effect fields (None: no term) and the kind that fills each."""
+
+
+def run_layout(n: int) -> Layout:
+    """Where each run effect's variables sit in `z` for a robot of `n` joints."""
+    return _layout(tuple(run_effects().values()), n)
 
 
 @functools.cache
-def run_layout(n: int) -> Layout:
-    """Where each run effect's variables sit in `z` for a robot of `n` joints."""
-    return Layout.of(tuple(RUN_EFFECTS.values()), n)
+def _layout(effects: tuple[Effect, ...], n: int) -> Layout:
+    return Layout.of(effects, n)
 
 
 def index(effect, n: int) -> list[int]:
@@ -60,7 +81,7 @@ def with_effect_arrays(robot: jr.Robot) -> jr.Robot:
     """`robot` with zeros in each optional effect field that is None (the same model: a zero term adds nothing),
     so that `with_effects` can move them."""
     n = robot.n_joints
-    return dataclasses.replace(robot, **{field: jnp.zeros(n) for field in OPTIONAL_FIELDS
+    return dataclasses.replace(robot, **{field: jnp.zeros(n) for field in optional_fields()
                                          if getattr(robot, field) is None})
 
 

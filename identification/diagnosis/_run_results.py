@@ -11,22 +11,23 @@ import numpy as np
 
 import jaxrobot as jr
 
-from ._run_model import KINDS, OPTIONAL_FIELDS, RUN_EFFECTS, with_effects
+from ._run_model import optional_fields, run_effects, with_effects
 
 
 @dataclasses.dataclass(frozen=True)
 class RunEffect:
-    """A dynamic effect that runs can show: one of `RUN_KINDS` on one joint, or the payload."""
+    """A dynamic effect that runs can show (`run_effects`): a per-joint one on one joint, or a global one (the
+    payload)."""
 
     kind: str
-    """One of `RUN_KINDS`, or `payload`."""
+    """Its `Effect.kind`."""
     joint: int | None
     """0-based joint (motor) index; None for the payload."""
 
     @property
     def label(self) -> str:
         """The effect in words."""
-        text = RUN_EFFECTS[self.kind].label
+        text = run_effects()[self.kind].label
         return text if self.joint is None else f"{text} {self.joint + 1}"
 
 
@@ -37,14 +38,14 @@ class RunEstimate:
     effect: RunEffect
     """The effect."""
     parameter: str
-    """The parameter: the effect's kind for the per-joint effects, a `PAYLOAD` name for the payload."""
+    """The parameter: the effect's kind for the per-joint effects, the payload's `Payload.reported_names`."""
     value: float
     """The value in `unit` (`stiffness`: the factor on `k1` and `k3`; `cubic`: the joint's `k3`; `inertia`: the
     factor on the link's inertia tensor; the others: the field's value in the fitted model)."""
     std: float
     """Its standard deviation from the fit's covariance (linearised, noise as stated)."""
     unit: str
-    """The unit of `value` and `std` (`RUN_KINDS`, `PAYLOAD`)."""
+    """The unit of `value` and `std` (`Effect.run_values`)."""
 
     @property
     def shown(self) -> str:
@@ -94,7 +95,7 @@ class RunLimit:
     value: float
     """The least departure from the model's value, in `unit` (`stiffness`, `inertia`: of the factor from 1)."""
     unit: str
-    """The unit of `value` (`RUN_KINDS`, `PAYLOAD`)."""
+    """The unit of `value` (`Effect.run_values`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -183,7 +184,7 @@ class RunDiagnosis:
     fit's scaled effect variables, the indices of the added effects' ones and their covariance (what `sample`
     draws)."""
     not_screened: tuple[str, ...] = ()
-    """The kinds of `KINDS` that were not candidates (`kinds`)."""
+    """The kinds of `run_effects` that were not candidates (`kinds`)."""
     still_motors: tuple[int, ...] = ()
     """0-based motors whose commands do not move in the training runs (by less than the encoders' test): their lag
     cannot show, so it is not a candidate."""
@@ -206,7 +207,7 @@ class RunDiagnosis:
         if self.still_motors:
             out.append("did not move (their lag cannot show): motor "
                        + ", ".join(str(j + 1) for j in self.still_motors))
-        for kind in KINDS:
+        for kind in run_effects():
             rows = [lim for lim in self.limits if lim.effect.kind == kind]
             if rows:
                 where = ", ".join(f"{lim.value:.2g}" + ("" if lim.effect.joint is None
@@ -222,6 +223,6 @@ class RunDiagnosis:
         if not indices:
             return [self.robot] * count
         draws = np.random.default_rng(seed).multivariate_normal(z[indices], cov, size=count)
-        fields = [f for f in OPTIONAL_FIELDS if getattr(self.robot, f) is None]
+        fields = [f for f in optional_fields() if getattr(self.robot, f) is None]
         return [dataclasses.replace(with_effects(start, jnp.asarray(z).at[np.asarray(indices)].set(d)),
                                     **{f: None for f in fields}) for d in draws]

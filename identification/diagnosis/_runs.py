@@ -7,6 +7,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -19,13 +20,12 @@ from ._run_comparison import _simulated
 from ._run_evidence import BATCH, SINGLE_BELOW, _evaluate, _Evidence, _prepare, _prepare_poses, _Run
 from ._run_fits import _chi2_split, _estimate, _final_fit, _fit, _identifiable
 from ._run_model import (
-    KINDS,
-    OPTIONAL_FIELDS,
-    RUN_EFFECTS,
-    RUN_KINDS,
-    SCREENED_KINDS,
     index,
+    optional_fields,
+    reported_unit,
+    run_effects,
     run_layout,
+    screened_kinds,
     with_effect_arrays,
     with_effects,
 )
@@ -66,16 +66,16 @@ def _limits(robot, z, effects: list[RunEffect], cols: np.ndarray, ln_n: float) -
         step = math.sqrt(DETECTION + ln_n) / norm if norm > 0 else math.inf
         i = index(e, n)[0]
         if e.joint is None:  # a global effect: its first parameter (the payload's mass, at the flange's origin)
-            spec = RUN_EFFECTS[e.kind]
-            out.append(RunLimit(e, spec.names[0], spec.scales[0] * step, (spec.reported_units or spec.units)[0]))
+            spec = run_effects()[e.kind]
+            out.append(RunLimit(e, spec.names[0], spec.scales[0] * step, reported_unit(e.kind)))
             continue
         if not math.isfinite(step):
-            out.append(RunLimit(e, e.kind, math.inf, RUN_KINDS[e.kind][1]))
+            out.append(RunLimit(e, e.kind, math.inf, reported_unit(e.kind)))
             continue
         moved = z.copy()
         moved[i] += step
         here, there = (_estimate(robot, at, [e], np.zeros((1, 1)))[0][0].value for at in (z, moved))
-        out.append(RunLimit(e, e.kind, abs(there - here), RUN_KINDS[e.kind][1]))
+        out.append(RunLimit(e, e.kind, abs(there - here), reported_unit(e.kind)))
     return out
 
 
@@ -92,9 +92,9 @@ def diagnose_runs(
     poses: tuple | None = None,
     pose_noise=None,
     progress: Callable[[RunStep], None] | None = None,
-    kinds: tuple[str, ...] = SCREENED_KINDS,
+    kinds: tuple[str, ...] | None = None,
 ) -> RunDiagnosis:
-    """Name the dynamic effects (`kinds` of `KINDS`) that `robot` misses from trajectory runs, one per step, with
+    """Name the dynamic effects (`kinds` of `run_effects`) that `robot` misses from trajectory runs, one per step, with
     poses at rest as further evidence where given.
 
     `train`, `validation`: lists of `(command, run)` pairs (`jaxrobot.io.read_command_csv`,
@@ -103,7 +103,7 @@ def diagnose_runs(
     unknown): where given, the runs' encoder angles are residuals of the fits beside the tracker's, in units of the
     quantisation's std `encoder_quantum / sqrt(12)` (they fix a lag far better than the tracker can); `poses`:
     `(training, validation)` `jaxrobot.measurement.Poses` measured with the same marker, each residual in units of
-    `pose_noise` (default `noise`); `kinds` the kinds screened (default `SCREENED_KINDS`); `on_event` receives each
+    `pose_noise` (default `noise`); `kinds` the kinds screened (default `screened_kinds()`); `on_event` receives each
     `RunStep` as it is scored (`progress`: its deprecated old name).
 
     Each step compares the model with the training runs and poses (one chi-square over the tracker's and the poses'
@@ -132,176 +132,270 @@ def diagnose_runs(
     The result lists what the runs could not test: the kinds not screened, the motors that did not move, and the
     detection limit of each candidate not added (`RunDiagnosis.untested`)."""
     on_event = renamed_argument("diagnose_runs", "progress", "on_event", progress, on_event)
-    n = robot.n_joints
     if max_steps < 0 or substeps < 1:
         raise ValueError(f"max_steps >= 0 and substeps >= 1 expected, found {max_steps}, {substeps}")
     if poses is not None and len(poses) != 2:
         raise ValueError(f"poses: expected (training, validation) Poses, found {len(poses)} items")
-    unknown = [k for k in kinds if k not in KINDS]
+    kinds = screened_kinds() if kinds is None else kinds
+    unknown = [k for k in kinds if k not in run_effects()]
     if unknown or not kinds:
-        raise ValueError(f"kinds: expected one or more of {list(KINDS)}, found {list(kinds)}")
+        raise ValueError(f"kinds: expected one or more of {list(run_effects())}, found {list(kinds)}")
     if encoder_quantum < 0:
         raise ValueError(f"encoder_quantum: expected the encoders' resolution >= 0 rad, found {encoder_quantum}")
-    runs, sigma = _prepare(train, noise, "train")
-    val, _ = _prepare(validation, noise, "validation")
-    marker = jnp.asarray(marker, float)
-    pose_noise = noise if pose_noise is None else pose_noise
-    encoder_sigma = encoder_quantum / math.sqrt(12.0) if encoder_quantum > 0 else None
-    ev = _Evidence(runs, sigma, _prepare_poses(robot, None if poses is None else poses[0], pose_noise,
-                                               marker, "training poses"), encoder_sigma)
-    ev_val = _Evidence(val, sigma, _prepare_poses(robot, None if poses is None else poses[1], pose_noise,
-                                                  marker, "validation poses"), encoder_sigma)
-    base = with_effect_arrays(robot)
-    ln_n = math.log(ev.rows)
-    threshold = max(ENCODER_LAG_RAD, 2.0 * encoder_quantum)
-    size = run_layout(n).size
-    still = _still_motors(runs, threshold)
-
-    departs = np.zeros(n, bool)  # per motor, whether the encoders depart beyond `threshold` at the last row's model
-
-    def row(step, label, z, m):
-        nonlocal departs
-        res = _evaluate(base, z, ev, marker, substeps)[0]
-        if encoder_sigma is not None:  # the encoder rows are the departures in units of `encoder_sigma`
-            departure = np.max(np.abs(res[ev.encoder_mask]).reshape(-1, n), 0) * encoder_sigma
-        else:
-            current = with_effects(base, z)
-            departure = np.max([np.max(np.abs(r.encoders - np.asarray(_simulated(current, *r.command, marker)[1])),
-                                       0) for r in runs], 0)
-        chi2, dof, p_value, chi2_e = _chi2_split(res, ev.encoder_mask, m)
-        res_v = _evaluate(base, z, ev_val, marker, substeps)[0]
-        chi2_v, chi2_ve = (float(np.sum(res_v[mask] ** 2)) for mask in (~ev_val.encoder_mask, ev_val.encoder_mask))
-        chi2_p = float(np.sum(res[res.size - (0 if ev.poses is None else ev.poses[3].size):] ** 2))
-        out = RunStep(step, label, chi2, dof, p_value, chi2 + chi2_e + m * ln_n, chi2_v,
-                      chi2_p, chi2_e, float(np.max(departure)), chi2_ve)
-        if on_event is not None:
-            on_event(out)
-        departs = departure > threshold
-        return out
-
-    def params(effects) -> int:
-        return sum(len(index(e, n)) for e in effects)
-
-    z, added, cov = jnp.zeros(size), [], np.zeros((0, 0))
-    r_z, jac_z = None, None  # the training fit's residual and derivatives (fresh) at z
-    steps = [row(0, "start", z, 0)]
+    search = _Search.of(robot, train, validation, marker, noise, substeps, encoder_quantum, poses, pose_noise, kinds,
+                        on_event)
     verdict = "no significant discrepancy: the model explains the runs to the tracker and encoder noise"
-    candidates = [RunEffect(k, j) for k in KINDS if k in kinds and RUN_EFFECTS[k].per_joint for j in range(n)
-                  if not (k == "lag" and still[j])] + [RunEffect(k, None) for k in KINDS
-                                                       if k in kinds and not RUN_EFFECTS[k].per_joint]
-    removed: set[RunEffect] = set()
-    seen: dict[int, np.ndarray] = {}  # the latest screening's derivative column of each variable
-    confounds: list[RunConfound] = []
-    while steps[-1].p_value <= ALPHA or ("lag" in kinds and any(d and RunEffect("lag", j) not in added
-                                                                 for j, d in enumerate(departs))):
-        if len(added) == max_steps:
+    while search.unexplained():
+        if len(search.added) == max_steps:
             verdict = f"not explained after {max_steps} effects (--max-steps)"
             break
-        eligible = [c for c in candidates if c not in added and c not in removed
-                    and (c.kind != "lag" or departs[c.joint])]
-        if any(c.kind == "lag" for c in eligible):  # only a lag moves the motors: departing encoders need one first
-            eligible = [c for c in eligible if c.kind == "lag"]
+        eligible = search.eligible()
         if not eligible:
             verdict = "not explained: no effect of the catalogue is left to add"
             break
-        needed = sorted({i for c in eligible + added for i in index(c, n)})
-        spare = [index(c, n)[0] for c in candidates  # lags whose motors do not depart: for their detection limits
-                 if c.kind == "lag" and c not in added and not departs[c.joint]][:-len(needed) % BATCH]
+        res, cols, gain = search.screen(eligible)
+        best = search.best_fit(eligible, res, cols, gain)
+        if best is None:
+            verdict = "not explained: no candidate fit lowers the chi-square within the physical range"
+            break
+        refused = search.add(*best, res)
+        if refused:
+            verdict = refused
+            break
+    else:
+        if search.added:
+            verdict = ("explained: the runs agree with the model to the tracker and encoder noise after adding "
+                       + ", ".join(e.label for e in search.added))
+    return search.diagnosis(verdict)
+
+
+@dataclasses.dataclass
+class _Search:
+    """The state of the step-wise search of `diagnose_runs`: the evidence, the candidates, the effects added and the
+    training fit of the current model (`z`; its residual `r_z`, fresh derivatives `jac_z`, covariance `cov`)."""
+
+    robot: jr.Robot
+    """The start robot."""
+    base: jr.Robot
+    """The start robot with zeros in its absent effect fields (`with_effect_arrays`)."""
+    ev: _Evidence
+    ev_val: _Evidence
+    marker: jax.Array
+    substeps: int
+    kinds: tuple[str, ...]
+    threshold: float
+    """[rad] the encoders' test: a departure above it asks for a lag."""
+    still: np.ndarray
+    """(n,) per motor, whether its command does not move."""
+    candidates: list[RunEffect]
+    on_event: Callable[[RunStep], None] | None
+    z: jax.Array | np.ndarray
+    steps: list[RunStep] = dataclasses.field(default_factory=list)
+    added: list[RunEffect] = dataclasses.field(default_factory=list)
+    removed: set[RunEffect] = dataclasses.field(default_factory=set)
+    cov: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0)))
+    r_z: np.ndarray | None = None
+    jac_z: np.ndarray | None = None
+    seen: dict[int, np.ndarray] = dataclasses.field(default_factory=dict)
+    """The latest screening's derivative column of each variable."""
+    confounds: list[RunConfound] = dataclasses.field(default_factory=list)
+    departs: np.ndarray | None = None
+    """(n,) per motor, whether the encoders depart beyond `threshold` at the last row's model."""
+
+    @classmethod
+    def of(cls, robot, train, validation, marker, noise, substeps, encoder_quantum, poses, pose_noise, kinds,
+           on_event) -> _Search:
+        """The search from `robot` on the runs and poses (see `diagnose_runs`), its start row scored."""
+        n = robot.n_joints
+        runs, sigma = _prepare(train, noise, "train")
+        val, _ = _prepare(validation, noise, "validation")
+        marker = jnp.asarray(marker, float)
+        pose_noise = noise if pose_noise is None else pose_noise
+        encoder_sigma = encoder_quantum / math.sqrt(12.0) if encoder_quantum > 0 else None
+        ev = _Evidence(runs, sigma, _prepare_poses(robot, None if poses is None else poses[0], pose_noise,
+                                                   marker, "training poses"), encoder_sigma)
+        ev_val = _Evidence(val, sigma, _prepare_poses(robot, None if poses is None else poses[1], pose_noise,
+                                                      marker, "validation poses"), encoder_sigma)
+        threshold = max(ENCODER_LAG_RAD, 2.0 * encoder_quantum)
+        still = _still_motors(runs, threshold)
+        effects = {k: e for k, e in run_effects().items() if k in kinds}
+        candidates = [RunEffect(k, j) for k, e in effects.items() if e.per_joint for j in range(n)
+                      if not (k == "lag" and still[j])] + [RunEffect(k, None) for k, e in effects.items()
+                                                           if not e.per_joint]
+        search = cls(robot, with_effect_arrays(robot), ev, ev_val, marker, substeps, kinds, threshold, still,
+                     candidates, on_event, jnp.zeros(run_layout(n).size))
+        search.steps.append(search.row(0, "start", search.z, 0))
+        return search
+
+    @property
+    def n(self) -> int:
+        return self.robot.n_joints
+
+    @property
+    def ln_n(self) -> float:
+        return math.log(self.ev.rows)
+
+    def params(self, effects) -> int:
+        """The fit variables of `effects`."""
+        return sum(len(index(e, self.n)) for e in effects)
+
+    def variables(self, effects) -> list[int]:
+        return [i for e in effects for i in index(e, self.n)]
+
+    def row(self, step: int, label: str, z, m: int) -> RunStep:
+        """The model at `z` with `m` fitted variables against the training and validation runs and poses (its
+        encoders' departure sets `departs`), sent to `on_event`."""
+        ev, n = self.ev, self.n
+        res = _evaluate(self.base, z, ev, self.marker, self.substeps)[0]
+        if ev.encoder_sigma is not None:  # the encoder rows are the departures in units of `encoder_sigma`
+            departure = np.max(np.abs(res[ev.encoder_mask]).reshape(-1, n), 0) * ev.encoder_sigma
+        else:
+            current = with_effects(self.base, z)
+            departure = np.max([np.max(np.abs(r.encoders - np.asarray(_simulated(current, *r.command,
+                                                                                 self.marker)[1])), 0)
+                                for r in ev.runs], 0)
+        chi2, dof, p_value, chi2_e = _chi2_split(res, ev.encoder_mask, m)
+        res_v = _evaluate(self.base, z, self.ev_val, self.marker, self.substeps)[0]
+        chi2_v, chi2_ve = (float(np.sum(res_v[mask] ** 2))
+                           for mask in (~self.ev_val.encoder_mask, self.ev_val.encoder_mask))
+        chi2_p = float(np.sum(res[res.size - (0 if ev.poses is None else ev.poses[3].size):] ** 2))
+        out = RunStep(step, label, chi2, dof, p_value, chi2 + chi2_e + m * self.ln_n, chi2_v,
+                      chi2_p, chi2_e, float(np.max(departure)), chi2_ve)
+        if self.on_event is not None:
+            self.on_event(out)
+        self.departs = departure > self.threshold
+        return out
+
+    def unexplained(self) -> bool:
+        """Whether the chi-square test fails, or a motor without a lag departs (lags screened)."""
+        return self.steps[-1].p_value <= ALPHA or ("lag" in self.kinds and any(
+            d and RunEffect("lag", j) not in self.added for j, d in enumerate(self.departs)))
+
+    def eligible(self) -> list[RunEffect]:
+        """The candidates of this step: not added nor removed, a lag only for a departing motor, and while one
+        departs the lags alone (only a lag moves the motors)."""
+        eligible = [c for c in self.candidates if c not in self.added and c not in self.removed
+                    and (c.kind != "lag" or self.departs[c.joint])]
+        if any(c.kind == "lag" for c in eligible):
+            eligible = [c for c in eligible if c.kind == "lag"]
+        return eligible
+
+    def screen(self, eligible) -> tuple[np.ndarray, np.ndarray, list[float]]:
+        """The residual and derivative columns (rows, variables) at `z`, and each candidate's linearised BIC
+        change of its own variables (-inf where not identifiable with the effects added)."""
+        n, ln_n = self.n, self.ln_n
+        needed = sorted({i for c in eligible + self.added for i in index(c, n)})
+        spare = [index(c, n)[0] for c in self.candidates  # lags whose motors do not depart: for their limits
+                 if c.kind == "lag" and c not in self.added and not self.departs[c.joint]][:-len(needed) % BATCH]
         if len(needed) % BATCH + len(spare) >= SINGLE_BELOW:  # they fill the last batch
             needed += spare
-        res, part = _evaluate(base, z, ev, marker, substeps, needed)  # reused by the fits' first step
-        cols = np.zeros((len(res), size))
+        res, part = _evaluate(self.base, self.z, self.ev, self.marker, self.substeps, needed)  # reused by the fits
+        cols = np.zeros((len(res), run_layout(n).size))
         cols[:, needed] = part
-        seen.update({i: cols[:, i] for i in needed})
+        self.seen.update({i: cols[:, i] for i in needed})
         gain = []
         for c in eligible:  # the BIC change of the candidate's own variables, linearised
             own = index(c, n)
             a = cols[:, own]
             g = a.T @ res
-            rest = [i for e in added for i in index(e, n)] + own
+            rest = self.variables(self.added) + own
             gain.append(float(g @ np.linalg.pinv(a.T @ a) @ g) - len(own) * ln_n
                         if _identifiable(cols[:, rest], [], n, np.arange(len(rest))) else -np.inf)
-        fits = []  # each candidate's fit ends on updated derivatives; the chosen one is then confirmed on fresh ones
+        return res, cols, gain
+
+    def best_fit(self, eligible, res, cols, gain):
+        """The `SCREENED` best candidates and the payload fitted for ranking, ranked by BIC (of those within
+        `MIN_BIC_GAIN` of the best, fewest parameters first), the first whose fit continued on fresh derivatives
+        succeeds: `(effect, RunFit, rivals, its ranking fit's residual)`, or None."""
+        ln_n, fits = self.ln_n, []  # each ranking fit ends on updated derivatives; the chosen one then on fresh ones
         shortlist = list(np.argsort(-np.asarray(gain), kind="stable")[:SCREENED])
         shortlist += [k for k, c in enumerate(eligible) if c.kind == "payload" and k not in shortlist]
         for k in shortlist:  # the payload always: its gain linearised at zero mass lacks the point's inertia
             if gain[k] == -np.inf:
                 continue
-            effects = added + [eligible[k]]
-            bound = min((f[0] for f in fits), default=math.inf) + MIN_BIC_GAIN - params(effects) * ln_n
-            fit = _fit(base, z, effects, ev, marker, substeps, res,
-                       cols[:, [i for e in effects for i in index(e, n)]], exact_end=False, bound=bound)
+            effects = self.added + [eligible[k]]
+            bound = min((f[0] for f in fits), default=math.inf) + MIN_BIC_GAIN - self.params(effects) * ln_n
+            fit = _fit(self.base, self.z, effects, self.ev, self.marker, self.substeps, res,
+                       cols[:, self.variables(effects)], exact_end=False, bound=bound)
             if fit.successful:
-                fits.append((fit.chi2 + params(effects) * ln_n, eligible[k], fit))
+                fits.append((fit.chi2 + self.params(effects) * ln_n, eligible[k], fit))
         fits.sort(key=lambda f: f[0])
         # the same footing: of the fits within MIN_BIC_GAIN of the best BIC, the one of fewest parameters first
-        close = sorted((f for f in fits if f[0] < fits[0][0] + MIN_BIC_GAIN), key=lambda f: (params([f[1]]), f[0]))
-        best = None
+        close = sorted((f for f in fits if f[0] < fits[0][0] + MIN_BIC_GAIN),
+                       key=lambda f: (self.params([f[1]]), f[0]))
         for bic_rank, effect, ranked in close + [f for f in fits if f not in close]:
-            effects, z_fit, r_fit = added + [effect], ranked.z, ranked.residual
-            variables = [i for e in effects for i in index(e, n)]
-            fit = _fit(base, z_fit, effects, ev, marker, substeps, r_fit,
-                       _evaluate(base, z_fit, ev, marker, substeps, variables)[1], chi2_before=float(res @ res))
+            effects = self.added + [effect]
+            fit = _fit(self.base, ranked.z, effects, self.ev, self.marker, self.substeps, ranked.residual,
+                       _evaluate(self.base, ranked.z, self.ev, self.marker, self.substeps,
+                                 self.variables(effects))[1], chi2_before=float(res @ res))
             if fit.successful:
-                best = (effect, fit, [(f[0] - bic_rank, f[1], f[2].residual) for f in close if f[1] != effect], r_fit)
-                break
-        last = steps[-1]
-        if best is None:
-            verdict = "not explained: no candidate fit lowers the chi-square within the physical range"
-            break
-        effect, fit, rivals, r_kept = best
-        z_new, chi2_new, r_new, cov_new, jac_new = fit.z, fit.chi2, fit.residual, fit.covariance, fit.jacobian
-        m_new = params(added + [effect])
-        if not chi2_new + m_new * ln_n < last.bic - MIN_BIC_GAIN:
-            verdict = f"not explained: the best candidate ({effect.label}) does not lower BIC by {MIN_BIC_GAIN}"
-            break
-        new = row(len(steps), effect.label, z_new, m_new)
+                return effect, fit, [(f[0] - bic_rank, f[1], f[2].residual) for f in close if f[1] != effect], \
+                    ranked.residual
+        return None
+
+    def add(self, effect: RunEffect, fit, rivals, r_kept, res) -> str:
+        """Add `effect` at its `fit` where it lowers BIC by `MIN_BIC_GAIN` and the validation chi-square, then fit
+        out each effect added before it (but the lags); **returns:** why it was refused, "" where it was added."""
+        last, m_new, ln_n = self.steps[-1], self.params(self.added + [effect]), self.ln_n
+        if not fit.chi2 + m_new * ln_n < last.bic - MIN_BIC_GAIN:
+            return f"not explained: the best candidate ({effect.label}) does not lower BIC by {MIN_BIC_GAIN}"
+        new = self.row(len(self.steps), effect.label, fit.z, m_new)
         validation = lambda r: r.chi2_validation + r.chi2_validation_encoders  # noqa: E731  (tracker and encoders)
         if not validation(new) < validation(last):
-            verdict = f"not explained: {effect.label} does not lower the validation runs' chi-square"
-            break
-        confounds += [RunConfound(effect, rival, float(delta), _signature_correlation(r_kept - res, r_rival - res))
-                      for delta, rival, r_rival in rivals]
-        z, added, cov, r_z, jac_z = z_new, added + [effect], cov_new, r_new, jac_new
-        steps.append(new)
-        bic, at = chi2_new + m_new * ln_n, [i for e in added for i in index(e, n)]
-        signature = {e: jac_new[:, [at.index(i) for i in index(e, n)]] @ np.asarray(z_new)[index(e, n)]
-                     for e in added}  # each effect's linearised change of the residual at the new fit
-        for old in [e for e in added[:-1] if e.kind != "lag"]:  # fitted out again: does the new effect explain it?
-            rest = [e for e in added if e != old]
-            variables = [i for e in rest for i in index(e, n)]
-            z_out = jnp.asarray(z).at[np.asarray(index(old, n))].set(0.0)
-            r_out, jac_out = _evaluate(base, z_out, ev, marker, substeps, variables)
-            fit = _fit(base, z_out, rest, ev, marker, substeps, r_out, jac_out, chi2_before=math.inf)
-            if not fit.successful or not fit.chi2 + params(rest) * ln_n < bic + MIN_BIC_GAIN:
+            return f"not explained: {effect.label} does not lower the validation runs' chi-square"
+        self.confounds += [RunConfound(effect, rival, float(delta), _signature_correlation(r_kept - res, r_rival - res))
+                           for delta, rival, r_rival in rivals]
+        self._accept(fit, self.added + [effect])
+        self.steps.append(new)
+        self._fit_out_earlier(effect, fit, fit.chi2 + m_new * ln_n)
+        return ""
+
+    def _accept(self, fit, effects: list[RunEffect]) -> None:
+        self.z, self.added, self.cov, self.r_z, self.jac_z = fit.z, effects, fit.covariance, fit.residual, fit.jacobian
+
+    def _fit_out_earlier(self, effect: RunEffect, fit, bic: float) -> None:
+        """Each effect added before `effect` (but the lags, which the encoders fix) fitted out again: where the model
+        without it is within `MIN_BIC_GAIN` of `bic`, it is removed (`effect` explains what it did)."""
+        n, ln_n, at = self.n, self.ln_n, self.variables(self.added)
+        signature = {e: fit.jacobian[:, [at.index(i) for i in index(e, n)]] @ np.asarray(fit.z)[index(e, n)]
+                     for e in self.added}  # each effect's linearised change of the residual at the new fit
+        for old in [e for e in self.added[:-1] if e.kind != "lag"]:
+            rest = [e for e in self.added if e != old]
+            z_out = jnp.asarray(self.z).at[np.asarray(index(old, n))].set(0.0)
+            r_out, jac_out = _evaluate(self.base, z_out, self.ev, self.marker, self.substeps, self.variables(rest))
+            out = _fit(self.base, z_out, rest, self.ev, self.marker, self.substeps, r_out, jac_out,
+                       chi2_before=math.inf)
+            if not out.successful or not out.chi2 + self.params(rest) * ln_n < bic + MIN_BIC_GAIN:
                 continue
-            confounds.append(RunConfound(effect, old, float(bic - (fit.chi2 + params(rest) * ln_n)),
-                                         _signature_correlation(signature[effect], signature[old]), removed=True))
-            z, added, cov, r_z, jac_z = fit.z, rest, fit.covariance, fit.residual, fit.jacobian
-            removed, bic = removed | {old}, fit.chi2 + params(rest) * ln_n
-            steps.append(row(len(steps), f"without {old.label}", z, params(rest)))
-    else:
-        if added:
-            verdict = ("explained: the runs agree with the model to the tracker and encoder noise after adding "
-                       + ", ".join(e.label for e in added))
-    z_all, cov_all, final_fit = z, cov, None
-    if added:  # chosen on the training runs, validated on the held-out ones: estimated on all of them
-        z_all, cov_all, final_fit = _final_fit(base, z, added, ev, ev_val, r_z, jac_z, cov, marker, substeps,
-                                              steps[-1])
-    added_kinds = {e.kind for e in added}
-    final = dataclasses.replace(with_effects(base, z_all), **{
-        field: None for field, kind in OPTIONAL_FIELDS.items() if getattr(robot, field) is None
-        and kind not in added_kinds})
-    estimates, covariance = _estimate(base, np.asarray(z_all), added, cov_all)
-    variables = [i for e in added for i in index(e, n)]
-    unseen = [c for c in candidates if c not in added]
-    limits = []
-    if unseen:  # one column each (the payload's mass): the latest screening's, else at the training fit
-        first = [index(c, n)[0] for c in unseen]
-        missing = [i for i in first if i not in seen]
-        if missing:
-            seen.update(zip(missing, _evaluate(base, z, ev, marker, substeps, missing)[1].T))
-        limits = _limits(base, np.asarray(z), unseen, np.stack([seen[i] for i in first], 1), ln_n)
-    return RunDiagnosis(final, steps, estimates, verdict, covariance, (base, np.asarray(z_all), variables, cov_all),
-                        tuple(k for k in KINDS if k not in kinds), tuple(int(j) for j in np.flatnonzero(still)),
-                        limits, confounds, final_fit)
+            self.confounds.append(RunConfound(effect, old, float(bic - (out.chi2 + self.params(rest) * ln_n)),
+                                              _signature_correlation(signature[effect], signature[old]), removed=True))
+            self._accept(out, rest)
+            self.removed, bic = self.removed | {old}, out.chi2 + self.params(rest) * ln_n
+            self.steps.append(self.row(len(self.steps), f"without {old.label}", self.z, self.params(rest)))
+
+    def diagnosis(self, verdict: str) -> RunDiagnosis:
+        """The result: the effects chosen estimated on every run and pose (`_final_fit`), the detection limits of
+        the candidates not added."""
+        n, z, added = self.n, self.z, self.added
+        z_all, cov_all, final_fit = z, self.cov, None
+        if added:  # chosen on the training runs, validated on the held-out ones: estimated on all of them
+            z_all, cov_all, final_fit = _final_fit(self.base, z, added, self.ev, self.ev_val, self.r_z, self.jac_z,
+                                                  self.cov, self.marker, self.substeps, self.steps[-1])
+        added_kinds = {e.kind for e in added}
+        final = dataclasses.replace(with_effects(self.base, z_all), **{
+            field: None for field, kind in optional_fields().items() if getattr(self.robot, field) is None
+            and kind not in added_kinds})
+        estimates, covariance = _estimate(self.base, np.asarray(z_all), added, cov_all)
+        unseen = [c for c in self.candidates if c not in added]
+        limits = []
+        if unseen:  # one column each (the payload's mass): the latest screening's, else at the training fit
+            first = [index(c, n)[0] for c in unseen]
+            missing = [i for i in first if i not in self.seen]
+            if missing:
+                self.seen.update(zip(missing, _evaluate(self.base, z, self.ev, self.marker, self.substeps,
+                                                        missing)[1].T))
+            limits = _limits(self.base, np.asarray(z), unseen, np.stack([self.seen[i] for i in first], 1), self.ln_n)
+        return RunDiagnosis(final, self.steps, estimates, verdict, covariance,
+                            (self.base, np.asarray(z_all), self.variables(added), cov_all),
+                            tuple(k for k in run_effects() if k not in self.kinds),
+                            tuple(int(j) for j in np.flatnonzero(self.still)), limits, self.confounds, final_fit)
