@@ -59,14 +59,14 @@ def _residual(robot, z, cmd, white, measured, sigma, marker, substeps, encoders,
 
 @functools.partial(jax.jit, static_argnames="substeps")
 def _perturbed(robot, zs, cmd, white, measured, sigma, marker, substeps, encoders, encoder_sigma):
-    """`_whitened` at each row of `zs` (`BATCH`, 7n + 4): one batched simulation of the perturbed models."""
+    """`_whitened` at each row of `zs` (`BATCH`, z.size): one batched simulation of the perturbed models."""
     return jax.vmap(lambda z: _whitened(robot, z, cmd, white, measured, sigma, marker, substeps, encoders,
                                         encoder_sigma))(zs)
 
 
 @jax.jit
 def _pose_rows(robot, z, theta, ccw, white, measured, marker):
-    """Whitened residuals (3K,) of poses at rest (`white` includes `1 / sigma`) and their derivatives (3K, 4n + 4)."""
+    """Whitened residuals (3K,) of poses at rest (`white` includes `1 / sigma`) and their derivatives (3K, z.size)."""
     def f(z):
         moved = with_effects(robot, z)
         q = rest_angles(moved, jnp.zeros(()), theta, (ccw, ccw), None, EXACT_ITERATIONS)

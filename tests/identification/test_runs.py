@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 
 import jax
 import jax.numpy as jnp
@@ -398,6 +399,34 @@ def test_a_point_is_simulated_once(monkeypatch):
         ev.known[(k,)] = None
     evidence._evaluate(base, 0.1 * np.ones(size), ev, marker, 4)
     assert len(ev.known) == evidence.KNOWN and (0,) not in ev.known
+
+
+def test_run_fits_return_a_status():
+    """`_fit` returns a `RunFit` whose `jaxrobot.RESULTS` status says why a fit is refused, never None: a start
+    without a finite residual is `nonfinite` (nothing is simulated), a fit that ends outside the physical range (a
+    negative Coulomb friction held by the start) `nonlinear_divergence`; neither is `successful` nor has a
+    covariance."""
+    from identification.diagnosis._run_evidence import _evaluate, _Evidence, _prepare
+    from identification.diagnosis._run_fits import _fit
+    from identification.diagnosis._run_model import index, run_layout, with_effect_arrays
+    from identification.diagnosis._run_results import RunEffect
+
+    marker, noise = jnp.array([0.05, 0.0, 0.0]), 5e-5
+    base = with_effect_arrays(jr.robot_from_description(arm_description()))
+    t = np.arange(40) * 1e-3
+    cmd = (t, *command(t))
+    rng = np.random.default_rng(3210)
+    run = (t, cmd[1], 0.3 + 1e-3 * rng.standard_normal((40, 3)))
+    runs, sigma = _prepare([(cmd, run)], noise, "train")
+    ev = _Evidence(runs, sigma, None)
+    viscous = RunEffect("viscous", 1)
+    z = np.zeros(run_layout(2).size)
+    z[index(RunEffect("coulomb", 0), 2)] = -0.01
+    r0, jac0 = _evaluate(base, z, ev, marker, 4, index(viscous, 2))
+    refused = _fit(base, z, [viscous], ev, marker, 4, np.full_like(r0, np.nan), jac0)
+    assert jr.status_name(refused.result) == "nonfinite" and not refused.successful
+    out = _fit(base, z, [viscous], ev, marker, 4, r0, jac0, chi2_before=math.inf)
+    assert jr.status_name(out.result) == "nonlinear_divergence" and not out.successful and out.covariance is None
 
 
 @pytest.mark.extended  # ~1 min: the run programs compile for the arm
