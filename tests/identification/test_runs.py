@@ -336,6 +336,20 @@ def test_each_run_kind_moves_its_field_alone_and_reports_it(kind):
     np.testing.assert_allclose(cov, [[est.std**2]], rtol=1e-12)
 
 
+def short_arm_run(seed: int):
+    """The arm with zeros in its absent effect fields, the marker, the tracker noise, and a 40 ms command with a run
+    of noisy encoders and positions (seeded): what the tests of the fits' evidence evaluate."""
+    from identification.diagnosis._run_model import with_effect_arrays
+
+    marker, noise = jnp.array([0.05, 0.0, 0.0]), 5e-5
+    base = with_effect_arrays(jr.robot_from_description(arm_description()))
+    t = np.arange(40) * 1e-3
+    cmd = (t, *command(t))
+    rng = np.random.default_rng(seed)
+    run = (t, cmd[1] + 1e-4 * rng.standard_normal(cmd[1].shape), 0.3 + 1e-3 * rng.standard_normal((40, 3)))
+    return base, marker, noise, cmd, run
+
+
 def test_derivative_columns_by_forward_differences_match_autodiff():
     """`_evaluate`'s derivative columns (forward differences of `FD_STEP`, in batches of `BATCH` perturbed models and
     single simulations for a remainder) against forward-mode autodiff of the same residual, on the arm's short run
@@ -343,14 +357,9 @@ def test_derivative_columns_by_forward_differences_match_autodiff():
     truncation error of a step of 1e-4 of each variable's scale, where the residual curves over the variable's own
     scale)."""
     from identification.diagnosis._run_evidence import BATCH, SINGLE_BELOW, _evaluate, _Evidence, _prepare, _whitened
-    from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS, with_effect_arrays
+    from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS
 
-    marker, noise = jnp.array([0.05, 0.0, 0.0]), 5e-5
-    base = with_effect_arrays(jr.robot_from_description(arm_description()))
-    t = np.arange(40) * 1e-3
-    cmd = (t, *command(t))
-    rng = np.random.default_rng(3208)
-    run = (t, cmd[1] + 1e-4 * rng.standard_normal(cmd[1].shape), 0.3 + 1e-3 * rng.standard_normal((40, 3)))
+    base, marker, noise, cmd, run = short_arm_run(3208)
     runs, sigma = _prepare([(cmd, run)], noise, "train")
     ev = _Evidence(runs, sigma, None, 1e-5)
     size = len(RUN_KINDS) * 2 + len(PAYLOAD)
@@ -373,14 +382,9 @@ def test_a_point_is_simulated_once(monkeypatch):
     returns exactly what a fresh evaluation returns; another marker is another point; the memory keeps `KNOWN`
     points."""
     from identification.diagnosis import _run_evidence as evidence
-    from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS, with_effect_arrays
+    from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS
 
-    marker, noise = jnp.array([0.05, 0.0, 0.0]), 5e-5
-    base = with_effect_arrays(jr.robot_from_description(arm_description()))
-    t = np.arange(40) * 1e-3
-    cmd = (t, *command(t))
-    rng = np.random.default_rng(3209)
-    run = (t, cmd[1] + 1e-4 * rng.standard_normal(cmd[1].shape), 0.3 + 1e-3 * rng.standard_normal((40, 3)))
+    base, marker, noise, cmd, run = short_arm_run(3209)
     runs, sigma = evidence._prepare([(cmd, run)], noise, "train")
     ev = evidence._Evidence(runs, sigma, None, 1e-5)
     size = len(RUN_KINDS) * 2 + len(PAYLOAD)
@@ -408,15 +412,10 @@ def test_run_fits_return_a_status():
     covariance."""
     from identification.diagnosis._run_evidence import _evaluate, _Evidence, _prepare
     from identification.diagnosis._run_fits import _fit
-    from identification.diagnosis._run_model import index, run_layout, with_effect_arrays
+    from identification.diagnosis._run_model import index, run_layout
     from identification.diagnosis._run_results import RunEffect
 
-    marker, noise = jnp.array([0.05, 0.0, 0.0]), 5e-5
-    base = with_effect_arrays(jr.robot_from_description(arm_description()))
-    t = np.arange(40) * 1e-3
-    cmd = (t, *command(t))
-    rng = np.random.default_rng(3210)
-    run = (t, cmd[1], 0.3 + 1e-3 * rng.standard_normal((40, 3)))
+    base, marker, noise, cmd, run = short_arm_run(3210)
     runs, sigma = _prepare([(cmd, run)], noise, "train")
     ev = _Evidence(runs, sigma, None)
     viscous = RunEffect("viscous", 1)
