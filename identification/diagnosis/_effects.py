@@ -154,13 +154,13 @@ GEOMETRY = ("a1", "a2", "a3", "a4", "a5", "a6", "d1", "d2", "d4", "d5", "d6",
 the 26 of `identification.DEFAULT_PARAMETERS` less offsets and wrist ratios)."""
 
 
-def geometry_names(robot: jr.Robot) -> tuple[str, ...]:
-    """The mDH parameters (a, d, alpha, beta) of `default_parameters(robot)`, by field then joint
-    (`GEOMETRY` for the Racer-7)."""
+def geometry_names(robot: jr.Robot, marker: Float[Array, "3"]) -> tuple[str, ...]:
+    """The mDH parameters (a, d, alpha, beta) of `default_parameters(robot, marker=marker)`, by field then joint
+    (`GEOMETRY` for the Racer-7 with its bench's marker)."""
     from ..core._identifiability import default_parameters
 
     fields = ("a", "d", "alpha", "beta")
-    geo = [parse_name(n) for n in default_parameters(robot) if parse_name(n)[0] in fields]
+    geo = [parse_name(n) for n in default_parameters(robot, marker=marker) if parse_name(n)[0] in fields]
     return tuple(f"{f}{j + 1}" for f, j in sorted(geo, key=lambda fj: (fields.index(fj[0]), fj[1])))
 
 
@@ -272,12 +272,13 @@ class ApproachDependentGearSet(Effect):
 CATALOGUE: list[Effect] = [JointOffset(), GearRatio(), Backlash(), JointCompliance(), GearRipple(),
                            DirectionDependentRipple(), Geometry(), LinkScale(), ToolOffset(), BaseOffset(),
                            Payload(), ApproachDependentGearSet()]
-"""The effects the workflow tries, in this order (ties keep the earlier one); `catalogue(robot)`
-sizes the geometry effect for a robot."""
+"""The effects the workflow tries, in this order (ties keep the earlier one); `catalogue(robot, marker)`
+sizes the geometry effect for a robot and its tracker marker."""
 
-def catalogue(robot: jr.Robot) -> list[Effect]:
-    """`CATALOGUE` with the geometry effect on the identifiable mDH parameters of `robot`."""
-    return [Geometry(geometry_names(robot)) if isinstance(e, Geometry) else e for e in CATALOGUE]
+def catalogue(robot: jr.Robot, marker: Float[Array, "3"]) -> list[Effect]:
+    """`CATALOGUE` with the geometry effect on the mDH parameters of `robot` identifiable from the positions of a
+    marker at `marker` [m] in the tool frame."""
+    return [Geometry(geometry_names(robot, marker)) if isinstance(e, Geometry) else e for e in CATALOGUE]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
