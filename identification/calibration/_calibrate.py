@@ -234,7 +234,8 @@ class _Fit:
 @dataclasses.dataclass(frozen=True)
 class _Problem:
     """The constants of a calibration's fits: the start robot, its K identification poses (motor angles, gravity
-    deflection, measured positions and rotations, gear sets) and the tracker (marker, noise, whitening)."""
+    deflection, measured positions and rotations, gear sets), the tracker (marker, noise, whitening), and the
+    identification and validation poses together (`*_all`, the validation poses after the K) for the errors."""
 
     robot: jr.Robot
     theta: jax.Array
@@ -250,6 +251,11 @@ class _Problem:
     prior: np.ndarray | None
     max_steps: int
     throw: bool
+    theta_all: jax.Array
+    positions_all: np.ndarray
+    deflection_all: jax.Array
+    ccw_all: bool | np.ndarray
+    validated: bool
 
     @property
     def rows(self) -> int:
@@ -299,10 +305,47 @@ class _Problem:
                                 residuals=resid.ravel(), noise_variance=np.asarray(noise**2))
         return _Fit(out, resid, pose_w, noise, out.covariance)
 
+    def result(self, params: ParameterMap | None, fit: _Fit, **fields) -> CalibrationResult:
+        """The `CalibrationResult` of `fit` of `params` (None: every parameter set aside), with the errors of the
+        identification and validation poses before and after and the chi-square test; `fields`: the others."""
+        robot, out, k, s_p = self.robot, fit.estimate, self.theta.shape[0], self.sigma
+        calibrated = robot if params is None else params.set(robot, jnp.asarray(out.value))
+        err0, err1 = (position_errors(r, self.theta_all, self.positions_all, self.deflection_all, self.marker,
+                                      self.ccw_all) for r in (robot, calibrated))
+        chi2, dof, p_value = noise_test(fit.residuals, s_p, len(out.value), fit.weights > 0)
+        val = self.validated
+        return CalibrationResult(
+            robot=calibrated, names=() if params is None else params.names, value=out.value,
+            start=np.zeros(0) if params is None else np.asarray(params.get(robot)),
+            std=np.sqrt(np.diag(fit.covariance)), covariance=fit.covariance, residuals=fit.residuals.ravel(),
+            status=out.status, iterations=int(out.steps), noise_estimate=fit.noise, loss=self.loss,
+            weights=fit.weights, outliers=robust.outliers(fit.residuals, s_p),
+            outlier_bound=s_p * robust.outlier_bound(self.rows), errors_before=err0[:k], errors_after=err1[:k],
+            validation_before=err0[k:] if val else None, validation_after=err1[k:] if val else None,
+            prior_std=self.prior, chi2=float(chi2), dof=int(dof), p_value=float(p_value), **fields)
+
     def check(self, names: Sequence[str], prior_std: dict | None) -> ParameterCheck:
         """`check_default` of the default set `names` on these poses."""
         return check_default(self.robot, names, self.theta, self.deflection, self.marker, self.rotations is not None,
                              self.whiten, float(self.weight_r), self.sigma, prior_std, self.ccw)
+
+
+def _problem(robot: jr.Robot, theta, positions, quaternions, ccw, validation, instruments: jr.Instruments, noise,
+             marker, loss: str, prior, max_steps: int, throw: bool) -> _Problem:
+    """The `_Problem` of `calibrate`'s checked poses: the gravity deflection of the identification and validation
+    poses in one evaluation, the noise model of the tracker `noise` at the measured positions."""
+    s_p, white = noise_model(noise, positions, "instruments.tracker_noise")
+    vt, vp, vccw = _validation_arrays(robot, validation)
+    k = theta.shape[0]
+    ccw_all = ccw if np.ndim(ccw) == 0 and not vccw.any() else np.concatenate(
+        [np.broadcast_to(ccw, theta.shape), vccw])
+    th_all = jnp.asarray(np.concatenate([theta, vt]))
+    defl_all = _deflection(robot, th_all, ccw_all)  # one evaluation for both sets
+    rotations = None if quaternions is None else jr.quaternion_to_rotation(jnp.asarray(quaternions))
+    return _Problem(robot, th_all[:k], defl_all[:k], positions, rotations, ccw if np.ndim(ccw) == 0 else ccw_all[:k],
+                    marker, s_p, white, jnp.asarray(s_p / instruments.tracker_orientation_noise), loss, prior,
+                    max_steps, throw, th_all, np.concatenate([positions, vp]), defl_all, ccw_all,
+                    validation is not None)
 
 
 def _validation_arrays(robot: jr.Robot, validation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -344,12 +387,10 @@ def calibrate(
     - `motor_angles` (K, n) rad at rest; `positions` (K, 3) m measured marker positions;
       `quaternions` (K, 4) optional measured orientation (qx, qy, qz, qw); or `Poses` as `motor_angles`
       (then none of `positions`, `quaternions`, `ccw`: they come from the `Poses`).
-    - `instruments`: the measurement setup (`jaxrobot.Instruments`; `jaxrobot.io.read_instruments` of a robot or
-      setup file, `jaxrobot.racer7_instruments()` for the embedded bench). Its `marker_offset` [m] places the
-      marker in the tool frame; its tracker noise (`tracker_noise`, or a laser tracker's model whose covariance
-      then whitens each pose's position residual) scales the robust loss and the noise test, and
-      `tracker_orientation_noise` weighs orientation rows against position rows. A missing setting raises an
-      error naming it.
+    - `instruments`: the measurement setup (`jaxrobot.Instruments`, e.g. `jaxrobot.io.read_instruments(file)`):
+      its `marker_offset` places the marker in the tool frame, its tracker noise (a laser tracker's whitens each
+      pose's position residual) scales the robust loss and the noise test, its `tracker_orientation_noise` weighs
+      orientation rows against position rows; a setting it lacks raises an error naming it.
     - `parameters`: free parameter names, fitted as given. Default: `default_parameters(robot)` for the
       measurement type (positions, or positions and orientations when `quaternions` are given), fitted
       together, then reduced by backward elimination while the BIC does not rise and the kept ones fitted
@@ -394,16 +435,8 @@ def calibrate(
     prior = prior_stds(robot, params, prior_std) if method == "map" else None
     theta, pos, quat, beyond = check_inputs(robot, params, motor_angles, positions, quaternions, limits, ccw)
     check_pose_units(robot, theta, pos, marker, "motor_angles/positions")
-    s_p, white = noise_model(noise, pos, "instruments.tracker_noise")
-    vt, vp, vccw = _validation_arrays(robot, validation)
-    k = theta.shape[0]
-    ccw_all = ccw if np.ndim(ccw) == 0 and not vccw.any() else np.concatenate(
-        [np.broadcast_to(ccw, theta.shape), vccw])
-    th_all = jnp.asarray(np.concatenate([theta, vt]))
-    defl_all = _deflection(robot, th_all, ccw_all)  # one evaluation for both sets
-    problem = _Problem(robot, th_all[:k], defl_all[:k], pos, None if quat is None else jr.quaternion_to_rotation(
-        jnp.asarray(quat)), ccw if np.ndim(ccw) == 0 else ccw_all[:k], marker, s_p, white,
-        jnp.asarray(s_p / instruments.tracker_orientation_noise), loss, prior, max_steps, throw)
+    problem = _problem(robot, theta, pos, quat, ccw, validation, instruments, noise, marker, loss, prior, max_steps,
+                       throw)
     check_out = problem.check(params.names, prior_std) if checked else None
     params = params if check_out is None else ParameterMap(check_out.kept)
     fit, selection = problem.fit(params), None
@@ -415,22 +448,8 @@ def calibrate(
             fit = problem.fit(params)
         elif not selection.kept:
             fit, params = problem.start(params), None
-    out = fit.estimate
-    calibrated = robot if params is None else params.set(robot, jnp.asarray(out.value))
-    p_all = np.concatenate([pos, vp])
-    err0, err1 = (position_errors(r, th_all, p_all, defl_all, marker, ccw_all) for r in (robot, calibrated))
-    val = validation is not None
-    chi2, dof, p_value = noise_test(fit.residuals, s_p, len(out.value), fit.weights > 0)
-    return CalibrationResult(
-        robot=calibrated, names=() if params is None else params.names, value=out.value,
-        start=np.zeros(0) if params is None else np.asarray(params.get(robot)),
-        std=np.sqrt(np.diag(fit.covariance)), covariance=fit.covariance, residuals=fit.residuals.ravel(),
-        status=out.status, iterations=int(out.steps), noise_estimate=fit.noise, loss=loss, weights=fit.weights,
-        outliers=robust.outliers(fit.residuals, s_p), outlier_bound=s_p * robust.outlier_bound(problem.rows),
-        errors_before=err0[:k], errors_after=err1[:k],
-        validation_before=err0[k:] if val else None, validation_after=err1[k:] if val else None,
-        beyond_limits=tuple(beyond), method=method, prior_std=prior, chi2=float(chi2), dof=int(dof),
-        p_value=float(p_value), selection=selection, parameter_check=check_out)
+    return problem.result(params, fit, beyond_limits=tuple(beyond), method=method, selection=selection,
+                          parameter_check=check_out)
 
 
 def check_default(

@@ -1,6 +1,7 @@
 """Kinematic calibration on bench data (issue 4, thesis 3.2): identifiability, DETMAX pose
 selection, LM calibration (vs scipy), bad input, and the sharded fleet path."""
 
+import dataclasses
 import json
 import os
 import re
@@ -28,6 +29,7 @@ from identification.core._noise import ALPHA
 from identification.core._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters
 from identification.core._pose_selection import (
     detmax,
+    feasible,
     pose_jacobians,
     random_feasible_poses,
     rest_motor_angles,
@@ -87,6 +89,32 @@ def calibrated(robots, bench):
     ident, valid = bench
     return calibrate(nominal, ident.motor_angles, ident.positions,
                      validation=(valid.motor_angles, valid.positions), instruments=INSTRUMENTS)
+
+
+def test_calibrate_takes_the_marker_of_its_instruments(robots, thesis_theta):
+    """Poses of the as-built robot measured with the marker elsewhere than the Racer-7 bench's (another campaign's
+    `Instruments`): `calibrate` told that setup fits the thesis' 17 parameters to the noise (the chi-square test
+    passes); told the bench's marker, the 3 cm misplaced marker leaves residuals far beyond the noise (the 17 give
+    joint 6 and the marker no parameter to absorb it)."""
+    nominal, truth = robots
+    other = dataclasses.replace(INSTRUMENTS, marker_offset=[0.05, 0.05, 0.06])
+    poses = measure_poses(truth, thesis_theta, seed=21, instruments=other)
+    right, wrong = (calibrate(nominal, poses, instruments=setup, parameters=THESIS_PARAMETERS, loss="l2")
+                    for setup in (other, INSTRUMENTS))
+    assert right.converged and right.consistent, right.p_value
+    assert not wrong.consistent and wrong.noise_estimate > 10 * INSTRUMENTS.tracker_noise
+
+
+def test_pose_selection_keeps_the_given_marker_above_the_floor(robots):
+    """Feasibility puts the marker of the given offset above the floor (`z >= 0`): with a marker 0.9 m down the
+    tool axis the same draw keeps other poses than with the bench's, and each kept pose holds its marker up."""
+    nominal, _ = robots
+    long = np.array([0.0, 0.0, 0.9])
+    q_bench, q_long = (random_feasible_poses(nominal, 200, seed=4, marker=m) for m in (MARKER, long))
+    assert not np.array_equal(q_bench, q_long)
+    z = np.asarray(jr.point_position(nominal, jnp.asarray(q_long), long))[:, 2]
+    assert z.min() >= 0.0
+    assert not feasible(nominal, q_bench, long).all()
 
 
 def test_calibrate_with_poses_equals_the_arrays(robots, bench, calibrated):
