@@ -433,7 +433,7 @@ FLEET_SCRIPT = textwrap.dedent("""
     assert len(jax.devices()) == 4, jax.devices()
     data = np.load(sys.argv[1])
     res = calibrate_fleet(jr.racer7(), data["theta"], data["positions"], parameters=data["names"].tolist(),
-                          instruments=INSTRUMENTS)
+                          instruments=jr.racer7_instruments())
     print(json.dumps({"devices": res.n_devices, "converged": res.converged.tolist(), "value": res.value.tolist(),
                       "std": res.std.tolist(), "rms": res.rms_m.tolist()}))
 """)
