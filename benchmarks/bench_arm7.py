@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import builtins
+import dataclasses
 import json
 import tempfile
 import time
@@ -36,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
-from identification import TrackerNoise, calibrate, diagnose
+from identification import calibrate, diagnose
 from identification.core._parameters import ParameterMap, predict_pose, rest_deflection
 from jaxrobot.io import read_csv_columns, read_poses
 from jaxrobot.measurement import Poses
@@ -55,10 +56,8 @@ def _rms(err) -> float:
 
 
 def _load(d: Path):
-    desc = jr.read_description(d / "start.toml")["sensors"]
     return (jr.load_robot(d / "start.toml"), read_poses(d / "train.csv"), read_poses(d / "val.csv"),
-            json.loads((d / "truth.json").read_text()), desc["tracker_marker_offset_m"],
-            desc["tracker_position_noise_m"])
+            json.loads((d / "truth.json").read_text()), jr.io.read_instruments(d / "start.toml"))
 
 
 def _generator(root: Path):
@@ -88,13 +87,13 @@ def write_generated(root: Path, out: Path) -> None:
 
 
 def diagnose_row(d: Path, name: str) -> str:
-    robot, train, val, truth, marker, noise = _load(d)
+    robot, train, val, truth, instruments = _load(d)
     tr, va = Poses.of(train.motor_angles, train.positions), Poses.of(val.motor_angles, val.positions)
     times = read_csv_columns(d / "train.csv", [], ["t_s"]).get("t_s")
     out = {}
     for loss in ("cauchy", "l2") if name == "noise/outliers" else ("cauchy",):
         t = time.perf_counter()
-        res = diagnose(robot, tr, va, noise=noise, marker=marker, loss=loss, times=times)
+        res = diagnose(robot, tr, va, instruments=instruments, loss=loss, times=times)
         out[loss] = (res, time.perf_counter() - t)
     res, seconds = out["cauchy"]
     floor = truth["floor_um"]
@@ -130,13 +129,14 @@ def expected_um(res, val, marker, floor: float) -> float:
 
 
 def calibrate_row(d: Path, name: str) -> str:
-    robot, train, val, truth, marker, noise = _load(d)
-    kw = {"marker": marker, "position_noise": noise, "validation": (val.motor_angles, val.positions)}
+    robot, train, val, truth, isotropic = _load(d)
+    marker = isotropic.marker_offset
+    kw = {"instruments": isotropic, "validation": (val.motor_angles, val.positions)}
     floor = truth["floor_um"]
     if "noise_los_um" in truth:  # the laser-tracker model against the isotropic std of the same variance
-        tracker = TrackerNoise(np.asarray(truth["tracker_position_m"]), 1e-6 * truth["noise_los_um"],
-                               1e-6 * truth["noise_perp_um"])
-        kw["position_noise"] = tracker
+        kw["instruments"] = dataclasses.replace(isotropic, tracker_position=truth["tracker_position_m"],
+                                                tracker_noise_along=1e-6 * truth["noise_los_um"],
+                                                tracker_noise_across=1e-6 * truth["noise_perp_um"])
     fit = lambda **more: calibrate(robot, train.motor_angles, train.positions, **{**kw, **more})  # noqa: E731
     t = time.perf_counter()
     r = fit()
@@ -144,7 +144,7 @@ def calibrate_row(d: Path, name: str) -> str:
     full, p = fit(all_parameters=True), fit(loss="l2")
     oracle, how = None, ""
     if "noise_los_um" in truth:
-        oracle, how = _rms(fit(position_noise=noise).validation_after), "the same with the isotropic std (start.toml)"
+        oracle, how = _rms(fit(instruments=isotropic).validation_after), "the same with the isotropic std (start.toml)"
     elif "oracle" in truth:
         oracle, how = truth["oracle"]["val_rms_um"], "generator's LS, 32 true deviations"
     elif "outlier_rows_0based" in truth:
@@ -164,7 +164,7 @@ def draws_rows(root: Path, n: int) -> list[str]:
     sets drawn as `calibration/` is (60 + 30 poses, 25 um) with random deviations and `n` with none."""
     g = _generator(root)
     robot = jr.load_robot(root / "calibration" / "start.toml")
-    sensors = jr.read_description(root / "calibration" / "start.toml")["sensors"]
+    instruments = jr.io.read_instruments(root / "calibration" / "start.toml")
     out = []
     for hidden in ("random deviations (as calibration/)", "nothing (the start model is the truth)"):
         ratios = {"full": [], "selected": []}
@@ -178,8 +178,7 @@ def draws_rows(root: Path, n: int) -> list[str]:
             th_tr, p_tr, th_va, p_va = g.make_set(g.calib_arm(x), rng)
             m_tr, m_va = g.noise_iso(p_tr, rng), g.noise_iso(p_va, rng)
             floor = g.rms_um(p_va, m_va)
-            kw = {"marker": sensors["tracker_marker_offset_m"], "position_noise": sensors["tracker_position_noise_m"],
-                  "validation": (th_va, m_va)}
+            kw = {"instruments": instruments, "validation": (th_va, m_va)}
             for key, every in (("full", True), ("selected", False)):
                 res = calibrate(robot, th_tr, m_tr, all_parameters=every, **kw)
                 ratios[key].append(_rms(res.validation_after) / floor)

@@ -30,9 +30,14 @@ from identification.calibration._fleet import _constants, _fleet_constants, _fle
 from identification.core._batched_lm import LMConfig
 from identification.core._forward import rippled_joints
 from identification.core._parameters import ParameterMap
-from identification.core._pose_selection import default_marker, random_feasible_poses
+from identification.core._pose_selection import random_feasible_poses
 from jaxrobot.bench import draw_fleet, measure_poses
 from jaxrobot.internal import shard_rows
+
+INSTRUMENTS = jr.racer7_instruments()
+"""The measurement setup of the bench data: the embedded Racer-7 bench's."""
+MARKER = INSTRUMENTS.marker_offset
+"""Its tracker marker offset in the tool frame [m]."""
 
 
 def log(text: str) -> None:
@@ -56,11 +61,11 @@ def main() -> None:
     n_sp = n_rob if args.scipy_robots is None else min(args.scipy_robots, n_rob)
     nominal = jr.racer7()
     params = ParameterMap(DEFAULT_PARAMETERS)
-    marker = jnp.asarray(default_marker())
+    marker = jnp.asarray(MARKER)
 
     # --- bench data: each robot its own K random feasible poses and noisy tracker data ---------
     t = time.perf_counter()
-    pool = random_feasible_poses(nominal, 20 * k, seed=args.seed)
+    pool = random_feasible_poses(nominal, 20 * k, seed=args.seed, marker=MARKER)
     rng = np.random.default_rng(args.seed)
     q = np.stack([pool[rng.choice(len(pool), k, replace=False)] for _ in range(n_rob)])
     theta = np.asarray(jr.static_equilibrium(nominal, jnp.asarray(q)))
@@ -72,13 +77,13 @@ def main() -> None:
 
     # --- batched LM: first call = compile + run, second call = run -----------------------------
     t = time.perf_counter()
-    calibrate_fleet(nominal, theta, meas.positions)
+    calibrate_fleet(nominal, theta, meas.positions, instruments=INSTRUMENTS)
     t_first = time.perf_counter() - t
     log(f"batched LM, first call: {t_first:.1f} s")
     t_run = []
     for _ in range(args.repeat):
         t = time.perf_counter()
-        res = calibrate_fleet(nominal, theta, meas.positions)
+        res = calibrate_fleet(nominal, theta, meas.positions, instruments=INSTRUMENTS)
         t_run.append(time.perf_counter() - t)
     t_run = min(t_run)
     t_compile = t_first - t_run
@@ -148,8 +153,9 @@ def main() -> None:
     # --- throughput by fleet size: the first s robots of the same fleet ------------------------
     by_size = []
     for size in args.sizes:
-        _, first_s, run_s = _timing.timed(lambda s=size: calibrate_fleet(nominal, theta[:s], meas.positions[:s]),
-                                          args.repeat)
+        _, first_s, run_s = _timing.timed(
+            lambda s=size: calibrate_fleet(nominal, theta[:s], meas.positions[:s], instruments=INSTRUMENTS),
+            args.repeat)
         n_s = min(size, n_sp)
         loop_s = scipy_loop(n_s, True, args.repeat)[0]
         by_size.append({"robots": size, "first_s": first_s, "run_s": run_s, "scipy_robots": n_s, "scipy_s": loop_s})

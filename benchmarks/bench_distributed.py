@@ -34,6 +34,9 @@ import numpy as np
 import jaxrobot as jr
 from jaxrobot.internal import PROCESS_ENV, initialize_processes, process_share
 
+INSTRUMENTS = jr.racer7_instruments()
+"""The measurement setup of the bench data: the embedded Racer-7 bench's."""
+
 TIMEOUT_S = 1800
 
 
@@ -93,7 +96,7 @@ def worker(folder: Path, result: Path) -> None:
     seconds = {"read": time.perf_counter() - t}
     for call in ("first call", "second call"):
         t = time.perf_counter()
-        res = calibrate_fleet(jr.racer7(), theta, pos)
+        res = calibrate_fleet(jr.racer7(), theta, pos, instruments=INSTRUMENTS)
         seconds[call] = time.perf_counter() - t
     if jax.process_index() == 0:
         np.savez(result, value=res.value, status=jr.status_name(res.status))

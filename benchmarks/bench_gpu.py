@@ -227,7 +227,7 @@ def worker(path: Path, states: list[int], robots: list[int], repeat: int, ocp: b
     dev = jax.devices()[0]
     out = {"device": f"{dev.platform} ({dev.device_kind}) x {len(jax.devices())}", "jax": jax.__version__,
            "platform": dev.platform, "rows": [], "check": {}, "path": str(path)}
-    robot = jr.racer7()
+    robot, instruments = jr.racer7(), jr.racer7_instruments()
     lo, hi = (np.asarray(x) for x in (robot.q_min, robot.q_max))
 
     @jax.jit
@@ -242,14 +242,15 @@ def worker(path: Path, states: list[int], robots: list[int], repeat: int, ocp: b
         _emit(out, {"work": f"dynamics M, g, C qd: {n:,} states", "first_s": first, "run_s": best,
                     "rate": f"{n / best:.3g} states/s"})
 
-    pool = random_feasible_poses(robot, 1000, seed=0) if robots else None
+    pool = random_feasible_poses(robot, 1000, seed=0, marker=instruments.marker_offset) if robots else None
     for r in robots:
         rng = np.random.default_rng(0)
         q = np.stack([pool[rng.choice(len(pool), 50, replace=False)] for _ in range(r)])
         theta = np.asarray(jr.static_equilibrium(robot, jnp.asarray(q)))
         meas = measure_poses(draw_fleet(r, seed=1), theta, seed=2)
-        res, first, best = _timing.timed(lambda theta=theta, meas=meas: calibrate_fleet(robot, theta, meas.positions),
-                                  repeat)
+        res, first, best = _timing.timed(
+            lambda theta=theta, meas=meas: calibrate_fleet(robot, theta, meas.positions, instruments=instruments),
+            repeat)
         out["check"][f"fleet{r}"] = np.asarray(res.value[:20]).tolist()
         _emit(out, {"work": f"calibrate_fleet: {r:,} robots x 50 poses", "first_s": first, "run_s": best,
                     "rate": f"{r / best:.3g} robots/s", "converged": f"{int(np.sum(res.converged))}/{r}"})

@@ -32,6 +32,9 @@ from identification.cli import calibration_report, diagnosis_summary
 from jaxrobot.io import read_poses
 from jaxrobot.measurement import Poses
 
+INSTRUMENTS = jr.racer7_instruments()
+"""The measurement setup of the bench data: the embedded Racer-7 bench's."""
+
 
 def shared_folder(arg: str | None) -> Path:
     for p in [arg, Path(__file__).resolve().parents[1].parent / "shared", os.environ.get("JAXROBOT_SHARED")]:
@@ -47,7 +50,8 @@ def poses_table(root: Path) -> list[str]:
         truth = json.loads((d / "truth.json").read_text())
         data = [read_poses(d / f"{s}.csv") for s in ("train", "val")]
         t0 = time.perf_counter()
-        res = diagnose(jr.load_robot(d / "start.toml"), *(Poses.of(p.motor_angles, p.positions) for p in data))
+        res = diagnose(jr.load_robot(d / "start.toml"), *(Poses.of(p.motor_angles, p.positions) for p in data),
+                       instruments=INSTRUMENTS)
         dt = time.perf_counter() - t0
         rep = diagnosis_summary(res)
         added = ", ".join(f"{s['effect']}{'' if s['joint'] is None else ' j' + str(s['joint'])}" for s in rep["steps"])
@@ -71,7 +75,7 @@ def gear_table(root: Path) -> list[str]:
             "ripple | time [s] |", "|---|---|---|---|---|---|---|---|---|"]
     for label, select in (("CV-selected", "cv"), ("all picked", "all")):
         t0 = time.perf_counter()
-        res = identify_gear(jr.racer7(), ident, val, select=select)
+        res = identify_gear(jr.racer7(), ident, val, select=select, instruments=INSTRUMENTS)
         dt = time.perf_counter() - t0
         f = res.fit
         for g, (j, ccw) in enumerate(res.groups):
@@ -106,7 +110,8 @@ def calibration_table(root: Path) -> list[str]:
     for method, names in (("lm", DEFAULT_PARAMETERS), ("map", map_parameters(DEFAULT_PARAMETERS, 6))):
         t0 = time.perf_counter()
         rep = calibration_report(calibrate(jr.racer7(), train.motor_angles, train.positions, method=method,
-                                           parameters=names, validation=(val.motor_angles, val.positions)))
+                                           parameters=names, validation=(val.motor_angles, val.positions),
+                                           instruments=INSTRUMENTS))
         dt = time.perf_counter() - t0
         mean = 1e3 * rep["validation"]["after_m"]["mean"]
         beyond = [n for n, p in rep["parameters"].items() if abs(p["delta"] - true.get(n, 0.0)) > 3 * p["std"]]

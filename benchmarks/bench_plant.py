@@ -41,7 +41,7 @@ from planning._transcription import State, motor_directions
 from planning._workflow import solve_directional
 
 OUT = Path(__file__).with_name("results_plant.md")
-ENCODER_COUNT = 2 * np.pi / float(jr.read_description()["sensors"]["encoder_counts_per_rev"])
+ENCODER_COUNT = jr.racer7_instruments().encoder_quantum
 """[rad] One count of the Racer-7's motor encoders, the hysteresis of the reversal count."""
 
 

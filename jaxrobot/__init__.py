@@ -40,6 +40,7 @@ from ._gear import gear_ratio as gear_ratio  # noqa: E402
 from ._gear import motor_angle as motor_angle  # noqa: E402
 from ._gear import play_state as play_state  # noqa: E402
 from ._gear import reversal_travel as reversal_travel  # noqa: E402
+from ._instruments import Instruments as Instruments  # noqa: E402
 from ._kinematics import analytic_jacobian as analytic_jacobian  # noqa: E402
 from ._kinematics import forward_kinematics as forward_kinematics  # noqa: E402
 from ._kinematics import geometric_jacobian as geometric_jacobian  # noqa: E402
@@ -74,6 +75,7 @@ from .io._description import racer7 as racer7  # noqa: E402
 from .io._description import read_description as read_description  # noqa: E402
 from .io._description import robot_from_description as robot_from_description  # noqa: E402
 from .io._description import save_robot as save_robot  # noqa: E402
+from .io._instruments import racer7_instruments as racer7_instruments  # noqa: E402
 from .io._urdf import save_urdf as save_urdf  # noqa: E402
 from .io._urdf import to_urdf as to_urdf  # noqa: E402
 

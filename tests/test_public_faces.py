@@ -136,7 +136,7 @@ def test_progress_is_the_deprecated_name_of_on_event(workflow):
     import jaxrobot as jr
 
     robot = jr.racer7()
-    extra = {} if name == "diagnose" else {"marker": None, "noise": None}
+    extra = {"instruments": jr.racer7_instruments()} if name == "diagnose" else {"marker": None, "noise": None}
     with pytest.raises(ValueError, match="`progress=` is the old name of `on_event=`"):
         fn(robot, [], [], on_event=print, progress=print, **extra)
     with pytest.warns(DeprecationWarning, match=rf"^{name}\(progress=...\) is now {name}\(on_event=...\); the old"):

@@ -31,6 +31,11 @@ from jaxrobot.cli import use_file_backend
 from jaxrobot.cli._main import main as jaxrobot
 from planning.cli import _plan, _plots
 
+INSTRUMENTS = jr.racer7_instruments()
+"""The measurement setup of the bench data: the embedded Racer-7 bench's."""
+MARKER = INSTRUMENTS.marker_offset
+"""Its tracker marker offset in the tool frame [m]."""
+
 NU = 1e-14
 """The weighting factor of the planned line (the demo's)."""
 
@@ -102,7 +107,7 @@ def _diagnose(out: Path, work: Path) -> None:
     truth = eqx.tree_at(lambda r: r.offset, start, start.offset.at[4].add(5e-4))
     files = []
     for name, (k, seed) in {"train": (150, 21), "validation": (60, 22)}.items():
-        theta = jr.static_equilibrium(start, calibration.random_feasible_poses(start, k, seed=seed))
+        theta = jr.static_equilibrium(start, calibration.random_feasible_poses(start, k, seed=seed, marker=MARKER))
         m = jb.measure_poses(truth, theta, seed=seed, ccw=jr.measurement.approach_directions(theta))
         files.append(work / f"{name}.csv")
         jr.io.write_poses(files[-1], m.motor_angles, m.positions)
@@ -114,13 +119,11 @@ def _diagnose(out: Path, work: Path) -> None:
 def _compare(out: Path, work: Path, plan: pl.PlanResult) -> None:
     """`jaxrobot compare`: the calibrated model's plan of the line, run on the as-built robot and measured by the
     tracker (its noise and marker from the robot file), against the calibrated model."""
-    sensors = jr.read_description()["sensors"]
     tr = plan.trajectories["ocp"]
     t = np.asarray(plan.joint_path.t)
     jr.io.write_command_csv(work / "command.csv", t, tr.theta, tr.thetad, tr.thetadd)
     positions, _ = jb.trajectory_run(plan.plant, jax.random.key(3), t, tr.theta, tr.thetad, tr.thetadd,
-                                     np.asarray(sensors["tracker_marker_offset_m"]),
-                                     sensors["tracker_position_noise_m"])
+                                     INSTRUMENTS.marker_offset, INSTRUMENTS.tracker_noise)
     jr.io.write_trajectory_csv(work / "run.csv", t, tr.theta, positions)
     model = work / "calibrated.toml"
     jr.save_robot(calibration.demo_calibration().result.robot, model)

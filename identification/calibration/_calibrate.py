@@ -1,15 +1,12 @@
-"""Kinematic calibration by Levenberg-Marquardt (thesis 3.2.3, eq. 3.12).
+"""Kinematic calibration of one robot (thesis 3.2.3, eq. 3.12): the `calibrate` workflow.
 
-`min_v sum_i ||p_e(v, theta_i) - p_{e,m,i}||^2` over the free parameters `v`, with the forward
-model of `predict_pose` (motor angles -> `Xi^{-1}` -> plus gravity deflection -> marker), solved
-with `optx.least_squares` + `optx.LevenbergMarquardt` in scaled variables (1 mm, 1 mrad, 1e-3
-of a gear ratio). By default the squared norms are replaced by a robust loss of each pose's residual
-(Cauchy, by iteratively reweighted least squares, `identification.core._robust`), so that gross tracker
-errors do not move the model; they are reported as outliers. The parameter covariance is
-`s^2 (J^T W J)^{-1}` (`W` the final pose weights) with the noise estimate `s^2 = ||r||^2 / (n - m)`
-over the `n` residuals of the poses within the outlier bound (all of them for `loss="l2"`), `m`
-parameters. The default parameter set is fitted, reduced by backward elimination by BIC (`_selection`)
-and the kept parameters fitted again.
+The Levenberg-Marquardt solve of a parameter set is `_solve`. By default the squared norms are replaced by a
+robust loss of each pose's residual (Cauchy, by iteratively reweighted least squares,
+`identification.core._robust`), so that gross tracker errors do not move the model; they are reported as
+outliers. The parameter covariance is `s^2 (J^T W J)^{-1}` (`W` the final pose weights) with the noise estimate
+`s^2 = ||r||^2 / (n - m)` over the `n` residuals of the poses within the outlier bound (all of them for
+`loss="l2"`), `m` parameters. The default parameter set is fitted, reduced by backward elimination by BIC
+(`_selection`) and the kept parameters fitted again.
 """
 
 from __future__ import annotations
@@ -17,25 +14,18 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Bool, Float
 
 import jaxrobot as jr
 from jaxrobot import RESULTS
-from jaxrobot.internal import cached_program, check
-from jaxrobot.measurement import Poses, marker_pose, pose_arrays
+from jaxrobot.internal import check
+from jaxrobot.measurement import Poses, pose_arrays
 
 from ..core import _robust as robust
-from ..core._forward import (
-    analytic_names,
-    joint_angle_model,
-    position_jacobian,
-    rippled_joints,
-)
+from ..core._forward import rippled_joints
 from ..core._identifiability import (
     ParameterCheck,
     analyse,
@@ -44,12 +34,13 @@ from ..core._identifiability import (
     default_parameters,
     kinematic_parameters,
 )
-from ..core._noise import ALPHA, noise_model, noise_test
-from ..core._parameters import THESIS_PARAMETERS, ParameterMap, parse_name, predict_pose, rest_deflection
+from ..core._noise import ALPHA, noise_model, noise_test, tracker_noise
+from ..core._parameters import THESIS_PARAMETERS, ParameterMap, parse_name
 from ..core._pose_checks import check_pose_units
-from ..core._pose_selection import default_marker, pose_jacobians
+from ..core._pose_selection import pose_jacobians
 from ..core._robust import Outlier
 from ._selection import ParameterSelection, select_parameters
+from ._solve import RESIDUAL_UNIT, ParameterEstimate, _deflection, _residual_fn, _solve_jit, position_errors
 
 DEFAULT_PARAMETERS = THESIS_PARAMETERS + ("offset1", "offset2", "offset4", "offset5", "offset6", "d1",
                                           "d6", "a6", "beta2")
@@ -77,199 +68,6 @@ DATA_FRACTION = 0.5
 """A parameter counts as determined by the data when they remove more than this fraction of its
 prior variance (`1 - posterior / prior variance`), else by the prior."""
 
-RESIDUAL_UNIT = 1e-3
-"""Residuals are solved in mm (and orientation in units of the position/orientation noise ratio)."""
-
-
-def position_errors(
-    robot: jr.Robot, motor_angles, positions, deflection, marker, ccw=False
-) -> np.ndarray:
-    """Euclidean distance [m] between model and measured marker positions, per pose."""
-    p, _ = _predict(robot, jnp.asarray(motor_angles), jnp.asarray(deflection), jnp.asarray(marker), ccw)
-    return np.linalg.norm(np.asarray(p) - np.asarray(positions), axis=-1)
-
-
-@eqx.filter_jit
-def _predict(robot, theta, deflection, marker, ccw):
-    return predict_pose(robot, theta, deflection, marker, ccw)
-
-
-@eqx.filter_jit
-def _deflection(robot, theta, ccw):
-    return rest_deflection(robot, theta, ccw)
-
-
-def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflection, marker, weight_r, ccw,
-                 rippled: tuple[int, ...] | None = None, q0=None, pose_weight=None, whiten=None):
-    """Residual `fn(x, _)` in scaled variables `v = v0 + scale x`, its start `v0` and `scale`; each
-    pose's position rows times its `whiten` (K, 3, 3) and all its rows times `sqrt(pose_weight)` (K,)
-    where given.
-
-    The model is `predict_pose` with its per-pose constants hoisted (`_model`; `q0`,
-    the initial joint angles, may be given). Its Jacobian is supplied per pose: for position rows
-    and joint parameters from the joint screws (`position_jacobian`), else by reverse mode
-    (3 or 6 outputs against the robot fields that `params` touches) chained with
-    `d fields / d x`; either costs a few model evaluations instead of m forward passes.
-    """
-    v0 = params.get(robot0)
-    scale = params.scales(robot0)
-    orient = target_r is not None
-    rippled = rippled_joints(robot0) if rippled is None else rippled
-    full_ratio = any(f"u0_{j + 1}" in params.names for j in rippled)
-    q0, q_pose = joint_angle_model(robot0, params, theta, deflection, ccw, rippled, q0)
-    keys = tuple(dict.fromkeys(parse_name(n)[0] for n in params.names))
-
-    def robot_of(fields):
-        return eqx.tree_at(lambda r: tuple(getattr(r, k) for k in keys), robot0, tuple(fields[k] for k in keys))
-
-    def fields_of(x):
-        robot = params.set(robot0, v0 + scale * x)
-        return {k: getattr(robot, k) for k in keys}
-
-    def one_pose(fields, th, q0k, de, tp, tr, cw):
-        robot = robot_of(fields)
-        p, r = marker_pose(robot, q_pose(robot, th, q0k, de, cw), marker)
-        res = (p - tp) / RESIDUAL_UNIT
-        if orient:
-            res = jnp.concatenate([res, weight_r * jr.rotation_error(tr, r) / RESIDUAL_UNIT])
-        return res
-
-    ccw_b = jnp.broadcast_to(jnp.asarray(ccw), theta.shape)
-    root_w = jnp.ones(theta.shape[:-1]) if pose_weight is None else jnp.sqrt(pose_weight)
-
-    def rows_of(out):  # (K, rows[, m]): whiten the 3 position rows of each pose, weigh all its rows
-        if whiten is not None:
-            out = jnp.concatenate([jnp.einsum("kij,kj...->ki...", whiten, out[:, :3]), out[:, 3:]], 1)
-        return out * root_w.reshape((-1,) + (1,) * (out.ndim - 1))
-
-    tr = target_r if orient else jnp.zeros(theta.shape[:-1] + (3, 3))
-    axes = (None, 0, 0, 0, 0, 0, 0)
-    data = (theta, q0, deflection, target_p, tr, ccw_b)
-
-    @jax.custom_jvp
-    def resid(x):
-        return rows_of(jax.vmap(one_pose, axes)(fields_of(x), *data)).ravel()
-
-    def one_jacobian(fields, th, q0k, de, tp, tr, cw):
-        robot = robot_of(fields)
-        q = q_pose(robot, th, q0k, de, cw)
-        ratio = jr.gear_ratio(robot, q - de, cw) if full_ratio else robot.u0
-        return position_jacobian(robot, params, q, th, ratio, marker)[1] * (scale / RESIDUAL_UNIT)
-
-    @resid.defjvp
-    def _resid_jvp(primals, tangents):
-        (x,), (t,) = primals, tangents
-        if orient or not analytic_names(params.names):  # autodiff: per pose, by the touched robot fields
-            fields, dfields = jax.jvp(fields_of, (x,), (t,))
-            jac = jax.vmap(jax.jacrev(one_pose), axes)(fields, *data)  # {key: (K, rows, *field)}
-            out = sum(jnp.sum((jac[k] * dfields[k][None, None]).reshape(jac[k].shape[:2] + (-1,)), -1)
-                      for k in keys)
-            return resid(x), rows_of(out).ravel()
-        jac = jax.vmap(one_jacobian, axes)(fields_of(x), *data)  # (K, 3, m), joint screws
-        return resid(x), rows_of(jac @ t).ravel()
-
-    return (lambda x, _: resid(x)), v0, scale
-
-
-class ParameterEstimate(eqx.Module):
-    """Free parameters estimated by LM, in the units of `ParameterMap`, for one robot or a fleet
-    (leading axes `*b`), from n residuals."""
-
-    value: Float[Array, "*b m"]
-    """The parameters at the solution."""
-    std: Float[Array, "*b m"]
-    """Their standard errors (`sqrt(diag(covariance))`)."""
-    covariance: Float[Array, "*b m m"]
-    """`s^2 (J^T J)^{-1}`, `s^2` the noise estimate."""
-    status: RESULTS
-    """The solver's status; `rank_deficient` for a converged solve with a rank-deficient Jacobian,
-    `nonfinite` for a non-finite solution."""
-    steps: Int[Array, "*b"]
-    """LM steps taken."""
-    rank: Int[Array, "*b"]
-    """Numerical rank of the scaled Jacobian."""
-    residuals: Float[Array, "*b n"]
-    """Residuals at the solution [m] (orientation rows in m-equivalent units), unweighted by the pose
-    weights of a robust fit."""
-    noise_variance: Float[Array, "*b"]
-    """`s^2 = ||r||^2 / (n - m)` [m^2] of the weighted residuals."""
-    jacobian: Float[Array, "*b n m"] | None = None
-    """The Jacobian at the solution, residual mm per parameter unit (one robot only; None for a fleet)."""
-
-    @property
-    def converged(self) -> Bool[Array, "*b"]:
-        """True where the solve converged (`status == RESULTS.successful`)."""
-        return self.status == RESULTS.successful
-
-
-def solve(
-    robot0: jr.Robot,
-    params: ParameterMap,
-    theta: Float[Array, "K n"],
-    positions: Float[Array, "K 3"],
-    deflection: Float[Array, "K n"],
-    marker: Float[Array, "3"],
-    rotations: Float[Array, "K 3 3"] | None = None,
-    weight_r: float | Float[Array, ""] = 1.0,
-    ccw: bool | Bool[Array, "K n"] = False,
-    rtol: float = 1e-8,
-    atol: float = 1e-8,
-    max_steps: int = 100,
-    rippled: tuple[int, ...] | None = None,
-    prior_weight: Float[Array, " m"] | None = None,
-    pose_weight: Float[Array, " K"] | None = None,
-    whiten: Float[Array, "K 3 3"] | None = None,
-    throw: bool = False,
-) -> ParameterEstimate:
-    """LM solve for one robot; pure and jit/vmap-safe.
-
-    `prior_weight`: maximum a posteriori with independent Gaussian priors on the deviations,
-    entered as rows `prior_weight * x` (x: scaled deviation; weight = noise / prior std, in the
-    residual's mm); `None` is plain least squares.
-
-    `pose_weight`: the weight of each pose's squared residual (the robust losses' reweighting,
-    `identification.core._robust`); `None` weights all alike. The returned residuals are unweighted, the
-    noise variance and covariance those of the weighted rows. `whiten`: each pose's position rows times
-    this matrix (`identification.core._noise`: an anisotropic tracker's `sigma Sigma_k^{-1/2}`), residuals too.
-
-    `rippled`: the joints whose gears have ripple (`rippled_joints`; static), needed when `robot0`
-    is traced (e.g. under `vmap`), else found from `robot0`; a free `u0` of a ripple-free gear then
-    skips the Newton inversion.
-
-    **Returns:** `ParameterEstimate` with its `jacobian`. `throw`: raise the message of its status
-    when it is not `successful` (also under `jit`).
-    """
-    fn_data, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r,
-                                      ccw, rippled, pose_weight=pose_weight, whiten=whiten)
-    fn = fn_data if prior_weight is None else (lambda x, a: jnp.concatenate([fn_data(x, a), prior_weight * x]))
-    x0 = jnp.zeros(len(params))
-    sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=rtol, atol=atol), x0, max_steps=max_steps,
-                             throw=False)
-    x = sol.value
-    r = fn_data(x, None)
-    jx = jax.jacfwd(fn_data)(x, None)  # (n, m), in mm per scaled unit
-    n, m = r.shape[0], x.shape[0]
-    sigma2 = jnp.sum(r**2) / jnp.maximum(n - m, 1)
-    j_all = jx if prior_weight is None else jnp.concatenate([jx, jnp.diag(prior_weight)])
-    s = jnp.linalg.svd(j_all, compute_uv=False)
-    rank = jnp.sum(s > 1e-10 * s[0])
-    cov_x = sigma2 * jnp.linalg.inv(j_all.T @ j_all)
-    cov = cov_x * scale[:, None] * scale[None, :]
-    result = RESULTS.promote(sol.result)
-    result = RESULTS.where(result == RESULTS.successful,
-                           RESULTS.where(jnp.all(jnp.isfinite(x)),
-                                         RESULTS.where(rank == m, RESULTS.successful, RESULTS.rank_deficient),
-                                         RESULTS.nonfinite), result)
-    if pose_weight is not None:
-        r = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r, ccw, rippled,
-                         whiten=whiten)[0](x, None)
-    out = ParameterEstimate(value=v0 + scale * x, std=jnp.sqrt(jnp.diag(cov)), covariance=cov, status=result,
-                            steps=sol.stats["num_steps"], rank=rank, residuals=r * RESIDUAL_UNIT,
-                            noise_variance=sigma2 * RESIDUAL_UNIT**2, jacobian=jx / scale)
-    return check(result, out, throw)
-
-
-_solve_jit = cached_program(solve, filter=True)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -421,16 +219,157 @@ def check_rank(jac: np.ndarray, params: ParameterMap) -> None:
                          f"that move the joints involved")
 
 
+@dataclasses.dataclass(frozen=True)
+class _Fit:
+    """One (robust) fit of a parameter set: the estimate, residuals (K, rows) [m], final pose weights (K,), the
+    noise estimate [m] and the covariance scaled to it."""
+
+    estimate: ParameterEstimate
+    residuals: np.ndarray
+    weights: np.ndarray
+    noise: float
+    covariance: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class _Problem:
+    """The constants of a calibration's fits: the start robot, its K identification poses (motor angles, gravity
+    deflection, measured positions and rotations, gear sets), the tracker (marker, noise, whitening), and the
+    identification and validation poses together (`*_all`, the validation poses after the K) for the errors."""
+
+    robot: jr.Robot
+    theta: jax.Array
+    deflection: jax.Array
+    positions: np.ndarray
+    rotations: jax.Array | None
+    ccw: bool | np.ndarray
+    marker: jax.Array
+    sigma: float
+    whiten: np.ndarray | None
+    weight_r: jax.Array
+    loss: str
+    prior: np.ndarray | None
+    max_steps: int
+    throw: bool
+    theta_all: jax.Array
+    positions_all: np.ndarray
+    deflection_all: jax.Array
+    ccw_all: bool | np.ndarray
+    validated: bool
+
+    @property
+    def rows(self) -> int:
+        return 3 if self.rotations is None else 6
+
+    def _whiten(self):
+        return None if self.whiten is None else jnp.asarray(self.whiten)
+
+    def fit(self, params: ParameterMap) -> _Fit:
+        """The fit of `params`: plain least squares, or iteratively reweighted for a robust loss."""
+        robot, k, s_p = self.robot, self.theta.shape[0], self.sigma
+        weight = None if self.prior is None else jnp.asarray(
+            s_p / RESIDUAL_UNIT * np.asarray(params.scales(robot)) / self.prior)
+
+        def fit(pose_w):
+            out = _solve_jit(robot, params, self.theta, jnp.asarray(self.positions), self.deflection, self.marker,
+                             self.rotations, self.weight_r, self.ccw, max_steps=self.max_steps,
+                             rippled=rippled_joints(robot), prior_weight=weight,
+                             pose_weight=None if self.loss == "l2" else jnp.asarray(pose_w), whiten=self._whiten())
+            resid = np.asarray(out.residuals).reshape(k, self.rows)
+            return (out, resid), np.linalg.norm(resid, axis=-1) / s_p
+
+        pose_w = np.ones(k)
+        (out, resid), pose_w = ((fit(pose_w)[0], pose_w) if self.loss == "l2"
+                                else robust.irls(fit, pose_w, self.loss, self.rows))
+        result = out.status
+        out = jax.tree.map(np.asarray, out)
+        if self.prior is None:
+            check_rank(out.jacobian, params)
+        check(result, result, self.throw)
+        noise = (float(np.sqrt(out.noise_variance)) if self.loss == "l2"
+                 else robust.noise_estimate(resid, s_p, len(params)))
+        return _Fit(out, resid, pose_w, noise, out.covariance * noise**2 / np.maximum(out.noise_variance, 1e-300))
+
+    def start(self, params: ParameterMap) -> _Fit:
+        """The start robot as the result (every parameter of `params` set aside): its residuals and pose weights."""
+        k = self.theta.shape[0]
+        r = _residual_fn(self.robot, params, self.theta, jnp.asarray(self.positions), self.rotations, self.deflection,
+                         self.marker, self.weight_r, self.ccw, whiten=self._whiten())[0](jnp.zeros(len(params)), None)
+        resid = np.asarray(r).reshape(k, self.rows) * RESIDUAL_UNIT
+        z = np.linalg.norm(resid, axis=-1) / self.sigma
+        l2 = self.loss == "l2"
+        pose_w = np.ones(k) if l2 else robust.irls(lambda w: (None, z), np.ones(k), self.loss, self.rows)[1]
+        noise = float(np.sqrt(np.mean(resid**2))) if l2 else robust.noise_estimate(resid, self.sigma, 0)
+        out = ParameterEstimate(value=np.zeros(0), std=np.zeros(0), covariance=np.zeros((0, 0)),
+                                status=RESULTS.successful, steps=np.asarray(0), rank=np.asarray(0),
+                                residuals=resid.ravel(), noise_variance=np.asarray(noise**2))
+        return _Fit(out, resid, pose_w, noise, out.covariance)
+
+    def result(self, params: ParameterMap | None, fit: _Fit, **fields) -> CalibrationResult:
+        """The `CalibrationResult` of `fit` of `params` (None: every parameter set aside), with the errors of the
+        identification and validation poses before and after and the chi-square test; `fields`: the others."""
+        robot, out, k, s_p = self.robot, fit.estimate, self.theta.shape[0], self.sigma
+        calibrated = robot if params is None else params.set(robot, jnp.asarray(out.value))
+        err0, err1 = (position_errors(r, self.theta_all, self.positions_all, self.deflection_all, self.marker,
+                                      self.ccw_all) for r in (robot, calibrated))
+        chi2, dof, p_value = noise_test(fit.residuals, s_p, len(out.value), fit.weights > 0)
+        val = self.validated
+        return CalibrationResult(
+            robot=calibrated, names=() if params is None else params.names, value=out.value,
+            start=np.zeros(0) if params is None else np.asarray(params.get(robot)),
+            std=np.sqrt(np.diag(fit.covariance)), covariance=fit.covariance, residuals=fit.residuals.ravel(),
+            status=out.status, iterations=int(out.steps), noise_estimate=fit.noise, loss=self.loss,
+            weights=fit.weights, outliers=robust.outliers(fit.residuals, s_p),
+            outlier_bound=s_p * robust.outlier_bound(self.rows), errors_before=err0[:k], errors_after=err1[:k],
+            validation_before=err0[k:] if val else None, validation_after=err1[k:] if val else None,
+            prior_std=self.prior, chi2=float(chi2), dof=int(dof), p_value=float(p_value), **fields)
+
+    def check(self, names: Sequence[str], prior_std: dict | None) -> ParameterCheck:
+        """`check_default` of the default set `names` on these poses."""
+        return check_default(self.robot, names, self.theta, self.deflection, self.marker, self.rotations is not None,
+                             self.whiten, float(self.weight_r), self.sigma, prior_std, self.ccw)
+
+
+def _problem(robot: jr.Robot, theta, positions, quaternions, ccw, validation, instruments: jr.Instruments, noise,
+             marker, loss: str, prior, max_steps: int, throw: bool) -> _Problem:
+    """The `_Problem` of `calibrate`'s checked poses: the gravity deflection of the identification and validation
+    poses in one evaluation, the noise model of the tracker `noise` at the measured positions."""
+    s_p, white = noise_model(noise, positions, "instruments.tracker_noise")
+    vt, vp, vccw = _validation_arrays(robot, validation)
+    k = theta.shape[0]
+    ccw_all = ccw if np.ndim(ccw) == 0 and not vccw.any() else np.concatenate(
+        [np.broadcast_to(ccw, theta.shape), vccw])
+    th_all = jnp.asarray(np.concatenate([theta, vt]))
+    defl_all = _deflection(robot, th_all, ccw_all)  # one evaluation for both sets
+    rotations = None if quaternions is None else jr.quaternion_to_rotation(jnp.asarray(quaternions))
+    return _Problem(robot, th_all[:k], defl_all[:k], positions, rotations, ccw if np.ndim(ccw) == 0 else ccw_all[:k],
+                    marker, s_p, white, jnp.asarray(s_p / instruments.tracker_orientation_noise), loss, prior,
+                    max_steps, throw, th_all, np.concatenate([positions, vp]), defl_all, ccw_all,
+                    validation is not None)
+
+
+def _validation_arrays(robot: jr.Robot, validation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Motor angles (V, n), positions (V, 3) and gear sets (V, n) of `calibrate`'s `validation` (none: V = 0)."""
+    if validation is None:
+        return np.zeros((0, robot.n_joints)), np.zeros((0, 3)), np.zeros((0, robot.n_joints), bool)
+    if isinstance(validation, Poses):
+        validation = (validation.motor_angles, validation.positions) + (
+            () if validation.ccw is None else (validation.ccw,))
+    vt = _check_array(validation[0], (robot.n_joints,), "validation motor_angles", "rad")
+    vp = _check_array(validation[1], (3,), "validation positions", "m")
+    if vp.shape[0] != vt.shape[0]:
+        raise ValueError(f"validation positions: expected {vt.shape[0]} rows, found {vp.shape[0]}")
+    return vt, vp, np.broadcast_to(np.asarray(validation[2], bool) if len(validation) > 2 else False, vt.shape)
+
+
 def calibrate(
     robot: jr.Robot,
     motor_angles: Float[Array, "K n"] | Poses,
     positions: Float[Array, "K 3"] | None = None,
     quaternions: Float[Array, "K 4"] | None = None,
     *,
+    instruments: jr.Instruments,
     parameters: Sequence[str] | None = None,
-    marker: Float[Array, "3"] | None = None,
-    position_noise: float | None = None,
-    orientation_noise: float | None = None,
     ccw: bool | Bool[Array, "K n"] | None = None,
     validation: tuple | Poses | None = None,
     limits: str = "flag",
@@ -448,16 +387,15 @@ def calibrate(
     - `motor_angles` (K, n) rad at rest; `positions` (K, 3) m measured marker positions;
       `quaternions` (K, 4) optional measured orientation (qx, qy, qz, qw); or `Poses` as `motor_angles`
       (then none of `positions`, `quaternions`, `ccw`: they come from the `Poses`).
+    - `instruments`: the measurement setup (`jaxrobot.Instruments`, e.g. `jaxrobot.io.read_instruments(file)`):
+      its `marker_offset` places the marker in the tool frame, its tracker noise (a laser tracker's whitens each
+      pose's position residual) scales the robust loss and the noise test, its `tracker_orientation_noise` weighs
+      orientation rows against position rows; a setting it lacks raises an error naming it.
     - `parameters`: free parameter names, fitted as given. Default: `default_parameters(robot)` for the
       measurement type (positions, or positions and orientations when `quaternions` are given), fitted
       together, then reduced by backward elimination while the BIC does not rise and the kept ones fitted
       again (`_selection`; the result's `selection` names both sets); `all_parameters=True` keeps the whole
       default set. `method="map"` fits the whole set too (its priors regularise it).
-    - `marker`: marker offset in the tool frame [m] (default: the toml `[sensors]`).
-    - `position_noise`, `orientation_noise`: stds that weight orientation rows against
-      position rows (defaults: the toml tracker noise and 0.05 deg) and scale the robust loss;
-      `position_noise` may be a laser tracker's `TrackerNoise` (`identification.core._noise`: std along and
-      across the line of sight), whose covariance then whitens each pose's position residual.
     - `ccw`: gear set of the approach direction (default `cw`). `validation`: `Poses`,
       `(motor_angles, positions)` or `(motor_angles, positions, ccw)`.
     - `limits`: `"flag"` lists poses beyond the joint limits in `beyond_limits`,
@@ -467,12 +405,12 @@ def calibrate(
       parameter's prior std and the fraction of its prior variance the data remove (`data_fraction`;
       the data determine it above `DATA_FRACTION`).
     - `loss`: `"cauchy"` (default) or `"huber"`, robust losses on each pose's residual norm in units of
-      `position_noise`, by iteratively reweighted least squares (`identification.core._robust`: thresholds,
+      the tracker noise, by iteratively reweighted least squares (`identification.core._robust`: thresholds,
       outlier bound); `"l2"` plain least squares. Poses beyond the outlier bound are listed in
       `outliers` whichever the loss; the noise estimate leaves them out.
 
     Raises `ValueError` before solving for wrong shapes, NaN rows (named), fewer equations than
-    parameters, unit mistakes (`check_pose_units`), and, with
+    parameters, unit mistakes (`check_pose_units`), a setting `instruments` lacks, and, with
     `limits="raise"`, poses beyond the joint limits (by row); after the solve, for a
     rank-deficient pose set (naming the unidentifiable directions). A solve that does not converge is
     returned with its `status` (a `jaxrobot.RESULTS`; `converged` False), never as success;
@@ -480,114 +418,38 @@ def calibrate(
 
     **Returns:** `CalibrationResult` (SI units; `identification.cli.calibration_report` gives the report dict).
     """
-    from jaxrobot.bench import ORIENTATION_NOISE_RAD
-
     motor_angles, positions, quaternions, ccw = pose_arrays(motor_angles, positions, quaternions, ccw)
     ccw = False if ccw is None else ccw
-    if isinstance(validation, Poses):
-        validation = (validation.motor_angles, validation.positions) + (
-            () if validation.ccw is None else (validation.ccw,))
-    marker = jnp.asarray(default_marker() if marker is None else marker, float)
-    select = parameters is None and method == "lm" and not all_parameters
+    marker = jnp.asarray(instruments.require("marker_offset", by="calibrate")[0], float)
+    noise = tracker_noise(instruments, by="calibrate")
+    robust.check_loss(loss)
+    if method not in ("lm", "map"):
+        raise ValueError(f"method: expected 'lm' or 'map', found {method!r}")
     checked = parameters is None and method == "lm"
+    select = checked and not all_parameters
     if parameters is None:
         _check_array(motor_angles, (robot.n_joints,), "motor_angles", "rad")
         _check_array(positions, (3,), "positions", "m")
         parameters = default_parameters(robot, orientation=quaternions is not None, marker=marker)
     params = ParameterMap(parameters)
-    robust.check_loss(loss)
-    if method not in ("lm", "map"):
-        raise ValueError(f"method: expected 'lm' or 'map', found {method!r}")
-    prior = None
-    if method == "map":
-        prior = prior_stds(robot, params, prior_std)
+    prior = prior_stds(robot, params, prior_std) if method == "map" else None
     theta, pos, quat, beyond = check_inputs(robot, params, motor_angles, positions, quaternions, limits, ccw)
     check_pose_units(robot, theta, pos, marker, "motor_angles/positions")
-    sensors = jr.read_description(None)["sensors"]
-    s_p, white = noise_model(sensors["tracker_position_noise_m"] if position_noise is None else position_noise,
-                             pos, "position_noise")
-    s_r = ORIENTATION_NOISE_RAD if orientation_noise is None else orientation_noise
-    rot = None if quat is None else jr.quaternion_to_rotation(jnp.asarray(quat))
-    w_r = jnp.asarray(s_p / s_r)
-    if validation is not None:
-        vt = _check_array(validation[0], (robot.n_joints,), "validation motor_angles", "rad")
-        vp = _check_array(validation[1], (3,), "validation positions", "m")
-        if vp.shape[0] != vt.shape[0]:
-            raise ValueError(f"validation positions: expected {vt.shape[0]} rows, found {vp.shape[0]}")
-        vccw = np.broadcast_to(np.asarray(validation[2], bool) if len(validation) > 2 else False, vt.shape)
-    else:
-        vt, vp = np.zeros((0, robot.n_joints)), np.zeros((0, 3))
-        vccw = np.zeros(vt.shape, bool)
-    k = theta.shape[0]
-    ccw_all = ccw if np.ndim(ccw) == 0 and not vccw.any() else np.concatenate(
-        [np.broadcast_to(ccw, theta.shape), vccw])
-    th_all = jnp.asarray(np.concatenate([theta, vt]))
-    defl_all = _deflection(robot, th_all, ccw_all)  # one evaluation for both sets
-    th, defl = th_all[:k], defl_all[:k]
-    ccw_id = ccw if np.ndim(ccw) == 0 else ccw_all[:k]
-    rows = 3 if rot is None else 6
-    check_out = None
-    if checked:
-        check_out = check_default(robot, params.names, th, defl, marker, rot is not None, white, float(w_r), s_p,
-                                  prior_std, ccw_id)
-        params = ParameterMap(check_out.kept)
-
-    def fit_set(params):  # the (robust) fit of one parameter set: estimate, residuals (K, rows) [m], pose weights
-        weight = None if prior is None else jnp.asarray(s_p / RESIDUAL_UNIT * np.asarray(params.scales(robot)) / prior)
-
-        def fit(pose_w):
-            out = _solve_jit(robot, params, th, jnp.asarray(pos), defl, marker, rot, w_r, ccw_id, max_steps=max_steps,
-                             rippled=rippled_joints(robot), prior_weight=weight,
-                             pose_weight=None if loss == "l2" else jnp.asarray(pose_w),
-                             whiten=None if white is None else jnp.asarray(white))
-            resid = np.asarray(out.residuals).reshape(k, rows)
-            return (out, resid), np.linalg.norm(resid, axis=-1) / s_p
-
-        pose_w = np.ones(k)
-        (out, resid), pose_w = (fit(pose_w)[0], pose_w) if loss == "l2" else robust.irls(fit, pose_w, loss, rows)
-        result = out.status
-        out = jax.tree.map(np.asarray, out)
-        if prior is None:
-            check_rank(out.jacobian, params)
-        check(result, result, throw)
-        noise = float(np.sqrt(out.noise_variance)) if loss == "l2" else robust.noise_estimate(resid, s_p, len(params))
-        return out, resid, pose_w, noise, out.covariance * noise**2 / np.maximum(out.noise_variance, 1e-300)
-
-    out, resid, pose_w, noise, cov = fit_set(params)
-    selection = None
-    if select and out.converged:
-        selection = select_parameters(params.names, out.value - np.asarray(params.get(robot)), cov,
-                                      rows * int(np.sum(pose_w > 0)))
+    problem = _problem(robot, theta, pos, quat, ccw, validation, instruments, noise, marker, loss, prior, max_steps,
+                       throw)
+    check_out = problem.check(params.names, prior_std) if checked else None
+    params = params if check_out is None else ParameterMap(check_out.kept)
+    fit, selection = problem.fit(params), None
+    if select and fit.estimate.converged:
+        selection = select_parameters(params.names, fit.estimate.value - np.asarray(params.get(robot)),
+                                      fit.covariance, problem.rows * int(np.sum(fit.weights > 0)))
         if selection.kept and selection.set_aside:
             params = ParameterMap(selection.kept)
-            out, resid, pose_w, noise, cov = fit_set(params)
-        elif not selection.kept:  # every parameter set aside: the start robot, its residuals and weights
-            r = _residual_fn(robot, params, th, jnp.asarray(pos), rot, defl, marker, w_r, ccw_id,
-                             whiten=None if white is None else jnp.asarray(white))[0](jnp.zeros(len(params)), None)
-            resid = np.asarray(r).reshape(k, rows) * RESIDUAL_UNIT
-            z = np.linalg.norm(resid, axis=-1) / s_p
-            pose_w = np.ones(k) if loss == "l2" else robust.irls(lambda w: (None, z), np.ones(k), loss, rows)[1]
-            noise = float(np.sqrt(np.mean(resid**2))) if loss == "l2" else robust.noise_estimate(resid, s_p, 0)
-            out = ParameterEstimate(value=np.zeros(0), std=np.zeros(0), covariance=np.zeros((0, 0)),
-                                    status=RESULTS.successful, steps=np.asarray(0), rank=np.asarray(0),
-                                    residuals=resid.ravel(), noise_variance=np.asarray(noise**2))
-            cov, params = out.covariance, None
-    calibrated = robot if params is None else params.set(robot, jnp.asarray(out.value))
-    p_all = np.concatenate([pos, vp])
-    err0 = position_errors(robot, th_all, p_all, defl_all, marker, ccw_all)
-    err1 = position_errors(calibrated, th_all, p_all, defl_all, marker, ccw_all)
-    val = validation is not None
-    chi2, dof, p_value = noise_test(resid, s_p, len(out.value), pose_w > 0)
-    return CalibrationResult(
-        robot=calibrated, names=() if params is None else params.names, value=out.value,
-        start=np.zeros(0) if params is None else np.asarray(params.get(robot)),
-        std=np.sqrt(np.diag(cov)), covariance=cov, residuals=resid.ravel(),
-        status=out.status, iterations=int(out.steps), noise_estimate=noise, loss=loss,
-        weights=pose_w, outliers=robust.outliers(resid, s_p), outlier_bound=s_p * robust.outlier_bound(rows),
-        errors_before=err0[:k], errors_after=err1[:k],
-        validation_before=err0[k:] if val else None, validation_after=err1[k:] if val else None,
-        beyond_limits=tuple(beyond), method=method, prior_std=prior, chi2=float(chi2), dof=int(dof),
-        p_value=float(p_value), selection=selection, parameter_check=check_out)
+            fit = problem.fit(params)
+        elif not selection.kept:
+            fit, params = problem.start(params), None
+    return problem.result(params, fit, beyond_limits=tuple(beyond), method=method, selection=selection,
+                          parameter_check=check_out)
 
 
 def check_default(

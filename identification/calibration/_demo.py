@@ -18,7 +18,7 @@ from jaxrobot.internal import require_successful
 from jaxrobot.measurement import Poses, measured_pose
 
 from ..core._parameters import ParameterMap
-from ..core._pose_selection import DetmaxResult, default_marker, detmax, random_feasible_poses
+from ..core._pose_selection import DetmaxResult, detmax, random_feasible_poses
 from ._calibrate import DEFAULT_PARAMETERS, CalibrationResult, calibrate
 
 
@@ -39,23 +39,24 @@ def _rest_poses(nominal, truth, q, marker):
 
 
 def fleet_measurements(n_robots: int, n_poses: int, rows: range, seed: int = 0, nominal: jr.Robot | None = None,
-                       marker=None) -> Poses:
+                       instruments: jr.Instruments | None = None) -> Poses:
     """Tracker measurements of the robots `rows` of `draw_fleet(n_robots, seed, nominal)` (default the
     nominal Racer-7), each at its own `n_poses` random feasible poses (one pool,
-    `random_feasible_poses`) held at the nominal robot's static equilibrium, the marker at `marker`
-    (default `[sensors]`), with noise of its own seed: a robot's data do not depend on `rows`.
+    `random_feasible_poses`) held at the nominal robot's static equilibrium, with the marker offset and the
+    isotropic tracker noise of `instruments` (default the bench's, `jaxrobot.racer7_instruments()`), noise of its
+    own seed: a robot's data do not depend on `rows`.
     `Poses` with leading axis `len(rows)` (`link_angles` are the nominal robot's held `q`)."""
     if n_robots < 1 or n_poses < 1:
         raise ValueError(f"n_robots, n_poses: expected >= 1 robots and poses, found {n_robots} and {n_poses}")
     nominal = jr.racer7() if nominal is None else nominal
-    marker = default_marker() if marker is None else np.asarray(marker, float)
+    instruments = jr.racer7_instruments() if instruments is None else instruments
+    marker, sigma = instruments.require("marker_offset", "tracker_noise", by="fleet_measurements")
     truth = jax.tree.map(lambda x: x[rows.start:rows.stop], draw_fleet(n_robots, seed=seed, robot=nominal))
     pool = random_feasible_poses(nominal, 20 * n_poses, seed=seed, marker=marker)
     q = np.stack([pool[np.random.default_rng([seed, r]).choice(len(pool), n_poses, replace=False)] for r in rows])
     theta, exact, result = _rest_poses(nominal, truth, jnp.asarray(q), jnp.asarray(marker))
     require_successful(result, "fleet bench data: rest pose of a drawn robot")
     theta, exact = np.asarray(theta), np.asarray(exact)
-    sigma = float(jr.read_description(None)["sensors"]["tracker_position_noise_m"])
     noise = np.stack([sigma * np.random.default_rng([seed, r, 1]).standard_normal((n_poses, 3)) for r in rows])
     meta = {"seed": seed, "position_noise_m": sigma, "orientation_noise_rad": None,
             "marker_offset_m": marker.tolist(), "ccw": False, "robot": nominal.name}
@@ -84,11 +85,13 @@ def demo_calibration() -> DemoCalibration:
     """The calibration workflow of `jaxrobot demo`: bench data of the as-built Racer-7 at the 50 thesis
     poses (toml `[poses]`) and 13 validation poses chosen by DETMAX, one bench session; the nominal
     robot calibrated on them."""
-    truth, nominal = jr.racer7(as_built=True), jr.racer7()
+    truth, nominal, instruments = jr.racer7(as_built=True), jr.racer7(), jr.racer7_instruments()
     theta = np.deg2rad(np.asarray(jr.read_description(None)["poses"]["motor_deg"], float))
-    sel = detmax(nominal, ParameterMap(DEFAULT_PARAMETERS), n_poses=13, seed=7, pool_size=1000, max_iter=200)
-    both = measure_poses(truth, np.concatenate([theta, sel.motor_angles]), seed=1)  # one bench session
+    sel = detmax(nominal, ParameterMap(DEFAULT_PARAMETERS), n_poses=13, seed=7, marker=instruments.marker_offset,
+                 pool_size=1000, max_iter=200)
+    both = measure_poses(truth, np.concatenate([theta, sel.motor_angles]), seed=1,
+                         instruments=instruments)  # one bench session
     k = theta.shape[0]
-    res = calibrate(nominal, both.motor_angles[:k], both.positions[:k],
+    res = calibrate(nominal, both.motor_angles[:k], both.positions[:k], instruments=instruments,
                     validation=(both.motor_angles[k:], both.positions[k:]))
     return DemoCalibration(truth, nominal, sel, both, k, res)

@@ -32,10 +32,10 @@ from ..core import _robust as robust
 from ..core._batched_lm import LMConfig, batched_lm, covariance, map_chunks
 from ..core._forward import analytic_names, joint_angle_model, position_jacobian, rippled_joints
 from ..core._identifiability import ParameterCheck, default_parameters
-from ..core._noise import ALPHA, noise_model, noise_test
+from ..core._noise import ALPHA, noise_model, noise_test, tracker_noise
 from ..core._parameters import ParameterMap
-from ..core._pose_selection import default_marker
-from ._calibrate import RESIDUAL_UNIT, ParameterEstimate, _check_array, _deflection, _residual_fn, check_default
+from ._calibrate import _check_array, check_default
+from ._solve import RESIDUAL_UNIT, ParameterEstimate, _deflection, _residual_fn
 
 
 @dataclasses.dataclass(frozen=True)
@@ -278,12 +278,11 @@ def calibrate_fleet(
     motor_angles: Float[Array, "R K n"] | Poses,
     positions: Float[Array, "R K 3"] | None = None,
     *,
+    instruments: jr.Instruments,
     parameters: Sequence[str] | None = None,
-    marker: Float[Array, "3"] | None = None,
     max_steps: int = 100,
     mesh: Mesh | None = None,
     ccw: Bool[Array, "R K n"] | None = None,
-    position_noise: float | None = None,
     loss: str = robust.LOSSES[0],
     throw: bool = False,
 ) -> FleetResult:
@@ -293,6 +292,8 @@ def calibrate_fleet(
     `robots`: the initial robots, a fleet pytree with leading axis R, or one robot used for all.
     `motor_angles` (R, K, n) rad and `positions` (R, K, 3) m, or fleet `Poses` (leading axis R, as
     `jaxrobot.bench.measure_poses` of a fleet gives them) as `motor_angles`, then without `positions` and `ccw`.
+    `instruments`: the measurement setup (`jaxrobot.Instruments`, as in `calibrate`: the marker offset and the
+    tracker noise).
     The fleet axis is padded to `ROWS_MULTIPLE` robots per device and sharded over `mesh`
     (default: all devices). Robots whose solve failed or whose pose set is rank deficient have
     `converged = False` and their `status` says why (`throw`: raise the message of the first such
@@ -305,16 +306,17 @@ def calibrate_fleet(
     process whose robots all failed their checks) and every process receives the whole fleet in process
     order.
 
-    `loss`: as in `calibrate` (robust by default, thresholds in units of `position_noise`, the
-    tracker's per-axis std, default `[sensors] tracker_position_noise_m`, or a laser tracker's
-    `TrackerNoise`, whose covariance then whitens each pose's residual); each robot is reweighted on
-    its own (a robot whose weights no longer change keeps its solution), its outliers and robust noise
-    estimate are in `outliers` and `noise_estimate`.
+    `loss`: as in `calibrate` (robust by default, thresholds in units of the tracker noise of `instruments`: its
+    per-axis std, or a laser tracker's model, whose covariance then whitens each pose's residual); each robot is
+    reweighted on its own (a robot whose weights no longer change keeps its solution), its outliers and robust
+    noise estimate are in `outliers` and `noise_estimate`.
     """
     motor_angles, positions, quaternions, ccw = pose_arrays(motor_angles, positions, None, ccw)
     if quaternions is not None:
         raise ValueError("motor_angles: calibrate_fleet fits positions only; found Poses with quaternions "
                          "(give Poses without them, or calibrate each robot with `calibrate`)")
+    marker = jnp.asarray(instruments.require("marker_offset", by="calibrate_fleet")[0], float)
+    noise = tracker_noise(instruments, by="calibrate_fleet")
     robust.check_loss(loss)
     joints = robots.n_joints
     theta = np.asarray(motor_angles, float)
@@ -338,11 +340,9 @@ def calibrate_fleet(
         parameters = default_parameters(first, marker=marker)
         keep = np.ones(len(parameters), bool)
         if n_rob:  # a process whose share was all left out has no poses to check the set on
-            sigma0, white0 = noise_model(jr.read_description(None)["sensors"]["tracker_position_noise_m"]
-                                         if position_noise is None else position_noise, pos[0], "position_noise")
-            mk = jnp.asarray(default_marker() if marker is None else marker, float)
+            sigma0, white0 = noise_model(noise, pos[0], "instruments.tracker_noise")
             th0 = jnp.asarray(theta[0])
-            checked = check_default(first, parameters, th0, _deflection(first, th0, jnp.asarray(ccw[0])), mk,
+            checked = check_default(first, parameters, th0, _deflection(first, th0, jnp.asarray(ccw[0])), marker,
                                     False, white0, 1.0, sigma0, None, jnp.asarray(ccw[0]))
             keep = np.array([p in checked.kept for p in parameters])
         # every process fits one set: the check of the first process that has robots decides
@@ -360,13 +360,11 @@ def calibrate_fleet(
         raise ValueError(f"robots: expected one robot or a fleet of {n_rob}, found {robots.a.shape[0]}")
     mesh = fleet_mesh() if mesh is None else mesh
     n_dev = mesh.devices.size
-    sigma, white = noise_model(jr.read_description(None)["sensors"]["tracker_position_noise_m"]
-                               if position_noise is None else position_noise, pos.reshape(-1, 3), "position_noise")
+    sigma, white = noise_model(noise, pos.reshape(-1, 3), "instruments.tracker_noise")
     white = () if white is None else (white.reshape(theta.shape[:2] + (3, 3)),)  # none: isotropic
     (g_robots, g_theta, g_pos, g_ccw, *g_white), origin = shard_rows((robots, theta, pos, ccw, *white), mesh,
                                                                       ROWS_MULTIPLE)
     g_white = g_white[0] if g_white else None
-    marker = jnp.asarray(default_marker() if marker is None else marker, float)
     rippled = rippled_joints(robots)
     g_ccw = g_ccw if ccw.any() else None  # none: every gear's cw set, no selection per pose
     q0, defl = _fleet_constants(initial if np.ndim(initial.a) == 1 else g_robots, g_theta, rippled, mesh, g_ccw)

@@ -10,7 +10,7 @@ import numpy as np
 
 from jaxrobot.cli import SolveFailed, add_model_option
 
-from ._options import add_approach_option, add_loss_option
+from ._options import add_approach_option, add_loss_option, add_marker_option, add_setup_option
 
 HELP = "calibrate the kinematic parameters from a pose file (docs/model.md (3.12), LM)"
 EXAMPLE = "jaxrobot calibrate poses.csv --validate validation.csv --out calibration --save-model calibrated.toml"
@@ -26,8 +26,8 @@ def configure(parser) -> None:
                              "identifiable set, reduced by backward elimination while the BIC does not rise)")
     parser.add_argument("--all-parameters", action="store_true",
                         help="fit the whole default (identifiable) set: no backward elimination")
-    parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
-                        help="marker offset in m in the tool frame (the flange without [tool]; default: [sensors])")
+    add_setup_option(parser)
+    add_marker_option(parser)
     parser.add_argument("--limits", choices=("flag", "raise"), default="flag",
                         help="poses beyond the joint limits: list them (flag) or reject the file (raise)")
     add_approach_option(parser)
@@ -152,9 +152,9 @@ def run(args, echo) -> dict:
 
     from ..calibration._calibrate import PRIOR_KEYS, calibrate, map_parameters
     from ..core._identifiability import default_parameters
-    from ..core._noise import TrackerNoise
-    from ..core._pose_selection import default_marker, workspace_positions
+    from ..core._pose_selection import workspace_positions
     from ._calibration_report import calibration_report
+    from ._options import instruments_of
 
     progress = Progress(3, "calibrate")
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
@@ -168,18 +168,14 @@ def run(args, echo) -> dict:
         n.strip() for n in args.parameters.split(",") if n.strip()]
     desc = jr.read_description(args.robot)
     prior = {PRIOR_KEYS[k]: v for k, v in desc.get("calibration", {}).get("prior_std", {}).items()}
-    marker, noise = args.marker, None
-    if args.robot is not None:
-        sensors = desc.get("sensors", {})
-        marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
-        noise = TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")
+    instruments = instruments_of(args, args.robot)
+    marker = instruments.require("marker_offset", by="calibrate")[0]
     if args.method == "map" and args.parameters is None:
-        names = map_parameters(default_parameters(robot, orientation=data.quaternions is not None,
-                                                  marker=default_marker() if marker is None else marker),
+        names = map_parameters(default_parameters(robot, orientation=data.quaternions is not None, marker=marker),
                                robot.n_joints)
-    res = calibrate(robot, data.motor_angles, data.positions, data.quaternions, parameters=names,
-                    marker=marker, position_noise=noise, ccw=data.ccw, validation=val, limits=args.limits,
-                    method=args.method, prior_std=prior, loss=args.loss, all_parameters=args.all_parameters)
+    res = calibrate(robot, data.motor_angles, data.positions, data.quaternions, instruments=instruments,
+                    parameters=names, ccw=data.ccw, validation=val, limits=args.limits, method=args.method,
+                    prior_std=prior, loss=args.loss, all_parameters=args.all_parameters)
     report = calibration_report(res)
     progress.step("calibration")
     _echo_report(report, echo, poses=args.poses)

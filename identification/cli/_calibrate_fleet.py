@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._options import add_approach_option, add_loss_option
+from ._options import add_approach_option, add_loss_option, add_setup_option
 
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
 TABLE = "fleet_calibration.csv"
@@ -51,6 +51,7 @@ def configure(parser) -> None:
                         "$JAX_NUM_PROCESSES)")
     parser.add_argument("--process-id", type=int, default=None, help="this process, 0 .. count - 1 (default "
                         "$JAX_PROCESS_ID)")
+    add_setup_option(parser)
     add_approach_option(parser)
     add_loss_option(parser)
 
@@ -66,8 +67,10 @@ def fleet_files(fleet: Path) -> list[Path]:
     return [fleet.parent / line for line in lines if line]
 
 
-def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nominal=None, marker=None) -> list[Path]:
-    """Bench data of a fleet (`fleet_measurements`), this process's share (`process_share`): writes
+def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nominal=None,
+                instruments=None) -> list[Path]:
+    """Bench data of a fleet (`fleet_measurements`; `instruments` default the bench's), this process's share
+    (`process_share`): writes
     `robot_{r:05d}.csv` of this share; returns all R paths. The files do not depend on the process count."""
     import jaxrobot as jr
     from jaxrobot.internal import process_share
@@ -80,7 +83,7 @@ def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nomina
     folder.mkdir(parents=True, exist_ok=True)
     share = process_share(n_robots)
     rows = range(share.start, share.stop)
-    meas = fleet_measurements(n_robots, n_poses, rows, seed, nominal, marker)
+    meas = fleet_measurements(n_robots, n_poses, rows, seed, nominal, instruments)
     for i, r in enumerate(rows):
         jr.io.write_poses(paths[r], meas.motor_angles[i], meas.positions[i])
     return paths
@@ -159,23 +162,21 @@ def run(args, echo) -> dict:
 
     from ..calibration._fleet import calibrate_fleet
     from ..calibration._fleet_files import check_fleet_files
-    from ..core._noise import TrackerNoise, noise_model
-    from ..core._pose_selection import default_marker
+    from ..core._noise import noise_model, tracker_noise
     from ._calibration_report import fleet_outliers, parameter_check_lines, parameter_check_report, plot_fleet
+    from ._options import instruments_of
 
     pid = jax.process_index()
     robot = jr.racer7() if args.robot is None else jr.load_robot(args.robot)
     names = None if args.parameters is None else [n.strip() for n in args.parameters.split(",") if n.strip()]
-    sensors = {} if args.robot is None else jr.read_description(args.robot).get("sensors", {})
-    marker = sensors.get("tracker_marker_offset_m")
-    noise = TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")
-    sigma = noise_model(jr.read_description(None)["sensors"]["tracker_position_noise_m"] if noise is None else noise,
-                        np.zeros((1, 3)))[0]  # calibrate_fleet's default
+    instruments = instruments_of(args, args.robot)
+    marker = instruments.require("marker_offset", by="calibrate-fleet")[0]
+    sigma = noise_model(tracker_noise(instruments, by="calibrate-fleet"), np.zeros((1, 3)))[0]
     seconds = {}
     progress = Progress(3 if args.bench is not None else 2, "calibrate-fleet")
     start = time.perf_counter()
     if args.bench is not None:
-        files = bench_fleet(args.folder, args.bench, args.poses, args.seed, robot, marker)
+        files = bench_fleet(args.folder, args.bench, args.poses, args.seed, robot, instruments)
         seconds["bench"] = time.perf_counter() - start
         progress.step(f"bench data of {args.bench} robots")
     else:
@@ -184,7 +185,7 @@ def run(args, echo) -> dict:
         raise ValueError(f"folder: expected at least one pose file per process ({count}), found {len(files)} "
                          f"in {args.folder}")
     t = time.perf_counter()
-    checked = check_fleet_files(files, robot, default_marker() if marker is None else marker, args.approach)
+    checked = check_fleet_files(files, robot, marker, args.approach)
     seconds["read"] = time.perf_counter() - t
     good = [c.file for c in checked.checks if not c.check]
     k, n = checked.poses, robot.n_joints
@@ -199,9 +200,9 @@ def run(args, echo) -> dict:
             return (np.stack([getattr(d, field) for d in checked.data]) if checked.data
                     else np.zeros((0, k) + tail, dtype))
 
-        res = calibrate_fleet(robot, stack("motor_angles", (n,)), stack("positions", (3,)), parameters=names,
-                              marker=marker, max_steps=args.max_steps, ccw=stack("ccw", (n,), bool),
-                              position_noise=noise, loss=args.loss)
+        res = calibrate_fleet(robot, stack("motor_angles", (n,)), stack("positions", (3,)), instruments=instruments,
+                              parameters=names, max_steps=args.max_steps, ccw=stack("ccw", (n,), bool),
+                              loss=args.loss)
         seconds["calibrate"] = time.perf_counter() - t
         messages = _failure_messages(res, good, sigma)
     progress.step("fleet calibration")

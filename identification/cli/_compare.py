@@ -72,15 +72,14 @@ def run(args, echo) -> dict:
     residual), `noise_floor_um` (float [um], `sigma sqrt(3)`), `max_sigmas` (float, the largest residual norm
     in units of `sigma`) at `t_max_sigmas_s` (float [s]), `encoder_deviation_rad` (list of float [rad], per
     motor) and `plots` (list of str, the files written)."""
-    import jaxrobot as jr
     from jaxrobot.io import read_command_csv, read_trajectory_csv
 
+    from ..core._noise import tracker_noise
     from ..diagnosis._run_comparison import compare_run
 
-    robot, marker, noise = tracker_of(args)
-    sensors = jr.read_description(None)["sensors"]
-    marker = sensors["tracker_marker_offset_m"] if marker is None else marker
-    noise = sensors["tracker_position_noise_m"] if noise is None else noise
+    robot, instruments = tracker_of(args)
+    marker = instruments.require("marker_offset", by="compare")[0]
+    noise = tracker_noise(instruments, by="compare")
     command, run_data = read_command_csv(args.command_file), read_trajectory_csv(args.run)
     echo(f"compare: {len(run_data[0])} tracker samples of {args.run} against {robot.name} running {args.command_file}")
     c = compare_run(robot, command, run_data, marker, noise)

@@ -76,6 +76,7 @@ def _diagnose_runs(args, echo) -> dict:
     effect was added) (`RunDiagnosis`)."""
     import jaxrobot as jr
 
+    from ..core._noise import tracker_noise
     from ..diagnosis._runs import diagnose_runs
 
     if bool(args.poses) != bool(args.validate):
@@ -87,12 +88,10 @@ def _diagnose_runs(args, echo) -> dict:
     train = _run_pairs(args.runs, args.commands, "")
     val = _run_pairs(args.validate_runs, args.validate_commands, "validate-")
     poses = (_poses(args.poses, args.approach)[0], _poses(args.validate, args.approach)[0]) if args.poses else None
-    robot, marker, noise = tracker_of(args)
-    sensors = jr.read_description(args.model).get("sensors", {}) if args.model is not None else {}
-    embedded = jr.read_description(None)["sensors"]
-    marker = embedded["tracker_marker_offset_m"] if marker is None else marker
-    noise = embedded["tracker_position_noise_m"] if noise is None else noise
-    counts = sensors.get("encoder_counts_per_rev")
+    robot, instruments = tracker_of(args)
+    marker = instruments.require("marker_offset", by="diagnose --runs")[0]
+    noise = tracker_noise(instruments, by="diagnose --runs")
+    counts = instruments.encoder_counts_per_rev
     echo(f"diagnose: {len(train)} training and {len(val)} validation runs"
          + (f", {len(poses[0])} training and {len(poses[1])} validation poses" if poses else "")
          + f", start model {robot.name}")
@@ -105,8 +104,8 @@ def _diagnose_runs(args, echo) -> dict:
              + f"), BIC {row.bic:.1f}, validation tracker chi2/dof {row.chi2_validation / rows_val:.4f}"
              + (f", encoders' chi2 {row.chi2_validation_encoders:.4g}" if counts is not None else ""))
 
-    res = diagnose_runs(robot, train, val, marker, noise, max_steps=args.max_steps,
-                        encoder_quantum=0.0 if counts is None else 2 * np.pi / counts, on_event=progress, poses=poses,
+    res = diagnose_runs(robot, train, val, marker, noise, max_steps=args.max_steps, on_event=progress, poses=poses,
+                        encoder_quantum=0.0 if counts is None else instruments.encoder_quantum,
                         **({} if args.run_kinds is None else {"kinds": tuple(args.run_kinds)}))
     echo(f"verdict: {res.verdict}")
     for c in res.confounds:
@@ -152,7 +151,7 @@ def run(args, echo) -> dict:
         raise ValueError("diagnose: expected training pose files and --validate pose files (or --runs with "
                          f"--commands, --validate-runs, --validate-commands), found {len(args.poses)} pose files and "
                          f"{0 if args.validate is None else len(args.validate)} validation files")
-    robot, marker, noise = tracker_of(args)
+    robot, instruments = tracker_of(args)
     (train, lines, times), (val, _, _) = _poses(args.poses, args.approach), _poses(args.validate, args.approach)
     echo(f"diagnose: {len(train)} training and {len(val)} validation poses, start model {robot.name}")
     steps = Progress(args.max_steps + 1, "diagnose", at_most=True)
@@ -163,7 +162,7 @@ def run(args, echo) -> dict:
         if event.stage == "compare":
             steps.step(f"step {event.step}")
 
-    res = diagnose(robot, train, val, noise=noise, marker=marker, max_steps=args.max_steps,
+    res = diagnose(robot, train, val, instruments=instruments, max_steps=args.max_steps,
                    max_order=args.max_order, loss=args.loss, times=times, on_event=progress)
     echo("\n" + loop_table(res.loop, res.noise_floor))
     echo(f"verdict: {res.verdict}")

@@ -20,6 +20,9 @@ def configure(parser) -> None:
 
     add_model_option(parser, "robot description (TOML, racer7.toml format; default: the embedded Racer-7)",
                      dest="robot")
+    from ._options import add_setup_option
+
+    add_setup_option(parser)
     parser.add_argument("--method", choices=("sparse", "fft"), default="sparse",
                         help="order search for the fit: sparse selection (ours, default) or the thesis' FFT")
     parser.add_argument("--save-model", type=Path, default=None,
@@ -27,16 +30,18 @@ def configure(parser) -> None:
                              "sets (TOML; the input of calibrate --model)")
 
 
-def _cutoffs(desc: dict) -> dict[int, float]:
-    from jaxrobot import filter_cutoffs
+def _instruments(args, desc: dict):
+    """The measurement setup of the options (`instruments_of`), after checking that the robot has gears and the
+    setup states the filters' cut-offs."""
+    from ._options import instruments_of
 
     if "gear" not in desc:
         raise ValueError("robot description: a [gear] section (basic ratios u0) is needed for gear identification")
-    cutoffs = filter_cutoffs(desc)
-    if not cutoffs:
-        raise ValueError("robot description: [sensors] filter_cutoff_hz (Gaussian filter cut-off per joint, Hz) "
+    instruments = instruments_of(args, args.robot)
+    if not instruments.filter_cutoff:
+        raise ValueError("measurement setup: [sensors] filter_cutoff_hz (Gaussian filter cut-off per joint, Hz) "
                          "is needed for gear identification")
-    return cutoffs
+    return instruments
 
 
 def _echo_result(res, echo) -> None:
@@ -73,7 +78,7 @@ def run(args, echo) -> dict:
     runs = [jr.io.read_gear_run(p) for p in args.runs]
     val = [jr.io.read_gear_run(p) for p in args.validate]
     progress.step(f"read {len(runs)} + {len(val)} runs")
-    res = identify_gear(robot, runs, val, _cutoffs(desc), method=args.method,
+    res = identify_gear(robot, runs, val, instruments=_instruments(args, desc), method=args.method,
                         names=[str(p) for p in args.runs], validation_names=[str(p) for p in args.validate])
     progress.step("identification")
     _echo_result(res, echo)
@@ -108,7 +113,9 @@ def demo_stage(out: Path, echo) -> dict:
          f"({time.perf_counter() - start:.1f} s)")
     sample = out / "gear_run_example.csv"
     jr.io.write_gear_run(sample, *ident[0])
-    res = identify_gear(jr.racer7(), ident, val, names=ident_names, validation_names=val_names)
+    instruments = jr.racer7_instruments()
+    res = identify_gear(jr.racer7(), ident, val, instruments=instruments, names=ident_names,
+                        validation_names=val_names)
     _echo_result(res, echo)
     files = write_report(res, out)
     echo("wrote " + ", ".join(str(f) for f in [sample, *files]))
@@ -120,7 +127,7 @@ def demo_stage(out: Path, echo) -> dict:
     result["direction_tests"] = {str(t.joint): {"p_value": t.p_value, "significant": t.significant}
                                  for t in res.tests}
     result["misalignment_error_rad"] = float(np.max(np.abs(
-        res.misalignment[:3] - np.asarray(jr.read_description()["sensors"]["gyro_misalignment_rad"]))))
+        res.misalignment[:3] - instruments.gyro_misalignment)))
     result["seconds"] = time.perf_counter() - start
     echo(f"misalignment error {result['misalignment_error_rad']:.1e} rad; "
          f"max |u0 error| {max(abs(v) for v in result['u0_relative_error'].values()):.1e} (relative); "

@@ -1,12 +1,14 @@
 """The options several identification commands share: the approach direction and loss of pose fits, and
-the tracker's marker and noise."""
+the measurement setup with the tracker's marker and noise."""
 
 from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
 
 import jaxrobot as jr
 from jaxrobot.measurement import APPROACHES
 
-from ..core._noise import TrackerNoise
 from ..core._robust import LOSSES
 
 
@@ -26,23 +28,46 @@ def add_loss_option(parser) -> None:
                              "squares), or l2 (plain least squares)")
 
 
+def add_setup_option(parser) -> None:
+    """`--setup FILE` of the commands that read measurements: the measurement setup (`jaxrobot.Instruments`)."""
+    parser.add_argument("--setup", type=Path, default=None, metavar="FILE",
+                        help="measurement setup: a TOML file with a [sensors] table (tracker noise and marker, "
+                             "encoders, gyroscope, filters; docs/file-formats.md); default: the robot file's "
+                             "[sensors], without --model the embedded Racer-7 bench's")
+
+
 def add_tracker_options(parser) -> None:
-    """`--noise-um` and `--marker` of the commands that compare tracker positions with the model."""
+    """`--setup`, `--noise-um` and `--marker` of the commands that compare tracker positions with the model."""
+    add_setup_option(parser)
     parser.add_argument("--noise-um", type=float, default=None,
-                        help="tracker noise std per axis in um (default: the robot file's [sensors])")
+                        help="tracker noise std per axis in um (default: the setup's)")
+    add_marker_option(parser)
+
+
+def add_marker_option(parser) -> None:
+    """`--marker X Y Z`: the marker offset, replacing the setup's."""
     parser.add_argument("--marker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
-                        help="marker offset in m in the tool frame (the flange without [tool]; default: [sensors])")
+                        help="marker offset in m in the tool frame (the flange without [tool]; default: the setup's)")
 
 
-def tracker_of(args):
-    """The start robot, marker offset [m] and tracker noise (std [m] or a `TrackerNoise`) of the options: the
-    robot file's `[sensors]` where `--marker`, `--noise-um` are not given (None: the embedded robot's)."""
-    if args.noise_um is not None and not args.noise_um > 0:
-        raise ValueError(f"--noise-um: expected the tracker std per axis > 0 um, found {args.noise_um}")
+def instruments_of(args, model) -> jr.Instruments:
+    """The measurement setup of the options: `--setup`, else the `[sensors]` of the robot file `model` (None: the
+    embedded Racer-7's bench), with `--marker` and `--noise-um` (an isotropic tracker) replacing its settings where
+    the command has them and they are given."""
+    instruments = jr.io.read_instruments(args.setup if args.setup is not None else model)
+    changes = {}
+    if getattr(args, "marker", None) is not None:
+        changes["marker_offset"] = args.marker
+    noise_um = getattr(args, "noise_um", None)
+    if noise_um is not None:
+        if not noise_um > 0:
+            raise ValueError(f"--noise-um: expected the tracker std per axis > 0 um, found {noise_um}")
+        changes.update(tracker_noise=1e-6 * noise_um, tracker_position=None, tracker_noise_along=None,
+                       tracker_noise_across=None)
+    return dataclasses.replace(instruments, **changes)
+
+
+def tracker_of(args) -> tuple[jr.Robot, jr.Instruments]:
+    """The start robot (`--model`; None: the embedded Racer-7) and the measurement setup (`instruments_of`)."""
     robot = jr.racer7() if args.model is None else jr.load_robot(args.model)
-    marker, noise = args.marker, None if args.noise_um is None else 1e-6 * args.noise_um
-    if args.model is not None:
-        sensors = jr.read_description(args.model).get("sensors", {})
-        marker = sensors.get("tracker_marker_offset_m") if marker is None else marker
-        noise = (TrackerNoise.of(sensors) or sensors.get("tracker_position_noise_m")) if noise is None else noise
-    return robot, marker, noise
+    return robot, instruments_of(args, args.model)

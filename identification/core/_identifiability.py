@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 import jax
 import numpy as np
+from jaxtyping import Array, Float
 
 import jaxrobot as jr
 
@@ -194,7 +195,7 @@ def identifiability(
     orientation: bool = False,
     n_poses: int = 1000,
     seed: int = 0,
-    marker=None,
+    marker: Float[Array, "3"],
     rtol: float = DEFAULT_RTOL,
     prefer: Sequence[str] | None = THESIS_PREFERENCE,
     constraints: PoseConstraints = DEFAULT_CONSTRAINTS,
@@ -204,24 +205,26 @@ def identifiability(
 
     `prefer` orders the pivoting: of a dependent group the earlier names stay identifiable
     (default `THESIS_PREFERENCE`; `None` = classic largest-norm pivoting). `marker`: marker offset in the tool frame
-    (default `[sensors] tracker_marker_offset_m`; zeros = the tool-frame origin, `p_e` of eq. 3.6 without a tool).
+    [m] (`Instruments.marker_offset`; zeros = the tool-frame origin, `p_e` of eq. 3.6 without a tool).
     `names`: default `kinematic_parameters(robot)`.
     """
     robot = jr.racer7() if robot is None else robot
     params = ParameterMap(kinematic_parameters(robot) if names is None else names)
-    q = random_feasible_poses(robot, n_poses, seed, marker, constraints)
+    q = random_feasible_poses(robot, n_poses, seed, marker=marker, constraints=constraints)
     blocks = pose_jacobians(robot, params, q, marker, orientation)
     return analyse(blocks, params.names, rtol, prefer, orientation)
 
 
 def default_parameters(
-    robot: jr.Robot, *, orientation: bool = False, marker=None, n_poses: int = DEFAULT_POSES, seed: int = 0
+    robot: jr.Robot, *, marker: Float[Array, "3"], orientation: bool = False, n_poses: int = DEFAULT_POSES,
+    seed: int = 0,
 ) -> tuple[str, ...]:
     """The default free parameters of a calibration: the identifiable subset of
-    `kinematic_parameters(robot)` (Hayati angles of every pair of parallel axes included) for marker
-    positions (and orientations) at random feasible poses, in the pivot order of `THESIS_PREFERENCE`
-    followed by every joint offset and then the candidates' order (for the Racer-7 from positions:
-    `DEFAULT_PARAMETERS`). `default_analysis` says why the others are left out."""
+    `kinematic_parameters(robot)` (Hayati angles of every pair of parallel axes included) for the positions
+    (and orientations) of a marker at `marker` [m] in the tool frame at random feasible poses, in the pivot
+    order of `THESIS_PREFERENCE` followed by every joint offset and then the candidates' order (for the Racer-7
+    from positions with its bench's marker: `DEFAULT_PARAMETERS`). `default_analysis` says why the others are
+    left out."""
     res = default_analysis(robot, orientation=orientation, marker=marker, n_poses=n_poses, seed=seed)
     prefer = THESIS_PREFERENCE + tuple(f"offset{j}" for j in range(1, robot.n_joints + 1))
     rank: dict[str, int] = {}
@@ -231,11 +234,12 @@ def default_parameters(
 
 
 def default_analysis(
-    robot: jr.Robot, *, orientation: bool = False, marker=None, n_poses: int = DEFAULT_POSES, seed: int = 0
+    robot: jr.Robot, *, marker: Float[Array, "3"], orientation: bool = False, n_poses: int = DEFAULT_POSES,
+    seed: int = 0,
 ) -> IdentifiabilityResult:
     """The identifiability analysis behind `default_parameters` (computed once per robot and settings): its
     `unidentifiable` candidates and their `dependencies` are the parameters the default set leaves out."""
-    marker = None if marker is None else tuple(np.asarray(marker, float).tolist())
+    marker = tuple(np.asarray(marker, float).tolist())
     key = (tuple(np.asarray(x).tobytes() for x in jax.tree.leaves(robot)), orientation, marker, n_poses, seed)
     if key not in _DEFAULTS:
         prefer = THESIS_PREFERENCE + tuple(f"offset{j}" for j in range(1, robot.n_joints + 1))

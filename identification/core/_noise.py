@@ -22,6 +22,8 @@ import numpy as np
 from jax.scipy.special import gammaincc
 from jaxtyping import Array, Float
 
+import jaxrobot as jr
+
 ALPHA = 0.01
 """Significance level of the chi-square tests of residuals against the stated noise (`noise_test`)."""
 QUANTILE_STEPS = 60
@@ -58,8 +60,8 @@ def _chi2_quantile(p, dof):
 
 @dataclasses.dataclass(frozen=True)
 class TrackerNoise:
-    """A laser tracker's noise model (`[sensors]` `tracker_position_m`, `tracker_noise_along_m`,
-    `tracker_noise_across_m`)."""
+    """A laser tracker's noise model (`jaxrobot.Instruments` `tracker_position`, `tracker_noise_along`,
+    `tracker_noise_across`; `[sensors]` `tracker_position_m`, `tracker_noise_along_m`, `tracker_noise_across_m`)."""
 
     position: np.ndarray
     """(3,) [m] the tracker's position in the robot's base frame."""
@@ -81,13 +83,19 @@ class TrackerNoise:
         return self.sigma * ((np.eye(3) - uu) / self.across + uu / self.along)
 
     @classmethod
-    def of(cls, sensors: dict) -> TrackerNoise | None:
-        """The model of a robot file's `[sensors]` (checked by `jaxrobot.read_description`), None where it
-        states none."""
-        if "tracker_position_m" not in sensors:
+    def of(cls, instruments: jr.Instruments) -> TrackerNoise | None:
+        """The laser tracker's model of a measurement setup, None where it states none (an isotropic tracker)."""
+        if not instruments.laser_tracker:
             return None
-        return cls(np.asarray(sensors["tracker_position_m"], float), float(sensors["tracker_noise_along_m"]),
-                   float(sensors["tracker_noise_across_m"]))
+        return cls(np.asarray(instruments.tracker_position, float), instruments.tracker_noise_along,
+                   instruments.tracker_noise_across)
+
+
+def tracker_noise(instruments: jr.Instruments, by: str) -> float | TrackerNoise:
+    """The tracker noise of a measurement setup: its laser tracker's `TrackerNoise` where it states one, else its
+    isotropic std per axis [m]; raises `ValueError` naming `instruments.tracker_noise` and the workflow `by`
+    where it states neither."""
+    return TrackerNoise.of(instruments) or instruments.require("tracker_noise", by=by)[0]
 
 
 def noise_model(noise, points: np.ndarray, name: str = "noise") -> tuple[float, np.ndarray | None]:

@@ -9,7 +9,6 @@ distance from singularities (smallest singular value >= `min_sigma`).
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import equinox as eqx
 import jax
@@ -41,16 +40,6 @@ class PoseConstraints:
 DEFAULT_CONSTRAINTS = PoseConstraints()
 
 
-@functools.cache
-def _embedded_marker() -> tuple[float, ...]:
-    return tuple(float(v) for v in jr.read_description(None)["sensors"]["tracker_marker_offset_m"])
-
-
-def default_marker() -> np.ndarray:
-    """The tracker marker offset of the embedded description (`[sensors]`; read once)."""
-    return np.asarray(_embedded_marker(), float)
-
-
 @eqx.filter_jit
 def _feasible(robot: jr.Robot, q: Float[Array, "N n"], marker, margin, z_min, min_sigma):
     inside = jnp.all((q >= robot.q_min + margin) & (q <= robot.q_max - margin), -1)
@@ -60,10 +49,12 @@ def _feasible(robot: jr.Robot, q: Float[Array, "N n"], marker, margin, z_min, mi
 
 
 def feasible(
-    robot: jr.Robot, q: Float[Array, "N n"], marker=None, constraints: PoseConstraints = DEFAULT_CONSTRAINTS
+    robot: jr.Robot, q: Float[Array, "N n"], marker: Float[Array, "3"],
+    constraints: PoseConstraints = DEFAULT_CONSTRAINTS,
 ) -> np.ndarray:
-    """Boolean mask (N,) of the feasible poses among `q` (joint coordinates, rad)."""
-    marker = default_marker() if marker is None else np.asarray(marker, float)
+    """Boolean mask (N,) of the feasible poses among `q` (joint coordinates, rad) for the tracker marker at
+    `marker` [m] in the tool frame (`Instruments.marker_offset`)."""
+    marker = np.asarray(marker, float)
     c = constraints
     return np.asarray(_feasible(robot, jnp.asarray(q, float), jnp.asarray(marker), c.limit_margin, c.z_min,
                                 c.min_sigma))
@@ -79,18 +70,20 @@ def rest_motor_angles(robot: jr.Robot, q: Float[Array, "N n"]) -> np.ndarray:
     return np.asarray(_static_equilibrium(robot, jnp.asarray(q, float)))
 
 
-def workspace_positions(robot: jr.Robot, marker=None, n: int = 1000, seed: int = 3) -> np.ndarray:
-    """Marker positions (n, 3) [m] at `n` random feasible poses: the workspace behind a pose set (Fig. 3.11);
-    `marker` default `default_marker()`."""
-    marker = default_marker() if marker is None else np.asarray(marker, float)
-    return np.asarray(marker_pose(robot, random_feasible_poses(robot, n, seed=seed), jnp.asarray(marker))[0])
+def workspace_positions(robot: jr.Robot, marker: Float[Array, "3"], n: int = 1000, seed: int = 3) -> np.ndarray:
+    """Marker positions (n, 3) [m] of the marker at `marker` [m] in the tool frame at `n` random feasible poses:
+    the workspace behind a pose set (Fig. 3.11)."""
+    marker = np.asarray(marker, float)
+    return np.asarray(marker_pose(robot, random_feasible_poses(robot, n, seed=seed, marker=marker),
+                                  jnp.asarray(marker))[0])
 
 
 def random_feasible_poses(
-    robot: jr.Robot, n: int, seed: int = 0, marker=None, constraints: PoseConstraints = DEFAULT_CONSTRAINTS,
-    batch: int = 2048,
+    robot: jr.Robot, n: int, seed: int = 0, *, marker: Float[Array, "3"],
+    constraints: PoseConstraints = DEFAULT_CONSTRAINTS, batch: int = 2048,
 ) -> np.ndarray:
-    """`n` random feasible joint coordinates (n, joints), uniform inside the limits, by rejection."""
+    """`n` random feasible joint coordinates (n, joints), uniform inside the limits, by rejection; `marker` [m]:
+    the tracker marker in the tool frame (`Instruments.marker_offset`), which must stay above the floor."""
     rng = np.random.default_rng(seed)
     lo = np.asarray(robot.q_min) + constraints.limit_margin
     hi = np.asarray(robot.q_max) - constraints.limit_margin
@@ -125,13 +118,13 @@ def _pose_jacobians(robot, params: ParameterMap, q, marker, ccw):
 
 
 def pose_jacobians(
-    robot: jr.Robot, params: ParameterMap, q: Float[Array, "N n"], marker=None, orientation: bool = False,
-    ccw: bool = False,
+    robot: jr.Robot, params: ParameterMap, q: Float[Array, "N n"], marker: Float[Array, "3"],
+    orientation: bool = False, ccw: bool = False,
 ) -> np.ndarray:
-    """Identification Jacobian blocks `d y_i / d v` (N, 3 or 6, m) at joint coordinates `q`
-    (eq. 3.8), the robot resting there (motor angles from the static equilibrium). Orientation
-    rows are rotation angles [rad] in the marker frame."""
-    marker = jnp.asarray(default_marker() if marker is None else marker, float)
+    """Identification Jacobian blocks `d y_i / d v` (N, 3 or 6, m) of the marker at `marker` [m] in the tool frame
+    at joint coordinates `q` (eq. 3.8), the robot resting there (motor angles from the static equilibrium).
+    Orientation rows are rotation angles [rad] in the marker frame."""
+    marker = jnp.asarray(marker, float)
     joints = robot.n_joints
     q = np.asarray(q, float).reshape(-1, joints)
     n = q.shape[0]
@@ -229,7 +222,7 @@ def detmax(
     n_poses: int = 50,
     seed: int = 0,
     *,
-    marker=None,
+    marker: Float[Array, "3"],
     orientation: bool = False,
     constraints: PoseConstraints = DEFAULT_CONSTRAINTS,
     pool_size: int = 4000,
@@ -244,7 +237,8 @@ def detmax(
     """Extended DETMAX (Daney et al., thesis 3.2.2): start from `n_poses` random feasible poses;
     per iteration draw `n_draw` random candidates, admit the first `n_admit` that raise O1
     (eq. 3.10), add the admitted one that maximises O4 (eq. 3.11), then remove the pose with the
-    least influence on O1. Stops when O1 has not grown by more than `tol` (relative) for
+    least influence on O1 (`marker` [m]: the tracker marker in the tool frame, `Instruments.marker_offset`). Stops
+    when O1 has not grown by more than `tol` (relative) for
     `patience` iterations, or after `max_iter`. Candidates come from a pool of `pool_size`
     random feasible poses whose Jacobian blocks are evaluated in one batch. `scale`: column
     scaling (default: rms column norms of the pool).
@@ -252,7 +246,7 @@ def detmax(
     if n_poses < 1:
         raise ValueError(f"detmax: expected n_poses >= 1, found {n_poses}")
     if pool is None:
-        q_pool = random_feasible_poses(robot, pool_size, seed, marker, constraints)
+        q_pool = random_feasible_poses(robot, pool_size, seed, marker=marker, constraints=constraints)
         blocks = pose_jacobians(robot, params, q_pool, marker, orientation)
     else:
         q_pool, blocks = (np.asarray(x, float) for x in pool)

@@ -43,7 +43,7 @@ from jaxrobot.internal import renamed_argument
 from jaxrobot.measurement import Poses
 
 from ..core import _robust as robust
-from ..core._noise import ALPHA, TrackerNoise, chi2_quantile, noise_model, noise_test
+from ..core._noise import ALPHA, TrackerNoise, chi2_quantile, noise_model, noise_test, tracker_noise
 from ..core._pose_checks import check_pose_units
 from ._diagnose_results import (
     AddedEffect,
@@ -161,8 +161,7 @@ def diagnose(
     train: Poses,
     validation: Poses,
     *,
-    noise: float | None = None,
-    marker=None,
+    instruments: jr.Instruments,
     max_steps: int = 6,
     max_order: int = 400,
     shortlist: int = 4,
@@ -177,11 +176,10 @@ def diagnose(
     - `start`: the model to test (may have rigid joints and constant gear ratios).
     - `train`, `validation`: `jaxrobot.measurement.Poses` (the validation poses only score candidates; `ccw` None:
       every gear's `cw` set).
-    - `noise`: tracker std per axis [m] (default `[sensors] tracker_position_noise_m`), or a laser
-      tracker's `TrackerNoise` (`identification.core._noise`): each training pose's residual is then whitened
-      by its covariance in every fit, the chi-square test and BIC (noise floor and `sigma`: the isotropic
-      std of the same total variance).
-    - `marker`: marker offset in the tool frame [m] (default `[sensors]`).
+    - `instruments`: the measurement setup (`jaxrobot.Instruments`): its `marker_offset` [m] in the tool frame
+      and its tracker noise, a std per axis [m] (`tracker_noise`) or a laser tracker's model: each training pose's
+      residual is then whitened by its covariance in every fit, the chi-square test and BIC (noise floor and
+      `sigma`: the isotropic std of the same total variance). A missing setting raises an error naming it.
     - `max_steps`: most effects to add; `max_order`: highest ripple order searched [1/rev];
       `shortlist`: candidates fitted by LM per step; `loss`: `"cauchy"` (default) or `"huber"` weigh each
       training pose by the loss of its residual norm at the current model in every fit
@@ -197,7 +195,9 @@ def diagnose(
     """
     on_event = renamed_argument("diagnose", "progress", "on_event", progress, on_event)
     train, validation = train.checked(), validation.checked()
-    sigma, marker = _checked_inputs(start, train, validation, noise, marker)
+    noise = tracker_noise(instruments, by="diagnose")
+    sigma, marker = _checked_inputs(start, train, validation, noise,
+                                    instruments.require("marker_offset", by="diagnose")[0])
     robust.check_loss(loss)
     data = _Data.of(start, train, validation, noise, sigma, marker, loss, shortlist)
     emit = on_event or (lambda _: None)
@@ -287,7 +287,7 @@ class _Data:
     def of(cls, start, train, validation, noise, sigma, marker, loss, shortlist) -> _Data:
         white = noise_model(noise, train.positions)[1] if isinstance(noise, TrackerNoise) else None
         white = np.broadcast_to(np.eye(3), (len(train), 3, 3)) if white is None else white
-        layout = Layout.of(catalogue(start), start.n_joints)
+        layout = Layout.of(catalogue(start, marker), start.n_joints)
         return cls(layout, functions(layout), with_ripple_slots(start), train, validation,
                    Poses.concatenate([train, validation]),  # one compiled shape for both sets
                    white, sigma, marker, loss, shortlist, np.zeros((start.n_joints, 2 * RIPPLE_SLOTS)),
@@ -438,12 +438,10 @@ def _parsimony(data: _Data, v, fit: _Fit, row: LoopRow, free, jac, r, scored, lo
 
 
 def _checked_inputs(start: jr.Robot, train: Poses, validation: Poses, noise, marker) -> tuple[float, Array]:
-    """The tracker noise [m] and marker offset [m] (defaults from `[sensors]`), after checking them and
-    the poses against `start` (see `diagnose`)."""
-    sensors = jr.read_description(None)["sensors"]
-    sigma = noise_model(sensors["tracker_position_noise_m"] if noise is None else noise, train.positions[:1],
-                        "noise")[0]
-    marker = jnp.asarray(sensors["tracker_marker_offset_m"] if marker is None else marker, float)
+    """The tracker's per-axis std [m] of `noise` and the marker offset [m], after checking them and the poses
+    against `start` (see `diagnose`)."""
+    sigma = noise_model(noise, train.positions[:1], "instruments.tracker_noise")[0]
+    marker = jnp.asarray(marker, float)
     if len(train) < 10 or len(validation) < 3:
         raise ValueError(f"poses: expected >= 10 training and >= 3 validation poses, found {len(train)} and "
                          f"{len(validation)}")

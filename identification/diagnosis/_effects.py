@@ -4,8 +4,8 @@ Each effect is a small model extension declared once: its parameter names, typic
 be seen (`seen_in`: poses at rest, runs, or both), which parameters are physical only at or above 0, and a hook
 `apply(robot, v, orders) -> robot` that is the identity at `v = 0`. Per-joint effects get `v` of shape
 (joints, p) (one row per joint; the pose workflow frees one row at a time), global ones (p,). Adding an effect =
-one subclass of `Effect` appended to `CATALOGUE`; `catalogue(robot, "poses")` and `catalogue(robot, "runs")` are
-what each workflow draws from it.
+one subclass of `Effect` appended to `CATALOGUE`; `catalogue(robot, marker, "poses")` and
+`catalogue(robot, marker, "runs")` are what each workflow draws from it.
 
 Effects act on the `jaxrobot.Robot` itself: its joint compliance is stored as `c = 1/k1`,
 `e = k3/k1` (`c = 0` rigid), so compliance can be identified from a rigid start.
@@ -181,13 +181,13 @@ GEOMETRY = ("a1", "a2", "a3", "a4", "a5", "a6", "d1", "d2", "d4", "d5", "d6",
 the 26 of `identification.DEFAULT_PARAMETERS` less offsets and wrist ratios)."""
 
 
-def geometry_names(robot: jr.Robot) -> tuple[str, ...]:
-    """The mDH parameters (a, d, alpha, beta) of `default_parameters(robot)`, by field then joint
-    (`GEOMETRY` for the Racer-7)."""
+def geometry_names(robot: jr.Robot, marker: Float[Array, "3"]) -> tuple[str, ...]:
+    """The mDH parameters (a, d, alpha, beta) of `default_parameters(robot, marker=marker)`, by field then joint
+    (`GEOMETRY` for the Racer-7 with its bench's marker)."""
     from ..core._identifiability import default_parameters
 
     fields = ("a", "d", "alpha", "beta")
-    geo = [parse_name(n) for n in default_parameters(robot) if parse_name(n)[0] in fields]
+    geo = [parse_name(n) for n in default_parameters(robot, marker=marker) if parse_name(n)[0] in fields]
     return tuple(f"{f}{j + 1}" for f, j in sorted(geo, key=lambda fj: (fields.index(fj[0]), fj[1])))
 
 
@@ -403,13 +403,13 @@ CATALOGUE: list[Effect] = [JointOffset(), GearRatio(), Backlash(), JointComplian
                            JointDamping(), JointStiffness(), CubicStiffness(), ViscousFriction(), CoulombFriction(),
                            LinkInertia(), Payload(), ApproachDependentGearSet()]
 """Every candidate effect, for poses and runs (`Effect.seen_in`), in the order the workflows try them (ties keep
-the earlier one; the runs' fit variables follow it); `catalogue(robot, seen_in)` draws a workflow's candidates."""
+the earlier one; the runs' fit variables follow it); `catalogue(robot, marker, seen_in)` draws a workflow's candidates."""
 
 
-def catalogue(robot: jr.Robot, seen_in: str = "poses") -> list[Effect]:
-    """The effects of `CATALOGUE` that `seen_in` (`"poses"` or `"runs"`) can show, the geometry effect on the
-    identifiable mDH parameters of `robot`."""
-    return [Geometry(geometry_names(robot)) if isinstance(e, Geometry) else e for e in CATALOGUE
+def catalogue(robot: jr.Robot, marker: Float[Array, "3"], seen_in: str = "poses") -> list[Effect]:
+    """The effects of `CATALOGUE` that `seen_in` (`"poses"` or `"runs"`) can show, the geometry effect on the mDH
+    parameters of `robot` identifiable from the positions of a marker at `marker` [m] in the tool frame."""
+    return [Geometry(geometry_names(robot, marker)) if isinstance(e, Geometry) else e for e in CATALOGUE
             if seen_in in e.seen_in]
 
 

@@ -23,12 +23,11 @@ from jaxtyping import Array, Bool, Float, Int
 
 from jaxrobot import (
     RESULTS,
+    Instruments,
     Ripple,
     Robot,
-    filter_cutoffs,
     fourier_ratio,
     fourier_xi_inverse,
-    read_description,
     status_message,
 )
 from jaxrobot.internal import cached_program, map_matrices
@@ -394,7 +393,8 @@ def identify_gear(
     robot: Robot,
     runs: GearRun | list,
     validation_runs: GearRun | list | None = None,
-    cutoff_hz: dict[int, float] | None = None,
+    *,
+    instruments: Instruments,
     method: str = "sparse",
     names: list[str] | None = None,
     select: str = "cv",
@@ -408,8 +408,7 @@ def identify_gear(
     - `runs`, `validation_runs`: a `GearRun` (one run, or the bench's runs with a leading axis), or a list of
       `GearRun`s and `(t (N,) s, theta (N, n) rad, gyro (N, 3) rad/s)` tuples; each validation run needs
       identification runs of the same joint and direction.
-    - `cutoff_hz`: filter cut-off per 1-based joint (default: `[sensors] filter_cutoff_hz` of the
-      embedded description, joints 1-3).
+    - `instruments`: the measurement setup (`jaxrobot.Instruments`): its `filter_cutoff` per joint [Hz].
     - `method`: "sparse" (ours) or "fft" (the thesis') order search for the final fit.
     - `select`: "cv" keeps the clusters the cross-validation supports, "all" every cluster the
       sparse search picks (a comparison); either way the resolution test follows.
@@ -421,8 +420,7 @@ def identify_gear(
         raise ValueError(f"select: expected 'cv' or 'all', found {select!r}")
     if method not in ("sparse", "fft"):
         raise ValueError(f"method: expected 'sparse' or 'fft', found {method!r}")
-    if cutoff_hz is None:
-        cutoff_hz = filter_cutoffs(read_description(None))
+    cutoff_hz = dict(enumerate(instruments.require("filter_cutoff", by="identify_gear")[0], start=1))
     runs = gear_run_arrays(runs, "runs")
     validation_runs = gear_run_arrays([] if validation_runs is None else validation_runs, "validation_runs")
     names = names or [f"run {k + 1}" for k in range(len(runs))]

@@ -3,9 +3,9 @@ measurements for calibration (fleets included) and trajectory runs (their files:
 
 from .._checks import check_public as _check_public
 from .._deprecation import deprecated_aliases as _deprecated_aliases
+from .._instruments import ORIENTATION_NOISE_RAD as ORIENTATION_NOISE_RAD
 from ._gear import GEAR_RUN_DEFAULTS as GEAR_RUN_DEFAULTS
 from ._gear import gear_runs as gear_runs
-from ._poses import ORIENTATION_NOISE_RAD as ORIENTATION_NOISE_RAD
 from ._poses import draw_fleet as draw_fleet
 from ._poses import measure_poses as measure_poses
 from ._trajectory import trajectory_run as trajectory_run

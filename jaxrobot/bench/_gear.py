@@ -22,9 +22,10 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._gear import gear_output, gear_ratio
+from .._instruments import Instruments
 from .._program_cache import cached_program
 from .._robot import Robot
-from ..io._description import read_description
+from ..io._instruments import racer7_instruments
 from ..measurement._gear_run import GearRun
 from ..measurement._gyroscope import mount_angular_velocity, sensor_rotation
 from ..measurement._model import quasi_static_link_angles
@@ -153,11 +154,9 @@ def gear_runs(
     directions: tuple[str, ...] = ("cw", "ccw"),
     hold_q_deg: tuple[float, ...] | None = None,
     seed: int | jax.Array = 0,
-    gyro_noise_deg_s: float | None = None,
     gyro_bias_deg_s: float = GYRO_BIAS_DEG_S,
-    misalignment_rad: tuple[float, float] | None = None,
     rest_s: float = REST_S,
-    description: dict | None = None,
+    instruments: Instruments | None = None,
 ) -> GearRun:
     """Bench runs of one joint (thesis 3.1.1): `repetitions` runs per direction.
 
@@ -170,13 +169,16 @@ def gear_runs(
     - `directions`: "cw" (positive motor speed) and/or "ccw"; runs alternate between them.
     - `hold_q_deg`: joint coordinates of the joints that do not move (default `HOLD_Q_DEG`).
     - `seed`: int or `jax.random` key for noise and bias.
-    - `gyro_noise_deg_s`, `misalignment_rad`: default `description["sensors"]` (racer7.toml's where absent).
     - `gyro_bias_deg_s`: std of the constant bias per axis and run.
+    - `instruments`: the gyroscope's noise and misalignment, the encoders' counts per revolution and the sample
+      time (`gyro_noise`, `gyro_misalignment`, `encoder_counts_per_rev`, `sample_time`); default the bench's,
+      `jaxrobot.racer7_instruments()`.
 
     **Returns:** `GearRun` of the `R` runs (leading axis), with their noise-free truth.
     """
-    desc = read_description(None) if description is None else description
-    sensors = {**read_description(None)["sensors"], **desc.get("sensors", {})}  # missing keys: the bench's
+    instruments = racer7_instruments() if instruments is None else instruments
+    noise, mis, ts, counts = instruments.require("gyro_noise", "gyro_misalignment", "sample_time",
+                                                 "encoder_counts_per_rev", by="gear_runs")
     n_joints = robot.n_joints
     if joint not in range(1, n_joints + 1):
         raise ValueError(f"joint: expected an integer 1..{n_joints}, found {joint!r}")
@@ -200,10 +202,6 @@ def gear_runs(
         raise ValueError(f"directions: expected a non-empty tuple of 'cw'/'ccw', found {directions!r}")
     if len(hold_q_deg) != n_joints:
         raise ValueError(f"hold_q_deg: expected {n_joints} joint coordinates [deg], found {len(hold_q_deg)}")
-    noise = float(sensors["gyro_noise_deg_s"] if gyro_noise_deg_s is None else gyro_noise_deg_s)
-    mis = np.asarray(sensors["gyro_misalignment_rad"] if misalignment_rad is None else misalignment_rad, float)
-    ts = float(sensors["sample_time_s"])
-    counts = float(sensors["encoder_counts_per_rev"])
     if np.ndim(robot.a) != 1:
         raise ValueError(f"robot: expected a single robot (a of shape (n,)), found a fleet {np.shape(robot.a)}")
 
@@ -247,8 +245,8 @@ def gear_runs(
         theta, q, rate, g_true = motion[d]
         k_noise, k_bias = jax.random.split(jax.random.fold_in(key, k))
         bias = jnp.deg2rad(gyro_bias_deg_s) * jax.random.normal(k_bias, (3,))
-        gyro = g_true + np.asarray(bias) + np.deg2rad(noise) * np.asarray(jax.random.normal(k_noise, g_true.shape))
-        quant = 2.0 * np.pi / counts
+        gyro = g_true + np.asarray(bias) + noise * np.asarray(jax.random.normal(k_noise, g_true.shape))
+        quant = instruments.encoder_quantum
         out["theta"].append(np.round(np.asarray(theta) / quant) * quant)
         out["gyro"].append(np.asarray(gyro))
         out["q"].append(np.asarray(q))
@@ -258,7 +256,7 @@ def gear_runs(
     meta = {
         "joint": joint, "motor_speed_deg_s": speed_deg, "range_deg": rng_deg, "centre_deg": centre,
         "ramp_s": ramp, "rest_s": rest_s, "sample_time_s": ts, "encoder_counts_per_rev": counts,
-        "gyro_noise_deg_s": noise, "gyro_bias_deg_s": np.rad2deg(np.stack(out["bias"])),
+        "gyro_noise_deg_s": float(np.rad2deg(noise)), "gyro_bias_deg_s": np.rad2deg(np.stack(out["bias"])),
         "misalignment_rad": mis, "hold_q_deg": tuple(hold_q_deg), "directions": tuple(dirs),
         "seed": seed if isinstance(seed, int) else None,
     }

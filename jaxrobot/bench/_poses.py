@@ -16,17 +16,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from .._instruments import Instruments
 from .._program_cache import cached_program
 from .._robot import Robot
 from .._rotations import rotation_to_quaternion, rotvec_to_rotation
 from .._status import require_successful
 from ..io._description import read_description
+from ..io._instruments import racer7_instruments
 from ..measurement._model import measured_pose
 from ..measurement._poses import Poses
-
-ORIENTATION_NOISE_RAD = float(np.deg2rad(0.05))
-"""Default std per axis of the tracker's orientation error [rad]: the 0.05 deg camera
-specification quoted in thesis 3.2.1 (the thesis found its real orientation data unusable)."""
 
 # Parameters of the Racer-7 that deviate in the as-built robot (the entries of thesis Table 3.8);
 # `draw_fleet` puts random deviations on them (on all but the last joint for other robots).
@@ -50,10 +48,8 @@ def measure_poses(
     motor_angles: Float[Array, "*b K n"],
     *,
     seed: int = 0,
-    marker: Float[Array, "3"] | None = None,
-    position_noise: float | None = None,
+    instruments: Instruments | None = None,
     orientation: bool = False,
-    orientation_noise: float = ORIENTATION_NOISE_RAD,
     ccw: bool | Bool[Array, "*b K n"] = False,
 ) -> Poses:
     """Tracker measurements of `truth` resting at `motor_angles` (thesis 3.2.3, docs/model.md (3.6)).
@@ -62,19 +58,20 @@ def measure_poses(
     - `truth`: the as-built robot, or a fleet with leading axes `*b`.
     - `motor_angles`: commanded motor angles [rad], (K, n) (shared by the fleet) or (*b, K, n).
     - `seed`: seed of the Gaussian noise.
-    - `marker`: marker offset in the tool frame [m]; default `[sensors] tracker_marker_offset_m`.
-    - `position_noise`: std per axis [m]; default `[sensors] tracker_position_noise_m`.
-    - `orientation`, `orientation_noise`: also report the marker orientation as a quaternion,
-      rotated by a random rotation vector with this std per axis [rad].
+    - `instruments`: the tracker's marker offset, isotropic position noise and orientation noise
+      (`marker_offset`, `tracker_noise`, `tracker_orientation_noise`); default the bench's,
+      `jaxrobot.racer7_instruments()`.
+    - `orientation`: also report the marker orientation as a quaternion, rotated by a random rotation vector with
+      the std `tracker_orientation_noise` per axis [rad].
     - `ccw`: gear set of the last approach direction (default `cw`, docs/model.md (B.1)).
 
     **Returns:** `Poses` (plain numpy arrays; `ccw` broadcast to the poses, None for the default `cw`) with
     their noise-free truth and metadata. Raises the status message where the rest fixed point failed
     (`jaxrobot.measurement.rest_link_angles`; never for the default robot).
     """
-    sensors = read_description(None)["sensors"]
-    marker = np.asarray(sensors["tracker_marker_offset_m"] if marker is None else marker, float)
-    sigma = float(sensors["tracker_position_noise_m"] if position_noise is None else position_noise)
+    instruments = racer7_instruments() if instruments is None else instruments
+    marker, sigma = instruments.require("marker_offset", "tracker_noise", by="measure_poses")
+    orientation_noise = instruments.tracker_orientation_noise
     theta = jnp.asarray(motor_angles, float)
     fleet = _fleet_axes(truth)
     n = truth.n_joints

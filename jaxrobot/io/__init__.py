@@ -1,7 +1,8 @@
 """Files (docs/file-formats.md): the measurement files read into `jaxrobot.measurement.Poses` and
 `GearRun` (pose files, gear runs), trajectory runs and motor commands, and the robot files the
-identification commands write (`save_model`). Robot descriptions (TOML, URDF) are read and written by
-`jaxrobot.load_robot`, `save_robot` and `save_urdf`, whose modules live here too."""
+identification commands write (`save_model`), and measurement setups (`read_instruments`). Robot descriptions
+(TOML, URDF) are read and written by `jaxrobot.load_robot`, `save_robot` and `save_urdf`, whose modules live here
+too."""
 
 from .._checks import check_public as _check_public
 from ._csv import NOT_CONVERGED as NOT_CONVERGED
@@ -9,6 +10,7 @@ from ._csv import read_csv_columns as read_csv_columns
 from ._gear_runs import gear_run_columns as gear_run_columns
 from ._gear_runs import read_gear_run as read_gear_run
 from ._gear_runs import write_gear_run as write_gear_run
+from ._instruments import read_instruments as read_instruments
 from ._model_files import ripple_outside_range as ripple_outside_range
 from ._model_files import save_model as save_model
 from ._poses import read_poses as read_poses

@@ -1,6 +1,7 @@
 """Kinematic calibration on bench data (issue 4, thesis 3.2): identifiability, DETMAX pose
 selection, LM calibration (vs scipy), bad input, and the sharded fleet path."""
 
+import dataclasses
 import json
 import os
 import re
@@ -27,8 +28,8 @@ from identification.core._identifiability import (
 from identification.core._noise import ALPHA
 from identification.core._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters
 from identification.core._pose_selection import (
-    default_marker,
     detmax,
+    feasible,
     pose_jacobians,
     random_feasible_poses,
     rest_motor_angles,
@@ -37,6 +38,11 @@ from identification.core._pose_selection import (
 from jaxrobot.bench import measure_poses
 from jaxrobot.internal import shard_rows
 from jaxrobot.io import read_poses, write_poses
+
+INSTRUMENTS = jr.racer7_instruments()
+"""The embedded Racer-7 bench's measurement setup."""
+MARKER = INSTRUMENTS.marker_offset
+"""Its tracker marker offset in the tool frame [m]."""
 
 N_SE = 3.0
 """Identified deviations must lie within this many standard errors of the truth."""
@@ -67,7 +73,7 @@ def bench(robots, thesis_theta):
     """Tracker data of the as-built robot: the 50 thesis poses and 13 random validation poses
     (one bench session, split)."""
     nominal, truth = robots
-    q_val = random_feasible_poses(nominal, 13, seed=12)
+    q_val = random_feasible_poses(nominal, 13, seed=12, marker=MARKER)
     theta_val = rest_motor_angles(truth, q_val)
     both = measure_poses(truth, np.concatenate([thesis_theta, theta_val]), seed=11)
     split = lambda a, s: None if a is None else a[s]  # noqa: E731
@@ -82,7 +88,33 @@ def calibrated(robots, bench):
     nominal, _ = robots
     ident, valid = bench
     return calibrate(nominal, ident.motor_angles, ident.positions,
-                     validation=(valid.motor_angles, valid.positions))
+                     validation=(valid.motor_angles, valid.positions), instruments=INSTRUMENTS)
+
+
+def test_calibrate_takes_the_marker_of_its_instruments(robots, thesis_theta):
+    """Poses of the as-built robot measured with the marker elsewhere than the Racer-7 bench's (another campaign's
+    `Instruments`): `calibrate` told that setup fits the thesis' 17 parameters to the noise (the chi-square test
+    passes); told the bench's marker, the 3 cm misplaced marker leaves residuals far beyond the noise (the 17 give
+    joint 6 and the marker no parameter to absorb it)."""
+    nominal, truth = robots
+    other = dataclasses.replace(INSTRUMENTS, marker_offset=[0.05, 0.05, 0.06])
+    poses = measure_poses(truth, thesis_theta, seed=21, instruments=other)
+    right, wrong = (calibrate(nominal, poses, instruments=setup, parameters=THESIS_PARAMETERS, loss="l2")
+                    for setup in (other, INSTRUMENTS))
+    assert right.converged and right.consistent, right.p_value
+    assert not wrong.consistent and wrong.noise_estimate > 10 * INSTRUMENTS.tracker_noise
+
+
+def test_pose_selection_keeps_the_given_marker_above_the_floor(robots):
+    """Feasibility puts the marker of the given offset above the floor (`z >= 0`): with a marker 0.9 m down the
+    tool axis the same draw keeps other poses than with the bench's, and each kept pose holds its marker up."""
+    nominal, _ = robots
+    long = np.array([0.0, 0.0, 0.9])
+    q_bench, q_long = (random_feasible_poses(nominal, 200, seed=4, marker=m) for m in (MARKER, long))
+    assert not np.array_equal(q_bench, q_long)
+    z = np.asarray(jr.point_position(nominal, jnp.asarray(q_long), long))[:, 2]
+    assert z.min() >= 0.0
+    assert not feasible(nominal, q_bench, long).all()
 
 
 def test_calibrate_with_poses_equals_the_arrays(robots, bench, calibrated):
@@ -90,7 +122,7 @@ def test_calibrate_with_poses_equals_the_arrays(robots, bench, calibrated):
     numbers, so the same result to rounding (1e-12 in m and rad)."""
     nominal, _ = robots
     ident, valid = bench
-    res = calibrate(nominal, ident, validation=valid)
+    res = calibrate(nominal, ident, validation=valid, instruments=INSTRUMENTS)
     assert res.converged and res.names == calibrated.names
     for got, want in zip(jax.tree.leaves(res.robot), jax.tree.leaves(calibrated.robot), strict=True):
         np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=0, atol=1e-12)
@@ -131,7 +163,8 @@ def test_map_covers_the_truth_on_the_bench(robots, thesis_theta, seed):
     nominal, truth = robots
     m = measure_poses(truth, thesis_theta, seed=seed)
     names = map_parameters(DEFAULT_PARAMETERS, 6)
-    rep = calibration_report(calibrate(nominal, m.motor_angles, m.positions, method="map", parameters=names))
+    rep = calibration_report(calibrate(nominal, m.motor_angles, m.positions, method="map", parameters=names,
+                                       instruments=INSTRUMENTS))
     assert rep["converged"]
     params = ParameterMap(names)
     true = dict(zip(names, np.asarray(params.get(truth) - params.get(nominal)).tolist()))
@@ -185,7 +218,7 @@ def test_lm_matches_scipy(robots, bench, calibrated):
     ident, valid = bench
     robust = calibrated
     calibrated = calibrate(nominal, ident.motor_angles, ident.positions, loss="l2",
-                           validation=(valid.motor_angles, valid.positions))
+                           validation=(valid.motor_angles, valid.positions), instruments=INSTRUMENTS)
     assert robust.loss == "cauchy" and calibrated.loss == "l2" and robust.outliers == calibrated.outliers == ()
     rms = lambda e: np.sqrt(np.mean(e**2))  # noqa: E731
     assert abs(rms(robust.validation_after) / rms(calibrated.validation_after) - 1) < 0.02
@@ -193,7 +226,7 @@ def test_lm_matches_scipy(robots, bench, calibrated):
     params = ParameterMap(calibrated.names)
     defl = np.asarray(calibrated_deflection(nominal, ident.motor_angles))
     fn, v0, scale = _residual_fn(nominal, params, jnp.asarray(ident.motor_angles), jnp.asarray(ident.positions),
-                                 None, jnp.asarray(defl), jnp.asarray(default_marker()), 1.0, False)
+                                 None, jnp.asarray(defl), jnp.asarray(MARKER), 1.0, False)
     import jax
 
     f = jax.jit(lambda x: fn(x, None))
@@ -225,7 +258,7 @@ def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
     th, pos = jnp.asarray(ident.motor_angles[:12]), jnp.asarray(ident.positions[:12])
     defl = jnp.asarray(calibrated_deflection(nominal, ident.motor_angles[:12]))
     rot = jnp.asarray(np.broadcast_to(np.eye(3), (12, 3, 3))) if orient else None
-    marker, params = jnp.asarray(default_marker()), ParameterMap(names)
+    marker, params = jnp.asarray(MARKER), ParameterMap(names)
     fn, v0, scale = _residual_fn(nominal, params, th, pos, rot, defl, marker, 2.0, False)
 
     def reference(x):
@@ -250,8 +283,8 @@ def candidate_poses(robots):
     """3000 random feasible poses and their Jacobian blocks (position + orientation rows) for all
     CANDIDATES: the first 1000 for identifiability (thesis: K = 1000), all as DETMAX pool."""
     nominal, _ = robots
-    q = random_feasible_poses(nominal, 3000, seed=0)
-    return q, pose_jacobians(nominal, ParameterMap(CANDIDATES), q, orientation=True)
+    q = random_feasible_poses(nominal, 3000, seed=0, marker=MARKER)
+    return q, pose_jacobians(nominal, ParameterMap(CANDIDATES), q, MARKER, orientation=True)
 
 
 @pytest.fixture(scope="module")
@@ -287,7 +320,7 @@ def test_identifiability_position_only(identifiability_blocks):
 def test_default_parameters_of_the_racer7_are_the_thesis_set():
     """The default calibration set is computed by the identifiability analysis; for the Racer-7 it
     is the fixed set of the thesis' figures, in the same order (so the solves are unchanged)."""
-    assert default_parameters(jr.racer7()) == DEFAULT_PARAMETERS
+    assert default_parameters(jr.racer7(), marker=MARKER) == DEFAULT_PARAMETERS
 
 
 def test_identifiability_with_orientation(identifiability_blocks):
@@ -318,10 +351,10 @@ def test_detmax_beats_random_and_thesis(robots, bench, candidate_poses):
     cols = [CANDIDATES.index(n) for n in params.names]
     q_pool, b_pool = candidate_poses
     sel = detmax(nominal, params, n_poses=50, seed=5, max_iter=200,
-                 pool=(q_pool[1000:], b_pool[1000:, :3][..., cols]))
+                 pool=(q_pool[1000:], b_pool[1000:, :3][..., cols]), marker=MARKER)
     q_thesis = bench[0].link_angles  # the thesis' 50 poses as the bench robot rests there
-    q_random = random_feasible_poses(nominal, 50, seed=6)
-    blocks = pose_jacobians(nominal, ParameterMap(CANDIDATES), np.concatenate([q_thesis, q_random]))[..., cols]
+    q_random = random_feasible_poses(nominal, 50, seed=6, marker=MARKER)
+    blocks = pose_jacobians(nominal, ParameterMap(CANDIDATES), np.concatenate([q_thesis, q_random]), MARKER)[..., cols]
     thesis = set_indices(blocks[:50], sel.scale)
     rand = set_indices(blocks[50:], sel.scale)
     print(f"\nO1/O4 DETMAX {sel.indices.O1:.4g}/{sel.indices.O4:.4g}, thesis {thesis.O1:.4g}/"
@@ -330,7 +363,7 @@ def test_detmax_beats_random_and_thesis(robots, bench, candidate_poses):
         assert getattr(sel.indices, k) > getattr(thesis, k) and getattr(sel.indices, k) > getattr(rand, k), k
     feasible_q = sel.q
     assert np.all((feasible_q >= nominal.q_min) & (feasible_q <= nominal.q_max))
-    z = np.asarray(jr.point_position(nominal, jnp.asarray(feasible_q), default_marker()))[:, 2]
+    z = np.asarray(jr.point_position(nominal, jnp.asarray(feasible_q), MARKER))[:, 2]
     assert np.all(z >= 0.0)
 
 
@@ -341,19 +374,20 @@ def test_bad_input(robots, bench, tmp_path):
     bad = pos.copy()
     bad[[3, 7]] = np.nan
     with pytest.raises(ValueError, match=r"rows \[3, 7\]"):
-        calibrate(nominal, theta, bad)
+        calibrate(nominal, theta, bad, instruments=INSTRUMENTS)
     with pytest.raises(ValueError, match="need at least 9 poses"):
-        calibrate(nominal, theta[:5], pos[:5])
+        calibrate(nominal, theta[:5], pos[:5], instruments=INSTRUMENTS)
     with pytest.raises(ValueError, match=r"row 10: joint 2 at -86.50 deg"):
-        calibrate(nominal, theta, pos, limits="raise")
+        calibrate(nominal, theta, pos, limits="raise", instruments=INSTRUMENTS)
     fixed = theta.copy()
     fixed[:, 5] = 0.4  # joint 6 never moves: its gear ratio and offset cannot be told apart
     fixed_pos = jb.measure_poses(robots[1], fixed, seed=3).positions  # consistent data (else: unit check)
     with pytest.raises(ValueError, match=r"rank deficient.*u0_6 ~ .*offset6|rank deficient.*offset6 ~ .*u0_6"):
-        calibrate(nominal, fixed, fixed_pos, parameters=DEFAULT_PARAMETERS)  # a set given is fitted as given
+        calibrate(nominal, fixed, fixed_pos, parameters=DEFAULT_PARAMETERS,
+                  instruments=INSTRUMENTS)  # a set given is fitted as given
     # the default set is checked on the poses: with joint 6 fixed, what only joint 6's motion separates from the
     # fixed transform after joint 5 goes, each named with the kept parameters it is a combination of
-    res = calibrate(nominal, fixed, fixed_pos, all_parameters=True)
+    res = calibrate(nominal, fixed, fixed_pos, all_parameters=True, instruments=INSTRUMENTS)
     check = res.parameter_check
     on_poses = {d.name: d for d in check.dropped if d.stage == "poses"}
     assert set(on_poses) == {"d6", "a6", "offset5", "offset6", "u0_6"}
@@ -380,7 +414,7 @@ def test_bad_input(robots, bench, tmp_path):
     with pytest.raises(ValueError, match=r"missing columns \['y_m', 'z_m'\]"):
         read_poses(tmp_path / "short.csv")
     with pytest.raises(ValueError, match=r"motor_angles: expected shape \(K, 6\) in rad, found \(4, 5\)"):
-        calibrate(nominal, theta[:4, :5], pos[:4])
+        calibrate(nominal, theta[:4, :5], pos[:4], instruments=INSTRUMENTS)
 
 
 def test_save_roundtrip(calibrated, tmp_path):
@@ -398,7 +432,8 @@ FLEET_SCRIPT = textwrap.dedent("""
     from identification.calibration._fleet import calibrate_fleet
     assert len(jax.devices()) == 4, jax.devices()
     data = np.load(sys.argv[1])
-    res = calibrate_fleet(jr.racer7(), data["theta"], data["positions"], parameters=data["names"].tolist())
+    res = calibrate_fleet(jr.racer7(), data["theta"], data["positions"], parameters=data["names"].tolist(),
+                          instruments=jr.racer7_instruments())
     print(json.dumps({"devices": res.n_devices, "converged": res.converged.tolist(), "value": res.value.tolist(),
                       "std": res.std.tolist(), "rms": res.rms_m.tolist()}))
 """)
@@ -499,7 +534,7 @@ def fleet_problem(robots, bench):
     theta = np.stack([np.roll(theta_all, 7 * r, axis=0)[:50] for r in range(3)])
     truth = jb.draw_fleet(3, seed=5)
     meas = measure_poses(truth, theta, seed=6)
-    return theta, meas, calibrate_fleet(nominal, theta, meas.positions, loss="l2")
+    return theta, meas, calibrate_fleet(nominal, theta, meas.positions, loss="l2", instruments=INSTRUMENTS)
 
 
 @pytest.mark.extended  # its own fleet programs; the suite keeps the robust single-robot fits
@@ -515,12 +550,12 @@ def test_fleet_robust_to_a_gross_error(robots, fleet_problem):
     theta, meas, l2 = fleet_problem
     pos = meas.positions.copy()
     pos[1, 4] += 2e-3 * np.array([0.6, 0.0, 0.8])
-    res, clean = (calibrate_fleet(nominal, theta, p) for p in (pos, meas.positions))
+    res, clean = (calibrate_fleet(nominal, theta, p, instruments=INSTRUMENTS) for p in (pos, meas.positions))
     assert res.loss == "cauchy" and res.converged.all()
     assert [[o.row for o in r] for r in res.outliers] == [[], [4], []] and clean.outliers == ((), (), ())
     assert abs(res.outliers[1][0].residual - 2e-3) < 0.1e-3
     keep = np.arange(theta.shape[1]) != 4
-    one = calibrate(nominal, theta[1, keep], pos[1, keep], parameters=res.names)
+    one = calibrate(nominal, theta[1, keep], pos[1, keep], parameters=res.names, instruments=INSTRUMENTS)
     assert np.max(np.abs(res.value[1] - one.value) / one.std) < 0.02
     assert np.max(np.abs(res.value[::2] - clean.value[::2]) / clean.std[::2]) < 0.02
     assert np.max(np.abs(clean.value - l2.value) / l2.std) < 0.5
@@ -537,7 +572,7 @@ def test_batched_lm_matches_scipy(robots, fleet_problem):
     assert (res.iterations <= 20).all(), res.iterations  # measured: 3 steps from the nominal robot (tau = 1e-6)
     def residual(x, th, pos):  # one compilation for the three robots
         fn, _, _ = _residual_fn(nominal, params, th, pos, None, calibrated_deflection(nominal, th),
-                                jnp.asarray(default_marker()), 1.0, False)
+                                jnp.asarray(MARKER), 1.0, False)
         return fn(x, None)
 
     f_all, jac_all = jax.jit(residual), jax.jit(jax.jacfwd(residual))
@@ -608,14 +643,14 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
     params, rippled = ParameterMap(DEFAULT_PARAMETERS), rippled_joints(nominal)
     q0, defl = _fleet_constants(fleet, g_theta, rippled, mesh)
     config = jax.tree.map(jnp.asarray, LMConfig())
-    out = _fleet_solve(fleet, params, g_theta, g_pos, jnp.asarray(default_marker(), float), q0, defl, config,
+    out = _fleet_solve(fleet, params, g_theta, g_pos, jnp.asarray(MARKER, float), q0, defl, config,
                        rippled, mesh)
     assert jr.status_name(out.status).tolist() == ["successful", "nonfinite", "successful"]
     assert np.asarray(out.converged).tolist() == [True, False, True]
     with pytest.raises(ValueError, match=r"positions\[robot 1\]: NaN/inf in rows \[4\]"):
         from identification.calibration._fleet import calibrate_fleet
 
-        calibrate_fleet(nominal, theta, pos)
+        calibrate_fleet(nominal, theta, pos, instruments=INSTRUMENTS)
 
 
 def test_batched_lm_kernel():
@@ -685,7 +720,7 @@ def test_fleet_screw_jacobian_matches_residual_fn(robots, bench):
     fleet = jax.tree.map(lambda a, b: jnp.stack([a, b]), nominal, truth)
     theta = jnp.asarray(np.stack([ident.motor_angles[:6], ident.motor_angles[20:26]]))
     pos = jnp.asarray(np.stack([ident.positions[:6], ident.positions[20:26]]))
-    marker, rippled = jnp.asarray(default_marker()), rippled_joints(fleet)
+    marker, rippled = jnp.asarray(MARKER), rippled_joints(fleet)
     defl = jnp.asarray(np.random.default_rng(7).normal(0, 1e-4, theta.shape))  # any per-pose constants
     q0 = theta / fleet.u0[:, None] + defl
     v0, scale = jax.vmap(params.get)(fleet), jax.vmap(params.scales)(fleet)
@@ -705,7 +740,7 @@ def test_nothing_hidden_keeps_the_start_robot(robots, thesis_theta):
     of the bench's 50 um over 150 residuals (+-12 %, 2 std) and the selection in the report."""
     nominal, _ = robots
     m = measure_poses(nominal, thesis_theta, seed=13)
-    res = calibrate(nominal, m.motor_angles, m.positions)
+    res = calibrate(nominal, m.motor_angles, m.positions, instruments=INSTRUMENTS)
     assert res.converged and res.names == () and res.selection.kept == ()
     assert sorted(res.selection.set_aside) == sorted(DEFAULT_PARAMETERS)
     assert res.robot is nominal and res.outliers == () and res.iterations == 0
@@ -755,15 +790,15 @@ def test_seven_joint_calibration_recovers_the_as_built_arm(arm7):
     standard errors of the truth, and the validation error at the noise floor (the as-built arm's own error on the
     same noisy data, 1.2x as in the Racer's test)."""
     nominal, truth = arm7
-    q = random_feasible_poses(nominal, 80, seed=3)
+    q = random_feasible_poses(nominal, 80, seed=3, marker=MARKER)
     theta = rest_motor_angles(truth, q)
     meas = jb.measure_poses(truth, theta, seed=4)
     k = 60
     res = calibrate(nominal, meas.motor_angles[:k], meas.positions[:k], all_parameters=True,
-                    validation=(meas.motor_angles[k:], meas.positions[k:]))
+                    validation=(meas.motor_angles[k:], meas.positions[k:]), instruments=INSTRUMENTS)
     rep = calibration_report(res)
     assert rep["converged"], rep["status"]
-    names = default_parameters(nominal)
+    names = default_parameters(nominal, marker=MARKER)
     assert set(rep["parameters"]) == set(names)
     assert {f"offset{j}" for j in range(1, 8)} - {"offset3"} <= set(names)  # offset3 = beta3 - a3 d4 as on the Racer
     params = ParameterMap(names)

@@ -27,6 +27,10 @@ from identification.core._pose_selection import pose_jacobians, random_feasible_
 
 SIGMA = 5e-5
 """Tracker noise per axis of the bench poses [m]."""
+INSTRUMENTS = jr.Instruments(tracker_noise=SIGMA, marker_offset=[0.05, 0.02, 0.06])
+"""The measurement setup of the bench poses: the noise `SIGMA` and the Racer-7 bench's marker offset."""
+MARKER = INSTRUMENTS.marker_offset
+"""The marker offset in the tool frame [m]."""
 TILT_STD = 5e-4
 """[rad] std of the real out-of-plane tilts drawn on the parallel pairs (`beta2`, `beta3` of a UR): the size
 of the as-built angle deviations of `jaxrobot.bench.draw_fleet` (the rms of the thesis' Table 3.8, 0.4 mrad)."""
@@ -55,9 +59,9 @@ def test_parallel_pairs_get_their_hayati_tilts(name):
     direction as `d2` (coefficient 1); `beta4` rotates about axis 4 itself (`a4 = 0`): it is `offset4`."""
     robot = _ur(name)
     assert parallel_pairs(robot) == (2, 3)
-    names = default_parameters(robot)
+    names = default_parameters(robot, marker=MARKER)
     assert {"beta2", "beta3"} <= set(names) and {"d3", "d4", "beta4"}.isdisjoint(names)
-    res = default_analysis(robot)
+    res = default_analysis(robot, marker=MARKER)
     assert res.rank == len(names) == len(res.names) - len(res.unidentifiable)
     assert res.dependencies["d3"] == pytest.approx({"d2": 1.0}, abs=1e-9)
     assert res.dependencies["d4"] == pytest.approx({"d2": 1.0}, abs=1e-9)
@@ -67,7 +71,7 @@ def test_parallel_pairs_get_their_hayati_tilts(name):
 def test_racer7_keeps_the_thesis_set_in_front():
     """The Racer-7's default set starts with the thesis' 17 (Table 3.5) and the offsets in their order; its
     parallel pair 2-3 adds the out-of-plane tilt `beta2`."""
-    names = default_parameters(jr.racer7())
+    names = default_parameters(jr.racer7(), marker=MARKER)
     assert names[:len(THESIS_PARAMETERS)] == THESIS_PARAMETERS and "beta2" in names
 
 
@@ -76,13 +80,14 @@ def test_panda_default_set_is_full_rank_on_its_poses():
     ill-conditioned on 40 random poses at the bench noise (only the geometry's left-outs are reported)."""
     robot = jr.load_robot(example_urdf("panda.urdf"), tip="panda_link8")
     assert parallel_pairs(robot) == ()
-    names = default_parameters(robot)
+    names = default_parameters(robot, marker=MARKER)
     assert not any(n.startswith("beta") for n in names)
-    q = random_feasible_poses(robot, 40, seed=2)
+    q = random_feasible_poses(robot, 40, seed=2, marker=MARKER)
     candidates = kinematic_parameters(robot)  # the analysis' compiled program
-    jac = pose_jacobians(robot, ParameterMap(candidates), q)[..., [candidates.index(n) for n in names]]
+    jac = pose_jacobians(robot, ParameterMap(candidates), q, marker=MARKER)[..., [candidates.index(n) for n in names]]
     jac = jac.reshape(-1, len(names))
-    check = check_parameters(jac, names, SIGMA, np.full(len(names), 1e-3), len(q), analysis=default_analysis(robot))
+    check = check_parameters(jac, names, SIGMA, np.full(len(names), 1e-3), len(q),
+                             analysis=default_analysis(robot, marker=MARKER))
     assert check.rank == len(names) and check.kept == names
     assert all(d.stage == "geometry" for d in check.dropped)
     assert np.isfinite(check.condition) and check.condition < 1e3
@@ -112,9 +117,9 @@ def test_ur5_calibration_recovers_both_tilts_and_is_consistent():
     the tracker's chi-square, and the whole set recovers both tilts within `N_SE` standard errors."""
     nominal = _ur()
     truth = jax.tree.map(lambda x: x[0], _tilted(nominal, 1, seed=5))
-    q = random_feasible_poses(nominal, 40, seed=3)
-    meas = jb.measure_poses(truth, rest_motor_angles(nominal, q), seed=4, position_noise=SIGMA)
-    res = calibrate(nominal, meas, position_noise=SIGMA)
+    q = random_feasible_poses(nominal, 40, seed=3, marker=MARKER)
+    meas = jb.measure_poses(truth, rest_motor_angles(nominal, q), seed=4, instruments=INSTRUMENTS)
+    res = calibrate(nominal, meas, instruments=INSTRUMENTS)
     assert res.converged and res.consistent, (res.chi2, res.dof, res.p_value)
     assert res.p_value > ALPHA and res.dof == 3 * 40 - len(res.names)
     check = res.parameter_check
@@ -122,7 +127,7 @@ def test_ur5_calibration_recovers_both_tilts_and_is_consistent():
     assert {"d3", "d4", "beta4"} <= set(why) and why["beta4"].combination == pytest.approx({"offset4": 1.0})
     assert {"beta2", "beta3"} <= set(check.kept) and check.rank == len(check.kept)
     assert res.selection.candidates == check.kept
-    full = calibrate(nominal, meas, position_noise=SIGMA, all_parameters=True)
+    full = calibrate(nominal, meas, instruments=INSTRUMENTS, all_parameters=True)
     assert full.converged and full.consistent and full.names == check.kept
     for name in ("beta2", "beta3"):
         i = full.names.index(name)
@@ -142,16 +147,17 @@ def test_fleet_of_tilted_ur5s_with_one_faulty_robot():
     nominal = _ur()
     fleet = _tilted(nominal, 10, seed=11)
     k = 30
-    theta = np.stack([rest_motor_angles(nominal, random_feasible_poses(nominal, k, seed=20 + r)) for r in range(10)])
-    meas = jb.measure_poses(fleet, theta, seed=7, position_noise=SIGMA)
+    theta = np.stack([rest_motor_angles(nominal, random_feasible_poses(nominal, k, seed=20 + r,
+                                                                       marker=MARKER)) for r in range(10)])
+    meas = jb.measure_poses(fleet, theta, seed=7, instruments=INSTRUMENTS)
     pos = np.array(meas.positions)
     pos[3] = pos[3][:, [1, 0, 2]]
-    res = calibrate_fleet(nominal, meas.motor_angles, pos, position_noise=SIGMA)
+    res = calibrate_fleet(nominal, meas.motor_angles, pos, instruments=INSTRUMENTS)
     status = [str(s) for s in jr.status_name(res.status)]
     assert status[3] != "successful"
     assert status[:3] + status[4:] == ["successful"] * 9, status
     assert {"beta2", "beta3"} <= set(res.names)
-    without = calibrate_fleet(nominal, meas.motor_angles, pos, position_noise=SIGMA,
+    without = calibrate_fleet(nominal, meas.motor_angles, pos, instruments=INSTRUMENTS,
                               parameters=[n for n in res.names if n != "beta2"])
     failed = [r for r, s in enumerate(jr.status_name(without.status)) if r != 3 and str(s) != "successful"]
     assert failed, "every tilted robot consistent without beta2: the tilts drawn are too small to test the set"

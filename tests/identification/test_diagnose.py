@@ -25,13 +25,18 @@ from identification.cli import diagnosis_summary
 from identification.core._pose_selection import random_feasible_poses, rest_motor_angles
 from jaxrobot.measurement import Poses
 
+INSTRUMENTS = jr.racer7_instruments()
+"""The embedded Racer-7 bench's measurement setup."""
+MARKER = INSTRUMENTS.marker_offset
+"""Its tracker marker offset in the tool frame [m]."""
+
 N_TRAIN, N_VAL = 150, 60
 
 
 @pytest.fixture(scope="module")
 def bench():
     start = jr.racer7(as_built=True)
-    theta = {n: rest_motor_angles(start, random_feasible_poses(start, k, seed=s))
+    theta = {n: rest_motor_angles(start, random_feasible_poses(start, k, seed=s, marker=MARKER))
              for n, k, s in (("train", N_TRAIN, 21), ("validation", N_VAL, 22))}
     return start, theta
 
@@ -45,7 +50,7 @@ def _run(bench, truth, start=None):
     start0, theta = bench
     train = _measure(truth, theta["train"], 1)
     val = _measure(truth, theta["validation"], 2)
-    return diagnose(start0 if start is None else start, train, val)
+    return diagnose(start0 if start is None else start, train, val, instruments=INSTRUMENTS)
 
 
 def _at(robot, field, j, value):
@@ -147,7 +152,7 @@ def test_bench_poses_as_measured_equal_the_read_convention(bench):
     start, theta = bench
     measured = [jb.measure_poses(AS_BUILT, theta[k], seed=s, ccw=jr.measurement.approach_directions(theta[k]))
                 for k, s in (("train", 1), ("validation", 2))]
-    res, ref = diagnose(start, *measured), _run(bench, AS_BUILT)
+    res, ref = diagnose(start, *measured, instruments=INSTRUMENTS), _run(bench, AS_BUILT)
     assert [r.chi2 for r in res.loop] == pytest.approx([r.chi2 for r in ref.loop], rel=1e-12)
     np.testing.assert_allclose(res.residuals_after, ref.residuals_after, rtol=0, atol=1e-12)
     assert res.verdict == ref.verdict
@@ -230,7 +235,7 @@ def test_order_dependent_approach_is_named_under_the_cw_convention(bench):
     start, theta = bench
     train, val = (_measure(AS_BUILT, theta[k], s) for k, s in (("train", 1), ("validation", 2)))
     cw = [Poses.of(p.motor_angles, p.positions) for p in (train, val)]
-    res = diagnose(start, *cw)
+    res = diagnose(start, *cw, instruments=INSTRUMENTS)
     step = res.steps[0]
     assert (step.kind, step.joint) == ("approach_dependent_gear_set", None), res.verdict
     w = step.parameters["weight"]
@@ -245,7 +250,7 @@ def test_bad_input_is_named():
         Poses.of(np.zeros((3, 5)), np.zeros((3, 2)))
     five = Poses.of(np.zeros((12, 5)), np.zeros((12, 3)))
     with pytest.raises(ValueError, match=r"train: expected motor_angles \(K, 6\) rad for the 6-joint start"):
-        diagnose(AS_BUILT, five, five)
+        diagnose(AS_BUILT, five, five, instruments=INSTRUMENTS)
 
 
 def test_catalogue_is_extensible_by_one_class():
@@ -260,7 +265,7 @@ def test_catalogue_is_extensible_by_one_class():
 
     from identification.diagnosis._effects import catalogue
 
-    layout = Layout.of([*catalogue(AS_BUILT), GravityScale()])
+    layout = Layout.of([*catalogue(AS_BUILT, MARKER), GravityScale()])
     block = layout.blocks[layout.index("gravity_scale")]
     assert block.tolist() == [layout.size - 1]
     v = jnp.zeros(layout.size + 1)
@@ -295,11 +300,11 @@ def test_diagnose_names_a_hidden_offset_on_joint_seven(arm7):
     truth = eqx.tree_at(lambda r: r.offset, start, start.offset.at[6].add(2e-3))
 
     def poses(k, seed):
-        theta = rest_motor_angles(start, random_feasible_poses(start, k, seed=seed))
+        theta = rest_motor_angles(start, random_feasible_poses(start, k, seed=seed, marker=MARKER))
         m = jb.measure_poses(truth, theta, seed=seed, ccw=jr.measurement.approach_directions(theta))
         return Poses.of(theta, m.positions)
 
-    res = diagnose(start, poses(150, 21), poses(60, 22), max_steps=2)
+    res = diagnose(start, poses(150, 21), poses(60, 22), max_steps=2, instruments=INSTRUMENTS)
     rep = diagnosis_summary(res)
     assert [(s["effect"], s["joint"]) for s in rep["steps"]] == [("joint_offset", 7)], rep["verdict"]
     p = rep["steps"][0]["parameters"]["offset"]

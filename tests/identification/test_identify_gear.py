@@ -10,6 +10,7 @@ noisy RMS cannot show a >= 90 % reduction whatever the model).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import equinox as eqx
@@ -23,6 +24,9 @@ from identification import identify_gear
 from identification.cli._gear_report import summary
 from identification.gear import check_gear_run, prepare_gear_runs
 from identification.gear._demo import demo_runs
+
+INSTRUMENTS = jr.racer7_instruments()
+"""The embedded Racer-7 bench's measurement setup."""
 
 MISALIGNMENT_TOL = 1e-3  # rad (issue 3)
 U0_TOL = 1e-4  # relative (issue 3)
@@ -50,7 +54,7 @@ def truth():
 
 @pytest.fixture(scope="module")
 def cutoffs():
-    return {i + 1: float(c) for i, c in enumerate(jr.read_description()["sensors"]["filter_cutoff_hz"])}
+    return dict(enumerate(INSTRUMENTS.filter_cutoff, start=1))
 
 
 @pytest.fixture(scope="module")
@@ -64,14 +68,14 @@ def bench(truth):
         if IDENTIFICATION_RUNS[joint] > 4:
             noise = QUIET_NOISE.get(joint, 1.0) * jr.read_description()["sensors"]["gyro_noise_deg_s"]
             more = jb.gear_runs(truth, joint, repetitions=IDENTIFICATION_RUNS[joint] - 4, seed=70 + joint,
-                                gyro_noise_deg_s=noise)
+                                instruments=dataclasses.replace(INSTRUMENTS, gyro_noise=np.deg2rad(noise)))
             for k, ccw in enumerate(more.ccw):
                 ident.append((more.t, more.theta[k], more.gyro[k]))
                 ident_names.append(f"joint{joint}_{'ccw' if ccw else 'cw'}_extra_{k}")
         for speed in (jb.GEAR_RUN_DEFAULTS[joint]["motor_speed_deg_s"],
                       jb.GEAR_RUN_DEFAULTS[joint]["validation_speed_deg_s"]):
             runs = jb.gear_runs(truth, joint, repetitions=1, motor_speed_deg_s=speed, seed=700 + joint,
-                                gyro_noise_deg_s=0.0, gyro_bias_deg_s=0.0)
+                                instruments=dataclasses.replace(INSTRUMENTS, gyro_noise=0.0), gyro_bias_deg_s=0.0)
             for k, ccw in enumerate(runs.ccw):
                 quiet.append((runs.t, runs.theta[k], runs.gyro[k]))
                 val_names.append(f"quiet_joint{joint}_{'ccw' if ccw else 'cw'}_{speed:.0f}")
@@ -83,7 +87,7 @@ def bench(truth):
 @pytest.fixture(scope="module")
 def result(bench):
     return identify_gear(jr.racer7(), bench["ident"], bench["val"], names=bench["ident_names"],
-                         validation_names=bench["val_names"])
+                         validation_names=bench["val_names"], instruments=INSTRUMENTS)
 
 
 def _clusters(orders):
@@ -108,7 +112,7 @@ def dominant_orders(truth, joint, ccw, link_speed, sigma):
 
 
 def test_misalignment_recovered(result):
-    expected = np.asarray(jr.read_description()["sensors"]["gyro_misalignment_rad"])
+    expected = INSTRUMENTS.gyro_misalignment
     err = np.abs(result.misalignment[:3] - expected)
     assert np.all(err < MISALIGNMENT_TOL), f"misalignment error {err} rad"
 
@@ -192,7 +196,8 @@ def test_cw_ccw_significantly_different(result):
 def test_identical_sets_not_significant(truth):
     same = eqx.tree_at(lambda r: r.ccw, truth, truth.cw)
     runs = jb.gear_runs(same, 3, repetitions=3, seed=11)
-    res = identify_gear(jr.racer7(), [(runs.t, runs.theta[k], runs.gyro[k]) for k in range(len(runs.ccw))])
+    res = identify_gear(jr.racer7(), [(runs.t, runs.theta[k], runs.gyro[k]) for k in range(len(runs.ccw))],
+                        instruments=INSTRUMENTS)
     (test,) = res.tests
     assert not test.significant, f"joint 3 with identical sets: p = {test.p_value:.3g}"
 
@@ -278,8 +283,10 @@ def test_ripple_below_the_noise_gives_the_constant_ratio(truth):
     """Joint 2 with 30x the gyroscope noise and two runs per direction (other seeds than the
     fixture's): the runs cannot resolve its ripple, so the result is the constant ratio and the
     report says how many more runs would resolve it; u0 still within 3 reported sigma."""
-    runs = jb.gear_runs(truth, 2, repetitions=2, seed=901, gyro_noise_deg_s=9.0)
-    res = identify_gear(jr.racer7(), [(runs.t, runs.theta[k], runs.gyro[k]) for k in range(len(runs.ccw))])
+    runs = jb.gear_runs(truth, 2, repetitions=2, seed=901,
+                        instruments=dataclasses.replace(INSTRUMENTS, gyro_noise=np.deg2rad(9.0)))
+    res = identify_gear(jr.racer7(), [(runs.t, runs.theta[k], runs.gyro[k]) for k in range(len(runs.ccw))],
+                        instruments=INSTRUMENTS)
     for g, r in enumerate(res.resolution):
         assert not r.resolved
         assert np.all(np.asarray(res.fit.orders[g]) == 0)
@@ -301,7 +308,7 @@ def test_high_bias_two_runs_holds_the_independent_criteria(truth, seed):
         for k in range(ccw.size):
             last = k == np.flatnonzero(ccw == ccw[k]).max()
             (val if last else runs).append((r.t, r.theta[k], r.gyro[k]))
-    res = identify_gear(jr.racer7(), runs, val)
+    res = identify_gear(jr.racer7(), runs, val, instruments=INSTRUMENTS)
     for g, (joint, ccw) in enumerate(res.groups):
         rip = truth.ccw if ccw else truth.cw
         theta = np.concatenate([th[:, joint - 1] for (_, th, _), i in zip(val, res.infos[len(runs):])

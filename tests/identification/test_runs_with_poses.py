@@ -44,7 +44,8 @@ def test_payload_is_a_point_mass_on_the_flange():
 
 def arm_poses(robot, seed: int, k: int, marker, noise) -> Poses:
     th = np.random.default_rng(seed).uniform(-1.2, 1.2, (k, 2)) * np.asarray(robot.u0)
-    return Poses.of(th, jb.measure_poses(robot, th, seed=seed, marker=marker, position_noise=noise).positions)
+    bench = jr.Instruments(tracker_noise=noise, marker_offset=marker)
+    return Poses.of(th, jb.measure_poses(robot, th, seed=seed, instruments=bench).positions)
 
 
 @pytest.mark.extended  # ~60 s: the run and pose programs compile; the suite keeps the payload model and the bad input
@@ -66,7 +67,8 @@ def test_runs_and_poses_share_one_chi_square():
                         pose_noise=2 * noise)
 
     def pose_chi2(p: Poses) -> float:
-        model = jb.measure_poses(start, p.motor_angles, marker=marker, position_noise=0.0).true_positions
+        bench = jr.Instruments(tracker_noise=noise, marker_offset=marker)
+        model = jb.measure_poses(start, p.motor_angles, instruments=bench).true_positions
         return float(np.sum((p.positions - model) ** 2)) / (2 * noise) ** 2
 
     run_chi2 = compare_run(start, cmd, run, marker, noise).chi2
@@ -230,7 +232,8 @@ def test_payload_from_poses_and_lag_from_runs(tmp_path, capsys):
         jr.io.write_command_csv(files[name][0], *cmd)
         jr.io.write_trajectory_csv(files[name][1], *run)
     theta = np.asarray(start.u0) * rng.uniform(-1, 1, (55, 6)) * np.array([1.5, 0.6, 0.6, 1.5, 1.2, 2.0])
-    poses = jb.measure_poses(truth, theta, seed=3206, marker=marker, position_noise=noise)
+    bench = jr.Instruments(tracker_noise=noise, marker_offset=marker)
+    poses = jb.measure_poses(truth, theta, seed=3206, instruments=bench)
     for part, rows in (("train", slice(0, 40)), ("val", slice(40, 55))):
         jr.io.write_poses(tmp_path / f"{part}.csv", theta[rows], poses.positions[rows])
 

@@ -8,6 +8,7 @@ std is 1/sqrt(180) = 7.5 %; an estimate from the data ends within 1.1x of it (1.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import jax.numpy as jnp
@@ -26,6 +27,13 @@ def _case(*parts: str):
     d = independent_data().joinpath("arm7", *parts)
     train, val = (read_poses(d / f"{s}.csv") for s in ("train", "val"))
     return d, jr.load_robot(d / "start.toml"), train, val, json.loads((d / "truth.json").read_text())
+
+
+def _laser_tracker(instruments: jr.Instruments, truth: dict) -> jr.Instruments:
+    """`instruments` with the case's laser tracker (its position, stds along and across its line of sight)."""
+    return dataclasses.replace(instruments, tracker_position=truth["tracker_position_m"],
+                               tracker_noise_along=1e-6 * truth["noise_los_um"],
+                               tracker_noise_across=1e-6 * truth["noise_perp_um"])
 
 
 def test_tool_frame_marker_is_in_the_tool_frame():
@@ -51,8 +59,7 @@ def test_calibrate_names_and_rejects_gross_tracker_errors():
     (the validation RMS within 1 %); plain least squares (`loss="l2"`) is pulled far off."""
     d, robot, train, val, truth = _case("noise", "outliers")
     sensors = jr.read_description(d / "start.toml")["sensors"]
-    kw = {"marker": sensors["tracker_marker_offset_m"], "position_noise": sensors["tracker_position_noise_m"],
-          "validation": (val.motor_angles, val.positions)}
+    kw = {"instruments": jr.io.read_instruments(d / "start.toml"), "validation": (val.motor_angles, val.positions)}
     res = calibrate(robot, train.motor_angles, train.positions, **kw)
     assert res.converged and res.loss == "cauchy" and res.selection.kept == res.names
     assert [o.row for o in res.outliers] == truth["outlier_rows_0based"]
@@ -78,14 +85,12 @@ def test_laser_tracker_noise_model_whitens_the_fit():
     from identification.core._noise import TrackerNoise
 
     d, robot, train, val, truth = _case("noise", "anisotropic")
-    sensors = jr.read_description(d / "start.toml")["sensors"]
-    tracker = TrackerNoise(np.asarray(truth["tracker_position_m"]), 1e-6 * truth["noise_los_um"],
-                           1e-6 * truth["noise_perp_um"])
-    assert abs(tracker.sigma / sensors["tracker_position_noise_m"] - 1) < 0.01
-    kw = {"marker": sensors["tracker_marker_offset_m"], "validation": (val.motor_angles, val.positions)}
-    iso, white, default = (calibrate(robot, train.motor_angles, train.positions, position_noise=n, all_parameters=a,
-                                     **kw) for n, a in ((sensors["tracker_position_noise_m"], True), (tracker, True),
-                                                        (tracker, False)))
+    isotropic = jr.io.read_instruments(d / "start.toml")
+    laser = _laser_tracker(isotropic, truth)
+    assert abs(TrackerNoise.of(laser).sigma / isotropic.tracker_noise - 1) < 0.01
+    iso, white, default = (calibrate(robot, train.motor_angles, train.positions, instruments=setup, all_parameters=a,
+                                     validation=(val.motor_angles, val.positions))
+                           for setup, a in ((isotropic, True), (laser, True), (laser, False)))
     assert iso.converged and white.converged and white.outliers == () == default.outliers
     assert _rms(white.validation_after) < _rms(iso.validation_after)
     assert _rms(white.validation_after) < 1.1e-6 * truth["floor_um"]
@@ -97,9 +102,8 @@ def _diagnose(*parts: str):
     from jaxrobot.measurement import Poses
 
     d, robot, train, val, truth = _case(*parts)
-    sensors = jr.read_description(d / "start.toml")["sensors"]
     res = diagnose(robot, Poses.of(train.motor_angles, train.positions), Poses.of(val.motor_angles, val.positions),
-                   noise=sensors["tracker_position_noise_m"], marker=sensors["tracker_marker_offset_m"])
+                   instruments=jr.io.read_instruments(d / "start.toml"))
     return res, truth
 
 
@@ -159,9 +163,8 @@ def test_diagnose_prefers_two_joint_effects_to_a_geometry_block():
     th_tr, p_tr, th_va, p_va = g.make_set(arm, rng)
     m_tr, m_va = g.noise_iso(p_tr, rng), g.noise_iso(p_va, rng)
     d = independent_data() / "arm7" / "cases" / "a0_clean"  # the start model of every case
-    sensors = jr.read_description(d / "start.toml")["sensors"]
     res = diagnose(jr.load_robot(d / "start.toml"), Poses.of(th_tr, m_tr), Poses.of(th_va, m_va),
-                   noise=sensors["tracker_position_noise_m"], marker=sensors["tracker_marker_offset_m"])
+                   instruments=jr.io.read_instruments(d / "start.toml"))
     assert sorted((s.kind, s.joint) for s in res.steps) == [("joint_compliance", 2), ("joint_offset", 6)]
     first = {e.candidate: e for e in res.candidates[0] if e.lm_status == "successful"}
     pair = first["joint_compliance j2 (linear) + joint_offset j6"]
@@ -182,10 +185,9 @@ def test_diagnose_names_a_drift_in_acquisition_time():
     from jaxrobot.measurement import Poses
 
     d, robot, train, val, truth = _case("noise", "drift")
-    sensors = jr.read_description(d / "start.toml")["sensors"]
     t = read_csv_columns(d / "train.csv", ["t_s"])["t_s"]
     args = (robot, Poses.of(train.motor_angles, train.positions), Poses.of(val.motor_angles, val.positions))
-    kw = {"noise": sensors["tracker_position_noise_m"], "marker": sensors["tracker_marker_offset_m"]}
+    kw = {"instruments": jr.io.read_instruments(d / "start.toml")}
     res = diagnose(*args, times=t, **kw)
     rate = truth["effects"]["link_scale_final"] / truth["duration_s"]
     assert res.drift.named and "drift" in res.verdict, res.drift
@@ -199,15 +201,12 @@ def test_fleet_with_the_laser_tracker_model_matches_calibrate():
     """`calibrate_fleet` whitens by the tracker's covariance as `calibrate` does: one robot of the
     anisotropic case gives the same parameters as `calibrate` with the whole default set (to the
     reweighting's tolerance, far below a standard error) and the same outliers (none)."""
-    from identification import TrackerNoise, calibrate_fleet
+    from identification import calibrate_fleet
 
     d, robot, train, val, truth = _case("noise", "anisotropic")
-    sensors = jr.read_description(d / "start.toml")["sensors"]
-    tracker = TrackerNoise(np.asarray(truth["tracker_position_m"]), 1e-6 * truth["noise_los_um"],
-                           1e-6 * truth["noise_perp_um"])
-    one = calibrate(robot, train.motor_angles, train.positions, marker=sensors["tracker_marker_offset_m"],
-                    position_noise=tracker, all_parameters=True)
+    laser = _laser_tracker(jr.io.read_instruments(d / "start.toml"), truth)
+    one = calibrate(robot, train.motor_angles, train.positions, instruments=laser, all_parameters=True)
     fleet = calibrate_fleet(robot, train.motor_angles[None], train.positions[None], parameters=one.names,
-                            marker=np.asarray(sensors["tracker_marker_offset_m"]), position_noise=tracker)
+                            instruments=laser)
     assert fleet.converged.all() and fleet.outliers == ((),)
     assert np.max(np.abs(fleet.value[0] - one.value) / one.std) < 0.02

@@ -21,6 +21,9 @@ from identification.cli._calibrate_fleet import TABLE, bench_fleet
 from jaxrobot.cli._main import main
 from jaxrobot.internal import PROCESS_ENV, initialize_processes
 
+INSTRUMENTS = jr.racer7_instruments()
+"""The embedded Racer-7 bench's measurement setup."""
+
 JOB_TIMEOUT_S = 420
 """Wall-clock bound of a 2-process job (each compiles its program; ~40 s alone on 2 cores)."""
 
@@ -84,7 +87,7 @@ def test_two_process_fleet_equals_one_process(tmp_path, capsys):
 
     poses = [jr.io.read_poses(f) for f in files]
     one = calibrate_fleet(jr.racer7(), np.stack([p.motor_angles for p in poses]),
-                          np.stack([p.positions for p in poses]))
+                          np.stack([p.positions for p in poses]), instruments=INSTRUMENTS)
     with (tmp_path / "out" / TABLE).open() as f:
         rows = list(csv.DictReader(f))
     assert [r["file"] for r in rows] == [f.name for f in files]
@@ -137,7 +140,7 @@ def test_two_process_fleet_with_a_spoiled_share(tmp_path):
     assert {n: table[n]["check"] for n in checks} == checks
     poses = [jr.io.read_poses(f) for f in files[:3]]
     one = calibrate_fleet(jr.racer7(), np.stack([p.motor_angles for p in poses]),
-                          np.stack([p.positions for p in poses]))
+                          np.stack([p.positions for p in poses]), instruments=INSTRUMENTS)
     two = np.asarray([[float(table[f.name][n]) for n in one.names] for f in files[:3]])
     np.testing.assert_allclose(two, one.value, rtol=0, atol=1e-12)
 

@@ -77,6 +77,11 @@ CLI = [  # (id, argv (FILE: the file written from `content`), content, exit code
      "--bench/--poses: expected >= 1 robots and poses, found 0 and 50"),
     ("gear run missing", ["identify-gear", "missing.csv"], None, 2, "gear-run file not found: missing.csv"),
     ("gear run columns missing", ["identify-gear", "FILE"], "t_s,theta1_deg\n0,1\n", 2, r"missing columns \["),
+    ("setup file unknown key", ["compare", "--command", "c.csv", "--run", "r.csv", "--setup", "FILE"],
+     "[sensors]\ntracker_noise_m = 1e-5\n", 2, r"FILE: sensors\.tracker_noise_m: unknown key"),
+    ("setup without the marker", ["compare", "--command", "c.csv", "--run", "r.csv", "--setup", "FILE"],
+     "[sensors]\ntracker_position_noise_m = 1e-5\n", 2,
+     r"instruments\.marker_offset: not stated, and compare needs it"),
 ]
 
 

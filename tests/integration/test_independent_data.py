@@ -22,6 +22,9 @@ from identification.cli import diagnosis_summary
 from jaxrobot.io import read_poses
 from jaxrobot.measurement import Poses
 
+INSTRUMENTS = jr.racer7_instruments()
+"""The embedded Racer-7 bench's measurement setup."""
+
 CASES = {"p0_clean": None, "p1_joint5_offset": ("joint_offset", 5), "p2_joint2_softer": ("joint_compliance", 2),
          "p3_base_shift": ("base_offset", None), "p4_link_scale": ("link_scale", None)}
 
@@ -29,7 +32,8 @@ CASES = {"p0_clean": None, "p1_joint5_offset": ("joint_offset", 5), "p2_joint2_s
 def _diagnose_case(name: str):
     d = independent_data() / "poses" / name
     poses = [read_poses(d / f"{s}.csv") for s in ("train", "val")]
-    res = diagnose(jr.load_robot(d / "start.toml"), *(Poses.of(p.motor_angles, p.positions) for p in poses))
+    res = diagnose(jr.load_robot(d / "start.toml"), *(Poses.of(p.motor_angles, p.positions) for p in poses),
+                   instruments=INSTRUMENTS)
     return diagnosis_summary(res), json.loads((d / "truth.json").read_text())
 
 
@@ -65,7 +69,7 @@ def test_not_explained_when_validation_exceeds_its_bound():
     train, val = (read_poses(d / f"{s}.csv") for s in ("train", "val"))
     shifted = val.positions + np.array([2e-4, 0.0, 0.0])
     res = diagnose(jr.load_robot(d / "start.toml"), Poses.of(train.motor_angles, train.positions),
-                   Poses.of(val.motor_angles, shifted))
+                   Poses.of(val.motor_angles, shifted), instruments=INSTRUMENTS)
     rep = diagnosis_summary(res)
     assert rep["final_rms_validation_um"] > rep["validation_bound_um"]
     assert rep["verdict"].startswith("not explained"), rep["verdict"]
@@ -187,14 +191,13 @@ def test_gear_joint2_never_worse_than_no_ripple(gear_stage, direction):
 def test_pose_unit_mistakes_are_named(mistake, transform, message):
     """Each common mistake, made on the independent calibration poses (motor degrees as in the file)."""
     from identification.core._pose_checks import check_pose_units
-    from identification.core._pose_selection import default_marker
 
-    robot = jr.racer7()
+    robot, marker = jr.racer7(), INSTRUMENTS.marker_offset
     data = read_poses(independent_data() / "calibration" / "train.csv")
-    check_pose_units(robot, data.motor_angles, data.positions, default_marker())  # the file as it is
+    check_pose_units(robot, data.motor_angles, data.positions, marker)  # the file as it is
     th_deg, pos = transform(np.rad2deg(data.motor_angles), data.positions, np.asarray(robot.u0))
     with pytest.raises(ValueError, match=message):
-        check_pose_units(robot, np.deg2rad(th_deg), pos, default_marker())
+        check_pose_units(robot, np.deg2rad(th_deg), pos, marker)
 
 
 @pytest.mark.parametrize("mistake, column, factor, message", [
@@ -253,8 +256,9 @@ def test_map_calibration_holds_on_independent_poses():
     robot = jr.racer7()
     args = (robot, train.motor_angles, train.positions)
     kw = {"validation": (val.motor_angles, val.positions)}
-    lm = calibration_report(calibrate(*args, **kw))
-    mp = calibration_report(calibrate(*args, **kw, method="map", parameters=map_parameters(DEFAULT_PARAMETERS, 6)))
+    lm = calibration_report(calibrate(*args, **kw, instruments=INSTRUMENTS))
+    mp = calibration_report(calibrate(*args, **kw, method="map", parameters=map_parameters(DEFAULT_PARAMETERS, 6),
+                                      instruments=INSTRUMENTS))
     assert lm["converged"] and mp["converged"]
     mean_lm, mean_map = (r["validation"]["after_m"]["mean"] for r in (lm, mp))
     se = lm["validation"]["after_m"]["std"] / np.sqrt(len(val.positions))
@@ -326,19 +330,18 @@ def test_calibrate_fleet_approach(tmp_path, capsys):
     tracker noise (RMS within the chi-square mean + 3 std of 3K residuals). Read as `cw` (the
     default), the same poses would be off by more than twice that bound (checked on the noise-free
     positions of both conventions), so the fit shows the option was applied."""
-    from identification.core._pose_selection import default_marker, random_feasible_poses
+    from identification.core._pose_selection import random_feasible_poses
     from jaxrobot.cli._main import main
 
-    robot = jr.racer7()
-    sigma = float(jr.read_description(None)["sensors"]["tracker_position_noise_m"])
+    robot, sigma = jr.racer7(), INSTRUMENTS.tracker_noise
     k = 30
     bound = sigma * np.sqrt(1.0 + 3.0 * np.sqrt(2.0 / (3 * k)))
     for r in range(2):
-        q = random_feasible_poses(robot, k, seed=40 + r, marker=default_marker())
+        q = random_feasible_poses(robot, k, seed=40 + r, marker=INSTRUMENTS.marker_offset)
         theta = np.asarray(jr.static_equilibrium(robot, q))
         ccw = jr.measurement.approach_directions(theta)
         m = jb.measure_poses(robot, theta, seed=r, ccw=ccw)
-        exact = [jb.measure_poses(robot, theta, ccw=c, position_noise=0.0).positions for c in (ccw, False)]
+        exact = [jb.measure_poses(robot, theta, ccw=c).true_positions for c in (ccw, False)]
         assert np.sqrt(np.mean(np.sum((exact[0] - exact[1]) ** 2, -1) / 3)) > 2 * bound
         jr.io.write_poses(tmp_path / f"robot_{r}.csv", theta, m.positions)
     assert main(["calibrate-fleet", str(tmp_path), "--approach", "order", "--out", str(tmp_path), "--json"]) == 0

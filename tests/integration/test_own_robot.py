@@ -13,7 +13,6 @@ import tomllib
 from pathlib import Path
 
 import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 import pytest
 import tomli_w
@@ -74,8 +73,8 @@ def chain(tmp_path_factory):
     truth = eqx.tree_at(lambda r: (r.offset, r.a, r.alpha), nominal,
                         (nominal.offset + rng.normal(0.0, 5e-4, 7), nominal.a + rng.normal(0.0, 2e-4, 7),
                          nominal.alpha + rng.normal(0.0, 3e-4, 7)))
-    theta = rest_motor_angles(truth, random_feasible_poses(nominal, 80, seed=1))
-    meas = jb.measure_poses(truth, theta, seed=2, marker=jnp.asarray(MARKER), position_noise=SIGMA)
+    theta = rest_motor_angles(truth, random_feasible_poses(nominal, 80, seed=1, marker=MARKER))
+    meas = jb.measure_poses(truth, theta, seed=2, instruments=jr.Instruments(tracker_noise=SIGMA, marker_offset=MARKER))
     jr.io.write_poses(d / "poses.csv", meas.motor_angles[:60], meas.positions[:60])
     jr.io.write_poses(d / "validation.csv", meas.motor_angles[60:], meas.positions[60:])
     rc, report = _cli(["calibrate", str(d / "poses.csv"), "--validate", str(d / "validation.csv"),

@@ -28,7 +28,8 @@ def test_model_functions_and_bench_for_n_joints(n, tmp_path):
     # and the noise-free marker sits where the forward kinematics puts it
     th_rest = jax.jit(jax.vmap(lambda q: jr.static_equilibrium(robot, q)))(q)
     assert jr.measurement.approach_directions(th_rest).shape == (4, n)
-    meas = jb.measure_poses(robot, th_rest, seed=0, position_noise=0.0, marker=[0.0, 0.0, 0.1])
+    meas = jb.measure_poses(robot, th_rest, seed=0,
+                              instruments=jr.Instruments(tracker_noise=0.0, marker_offset=[0.0, 0.0, 0.1]))
     np.testing.assert_allclose(meas.link_angles, q, rtol=0, atol=1e-10)
     tip = jr.tool_pose(robot, q) @ jnp.array([0.0, 0.0, 0.1, 1.0])
     np.testing.assert_allclose(meas.positions, tip[:, :3], atol=1e-12)
@@ -51,9 +52,8 @@ def test_seven_joint_gear_run_on_the_bench(tmp_path):
     """A constant-speed run of joint 7 (thesis 3.1.1): the other joints hold, the link rate integrates
     to the link travel (trapezoid at 1 kHz on a cycloidal profile: < 1e-6 rad), and the gear-run
     file carries seven motor-angle columns."""
-    desc = jr.read_description(ARM7)
     runs = jb.gear_runs(jr.load_robot(ARM7, as_built=True), 7, motor_speed_deg_s=3000.0, range_deg=20.0,
-                        centre_deg=0.0, repetitions=1, directions=("cw",), description=desc)
+                        centre_deg=0.0, repetitions=1, directions=("cw",), instruments=jr.io.read_instruments(ARM7))
     assert runs.theta.shape[2] == runs.link_angles.shape[2] == 7
     moved = np.ptp(runs.theta[0], axis=0)
     assert moved[6] > np.deg2rad(20.0) * 50.0 * 0.99 and np.all(moved[:6] == 0.0)

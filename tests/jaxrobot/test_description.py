@@ -129,7 +129,7 @@ def test_laser_tracker_model(tmp_path):
     sensors = {"tracker_position_m": [2.5, 1.0, 0.8], "tracker_noise_along_m": 8e-6, "tracker_noise_across_m": 35e-6}
     data["sensors"].update(sensors)
     jr.load_robot(_write(tmp_path, data))
-    model = TrackerNoise.of(jr.read_description(tmp_path / "robot.toml")["sensors"])
+    model = TrackerNoise.of(jr.io.read_instruments(tmp_path / "robot.toml"))
     assert abs(model.sigma - np.sqrt((8e-6**2 + 2 * 35e-6**2) / 3)) < 1e-15
     p = np.array([0.5, 0.0, 1.0])
     u = (p - model.position) / np.linalg.norm(p - model.position)

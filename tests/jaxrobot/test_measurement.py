@@ -15,6 +15,9 @@ from identification import calibrate, calibrate_fleet, identify_gear
 from identification.gear import prepare_gear_runs
 from jaxrobot.measurement import GearRun, Poses
 
+INSTRUMENTS = jr.racer7_instruments()
+"""The embedded Racer-7 bench's measurement setup."""
+
 POSES = Poses(np.random.default_rng(0).uniform(-1.0, 1.0, (6, 6)), np.random.default_rng(1).uniform(-1.0, 1.0, (6, 3)))
 """Six poses of a six-joint robot (random numbers: only shapes, conventions and files matter here)."""
 
@@ -27,14 +30,14 @@ def _leaves_close(a, b, tol):
 def test_poses_and_loose_arrays_together_are_refused():
     nominal, m = jr.racer7(), POSES
     with pytest.raises(ValueError, match=r"motor_angles: Poses hold the measurements, found also positions"):
-        calibrate(nominal, m, m.positions)
+        calibrate(nominal, m, m.positions, instruments=INSTRUMENTS)
     with pytest.raises(ValueError, match=r"found also ccw"):
-        calibrate(nominal, m, ccw=np.zeros(m.motor_angles.shape, bool))
+        calibrate(nominal, m, ccw=np.zeros(m.motor_angles.shape, bool), instruments=INSTRUMENTS)
     with pytest.raises(ValueError, match=r"positions: expected the \(K, 3\) measured marker positions"):
-        calibrate(nominal, m.motor_angles)
+        calibrate(nominal, m.motor_angles, instruments=INSTRUMENTS)
     fleet = Poses(m.motor_angles[None], m.positions[None])
     with pytest.raises(ValueError, match=r"motor_angles: Poses hold the measurements, found also positions"):
-        calibrate_fleet(nominal, fleet, fleet.positions)
+        calibrate_fleet(nominal, fleet, fleet.positions, instruments=INSTRUMENTS)
     with pytest.raises(ValueError, match=r"motor_angles: Poses hold the measurements, found also positions"):
         jr.io.write_poses("unused.csv", m, m.positions)
 
@@ -95,8 +98,8 @@ def test_gear_runs_are_read_and_prepared_as_the_tuples(tmp_path, gear_run):
 @pytest.mark.extended  # a gear identification twice (~40 s cold); the packing check above stays in the suite
 def test_identify_gear_with_gear_runs_equals_the_tuples(gear_run):
     runs, tuples = gear_run
-    with_runs = identify_gear(jr.racer7(), runs)
-    with_tuples = identify_gear(jr.racer7(), tuples)
+    with_runs = identify_gear(jr.racer7(), runs, instruments=INSTRUMENTS)
+    with_tuples = identify_gear(jr.racer7(), tuples, instruments=INSTRUMENTS)
     _leaves_close(with_runs.fit, with_tuples.fit, 1e-12)
     assert with_runs.orders_sparse == with_tuples.orders_sparse
 

@@ -12,6 +12,9 @@ import pytest
 import planning as pl
 from jaxrobot._status import NAMES, check, where
 
+INSTRUMENTS = jr.racer7_instruments()
+"""The embedded Racer-7 bench's measurement setup."""
+
 
 def test_names_are_the_enumeration_in_code_order():
     assert len(NAMES) == len(jr.RESULTS) and len(set(NAMES)) == len(NAMES)
@@ -86,11 +89,11 @@ def test_calibrate_throw_raises_a_non_converged_solve():
     m = jb.measure_poses(jr.racer7(as_built=True), theta, seed=11)
     args = (jr.racer7(), m.motor_angles, m.positions)
     kwargs = dict(parameters=("offset2", "offset3"), max_steps=1)
-    res = calibrate(*args, **kwargs)
+    res = calibrate(*args, **kwargs, instruments=INSTRUMENTS)
     assert (res.converged, jr.status_name(res.status), res.iterations) == (False, "nonlinear_max_steps_reached", 1)
     assert isinstance(res.status, jr.RESULTS)
     with pytest.raises(Exception, match="maximum number of steps"):
-        calibrate(*args, **kwargs, throw=True)
+        calibrate(*args, **kwargs, throw=True, instruments=INSTRUMENTS)
 
 
 def test_process_gear_runs_throw_raises_a_failed_alignment():
