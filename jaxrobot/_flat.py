@@ -1,8 +1,8 @@
 """The flat inverse of the planning model (docs/model.md (B.4); not in the thesis).
 
 The link angle is a flat output of eq. 4.1: for a smooth `q_d(t)`,
-`phi = q_d + kappa^{-1}(D q̈_d + C q̇_d + g)`, `theta = Xi(phi)`, `u = θ̈`; link-side friction
-(`link_friction`, a function of `q̇_d`) adds to the bracket. It tracks exactly in
+`phi = q_d + kappa^{-1}(D q̈_d + C q̇_d + g)`, `theta = Xi(phi)`, `u = θ̈`; the robot's link loads
+(`jaxrobot.effects.LinkLoad`: link-side friction, a function of `q̇_d`) add to the bracket. It tracks exactly in
 continuous time, ignores limits and the boundary conditions on `u`; it is the baseline and
 the warm start of the optimal control problem.
 
@@ -21,10 +21,11 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._dynamics import inverse_dynamics, link_friction
+from ._dynamics import inverse_dynamics
 from ._elasticity import elastic_deflection, elastic_stiffness, elastic_torque
 from ._gear import motor_angle
 from ._robot import Robot
+from .effects import link_loads
 
 DAMPED_SUBSTEPS = 10
 """Steps per sample of the damped deflection (module docstring): at 0.1 ms the rule's error, ~`h^4` times the
@@ -53,7 +54,9 @@ def flat_inverse(
     def torque(s):
         q, qd, qdd = q_d(s), _derivative(q_d)(s), _derivative(_derivative(q_d))(s)
         tau = inverse_dynamics(robot, q, qd, qdd)
-        return tau + link_friction(robot, qd) if robot.has_friction else tau
+        for load in link_loads(robot):
+            tau = tau + load.torque(robot, q, qd)
+        return tau
 
     if robot.damping is None:
         def theta(s):

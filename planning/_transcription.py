@@ -370,16 +370,24 @@ def _link_acceleration(robot: jr.Robot, q, qd, phi, d, phid=None) -> Float[Array
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
     if robot.damping is not None:
         rhs = rhs + robot.damping * (phid - qd)
-    if robot.has_friction:
-        rhs = rhs - jr.link_friction(robot, qd)
+    for load in jr.effects.link_loads(robot):
+        rhs = rhs - load.torque(robot, q, qd)
     return spd_solve(d, rhs[..., None])[..., 0]
 
 
-def _friction_slope(robot: jr.Robot, qd: Float[Array, "N n"]) -> Float[Array, "N n"]:
-    """`d link_friction / d qd` (diagonal: each joint's friction depends on its own rate); 0 without friction."""
-    if not robot.has_friction:
-        return jnp.zeros_like(qd)
-    return jax.jvp(lambda v: jr.link_friction(robot, v), (qd,), (jnp.ones_like(qd),))[1]
+def _with_link_loads(robot: jr.Robot, q, qd) -> Callable:
+    """`(id_q, id_qd, s, cast) -> (id_q, id_qd)` that adds `cast` of the link loads' `(dload/d(q, qd))^T s` at
+    `(q, qd)` to those of the inverse dynamics (`jaxrobot.effects.LinkLoad.torque_vjp`, made once here)."""
+    vjps = [load.torque_vjp(robot, q, qd) for load in jr.effects.link_loads(robot)]
+
+    def add(id_q, id_qd, s, cast=lambda a: a):
+        for vjp in vjps:
+            cq, cqd = vjp(s)
+            id_q = id_q if cq is None else id_q + cast(cq)
+            id_qd = id_qd + cast(cqd)
+        return id_q, id_qd
+
+    return add
 
 
 def gear(problem: OCPProblem, theta: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
@@ -454,14 +462,13 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     x = State.of((h.y * sz)[:, :nx])
     half = 0.5 * problem.ts / sz[:nx]
     id_vjp = inverse_dynamics_vjp(problem, h) if id_vjp is None else id_vjp
-    friction = _friction_slope(r, x.qd)
+    loads = _with_link_loads(r, x.q, x.qd)
 
     def vjp(w):
         wf = State.of(half * w)  # cotangent of f = [qd, qdd, thetad, u]
         s = spd_solve(h.mass, wf.qd[..., None])[..., 0]
-        id_q, id_qd = id_vjp(s)
+        id_q, id_qd = loads(*id_vjp(s), s)
         stiff = jr.elastic_stiffness(r, h.phi - x.q) * s
-        id_qd = id_qd + friction * s
         if r.damping is None:
             out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / h.ratio, wf.theta, wf.thetad], -1)
         else:
@@ -505,8 +512,7 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
     rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(j)[:, None, :], (j, *q.shape)))  # row i of dID
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
     diag = jax.vmap(jnp.diag)
-    if r.has_friction:
-        id_qd = id_qd + diag(_friction_slope(r, x.qd))
+    id_q, id_qd = _with_link_loads(r, q, x.qd)(id_q, id_qd, jnp.ones_like(q), diag)
     if r.damping is None:
         rhs = jnp.concatenate([-(id_q + diag(stiff)), -id_qd, diag(stiff / h.ratio)], -1)
     else:

@@ -13,7 +13,8 @@ import tomli_w
 
 from .._gear import shortest_reversal_travel
 from .._robot import Ripple, Robot
-from ._schema import RobotFileError, fail_field, inertia_matrix, joint_count, stiffness_terms, validate
+from ..effects import EFFECTS
+from ._schema import RobotFileError, fail_field, inertia_matrix, joint_count, merge_entries, stiffness_terms, validate
 from ._urdf import read_urdf
 
 
@@ -105,9 +106,7 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         name=data["name"],
         damping=_optional(data.get("stiffness", {}), "damping"),
         motor_lag=_optional(data.get("motors", {}), "velocity_lag_s"),
-        viscous_friction=_optional(data.get("friction", {}), "viscous"),
-        coulomb_friction=_optional(data.get("friction", {}), "coulomb"),
-        friction_velocity=_optional(data.get("friction", {}), "smoothing_velocity"),
+        **{k: v for effect in EFFECTS for k, v in effect.read(data).items()},
         reversal_travel=_optional(gear, "reversal_travel_rad"),
     )
     if robot.reversal_travel is not None:
@@ -156,9 +155,13 @@ def description_of(robot: Robot) -> dict:
         raise ValueError(f"description_of: expected one robot (a of shape (n,)), found a batch "
                          f"of shape {np.shape(robot.a)}; index the fleet first")
     f = lambda x: np.asarray(x, float).tolist()  # noqa: E731
+    effects: dict[str, dict] = {}
+    for effect in EFFECTS:
+        merge_entries(effects, effect.write(robot))
     gear: dict[str, Any] = {"u0": f(robot.u0)}
     if np.any(np.asarray(robot.backlash) != 0):
         gear["backlash_rad"] = f(robot.backlash)
+    gear.update(effects.pop("gear", {}))
     if robot.reversal_travel is not None:
         gear["reversal_travel_rad"] = f(robot.reversal_travel)
     for j in range(robot.n_joints):
@@ -194,13 +197,10 @@ def description_of(robot: Robot) -> dict:
         motors["inertia"] = f(robot.motor_inertia)
     if robot.motor_lag is not None:
         motors["velocity_lag_s"] = f(robot.motor_lag)
+    motors.update(effects.pop("motors", {}))
     if motors:  # else no [motors] section
         data["motors"] = motors
-    friction = {key: f(value) for key, value in (("viscous", robot.viscous_friction),
-                                                 ("coulomb", robot.coulomb_friction),
-                                                 ("smoothing_velocity", robot.friction_velocity)) if value is not None}
-    if friction:  # else no [friction] section
-        data["friction"] = friction
+    data.update(effects)  # the effects' own sections
     c, e = np.asarray(robot.c, float), np.asarray(robot.e, float)
     if np.any(c != 0) or robot.damping is not None:  # else rigid: no [stiffness] section
         k1, k3 = np.asarray(robot.k1, float), np.asarray(robot.k3, float)

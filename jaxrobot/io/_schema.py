@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from ..effects import EFFECTS
+
 
 class RobotFileError(ValueError):
     """A robot description that does not validate; the message names the field."""
@@ -21,6 +23,22 @@ angles [deg] the identification runs covered, outside which the set is an extrap
 
 
 def _schema(n: int) -> dict[str, Any]:
+    """The format of an `n`-joint robot file: the sections below with the entries of the model's effects
+    (`jaxrobot.effects.Effect.schema`) merged in."""
+    schema = _core_schema(n)
+    for effect in EFFECTS:
+        merge_entries(schema, effect.schema(n))
+    return schema
+
+
+def merge_entries(tables: dict[str, Any], entries: dict[str, Any]) -> dict[str, Any]:
+    """`tables` with the nested `entries` merged in, table by table (in place; returned)."""
+    for key, value in entries.items():
+        tables[key] = merge_entries(dict(tables.get(key, {})), value) if isinstance(value, dict) else value
+    return tables
+
+
+def _core_schema(n: int) -> dict[str, Any]:
     vn = (n,)
     return {
         "name": "str",
@@ -32,7 +50,6 @@ def _schema(n: int) -> dict[str, Any]:
         "?stiffness": {"k1": vn, "k3": vn, "?damping": vn},
         "links": {"mass": vn, "com": (n, 3), "inertia": (n, 6)},
         "?motors": {"?inertia": vn, "?velocity_lag_s": vn},
-        "?friction": {"?viscous": vn, "?coulomb": vn, "?smoothing_velocity": vn},
         "?tool": {"transform": (4, 4)},
         "?base": {"transform": (4, 4)},
         "?as_built": {
@@ -170,16 +187,8 @@ def _check_physics(data: dict, n: int) -> None:
     if "velocity_lag_s" in motors and np.any(np.asarray(motors["velocity_lag_s"], float) < 0):
         fail_field("motors.velocity_lag_s", "velocity-loop time constants >= 0 s (0: the motor follows its command "
               "exactly)", motors["velocity_lag_s"])
-    for key, what in (("viscous", "viscous friction >= 0 N m s/rad"), ("coulomb", "Coulomb friction >= 0 N m")):
-        values = np.asarray(data.get("friction", {}).get(key, np.zeros(n)), float)
-        for i in range(n):
-            if values[i] < 0:
-                fail_field(f"friction.{key}[{i}] (joint {i + 1})", f"link-side {what}", float(values[i]))
-    smoothing = np.asarray(data.get("friction", {}).get("smoothing_velocity", np.ones(n)), float)
-    for i in range(n):
-        if smoothing[i] <= 0:
-            fail_field(f"friction.smoothing_velocity[{i}] (joint {i + 1})", "a smoothing velocity of the Coulomb "
-                       "friction > 0 rad/s", float(smoothing[i]))
+    for effect in EFFECTS:
+        effect.check(data, n, fail_field)
     damping = np.asarray(data.get("stiffness", {}).get("damping", np.zeros(n)), float)
     for i in range(n):
         if damping[i] < 0 or (damping[i] > 0 and np.isinf(k1[i])):

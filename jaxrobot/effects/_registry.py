@@ -1,0 +1,27 @@
+"""The registry of the model's effects: one line per effect."""
+
+from __future__ import annotations
+
+from .._robot import Robot
+from ._effect import Effect, JointTorque, LinkLoad, MotorResponse
+from ._link_friction import LINK_FRICTION
+
+EFFECTS: tuple[Effect, ...] = (
+    LINK_FRICTION,
+)
+"""Every effect of the model, in the order their terms are summed."""
+
+
+def link_loads(robot: Robot) -> tuple[LinkLoad, ...]:
+    """The `LinkLoad` effects that `robot` has."""
+    return tuple(e for e in EFFECTS if isinstance(e, LinkLoad) and e.active(robot))
+
+
+def joint_torques(robot: Robot) -> tuple[JointTorque, ...]:
+    """The `JointTorque` effects that `robot` has."""
+    return tuple(e for e in EFFECTS if isinstance(e, JointTorque) and e.active(robot))
+
+
+def motor_responses(robot: Robot) -> tuple[MotorResponse, ...]:
+    """The `MotorResponse` effects that `robot` has."""
+    return tuple(e for e in EFFECTS if isinstance(e, MotorResponse) and e.active(robot))
