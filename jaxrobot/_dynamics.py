@@ -36,7 +36,7 @@ from ._kinematics import (
 from ._linalg import spd_solve
 from ._robot import Robot
 from ._rotations import rot_z
-from .effects import link_loads
+from .effects import joint_torques, link_loads
 
 # Batch-last internals: the rigid-body terms below keep the state batch as the LAST axis (the
 # entries of the `_kinematics` 3x3 algebra are (n, N) or (N,) arrays), so XLA's CPU loops run over
@@ -252,7 +252,7 @@ def planning_dynamics(
     q, qd, theta, thetad = jnp.split(x, 4, axis=-1)
     output = (lambda th: gear_output(robot, th)) if direction is None else (  # noqa: E731
         lambda th: flank_output(robot, th, direction))
-    phi, phid = jax.jvp(output, (theta,), (thetad,)) if robot.damping is not None else (output(theta), None)
+    phi, phid = jax.jvp(output, (theta,), (thetad,)) if joint_torques(robot) else (output(theta), None)
     qdd = link_acceleration(robot, q, qd, phi, phid)
     return jnp.concatenate([qd, qdd, thetad, jnp.broadcast_to(u, thetad.shape)], -1)
 
@@ -267,11 +267,11 @@ def link_acceleration(
     rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
     for load in link_loads(robot):
         rhs = rhs - load.torque(robot, q, qd)
-    if robot.damping is not None:
+    for term in joint_torques(robot):
         if phid is None:
             raise ValueError("link_acceleration: phid (the gear output rates, shape (..., n)) is required for a "
-                             "robot with joint damping (robot.damping); found None")
-        rhs = rhs + robot.damping * (phid - qd)
+                             f"robot with {term.name} (robot.{term.fields[0]}); found None")
+        rhs = rhs + term.torque(robot, qd, phid)
     return spd_solve(mass_matrix(robot, q), rhs[..., None])[..., 0]
 
 

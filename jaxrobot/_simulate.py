@@ -47,6 +47,7 @@ from ._dynamics import link_acceleration
 from ._elasticity import require_elastic
 from ._gear import flank_output, flank_weight, gear_output, play, play_start, reversal_travel
 from ._robot import Robot
+from .effects import joint_torques
 from .measurement._model import rest_link_angles
 
 _HERMITE = np.array([
@@ -198,7 +199,7 @@ def simulate(
     qd0 = jnp.zeros(n) if qd0 is None else qd0
     stages = np.arange(2 * substeps + 1) / (2 * substeps)
     w = jnp.asarray(_hermite_weights(stages))  # (S, 6, 3)
-    lag, damped = robot.motor_lag, robot.damping is not None
+    lag, rate_dependent = robot.motor_lag, bool(joint_torques(robot))
 
     def outputs(p, th_s):
         """The gear output as a function of the stage points' motor angles `th_s` (S, n) (at their flank weights
@@ -222,7 +223,7 @@ def simulate(
         else:
             th_s, thd_s = _lag_response(knots, lag, m, stages, h)
         output, p = outputs(p, th_s)
-        phi_s, phid_s = jax.jvp(output, (th_s,), (thd_s,)) if damped else (output(th_s), None)
+        phi_s, phid_s = jax.jvp(output, (th_s,), (thd_s,)) if rate_dependent else (output(th_s), None)
         dt = h / substeps
 
         def step(j, state):

@@ -368,8 +368,8 @@ def _link_acceleration(robot: jr.Robot, q, qd, phi, d, phid=None) -> Float[Array
     """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`), plus `d (phid - qd)` in
     the bracket for a robot with joint damping and `-jr.link_friction(qd)` for one with link-side friction."""
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
-    if robot.damping is not None:
-        rhs = rhs + robot.damping * (phid - qd)
+    for term in jr.effects.joint_torques(robot):
+        rhs = rhs + term.torque(robot, qd, phid)
     for load in jr.effects.link_loads(robot):
         rhs = rhs - load.torque(robot, q, qd)
     return spd_solve(d, rhs[..., None])[..., 0]
@@ -388,6 +388,12 @@ def _with_link_loads(robot: jr.Robot, q, qd) -> Callable:
         return id_q, id_qd
 
     return add
+
+
+def _joint_torque_vjps(robot: jr.Robot, x: State, h: HalfStep) -> list[Callable]:
+    """The joint torques' `s -> (dtorque/d(qd, theta, thetad))^T s` at the state `x` of `h`
+    (`jaxrobot.effects.JointTorque.torque_vjp`)."""
+    return [term.torque_vjp(robot, x.thetad, h.ratio, h.slope_rate) for term in jr.effects.joint_torques(robot)]
 
 
 def gear(problem: OCPProblem, theta: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
@@ -429,7 +435,7 @@ def half_step(problem: OCPProblem, y: Float[Array, "*b 5*n"]) -> HalfStep:
     phi, ratio = gear(problem, x.theta)
     d = jr.mass_matrix(r, x.q)
     slope_rate = None
-    if r.damping is not None:
+    if jr.effects.joint_torques(r):
         slope_rate = jax.jvp(lambda th: 1.0 / gear(problem, th)[1], (x.theta,), (jnp.ones_like(x.theta),))[1]
     qdd = _link_acceleration(r, x.q, x.qd, phi, d, x.thetad / ratio)
     f = State(x.qd, qdd, x.thetad, u).pack()
@@ -463,20 +469,18 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     half = 0.5 * problem.ts / sz[:nx]
     id_vjp = inverse_dynamics_vjp(problem, h) if id_vjp is None else id_vjp
     loads = _with_link_loads(r, x.q, x.qd)
+    joints = _joint_torque_vjps(r, x, h)
 
     def vjp(w):
         wf = State.of(half * w)  # cotangent of f = [qd, qdd, thetad, u]
         s = spd_solve(h.mass, wf.qd[..., None])[..., 0]
         id_q, id_qd = loads(*id_vjp(s), s)
         stiff = jr.elastic_stiffness(r, h.phi - x.q) * s
-        if r.damping is None:
-            out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / h.ratio, wf.theta, wf.thetad], -1)
-        else:
-            damp = r.damping * s
-            out = jnp.concatenate([-id_q - stiff, wf.q - id_qd - damp,
-                                   stiff / h.ratio + damp * x.thetad * h.slope_rate, wf.theta + damp / h.ratio,
-                                   wf.thetad], -1)
-        return out * sz
+        on_qd, on_theta, on_thetad = wf.q - id_qd, stiff / h.ratio, wf.theta
+        for joint_vjp in joints:
+            c_qd, c_theta, c_thetad = joint_vjp(s)
+            on_qd, on_theta, on_thetad = on_qd + c_qd, on_theta + c_theta, on_thetad + c_thetad
+        return jnp.concatenate([-id_q - stiff, on_qd, on_theta, on_thetad, wf.thetad], -1) * sz
 
     return vjp
 
@@ -513,12 +517,12 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
     diag = jax.vmap(jnp.diag)
     id_q, id_qd = _with_link_loads(r, q, x.qd)(id_q, id_qd, jnp.ones_like(q), diag)
-    if r.damping is None:
-        rhs = jnp.concatenate([-(id_q + diag(stiff)), -id_qd, diag(stiff / h.ratio)], -1)
-    else:
-        rhs = jnp.concatenate([-(id_q + diag(stiff)), -id_qd - jnp.diag(r.damping),
-                               diag(stiff / h.ratio + r.damping * x.thetad * h.slope_rate),
-                               diag(jnp.broadcast_to(r.damping / h.ratio, q.shape))], -1)
+    on_qd, on_theta, on_thetad = -id_qd, stiff / h.ratio, []
+    for joint_vjp in _joint_torque_vjps(r, x, h):
+        c_qd, c_theta, c_thetad = joint_vjp(jnp.ones_like(q))
+        on_qd, on_theta = on_qd + diag(c_qd), on_theta + c_theta
+        on_thetad = [on_thetad[0] + c_thetad] if on_thetad else [c_thetad]
+    rhs = jnp.concatenate([-(id_q + diag(stiff)), on_qd, diag(on_theta), *map(diag, on_thetad)], -1)
     dqdd = spd_solve(h.mass, rhs)  # (N, n, m): d qdd / d (q, qd, theta[, thetad])
     return (0.5 * problem.ts / sz[j:2 * j, None]) * dqdd * sz[:rhs.shape[-1]]
 

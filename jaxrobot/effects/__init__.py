@@ -9,6 +9,7 @@ from ._effect import JointTorque as JointTorque
 from ._effect import LinkLoad as LinkLoad
 from ._effect import MotorResponse as MotorResponse
 from ._effect import Parameter as Parameter
+from ._damping import JOINT_DAMPING as JOINT_DAMPING
 from ._link_friction import LINK_FRICTION as LINK_FRICTION
 from ._registry import EFFECTS as EFFECTS
 from ._registry import joint_torques as joint_torques

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 from .._robot import Robot
 from ._effect import Effect, JointTorque, LinkLoad, MotorResponse
+from ._damping import JOINT_DAMPING
 from ._link_friction import LINK_FRICTION
 
 EFFECTS: tuple[Effect, ...] = (
     LINK_FRICTION,
+    JOINT_DAMPING,
 )
 """Every effect of the model, in the order their terms are summed."""
 

@@ -104,7 +104,6 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         motor_inertia=jnp.asarray(data.get("motors", {}).get("inertia", np.zeros(n)), float),
         gravity=jnp.asarray(data["gravity"], float),
         name=data["name"],
-        damping=_optional(data.get("stiffness", {}), "damping"),
         motor_lag=_optional(data.get("motors", {}), "velocity_lag_s"),
         **{k: v for effect in EFFECTS for k, v in effect.read(data).items()},
         reversal_travel=_optional(gear, "reversal_travel_rad"),
@@ -200,15 +199,14 @@ def description_of(robot: Robot) -> dict:
     motors.update(effects.pop("motors", {}))
     if motors:  # else no [motors] section
         data["motors"] = motors
+    stiffness = effects.pop("stiffness", {})
     data.update(effects)  # the effects' own sections
     c, e = np.asarray(robot.c, float), np.asarray(robot.e, float)
-    if np.any(c != 0) or robot.damping is not None:  # else rigid: no [stiffness] section
+    if np.any(c != 0) or stiffness:  # else rigid: no [stiffness] section
         k1, k3 = np.asarray(robot.k1, float), np.asarray(robot.k3, float)
         k1 = [_shortest(x, lambda y, ci=ci: 1.0 / y == ci) for x, ci in zip(k1, c)]
         k3 = [_shortest(x, lambda y, ci=ci, ei=ei: y * ci == ei) for x, ci, ei in zip(k3, c, e)]
-        data["stiffness"] = {"k1": k1, "k3": k3}
-        if robot.damping is not None:
-            data["stiffness"]["damping"] = f(robot.damping)
+        data["stiffness"] = {"k1": k1, "k3": k3, **stiffness}
     for key in ("tool", "base"):
         t = np.asarray(getattr(robot, key), float)
         if not np.array_equal(t, np.eye(4)):

@@ -47,7 +47,7 @@ def _core_schema(n: int) -> dict[str, Any]:
         "limits": {"position_deg": (n, 2), "velocity_deg_s": vn, "?acceleration_deg_s2": vn},
         "?gear": {"u0": vn, "?backlash_rad": vn, "?reversal_travel_rad": vn,
                   **{f"?joint{i}": {"cw": _RIPPLE, "ccw": _RIPPLE} for i in range(1, n + 1)}},
-        "?stiffness": {"k1": vn, "k3": vn, "?damping": vn},
+        "?stiffness": {"k1": vn, "k3": vn},
         "links": {"mass": vn, "com": (n, 3), "inertia": (n, 6)},
         "?motors": {"?inertia": vn, "?velocity_lag_s": vn},
         "?tool": {"transform": (4, 4)},
@@ -189,12 +189,6 @@ def _check_physics(data: dict, n: int) -> None:
               "exactly)", motors["velocity_lag_s"])
     for effect in EFFECTS:
         effect.check(data, n, fail_field)
-    damping = np.asarray(data.get("stiffness", {}).get("damping", np.zeros(n)), float)
-    for i in range(n):
-        if damping[i] < 0 or (damping[i] > 0 and np.isinf(k1[i])):
-            fail_field(f"stiffness.damping[{i}] (joint {i + 1})",
-                  "viscous damping >= 0 N m s/rad of an elastic joint (0 where k1 = inf, a rigid joint)",
-                  float(damping[i]))
     dev = data.get("as_built", {})
     if "u0" in dev and "u0_wrist" in dev:
         fail_field("as_built", "either u0 (all joints) or the older u0_wrist (joints 4-6), not both",
