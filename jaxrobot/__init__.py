@@ -60,13 +60,13 @@ from ._rotations import rotation_to_quaternion as rotation_to_quaternion  # noqa
 from ._rotations import rotvec_to_rotation as rotvec_to_rotation  # noqa: E402
 from ._rotations import rpy as rpy  # noqa: E402
 from ._rotations import vee as vee  # noqa: E402
-from ._simulate import lag_command as lag_command  # noqa: E402
-from .effects._link_friction import COULOMB_VELOCITY as COULOMB_VELOCITY  # noqa: E402
-from .effects._link_friction import link_friction as link_friction  # noqa: E402
 from ._simulate import simulate as simulate  # noqa: E402
 from ._status import RESULTS as RESULTS  # noqa: E402
 from ._status import status_message as status_message  # noqa: E402
 from ._status import status_name as status_name  # noqa: E402
+from .effects._lag import lag_command as lag_command  # noqa: E402
+from .effects._link_friction import COULOMB_VELOCITY as COULOMB_VELOCITY  # noqa: E402
+from .effects._link_friction import link_friction as link_friction  # noqa: E402
 from .io._description import RobotFileError as RobotFileError  # noqa: E402
 from .io._description import description_of as description_of  # noqa: E402
 from .io._description import filter_cutoffs as filter_cutoffs  # noqa: E402

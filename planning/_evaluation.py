@@ -129,7 +129,7 @@ def motor_commands(robot: jr.Robot, t: Float[Array, " N"], trajectories: dict[st
                    ) -> dict[str, MotorTrajectory]:
     """The commands that make the motors of `robot`, after its velocity-loop lags (`jr.lag_command`), follow the
     motor `trajectories` (leading axes allowed); the trajectories themselves for a robot without lags."""
-    if robot.motor_lag is None:
+    if jr.effects.motor_response(robot) is None:
         return trajectories
     return {k: _lag_commands(robot, jnp.asarray(t, float), v) for k, v in trajectories.items()}
 

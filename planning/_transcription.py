@@ -269,9 +269,9 @@ def bounds(problem: OCPProblem) -> tuple[Float[Array, "N 5*n"], Float[Array, "N 
 def objective(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, ""]:
     """The cost of eq. 4.3a (or its variant `problem.cost`), unscaled [rad^2]."""
     track = jnp.sum((State.of(x).q - problem.q_d) ** 2)
-    lag = problem.robot.motor_lag
-    if problem.cost == "thesis" and lag is not None:  # the command's acceleration u + lag ud (docs/model.md (B.7))
-        return track + problem.nu * (jnp.sum(u**2) + jnp.sum((lag * (u[1:] - u[:-1]) / problem.ts) ** 2))
+    response = jr.effects.motor_response(problem.robot)
+    if problem.cost == "thesis" and response is not None:  # the command's acceleration (docs/model.md (B.7))
+        return track + problem.nu * (jnp.sum(u**2) + response.command_penalty(problem.robot, u, problem.ts))
     if problem.cost == "jerk":
         return track + problem.nu * jnp.sum((u[1:] - u[:-1]) ** 2)
     if problem.cost == "flat":
@@ -357,8 +357,9 @@ def scaled_cost(problem: OCPProblem) -> ScaledQuadratic:
     else:
         node_w = jnp.concatenate([jnp.ones(j), zero3, w_u])
         edge_w = jnp.zeros(5 * j)
-        if problem.cost == "thesis" and problem.robot.motor_lag is not None:
-            edge_w = jnp.concatenate([zero, zero3, w_u * (problem.robot.motor_lag / problem.ts) ** 2])
+        response = jr.effects.motor_response(problem.robot)
+        if problem.cost == "thesis" and response is not None:
+            edge_w = jnp.concatenate([zero, zero3, w_u * response.command_edge_weight(problem.robot, problem.ts)])
         if problem.cost == "flat":
             target = target.at[:, 4 * j:].set(problem.u_ref / sz[4 * j:])
     return ScaledQuadratic(node_weight=node_w, node_target=target, edge_weight=edge_w)

@@ -113,7 +113,7 @@ class JointTorque(Effect):
         raise NotImplementedError
 
     def torque_vjp(self, robot: Robot, thetad: Float[Array, "*b n"], ratio: Float[Array, "*b n"],
-                   ratio_slope: Float[Array, "*b n"]) -> Callable[[Float[Array, "*b n"]], tuple[Float[Array, "*b n"], ...]]:
+                   ratio_slope: Float[Array, "*b n"]) -> Callable[[Float[Array, "*b n"]], tuple[Array, Array, Array]]:
         """`s -> ((dtorque/dqd)^T s, (dtorque/dtheta)^T s, (dtorque/dthetad)^T s)` (diagonal) where the gear output
         rate is `phid = thetad / ratio`, `ratio = dtheta/dphi` and `ratio_slope = d(1/ratio)/dtheta`."""
         raise NotImplementedError

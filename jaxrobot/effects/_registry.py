@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 from .._robot import Robot
-from ._effect import Effect, JointTorque, LinkLoad, MotorResponse
 from ._damping import JOINT_DAMPING
+from ._effect import Effect, JointTorque, LinkLoad, MotorResponse
+from ._lag import MOTOR_LAG
 from ._link_friction import LINK_FRICTION
 
 EFFECTS: tuple[Effect, ...] = (
     LINK_FRICTION,
     JOINT_DAMPING,
+    MOTOR_LAG,
 )
 """Every effect of the model, in the order their terms are summed."""
 
@@ -24,6 +26,9 @@ def joint_torques(robot: Robot) -> tuple[JointTorque, ...]:
     return tuple(e for e in EFFECTS if isinstance(e, JointTorque) and e.active(robot))
 
 
-def motor_responses(robot: Robot) -> tuple[MotorResponse, ...]:
-    """The `MotorResponse` effects that `robot` has."""
-    return tuple(e for e in EFFECTS if isinstance(e, MotorResponse) and e.active(robot))
+def motor_response(robot: Robot) -> MotorResponse | None:
+    """The `MotorResponse` effect that `robot` has (a motor follows its command through one), None if none."""
+    found = [e for e in EFFECTS if isinstance(e, MotorResponse) and e.active(robot)]
+    if len(found) > 1:
+        raise ValueError(f"robot: expected at most one motor response, found {[e.name for e in found]}")
+    return found[0] if found else None

@@ -104,7 +104,6 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         motor_inertia=jnp.asarray(data.get("motors", {}).get("inertia", np.zeros(n)), float),
         gravity=jnp.asarray(data["gravity"], float),
         name=data["name"],
-        motor_lag=_optional(data.get("motors", {}), "velocity_lag_s"),
         **{k: v for effect in EFFECTS for k, v in effect.read(data).items()},
         reversal_travel=_optional(gear, "reversal_travel_rad"),
     )
@@ -194,8 +193,6 @@ def description_of(robot: Robot) -> dict:
     motors = {}
     if np.any(np.asarray(robot.motor_inertia) != 0):  # else no rotor inertia
         motors["inertia"] = f(robot.motor_inertia)
-    if robot.motor_lag is not None:
-        motors["velocity_lag_s"] = f(robot.motor_lag)
     motors.update(effects.pop("motors", {}))
     if motors:  # else no [motors] section
         data["motors"] = motors

@@ -49,7 +49,7 @@ def _core_schema(n: int) -> dict[str, Any]:
                   **{f"?joint{i}": {"cw": _RIPPLE, "ccw": _RIPPLE} for i in range(1, n + 1)}},
         "?stiffness": {"k1": vn, "k3": vn},
         "links": {"mass": vn, "com": (n, 3), "inertia": (n, 6)},
-        "?motors": {"?inertia": vn, "?velocity_lag_s": vn},
+        "?motors": {"?inertia": vn},
         "?tool": {"transform": (4, 4)},
         "?base": {"transform": (4, 4)},
         "?as_built": {
@@ -184,9 +184,6 @@ def _check_physics(data: dict, n: int) -> None:
     motors = data.get("motors", {})
     if "inertia" in motors and np.any(np.asarray(motors["inertia"], float) < 0):
         fail_field("motors.inertia", "rotor inertias >= 0 kg m^2", motors["inertia"])
-    if "velocity_lag_s" in motors and np.any(np.asarray(motors["velocity_lag_s"], float) < 0):
-        fail_field("motors.velocity_lag_s", "velocity-loop time constants >= 0 s (0: the motor follows its command "
-              "exactly)", motors["velocity_lag_s"])
     for effect in EFFECTS:
         effect.check(data, n, fail_field)
     dev = data.get("as_built", {})
