@@ -5,6 +5,7 @@ from __future__ import annotations
 from .._robot import Robot
 from ._damping import JOINT_DAMPING
 from ._effect import Effect, JointTorque, LinkLoad, MotorResponse
+from ._flank_play import FLANK_PLAY
 from ._lag import MOTOR_LAG
 from ._link_friction import LINK_FRICTION
 
@@ -12,6 +13,7 @@ EFFECTS: tuple[Effect, ...] = (
     LINK_FRICTION,
     JOINT_DAMPING,
     MOTOR_LAG,
+    FLANK_PLAY,
 )
 """Every effect of the model, in the order their terms are summed."""
 

@@ -11,7 +11,6 @@ import jax.numpy as jnp
 import numpy as np
 import tomli_w
 
-from .._gear import shortest_reversal_travel
 from .._robot import Ripple, Robot
 from ..effects import EFFECTS
 from ._schema import RobotFileError, fail_field, inertia_matrix, joint_count, merge_entries, stiffness_terms, validate
@@ -105,24 +104,10 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         gravity=jnp.asarray(data["gravity"], float),
         name=data["name"],
         **{k: v for effect in EFFECTS for k, v in effect.read(data).items()},
-        reversal_travel=_optional(gear, "reversal_travel_rad"),
     )
-    if robot.reversal_travel is not None:
-        shortest = np.asarray(shortest_reversal_travel(robot))
-        short = np.asarray(robot.reversal_travel) <= shortest
-        if short.any():
-            j = int(np.argmax(short))
-            fail_field(f"gear.reversal_travel_rad[{j}] (joint {j + 1})",
-                       f"a motor travel > {shortest[j]:.3g} rad, through which the gear output keeps following the "
-                       "motor across the gap between its flanks (1.875 (1 + ripple) u0 (lost motion + both sets' "
-                       "transmission-error bounds), docs/model.md (B.0))",
-                       float(robot.reversal_travel[j]))
+    for effect in EFFECTS:
+        effect.check_robot(robot, fail_field)
     return robot
-
-
-def _optional(section: dict, key: str) -> jnp.ndarray | None:
-    """A dynamic effect of the robot: the array `section[key]`, None where the file has no such key."""
-    return jnp.asarray(section[key], float) if key in section else None
 
 
 def _shortest(x: float, reads_back) -> float:
@@ -160,8 +145,6 @@ def description_of(robot: Robot) -> dict:
     if np.any(np.asarray(robot.backlash) != 0):
         gear["backlash_rad"] = f(robot.backlash)
     gear.update(effects.pop("gear", {}))
-    if robot.reversal_travel is not None:
-        gear["reversal_travel_rad"] = f(robot.reversal_travel)
     for j in range(robot.n_joints):
         sets = {}
         for direction, rip in (("cw", robot.cw), ("ccw", robot.ccw)):

@@ -45,7 +45,7 @@ def _core_schema(n: int) -> dict[str, Any]:
         "gravity": (3,),
         "kinematics": {"a": vn, "d": vn, "alpha": vn, "beta": vn, "offset": vn},
         "limits": {"position_deg": (n, 2), "velocity_deg_s": vn, "?acceleration_deg_s2": vn},
-        "?gear": {"u0": vn, "?backlash_rad": vn, "?reversal_travel_rad": vn,
+        "?gear": {"u0": vn, "?backlash_rad": vn,
                   **{f"?joint{i}": {"cw": _RIPPLE, "ccw": _RIPPLE} for i in range(1, n + 1)}},
         "?stiffness": {"k1": vn, "k3": vn},
         "links": {"mass": vn, "com": (n, 3), "inertia": (n, 6)},
@@ -176,8 +176,6 @@ def _check_physics(data: dict, n: int) -> None:
     backlash = np.asarray(gear.get("backlash_rad", np.zeros(n)), float)
     if np.any(backlash < 0):
         fail_field("gear.backlash_rad", "lost motion >= 0 rad per joint", backlash.tolist())
-    if "reversal_travel_rad" in gear:
-        _positive(gear["reversal_travel_rad"], "gear.reversal_travel_rad", "rad of motor travel")
     _positive(data["links"]["mass"], "links.mass", "kg")
     for i, row in enumerate(np.asarray(data["links"]["inertia"], float)):
         _check_inertia(row, f"links.inertia[{i}] (link {i + 1})")
