@@ -1,15 +1,18 @@
-"""Before/after check of a refactor of the model effects: the dynamics, the simulator, the flat inverse and the OCP
-transcription on the Racer-7 with each effect alone and all of them (seeded values), saved to an `.npz`.
+"""Before/after check of a change to the model effects (`jaxrobot.effects`): the dynamics, the simulator, the flat
+inverse and the OCP transcription on the Racer-7 with each effect alone and all of them (seeded values), saved to
+an `.npz`; with `--compare` each quantity against an earlier run's, written to `results_effects.md`.
 
-    PYTHONPATH=/path/to/old python benchmarks/effects_before_after.py old.npz
-    PYTHONPATH=$PWD python benchmarks/effects_before_after.py new.npz --compare old.npz
+    PYTHONPATH=/path/to/old python benchmarks/bench_effects.py old.npz
+    PYTHONPATH=$PWD python benchmarks/bench_effects.py new.npz --compare old.npz --before COMMIT
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+from pathlib import Path
 
+import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records the start)
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -72,19 +75,25 @@ def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("out")
     parser.add_argument("--compare")
+    parser.add_argument("--before", default="the run of --compare", help="what the earlier run measured")
     args = parser.parse_args()
     data = {f"{name}/{k}": v for name, robot in robots().items() for k, v in quantities(robot).items()}
     np.savez(args.out, **data)
     if args.compare:
         old = np.load(args.compare)
-        worst = 0.0
+        rows = []
         for key in sorted(old.files):
             a, b = data[key], old[key]
-            same = np.array_equal(a, b)
-            diff = float(np.max(np.abs(a - b) / np.maximum(np.max(np.abs(b)), 1e-300)))
-            worst = max(worst, diff)
-            print(f"{key:40s} {'bit-identical' if same else f'relative difference {diff:.1e}'}")
-        print(f"largest relative difference {worst:.1e}")
+            diff = float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-300))
+            rows.append(f"| `{key}` | {'bit-identical' if np.array_equal(a, b) else f'{diff:.1e}'} |")
+        same = sum(r.endswith("bit-identical |") for r in rows)
+        text = ("# The model effects before and after\n\n"
+                + _timing.header(_timing.run_info(f"{args.before} (the same quantities, `--compare`)"))
+                + f"\nEach quantity of this run against {args.before}: bit-identical, or the largest difference "
+                f"relative to the largest entry. {same} of {len(rows)} bit-identical.\n\n"
+                "| robot/quantity | difference |\n|---|---|\n" + "\n".join(rows) + "\n")
+        (Path(__file__).parent / "results_effects.md").write_text(text)
+        print(text)
 
 
 if __name__ == "__main__":
