@@ -103,11 +103,19 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         motor_inertia=jnp.asarray(data.get("motors", {}).get("inertia", np.zeros(n)), float),
         gravity=jnp.asarray(data["gravity"], float),
         name=data["name"],
-        **{k: v for effect in EFFECTS for k, v in effect.read(data).items()},
+        **_effect_fields(data),
     )
     for effect in EFFECTS:
         effect.check_robot(robot, fail_field)
     return robot
+
+
+def _effect_fields(data: dict) -> dict[str, Any]:
+    """The `Robot` fields of the model's effects from a validated description (`effect_parameters` merged)."""
+    fields: dict[str, Any] = {"effect_parameters": {}}
+    for effect in EFFECTS:
+        merge_entries(fields, effect.read(data))
+    return fields
 
 
 def _shortest(x: float, reads_back) -> float:
