@@ -12,6 +12,7 @@ from ._effect import MotorResponse as MotorResponse
 from ._effect import Parameter as Parameter
 from ._flank_play import FLANK_PLAY as FLANK_PLAY
 from ._lag import MOTOR_LAG as MOTOR_LAG
+from ._link_drag import LINK_DRAG as LINK_DRAG
 from ._link_friction import LINK_FRICTION as LINK_FRICTION
 from ._registry import EFFECTS as EFFECTS
 from ._registry import joint_torques as joint_torques

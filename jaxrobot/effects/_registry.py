@@ -7,6 +7,7 @@ from ._damping import JOINT_DAMPING
 from ._effect import Effect, JointTorque, LinkLoad, MotorResponse
 from ._flank_play import FLANK_PLAY
 from ._lag import MOTOR_LAG
+from ._link_drag import LINK_DRAG
 from ._link_friction import LINK_FRICTION
 
 EFFECTS: tuple[Effect, ...] = (
@@ -14,6 +15,7 @@ EFFECTS: tuple[Effect, ...] = (
     JOINT_DAMPING,
     MOTOR_LAG,
     FLANK_PLAY,
+    LINK_DRAG,
 )
 """Every effect of the model, in the order their terms are summed."""
 
