@@ -245,8 +245,8 @@ def planning_dynamics(
     robot: Robot, x: Float[Array, "*b 4*n"], u: Float[Array, "*b n"], direction: Float[Array, "*b n"] | None = None
 ) -> Float[Array, "*b 4*n"]:
     """`xd = f(x, u)` of eq. 4.1, `x = [q, qd, theta, thetad]`, `u = thetadd`; cw gear set, or with `direction`
-    the flank weights `sigma` of the gears (`flank_output`, docs/model.md (B.0)). With joint damping the link
-    receives `d (phid - qd)`, with link-side friction `-link_friction(qd)` (`link_acceleration`); a velocity-loop
+    the flank weights `sigma` of the gears (`flank_output`, docs/model.md (B.0)). The link receives the robot's joint
+    torques (joint damping `d (phid - qd)`) and spends its link loads (`link_acceleration`); a velocity-loop
     lag (`robot.motor_lag`) does not enter: `theta` is the motor angle after it, which `lag_command` turns into
     the command."""
     q, qd, theta, thetad = jnp.split(x, 4, axis=-1)

@@ -366,8 +366,8 @@ def scaled_cost(problem: OCPProblem) -> ScaledQuadratic:
 
 
 def _link_acceleration(robot: jr.Robot, q, qd, phi, d, phid=None) -> Float[Array, "N n"]:
-    """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`), plus `d (phid - qd)` in
-    the bracket for a robot with joint damping and `-jr.link_friction(qd)` for one with link-side friction."""
+    """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`), plus the robot's joint
+    torques (joint damping `d (phid - qd)`) and minus its link loads (link-side friction) in the bracket."""
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
     for term in jr.effects.joint_torques(robot):
         rhs = rhs + term.torque(robot, qd, phid)
@@ -421,8 +421,8 @@ class HalfStep(eqx.Module):
     mass: Float[Array, "*b n n"]
     qdd: Float[Array, "*b n"]
     slope_rate: Float[Array, "*b n"] | None = None
-    """With joint damping: `d(1/ratio)/dtheta`, the change of the gear output rate `phid = thetad / ratio` with
-    the motor angle per unit motor rate; None without."""
+    """With a joint torque (`jaxrobot.effects.JointTorque`, joint damping): `d(1/ratio)/dtheta`, the change of the
+    gear output rate `phid = thetad / ratio` with the motor angle per unit motor rate; None without."""
 
 
 def half_step(problem: OCPProblem, y: Float[Array, "*b 5*n"]) -> HalfStep:
@@ -458,9 +458,11 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     """The map `w -> (d g_k / d y_k)^T w_k` at `h = half_step(problem, y)`, from the structure of
     eq. 4.1 (as `half_step_jacobian`): with `s = D^{-1} w_qdd`,
     `(dqdd/dq)^T w_qdd = -(dID/dq)^T s - kappa' s`, `(dqdd/dqd)^T w_qdd = -(dID/dqd)^T s`,
-    `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; with joint damping `d` also `-d s` on `qd`,
-    `d thetad (d(1/u)/dtheta) s` on `theta` and `d s / u(phi)` on `thetad`; with link-side friction `-f' s` on `qd`
-    (`f'` its slope in the link rate); `(dID/d(q, qd))^T s` is one reverse
+    `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; a link load adds its `(dload/d(q, qd))^T s` to `(dID/d(q, qd))^T s`
+    (link-side friction `f' s` on `qd`, `f'` its slope in the link rate), a joint torque its
+    `(dtorque/d(qd, theta, thetad))^T s` to the columns (joint damping `d`: `-d s` on `qd`,
+    `d thetad (d(1/u)/dtheta) s` on `theta`, `d s / u(phi)` on `thetad`; `jaxrobot.effects`, `torque_vjp`);
+    `(dID/d(q, qd))^T s` is one reverse
     pass through Newton-Euler alone (not through the mass matrix, its solve and `Xi^-1`), whose
     forward pass is made once (`inverse_dynamics_vjp`, or `id_vjp` if already made) for every `w`."""
     r = problem.robot
@@ -495,14 +497,15 @@ def half_step_shift(n: int) -> np.ndarray:
 
 def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = None) -> Float[Array, "N n m"]:
     """The only state-dependent block of the Jacobian of `g` at `h = half_step(problem, y)`,
-    `p_k = d g_k[qd rows] / d y_k[q, qd, theta]` (scaled, m = 3n), with joint damping `d` also
+    `p_k = d g_k[qd rows] / d y_k[q, qd, theta]` (scaled, m = 3n), with a joint torque (joint damping) also
     `/ d y_k[thetad]` (m = 4n); `d g_k / d y_k` is `half_step_shift(n)` with `p_k` in rows n:2n, columns 0:m.
 
     With `ID(q, qd, qdd) = D qdd + C qd + g = kappa(phi - q)` at the model's `qdd`:
     `dqdd/dq = -D^{-1} (dID/dq + kappa')`, `dqdd/dqd = -D^{-1} dID/dqd`,
-    `dqdd/dtheta = D^{-1} kappa' / u(phi)`; damping adds `-D^{-1} d` to `dqdd/dqd`,
-    `D^{-1} d thetad d(1/u)/dtheta` to `dqdd/dtheta` and `dqdd/dthetad = D^{-1} d / u(phi)`; link-side friction
-    adds `-D^{-1} diag(f')` to `dqdd/dqd` (`f'` its slope in the link rate). The rows of
+    `dqdd/dtheta = D^{-1} kappa' / u(phi)`; the effects' terms add their slopes (`torque_vjp` at `s = 1`): joint
+    damping `-D^{-1} d` to `dqdd/dqd`, `D^{-1} d thetad d(1/u)/dtheta` to `dqdd/dtheta` and
+    `dqdd/dthetad = D^{-1} d / u(phi)`; link-side friction `-D^{-1} diag(f')` to `dqdd/dqd` (`f'` its slope in the
+    link rate). The rows of
     `dID/d(q, qd)` come from n reverse passes
     through Newton-Euler (n passes where forward mode takes 2n tangents; `id_vjp`: its linearisation at `h`,
     `inverse_dynamics_vjp`, if already made), the rest in closed form.

@@ -1,6 +1,5 @@
-"""URDF export and import of the rigid part of a `Robot` (links, inertias, joint placements, limits) and its
-link-side friction (`<dynamics damping friction>`: URDF's joint damping is our viscous friction `f_v`, its
-friction our Coulomb friction `f_c`, both acting on the link).
+"""URDF export and import of the rigid part of a `Robot` (links, inertias, joint placements, limits) and the
+`<dynamics>` of its effects (`jaxrobot.effects`: link-side friction, `<dynamics damping friction>`).
 
 Export. The joint transform (eq. 2.2-2.3, standard DH plus the Hayati angle)
 `Rz(q_i + offset_i) Tx(a_i) Tz(d_i) Rx(alpha_i) Ry(beta_i)` is split into the joint rotation
