@@ -138,7 +138,8 @@ def motor_commands(robot: jr.Robot, t: Float[Array, " N"], trajectories: dict[st
 def _lag_commands(robot: jr.Robot, t, traj: MotorTrajectory) -> MotorTrajectory:
     lead = traj.theta.shape[:-2]
     flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[-2:]), traj)
-    out = jax.vmap(lambda *a: MotorTrajectory(*jr.lag_command(robot, t, *a)))(flat.theta, flat.thetad, flat.thetadd)
+    response = jr.effects.motor_response(robot)
+    out = jax.vmap(lambda *a: MotorTrajectory(*response.command(robot, t, *a)))(flat.theta, flat.thetad, flat.thetadd)
     return jax.tree.map(lambda a: a.reshape(lead + a.shape[-2:]), out)
 
 

@@ -51,13 +51,8 @@ def _lag_step_weights(tau: Float[Array, " n"], h: Float[Array, ""]) -> tuple[Flo
     return w[1] - decay * w[0], decay
 
 
-def lag_command(
-    robot: Robot,
-    t: Float[Array, " N"],
-    theta: Float[Array, "N n"],
-    thetad: Float[Array, "N n"],
-    thetadd: Float[Array, "N n"],
-) -> tuple[Float[Array, "N n"], Float[Array, "N n"], Float[Array, "N n"]]:
+def lag_command(robot: Robot, t: Float[Array, " N"], theta: Float[Array, "N n"], thetad: Float[Array, "N n"],
+                thetadd: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"], Float[Array, "N n"]]:
     """The command `(theta_c, thetad_c, thetadd_c)` (N, n) at the sample times `t` (uniform) whose motors, after the
     velocity-loop lags `robot.motor_lag` as `simulate` solves them, pass every sample with the angles, rates and
     accelerations `(theta, thetad, thetadd)` of a motor trajectory that starts at rest; the trajectory itself where
