@@ -36,7 +36,7 @@ from ._kinematics import (
 from ._linalg import spd_solve
 from ._robot import Robot
 from ._rotations import rot_z
-from .effects import joint_torques, link_loads
+from .effects._registry import joint_torques, link_loads
 
 # Batch-last internals: the rigid-body terms below keep the state batch as the LAST axis (the
 # entries of the `_kinematics` 3x3 algebra are (n, N) or (N,) arrays), so XLA's CPU loops run over

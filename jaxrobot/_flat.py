@@ -22,7 +22,7 @@ from ._dynamics import inverse_dynamics
 from ._elasticity import elastic_deflection
 from ._gear import motor_angle
 from ._robot import Robot
-from .effects import joint_torques, link_loads
+from .effects._registry import joint_torques, link_loads
 
 
 def _derivative(fn: Callable) -> Callable:

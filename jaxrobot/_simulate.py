@@ -41,7 +41,7 @@ from ._elasticity import require_elastic
 from ._gear import flank_output, flank_weight, gear_output, play, play_start, reversal_travel
 from ._hermite import check_command, hermite_weights
 from ._robot import Robot
-from .effects import joint_torques, motor_response
+from .effects._registry import joint_torques, motor_response
 from .measurement._model import rest_link_angles
 
 

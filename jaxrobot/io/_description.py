@@ -12,7 +12,7 @@ import numpy as np
 import tomli_w
 
 from .._robot import Ripple, Robot
-from ..effects import EFFECTS
+from ..effects._registry import EFFECTS
 from ._schema import RobotFileError, fail_field, inertia_matrix, joint_count, merge_entries, stiffness_terms, validate
 from ._urdf import read_urdf
 

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from ..effects import EFFECTS
+from ..effects._registry import EFFECTS
 
 
 class RobotFileError(ValueError):

@@ -52,7 +52,7 @@ import numpy as np
 from .._kinematics import dh_transform
 from .._robot import Robot
 from .._rotations import pose_matrix, rot_x, rot_z
-from ..effects import EFFECTS
+from ..effects._registry import EFFECTS
 from ._schema import RobotFileError, merge_entries, validate
 
 EFFORT_LIMIT = 1.0e4
