@@ -377,24 +377,16 @@ def _link_acceleration(robot: jr.Robot, q, qd, phi, d, phid=None) -> Float[Array
 
 
 def _with_link_loads(robot: jr.Robot, q, qd) -> Callable:
-    """`(id_q, id_qd, s, cast) -> (id_q, id_qd)` that adds `cast` of the link loads' `(dload/d(q, qd))^T s` at
-    `(q, qd)` to those of the inverse dynamics (`jaxrobot.effects.LinkLoad.torque_vjp`, made once here)."""
+    """`(id_q, id_qd, s, cast)` plus `cast` of the link loads' `(dload/d(q, qd))^T s` (`LinkLoad.torque_vjp`)."""
     vjps = [load.torque_vjp(robot, q, qd) for load in jr.effects.link_loads(robot)]
 
     def add(id_q, id_qd, s, cast=lambda a: a):
         for vjp in vjps:
             cq, cqd = vjp(s)
-            id_q = id_q if cq is None else id_q + cast(cq)
-            id_qd = id_qd + cast(cqd)
+            id_q, id_qd = id_q if cq is None else id_q + cast(cq), id_qd + cast(cqd)
         return id_q, id_qd
 
     return add
-
-
-def _joint_torque_vjps(robot: jr.Robot, x: State, h: HalfStep) -> list[Callable]:
-    """The joint torques' `s -> (dtorque/d(qd, theta, thetad))^T s` at the state `x` of `h`
-    (`jaxrobot.effects.JointTorque.torque_vjp`)."""
-    return [term.torque_vjp(robot, x.thetad, h.ratio, h.slope_rate) for term in jr.effects.joint_torques(robot)]
 
 
 def gear(problem: OCPProblem, theta: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
@@ -458,11 +450,9 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     """The map `w -> (d g_k / d y_k)^T w_k` at `h = half_step(problem, y)`, from the structure of
     eq. 4.1 (as `half_step_jacobian`): with `s = D^{-1} w_qdd`,
     `(dqdd/dq)^T w_qdd = -(dID/dq)^T s - kappa' s`, `(dqdd/dqd)^T w_qdd = -(dID/dqd)^T s`,
-    `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; a link load adds its `(dload/d(q, qd))^T s` to `(dID/d(q, qd))^T s`
-    (link-side friction `f' s` on `qd`, `f'` its slope in the link rate), a joint torque its
-    `(dtorque/d(qd, theta, thetad))^T s` to the columns (joint damping `d`: `-d s` on `qd`,
-    `d thetad (d(1/u)/dtheta) s` on `theta`, `d s / u(phi)` on `thetad`; `jaxrobot.effects`, `torque_vjp`);
-    `(dID/d(q, qd))^T s` is one reverse
+    `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; the effects add their `torque_vjp` (link-side friction `f' s` to
+    `(dID/dqd)^T s`; joint damping `-d s` on `qd`, `d thetad (d(1/u)/dtheta) s` on `theta`, `d s / u(phi)` on
+    `thetad`); `(dID/d(q, qd))^T s` is one reverse
     pass through Newton-Euler alone (not through the mass matrix, its solve and `Xi^-1`), whose
     forward pass is made once (`inverse_dynamics_vjp`, or `id_vjp` if already made) for every `w`."""
     r = problem.robot
@@ -472,7 +462,7 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     half = 0.5 * problem.ts / sz[:nx]
     id_vjp = inverse_dynamics_vjp(problem, h) if id_vjp is None else id_vjp
     loads = _with_link_loads(r, x.q, x.qd)
-    joints = _joint_torque_vjps(r, x, h)
+    joints = [term.torque_vjp(r, x.thetad, h.ratio, h.slope_rate) for term in jr.effects.joint_torques(r)]
 
     def vjp(w):
         wf = State.of(half * w)  # cotangent of f = [qd, qdd, thetad, u]
@@ -502,10 +492,9 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
 
     With `ID(q, qd, qdd) = D qdd + C qd + g = kappa(phi - q)` at the model's `qdd`:
     `dqdd/dq = -D^{-1} (dID/dq + kappa')`, `dqdd/dqd = -D^{-1} dID/dqd`,
-    `dqdd/dtheta = D^{-1} kappa' / u(phi)`; the effects' terms add their slopes (`torque_vjp` at `s = 1`): joint
-    damping `-D^{-1} d` to `dqdd/dqd`, `D^{-1} d thetad d(1/u)/dtheta` to `dqdd/dtheta` and
-    `dqdd/dthetad = D^{-1} d / u(phi)`; link-side friction `-D^{-1} diag(f')` to `dqdd/dqd` (`f'` its slope in the
-    link rate). The rows of
+    `dqdd/dtheta = D^{-1} kappa' / u(phi)`; the effects add their slopes (`torque_vjp` at `s = 1`): damping
+    `-D^{-1} d` to `dqdd/dqd`, `D^{-1} d thetad d(1/u)/dtheta` to `dqdd/dtheta`, `dqdd/dthetad = D^{-1} d / u(phi)`;
+    link-side friction `-D^{-1} diag(f')` to `dqdd/dqd` (`f'` its slope in the link rate). The rows of
     `dID/d(q, qd)` come from n reverse passes
     through Newton-Euler (n passes where forward mode takes 2n tangents; `id_vjp`: its linearisation at `h`,
     `inverse_dynamics_vjp`, if already made), the rest in closed form.
@@ -522,7 +511,7 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
     diag = jax.vmap(jnp.diag)
     id_q, id_qd = _with_link_loads(r, q, x.qd)(id_q, id_qd, jnp.ones_like(q), diag)
     on_qd, on_theta, on_thetad = -id_qd, stiff / h.ratio, []
-    for joint_vjp in _joint_torque_vjps(r, x, h):
+    for joint_vjp in [t.torque_vjp(r, x.thetad, h.ratio, h.slope_rate) for t in jr.effects.joint_torques(r)]:
         c_qd, c_theta, c_thetad = joint_vjp(jnp.ones_like(q))
         on_qd, on_theta = on_qd + diag(c_qd), on_theta + c_theta
         on_thetad = [on_thetad[0] + c_thetad] if on_thetad else [c_thetad]
