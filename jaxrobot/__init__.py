@@ -8,17 +8,16 @@ from ._compilation_cache import enable as _enable_compilation_cache  # noqa: E40
 
 _enable_compilation_cache()
 
+from . import effects as effects  # noqa: E402
 from . import io as io  # noqa: E402
 from . import measurement as measurement  # noqa: E402
 from ._checks import check_public as _check_public  # noqa: E402
 from ._deprecation import deprecated_aliases as _deprecated_aliases  # noqa: E402
-from ._dynamics import COULOMB_VELOCITY as COULOMB_VELOCITY  # noqa: E402
 from ._dynamics import coriolis_matrix as coriolis_matrix  # noqa: E402
 from ._dynamics import coriolis_vector as coriolis_vector  # noqa: E402
 from ._dynamics import gravity_torque as gravity_torque  # noqa: E402
 from ._dynamics import inverse_dynamics as inverse_dynamics  # noqa: E402
 from ._dynamics import link_acceleration as link_acceleration  # noqa: E402
-from ._dynamics import link_friction as link_friction  # noqa: E402
 from ._dynamics import mass_matrix as mass_matrix  # noqa: E402
 from ._dynamics import motor_torque as motor_torque  # noqa: E402
 from ._dynamics import planning_dynamics as planning_dynamics  # noqa: E402
@@ -62,11 +61,13 @@ from ._rotations import rotation_to_quaternion as rotation_to_quaternion  # noqa
 from ._rotations import rotvec_to_rotation as rotvec_to_rotation  # noqa: E402
 from ._rotations import rpy as rpy  # noqa: E402
 from ._rotations import vee as vee  # noqa: E402
-from ._simulate import lag_command as lag_command  # noqa: E402
 from ._simulate import simulate as simulate  # noqa: E402
 from ._status import RESULTS as RESULTS  # noqa: E402
 from ._status import status_message as status_message  # noqa: E402
 from ._status import status_name as status_name  # noqa: E402
+from .effects._lag import lag_command as lag_command  # noqa: E402
+from .effects._link_friction import COULOMB_VELOCITY as COULOMB_VELOCITY  # noqa: E402
+from .effects._link_friction import link_friction as link_friction  # noqa: E402
 from .io._description import RobotFileError as RobotFileError  # noqa: E402
 from .io._description import description_of as description_of  # noqa: E402
 from .io._description import filter_cutoffs as filter_cutoffs  # noqa: E402

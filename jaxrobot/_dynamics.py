@@ -1,8 +1,7 @@
 """Rigid-body and elastic-joint dynamics, eq. 2.15-2.23 and 4.1 (docs/model.md, section 4).
 
-Link side: `D(q) qdd + C(q, qd) qd + g(q) = kappa(phi - q)` (eq. 2.23a, no friction), plus `d (phid - qd)`
-on the right for a robot with joint damping (`Robot.damping`) and `-link_friction(qd)` for one with link-side
-friction (`Robot.viscous_friction`, `Robot.coulomb_friction`);
+Link side: `D(q) qdd + C(q, qd) qd + g(q) = kappa(phi - q)` (eq. 2.23a), plus the terms of the robot's effects
+(`jaxrobot.effects`: the link loads on the left, the joint torques on the right);
 motor side: `J_m thetadd = tau_motor - kappa(phi - q) / u(phi)`.
 All functions broadcast over leading batch axes of `robot` and the states.
 """
@@ -37,21 +36,13 @@ from ._kinematics import (
 from ._linalg import spd_solve
 from ._robot import Robot
 from ._rotations import rot_z
+from .effects._registry import joint_torques, link_loads
 
 # Batch-last internals: the rigid-body terms below keep the state batch as the LAST axis (the
 # entries of the `_kinematics` 3x3 algebra are (n, N) or (N,) arrays), so XLA's CPU loops run over
 # contiguous states and vectorise, and they process large batches in chunks of `_chunk()` states
 # (lax.map) so that the intermediates of a chunk stay in cache (on the CPU; an accelerator takes far
 # larger chunks, since every chunk is a sequential step of kernel launches there).
-COULOMB_VELOCITY = 0.01
-"""[rad/s] The default smoothing velocity `v_s` of Coulomb friction (`Robot.friction_velocity` None), the link rate
-at which `f_c tanh(qd / v_s)` reaches tanh(1) = 76 % of `f_c` (`link_friction`): small against the rates of a
-motion, so the friction is at full strength while a joint moves, and smooth, so the simulation's RK4 keeps its
-order through a reversal. At rest its slope `f_c / v_s` is a viscous friction with the time constant `J v_s / f_c`
-on a link of inertia `J`: `simulate` stays stable while its step is below 2.8 times it, and the OCP resolves it
-where it is longer than the sample time (docs/model.md (2.23c)); a joint with a large `f_c` on a light link takes a
-larger `v_s`."""
-
 _CHUNK = {"cpu": 256, "accelerator": 65536}
 """States per chunk of the batched rigid-body terms, by backend (`benchmarks/results_dynamics.md`,
 `benchmarks/results_gpu.md`)."""
@@ -254,46 +245,33 @@ def planning_dynamics(
     robot: Robot, x: Float[Array, "*b 4*n"], u: Float[Array, "*b n"], direction: Float[Array, "*b n"] | None = None
 ) -> Float[Array, "*b 4*n"]:
     """`xd = f(x, u)` of eq. 4.1, `x = [q, qd, theta, thetad]`, `u = thetadd`; cw gear set, or with `direction`
-    the flank weights `sigma` of the gears (`flank_output`, docs/model.md (B.0)). With joint damping the link
-    receives `d (phid - qd)`, with link-side friction `-link_friction(qd)` (`link_acceleration`); a velocity-loop
+    the flank weights `sigma` of the gears (`flank_output`, docs/model.md (B.0)). The link receives the robot's joint
+    torques (joint damping `d (phid - qd)`) and spends its link loads (`link_acceleration`); a velocity-loop
     lag (`robot.motor_lag`) does not enter: `theta` is the motor angle after it, which `lag_command` turns into
     the command."""
     q, qd, theta, thetad = jnp.split(x, 4, axis=-1)
     output = (lambda th: gear_output(robot, th)) if direction is None else (  # noqa: E731
         lambda th: flank_output(robot, th, direction))
-    phi, phid = jax.jvp(output, (theta,), (thetad,)) if robot.damping is not None else (output(theta), None)
+    phi, phid = jax.jvp(output, (theta,), (thetad,)) if joint_torques(robot) else (output(theta), None)
     qdd = link_acceleration(robot, q, qd, phi, phid)
     return jnp.concatenate([qd, qdd, thetad, jnp.broadcast_to(u, thetad.shape)], -1)
-
-
-def link_friction(robot: Robot, qd: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
-    """Link-side friction torques `f_v qd + f_c tanh(qd / v_s)` [N m] that oppose the link rates `qd`
-    (`Robot.viscous_friction`, `Robot.coulomb_friction`, `v_s` = `Robot.friction_velocity` or `COULOMB_VELOCITY`;
-    a None friction field adds nothing); zero at rest."""
-    out = jnp.zeros_like(qd)
-    if robot.viscous_friction is not None:
-        out = out + robot.viscous_friction * qd
-    if robot.coulomb_friction is not None:
-        v_s = COULOMB_VELOCITY if robot.friction_velocity is None else robot.friction_velocity
-        out = out + robot.coulomb_friction * jnp.tanh(qd / v_s)
-    return out
 
 
 def link_acceleration(
     robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"], phi: Float[Array, "*b n"],
     phid: Float[Array, "*b n"] | None = None,
 ) -> Float[Array, "*b n"]:
-    """`qdd = D(q)^{-1} (kappa(phi - q) - g(q) - C(q, qd) qd)` (eq. 2.23a); a robot with joint damping
-    (`robot.damping`) adds `d (phid - qd)` to the bracket and needs the gear output rate `phid`; link-side friction
-    subtracts `link_friction(robot, qd)`."""
+    """`qdd = D(q)^{-1} (kappa(phi - q) - g(q) - C(q, qd) qd)` (eq. 2.23a); the robot's link loads
+    (`jaxrobot.effects.LinkLoad`: link-side friction) are subtracted from the bracket and its joint torques
+    (`jaxrobot.effects.JointTorque`: joint damping `d (phid - qd)`) added, which need the gear output rate `phid`."""
     rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
-    if robot.has_friction:
-        rhs = rhs - link_friction(robot, qd)
-    if robot.damping is not None:
+    for load in link_loads(robot):
+        rhs = rhs - load.torque(robot, q, qd)
+    for term in joint_torques(robot):
         if phid is None:
             raise ValueError("link_acceleration: phid (the gear output rates, shape (..., n)) is required for a "
-                             "robot with joint damping (robot.damping); found None")
-        rhs = rhs + robot.damping * (phid - qd)
+                             f"robot with {term.name} (robot.{term.fields[0]}); found None")
+        rhs = rhs + term.torque(robot, qd, phid)
     return spd_solve(mass_matrix(robot, q), rhs[..., None])[..., 0]
 
 

@@ -34,7 +34,8 @@ class Robot(eqx.Module):
     Every field is an array (SI units, radians) whose joint axis has length `n`
     (`n_joints`), so a fleet of robots is the same pytree with a leading batch axis; the dynamic
     effects `damping`, `motor_lag`, `viscous_friction` and `coulomb_friction` may be None (absent: the model
-    without them, exactly), and so may `friction_velocity` (the default smoothing velocity). Kinematics follow
+    without them, exactly), and so may `friction_velocity` (the default smoothing velocity); the effects of
+    `jaxrobot.effects` without a field of their own keep their arrays in `effect_parameters`. Kinematics follow
     eq. 2.2-2.4: standard DH plus the Hayati angle `beta` (eq. 2.3), not Craig's modified DH; the joint
     transform is `Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`.
     """
@@ -109,6 +110,10 @@ class Robot(eqx.Module):
     friction_velocity: Float[Array, "*batch n"] | None = None
     """Smoothing velocity `v_s` [rad/s] of each joint's Coulomb friction, `f_c tanh(qd / v_s)` (the robot file's
     `[friction] smoothing_velocity`); None: `COULOMB_VELOCITY`."""
+
+    effect_parameters: dict[str, Float[Array, "*batch n"]] = eqx.field(default_factory=dict)
+    """Per-joint arrays of the effects that have no field of their own (`jaxrobot.effects`), by the field name of
+    their `Parameter`; empty: none of them."""
 
     @property
     def has_friction(self) -> bool:

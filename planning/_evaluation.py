@@ -129,7 +129,7 @@ def motor_commands(robot: jr.Robot, t: Float[Array, " N"], trajectories: dict[st
                    ) -> dict[str, MotorTrajectory]:
     """The commands that make the motors of `robot`, after its velocity-loop lags (`jr.lag_command`), follow the
     motor `trajectories` (leading axes allowed); the trajectories themselves for a robot without lags."""
-    if robot.motor_lag is None:
+    if jr.effects.motor_response(robot) is None:
         return trajectories
     return {k: _lag_commands(robot, jnp.asarray(t, float), v) for k, v in trajectories.items()}
 
@@ -138,7 +138,8 @@ def motor_commands(robot: jr.Robot, t: Float[Array, " N"], trajectories: dict[st
 def _lag_commands(robot: jr.Robot, t, traj: MotorTrajectory) -> MotorTrajectory:
     lead = traj.theta.shape[:-2]
     flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[-2:]), traj)
-    out = jax.vmap(lambda *a: MotorTrajectory(*jr.lag_command(robot, t, *a)))(flat.theta, flat.thetad, flat.thetadd)
+    response = jr.effects.motor_response(robot)
+    out = jax.vmap(lambda *a: MotorTrajectory(*response.command(robot, t, *a)))(flat.theta, flat.thetad, flat.thetadd)
     return jax.tree.map(lambda a: a.reshape(lead + a.shape[-2:]), out)
 
 

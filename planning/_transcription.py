@@ -269,9 +269,9 @@ def bounds(problem: OCPProblem) -> tuple[Float[Array, "N 5*n"], Float[Array, "N 
 def objective(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, ""]:
     """The cost of eq. 4.3a (or its variant `problem.cost`), unscaled [rad^2]."""
     track = jnp.sum((State.of(x).q - problem.q_d) ** 2)
-    lag = problem.robot.motor_lag
-    if problem.cost == "thesis" and lag is not None:  # the command's acceleration u + lag ud (docs/model.md (B.7))
-        return track + problem.nu * (jnp.sum(u**2) + jnp.sum((lag * (u[1:] - u[:-1]) / problem.ts) ** 2))
+    response = jr.effects.motor_response(problem.robot)
+    if problem.cost == "thesis" and response is not None:  # the command's acceleration (docs/model.md (B.7))
+        return track + problem.nu * (jnp.sum(u**2) + response.command_penalty(problem.robot, u, problem.ts))
     if problem.cost == "jerk":
         return track + problem.nu * jnp.sum((u[1:] - u[:-1]) ** 2)
     if problem.cost == "flat":
@@ -357,29 +357,36 @@ def scaled_cost(problem: OCPProblem) -> ScaledQuadratic:
     else:
         node_w = jnp.concatenate([jnp.ones(j), zero3, w_u])
         edge_w = jnp.zeros(5 * j)
-        if problem.cost == "thesis" and problem.robot.motor_lag is not None:
-            edge_w = jnp.concatenate([zero, zero3, w_u * (problem.robot.motor_lag / problem.ts) ** 2])
+        response = jr.effects.motor_response(problem.robot)
+        if problem.cost == "thesis" and response is not None:
+            edge_w = jnp.concatenate([zero, zero3, w_u * response.command_edge_weight(problem.robot, problem.ts)])
         if problem.cost == "flat":
             target = target.at[:, 4 * j:].set(problem.u_ref / sz[4 * j:])
     return ScaledQuadratic(node_weight=node_w, node_target=target, edge_weight=edge_w)
 
 
 def _link_acceleration(robot: jr.Robot, q, qd, phi, d, phid=None) -> Float[Array, "N n"]:
-    """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`), plus `d (phid - qd)` in
-    the bracket for a robot with joint damping and `-jr.link_friction(qd)` for one with link-side friction."""
+    """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`), plus the robot's joint
+    torques (joint damping `d (phid - qd)`) and minus its link loads (link-side friction) in the bracket."""
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
-    if robot.damping is not None:
-        rhs = rhs + robot.damping * (phid - qd)
-    if robot.has_friction:
-        rhs = rhs - jr.link_friction(robot, qd)
+    for term in jr.effects.joint_torques(robot):
+        rhs = rhs + term.torque(robot, qd, phid)
+    for load in jr.effects.link_loads(robot):
+        rhs = rhs - load.torque(robot, q, qd)
     return spd_solve(d, rhs[..., None])[..., 0]
 
 
-def _friction_slope(robot: jr.Robot, qd: Float[Array, "N n"]) -> Float[Array, "N n"]:
-    """`d link_friction / d qd` (diagonal: each joint's friction depends on its own rate); 0 without friction."""
-    if not robot.has_friction:
-        return jnp.zeros_like(qd)
-    return jax.jvp(lambda v: jr.link_friction(robot, v), (qd,), (jnp.ones_like(qd),))[1]
+def _with_link_loads(robot: jr.Robot, q, qd) -> Callable:
+    """`(id_q, id_qd, s, cast)` plus `cast` of the link loads' `(dload/d(q, qd))^T s` (`LinkLoad.torque_vjp`)."""
+    vjps = [load.torque_vjp(robot, q, qd) for load in jr.effects.link_loads(robot)]
+
+    def add(id_q, id_qd, s, cast=lambda a: a):
+        for vjp in vjps:
+            cq, cqd = vjp(s)
+            id_q, id_qd = id_q if cq is None else id_q + cast(cq), id_qd + cast(cqd)
+        return id_q, id_qd
+
+    return add
 
 
 def gear(problem: OCPProblem, theta: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
@@ -406,8 +413,8 @@ class HalfStep(eqx.Module):
     mass: Float[Array, "*b n n"]
     qdd: Float[Array, "*b n"]
     slope_rate: Float[Array, "*b n"] | None = None
-    """With joint damping: `d(1/ratio)/dtheta`, the change of the gear output rate `phid = thetad / ratio` with
-    the motor angle per unit motor rate; None without."""
+    """With a joint torque (`jaxrobot.effects.JointTorque`, joint damping): `d(1/ratio)/dtheta`, the change of the
+    gear output rate `phid = thetad / ratio` with the motor angle per unit motor rate; None without."""
 
 
 def half_step(problem: OCPProblem, y: Float[Array, "*b 5*n"]) -> HalfStep:
@@ -421,7 +428,7 @@ def half_step(problem: OCPProblem, y: Float[Array, "*b 5*n"]) -> HalfStep:
     phi, ratio = gear(problem, x.theta)
     d = jr.mass_matrix(r, x.q)
     slope_rate = None
-    if r.damping is not None:
+    if jr.effects.joint_torques(r):
         slope_rate = jax.jvp(lambda th: 1.0 / gear(problem, th)[1], (x.theta,), (jnp.ones_like(x.theta),))[1]
     qdd = _link_acceleration(r, x.q, x.qd, phi, d, x.thetad / ratio)
     f = State(x.qd, qdd, x.thetad, u).pack()
@@ -443,9 +450,9 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     """The map `w -> (d g_k / d y_k)^T w_k` at `h = half_step(problem, y)`, from the structure of
     eq. 4.1 (as `half_step_jacobian`): with `s = D^{-1} w_qdd`,
     `(dqdd/dq)^T w_qdd = -(dID/dq)^T s - kappa' s`, `(dqdd/dqd)^T w_qdd = -(dID/dqd)^T s`,
-    `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; with joint damping `d` also `-d s` on `qd`,
-    `d thetad (d(1/u)/dtheta) s` on `theta` and `d s / u(phi)` on `thetad`; with link-side friction `-f' s` on `qd`
-    (`f'` its slope in the link rate); `(dID/d(q, qd))^T s` is one reverse
+    `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; the effects add their `torque_vjp` (link-side friction `f' s` to
+    `(dID/dqd)^T s`; joint damping `-d s` on `qd`, `d thetad (d(1/u)/dtheta) s` on `theta`, `d s / u(phi)` on
+    `thetad`); `(dID/d(q, qd))^T s` is one reverse
     pass through Newton-Euler alone (not through the mass matrix, its solve and `Xi^-1`), whose
     forward pass is made once (`inverse_dynamics_vjp`, or `id_vjp` if already made) for every `w`."""
     r = problem.robot
@@ -454,22 +461,19 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     x = State.of((h.y * sz)[:, :nx])
     half = 0.5 * problem.ts / sz[:nx]
     id_vjp = inverse_dynamics_vjp(problem, h) if id_vjp is None else id_vjp
-    friction = _friction_slope(r, x.qd)
+    loads = _with_link_loads(r, x.q, x.qd)
+    joints = [term.torque_vjp(r, x.thetad, h.ratio, h.slope_rate) for term in jr.effects.joint_torques(r)]
 
     def vjp(w):
         wf = State.of(half * w)  # cotangent of f = [qd, qdd, thetad, u]
         s = spd_solve(h.mass, wf.qd[..., None])[..., 0]
-        id_q, id_qd = id_vjp(s)
+        id_q, id_qd = loads(*id_vjp(s), s)
         stiff = jr.elastic_stiffness(r, h.phi - x.q) * s
-        id_qd = id_qd + friction * s
-        if r.damping is None:
-            out = jnp.concatenate([-id_q - stiff, wf.q - id_qd, stiff / h.ratio, wf.theta, wf.thetad], -1)
-        else:
-            damp = r.damping * s
-            out = jnp.concatenate([-id_q - stiff, wf.q - id_qd - damp,
-                                   stiff / h.ratio + damp * x.thetad * h.slope_rate, wf.theta + damp / h.ratio,
-                                   wf.thetad], -1)
-        return out * sz
+        on_qd, on_theta, on_thetad = wf.q - id_qd, stiff / h.ratio, wf.theta
+        for joint_vjp in joints:
+            c_qd, c_theta, c_thetad = joint_vjp(s)
+            on_qd, on_theta, on_thetad = on_qd + c_qd, on_theta + c_theta, on_thetad + c_thetad
+        return jnp.concatenate([-id_q - stiff, on_qd, on_theta, on_thetad, wf.thetad], -1) * sz
 
     return vjp
 
@@ -483,14 +487,14 @@ def half_step_shift(n: int) -> np.ndarray:
 
 def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = None) -> Float[Array, "N n m"]:
     """The only state-dependent block of the Jacobian of `g` at `h = half_step(problem, y)`,
-    `p_k = d g_k[qd rows] / d y_k[q, qd, theta]` (scaled, m = 3n), with joint damping `d` also
+    `p_k = d g_k[qd rows] / d y_k[q, qd, theta]` (scaled, m = 3n), with a joint torque (joint damping) also
     `/ d y_k[thetad]` (m = 4n); `d g_k / d y_k` is `half_step_shift(n)` with `p_k` in rows n:2n, columns 0:m.
 
     With `ID(q, qd, qdd) = D qdd + C qd + g = kappa(phi - q)` at the model's `qdd`:
     `dqdd/dq = -D^{-1} (dID/dq + kappa')`, `dqdd/dqd = -D^{-1} dID/dqd`,
-    `dqdd/dtheta = D^{-1} kappa' / u(phi)`; damping adds `-D^{-1} d` to `dqdd/dqd`,
-    `D^{-1} d thetad d(1/u)/dtheta` to `dqdd/dtheta` and `dqdd/dthetad = D^{-1} d / u(phi)`; link-side friction
-    adds `-D^{-1} diag(f')` to `dqdd/dqd` (`f'` its slope in the link rate). The rows of
+    `dqdd/dtheta = D^{-1} kappa' / u(phi)`; the effects add their slopes (`torque_vjp` at `s = 1`): damping
+    `-D^{-1} d` to `dqdd/dqd`, `D^{-1} d thetad d(1/u)/dtheta` to `dqdd/dtheta`, `dqdd/dthetad = D^{-1} d / u(phi)`;
+    link-side friction `-D^{-1} diag(f')` to `dqdd/dqd` (`f'` its slope in the link rate). The rows of
     `dID/d(q, qd)` come from n reverse passes
     through Newton-Euler (n passes where forward mode takes 2n tangents; `id_vjp`: its linearisation at `h`,
     `inverse_dynamics_vjp`, if already made), the rest in closed form.
@@ -505,14 +509,13 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
     rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(j)[:, None, :], (j, *q.shape)))  # row i of dID
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
     diag = jax.vmap(jnp.diag)
-    if r.has_friction:
-        id_qd = id_qd + diag(_friction_slope(r, x.qd))
-    if r.damping is None:
-        rhs = jnp.concatenate([-(id_q + diag(stiff)), -id_qd, diag(stiff / h.ratio)], -1)
-    else:
-        rhs = jnp.concatenate([-(id_q + diag(stiff)), -id_qd - jnp.diag(r.damping),
-                               diag(stiff / h.ratio + r.damping * x.thetad * h.slope_rate),
-                               diag(jnp.broadcast_to(r.damping / h.ratio, q.shape))], -1)
+    id_q, id_qd = _with_link_loads(r, q, x.qd)(id_q, id_qd, jnp.ones_like(q), diag)
+    on_qd, on_theta, on_thetad = -id_qd, stiff / h.ratio, []
+    for joint_vjp in [t.torque_vjp(r, x.thetad, h.ratio, h.slope_rate) for t in jr.effects.joint_torques(r)]:
+        c_qd, c_theta, c_thetad = joint_vjp(jnp.ones_like(q))
+        on_qd, on_theta = on_qd + diag(c_qd), on_theta + c_theta
+        on_thetad = [on_thetad[0] + c_thetad] if on_thetad else [c_thetad]
+    rhs = jnp.concatenate([-(id_q + diag(stiff)), on_qd, diag(on_theta), *map(diag, on_thetad)], -1)
     dqdd = spd_solve(h.mass, rhs)  # (N, n, m): d qdd / d (q, qd, theta[, thetad])
     return (0.5 * problem.ts / sz[j:2 * j, None]) * dqdd * sz[:rhs.shape[-1]]
 

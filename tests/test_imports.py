@@ -33,7 +33,8 @@ def _modules(root: Path = ROOT) -> dict[str, Path]:
 
 
 MODULES = _modules()
-PUBLIC = ("jaxrobot", "jaxrobot.measurement", "jaxrobot.io", "jaxrobot.bench", "jaxrobot.cli", "jaxrobot.internal",
+PUBLIC = ("jaxrobot", "jaxrobot.measurement", "jaxrobot.io", "jaxrobot.effects", "jaxrobot.bench", "jaxrobot.cli",
+          "jaxrobot.internal",
           "identification", "identification.gear", "identification.calibration", "identification.diagnosis",
           "identification.cli", "planning", "planning.internal")
 """The public packages and modules, each with its section in the API reference (`docs/api/`, `tests/test_docs.py`)."""

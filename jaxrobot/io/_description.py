@@ -11,9 +11,9 @@ import jax.numpy as jnp
 import numpy as np
 import tomli_w
 
-from .._gear import shortest_reversal_travel
 from .._robot import Ripple, Robot
-from ._schema import RobotFileError, fail_field, inertia_matrix, joint_count, stiffness_terms, validate
+from ..effects._registry import EFFECTS
+from ._schema import RobotFileError, fail_field, inertia_matrix, joint_count, merge_entries, stiffness_terms, validate
 from ._urdf import read_urdf
 
 
@@ -103,29 +103,19 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         motor_inertia=jnp.asarray(data.get("motors", {}).get("inertia", np.zeros(n)), float),
         gravity=jnp.asarray(data["gravity"], float),
         name=data["name"],
-        damping=_optional(data.get("stiffness", {}), "damping"),
-        motor_lag=_optional(data.get("motors", {}), "velocity_lag_s"),
-        viscous_friction=_optional(data.get("friction", {}), "viscous"),
-        coulomb_friction=_optional(data.get("friction", {}), "coulomb"),
-        friction_velocity=_optional(data.get("friction", {}), "smoothing_velocity"),
-        reversal_travel=_optional(gear, "reversal_travel_rad"),
+        **_effect_fields(data),
     )
-    if robot.reversal_travel is not None:
-        shortest = np.asarray(shortest_reversal_travel(robot))
-        short = np.asarray(robot.reversal_travel) <= shortest
-        if short.any():
-            j = int(np.argmax(short))
-            fail_field(f"gear.reversal_travel_rad[{j}] (joint {j + 1})",
-                       f"a motor travel > {shortest[j]:.3g} rad, through which the gear output keeps following the "
-                       "motor across the gap between its flanks (1.875 (1 + ripple) u0 (lost motion + both sets' "
-                       "transmission-error bounds), docs/model.md (B.0))",
-                       float(robot.reversal_travel[j]))
+    for effect in EFFECTS:
+        effect.check_robot(robot, fail_field)
     return robot
 
 
-def _optional(section: dict, key: str) -> jnp.ndarray | None:
-    """A dynamic effect of the robot: the array `section[key]`, None where the file has no such key."""
-    return jnp.asarray(section[key], float) if key in section else None
+def _effect_fields(data: dict) -> dict[str, Any]:
+    """The `Robot` fields of the model's effects from a validated description (`effect_parameters` merged)."""
+    fields: dict[str, Any] = {"effect_parameters": {}}
+    for effect in EFFECTS:
+        merge_entries(fields, effect.read(data))
+    return fields
 
 
 def _shortest(x: float, reads_back) -> float:
@@ -156,11 +146,13 @@ def description_of(robot: Robot) -> dict:
         raise ValueError(f"description_of: expected one robot (a of shape (n,)), found a batch "
                          f"of shape {np.shape(robot.a)}; index the fleet first")
     f = lambda x: np.asarray(x, float).tolist()  # noqa: E731
+    effects: dict[str, dict] = {}
+    for effect in EFFECTS:
+        merge_entries(effects, effect.write(robot))
     gear: dict[str, Any] = {"u0": f(robot.u0)}
     if np.any(np.asarray(robot.backlash) != 0):
         gear["backlash_rad"] = f(robot.backlash)
-    if robot.reversal_travel is not None:
-        gear["reversal_travel_rad"] = f(robot.reversal_travel)
+    gear.update(effects.pop("gear", {}))
     for j in range(robot.n_joints):
         sets = {}
         for direction, rip in (("cw", robot.cw), ("ccw", robot.ccw)):
@@ -192,23 +184,17 @@ def description_of(robot: Robot) -> dict:
     motors = {}
     if np.any(np.asarray(robot.motor_inertia) != 0):  # else no rotor inertia
         motors["inertia"] = f(robot.motor_inertia)
-    if robot.motor_lag is not None:
-        motors["velocity_lag_s"] = f(robot.motor_lag)
+    motors.update(effects.pop("motors", {}))
     if motors:  # else no [motors] section
         data["motors"] = motors
-    friction = {key: f(value) for key, value in (("viscous", robot.viscous_friction),
-                                                 ("coulomb", robot.coulomb_friction),
-                                                 ("smoothing_velocity", robot.friction_velocity)) if value is not None}
-    if friction:  # else no [friction] section
-        data["friction"] = friction
+    stiffness = effects.pop("stiffness", {})
+    data.update(effects)  # the effects' own sections
     c, e = np.asarray(robot.c, float), np.asarray(robot.e, float)
-    if np.any(c != 0) or robot.damping is not None:  # else rigid: no [stiffness] section
+    if np.any(c != 0) or stiffness:  # else rigid: no [stiffness] section
         k1, k3 = np.asarray(robot.k1, float), np.asarray(robot.k3, float)
         k1 = [_shortest(x, lambda y, ci=ci: 1.0 / y == ci) for x, ci in zip(k1, c)]
         k3 = [_shortest(x, lambda y, ci=ci, ei=ei: y * ci == ei) for x, ci, ei in zip(k3, c, e)]
-        data["stiffness"] = {"k1": k1, "k3": k3}
-        if robot.damping is not None:
-            data["stiffness"]["damping"] = f(robot.damping)
+        data["stiffness"] = {"k1": k1, "k3": k3, **stiffness}
     for key in ("tool", "base"):
         t = np.asarray(getattr(robot, key), float)
         if not np.array_equal(t, np.eye(4)):

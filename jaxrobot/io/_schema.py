@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from ..effects._registry import EFFECTS
+
 
 class RobotFileError(ValueError):
     """A robot description that does not validate; the message names the field."""
@@ -21,18 +23,33 @@ angles [deg] the identification runs covered, outside which the set is an extrap
 
 
 def _schema(n: int) -> dict[str, Any]:
+    """The format of an `n`-joint robot file: the sections below with the entries of the model's effects
+    (`jaxrobot.effects.Effect.schema`) merged in."""
+    schema = _core_schema(n)
+    for effect in EFFECTS:
+        merge_entries(schema, effect.schema(n))
+    return schema
+
+
+def merge_entries(tables: dict[str, Any], entries: dict[str, Any]) -> dict[str, Any]:
+    """`tables` with the nested `entries` merged in, table by table (in place; returned)."""
+    for key, value in entries.items():
+        tables[key] = merge_entries(dict(tables.get(key, {})), value) if isinstance(value, dict) else value
+    return tables
+
+
+def _core_schema(n: int) -> dict[str, Any]:
     vn = (n,)
     return {
         "name": "str",
         "gravity": (3,),
         "kinematics": {"a": vn, "d": vn, "alpha": vn, "beta": vn, "offset": vn},
         "limits": {"position_deg": (n, 2), "velocity_deg_s": vn, "?acceleration_deg_s2": vn},
-        "?gear": {"u0": vn, "?backlash_rad": vn, "?reversal_travel_rad": vn,
+        "?gear": {"u0": vn, "?backlash_rad": vn,
                   **{f"?joint{i}": {"cw": _RIPPLE, "ccw": _RIPPLE} for i in range(1, n + 1)}},
-        "?stiffness": {"k1": vn, "k3": vn, "?damping": vn},
+        "?stiffness": {"k1": vn, "k3": vn},
         "links": {"mass": vn, "com": (n, 3), "inertia": (n, 6)},
-        "?motors": {"?inertia": vn, "?velocity_lag_s": vn},
-        "?friction": {"?viscous": vn, "?coulomb": vn, "?smoothing_velocity": vn},
+        "?motors": {"?inertia": vn},
         "?tool": {"transform": (4, 4)},
         "?base": {"transform": (4, 4)},
         "?as_built": {
@@ -159,33 +176,14 @@ def _check_physics(data: dict, n: int) -> None:
     backlash = np.asarray(gear.get("backlash_rad", np.zeros(n)), float)
     if np.any(backlash < 0):
         fail_field("gear.backlash_rad", "lost motion >= 0 rad per joint", backlash.tolist())
-    if "reversal_travel_rad" in gear:
-        _positive(gear["reversal_travel_rad"], "gear.reversal_travel_rad", "rad of motor travel")
     _positive(data["links"]["mass"], "links.mass", "kg")
     for i, row in enumerate(np.asarray(data["links"]["inertia"], float)):
         _check_inertia(row, f"links.inertia[{i}] (link {i + 1})")
     motors = data.get("motors", {})
     if "inertia" in motors and np.any(np.asarray(motors["inertia"], float) < 0):
         fail_field("motors.inertia", "rotor inertias >= 0 kg m^2", motors["inertia"])
-    if "velocity_lag_s" in motors and np.any(np.asarray(motors["velocity_lag_s"], float) < 0):
-        fail_field("motors.velocity_lag_s", "velocity-loop time constants >= 0 s (0: the motor follows its command "
-              "exactly)", motors["velocity_lag_s"])
-    for key, what in (("viscous", "viscous friction >= 0 N m s/rad"), ("coulomb", "Coulomb friction >= 0 N m")):
-        values = np.asarray(data.get("friction", {}).get(key, np.zeros(n)), float)
-        for i in range(n):
-            if values[i] < 0:
-                fail_field(f"friction.{key}[{i}] (joint {i + 1})", f"link-side {what}", float(values[i]))
-    smoothing = np.asarray(data.get("friction", {}).get("smoothing_velocity", np.ones(n)), float)
-    for i in range(n):
-        if smoothing[i] <= 0:
-            fail_field(f"friction.smoothing_velocity[{i}] (joint {i + 1})", "a smoothing velocity of the Coulomb "
-                       "friction > 0 rad/s", float(smoothing[i]))
-    damping = np.asarray(data.get("stiffness", {}).get("damping", np.zeros(n)), float)
-    for i in range(n):
-        if damping[i] < 0 or (damping[i] > 0 and np.isinf(k1[i])):
-            fail_field(f"stiffness.damping[{i}] (joint {i + 1})",
-                  "viscous damping >= 0 N m s/rad of an elastic joint (0 where k1 = inf, a rigid joint)",
-                  float(damping[i]))
+    for effect in EFFECTS:
+        effect.check(data, n, fail_field)
     dev = data.get("as_built", {})
     if "u0" in dev and "u0_wrist" in dev:
         fail_field("as_built", "either u0 (all joints) or the older u0_wrist (joints 4-6), not both",

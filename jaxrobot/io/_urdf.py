@@ -1,6 +1,5 @@
-"""URDF export and import of the rigid part of a `Robot` (links, inertias, joint placements, limits) and its
-link-side friction (`<dynamics damping friction>`: URDF's joint damping is our viscous friction `f_v`, its
-friction our Coulomb friction `f_c`, both acting on the link).
+"""URDF export and import of the rigid part of a `Robot` (links, inertias, joint placements, limits) and the
+`<dynamics>` of its effects (`jaxrobot.effects`: link-side friction, `<dynamics damping friction>`).
 
 Export. The joint transform (eq. 2.2-2.3, standard DH plus the Hayati angle)
 `Rz(q_i + offset_i) Tx(a_i) Tz(d_i) Rx(alpha_i) Ry(beta_i)` is split into the joint rotation
@@ -53,7 +52,8 @@ import numpy as np
 from .._kinematics import dh_transform
 from .._robot import Robot
 from .._rotations import pose_matrix, rot_x, rot_z
-from ._schema import RobotFileError, validate
+from ..effects._registry import EFFECTS
+from ._schema import RobotFileError, merge_entries, validate
 
 EFFORT_LIMIT = 1.0e4
 """URDF `<limit effort>` [N m] of every joint. The model has no torque limits, so this is a
@@ -144,10 +144,9 @@ def to_urdf(robot: Robot) -> str:
         ET.SubElement(joint, "axis", xyz="0 0 1")
         ET.SubElement(joint, "limit", lower=_num(num["q_min"][i]), upper=_num(num["q_max"][i]),
                       velocity=_num(num["qd_max"][i]), effort=_num(EFFORT_LIMIT))
-        if robot.viscous_friction is not None or robot.coulomb_friction is not None:
-            ET.SubElement(joint, "dynamics", **{theirs: _num(0.0 if value is None else np.asarray(value)[i])
-                                                for theirs, value in (("damping", robot.viscous_friction),
-                                                                      ("friction", robot.coulomb_friction))})
+        dynamics = {k: _num(v) for effect in EFFECTS for k, v in effect.to_urdf(robot, i).items()}
+        if dynamics:
+            ET.SubElement(joint, "dynamics", **dynamics)
         placement = _placement(num, i)
         body = ET.SubElement(root, "link", name=link)
         inertial = ET.SubElement(body, "inertial")
@@ -546,10 +545,8 @@ def description_from_urdf(text: str, base: str | None = None, tip: str | None = 
                 raise RobotFileError(f"transmission '{ratios[j.name][0]}' of joint '{j.name}': mechanicalReduction "
                                      f"must be a positive gear ratio, found {ratios[j.name][1]}")
         data["gear"] = {"u0": [ratios.get(j.name, ("", 1.0))[1] for j in chain]}
-    friction = {ours: [float(j.dynamics.get(theirs, 0.0)) for j in chain] for ours, theirs in
-                (("viscous", "damping"), ("coulomb", "friction")) if any(theirs in j.dynamics for j in chain)}
-    if friction:  # URDF's joint damping and friction act on the link: our link-side friction
-        data["friction"] = friction
+    for effect in EFFECTS:
+        merge_entries(data, effect.from_urdf([j.dynamics for j in chain]))
     for key, t in (("base", frames[0]), ("tool", _inverse(frames[-1]) @ pose[tip])):
         if not np.array_equal(t, np.eye(4)):
             data[key] = {"transform": f(t)}

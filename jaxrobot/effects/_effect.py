@@ -1,0 +1,149 @@
+"""What a model effect declares (CONTRIBUTING.md, "Adding a model effect"): its robot-file fields, how they are read
+into a `Robot` and written back, its identification parameters, and its term in the model, by the kind of term."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, NoReturn
+
+from jaxtyping import Array, Float
+
+from .._robot import Robot
+
+Fail = Callable[[str, str, Any], NoReturn]
+"""`fail(field, expected, found)`: raises the robot-file error that names `field` (`jaxrobot.RobotFileError`)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Parameter:
+    """One identification parameter of an effect: one value per joint."""
+
+    name: str
+    """Its name in the identification's catalogue (`lag`, `damping`, ...)."""
+    field: str
+    """The `Robot` field (or `Robot.effect_parameters` key) that holds it."""
+    scale: float
+    """Typical size, the scale of its fit variable [unit]."""
+    unit: str
+    """Its SI unit."""
+    nonnegative: bool
+    """Whether it is physical only at or above 0."""
+
+
+class Effect:
+    """An optional effect of the model. A subclass sets `name`, `fields` (what a `Robot` holds of it) and `parameters`
+    and overrides the hooks of its files; its term in the model is that of its kind (`LinkLoad`, `JointTorque`,
+    `MotorResponse`). Hooks it does not override contribute nothing."""
+
+    name: str = ""
+    """What the effect is, in words (error messages, documentation)."""
+    fields: tuple[str, ...] = ()
+    """The `Robot` fields that hold it (None: absent); an effect without a field of its own keeps its arrays in
+    `Robot.effect_parameters` under its `parameters`' fields."""
+    parameters: tuple[Parameter, ...] = ()
+    """Its identification parameters."""
+
+    def active(self, robot: Robot) -> bool:
+        """Whether `robot` has the effect (one of its fields not None, or one of its parameters stored)."""
+        return (any(getattr(robot, f) is not None for f in self.fields)
+                or any(p.field in robot.effect_parameters for p in self.parameters))
+
+    def schema(self, n: int) -> dict[str, Any]:
+        """Its entries of the robot-file schema (`jaxrobot.io`'s format: `{"?section": {"?key": shape}}`, merged into
+        the sections of the format)."""
+        return {}
+
+    def check(self, data: dict, n: int, fail: Fail) -> None:
+        """Check its values in a parsed robot file (shapes are checked by the schema) through `fail`."""
+
+    def check_robot(self, robot: Robot, fail: Fail) -> None:
+        """Check what needs the whole robot read from a file, through `fail`."""
+
+    def read(self, data: dict) -> dict[str, Any]:
+        """`Robot` keyword arguments from a validated robot file (an absent key: None)."""
+        return {}
+
+    def write(self, robot: Robot) -> dict[str, dict[str, Any]]:
+        """Its robot-file entries, `{section: {key: list}}` (nothing where the robot has no such term)."""
+        return {}
+
+    def from_urdf(self, dynamics: list[dict[str, float]]) -> dict[str, dict[str, Any]]:
+        """Its robot-file entries from the `<dynamics>` attributes of a URDF chain's joints (one dict per joint)."""
+        return {}
+
+    def to_urdf(self, robot: Robot, joint: int) -> dict[str, float]:
+        """Its `<dynamics>` attributes of joint `joint` (0-based) in a URDF."""
+        return {}
+
+    def set(self, robot: Robot, **values: Float[Array, "*batch n"]) -> Robot:
+        """`robot` with the effect's parameters set to `values` (by `Parameter.name`)."""
+        by_name = {p.name: p for p in self.parameters}
+        unknown = sorted(set(values) - set(by_name))
+        if unknown:
+            raise ValueError(f"{self.name}: unknown parameters {unknown}; expected some of {sorted(by_name)}")
+        own = {by_name[k].field: v for k, v in values.items() if by_name[k].field in self.fields}
+        stored = {by_name[k].field: v for k, v in values.items() if by_name[k].field not in self.fields}
+        if stored:
+            own["effect_parameters"] = {**robot.effect_parameters, **stored}
+        return dataclasses.replace(robot, **own)
+
+
+class LinkLoad(Effect):
+    """A torque that the links spend besides the rigid-body terms: `D qdd + C qd + g + load(q, qd) = kappa(phi - q)`
+    (link-side friction). It adds to the inverse dynamics, so the flat inverse and the OCP take it with them."""
+
+    def torque(self, robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+        """The load [N m] at link angles `q` and rates `qd`."""
+        raise NotImplementedError
+
+    def torque_vjp(self, robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"]
+                   ) -> Callable[[Float[Array, "*b n"]], tuple[Float[Array, "*b n"] | None, Float[Array, "*b n"]]]:
+        """`s -> ((dload/dq)^T s, (dload/dqd)^T s)` (the first None where the load does not depend on `q`); each
+        joint's load depends on its own joint alone, so both are diagonal."""
+        raise NotImplementedError
+
+
+class JointTorque(Effect):
+    """A torque that a joint transmits besides its spring `kappa(phi - q)`, a function of the deflection's rate
+    `phid - qd` (joint damping): the link side reads `D qdd + C qd + g = kappa(phi - q) + torque`."""
+
+    def torque(self, robot: Robot, qd: Float[Array, "*b n"], phid: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+        """The torque [N m] at link rates `qd` and gear output rates `phid`."""
+        raise NotImplementedError
+
+    def torque_vjp(self, robot: Robot, thetad: Float[Array, "*b n"], ratio: Float[Array, "*b n"],
+                   ratio_slope: Float[Array, "*b n"]) -> Callable[[Float[Array, "*b n"]], tuple[Array, Array, Array]]:
+        """`s -> ((dtorque/dqd)^T s, (dtorque/dtheta)^T s, (dtorque/dthetad)^T s)` (diagonal) where the gear output
+        rate is `phid = thetad / ratio`, `ratio = dtheta/dphi` and `ratio_slope = d(1/ratio)/dtheta`."""
+        raise NotImplementedError
+
+    def flat_deflection(self, robot: Robot, torque: Callable, t: Float[Array, " N"]
+                        ) -> tuple[Float[Array, "N n"], Float[Array, "N n"], Float[Array, "N n"]]:
+        """The flat inverse's deflection `phi - q` and its two rates at the times `t` where the links spend the
+        torques `torque(t)` (n,)."""
+        raise NotImplementedError
+
+
+class MotorResponse(Effect):
+    """How a motor follows its command (the velocity-loop lag): the planning model's control is the motor angle
+    after it, which the effect turns into the command."""
+
+    def motion(self, robot: Robot, knots: Float[Array, "6 n"], start: Float[Array, " n"], s, h: Float[Array, ""]
+               ) -> tuple[Float[Array, "S n"], Float[Array, "S n"]]:
+        """Motor angles and rates at the fractions `s` (S,) of an interval of length `h` [s] whose command has the
+        quintic Hermite `knots`, from the motor angles `start`."""
+        raise NotImplementedError
+
+    def command(self, robot: Robot, t: Float[Array, " N"], theta: Float[Array, "N n"], thetad: Float[Array, "N n"],
+                thetadd: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"], Float[Array, "N n"]]:
+        """The command whose motors pass the samples of the motor trajectory `(theta, thetad, thetadd)`."""
+        raise NotImplementedError
+
+    def command_penalty(self, robot: Robot, u: Float[Array, "N n"], ts: Float[Array, ""]) -> Float[Array, ""]:
+        """What the OCP's thesis cost adds to `sum ||u_k||^2` for the command's acceleration (its `nu` aside)."""
+        raise NotImplementedError
+
+    def command_edge_weight(self, robot: Robot, ts: Float[Array, ""]) -> Float[Array, " n"]:
+        """The weight of `||u_{k+1} - u_k||^2` of `command_penalty`, relative to the weight of `||u_k||^2`."""
+        raise NotImplementedError
