@@ -1,5 +1,5 @@
-"""The stopping tests of the augmented-Lagrangian solver (`planning/_al_solver.py`): the stall test on
-recorded histories, and the roundoff floor of the stationarity against the roundoff of the defects
+"""The stopping tests of the augmented-Lagrangian solver (`planning/_al_outer.py`, `planning/_al_merit.py`): the
+stall test on recorded histories, and the roundoff floor of the stationarity against the roundoff of the defects
 measured on the solver's own defects."""
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 import planning as pl
-from planning import _al_solver as al
+from planning import _al_merit, _al_outer
 from planning import _transcription as tr
 
-CONFIG = pl.ALConfig()
+CONFIG = pl.AugmentedLagrangian()
 RHO_MAX = 1e7
 LAM = jnp.full((10, 24), 0.1)
 """Multipliers of the synthetic histories: `sum |lam| tol_violation` leaves 2.4e-14 rad^2 of the objective open."""
@@ -28,7 +28,7 @@ def _hist(objective, violation, penalty, stationarity, m=32):
 
 def _stalled(objective, violation, penalty, stationarity):
     hist = _hist(objective, violation, penalty, stationarity)
-    return bool(al._stalled(CONFIG, hist, jnp.array(len(objective) - 1), LAM, RHO_MAX))
+    return bool(_al_outer._stalled(CONFIG, hist, jnp.array(len(objective) - 1), LAM, RHO_MAX))
 
 
 def test_stall_with_constraints_met_and_stationarity_at_its_floor():
@@ -82,10 +82,10 @@ def test_roundoff_floor_is_the_defects_roundoff_through_their_jacobian():
     problem = tr.ocp_problem(robot, _move(), 1e-3, 1e-14)
     x0, u0 = tr.warm_start(problem)
     y0 = jnp.concatenate([x0, u0], -1) / tr.variable_scale(problem)
-    p = al._parts(problem, y0)
+    p = _al_merit._parts(problem, y0)
     y = jnp.zeros_like(y0)
-    floor = float(al.roundoff_floor(p, y, p.start, 1e6))
-    assert float(al.roundoff_floor(p, y, p.start, 1e7)) == pytest.approx(10 * floor, rel=1e-12)
+    floor = float(_al_merit.roundoff_floor(p, y, p.start, 1e6))
+    assert float(_al_merit.roundoff_floor(p, y, p.start, 1e7)) == pytest.approx(10 * floor, rel=1e-12)
 
     pk = np.abs(np.asarray(tr.half_step_jacobian(problem, p.start)))  # (N, n, 3n): qd rows, columns q, qd, theta
     j = robot.n_joints
@@ -109,6 +109,6 @@ def test_infeasible_move_ends_stalled():
     slow = eqx.tree_at(lambda r: r.qdd_max, robot, jnp.full(6, 0.3))
     sol = pl.solve_ocp(slow, q_d, 1e-3, 1e-14)
     assert jr.status_name(sol.status) == "stalled", jr.status_name(sol.status)
-    assert int(sol.iterations) < pl.ALConfig().max_outer_iterations
-    assert float(sol.max_constraint_violation) > 1e3 * pl.ALConfig().tol_violation
+    assert int(sol.iterations) < pl.AugmentedLagrangian().max_outer_iterations
+    assert float(sol.max_constraint_violation) > 1e3 * pl.AugmentedLagrangian().tol_violation
     assert "infeasible" in jr.status_message(sol.status)
