@@ -4,7 +4,7 @@ its own (jax.jit), lowering to StableHLO and XLA's compile timed apart, with the
     python benchmarks/bench_compile_pieces.py [--out results_compile_pieces.md]
 
 The problem: a smooth 51-node move of the Racer-7 (eq. 4.4 blend) padded to 64 nodes (`planning._padding`),
-nu = 1e-14, the default `AugmentedLagrangian` (the scan's block Cholesky on the CPU). Compile times do not depend on the
+nu = 1e-14, the default `ALConfig` (the scan's block Cholesky on the CPU). Compile times do not depend on the
 node count (the nodes are a `lax.scan`/vectorised axis); the pieces overlap (a pass holds the linearisation,
 the Gauss-Newton matrix and its factor), so they do not add up to the whole. Writes the table to
 benchmarks/results_compile_pieces.md (or `--out`).
@@ -37,15 +37,15 @@ def pieces():
     s = jnp.arange(n) / (n - 1)
     blend = s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3)
     q_d = jnp.array([0.1, 0.2, -1.4, 0.1, 1.4, 0.1]) + 3e-4 * blend[:, None] * jnp.array([1.0, -1, 1, 1, -1, 1])
-    solver = pl.AugmentedLagrangian()
-    config = jax.tree.map(jnp.asarray, solver)
-    m = solver.history_length()
+    solver = jax.tree.map(jnp.asarray, pl.AugmentedLagrangian())
+    config = solver.config
+    m = pl.ALConfig().history_length()
     problem = tr.pad_problem(tr.ocp_problem(robot, q_d, 1e-3, 1e-14), padded_nodes(n))
     y0 = jnp.concatenate(tr.warm_start(problem), -1) / tr.variable_scale(problem)
-    p, st = _al_outer._start(problem, y0, solver, m, (jnp.zeros((y0.shape[0] - 1, 24)), jnp.zeros_like(y0)))
+    p, st = _al_outer._start(problem, y0, pl.ALConfig(), m, (jnp.zeros((y0.shape[0] - 1, 24)), jnp.zeros_like(y0)))
     blocks = _al_merit._normal_blocks(p, st.y, st.forward, st.gam, st.rho, st.mu)
     return [
-        ("the solve (`_ocp._solve`)", lambda pr, c: _ocp._solve.__wrapped__(pr, None, c, m, False), (problem, config)),
+        ("the solve (`_ocp._solve`)", lambda pr, c: _ocp._solve.__wrapped__(pr, None, c, m, False), (problem, solver)),
         ("one pass of the loop (`_pass`)", _al_outer._pass, (p, config, st)),
         ("linearisation, gradient, multiplier update (`_prepare`)", lambda p, c, s: _al_outer._prepare(p, c, s)[:2],
          (p, config, st)),

@@ -1,4 +1,4 @@
-"""Benchmark: outer (multiplier/penalty) and inner (LM step) iterations of `solve_ocp` with the default solver
+"""Benchmark: outer (multiplier/penalty) and inner (LM step) iterations of `solve_ocp` with the default `ALConfig`
 from the flat inverse, one nu per decade of 1e-16 ... 1e-9, on the line and the spiral, with and without the
 motor-direction bounds that `plan_task` sets (`motor_directions` of the flat inverse's rates). The unbounded solve
 is the bounded program with every direction 0 (either way, the same problem), so one program serves all 32 solves
@@ -47,7 +47,7 @@ def rows() -> list[dict]:
 def write_markdown(out: Path, table: list[dict]) -> None:
     info = _timing.run_info("none")
     lines = ["# Outer iterations of the OCP solve at every nu", "", _timing.header(info),
-             "`solve_ocp` with the default solver from the flat inverse, Racer-7, T_s = 1 ms; \"bounded\": with "
+             "`solve_ocp` with the default `ALConfig` from the flat inverse, Racer-7, T_s = 1 ms; \"bounded\": with "
              "the motor-direction bounds of `plan_task`. Seconds: one call each, the first including the compilation "
              "(2-core machine under other load: compare iterations, not seconds).", "",
              "| task | bounds | nu | status | outer | inner | objective [rad²] | violation | s | load |",

@@ -6,6 +6,7 @@ interfaces of the solvers are in `planning.internal`."""
 from jaxrobot.internal import check_public as _check_public
 from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
+from ._al_config import ALConfig as ALConfig
 from ._al_solver import AugmentedLagrangian as AugmentedLagrangian
 from ._bandwidth import bandwidth as bandwidth
 from ._bandwidth import control_spectrum as control_spectrum
@@ -76,4 +77,4 @@ __getattr__ = _deprecated_aliases(__name__, {name: f"planning.internal.{name}" f
     "objective",
     "variable_scale",
     "warm_start",
-)} | {"RESULTS": "jaxrobot.RESULTS", "ALConfig": "planning.AugmentedLagrangian"})
+)} | {"RESULTS": "jaxrobot.RESULTS"})

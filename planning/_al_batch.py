@@ -5,8 +5,6 @@ a batched program may take (`batch_capacity`, `chunked_vmap`)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -15,19 +13,17 @@ from jaxtyping import Array, Float
 from jaxrobot import RESULTS
 from jaxrobot.internal import full
 
+from ._al_config import ALConfig
 from ._al_outer import _augmented_lagrangian, _prepare, _result, _start
 from ._al_step import _lm_step, _refactor, _State
 from ._ocp_solver import OCPSolverResult
 from ._transcription import OCPProblem
 
-if TYPE_CHECKING:
-    from ._al_solver import AugmentedLagrangian
-
 
 def augmented_lagrangian(
-    problem: OCPProblem, y0: Float[Array, "N 5*n"], config: AugmentedLagrangian, history: int
+    problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig, history: int
 ) -> OCPSolverResult:
-    """`config.solve` (`AugmentedLagrangian.solve`): solve eq. 4.3 from the scaled initial guess `y0` (its
+    """`AugmentedLagrangian.solve`: solve eq. 4.3 from the scaled initial guess `y0` (its
     fixed nodes must hold the boundary values), multipliers starting at zero. Pure; `jit`/`vmap` over `problem`
     and `y0`. `config`'s numbers may be traced; `history` is the static `config.history_length()`.
 
@@ -60,7 +56,7 @@ def augmented_lagrangian(
     continuation (`_continuation`): each starts from a prediction of its solution `y` and
     multipliers `lam`, `gam` from the converged members before it instead of `y0` and zeros, which
     saves outer iterations most at large nu, where each multiplier update contracts the dual error
-    least (`AugmentedLagrangian.penalty_per_weight`). Otherwise (different
+    least (`ALConfig.penalty_per_weight`). Otherwise (different
     robots, trajectories, guesses or settings) the members are independent cold solves
     (`lax.map`). Results come back in the caller's order, each with its own status, iterations
     and history; a continued member meets the same tolerances as a cold solve, so the two agree
@@ -160,7 +156,7 @@ MEMBERS_PER_LANE = 4
 REFRESH_SHARE = 2
 """In a pass of a batched solve (`_pool`) at most `ceil(lanes / REFRESH_SHARE)` lanes make a fresh factor
 (the Gauss-Newton blocks and their factorisation, most of a pass's work); the others that need one wait a
-pass. Lanes need one at about every second or third step (`AugmentedLagrangian.refresh_every`)."""
+pass. Lanes need one at about every second or third step (`ALConfig.refresh_every`)."""
 
 RESTART_SHARE = 2
 """In a pass of a batched solve (`_pool`) at most `ceil(lanes / RESTART_SHARE)` lanes whose member stopped

@@ -5,8 +5,6 @@ stationarity (`roundoff_floor`)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -15,6 +13,7 @@ from jaxtyping import Array, Bool, Float
 import jaxrobot as jr
 from jaxrobot.internal import spd_solve
 
+from ._al_config import ALConfig
 from ._transcription import (
     HalfStep,
     OCPProblem,
@@ -29,9 +28,6 @@ from ._transcription import (
     scaled_cost,
     variable_scale,
 )
-
-if TYPE_CHECKING:
-    from ._al_solver import AugmentedLagrangian
 
 
 class _Parts(eqx.Module):
@@ -160,7 +156,7 @@ def _active(p: _Parts, y, gam, rho) -> Bool[Array, "N 5*n"]:
     return _outside(p, y, gam, rho) != 0
 
 
-def _switched(p: _Parts, config: AugmentedLagrangian, y_new, y_old, gam, rho, where=True) -> Bool[Array, ""]:
+def _switched(p: _Parts, config: ALConfig, y_new, y_old, gam, rho, where=True) -> Bool[Array, ""]:
     """A bound (of those `where`) entered or left the active set between `y_old` and `y_new` with a term
     `rho |v - P(v)|` in the gradient of `Phi` above `tol_stationarity` on one side of the step: a bound that
     crosses below it changes the gradient by less than the stationarity asked of the solution (bounds at 0 by

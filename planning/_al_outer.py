@@ -4,8 +4,6 @@ then an LM step of `_al_step`) and its result (`_result`)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -13,6 +11,7 @@ from jaxtyping import Array, Bool, Float
 
 from jaxrobot import RESULTS
 
+from ._al_config import ALConfig
 from ._al_merit import (
     _box_violation,
     _cost,
@@ -28,25 +27,21 @@ from ._al_step import _lm_step, _refactor, _State
 from ._ocp_solver import OCPSolverResult
 from ._transcription import ANGLE_SCALE, OCPProblem
 
-if TYPE_CHECKING:
-    from ._al_solver import AugmentedLagrangian
-
-
 ACTIVE_SET_STEPS = 16
 """Most steps of one inner solve that continue because the last step changed the active bounds
-(`AugmentedLagrangian.max_inner_iterations`)."""
+(`ALConfig.max_inner_iterations`)."""
 
 STALL_WINDOW = 3
 """Outer iterations over which a solve must have stopped changing to end `RESULTS.stalled` (`_stalled`)."""
 
 
-def _initial_penalty(p: _Parts, config: AugmentedLagrangian):
-    """`rho` at the start (`AugmentedLagrangian.penalty_per_weight`)."""
+def _initial_penalty(p: _Parts, config: ALConfig):
+    """`rho` at the start (`ALConfig.penalty_per_weight`)."""
     w_u = jnp.max(jnp.maximum(p.weight, p.edge)[4 * p.problem.n_joints:])
     return jnp.maximum(jnp.asarray(config.penalty_init, float), config.penalty_per_weight * w_u)
 
 
-def _start(problem: OCPProblem, y0: Float[Array, "N 5*n"], config: AugmentedLagrangian, m: int,
+def _start(problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig, m: int,
            dual: tuple[Float[Array, "Nm1 4*n"], Float[Array, "N 5*n"]]) -> tuple[_Parts, _State]:
     """Problem data and the first state of a solve from `y0` and the multipliers `dual = (lam, gam)`
     (zeros: a cold start; `m` the static history length)."""
@@ -78,7 +73,7 @@ def _result(p: _Parts, s: _State) -> OCPSolverResult:
     )
 
 
-def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config: AugmentedLagrangian, m: int,
+def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig, m: int,
                           dual: tuple[Float[Array, "Nm1 4*n"], Float[Array, "N 5*n"]]) -> OCPSolverResult:
     """`augmented_lagrangian` for one problem from `y0` and the multipliers `dual = (lam, gam)`
     (zeros: a cold start; `m` the static history length)."""
@@ -87,7 +82,7 @@ def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config
     return _result(p, s)
 
 
-def _pass(p: _Parts, config: AugmentedLagrangian, s: _State) -> _State:
+def _pass(p: _Parts, config: ALConfig, s: _State) -> _State:
     """One pass of the solver's loop (`augmented_lagrangian`) from state `s`: `_prepare`, then, where it
     says so, an LM step (`_lm_step`) on a factor refreshed (`_refactor`) where it says so."""
     s, c_y, grad, id_vjp, step, fresh = _prepare(p, config, s)
@@ -99,7 +94,7 @@ def _pass(p: _Parts, config: AugmentedLagrangian, s: _State) -> _State:
     return jax.lax.cond(step, lm, lambda s: s, s)
 
 
-def _inner_done(config: AugmentedLagrangian, s: _State, grad) -> Bool[Array, ""]:
+def _inner_done(config: ALConfig, s: _State, grad) -> Bool[Array, ""]:
     """The inner solve at `s` (gradient of `Phi` `grad`) is done. The multipliers move only from an iterate
     it accepted (never after a rejection), once the active bounds settled: updated from a step that switched
     them, they cycle between two active sets."""
@@ -108,7 +103,7 @@ def _inner_done(config: AugmentedLagrangian, s: _State, grad) -> Bool[Array, ""]
                                                            & settled)
 
 
-def _prepare(p: _Parts, config: AugmentedLagrangian, s: _State):
+def _prepare(p: _Parts, config: ALConfig, s: _State):
     """The first part of a pass (`_pass`): linearise at `y` (one linearisation serves the multiplier update
     and the LM step that follows it), update the multipliers and the penalty where the inner solve is done.
     Returns the state, the defects and the gradient of `Phi` at `y` (for the multipliers now), the
@@ -156,7 +151,7 @@ def _prepare(p: _Parts, config: AugmentedLagrangian, s: _State):
     return s, c_y, grad, id_vjp, step, fresh
 
 
-def _penalty_grows(p: _Parts, config: AugmentedLagrangian, viol, previous, grown, lam) -> Bool[Array, ""]:
+def _penalty_grows(p: _Parts, config: ALConfig, viol, previous, grown, lam) -> Bool[Array, ""]:
     """`rho` grows to `grown`: the violation `viol` did not fall below `violation_decrease` times the `previous`
     one nor to `tol_violation`, and, where direction bounds are set (`_Parts.directed`), `grown viol` is at most
     the largest multiplier `lam`. The Gauss-Newton matrix drops the constraints' curvature times `lam + rho c`;
@@ -179,7 +174,7 @@ def _multiplier_defects(c_y, predicted):
     return jnp.where(remainder > jnp.max(jnp.abs(predicted)), predicted, c_y)
 
 
-def _stalled(config: AugmentedLagrangian, hist, it, lam, rho_max) -> Bool[Array, ""]:
+def _stalled(config: ALConfig, hist, it, lam, rho_max) -> Bool[Array, ""]:
     """The solve has stopped improving over the `STALL_WINDOW` outer iterations before the one recorded at
     `hist[:, it]` (rows: objective, violation, penalty, stationarity; `lam`: the updated multipliers): either
     the constraints are met throughout, the objective changed by at most what the tolerated defects leave

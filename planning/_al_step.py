@@ -4,8 +4,6 @@ Levenberg-Marquardt step with its line search over the kinks of the direction bo
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -13,11 +11,9 @@ from jaxtyping import Array, Bool, Float, Int
 
 from jaxrobot import RESULTS
 
+from ._al_config import ALConfig
 from ._al_merit import _defects, _merit_from, _normal_blocks, _Parts, _switched
 from ._transcription import HalfStep, half_step
-
-if TYPE_CHECKING:
-    from ._al_solver import AugmentedLagrangian
 
 
 class _State(eqx.Module):
@@ -50,13 +46,13 @@ LINE_SEARCH_STEPS = 5
 """Most halvings of the step length in one LM step (`_lm_step`) before the damping grows."""
 
 
-def _refactor(p: _Parts, config: AugmentedLagrangian, s: _State, id_vjp=None) -> eqx.Module:
+def _refactor(p: _Parts, config: ALConfig, s: _State, id_vjp=None) -> eqx.Module:
     """The factor of the Gauss-Newton matrix at `s` (`id_vjp`: the linearisation of Newton-Euler there, if
     made)."""
     return config.resolved_linear_solver().factor(*_normal_blocks(p, s.y, s.forward, s.gam, s.rho, s.mu, id_vjp))
 
 
-def _lm_step(p: _Parts, config: AugmentedLagrangian, s: _State, c_y, grad, factor, fresh) -> _State:
+def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -> _State:
     """One Levenberg-Marquardt step from `s` (defects `c_y`, gradient of `Phi` `grad`) with `factor`, made
     at `s` where `fresh`: `dy` from the factor, the trial point `y + t dy` accepted by the gain ratio of the
     merit against the decrease its quadratic model predicts; where the full step changes which direction bounds

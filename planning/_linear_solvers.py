@@ -19,10 +19,11 @@ class AbstractLinearSolver(eqx.Module):
     `diag` (N, m, m), sub-diagonal blocks `lower[k] = M[k+1, k]` (N-1, m, m)). `factor` is made once and
     serves several `solve`s; its `positive_definite` field says whether the matrix was SPD (a matrix that
     is not gives NaN blocks, never an error). `batch_in_lanes` says how the AL solver solves a `vmap`
-    (`augmented_lagrangian`): True, its members in the lanes of one batched program; False, one member
-    after the other, each with its real conditionals."""
+    (`augmented_lagrangian`)."""
 
     batch_in_lanes: AbstractClassVar[bool]
+    """How the AL solver solves a `vmap`: True, in the lanes of one batched program; False, one member after the
+    other."""
 
     @abc.abstractmethod
     def factor(self, diag: Float[Array, "N m m"], lower: Float[Array, "Nm1 m m"]) -> eqx.Module:

@@ -3,6 +3,8 @@ by default the augmented-Lagrangian method of `_al_solver` on its block-tridiago
 
 from __future__ import annotations
 
+import warnings
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -11,8 +13,9 @@ from jaxtyping import Array, Bool, Float, Int
 
 import jaxrobot as jr
 from jaxrobot import RESULTS
-from jaxrobot.internal import cached_program, check, renamed_argument, require_elastic
+from jaxrobot.internal import cached_program, check, require_elastic
 
+from ._al_config import ALConfig
 from ._al_solver import AugmentedLagrangian
 from ._ocp_solver import AbstractOCPSolver
 from ._padding import head, pad_edge, padded_nodes
@@ -130,7 +133,7 @@ def solve_ocp(
     play: Float[Array, "N n"] | None = None,
     travel: Float[Array, " n"] | None = None,
     direction: Float[Array, "N n"] | None = None,
-    config: AbstractOCPSolver | None = None,
+    config: ALConfig | None = None,
 ) -> OCPSolution:
     """Optimal motor accelerations that make the elastic robot follow `q_d` (eq. 4.3).
 
@@ -141,9 +144,9 @@ def solve_ocp(
     - `nu`: weighting factor of eq. 4.3a (> 0).
     - `cost`: `"thesis"` (eq. 4.3a), `"jerk"` (`nu ||u_{k+1} - u_k||^2`) or `"flat"`
       (`nu ||u - u_ref||^2`).
-    - `solver`: the OCP solver, an `AbstractOCPSolver` (default `AugmentedLagrangian()`); its numbers are
-      traced, so changing them does not recompile (only `max_outer_iterations` beyond a multiple of 32 does).
-      `config` is its old name (deprecated).
+    - `solver`: the OCP solver, an `AbstractOCPSolver` (default `AugmentedLagrangian()`, whose settings are an
+      `ALConfig`); its numbers are traced, so changing them does not recompile (only `max_outer_iterations`
+      beyond a multiple of 32 does). Deprecated: `config=ALConfig(...)` for `solver=AugmentedLagrangian(...)`.
     - `warm_start`: `(x (N, 4n), u (N, n))`, e.g. from `jr.flat_inverse`; default: the flat
       relation on finite differences of `q_d` (`_transcription.warm_start`). Its end nodes
       are replaced by the boundary values of eq. 4.3e-j.
@@ -160,7 +163,7 @@ def solve_ocp(
 
     **Returns:** `OCPSolution`; check `status`/`converged` (a solve that did not converge is
     never reported as successful). `jit`/`vmap` over `nu`, `q_d` or `robot` work (range
-    checks then apply only to concrete inputs); with `Scan` (`AugmentedLagrangian.linear_solver`, the CPU's
+    checks then apply only to concrete inputs); with `Scan` (`ALConfig.linear_solver`, the CPU's
     default) a `vmap` over `nu` alone is solved by continuation in increasing `nu`, with cyclic
     reduction (an accelerator's) as one batched program (`augmented_lagrangian`). The problem is solved
     padded to `padded_nodes(N)` nodes (`planning._padding`; `pad_problem`: the same optimum), so that tasks
@@ -168,14 +171,21 @@ def solve_ocp(
 
     **Raises:** `ValueError` naming the field for bad inputs (shapes, NaN, `ts <= 0`, `nu <= 0`).
     """
-    solver = ocp_solver(renamed_argument("solve_ocp", "config", "solver", config, solver))
+    solver = ocp_solver("solve_ocp", solver, config)
     return _solve_ocp(robot, q_d, ts, nu, cost, solver, warm_start, u_ref, throw, solver.history_length(), play,
                       travel, direction)
 
 
-def ocp_solver(solver: AbstractOCPSolver | None) -> AbstractOCPSolver:
-    """`solver`, default `AugmentedLagrangian()`, checked: `ValueError` naming `solver` when it is no
-    `AbstractOCPSolver`."""
+def ocp_solver(function: str, solver: AbstractOCPSolver | None, config: ALConfig | None) -> AbstractOCPSolver:
+    """The solver that the arguments `solver` (default `AugmentedLagrangian()`) and `config` (deprecated: the
+    settings of an `AugmentedLagrangian`, with a `DeprecationWarning`) of `function` give, checked: `ValueError`
+    naming the argument when it is no `AbstractOCPSolver` or both are given."""
+    if config is not None:
+        if solver is not None:
+            raise ValueError(f"{function}: `config=` is the old form of `solver=`; pass only `solver=`")
+        warnings.warn(f"{function}(config=...) is now {function}(solver=planning.AugmentedLagrangian(config)); the "
+                      "old name goes in the next release", DeprecationWarning, stacklevel=3)
+        solver = AugmentedLagrangian(config)
     solver = AugmentedLagrangian() if solver is None else solver
     if not isinstance(solver, AbstractOCPSolver):
         raise ValueError(f"solver: expected an OCP solver such as planning.AugmentedLagrangian(), "

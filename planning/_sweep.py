@@ -10,7 +10,7 @@ its own thread, and merges the results in the caller's order. Each chain still w
 members from the previous ones (their `nu` are `workers` times further apart, so they take a few
 more iterations). On an accelerator the chains of several threads would queue on the one device,
 so there the default is one chain, which its default linear solver (`CyclicReduction`,
-`AugmentedLagrangian.linear_solver`) makes one batched program: lanes that each solve a continuation chain of
+`ALConfig.linear_solver`) makes one batched program: lanes that each solve a continuation chain of
 members and take the next `nu` when their member is done (`augmented_lagrangian`), at most as many
 lanes as the device memory holds (`batch_capacity`). Under several processes (`jax.distributed`,
 `jaxrobot.internal.initialize_processes`) the chains are one per device of all processes instead: one
@@ -32,8 +32,9 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
-from jaxrobot.internal import backend_kind, check, gather_array, renamed_argument
+from jaxrobot.internal import backend_kind, check, gather_array
 
+from ._al_config import ALConfig
 from ._ocp import OCPSolution, _solve_ocp, ocp_solver
 from ._ocp_solver import AbstractOCPSolver
 from ._padding import head, pad_edge, pad_zeros, padded_nodes
@@ -112,7 +113,7 @@ def solve_ocp_sweep(
     throw: bool = False,
     play: Float[Array, "B N n"] | None = None,
     direction: Float[Array, "N n"] | None = None,
-    config: AbstractOCPSolver | None = None,
+    config: ALConfig | None = None,
 ) -> OCPSolution:
     """`solve_ocp` for every `nu` in `nus` (B values > 0, any order); returns an `OCPSolution` with a
     leading axis B in the order of `nus`, each member with its own status (as `jax.vmap(solve_ocp)`).
@@ -124,7 +125,7 @@ def solve_ocp_sweep(
     so all chains share one compiled program. Not jittable: it is a driver of compiled calls.
     Under several processes (`jaxrobot.internal.initialize_processes`) every process passes the same
     arguments and receives all members; the chains are one per device of all processes (`workers`
-    is not used). `solver` (default `AugmentedLagrangian()`; `config` is its old name) is traced: sweeps that
+    is not used). `solver` (as `solve_ocp`'s, `config` deprecated likewise) is traced: sweeps that
     differ only in its settings (of the same `history_length()`) share one compiled program. `throw`: raise the
     message of the first member that did not converge (default False: each member carries its status). `play`:
     the play states of each member's gears (B, N, n) and `direction` the motor directions, shared (as
@@ -134,7 +135,7 @@ def solve_ocp_sweep(
     the others as `solve_ocp`).
     """
     nus = check_nus(nus)
-    solver = ocp_solver(renamed_argument("solve_ocp_sweep", "config", "solver", config, solver))
+    solver = ocp_solver("solve_ocp_sweep", solver, config)
     history = solver.history_length()
     if workers is None:
         workers = (os.cpu_count() or 1) if backend_kind() == "cpu" else 1

@@ -82,7 +82,6 @@ def test_dir_lists_the_face(found, module):
     ("jaxrobot.checks.check_public", "jaxrobot.internal.check_public"),
     ("planning.defects", "planning.internal.defects"),
     ("planning.cyclic_reduction", "planning.internal.cyclic_reduction"),
-    ("planning.ALConfig", "planning.AugmentedLagrangian"),
     ("identification.detmax", "identification.calibration.detmax"),
     ("identification.calibration.calibrate", "identification.calibrate"),
     ("identification.gear.identify_gear", "identification.identify_gear"),

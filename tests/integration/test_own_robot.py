@@ -179,7 +179,7 @@ def _plan_vendor_arm(name: str, d: Path, duration: float, length: float) -> None
     _write_task(d / "task.csv", x, z, duration, length)
     rc, report = _cli(["plan", str(d / "task.csv"), "--model", str(model), "--save-trajectory", str(d / "cmd.csv")])
     assert rc == 0 and report["status"] == "successful", rc
-    assert report["max_constraint_violation"] <= pl.AugmentedLagrangian().tol_violation
+    assert report["max_constraint_violation"] <= pl.ALConfig().tol_violation
     assert report["path_error_um"]["max"] < PATH_ERROR_UM, report["path_error_um"]
     assert report["plant"]["ocp"]["max_um"] < PATH_ERROR_UM, report["plant"]
     t, theta, _, _ = jr.io.read_command_csv(d / "cmd.csv")

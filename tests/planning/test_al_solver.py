@@ -12,7 +12,7 @@ import planning as pl
 from planning import _al_merit, _al_outer
 from planning import _transcription as tr
 
-CONFIG = pl.AugmentedLagrangian()
+CONFIG = pl.ALConfig()
 RHO_MAX = 1e7
 LAM = jnp.full((10, 24), 0.1)
 """Multipliers of the synthetic histories: `sum |lam| tol_violation` leaves 2.4e-14 rad^2 of the objective open."""
@@ -109,6 +109,6 @@ def test_infeasible_move_ends_stalled():
     slow = eqx.tree_at(lambda r: r.qdd_max, robot, jnp.full(6, 0.3))
     sol = pl.solve_ocp(slow, q_d, 1e-3, 1e-14)
     assert jr.status_name(sol.status) == "stalled", jr.status_name(sol.status)
-    assert int(sol.iterations) < pl.AugmentedLagrangian().max_outer_iterations
-    assert float(sol.max_constraint_violation) > 1e3 * pl.AugmentedLagrangian().tol_violation
+    assert int(sol.iterations) < pl.ALConfig().max_outer_iterations
+    assert float(sol.max_constraint_violation) > 1e3 * pl.ALConfig().tol_violation
     assert "infeasible" in jr.status_message(sol.status)

@@ -105,13 +105,13 @@ def test_linear_solver_by_backend_and_bad_value():
     field and the objects to pass."""
     by_backend = pl.Scan() if jax.default_backend() == "cpu" else pl.CyclicReduction()
     assert default_linear_solver() == by_backend
-    assert pl.AugmentedLagrangian().resolved_linear_solver() == by_backend
-    assert pl.AugmentedLagrangian(linear_solver=pl.CyclicReduction()).resolved_linear_solver() == pl.CyclicReduction()
+    assert pl.ALConfig().resolved_linear_solver() == by_backend
+    assert pl.ALConfig(linear_solver=pl.CyclicReduction()).resolved_linear_solver() == pl.CyclicReduction()
     assert not pl.Scan().batch_in_lanes and pl.CyclicReduction().batch_in_lanes
     with pytest.raises(ValueError, match=r"linear_solver: expected .*planning\.Scan\(\).*found 'scan'"):
-        pl.AugmentedLagrangian(linear_solver="scan")
+        pl.ALConfig(linear_solver="scan")
     with pytest.raises(ValueError, match="linear_solver: expected .*found int"):
-        pl.AugmentedLagrangian(linear_solver=3)
+        pl.ALConfig(linear_solver=3)
 
 
 def test_batch_capacity_from_array_sizes():
@@ -132,7 +132,8 @@ def test_batched_chunks_give_the_members_in_order(capacity):
         np.testing.assert_array_equal(np.asarray(out[key]), np.asarray(ref[key]))
 
 
-CR = pl.AugmentedLagrangian(linear_solver=pl.CyclicReduction())
+CR = pl.AugmentedLagrangian(pl.ALConfig(linear_solver=pl.CyclicReduction()))
+SCAN = pl.AugmentedLagrangian(pl.ALConfig(linear_solver=pl.Scan()))
 
 
 def _move(n: int = 51):
@@ -146,7 +147,7 @@ def _move(n: int = 51):
 @pytest.mark.extended  # two OCP programs compiled; the suite keeps the factor and solve against dense and scan
 def test_solve_ocp_cyclic_reduction_matches_scan():
     robot, q_d = jr.racer7(), _move()
-    scan = pl.solve_ocp(robot, q_d, 1e-3, 1e-14, solver=pl.AugmentedLagrangian(linear_solver=pl.Scan()))
+    scan = pl.solve_ocp(robot, q_d, 1e-3, 1e-14, solver=SCAN)
     cr = pl.solve_ocp(robot, q_d, 1e-3, 1e-14, solver=CR)
     assert bool(scan.converged) and bool(cr.converged)
     np.testing.assert_allclose(float(cr.objective), float(scan.objective), rtol=OBJECTIVE_RTOL)
@@ -168,7 +169,7 @@ def _task(name: str):
 @pytest.mark.parametrize("task", ["line", "spiral"])
 def test_solve_ocp_cyclic_reduction_matches_scan_on_tasks(task):
     robot, q_d, ts, warm = _task(task)
-    scan = pl.solve_ocp(robot, q_d, ts, 1e-14, solver=pl.AugmentedLagrangian(linear_solver=pl.Scan()), warm_start=warm)
+    scan = pl.solve_ocp(robot, q_d, ts, 1e-14, solver=SCAN, warm_start=warm)
     cr = pl.solve_ocp(robot, q_d, ts, 1e-14, solver=CR, warm_start=warm)
     assert bool(scan.converged) and bool(cr.converged)
     np.testing.assert_allclose(float(cr.objective), float(scan.objective), rtol=OBJECTIVE_RTOL)

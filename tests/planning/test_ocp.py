@@ -327,7 +327,7 @@ def test_sweep_in_chains_matches_separate_solves(robot, q_d):
 
 
 def test_sweep_configs_differing_in_numbers_share_one_program(robot, q_d, monkeypatch):
-    """`AugmentedLagrangian` is a traced argument of the sweep's compiled chain: two configs that differ only in a
+    """The solver (`ALConfig`) is a traced argument of the sweep's compiled chain: two configs that differ only in a
     tolerance trace it (and so compile it) at most once (a static config traced it once per config)."""
     import planning._sweep as sweep
 
@@ -336,7 +336,7 @@ def test_sweep_configs_differing_in_numbers_share_one_program(robot, q_d, monkey
     monkeypatch.setattr(sweep, "_solve_ocp", lambda *a: traces.append(a[5]) or solve(*a))
     args = (robot, jnp.asarray(q_d), jnp.asarray(TS), jnp.asarray([1e-14, 1e-12]), None, None)
     for tol in (3e-9, 4e-9):
-        config = pl.AugmentedLagrangian(tol_violation=tol)
+        config = pl.AugmentedLagrangian(pl.ALConfig(tol_violation=tol))
         sweep._chain.lower(*args, jax.tree.map(jnp.asarray, config), None, None, cost="thesis",
                            history=config.history_length())
     assert len(traces) <= 1
@@ -359,13 +359,13 @@ def test_sweep_bad_input_names_the_field(robot, q_d, kwargs, field):
 
 
 def test_non_converged_solve_is_not_success(robot, q_d):
-    sol = pl.solve_ocp(robot, q_d, TS, NU, solver=pl.AugmentedLagrangian(max_outer_iterations=1))
+    sol = pl.solve_ocp(robot, q_d, TS, NU, solver=pl.AugmentedLagrangian(pl.ALConfig(max_outer_iterations=1)))
     assert int(sol.iterations) == 1
     assert bool(sol.status == jr.RESULTS.nonlinear_max_steps_reached)
     assert not bool(sol.converged)
     assert "maximum number of steps" in jr.status_message(sol.status)
     with pytest.raises(Exception, match="maximum number of steps"):  # throw=True: RESULTS.error_if
-        pl.solve_ocp(robot, q_d, TS, NU, solver=pl.AugmentedLagrangian(max_outer_iterations=1), throw=True)
+        pl.solve_ocp(robot, q_d, TS, NU, solver=pl.AugmentedLagrangian(pl.ALConfig(max_outer_iterations=1)), throw=True)
 
 
 def test_motor_directions_keep_the_plan_to_the_task(robot, q_d):
@@ -381,7 +381,7 @@ def test_motor_directions_keep_the_plan_to_the_task(robot, q_d):
     assert bool(free.converged) and bool(bound.converged), (jr.status_name(free.status), jr.status_name(bound.status))
     wrong_way = lambda sol: float(jnp.max(-direction * sol.thetad))  # noqa: E731
     assert wrong_way(free) > 1e-2
-    assert wrong_way(bound) <= pl.AugmentedLagrangian().tol_violation * float(jnp.max(robot.u0)) * tr.ANGLE_SCALE / TS
+    assert wrong_way(bound) <= pl.ALConfig().tol_violation * float(jnp.max(robot.u0)) * tr.ANGLE_SCALE / TS
     count = 2 * np.pi / 2**20  # one count of a 20-bit motor encoder (docs/model.md (B.6))
     np.testing.assert_array_equal(pl.motor_reversals(bound.theta, count), pl.motor_reversals(flat.theta, count))
     assert float(free.objective) < float(bound.objective) < 1.01 * float(free.objective)
@@ -441,7 +441,8 @@ def test_cost_variants_converge(robot, q_d, cost):
     (dict(direction=np.ones((9, 6))), "direction"),
     (dict(direction=np.full((10, 6), 0.5)), "direction"),
     (dict(solver="scan"), "solver: expected an OCP solver"),
-    (dict(solver=pl.AugmentedLagrangian(), config=pl.AugmentedLagrangian()), "`config=` is the old name of `solver=`"),
+    (dict(solver=pl.ALConfig()), "solver: expected an OCP solver"),
+    (dict(solver=pl.AugmentedLagrangian(), config=pl.ALConfig()), "`config=` is the old form of `solver=`"),
 ])
 def test_bad_input_names_the_field(robot, kwargs, field):
     args = dict(q_d=np.zeros((10, 6)), ts=TS, nu=NU)
@@ -453,9 +454,10 @@ def test_bad_input_names_the_field(robot, kwargs, field):
 @pytest.mark.parametrize("solve", [pl.solve_ocp, lambda *a, **k: pl.solve_ocp_sweep(*a[:3], [a[3]], **k)])
 def test_config_is_the_deprecated_name_of_solver(robot, solve):
     """`config=` alone warns and is taken as `solver=` (the bad `ts` that follows shows the call went on)."""
-    with pytest.warns(DeprecationWarning, match=r"\(config=\.\.\.\) is now .*\(solver=\.\.\.\)"):
+    renamed = r"\(config=\.\.\.\) is now .*\(solver=planning\.AugmentedLagrangian\(config\)\)"
+    with pytest.warns(DeprecationWarning, match=renamed):
         with pytest.raises(ValueError, match="ts"):
-            solve(robot, np.zeros((10, 6)), -1e-3, NU, config=pl.AugmentedLagrangian())
+            solve(robot, np.zeros((10, 6)), -1e-3, NU, config=pl.ALConfig())
 
 
 def _line(duration: float, y_end: float) -> dict:

@@ -97,9 +97,9 @@ def test_padded_solve_is_the_unpadded_solve(robot):
     n = 51
     q_d, direction = _task(robot, n)
     padded = pl.solve_ocp(robot, q_d, TS, NU, direction=direction)
-    config = pl.AugmentedLagrangian()
+    solver = pl.AugmentedLagrangian()
     problem = tr.ocp_problem(robot, q_d, TS, NU, direction=direction)
-    plain = _ocp._solve.jitted(problem, None, jax.tree.map(jnp.asarray, config), config.history_length(), False)
+    plain = _ocp._solve.jitted(problem, None, jax.tree.map(jnp.asarray, solver), solver.history_length(), False)
     assert bool(plain.converged) and bool(padded.converged)
     assert int(padded.iterations) == int(plain.iterations)
     assert int(padded.inner_iterations) == int(plain.inner_iterations)
@@ -108,7 +108,7 @@ def test_padded_solve_is_the_unpadded_solve(robot):
     np.testing.assert_allclose(np.asarray(padded.x), np.asarray(plain.x), rtol=0, atol=STATE_TOL)
     np.testing.assert_allclose(np.asarray(padded.u), np.asarray(plain.u), rtol=0,
                                atol=CONTROL_RTOL * float(jnp.max(jnp.abs(plain.u))))
-    assert float(padded.max_constraint_violation) <= pl.AugmentedLagrangian().tol_violation
+    assert float(padded.max_constraint_violation) <= pl.ALConfig().tol_violation
 
 
 def test_another_length_compiles_no_new_solve(robot):

@@ -45,7 +45,7 @@ def wrong_way_rate(sol, direction) -> float:
 def rate_tolerance(robot) -> float:
     """[rad/s] The solver's tolerance on a motor-rate bound: its scaled violation tolerance (1e-9) in the
     rate's unit `u0 ANGLE_SCALE / T_s` at T_s = 1 ms."""
-    return float(pl.AugmentedLagrangian().tol_violation * jnp.max(robot.u0) * 1e-3 / 1e-3)
+    return float(pl.ALConfig().tol_violation * jnp.max(robot.u0) * 1e-3 / 1e-3)
 
 
 def test_reversals_count_back_travel_beyond_the_resolution():
