@@ -169,7 +169,8 @@ def solve_ocp(
     padded to `padded_nodes(N)` nodes (`planning._padding`; `pad_problem`: the same optimum), so that tasks
     of other lengths share a compiled program.
 
-    **Raises:** `ValueError` naming the field for bad inputs (shapes, NaN, `ts <= 0`, `nu <= 0`).
+    **Raises:** `ValueError` naming the field for bad inputs (shapes, NaN, `ts <= 0`, `nu <= 0`, a `solver` that
+    is no `AbstractOCPSolver`).
     """
     solver = ocp_solver("solve_ocp", solver, config)
     return _solve_ocp(robot, q_d, ts, nu, cost, solver, warm_start, u_ref, throw, solver.history_length(), play,
@@ -188,8 +189,9 @@ def ocp_solver(function: str, solver: AbstractOCPSolver | None, config: ALConfig
         solver = AugmentedLagrangian(config)
     solver = AugmentedLagrangian() if solver is None else solver
     if not isinstance(solver, AbstractOCPSolver):
+        hint = "; settings go into planning.AugmentedLagrangian(config)" if isinstance(solver, ALConfig) else ""
         raise ValueError(f"solver: expected an OCP solver such as planning.AugmentedLagrangian(), "
-                         f"found {type(solver).__name__}")
+                         f"found {type(solver).__name__}{hint}")
     return solver
 
 

@@ -441,7 +441,7 @@ def test_cost_variants_converge(robot, q_d, cost):
     (dict(direction=np.ones((9, 6))), "direction"),
     (dict(direction=np.full((10, 6), 0.5)), "direction"),
     (dict(solver="scan"), "solver: expected an OCP solver"),
-    (dict(solver=pl.ALConfig()), "solver: expected an OCP solver"),
+    (dict(solver=pl.ALConfig()), r"solver: expected an OCP solver .*found ALConfig; settings go into"),
     (dict(solver=pl.AugmentedLagrangian(), config=pl.ALConfig()), "`config=` is the old form of `solver=`"),
 ])
 def test_bad_input_names_the_field(robot, kwargs, field):
