@@ -31,6 +31,7 @@ class _State(eqx.Module):
     stop: Bool[Array, ""]
     hist: Float[Array, "4 M"]
     factor: eqx.Module
+    """The factor of the Gauss-Newton matrix by the linear solver (`ALConfig.resolved_linear_solver`)."""
     factor_key: Float[Array, "2"]
     factor_age: Int[Array, ""]
     accepted: Bool[Array, ""]
@@ -47,8 +48,8 @@ LINE_SEARCH_STEPS = 5
 
 
 def _refactor(p: _Parts, config: ALConfig, s: _State, id_vjp=None) -> eqx.Module:
-    """The factor of the Gauss-Newton matrix at `s` (`id_vjp`: the linearisation of Newton-Euler there, if
-    made)."""
+    """The factor of the Gauss-Newton matrix at `s` by the linear solver of `config` (`id_vjp`: the linearisation
+    of Newton-Euler there, if made)."""
     return config.resolved_linear_solver().factor(*_normal_blocks(p, s.y, s.forward, s.gam, s.rho, s.mu, id_vjp))
 
 
