@@ -29,35 +29,34 @@ def pieces():
 
     import jaxrobot as jr
     import planning as pl
-    from planning import _al_solver as al
-    from planning import _ocp
+    from planning import _al_merit, _al_outer, _al_step, _ocp
     from planning import _transcription as tr
-    from planning._al_solver import history_length
     from planning._padding import padded_nodes
 
     robot, n = jr.racer7(), 51
     s = jnp.arange(n) / (n - 1)
     blend = s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3)
     q_d = jnp.array([0.1, 0.2, -1.4, 0.1, 1.4, 0.1]) + 3e-4 * blend[:, None] * jnp.array([1.0, -1, 1, 1, -1, 1])
-    config = jax.tree.map(jnp.asarray, pl.ALConfig())
-    m = history_length(pl.ALConfig())
+    solver = jax.tree.map(jnp.asarray, pl.AugmentedLagrangian())
+    config = solver.config
+    m = pl.ALConfig().history_length()
     problem = tr.pad_problem(tr.ocp_problem(robot, q_d, 1e-3, 1e-14), padded_nodes(n))
     y0 = jnp.concatenate(tr.warm_start(problem), -1) / tr.variable_scale(problem)
-    p, st = al._start(problem, y0, pl.ALConfig(), m, (jnp.zeros((y0.shape[0] - 1, 24)), jnp.zeros_like(y0)))
-    blocks = al._normal_blocks(p, st.y, st.forward, st.gam, st.rho, st.mu)
+    p, st = _al_outer._start(problem, y0, pl.ALConfig(), m, (jnp.zeros((y0.shape[0] - 1, 24)), jnp.zeros_like(y0)))
+    blocks = _al_merit._normal_blocks(p, st.y, st.forward, st.gam, st.rho, st.mu)
     return [
-        ("the solve (`_ocp._solve`)", lambda pr, c: _ocp._solve.__wrapped__(pr, None, c, m, False), (problem, config)),
-        ("one pass of the loop (`_pass`)", al._pass, (p, config, st)),
-        ("linearisation, gradient, multiplier update (`_prepare`)", lambda p, c, s: al._prepare(p, c, s)[:2],
+        ("the solve (`_ocp._solve`)", lambda pr, c: _ocp._solve.__wrapped__(pr, None, c, m, False), (problem, solver)),
+        ("one pass of the loop (`_pass`)", _al_outer._pass, (p, config, st)),
+        ("linearisation, gradient, multiplier update (`_prepare`)", lambda p, c, s: _al_outer._prepare(p, c, s)[:2],
          (p, config, st)),
-        ("Gauss-Newton matrix and its factor (`_refactor`)", al._refactor, (p, config, st)),
-        ("Gauss-Newton matrix (`_normal_blocks`)", lambda p, s: al._normal_blocks(p, s.y, s.forward, s.gam, s.rho,
-                                                                                 s.mu), (p, st)),
+        ("Gauss-Newton matrix and its factor (`_refactor`)", _al_step._refactor, (p, config, st)),
+        ("Gauss-Newton matrix (`_normal_blocks`)",
+         lambda p, s: _al_merit._normal_blocks(p, s.y, s.forward, s.gam, s.rho, s.mu), (p, st)),
         ("its defect Jacobian blocks (`half_step_jacobian`)", lambda p, s: tr.half_step_jacobian(p.problem, s.forward),
          (p, st)),
-        ("block Cholesky (`block_cholesky`)", al._FACTOR["scan"][0], blocks),
+        ("block Cholesky (`block_cholesky`)", pl.Scan().factor, blocks),
         ("forward pass of the dynamics (`half_step`)", tr.half_step, (problem, y0)),
-        ("problem data at the start (`_parts`)", al._parts, (problem, y0)),
+        ("problem data at the start (`_parts`)", _al_merit._parts, (problem, y0)),
         ("violations of the result (`max_violations`)", tr.max_violations, (problem, *tr.warm_start(problem))),
         ("default warm start (`warm_start`)", tr.warm_start, (problem,)),
     ]

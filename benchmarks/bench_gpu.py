@@ -6,8 +6,8 @@ GPU where JAX sees one), on the same seeded inputs:
 - dynamics: `mass_matrix`, `gravity_torque` and `coriolis_vector` of the Racer-7 on N random states
   (one jitted program, the public functions on (N, 6) arrays);
 - fleet calibration: `calibrate_fleet` on R bench robots with 50 random feasible poses each;
-- OCP: one `solve_ocp` of the line at nu = 1e-14 (N = 2501) with each linear solver (`"scan"`,
-  `"cyclic_reduction"`); one factor + solve of its block-tridiagonal system (30 x 30 blocks) by
+- OCP: one `solve_ocp` of the line at nu = 1e-14 (N = 2501) with each linear solver (`Scan()`,
+  `CyclicReduction()`); one factor + solve of its block-tridiagonal system (30 x 30 blocks) by
   each; the crossover: `solve_ocp_sweep` over B nu in [1e-15, 1e-9] for each B of `--sizes` with the
   backend's defaults (the CPU: continuation chains on the cores with the scan; an accelerator: the
   chains batched across the chains with cyclic reduction); where B = 64 is among them, each of its members
@@ -80,17 +80,17 @@ def _ocp_rows(out: dict, repeat: int, sizes: list[int], vmap: bool, nodes: int |
     import jax.numpy as jnp
 
     import planning as pl
-    from planning._al_solver import batch_capacity
+    from planning._al_batch import batch_capacity
     from planning._block_tridiagonal import block_cholesky, block_cholesky_solve
     from planning.internal import cyclic_reduction, cyclic_reduction_solve
 
     robot, q, ts, warm, name = _ocp_task(nodes)
     n = q.shape[0]
     work: list[tuple[str, str, object, dict]] = []  # (key, label, fn, extra)
-    for ls in ("scan", "cyclic_reduction"):
-        config = pl.ALConfig(linear_solver=ls)
+    for ls, linear in (("scan", pl.Scan()), ("cyclic_reduction", pl.CyclicReduction())):
+        solver = pl.AugmentedLagrangian(linear_solver=linear)
         work.append((f"ocp_{ls}", f"solve_ocp: {name}, N = {n}, nu = {NU:g}, {ls}",
-                     lambda config=config: pl.solve_ocp(robot, q, ts, nu=NU, warm_start=warm, config=config), {}))
+                     lambda solver=solver: pl.solve_ocp(robot, q, ts, nu=NU, warm_start=warm, solver=solver), {}))
     rng = np.random.default_rng(0)
     a = rng.normal(size=(n, 30, 30))
     diag = jnp.asarray(np.einsum("kij,klj->kil", a, a) + 120.0 * np.eye(30))
@@ -334,7 +334,7 @@ N = 2501), the Newton-Euler scans over the 6 links (forward and backward) and th
 the gear inverse in each `half_step`. No scan or loop over the nodes runs in an iteration with cyclic
 reduction; with the scan, the factor and the solve are sequential over the N nodes (the
 `block-tridiagonal factor + solve` rows measure one of each). A sweep on an accelerator runs its B
-members in ceil(B / 4) lanes of one `while_loop` (`planning._al_solver._pool`): a lane whose member is
+members in ceil(B / 4) lanes of one `while_loop` (`planning._al_batch._pool`): a lane whose member is
 done takes the next nu, warm-started from the lane's last two members; the loop's passes are at least
 those of the slowest lane. A pass makes the Gauss-Newton blocks and their factor (most of its work on
 the CPU) only for the lanes that need a fresh one, at most half of them, gathered into a smaller batch;
@@ -396,7 +396,7 @@ def results_text(data: dict) -> str:
         lines.append("")
     if "capacity" in cpu:
         cap = ", ".join(f"{v} members at {k}" for k, v in cpu["capacity"].items())
-        lines += ["Memory of a batched solve (`planning._al_solver.batch_capacity`: `MEMBER_BLOCKS` 30 x 30 float64 "
+        lines += ["Memory of a batched solve (`planning._al_batch.batch_capacity`: `MEMBER_BLOCKS` 30 x 30 float64 "
                   f"blocks per node and lane): an 80 GB card holds {cap}; a larger batch runs in that many lanes, "
                   "each taking the next member when its own is done.", "", SEQUENTIAL, ""]
     return "\n".join(lines + data.get("notes_after", [])) + "\n"

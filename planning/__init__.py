@@ -1,11 +1,13 @@
 """Offline trajectory planning of elastic-joint robots: paths, inverse kinematics, the optimal control
-problem and its solver, the comparison on the plant and the plan and sweep workflows. Transcription pieces
-and block solvers are in `planning.internal`."""
+problem and its solver (`AugmentedLagrangian`, with the linear solver `Scan` or `CyclicReduction`), the
+comparison on the plant and the plan and sweep workflows. Transcription pieces, block solvers and the
+interfaces of the solvers are in `planning.internal`."""
 
 from jaxrobot.internal import check_public as _check_public
 from jaxrobot.internal import deprecated_aliases as _deprecated_aliases
 
-from ._al_solver import ALConfig as ALConfig
+from ._al_config import ALConfig as ALConfig
+from ._al_solver import AugmentedLagrangian as AugmentedLagrangian
 from ._bandwidth import bandwidth as bandwidth
 from ._bandwidth import control_spectrum as control_spectrum
 from ._evaluation import METHODS as METHODS
@@ -27,6 +29,8 @@ from ._ik import default_start as default_start
 from ._ik import inverse_kinematics as inverse_kinematics
 from ._ik import joint_path as joint_path
 from ._ik import task_start as task_start
+from ._linear_solvers import CyclicReduction as CyclicReduction
+from ._linear_solvers import Scan as Scan
 from ._ocp import OCPSolution as OCPSolution
 from ._ocp import solve_ocp as solve_ocp
 from ._sweep import solve_ocp_sweep as solve_ocp_sweep
@@ -63,7 +67,6 @@ __getattr__ = _deprecated_aliases(__name__, {name: f"planning.internal.{name}" f
     "block_cholesky",
     "block_cholesky_solve",
     "block_tridiagonal_solve",
-    "CyclicReduction",
     "cyclic_reduction",
     "cyclic_reduction_solve",
     "boundary_states",

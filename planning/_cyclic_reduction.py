@@ -32,7 +32,7 @@ from jaxrobot.internal import backend_kind, cholesky
 from ._block_tridiagonal import factorised
 
 
-class CyclicReduction(eqx.Module):
+class CyclicReductionFactor(eqx.Module):
     """Factor of a block-tridiagonal SPD matrix by block cyclic reduction (module docstring): per
     level, the blocks of its eliminated nodes; the last level holds the one remaining node."""
 
@@ -77,10 +77,10 @@ def _gram(a: Float[Array, "h n n"], b: Float[Array, "h n n"]) -> Float[Array, "h
     return jnp.einsum("kji,kjl->kil", a, b)  # a_k^T b_k
 
 
-def cyclic_reduction(diag: Float[Array, "N n n"], lower: Float[Array, "Nm1 n n"]) -> CyclicReduction:
+def cyclic_reduction(diag: Float[Array, "N n n"], lower: Float[Array, "Nm1 n n"]) -> CyclicReductionFactor:
     """Factorise the SPD block-tridiagonal matrix with diagonal blocks `diag` and sub-diagonal blocks
     `lower[k] = M[k+1, k]` by block cyclic reduction (`ceil(log2 N)` levels). A matrix that is not SPD
-    gives NaN blocks (check `CyclicReduction.positive_definite`)."""
+    gives NaN blocks (check `CyclicReductionFactor.positive_definite`)."""
     n = diag.shape[-1]
     ws, xs, ys = [], [], []
     while diag.shape[0] > 1:
@@ -98,11 +98,11 @@ def cyclic_reduction(diag: Float[Array, "N n n"], lower: Float[Array, "Nm1 n n"]
         xs.append(x)
         ys.append(y)
     ws.append(_inverse_cholesky_factors(diag))
-    return CyclicReduction(inverse=tuple(ws), left=tuple(xs), right=tuple(ys),
+    return CyclicReductionFactor(inverse=tuple(ws), left=tuple(xs), right=tuple(ys),
                            positive_definite=jnp.all(jnp.stack([factorised(w) for w in ws])))
 
 
-def cyclic_reduction_solve(factor: CyclicReduction, rhs: Float[Array, "N n"]) -> Float[Array, "N n"]:
+def cyclic_reduction_solve(factor: CyclicReductionFactor, rhs: Float[Array, "N n"]) -> Float[Array, "N n"]:
     """Solve `M x = rhs` with the factor of `cyclic_reduction`."""
     sizes, zs = [], []
     r = rhs

@@ -24,7 +24,7 @@ import jaxrobot as jr
 from jaxrobot.internal import backend_kind, cached_program, require_successful
 from jaxrobot.measurement import rest_solution
 
-from ._al_solver import chunked_vmap, device_memory
+from ._al_batch import chunked_vmap, device_memory
 from ._ik import JointPath, taylor_joint_path
 from ._padding import head, pad_edge, pad_grid, pad_zeros, padded_nodes
 from ._trajectories import sample_path

@@ -1,7 +1,9 @@
-"""`solve_ocp`: the optimal control problem of eq. 4.3 solved by the augmented-Lagrangian
-method of `_al_solver` on its block-tridiagonal structure."""
+"""`solve_ocp`: the optimal control problem of eq. 4.3 solved by an OCP solver object (`AbstractOCPSolver`;
+by default the augmented-Lagrangian method of `_al_solver` on its block-tridiagonal structure)."""
 
 from __future__ import annotations
+
+import warnings
 
 import equinox as eqx
 import jax
@@ -13,7 +15,9 @@ import jaxrobot as jr
 from jaxrobot import RESULTS
 from jaxrobot.internal import cached_program, check, require_elastic
 
-from ._al_solver import ALConfig, augmented_lagrangian, history_length
+from ._al_config import ALConfig
+from ._al_solver import AugmentedLagrangian
+from ._ocp_solver import AbstractOCPSolver
 from ._padding import head, pad_edge, padded_nodes
 from ._transcription import (
     Cost,
@@ -90,7 +94,7 @@ class OCPSolution(eqx.Module):
 
 
 @cached_program(filter=True)
-def _solve(problem, start, config: ALConfig, history: int, reference_from_start: bool) -> OCPSolution:
+def _solve(problem, start, solver: AbstractOCPSolver, history: int, reference_from_start: bool) -> OCPSolution:
     if start is None:
         x0, u0 = default_warm_start(problem)
     else:
@@ -98,7 +102,7 @@ def _solve(problem, start, config: ALConfig, history: int, reference_from_start:
     if reference_from_start:
         problem = eqx.tree_at(lambda p: p.u_ref, problem, u0)
     sz = variable_scale(problem)
-    res = augmented_lagrangian(problem, jnp.concatenate([x0, u0], -1) / sz, config, history)
+    res = solver.solve(problem, jnp.concatenate([x0, u0], -1) / sz, history)
     z = res.y * sz
     # the end nodes (and the padding) are fixed (eq. 4.3e-j): restore them exactly after the scaling round trip
     nx = x0.shape[-1]
@@ -122,13 +126,14 @@ def solve_ocp(
     ts: float | Float[Array, ""],
     nu: float | Float[Array, ""] = 1e-14,
     cost: Cost = "thesis",
-    config: ALConfig | None = None,
+    solver: AbstractOCPSolver | None = None,
     warm_start: tuple[Float[Array, "N 4*n"], Float[Array, "N n"]] | None = None,
     u_ref: Float[Array, "N n"] | None = None,
     throw: bool = False,
     play: Float[Array, "N n"] | None = None,
     travel: Float[Array, " n"] | None = None,
     direction: Float[Array, "N n"] | None = None,
+    config: ALConfig | None = None,
 ) -> OCPSolution:
     """Optimal motor accelerations that make the elastic robot follow `q_d` (eq. 4.3).
 
@@ -139,8 +144,9 @@ def solve_ocp(
     - `nu`: weighting factor of eq. 4.3a (> 0).
     - `cost`: `"thesis"` (eq. 4.3a), `"jerk"` (`nu ||u_{k+1} - u_k||^2`) or `"flat"`
       (`nu ||u - u_ref||^2`).
-    - `config`: `ALConfig` (default `ALConfig()`); its numbers are traced, so changing them
-      does not recompile (only `max_outer_iterations` beyond a multiple of 32 does).
+    - `solver`: the OCP solver, an `AbstractOCPSolver` (default `AugmentedLagrangian()`, whose settings are an
+      `ALConfig`); its numbers are traced, so changing them does not recompile (only `max_outer_iterations`
+      beyond a multiple of 32 does). Deprecated: `config=ALConfig(...)` for `solver=AugmentedLagrangian(...)`.
     - `warm_start`: `(x (N, 4n), u (N, n))`, e.g. from `jr.flat_inverse`; default: the flat
       relation on finite differences of `q_d` (`_transcription.warm_start`). Its end nodes
       are replaced by the boundary values of eq. 4.3e-j.
@@ -157,24 +163,41 @@ def solve_ocp(
 
     **Returns:** `OCPSolution`; check `status`/`converged` (a solve that did not converge is
     never reported as successful). `jit`/`vmap` over `nu`, `q_d` or `robot` work (range
-    checks then apply only to concrete inputs); with the scan (`ALConfig.linear_solver`, the CPU's
+    checks then apply only to concrete inputs); with `Scan` (`ALConfig.linear_solver`, the CPU's
     default) a `vmap` over `nu` alone is solved by continuation in increasing `nu`, with cyclic
     reduction (an accelerator's) as one batched program (`augmented_lagrangian`). The problem is solved
     padded to `padded_nodes(N)` nodes (`planning._padding`; `pad_problem`: the same optimum), so that tasks
     of other lengths share a compiled program.
 
-    **Raises:** `ValueError` naming the field for bad inputs (shapes, NaN, `ts <= 0`, `nu <= 0`).
+    **Raises:** `ValueError` naming the field for bad inputs (shapes, NaN, `ts <= 0`, `nu <= 0`, a `solver` that
+    is no `AbstractOCPSolver`).
     """
-    config = ALConfig() if config is None else config
-    if not isinstance(config, ALConfig):
-        raise ValueError(f"config: expected an ALConfig, found {type(config).__name__}")
-    return _solve_ocp(robot, q_d, ts, nu, cost, config, warm_start, u_ref, throw, history_length(config), play,
+    solver = ocp_solver("solve_ocp", solver, config)
+    return _solve_ocp(robot, q_d, ts, nu, cost, solver, warm_start, u_ref, throw, solver.history_length(), play,
                       travel, direction)
 
 
-def _solve_ocp(robot, q_d, ts, nu, cost: Cost, config: ALConfig, warm_start, u_ref, throw: bool,
+def ocp_solver(function: str, solver: AbstractOCPSolver | None, config: ALConfig | None) -> AbstractOCPSolver:
+    """The solver that the arguments `solver` (default `AugmentedLagrangian()`) and `config` (deprecated: the
+    settings of an `AugmentedLagrangian`, with a `DeprecationWarning`) of `function` give, checked: `ValueError`
+    naming the argument when it is no `AbstractOCPSolver` or both are given."""
+    if config is not None:
+        if solver is not None:
+            raise ValueError(f"{function}: `config=` is the old form of `solver=`; pass only `solver=`")
+        warnings.warn(f"{function}(config=...) is now {function}(solver=planning.AugmentedLagrangian(config)); the "
+                      "old name goes in the next release", DeprecationWarning, stacklevel=3)
+        solver = AugmentedLagrangian(config)
+    solver = AugmentedLagrangian() if solver is None else solver
+    if not isinstance(solver, AbstractOCPSolver):
+        hint = "; settings go into planning.AugmentedLagrangian(config)" if isinstance(solver, ALConfig) else ""
+        raise ValueError(f"solver: expected an OCP solver such as planning.AugmentedLagrangian(), "
+                         f"found {type(solver).__name__}{hint}")
+    return solver
+
+
+def _solve_ocp(robot, q_d, ts, nu, cost: Cost, solver: AbstractOCPSolver, warm_start, u_ref, throw: bool,
                history: int, play=None, travel=None, direction=None, nodes=None) -> OCPSolution:
-    """`solve_ocp` with the static history length given (`history_length`), so that `config` may be
+    """`solve_ocp` with the static history length given (`solver.history_length()`), so that `solver` may be
     traced; `nodes`: the inputs are already padded after the task's `nodes` nodes (`pad_problem`), and the
     solution is returned padded."""
     problem = ocp_problem(robot, q_d, ts, nu, cost, u_ref, play, travel, direction)
@@ -187,18 +210,18 @@ def _solve_ocp(robot, q_d, ts, nu, cost: Cost, config: ALConfig, warm_start, u_r
             raise ValueError(f"warm_start: expected (x, u) of shapes ({n}, {4 * j}), ({n}, {j}), "
                              f"found {np.shape(x0)}, {np.shape(u0)}")
         start = (jnp.asarray(x0, float), jnp.asarray(u0, float))
-    # the settings and the task's node count are traced: one compilation serves every ALConfig of the same
-    # history length and every N of the same padded size
-    config = jax.tree.map(jnp.asarray, config)
+    # the settings and the task's node count are traced: one compilation serves every solver's settings of the
+    # same history length and every N of the same padded size
+    solver = jax.tree.map(jnp.asarray, solver)
     reference_from_start = cost == "flat" and u_ref is None
     if nodes is not None:
-        sol = _solve(eqx.tree_at(lambda p: p.nodes, problem, nodes, is_leaf=lambda x: x is None), start, config,
+        sol = _solve(eqx.tree_at(lambda p: p.nodes, problem, nodes, is_leaf=lambda x: x is None), start, solver,
                      history, reference_from_start)
         return check(sol.status, sol, throw)
     size = padded_nodes(n)
     if start is not None:
         start = tuple(pad_edge(a, size) for a in start)
-    sol = _solve(pad_problem(problem, size), start, config, history, reference_from_start)
+    sol = _solve(pad_problem(problem, size), start, solver, history, reference_from_start)
     sol = eqx.tree_at(lambda s: (s.x, s.u, s.multipliers), sol,
                       (*head((sol.x, sol.u), n), head(sol.multipliers, n - 1)))
     return check(sol.status, sol, throw)

@@ -2,14 +2,14 @@
 that run side by side on the CPU cores.
 
 `jax.vmap(solve_ocp)` over `nu` solves the members one after another by continuation in `nu`
-(`_al_solver.augmented_lagrangian`): every member needs its own factorisation and the scans of
+(`_al_batch.augmented_lagrangian`): every member needs its own factorisation and the scans of
 the block Cholesky run on one core. XLA runs two such solves in one program one after the other,
 but two programs called from two host threads at once use both cores. This splits the sorted `nu`
 into `workers` interleaved chains of equal length, solves each chain by one compiled `vmap` call in
 its own thread, and merges the results in the caller's order. Each chain still warm-starts its
 members from the previous ones (their `nu` are `workers` times further apart, so they take a few
 more iterations). On an accelerator the chains of several threads would queue on the one device,
-so there the default is one chain, which its default linear solver (cyclic reduction,
+so there the default is one chain, which its default linear solver (`CyclicReduction`,
 `ALConfig.linear_solver`) makes one batched program: lanes that each solve a continuation chain of
 members and take the next `nu` when their member is done (`augmented_lagrangian`), at most as many
 lanes as the device memory holds (`batch_capacity`). Under several processes (`jax.distributed`,
@@ -34,20 +34,21 @@ from jaxtyping import Array, Float
 import jaxrobot as jr
 from jaxrobot.internal import backend_kind, check, gather_array
 
-from ._al_solver import ALConfig, history_length
-from ._ocp import OCPSolution, _solve_ocp
+from ._al_config import ALConfig
+from ._ocp import OCPSolution, _solve_ocp, ocp_solver
+from ._ocp_solver import AbstractOCPSolver
 from ._padding import head, pad_edge, pad_zeros, padded_nodes
 from ._transcription import Cost, ocp_problem
 
 
 @functools.partial(jax.jit, static_argnames=("cost", "history"))
-def _chain(robot, q_d, ts, nus, warm_start, u_ref, config, play, direction, nodes=None, *, cost, history
+def _chain(robot, q_d, ts, nus, warm_start, u_ref, solver, play, direction, nodes=None, *, cost, history
            ) -> OCPSolution:
     """One continuation chain: `solve_ocp` vmapped over `nus` (and the members' `play`, if any) on inputs
-    padded after the task's `nodes` nodes (traced; None: unpadded, each member padded by `solve_ocp`); `config`
+    padded after the task's `nodes` nodes (traced; None: unpadded, each member padded by `solve_ocp`); `solver`
     is traced, so chains that differ only in their settings or their task's length (of one padded size) share
-    one compiled program (`history`: `history_length(config)`)."""
-    return jax.vmap(lambda nu, p: _solve_ocp(robot, q_d, ts, nu, cost, config, warm_start, u_ref, False, history, p,
+    one compiled program (`history`: `solver.history_length()`)."""
+    return jax.vmap(lambda nu, p: _solve_ocp(robot, q_d, ts, nu, cost, solver, warm_start, u_ref, False, history, p,
                                              None, direction, nodes))(nus, play)
 
 
@@ -77,14 +78,14 @@ def _first_places(index: np.ndarray) -> np.ndarray:
 
 
 @functools.partial(jax.jit, static_argnames=("cost", "history", "mesh"))
-def _sharded_chains(robot, q_d, ts, nus, warm_start, u_ref, config, play, direction, nodes, cost, history, mesh
+def _sharded_chains(robot, q_d, ts, nus, warm_start, u_ref, solver, play, direction, nodes, cost, history, mesh
                     ) -> OCPSolution:
     """`_chain` on every device of `mesh` for its own members (`shard_map`, no communication); the
     other arguments (but the members' `play`) are replicated."""
     one, rep = PartitionSpec("sweep"), PartitionSpec()
     return jax.shard_map(functools.partial(_chain, cost=cost, history=history), mesh=mesh,
                          in_specs=(rep, rep, rep, one, rep, rep, rep, one, rep, rep), out_specs=one, check_vma=False)(
-        robot, q_d, ts, nus, warm_start, u_ref, config, play, direction, nodes)
+        robot, q_d, ts, nus, warm_start, u_ref, solver, play, direction, nodes)
 
 
 def check_nus(nus, name: str = "nus", distinct: bool = False) -> np.ndarray:
@@ -105,13 +106,14 @@ def solve_ocp_sweep(
     ts: float,
     nus,
     cost: Cost = "thesis",
-    config: ALConfig | None = None,
+    solver: AbstractOCPSolver | None = None,
     warm_start: tuple[Float[Array, "N 4*n"], Float[Array, "N n"]] | None = None,
     u_ref: Float[Array, "N n"] | None = None,
     workers: int | None = None,
     throw: bool = False,
     play: Float[Array, "B N n"] | None = None,
     direction: Float[Array, "N n"] | None = None,
+    config: ALConfig | None = None,
 ) -> OCPSolution:
     """`solve_ocp` for every `nu` in `nus` (B values > 0, any order); returns an `OCPSolution` with a
     leading axis B in the order of `nus`, each member with its own status (as `jax.vmap(solve_ocp)`).
@@ -123,15 +125,18 @@ def solve_ocp_sweep(
     so all chains share one compiled program. Not jittable: it is a driver of compiled calls.
     Under several processes (`jaxrobot.internal.initialize_processes`) every process passes the same
     arguments and receives all members; the chains are one per device of all processes (`workers`
-    is not used). `config` is traced: sweeps that differ only in their settings (of the same
-    `history_length`) share one compiled program. `throw`: raise the message of the first member
-    that did not converge (default False: each member carries its status). `play`: the play states of each
-    member's gears (B, N, n) and `direction` the motor directions, shared (as `solve_ocp`).
+    is not used). `solver` (as `solve_ocp`'s, `config` deprecated likewise) is traced: sweeps that
+    differ only in its settings (of the same `history_length()`) share one compiled program. `throw`: raise the
+    message of the first member that did not converge (default False: each member carries its status). `play`:
+    the play states of each member's gears (B, N, n) and `direction` the motor directions, shared (as
+    `solve_ocp`).
 
     **Raises:** `ValueError` naming the field for bad values, before any compute (`nus`, `workers`, `play`;
     the others as `solve_ocp`).
     """
     nus = check_nus(nus)
+    solver = ocp_solver("solve_ocp_sweep", solver, config)
+    history = solver.history_length()
     if workers is None:
         workers = (os.cpu_count() or 1) if backend_kind() == "cpu" else 1
     if not isinstance(workers, int | np.integer) or workers < 1:
@@ -141,10 +146,6 @@ def solve_ocp_sweep(
                          f"[motor rad], one set per nu, found {np.shape(play)}")
     ocp_problem(robot, q_d, ts, float(nus[0]), cost, u_ref, None if play is None else play[0], None,
                 direction)  # range checks on the concrete inputs
-    config = ALConfig() if config is None else config
-    if not isinstance(config, ALConfig):
-        raise ValueError(f"config: expected an ALConfig, found {type(config).__name__}")
-    history = history_length(config)
     order = np.argsort(nus)
     # the node axis padded (`planning._padding`): sweeps of tasks of other lengths share the compiled chain
     n = np.shape(q_d)[0]
@@ -160,14 +161,14 @@ def solve_ocp_sweep(
         spread = lambda a: jax.make_array_from_callback(  # noqa: E731
             a[index].shape, NamedSharding(mesh, PartitionSpec("sweep")), lambda idx: a[index][idx])
         out = _sharded_chains(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), spread(nus), warm_start, u_ref,
-                              config, None if play is None else spread(np.asarray(play, float)), direction, nodes,
+                              solver, None if play is None else spread(np.asarray(play, float)), direction, nodes,
                               cost, history, mesh)
         out = _cut(jax.tree.map(lambda leaf: jnp.asarray(leaf[_first_places(index)]), gather_array(out)), n)
         return check(out.status, out, throw)
     chains = max(1, min(int(workers), nus.size // 2))
     index = _chain_index(order, chains)
-    config = jax.tree.map(jnp.asarray, config)
-    args = [(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), jnp.asarray(nus[idx]), warm_start, u_ref, config,
+    solver = jax.tree.map(jnp.asarray, solver)
+    args = [(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), jnp.asarray(nus[idx]), warm_start, u_ref, solver,
              None if play is None else jnp.asarray(play, float)[idx], direction, nodes) for idx in index]
     compiled = _chain.lower(*args[0], cost=cost, history=history).compile()  # cached after the first call
     with ThreadPoolExecutor(chains) as pool:

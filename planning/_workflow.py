@@ -227,6 +227,33 @@ def _stacked(runs: list[PlantRun]) -> PlantRun:
                                           for f in ("q", "position", "orientation")})
 
 
+def _timed_ocp(robot: jr.Robot, jp: JointPath, flat: MotorTrajectory, ts: float, nu: float, cost: str,
+               directional: bool, timing: bool, emit: Callable[[PlanEvent], None]
+               ) -> tuple[OCPSolution, Float[Array, "N n"] | None, float, float | None]:
+    """The OCP step of `plan_task`: `solve_directional` on the joint path `jp` from the flat inverse `flat`, timed
+    (with `timing`, the compile time apart from the solve time, `jaxrobot.internal.compile_timer`; else None and
+    the two together), its "solving", "ocp" and "solved" events emitted. Returns the solution, its play states,
+    the solve time and the compile time [s]."""
+    emit(PlanEvent("solving", samples=jp.t.shape[0], nu=nu, cost=cost))
+    start = time.perf_counter()
+    with compile_timer() as compiling:
+        sol, play, _ = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
+        jax.block_until_ready(sol.u)
+    first = time.perf_counter() - start
+    emit(PlanEvent("ocp", first))
+    solve_s, compile_s = first, None  # without timing: compile and solve together
+    if timing:
+        compile_s = min(compiling.seconds, first)
+        solve_s = first - compile_s
+    it = int(sol.iterations)
+    hist = np.stack([np.asarray(a) for a in (sol.history_objective, sol.history_violation, sol.history_penalty)], -1)
+    emit(PlanEvent("solved", status=jr.status_name(sol.status), iterations=it, objective=float(sol.objective),
+                   max_violation=float(sol.max_constraint_violation),
+                   history=tuple(tuple(map(float, h)) for h in hist[:min(it, hist.shape[0])]),
+                   solve_time=solve_s, compile_time=compile_s))
+    return sol, play, solve_s, compile_s
+
+
 def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str = "thesis",
               q_init=None, timing: bool = True, directional: bool = False,
               on_event: Callable[[PlanEvent], None] | None = None) -> PlanResult:
@@ -268,25 +295,8 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
             return base, _plant_runs(plant, jp, base, directional) if one_by_one else None
 
         pending = pool.submit(baselines)
-        ts = float(path.sample_time)
-        emit(PlanEvent("solving", samples=jp.t.shape[0], nu=nu, cost=cost))
-        start = time.perf_counter()
-        with compile_timer() as compiling:
-            sol, play, _ = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
-            jax.block_until_ready(sol.u)
-        first = time.perf_counter() - start
-        emit(PlanEvent("ocp", first))
-        solve_s, compile_s = first, None  # without timing: compile and solve together
-        if timing:
-            compile_s = min(compiling.seconds, first)
-            solve_s = first - compile_s
-        it = int(sol.iterations)
-        hist = np.stack([np.asarray(a) for a in (sol.history_objective, sol.history_violation, sol.history_penalty)],
-                        -1)
-        emit(PlanEvent("solved", status=jr.status_name(sol.status), iterations=it, objective=float(sol.objective),
-                       max_violation=float(sol.max_constraint_violation),
-                       history=tuple(tuple(map(float, h)) for h in hist[:min(it, hist.shape[0])]),
-                       solve_time=solve_s, compile_time=compile_s))
+        sol, play, solve_s, compile_s = _timed_ocp(robot, jp, flat, float(path.sample_time), nu, cost, directional,
+                                                   timing, emit)
         ocp = motor_commands(robot, jp.t, {"ocp": ocp_motor_trajectory(sol.x, sol.u)})
         if not bool(sol.converged):
             return PlanResult(path, jp, sol, ocp, nu, cost, solve_s, compile_s, play=play)

@@ -85,9 +85,9 @@ def _cases():
             ROBOT, traj)
     yield "OCP, vmap over nu", lambda r, q: jax.vmap(lambda nu: pl.solve_ocp(r, q, 0.01, nu=nu).u)(
         jnp.array([1e-14, 1e-12])), (ROBOT, Q[:1].repeat(8, 0))
-    cr = pl.ALConfig(linear_solver="cyclic_reduction")
+    cr = pl.AugmentedLagrangian(pl.ALConfig(linear_solver=pl.CyclicReduction()))
     yield "OCP, vmap over nu, cyclic reduction (batched loop)", lambda r, q: jax.vmap(
-        lambda nu: pl.solve_ocp(r, q, 0.01, nu=nu, config=cr).u)(jnp.array([1e-14, 1e-12])), (ROBOT, Q[:1].repeat(8, 0))
+        lambda nu: pl.solve_ocp(r, q, 0.01, nu=nu, solver=cr).u)(jnp.array([1e-14, 1e-12])), (ROBOT, Q[:1].repeat(8, 0))
     yield pytest.param("OCP, vmap over q_d", lambda r, q: jax.vmap(lambda q: pl.solve_ocp(r, q, 0.01).u)(q), (
         ROBOT, Q[:1].repeat(8, 0)[None].repeat(2, 0)), marks=pytest.mark.slow, id="OCP, vmap over q_d")
 

@@ -82,7 +82,7 @@ def test_dir_lists_the_face(found, module):
     ("jaxrobot.status.check", "jaxrobot.internal.check"),
     ("jaxrobot.checks.check_public", "jaxrobot.internal.check_public"),
     ("planning.defects", "planning.internal.defects"),
-    ("planning.CyclicReduction", "planning.internal.CyclicReduction"),
+    ("planning.cyclic_reduction", "planning.internal.cyclic_reduction"),
     ("identification.detmax", "identification.calibration.detmax"),
     ("identification.calibration.calibrate", "identification.calibrate"),
     ("identification.gear.identify_gear", "identification.identify_gear"),

@@ -1,5 +1,5 @@
-"""The stopping tests of the augmented-Lagrangian solver (`planning/_al_solver.py`): the stall test on
-recorded histories, and the roundoff floor of the stationarity against the roundoff of the defects
+"""The stopping tests of the augmented-Lagrangian solver (`planning/_al_outer.py`, `planning/_al_merit.py`): the
+stall test on recorded histories, and the roundoff floor of the stationarity against the roundoff of the defects
 measured on the solver's own defects."""
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import planning as pl
-from planning import _al_solver as al
+from planning import _al_merit, _al_outer
 from planning import _transcription as tr
 
 CONFIG = pl.ALConfig()
@@ -28,7 +28,7 @@ def _hist(objective, violation, penalty, stationarity, m=32):
 
 def _stalled(objective, violation, penalty, stationarity):
     hist = _hist(objective, violation, penalty, stationarity)
-    return bool(al._stalled(CONFIG, hist, jnp.array(len(objective) - 1), LAM, RHO_MAX))
+    return bool(_al_outer._stalled(CONFIG, hist, jnp.array(len(objective) - 1), LAM, RHO_MAX))
 
 
 def test_stall_with_constraints_met_and_stationarity_at_its_floor():
@@ -82,10 +82,10 @@ def test_roundoff_floor_is_the_defects_roundoff_through_their_jacobian():
     problem = tr.ocp_problem(robot, _move(), 1e-3, 1e-14)
     x0, u0 = tr.warm_start(problem)
     y0 = jnp.concatenate([x0, u0], -1) / tr.variable_scale(problem)
-    p = al._parts(problem, y0)
+    p = _al_merit._parts(problem, y0)
     y = jnp.zeros_like(y0)
-    floor = float(al.roundoff_floor(p, y, p.start, 1e6))
-    assert float(al.roundoff_floor(p, y, p.start, 1e7)) == pytest.approx(10 * floor, rel=1e-12)
+    floor = float(_al_merit.roundoff_floor(p, y, p.start, 1e6))
+    assert float(_al_merit.roundoff_floor(p, y, p.start, 1e7)) == pytest.approx(10 * floor, rel=1e-12)
 
     pk = np.abs(np.asarray(tr.half_step_jacobian(problem, p.start)))  # (N, n, 3n): qd rows, columns q, qd, theta
     j = robot.n_joints

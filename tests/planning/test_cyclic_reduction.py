@@ -11,8 +11,9 @@ import pytest
 import planning as pl
 from planning.internal import cyclic_reduction, cyclic_reduction_solve
 from planning import _transcription as tr
-import planning._al_solver as al
-from planning._al_solver import batch_capacity, chunked_vmap, linear_solver
+import planning._al_batch as al_batch
+from planning._al_batch import batch_capacity, chunked_vmap
+from planning.internal import default_linear_solver
 from planning._block_tridiagonal import block_cholesky, block_cholesky_solve, block_tridiagonal_matvec
 from test_ocp import _assert_same_optimum
 
@@ -99,11 +100,18 @@ def test_cyclic_reduction_flags_indefinite_matrix():
         assert not bool(cyclic_reduction(jnp.asarray(bad), jnp.asarray(lower)).positive_definite), k
 
 
-def test_linear_solver_by_backend_and_bad_name():
-    assert linear_solver(pl.ALConfig()) == ("scan" if jax.default_backend() == "cpu" else "cyclic_reduction")
-    assert linear_solver(pl.ALConfig(linear_solver="cyclic_reduction")) == "cyclic_reduction"
-    with pytest.raises(ValueError, match="linear_solver: expected .*'scan'.*found 'lu'"):
-        pl.ALConfig(linear_solver="lu")
+def test_linear_solver_by_backend_and_bad_value():
+    """`None` picks the backend's (`default_linear_solver`); a string or another object is refused naming the
+    field and the objects to pass."""
+    by_backend = pl.Scan() if jax.default_backend() == "cpu" else pl.CyclicReduction()
+    assert default_linear_solver() == by_backend
+    assert pl.ALConfig().resolved_linear_solver() == by_backend
+    assert pl.ALConfig(linear_solver=pl.CyclicReduction()).resolved_linear_solver() == pl.CyclicReduction()
+    assert not pl.Scan().batch_in_lanes and pl.CyclicReduction().batch_in_lanes
+    with pytest.raises(ValueError, match=r"linear_solver: expected .*planning\.Scan\(\).*found 'scan'"):
+        pl.ALConfig(linear_solver="scan")
+    with pytest.raises(ValueError, match="linear_solver: expected .*found int"):
+        pl.ALConfig(linear_solver=3)
 
 
 def test_batch_capacity_from_array_sizes():
@@ -124,7 +132,8 @@ def test_batched_chunks_give_the_members_in_order(capacity):
         np.testing.assert_array_equal(np.asarray(out[key]), np.asarray(ref[key]))
 
 
-CR = pl.ALConfig(linear_solver="cyclic_reduction")
+CR = pl.AugmentedLagrangian(pl.ALConfig(linear_solver=pl.CyclicReduction()))
+SCAN = pl.AugmentedLagrangian(pl.ALConfig(linear_solver=pl.Scan()))
 
 
 def _move(n: int = 51):
@@ -138,11 +147,11 @@ def _move(n: int = 51):
 @pytest.mark.extended  # two OCP programs compiled; the suite keeps the factor and solve against dense and scan
 def test_solve_ocp_cyclic_reduction_matches_scan():
     robot, q_d = jr.racer7(), _move()
-    scan = pl.solve_ocp(robot, q_d, 1e-3, 1e-14, config=pl.ALConfig(linear_solver="scan"))
-    cr = pl.solve_ocp(robot, q_d, 1e-3, 1e-14, config=CR)
+    scan = pl.solve_ocp(robot, q_d, 1e-3, 1e-14, solver=SCAN)
+    cr = pl.solve_ocp(robot, q_d, 1e-3, 1e-14, solver=CR)
     assert bool(scan.converged) and bool(cr.converged)
     np.testing.assert_allclose(float(cr.objective), float(scan.objective), rtol=OBJECTIVE_RTOL)
-    one = jax.vmap(lambda nu: pl.solve_ocp(robot, q_d, 1e-3, nu, config=CR))(jnp.array([1e-14]))  # the unbatched solve
+    one = jax.vmap(lambda nu: pl.solve_ocp(robot, q_d, 1e-3, nu, solver=CR))(jnp.array([1e-14]))  # the unbatched solve
     assert int(one.iterations[0]) == int(cr.iterations) and int(one.inner_iterations[0]) == int(cr.inner_iterations)
     np.testing.assert_allclose(float(one.objective[0]), float(cr.objective), rtol=1e-12)
 
@@ -160,8 +169,8 @@ def _task(name: str):
 @pytest.mark.parametrize("task", ["line", "spiral"])
 def test_solve_ocp_cyclic_reduction_matches_scan_on_tasks(task):
     robot, q_d, ts, warm = _task(task)
-    scan = pl.solve_ocp(robot, q_d, ts, 1e-14, config=pl.ALConfig(linear_solver="scan"), warm_start=warm)
-    cr = pl.solve_ocp(robot, q_d, ts, 1e-14, config=CR, warm_start=warm)
+    scan = pl.solve_ocp(robot, q_d, ts, 1e-14, solver=SCAN, warm_start=warm)
+    cr = pl.solve_ocp(robot, q_d, ts, 1e-14, solver=CR, warm_start=warm)
     assert bool(scan.converged) and bool(cr.converged)
     np.testing.assert_allclose(float(cr.objective), float(scan.objective), rtol=OBJECTIVE_RTOL)
 
@@ -175,12 +184,12 @@ def test_batched_solves_match_separate_solves(monkeypatch, lanes):
     restart in a pass (`REFRESH_SHARE`, `RESTART_SHARE`: 2 of 3 and 2, 1 of 2 and 1), so lanes wait; each
     member equals its separate solve (status, iterations, objective)."""
     if lanes is not None:
-        monkeypatch.setattr(al, "batch_capacity", lambda *_: lanes)
+        monkeypatch.setattr(al_batch, "batch_capacity", lambda *_: lanes)
     robot = jr.racer7()
     moves = jnp.stack([_move(), _move()[::-1], _move() + jnp.array([0.2, 0, 0, 0, 0, 0])])
-    batched = jax.vmap(lambda q: pl.solve_ocp(robot, q, 1e-3, 1e-12, config=CR))(moves)
+    batched = jax.vmap(lambda q: pl.solve_ocp(robot, q, 1e-3, 1e-12, solver=CR))(moves)
     for i in range(3):
-        single = pl.solve_ocp(robot, moves[i], 1e-3, 1e-12, config=CR)
+        single = pl.solve_ocp(robot, moves[i], 1e-3, 1e-12, solver=CR)
         member = jax.tree.map(lambda a, i=i: a[i], batched)
         assert bool(member.status == single.status) and bool(single.converged)
         assert int(member.iterations) == int(single.iterations)
@@ -194,9 +203,9 @@ def test_batched_sweep_matches_separate_solves():
     of its separate cold solve to the solver's tolerances (`test_ocp._assert_same_optimum`)."""
     robot, q_d = jr.racer7(), _move()
     nus = np.logspace(-14, -10, 6)[[3, 0, 5, 1, 4, 2]]
-    sweep = pl.solve_ocp_sweep(robot, q_d, 1e-3, nus, config=CR, workers=1)
+    sweep = pl.solve_ocp_sweep(robot, q_d, 1e-3, nus, solver=CR, workers=1)
     for i, nu in enumerate(nus):
-        single = pl.solve_ocp(robot, q_d, 1e-3, float(nu), config=CR)
+        single = pl.solve_ocp(robot, q_d, 1e-3, float(nu), solver=CR)
         member = jax.tree.map(lambda a, i=i: a[i], sweep)
         assert bool(member.status == single.status)
         _assert_same_optimum(tr.ocp_problem(robot, q_d, 1e-3, float(nu)), member, single)

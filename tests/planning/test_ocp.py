@@ -16,7 +16,6 @@ import planning as pl
 from planning.internal import motor_directions
 from planning import _transcription as tr
 from planning._block_tridiagonal import block_cholesky, block_tridiagonal_matvec, block_tridiagonal_solve
-from planning._al_solver import history_length
 from planning._evaluation import motor_commands
 from planning._workflow import solve_directional
 from jaxrobot.io._description import robot_from_description
@@ -191,7 +190,7 @@ def test_structured_linearisation_matches_autodiff(robot, q_d):
     """`half_step`, `half_step_vjp` and the Gauss-Newton blocks of the solver (from `half_step_jacobian`),
     which use the structure of eq. 4.1, against forward-mode autodiff of the public
     `jr.planning_dynamics` and dense products."""
-    from planning._al_solver import _normal_blocks, _parts
+    from planning._al_merit import _normal_blocks, _parts
 
     problem = tr.ocp_problem(robot, q_d, TS, 1e-12, cost="jerk")
     y0 = jnp.concatenate(jax.jit(tr.warm_start)(problem), -1) / tr.variable_scale(problem)
@@ -328,7 +327,7 @@ def test_sweep_in_chains_matches_separate_solves(robot, q_d):
 
 
 def test_sweep_configs_differing_in_numbers_share_one_program(robot, q_d, monkeypatch):
-    """`ALConfig` is a traced argument of the sweep's compiled chain: two configs that differ only in a
+    """The solver (`ALConfig`) is a traced argument of the sweep's compiled chain: two configs that differ only in a
     tolerance trace it (and so compile it) at most once (a static config traced it once per config)."""
     import planning._sweep as sweep
 
@@ -337,9 +336,9 @@ def test_sweep_configs_differing_in_numbers_share_one_program(robot, q_d, monkey
     monkeypatch.setattr(sweep, "_solve_ocp", lambda *a: traces.append(a[5]) or solve(*a))
     args = (robot, jnp.asarray(q_d), jnp.asarray(TS), jnp.asarray([1e-14, 1e-12]), None, None)
     for tol in (3e-9, 4e-9):
-        config = pl.ALConfig(tol_violation=tol)
+        config = pl.AugmentedLagrangian(pl.ALConfig(tol_violation=tol))
         sweep._chain.lower(*args, jax.tree.map(jnp.asarray, config), None, None, cost="thesis",
-                           history=history_length(config))
+                           history=config.history_length())
     assert len(traces) <= 1
 
 
@@ -360,13 +359,13 @@ def test_sweep_bad_input_names_the_field(robot, q_d, kwargs, field):
 
 
 def test_non_converged_solve_is_not_success(robot, q_d):
-    sol = pl.solve_ocp(robot, q_d, TS, NU, config=pl.ALConfig(max_outer_iterations=1))
+    sol = pl.solve_ocp(robot, q_d, TS, NU, solver=pl.AugmentedLagrangian(pl.ALConfig(max_outer_iterations=1)))
     assert int(sol.iterations) == 1
     assert bool(sol.status == jr.RESULTS.nonlinear_max_steps_reached)
     assert not bool(sol.converged)
     assert "maximum number of steps" in jr.status_message(sol.status)
     with pytest.raises(Exception, match="maximum number of steps"):  # throw=True: RESULTS.error_if
-        pl.solve_ocp(robot, q_d, TS, NU, config=pl.ALConfig(max_outer_iterations=1), throw=True)
+        pl.solve_ocp(robot, q_d, TS, NU, solver=pl.AugmentedLagrangian(pl.ALConfig(max_outer_iterations=1)), throw=True)
 
 
 def test_motor_directions_keep_the_plan_to_the_task(robot, q_d):
@@ -441,12 +440,24 @@ def test_cost_variants_converge(robot, q_d, cost):
     (dict(warm_start=(np.zeros((10, 24)), np.zeros((9, 6)))), "warm_start"),
     (dict(direction=np.ones((9, 6))), "direction"),
     (dict(direction=np.full((10, 6), 0.5)), "direction"),
+    (dict(solver="scan"), "solver: expected an OCP solver"),
+    (dict(solver=pl.ALConfig()), r"solver: expected an OCP solver .*found ALConfig; settings go into"),
+    (dict(solver=pl.AugmentedLagrangian(), config=pl.ALConfig()), "`config=` is the old form of `solver=`"),
 ])
 def test_bad_input_names_the_field(robot, kwargs, field):
     args = dict(q_d=np.zeros((10, 6)), ts=TS, nu=NU)
     args.update(kwargs)
     with pytest.raises(ValueError, match=field):
         pl.solve_ocp(robot, **args)
+
+
+@pytest.mark.parametrize("solve", [pl.solve_ocp, lambda *a, **k: pl.solve_ocp_sweep(*a[:3], [a[3]], **k)])
+def test_config_is_the_deprecated_name_of_solver(robot, solve):
+    """`config=` alone warns and is taken as `solver=` (the bad `ts` that follows shows the call went on)."""
+    renamed = r"\(config=\.\.\.\) is now .*\(solver=planning\.AugmentedLagrangian\(config\)\)"
+    with pytest.warns(DeprecationWarning, match=renamed):
+        with pytest.raises(ValueError, match="ts"):
+            solve(robot, np.zeros((10, 6)), -1e-3, NU, config=pl.ALConfig())
 
 
 def _line(duration: float, y_end: float) -> dict:

@@ -14,7 +14,6 @@ import planning as pl
 from planning import _ocp
 from planning import _transcription as tr
 from planning._padding import PAD_MIN, PAD_RATIO, padded_nodes
-from planning._al_solver import history_length
 from planning.internal import motor_directions
 
 TS = 1e-3
@@ -98,9 +97,9 @@ def test_padded_solve_is_the_unpadded_solve(robot):
     n = 51
     q_d, direction = _task(robot, n)
     padded = pl.solve_ocp(robot, q_d, TS, NU, direction=direction)
-    config = pl.ALConfig()
+    solver = pl.AugmentedLagrangian()
     problem = tr.ocp_problem(robot, q_d, TS, NU, direction=direction)
-    plain = _ocp._solve.jitted(problem, None, jax.tree.map(jnp.asarray, config), history_length(config), False)
+    plain = _ocp._solve.jitted(problem, None, jax.tree.map(jnp.asarray, solver), solver.history_length(), False)
     assert bool(plain.converged) and bool(padded.converged)
     assert int(padded.iterations) == int(plain.iterations)
     assert int(padded.inner_iterations) == int(plain.inner_iterations)
@@ -144,7 +143,7 @@ def _line(duration: float, sample_time: float):
     return pl.line_path(desc)
 
 
-def _warm_start_as_solution(robot, q_d, ts, nu=1e-14, cost="thesis", config=None, warm_start=None, u_ref=None,
+def _warm_start_as_solution(robot, q_d, ts, nu=1e-14, cost="thesis", solver=None, warm_start=None, u_ref=None,
                             throw=False, play=None, travel=None, direction=None):
     """Stand-in for `solve_ocp`: its warm start as a converged solution."""
     x, u = warm_start

@@ -13,7 +13,6 @@ from helpers import ARM7
 import planning as pl
 from planning import _ocp
 from planning import _transcription as tr
-from planning._al_solver import history_length
 
 NODES = 2904
 """The padded size of `plan line` (2501 samples); larger than any constant the program needs (a 5n x 5n block:
@@ -34,8 +33,8 @@ def test_no_constant_of_the_node_count(name):
     blend = s**4 * (35.0 - 84.0 * s + 70.0 * s**2 - 20.0 * s**3)
     q_d = jnp.full((n, robot.n_joints), 0.1) + 3e-4 * blend[:, None]  # a 0.3 mrad move (eq. 4.4 blend)
     problem = tr.pad_problem(tr.ocp_problem(robot, q_d, 1e-3, 1e-14, direction=jnp.ones_like(q_d)), NODES)
-    config = jax.tree.map(jnp.asarray, pl.ALConfig())
-    m = history_length(pl.ALConfig())
+    config = jax.tree.map(jnp.asarray, pl.AugmentedLagrangian())
+    m = pl.AugmentedLagrangian().history_length()
     text = jax.jit(lambda p, c: _ocp._solve.__wrapped__(p, None, c, m, False)).lower(problem, config).as_text()
     sizes = _constant_sizes(text)
     assert len(sizes) > 10  # the pattern finds the program's constants

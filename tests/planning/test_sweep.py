@@ -8,7 +8,8 @@ import numpy as np
 
 from jaxrobot import RESULTS
 from jaxrobot._status import where
-from planning._al_solver import ALResult, _continuation
+from planning._al_batch import _continuation
+from planning.internal import OCPSolverResult
 
 N, M = 3, 4
 """Nodes and history length of the stand-in problem."""
@@ -23,7 +24,7 @@ def _stand_in(x, y, dual):
     cold = jnp.all(y == Y0)
     failed = (fails_warm & ~cold) | fails_always
     z = lambda *shape: jnp.zeros(shape)  # noqa: E731
-    return ALResult(y=Y0 + target, multipliers=dual[0] + target, bound_multipliers=dual[1],
+    return OCPSolverResult(y=Y0 + target, multipliers=dual[0] + target, bound_multipliers=dual[1],
                     status=where(failed, RESULTS.nonlinear_max_steps_reached, RESULTS.successful),
                     iterations=jnp.where(cold, 9, 1), inner_iterations=jnp.array(0), objective=y[0, 0],
                     violation=jnp.array(0.0), stationarity=jnp.array(0.0), history_objective=z(M),

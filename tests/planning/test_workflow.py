@@ -18,7 +18,7 @@ def line_samples(step: int):
     return np.asarray(t), np.asarray(pl.sample_path(LINE, t)[0])
 
 
-def _failed_solve(robot, q_d, ts, nu=1e-14, cost="thesis", config=None, warm_start=None, u_ref=None, throw=False,
+def _failed_solve(robot, q_d, ts, nu=1e-14, cost="thesis", solver=None, warm_start=None, u_ref=None, throw=False,
                   play=None, travel=None, direction=None):
     """Stand-in for `solve_ocp` that returns its warm start as an `inner_failed` solution."""
     from planning._ocp import RESULTS, OCPSolution

@@ -1,0 +1,199 @@
+"""The outer loop of the augmented-Lagrangian solver for one problem (`_al_solver` module docstring): its start
+(`_start`), its passes (`_pass`: `_prepare` with the multiplier and penalty updates and the stopping tests,
+then an LM step of `_al_step`) and its result (`_result`)."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from jaxrobot import RESULTS
+
+from ._al_config import ALConfig
+from ._al_merit import (
+    _box_violation,
+    _cost,
+    _cost_gradient,
+    _gradient,
+    _linearise,
+    _outside,
+    _Parts,
+    _parts,
+    roundoff_floor,
+)
+from ._al_step import _lm_step, _refactor, _State
+from ._ocp_solver import OCPSolverResult
+from ._transcription import ANGLE_SCALE, OCPProblem
+
+ACTIVE_SET_STEPS = 16
+"""Most steps of one inner solve that continue because the last step changed the active bounds
+(`ALConfig.max_inner_iterations`)."""
+
+STALL_WINDOW = 3
+"""Outer iterations over which a solve must have stopped changing to end `RESULTS.stalled` (`_stalled`)."""
+
+
+def _initial_penalty(p: _Parts, config: ALConfig):
+    """`rho` at the start (`ALConfig.penalty_per_weight`)."""
+    w_u = jnp.max(jnp.maximum(p.weight, p.edge)[4 * p.problem.n_joints:])
+    return jnp.maximum(jnp.asarray(config.penalty_init, float), config.penalty_per_weight * w_u)
+
+
+def _start(problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig, m: int,
+           dual: tuple[Float[Array, "Nm1 4*n"], Float[Array, "N 5*n"]]) -> tuple[_Parts, _State]:
+    """Problem data and the first state of a solve from `y0` and the multipliers `dual = (lam, gam)`
+    (zeros: a cold start; `m` the static history length)."""
+    p = _parts(problem, y0)
+    factorise = config.resolved_linear_solver().factor
+    n, nz = y0.shape
+    state = _State(
+        y=jnp.zeros_like(y0), lam=dual[0], gam=dual[1], rho=_initial_penalty(p, config),
+        mu=jnp.asarray(config.damping_init, float), it=jnp.array(0),
+        inner=jnp.array(0), steps=jnp.array(0), violation=jnp.array(jnp.inf), stationarity=jnp.array(jnp.inf),
+        status=RESULTS.nonlinear_max_steps_reached, stop=jnp.array(False), hist=jnp.full((4, m), jnp.nan),
+        # placeholder factor; the NaN key makes the first step factorise (one copy of the
+        # Jacobian code in the program: compile time)
+        factor=jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
+                            jax.eval_shape(factorise, jnp.zeros((n, nz, nz)), jnp.zeros((n - 1, nz, nz)))),
+        factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), switched=jnp.array(False),
+        forward=p.start, predicted=p.c0,
+    )
+    return p, state
+
+
+def _result(p: _Parts, s: _State) -> OCPSolverResult:
+    """The `OCPSolverResult` of a solve that stopped in state `s`."""
+    return OCPSolverResult(
+        y=p.y0 + s.y, multipliers=s.lam, bound_multipliers=s.gam, status=s.status, iterations=s.it,
+        inner_iterations=s.steps, objective=_cost(p, s.y) * ANGLE_SCALE**2, violation=s.violation,
+        stationarity=s.stationarity, history_objective=s.hist[0], history_violation=s.hist[1],
+        history_penalty=s.hist[2], history_stationarity=s.hist[3],
+    )
+
+
+def _augmented_lagrangian(problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig, m: int,
+                          dual: tuple[Float[Array, "Nm1 4*n"], Float[Array, "N 5*n"]]) -> OCPSolverResult:
+    """`augmented_lagrangian` for one problem from `y0` and the multipliers `dual = (lam, gam)`
+    (zeros: a cold start; `m` the static history length)."""
+    p, s = _start(problem, y0, config, m, dual)
+    s = jax.lax.while_loop(lambda s: ~s.stop, lambda s: _pass(p, config, s), s)
+    return _result(p, s)
+
+
+def _pass(p: _Parts, config: ALConfig, s: _State) -> _State:
+    """One pass of the solver's loop (`augmented_lagrangian`) from state `s`: `_prepare`, then, where it
+    says so, an LM step (`_lm_step`) on a factor refreshed (`_refactor`) where it says so."""
+    s, c_y, grad, id_vjp, step, fresh = _prepare(p, config, s)
+
+    def lm(s):
+        factor = jax.lax.cond(fresh, lambda: _refactor(p, config, s, id_vjp), lambda: s.factor)
+        return _lm_step(p, config, s, c_y, grad, factor, fresh)
+
+    return jax.lax.cond(step, lm, lambda s: s, s)
+
+
+def _inner_done(config: ALConfig, s: _State, grad) -> Bool[Array, ""]:
+    """The inner solve at `s` (gradient of `Phi` `grad`) is done. The multipliers move only from an iterate
+    it accepted (never after a rejection), once the active bounds settled: updated from a step that switched
+    them, they cycle between two active sets."""
+    settled = ~s.switched | (s.inner >= ACTIVE_SET_STEPS)
+    return (jnp.max(jnp.abs(grad)) <= config.inner_tol) | ((s.inner >= config.max_inner_iterations) & s.accepted
+                                                           & settled)
+
+
+def _prepare(p: _Parts, config: ALConfig, s: _State):
+    """The first part of a pass (`_pass`): linearise at `y` (one linearisation serves the multiplier update
+    and the LM step that follows it), update the multipliers and the penalty where the inner solve is done.
+    Returns the state, the defects and the gradient of `Phi` at `y` (for the multipliers now), the
+    linearisation of Newton-Euler, whether to take an LM step and whether it needs a fresh factor (`rho` or
+    `mu` changed since the factor was made, or it is `refresh_every` steps old)."""
+    m = s.hist.shape[-1]
+    rho_max = config.penalty_max * _initial_penalty(p, config) / config.penalty_init
+    c_y, vjp, id_vjp = _linearise(p, s.y, s.forward)
+    grad = _gradient(p, s.y, c_y, vjp, s.lam, s.gam, s.rho)
+    # what the update changes, the only outputs of its `cond` (under `vmap` it selects every leaf it returns)
+    changed = lambda t: (t.lam, t.gam, t.rho, t.it, t.inner, t.violation, t.stationarity, t.status, t.stop,  # noqa: E731
+                         t.hist)
+
+    def update():
+        viol = jnp.maximum(jnp.max(jnp.abs(c_y)), _box_violation(p, s.y))
+        # the defects the multipliers follow: those the step's linearisation predicted where its remainder (the
+        # constraints' curvature over the step) exceeds them, else the defects at `y` (`_multiplier_defects`)
+        shift = _multiplier_defects(c_y, s.predicted) - c_y
+        lam = s.lam + s.rho * (c_y + shift)
+        # the gradient of the Lagrangian at the updated multipliers: `grad` with `rho (c_y + shift)` for `rho c_y`
+        stat = jnp.max(jnp.abs(grad + s.rho * vjp(shift) * p.free))
+        gam = s.rho * _outside(p, s.y, s.gam, s.rho)
+        # with direction bounds, not while the grown penalty's term would exceed the multipliers (`_penalty_grows`)
+        grown = jnp.minimum(s.rho * config.penalty_growth, rho_max)
+        rho = jnp.where(_penalty_grows(p, config, viol, s.violation, grown, lam), grown, s.rho)
+        scale = jnp.maximum(1.0, jnp.maximum(jnp.max(jnp.abs(_cost_gradient(p, s.y))), jnp.max(jnp.abs(gam * p.free))))
+        met = viol <= config.tol_violation
+        converged = met & (stat <= config.tol_stationarity * scale + roundoff_floor(p, s.y, s.forward, s.rho))
+        finite = jnp.isfinite(viol) & jnp.isfinite(stat)
+        it = s.it + 1
+        out_of_iterations = it >= config.max_outer_iterations
+        record = jnp.stack([_cost(p, s.y) * ANGLE_SCALE**2, viol, s.rho, stat])
+        hist = s.hist.at[:, jnp.minimum(s.it, m - 1)].set(record)
+        stalled = ~converged & _stalled(config, hist, s.it, lam, rho_max)
+        status = RESULTS.where(converged, RESULTS.successful, RESULTS.where(
+            finite, RESULTS.where(stalled, RESULTS.stalled, RESULTS.nonlinear_max_steps_reached), RESULTS.nonfinite))
+        new = eqx.tree_at(changed, s, (lam, gam, rho, it, jnp.array(0), viol, stat, status,
+                                       converged | stalled | ~finite | out_of_iterations, hist))
+        return changed(new), _gradient(p, new.y, c_y, vjp, new.lam, new.gam, new.rho)
+
+    values, grad = jax.lax.cond(_inner_done(config, s, grad), update, lambda: (changed(s), grad))
+    s = eqx.tree_at(changed, s, values)
+    step = ~s.stop & ~_inner_done(config, s, grad)
+    fresh = jnp.any(jnp.stack([s.rho, s.mu]) != s.factor_key) | (s.factor_age >= config.refresh_every)
+    return s, c_y, grad, id_vjp, step, fresh
+
+
+def _penalty_grows(p: _Parts, config: ALConfig, viol, previous, grown, lam) -> Bool[Array, ""]:
+    """`rho` grows to `grown`: the violation `viol` did not fall below `violation_decrease` times the `previous`
+    one nor to `tol_violation`, and, where direction bounds are set (`_Parts.directed`), `grown viol` is at most
+    the largest multiplier `lam`. The Gauss-Newton matrix drops the constraints' curvature times `lam + rho c`;
+    with the kinks of the direction bounds in the merit, an early growth while `rho c` dominates `lam` leaves
+    steps that are rejected until the damping exceeds `damping_max` (the 51-node move at nu = 1e-10 with `rho`
+    from 100 to 1000 times the control weight). Without direction bounds the early growth is what converges."""
+    late = ~jnp.any(p.directed) | (grown * viol <= jnp.max(jnp.abs(lam)))
+    return (viol > config.violation_decrease * previous) & (viol > config.tol_violation) & late
+
+
+def _multiplier_defects(c_y, predicted):
+    """The defects whose `rho` multiple the first-order update adds to the multipliers, from those at `y` (`c_y`)
+    and those the linearisation of the step to `y` predicted (`predicted`): the predicted ones where the remainder
+    `c_y - predicted` is the larger, else `c_y`. The update `lam += rho c` assumes an iterate that minimises `Phi`;
+    after one Gauss-Newton step from far away the defects are mostly the step's curvature remainder, which the
+    next step removes anyway; added to `lam` it reappears there with the opposite sign and costs an outer
+    iteration. The predicted defects give the multipliers of the step's penalised quadratic model (those of an
+    SQP step). Near the solution the remainder is second order and the update is the classical one."""
+    remainder = jnp.max(jnp.abs(c_y - predicted))
+    return jnp.where(remainder > jnp.max(jnp.abs(predicted)), predicted, c_y)
+
+
+def _stalled(config: ALConfig, hist, it, lam, rho_max) -> Bool[Array, ""]:
+    """The solve has stopped improving over the `STALL_WINDOW` outer iterations before the one recorded at
+    `hist[:, it]` (rows: objective, violation, penalty, stationarity; `lam`: the updated multipliers): either
+    the constraints are met throughout, the objective changed by at most what the tolerated defects leave
+    open to first order (`sum |lam| tol_violation`, in the units of the objective) and the stationarity did
+    not fall below its smallest value in the window; or the constraints are not met, at the largest penalty
+    `rho_max` throughout, the violation did not fall below its smallest value in the window, stays beyond
+    one required decrease of the tolerance (`tol_violation / violation_decrease`: closer, the next update
+    may meet it; bounds at 0 by rounding make a feasible solve's violation fluctuate there) and the
+    objective rose at every outer iteration of it (infeasible: the update `lam += rho c` with a violation
+    that does not vanish makes the multipliers grow without bound, and the cost the iterates pay for the
+    violation they remove with them). The tests of `_prepare` have already not accepted it as converged."""
+    window = jax.lax.dynamic_slice_in_dim(hist, jnp.maximum(it - STALL_WINDOW, 0), STALL_WINDOW, axis=1)
+    objective, violation, penalty, stationarity = hist[:, jnp.minimum(it, hist.shape[-1] - 1)]
+    open_objective = jnp.sum(jnp.abs(lam)) * config.tol_violation * ANGLE_SCALE**2
+    flat = jnp.abs(objective - window[0, 0]) <= open_objective
+    met = (violation <= config.tol_violation) & jnp.all(window[1] <= config.tol_violation)
+    at_floor = met & flat & (stationarity >= jnp.min(window[3]))
+    rising = jnp.all(jnp.diff(jnp.append(window[0], objective)) > 0)
+    beyond = config.tol_violation / config.violation_decrease
+    infeasible = ((violation > beyond) & jnp.all(jnp.append(window[2], penalty) >= rho_max)
+                  & (violation >= jnp.min(window[1])) & rising)
+    return (it >= STALL_WINDOW) & (at_floor | infeasible)
