@@ -26,16 +26,13 @@ FD_STEP = 1e-4
 is ~1e-4 of a column, below the fits' resolution, and the rounding error of a residual of 1e6 noise units ~1e-6 of
 one. A forward difference costs one simulation per column, a forward-mode derivative pass about seven
 (benchmarks/results_runs.md)."""
-
 BATCH = 8
 """Perturbed models simulated per call of the batched program (`_perturbed`: one `vmap` of the simulation, one
 compiled program for any number of columns); a remainder of fewer than `SINGLE_BELOW` columns runs as single
 simulations of the residual's program instead."""
-
 SINGLE_BELOW = 7
 """A batch of `BATCH` perturbed simulations costs about seven single ones' CPU time (6.5-7.2 measured:
 benchmarks/results_runs.md): fewer columns than this run one simulation each."""
-
 KNOWN = 64
 """Points whose runs' residuals `_Evidence.known` keeps (each 3 + n numbers per sample of every run)."""
 

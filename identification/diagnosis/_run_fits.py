@@ -20,18 +20,15 @@ from ._run_results import RunEffect, RunEstimate, RunFinalFit, RunStep
 
 LM_STEPS = 30
 """Most Levenberg-Marquardt iterations of a fit."""
-
 RANKING_STEPS = 10
 """Most iterations of a candidate's fit for ranking (`_fit` without `exact_end`): on updated derivatives a fit of
 several variables (the payload's four) can creep on for all `LM_STEPS`, a simulation each; the chosen fit is
 continued on fresh derivatives."""
-
 EXACT_TOLERANCE = 1e-3
 """Chi-square decrease below which an exact fit (`_fit` with `exact_end`) ends, or `FD_STEP`^2 of the chi-square
 where that is larger: within it of the minimum every estimate lies within sqrt(1e-3) = 0.03 of its std of the
 minimum's, and the forward differences' truncation error (`FD_STEP` of a column) resolves a Gauss-Newton step's
 decrease to about `FD_STEP`^2 of the chi-square, no finer."""
-
 RANKING_TOLERANCE = 0.1 * MIN_BIC_GAIN
 """Chi-square decrease of an accepted step below which a candidate's fit for ranking ends (`_fit` without
 `exact_end`), or the exact fits' tolerance where that is larger: a tenth of `MIN_BIC_GAIN`, the resolution the ranking

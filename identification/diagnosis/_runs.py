@@ -33,13 +33,10 @@ from ._run_results import RunConfound, RunDiagnosis, RunEffect, RunLimit, RunSte
 
 SCREENED = 3
 """Candidates per step fitted in full: those with the largest linearised chi-square decrease."""
-
 ENCODER_LAG_RAD = 1e-6
 """Least departure [rad] of a motor's encoder from the model's motor angle that makes a lag of that motor a
 candidate (above the files' rounding, 12 digits, ~1e-10 rad; and at least two encoder counts where `[sensors]
 encoder_counts_per_rev` states them): the encoders report the motor angle, so a lag shows there first."""
-
-
 DETECTION = MIN_BIC_GAIN
 """Chi-square rise, beyond a parameter's BIC cost `ln(rows)`, that an effect must cause to be added: the size of a
 candidate at which its linearised chi-square reaches this is its detection limit (`RunDiagnosis.limits`)."""
