@@ -25,6 +25,8 @@ from pathlib import Path
 import _timing  # benchmarks/ is the script's folder
 
 ROOT = Path(__file__).resolve().parents[1]
+RACER7 = ROOT / "jaxrobot" / "data" / "racer7.toml"
+"""The robot file of the planned tasks."""
 BIG = 1.0
 """[s] A compilation longer than this is listed by name."""
 
@@ -53,7 +55,8 @@ def measure(durations: list[float]) -> list[dict]:
     from planning._padding import padded_nodes
     from planning._trajectories import line_path
 
-    robot, desc, rows = jr.racer7(), jr.read_description(None), []
+    desc, rows = jr.read_description(RACER7), []
+    robot = jr.robot_from_description(desc)
     for duration in durations:
         d = copy.deepcopy(desc)
         d["trajectories"]["duration_s"] = duration

@@ -86,7 +86,7 @@ def demo_calibration() -> DemoCalibration:
     poses (toml `[poses]`) and 13 validation poses chosen by DETMAX, one bench session; the nominal
     robot calibrated on them."""
     truth, nominal, instruments = jr.racer7(as_built=True), jr.racer7(), jr.racer7_instruments()
-    theta = np.deg2rad(np.asarray(jr.read_description(None)["poses"]["motor_deg"], float))
+    theta = jr.io.read_pose_angles(None)
     sel = detmax(nominal, ParameterMap(DEFAULT_PARAMETERS), n_poses=13, seed=7, marker=instruments.marker_offset,
                  pool_size=1000, max_iter=200)
     both = measure_poses(truth, np.concatenate([theta, sel.motor_angles]), seed=1,

@@ -21,7 +21,7 @@ from .._program_cache import cached_program
 from .._robot import Robot
 from .._rotations import rotation_to_quaternion, rotvec_to_rotation
 from .._status import require_successful
-from ..io._description import read_description
+from ..io._description import racer7, read_as_built
 from ..io._instruments import racer7_instruments
 from ..measurement._model import measured_pose
 from ..measurement._poses import Poses
@@ -99,6 +99,15 @@ def measure_poses(
                  link_angles=np.asarray(q), true_positions=np.asarray(p), metadata=meta)
 
 
+def _table_3_8_stds() -> tuple[float, float, float]:
+    """The rms of the as-built deviations of the Racer-7 (thesis Table 3.8, `[as_built]` of the embedded
+    description): of the lengths [m], of the angles [rad] and of the relative errors of the wrist ratios."""
+    dev = read_as_built(None)
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    entries = lambda *keys: np.concatenate([dev[f"delta_{k}"][_FLEET_MASK[k]] for k in keys])  # noqa: E731
+    return rms(entries("a", "d")), rms(entries("alpha", "beta")), rms(dev["u0_relative"][3:])
+
+
 def draw_fleet(
     n: int,
     seed: int = 0,
@@ -113,20 +122,13 @@ def draw_fleet(
 
     Deviations go on the parameters of thesis Table 3.8 (a1..a5, d2, d4, alpha1..alpha5, beta3,
     u0 of gears 4-6) for a six-joint robot, on a, d, alpha, beta of all joints but the last and
-    on every u0 for other robots, optionally also on the joint offsets. Default stds are the rms
-    of the Table 3.8 entries (`[as_built]` of the embedded description): lengths, angles, and the
-    relative wrist-ratio errors. Returns the robot pytree with a leading axis `n`.
+    on every u0 for other robots, optionally also on the joint offsets. Default stds, for any robot: the rms of
+    the Table 3.8 entries (`[as_built]` of the embedded Racer-7, `jaxrobot.io.read_as_built(None)`): lengths,
+    angles, and the relative wrist-ratio errors. Returns the
+    robot pytree with a leading axis `n`.
     """
-    data = read_description(None)
-    if robot is None:
-        from ..io._description import racer7
-
-        robot = racer7()
-    dev = data["as_built"]
-    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
-    ls = rms([v for k in ("a", "d") for v, m in zip(dev[f"delta_{k}"], _FLEET_MASK[k]) if m])
-    ang = rms([v for k in ("alpha", "beta") for v, m in zip(dev[f"delta_{k}"], _FLEET_MASK[k]) if m])
-    rel = rms(np.asarray(dev["u0_wrist"]) / np.asarray(data["gear"]["u0"][3:]) - 1.0)
+    robot = racer7() if robot is None else robot
+    ls, ang, rel = _table_3_8_stds()
     joints = robot.n_joints
     six = joints == len(_FLEET_MASK["a"])
     mask = {k: m if six else np.arange(joints) < joints - 1 for k, m in _FLEET_MASK.items()}

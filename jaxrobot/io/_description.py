@@ -75,11 +75,7 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
         dev = data["as_built"]
         for k in ("a", "d", "alpha", "beta"):
             kin[k] = kin[k] + np.asarray(dev[f"delta_{k}"], float)
-        u0 = u0.copy()
-        if "u0" in dev:
-            u0[:] = dev["u0"]
-        elif "u0_wrist" in dev:
-            u0[3:] = dev["u0_wrist"]
+        u0 = _true_ratios(dev, u0)
     lim = np.deg2rad(np.asarray(data["limits"]["position_deg"], float))
     cw, ccw = _ripples(gear, n)
     k1, k3 = stiffness_terms(data, n)
@@ -108,6 +104,49 @@ def robot_from_description(data: dict, as_built: bool = False) -> Robot:
     for effect in EFFECTS:
         effect.check_robot(robot, fail_field)
     return robot
+
+
+def _true_ratios(dev: dict, u0: np.ndarray) -> np.ndarray:
+    """The as-built robot's basic gear ratios: `u0` with those `[as_built]` (`dev`) states (`u0`, or the older
+    `u0_wrist` of gears 4-6)."""
+    u0 = u0.copy()
+    if "u0" in dev:
+        u0[:] = dev["u0"]
+    elif "u0_wrist" in dev:
+        u0[3:] = dev["u0_wrist"]
+    return u0
+
+
+def _described(source: str | Path | dict | None) -> dict:
+    """The validated description of `source`: a description dict as it is, else `read_description(source)`."""
+    return source if isinstance(source, dict) else read_description(source)
+
+
+def read_as_built(source: str | Path | dict | None) -> dict[str, np.ndarray]:
+    """The deviations of a robot file's as-built robot from its nominal one (`[as_built]`), per joint:
+    `delta_a`, `delta_d` [m], `delta_alpha`, `delta_beta` [rad] and `u0_relative`, the relative errors of the true
+    basic gear ratios (0 where the file states none). `source`: a robot file (TOML or URDF path), a description dict
+    of `jaxrobot.read_description`, or `None` for the embedded Racer-7's test bench (thesis Table 3.8). Raises
+    `RobotFileError` naming `as_built` where the file has none."""
+    data = _described(source)
+    if "as_built" not in data:
+        fail_field("as_built", "a table of the as-built deviations (delta_a, delta_d, delta_alpha, delta_beta)",
+                   "no [as_built] table")
+    dev = data["as_built"]
+    u0 = np.asarray(data.get("gear", {}).get("u0", np.ones(joint_count(data))), float)
+    out = {f"delta_{k}": np.asarray(dev[f"delta_{k}"], float) for k in ("a", "d", "alpha", "beta")}
+    return out | {"u0_relative": _true_ratios(dev, u0) / u0 - 1.0}
+
+
+def read_pose_angles(source: str | Path | dict | None) -> np.ndarray:
+    """The motor angles [rad] (K, n) of the poses a robot file lists (`[poses] motor_deg`). `source`: a robot file
+    (TOML path), a description dict of `jaxrobot.read_description`, or `None` for the embedded Racer-7's 50
+    identification poses (thesis Tables A.13, A.14). Raises `RobotFileError` naming `poses` where the file lists
+    none."""
+    data = _described(source)
+    if "poses" not in data:
+        fail_field("poses", "a table with motor_deg, one row of motor angles [deg] per pose", "no [poses] table")
+    return np.deg2rad(np.asarray(data["poses"]["motor_deg"], float))
 
 
 def _effect_fields(data: dict) -> dict[str, Any]:

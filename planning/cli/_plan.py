@@ -89,7 +89,7 @@ def load_plant(plant: str, desc: dict, robot: jr.Robot) -> jr.Robot:
     if plant == "model":
         return robot
     if plant == "as-built":
-        out = robot_from_description(desc if "as_built" in desc else jr.read_description(None), as_built=True)
+        out = robot_from_description(desc, as_built=True) if "as_built" in desc else jr.racer7(as_built=True)
     elif Path(plant).is_file():
         out = jr.load_robot(plant)
     else:

@@ -192,3 +192,26 @@ def test_seven_joint_description_and_optional_sections(tmp_path):
     bad["links"]["mass"] = bad["links"]["mass"][:6]
     with pytest.raises(jr.RobotFileError, match=r"links\.mass: expected shape \(7\)"):
         jr.load_robot(_write(tmp_path, bad))
+
+
+def test_as_built_and_pose_tables_of_a_robot_file(tmp_path):
+    """`read_as_built` and `read_pose_angles` read what a robot file states for its test bench (the embedded
+    Racer-7's for `None`); a file without the table is refused naming it."""
+    dev = jr.io.read_as_built(None)
+    np.testing.assert_array_equal(dev["delta_beta"], BASE["as_built"]["delta_beta"])
+    np.testing.assert_array_equal(dev["u0_relative"][:3], 0.0)
+    np.testing.assert_allclose(np.asarray(jr.racer7().u0) * (1 + dev["u0_relative"]), jr.racer7(as_built=True).u0,
+                               rtol=1e-15)
+    seven = jr.io.read_as_built(ARM7)
+    np.testing.assert_allclose(np.asarray(jr.load_robot(ARM7).u0) * (1 + seven["u0_relative"]),
+                               jr.load_robot(ARM7, as_built=True).u0, rtol=1e-15)
+    theta = jr.io.read_pose_angles(None)
+    assert theta.shape == (50, 6)
+    np.testing.assert_array_equal(theta, np.deg2rad(np.asarray(BASE["poses"]["motor_deg"], float)))
+    bare = copy.deepcopy(BASE)
+    del bare["as_built"], bare["poses"]
+    path = _write(tmp_path, bare)
+    with pytest.raises(jr.RobotFileError, match=r"as_built: expected a table"):
+        jr.io.read_as_built(path)
+    with pytest.raises(jr.RobotFileError, match=r"poses: expected a table with motor_deg"):
+        jr.io.read_pose_angles(bare)
