@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -279,10 +280,10 @@ class _Problem:
             return (out, resid), np.linalg.norm(resid, axis=-1) / s_p
 
         pose_w = np.ones(k)
-        (out, resid), pose_w = ((fit(pose_w)[0], pose_w) if self.loss == "l2"
-                                else robust.irls(fit, pose_w, self.loss, self.rows))
-        result = out.status
-        out = jax.tree.map(np.asarray, out)
+        (out, resid), pose_w, settled = ((fit(pose_w)[0], pose_w, True) if self.loss == "l2"
+                                         else robust.irls(fit, pose_w, self.loss, self.rows))
+        result = robust.settled_status(out.status, settled)
+        out = jax.tree.map(np.asarray, eqx.tree_at(lambda o: o.status, out, result))
         if self.prior is None:
             check_rank(out.jacobian, params)
         check(result, result, self.throw)

@@ -386,9 +386,9 @@ def calibrate_fleet(
             last.update(x0=(out.value - v0) / scale, weight=weight, out=out)
             return out, _pose_norms(out.residuals, sigma)
 
-        out, weight = robust.irls(fit, jnp.ones_like(g_pos[..., 0]), loss, 3)
-        out, robots, weight = gather_rows((out, g_robots, weight), origin)
-        kept = weight > 0
+        out, weight, settled = robust.irls(fit, jnp.ones_like(g_pos[..., 0]), loss, 3)
+        out, robots, weight, settled = gather_rows((out, g_robots, weight, settled), origin)
+        out, kept = eqx.tree_at(lambda o: o.status, out, robust.settled_status(out.status, settled)), weight > 0
     resid = np.asarray(out.residuals).reshape(out.residuals.shape[0], -1, 3)
     chi2, dof, p_value = noise_test(resid, sigma, len(params), kept)
     level = ALPHA / len(p_value)

@@ -23,7 +23,10 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
+
+from jaxrobot import RESULTS
+from jaxrobot.internal import where
 
 from ._noise import chi2_quantile
 
@@ -107,7 +110,8 @@ def irls(fit, weight, loss: str, rows: int):
     measured against the larger of the stated noise and their own robust spread (their median over clean
     noise's, per fit), so that a misfit common to all poses (a start far from the data, a fit stopped
     early) weighs them alike and rejects none.
-    **Returns:** the last solution and the weights it was solved with."""
+    **Returns:** the last solution, the weights it was solved with and, per fit (the shape of `weight` without
+    its last axis), whether its weights settled within `IRLS_STEPS` (`settled_status`)."""
     c, bound = threshold(rows), outlier_bound(rows)
     xp = jnp if isinstance(weight, jax.Array) else np
     rejecting = done = weight[..., :1] < 0  # per fit, all False (sharded as `weight`)
@@ -122,7 +126,14 @@ def irls(fit, weight, loss: str, rows: int):
         if bool(done.all()):
             break
         weight = xp.where(done, weight, new)
-    return solution, weight
+    return solution, weight, done[..., 0]
+
+
+def settled_status(status: RESULTS, settled: Bool[ArrayLike, "*B"]) -> RESULTS:
+    """The status of a robust fit: its last solve's `status`, `nonlinear_max_steps_reached` for a successful solve
+    whose weights had not settled (`irls`), so that an unfinished reweighting is not returned as success."""
+    return where(np.asarray(settled) | np.asarray(status != RESULTS.successful), status,
+                 RESULTS.nonlinear_max_steps_reached)
 
 
 @functools.cache

@@ -653,6 +653,50 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
         calibrate_fleet(nominal, theta, pos, instruments=INSTRUMENTS)
 
 
+def test_fleet_cut_short_reports_its_status(robots, fleet_problem):
+    """A fleet solve stopped after one LM step reports `nonlinear_max_steps_reached` for every robot (the
+    program of `fleet_problem`: `max_steps` is traced), never `successful` or `inconsistent`."""
+    from identification.calibration._fleet import calibrate_fleet
+
+    nominal, _ = robots
+    theta, meas, _ = fleet_problem
+    res = calibrate_fleet(nominal, theta, meas.positions, loss="l2", max_steps=1, instruments=INSTRUMENTS)
+    assert jr.status_name(res.status).tolist() == ["nonlinear_max_steps_reached"] * 3
+    assert not res.converged.any() and np.asarray(res.iterations).tolist() == [1] * 3
+
+
+@pytest.mark.extended  # the robust fleet's own programs
+def test_fleet_reweighting_cut_short_reports_its_status(robots, fleet_problem, monkeypatch):
+    """A robust fleet fit whose reweighting has not settled after `IRLS_STEPS` reweighted solves is
+    `nonlinear_max_steps_reached`, not a success."""
+    from identification.calibration._fleet import calibrate_fleet
+    from identification.core import _robust
+
+    nominal, _ = robots
+    theta, meas, _ = fleet_problem
+    monkeypatch.setattr(_robust, "IRLS_STEPS", 1)
+    res = calibrate_fleet(nominal, theta, meas.positions, instruments=INSTRUMENTS)
+    assert jr.status_name(res.status).tolist() == ["nonlinear_max_steps_reached"] * 3 and not res.converged.any()
+
+
+def test_reweighting_cut_short_reports_its_status(robots, bench, monkeypatch):
+    """A robust calibration whose reweighting has not settled after `IRLS_STEPS` reweighted solves (each
+    converged) is `nonlinear_max_steps_reached` (`converged` False, no parameter selection), and raised with
+    `throw=True`; settled, the same fit is `successful`."""
+    from identification.core import _robust
+
+    nominal, _ = robots
+    ident, _ = bench
+    kwargs = dict(parameters=("offset2", "offset3"), instruments=INSTRUMENTS)
+    assert calibrate(nominal, ident, **kwargs).converged
+    monkeypatch.setattr(_robust, "IRLS_STEPS", 1)
+    res = calibrate(nominal, ident, **kwargs)
+    assert (res.converged, jr.status_name(res.status)) == (False, "nonlinear_max_steps_reached")
+    assert res.iterations > 1  # the solve itself converged
+    with pytest.raises(Exception, match="maximum number of steps"):
+        calibrate(nominal, ident, **kwargs, throw=True)
+
+
 def test_batched_lm_kernel():
     """Rosenbrock residuals `(10 (x2 - x1^2), 1 - x1)` (minimum (1, 1)), batch of starts: converged to
     the minimum, `nonlinear_max_steps_reached` when cut short, `nonfinite` from a NaN start; in chunks
