@@ -92,7 +92,8 @@ class CalibrationResult:
     """[m] data residuals at the solution (3 per pose, plus the orientation rows scaled by the
     noise ratio when orientations are given), unweighted by the robust loss."""
     status: RESULTS
-    """The solve's status (`jaxrobot.status_name` gives its name, `jaxrobot.status_message` its message)."""
+    """The solve's status (`jaxrobot.status_name` gives its name, `jaxrobot.status_message` its message);
+    `nonlinear_max_steps_reached` also where a robust loss's reweighting had not settled after `IRLS_STEPS` solves."""
     iterations: int
     """Levenberg-Marquardt steps."""
     noise_estimate: float
@@ -270,11 +271,12 @@ class _Problem:
         robot, k, s_p = self.robot, self.theta.shape[0], self.sigma
         weight = None if self.prior is None else jnp.asarray(
             s_p / RESIDUAL_UNIT * np.asarray(params.scales(robot)) / self.prior)
+        rippled = rippled_joints(robot)
 
         def fit(pose_w):
             out = _solve_jit(robot, params, self.theta, jnp.asarray(self.positions), self.deflection, self.marker,
                              self.rotations, self.weight_r, self.ccw, max_steps=self.max_steps,
-                             rippled=rippled_joints(robot), prior_weight=weight,
+                             rippled=rippled, prior_weight=weight,
                              pose_weight=None if self.loss == "l2" else jnp.asarray(pose_w), whiten=self._whiten())
             resid = np.asarray(out.residuals).reshape(k, self.rows)
             return (out, resid), np.linalg.norm(resid, axis=-1) / s_p

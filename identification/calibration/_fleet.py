@@ -53,9 +53,10 @@ class FleetResult:
     converged: np.ndarray
     """(R,) True where the status is `successful`."""
     status: RESULTS
-    """(R,) `successful`, `nonlinear_max_steps_reached`, `nonfinite`, `rank_deficient` or `inconsistent`
-    (converged, but the residuals fail the chi-square test against the stated noise: `p_value` at or
-    below `inconsistent_below`) (names by `jaxrobot.status_name`)."""
+    """(R,) `successful`, `nonlinear_max_steps_reached` (the LM after `max_steps`, or a robust loss's reweighting
+    not settled after `IRLS_STEPS` solves), `nonfinite`, `rank_deficient` or `inconsistent` (converged, but the
+    residuals fail the chi-square test against the stated noise: `p_value` at or below `inconsistent_below`)
+    (names by `jaxrobot.status_name`)."""
     iterations: np.ndarray
     """(R,) Levenberg-Marquardt steps."""
     rank: np.ndarray
