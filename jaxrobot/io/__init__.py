@@ -7,9 +7,9 @@ too."""
 
 from .._checks import check_public as _check_public
 from ._csv import NOT_CONVERGED as NOT_CONVERGED
+from ._csv import read_csv_columns as read_csv_columns
 from ._description import read_as_built as read_as_built
 from ._description import read_pose_angles as read_pose_angles
-from ._csv import read_csv_columns as read_csv_columns
 from ._gear_runs import gear_run_columns as gear_run_columns
 from ._gear_runs import read_gear_run as read_gear_run
 from ._gear_runs import write_gear_run as write_gear_run
