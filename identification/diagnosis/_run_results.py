@@ -11,7 +11,7 @@ import numpy as np
 
 import jaxrobot as jr
 
-from ._run_model import optional_fields, run_effects, with_effects
+from ._run_model import run_effects, with_effects, without_absent
 
 
 @dataclasses.dataclass(frozen=True)
@@ -223,6 +223,5 @@ class RunDiagnosis:
         if not indices:
             return [self.robot] * count
         draws = np.random.default_rng(seed).multivariate_normal(z[indices], cov, size=count)
-        fields = [f for f in optional_fields() if getattr(self.robot, f) is None]
-        return [dataclasses.replace(with_effects(start, jnp.asarray(z).at[np.asarray(indices)].set(d)),
-                                    **{f: None for f in fields}) for d in draws]
+        return [without_absent(with_effects(start, jnp.asarray(z).at[np.asarray(indices)].set(d)), self.robot)
+                for d in draws]

@@ -21,13 +21,13 @@ from ._run_evidence import BATCH, SINGLE_BELOW, _evaluate, _Evidence, _prepare, 
 from ._run_fits import _chi2_split, _estimate, _final_fit, _fit, _identifiable
 from ._run_model import (
     index,
-    optional_fields,
     reported_unit,
     run_effects,
     run_layout,
     screened_kinds,
     with_effect_arrays,
     with_effects,
+    without_absent,
 )
 from ._run_results import RunConfound, RunDiagnosis, RunEffect, RunLimit, RunStep
 
@@ -174,7 +174,7 @@ class _Search:
     robot: jr.Robot
     """The start robot."""
     base: jr.Robot
-    """The start robot with zeros in its absent effect fields (`with_effect_arrays`)."""
+    """The start robot given the terms it lacks at zero (`with_effect_arrays`)."""
     ev: _Evidence
     ev_val: _Evidence
     marker: jax.Array
@@ -219,7 +219,7 @@ class _Search:
         candidates = [RunEffect(k, j) for k, e in effects.items() if e.per_joint for j in range(n)
                       if not (k == "lag" and still[j])] + [RunEffect(k, None) for k, e in effects.items()
                                                            if not e.per_joint]
-        search = cls(robot, with_effect_arrays(robot), ev, ev_val, marker, substeps, kinds, threshold, still,
+        search = cls(robot, with_effect_arrays(robot, kinds), ev, ev_val, marker, substeps, kinds, threshold, still,
                      candidates, on_event, jnp.zeros(run_layout(n).size))
         search.steps.append(search.row(0, "start", search.z, 0))
         return search
@@ -378,10 +378,7 @@ class _Search:
         if added:  # chosen on the training runs, validated on the held-out ones: estimated on all of them
             z_all, cov_all, final_fit = _final_fit(self.base, z, added, self.ev, self.ev_val, self.r_z, self.jac_z,
                                                   self.cov, self.marker, self.substeps, self.steps[-1])
-        added_kinds = {e.kind for e in added}
-        final = dataclasses.replace(with_effects(self.base, z_all), **{
-            field: None for field, kind in optional_fields().items() if getattr(self.robot, field) is None
-            and kind not in added_kinds})
+        final = without_absent(with_effects(self.base, z_all), self.robot, {e.kind for e in added})
         estimates, covariance = _estimate(self.base, np.asarray(z_all), added, cov_all)
         unseen = [c for c in self.candidates if c not in added]
         limits = []
