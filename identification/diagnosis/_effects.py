@@ -66,6 +66,9 @@ class Effect:
     """The effect in words, for the runs' reports (a per-joint effect's label ends with its joint or motor)."""
     screened: ClassVar[bool] = True
     """Whether `diagnose_runs` screens it unless told otherwise (its `kinds`)."""
+    moves_motors: ClassVar[bool] = False
+    """Whether it moves the motors off their commands, which their encoders show first (a motor's response to its
+    command): `diagnose_runs` offers it only for a motor whose encoders depart, and while one does, alone."""
     reported_units: ClassVar[tuple[str, ...] | None] = None
     """(p,) the units of the values a run fit reports (`run_values`) where they are not `units`."""
 
@@ -303,6 +306,10 @@ class ModelEffect(Effect):
     @property
     def screened(self) -> bool:  # type: ignore[override]
         return self.effect.screened
+
+    @property
+    def moves_motors(self) -> bool:  # type: ignore[override]
+        return isinstance(self.effect, jr.effects.MotorResponse)
 
     def apply(self, robot, v, orders):
         current = self.effect.get(robot, self.kind)
