@@ -3,8 +3,10 @@
 Each effect is a small model extension declared once: its parameter names, typical sizes and units, where it can
 be seen (`seen_in`: poses at rest, runs, or both), which parameters are physical only at or above 0, and a hook
 `apply(robot, v, orders) -> robot` that is the identity at `v = 0`. Per-joint effects get `v` of shape
-(joints, p) (one row per joint; the pose workflow frees one row at a time), global ones (p,). Adding an effect =
-one subclass of `Effect` appended to `CATALOGUE`; `catalogue(robot, marker, "poses")` and
+(joints, p) (one row per joint; the pose workflow frees one row at a time), global ones (p,). The model's own
+effects (`jaxrobot.effects.EFFECTS`: lag, damping, friction, ...) are candidates through their declared parameters
+(`ModelEffect`, one per parameter); an effect of identification alone (geometry, offsets, ripple, stiffness, payload,
+...) is one subclass of `Effect` in `CATALOGUE`. `catalogue(robot, marker, "poses")` and
 `catalogue(robot, marker, "runs")` are what each workflow draws from it.
 
 Effects act on the `jaxrobot.Robot` itself: its joint compliance is stored as `c = 1/k1`,
@@ -60,12 +62,13 @@ class Effect:
     """Where it can be seen: `"poses"` (at rest: `diagnose`), `"runs"` (trajectory runs: `diagnose_runs`), or both."""
     nonnegative: ClassVar[tuple[int, ...]] = ()
     """The parameters (indices) physical only at or above 0 (a run fit that leaves that range is refused)."""
-    field: ClassVar[str | None] = None
-    """The optional `Robot` field it fills (None there: no term; a run fit starts it at zero), if any."""
     label: ClassVar[str] = ""
     """The effect in words, for the runs' reports (a per-joint effect's label ends with its joint or motor)."""
     screened: ClassVar[bool] = True
     """Whether `diagnose_runs` screens it unless told otherwise (its `kinds`)."""
+    moves_motors: ClassVar[bool] = False
+    """Whether it moves the motors off their commands, which their encoders show first (a motor's response to its
+    command): `diagnose_runs` offers it only for a motor whose encoders depart, and while one does, alone."""
     reported_units: ClassVar[tuple[str, ...] | None] = None
     """(p,) the units of the values a run fit reports (`run_values`) where they are not `units`."""
 
@@ -84,9 +87,20 @@ class Effect:
                    x: np.ndarray) -> tuple[list[tuple[str, float, str]], np.ndarray]:
         """The values a run fit reports at its variables `x` (p,) (the parameters in units of `scales`) on `joint`:
         `(name, value, unit)` each and their derivatives (p, p) in `x`; `start` the robot without the effects,
-        `moved()` with every effect at the fit's values. Default: the field's value in the fitted model (`field`)."""
-        value = float(getattr(start, self.field)[joint]) + self.scales[0] * float(x[0])
-        return [(self.names[0], value, self.units[0])], np.array([[self.scales[0]]])
+        `moved()` with every effect at the fit's values."""
+        raise NotImplementedError
+
+    def absent(self, robot: jr.Robot) -> bool:
+        """Whether `robot` lacks the term that the effect moves (default: it always has it)."""
+        return False
+
+    def filled(self, robot: jr.Robot) -> jr.Robot:
+        """`robot` given the effect's term at zero where it lacks it (the same model), so that `apply` moves it."""
+        return robot
+
+    def without(self, robot: jr.Robot) -> jr.Robot:
+        """`robot` without the effect's term (the inverse of `filled`)."""
+        return robot
 
 
 def _robot_at(robot: jr.Robot, fields: tuple[str, ...], values: tuple) -> jr.Robot:
@@ -248,29 +262,78 @@ class BaseOffset(Effect):
         return _robot_at(robot, ("base",), (t @ robot.base,))
 
 
-class _FieldTerm(Effect):
-    """A per-joint term of the dynamics in an optional `Robot` field (`field`), physical at or above 0: `v` is added
-    to it. At rest it acts on nothing, so only runs show it."""
+@dataclasses.dataclass(frozen=True)
+class ModelEffect(Effect):
+    """One parameter of an effect of the model (`jaxrobot.effects.EFFECTS`) as a candidate, from its declarations
+    (`jaxrobot.effects.Parameter`: name, scale, unit, nonnegativity, label; the effect's `seen_in` and `screened`):
+    `v` (joints, 1) is added to the robot's values (`Effect.get`, `Effect.set`). On a robot without the term it is
+    the identity: a run fit gives the robot the term at zero first (`filled`)."""
 
-    per_joint, seen_in, nonnegative = True, ("runs",), (0,)
+    effect: jr.effects.Effect
+    """The model's effect."""
+    parameter: jr.effects.Parameter
+    """Its parameter that this candidate frees."""
+    per_joint: ClassVar[bool] = True
+
+    @property
+    def kind(self) -> str:  # type: ignore[override]
+        return self.parameter.name
+
+    @property
+    def names(self) -> tuple[str, ...]:  # type: ignore[override]
+        return (self.parameter.name,)
+
+    @property
+    def scales(self) -> tuple[float, ...]:  # type: ignore[override]
+        return (self.parameter.scale,)
+
+    @property
+    def units(self) -> tuple[str, ...]:  # type: ignore[override]
+        return (self.parameter.unit,)
+
+    @property
+    def seen_in(self) -> tuple[str, ...]:  # type: ignore[override]
+        return self.effect.seen_in
+
+    @property
+    def nonnegative(self) -> tuple[int, ...]:  # type: ignore[override]
+        return (0,) if self.parameter.nonnegative else ()
+
+    @property
+    def label(self) -> str:  # type: ignore[override]
+        return self.parameter.label or f"{self.effect.name}, joint"
+
+    @property
+    def screened(self) -> bool:  # type: ignore[override]
+        return self.effect.screened
+
+    @property
+    def moves_motors(self) -> bool:  # type: ignore[override]
+        return isinstance(self.effect, jr.effects.MotorResponse)
 
     def apply(self, robot, v, orders):
-        return _robot_at(robot, (self.field,), (getattr(robot, self.field) + v[:, 0],))
+        current = self.effect.get(robot, self.kind)
+        return robot if current is None else self.effect.set(robot, **{self.kind: current + v[:, 0]})
+
+    def run_values(self, start, moved, joint, x):
+        """The parameter's value in the fitted model."""
+        value = float(self.effect.get(start, self.kind)[joint]) + self.scales[0] * float(x[0])
+        return [(self.kind, value, self.units[0])], np.array([[self.scales[0]]])
+
+    def absent(self, robot):
+        return self.effect.get(robot, self.kind) is None
+
+    def filled(self, robot):
+        return self.effect.set(robot, **{self.kind: jnp.zeros(robot.n_joints)}) if self.absent(robot) else robot
+
+    def without(self, robot):
+        return self.effect.unset(robot, self.kind)
 
 
-class MotorLag(_FieldTerm):
-    """Velocity-loop time constant of a motor [s] (`Robot.motor_lag`): the motor follows its command with a
-    first-order lag, which its encoder shows first."""
-
-    kind, names, scales, units, field, label = "lag", ("lag",), (1e-3,), ("s",), "motor_lag", \
-        "velocity-loop lag, motor"
-
-
-class JointDamping(_FieldTerm):
-    """Viscous damping of a joint spring [N m s/rad] (`Robot.damping`)."""
-
-    kind, names, scales, units, field, label = "damping", ("damping",), (10.0,), ("N m s/rad",), "damping", \
-        "joint damping, joint"
+def model_effects(term: type = jr.effects.Effect) -> list[Effect]:
+    """The candidates of the model's effects (`jaxrobot.effects.EFFECTS`, in its order) whose term is of the kind
+    `term` (`jaxrobot.effects.MotorResponse`, `JointTorque`, `LinkLoad`), one per parameter."""
+    return [ModelEffect(e, p) for e in jr.effects.EFFECTS if isinstance(e, term) for p in e.parameters]
 
 
 class JointStiffness(Effect):
@@ -305,20 +368,6 @@ class CubicStiffness(Effect):
         k1 = float(moved().k1[joint])  # k3 = e k1 at the final model
         value = float(start.e[joint] + self.scales[0] * float(x[0])) * k1
         return [(self.kind, value, self.reported_units[0])], np.array([[self.scales[0] * k1]])
-
-
-class ViscousFriction(_FieldTerm):
-    """Viscous friction of a link [N m s/rad] (`Robot.viscous_friction`)."""
-
-    kind, names, scales, units, field, label = "viscous", ("viscous",), (1.0,), ("N m s/rad",), \
-        "viscous_friction", "viscous link friction, joint"
-
-
-class CoulombFriction(_FieldTerm):
-    """Coulomb friction of a link [N m] (`Robot.coulomb_friction`)."""
-
-    kind, names, scales, units, field, label = "coulomb", ("coulomb",), (1.0,), ("N m",), "coulomb_friction", \
-        "Coulomb link friction, joint"
 
 
 class LinkInertia(Effect):
@@ -398,12 +447,19 @@ class ApproachDependentGearSet(Effect):
         return robot  # a hypothesis on the poses: `rest_angles` reads the weight (`Layout.approach`)
 
 
+_DRIVE_TRAIN = (jr.effects.MotorResponse, jr.effects.JointTorque, jr.effects.LinkLoad)
+
 CATALOGUE: list[Effect] = [JointOffset(), GearRatio(), Backlash(), JointCompliance(), GearRipple(),
-                           DirectionDependentRipple(), Geometry(), LinkScale(), ToolOffset(), BaseOffset(), MotorLag(),
-                           JointDamping(), JointStiffness(), CubicStiffness(), ViscousFriction(), CoulombFriction(),
-                           LinkInertia(), Payload(), ApproachDependentGearSet()]
+                           DirectionDependentRipple(), Geometry(), LinkScale(), ToolOffset(), BaseOffset(),
+                           *model_effects(jr.effects.MotorResponse), *model_effects(jr.effects.JointTorque),
+                           JointStiffness(), CubicStiffness(), *model_effects(jr.effects.LinkLoad), LinkInertia(),
+                           *[e for e in model_effects() if not isinstance(e.effect, _DRIVE_TRAIN)], Payload(),
+                           ApproachDependentGearSet()]
 """Every candidate effect, for poses and runs (`Effect.seen_in`), in the order the workflows try them (ties keep
-the earlier one; the runs' fit variables follow it); `catalogue(robot, marker, seen_in)` draws a workflow's candidates."""
+the earlier one; the runs' fit variables follow it): the pose effects, then along the drive train from the motor to
+the flange: the model's motor responses (lag), its joint torques (damping), the joint's stiffness, its link loads
+(friction, drag), the link's inertia, the model's other effects, the payload. `catalogue(robot, marker, seen_in)`
+draws a workflow's candidates."""
 
 
 def catalogue(robot: jr.Robot, marker: Float[Array, "3"], seen_in: str = "poses") -> list[Effect]:

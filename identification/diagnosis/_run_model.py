@@ -6,10 +6,8 @@ order: each per-joint kind for every joint, then the payload); `with_effects` mo
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 
-import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
@@ -25,15 +23,11 @@ def run_effects() -> dict[str, Effect]:
 
 def screened_kinds() -> tuple[str, ...]:
     """The kinds `diagnose_runs` screens unless told otherwise (`Effect.screened`): every kind of `run_effects` but
-    the link inertia. Kinds that can mimic each other over short runs (a payload and a joint's stiffness, a lag and a
-    damping, a friction and a lag) are fitted against each other on the same footing (BIC), and the one of fewer
-    parameters is kept where the data cannot tell them apart (`RunConfound`)."""
+    those offered on request (the link inertia; a model effect that declares `screened` False). Kinds that can mimic
+    each other over short runs (a payload and a joint's stiffness, a lag and a damping, a friction and a lag) are
+    fitted against each other on the same footing (BIC), and the one of fewer parameters is kept where the data cannot
+    tell them apart (`RunConfound`)."""
     return tuple(k for k, e in run_effects().items() if e.screened)
-
-
-def optional_fields() -> dict[str, str]:
-    """The robot's optional effect fields (None: no term) and the kind of `run_effects` that fills each."""
-    return {e.field: k for k, e in run_effects().items() if e.field is not None}
 
 
 def reported_unit(kind: str) -> str:
@@ -77,12 +71,22 @@ def with_effects(robot: jr.Robot, z):
     return layout.apply(robot, z * layout.scales()[:-1], None)
 
 
-def with_effect_arrays(robot: jr.Robot) -> jr.Robot:
-    """`robot` with zeros in each optional effect field that is None (the same model: a zero term adds nothing),
-    so that `with_effects` can move them."""
-    n = robot.n_joints
-    return dataclasses.replace(robot, **{field: jnp.zeros(n) for field in optional_fields()
-                                         if getattr(robot, field) is None})
+def with_effect_arrays(robot: jr.Robot, kinds: tuple[str, ...] = ()) -> jr.Robot:
+    """`robot` given each term it lacks (the same model: a zero term adds nothing) of the kinds screened by default
+    and of `kinds` (`Effect.filled`), so that `with_effects` can move them."""
+    kinds = set(screened_kinds()) | set(kinds)
+    for kind, effect in run_effects().items():
+        if kind in kinds:
+            robot = effect.filled(robot)
+    return robot
+
+
+def without_absent(robot: jr.Robot, start: jr.Robot, keep=()) -> jr.Robot:
+    """`robot` without the terms that `start` lacks (`Effect.without`), but those of the kinds `keep`."""
+    for kind, effect in run_effects().items():
+        if kind not in keep and effect.absent(start):
+            robot = effect.without(robot)
+    return robot
 
 
 def physical(z: np.ndarray, n: int) -> bool:

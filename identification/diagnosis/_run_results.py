@@ -11,7 +11,7 @@ import numpy as np
 
 import jaxrobot as jr
 
-from ._run_model import optional_fields, run_effects, with_effects
+from ._run_model import run_effects, with_effects, without_absent
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,6 +30,11 @@ class RunEffect:
         text = run_effects()[self.kind].label
         return text if self.joint is None else f"{text} {self.joint + 1}"
 
+    @property
+    def moves_motors(self) -> bool:
+        """Whether it moves its motor off the command (`Effect.moves_motors`: a lag)."""
+        return run_effects()[self.kind].moves_motors
+
 
 @dataclasses.dataclass(frozen=True)
 class RunEstimate:
@@ -41,7 +46,7 @@ class RunEstimate:
     """The parameter: the effect's kind for the per-joint effects, the payload's `Payload.reported_names`."""
     value: float
     """The value in `unit` (`stiffness`: the factor on `k1` and `k3`; `cubic`: the joint's `k3`; `inertia`: the
-    factor on the link's inertia tensor; the others: the field's value in the fitted model)."""
+    factor on the link's inertia tensor; a parameter of the model's effects: its value in the fitted model)."""
     std: float
     """Its standard deviation from the fit's covariance (linearised, noise as stated)."""
     unit: str
@@ -168,8 +173,8 @@ class RunDiagnosis:
     """What `diagnose_runs` found."""
 
     robot: jr.Robot
-    """The start robot with the added effects at their final estimates (`final_fit`; a field the start lacked and no
-    effect filled stays None)."""
+    """The start robot with the added effects at their final estimates (`final_fit`; a term the start lacked and no
+    effect added stays absent)."""
     steps: list[RunStep]
     """The loop, one row per model compared."""
     estimates: list[RunEstimate]
@@ -180,7 +185,7 @@ class RunDiagnosis:
     """(m, m) the covariance of the `estimates`' values in their order and units from the final fit (linearised, the
     noise as stated; the stds are the roots of its diagonal)."""
     fit: tuple = dataclasses.field(repr=False, compare=False)
-    """`(start, variables, indices, covariance)`: the start robot with zeros in its absent effect fields, the final
+    """`(start, variables, indices, covariance)`: the start robot given the terms it lacked at zero, the final
     fit's scaled effect variables, the indices of the added effects' ones and their covariance (what `sample`
     draws)."""
     not_screened: tuple[str, ...] = ()
@@ -223,6 +228,5 @@ class RunDiagnosis:
         if not indices:
             return [self.robot] * count
         draws = np.random.default_rng(seed).multivariate_normal(z[indices], cov, size=count)
-        fields = [f for f in optional_fields() if getattr(self.robot, f) is None]
-        return [dataclasses.replace(with_effects(start, jnp.asarray(z).at[np.asarray(indices)].set(d)),
-                                    **{f: None for f in fields}) for d in draws]
+        return [without_absent(with_effects(start, jnp.asarray(z).at[np.asarray(indices)].set(d)), self.robot)
+                for d in draws]

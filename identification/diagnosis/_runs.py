@@ -21,13 +21,13 @@ from ._run_evidence import BATCH, SINGLE_BELOW, _evaluate, _Evidence, _prepare, 
 from ._run_fits import _chi2_split, _estimate, _final_fit, _fit, _identifiable
 from ._run_model import (
     index,
-    optional_fields,
     reported_unit,
     run_effects,
     run_layout,
     screened_kinds,
     with_effect_arrays,
     with_effects,
+    without_absent,
 )
 from ._run_results import RunConfound, RunDiagnosis, RunEffect, RunLimit, RunStep
 
@@ -105,21 +105,23 @@ def diagnose_runs(
 
     Each step compares the model with the training runs and poses (one chi-square over the tracker's and the poses'
     rows, each in units of its own noise, as `compare_run`) and the encoders with the model's motor angles (their
-    departure against `ENCODER_LAG_RAD` or two quanta); while the test fails, or a motor without a lag departs, it
-    screens every effect not yet added by the linearised BIC change of its own variables (a lag only for a motor whose
-    encoders depart, and while one does, the lags alone: no other effect moves the motors, while others can mimic a
-    lag's effect on the tool over a short run; no lag of a motor whose command does not move), fits the `SCREENED` best,
+    departure against `ENCODER_LAG_RAD` or two quanta); while the test fails, or a motor departs that no effect added
+    moves, it screens every effect not yet added by the linearised BIC change of its own variables (an effect that
+    moves the motors, `Effect.moves_motors` (a lag), only for a motor whose encoders depart, and while one does, those
+    alone: no other effect moves the motors, while others can mimic its effect on the tool over a short run; none of a
+    motor whose command does not move), fits the `SCREENED` best,
     and the payload (its gain linearised at zero mass lacks the point's inertia), with the effects already added by
     Levenberg-Marquardt through the simulation and the rest poses (derivatives by forward differences, `FD_STEP`, at the
     start, then Broyden's updates: `_fit`; a fit that cannot come within `MIN_BIC_GAIN` of the best so far is abandoned,
     `RANKING_REACH`), and ranks the fits by BIC: of those within `MIN_BIC_GAIN` of the best, the one of fewest
     parameters (the data cannot tell them apart: `RunConfound`, with the correlation of their signatures). That one's
     fit is continued on fresh derivatives to convergence (`EXACT_TOLERANCE`) and added if it lowers BIC by more than
-    `MIN_BIC_GAIN` and lowers the validation runs' and poses' chi-square. Each effect added before it (but the lags,
-    which the encoders fix) is then fitted out again: where the model without it is within `MIN_BIC_GAIN` of the BIC
-    with it, it is removed (the new effect explains what it did) and not offered again. The model without an effect is
-    where each fit starts (lag, damping, friction and payload 0). Static effects that runs do not change (geometry, gear
-    ripple, offsets: `diagnose`) are not candidates: diagnose the poses alone for them first.
+    `MIN_BIC_GAIN` and lowers the validation runs' and poses' chi-square. Each effect added before it (but those that
+    move the motors, which the encoders fix) is then fitted out again: where the model without it is within
+    `MIN_BIC_GAIN` of the BIC with it, it is removed (the new effect explains what it did) and not offered again. The
+    model without an effect is where each fit starts (the model's effects and the payload at 0). Static effects that
+    runs do not change (geometry, gear ripple, offsets: `diagnose`) are not candidates: diagnose the poses alone for
+    them first.
 
     The effects chosen, they are estimated on the training and validation runs and poses together (select on held-out
     data, then estimate on all of it: `_final_fit`, from the training fit, its derivatives reused): the estimates,
@@ -174,7 +176,7 @@ class _Search:
     robot: jr.Robot
     """The start robot."""
     base: jr.Robot
-    """The start robot with zeros in its absent effect fields (`with_effect_arrays`)."""
+    """The start robot given the terms it lacks at zero (`with_effect_arrays`)."""
     ev: _Evidence
     ev_val: _Evidence
     marker: jax.Array
@@ -217,9 +219,9 @@ class _Search:
         still = _still_motors(runs, threshold)
         effects = {k: e for k, e in run_effects().items() if k in kinds}
         candidates = [RunEffect(k, j) for k, e in effects.items() if e.per_joint for j in range(n)
-                      if not (k == "lag" and still[j])] + [RunEffect(k, None) for k, e in effects.items()
+                      if not (e.moves_motors and still[j])] + [RunEffect(k, None) for k, e in effects.items()
                                                            if not e.per_joint]
-        search = cls(robot, with_effect_arrays(robot), ev, ev_val, marker, substeps, kinds, threshold, still,
+        search = cls(robot, with_effect_arrays(robot, kinds), ev, ev_val, marker, substeps, kinds, threshold, still,
                      candidates, on_event, jnp.zeros(run_layout(n).size))
         search.steps.append(search.row(0, "start", search.z, 0))
         return search
@@ -264,17 +266,18 @@ class _Search:
         return out
 
     def unexplained(self) -> bool:
-        """Whether the chi-square test fails, or a motor without a lag departs (lags screened)."""
-        return self.steps[-1].p_value <= ALPHA or ("lag" in self.kinds and any(
-            d and RunEffect("lag", j) not in self.added for j, d in enumerate(self.departs)))
+        """Whether the chi-square test fails, or a motor departs that no effect added moves (one screened)."""
+        moving = [k for k in self.kinds if run_effects()[k].moves_motors]
+        return self.steps[-1].p_value <= ALPHA or (bool(moving) and any(
+            d and all(RunEffect(k, j) not in self.added for k in moving) for j, d in enumerate(self.departs)))
 
     def eligible(self) -> list[RunEffect]:
-        """The candidates of this step: not added nor removed, a lag only for a departing motor, and while one
-        departs the lags alone (only a lag moves the motors)."""
+        """The candidates of this step: not added nor removed, an effect that moves the motors (`moves_motors`) only
+        for a departing motor, and while one departs those alone (no other effect moves the motors)."""
         eligible = [c for c in self.candidates if c not in self.added and c not in self.removed
-                    and (c.kind != "lag" or self.departs[c.joint])]
-        if any(c.kind == "lag" for c in eligible):
-            eligible = [c for c in eligible if c.kind == "lag"]
+                    and (not c.moves_motors or self.departs[c.joint])]
+        if any(c.moves_motors for c in eligible):
+            eligible = [c for c in eligible if c.moves_motors]
         return eligible
 
     def screen(self, eligible) -> tuple[np.ndarray, np.ndarray, list[float]]:
@@ -282,8 +285,8 @@ class _Search:
         change of its own variables (-inf where not identifiable with the effects added)."""
         n, ln_n = self.n, self.ln_n
         needed = sorted({i for c in eligible + self.added for i in index(c, n)})
-        spare = [index(c, n)[0] for c in self.candidates  # lags whose motors do not depart: for their limits
-                 if c.kind == "lag" and c not in self.added and not self.departs[c.joint]][:-len(needed) % BATCH]
+        spare = [index(c, n)[0] for c in self.candidates  # of motors that do not depart: for their limits
+                 if c.moves_motors and c not in self.added and not self.departs[c.joint]][:-len(needed) % BATCH]
         if len(needed) % BATCH + len(spare) >= SINGLE_BELOW:  # they fill the last batch
             needed += spare
         res, part = _evaluate(self.base, self.z, self.ev, self.marker, self.substeps, needed)  # reused by the fits
@@ -332,7 +335,8 @@ class _Search:
 
     def add(self, effect: RunEffect, fit, rivals, r_kept, res) -> str:
         """Add `effect` at its `fit` where it lowers BIC by `MIN_BIC_GAIN` and the validation chi-square, then fit
-        out each effect added before it (but the lags); **returns:** why it was refused, "" where it was added."""
+        out each effect added before it (but those moving the motors); **returns:** why it was refused, "" where it
+        was added."""
         last, m_new, ln_n = self.steps[-1], self.params(self.added + [effect]), self.ln_n
         if not fit.chi2 + m_new * ln_n < last.bic - MIN_BIC_GAIN:
             return f"not explained: the best candidate ({effect.label}) does not lower BIC by {MIN_BIC_GAIN}"
@@ -351,12 +355,12 @@ class _Search:
         self.z, self.added, self.cov, self.r_z, self.jac_z = fit.z, effects, fit.covariance, fit.residual, fit.jacobian
 
     def _fit_out_earlier(self, effect: RunEffect, fit, bic: float) -> None:
-        """Each effect added before `effect` (but the lags, which the encoders fix) fitted out again: where the model
-        without it is within `MIN_BIC_GAIN` of `bic`, it is removed (`effect` explains what it did)."""
+        """Each effect added before `effect` (but those moving the motors, which the encoders fix) fitted out again:
+        where the model without it is within `MIN_BIC_GAIN` of `bic`, it is removed (`effect` explains what it did)."""
         n, ln_n, at = self.n, self.ln_n, self.variables(self.added)
         signature = {e: fit.jacobian[:, [at.index(i) for i in index(e, n)]] @ np.asarray(fit.z)[index(e, n)]
                      for e in self.added}  # each effect's linearised change of the residual at the new fit
-        for old in [e for e in self.added[:-1] if e.kind != "lag"]:
+        for old in [e for e in self.added[:-1] if not e.moves_motors]:
             rest = [e for e in self.added if e != old]
             z_out = jnp.asarray(self.z).at[np.asarray(index(old, n))].set(0.0)
             r_out, jac_out = _evaluate(self.base, z_out, self.ev, self.marker, self.substeps, self.variables(rest))
@@ -378,10 +382,7 @@ class _Search:
         if added:  # chosen on the training runs, validated on the held-out ones: estimated on all of them
             z_all, cov_all, final_fit = _final_fit(self.base, z, added, self.ev, self.ev_val, self.r_z, self.jac_z,
                                                   self.cov, self.marker, self.substeps, self.steps[-1])
-        added_kinds = {e.kind for e in added}
-        final = dataclasses.replace(with_effects(self.base, z_all), **{
-            field: None for field, kind in optional_fields().items() if getattr(self.robot, field) is None
-            and kind not in added_kinds})
+        final = without_absent(with_effects(self.base, z_all), self.robot, {e.kind for e in added})
         estimates, covariance = _estimate(self.base, np.asarray(z_all), added, cov_all)
         unseen = [c for c in self.candidates if c not in added]
         limits = []

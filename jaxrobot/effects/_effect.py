@@ -29,6 +29,9 @@ class Parameter:
     """Its SI unit."""
     nonnegative: bool
     """Whether it is physical only at or above 0."""
+    label: str = ""
+    """The parameter in words, ending with what of a robot one value belongs to, to which the diagnosis appends its
+    number (`"velocity-loop lag, motor"`); "" for its effect's name and `", joint"`."""
 
 
 class Effect:
@@ -43,6 +46,11 @@ class Effect:
     `Robot.effect_parameters` under its `parameters`' fields."""
     parameters: tuple[Parameter, ...] = ()
     """Its identification parameters."""
+    seen_in: tuple[str, ...] = ("runs",)
+    """Where its parameters can be seen: `"poses"` (at rest), `"runs"` (trajectory runs), or both; a term of the
+    motion alone (friction, damping, lag) only in runs."""
+    screened: bool = True
+    """Whether `diagnose --runs` screens its parameters unless told which kinds to screen."""
 
     def active(self, robot: Robot) -> bool:
         """Whether `robot` has the effect (one of its fields not None, or one of its parameters stored)."""
@@ -76,17 +84,35 @@ class Effect:
         """Its `<dynamics>` attributes of joint `joint` (0-based) in a URDF."""
         return {}
 
+    def get(self, robot: Robot, name: str) -> Float[Array, "*batch n"] | None:
+        """The values of its parameter `name` that `robot` holds (None: absent)."""
+        (field,) = self._fields([name])
+        return getattr(robot, field) if field in self.fields else robot.effect_parameters.get(field)
+
     def set(self, robot: Robot, **values: Float[Array, "*batch n"]) -> Robot:
         """`robot` with the effect's parameters set to `values` (by `Parameter.name`)."""
-        by_name = {p.name: p for p in self.parameters}
-        unknown = sorted(set(values) - set(by_name))
-        if unknown:
-            raise ValueError(f"{self.name}: unknown parameters {unknown}; expected some of {sorted(by_name)}")
-        own = {by_name[k].field: v for k, v in values.items() if by_name[k].field in self.fields}
-        stored = {by_name[k].field: v for k, v in values.items() if by_name[k].field not in self.fields}
+        fields = dict(zip(self._fields(values), values.values()))
+        own = {f: v for f, v in fields.items() if f in self.fields}
+        stored = {f: v for f, v in fields.items() if f not in self.fields}
         if stored:
             own["effect_parameters"] = {**robot.effect_parameters, **stored}
         return dataclasses.replace(robot, **own)
+
+    def unset(self, robot: Robot, *names: str) -> Robot:
+        """`robot` without its parameters `names` (their fields None, their `effect_parameters` entries removed)."""
+        fields = self._fields(names)
+        own: dict[str, Any] = {f: None for f in fields if f in self.fields}
+        if set(fields) - set(self.fields):
+            own["effect_parameters"] = {k: v for k, v in robot.effect_parameters.items() if k not in fields}
+        return dataclasses.replace(robot, **own)
+
+    def _fields(self, names) -> list[str]:
+        """The fields of the parameters `names` (a clear error for a name it does not have)."""
+        by_name = {p.name: p for p in self.parameters}
+        unknown = sorted(set(names) - set(by_name))
+        if unknown:
+            raise ValueError(f"{self.name}: unknown parameters {unknown}; expected some of {sorted(by_name)}")
+        return [by_name[k].field for k in names]
 
 
 class LinkLoad(Effect):

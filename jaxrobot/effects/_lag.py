@@ -93,7 +93,7 @@ def lag_command(robot: Robot, t: Float[Array, " N"], theta: Float[Array, "N n"],
 class MotorLag(MotorResponse):
     name = "velocity-loop lag"
     fields = ("motor_lag",)
-    parameters = (Parameter("lag", "motor_lag", 1e-3, "s", True),)
+    parameters = (Parameter("lag", "motor_lag", 1e-3, "s", True, "velocity-loop lag, motor"),)
 
     def schema(self, n):
         return {"?motors": {"?velocity_lag_s": (n,)}}

@@ -13,6 +13,7 @@ from ._effect import Fail, LinkLoad, Parameter
 class LinkDrag(LinkLoad):
     name = "link drag"
     parameters = (Parameter("drag", "link_drag", 0.1, "N m s^2/rad^2", True),)
+    screened = False  # a candidate of `diagnose --runs` where asked for (`kinds`)
 
     def schema(self, n):
         return {"?friction": {"?drag": (n,)}}

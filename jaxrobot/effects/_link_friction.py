@@ -44,8 +44,8 @@ def link_friction(robot: Robot, qd: Float[Array, "*b n"]) -> Float[Array, "*b n"
 class LinkFriction(LinkLoad):
     name = "link-side friction"
     fields = ("viscous_friction", "coulomb_friction", "friction_velocity")
-    parameters = (Parameter("viscous", "viscous_friction", 1.0, "N m s/rad", True),
-                  Parameter("coulomb", "coulomb_friction", 1.0, "N m", True))
+    parameters = (Parameter("viscous", "viscous_friction", 1.0, "N m s/rad", True, "viscous link friction, joint"),
+                  Parameter("coulomb", "coulomb_friction", 1.0, "N m", True, "Coulomb link friction, joint"))
 
     def active(self, robot: Robot) -> bool:
         """A smoothing velocity alone is no friction."""

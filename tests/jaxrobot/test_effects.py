@@ -20,8 +20,10 @@ EVERY = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING, visc
 def test_every_effect_declares_its_files_and_parameters(effect):
     """Schema entries are optional keys of tables; each parameter names a unit, a positive scale and a field that a
     `Robot` holds (its own or `effect_parameters`); `set` of its parameters makes the effect active and holds the
-    values; unknown parameter names are refused naming them."""
+    values, which `get` returns and `unset` removes (`get`: None); it is seen in poses, runs or both; unknown
+    parameter names are refused naming them."""
     assert effect.name and isinstance(effect.fields, tuple)
+    assert effect.seen_in and set(effect.seen_in) <= {"poses", "runs"} and isinstance(effect.screened, bool)
     for section, entries in effect.schema(2).items():
         assert section.startswith("?") and all(key.startswith("?") for key in entries)
     plain = jr.robot_from_description(arm_description())
@@ -35,6 +37,10 @@ def test_every_effect_declares_its_files_and_parameters(effect):
         for p in effect.parameters:
             held = getattr(moved, p.field) if p.field in effect.fields else moved.effect_parameters[p.field]
             np.testing.assert_array_equal(held, values[p.name])
+            np.testing.assert_array_equal(effect.get(moved, p.name), values[p.name])
+            assert effect.get(plain, p.name) is None
+        cleared = effect.unset(moved, *values)
+        assert not effect.active(cleared) and all(effect.get(cleared, k) is None for k in values)
     with pytest.raises(ValueError, match="unknown parameters \\['no_such'\\]"):
         effect.set(plain, no_such=jnp.zeros(2))
 
