@@ -152,7 +152,7 @@ def _warm_start_as_solution(robot, q_d, ts, nu=1e-14, cost="thesis", solver=None
     return _ocp.OCPSolution(x=x, u=u, status=jr.RESULTS.successful, iterations=jnp.asarray(1),
                             inner_iterations=jnp.asarray(1), objective=z, max_constraint_violation=z,
                             max_constraint_violation_unscaled=z, stationarity=z,
-                            multipliers=jnp.zeros((x.shape[0] - 1, x.shape[1])), history_objective=h,
+                            multipliers=jax.device_put(np.zeros((x.shape[0] - 1, x.shape[1]))), history_objective=h,
                             history_violation=h, history_penalty=h, history_stationarity=h)
 
 
