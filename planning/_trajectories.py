@@ -69,8 +69,12 @@ def task_orientation(description: dict[str, Any] | None = None) -> Float[Array, 
     the Racer-7 (the default description)."""
     sec = _section(description)
     robot = jr.racer7() if description is None else jr.robot_from_description(description)
-    q = jnp.asarray(sec["orientation_q"], dtype=float)
-    return jr.forward_kinematics(robot, q)[:3, :3]
+    return _tool_orientation(robot, np.asarray(sec["orientation_q"], dtype=float))
+
+
+@jax.jit
+def _tool_orientation(robot: jr.Robot, q: Float[Array, " n"]) -> Float[Array, "3 3"]:
+    return jr.forward_kinematics(robot, q)[:3, :3]  # jitted: an eager scan compiles again at every call
 
 
 def _scalars(*values: float) -> tuple[np.ndarray, ...]:
