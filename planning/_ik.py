@@ -245,7 +245,7 @@ def taylor_joint_path(
     implicit function's on the grid, and off the grid it errs by `O(T_s^(m+1))` (~1e-16 rad for
     m = 4 at 1 ms). A polynomial, so the flat inverse differentiates it cheaply."""
     t = jnp.asarray(t, dtype=float)
-    coeffs = stack(list(derivatives))  # (m+1, N, n)
+    coeffs = stack(derivatives) if isinstance(derivatives, list | tuple) else jnp.asarray(derivatives)  # (m+1, N, n)
 
     def q_d(s):
         k = jnp.clip(jnp.round((jax.lax.stop_gradient(s) - t[0]) / (t[1] - t[0])), 0, t.shape[0] - 1).astype(int)
