@@ -15,6 +15,7 @@ from planning import _ocp
 from planning import _transcription as tr
 from planning._evaluation import flat_motor_trajectory, ocp_motor_trajectory
 from planning._padding import PAD_MIN, PAD_RATIO, padded_nodes
+from planning._workflow import solve_directional
 from planning.internal import motor_directions
 
 TS = 1e-3
@@ -156,26 +157,44 @@ def _warm_start_as_solution(robot, q_d, ts, nu=1e-14, cost="thesis", solver=None
                             history_violation=h, history_penalty=h, history_stationarity=h)
 
 
-def test_a_task_of_another_length_compiles_nothing_from_ik_to_the_ocp_solution(robot):
-    """From the task to the OCP's solution as `plan_task` runs it (time grid, `sample_path`, the IK and its checks,
-    the path's Taylor coefficients, the joint derivatives, the flat inverse, the motor directions, the warm start
-    and the solve), a line of another duration (126 and 123 samples, one padded size) compiles nothing: the path's
-    parameters are data and every step on the node axis runs padded or on the host."""
-    from planning._workflow import solve_directional
-
-    def plan(path):
-        jp = pl.joint_path(robot, path)
-        flat = flat_motor_trajectory(robot, jp)
+def _plan_to_the_ocp(robot, path, solve: bool):
+    """`plan_task`'s steps from the task to the OCP's motor trajectory: time grid, `sample_path`, the IK and its
+    checks, the path's Taylor coefficients, the joint derivatives, the flat inverse, the motor directions, the warm
+    start and (with `solve`) the solve; without it, the warm start stands for the solution."""
+    jp = pl.joint_path(robot, path)
+    flat = flat_motor_trajectory(robot, jp)
+    if solve:
         sol = solve_directional(robot, jp.q, jp.qd, flat, path.sample_time, 1e-14, "thesis", False)[0]
-        return jax.block_until_ready(sol), ocp_motor_trajectory(sol.x, sol.u)
+        assert bool(sol.converged)
+        x, u = sol.x, sol.u
+    else:
+        motor_directions(flat.thetad)
+        x, u = tr.State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd
+    return jax.block_until_ready((x, ocp_motor_trajectory(x, u)))
 
+
+def test_a_task_of_another_length_compiles_nothing_up_to_the_ocp(robot):
+    """A line of another duration (126 and 123 samples, one padded size) compiles nothing from the task to the
+    OCP's warm start (`_plan_to_the_ocp`; the solve's reuse: `test_another_length_compiles_no_new_solve`): the
+    path's parameters are data and every step on the node axis runs padded or on the host."""
     first, second = _line(2.5, 0.02), _line(2.44, 0.02)  # 126 and 123 samples
     assert padded_nodes(126) == padded_nodes(123)
-    assert bool(plan(first)[0].converged)
+    _plan_to_the_ocp(robot, first, solve=False)
     with compilations() as made:
-        sol, motor = plan(second)
+        x, motor = _plan_to_the_ocp(robot, second, solve=False)
     assert made == [], made
-    assert bool(sol.converged) and sol.x.shape == (123, 24) and motor.theta.shape == (123, 6)
+    assert x.shape == (123, 24) and motor.theta.shape == (123, 6)
+
+
+@pytest.mark.extended  # the solve of the thesis cost at 128 nodes compiles (a minute on 2 cores)
+def test_a_task_of_another_length_compiles_nothing_from_ik_to_the_ocp_solution(robot):
+    """As `test_a_task_of_another_length_compiles_nothing_up_to_the_ocp`, with the solve (`solve_directional`)."""
+    first, second = _line(2.5, 0.02), _line(2.44, 0.02)
+    _plan_to_the_ocp(robot, first, solve=True)
+    with compilations() as made:
+        x, motor = _plan_to_the_ocp(robot, second, solve=True)
+    assert made == [], made
+    assert x.shape == (123, 24) and motor.theta.shape == (123, 6)
 
 
 @pytest.mark.extended  # compiles IK, flat inverse and the plant simulation (the OCP a stand-in)
