@@ -26,7 +26,7 @@ from jaxrobot.measurement import rest_solution
 
 from ._al_batch import chunked_vmap, device_memory
 from ._ik import JointPath, taylor_joint_path
-from ._padding import head, pad_edge, pad_grid, pad_zeros, padded_nodes
+from ._padding import head, pad_edge, pad_grid, pad_zeros, padded_nodes, stack
 from ._trajectories import sample_path
 from ._transcription import State
 
@@ -265,15 +265,15 @@ def simulate_plans(
     # paths of other lengths; the scan is causal, so the samples kept are those of an unpadded run
     size = padded_nodes(samples)
     t = np.arange(size) * ts
-    p_d, r_d = jax.jit(lambda tk: sample_path(jp.path, tk))(np.minimum(t, np.asarray(jp.t)[-1]))
+    p_d, r_d = sample_path(jp.path, np.minimum(t, np.asarray(jp.t)[-1]))
     names = list(trajectories)
-    stacked = _extend(jax.tree.map(lambda *a: jnp.stack(a), *trajectories.values()), size)
-    status, (q, dp, da) = _runs(plant, jnp.asarray(t), p_d, r_d, stacked, substeps, bool(directional),
+    stacked = _extend(jax.tree.map(lambda *a: stack(a), *trajectories.values()), size)
+    status, (q, dp, da) = _runs(plant, jax.device_put(t), p_d, r_d, stacked, substeps, bool(directional),
                                 simulation_capacity(size, plant.n_joints))
     failed = np.flatnonzero(np.asarray(status != jr.RESULTS.successful))
     if failed.size:
         require_successful(status, f"simulate_plans: rest pose of the plant at the start of {names[failed[0]]!r}")
-    return names, PlantRun(jnp.asarray(t[:samples]), *head((q, dp, da), samples, 1), n)
+    return names, PlantRun(jax.device_put(t[:samples]), *head((q, dp, da), samples, 1), n)
 
 
 def summarize(run: PlantRun) -> PlantError:

@@ -14,7 +14,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from functools import partial
 from typing import Any
 
 import equinox as eqx
@@ -27,7 +26,7 @@ from jaxtyping import Array, Bool, Float, Real
 import jaxrobot as jr
 from jaxrobot.internal import cached_program, check, map_matrices, solve
 
-from ._padding import head, pad_edge, padded_nodes
+from ._padding import head, pad_edge, padded_nodes, stack
 from ._trajectories import Path, nested_derivatives, path_derivatives, sample_path, time_grid
 
 TOL = 1e-14
@@ -78,8 +77,14 @@ class IKResult(eqx.Module):
 
     @property
     def converged(self) -> Bool[Array, " N"]:
-        """True at the samples where Newton converged."""
-        return self.status == jr.RESULTS.successful
+        """True at the samples where Newton converged (compared on the samples padded to `padded_nodes(N)`)."""
+        n = self.q.shape[0]
+        return head(_successful(jax.tree.map(lambda a: pad_edge(a, padded_nodes(n)), self.status)), n)
+
+
+@jax.jit
+def _successful(status: jr.RESULTS) -> Bool[Array, " N"]:
+    return status == jr.RESULTS.successful
 
 
 def task_residual(
@@ -240,7 +245,7 @@ def taylor_joint_path(
     implicit function's on the grid, and off the grid it errs by `O(T_s^(m+1))` (~1e-16 rad for
     m = 4 at 1 ms). A polynomial, so the flat inverse differentiates it cheaply."""
     t = jnp.asarray(t, dtype=float)
-    coeffs = jnp.stack(list(derivatives))  # (m+1, N, n)
+    coeffs = stack(derivatives) if isinstance(derivatives, list | tuple) else jnp.asarray(derivatives)  # (m+1, N, n)
 
     def q_d(s):
         k = jnp.clip(jnp.round((jax.lax.stop_gradient(s) - t[0]) / (t[1] - t[0])), 0, t.shape[0] - 1).astype(int)
@@ -293,7 +298,7 @@ def joint_path(
     if check:
         check_inverse_kinematics(t, ik)
     derivatives = joint_derivatives(robot, path, ik.q, t, 4, ik.redundancy)
-    jp = JointPath(t, ik.q, derivatives[1], derivatives[2], jnp.stack(derivatives), ik,
+    jp = JointPath(t, ik.q, derivatives[1], derivatives[2], stack(derivatives), ik,
                    taylor_joint_path(t, derivatives), path)
     if check:
         check_joint_path(robot, jp, singularity_margin)
@@ -311,18 +316,12 @@ def joint_derivatives(
     q, t = jnp.asarray(q, dtype=float), jnp.asarray(t, dtype=float)
     if order < 0:
         raise ValueError(f"order must be >= 0, got {order}")
-    # the task enters only by its Taylor coefficients at the samples: the program below is data-only
-    task = _task_taylor(path.position, t, order), _task_taylor(path.orientation, t, order)
     n, size = q.shape[0], padded_nodes(q.shape[0])  # samples padded: one program serves paths of other lengths
-    out = _joint_taylor(robot, pad_edge(q, size), *(pad_edge(a, size, 1) for a in task),
-                        _redundancy_or_none(redundancy, q), order)
+    # the task enters only by its Taylor coefficients at the samples: the program below is data-only
+    t = pad_edge(t, size)
+    task = (stack(path_derivatives(fn, t, order)) for fn in (path.position, path.orientation))
+    out = _joint_taylor(robot, pad_edge(q, size), *task, _redundancy_or_none(redundancy, q), order)
     return list(head(out, n))
-
-
-@partial(jax.jit, static_argnums=(0, 2))
-def _task_taylor(fn: Callable[[Real[Array, ""]], Float[Array, "*s"]], t: Float[Array, " N"], order: int
-                 ) -> Float[Array, "K N *s"]:
-    return jnp.stack(path_derivatives(fn, t, order))
 
 
 @cached_program(static_argnames=("order",))

@@ -1,6 +1,7 @@
 """The node (sample) axis padded to a few sizes, so that tasks of other lengths share compiled programs:
 a program is compiled for the padded size `padded_nodes(N)`, run on inputs padded after the task's last
-node (`pad_edge`, `pad_grid`) and its result sliced back to the task's N."""
+node (`pad_edge`, `pad_grid`) and its result sliced back to the task's N. Outside a trace these run on the
+host, as do `stack`, `concatenate` and `split` (an eager jax operation compiles a program per shape)."""
 
 from __future__ import annotations
 
@@ -31,6 +32,11 @@ def _xp(*arrays):
     return jnp if any(isinstance(a, jax.core.Tracer) for a in arrays) else np
 
 
+def _device(a: Shaped[Array, "..."]) -> Shaped[Array, "..."]:
+    """`a` as a jax array; a host array by `jax.device_put` (`jnp.asarray` compiles a program per shape)."""
+    return a if isinstance(a, jax.Array) else jax.device_put(a)
+
+
 def pad_edge(a: Shaped[Array, "..."], size: int, axis: int = 0) -> Shaped[Array, "..."]:
     """`a` with its last entry along `axis` repeated up to length `size`."""
     xp = _xp(a)
@@ -39,7 +45,7 @@ def pad_edge(a: Shaped[Array, "..."], size: int, axis: int = 0) -> Shaped[Array,
     last = xp.take(a, xp.asarray([a.shape[axis] - 1]), axis=axis)
     shape = list(a.shape)
     shape[axis] = size - a.shape[axis]
-    return jnp.asarray(xp.concatenate([a, xp.broadcast_to(last, shape)], axis=axis))
+    return _device(xp.concatenate([a, xp.broadcast_to(last, shape)], axis=axis))
 
 
 def pad_zeros(a: Shaped[Array, "..."], size: int, axis: int = 0) -> Shaped[Array, "..."]:
@@ -48,14 +54,32 @@ def pad_zeros(a: Shaped[Array, "..."], size: int, axis: int = 0) -> Shaped[Array
     a = xp.asarray(a)
     widths = [(0, 0)] * a.ndim
     widths[axis % a.ndim] = (0, size - a.shape[axis])
-    return jnp.asarray(xp.pad(a, widths))
+    return _device(xp.pad(a, widths))
 
 
 def pad_grid(t: Float[Array, " N"], size: int) -> Float[Array, " size"]:
     """The uniform time grid `t` continued with its step up to length `size`."""
     xp = _xp(t)
     t = xp.asarray(t, float)
-    return jnp.asarray(xp.concatenate([t, t[-1] + (t[1] - t[0]) * xp.arange(1, size - t.shape[0] + 1)]))
+    return _device(xp.concatenate([t, t[-1] + (t[1] - t[0]) * xp.arange(1, size - t.shape[0] + 1)]))
+
+
+def stack(arrays: list[Shaped[Array, "..."]], axis: int = 0) -> Shaped[Array, "..."]:
+    """`jnp.stack`, on the host for concrete arrays."""
+    xp = _xp(*arrays)
+    return _device(xp.stack([xp.asarray(a) for a in arrays], axis))
+
+
+def concatenate(arrays: list[Shaped[Array, "..."]], axis: int = 0) -> Shaped[Array, "..."]:
+    """`jnp.concatenate`, on the host for concrete arrays."""
+    xp = _xp(*arrays)
+    return _device(xp.concatenate([xp.asarray(a) for a in arrays], axis))
+
+
+def split(a: Shaped[Array, "..."], sections: int, axis: int = 0) -> list[Shaped[Array, "..."]]:
+    """`jnp.split` into equal `sections`, on the host for a concrete array."""
+    xp = _xp(a)
+    return [_device(part) for part in xp.split(xp.asarray(a), sections, axis)]
 
 
 def head(tree, n: int, axis: int = 0):
@@ -63,6 +87,6 @@ def head(tree, n: int, axis: int = 0):
 
     def cut(a):
         index = (slice(None),) * (axis % a.ndim) + (slice(0, n),)
-        return a[index] if isinstance(a, jax.core.Tracer) else jnp.asarray(np.asarray(a)[index])
+        return a[index] if isinstance(a, jax.core.Tracer) else jax.device_put(np.asarray(a)[index])
 
     return jax.tree.map(cut, tree)

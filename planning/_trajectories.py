@@ -2,7 +2,9 @@
 
 A path is a pair of pure functions of time, `position(t) -> (3,)` [m] and `orientation(t) -> (3, 3)`,
 so every derivative is available by `jax.jvp` (the flat inverse needs four). `sample_path` evaluates
-a path on its time grid.
+a path on its time grid. The paths made here are `equinox.Module`s whose parameters are arrays (a line's
+ends, a spiral's turns, the samples of a `sampled_path` padded to `padded_nodes`), so the programs that
+evaluate them are compiled once per kind of path and padded size, whatever its parameters and duration.
 """
 
 from __future__ import annotations
@@ -11,18 +13,22 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Real
+from jaxtyping import Array, Float, Int, Real
 
 import jaxrobot as jr
+
+from ._padding import head, pad_edge, pad_grid, padded_nodes
 
 
 @dataclasses.dataclass(frozen=True)
 class Path:
-    """A task-space reference: any smooth `p_d(t)`, `R_d(t)` on `[0, duration]`. Hashable (its
-    functions by identity), so a static argument of `jit`."""
+    """A task-space reference: any smooth `p_d(t)`, `R_d(t)` on `[0, duration]`. Its functions are
+    plain functions (static to the programs that evaluate them: compiled per path) or `equinox.Module`s
+    whose arrays are traced (compiled once per kind of path, as the paths made here)."""
 
     position: Callable[[Real[Array, ""]], Float[Array, "3"]]
     """`t -> p_d(t)`, shape (3,) [m] of `t` [s]; pure and differentiable in `t`."""
@@ -63,25 +69,74 @@ def task_orientation(description: dict[str, Any] | None = None) -> Float[Array, 
     the Racer-7 (the default description)."""
     sec = _section(description)
     robot = jr.racer7() if description is None else jr.robot_from_description(description)
-    q = jnp.asarray(sec["orientation_q"], dtype=float)
-    return jr.forward_kinematics(robot, q)[:3, :3]
+    return _tool_orientation(robot, np.asarray(sec["orientation_q"], dtype=float))
 
 
-def _constant(r: Float[Array, "3 3"]) -> Callable[[Real[Array, ""]], Float[Array, "3 3"]]:
-    return lambda t: r + 0.0 * jnp.asarray(t, dtype=r.dtype)
+@jax.jit
+def _tool_orientation(robot: jr.Robot, q: Float[Array, " n"]) -> Float[Array, "3 3"]:
+    return jr.forward_kinematics(robot, q)[:3, :3]  # jitted: an eager scan compiles again at every call
+
+
+def _scalars(*values: float) -> tuple[np.ndarray, ...]:
+    """Float64 0-d arrays: a path's parameters as data (traced by the programs that evaluate it)."""
+    return tuple(np.asarray(v, dtype=np.float64) for v in values)
+
+
+class ConstantOrientation(eqx.Module):
+    """`t -> R`: one orientation throughout."""
+
+    r: Float[Array, "3 3"]
+    """The orientation."""
+
+    def __call__(self, t: Real[Array, ""]) -> Float[Array, "3 3"]:
+        return self.r + 0.0 * jnp.asarray(t, dtype=self.r.dtype)
+
+
+class LinePosition(eqx.Module):
+    """`t -> (x_0, lambda_y(t), z_0)` of eq. 4.7, `lambda_y` from `y_start` to `y_end` (eq. 4.4)."""
+
+    x: Float[Array, ""]
+    """`x_0` [m]."""
+    z: Float[Array, ""]
+    """`z_0` [m]."""
+    y_start: Float[Array, ""]
+    """[m] at `t = 0`."""
+    y_end: Float[Array, ""]
+    """[m] at `t = duration`."""
+    duration: Float[Array, ""]
+    """`t_e` [s]."""
+
+    def __call__(self, t: Real[Array, ""]) -> Float[Array, "3"]:
+        y = polynomial7(t, self.y_start, self.y_end, self.duration)
+        return jnp.stack([self.x + 0.0 * y, y, self.z + 0.0 * y])
+
+
+class SpiralPosition(eqx.Module):
+    """`t -> (c_x + a mu cos mu, c_y + a mu sin mu, lambda_z(t))` of eq. 4.8, `mu = lambda_mu(t)` (eq. 4.4)."""
+
+    centre: tuple[Float[Array, ""], Float[Array, ""]]
+    """`(c_x, c_y)` [m]."""
+    a: Float[Array, ""]
+    """Radius per angle `r_max / (2 pi n)` [m/rad]."""
+    mu: tuple[Float[Array, ""], Float[Array, ""]]
+    """`mu` at the start and the end [rad]."""
+    z: tuple[Float[Array, ""], Float[Array, ""]]
+    """Height at the start and the end [m]."""
+    duration: Float[Array, ""]
+    """`t_e` [s]."""
+
+    def __call__(self, t: Real[Array, ""]) -> Float[Array, "3"]:
+        (cx, cy), a, te = self.centre, self.a, self.duration
+        mu = polynomial7(t, *self.mu, te)
+        return jnp.stack([cx + a * mu * jnp.cos(mu), cy + a * mu * jnp.sin(mu), polynomial7(t, *self.z, te)])
 
 
 def line_path(description: dict[str, Any] | None = None) -> Path:
     """The straight line of eq. 4.7: `p_d = (x_0, lambda_y(t), z_0)` with `lambda_y` from eq. 4.4."""
     sec = _section(description)
     ln, te = sec["line"], float(sec["duration_s"])
-    x0, z0, y0, y1 = (float(ln[k]) for k in ("x_m", "z_m", "y_start_m", "y_end_m"))
-
-    def position(t):
-        y = polynomial7(t, y0, y1, te)
-        return jnp.stack([x0 + 0.0 * y, y, z0 + 0.0 * y])
-
-    return Path(position, _constant(task_orientation(description)), te, float(sec["sample_time_s"]), "line")
+    position = LinePosition(*_scalars(*(float(ln[k]) for k in ("x_m", "z_m", "y_start_m", "y_end_m")), te))
+    return Path(position, ConstantOrientation(task_orientation(description)), te, float(sec["sample_time_s"]), "line")
 
 
 def spiral_path(description: dict[str, Any] | None = None) -> Path:
@@ -90,17 +145,13 @@ def spiral_path(description: dict[str, Any] | None = None) -> Path:
     `a = r_max / (2 pi n)`, `mu` from `mu_start` to `2 pi n` (n turns)."""
     sec = _section(description)
     sp, te = sec["spiral"], float(sec["duration_s"])
-    cx, cy = (float(c) for c in sp["centre_xy_m"])
     turns, r_max = float(sp["turns"]), float(sp["r_max_m"])
-    a = r_max / (2.0 * jnp.pi * turns)
-    mu0, mu1 = float(sp["mu_start_rad"]), 2.0 * jnp.pi * turns
-    z0, z1 = float(sp["z_start_m"]), float(sp["z_end_m"])
-
-    def position(t):
-        mu = polynomial7(t, mu0, mu1, te)
-        return jnp.stack([cx + a * mu * jnp.cos(mu), cy + a * mu * jnp.sin(mu), polynomial7(t, z0, z1, te)])
-
-    return Path(position, _constant(task_orientation(description)), te, float(sec["sample_time_s"]), "spiral")
+    position = SpiralPosition(_scalars(*(float(c) for c in sp["centre_xy_m"])),
+                              *_scalars(r_max / (2.0 * jnp.pi * turns)),
+                              _scalars(float(sp["mu_start_rad"]), 2.0 * jnp.pi * turns),
+                              _scalars(float(sp["z_start_m"]), float(sp["z_end_m"])), *_scalars(te))
+    return Path(position, ConstantOrientation(task_orientation(description)), te, float(sec["sample_time_s"]),
+                "spiral")
 
 
 def reference_path(name: str, description: dict[str, Any] | None = None) -> Path:
@@ -119,23 +170,41 @@ def time_grid(path: Path) -> Float[Array, " N"]:
     n = round(steps)
     if abs(steps - n) > 1e-9 * max(1.0, steps):
         raise ValueError(f"path duration {path.duration} s is not a multiple of sample_time {path.sample_time} s")
-    return jnp.arange(n + 1) * path.sample_time
+    return jax.device_put(np.arange(n + 1) * path.sample_time)  # on the host: no program per N
 
 
 def sample_path(path: Path, t: Real[Array, " N"]) -> tuple[Float[Array, "N 3"], Float[Array, "N 3 3"]]:
-    """`p_d(t_k)` (N, 3) and `R_d(t_k)` (N, 3, 3) at the times `t`."""
+    """`p_d(t_k)` (N, 3) and `R_d(t_k)` (N, 3, 3) at the times `t`; outside `jit`, one program per kind of
+    path and padded size `padded_nodes(N)` (`t` padded with its last time, the result cut back to N)."""
+    if isinstance(t, jax.core.Tracer):
+        return _sample(path.position, path.orientation, t)
+    t = np.asarray(t, dtype=float)
+    return head(_sample(path.position, path.orientation, pad_edge(t, padded_nodes(t.shape[0]))), t.shape[0])
+
+
+@eqx.filter_jit
+def _sample(position, orientation, t):
     t = jnp.asarray(t, dtype=float)
-    return jax.vmap(path.position)(t), jax.vmap(path.orientation)(t)
+    return jax.vmap(position)(t), jax.vmap(orientation)(t)
 
 
 def path_derivatives(
     fn: Callable[[Real[Array, ""]], Float[Array, "*s"]], t: Real[Array, " N"], order: int
 ) -> list[Float[Array, "N ..."]]:
-    """`[fn(t), fn'(t), ..., fn^(order)(t)]` at every `t` by nested `jax.jvp` (exact, no differencing)."""
+    """`[fn(t), fn'(t), ..., fn^(order)(t)]` at every `t` by nested `jax.jvp` (exact, no differencing); outside
+    `jit`, one program per kind of `fn` and padded size (as `sample_path`)."""
     if order < 0:
         raise ValueError(f"order must be >= 0, got {order}")
+    if isinstance(t, jax.core.Tracer):
+        return list(_derivatives(fn, t, order))
+    t = np.asarray(t, dtype=float)
+    return list(head(_derivatives(fn, pad_edge(t, padded_nodes(t.shape[0])), order), t.shape[0]))
+
+
+@eqx.filter_jit
+def _derivatives(fn, t, order):
     t = jnp.asarray(t, dtype=float)
-    return list(jax.vmap(lambda s: nested_derivatives(fn, s, order))(t))
+    return jax.vmap(lambda s: nested_derivatives(fn, s, order))(t)
 
 
 def nested_derivatives(fn: Callable[[Real[Array, ""]], Float[Array, "*s"]], s: Real[Array, ""], order: int
@@ -153,24 +222,36 @@ STENCIL = 9
 """Samples per local interpolating polynomial of `sampled_path` (degree 8: four derivatives to O(T_s^5))."""
 
 
-def _local_polynomial(t_grid: Float[Array, " N"], values: Float[Array, "N ..."]):
-    """`s -> ` the polynomial through the `STENCIL` samples nearest `s` (Lagrange; one-sided at the ends)."""
-    n = t_grid.shape[0]
-    half = STENCIL // 2
-    h = t_grid[1] - t_grid[0]
+class LocalPolynomial(eqx.Module):
+    """`s -> ` the polynomial through the `STENCIL` samples nearest `s` (Lagrange; one-sided at the ends).
 
-    def fn(s):
+    The samples are stored padded to `padded_nodes(count)` (the grid continued, the last value repeated) with
+    their `count` as data, so that sample sets of other lengths share the programs that evaluate them."""
+
+    t_grid: Float[Array, " M"]
+    """The uniform sample times [s], padded."""
+    values: Float[Array, "M ..."]
+    """The samples, padded."""
+    count: Int[Array, ""]
+    """The number of samples (before the padding)."""
+
+    def __init__(self, t_grid: Float[Array, " N"], values: Float[Array, "N ..."]):
+        n = t_grid.shape[0]
+        self.t_grid, self.values = pad_grid(t_grid, padded_nodes(n)), pad_edge(values, padded_nodes(n))
+        self.count = np.asarray(n)
+
+    def __call__(self, s: Real[Array, ""]) -> Float[Array, "..."]:
+        t_grid, half = self.t_grid, STENCIL // 2
+        h = t_grid[1] - t_grid[0]
         k = jnp.round((jax.lax.stop_gradient(s) - t_grid[0]) / h).astype(int)
-        start = jnp.clip(k - half, 0, n - STENCIL)
+        start = jnp.clip(k - half, 0, self.count - STENCIL)
         x = (s - t_grid[start]) / h  # position within the stencil, in samples
         nodes = jnp.arange(STENCIL, dtype=float)
         off = ~np.eye(STENCIL, dtype=bool)
         denom = np.where(off, np.arange(STENCIL)[:, None] - np.arange(STENCIL)[None, :], 1.0)
         weights = jnp.prod(jnp.where(off, (x - nodes)[None, :] / denom, 1.0), axis=1)  # Lagrange basis
-        block = jax.lax.dynamic_slice_in_dim(values, start, STENCIL, 0)
+        block = jax.lax.dynamic_slice_in_dim(self.values, start, STENCIL, 0)
         return jnp.tensordot(weights, block, axes=1)
-
-    return fn
 
 
 def sampled_path(
@@ -180,24 +261,24 @@ def sampled_path(
     """A `Path` through task-space samples on a uniform grid `t` (from 0): between samples, the local
     degree-8 interpolating polynomial of the 9 nearest samples (derivatives to 4th order on the grid).
     `r_d` (N, 3, 3) defaults to the constant task orientation of eq. 4.6."""
-    t = jnp.asarray(t, dtype=float)
-    p_d = jnp.asarray(p_d, dtype=float)
+    t = np.asarray(t, dtype=float)
+    p_d = np.asarray(p_d, dtype=float)
     if t.ndim != 1 or t.shape[0] < STENCIL:
         raise ValueError(f"t must be 1-D with at least {STENCIL} samples [s], got shape {t.shape}")
-    steps = jnp.diff(t)
-    if abs(float(t[0])) > 1e-12 or float(jnp.max(jnp.abs(steps - steps[0]))) > 1e-9 * float(steps[0]) or steps[0] <= 0:
+    steps = np.diff(t)
+    if abs(float(t[0])) > 1e-12 or float(np.max(np.abs(steps - steps[0]))) > 1e-9 * float(steps[0]) or steps[0] <= 0:
         raise ValueError("t must start at 0 s and be uniformly increasing (one sample time T_s)")
     if p_d.shape != t.shape + (3,):
         raise ValueError(f"p_d must have shape ({t.shape[0]}, 3) [m], got {p_d.shape}")
     if r_d is None:
-        orientation = _constant(task_orientation(description))
+        orientation = ConstantOrientation(task_orientation(description))
     else:
-        r_d = jnp.asarray(r_d, dtype=float)
+        r_d = np.asarray(r_d, dtype=float)
         if r_d.shape != t.shape + (3, 3):
             raise ValueError(f"r_d must have shape ({t.shape[0]}, 3, 3), got {r_d.shape}")
-        orientation = _local_polynomial(t, r_d)
+        orientation = LocalPolynomial(t, r_d)
     ts = float(steps[0])
-    return Path(_local_polynomial(t, p_d), orientation, ts * (t.shape[0] - 1), ts, name)
+    return Path(LocalPolynomial(t, p_d), orientation, ts * (t.shape[0] - 1), ts, name)
 
 
 REST_SPEED = 1e-3

@@ -43,7 +43,7 @@ from jaxtyping import Array, Bool, Float, Int
 import jaxrobot as jr
 from jaxrobot.internal import spd_solve
 
-from ._padding import head, pad_edge, pad_zeros, padded_nodes
+from ._padding import concatenate, head, pad_edge, pad_zeros, padded_nodes, split
 
 ANGLE_SCALE = 1e-3
 """Angle unit of the scaled problem [rad] (mrad)."""
@@ -71,10 +71,10 @@ class State(eqx.Module):
     def of(cls, x: Float[Array, "*b 4*n"]) -> State:
         if x.shape[-1] % 4:
             raise ValueError(f"x: expected a packed state [q, qd, theta, thetad] of size 4n, found {x.shape}")
-        return cls(*jnp.split(x, 4, -1))
+        return cls(*split(x, 4, -1))
 
     def pack(self) -> Float[Array, "*b 4*n"]:
-        return jnp.concatenate([self.q, self.qd, self.theta, self.thetad], -1)
+        return concatenate([self.q, self.qd, self.theta, self.thetad], -1)
 
 
 class OCPProblem(eqx.Module):

@@ -34,7 +34,7 @@ from ._evaluation import (
     summarize,
 )
 from ._ik import JointPath, joint_path
-from ._padding import head, pad_edge, padded_nodes
+from ._padding import concatenate, head, pad_edge, padded_nodes
 from ._sweep import check_nus, solve_ocp_sweep
 from ._trajectories import Path, sample_path
 from ._transcription import COSTS, State, motor_directions
@@ -223,7 +223,7 @@ def _plant_runs(plant: jr.Robot, jp: JointPath, trajectories: dict[str, MotorTra
 
 def _stacked(runs: list[PlantRun]) -> PlantRun:
     """The runs of `_plant_runs` as one `PlantRun`, in their order."""
-    return dataclasses.replace(runs[0], **{f: jnp.concatenate([getattr(r, f) for r in runs])
+    return dataclasses.replace(runs[0], **{f: concatenate([getattr(r, f) for r in runs])
                                           for f in ("q", "position", "orientation")})
 
 
@@ -280,7 +280,7 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     start = time.perf_counter()
     jp = joint_path(robot, path, q_init)
     emit(PlanEvent("inverse_kinematics", time.perf_counter() - start, samples=jp.t.shape[0],
-                   ik_residual=float(jp.ik.position_residual.max())))
+                   ik_residual=float(np.max(np.asarray(jp.ik.position_residual)))))
     one_by_one = backend_kind() == "cpu"  # the CPU simulates one run at a time: the baselines' beside the OCP
     with ThreadPoolExecutor(1) as pool:  # the baselines (and on the CPU their plant runs) beside the flat inverse, OCP
         others = pool.submit(lambda: {"rigid": rigid_motor_trajectory(robot, jp.q, jp.qd, jp.qdd),
@@ -300,8 +300,8 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
         ocp = motor_commands(robot, jp.t, {"ocp": ocp_motor_trajectory(sol.x, sol.u)})
         if not bool(sol.converged):
             return PlanResult(path, jp, sol, ocp, nu, cost, solve_s, compile_s, play=play)
-        p_d, r_d = jax.jit(lambda t: sample_path(path, t))(jp.t)
-        plan_err = np.linalg.norm(np.asarray(_tool_position(robot, sol.q) - p_d), axis=-1)
+        p_d, r_d = sample_path(path, jp.t)
+        plan_err = np.linalg.norm(np.asarray(_tool_position(robot, sol.q)) - np.asarray(p_d), axis=-1)
         start = time.perf_counter()
         ocp_run = _plant_runs(plant, jp, ocp, directional) if one_by_one else None  # beside the baselines' left
         base, base_run = pending.result()

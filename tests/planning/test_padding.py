@@ -13,7 +13,9 @@ import pytest
 import planning as pl
 from planning import _ocp
 from planning import _transcription as tr
+from planning._evaluation import flat_motor_trajectory, ocp_motor_trajectory
 from planning._padding import PAD_MIN, PAD_RATIO, padded_nodes
+from planning._workflow import solve_directional
 from planning.internal import motor_directions
 
 TS = 1e-3
@@ -151,24 +153,61 @@ def _warm_start_as_solution(robot, q_d, ts, nu=1e-14, cost="thesis", solver=None
     return _ocp.OCPSolution(x=x, u=u, status=jr.RESULTS.successful, iterations=jnp.asarray(1),
                             inner_iterations=jnp.asarray(1), objective=z, max_constraint_violation=z,
                             max_constraint_violation_unscaled=z, stationarity=z,
-                            multipliers=jnp.zeros((x.shape[0] - 1, x.shape[1])), history_objective=h,
+                            multipliers=jax.device_put(np.zeros((x.shape[0] - 1, x.shape[1]))), history_objective=h,
                             history_violation=h, history_penalty=h, history_stationarity=h)
 
 
+def _plan_to_the_ocp(robot, path, solve: bool):
+    """`plan_task`'s steps from the task to the OCP's motor trajectory: time grid, `sample_path`, the IK and its
+    checks, the path's Taylor coefficients, the joint derivatives, the flat inverse, the motor directions, the warm
+    start and (with `solve`) the solve; without it, the warm start stands for the solution."""
+    jp = pl.joint_path(robot, path)
+    flat = flat_motor_trajectory(robot, jp)
+    if solve:
+        sol = solve_directional(robot, jp.q, jp.qd, flat, path.sample_time, 1e-14, "thesis", False)[0]
+        assert bool(sol.converged)
+        x, u = sol.x, sol.u
+    else:
+        motor_directions(flat.thetad)
+        x, u = tr.State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd
+    return jax.block_until_ready((x, ocp_motor_trajectory(x, u)))
+
+
+def test_a_task_of_another_length_compiles_nothing_up_to_the_ocp(robot):
+    """A line of another duration (126 and 123 samples, one padded size) compiles nothing from the task to the
+    OCP's warm start (`_plan_to_the_ocp`; the solve's reuse: `test_another_length_compiles_no_new_solve`): the
+    path's parameters are data and every step on the node axis runs padded or on the host."""
+    first, second = _line(2.5, 0.02), _line(2.44, 0.02)  # 126 and 123 samples
+    assert padded_nodes(126) == padded_nodes(123)
+    _plan_to_the_ocp(robot, first, solve=False)
+    with compilations() as made:
+        x, motor = _plan_to_the_ocp(robot, second, solve=False)
+    assert made == [], made
+    assert x.shape == (123, 24) and motor.theta.shape == (123, 6)
+
+
+@pytest.mark.extended  # the solve of the thesis cost at 128 nodes compiles (a minute on 2 cores)
+def test_a_task_of_another_length_compiles_nothing_from_ik_to_the_ocp_solution(robot):
+    """As `test_a_task_of_another_length_compiles_nothing_up_to_the_ocp`, with the solve (`solve_directional`)."""
+    first, second = _line(2.5, 0.02), _line(2.44, 0.02)
+    _plan_to_the_ocp(robot, first, solve=True)
+    with compilations() as made:
+        x, motor = _plan_to_the_ocp(robot, second, solve=True)
+    assert made == [], made
+    assert x.shape == (123, 24) and motor.theta.shape == (123, 6)
+
+
 @pytest.mark.extended  # compiles IK, flat inverse and the plant simulation (the OCP a stand-in)
-def test_plan_task_of_another_length_compiles_none_of_the_padded_programs(monkeypatch):
-    """`plan_task` on a line of another duration of the same padded size: none of its node-axis programs compiles
-    again (what does is the new path's own sampling, `sample_path` and its Taylor coefficients)."""
+def test_plan_task_of_another_length_compiles_nothing(monkeypatch):
+    """`plan_task` on a line of another duration of the same padded size compiles nothing (the OCP a stand-in):
+    not the padded programs, nor the path's sampling and Taylor coefficients (its parameters are data)."""
     monkeypatch.setattr(_ocp, "solve_ocp", _warm_start_as_solution)
     robot = jr.racer7()
     first, second = _line(2.5, 5e-3), _line(2.45, 5e-3)  # 501 and 491 samples
     assert padded_nodes(501) == padded_nodes(491)
-    with compilations() as before:
-        assert pl.plan_task(robot, robot, first, 1e-14, timing=False).converged
+    assert pl.plan_task(robot, robot, first, 1e-14, timing=False).converged
     with compilations() as made:
         res = pl.plan_task(robot, robot, second, 1e-14, timing=False)
     assert res.converged and res.joint_path.t.shape == (491,)
     assert res.run.position.shape[-1] == 491 + 100  # 0.5 s settling
-    names = [_program(name) for name, _ in made]
-    assert "_task_taylor" in names and "_task_taylor" in map(_program, (n for n, _ in before))  # the path's own
-    assert not [name for name in names if name in PADDED_PROGRAMS], made
+    assert made == [], made
