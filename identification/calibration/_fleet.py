@@ -344,7 +344,7 @@ def _fleet_parameters(robots, parameters, poses: _FleetPoses) -> tuple[Parameter
     return params, checked
 
 
-def _fleet_solve_all(initial, params, poses: _FleetPoses, mesh, max_steps, loss):
+def _fit_fleet(initial, params, poses: _FleetPoses, mesh, max_steps, loss):
     """The LM solves of the fleet sharded over `mesh`, reweighted by a robust `loss`, gathered back; returns the
     solution, the fleet (leading axis R), the poses the loss kept (None for `l2`: every pose) and the per-axis
     tracker noise."""
@@ -424,7 +424,7 @@ def calibrate_fleet(
     poses = _fleet_poses(robots, motor_angles, positions, ccw, instruments, loss)
     params, checked = _fleet_parameters(robots, parameters, poses)
     mesh = fleet_mesh() if mesh is None else mesh
-    out, robots, kept, sigma = _fleet_solve_all(robots, params, poses, mesh, max_steps, loss)
+    out, robots, kept, sigma = _fit_fleet(robots, params, poses, mesh, max_steps, loss)
     resid = np.asarray(out.residuals).reshape(out.residuals.shape[0], -1, 3)
     chi2, dof, p_value = noise_test(resid, sigma, len(params), kept)
     level = ALPHA / len(p_value)

@@ -17,10 +17,15 @@ import dataclasses
 import resource
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ._options import add_approach_option, add_loss_option, add_setup_option
+
+if TYPE_CHECKING:  # imported by `run` after `initialize_processes`
+    from ..calibration._fleet import FleetResult
+    from ..calibration._fleet_files import FleetFiles
 
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
 TABLE = "fleet_calibration.csv"
@@ -141,9 +146,9 @@ class _Fleet:
 
     files: list[Path]
     """Every pose file of the fleet."""
-    checked: object
-    """`check_fleet_files`' outcome (`FleetFiles`) of all files."""
-    res: object | None
+    checked: FleetFiles
+    """`check_fleet_files`' outcome of all files."""
+    res: FleetResult | None
     """`FleetResult` of the files that passed their checks; None when none did."""
     messages: dict[str, str]
     """The message of every calibrated robot that is not `successful`, by file."""
