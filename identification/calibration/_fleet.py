@@ -14,6 +14,7 @@ are assembled from the processes' rows (`jaxrobot.internal.shard_rows`) and the 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -274,6 +275,114 @@ def _values_scales(params, robots):
     return jax.vmap(params.get)(robots), jax.vmap(params.scales)(robots)
 
 
+@dataclasses.dataclass(frozen=True)
+class _FleetPoses:
+    """The checked poses of `calibrate_fleet` and what its measurement setup says of them."""
+
+    theta: np.ndarray
+    """(R, K, n) motor angles [rad]."""
+    positions: np.ndarray
+    """(R, K, 3) marker positions [m]."""
+    ccw: np.ndarray
+    """(R, K, n) bool: the direction of approach of each gear (all False: every gear's `cw` set)."""
+    marker: Float[Array, "3"]
+    """Marker offset [m] (`instruments`)."""
+    noise: object
+    """The tracker noise of `instruments` (`tracker_noise`)."""
+
+
+def _fleet_poses(robots, motor_angles, positions, ccw, instruments, loss) -> _FleetPoses:
+    """`calibrate_fleet`'s poses checked (shapes, finite values, `ccw`) with its setup and `loss`."""
+    motor_angles, positions, quaternions, ccw = pose_arrays(motor_angles, positions, None, ccw)
+    if quaternions is not None:
+        raise ValueError("motor_angles: calibrate_fleet fits positions only; found Poses with quaternions "
+                         "(give Poses without them, or calibrate each robot with `calibrate`)")
+    marker = jnp.asarray(instruments.require("marker_offset", by="calibrate_fleet")[0], float)
+    noise = tracker_noise(instruments, by="calibrate_fleet")
+    robust.check_loss(loss)
+    joints = robots.n_joints
+    theta = np.asarray(motor_angles, float)
+    pos = np.asarray(positions, float)
+    if theta.ndim != 3 or theta.shape[-1] != joints:
+        raise ValueError(f"motor_angles: expected shape (R, K, {joints}) in rad, found {theta.shape}")
+    if pos.shape != theta.shape[:2] + (3,):
+        raise ValueError(f"positions: expected shape {theta.shape[:2] + (3,)} in m, found {pos.shape}")
+    if not (np.isfinite(theta).all() and np.isfinite(pos).all()):  # NaN rows, named by robot and pose
+        for r in range(theta.shape[0]):
+            _check_array(theta[r], (joints,), f"motor_angles[robot {r}]", "rad")
+            _check_array(pos[r], (3,), f"positions[robot {r}]", "m")
+    ccw = np.zeros(theta.shape, bool) if ccw is None else np.asarray(ccw)
+    if ccw.shape != theta.shape or ccw.dtype != bool:
+        raise ValueError(f"ccw: expected a bool array of shape {theta.shape} (robots, poses, joints), found "
+                         f"{ccw.dtype} {ccw.shape}")
+    return _FleetPoses(theta=theta, positions=pos, ccw=ccw, marker=marker, noise=noise)
+
+
+def _fleet_parameters(robots, parameters, poses: _FleetPoses) -> tuple[ParameterMap, ParameterCheck | None]:
+    """The free parameters: `parameters`, or the default set of the first robot checked on its poses (the
+    check of the first process that has robots decides for all); and that check (None for `parameters`)."""
+    n_rob, k = poses.theta.shape[:2]
+    checked = None
+    if parameters is None:
+        first = robots if np.ndim(robots.a) == 1 else jax.tree.map(lambda x: x[0], robots)
+        parameters = default_parameters(first, marker=poses.marker)
+        keep = np.ones(len(parameters), bool)
+        if n_rob:  # a process whose share was all left out has no poses to check the set on
+            sigma0, white0 = noise_model(poses.noise, poses.positions[0], "instruments.tracker_noise")
+            th0, ccw0 = jnp.asarray(poses.theta[0]), jnp.asarray(poses.ccw[0])
+            checked = check_default(first, parameters, th0, _deflection(first, th0, ccw0), poses.marker,
+                                    False, white0, 1.0, sigma0, None, ccw0)
+            keep = np.array([p in checked.kept for p in parameters])
+        # every process fits one set: the check of the first process that has robots decides
+        has_robots, keeps = gather_array((np.array([n_rob > 0]), keep[None]))
+        keep = np.asarray(keeps)[int(np.argmax(np.asarray(has_robots)))]
+        parameters = tuple(p for p, k in zip(parameters, keep) if k)
+    params = ParameterMap(parameters)
+    if 3 * k < len(params):
+        raise ValueError(f"motor_angles: {k} poses per robot give {3 * k} equations for {len(params)} "
+                         f"parameters; need at least {-(-len(params) // 3)} poses")
+    return params, checked
+
+
+def _fit_fleet(initial, params, poses: _FleetPoses, mesh, max_steps, loss):
+    """The LM solves of the fleet sharded over `mesh`, reweighted by a robust `loss`, gathered back; returns the
+    solution, the fleet (leading axis R), the poses the loss kept (None for `l2`: every pose) and the per-axis
+    tracker noise."""
+    n_rob = poses.theta.shape[0]
+    robots = initial  # one robot for all (its constants need no copy per robot), or the fleet
+    if np.ndim(robots.a) == 1:
+        robots = jax.tree.map(lambda x: jnp.broadcast_to(x, (n_rob,) + jnp.shape(x)), robots)
+    elif robots.a.shape[0] != n_rob:
+        raise ValueError(f"robots: expected one robot or a fleet of {n_rob}, found {robots.a.shape[0]}")
+    sigma, white = noise_model(poses.noise, poses.positions.reshape(-1, 3), "instruments.tracker_noise")
+    white = () if white is None else (white.reshape(poses.theta.shape[:2] + (3, 3)),)  # none: isotropic
+    (g_robots, g_theta, g_pos, g_ccw, *g_white), origin = shard_rows(
+        (robots, poses.theta, poses.positions, poses.ccw, *white), mesh, ROWS_MULTIPLE)
+    g_white = g_white[0] if g_white else None
+    rippled = rippled_joints(robots)
+    g_ccw = g_ccw if poses.ccw.any() else None  # none: every gear's cw set, no selection per pose
+    q0, defl = _fleet_constants(initial if np.ndim(initial.a) == 1 else g_robots, g_theta, rippled, mesh, g_ccw)
+    config = jax.tree.map(jnp.asarray, LMConfig(max_steps=max_steps))
+    solve = functools.partial(_fleet_solve, g_robots, params, g_theta, g_pos, poses.marker, q0, defl, config,
+                              rippled, mesh, g_ccw)
+    if loss == "l2":
+        out, robots = gather_rows((solve(whiten=g_white), g_robots), origin)
+        return out, robots, None, sigma
+    v0, scale = _values_scales(params, g_robots)
+    last = {"x0": jnp.zeros_like(v0), "weight": None, "out": None}  # every round runs one compiled solve
+
+    def fit(weight):  # a robot whose weights did not change keeps its solution
+        frozen = weight[:, 0] < 0 if last["out"] is None else _unchanged(weight, last["weight"])
+        out = solve(weight, last["x0"], g_white, frozen)
+        out = out if last["out"] is None else _keep(frozen, last["out"], out)
+        last.update(x0=(out.value - v0) / scale, weight=weight, out=out)
+        return out, _pose_norms(out.residuals, sigma)
+
+    out, weight, settled = robust.irls(fit, jnp.ones_like(g_pos[..., 0]), loss, 3)
+    out, robots, weight, settled = gather_rows((out, g_robots, weight, settled), origin)
+    return eqx.tree_at(lambda o: o.status, out, robust.settled_status(out.status, settled)), robots, weight > 0, sigma
+
+
 def calibrate_fleet(
     robots: jr.Robot,
     motor_angles: Float[Array, "R K n"] | Poses,
@@ -312,84 +421,10 @@ def calibrate_fleet(
     reweighted on its own (a robot whose weights no longer change keeps its solution), its outliers and robust
     noise estimate are in `outliers` and `noise_estimate`.
     """
-    motor_angles, positions, quaternions, ccw = pose_arrays(motor_angles, positions, None, ccw)
-    if quaternions is not None:
-        raise ValueError("motor_angles: calibrate_fleet fits positions only; found Poses with quaternions "
-                         "(give Poses without them, or calibrate each robot with `calibrate`)")
-    marker = jnp.asarray(instruments.require("marker_offset", by="calibrate_fleet")[0], float)
-    noise = tracker_noise(instruments, by="calibrate_fleet")
-    robust.check_loss(loss)
-    joints = robots.n_joints
-    theta = np.asarray(motor_angles, float)
-    pos = np.asarray(positions, float)
-    if theta.ndim != 3 or theta.shape[-1] != joints:
-        raise ValueError(f"motor_angles: expected shape (R, K, {joints}) in rad, found {theta.shape}")
-    if pos.shape != theta.shape[:2] + (3,):
-        raise ValueError(f"positions: expected shape {theta.shape[:2] + (3,)} in m, found {pos.shape}")
-    if not (np.isfinite(theta).all() and np.isfinite(pos).all()):  # NaN rows, named by robot and pose
-        for r in range(theta.shape[0]):
-            _check_array(theta[r], (joints,), f"motor_angles[robot {r}]", "rad")
-            _check_array(pos[r], (3,), f"positions[robot {r}]", "m")
-    n_rob, k = theta.shape[:2]
-    ccw = np.zeros(theta.shape, bool) if ccw is None else np.asarray(ccw)
-    if ccw.shape != theta.shape or ccw.dtype != bool:
-        raise ValueError(f"ccw: expected a bool array of shape {theta.shape} (robots, poses, joints), found "
-                         f"{ccw.dtype} {ccw.shape}")
-    checked = None
-    if parameters is None:
-        first = robots if np.ndim(robots.a) == 1 else jax.tree.map(lambda x: x[0], robots)
-        parameters = default_parameters(first, marker=marker)
-        keep = np.ones(len(parameters), bool)
-        if n_rob:  # a process whose share was all left out has no poses to check the set on
-            sigma0, white0 = noise_model(noise, pos[0], "instruments.tracker_noise")
-            th0 = jnp.asarray(theta[0])
-            checked = check_default(first, parameters, th0, _deflection(first, th0, jnp.asarray(ccw[0])), marker,
-                                    False, white0, 1.0, sigma0, None, jnp.asarray(ccw[0]))
-            keep = np.array([p in checked.kept for p in parameters])
-        # every process fits one set: the check of the first process that has robots decides
-        has_robots, keeps = gather_array((np.array([n_rob > 0]), keep[None]))
-        keep = np.asarray(keeps)[int(np.argmax(np.asarray(has_robots)))]
-        parameters = tuple(p for p, k in zip(parameters, keep) if k)
-    params = ParameterMap(parameters)
-    if 3 * k < len(params):
-        raise ValueError(f"motor_angles: {k} poses per robot give {3 * k} equations for {len(params)} "
-                         f"parameters; need at least {-(-len(params) // 3)} poses")
-    initial = robots  # one robot for all (its constants need no copy per robot), or the fleet
-    if np.ndim(robots.a) == 1:
-        robots = jax.tree.map(lambda x: jnp.broadcast_to(x, (n_rob,) + jnp.shape(x)), robots)
-    elif robots.a.shape[0] != n_rob:
-        raise ValueError(f"robots: expected one robot or a fleet of {n_rob}, found {robots.a.shape[0]}")
+    poses = _fleet_poses(robots, motor_angles, positions, ccw, instruments, loss)
+    params, checked = _fleet_parameters(robots, parameters, poses)
     mesh = fleet_mesh() if mesh is None else mesh
-    n_dev = mesh.devices.size
-    sigma, white = noise_model(noise, pos.reshape(-1, 3), "instruments.tracker_noise")
-    white = () if white is None else (white.reshape(theta.shape[:2] + (3, 3)),)  # none: isotropic
-    (g_robots, g_theta, g_pos, g_ccw, *g_white), origin = shard_rows((robots, theta, pos, ccw, *white), mesh,
-                                                                      ROWS_MULTIPLE)
-    g_white = g_white[0] if g_white else None
-    rippled = rippled_joints(robots)
-    g_ccw = g_ccw if ccw.any() else None  # none: every gear's cw set, no selection per pose
-    q0, defl = _fleet_constants(initial if np.ndim(initial.a) == 1 else g_robots, g_theta, rippled, mesh, g_ccw)
-    config = jax.tree.map(jnp.asarray, LMConfig(max_steps=max_steps))
-    if loss == "l2":
-        out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, config, rippled, mesh, g_ccw,
-                           whiten=g_white)
-        out, robots = gather_rows((out, g_robots), origin)
-        kept = None  # every pose
-    else:
-        v0, scale = _values_scales(params, g_robots)
-        last = {"x0": jnp.zeros_like(v0), "weight": None, "out": None}  # every round runs one compiled solve
-
-        def fit(weight):  # a robot whose weights did not change keeps its solution
-            frozen = weight[:, 0] < 0 if last["out"] is None else _unchanged(weight, last["weight"])
-            out = _fleet_solve(g_robots, params, g_theta, g_pos, marker, q0, defl, config, rippled, mesh, g_ccw,
-                               weight, last["x0"], g_white, frozen)
-            out = out if last["out"] is None else _keep(frozen, last["out"], out)
-            last.update(x0=(out.value - v0) / scale, weight=weight, out=out)
-            return out, _pose_norms(out.residuals, sigma)
-
-        out, weight, settled = robust.irls(fit, jnp.ones_like(g_pos[..., 0]), loss, 3)
-        out, robots, weight, settled = gather_rows((out, g_robots, weight, settled), origin)
-        out, kept = eqx.tree_at(lambda o: o.status, out, robust.settled_status(out.status, settled)), weight > 0
+    out, robots, kept, sigma = _fit_fleet(robots, params, poses, mesh, max_steps, loss)
     resid = np.asarray(out.residuals).reshape(out.residuals.shape[0], -1, 3)
     chi2, dof, p_value = noise_test(resid, sigma, len(params), kept)
     level = ALPHA / len(p_value)
@@ -405,6 +440,6 @@ def calibrate_fleet(
         std=np.sqrt(np.diagonal(cov, 0, 1, 2)), covariance=cov, converged=np.asarray(status == RESULTS.successful),
         status=status,
         iterations=out.steps, rank=out.rank, rms_m=np.sqrt(np.mean(resid**2, -1)), residuals=resid,
-        names=params.names, n_devices=n_dev, loss=loss, noise_estimate=noise,
+        names=params.names, n_devices=mesh.devices.size, loss=loss, noise_estimate=noise,
         outliers=tuple(robust.outliers(r.reshape(-1, 3), sigma) for r in resid), chi2=chi2, dof=dof,
         p_value=p_value, inconsistent_below=level, parameter_check=checked)

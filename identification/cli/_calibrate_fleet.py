@@ -13,13 +13,19 @@ none is; the table, the warnings and the `--json` field `failures` name each fai
 
 from __future__ import annotations
 
+import dataclasses
 import resource
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ._options import add_approach_option, add_loss_option, add_setup_option
+
+if TYPE_CHECKING:  # imported by `run` after `initialize_processes`
+    from ..calibration._fleet import FleetResult
+    from ..calibration._fleet_files import FleetFiles
 
 HELP = "calibrate a fleet, one pose file per robot, on one or several processes (jax.distributed)"
 TABLE = "fleet_calibration.csv"
@@ -134,6 +140,135 @@ def _failure_messages(res, files: list[str], sigma: float) -> dict[str, str]:
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class _Fleet:
+    """The outcome of `calibrate-fleet`: its pose files, their checks and the calibration of those that passed."""
+
+    files: list[Path]
+    """Every pose file of the fleet."""
+    checked: FleetFiles
+    """`check_fleet_files`' outcome of all files."""
+    res: FleetResult | None
+    """`FleetResult` of the files that passed their checks; None when none did."""
+    messages: dict[str, str]
+    """The message of every calibrated robot that is not `successful`, by file."""
+
+    @property
+    def good(self) -> list[str]:
+        """The files that passed their checks, in the order of the rows of `res`."""
+        return [c.file for c in self.checked.checks if not c.check]
+
+    @property
+    def rows(self) -> dict[str, int]:
+        return {f: r for r, f in enumerate(self.good)}
+
+    @property
+    def status(self) -> dict[str, int]:
+        """`{status name: count}` of all files."""
+        status_of = self._status_of()
+        return {str(s): status_of.count(s) for s in sorted(set(status_of))}
+
+    @property
+    def failures(self) -> list[dict]:
+        """The `--json` `failures`: every file whose robot is not `successful`."""
+        return [{"file": c.file, "status": st, "check": c.check, "lines": list(c.lines),
+                 "message": c.message or self.messages.get(c.file, "")}
+                for c, st in zip(self.checked.checks, self._status_of()) if st != "successful"]
+
+    def _status_of(self) -> list[str]:
+        import jaxrobot as jr
+
+        rows = self.rows
+        return ["rejected_input" if c.check else str(jr.status_name(self.res.status)[rows[c.file]])
+                for c in self.checked.checks]
+
+
+def _pose_files(args, robot, instruments, count: int, seconds: dict, progress) -> list[Path]:
+    """The fleet's pose files: bench data written first with `--bench`, else those of FOLDER."""
+    start = time.perf_counter()
+    if args.bench is not None:
+        files = bench_fleet(args.folder, args.bench, args.poses, args.seed, robot, instruments)
+        seconds["bench"] = time.perf_counter() - start
+        progress.step(f"bench data of {args.bench} robots")
+    else:
+        files = fleet_files(args.folder)
+    if len(files) < count:
+        raise ValueError(f"folder: expected at least one pose file per process ({count}), found {len(files)} "
+                         f"in {args.folder}")
+    return files
+
+
+def _calibrate(args, files, checked, robot, instruments, names, sigma: float, seconds: dict) -> _Fleet:
+    """The fleet calibration of the files that passed their checks (none: no calibration)."""
+    from ..calibration._fleet import calibrate_fleet
+
+    good = [c.file for c in checked.checks if not c.check]
+    k, n = checked.poses, robot.n_joints
+    if not good:
+        return _Fleet(files, checked, None, {})
+    t = time.perf_counter()
+
+    def stack(field: str, tail: tuple, dtype=float):
+        return (np.stack([getattr(d, field) for d in checked.data]) if checked.data
+                else np.zeros((0, k) + tail, dtype))
+
+    res = calibrate_fleet(robot, stack("motor_angles", (n,)), stack("positions", (3,)), instruments=instruments,
+                          parameters=names, max_steps=args.max_steps, ccw=stack("ccw", (n,), bool), loss=args.loss)
+    seconds["calibrate"] = time.perf_counter() - t
+    return _Fleet(files, checked, res, _failure_messages(res, good, sigma))
+
+
+def _report(fleet: _Fleet, args, echo, seconds: dict, marked: np.ndarray) -> None:
+    """Process 0's lines: the fleet's summary, the parameter check, the failures and outliers as warnings;
+    with `--out` the table and the fleet report."""
+    from ._calibration_report import parameter_check_lines, parameter_check_report, plot_fleet
+
+    res, files = fleet.res, fleet.files
+    summary_line = f"fleet of {len(files)} robots: {fleet.status}"
+    if res is not None:
+        summary_line += (f" on {res.n_devices} device(s); LM steps median {np.median(res.iterations):.0f}, max "
+                         f"{res.iterations.max()}; residual rms median {1e3 * np.median(res.rms_m):.4f} mm; "
+                         f"{seconds['calibrate']:.1f} s")
+    echo(summary_line)
+    if res is not None and res.parameter_check is not None:
+        for line in parameter_check_lines(parameter_check_report(res.parameter_check)):
+            echo(line)
+    for x in fleet.failures:
+        left_out = f", check {x['check']}; left out" if x["check"] else ""
+        echo(f"warning: {x['message']} ({x['status']}{left_out})")
+    if res is not None:
+        for f, found in zip(fleet.good, res.outliers):
+            for o in found:
+                echo(f"warning: {f}:{o.row + 2}: residual {1e3 * o.residual:.3f} mm ({o.sigmas:.1f} sigma) beyond "
+                     "the outlier bound: a gross measurement error?")
+    if args.out is not None:
+        (args.out / TABLE).write_text(_table(files, fleet.checked.checks, res, fleet.rows, fleet.messages))
+        echo(f"wrote {args.out / TABLE}")
+        if res is not None:
+            plot_fleet(args.out / REPORT, res.rms_m, res.value, res.names, [Path(f).name for f in fleet.good], marked)
+            echo(f"wrote {args.out / REPORT}")
+
+
+def _summary(fleet: _Fleet, args, count: int, pid: int, seconds: dict, marked: np.ndarray) -> dict:
+    """The `--json` summary (`run`)."""
+    from ._calibration_report import parameter_check_report
+
+    res, good = fleet.res, fleet.good
+    quantities = ("rms",) + (() if res is None else res.names)
+    return {"robots": len(fleet.files), "poses": fleet.checked.poses, "processes": count, "process_id": pid,
+            "local_robots": len(fleet.checked.data), "devices": None if res is None else res.n_devices,
+            "parameters": [] if res is None else list(res.names), "status": fleet.status, "failures": fleet.failures,
+            "seconds": seconds, "loss": args.loss,
+            "outliers": [] if res is None else [
+                {"file": f, "line": o.row + 2, "row": o.row, "residual_mm": 1e3 * o.residual, "sigmas": o.sigmas}
+                for f, found in zip(good, res.outliers) for o in found],
+            "fleet_outliers": [{"file": f, "quantities": [q for q, m in zip(quantities, mk) if m]}
+                               for f, mk in zip(good, marked) if mk.any()],
+            "parameter_check": None if res is None or res.parameter_check is None
+            else parameter_check_report(res.parameter_check),
+            "peak_memory_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
 def run(args, echo) -> dict:
     """`jaxrobot calibrate-fleet`. The `--json` summary (also carried by `ItemsFailed` and `SolveFailed`):
 
@@ -160,10 +295,9 @@ def run(args, echo) -> dict:
 
     from jaxrobot.cli import ItemsFailed, Progress, SolveFailed
 
-    from ..calibration._fleet import calibrate_fleet
     from ..calibration._fleet_files import check_fleet_files
     from ..core._noise import noise_model, tracker_noise
-    from ._calibration_report import fleet_outliers, parameter_check_lines, parameter_check_report, plot_fleet
+    from ._calibration_report import fleet_outliers
     from ._options import instruments_of
 
     pid = jax.process_index()
@@ -174,85 +308,24 @@ def run(args, echo) -> dict:
     sigma = noise_model(tracker_noise(instruments, by="calibrate-fleet"), np.zeros((1, 3)))[0]
     seconds = {}
     progress = Progress(3 if args.bench is not None else 2, "calibrate-fleet")
-    start = time.perf_counter()
-    if args.bench is not None:
-        files = bench_fleet(args.folder, args.bench, args.poses, args.seed, robot, instruments)
-        seconds["bench"] = time.perf_counter() - start
-        progress.step(f"bench data of {args.bench} robots")
-    else:
-        files = fleet_files(args.folder)
-    if len(files) < count:
-        raise ValueError(f"folder: expected at least one pose file per process ({count}), found {len(files)} "
-                         f"in {args.folder}")
+    files = _pose_files(args, robot, instruments, count, seconds, progress)
     t = time.perf_counter()
     checked = check_fleet_files(files, robot, marker, args.approach)
     seconds["read"] = time.perf_counter() - t
-    good = [c.file for c in checked.checks if not c.check]
-    k, n = checked.poses, robot.n_joints
-    echo(f"process {pid} of {count}: {len(checked.data)} of its robots pass their checks, {len(good)} of "
-         f"{len(files)} in all, {k} poses each")
-    progress.step(f"read and checked {len(files)} pose files: {len(files) - len(good)} left out")
-    res, rows, messages = None, {f: r for r, f in enumerate(good)}, {}
-    if good:
-        t = time.perf_counter()
-
-        def stack(field: str, tail: tuple, dtype=float):
-            return (np.stack([getattr(d, field) for d in checked.data]) if checked.data
-                    else np.zeros((0, k) + tail, dtype))
-
-        res = calibrate_fleet(robot, stack("motor_angles", (n,)), stack("positions", (3,)), instruments=instruments,
-                              parameters=names, max_steps=args.max_steps, ccw=stack("ccw", (n,), bool),
-                              loss=args.loss)
-        seconds["calibrate"] = time.perf_counter() - t
-        messages = _failure_messages(res, good, sigma)
+    good = sum(not c.check for c in checked.checks)
+    echo(f"process {pid} of {count}: {len(checked.data)} of its robots pass their checks, {good} of "
+         f"{len(files)} in all, {checked.poses} poses each")
+    progress.step(f"read and checked {len(files)} pose files: {len(files) - good} left out")
+    fleet = _calibrate(args, files, checked, robot, instruments, names, sigma, seconds)
     progress.step("fleet calibration")
-    status_of = ["rejected_input" if c.check else str(jr.status_name(res.status)[rows[c.file]])
-                 for c in checked.checks]
-    status = {str(s): status_of.count(s) for s in sorted(set(status_of))}
-    failures = [{"file": c.file, "status": st, "check": c.check, "lines": list(c.lines),
-                 "message": c.message or messages.get(c.file, "")}
-                for c, st in zip(checked.checks, status_of) if st != "successful"]
+    res = fleet.res
     marked = np.zeros((0, 1)) if res is None else fleet_outliers(np.column_stack([res.rms_m, res.value]))
-    quantities = ("rms",) + (() if res is None else res.names)
     if pid == 0:
-        summary_line = f"fleet of {len(files)} robots: {status}"
-        if res is not None:
-            summary_line += (f" on {res.n_devices} device(s); LM steps median {np.median(res.iterations):.0f}, max "
-                             f"{res.iterations.max()}; residual rms median {1e3 * np.median(res.rms_m):.4f} mm; "
-                             f"{seconds['calibrate']:.1f} s")
-        echo(summary_line)
-        if res is not None and res.parameter_check is not None:
-            for line in parameter_check_lines(parameter_check_report(res.parameter_check)):
-                echo(line)
-        for x in failures:
-            left_out = f", check {x['check']}; left out" if x["check"] else ""
-            echo(f"warning: {x['message']} ({x['status']}{left_out})")
-        if res is not None:
-            for f, found in zip(good, res.outliers):
-                for o in found:
-                    echo(f"warning: {f}:{o.row + 2}: residual {1e3 * o.residual:.3f} mm ({o.sigmas:.1f} sigma) beyond "
-                         "the outlier bound: a gross measurement error?")
-        if args.out is not None:
-            (args.out / TABLE).write_text(_table(files, checked.checks, res, rows, messages))
-            echo(f"wrote {args.out / TABLE}")
-            if res is not None:
-                plot_fleet(args.out / REPORT, res.rms_m, res.value, res.names, [Path(f).name for f in good], marked)
-                echo(f"wrote {args.out / REPORT}")
-    summary = {"robots": len(files), "poses": k, "processes": count, "process_id": pid,
-               "local_robots": len(checked.data), "devices": None if res is None else res.n_devices,
-               "parameters": [] if res is None else list(res.names), "status": status, "failures": failures,
-               "seconds": seconds, "loss": args.loss,
-               "outliers": [] if res is None else [
-                   {"file": f, "line": o.row + 2, "row": o.row, "residual_mm": 1e3 * o.residual, "sigmas": o.sigmas}
-                   for f, found in zip(good, res.outliers) for o in found],
-               "fleet_outliers": [{"file": f, "quantities": [q for q, m in zip(quantities, mk) if m]}
-                                  for f, mk in zip(good, marked) if mk.any()],
-               "parameter_check": None if res is None or res.parameter_check is None
-               else parameter_check_report(res.parameter_check),
-               "peak_memory_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
-    failed = len(failures)
+        _report(fleet, args, echo, seconds, marked)
+    summary = _summary(fleet, args, count, pid, seconds, marked)
+    failed = len(fleet.failures)
     if failed:
-        text = (f"{failed} of {len(files)} robots did not converge, were rejected or fit beyond the noise ({status}); "
-                f"see the status column of {TABLE}")
+        text = (f"{failed} of {len(files)} robots did not converge, were rejected or fit beyond the noise "
+                f"({fleet.status}); see the status column of {TABLE}")
         raise (ItemsFailed if failed < len(files) else SolveFailed)(text, summary)
     return summary

@@ -28,22 +28,19 @@ from jaxrobot import (
     Robot,
     fourier_ratio,
     fourier_xi_inverse,
-    status_message,
 )
 from jaxrobot.internal import cached_program, map_matrices
-from jaxrobot.measurement import GearRun, gear_run_arrays
+from jaxrobot.measurement import GearRun
 
 from ..core._noise import chi2_quantile
 from ._frequencies import fft_orders, group_samples, sparse_orders
+from ._prepared import PreparedRuns, prepare_identification
 from ._processing import (
     GearBatch,
     ProcessedRuns,
     gaussian_filter,
     gaussian_kernel,
     pinv_psd,
-    prepare_gear_runs,
-    process_gear_runs,
-    segment_windows,
 )
 from ._significance import SIGNIFICANCE, DirectionTest, Resolution, direction_test, f_test
 
@@ -389,6 +386,118 @@ def _with_scatter(fit: GearFit, proc, batch, group, fit_run, joints, u0_model, i
     return fit, resolution
 
 
+def _fit_sets(prep: PreparedRuns, sets: list[list[int]]) -> GearFit:
+    """Every group fitted with its orders `sets[g]` on the identification runs' segments."""
+    rows = prep.fit_rows
+    return _fit(prep.fit_proc, prep.fit_batch, prep.group[rows], np.ones(rows.size, bool), _padded(sets),
+                prep.u0_start)
+
+
+def _fit_with_scatter(prep: PreparedRuns, sets: list[list[int]]) -> tuple[GearFit, list]:
+    """`_fit_sets` with the run-to-run scatter and the resolution test of every group (`_with_scatter`)."""
+    rows = prep.fit_rows
+    return _with_scatter(_fit_sets(prep, sets), prep.fit_proc, prep.fit_batch, prep.group[rows],
+                         np.ones(rows.size, bool), [g[0] for g in prep.groups], prep.u0_model,
+                         [prep.infos[r] for r in rows])
+
+
+def _search_orders(prep: PreparedRuns, select: str):
+    """The sparse order search, `SEARCH_PASSES` times; returns its orders per group, the cross-validation
+    curves and the last pass' samples (for the FFT search)."""
+    proc, batch, group, fit_run = prep.proc, prep.batch, prep.group, prep.fit_run
+    samples = group_samples(proc, batch, group, fit_run, prep.n_groups, prep.u0_run)
+    orders_sparse, cv = None, None
+    for _ in range(SEARCH_PASSES):
+        if orders_sparse is not None:  # search again on phi = Xi^{-1}(theta) of the orders found
+            first = _fit_sets(prep, orders_sparse)
+            fourier = (v[jnp.asarray(group)][:, None] for v in (first.u0, first.orders, first.a, first.b))
+            phi = fourier_xi_inverse(*fourier, proc.theta)
+            samples = group_samples(proc, batch, group, fit_run, prep.n_groups, prep.u0_run, phi)
+        sparse, cv = sparse_orders(samples, jnp.asarray(prep.max_order), keep_all=select == "all")
+        sparse = np.asarray(sparse)
+        orders_sparse = [sorted(int(o) for o in sparse[g] if 0 < o <= prep.max_order[g])
+                         for g in range(prep.n_groups)]
+    return orders_sparse, cv, samples
+
+
+def _final_fit(prep: PreparedRuns, chosen: list[list[int]], orders_fft: list) -> tuple[list, GearFit, list]:
+    """The fit of the chosen orders, refitted with the constant ratio where the ripple is not resolved;
+    returns the orders kept, the fit and the resolution per group (for a group that kept nothing: how
+    many runs would resolve the FFT's peaks)."""
+    fit, resolution = _fit_with_scatter(prep, chosen)
+    if not all(r.resolved or r.dof == 0 for r in resolution):  # unresolved ripple: the constant ratio
+        chosen = [c if r.resolved else [] for c, r in zip(chosen, resolution)]
+        fit, _ = _fit_with_scatter(prep, chosen)
+    empty = [g for g, r in enumerate(resolution) if r.dof == 0 and orders_fft[g]]
+    if empty:  # nothing kept: how many runs would resolve the FFT's peaks?
+        probe = [orders_fft[g] if g in empty else [] for g in range(prep.n_groups)]
+        _, res_p = _fit_with_scatter(prep, probe)
+        resolution = [dataclasses.replace(res_p[g], probe=True, more_runs=max(res_p[g].more_runs, 1))
+                      if g in empty else r for g, r in enumerate(resolution)]
+    return chosen, fit, resolution
+
+
+def _half_fit(prep: PreparedRuns, pairs: list, union: list) -> GearFit | None:
+    """Per pair of directions `(joint, cw group, ccw group)`: the two halves of each direction's repetitions
+    (alternating) fitted with the union of orders, groups `4 p + 2 ccw + half`; None when a direction has
+    fewer than two runs."""
+    group = prep.group
+    half_group = np.zeros(len(group), int)
+    half_fit = np.zeros(len(group), bool)
+    rank = np.zeros(prep.n_groups, int)
+    for r in np.flatnonzero(prep.fit_run):
+        for p, (_, gc, gw) in enumerate(pairs):
+            if group[r] in (gc, gw):
+                half_group[r] = 4 * p + 2 * int(group[r] == gw) + rank[group[r]] % 2
+                half_fit[r] = True
+        rank[group[r]] += 1
+    if not all(rank[gc] >= 2 and rank[gw] >= 2 for _, gc, gw in pairs):
+        return None
+    rows = prep.fit_rows
+    orders_h = _padded([union[gc] for _, gc, _ in pairs for _ in range(4)])
+    return _fit(prep.fit_proc, prep.fit_batch, half_group[rows], half_fit[rows], orders_h,
+                jnp.repeat(prep.u0_start[np.array([gc for _, gc, _ in pairs])], 4))
+
+
+def _direction_tests(prep: PreparedRuns, chosen: list[list[int]]) -> list[DirectionTest]:
+    """cw against ccw per joint with both: both directions refitted with the union of their orders (Wald
+    test), calibrated on the spread between the two halves of each direction's repetitions (F test)."""
+    groups = prep.groups
+    pairs = [(j, groups.index((j, False)), groups.index((j, True))) for j in sorted({j for j, _ in groups})
+             if (j, False) in groups and (j, True) in groups]
+    if not pairs:
+        return []
+    union = [list(s) for s in chosen]
+    for _, gc, gw in pairs:
+        union[gc] = union[gw] = sorted(set(chosen[gc]) | set(chosen[gw]))
+    fit_u = _fit_sets(prep, union)
+    fit_h = _half_fit(prep, pairs, union)
+    tests = []
+    for p, (j, gc, gw) in enumerate(pairs):
+        used = fit_u.orders[gc] > 0
+        chi2, dof, pval = direction_test(fit_u.a[gc], fit_u.b[gc], fit_u.cov_ab[gc], fit_u.a[gw], fit_u.b[gw],
+                                         fit_u.cov_ab[gw], used)
+        scale = 1.0
+        if int(dof) == 0:  # no ripple found in either direction: nothing to compare
+            tests.append(DirectionTest(j, 0.0, 0, 1.0, False))
+            continue
+        if fit_h is not None:
+            h = 4 * p
+            within = [direction_test(fit_h.a[h + k], fit_h.b[h + k], fit_h.cov_ab[h + k], fit_h.a[h + k + 1],
+                                     fit_h.b[h + k + 1], fit_h.cov_ab[h + k + 1], used)[0] for k in (0, 2)]
+            scale = float(sum(within)) / (2.0 * float(dof))
+            pval = f_test(chi2, dof, sum(within), 2.0 * dof)
+        tests.append(DirectionTest(j, float(chi2), int(dof), float(pval), bool(pval < SIGNIFICANCE), scale))
+    return tests
+
+
+def _ranges(prep: PreparedRuns, errors: GearErrors) -> list[tuple[float, float]]:
+    """Per group: `(lo, hi)` gear output angle [rad] over the identification runs' segments."""
+    phi, seg = np.asarray(errors.phi), np.asarray(prep.batch.segment) & prep.fit_run[:, None]
+    return [(float(phi[(prep.group == g)[:, None] & seg].min()), float(phi[(prep.group == g)[:, None] & seg].max()))
+            for g in range(prep.n_groups)]
+
+
 def identify_gear(
     robot: Robot,
     runs: GearRun | list,
@@ -420,117 +529,16 @@ def identify_gear(
         raise ValueError(f"select: expected 'cv' or 'all', found {select!r}")
     if method not in ("sparse", "fft"):
         raise ValueError(f"method: expected 'sparse' or 'fft', found {method!r}")
-    cutoff_hz = dict(enumerate(instruments.require("filter_cutoff", by="identify_gear")[0], start=1))
-    runs = gear_run_arrays(runs, "runs")
-    validation_runs = gear_run_arrays([] if validation_runs is None else validation_runs, "validation_runs")
-    names = names or [f"run {k + 1}" for k in range(len(runs))]
-    validation_names = validation_names or [f"validation run {k + 1}" for k in range(len(validation_runs))]
-    u0_model = np.asarray(robot.u0, float)
-    batch, infos = prepare_gear_runs(list(runs) + list(validation_runs), cutoff_hz, u0_model,
-                                     list(names) + list(validation_names))
-    is_val = np.array([False] * len(runs) + [True] * len(validation_runs))
-    batch = eqx.tree_at(lambda b: b.align, batch, jnp.asarray(~is_val))
-    groups = sorted({(i.joint, i.ccw) for i, v in zip(infos, is_val) if not v})
-    for i, name in zip(infos, list(names) + list(validation_names)):
-        if (i.joint, i.ccw) not in groups:
-            raise ValueError(f"{name}: joint {i.joint} {'ccw' if i.ccw else 'cw'} has no identification run "
-                             "to validate against; add one or drop this run")
-    group = np.array([groups.index((i.joint, i.ccw)) for i in infos])
-    fit_run = ~is_val
-    proc = process_gear_runs(robot, batch)
-    if not bool(proc.align_result == RESULTS.successful):
-        raise ValueError("gyroscope alignment (eq. 3.3) did not converge: "
-                         f"{status_message(proc.align_result)}; check the gyroscope columns")
-    n_groups = len(groups)
-    u0_run = u0_model[np.asarray(batch.joint)]
-    samples = group_samples(proc, batch, group, fit_run, n_groups, u0_run)
-    max_order = np.array([min(i.max_order for i, g, f in zip(infos, group, fit_run) if g == k and f)
-                          for k in range(n_groups)])
-    u0_start = jnp.asarray([u0_model[j - 1] for j, _ in groups])
-    gj = jnp.asarray(group)
-    rows = np.flatnonzero(fit_run)  # the fits see the identification runs' segments only
-    fproc, fbatch = segment_windows(proc, batch, rows)
-    fgroup, finfos = group[rows], [infos[r] for r in rows]
-    fall = np.ones(rows.size, bool)
-    joint_of = [g[0] for g in groups]
-
-    def fit_orders(sets):
-        return _fit(fproc, fbatch, fgroup, fall, _padded(sets), u0_start)
-
-    def with_scatter(f):
-        return _with_scatter(f, fproc, fbatch, fgroup, fall, joint_of, u0_model, finfos)
-
-    orders_sparse, cv = None, None
-    for _ in range(SEARCH_PASSES):
-        if orders_sparse is not None:  # search again on phi = Xi^{-1}(theta) of the orders found
-            first = fit_orders(orders_sparse)
-            phi = fourier_xi_inverse(*(v[gj][:, None] for v in (first.u0, first.orders, first.a, first.b)), proc.theta)
-            samples = group_samples(proc, batch, group, fit_run, n_groups, u0_run, phi)
-        sparse, cv = sparse_orders(samples, jnp.asarray(max_order), keep_all=select == "all")
-        sparse = np.asarray(sparse)
-        orders_sparse = [sorted(int(o) for o in sparse[g] if 0 < o <= max_order[g]) for g in range(n_groups)]
-    fft = [fft_orders(samples.runs[g], int(max_order[g])) for g in range(n_groups)]
+    prep = prepare_identification(robot, runs, validation_runs, instruments, names, validation_names)
+    orders_sparse, cv, samples = _search_orders(prep, select)
+    fft = [fft_orders(samples.runs[g], int(prep.max_order[g])) for g in range(prep.n_groups)]
     orders_fft = [f[0] for f in fft]
-    chosen = orders_sparse if method == "sparse" else orders_fft
-    fit, resolution = with_scatter(fit_orders(chosen))
-    if not all(r.resolved or r.dof == 0 for r in resolution):  # unresolved ripple: the constant ratio
-        chosen = [c if r.resolved else [] for c, r in zip(chosen, resolution)]
-        fit, _ = with_scatter(fit_orders(chosen))
-    empty = [g for g, r in enumerate(resolution) if r.dof == 0 and orders_fft[g]]
-    if empty:  # nothing kept: how many runs would resolve the FFT's peaks?
-        probe = [orders_fft[g] if g in empty else [] for g in range(n_groups)]
-        _, res_p = with_scatter(fit_orders(probe))
-        resolution = [dataclasses.replace(res_p[g], probe=True, more_runs=max(res_p[g].more_runs, 1))
-                      if g in empty else r for g, r in enumerate(resolution)]
-    errors = kinematic_errors(proc, batch, fit, gj)
-
-    # cw against ccw: refit both directions with the union of their orders (Wald test), and the two
-    # halves of each direction's repetitions (calibrates the test on the spread between repetitions)
-    tests = []
-    joints = sorted({j for j, _ in groups})
-    pairs = [(j, groups.index((j, False)), groups.index((j, True))) for j in joints
-             if (j, False) in groups and (j, True) in groups]
-    if pairs:
-        union = [list(s) for s in chosen]
-        for _, gc, gw in pairs:
-            union[gc] = union[gw] = sorted(set(chosen[gc]) | set(chosen[gw]))
-        fit_u = fit_orders(union)
-        half_group = np.zeros(len(group), int)
-        half_fit = np.zeros(len(group), bool)
-        rank = np.zeros(n_groups, int)
-        for r in np.flatnonzero(fit_run):
-            for p, (_, gc, gw) in enumerate(pairs):
-                if group[r] in (gc, gw):
-                    half_group[r] = 4 * p + 2 * int(group[r] == gw) + rank[group[r]] % 2
-                    half_fit[r] = True
-            rank[group[r]] += 1
-        fit_h = None
-        if all(rank[gc] >= 2 and rank[gw] >= 2 for _, gc, gw in pairs):
-            orders_h = _padded([union[gc] for _, gc, _ in pairs for _ in range(4)])
-            fit_h = _fit(fproc, fbatch, half_group[rows], half_fit[rows], orders_h,
-                         jnp.repeat(u0_start[np.array([gc for _, gc, _ in pairs])], 4))
-        for p, (j, gc, gw) in enumerate(pairs):
-            used = fit_u.orders[gc] > 0
-            chi2, dof, pval = direction_test(fit_u.a[gc], fit_u.b[gc], fit_u.cov_ab[gc], fit_u.a[gw], fit_u.b[gw],
-                                             fit_u.cov_ab[gw], used)
-            scale = 1.0
-            if int(dof) == 0:  # no ripple found in either direction: nothing to compare
-                tests.append(DirectionTest(j, 0.0, 0, 1.0, False))
-                continue
-            if fit_h is not None:
-                within = [direction_test(fit_h.a[4 * p + k], fit_h.b[4 * p + k], fit_h.cov_ab[4 * p + k],
-                                         fit_h.a[4 * p + k + 1], fit_h.b[4 * p + k + 1], fit_h.cov_ab[4 * p + k + 1],
-                                         used)[0] for k in (0, 2)]
-                scale = float(sum(within)) / (2.0 * float(dof))
-                pval = f_test(chi2, dof, sum(within), 2.0 * dof)
-            tests.append(DirectionTest(j, float(chi2), int(dof), float(pval), bool(pval < SIGNIFICANCE), scale))
-    ts = np.asarray(batch.ts)[:, None]
-    phi, seg = np.asarray(errors.phi), np.asarray(batch.segment) & fit_run[:, None]
-    ranges = [(float(phi[(group == g)[:, None] & seg].min()), float(phi[(group == g)[:, None] & seg].max()))
-              for g in range(n_groups)]
+    chosen, fit, resolution = _final_fit(prep, orders_sparse if method == "sparse" else orders_fft, orders_fft)
+    errors = kinematic_errors(prep.proc, prep.batch, fit, jnp.asarray(prep.group))
+    ts = np.asarray(prep.batch.ts)[:, None]
     return GearIdentification(
-        groups=groups, fit=fit, misalignment=np.asarray(proc.misalignment), status=proc.align_result, method=method,
-        orders_fft=orders_fft, orders_sparse=orders_sparse, spectra=[(f[1], f[2]) for f in fft],
-        cv_curves=np.asarray(cv), tests=tests, resolution=resolution, infos=infos, group=group, validation=is_val,
-        errors=errors,
-        t=np.arange(batch.theta.shape[1])[None, :] * ts, ranges=ranges)
+        groups=prep.groups, fit=fit, misalignment=np.asarray(prep.proc.misalignment), status=prep.proc.align_result,
+        method=method, orders_fft=orders_fft, orders_sparse=orders_sparse, spectra=[(f[1], f[2]) for f in fft],
+        cv_curves=np.asarray(cv), tests=_direction_tests(prep, chosen), resolution=resolution, infos=prep.infos,
+        group=prep.group, validation=prep.validation, errors=errors,
+        t=np.arange(prep.batch.theta.shape[1])[None, :] * ts, ranges=_ranges(prep, errors))
