@@ -270,7 +270,7 @@ def link_acceleration(
     for term in joint_torques(robot):
         if phid is None:
             raise ValueError("link_acceleration: phid (the gear output rates, shape (..., n)) is required for a "
-                             f"robot with {term.name} (robot.{term.fields[0]}); found None")
+                             f"robot with {term.name} (a joint torque of the deflection's rate); found None")
         rhs = rhs + term.torque(robot, qd, phid)
     return spd_solve(mass_matrix(robot, q), rhs[..., None])[..., 0]
 
