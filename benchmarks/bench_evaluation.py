@@ -32,7 +32,7 @@ REPEAT = 3
 
 def main() -> None:
     truth = jr.racer7(as_built=True)
-    jp = pl.joint_path(truth, reference_path("line"))
+    jp = pl.joint_path(truth, reference_path("line", jr.read_description(None)))
     flat = pl.baseline_trajectories(truth, jp)["flat_inverse"]
     bump = jnp.sin(np.pi * jp.t / jp.t[-1])[:, None] ** 4
     plans = {f"member {k}": pl.MotorTrajectory(flat.theta + 1e-5 * k * bump, flat.thetad, flat.thetadd)

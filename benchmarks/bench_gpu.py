@@ -62,7 +62,7 @@ def _ocp_task(nodes: int | None):
 
     robot = jr.racer7()
     if nodes is None:
-        path = pl.reference_path("line")
+        path = pl.reference_path("line", jr.read_description(None))
         jp = pl.joint_path(robot, path)
         flat = pl.flat_motor_trajectory(robot, jp)
         warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)

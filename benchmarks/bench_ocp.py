@@ -151,7 +151,7 @@ def scaled_nlp(robot, q_d, ts, nu, direction=None) -> tuple[np.ndarray, np.ndarr
 def task_start(robot: jr.Robot, task: str):
     """The reference task's path, its joint path, the flat inverse's warm start `(y0, u0)` and its motor
     directions (`plan_task`'s bounds)."""
-    path = pl.reference_path(task)
+    path = pl.reference_path(task, jr.read_description(None))
     jp = pl.joint_path(robot, path)
     flat = pl.flat_motor_trajectory(robot, jp)
     return path, jp, (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd), \

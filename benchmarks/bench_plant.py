@@ -61,7 +61,7 @@ def free_and_bounded(truth) -> list[str]:
     lines = ["| task | plan | status | objective [rad²] | reversals (flat inverse) | largest wrong-way rate [rad/s] | "
              "rate sign changes | OCP, cw plant [µm] |", "|---|---|---|---|---|---|---|---|"]
     for task in ("line", "spiral"):
-        jp = joint_path(truth, reference_path(task))
+        jp = joint_path(truth, reference_path(task, jr.read_description(None)))
         flat = baseline_trajectories(truth, jp)["flat_inverse"]
         warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
         d = motor_directions(flat.thetad)
@@ -135,7 +135,7 @@ def main() -> None:
     cases = [("line", 1e-14)] if args.quick else [(t, nu) for t in ("line", "spiral") for nu in (1e-14, 1e-10)]
     rows = []
     for task, nu in cases:
-        path = reference_path(task)
+        path = reference_path(task, jr.read_description(None))
         for label, model in models.items():
             jp = joint_path(model, path)
             flat = baseline_trajectories(model, jp)["flat_inverse"]

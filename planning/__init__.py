@@ -25,7 +25,6 @@ from ._evaluation import simulate_plans as simulate_plans
 from ._evaluation import summarize as summarize
 from ._ik import IKResult as IKResult
 from ._ik import JointPath as JointPath
-from ._ik import default_start as default_start
 from ._ik import inverse_kinematics as inverse_kinematics
 from ._ik import joint_path as joint_path
 from ._ik import task_start as task_start
@@ -35,6 +34,7 @@ from ._ocp import OCPSolution as OCPSolution
 from ._ocp import solve_ocp as solve_ocp
 from ._sweep import solve_ocp_sweep as solve_ocp_sweep
 from ._trajectories import Path as Path
+from ._trajectories import default_start as default_start
 from ._trajectories import line_path as line_path
 from ._trajectories import path_derivatives as path_derivatives
 from ._trajectories import polynomial7 as polynomial7

@@ -14,7 +14,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import Any
 
 import equinox as eqx
 import jax
@@ -165,12 +164,6 @@ def _redundancy_or_none(redundancy: Redundancy | None, q: Float[Array, "N n"]) -
     return redundancy
 
 
-def default_start(description: dict[str, Any] | None = None) -> Float[Array, " n"]:
-    """The IK start of the reference tasks: the description's `trajectories.orientation_q`."""
-    desc = jr.read_description() if description is None else description
-    return jnp.asarray(desc["trajectories"]["orientation_q"], dtype=float)
-
-
 START_SEEDS = 16
 """IK seeds of `task_start`: the middle of the joint limits and seeded uniform draws inside them."""
 
@@ -285,15 +278,17 @@ def joint_path(
 ) -> JointPath:
     """IK of a whole path on its grid (eq. 4.5), its derivatives up to order 4 and the smooth `q_d(t)`;
     with `check`, raises a `ValueError` naming the sample and joint that breaks a limit
-    (see `check_joint_path`). A full pose needs n >= 6 joints."""
+    (see `check_joint_path`). A full pose needs n >= 6 joints. The IK starts from `q_init`; None: the path's
+    `ik_start` (a description's task), else `task_start(robot, path)`."""
     n = robot.n_joints
     if n < 6:
         raise ValueError(f"robot: a tool pose task (3 positions, 3 angles) needs at least 6 joints, found {n}")
     t = time_grid(path)
     p_d, r_d = sample_path(path, t)
-    q0 = default_start() if q_init is None else jnp.asarray(q_init, dtype=float)
+    start, name = (q_init, "q_init") if q_init is not None else (path.ik_start, "path.ik_start")
+    q0 = task_start(robot, path) if start is None else jnp.asarray(start, dtype=float)
     if q0.shape != (n,):
-        raise ValueError(f"q_init must have shape ({n},) [rad], got {q0.shape}")
+        raise ValueError(f"{name}: expected shape ({n},) [rad], the robot's joints, found {q0.shape}")
     ik = inverse_kinematics(robot, p_d, r_d, q0)
     if check:
         check_inverse_kinematics(t, ik)

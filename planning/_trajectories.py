@@ -40,6 +40,9 @@ class Path:
     """`T_s` [s] of the planning grid."""
     name: str = "path"
     """A label for reports."""
+    ik_start: Float[Array, " n"] | None = None
+    """Joint angles [rad] the IK of the first sample starts from where the task names them (a description's
+    `trajectories.orientation_q`); None: `joint_path` starts from `task_start(robot, path)`."""
 
 
 def polynomial7(
@@ -56,20 +59,28 @@ def polynomial7(
     return start + (end - start) * blend
 
 
-def _section(description: dict[str, Any] | None) -> dict[str, Any]:
-    desc = jr.read_description() if description is None else description
-    if "trajectories" not in desc:
-        raise ValueError("the robot description has no [trajectories] section; add one like racer7.toml's")
-    return desc["trajectories"]
+def _section(description: dict[str, Any]) -> dict[str, Any]:
+    if not isinstance(description, dict):
+        raise ValueError("description: expected a robot description dict (`jaxrobot.read_description(source)`), "
+                         f"found {type(description).__name__}")
+    if "trajectories" not in description:
+        raise ValueError("description: the robot description has no [trajectories] section; add one like "
+                         "racer7.toml's")
+    return description["trajectories"]
 
 
-def task_orientation(description: dict[str, Any] | None = None) -> Float[Array, "3 3"]:
+def task_orientation(description: dict[str, Any]) -> Float[Array, "3 3"]:
     """Constant desired orientation `R_d` of eq. 4.6: the forward kinematics of the description's
-    nominal robot at its `trajectories.orientation_q` (joint coordinates), `diag(-1, -1, 1)` for
-    the Racer-7 (the default description)."""
+    nominal robot at its `trajectories.orientation_q` (joint coordinates); `diag(-1, -1, 1)` for
+    the Racer-7 (`jaxrobot.read_description(None)`)."""
     sec = _section(description)
-    robot = jr.racer7() if description is None else jr.robot_from_description(description)
+    robot = jr.robot_from_description(description)
     return _tool_orientation(robot, np.asarray(sec["orientation_q"], dtype=float))
+
+
+def default_start(description: dict[str, Any]) -> Float[Array, " n"]:
+    """The IK start of the description's reference tasks: its `trajectories.orientation_q` [rad]."""
+    return jnp.asarray(_section(description)["orientation_q"], dtype=float)
 
 
 @jax.jit
@@ -131,18 +142,21 @@ class SpiralPosition(eqx.Module):
         return jnp.stack([cx + a * mu * jnp.cos(mu), cy + a * mu * jnp.sin(mu), polynomial7(t, *self.z, te)])
 
 
-def line_path(description: dict[str, Any] | None = None) -> Path:
-    """The straight line of eq. 4.7: `p_d = (x_0, lambda_y(t), z_0)` with `lambda_y` from eq. 4.4."""
+def line_path(description: dict[str, Any]) -> Path:
+    """The straight line of eq. 4.7 of the description's `[trajectories]`: `p_d = (x_0, lambda_y(t), z_0)` with
+    `lambda_y` from eq. 4.4, its IK starting from `trajectories.orientation_q`."""
     sec = _section(description)
     ln, te = sec["line"], float(sec["duration_s"])
     position = LinePosition(*_scalars(*(float(ln[k]) for k in ("x_m", "z_m", "y_start_m", "y_end_m")), te))
-    return Path(position, ConstantOrientation(task_orientation(description)), te, float(sec["sample_time_s"]), "line")
+    return Path(position, ConstantOrientation(task_orientation(description)), te, float(sec["sample_time_s"]), "line",
+                default_start(description))
 
 
-def spiral_path(description: dict[str, Any] | None = None) -> Path:
-    """The conical spiral of eq. 4.8 about the toml's centre `c`:
+def spiral_path(description: dict[str, Any]) -> Path:
+    """The conical spiral of eq. 4.8 of the description's `[trajectories]` about its centre `c`:
     `p_d = (c_x + a mu cos mu, c_y + a mu sin mu, lambda_z(t))`, `mu = lambda_mu(t)` from eq. 4.4,
-    `a = r_max / (2 pi n)`, `mu` from `mu_start` to `2 pi n` (n turns)."""
+    `a = r_max / (2 pi n)`, `mu` from `mu_start` to `2 pi n` (n turns); its IK starting from
+    `trajectories.orientation_q`."""
     sec = _section(description)
     sp, te = sec["spiral"], float(sec["duration_s"])
     turns, r_max = float(sp["turns"]), float(sp["r_max_m"])
@@ -151,11 +165,12 @@ def spiral_path(description: dict[str, Any] | None = None) -> Path:
                               _scalars(float(sp["mu_start_rad"]), 2.0 * jnp.pi * turns),
                               _scalars(float(sp["z_start_m"]), float(sp["z_end_m"])), *_scalars(te))
     return Path(position, ConstantOrientation(task_orientation(description)), te, float(sec["sample_time_s"]),
-                "spiral")
+                "spiral", default_start(description))
 
 
-def reference_path(name: str, description: dict[str, Any] | None = None) -> Path:
-    """One of the reference tasks by name: `"line"` (eq. 4.7) or `"spiral"` (eq. 4.8)."""
+def reference_path(name: str, description: dict[str, Any]) -> Path:
+    """One of the reference tasks of the description's `[trajectories]` by name: `"line"` (eq. 4.7) or
+    `"spiral"` (eq. 4.8); the thesis' with `jaxrobot.read_description(None)`."""
     makers = {"line": line_path, "spiral": spiral_path}
     if name not in makers:
         raise ValueError(f"unknown reference path {name!r}; expected one of {sorted(makers)}")
@@ -260,7 +275,9 @@ def sampled_path(
 ) -> Path:
     """A `Path` through task-space samples on a uniform grid `t` (from 0): between samples, the local
     degree-8 interpolating polynomial of the 9 nearest samples (derivatives to 4th order on the grid).
-    `r_d` (N, 3, 3) defaults to the constant task orientation of eq. 4.6."""
+    `r_d` (N, 3, 3) defaults to the constant task orientation of eq. 4.6 of `description` (which must then have
+    a `[trajectories]` section); with a description that has one, the IK starts from its `orientation_q`,
+    else from `task_start`."""
     t = np.asarray(t, dtype=float)
     p_d = np.asarray(p_d, dtype=float)
     if t.ndim != 1 or t.shape[0] < STENCIL:
@@ -271,6 +288,9 @@ def sampled_path(
     if p_d.shape != t.shape + (3,):
         raise ValueError(f"p_d must have shape ({t.shape[0]}, 3) [m], got {p_d.shape}")
     if r_d is None:
+        if description is None:
+            raise ValueError("r_d: the tool orientations are required without a description (whose [trajectories] "
+                             "give the constant task orientation of eq. 4.6)")
         orientation = ConstantOrientation(task_orientation(description))
     else:
         r_d = np.asarray(r_d, dtype=float)
@@ -278,7 +298,8 @@ def sampled_path(
             raise ValueError(f"r_d must have shape ({t.shape[0]}, 3, 3), got {r_d.shape}")
         orientation = LocalPolynomial(t, r_d)
     ts = float(steps[0])
-    return Path(LocalPolynomial(t, p_d), orientation, ts * (t.shape[0] - 1), ts, name)
+    start = None if description is None or "trajectories" not in description else default_start(description)
+    return Path(LocalPolynomial(t, p_d), orientation, ts * (t.shape[0] - 1), ts, name, start)
 
 
 REST_SPEED = 1e-3

@@ -259,8 +259,8 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
               on_event: Callable[[PlanEvent], None] | None = None) -> PlanResult:
     """Plan `path` on `robot` and evaluate the four motor trajectories on `plant`.
 
-    IK from `q_init` (default the embedded description's start), the flat inverse as warm start, the OCP
-    at weighting `nu` with `cost` (`directional`: on the gear flanks along the planned motion,
+    IK from `q_init` (default as `joint_path`: the path's `ik_start`, else `task_start`), the flat inverse as
+    warm start, the OCP at weighting `nu` with `cost` (`directional`: on the gear flanks along the planned motion,
     `solve_directional`), solved once (with `timing`, its compile time measured apart from its solve time,
     `jaxrobot.internal.compile_timer`), then a fine simulation on `plant` (`directional`: with its gear flanks as
     states, `jr.simulate`). The rigid and quasi-static trajectories, and on the CPU (which simulates one run at a

@@ -42,7 +42,7 @@ Q = jnp.asarray(np.random.default_rng(0).uniform(-1.0, 1.0, (5, 6)))
 
 
 def _line(n: int = 6):
-    path = pl.reference_path("line")
+    path = pl.reference_path("line", jr.read_description(None))
     t = pl.time_grid(path)[:n]
     return path, t
 

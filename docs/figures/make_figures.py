@@ -59,8 +59,9 @@ def plans() -> dict[str, pl.PlanResult]:
     models = {"nominal model": jr.racer7(), "calibrated model": calibration.demo_calibration().result.robot,
               "true model (the as-built robot)": truth}
     plans = {}
+    line = pl.reference_path("line", jr.read_description(None))
     for label, model in models.items():
-        res = pl.plan_task(model, truth, pl.reference_path("line"), NU, timing=False, directional=True)
+        res = pl.plan_task(model, truth, line, NU, timing=False, directional=True)
         if not res.converged:
             raise RuntimeError(f"the OCP on the {label} did not converge ({jr.status_name(res.status)})")
         plans[label] = res

@@ -18,8 +18,8 @@ from jaxrobot.io import read_csv_columns, write_command_csv
 
 from .._bandwidth import bandwidth, control_spectrum
 from .._evaluation import METHODS
-from .._ik import default_start, task_start
-from .._trajectories import check_task, reference_path, sampled_path
+from .._ik import task_start
+from .._trajectories import check_task, default_start, reference_path, sampled_path
 from .._transcription import COSTS
 from .._workflow import PlanEvent, PlanResult, _tool_position, plan_task
 
@@ -44,11 +44,12 @@ def configure(parser) -> None:
                         "marking it as not converged (no plant evaluation; the exit code is 3 either way)")
 
 
-def read_task_csv(path: Path, orientation_required: bool = False):
-    """A `Path` from a CSV of tool positions (see the module docstring); `orientation_required`: the
-    quaternion columns must be there (a robot without `[trajectories]` has no default orientation)."""
+def read_task_csv(path: Path, description: dict | None = None):
+    """A `Path` from a CSV of tool positions (see the module docstring) for the robot of `description`: without
+    the quaternion columns, the constant orientation of its `[trajectories]` (required then); with a
+    `[trajectories]` section, the IK starts from its `orientation_q`."""
     cols = read_csv_columns(path, ["t_s", "x_m", "y_m", "z_m"], ["qx", "qy", "qz", "qw"], min_rows=2)
-    if orientation_required and "qx" not in cols:
+    if "qx" not in cols and (description is None or "trajectories" not in description):
         raise ValueError(f"{path}: columns qx, qy, qz, qw (tool orientation quaternion) missing; they are "
                          "required for a robot without a [trajectories] section (no default orientation_q)")
     t, p = cols["t_s"], np.stack([cols["x_m"], cols["y_m"], cols["z_m"]], -1)
@@ -61,18 +62,19 @@ def read_task_csv(path: Path, orientation_required: bool = False):
             np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
             np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
             np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
-    return sampled_path(jnp.asarray(t), jnp.asarray(p), None if r is None else jnp.asarray(r), name=path.stem)
+    return sampled_path(jnp.asarray(t), jnp.asarray(p), None if r is None else jnp.asarray(r), name=path.stem,
+                        description=description)
 
 
-def task_path(task: str, description: dict | None = None):
-    """A reference task of the description (`line`/`spiral`) or a task CSV, checked for rest at both ends
-    and smoothness (`check_task`)."""
+def task_path(task: str, description: dict):
+    """A reference task of the robot's description (`line`/`spiral`) or a task CSV for it (`read_task_csv`),
+    checked for rest at both ends and smoothness (`check_task`)."""
     if task in ("line", "spiral"):
         return reference_path(task, description)
     if not Path(task).is_file():
         raise ValueError(f"task {task!r}: expected 'line', 'spiral' or an existing CSV file"
                          f"{suggestion(task, ('line', 'spiral'))}")
-    path = read_task_csv(Path(task), orientation_required=description is not None and "trajectories" not in description)
+    path = read_task_csv(Path(task), description)
     check_task(path)
     return path
 
@@ -268,15 +270,15 @@ def demo_stage(out: Path, echo) -> dict:
     the robot). **Returns:** `summary` of the first plan, with `on_the_robot` the `summary` of the second."""
     from identification.calibration import demo_calibration
 
-    robot = jr.racer7()
+    robot, line = jr.racer7(), reference_path("line", jr.read_description(None))
     echo("line, nu = 1e-14, planned on the nominal model, evaluated on it")
-    result = plan(robot, robot, reference_path("line"), 1e-14, "thesis", echo, timing=False)
+    result = plan(robot, robot, line, 1e-14, "thesis", echo, timing=False)
     write_plots(result, out, "planning_line")
     tr = result.trajectories["ocp"]
     write_command_csv(out / "planning_line_motor.csv", result.joint_path.t, tr.theta, tr.thetad, tr.thetadd)
     calibrated = demo_calibration().result.robot
     echo("line, nu = 1e-14, planned on the calibrated model, evaluated on the as-built robot (gear flanks as states)")
-    bench = plan(calibrated, jr.racer7(as_built=True), reference_path("line"), 1e-14, "thesis", echo, timing=False,
+    bench = plan(calibrated, jr.racer7(as_built=True), line, 1e-14, "thesis", echo, timing=False,
                  directional=True)
     own, robot_err = summary(result), summary(bench)
     echo(f"  line: {own['plant']['ocp']['max_um']:.3f} µm on the model it was planned on, "

@@ -15,7 +15,7 @@ import planning as pl
 from jaxrobot.cli._main import main
 
 ROBOT = jr.racer7()
-LINE = pl.reference_path("line")
+LINE = pl.reference_path("line", jr.read_description(None))
 T = np.asarray(pl.time_grid(LINE))[::25]  # the line at T_s = 25 ms: rest to rest
 POS = np.asarray(pl.sample_path(LINE, jnp.asarray(T))[0])
 

@@ -70,13 +70,13 @@ def test_inverse_kinematics_throw_raises_a_non_converged_sample():
     """A pose 3 m beyond the reach (the Racer-7 reaches ~0.8 m): Newton cannot converge; the status
     says so with `throw=False` (the default) and `throw=True` raises its message."""
     robot = jr.racer7()
-    p_d, r_d = pl.sample_path(pl.reference_path("line"), jnp.zeros(3))
+    p_d, r_d = pl.sample_path(pl.reference_path("line", jr.read_description(None)), jnp.zeros(3))
     p_d = p_d + jnp.asarray([3.0, 0.0, 0.0])
-    ik = pl.inverse_kinematics(robot, p_d, r_d, pl.default_start())
+    ik = pl.inverse_kinematics(robot, p_d, r_d, pl.default_start(jr.read_description(None)))
     assert jr.status_name(ik.status).tolist() == ["nonlinear_max_steps_reached"] * 3
     assert not np.asarray(ik.converged).any() and float(ik.position_residual.min()) > 1.0
     with pytest.raises(Exception, match="maximum number of steps"):
-        pl.inverse_kinematics(robot, p_d, r_d, pl.default_start(), throw=True)
+        pl.inverse_kinematics(robot, p_d, r_d, pl.default_start(jr.read_description(None)), throw=True)
 
 
 def test_calibrate_throw_raises_a_non_converged_solve():

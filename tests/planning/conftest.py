@@ -16,7 +16,7 @@ def robot():
 
 @pytest.fixture(scope="session")
 def paths():
-    return {name: pl.reference_path(name) for name in ("line", "spiral")}
+    return {name: pl.reference_path(name, jr.read_description(None)) for name in ("line", "spiral")}
 
 
 @pytest.fixture(scope="session")

@@ -158,7 +158,7 @@ def test_solve_ocp_cyclic_reduction_matches_scan():
 
 def _task(name: str):
     robot = jr.racer7()
-    path = pl.reference_path(name)
+    path = pl.reference_path(name, jr.read_description(None))
     jp = pl.joint_path(robot, path)
     flat = pl.flat_motor_trajectory(robot, jp)
     warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)

@@ -75,9 +75,22 @@ def test_ik_errors_name_sample_and_joint(robot, paths, joint_paths):
         check_joint_path(weak, jp)
     with pytest.raises(ValueError, match="near a singularity"):
         check_joint_path(robot, jp, singularity_margin=10.0)
-    far = pl.Path(lambda t: jnp.array([3.0, 0.0, 1.0]) + 0 * t, paths["line"].orientation, 2.5, 1e-3, "far")
+    far = pl.Path(lambda t: jnp.array([3.0, 0.0, 1.0]) + 0 * t, paths["line"].orientation, 2.5, 1e-3, "far",
+                  paths["line"].ik_start)
     with pytest.raises(ValueError, match="inverse kinematics failed at sample 0"):
         pl.joint_path(robot, far)
     q_init_error = r"q_init: expected shape \(n,\) with n = 6 joints of this robot, found \(5,\)"
     with pytest.raises(ValueError, match=q_init_error):
         pl.joint_path(robot, paths["line"], q_init=jnp.zeros(5))
+
+
+def test_a_task_without_a_start_starts_from_task_start(robot, paths):
+    """A task that names no IK start (a sampled one without a description) starts from `task_start`, not from
+    another robot's start."""
+    t = jnp.arange(11) * 1e-3
+    pos, rot = pl.sample_path(paths["line"], t)
+    task = pl.sampled_path(t, pos, rot)
+    assert task.ik_start is None
+    start = pl.task_start(robot, task)
+    np.testing.assert_array_equal(pl.joint_path(robot, task, check=False).q,
+                                  pl.joint_path(robot, task, start, check=False).q)

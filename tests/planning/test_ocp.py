@@ -651,12 +651,12 @@ def test_csv_task_bounded_and_unbounded_reach_the_same_optimum(robot, tmp_path):
     bounded solves reach the optimum of before, the bounded ones in at most `CSV_BOUNDED_STEPS` iterations."""
     from planning.cli._plan import read_task_csv
 
-    line = pl.reference_path("line")
+    line = pl.reference_path("line", jr.read_description(None))
     t = np.asarray(pl.time_grid(line))
     file = tmp_path / "backwards.csv"
     np.savetxt(file, np.column_stack([t, np.asarray(pl.sample_path(line, jnp.asarray(t))[0])[::-1]]), delimiter=",",
                header="t_s,x_m,y_m,z_m", comments="")
-    path = read_task_csv(file)
+    path = read_task_csv(file, jr.read_description(None))
     jp = pl.joint_path(robot, path)
     flat = pl.flat_motor_trajectory(robot, jp)
     warm = (jnp.concatenate([jp.q, jp.qd, flat.theta, flat.thetad], -1), flat.thetadd)

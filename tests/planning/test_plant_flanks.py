@@ -148,7 +148,7 @@ def test_reference_plans_reverse_only_where_the_task_does(task):
     exactly as often as the exact inverse, and no rate points the wrong way beyond the solver's tolerance."""
     from planning._trajectories import reference_path
 
-    jp = pl.joint_path(TRUTH, reference_path(task))
+    jp = pl.joint_path(TRUTH, reference_path(task, jr.read_description(None)))
     flat = pl.baseline_trajectories(TRUTH, jp)["flat_inverse"]
     warm = (pl.State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
     direction = motor_directions(flat.thetad)
@@ -192,7 +192,7 @@ def test_reference_tasks_on_the_as_built_flank_plant(task):
     as often as the exact inverse."""
     from planning._trajectories import reference_path
 
-    path = reference_path(task)
+    path = reference_path(task, jr.read_description(None))
     jp = pl.joint_path(TRUTH, path)
     flat = pl.baseline_trajectories(TRUTH, jp)["flat_inverse"]
     errors = {}
@@ -214,7 +214,7 @@ def test_sweep_plans_on_the_flanks_like_plan_task():
     solver's tolerance, not bit for bit)."""
     from planning._trajectories import reference_path
 
-    path, nus = reference_path("line"), (1e-14, 1e-10)
+    path, nus = reference_path("line", jr.read_description(None)), (1e-14, 1e-10)
     res = pl.sweep_task(TRUTH, TRUTH, path, nus, costs=("thesis",), directional=True)
     assert res.converged
     swept = res.costs["thesis"]

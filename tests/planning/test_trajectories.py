@@ -56,11 +56,34 @@ def test_spiral_geometry(paths):
     assert np.allclose(radius, a * (angle - angle[0] + sp["mu_start_rad"]), rtol=1e-12)  # r = a mu
 
 
+def test_tasks_take_their_orientation_and_start_from_the_description(paths):
+    """No task defaults to the Racer-7: a reference task is the description's, its IK start the description's
+    `orientation_q`; a sampled task without orientations needs the description, with them it has no start (the
+    IK's is then `task_start`'s)."""
+    for p in paths.values():
+        np.testing.assert_array_equal(p.ik_start, TRAJ["orientation_q"])
+        assert np.array_equal(p.ik_start, pl.default_start(DESC))
+    np.testing.assert_allclose(pl.task_orientation(DESC), np.diag([-1.0, -1.0, 1.0]), atol=1e-15)  # eq. 4.6
+    without = {k: v for k, v in DESC.items() if k != "trajectories"}
+    with pytest.raises(ValueError, match=r"description: the robot description has no \[trajectories\]"):
+        pl.reference_path("line", without)
+    with pytest.raises(ValueError, match="description: expected a robot description dict"):
+        pl.task_orientation(None)
+    t = np.arange(11) * 1e-3
+    pos = np.asarray(pl.sample_path(paths["line"], jnp.asarray(t))[0])
+    with pytest.raises(ValueError, match="r_d: the tool orientations are required without a description"):
+        pl.sampled_path(t, pos)
+    rot = np.broadcast_to(np.diag([-1.0, -1.0, 1.0]), (11, 3, 3))
+    assert pl.sampled_path(t, pos, rot).ik_start is None and pl.sampled_path(t, pos, rot, description=without
+                                                                              ).ik_start is None
+    np.testing.assert_array_equal(pl.sampled_path(t, pos, description=DESC).ik_start, TRAJ["orientation_q"])
+
+
 def test_sampled_path_matches_analytic(paths):
     p = paths["spiral"]
     t = pl.time_grid(p)
     pos, _ = pl.sample_path(p, t)
-    sp = pl.sampled_path(t, pos)
+    sp = pl.sampled_path(t, pos, description=DESC)
     k = jnp.array([0, 3, 1250, 2500])
     d_ref = pl.path_derivatives(p.position, t[k], 2)
     d = pl.path_derivatives(sp.position, t[k], 2)
@@ -82,7 +105,7 @@ def test_task_csv_round_trip_and_errors(tmp_path, paths):
     pos = np.asarray(pl.sample_path(p, jnp.asarray(t))[0])
     f = tmp_path / "task.csv"
     np.savetxt(f, np.column_stack([t, pos]), delimiter=",", header="t_s,x_m,y_m,z_m", comments="")
-    path = read_task_csv(f)
+    path = read_task_csv(f, DESC)
     assert np.isclose(path.duration, 0.01) and np.isclose(path.sample_time, 1e-3)
     assert np.allclose(path.position(jnp.asarray(0.004)), pos[4], atol=1e-15)
     bad = tmp_path / "bad.csv"

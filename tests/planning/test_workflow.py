@@ -10,7 +10,8 @@ import pytest
 import jaxrobot as jr
 import planning as pl
 
-LINE = pl.reference_path("line")
+DESC = jr.read_description(None)
+LINE = pl.reference_path("line", DESC)
 
 
 def line_samples(step: int):
@@ -51,7 +52,7 @@ def test_plan_task_events_in_order_and_si_results_behind_the_summary(monkeypatch
     from planning.cli._plan import summary
 
     robot = jr.racer7()
-    path = pl.sampled_path(*(jnp.asarray(a) for a in line_samples(5)))  # RK4 at T_s / 10 = 0.5 ms
+    path = pl.sampled_path(*(jnp.asarray(a) for a in line_samples(5)), description=DESC)  # RK4 at T_s / 10 = 0.5 ms
     events = []
     monkeypatch.setattr(planning._ocp, "solve_ocp", _failed_solve)
     failed = pl.plan_task(robot, robot, path, 1e-14, on_event=events.append)
@@ -99,7 +100,7 @@ def test_sweep_task_stops_at_a_failed_member(monkeypatch):
     from planning.cli._sweep import failures
 
     robot = jr.racer7()
-    path = pl.sampled_path(*(jnp.asarray(a) for a in line_samples(25)))
+    path = pl.sampled_path(*(jnp.asarray(a) for a in line_samples(25)), description=DESC)
     with pytest.raises(ValueError, match="nus: expected one or more values > 0"):
         pl.sweep_task(robot, robot, path, [1e-14, 0.0])
     with pytest.raises(ValueError, match="nus: expected distinct values"):
@@ -121,7 +122,7 @@ def test_sweep_task_events_and_si_results_behind_the_table(monkeypatch):
     from planning.cli._sweep import failures, table
 
     robot = jr.racer7()
-    path = pl.sampled_path(*(jnp.asarray(a) for a in line_samples(5)))
+    path = pl.sampled_path(*(jnp.asarray(a) for a in line_samples(5)), description=DESC)
     nus = [1e-14, 1e-12]
     events = []
     monkeypatch.setattr(planning._workflow, "solve_ocp_sweep", _sweep_stand_in(_converged_solve))
