@@ -27,7 +27,6 @@ from ._elasticity import elastic_deflection as elastic_deflection  # noqa: E402
 from ._elasticity import elastic_stiffness as elastic_stiffness  # noqa: E402
 from ._elasticity import elastic_torque as elastic_torque  # noqa: E402
 from ._flat import flat_inverse as flat_inverse  # noqa: E402
-from ._gear import direction_state as direction_state  # noqa: E402
 from ._gear import flank_motor_angle as flank_motor_angle  # noqa: E402
 from ._gear import flank_output as flank_output  # noqa: E402
 from ._gear import flank_ratio as flank_ratio  # noqa: E402
@@ -37,8 +36,6 @@ from ._gear import fourier_xi_inverse as fourier_xi_inverse  # noqa: E402
 from ._gear import gear_output as gear_output  # noqa: E402
 from ._gear import gear_ratio as gear_ratio  # noqa: E402
 from ._gear import motor_angle as motor_angle  # noqa: E402
-from ._gear import play_state as play_state  # noqa: E402
-from ._gear import reversal_travel as reversal_travel  # noqa: E402
 from ._instruments import Instruments as Instruments  # noqa: E402
 from ._kinematics import analytic_jacobian as analytic_jacobian  # noqa: E402
 from ._kinematics import forward_kinematics as forward_kinematics  # noqa: E402
@@ -65,6 +62,9 @@ from ._simulate import simulate as simulate  # noqa: E402
 from ._status import RESULTS as RESULTS  # noqa: E402
 from ._status import status_message as status_message  # noqa: E402
 from ._status import status_name as status_name  # noqa: E402
+from .effects._flank_play import direction_state as direction_state  # noqa: E402
+from .effects._flank_play import play_state as play_state  # noqa: E402
+from .effects._flank_play import reversal_travel as reversal_travel  # noqa: E402
 from .effects._lag import lag_command as lag_command  # noqa: E402
 from .effects._link_friction import COULOMB_VELOCITY as COULOMB_VELOCITY  # noqa: E402
 from .effects._link_friction import link_friction as link_friction  # noqa: E402

@@ -246,9 +246,9 @@ def planning_dynamics(
 ) -> Float[Array, "*b 4*n"]:
     """`xd = f(x, u)` of eq. 4.1, `x = [q, qd, theta, thetad]`, `u = thetadd`; cw gear set, or with `direction`
     the flank weights `sigma` of the gears (`flank_output`, docs/model.md (B.0)). The link receives the robot's joint
-    torques (joint damping `d (phid - qd)`) and spends its link loads (`link_acceleration`); a velocity-loop
-    lag (`robot.motor_lag`) does not enter: `theta` is the motor angle after it, which `lag_command` turns into
-    the command."""
+    torques (`jaxrobot.effects.JointTorque`) and spends its link loads (`link_acceleration`); a motor response
+    (`jaxrobot.effects.MotorResponse`) does not enter: `theta` is the motor angle after it, which the response's
+    `command` turns into the command."""
     q, qd, theta, thetad = jnp.split(x, 4, axis=-1)
     output = (lambda th: gear_output(robot, th)) if direction is None else (  # noqa: E731
         lambda th: flank_output(robot, th, direction))
@@ -262,8 +262,9 @@ def link_acceleration(
     phid: Float[Array, "*b n"] | None = None,
 ) -> Float[Array, "*b n"]:
     """`qdd = D(q)^{-1} (kappa(phi - q) - g(q) - C(q, qd) qd)` (eq. 2.23a); the robot's link loads
-    (`jaxrobot.effects.LinkLoad`: link-side friction) are subtracted from the bracket and its joint torques
-    (`jaxrobot.effects.JointTorque`: joint damping `d (phid - qd)`) added, which need the gear output rate `phid`."""
+    (`jaxrobot.effects.LinkLoad`, functions of `q`, `qd`) are subtracted from the bracket and its joint torques
+    (`jaxrobot.effects.JointTorque`, functions of the deflection's rate) added, which need the gear output rate
+    `phid`."""
     rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
     for load in link_loads(robot):
         rhs = rhs - load.torque(robot, q, qd)

@@ -2,12 +2,13 @@
 
 The link angle is a flat output of eq. 4.1: for a smooth `q_d(t)`,
 `phi = q_d + kappa^{-1}(D q̈_d + C q̇_d + g)`, `theta = Xi(phi)`, `u = θ̈`; the robot's link loads
-(`jaxrobot.effects.LinkLoad`: link-side friction, a function of `q̇_d`) add to the bracket. It tracks exactly in
+(`jaxrobot.effects.LinkLoad`, functions of `q_d` and `q̇_d`) add to the bracket. It tracks exactly in
 continuous time, ignores limits and the boundary conditions on `u`; it is the baseline and
 the warm start of the optimal control problem.
 
-With a joint torque besides the spring (`jaxrobot.effects.JointTorque`: joint damping, docs/model.md (2.23c)) the
-deflection `x = phi - q_d` is no longer algebraic: the effect integrates it (`JointTorque.flat_deflection`).
+With a joint torque besides the spring (`jaxrobot.effects.JointTorque`, a function of the deflection's rate,
+docs/model.md (2.23c)) the deflection `x = phi - q_d` is no longer algebraic: the effect integrates it
+(`JointTorque.flat_deflection`).
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ def flat_inverse(
 
     **Arguments:** `q_d` maps a scalar time [s] to link angles (n,) and must be four times
     differentiable (derivatives are taken by nested `jax.jvp`); `t` (N,) sample times [s] (uniform where the robot
-    has joint damping, whose deflection is integrated from rest at `t[0]`: module docstring).
+    has a joint torque besides the spring, whose deflection is integrated from rest at `t[0]`: module docstring).
     """
     t = jnp.asarray(t, float)
 

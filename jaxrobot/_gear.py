@@ -6,7 +6,7 @@ with `U_C` such that `Xi(0) = 0` (eq. 2.14). `ccw` selects the set of the negati
 it broadcasts against the joint axis (a bool or a bool array of shape (..., n)).
 
 At a reversal (docs/model.md (B.0)) the gear crosses from one flank to the other over a motor travel `w`
-(`reversal_travel`): a play operator `p` on the motor angle (`play`) gives the flank weight
+(the gears' flank play, `jaxrobot.effects`): a play operator `p` on the motor angle (`play`) gives the flank weight
 `sigma = S(1/2 - (theta - p) / w)` (0: cw, 1: ccw; `S` the quintic smoothstep), and the transmission is
 `theta = Xi_sigma(phi + b (1/2 - sigma))` with `Xi_sigma = (1 - sigma) Xi_cw + sigma Xi_ccw` and lost motion `b`
 (`flank_output`, `flank_motor_angle`).
@@ -168,38 +168,6 @@ def gear_output(
     return fourier_xi_inverse(u0, orders, a, b, theta)
 
 
-def _flank_gap(robot: Robot) -> Float[Array, "*b n"]:
-    """`b + e_cw + e_ccw` [output rad]: the lost motion and `e = sum_j (|a_j| + 2 |b_j|) / n_j` of each set, which
-    bounds `|Xi(phi) / u0 - phi|`, so the widest gap between the flanks' outputs at one motor angle."""
-
-    def bound(rip):
-        used = rip.orders > 0
-        return jnp.sum(jnp.where(used, (jnp.abs(rip.a) + 2 * jnp.abs(rip.b)) / jnp.where(used, rip.orders, 1.0),
-                                 0.0), -1)
-
-    return robot.backlash + bound(robot.cw) + bound(robot.ccw)
-
-
-def shortest_reversal_travel(robot: Robot) -> Float[Array, "*b n"]:
-    """The shortest travel [motor rad] through which the output keeps following the motor at a reversal:
-    `(15/8) (1 + rho) u0 gap` (`_flank_gap`, `rho = sum_j |(a_j, b_j)|` of the larger set; `15/8` is the
-    steepest slope of the smoothstep)."""
-    rho = jnp.maximum(*(jnp.sum(jnp.hypot(r.a, r.b) * (r.orders > 0), -1) for r in (robot.cw, robot.ccw)))
-    return 1.875 * (1.0 + rho) * robot.u0 * _flank_gap(robot)
-
-
-def reversal_travel(robot: Robot) -> Float[Array, "*b n"]:
-    """Motor travel `w` [rad] of a reversal: `robot.reversal_travel` where the robot file gives it (`[gear]
-    reversal_travel_rad`), else the default `3 u0 (b + e_cw + e_ccw)` (`_flank_gap`): three times the travel
-    that carries the output across the lost motion and the widest gap between the flanks, so that the output
-    keeps following the motor through a reversal (`dphi/dtheta >= (1 / (1 + rho) - 5/8) / u0 > 0` for a ripple
-    `rho = sum_j |(a_j, b_j)| < 0.6`; `shortest_reversal_travel`). A gear without ripple and backlash gets
-    `w = 3e-9 u0`."""
-    if robot.reversal_travel is not None:
-        return robot.reversal_travel
-    return 3.0 * robot.u0 * jnp.maximum(_flank_gap(robot), 1e-9)
-
-
 def play(p: Float[Array, "*b n"], theta: Float[Array, "*b n"], travel: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
     """One step of the play operator of width `travel`: `p` moved just enough to stay within `travel / 2` of
     `theta` (it lags the motor by `travel / 2` after a move of at least `travel` in one direction)."""
@@ -218,21 +186,6 @@ def play_start(theta: Float[Array, "*b n"], travel: Float[Array, "*b n"], ccw: b
                ) -> Float[Array, "*b n"]:
     """Play state of a gear at rest at `theta` that last moved `ccw` (False: cw)."""
     return theta - 0.5 * travel * (1.0 - 2.0 * jnp.asarray(ccw, float))
-
-
-def play_state(robot: Robot, theta: Float[Array, "N n"], ccw: bool | Bool[Array, " n"] = False,
-               travel: Float[Array, " n"] | None = None) -> Float[Array, "N n"]:
-    """Play states `p` (module docstring) along sampled motor angles `theta`, the gear at rest on flank `ccw`
-    before `theta[0]` (`travel`: default `reversal_travel(robot)`)."""
-    w = reversal_travel(robot) if travel is None else travel
-    return jax.lax.scan(lambda p, th: (play(p, th, w),) * 2, play_start(theta[0], w, ccw), theta)[1]
-
-
-def direction_state(robot: Robot, theta: Float[Array, "N n"], ccw: bool | Bool[Array, " n"] = False,
-                    travel: Float[Array, " n"] | None = None) -> Float[Array, "N n"]:
-    """Flank weights `sigma` along sampled motor angles `theta` (arguments as `play_state`)."""
-    w = reversal_travel(robot) if travel is None else travel
-    return flank_weight(play_state(robot, theta, ccw, w), theta, w)
 
 
 def flank_ripple(robot: Robot, sigma: Float[Array, "*b n"]) -> Ripple:

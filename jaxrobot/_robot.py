@@ -32,10 +32,9 @@ class Robot(eqx.Module):
     """An elastic-joint serial robot with `n` revolute joints.
 
     Every field is an array (SI units, radians) whose joint axis has length `n`
-    (`n_joints`), so a fleet of robots is the same pytree with a leading batch axis; the dynamic
-    effects `damping`, `motor_lag`, `viscous_friction` and `coulomb_friction` may be None (absent: the model
-    without them, exactly), and so may `friction_velocity` (the default smoothing velocity); the effects of
-    `jaxrobot.effects` without a field of their own keep their arrays in `effect_parameters`. Kinematics follow
+    (`n_joints`), so a fleet of robots is the same pytree with a leading batch axis; the fields of the optional
+    effects (`jaxrobot.effects`, each effect's `fields`) may be None (absent: the model without them, exactly), and
+    the effects without a field of their own keep their arrays in `effect_parameters`. Kinematics follow
     eq. 2.2-2.4: standard DH plus the Hayati angle `beta` (eq. 2.3), not Craig's modified DH; the joint
     transform is `Rz(q + offset) Tx(a) Tz(d) Rx(alpha) Ry(beta)`.
     """
@@ -114,11 +113,6 @@ class Robot(eqx.Module):
     effect_parameters: dict[str, Float[Array, "*batch n"]] = eqx.field(default_factory=dict)
     """Per-joint arrays of the effects that have no field of their own (`jaxrobot.effects`), by the field name of
     their `Parameter`; empty: none of them."""
-
-    @property
-    def has_friction(self) -> bool:
-        """Whether the links feel friction (`viscous_friction` or `coulomb_friction` not None)."""
-        return self.viscous_friction is not None or self.coulomb_friction is not None
 
     @property
     def k1(self) -> Float[Array, "*batch n"]:

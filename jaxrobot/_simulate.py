@@ -1,27 +1,27 @@
 """Fixed-step simulation of the elastic-joint model for a commanded motor trajectory.
 
-The motor follows the commanded `theta(t)` exactly (ideal velocity loop, thesis ch. 4; a lag below), so
+The motor follows the commanded `theta(t)` exactly (ideal velocity loop, thesis ch. 4; a motor response below), so
 the state is the link side `(q, qd)` of eq. 2.23a. Between samples the command is the quintic
 Hermite interpolant of `(theta, thetad, thetadd)`, so it is C2 in time.
 
-Scheme: classic 4th-order Runge-Kutta with `substeps` steps per sample. Without joint damping
-the elastic modes are undamped oscillations with eigenvalues `±iω` on the imaginary
+Scheme: classic 4th-order Runge-Kutta with `substeps` steps per sample. Without a joint torque besides
+the springs the elastic modes are undamped oscillations with eigenvalues `±iω` on the imaginary
 axis (ω up to ~2.6e3 rad/s for the Racer-7, `jaxrobot info` prints it). RK4's stability region
 covers the imaginary axis up to |hω| = 2.83, and its amplitude error per step is
 ~(hω)^6/144, so h = 0.1 ms (10 substeps at 1 ms, hω ≈ 0.26) keeps the modes stable and their
 amplitude exact to ~2e-6 per step, while the forced motion is integrated at 4th order. An
 implicit A-stable scheme (trapezoidal) would need a Newton solve of the 12-state system per
-step and damps nothing more here; it buys nothing for an undamped model at this step (damping moves
+step and damps nothing more here; it buys nothing for an undamped model at this step (dissipation moves
 the eigenvalues into the left half-plane, where the same steps stay stable).
 
 The robot's effects (`jaxrobot.effects`; an absent one leaves the code above untouched):
 
-- A motor response (`MotorResponse`: the velocity-loop lag, `Robot.motor_lag`) moves the motors along its exact
-  solution for the interval's command (`jaxrobot.effects.MOTOR_LAG`; `lag_command` inverts it).
-- A joint torque (`JointTorque`: joint damping, `d (phid - qd)` besides `kappa(phi - q)`) takes the gear output's
-  rate `phid` along the motor rate `thetad_m` (at a fixed flank weight where `directional`).
-- A link load (`LinkLoad`: link-side friction, smooth in `qd`, `Robot.friction_velocity`) enters
-  `link_acceleration`, so the scheme keeps its order through a reversal and at rest.
+- A motor response (`MotorResponse`) moves the motors along its exact solution for the interval's command
+  (`MotorResponse.motion`; its `command` inverts it).
+- A joint torque (`JointTorque`, a function of the deflection's rate besides `kappa(phi - q)`) takes the gear
+  output's rate `phid` along the motor rate `thetad_m` (at a fixed flank weight where `directional`).
+- A link load (`LinkLoad`, smooth in `qd`) enters `link_acceleration`, so the scheme keeps its order through a
+  reversal and at rest.
 
 `directional=True` adds the flank of each gear as a state (docs/model.md (B.0)): the play operator runs
 along the motor angle at every stage point of the scheme, and the gear output is `flank_output` at its
@@ -38,9 +38,10 @@ from jaxtyping import Array, Bool, Float
 
 from ._dynamics import link_acceleration
 from ._elasticity import require_elastic
-from ._gear import flank_output, flank_weight, gear_output, play, play_start, reversal_travel
+from ._gear import flank_output, flank_weight, gear_output, play, play_start
 from ._hermite import check_command, hermite_weights
 from ._robot import Robot
+from .effects._flank_play import reversal_travel
 from .effects._registry import joint_torques, motor_response
 from .measurement._model import rest_link_angles
 
@@ -62,9 +63,10 @@ def simulate(
     """Link angles and rates `(q, qd)` at the sample times `t` (uniform) for a commanded motor
     trajectory, integrated by RK4 with `substeps` steps per sample (see module docstring).
 
-    The start defaults to rest: `q0` = link angles held by `theta[0]` under gravity, `qd0 = 0`; lagging motors
-    (`robot.motor_lag`) start at `theta[0]`. With `motor_angles=True` the motor angles `theta_m` (N, n) at the
-    sample times (what the encoders report; the command where the robot has no lag) come third.
+    The start defaults to rest: `q0` = link angles held by `theta[0]` under gravity, `qd0 = 0`; motors that follow
+    their command through a response (`jaxrobot.effects.MotorResponse`) start at `theta[0]`. With `motor_angles=True`
+    the motor angles `theta_m` (N, n) at the sample times (what the encoders report; the command where the robot has
+    no motor response) come third.
     `directional=True` gives each gear its flank state (the test bench's as-built robot): it starts at rest
     on flank `ccw0` (False: cw, per joint), crosses to the other flank over the motor travel `travel`
     (default `reversal_travel(robot)`) after a reversal and keeps its flank at rest; `q0` defaults to the

@@ -127,15 +127,16 @@ def ocp_motor_trajectory(x: Float[Array, "*b N 4*n"], u: Float[Array, "*b N n"])
 
 def motor_commands(robot: jr.Robot, t: Float[Array, " N"], trajectories: dict[str, MotorTrajectory]
                    ) -> dict[str, MotorTrajectory]:
-    """The commands that make the motors of `robot`, after its velocity-loop lags (`jr.lag_command`), follow the
-    motor `trajectories` (leading axes allowed); the trajectories themselves for a robot without lags."""
+    """The commands that make the motors of `robot`, after its motor response (`jaxrobot.effects.MotorResponse`,
+    its `command`), follow the motor `trajectories` (leading axes allowed); the trajectories themselves for a robot
+    without one."""
     if jr.effects.motor_response(robot) is None:
         return trajectories
-    return {k: _lag_commands(robot, jnp.asarray(t, float), v) for k, v in trajectories.items()}
+    return {k: _response_commands(robot, jnp.asarray(t, float), v) for k, v in trajectories.items()}
 
 
 @cached_program
-def _lag_commands(robot: jr.Robot, t, traj: MotorTrajectory) -> MotorTrajectory:
+def _response_commands(robot: jr.Robot, t, traj: MotorTrajectory) -> MotorTrajectory:
     lead = traj.theta.shape[:-2]
     flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[-2:]), traj)
     response = jr.effects.motor_response(robot)

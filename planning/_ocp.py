@@ -152,7 +152,7 @@ def solve_ocp(
       are replaced by the boundary values of eq. 4.3e-j.
     - `u_ref`: reference of the `"flat"` cost; default the warm start's `u`.
     - `play`, `travel`: play states (N, n) [motor rad] of the gears at the nodes (`jr.play_state` of a motor
-      path) and their reversal travels (n,) (default `jr.reversal_travel(robot)`): the flank weight of each
+      path) and their reversal travels (n,) (default the robot's, docs/model.md (B.0)): the flank weight of each
       node follows its motor angle, `jr.flank_weight(play, theta, travel)` (docs/model.md (B.0)); default
       the cw set throughout (eq. 4.1).
     - `direction`: (N, n) the direction each motor may turn at each node, +1 (`thetad >= 0`), -1 or 0 (either);

@@ -3,9 +3,9 @@
 Decision variables: one node `z_k = [x_k, u_k]` (5n for n joints) per sample, the state
 `x = [q, qd, theta, thetad]` (4n, `State`, eq. 4.1), `u = thetadd` [motor rad/s^2], k = 0 ... N-1.
 
-- cost (eq. 4.3a) `sum_k ||q_k - q_d,k||^2 + nu ||u_k||^2` over all N nodes (no T_s factor); with velocity-loop
-  lags `tau` (`Robot.motor_lag`) plus `nu sum_k ||tau (u_{k+1} - u_k) / T_s||^2`, so that `nu` weighs the
-  acceleration of the command `theta + tau thetad` (`jr.lag_command`; docs/model.md (B.7));
+- cost (eq. 4.3a) `sum_k ||q_k - q_d,k||^2 + nu ||u_k||^2` over all N nodes (no T_s factor); with a motor
+  response (`jaxrobot.effects.MotorResponse`) plus `nu` times its `command_penalty`, so that `nu` weighs the
+  acceleration of the command (docs/model.md (B.7));
   variants `"jerk"` `sum_k ||q_k - q_d,k||^2 + nu sum_k ||u_{k+1} - u_k||^2` and `"flat"`
   `sum_k ||q_k - q_d,k||^2 + nu ||u_k - u_ref,k||^2` (docs/model.md (4.3a): ν on the whole `u`
   biases the tracking, these two do not);
@@ -97,7 +97,7 @@ class OCPProblem(eqx.Module):
     weights are `jr.flank_weight(play, theta, travel)` of the nodes' motor angles; None: the cw set
     throughout (eq. 4.1)."""
     travel: Float[Array, " n"] | None = None
-    """Reversal travel of each gear [motor rad] (`jr.reversal_travel`), with `play`."""
+    """Reversal travel of each gear [motor rad] (docs/model.md (B.0)), with `play`."""
     direction: Float[Array, "N n"] | None = None
     """Direction each motor may turn at each node (`motor_directions`): +1 only forward (`thetad >= 0`), -1
     only backward, 0 either way (also where None)."""
@@ -136,7 +136,7 @@ def ocp_problem(
     `nu > 0`; `cost` in `COSTS`; `u_ref` (N, n) [motor rad/s^2] for `cost="flat"`
     (default: the quasi-static/flat warm start's `u`, see `warm_start`); `play` (N, n) the play states of
     the gears at the nodes [motor rad] and `travel` (n,) their reversal travel (default
-    `jr.reversal_travel(robot)`): the flanks follow the motor angles (default: cw throughout); `direction`
+    the robot's, docs/model.md (B.0)): the flanks follow the motor angles (default: cw throughout); `direction`
     (N, n) the direction each motor may turn at each node, +1, -1 or 0 (`motor_directions`; default: either).
 
     **Raises:** `ValueError` naming the field for wrong shapes, non-finite values, `ts <= 0`,
@@ -212,7 +212,8 @@ def _motor_directions(thetad):
 
 REST_NEWTON_STEPS = 6
 """Newton steps for the end nodes' motor angles on the flanks (`boundary_states`), from the cw rest pose:
-`phi(theta)` is monotone with a slope within a factor 3 of `1/u0` (`jr.reversal_travel`)."""
+`phi(theta)` is monotone with a slope within a factor 3 of `1/u0` (at the default reversal travel,
+docs/model.md (B.0))."""
 
 
 def flank_weights(problem: OCPProblem, theta: Float[Array, "*b n"], k: int | slice = slice(None)
@@ -367,7 +368,8 @@ def scaled_cost(problem: OCPProblem) -> ScaledQuadratic:
 
 def _link_acceleration(robot: jr.Robot, q, qd, phi, d, phid=None) -> Float[Array, "N n"]:
     """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`), plus the robot's joint
-    torques (joint damping `d (phid - qd)`) and minus its link loads (link-side friction) in the bracket."""
+    torques (`jaxrobot.effects.JointTorque`) and minus its link loads (`jaxrobot.effects.LinkLoad`) in the
+    bracket."""
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
     for term in jr.effects.joint_torques(robot):
         rhs = rhs + term.torque(robot, qd, phid)
@@ -413,7 +415,7 @@ class HalfStep(eqx.Module):
     mass: Float[Array, "*b n n"]
     qdd: Float[Array, "*b n"]
     slope_rate: Float[Array, "*b n"] | None = None
-    """With a joint torque (`jaxrobot.effects.JointTorque`, joint damping): `d(1/ratio)/dtheta`, the change of the
+    """With a joint torque (`jaxrobot.effects.JointTorque`): `d(1/ratio)/dtheta`, the change of the
     gear output rate `phid = thetad / ratio` with the motor angle per unit motor rate; None without."""
 
 
@@ -450,9 +452,8 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     """The map `w -> (d g_k / d y_k)^T w_k` at `h = half_step(problem, y)`, from the structure of
     eq. 4.1 (as `half_step_jacobian`): with `s = D^{-1} w_qdd`,
     `(dqdd/dq)^T w_qdd = -(dID/dq)^T s - kappa' s`, `(dqdd/dqd)^T w_qdd = -(dID/dqd)^T s`,
-    `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; the effects add their `torque_vjp` (link-side friction `f' s` to
-    `(dID/dqd)^T s`; joint damping `-d s` on `qd`, `d thetad (d(1/u)/dtheta) s` on `theta`, `d s / u(phi)` on
-    `thetad`); `(dID/d(q, qd))^T s` is one reverse
+    `(dqdd/dtheta)^T w_qdd = kappa' s / u(phi)`; the effects add their `torque_vjp` (a link load's to
+    `(dID/d(q, qd))^T s`, a joint torque's on `qd`, `theta` and `thetad`); `(dID/d(q, qd))^T s` is one reverse
     pass through Newton-Euler alone (not through the mass matrix, its solve and `Xi^-1`), whose
     forward pass is made once (`inverse_dynamics_vjp`, or `id_vjp` if already made) for every `w`."""
     r = problem.robot
@@ -487,14 +488,14 @@ def half_step_shift(n: int) -> np.ndarray:
 
 def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = None) -> Float[Array, "N n m"]:
     """The only state-dependent block of the Jacobian of `g` at `h = half_step(problem, y)`,
-    `p_k = d g_k[qd rows] / d y_k[q, qd, theta]` (scaled, m = 3n), with a joint torque (joint damping) also
-    `/ d y_k[thetad]` (m = 4n); `d g_k / d y_k` is `half_step_shift(n)` with `p_k` in rows n:2n, columns 0:m.
+    `p_k = d g_k[qd rows] / d y_k[q, qd, theta]` (scaled, m = 3n), with a joint torque (`jaxrobot.effects.JointTorque`)
+    also `/ d y_k[thetad]` (m = 4n); `d g_k / d y_k` is `half_step_shift(n)` with `p_k` in rows n:2n, columns 0:m.
 
     With `ID(q, qd, qdd) = D qdd + C qd + g = kappa(phi - q)` at the model's `qdd`:
     `dqdd/dq = -D^{-1} (dID/dq + kappa')`, `dqdd/dqd = -D^{-1} dID/dqd`,
-    `dqdd/dtheta = D^{-1} kappa' / u(phi)`; the effects add their slopes (`torque_vjp` at `s = 1`): damping
-    `-D^{-1} d` to `dqdd/dqd`, `D^{-1} d thetad d(1/u)/dtheta` to `dqdd/dtheta`, `dqdd/dthetad = D^{-1} d / u(phi)`;
-    link-side friction `-D^{-1} diag(f')` to `dqdd/dqd` (`f'` its slope in the link rate). The rows of
+    `dqdd/dtheta = D^{-1} kappa' / u(phi)`; the effects add their slopes (`torque_vjp` at `s = 1`, each
+    joint's own: diagonal): a joint torque's times `D^{-1}` to `dqdd/dqd`, `dqdd/dtheta` and `dqdd/dthetad`, a link
+    load's times `-D^{-1}` to `dqdd/dq` and `dqdd/dqd`. The rows of
     `dID/d(q, qd)` come from n reverse passes
     through Newton-Euler (n passes where forward mode takes 2n tangents; `id_vjp`: its linearisation at `h`,
     `inverse_dynamics_vjp`, if already made), the rest in closed form.
@@ -581,7 +582,7 @@ def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 4*n"], Float[Array,
     """Initial guess from the samples `q_d` by the flat relation (docs/model.md (B.4)):
     `theta = Xi(q_d + kappa^{-1}(D qdd_d + C qd_d + g))`, with `qd_d`, `qdd_d`, `thetad` and
     `u = thetadd` from second-order finite differences of the samples (error O(T_s^2)); the two
-    end nodes take their boundary values (eq. 4.3e-j); joint damping is left out (a start only). For an exact
+    end nodes take their boundary values (eq. 4.3e-j); the joint torques are left out (a start only). For an exact
     warm start from a smooth
     `q_d(t)`, pass `jr.flat_inverse` results to `solve_ocp(warm_start=...)` instead."""
     r, q, ts = problem.robot, problem.q_d, problem.ts

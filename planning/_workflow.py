@@ -94,7 +94,7 @@ class PlanResult:
     """The OCP's solution."""
     trajectories: dict[str, MotorTrajectory]
     """Name -> motor command [rad, rad/s, rad/s^2] (the OCP's and the baselines'): the planned motor trajectory,
-    through `jr.lag_command` where the model has velocity-loop lags (`motor_commands`)."""
+    through the model's motor response where it has one (`motor_commands`)."""
     nu: float
     """Weight of the motor acceleration in the cost."""
     cost: str

@@ -4,7 +4,7 @@ Each effect is a small model extension declared once: its parameter names, typic
 be seen (`seen_in`: poses at rest, runs, or both), which parameters are physical only at or above 0, and a hook
 `apply(robot, v, orders) -> robot` that is the identity at `v = 0`. Per-joint effects get `v` of shape
 (joints, p) (one row per joint; the pose workflow frees one row at a time), global ones (p,). The model's own
-effects (`jaxrobot.effects.EFFECTS`: lag, damping, friction, ...) are candidates through their declared parameters
+effects (`jaxrobot.effects.EFFECTS`) are candidates through their declared parameters
 (`ModelEffect`, one per parameter); an effect of identification alone (geometry, offsets, ripple, stiffness, payload,
 ...) is one subclass of `Effect` in `CATALOGUE`. `catalogue(robot, marker, "poses")` and
 `catalogue(robot, marker, "runs")` are what each workflow draws from it.
@@ -457,9 +457,9 @@ CATALOGUE: list[Effect] = [JointOffset(), GearRatio(), Backlash(), JointComplian
                            ApproachDependentGearSet()]
 """Every candidate effect, for poses and runs (`Effect.seen_in`), in the order the workflows try them (ties keep
 the earlier one; the runs' fit variables follow it): the pose effects, then along the drive train from the motor to
-the flange: the model's motor responses (lag), its joint torques (damping), the joint's stiffness, its link loads
-(friction, drag), the link's inertia, the model's other effects, the payload. `catalogue(robot, marker, seen_in)`
-draws a workflow's candidates."""
+the flange: the model's motor responses, its joint torques, the joint's stiffness, its link loads, the link's
+inertia, the model's other effects, the payload. `catalogue(robot, marker, seen_in)` draws a workflow's
+candidates."""
 
 
 def catalogue(robot: jr.Robot, marker: Float[Array, "3"], seen_in: str = "poses") -> list[Effect]:

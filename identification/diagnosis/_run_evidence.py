@@ -22,7 +22,7 @@ from ._run_model import with_effects
 
 FD_STEP = 1e-4
 """Step of the forward differences that give the fits' derivative columns, in units of each variable's scale
-(`Effect.scales`; upwards, so that a lag, damping, friction or mass at 0 stays physical): their truncation error
+(`Effect.scales`; upwards, so that a nonnegative parameter or mass at 0 stays physical): their truncation error
 is ~1e-4 of a column, below the fits' resolution, and the rounding error of a residual of 1e6 noise units ~1e-6 of
 one. A forward difference costs one simulation per column, a forward-mode derivative pass about seven
 (benchmarks/results_runs.md)."""

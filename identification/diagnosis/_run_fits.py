@@ -106,10 +106,10 @@ def _fit_variables(robot, z0, idx, ev: _Evidence, marker, substeps, r0, jac0, ex
                    chi2_before: float | None = None, bound: float = math.inf) -> RunFit:
     """Levenberg-Marquardt on the variables `idx` from `z0`, where the residual is `r0` and its derivatives along
     those variables `jac0` (`_evaluate`): the `RunFit` at the end, refused (`RunFit.result`) where it starts without
-    a rest pose (a residual that is not finite), leaves the physical range (`Effect.physical`: a negative lag,
-    damping, friction or payload mass, a compliance or inertia factor at or below 0), ends on dependent derivatives
-    or fails to lower the chi-square below `chi2_before` (default: that at `z0`); a fit for ranking also where
-    `RANKING_REACH` times its Gauss-Newton step's decrease would leave its chi-square above `bound`.
+    a rest pose (a residual that is not finite), leaves the physical range (`Effect.physical`: a negative value of
+    a nonnegative parameter or payload mass, a compliance or inertia factor at or below 0), ends on dependent
+    derivatives or fails to lower the chi-square below `chi2_before` (default: that at `z0`); a fit for ranking also
+    where `RANKING_REACH` times its Gauss-Newton step's decrease would leave its chi-square above `bound`.
 
     Between evaluations (`_evaluate`: "fresh" derivatives) the derivatives follow Broyden's rank-one update at each
     accepted step. With `exact_end` they are evaluated afresh where a step fails on updated ones, the fit ends where

@@ -24,9 +24,9 @@ def run_effects() -> dict[str, Effect]:
 def screened_kinds() -> tuple[str, ...]:
     """The kinds `diagnose_runs` screens unless told otherwise (`Effect.screened`): every kind of `run_effects` but
     those offered on request (the link inertia; a model effect that declares `screened` False). Kinds that can mimic
-    each other over short runs (a payload and a joint's stiffness, a lag and a damping, a friction and a lag) are
-    fitted against each other on the same footing (BIC), and the one of fewer parameters is kept where the data cannot
-    tell them apart (`RunConfound`)."""
+    each other over short runs (a payload and a joint's stiffness, a motor response and a joint torque, a link load
+    and a motor response) are fitted against each other on the same footing (BIC), and the one of fewer parameters
+    is kept where the data cannot tell them apart (`RunConfound`)."""
     return tuple(k for k, e in run_effects().items() if e.screened)
 
 

@@ -145,7 +145,7 @@ def test_reversal_travel_from_the_robot_file(tmp_path):
     """`[gear] reversal_travel_rad` sets `jr.reversal_travel` (absent: the default from the sets and the lost
     motion, which leaves the output following the motor: above `shortest_reversal_travel`) and survives
     `save_robot`."""
-    from jaxrobot._gear import shortest_reversal_travel
+    from jaxrobot.effects._flank_play import shortest_reversal_travel
 
     default = np.asarray(jr.reversal_travel(jr.racer7()))
     assert jr.racer7().reversal_travel is None
