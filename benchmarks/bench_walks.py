@@ -9,7 +9,8 @@ of one module to a caller in another module of `jaxrobot`, `identification` or `
 
 The calls run the same work on every version (the API differences are bridged here): `calibrate` of the nominal
 Racer-7 on bench measurements of the as-built one at the first `POSES` thesis poses, and `plan_task` of the thesis
-line sampled at `STEP` ms on the nominal Racer-7, evaluated on it.
+line sampled at `STEP` ms on the nominal Racer-7, evaluated on it. The caches of compiled and exported programs are
+off (`JAXROBOT_CACHE_DIR=off`), so that every program is traced, as in a first run.
 """
 
 from __future__ import annotations
@@ -18,10 +19,12 @@ import argparse
 import collections
 import inspect
 import json
+import os
 import sys
 from pathlib import Path
 
-import _timing  # noqa: I001  (benchmarks/ is the script's folder; it records the start)
+os.environ["JAXROBOT_CACHE_DIR"] = "off"  # every program traced: the walk through the code, not through a cache
+import _timing  # noqa: E402, I001  (benchmarks/ is the script's folder; it records the start)
 import jax.numpy as jnp
 import numpy as np
 
