@@ -372,7 +372,7 @@ class CubicStiffness(Effect):
 
 class LinkInertia(Effect):
     """A factor `1 + v` on the link's inertia tensor about its centre of mass. Offered to runs on request only
-    (`screened` False): over short runs it absorbs a lag's or a payload's effect on the tool."""
+    (`screened` False): over short runs it absorbs a motor response's or a payload's effect on the tool."""
 
     kind, per_joint, names, scales, units = "inertia", True, ("inertia",), (1e-1,), ("1",)
     seen_in, label, screened, reported_units = ("runs",), "link inertia, link", False, ("x inertia",)

@@ -6,7 +6,7 @@ Conventions of a run and its command (docs/file-formats.md; explicit here):
 - the run's `t_s` are the command's sample times: the same start and step (the tracker samples with the command);
 - after the command's last sample the robot holds its last angle (the command must end at rest to be held);
 - the robot starts at rest at the first command (`jr.simulate`'s default start);
-- the encoder columns of the run are the motor angles (with a velocity-loop lag they differ from the command:
+- the encoder columns of the run are the motor angles (with a motor response they differ from the command:
   `RunComparison.encoder_deviation`);
 - the tracker's noise is independent per sample and axis, the std of the robot file's `[sensors]` (or a laser
   tracker's model), the marker in the tool frame.

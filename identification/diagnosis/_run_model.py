@@ -39,7 +39,7 @@ def reported_unit(kind: str) -> str:
 RUN_KINDS = {k: (e.scales[0], reported_unit(k)) for k, e in run_effects().items() if e.per_joint}
 """The per-joint effects of the built-in catalogue that a run can name, one parameter per joint, with the scale of its
 fit variable and the unit of its reported value. The rotor inertia is not a candidate: the motors follow their
-commands kinematically (ideal velocity loops, or the first-order lag), so it changes only the motor torques, which
+commands kinematically (ideal velocity loops, or their motor response), so it changes only the motor torques, which
 neither the tracker nor the encoders see (motor currents would show it)."""
 SCREENED_KINDS = screened_kinds()
 """The kinds of the built-in catalogue that `diagnose_runs` screens by default."""

@@ -32,7 +32,7 @@ class RunEffect:
 
     @property
     def moves_motors(self) -> bool:
-        """Whether it moves its motor off the command (`Effect.moves_motors`: a lag)."""
+        """Whether it moves its motor off the command (`Effect.moves_motors`)."""
         return run_effects()[self.kind].moves_motors
 
 
@@ -54,8 +54,8 @@ class RunEstimate:
 
     @property
     def shown(self) -> str:
-        """`value` in words: 6 significant digits, more where `std` resolves them (a 3 ms lag known to 1 ns shows
-        nine), trailing zeros kept, so that a value and its std can be read against each other."""
+        """`value` in words: 6 significant digits, more where `std` resolves them (a 3 ms time constant known to 1 ns
+        shows nine), trailing zeros kept, so that a value and its std can be read against each other."""
         resolved = math.ceil(math.log10(abs(self.value) / self.std)) + 2 if self.std > 0 and self.value != 0 else 0
         return f"{self.value:#.{max(6, resolved)}g}"
 
@@ -191,8 +191,8 @@ class RunDiagnosis:
     not_screened: tuple[str, ...] = ()
     """The kinds of `run_effects` that were not candidates (`kinds`)."""
     still_motors: tuple[int, ...] = ()
-    """0-based motors whose commands do not move in the training runs (by less than the encoders' test): their lag
-    cannot show, so it is not a candidate."""
+    """0-based motors whose commands do not move in the training runs (by less than the encoders' test): an effect that
+    moves them off their commands cannot show, so it is not a candidate for them."""
     limits: list[RunLimit] = dataclasses.field(default_factory=list)
     """Per candidate not added, the least size the training runs would have shown (each alone, linearised at the
     model of the last screening that had it, else at the training fit of the chosen effects): effects below these

@@ -34,9 +34,10 @@ from ._run_results import RunConfound, RunDiagnosis, RunEffect, RunLimit, RunSte
 SCREENED = 3
 """Candidates per step fitted in full: those with the largest linearised chi-square decrease."""
 ENCODER_LAG_RAD = 1e-6
-"""Least departure [rad] of a motor's encoder from the model's motor angle that makes a lag of that motor a
-candidate (above the files' rounding, 12 digits, ~1e-10 rad; and at least two encoder counts where `[sensors]
-encoder_counts_per_rev` states them): the encoders report the motor angle, so a lag shows there first."""
+"""Least departure [rad] of a motor's encoder from the model's motor angle that makes an effect that moves that
+motor off its command (`Effect.moves_motors`) a candidate (above the files' rounding, 12 digits, ~1e-10 rad; and at
+least two encoder counts where `[sensors] encoder_counts_per_rev` states them): the encoders report the motor angle,
+so such an effect shows there first."""
 DETECTION = MIN_BIC_GAIN
 """Chi-square rise, beyond a parameter's BIC cost `ln(rows)`, that an effect must cause to be added: the size of a
 candidate at which its linearised chi-square reaches this is its detection limit (`RunDiagnosis.limits`)."""
@@ -98,16 +99,16 @@ def diagnose_runs(
     `read_trajectory_csv`); `marker` (3,) [m] in the tool frame; `noise` the tracker's std per axis [m] or a
     `TrackerNoise`; `substeps` of `jr.simulate` per sample; `encoder_quantum` [rad] the encoders' resolution (0:
     unknown): where given, the runs' encoder angles are residuals of the fits beside the tracker's, in units of the
-    quantisation's std `encoder_quantum / sqrt(12)` (they fix a lag far better than the tracker can); `poses`:
-    `(training, validation)` `jaxrobot.measurement.Poses` measured with the same marker, each residual in units of
-    `pose_noise` (default `noise`); `kinds` the kinds screened (default `screened_kinds()`); `on_event` receives each
-    `RunStep` as it is scored (`progress`: its deprecated old name).
+    quantisation's std `encoder_quantum / sqrt(12)` (they fix what moves the motors far better than the tracker
+    can); `poses`: `(training, validation)` `jaxrobot.measurement.Poses` measured with the same marker, each
+    residual in units of `pose_noise` (default `noise`); `kinds` the kinds screened (default `screened_kinds()`);
+    `on_event` receives each `RunStep` as it is scored (`progress`: its deprecated old name).
 
     Each step compares the model with the training runs and poses (one chi-square over the tracker's and the poses'
     rows, each in units of its own noise, as `compare_run`) and the encoders with the model's motor angles (their
     departure against `ENCODER_LAG_RAD` or two quanta); while the test fails, or a motor departs that no effect added
     moves, it screens every effect not yet added by the linearised BIC change of its own variables (an effect that
-    moves the motors, `Effect.moves_motors` (a lag), only for a motor whose encoders depart, and while one does, those
+    moves the motors, `Effect.moves_motors`, only for a motor whose encoders depart, and while one does, those
     alone: no other effect moves the motors, while others can mimic its effect on the tool over a short run; none of a
     motor whose command does not move), fits the `SCREENED` best,
     and the payload (its gain linearised at zero mass lacks the point's inertia), with the effects already added by
@@ -183,7 +184,7 @@ class _Search:
     substeps: int
     kinds: tuple[str, ...]
     threshold: float
-    """[rad] the encoders' test: a departure above it asks for a lag."""
+    """[rad] the encoders' test: a departure above it asks for an effect that moves the motors."""
     still: np.ndarray
     """(n,) per motor, whether its command does not move."""
     candidates: list[RunEffect]
