@@ -65,6 +65,7 @@ from ._simulate import simulate as simulate  # noqa: E402
 from ._status import RESULTS as RESULTS  # noqa: E402
 from ._status import status_message as status_message  # noqa: E402
 from ._status import status_name as status_name  # noqa: E402
+from ._uncertainty import ModelUncertainty as ModelUncertainty  # noqa: E402
 from .effects._lag import lag_command as lag_command  # noqa: E402
 from .effects._link_friction import COULOMB_VELOCITY as COULOMB_VELOCITY  # noqa: E402
 from .effects._link_friction import link_friction as link_friction  # noqa: E402

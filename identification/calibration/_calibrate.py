@@ -35,7 +35,7 @@ from ..core._identifiability import (
     default_parameters,
     kinematic_parameters,
 )
-from ..core._noise import ALPHA, noise_model, noise_test, tracker_noise
+from ..core._noise import ALPHA, model_uncertainty, noise_model, noise_test, tracker_noise
 from ..core._parameters import THESIS_PARAMETERS, ParameterMap, parse_name
 from ..core._pose_checks import check_pose_units
 from ..core._pose_selection import pose_jacobians
@@ -157,6 +157,14 @@ class CalibrationResult:
     def residual_rms(self) -> float:
         """RMS of the residuals at the solution [m]."""
         return float(np.sqrt(np.mean(self.residuals**2)))
+
+    def uncertainty(self, source: str = "calibrate") -> jr.ModelUncertainty | None:
+        """What the calibration leaves uncertain in `robot` (`jaxrobot.ModelUncertainty`, the robot file's
+        `[uncertainty]`; `model_uncertainty`): `source` names the command; None where no parameter was fitted."""
+        if not self.names:
+            return None
+        return model_uncertainty(self.names, self.value, self.covariance, self.noise_estimate, self.chi2, self.dof,
+                                 self.validation_after, source)
 
     @property
     def data_fraction(self) -> np.ndarray | None:

@@ -1,7 +1,8 @@
 """Files (docs/file-formats.md): the measurement files read into `jaxrobot.measurement.Poses` and
 `GearRun` (pose files, gear runs), trajectory runs and motor commands, and the robot files the
 identification commands write (`save_model`), measurement setups (`read_instruments`) and what else a robot file
-states for its test bench (`read_as_built`, `read_pose_angles`). Robot descriptions
+states for its test bench (`read_as_built`, `read_pose_angles`) and what its identification left uncertain
+(`read_uncertainty`). Robot descriptions
 (TOML, URDF) are read and written by `jaxrobot.load_robot`, `save_robot` and `save_urdf`, whose modules live here
 too."""
 
@@ -23,5 +24,6 @@ from ._trajectories import read_command_csv as read_command_csv
 from ._trajectories import read_trajectory_csv as read_trajectory_csv
 from ._trajectories import write_command_csv as write_command_csv
 from ._trajectories import write_trajectory_csv as write_trajectory_csv
+from ._uncertainty import read_uncertainty as read_uncertainty
 
 _check_public(globals())

@@ -245,16 +245,22 @@ KEPT_SECTIONS = ("sensors", "poses", "trajectories")
 """Sections of a description that a `Robot` does not hold and `save_robot` copies from `keep`."""
 
 
-def save_robot(robot: Robot, path: str | Path, keep: dict | None = None) -> None:
+def save_robot(robot: Robot, path: str | Path, keep: dict | None = None, uncertainty=None) -> None:
     """Write the robot in the format of `racer7.toml` (loadable by `load_robot`), with the `KEPT_SECTIONS` of the
     description `keep` (the tasks of `jaxrobot plan`, the bench's sensors and poses). Default `keep`: the embedded
-    description for a robot of its name and joint count (one calibrated or diagnosed from it), else none."""
+    description for a robot of its name and joint count (one calibrated or diagnosed from it), else none.
+    `uncertainty`: a `jaxrobot.ModelUncertainty` of the identification that made the robot, written as
+    `[uncertainty]` (`jaxrobot.io.read_uncertainty` reads it back); a start file's is never carried over."""
     if keep is None:
         embedded = read_description(None)
         same = robot.name == embedded["name"] and np.shape(robot.a)[-1:] == (len(embedded["kinematics"]["a"]),)
         keep = embedded if same else {}
     data = description_of(robot)
     data.update({k: keep[k] for k in KEPT_SECTIONS if k in keep})
+    if uncertainty is not None:
+        from ._uncertainty import uncertainty_table
+
+        data["uncertainty"] = uncertainty_table(uncertainty)
     text = "# written by jaxrobot.save_robot; format: racer7.toml (SI units, rad unless _deg)\n"
     Path(path).write_text(text + tomli_w.dumps(validate(data)))
 

@@ -26,7 +26,7 @@ from identification.core._identifiability import (
     kinematic_parameters,
 )
 from identification.core._noise import ALPHA
-from identification.core._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters
+from identification.core._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters, file_entry
 from identification.core._pose_selection import (
     detmax,
     feasible,
@@ -419,10 +419,22 @@ def test_bad_input(robots, bench, tmp_path):
 
 def test_save_roundtrip(calibrated, tmp_path):
     path = tmp_path / "cal.toml"
-    jr.save_robot(calibrated.robot, path)
+    jr.save_robot(calibrated.robot, path, uncertainty=calibrated.uncertainty())
     loaded = jr.load_robot(path)
     for field in ("a", "d", "alpha", "beta", "offset", "u0"):
         np.testing.assert_array_equal(getattr(loaded, field), getattr(calibrated.robot, field), err_msg=field)
+    u = jr.io.read_uncertainty(path)
+    assert u.names == tuple(file_entry(n) for n in calibrated.names) and "kinematics.a[2]" in u.names
+    np.testing.assert_array_equal(u.value, calibrated.value)
+    np.testing.assert_array_equal(u.covariance, calibrated.covariance)
+    # the file's names address the calibrated parameters of the loaded robot
+    np.testing.assert_array_equal(ParameterMap(calibrated.names).get(u.apply(loaded, np.zeros(len(u.names)))), u.value)
+    # the bench's tracker noise is 50 um per axis; the validation poses' RMS distance is that noise's
+    # (sqrt(3) x 50 um) and the model's remaining error; what no parameter explains stays below the noise
+    assert float(u.noise_rms) == pytest.approx(np.sqrt(3) * 5e-5, rel=0.2)
+    assert float(u.residual_rms) == pytest.approx(np.sqrt(np.mean(calibrated.validation_after**2)), rel=1e-12)
+    assert float(u.unexplained) < float(u.noise_rms)
+    assert u.source == "calibrate (validation poses)"
 
 
 FLEET_SCRIPT = textwrap.dedent("""
