@@ -22,7 +22,9 @@ def uncertainty_table(uncertainty: ModelUncertainty) -> dict:
 def read_uncertainty(source: str | Path | dict | None) -> ModelUncertainty | None:
     """What the identification that made a robot file's model left uncertain (its `[uncertainty]`), beside the
     robot `jaxrobot.load_robot` reads from it; None where the file has none. `source`: a robot file, a description
-    dict of `jaxrobot.read_description`, or None (the embedded Racer-7: none)."""
+    dict of `jaxrobot.read_description`, or None (the embedded Racer-7: none); a URDF file states none."""
+    if not isinstance(source, dict) and source is not None and Path(source).suffix.lower() == ".urdf":
+        return None
     data = source if isinstance(source, dict) else read_description(source)
     table = data.get("uncertainty")
     if table is None:
