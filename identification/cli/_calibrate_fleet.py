@@ -264,8 +264,9 @@ def _save_models(fleet: _Fleet, args) -> None:
     args.save_models.mkdir(parents=True, exist_ok=True)
     for r, f in enumerate(fleet.good):
         if fleet.res.converged[r]:
-            jr.io.save_model(jax.tree.map(lambda a, r=r: a[r], fleet.res.robot),
-                             args.save_models / f"{Path(f).stem}.toml", args.robot, uncertainty=fleet.res.uncertainty(r))
+            robot = jax.tree.map(lambda a, r=r: a[r], fleet.res.robot)
+            jr.io.save_model(robot, args.save_models / f"{Path(f).stem}.toml", args.robot,
+                             uncertainty=fleet.res.uncertainty(r))
 
 
 def _summary(fleet: _Fleet, args, count: int, pid: int, seconds: dict, marked: np.ndarray) -> dict:
