@@ -54,14 +54,16 @@ class ModelUncertainty(eqx.Module):
     """[m] RMS distance between the model and the measurements it was checked on (the validation poses, else the
     identification poses with the fitted parameters' degrees of freedom restored)."""
     noise_rms: Float[Array, ""]
-    """[m] the RMS distance the measurement noise alone gives (`sqrt(3)` times the tracker's noise per axis)."""
+    """[m] the largest RMS distance the measurement noise alone gives those measurements (at the significance
+    of the identification's chi-square test: `sqrt(3)` times the tracker's noise per axis, times the test's
+    allowance for their number)."""
     source: str = eqx.field(static=True, default="")
     """What produced it (the command and its data)."""
 
     @property
     def unexplained(self) -> Float[Array, ""]:
         """[m] The residual beyond the noise, `sqrt(max(residual_rms^2 - noise_rms^2, 0))`: the model error that
-        no identified parameter accounts for."""
+        no identified parameter accounts for (zero where the measurements are consistent with the noise)."""
         return jnp.sqrt(jnp.maximum(self.residual_rms**2 - self.noise_rms**2, 0.0))
 
     def apply(self, robot: Robot, deviation: Float[Array, " m"]) -> Robot:

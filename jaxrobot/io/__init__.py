@@ -11,6 +11,7 @@ from ._csv import NOT_CONVERGED as NOT_CONVERGED
 from ._csv import read_csv_columns as read_csv_columns
 from ._description import read_as_built as read_as_built
 from ._description import read_pose_angles as read_pose_angles
+from ._description import read_uncertainty as read_uncertainty
 from ._gear_runs import gear_run_columns as gear_run_columns
 from ._gear_runs import read_gear_run as read_gear_run
 from ._gear_runs import write_gear_run as write_gear_run
@@ -24,6 +25,5 @@ from ._trajectories import read_command_csv as read_command_csv
 from ._trajectories import read_trajectory_csv as read_trajectory_csv
 from ._trajectories import write_command_csv as write_command_csv
 from ._trajectories import write_trajectory_csv as write_trajectory_csv
-from ._uncertainty import read_uncertainty as read_uncertainty
 
 _check_public(globals())
