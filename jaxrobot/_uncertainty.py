@@ -53,18 +53,24 @@ class ModelUncertainty(eqx.Module):
     residual_rms: Float[Array, ""]
     """[m] RMS distance between the model and the measurements it was checked on (the validation poses, else the
     identification poses with the fitted parameters' degrees of freedom restored)."""
-    noise_rms: Float[Array, ""]
-    """[m] the largest RMS distance the measurement noise alone gives those measurements (at the significance
-    of the identification's chi-square test: `sqrt(3)` times the tracker's noise per axis, times the test's
-    allowance for their number)."""
+    explained_rms: Float[Array, ""]
+    """[m] the largest RMS distance the measurement noise and the identified parameters' uncertainty give those
+    measurements (at the significance of the identification's chi-square test)."""
     source: str = eqx.field(static=True, default="")
     """What produced it (the command and its data)."""
 
     @property
     def unexplained(self) -> Float[Array, ""]:
-        """[m] The residual beyond the noise, `sqrt(max(residual_rms^2 - noise_rms^2, 0))`: the model error that
-        no identified parameter accounts for (zero where the measurements are consistent with the noise)."""
-        return jnp.sqrt(jnp.maximum(self.residual_rms**2 - self.noise_rms**2, 0.0))
+        """[m] The residual beyond what is explained, `sqrt(max(residual_rms^2 - explained_rms^2, 0))`: the model
+        error that no identified parameter accounts for (zero where the measurements are consistent with the noise
+        and the parameters' uncertainty)."""
+        return jnp.sqrt(jnp.maximum(self.residual_rms**2 - self.explained_rms**2, 0.0))
+
+    @staticmethod
+    def entries(n_joints: int) -> tuple[str, ...]:
+        """Every entry of an `n_joints`-joint robot file an uncertainty may name (`parameter_entry`)."""
+        return (tuple(f"{key}[{j}]" for key in JOINT_FIELDS for j in range(1, n_joints + 1))
+                + tuple(f"{frame}.{c}" for frame in ("tool", "base") for c in FRAME_COMPONENTS))
 
     def apply(self, robot: Robot, deviation: Float[Array, " m"]) -> Robot:
         """`robot` with its parameters `names` moved by `deviation` (`jax.vmap` it for a batch of robots)."""

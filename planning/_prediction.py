@@ -133,6 +133,16 @@ def _check(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: JointPath, tra
                          f"{np.shape(uncertainty.covariance)}")
 
 
+def _every_entry(uncertainty: jr.ModelUncertainty, n_joints: int) -> tuple[jr.ModelUncertainty, list[int]]:
+    """`uncertainty` over every entry it may name (`ModelUncertainty.entries`), so that one compiled program serves
+    any parameter set, and the positions of its own names among them."""
+    names = jr.ModelUncertainty.entries(n_joints)
+    m = len(names)
+    every = jr.ModelUncertainty(names, jnp.zeros(m), jnp.zeros((m, m)), uncertainty.residual_rms,
+                                uncertainty.explained_rms)
+    return every, [names.index(name) for name in uncertainty.names]
+
+
 def deviation_draws(uncertainty: jr.ModelUncertainty, draws: int, seed: int) -> np.ndarray:
     """(draws, m) Gaussian deviations of the parameters with their covariance (seeded; symmetric square root, so
     that a covariance of lower rank is drawn too)."""
@@ -155,8 +165,9 @@ def predict_on_robot(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: Join
     _check(robot, uncertainty, jp, trajectory)
     n = jp.t.shape[0]
     t, padded, p_d = _padded(jp, trajectory)
-    x0, jac = head(_LINEARISATIONS[method](robot, uncertainty, t, padded, substeps, bool(directional)), n)
-    e0, jac = np.asarray(x0) - p_d, np.asarray(jac)
+    every, columns = _every_entry(uncertainty, robot.n_joints)
+    x0, jac = head(_LINEARISATIONS[method](robot, every, t, padded, substeps, bool(directional)), n)
+    e0, jac = np.asarray(x0) - p_d, np.asarray(jac)[..., columns]
     unexplained = float(uncertainty.unexplained)
     dev = deviation_draws(uncertainty, draws, seed)
     err = np.concatenate([np.linalg.norm(e0 + np.einsum("nij,dj->dni", jac, d), axis=-1)
@@ -174,5 +185,8 @@ def sampled_errors(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: JointP
     _check(robot, uncertainty, jp, trajectory)
     n = jp.t.shape[0]
     t, padded, p_d = _padded(jp, trajectory)
-    x = _sampled(robot, uncertainty, t, padded, jnp.asarray(deviations, float), substeps, bool(directional))
+    every, columns = _every_entry(uncertainty, robot.n_joints)
+    full = np.zeros((len(deviations), len(every.names)))
+    full[:, columns] = np.asarray(deviations, float)
+    x = _sampled(robot, every, t, padded, jnp.asarray(full), substeps, bool(directional))
     return np.linalg.norm(np.asarray(x)[:, :n] - p_d, axis=-1)

@@ -98,7 +98,7 @@ class FleetResult:
         """What the calibration leaves uncertain in robot `r` (`jaxrobot.ModelUncertainty`, the robot file's
         `[uncertainty]`, from its identification residuals: `identification.core._noise.model_uncertainty`)."""
         return model_uncertainty(self.names, self.value[r], self.covariance[r], float(self.noise_estimate[r]),
-                                 float(self.chi2[r]), int(self.dof[r]), None, source)
+                                 float(self.chi2[r]), int(self.dof[r]), None, None, source)
 
 
 def fleet_mesh(devices: Sequence | None = None) -> Mesh:

@@ -128,20 +128,23 @@ def noise_test(residuals: np.ndarray, sigma: float, m: int, keep: np.ndarray | N
 
 
 def model_uncertainty(names: tuple[str, ...], value: np.ndarray, covariance: np.ndarray, noise_estimate: float,
-                      chi2: float, dof: int, validation: np.ndarray | None, source: str) -> jr.ModelUncertainty:
+                      chi2: float, dof: int, validation: np.ndarray | None, spread: float | None,
+                      source: str) -> jr.ModelUncertainty:
     """What a calibration of the parameters `names` leaves uncertain (`jaxrobot.ModelUncertainty`): their `value`
     and `covariance`; the RMS distance of the validation poses' errors `validation` [m] (None or empty: of the
     identification residuals, `sqrt(3)` times the fit's per-axis `noise_estimate`, over `dof` degrees of freedom);
-    and the largest RMS distance the tracker's noise alone gives them at the chi-square test's level `ALPHA`,
-    `sqrt(3) sigma sqrt(chi2_quantile(ALPHA, dof') / dof')` (`dof'` = 3 per validation pose, else `dof`), `sigma`
-    the stated per-axis std (`noise_estimate sqrt(dof / chi2)`: `chi2` is the residuals' sum of squares over
-    `sigma^2`, the estimate's square that sum over `dof`). The residual beyond it is what the noise cannot
-    explain (`ModelUncertainty.unexplained`; zero where the test finds the data consistent with the noise)."""
+    and what explains it: the largest RMS distance the tracker's noise alone gives them at the chi-square test's
+    level `ALPHA`, `sqrt(3) sigma sqrt(chi2_quantile(ALPHA, dof') / dof')` (`dof'` = 3 per validation pose, else
+    `dof`; `sigma` the stated per-axis std, `noise_estimate sqrt(dof / chi2)`: `chi2` is the residuals' sum of
+    squares over `sigma^2`, the estimate's square that sum over `dof`), with, for validation poses, the RMS
+    distance `spread` [m] the parameters' covariance gives them (added in quadrature)."""
     sigma = noise_estimate * np.sqrt(dof / chi2) if chi2 > 0 else noise_estimate
     checked = validation is not None and len(validation) > 0
     residual = np.sqrt(np.mean(np.square(validation))) if checked else np.sqrt(3.0) * noise_estimate
     rows = 3 * len(validation) if checked else dof
     floor = np.sqrt(3.0) * sigma * np.sqrt(float(chi2_quantile(ALPHA, max(rows, 1))) / max(rows, 1))
+    explained = np.hypot(floor, spread or 0.0) if checked else floor
     return jr.ModelUncertainty(tuple(file_entry(n) for n in names), jnp.asarray(value, float),
-                               jnp.asarray(covariance, float), jnp.asarray(residual, float), jnp.asarray(floor, float),
+                               jnp.asarray(covariance, float), jnp.asarray(residual, float),
+                               jnp.asarray(explained, float),
                                f"{source} ({'validation poses' if checked else 'identification residuals'})")

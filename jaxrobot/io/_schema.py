@@ -77,7 +77,7 @@ def _core_schema(n: int) -> dict[str, Any]:
             "weighting": {"nu": (None,)},
         },
         "?uncertainty": {"names": "strings", "value": (None,), "covariance": (None, None), "residual_rms_m": (),
-                         "noise_rms_m": (), "?source": "str"},
+                         "explained_rms_m": (), "?source": "str"},
     }
 
 
@@ -239,7 +239,7 @@ def _check_uncertainty(table: dict, n: int) -> None:
         fail_field("uncertainty.covariance", f"an ({m}, {m}) matrix, one row and column per name", f"shape {cov.shape}")
     if not np.allclose(cov, cov.T, rtol=1e-9, atol=0) or (m and np.linalg.eigvalsh(cov)[0] < -1e-9 * np.abs(cov).max()):
         fail_field("uncertainty.covariance", "a symmetric positive semi-definite matrix", cov.tolist())
-    for key in ("residual_rms_m", "noise_rms_m"):
+    for key in ("residual_rms_m", "explained_rms_m"):
         if not table[key] >= 0:
             fail_field(f"uncertainty.{key}", "an RMS distance >= 0 m", table[key])
 

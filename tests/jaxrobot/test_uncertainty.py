@@ -29,7 +29,7 @@ def test_round_trip_and_files_without_it(tmp_path):
     jr.save_robot(robot, tmp_path / "r.toml", uncertainty=u)
     back = jr.io.read_uncertainty(tmp_path / "r.toml")
     assert back.names == NAMES and back.source == "test"
-    for field in ("value", "covariance", "residual_rms", "noise_rms"):
+    for field in ("value", "covariance", "residual_rms", "explained_rms"):
         np.testing.assert_array_equal(getattr(back, field), getattr(u, field), err_msg=field)
     assert float(back.unexplained) == pytest.approx(np.sqrt(3e-5**2 - 2e-5**2), rel=1e-14)
     assert jr.io.read_uncertainty(None) is None  # the embedded Racer-7 states none
@@ -61,7 +61,7 @@ def test_apply_moves_the_named_entries():
     (lambda t: t.update(covariance=[r[:-1] for r in t["covariance"][:-1]]),
      r"uncertainty.covariance: expected an \(5, 5\)"),
     (lambda t: t["covariance"][0].__setitem__(0, -1.0), "uncertainty.covariance: expected a symmetric positive"),
-    (lambda t: t.update(noise_rms_m=-1.0), "uncertainty.noise_rms_m: expected an RMS distance >= 0"),
+    (lambda t: t.update(explained_rms_m=-1.0), "uncertainty.explained_rms_m: expected an RMS distance >= 0"),
     (lambda t: t.update(names=[1, 2]), "uncertainty.names: expected a list of strings"),
 ])
 def test_bad_sections_are_named(tmp_path, change, message):
