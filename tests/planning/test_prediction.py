@@ -41,6 +41,7 @@ def uncertainty(robot):
                                jnp.asarray(2e-5), "test")
 
 
+@pytest.mark.extended  # compiles the simulation of 400 sampled robots beside the prediction (~50 s on 2 cores)
 def test_linearised_error_agrees_with_sampled_robots(robot, short_line, uncertainty):
     """The same draws give the same quantiles within the linearisation's error (the deviations are ~1e-5 of the
     robot's size: a relative 1e-3 at most); the quantiles of independently drawn robots lie within the
