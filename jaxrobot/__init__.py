@@ -62,6 +62,7 @@ from ._simulate import simulate as simulate  # noqa: E402
 from ._status import RESULTS as RESULTS  # noqa: E402
 from ._status import status_message as status_message  # noqa: E402
 from ._status import status_name as status_name  # noqa: E402
+from ._uncertainty import ModelUncertainty as ModelUncertainty  # noqa: E402
 from .effects._flank_play import direction_state as direction_state  # noqa: E402
 from .effects._flank_play import play_state as play_state  # noqa: E402
 from .effects._flank_play import reversal_travel as reversal_travel  # noqa: E402

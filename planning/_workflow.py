@@ -35,6 +35,7 @@ from ._evaluation import (
 )
 from ._ik import JointPath, joint_path
 from ._padding import concatenate, head, pad_edge, padded_nodes
+from ._prediction import RobotPrediction, predict_on_robot
 from ._sweep import check_nus, solve_ocp_sweep
 from ._trajectories import Path, sample_path
 from ._transcription import COSTS, State, motor_directions
@@ -49,7 +50,8 @@ class PlanEvent:
 
     stage: str
     """One of "inverse_kinematics", "flat_inverse" (the warm start), "solving" (before the OCP), "ocp" (the
-    solve, compile included), "solved" (the solution) or "plant_simulation"."""
+    solve, compile included), "solved" (the solution), "plant_simulation" or "prediction" (the OCP plan's error
+    on the robot, with an `uncertainty`)."""
     elapsed: float = 0.0
     """The stage's time [s]; 0 for "solving" and "solved"."""
     samples: int = 0
@@ -120,6 +122,8 @@ class PlanResult:
     play: Float[Array, "N n"] | None = None
     """Play states of the gears the OCP planned with (`jr.play_state`; the flank weights follow its motor
     angles); None: the cw set throughout."""
+    prediction: RobotPrediction | None = None
+    """The predicted error of the OCP plan on the robot (`predict_on_robot`); None without an `uncertainty`."""
 
     @property
     def converged(self) -> bool:
@@ -256,7 +260,8 @@ def _timed_ocp(robot: jr.Robot, jp: JointPath, flat: MotorTrajectory, ts: float,
 
 def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str = "thesis",
               q_init=None, timing: bool = True, directional: bool = False,
-              on_event: Callable[[PlanEvent], None] | None = None) -> PlanResult:
+              on_event: Callable[[PlanEvent], None] | None = None,
+              uncertainty: jr.ModelUncertainty | None = None) -> PlanResult:
     """Plan `path` on `robot` and evaluate the four motor trajectories on `plant`.
 
     IK from `q_init` (default as `joint_path`: the path's `ik_start`, else `task_start`), the flat inverse as
@@ -267,7 +272,8 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     time) the plant runs of the three baselines, are computed in a thread beside the flat inverse and the OCP; the
     "plant_simulation" stage is what is left after the OCP (the OCP's run beside the baselines' left). A solve that
     did not converge is returned without plant evaluation (`converged` False). `on_event` receives a `PlanEvent` per
-    stage.
+    stage. `uncertainty` (what the identification of `robot` left uncertain, `jaxrobot.io.read_uncertainty`): the
+    OCP plan's error on the robot is predicted too (`predict_on_robot`, the result's `prediction`).
     """
     if not (np.isfinite(nu) and nu > 0):
         raise ValueError(f"nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
@@ -314,8 +320,13 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     emit(PlanEvent("plant_simulation", time.perf_counter() - start, errors=tuple(
         (k, float(errors.position_max[i]), float(errors.position_rms[i]), float(errors.settle_position_max[i]))
         for i, k in enumerate(names))))
+    prediction = None
+    if uncertainty is not None:
+        start = time.perf_counter()
+        prediction = predict_on_robot(robot, uncertainty, jp, ocp["ocp"], directional)
+        emit(PlanEvent("prediction", time.perf_counter() - start))
     return PlanResult(path, jp, sol, trajectories, nu, cost, solve_s, compile_s, plant, tuple(names), run, errors,
-                      plan_err, p_d, r_d, play)
+                      plan_err, p_d, r_d, play, prediction)
 
 
 @dataclasses.dataclass(frozen=True)

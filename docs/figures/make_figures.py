@@ -53,15 +53,18 @@ def _command(*argv: str) -> None:
 
 @functools.cache
 def plans() -> dict[str, pl.PlanResult]:
-    """The line at `NU` planned on the nominal, the calibrated (`jaxrobot demo`'s calibration) and the true model
-    of the bench's as-built Racer-7, each evaluated on that robot with its gears' flanks (computed once)."""
+    """The line at `NU` planned on the nominal, the calibrated (`jaxrobot demo`'s calibration, its error on the robot
+    predicted) and the true model of the bench's as-built Racer-7, each evaluated on that robot with its gears'
+    flanks (computed once)."""
     truth = jr.racer7(as_built=True)
-    models = {"nominal model": jr.racer7(), "calibrated model": calibration.demo_calibration().result.robot,
+    calibrated = calibration.demo_calibration().result
+    models = {"nominal model": jr.racer7(), "calibrated model": calibrated.robot,
               "true model (the as-built robot)": truth}
     plans = {}
     line = pl.reference_path("line", jr.read_description(None))
-    for label, model in models.items():
-        res = pl.plan_task(model, truth, line, NU, timing=False, directional=True)
+    for label, model in models.items():  # the calibrated model with its uncertainty: the predicted band
+        res = pl.plan_task(model, truth, line, NU, timing=False, directional=True,
+                           uncertainty=calibrated.uncertainty() if label == "calibrated model" else None)
         if not res.converged:
             raise RuntimeError(f"the OCP on the {label} did not converge ({jr.status_name(res.status)})")
         plans[label] = res

@@ -35,7 +35,7 @@ from ..core._identifiability import (
     default_parameters,
     kinematic_parameters,
 )
-from ..core._noise import ALPHA, noise_model, noise_test, tracker_noise
+from ..core._noise import ALPHA, model_uncertainty, noise_model, noise_test, tracker_noise
 from ..core._parameters import THESIS_PARAMETERS, ParameterMap, parse_name
 from ..core._pose_checks import check_pose_units
 from ..core._pose_selection import pose_jacobians
@@ -133,6 +133,10 @@ class CalibrationResult:
     """Which parameters of the default set were kept, which set aside, and by what criterion (`_selection`);
     None where none was selected (`parameters` given, `method="map"`, `all_parameters=True`, or a full-set
     fit that did not converge)."""
+    validation_spread: dict[tuple[str, ...], float] | None = None
+    """[m] The RMS distance the covariance of the parameters gives the validation poses (linearised), for the
+    fitted set and, where the `selection` set some aside, the whole default set: `{names: spread}` (None without
+    validation poses)."""
     parameter_check: ParameterCheck | None = None
     """How the default set came about (`method="lm"` without `parameters`): the candidates of the chain, those
     left out by the geometry and those dropped on these poses by rank or conditioning, with the reasons
@@ -157,6 +161,23 @@ class CalibrationResult:
     def residual_rms(self) -> float:
         """RMS of the residuals at the solution [m]."""
         return float(np.sqrt(np.mean(self.residuals**2)))
+
+    def uncertainty(self, source: str = "calibrate") -> jr.ModelUncertainty | None:
+        """What the calibration leaves uncertain in `robot` (`jaxrobot.ModelUncertainty`, the robot file's
+        `[uncertainty]`; `model_uncertainty`): `source` names the command. Where the `selection` set parameters
+        aside, those stay uncertain too: at their start values they are off by what the data could not tell
+        from zero, so the uncertainty is that of the whole default set fitted together (its covariance, the
+        values of `robot`); None where no parameter was fitted."""
+        sel = self.selection
+        if sel is not None and sel.set_aside and sel.covariance is not None:
+            names, value, cov = sel.candidates, np.asarray(ParameterMap(sel.candidates).get(self.robot)), sel.covariance
+        elif self.names:
+            names, value, cov = self.names, self.value, self.covariance
+        else:
+            return None
+        spread = None if self.validation_spread is None else self.validation_spread.get(tuple(names))
+        return model_uncertainty(names, value, cov, self.noise_estimate, self.chi2, self.dof, self.validation_after,
+                                 spread, source)
 
     @property
     def data_fraction(self) -> np.ndarray | None:
@@ -327,6 +348,20 @@ class _Problem:
             validation_before=err0[k:] if val else None, validation_after=err1[k:] if val else None,
             prior_std=self.prior, chi2=float(chi2), dof=int(dof), p_value=float(p_value), **fields)
 
+    def spread(self, sets: list[tuple[tuple[str, ...], np.ndarray]]) -> dict[tuple[str, ...], float] | None:
+        """`CalibrationResult.validation_spread` of parameter sets `(names, covariance)` (None without validation
+        poses): `sqrt(mean_k trace(J_k C J_k^T))` over the validation poses' position Jacobians `J_k`."""
+        if not self.validated:
+            return None
+        k = self.theta.shape[0]
+        ccw = self.ccw_all if np.ndim(self.ccw_all) == 0 else self.ccw_all[k:]
+        q = np.asarray(jr.gear_output(self.robot, self.theta_all[k:], ccw) + self.deflection_all[k:])
+        out = {}
+        for names, cov in sets:
+            blocks = pose_jacobians(self.robot, ParameterMap(names), q, self.marker)
+            out[tuple(names)] = float(np.sqrt(np.mean(np.einsum("kim,mn,kin->k", blocks, cov, blocks))))
+        return out
+
     def check(self, names: Sequence[str], prior_std: dict | None) -> ParameterCheck:
         """`check_default` of the default set `names` on these poses."""
         return check_default(self.robot, names, self.theta, self.deflection, self.marker, self.rotations is not None,
@@ -451,8 +486,11 @@ def calibrate(
             fit = problem.fit(params)
         elif not selection.kept:
             fit, params = problem.start(params), None
+    sets = [] if params is None else [(params.names, fit.covariance)]
+    if selection is not None and selection.set_aside:
+        sets.append((selection.candidates, selection.covariance))
     return problem.result(params, fit, beyond_limits=tuple(beyond), method=method, selection=selection,
-                          parameter_check=check_out)
+                          parameter_check=check_out, validation_spread=problem.spread(sets))
 
 
 def check_default(

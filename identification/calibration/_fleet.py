@@ -33,7 +33,7 @@ from ..core import _robust as robust
 from ..core._batched_lm import LMConfig, batched_lm, covariance, map_chunks
 from ..core._forward import analytic_names, joint_angle_model, position_jacobian, rippled_joints
 from ..core._identifiability import ParameterCheck, default_parameters
-from ..core._noise import ALPHA, noise_model, noise_test, tracker_noise
+from ..core._noise import ALPHA, model_uncertainty, noise_model, noise_test, tracker_noise
 from ..core._parameters import ParameterMap
 from ._calibrate import _check_array, check_default
 from ._solve import RESIDUAL_UNIT, ParameterEstimate, _deflection, _residual_fn
@@ -93,6 +93,12 @@ class FleetResult:
     geometry and those dropped by rank or conditioning on the first robot's poses, with the reasons (as in
     `calibrate`); None where `parameters` were given. Under several processes every process fits the set of the
     first process that has robots (a process without any reports None)."""
+
+    def uncertainty(self, r: int, source: str = "calibrate-fleet") -> jr.ModelUncertainty:
+        """What the calibration leaves uncertain in robot `r` (`jaxrobot.ModelUncertainty`, the robot file's
+        `[uncertainty]`, from its identification residuals: `identification.core._noise.model_uncertainty`)."""
+        return model_uncertainty(self.names, self.value[r], self.covariance[r], float(self.noise_estimate[r]),
+                                 float(self.chi2[r]), int(self.dof[r]), None, None, source)
 
 
 def fleet_mesh(devices: Sequence | None = None) -> Mesh:

@@ -35,6 +35,9 @@ class ParameterSelection:
     """BIC change of setting each of `set_aside` aside (<= 0), linearised, at its step."""
     n_residuals: int
     """Residuals `n` of the BIC penalty `m ln n` (those of the poses the robust loss does not reject)."""
+    covariance: np.ndarray | None = None
+    """(c, c) the covariance of the `candidates` fitted together (what the result's uncertainty keeps of the
+    parameters set aside: `CalibrationResult.uncertainty`)."""
 
 
 def select_parameters(names: Sequence[str], delta: np.ndarray, covariance: np.ndarray,
@@ -61,4 +64,4 @@ def select_parameters(names: Sequence[str], delta: np.ndarray, covariance: np.nd
     return ParameterSelection(
         criterion="backward elimination: a parameter is set aside while the BIC (chi2 + m ln n) does not rise",
         candidates=names, kept=tuple(names[a] for a in keep), set_aside=tuple(aside), delta_bic=tuple(changes),
-        n_residuals=int(n_residuals))
+        n_residuals=int(n_residuals), covariance=np.asarray(covariance, float))

@@ -192,8 +192,7 @@ def run(args, echo) -> dict:
         for f in _write_outputs(args.out, report, positions=data.positions, workspace=workspace):
             echo(f"wrote {args.out / f}")
     if args.save_model is not None:
-
-        jr.io.save_model(res.robot, args.save_model, args.robot)
+        jr.io.save_model(res.robot, args.save_model, args.robot, uncertainty=res.uncertainty())
         echo(f"wrote {args.save_model}")
     progress.step("report")
     return {**summary(report, args.poses), **({"ripple_outside_identified_range": outside} if outside else {})}
@@ -229,7 +228,7 @@ def demo_stage(out: Path, echo) -> dict:
                   workspace_positions(nominal, both.metadata["marker_offset_m"]),
                   title="Marker positions of the thesis' identification poses")
     files += ["calibration_poses.png", "bench_poses.csv", "bench_validation.csv"]
-    jr.save_robot(res.robot, out / "calibrated_robot.toml")
+    jr.save_robot(res.robot, out / "calibrated_robot.toml", uncertainty=res.uncertainty("jaxrobot demo"))
     files.append("calibrated_robot.toml")
     s = summary(report)
     s["files"] = files

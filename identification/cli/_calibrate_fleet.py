@@ -50,6 +50,9 @@ def configure(parser) -> None:
     parser.add_argument("--parameters", default=None,
                         help="comma-separated free parameters, e.g. a2,beta3,u0_5 (default: identifiable set)")
     parser.add_argument("--max-steps", type=int, default=100, help="LM steps per robot at most (default 100)")
+    parser.add_argument("--save-models", type=Path, default=None, metavar="DIR",
+                        help="write each calibrated robot that converged to DIR/<pose file stem>.toml, with its "
+                             "[uncertainty]")
     parser.add_argument("--coordinator", default=None, metavar="HOST:PORT",
                         help="coordinator of a job of several processes: process 0's host and a free port "
                              "(default $JAX_COORDINATOR_ADDRESS; none: one process)")
@@ -241,12 +244,29 @@ def _report(fleet: _Fleet, args, echo, seconds: dict, marked: np.ndarray) -> Non
             for o in found:
                 echo(f"warning: {f}:{o.row + 2}: residual {1e3 * o.residual:.3f} mm ({o.sigmas:.1f} sigma) beyond "
                      "the outlier bound: a gross measurement error?")
+    if args.save_models is not None and res is not None:
+        _save_models(fleet, args)
+        echo(f"wrote {int(np.sum(res.converged))} robots into {args.save_models}")
     if args.out is not None:
         (args.out / TABLE).write_text(_table(files, fleet.checked.checks, res, fleet.rows, fleet.messages))
         echo(f"wrote {args.out / TABLE}")
         if res is not None:
             plot_fleet(args.out / REPORT, res.rms_m, res.value, res.names, [Path(f).name for f in fleet.good], marked)
             echo(f"wrote {args.out / REPORT}")
+
+
+def _save_models(fleet: _Fleet, args) -> None:
+    """Each robot of the fleet that converged as `--save-models`/<stem>.toml, with its `[uncertainty]`."""
+    import jax
+
+    import jaxrobot as jr
+
+    args.save_models.mkdir(parents=True, exist_ok=True)
+    for r, f in enumerate(fleet.good):
+        if fleet.res.converged[r]:
+            robot = jax.tree.map(lambda a, r=r: a[r], fleet.res.robot)
+            jr.io.save_model(robot, args.save_models / f"{Path(f).stem}.toml", args.robot,
+                             uncertainty=fleet.res.uncertainty(r))
 
 
 def _summary(fleet: _Fleet, args, count: int, pid: int, seconds: dict, marked: np.ndarray) -> dict:

@@ -24,6 +24,8 @@ from jaxtyping import Array, Float
 
 import jaxrobot as jr
 
+from ._parameters import file_entry
+
 ALPHA = 0.01
 """Significance level of the chi-square tests of residuals against the stated noise (`noise_test`)."""
 QUANTILE_STEPS = 60
@@ -123,3 +125,26 @@ def noise_test(residuals: np.ndarray, sigma: float, m: int, keep: np.ndarray | N
     chi2 = np.sum(np.where(keep[..., None], r, 0.0) ** 2, axis=(-2, -1)) / sigma**2
     dof = r.shape[-1] * np.sum(keep, -1) - m
     return chi2, dof, np.asarray(gammaincc(0.5 * np.maximum(dof, 1), 0.5 * chi2))
+
+
+def model_uncertainty(names: tuple[str, ...], value: np.ndarray, covariance: np.ndarray, noise_estimate: float,
+                      chi2: float, dof: int, validation: np.ndarray | None, spread: float | None,
+                      source: str) -> jr.ModelUncertainty:
+    """What a calibration of the parameters `names` leaves uncertain (`jaxrobot.ModelUncertainty`): their `value`
+    and `covariance`; the RMS distance of the validation poses' errors `validation` [m] (None or empty: of the
+    identification residuals, `sqrt(3)` times the fit's per-axis `noise_estimate`, over `dof` degrees of freedom);
+    and what explains it: the largest RMS distance the tracker's noise alone gives them at the chi-square test's
+    level `ALPHA`, `sqrt(3) sigma sqrt(chi2_quantile(ALPHA, dof') / dof')` (`dof'` = 3 per validation pose, else
+    `dof`; `sigma` the stated per-axis std, `noise_estimate sqrt(dof / chi2)`: `chi2` is the residuals' sum of
+    squares over `sigma^2`, the estimate's square that sum over `dof`), with, for validation poses, the RMS
+    distance `spread` [m] the parameters' covariance gives them (added in quadrature)."""
+    sigma = noise_estimate * np.sqrt(dof / chi2) if chi2 > 0 else noise_estimate
+    checked = validation is not None and len(validation) > 0
+    residual = np.sqrt(np.mean(np.square(validation))) if checked else np.sqrt(3.0) * noise_estimate
+    rows = 3 * len(validation) if checked else dof
+    floor = np.sqrt(3.0) * sigma * np.sqrt(float(chi2_quantile(ALPHA, max(rows, 1))) / max(rows, 1))
+    explained = np.hypot(floor, spread or 0.0) if checked else floor
+    return jr.ModelUncertainty(tuple(file_entry(n) for n in names), jnp.asarray(value, float),
+                               jnp.asarray(covariance, float), jnp.asarray(residual, float),
+                               jnp.asarray(explained, float),
+                               f"{source} ({'validation poses' if checked else 'identification residuals'})")

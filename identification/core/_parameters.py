@@ -49,6 +49,15 @@ def parse_name(name: str) -> tuple[str, int | str]:
     return m.group(1).rstrip("_"), int(m.group(2)) - 1
 
 
+def file_entry(name: str) -> str:
+    """The robot-file entry of a parameter (`jaxrobot.ModelUncertainty.names`): `"a2" -> "kinematics.a[2]"`,
+    `"u0_5" -> "gear.u0[5]"`, `"tool_x" -> "tool.x"`."""
+    field, comp = parse_name(name)
+    if isinstance(comp, str):
+        return f"{field}.{comp}"
+    return f"{'gear' if field == 'u0' else 'kinematics'}.{field}[{comp + 1}]"
+
+
 def check_joints(names: Sequence[str], robot: jr.Robot) -> None:
     """Raise if a parameter names a joint the robot does not have."""
     n = robot.n_joints

@@ -12,8 +12,10 @@ import numpy as np
 import tomli_w
 
 from .._robot import Ripple, Robot
+from .._uncertainty import ModelUncertainty
 from ..effects._registry import EFFECTS
 from ._schema import RobotFileError, fail_field, inertia_matrix, joint_count, merge_entries, stiffness_terms, validate
+from ._uncertainty import uncertainty_of, uncertainty_table
 from ._urdf import read_urdf
 
 
@@ -149,6 +151,16 @@ def read_pose_angles(source: str | Path | dict | None) -> np.ndarray:
     return np.deg2rad(np.asarray(data["poses"]["motor_deg"], float))
 
 
+def read_uncertainty(source: str | Path | dict | None) -> ModelUncertainty | None:
+    """What the identification that made a robot file's model left uncertain (its `[uncertainty]`), beside the
+    robot `load_robot` reads from it; None where the file has none. `source`: a robot file, a description dict of
+    `jaxrobot.read_description`, or None (the embedded Racer-7: none); a URDF file states none."""
+    if isinstance(source, (str, Path)) and Path(source).suffix.lower() == ".urdf":
+        return None
+    table = _described(source).get("uncertainty")
+    return None if table is None else uncertainty_of(table)
+
+
 def _effect_fields(data: dict) -> dict[str, Any]:
     """The `Robot` fields of the model's effects from a validated description (`effect_parameters` merged)."""
     fields: dict[str, Any] = {"effect_parameters": {}}
@@ -245,16 +257,21 @@ KEPT_SECTIONS = ("sensors", "poses", "trajectories")
 """Sections of a description that a `Robot` does not hold and `save_robot` copies from `keep`."""
 
 
-def save_robot(robot: Robot, path: str | Path, keep: dict | None = None) -> None:
+def save_robot(robot: Robot, path: str | Path, keep: dict | None = None,
+               uncertainty: ModelUncertainty | None = None) -> None:
     """Write the robot in the format of `racer7.toml` (loadable by `load_robot`), with the `KEPT_SECTIONS` of the
     description `keep` (the tasks of `jaxrobot plan`, the bench's sensors and poses). Default `keep`: the embedded
-    description for a robot of its name and joint count (one calibrated or diagnosed from it), else none."""
+    description for a robot of its name and joint count (one calibrated or diagnosed from it), else none.
+    `uncertainty`: a `jaxrobot.ModelUncertainty` of the identification that made the robot, written as
+    `[uncertainty]` (`jaxrobot.io.read_uncertainty` reads it back); a start file's is never carried over."""
     if keep is None:
         embedded = read_description(None)
         same = robot.name == embedded["name"] and np.shape(robot.a)[-1:] == (len(embedded["kinematics"]["a"]),)
         keep = embedded if same else {}
     data = description_of(robot)
     data.update({k: keep[k] for k in KEPT_SECTIONS if k in keep})
+    if uncertainty is not None:
+        data["uncertainty"] = uncertainty_table(uncertainty)
     text = "# written by jaxrobot.save_robot; format: racer7.toml (SI units, rad unless _deg)\n"
     Path(path).write_text(text + tomli_w.dumps(validate(data)))
 

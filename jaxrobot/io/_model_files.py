@@ -10,16 +10,20 @@ import numpy as np
 import tomli_w
 
 from .._robot import Robot
+from .._uncertainty import ModelUncertainty
 from ._description import description_of, read_description
+from ._uncertainty import uncertainty_table
 
 KEPT_SECTIONS = ("sensors", "calibration", "poses", "trajectories")
 """Sections of the start file that describe the cell, not the robot: carried over unchanged."""
 
 
-def save_model(robot: Robot, path: str | Path, start: str | Path | None = None, ranges: dict | None = None) -> None:
+def save_model(robot: Robot, path: str | Path, start: str | Path | None = None, ranges: dict | None = None,
+               uncertainty: ModelUncertainty | None = None) -> None:
     """Write `robot` (format of `racer7.toml`) keeping `KEPT_SECTIONS` of the start file `start`
     (default: the embedded description); `ranges` `{(joint, "cw"/"ccw"): (lo, hi) deg}` become the
-    sets' `identified_range_deg`."""
+    sets' `identified_range_deg`; `uncertainty` (of the identification that made `robot`) becomes
+    `[uncertainty]` (the start file's is not carried over)."""
     data = description_of(robot)
     desc = read_description(start)
     ranges = dict(ranges or {})
@@ -36,6 +40,8 @@ def save_model(robot: Robot, path: str | Path, start: str | Path | None = None, 
     for section in KEPT_SECTIONS:
         if section in desc:
             data[section] = desc[section]
+    if uncertainty is not None:
+        data["uncertainty"] = uncertainty_table(uncertainty)
     text = "# written by jaxrobot (identification --save-model); format: racer7.toml (SI units, rad unless _deg)\n"
     Path(path).write_text(text + tomli_w.dumps(data))
 

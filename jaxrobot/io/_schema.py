@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from .._uncertainty import parameter_entry
 from ..effects._registry import EFFECTS
 
 
@@ -75,6 +76,8 @@ def _core_schema(n: int) -> dict[str, Any]:
             },
             "weighting": {"nu": (None,)},
         },
+        "?uncertainty": {"names": "strings", "value": (None,), "covariance": (None, None), "residual_rms_m": (),
+                         "explained_rms_m": (), "?source": "str"},
     }
 
 
@@ -118,6 +121,9 @@ def _check(data: Any, schema: dict[str, Any], where: str) -> None:
         if spec == "str":
             if not isinstance(value, str):
                 fail_field(field, "a string", value)
+        elif spec == "strings":
+            if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+                fail_field(field, "a list of strings", value)
         elif isinstance(spec, dict):
             _check(value, spec, field)
         else:
@@ -125,8 +131,8 @@ def _check(data: Any, schema: dict[str, Any], where: str) -> None:
 
 
 def _describe(spec: Any) -> str:
-    if spec == "str":
-        return "a string"
+    if spec in ("str", "strings"):
+        return f"a {'list of strings' if spec == 'strings' else 'string'}"
     if isinstance(spec, dict):
         return "a table"
     return "a number" if spec == () else f"an array of shape {_shape_text(spec)}"
@@ -210,6 +216,32 @@ def _check_physics(data: dict, n: int) -> None:
     for key in ("tool", "base"):
         if key in data:
             _check_transform(np.asarray(data[key]["transform"], float), f"{key}.transform")
+    if "uncertainty" in data:
+        _check_uncertainty(data["uncertainty"], n)
+
+
+def _check_uncertainty(table: dict, n: int) -> None:
+    """`[uncertainty]`: known, distinct parameter names, a value each, their covariance symmetric and positive
+    semi-definite, RMS distances >= 0."""
+    names = table["names"]
+    for name in names:
+        try:
+            parameter_entry(name, n)
+        except ValueError as err:
+            raise RobotFileError(str(err)) from None
+    if len(set(names)) != len(names):
+        fail_field("uncertainty.names", "each parameter once", sorted({x for x in names if names.count(x) > 1}))
+    m = len(names)
+    if len(table["value"]) != m:
+        fail_field("uncertainty.value", f"one value per name ({m})", f"{len(table['value'])} values")
+    cov = np.asarray(table["covariance"], float)
+    if cov.shape != (m, m):
+        fail_field("uncertainty.covariance", f"an ({m}, {m}) matrix, one row and column per name", f"shape {cov.shape}")
+    if not np.allclose(cov, cov.T, rtol=1e-9, atol=0) or (m and np.linalg.eigvalsh(cov)[0] < -1e-9 * np.abs(cov).max()):
+        fail_field("uncertainty.covariance", "a symmetric positive semi-definite matrix", cov.tolist())
+    for key in ("residual_rms_m", "explained_rms_m"):
+        if not table[key] >= 0:
+            fail_field(f"uncertainty.{key}", "an RMS distance >= 0 m", table[key])
 
 
 def stiffness_terms(data: dict, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -128,7 +128,7 @@ def failure_report(robot, jp, sol, nu: float) -> str:
 
 _STAGES = {"inverse_kinematics": "inverse kinematics", "flat_inverse": "flat inverse",
            "ocp": "OCP (incl. compile)",
-           "plant_simulation": "plant simulation"}
+           "plant_simulation": "plant simulation", "prediction": "prediction on the robot"}
 """`Progress` label of each `PlanEvent` stage that ends a step."""
 
 
@@ -158,12 +158,13 @@ def progress_lines(event: PlanEvent, plant_name: str = "", directional: bool = F
 
 
 def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, directional: bool = False,
-         q_init=None, keep_failed: bool = False) -> PlanResult:
-    """`plan_task` with its progress echoed and on stderr. A solve that did not converge raises
-    `SolveFailed`, or with `keep_failed` returns its result (the OCP trajectory only, no plant evaluation)."""
+         q_init=None, keep_failed: bool = False, uncertainty=None) -> PlanResult:
+    """`plan_task` with its progress echoed and on stderr (`uncertainty`: the model's, for the prediction on the
+    robot). A solve that did not converge raises `SolveFailed`, or with `keep_failed` returns its result (the OCP
+    trajectory only, no plant evaluation)."""
     if not (np.isfinite(nu) and nu > 0):
         raise ValueError(f"--nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
-    progress = Progress(4, "plan")
+    progress = Progress(4 + (uncertainty is not None), "plan")
 
     def on_event(event: PlanEvent) -> None:
         for line in progress_lines(event, plant.name, directional):
@@ -172,11 +173,27 @@ def plan(robot, plant, path, nu: float, cost: str, echo, timing: bool = True, di
             progress.step(_STAGES[event.stage])
 
     result = plan_task(robot, plant, path, nu, cost, q_init=q_init, timing=timing, directional=directional,
-                       on_event=on_event)
+                       on_event=on_event, uncertainty=uncertainty)
+    if result.prediction is not None:
+        echo(prediction_line(result.prediction))
     if not result.converged and not keep_failed:
         raise SolveFailed(failure_report(robot, result.joint_path, result.solution, nu) + "; nothing written "
                           "(--save-failed writes the trajectory, marked as not converged)")
     return result
+
+
+def prediction_line(p) -> str:
+    """The echo line of a `RobotPrediction` (µm)."""
+    return (f"  predicted on the robot ({p.method}, {p.draws} draws): max error p50 {1e6 * p.max_p50:.1f} µm, "
+            f"p95 {1e6 * p.max_p95:.1f} µm (identified parameters p50 {1e6 * p.parameters_p50:.1f}, p95 "
+            f"{1e6 * p.parameters_p95:.1f} µm; unexplained residual {1e6 * p.unexplained:.1f} µm)")
+
+
+def prediction_summary(p) -> dict:
+    """The `predicted_on_robot` entry of `summary` of a `RobotPrediction`."""
+    return {"max_um": {"p50": 1e6 * p.max_p50, "p95": 1e6 * p.max_p95},
+            "parameters_um": {"p50": 1e6 * p.parameters_p50, "p95": 1e6 * p.parameters_p95},
+            "unexplained_um": 1e6 * p.unexplained, "method": p.method, "draws": p.draws}
 
 
 def summary(result: PlanResult) -> dict:
@@ -189,7 +206,11 @@ def summary(result: PlanResult) -> dict:
     - `path_error_um`: `{"max", "rms": float}` [um], the tool position error of the planned link angles on
       the model;
     - `plant`: `{method: {"max_um", "rms_um": float}}` for each of `METHODS`, the tool position error over
-      `[0, t_e]` of its motor trajectory simulated on the plant [um]."""
+      `[0, t_e]` of its motor trajectory simulated on the plant [um];
+    - `predicted_on_robot` (where the model file has an `[uncertainty]`): `{"max_um": {"p50", "p95": float},
+      "parameters_um": {"p50", "p95": float}, "unexplained_um": float, "method": str, "draws": int}`, the
+      predicted largest error of the OCP plan on the robot [um] (`planning.predict_on_robot`): in all, from the
+      identified parameters' uncertainty alone, and the unexplained residual added to it."""
     sol, err, names = result.solution, result.errors, result.names
     plant = {k: {"max_um": 1e6 * float(err.position_max[names.index(k)]),
                  "rms_um": 1e6 * float(err.position_rms[names.index(k)])} for k in METHODS}
@@ -200,6 +221,7 @@ def summary(result: PlanResult) -> dict:
         "max_constraint_violation": float(sol.max_constraint_violation),
         "path_error_um": {"max": 1e6 * float(e.max()), "rms": 1e6 * float(np.sqrt(np.mean(e**2)))},
         "plant": plant,
+        **({} if result.prediction is None else {"predicted_on_robot": prediction_summary(result.prediction)}),
     }
 
 
@@ -218,7 +240,8 @@ def write_plots(result: PlanResult, out: Path, label: str) -> list[Path]:
         "" if result.cost == "thesis" else f", cost {result.cost}")
     files = [_plots.position_errors(t, {k: np.asarray(run.position[i, :n]) for i, k in enumerate(names)},
                                     out / f"{label}_position_error.png",
-                                    f"{task}: tool position error on the plant, per motor trajectory")]
+                                    f"{task}: tool position error on the plant, per motor trajectory",
+                                    None if result.prediction is None else result.prediction.band)]
     i_ocp = names.index("ocp")
     q_sim = np.asarray(run.q[i_ocp, :n])
     files.append(_plots.joint_errors(t, q_sim - np.asarray(jp.q), np.asarray(run.orientation[i_ocp, :n]),
@@ -248,7 +271,7 @@ def run(args, echo) -> dict:
     robot, plant, path, q_init = load_task(args)
     echo(f"planning {path.name} ({path.duration:g} s at T_s = {1e3 * path.sample_time:g} ms) on {robot.name}")
     result = plan(robot, plant, path, args.nu, args.cost, echo, directional=args.plant != "model",
-                  q_init=q_init, keep_failed=args.save_failed)
+                  q_init=q_init, keep_failed=args.save_failed, uncertainty=jr.io.read_uncertainty(args.model))
     failed = None if result.converged else failure_report(robot, result.joint_path, result.solution, args.nu)
     if args.save_trajectory is not None:
         tr = result.trajectories["ocp"]

@@ -42,11 +42,17 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
-def position_errors(t: np.ndarray, errors: dict[str, np.ndarray], path: Path, title: str) -> Path:
-    """Norm of the tool position error `||p_d - p_e||` over time per method/nu (Figs. 4.2, 4.12), log scale."""
+def position_errors(t: np.ndarray, errors: dict[str, np.ndarray], path: Path, title: str,
+                    band: np.ndarray | None = None) -> Path:
+    """Norm of the tool position error `||p_d - p_e||` over time per method/nu (Figs. 4.2, 4.12), log scale;
+    `band` (2, N) [m]: the predicted error of the OCP plan on the robot (median and 95th percentile,
+    `planning.predict_on_robot`), shaded."""
     fig, ax = plt.subplots(figsize=(8, 4))
     for label, e in errors.items():
         ax.semilogy(t, np.maximum(np.asarray(e) * 1e6, 1e-9), label=legend(label), lw=1)
+    if band is not None:
+        ax.fill_between(t, 1e6 * band[0], 1e6 * band[1], color="0.6", alpha=0.4, lw=0,
+                        label="OCP on the robot, predicted p50-p95")
     return _finish(ax, "t [s]", "‖p_d − p_e‖ [µm]", title, path, which="both")
 
 

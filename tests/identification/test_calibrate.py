@@ -25,8 +25,8 @@ from identification.core._identifiability import (
     default_parameters,
     kinematic_parameters,
 )
-from identification.core._noise import ALPHA
-from identification.core._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters
+from identification.core._noise import ALPHA, chi2_quantile
+from identification.core._parameters import THESIS_PARAMETERS, ParameterMap, all_parameters, file_entry
 from identification.core._pose_selection import (
     detmax,
     feasible,
@@ -419,10 +419,31 @@ def test_bad_input(robots, bench, tmp_path):
 
 def test_save_roundtrip(calibrated, tmp_path):
     path = tmp_path / "cal.toml"
-    jr.save_robot(calibrated.robot, path)
+    jr.save_robot(calibrated.robot, path, uncertainty=calibrated.uncertainty())
     loaded = jr.load_robot(path)
     for field in ("a", "d", "alpha", "beta", "offset", "u0"):
         np.testing.assert_array_equal(getattr(loaded, field), getattr(calibrated.robot, field), err_msg=field)
+    u = jr.io.read_uncertainty(path)
+    # the parameters set aside by the selection stay uncertain: the whole default set's covariance is kept
+    sel = calibrated.selection
+    assert sel.set_aside and set(sel.kept) == set(calibrated.names)
+    assert u.names == tuple(file_entry(n) for n in sel.candidates) and "kinematics.a[2]" in u.names
+    np.testing.assert_array_equal(u.covariance, sel.covariance)
+    kept = [sel.candidates.index(n) for n in calibrated.names]
+    np.testing.assert_array_equal(np.asarray(u.value)[kept], calibrated.value)
+    # the file's names address the parameters of the loaded robot
+    values = ParameterMap(sel.candidates).get(u.apply(loaded, np.zeros(len(u.names))))
+    np.testing.assert_allclose(values, u.value, rtol=0, atol=1e-15)
+    # the bench's tracker noise is 50 um per axis: on the 13 validation poses (39 rows) noise alone gives an RMS
+    # distance up to sqrt(3) x 50 um x sqrt(chi2 quantile(1 %, 39) / 39), the parameters' covariance a little
+    # more; the bench's truth is in the model's class, so nothing is left unexplained
+    floor = np.sqrt(3) * 5e-5 * np.sqrt(float(chi2_quantile(ALPHA, 39)) / 39)
+    spread = calibrated.validation_spread[sel.candidates]
+    assert 5e-6 < spread < 0.5 * floor and calibrated.validation_spread[calibrated.names] < spread
+    assert float(u.explained_rms) == pytest.approx(np.hypot(floor, spread), rel=0.2)
+    assert float(u.residual_rms) == pytest.approx(np.sqrt(np.mean(calibrated.validation_after**2)), rel=1e-12)
+    assert float(u.unexplained) == 0.0
+    assert u.source == "calibrate (validation poses)"
 
 
 FLEET_SCRIPT = textwrap.dedent("""

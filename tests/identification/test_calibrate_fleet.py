@@ -94,7 +94,8 @@ def fleet_runs(tmp_path_factory):
     for name, fleet in (("spoiled", tmp / "data" / "fleet.txt"), ("clean", tmp / "clean.txt")):
         out, err = io.StringIO(), io.StringIO()
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            code = main(["calibrate-fleet", str(fleet), "--json", "--out", str(tmp / name)])
+            code = main(["calibrate-fleet", str(fleet), "--json", "--out", str(tmp / name),
+                         "--save-models", str(tmp / name / "robots")])
         with (tmp / name / TABLE).open(newline="") as f:
             table = {r["file"]: r for r in csv.DictReader(f)}
         runs[name] = (code, json.loads(out.getvalue()), table, err.getvalue(), tmp / name)
@@ -157,6 +158,12 @@ def test_clean_robots_as_the_fleet_without_the_faulty_ones(fleet_runs):
         diff = np.array([float(a[n]) - float(b[n]) for n in names])
         assert np.max(np.abs(diff) / std) < 1e-6
         np.testing.assert_allclose([float(a[f"std_{n}"]) for n in names], std, rtol=1e-6)
+        # --save-models: the robot with its [uncertainty], the standard errors of the table
+        saved = runs["clean"][4] / "robots" / f"robot_{i:05d}.toml"
+        u = jr.io.read_uncertainty(saved)
+        assert len(u.names) == len(names) and u.source == "calibrate-fleet (identification residuals)"
+        np.testing.assert_allclose(np.sqrt(np.diag(np.asarray(u.covariance))), std, rtol=1e-9)
+        assert float(jr.load_robot(saved).a[1]) == pytest.approx(float(b["a2"]), rel=1e-12)
 
 
 def test_noise_test_is_chi_square():

@@ -61,8 +61,11 @@ def test_plan_task_events_in_order_and_si_results_behind_the_summary(monkeypatch
     assert events[-1].status == "inner_failed" and events[-1].iterations == 17
     monkeypatch.setattr(planning._ocp, "solve_ocp", _converged_solve)
     events.clear()
-    res = pl.plan_task(robot, robot, path, 1e-14, on_event=events.append)
-    assert tuple(e.stage for e in events) == (*STAGES, "plant_simulation") and res.converged
+    uncertainty = jr.ModelUncertainty(("kinematics.a[2]", "gear.u0[5]"), jnp.zeros(2), jnp.diag(jnp.array([4e-10,
+                                      4e-6])), jnp.asarray(1e-4), jnp.asarray(5e-5))
+    res = pl.plan_task(robot, robot, path, 1e-14, on_event=events.append, uncertainty=uncertainty)
+    assert tuple(e.stage for e in events) == (*STAGES, "plant_simulation", "prediction") and res.converged
+    events.pop()
     assert all(e.elapsed >= 0 for e in events) and events[0].samples == res.joint_path.t.shape[0]
     # the stand-in's plan is the warm start: its link angles are the IK's, its motor trajectory the flat inverse
     assert float(res.plan_error.max()) <= events[0].ik_residual + 1e-12
@@ -73,6 +76,12 @@ def test_plan_task_events_in_order_and_si_results_behind_the_summary(monkeypatch
         np.testing.assert_allclose([rep["plant"][k]["max_um"], rep["plant"][k]["rms_um"]],
                                    [1e6 * v for v in sim[k]], rtol=1e-15)
     assert rep["path_error_um"]["max"] == pytest.approx(1e6 * float(res.plan_error.max()), rel=1e-15)
+    pred = rep["predicted_on_robot"]  # the prediction in µm: the unexplained residual added to the parameters'
+    assert pred["method"] == res.prediction.method == "kinematic"
+    assert pred["max_um"]["p95"] == pytest.approx(1e6 * res.prediction.max_p95, rel=1e-15)
+    assert pred["max_um"]["p50"] == pytest.approx(pred["parameters_um"]["p50"] + pred["unexplained_um"], rel=1e-12)
+    assert pred["unexplained_um"] == pytest.approx(1e6 * np.sqrt(1e-8 - 25e-10), rel=1e-12)
+    assert 0 < pred["parameters_um"]["p50"] < pred["parameters_um"]["p95"]
     # one solve: its compile and its solve time add up to the stage's time
     assert rep["solve_time_s"] == res.solve_time == events[4].solve_time >= 0
     assert rep["compile_time_s"] == res.compile_time == events[4].compile_time >= 0
