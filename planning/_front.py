@@ -2,9 +2,11 @@
 the plant within the axis limits (`cycle_time_front`).
 
 The task is re-timed (`retimed_path`: the same geometry run in another duration, at the task's sample time), the
-OCP of eq. 4.3 solved for a grid of durations x `nu` in one batched call (`solve_front`: every member padded to one
-node count, the task's nodes traced, so that all members and every later round share one compiled program; the
-axis limits of the robot file, thesis Tables A.1-A.3, are bounds of the OCP) and every plan simulated on the plant.
+OCP of eq. 4.3 solved for a grid of durations x `nu` in batched calls (`solve_front`: every member padded to one
+node count, the task's nodes traced, so that all members and every later round share one compiled program; a probe
+at the largest `nu` first finds the durations with a feasible plan, since the constraints do not depend on `nu`;
+the axis limits of the robot file, thesis Tables A.1-A.3, are bounds of the OCP) and every plan simulated on the
+plant.
 A duration too short for the limits leaves its solve unconverged against a limit: the member is infeasible by that
 limit (`CycleTimeFront.limit_name`), not a large error. Batched grids between the longest duration that fails and
 the shortest that meets the tolerance refine the answer to `refine` of its duration.
@@ -86,7 +88,8 @@ class CycleTimeFront(eqx.Module):
     nus: Float[Array, " M"]
     """Weighting factors `nu` of eq. 4.3a, as given."""
     status: jr.RESULTS
-    """(D, M) each member's OCP status."""
+    """(D, M) each member's OCP status; the members of a duration whose probe (the largest `nu`, `solve_front`)
+    found no feasible plan all hold the probe's status, objective, limit use and command."""
     objective: Float[Array, "D M"]
     """Cost of each member's plan [rad^2]."""
     path_error: Float[Array, "D M"]
@@ -208,10 +211,14 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
                 directional: bool = False, size: int | None = None, solver=None) -> OCPSolution:
     """The OCP of every joint path of `jps` (D, one task at several durations, one sample time) for every `nu`
     (M), warm-started by each path's flat inverse, each motor turning only in its path's direction, all padded
-    to `size` nodes (default `padded_nodes` of the longest): one compiled program, a `nu` continuation chain per
-    path (`solve_ocp_sweep`'s), the chains side by side on the CPU cores (one at a time on an accelerator);
-    `directional`: on the flanks of each plan's motion (`iterate_flanks`). Returns a (D * M) batched
-    `OCPSolution` on `size` nodes, duration-major."""
+    to `size` nodes (default `padded_nodes` of the longest), in batched calls of one compiled program each.
+
+    The constraints of eq. 4.3 (dynamics, limits, rest at both ends) do not depend on `nu`: a probe, the largest
+    `nu` of every path (one call), finds the durations with a feasible plan; only those are then solved for every
+    `nu`, a continuation chain in `nu` per path (`solve_ocp_sweep`'s); the members of a path whose probe did not
+    converge are its probe (an infeasible duration costs one failed solve, not M). The chains run side by side on
+    the CPU cores (one at a time on an accelerator); `directional`: on the flanks of each plan's motion
+    (`iterate_flanks`). Returns a (D * M) batched `OCPSolution` on `size` nodes, duration-major."""
     solver = ocp_solver("solve_front", solver, None)
     history, m = solver.history_length(), nus.size
     size = padded_nodes(max(jp.t.shape[0] for jp in jps)) if size is None else size
@@ -221,7 +228,7 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
         flat = flat_motor_trajectory(robot, jp)
         if directional:
             play, warm = flank_start(robot, jp.q, jp.qd, flat)
-            plays.append(jnp.broadcast_to(pad_edge(play, size), (m, size, robot.n_joints)))
+            plays.append(pad_edge(play, size)[None])
         else:
             warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
         members.append((pad_edge(jnp.asarray(jp.q, float), size), tuple(pad_edge(a, size) for a in warm),
@@ -229,18 +236,30 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
     settings = jax.tree.map(jnp.asarray, solver)
     workers = (os.cpu_count() or 1) if backend_kind() == "cpu" else 1
 
-    def solve(play, last):
-        args = [(robot, q_d, ts, jnp.asarray(nus, float), warm, None, settings,
-                 None if play is None else play[i * m:(i + 1) * m], direction, nodes)
-                for i, (q_d, warm, direction, nodes) in enumerate(members)]
+    def chains(paths: np.ndarray, weights: np.ndarray, play) -> OCPSolution:
+        k = weights.size
+        args = [(robot, members[i][0], ts, jnp.asarray(weights, float), members[i][1], None, settings,
+                 None if play is None else play[r * k:(r + 1) * k], *members[i][2:]) for r, i in enumerate(paths)]
         compiled = _chain.lower(*args[0], cost=cost, history=history).compile()  # cached after the first call
         with ThreadPoolExecutor(min(workers, len(args))) as pool:
             parts = list(pool.map(lambda a: jax.block_until_ready(compiled(*a)), args))
-        return jax.tree.map(lambda *a: jnp.concatenate(a), *parts), None
+        return jax.tree.map(lambda *a: jnp.concatenate(a), *parts)
 
+    paths = np.arange(len(jps))
+    probe = chains(paths, nus.max(keepdims=True), jnp.concatenate(plays) if directional else None)
+    feasible = paths[np.asarray(probe.converged)]
+    if feasible.size == 0:
+        return jax.tree.map(lambda a: jnp.repeat(a, m, axis=0), probe)
     if directional:
-        return iterate_flanks(robot, jnp.concatenate(plays), solve)[0]
-    return solve(None, None)[0]
+        play = jnp.concatenate([jnp.broadcast_to(plays[i], (m, *plays[i].shape[1:])) for i in feasible])
+        sols = iterate_flanks(robot, play, lambda play, last: (chains(feasible, nus, play), None))[0]
+    else:
+        sols = chains(feasible, nus, None)
+    place = np.full(len(jps), -1)
+    place[feasible] = np.arange(feasible.size)
+    index = np.concatenate([place[i] * m + np.arange(m) if place[i] >= 0 else np.full(m, feasible.size * m + i)
+                            for i in paths])
+    return jax.tree.map(lambda a, b: jnp.concatenate([a, b])[index], sols, probe)
 
 
 def _round(robot: jr.Robot, plant: jr.Robot, path: Path, durations: list[float], nus: np.ndarray, cost: str,
@@ -289,7 +308,8 @@ def cycle_time_front(robot: jr.Robot, plant: jr.Robot, path: Path, tolerance: fl
     `plant` within the axis limits, and the front it is read from.
 
     Every duration of `durations` [s] (rounded to the task's sample time) x every weighting factor of `nus` is
-    planned in one batched round (`solve_front`; `directional`: on the flanks of each plan's motion, as `plan_task`)
+    planned in one batched round (`solve_front`: the durations whose probe at the largest `nu` finds no feasible
+    plan are not solved for the others; `directional`: on the flanks of each plan's motion, as `plan_task`)
     from the IK from `q_init`, and simulated on `plant` (`directional`: its gears' flanks as states). Then, while
     the shortest duration meeting the tolerance is more than `refine` (relative) above the longest one below it that
     does not, a round of `REFINE_POINTS` durations between the two (all on the grid's padded node count: the same
