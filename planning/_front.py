@@ -298,7 +298,7 @@ def _durations(durations, path: Path, name: str = "durations") -> list[float]:
     steps = np.unique(np.round(d / ts).astype(int))
     if steps[0] < 2:
         raise ValueError(f"{name}: expected durations of at least two samples ({2 * ts:g} s), found {d.min():g} s")
-    return [float(k * ts) for k in steps]
+    return [round(float(k * ts), 12) for k in steps]
 
 
 def cycle_time_front(robot: jr.Robot, plant: jr.Robot, path: Path, tolerance: float, durations, nus,
