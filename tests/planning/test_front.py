@@ -94,9 +94,10 @@ def test_a_duration_far_too_short_exits_3_naming_the_limit(tmp_path, monkeypatch
     commands = _main._commands
     monkeypatch.setattr(_main, "_commands", lambda: {**commands(), "front": _front})  # before a reinstall
     code = _main.main(["front", "line", "--model", str(model), "--tolerance", "10e-6", "--durations",
-                       *map(str, DURATIONS), "--nu", *map(str, NUS), "--json"])
+                       *map(str, DURATIONS), "--nu", *map(str, NUS), "--json", "--out", str(tmp_path / "out")])
     out, err = capsys.readouterr()
     assert code == 3
+    assert {p.name for p in (tmp_path / "out").iterdir()} == {"line_front.csv", "line_front.png"}
     summary = json.loads(out)
     assert summary["shortest_duration_s"] is None and summary["nu"] is None
     assert summary["binding_limit"] in err and "binds" in err
@@ -120,3 +121,30 @@ def test_line_at_10um_confirmed_by_single_plans():
     for nu in np.asarray(front.nus):
         below = pl.plan_task(robot, plant, retimed_path(path, shorter), float(nu), directional=True)
         assert not below.converged or float(below.errors.position_max[below.names.index("ocp")]) > 10e-6
+
+
+def test_front_command_writes_the_answer_that_plan_reads(tmp_path, monkeypatch, capsys):
+    """5 cm of the line at 10 µm on the model: both durations meet it, the answer is the shorter at the nu of least
+    error; the robot file written holds that duration (what `jaxrobot plan` reads), the trajectory its samples."""
+    from jaxrobot.cli import _main
+    from jaxrobot.io import read_command_csv
+    from planning.cli import _front
+
+    model = tmp_path / "short_line.toml"
+    jr.save_robot(jr.racer7(), model, keep=_short_line(0.05))
+    commands = _main._commands
+    monkeypatch.setattr(_main, "_commands", lambda: {**commands(), "front": _front})
+    out = tmp_path / "out"
+    code = _main.main(["front", "line", "--model", str(model), "--tolerance", "10e-6", "--durations",
+                       *map(str, DURATIONS), "--nu", *map(str, NUS), "--json", "--out", str(out),
+                       "--save-trajectory", str(tmp_path / "motor.csv")])
+    summary = json.loads(capsys.readouterr().out)
+    assert code == 0
+    assert summary["shortest_duration_s"] == DURATIONS[0] and summary["nu"] == NUS[0]
+    assert summary["path_error_um"] <= 10 and summary["bracket_s"] is None  # the grid's shortest: not bracketed
+    saved = jr.read_description(out / "line_front_robot.toml")
+    assert saved["trajectories"]["duration_s"] == DURATIONS[0]
+    t, theta, _, _ = read_command_csv(tmp_path / "motor.csv")
+    assert t.shape == (round(DURATIONS[0] * 1e3) + 1,) and theta.shape == (t.size, 6)
+    assert {p.name for p in out.iterdir()} == {"line_front.csv", "line_front.png", "line_front_motor.png",
+                                               "line_front_robot.toml"}
