@@ -137,11 +137,13 @@ def run(args, echo) -> dict:
         for f in write_outputs(front, table, args.out, path.name, desc if "trajectories" in desc else None, robot):
             echo(f"  wrote {f}")
     if front.answer is None:
-        best = np.nanmin(np.asarray(front.path_error)) if front.converged.any() else np.nan
-        raise SolveFailed(f"no duration up to {float(front.durations[-1]):g} s meets {1e6 * args.tolerance:g} µm: "
-                          f"{front.binding_limit} binds (the longest duration uses it to "
-                          f"{float(np.asarray(front.limit_use[-1]).max()):.0%})"
-                          + ("" if np.isnan(best) else f"; the least path error is {1e6 * best:.3g} µm"), summary)
+        use = f"{front.binding_limit} ({float(np.asarray(front.limit_use[-1]).max()):.0%} at the longest duration)"
+        if not front.converged[-1].any():
+            raise SolveFailed(f"no duration up to {float(front.durations[-1]):g} s meets {1e6 * args.tolerance:g} µm "
+                              f"within the limits: {use} binds; try longer durations", summary)
+        raise SolveFailed(f"no duration up to {float(front.durations[-1]):g} s meets {1e6 * args.tolerance:g} µm: the "
+                          f"least path error is {1e6 * np.nanmin(np.asarray(front.path_error)):.3g} µm, the most used "
+                          f"limit {use}; try longer durations or another nu", summary)
     echo(f"shortest duration {front.shortest_duration:.4g} s at nu {front.nu:.0e}: path error "
          f"{summary['path_error_um']:.3g} µm, binding limit {front.binding_limit} ({summary['limit_use']:.0%})")
     if args.save_trajectory is not None:
