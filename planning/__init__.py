@@ -1,6 +1,7 @@
 """Offline trajectory planning of elastic-joint robots: paths, inverse kinematics, the optimal control
 problem and its solver (`AugmentedLagrangian`, with the linear solver `Scan` or `CyclicReduction`), the
-comparison on the plant and the plan and sweep workflows. Transcription pieces, block solvers and the
+comparison on the plant, the plan and sweep workflows and the cycle time against accuracy
+(`cycle_time_front`). Transcription pieces, block solvers and the
 interfaces of the solvers are in `planning.internal`."""
 
 from jaxrobot.internal import check_public as _check_public
@@ -23,6 +24,8 @@ from ._evaluation import quasi_static_motor_trajectory as quasi_static_motor_tra
 from ._evaluation import rigid_motor_trajectory as rigid_motor_trajectory
 from ._evaluation import simulate_plans as simulate_plans
 from ._evaluation import summarize as summarize
+from ._front import CycleTimeFront as CycleTimeFront
+from ._front import cycle_time_front as cycle_time_front
 from ._ik import IKResult as IKResult
 from ._ik import JointPath as JointPath
 from ._ik import inverse_kinematics as inverse_kinematics

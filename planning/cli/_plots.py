@@ -201,3 +201,35 @@ def pareto_front(points: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], p
         axis.set_minor_formatter(ticker.LogFormatter(labelOnlyBase=False, minor_thresholds=(1.5, 0.5)))
     return _finish(ax, "control bandwidth f_99 (99 % of the energy of u, max over axes) [Hz]",
                    "max ‖p_d − p_e‖ on the plant [µm]", title, path, which="both")
+
+
+def motor_trajectory(t: np.ndarray, theta: np.ndarray, thetad: np.ndarray, thetadd: np.ndarray, path: Path,
+                     title: str) -> Path:
+    """Motor angles, rates and accelerations per axis of one motor command."""
+    fig, axs = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+    for i in range(theta.shape[1]):
+        for ax, a in zip(axs, (theta, thetad, thetadd), strict=True):
+            ax.plot(t, a[:, i], label=_axis(i), lw=0.8)
+    for ax, label in zip(axs, ("motor angle θ [rad]", "motor rate θ̇ [rad/s]", "θ̈ [rad/s²]"), strict=True):
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+    axs[2].set_xlabel("t [s]")
+    axs[0].legend(ncol=3, fontsize=8)
+    axs[0].set_title(title)
+    return _save(fig, path)
+
+
+def cycle_time_front(durations: np.ndarray, errors: dict[str, np.ndarray], tolerance: float, infeasible: np.ndarray,
+                     shortest: float, path: Path, title: str) -> Path:
+    """Path error on the plant [µm] against the duration [s], one curve per label (`errors[label]`, NaN: not
+    converged), the tolerance, the durations where no member converged (shaded: infeasible within the limits) and
+    the shortest duration meeting the tolerance (NaN: none)."""
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for label, e in errors.items():
+        ax.semilogy(durations, e, "o-", ms=3, label=label)
+    ax.axhline(tolerance, color="k", ls="--", lw=1, label=f"tolerance {tolerance:g} µm")
+    if infeasible.size:
+        ax.axvspan(durations.min(), infeasible.max(), color="tab:red", alpha=0.15, label="infeasible (limits)")
+    if np.isfinite(shortest):
+        ax.axvline(shortest, color="tab:green", lw=1, label=f"shortest {shortest:.4g} s")
+    return _finish(ax, "duration t_e [s]", "max ‖p_d − p_e‖ on the plant [µm]", title, path, which="both")

@@ -13,6 +13,8 @@ from .._block_tridiagonal import block_tridiagonal_solve as block_tridiagonal_so
 from .._cyclic_reduction import CyclicReductionFactor as CyclicReductionFactor
 from .._cyclic_reduction import cyclic_reduction as cyclic_reduction
 from .._cyclic_reduction import cyclic_reduction_solve as cyclic_reduction_solve
+from .._front import FrontEvent as FrontEvent
+from .._front import retimed_path as retimed_path
 from .._ik import check_joint_path as check_joint_path
 from .._ik import joint_derivatives as joint_derivatives
 from .._ik import pose_residual as pose_residual

@@ -116,6 +116,23 @@ def test_closed_loop(tmp_path):
     assert after <= 1.5 * true, s
 
 
+@pytest.mark.extended  # small and refined to 1 %: 35 min on the 2 shared cores at load 7; so refined to 5 %
+def test_cycle_time(tmp_path):
+    """Each answer meets its tolerance, with a bracket below it within the refinement's precision; a looser tolerance
+    never needs a longer duration (to that precision)."""
+    s = _run("08_cycle_time.ipynb", tmp_path)
+    refine = s.pop("refine")
+    for name, answers in s.items():
+        durations = []
+        for tol, a in answers.items():
+            if a["shortest_duration_s"] is not None:
+                assert a["path_error_m"] <= 1e-6 * float(tol), (name, tol)
+                assert a["shortest_duration_s"] - a["bracket_s"] <= refine * a["shortest_duration_s"], (name, tol)
+            durations.append(np.inf if a["shortest_duration_s"] is None else a["shortest_duration_s"])
+        # to the refinement's precision (two tolerances bound by the same limit share their duration)
+        assert all(b <= (1 + refine) * a for a, b in zip(durations, durations[1:])), (name, durations)
+
+
 NOTEBOOKS = ["01_model_tour.ipynb", "02_gear_identification.ipynb", "03_calibration.ipynb",
              "04_nu_study.ipynb", "05_diagnose.ipynb", "06_own_robot.ipynb",
-             "07_closed_loop.ipynb"]
+             "07_closed_loop.ipynb", "08_cycle_time.ipynb"]

@@ -1,0 +1,357 @@
+"""Cycle time against accuracy: the shortest duration of a task whose plan meets a tool path-error tolerance on
+the plant within the axis limits (`cycle_time_front`).
+
+The task is re-timed (`retimed_path`: the same geometry run in another duration, at the task's sample time), the
+OCP of eq. 4.3 solved for a grid of durations x `nu` in batched calls (`solve_front`: every member padded to one
+node count, the task's nodes traced, so that all members and every later round share one compiled program; a probe
+at the largest `nu` first finds the durations with a feasible plan, since the constraints do not depend on `nu`;
+the axis limits of the robot file, thesis Tables A.1-A.3, are bounds of the OCP) and every plan simulated on the
+plant.
+A duration too short for the limits leaves its solve unconverged against a limit: the member is infeasible by that
+limit (`CycleTimeFront.limit_name`), not a large error. Batched grids between the longest duration that fails and
+the shortest that meets the tolerance refine the answer to `refine` of its duration.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Real
+
+import jaxrobot as jr
+from jaxrobot.internal import backend_kind
+
+from ._evaluation import (
+    MotorTrajectory,
+    flat_motor_trajectory,
+    motor_commands,
+    ocp_motor_trajectory,
+    simulate_plans,
+    summarize,
+)
+from ._ik import JointPath, check_inverse_kinematics, joint_path
+from ._ocp import OCPSolution, ocp_solver
+from ._padding import head, pad_edge, padded_nodes
+from ._sweep import _chain, check_nus
+from ._trajectories import Path
+from ._transcription import COSTS, State, bounds, motor_directions, ocp_problem
+from ._workflow import flank_start, iterate_flanks
+
+LIMIT_KINDS = ("link position", "link rate", "motor position", "motor rate", "motor acceleration")
+"""The axis limits of every joint, in the order of the OCP's node variables `[q, qd, theta, thetad, u]`
+(`bounds`; thesis Tables A.1-A.3, the motor's through the gear ratio `u0`)."""
+ACTIVE_USE = 0.999
+"""Use of a limit (`CycleTimeFront.limit_use`) from which it counts as active."""
+REFINE_POINTS = 4
+"""Durations of each refining round, evenly inside the bracket of the answer."""
+
+
+class Retimed(eqx.Module):
+    """`t -> f(t * scale)`: a function of time run `1 / scale` times as long."""
+
+    function: Callable
+    """The function of the original time [s]."""
+    scale: Float[Array, ""]
+    """Original duration / new duration."""
+
+    def __call__(self, t: Real[Array, ""]):
+        return self.function(t * self.scale)
+
+
+def retimed_path(path: Path, duration: float) -> Path:
+    """`path` run in `duration` [s] (a multiple of its sample time, which it keeps): its position and orientation
+    at `t` are those of `path` at `t * path.duration / duration`. The line and the spiral re-timed equal those of
+    a description with `[trajectories] duration_s = duration` (to rounding)."""
+    steps = duration / path.sample_time
+    if not (np.isfinite(steps) and steps >= 2 and abs(steps - round(steps)) <= 1e-9 * steps):
+        raise ValueError(f"duration: expected a multiple of the sample time {path.sample_time} s of at least two "
+                         f"samples, found {duration} s")
+    scale = np.asarray(path.duration / duration, dtype=np.float64)
+    return dataclasses.replace(path, position=Retimed(path.position, scale),
+                               orientation=Retimed(path.orientation, scale), duration=float(duration))
+
+
+class CycleTimeFront(eqx.Module):
+    """The members of a cycle-time study: every duration tried (D, the grid and its refinements, increasing) x
+    every `nu` (M), for a joint count n; `shortest_duration` is its answer."""
+
+    durations: Float[Array, " D"]
+    """Durations tried [s], increasing."""
+    nus: Float[Array, " M"]
+    """Weighting factors `nu` of eq. 4.3a, as given."""
+    status: jr.RESULTS
+    """(D, M) each member's OCP status; the members of a duration whose probe (the largest `nu`, `solve_front`)
+    found no feasible plan all hold the probe's status, objective, limit use and command."""
+    objective: Float[Array, "D M"]
+    """Cost of each member's plan [rad^2]."""
+    path_error: Float[Array, "D M"]
+    """Largest tool position error of each member's plan on the plant over `[0, t_e]` [m]; NaN where the solve did
+    not converge."""
+    limit_use: Float[Array, "D M 5*n"]
+    """Largest use of each limit over the plan's nodes, in the order of `LIMIT_KINDS` x joints: `|z| / limit` of a
+    rate or an acceleration, the distance from the middle of the range over its half width of a position (1: at
+    the limit)."""
+    commands: MotorTrajectory
+    """(D, M, P, n) each member's motor command (`PlanResult.trajectories["ocp"]`), on the padded count P of
+    samples (held at rest after its duration's `samples`)."""
+    tolerance: float = eqx.field(static=True)
+    """Path-error tolerance [m]."""
+    sample_time: float = eqx.field(static=True)
+    """The task's sample time [s]."""
+
+    def samples(self, i: int) -> int:
+        """The samples of the `i`-th duration (its time grid `k * sample_time`, k = 0 ... samples - 1)."""
+        return round(float(self.durations[i]) / self.sample_time) + 1
+
+    def command(self, i: int, j: int) -> MotorTrajectory:
+        """The motor command of member (`i`, `j`) on its duration's grid (`samples`)."""
+        return head(jax.tree.map(lambda a: a[i, j], self.commands), self.samples(i))
+
+    @property
+    def converged(self) -> np.ndarray:
+        """(D, M) True where the solve converged."""
+        return np.asarray(self.status == jr.RESULTS.successful)
+
+    @property
+    def meets(self) -> np.ndarray:
+        """(D, M) True where the solve converged (within the limits: they are bounds of the OCP, met to its
+        tolerance) and the path error is at most `tolerance`."""
+        return self.converged & (np.nan_to_num(np.asarray(self.path_error), nan=np.inf) <= self.tolerance)
+
+    @property
+    def binding(self) -> np.ndarray:
+        """(D, M) index of each member's most used limit (`limit_name`)."""
+        return np.asarray(self.limit_use).argmax(-1)
+
+    def limit_name(self, index: int) -> str:
+        """The name of a limit by its index in `limit_use`, e.g. "joint 2 motor acceleration"."""
+        n = np.shape(self.limit_use)[-1] // len(LIMIT_KINDS)
+        return f"joint {index % n + 1} {LIMIT_KINDS[index // n]}"
+
+    @property
+    def answer(self) -> tuple[int, int] | None:
+        """(duration, nu) index of the answer: the shortest duration meeting the tolerance, at its `nu` of the
+        least path error; None where no member meets it."""
+        meets = self.meets
+        if not meets.any():
+            return None
+        i = int(np.flatnonzero(meets.any(-1))[0])
+        errors = np.where(meets[i], np.asarray(self.path_error[i]), np.inf)
+        return i, int(np.argmin(errors))
+
+    @property
+    def shortest_duration(self) -> float:
+        """The answer's duration [s]; NaN where no member meets the tolerance."""
+        return np.nan if self.answer is None else float(self.durations[self.answer[0]])
+
+    @property
+    def nu(self) -> float:
+        """The answer's `nu`; NaN where no member meets the tolerance."""
+        return np.nan if self.answer is None else float(self.nus[self.answer[1]])
+
+    @property
+    def bracket(self) -> float:
+        """The longest duration tried below the answer [s] (none of its members meets the tolerance); NaN where
+        there is no answer or it is the shortest duration tried."""
+        if self.answer is None or self.answer[0] == 0:
+            return np.nan
+        return float(self.durations[self.answer[0] - 1])
+
+    @property
+    def binding_limit(self) -> str:
+        """The limit that binds: at the answer, the most used one; without an answer, the one the longest duration
+        presses hardest (over its `nu`)."""
+        if self.answer is not None:
+            i, j = self.answer
+        else:
+            i, j = -1, int(np.asarray(self.limit_use[-1]).max(-1).argmax())
+        return self.limit_name(int(self.binding[i, j]))
+
+
+@dataclasses.dataclass(frozen=True)
+class FrontEvent:
+    """Progress of `cycle_time_front`, after each batched round."""
+
+    stage: str
+    """"grid" (the first round) or "refine" (a round inside the answer's bracket)."""
+    durations: tuple[float, ...]
+    """The round's durations [s]."""
+    elapsed: float
+    """The round's time [s]: joint paths, the batched solve (compile included) and the plant simulations."""
+    converged: int
+    """Members of the round whose solve converged."""
+    meeting: int
+    """Members of the round that meet the tolerance within the limits."""
+    shortest: float
+    """The answer so far [s] (NaN: none)."""
+
+
+def _limits(robot: jr.Robot) -> tuple[np.ndarray, np.ndarray]:
+    """The OCP's lower and upper bound of each node variable `[q, qd, theta, thetad, u]` (5n,)."""
+    lower, upper = bounds(ocp_problem(robot, np.zeros((3, robot.n_joints)), 1.0))
+    return np.asarray(lower[0]), np.asarray(upper[0])
+
+
+@jax.jit
+def _limit_use(lower, upper, x, u):
+    z = jnp.concatenate([x, u], -1)
+    middle = 0.5 * (lower + upper)
+    return jnp.maximum((z - middle) / (upper - middle), (middle - z) / (middle - lower)).max(-2)
+
+
+def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: str = "thesis",
+                directional: bool = False, size: int | None = None, solver=None) -> OCPSolution:
+    """The OCP of every joint path of `jps` (D, one task at several durations, one sample time) for every `nu`
+    (M), warm-started by each path's flat inverse, each motor turning only in its path's direction, all padded
+    to `size` nodes (default `padded_nodes` of the longest), in batched calls of one compiled program each.
+
+    The constraints of eq. 4.3 (dynamics, limits, rest at both ends) do not depend on `nu`: a probe, the largest
+    `nu` of every path (one call), finds the durations with a feasible plan; only those are then solved for every
+    `nu`, a continuation chain in `nu` per path (`solve_ocp_sweep`'s); the members of a path whose probe did not
+    converge are its probe (an infeasible duration costs one failed solve, not M). The chains run side by side on
+    the CPU cores (one at a time on an accelerator); `directional`: on the flanks of each plan's motion
+    (`iterate_flanks`). Returns a (D * M) batched `OCPSolution` on `size` nodes, duration-major."""
+    solver = ocp_solver("solve_front", solver, None)
+    history, m = solver.history_length(), nus.size
+    size = padded_nodes(max(jp.t.shape[0] for jp in jps)) if size is None else size
+    ts = jnp.asarray(jps[0].path.sample_time, float)
+    members, plays = [], []
+    for jp in jps:
+        flat = flat_motor_trajectory(robot, jp)
+        if directional:
+            play, warm = flank_start(robot, jp.q, jp.qd, flat)
+            plays.append(pad_edge(play, size)[None])
+        else:
+            warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
+        members.append((pad_edge(jnp.asarray(jp.q, float), size), tuple(pad_edge(a, size) for a in warm),
+                        pad_edge(motor_directions(flat.thetad), size), jnp.asarray(jp.t.shape[0])))
+    settings = jax.tree.map(jnp.asarray, solver)
+    workers = (os.cpu_count() or 1) if backend_kind() == "cpu" else 1
+
+    def chains(paths: np.ndarray, weights: np.ndarray, play) -> OCPSolution:
+        k = weights.size
+        args = [(robot, members[i][0], ts, jnp.asarray(weights, float), members[i][1], None, settings,
+                 None if play is None else play[r * k:(r + 1) * k], *members[i][2:]) for r, i in enumerate(paths)]
+        compiled = _chain.lower(*args[0], cost=cost, history=history).compile()  # cached after the first call
+        with ThreadPoolExecutor(min(workers, len(args))) as pool:
+            parts = list(pool.map(lambda a: jax.block_until_ready(compiled(*a)), args))
+        return jax.tree.map(lambda *a: jnp.concatenate(a), *parts)
+
+    paths = np.arange(len(jps))
+    probe = chains(paths, nus.max(keepdims=True), jnp.concatenate(plays) if directional else None)
+    feasible = paths[np.asarray(probe.converged)]
+    if feasible.size == 0:
+        return jax.tree.map(lambda a: jnp.repeat(a, m, axis=0), probe)
+    if directional:
+        play = jnp.concatenate([jnp.broadcast_to(plays[i], (m, *plays[i].shape[1:])) for i in feasible])
+        sols = iterate_flanks(robot, play, lambda play, last: (chains(feasible, nus, play), None))[0]
+    else:
+        sols = chains(feasible, nus, None)
+    place = np.full(len(jps), -1)
+    place[feasible] = np.arange(feasible.size)
+    index = np.concatenate([place[i] * m + np.arange(m) if place[i] >= 0 else np.full(m, feasible.size * m + i)
+                            for i in paths])
+    return jax.tree.map(lambda a, b: jnp.concatenate([a, b])[index], sols, probe)
+
+
+def _round(robot: jr.Robot, plant: jr.Robot, path: Path, durations: list[float], nus: np.ndarray, cost: str,
+           q_init, directional: bool, size: int) -> tuple:
+    """One batched round: the joint paths of `path` re-timed to `durations`, `solve_front` on `size` nodes, every
+    plan simulated on `plant`. Returns (status, objective, path error [m], limit use, motor commands on `size`
+    samples), each (D, M, ...)."""
+    jps = []
+    for duration in durations:
+        jp = joint_path(robot, retimed_path(path, duration), q_init, check=False)  # limits: the OCP's bounds
+        check_inverse_kinematics(jp.t, jp.ik)
+        jps.append(jp)
+    sols = solve_front(robot, jps, nus, cost, directional, size)
+    d, m = len(durations), nus.size
+    use = _limit_use(*_limits(robot), sols.x, sols.u)
+    errors, commands = [], []
+    for i, jp in enumerate(jps):
+        n = jp.t.shape[0]
+        x, u = head((sols.x[i * m:(i + 1) * m], sols.u[i * m:(i + 1) * m]), n, 1)
+        plans = motor_commands(robot, jp.t, {str(j): ocp_motor_trajectory(x[j], u[j]) for j in range(m)})
+        errors.append(np.asarray(summarize(simulate_plans(plant, jp, plans, directional=directional)[1]).position_max))
+        commands.append(jax.tree.map(lambda *a: np.stack([pad_edge(np.asarray(b), size) for b in a]), *plans.values()))
+    shape = lambda a: np.asarray(a).reshape((d, m) + np.shape(a)[1:])  # noqa: E731
+    error = np.where(shape(sols.converged), np.stack(errors), np.nan)
+    return (jax.tree.map(shape, sols.status), shape(sols.objective), error, shape(use),
+            jax.tree.map(lambda *a: np.stack(a), *commands))
+
+
+def _durations(durations, path: Path, name: str = "durations") -> list[float]:
+    """`durations` [s] rounded to the task's sample time, checked (> 0, at least two samples), distinct and
+    increasing."""
+    d = np.asarray(durations, dtype=float)
+    if d.ndim != 1 or d.size < 1 or not np.all(np.isfinite(d) & (d > 0)):
+        raise ValueError(f"{name}: expected one or more durations > 0 [s] (a 1-D sequence), found {d}")
+    ts = path.sample_time
+    steps = np.unique(np.round(d / ts).astype(int))
+    if steps[0] < 2:
+        raise ValueError(f"{name}: expected durations of at least two samples ({2 * ts:g} s), found {d.min():g} s")
+    return [round(float(k * ts), 12) for k in steps]
+
+
+def cycle_time_front(robot: jr.Robot, plant: jr.Robot, path: Path, tolerance: float, durations, nus,
+                     cost: str = "thesis", q_init=None, directional: bool = False, refine: float = 0.01,
+                     on_event: Callable[[FrontEvent], None] | None = None) -> CycleTimeFront:
+    """The shortest duration of `path` whose OCP plan on `robot` meets the tool path-error `tolerance` [m] on
+    `plant` within the axis limits, and the front it is read from.
+
+    Every duration of `durations` [s] (rounded to the task's sample time) x every weighting factor of `nus` is
+    planned in one batched round (`solve_front`: the durations whose probe at the largest `nu` finds no feasible
+    plan are not solved for the others; `directional`: on the flanks of each plan's motion, as `plan_task`)
+    from the IK from `q_init`, and simulated on `plant` (`directional`: its gears' flanks as states). Then, while
+    the shortest duration meeting the tolerance is more than `refine` (relative) above the longest one below it that
+    does not, a round of `REFINE_POINTS` durations between the two (all on the grid's padded node count: the same
+    compiled program). A member meets the tolerance where its solve converged (the limits are bounds of the OCP)
+    and its largest path error over `[0, t_e]` is at most `tolerance`; a duration too short for the limits leaves
+    its members unconverged, pressed against the limit that `binding_limit` names. `on_event` receives a
+    `FrontEvent` per round.
+
+    **Raises:** `ValueError` naming the argument for bad values, before any compute.
+    """
+    if not (np.isfinite(tolerance) and tolerance > 0):
+        raise ValueError(f"tolerance: expected a path-error tolerance > 0 [m], found {tolerance}")
+    if not (np.isfinite(refine) and 0 < refine < 1):
+        raise ValueError(f"refine: expected a relative precision in (0, 1), found {refine}")
+    if cost not in COSTS:
+        raise ValueError(f"cost: expected one of {COSTS}, found {cost!r}")
+    nus = check_nus(nus, distinct=True)
+    grid = _durations(durations, path)
+    emit = on_event or (lambda event: None)
+    size = padded_nodes(round(grid[-1] / path.sample_time) + 1)
+    tried, parts, stage = [], [], "grid"
+    while grid:
+        start = time.perf_counter()
+        parts.append(_round(robot, plant, path, grid, nus, cost, q_init, directional, size))
+        tried += grid
+        front = _front(tried, nus, parts, tolerance, path.sample_time)
+        new = np.isin(np.asarray(front.durations), grid)
+        emit(FrontEvent(stage, tuple(grid), time.perf_counter() - start, int(front.converged[new].sum()),
+                        int(front.meets[new].sum()), front.shortest_duration))
+        low, high = front.bracket, front.shortest_duration
+        if not (high - low > refine * high):  # also: no answer, or none below it
+            break
+        grid = [d for d in _durations(np.linspace(low, high, REFINE_POINTS + 2)[1:-1], path) if d not in tried]
+        stage = "refine"
+    return front
+
+
+def _front(durations: list[float], nus: np.ndarray, parts: list[tuple], tolerance: float, sample_time: float
+           ) -> CycleTimeFront:
+    """The rounds `parts` (of `_round`) over `durations` as one `CycleTimeFront`, in increasing duration."""
+    order = np.argsort(durations)
+    status, objective, error, use, commands = (jax.tree.map(lambda *a: jnp.asarray(np.concatenate(a)[order]), *column)
+                                     for column in zip(*parts, strict=True))
+    return CycleTimeFront(jnp.asarray(np.asarray(durations)[order]), jnp.asarray(nus), status, objective, error, use,
+                          commands, float(tolerance), float(sample_time))

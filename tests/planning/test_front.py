@@ -1,0 +1,150 @@
+"""The cycle-time front (`planning.cycle_time_front`, `jaxrobot front`): its members against single solves of the
+same duration and nu, a task far too fast for the limits reported as infeasible by its limit (exit 3), and
+(extended) the line at 10 µm on the as-built bench confirmed by single plans at the answer and 0.99 times it."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import jaxrobot as jr
+import planning as pl
+from planning._front import LIMIT_KINDS
+from planning.internal import motor_directions, retimed_path
+
+NUS = (1e-14, 1e-12)
+DURATIONS = (0.26, 0.30)
+"""Two durations of one padded node count (304): the front's rounds and the single solves share their programs."""
+
+
+def _short_line(y_end: float):
+    desc = jr.read_description(None)
+    desc["trajectories"]["duration_s"] = 0.3
+    desc["trajectories"]["line"]["y_end_m"] = y_end
+    return desc
+
+
+@pytest.fixture(scope="module")
+def short_front():
+    """5 cm of the line at 0.26 and 0.30 s for two nu, on the model; a tolerance no member meets (one round)."""
+    robot = jr.racer7()
+    path = pl.reference_path("line", _short_line(0.05))
+    return robot, path, pl.cycle_time_front(robot, robot, path, 1e-12, DURATIONS, NUS)
+
+
+def test_members_equal_single_solves(short_front):
+    """Each member's objective equals `solve_ocp` of its duration and nu from the same warm start and motor
+    directions (1e-8 relative: two solves to the solver's tolerance, the front's batched by continuation in nu)."""
+    robot, path, front = short_front
+    np.testing.assert_allclose(np.asarray(front.durations), DURATIONS, rtol=1e-12)
+    assert front.converged.all() and front.answer is None
+    for i, duration in enumerate(DURATIONS):
+        jp = pl.joint_path(robot, retimed_path(path, duration))
+        flat = pl.flat_motor_trajectory(robot, jp)
+        warm = (pl.State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
+        for j, nu in enumerate(NUS):
+            sol = pl.solve_ocp(robot, jp.q, path.sample_time, nu, warm_start=warm,
+                               direction=motor_directions(flat.thetad))
+            assert bool(sol.converged)
+            np.testing.assert_allclose(float(front.objective[i, j]), float(sol.objective), rtol=1e-8)
+            if j == 0:  # the member's command is the solution's motor trajectory, its error that of the solution
+                np.testing.assert_allclose(np.asarray(front.command(i, j).theta), np.asarray(sol.theta), atol=1e-9)
+            if i == j == 0:
+                _, run = pl.simulate_plans(robot, jp, {"ocp": pl.ocp_motor_trajectory(sol.x, sol.u)})
+                np.testing.assert_allclose(float(front.path_error[i, j]), float(pl.summarize(run).position_max[0]),
+                                           atol=1e-9)
+    # every limit inside its range (to the solver's tolerance); the larger nu trades path error for smoothness
+    assert np.all(np.asarray(front.limit_use) <= 1 + 1e-6)
+    assert np.all(np.asarray(front.path_error[:, 1]) > np.asarray(front.path_error[:, 0]))
+
+
+def test_retimed_line_equals_the_line_of_that_duration():
+    """The line re-timed to 0.26 s is the robot file's line with `duration_s = 0.26` (what `jaxrobot plan` reads)."""
+    desc = _short_line(0.05)
+    fast = retimed_path(pl.reference_path("line", desc), 0.26)
+    desc["trajectories"]["duration_s"] = 0.26
+    t = pl.time_grid(fast)
+    np.testing.assert_allclose(np.asarray(pl.sample_path(fast, t)[0]),
+                               np.asarray(pl.sample_path(pl.reference_path("line", desc), t)[0]), atol=1e-15)
+    with pytest.raises(ValueError, match="duration: expected a multiple of the sample time"):
+        retimed_path(fast, 0.2605)
+
+
+def test_bad_arguments_are_named_before_any_compute(short_front):
+    robot, path, _ = short_front
+    for kwargs, field in (({"tolerance": -1.0}, "tolerance"), ({"durations": [0.0]}, "durations"),
+                          ({"nus": [1e-14, 1e-14]}, "nus"), ({"refine": 2.0}, "refine")):
+        args = {"tolerance": 1e-6, "durations": DURATIONS, "nus": NUS, **kwargs}
+        with pytest.raises(ValueError, match=field):
+            pl.cycle_time_front(robot, robot, path, **args)
+
+
+def test_a_duration_far_too_short_exits_3_naming_the_limit(tmp_path, monkeypatch, capsys):
+    """The whole 0.5 m line in a tenth of its 2.5 s: no duration is feasible; the command exits 3 and names the
+    limit its solves press against, in the message and the `--json` summary, whose rows mark every member as not
+    converged (infeasible by its limit, not a large error)."""
+    from jaxrobot.cli import _main
+    from planning.cli import _front
+
+    model = tmp_path / "fast_line.toml"
+    desc = _short_line(0.5)
+    jr.save_robot(jr.racer7(), model, keep=desc)
+    commands = _main._commands
+    monkeypatch.setattr(_main, "_commands", lambda: {**commands(), "front": _front})  # before a reinstall
+    code = _main.main(["front", "line", "--model", str(model), "--tolerance", "10e-6", "--durations",
+                       *map(str, DURATIONS), "--nu", *map(str, NUS), "--json", "--out", str(tmp_path / "out")])
+    out, err = capsys.readouterr()
+    assert code == 3
+    assert {p.name for p in (tmp_path / "out").iterdir()} == {"line_front.csv", "line_front.png"}
+    summary = json.loads(out)
+    assert summary["shortest_duration_s"] is None and summary["nu"] is None
+    assert summary["binding_limit"] in err and "binds" in err
+    assert summary["binding_limit"].split(" ", 2)[2] in LIMIT_KINDS  # "joint j <kind>"
+    assert all(not r["meets"] and r["path_error_um"] is None and r["limit_use"] > 0.999 for r in summary["rows"])
+
+
+@pytest.mark.extended  # the full line at eight durations x four nu on the as-built bench, refined, and four plans
+def test_line_at_10um_confirmed_by_single_plans():
+    """The line at 10 µm on the as-built bench, planned on its true model (the error left is the gears' flanks' and
+    the dynamics'): `plan_task` at the reported duration and nu meets the tolerance; at 0.99 times the duration (on
+    the sample grid) no nu of the front does, or its solve fails against a limit."""
+    robot = plant = jr.racer7(as_built=True)
+    path = pl.reference_path("line")
+    durations = [s * path.duration for s in np.linspace(0.3, 1.0, 8)]
+    front = pl.cycle_time_front(robot, plant, path, 10e-6, durations, (1e-16, 1e-14, 1e-12, 1e-10), directional=True)
+    assert front.answer is not None and front.shortest_duration - front.bracket <= 0.01 * front.shortest_duration
+    at = pl.plan_task(robot, plant, retimed_path(path, front.shortest_duration), front.nu, directional=True)
+    assert at.converged and float(at.errors.position_max[at.names.index("ocp")]) <= 10e-6
+    shorter = round(0.99 * front.shortest_duration / path.sample_time) * path.sample_time
+    for nu in np.asarray(front.nus):
+        below = pl.plan_task(robot, plant, retimed_path(path, shorter), float(nu), directional=True)
+        assert not below.converged or float(below.errors.position_max[below.names.index("ocp")]) > 10e-6
+
+
+def test_front_command_writes_the_answer_that_plan_reads(tmp_path, monkeypatch, capsys):
+    """5 cm of the line at 10 µm on the model: both durations meet it, the answer is the shorter at the nu of least
+    error; the robot file written holds that duration (what `jaxrobot plan` reads), the trajectory its samples."""
+    from jaxrobot.cli import _main
+    from jaxrobot.io import read_command_csv
+    from planning.cli import _front
+
+    model = tmp_path / "short_line.toml"
+    jr.save_robot(jr.racer7(), model, keep=_short_line(0.05))
+    commands = _main._commands
+    monkeypatch.setattr(_main, "_commands", lambda: {**commands(), "front": _front})
+    out = tmp_path / "out"
+    code = _main.main(["front", "line", "--model", str(model), "--tolerance", "10e-6", "--durations",
+                       *map(str, DURATIONS), "--nu", *map(str, NUS), "--json", "--out", str(out),
+                       "--save-trajectory", str(tmp_path / "motor.csv")])
+    summary = json.loads(capsys.readouterr().out)
+    assert code == 0
+    assert summary["shortest_duration_s"] == DURATIONS[0] and summary["nu"] == NUS[0]
+    assert summary["path_error_um"] <= 10 and summary["bracket_s"] is None  # the grid's shortest: not bracketed
+    saved = jr.read_description(out / "line_front_robot.toml")
+    assert saved["trajectories"]["duration_s"] == DURATIONS[0]
+    t, theta, _, _ = read_command_csv(tmp_path / "motor.csv")
+    assert t.shape == (round(DURATIONS[0] * 1e3) + 1,) and theta.shape == (t.size, 6)
+    assert {p.name for p in out.iterdir()} == {"line_front.csv", "line_front.png", "line_front_motor.png",
+                                               "line_front_robot.toml"}
