@@ -111,7 +111,7 @@ def test_line_at_10um_confirmed_by_single_plans():
     the dynamics'): `plan_task` at the reported duration and nu meets the tolerance; at 0.99 times the duration (on
     the sample grid) no nu of the front does, or its solve fails against a limit."""
     robot = plant = jr.racer7(as_built=True)
-    path = pl.reference_path("line")
+    path = pl.reference_path("line", jr.read_description(None))
     durations = [s * path.duration for s in np.linspace(0.3, 1.0, 8)]
     front = pl.cycle_time_front(robot, plant, path, 10e-6, durations, (1e-16, 1e-14, 1e-12, 1e-10), directional=True)
     assert front.answer is not None and front.shortest_duration - front.bracket <= 0.01 * front.shortest_duration
