@@ -41,8 +41,6 @@ from ._sweep import solve_ocp_sweep as solve_ocp_sweep
 from ._trajectories import Path as Path
 from ._trajectories import default_start as default_start
 from ._trajectories import line_path as line_path
-from ._trajectories import path_derivatives as path_derivatives
-from ._trajectories import polynomial7 as polynomial7
 from ._trajectories import reference_path as reference_path
 from ._trajectories import sample_path as sample_path
 from ._trajectories import sampled_path as sampled_path
@@ -63,6 +61,8 @@ from ._workflow import sweep_task as sweep_task
 _check_public(globals())
 
 __getattr__ = _deprecated_aliases(__name__, {name: f"planning.internal.{name}" for name in (
+    "path_derivatives",
+    "polynomial7",
     "check_joint_path",
     "joint_derivatives",
     "pose_residual",

@@ -24,6 +24,8 @@ from .._linear_solvers import AbstractLinearSolver as AbstractLinearSolver
 from .._linear_solvers import default_linear_solver as default_linear_solver
 from .._ocp_solver import AbstractOCPSolver as AbstractOCPSolver
 from .._ocp_solver import OCPSolverResult as OCPSolverResult
+from .._trajectories import path_derivatives as path_derivatives
+from .._trajectories import polynomial7 as polynomial7
 from .._transcription import boundary_states as boundary_states
 from .._transcription import bounds as bounds
 from .._transcription import defects as defects

@@ -11,6 +11,7 @@ import pytest
 
 import jaxrobot as jr
 import planning as pl
+import planning.internal as pli
 from planning.internal import check_joint_path, smooth_joint_path
 
 
@@ -45,8 +46,8 @@ def test_smooth_q_d_is_the_implicit_function(robot, joint_paths):
     jp = joint_paths["spiral"]
     exact = smooth_joint_path(robot, jp.path, jp.t, jp.q)
     s = jnp.array([0.0, 0.2503, 1.2345, 2.5])  # on and off the grid
-    d_exact = jax.jit(lambda s: pl.path_derivatives(exact, s, 1))(s)
-    d_taylor = jax.jit(lambda s: pl.path_derivatives(jp.fn, s, 1))(s)
+    d_exact = jax.jit(lambda s: pli.path_derivatives(exact, s, 1))(s)
+    d_taylor = jax.jit(lambda s: pli.path_derivatives(jp.fn, s, 1))(s)
     assert np.abs(d_taylor[0] - d_exact[0]).max() < 1e-13
     assert np.abs(d_taylor[1] - d_exact[1]).max() < 1e-9  # Taylor patch: O(T_s^4 q^(5)) off the grid
 
@@ -54,7 +55,7 @@ def test_smooth_q_d_is_the_implicit_function(robot, joint_paths):
 def test_q_d_higher_derivatives(joint_paths):
     jp = joint_paths["spiral"]
     h = float(jp.t[1] - jp.t[0])
-    d = jax.jit(lambda t: pl.path_derivatives(jp.fn, t, 4))(jp.t)
+    d = jax.jit(lambda t: pli.path_derivatives(jp.fn, t, 4))(jp.t)
     assert np.abs(d[0] - jp.q).max() < 1e-15 and np.abs(d[2] - jp.qdd).max() < 1e-12
     fd3 = (d[2][2:] - d[2][:-2]) / (2 * h)
     fd4 = (d[2][2:] - 2 * d[2][1:-1] + d[2][:-2]) / h**2

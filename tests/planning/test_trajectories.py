@@ -7,6 +7,7 @@ import pytest
 
 import jaxrobot as jr
 import planning as pl
+import planning.internal as pli
 
 DESC = jr.read_description()
 TRAJ = DESC["trajectories"]
@@ -17,8 +18,8 @@ TRAJ = DESC["trajectories"]
 
 def test_polynomial_end_conditions():
     te, a, b = 2.5, 0.3, -1.2
-    f = lambda t: pl.polynomial7(t, a, b, te)  # noqa: E731
-    d = pl.path_derivatives(f, jnp.array([0.0, te]), 4)
+    f = lambda t: pli.polynomial7(t, a, b, te)  # noqa: E731
+    d = pli.path_derivatives(f, jnp.array([0.0, te]), 4)
     assert np.allclose(d[0], [a, b], atol=1e-15, rtol=0)
     for k in (1, 2, 3):  # zero velocity, acceleration and jerk at both ends
         assert np.allclose(d[k], 0.0, atol=1e-13), k
@@ -85,8 +86,8 @@ def test_sampled_path_matches_analytic(paths):
     pos, _ = pl.sample_path(p, t)
     sp = pl.sampled_path(t, pos, description=DESC)
     k = jnp.array([0, 3, 1250, 2500])
-    d_ref = pl.path_derivatives(p.position, t[k], 2)
-    d = pl.path_derivatives(sp.position, t[k], 2)
+    d_ref = pli.path_derivatives(p.position, t[k], 2)
+    d = pli.path_derivatives(sp.position, t[k], 2)
     assert np.allclose(d[0], d_ref[0], atol=1e-15)
     assert np.allclose(d[1], d_ref[1], atol=1e-9)  # degree-8 stencil: O(T_s^8) derivative error
     assert np.allclose(d[2], d_ref[2], atol=1e-6)
