@@ -272,7 +272,7 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     if not (np.isfinite(nu) and nu > 0):
         raise ValueError(f"nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
     for name, r in (("model", robot), ("plant", plant)):
-        rigid = [j + 1 for j in range(r.n_joints) if float(r.c[j]) == 0]
+        rigid = [int(j) + 1 for j in np.flatnonzero(np.asarray(r.c) == 0)]  # on the host: no program per robot
         if rigid:
             raise ValueError(f"{name}: planning needs elastic joints ([stiffness] k1 finite), found rigid joints "
                              f"{rigid} (k1 = inf); identify the stiffness first (e.g. jaxrobot diagnose)")
@@ -311,9 +311,9 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     else:
         names, run = simulate_plans(plant, jp, trajectories, directional=directional)
     errors = summarize(run)
+    peak, rms, settle = (np.asarray(a) for a in (errors.position_max, errors.position_rms, errors.settle_position_max))
     emit(PlanEvent("plant_simulation", time.perf_counter() - start, errors=tuple(
-        (k, float(errors.position_max[i]), float(errors.position_rms[i]), float(errors.settle_position_max[i]))
-        for i, k in enumerate(names))))
+        (k, float(peak[i]), float(rms[i]), float(settle[i])) for i, k in enumerate(names))))
     return PlanResult(path, jp, sol, trajectories, nu, cost, solve_s, compile_s, plant, tuple(names), run, errors,
                       plan_err, p_d, r_d, play)
 

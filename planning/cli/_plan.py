@@ -191,8 +191,9 @@ def summary(result: PlanResult) -> dict:
     - `plant`: `{method: {"max_um", "rms_um": float}}` for each of `METHODS`, the tool position error over
       `[0, t_e]` of its motor trajectory simulated on the plant [um]."""
     sol, err, names = result.solution, result.errors, result.names
-    plant = {k: {"max_um": 1e6 * float(err.position_max[names.index(k)]),
-                 "rms_um": 1e6 * float(err.position_rms[names.index(k)])} for k in METHODS}
+    peak, rms = np.asarray(err.position_max), np.asarray(err.position_rms)  # indexed on the host
+    plant = {k: {"max_um": 1e6 * float(peak[names.index(k)]), "rms_um": 1e6 * float(rms[names.index(k)])}
+             for k in METHODS}
     e = result.plan_error
     return {
         "status": jr.status_name(result.status), "iterations": int(sol.iterations), "solve_time_s": result.solve_time,
