@@ -311,9 +311,10 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     else:
         names, run = simulate_plans(plant, jp, trajectories, directional=directional)
     errors = summarize(run)
-    peak, rms, settle = (np.asarray(a) for a in (errors.position_max, errors.position_rms, errors.settle_position_max))
+    host = jax.tree.map(np.asarray, errors)  # indexed on the host: no program per shape
     emit(PlanEvent("plant_simulation", time.perf_counter() - start, errors=tuple(
-        (k, float(peak[i]), float(rms[i]), float(settle[i])) for i, k in enumerate(names))))
+        (k, float(host.position_max[i]), float(host.position_rms[i]), float(host.settle_position_max[i]))
+        for i, k in enumerate(names))))
     return PlanResult(path, jp, sol, trajectories, nu, cost, solve_s, compile_s, plant, tuple(names), run, errors,
                       plan_err, p_d, r_d, play)
 
