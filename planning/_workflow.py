@@ -278,7 +278,7 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     if not (np.isfinite(nu) and nu > 0):
         raise ValueError(f"nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
     for name, r in (("model", robot), ("plant", plant)):
-        rigid = [j + 1 for j in range(r.n_joints) if float(r.c[j]) == 0]
+        rigid = [int(j) + 1 for j in np.flatnonzero(np.asarray(r.c) == 0)]  # on the host: no program per robot
         if rigid:
             raise ValueError(f"{name}: planning needs elastic joints ([stiffness] k1 finite), found rigid joints "
                              f"{rigid} (k1 = inf); identify the stiffness first (e.g. jaxrobot diagnose)")
@@ -317,8 +317,9 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     else:
         names, run = simulate_plans(plant, jp, trajectories, directional=directional)
     errors = summarize(run)
+    host = jax.tree.map(np.asarray, errors)  # indexed on the host: no program per shape
     emit(PlanEvent("plant_simulation", time.perf_counter() - start, errors=tuple(
-        (k, float(errors.position_max[i]), float(errors.position_rms[i]), float(errors.settle_position_max[i]))
+        (k, float(host.position_max[i]), float(host.position_rms[i]), float(host.settle_position_max[i]))
         for i, k in enumerate(names))))
     prediction = None
     if uncertainty is not None:

@@ -212,8 +212,9 @@ def summary(result: PlanResult) -> dict:
       predicted largest error of the OCP plan on the robot [um] (`planning.predict_on_robot`): in all, from the
       identified parameters' uncertainty alone, and the unexplained residual added to it."""
     sol, err, names = result.solution, result.errors, result.names
-    plant = {k: {"max_um": 1e6 * float(err.position_max[names.index(k)]),
-                 "rms_um": 1e6 * float(err.position_rms[names.index(k)])} for k in METHODS}
+    peak, rms = np.asarray(err.position_max), np.asarray(err.position_rms)  # indexed on the host
+    plant = {k: {"max_um": 1e6 * float(peak[names.index(k)]), "rms_um": 1e6 * float(rms[names.index(k)])}
+             for k in METHODS}
     e = result.plan_error
     return {
         "status": jr.status_name(result.status), "iterations": int(sol.iterations), "solve_time_s": result.solve_time,
