@@ -3,7 +3,7 @@ smaller path error than DETMAX's (the thesis' O1) at the same count?
 
 The nominal Racer-7 with the default parameter set (26 parameters) and the bench's tracker (50 um per axis); one
 pool of random feasible poses for both designs; per task (line, spiral: the flat inverse of the nominal model) its
-weight `planning.task_weight`, then per pose count K the designed set and DETMAX's. Predicted: the largest path
+weight `planning.internal.task_weight`, then per pose count K the designed set and DETMAX's. Predicted: the largest path
 error's p50/p95 after a least-squares calibration on the set (`planning.predict_on_robot` with the covariance
 `sigma^2 (A^T A)^{-1}`). True: R as-built robots of the bench (`draw_fleet(seed=0)`) measured by the tracker at the
 set's poses (noise seeded per robot and set), calibrated from the nominal robot with the default set, the task
@@ -36,6 +36,7 @@ from identification.calibration import (  # noqa: I001
     random_feasible_poses,
     task_poses,
 )
+from planning.internal import task_weight
 
 OUT = Path(__file__).with_name("results_design.md")
 TASKS = ("line", "spiral")
@@ -83,7 +84,7 @@ def main() -> None:
         path = pl.reference_path(task, jr.read_description(None))
         jp = pl.joint_path(nominal, path)
         traj = pl.flat_motor_trajectory(nominal, jp)
-        weight = pl.task_weight(nominal, params.entries, jp, traj)
+        weight = task_weight(nominal, params.entries, jp, traj)
         for k in args.counts:
             t0 = time.perf_counter()
             design = task_poses(nominal, params, weight, k, marker=marker, sigma=sigma, pool=pool)

@@ -34,7 +34,6 @@ from ._ocp import OCPSolution as OCPSolution
 from ._ocp import solve_ocp as solve_ocp
 from ._prediction import RobotPrediction as RobotPrediction
 from ._prediction import predict_on_robot as predict_on_robot
-from ._prediction import task_weight as task_weight
 from ._sweep import solve_ocp_sweep as solve_ocp_sweep
 from ._trajectories import Path as Path
 from ._trajectories import default_start as default_start

@@ -2,13 +2,13 @@
 the O1 index of the whole parameter set (DETMAX, `_pose_selection.detmax`).
 
 A task enters as the weight `W = mean_k J_k^T J_k` (m, m) of its tool position error's Jacobian `J_k` (3, m) with
-respect to the identified parameters at its samples (`planning.task_weight`): with the parameters' covariance
-`C`, `trace(W C)` is the mean squared error the calibration leaves along the task. The least-squares calibration
-on a pose set with identification Jacobian `A` (`pose_jacobians`) and tracker noise `sigma` per axis has
-`C = sigma^2 (A^T A)^{-1}`, so the design minimises `sigma^2 trace(W (A^T A)^{-1})` (L-optimality) by exchanging
-poses with a pool of feasible poses: a greedy start (each pose the pool's that lowers the criterion most, rank-3
-updates of `(A^T A)^{-1}`), then per iteration the best exchange among the `n_try` pool poses that lower the
-criterion most, each with the set's pose whose removal raises it least, until no exchange lowers it.
+respect to the identified parameters at its samples (`planning.internal.task_weight`): with the parameters'
+covariance `C`, `trace(W C)` is the mean squared error the calibration leaves along the task. The least-squares
+calibration on a pose set with identification Jacobian `A` (`pose_jacobians`) and tracker noise `sigma` per axis
+has `C = sigma^2 (A^T A)^{-1}`, so the design minimises `sigma^2 trace(W (A^T A)^{-1})` (L-optimality) by
+exchanging poses with a pool of feasible poses: a greedy start (each pose the pool's that lowers the criterion
+most, rank-3 updates of `(A^T A)^{-1}`), then per iteration the best exchange among the `n_try` pool poses that
+lower the criterion most, each with the set's pose whose removal raises it least, until no exchange lowers it.
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ def pose_covariance(blocks: Float[Array, "K d m"], sigma: float) -> np.ndarray:
 
 def task_criterion(blocks: Float[Array, "K d m"], weight: Float[Array, "m m"], sigma: float) -> float:
     """`trace(W C)` [m^2] of the pose set with Jacobian blocks `blocks` (`pose_covariance`): the mean squared tool
-    position error the calibration leaves along the task of weight `W` (`planning.task_weight`)."""
+    position error the calibration leaves along the task of weight `W` (`planning.internal.task_weight`)."""
     return float(np.trace(np.asarray(weight, float) @ pose_covariance(blocks, sigma)))
 
 
@@ -137,8 +137,8 @@ def task_poses(
     pool: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> TaskDesign:
     """The `n_poses` calibration poses that minimise `sigma^2 trace(W (A^T A)^{-1})`, the mean squared error of the
-    task whose weight is `weight` (m, m, over `params`; `planning.task_weight`), by the exchange algorithm of the
-    module docstring (`n_try` candidates per exchange, at most `max_iter` exchanges), on the pool `pool` =
+    task whose weight is `weight` (m, m, over `params`; `planning.internal.task_weight`), by the exchange algorithm
+    of the module docstring (`n_try` candidates per exchange, at most `max_iter` exchanges), on the pool `pool` =
     `(q (P, n), blocks (P, d, m))` or `pool_size` random feasible poses of seed `seed` (`random_feasible_poses`, as
     `detmax`). `marker` [m]: the tracker marker in the tool frame
     (`Instruments.marker_offset`); `sigma` [m]: the tracker noise per axis. Raises `ValueError` naming `weight`,
