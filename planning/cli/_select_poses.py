@@ -27,11 +27,11 @@ OUT_FILE = ("the pose file to write (theta1_deg..thetan_deg and x_m, y_m, z_m: t
 def configure(parser) -> None:
     parser.add_argument("--task", default="line", help="'line' (default), 'spiral' or FILE.csv (as `jaxrobot plan`)")
     parser.add_argument("--count", type=int, default=15, help="calibration poses to choose (default 15)")
-    add_model_option(parser, "robot model TOML whose parameters the calibration identifies (default: the "
-                             "embedded Racer-7)")
     parser.add_argument("--setup", type=Path, default=None, metavar="FILE",
                         help="measurement setup with the tracker's marker and noise ([sensors]; default: the "
                              "model file's, without --model the embedded Racer-7 bench's)")
+    add_model_option(parser, "robot model TOML whose parameters the calibration identifies (default: the "
+                             "embedded Racer-7)")
     parser.add_argument("--pool", type=int, default=4000, help="random feasible candidate poses (default 4000)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the candidate pool and of DETMAX (default 0)")
 
