@@ -16,6 +16,7 @@ its own term. `benchmarks/bench_coverage.py` checks the band against robots of t
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from functools import partial
 
 import jax
@@ -151,6 +152,32 @@ def deviation_draws(uncertainty: jr.ModelUncertainty, draws: int, seed: int) -> 
     return np.random.default_rng(seed).standard_normal((draws, len(w))) @ root.T
 
 
+def _linearised(robot, uncertainty, jp, trajectory, directional, method, substeps):
+    """The error on the model `e0` (N, 3) and its Jacobian (N, 3, m) with respect to `uncertainty`'s parameters."""
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {METHODS}, found {method!r}")
+    _check(robot, uncertainty, jp, trajectory)
+    n = jp.t.shape[0]
+    t, padded, p_d = _padded(jp, trajectory)
+    every, columns = _every_entry(uncertainty, robot.n_joints)
+    x0, jac = head(_LINEARISATIONS[method](robot, every, t, padded, substeps, bool(directional)), n)
+    return np.asarray(x0) - p_d, np.asarray(jac)[..., columns]
+
+
+def task_weight(robot: jr.Robot, names: Sequence[str], jp: JointPath, trajectory: MotorTrajectory,
+                directional: bool = False, method: str = "kinematic",
+                substeps: int = SUBSTEPS) -> Float[np.ndarray, "m m"]:
+    """The weight `W = mean_k J_k^T J_k` (m, m) of the task `jp` run by the motor `trajectory` on the model `robot`:
+    `J_k` (3, m) the tool position error's Jacobian at sample `k` with respect to the parameters `names` (robot-file
+    entries, `jaxrobot.ModelUncertainty.names`), linearised as `predict_on_robot` does (`method`, `directional`).
+    For parameter deviations of covariance `C`, `trace(W C)` is the mean squared error along the task
+    [m^2]; `identification.calibration.task_poses` chooses calibration poses that minimise it."""
+    m = len(names)
+    probe = jr.ModelUncertainty(tuple(names), jnp.zeros(m), jnp.zeros((m, m)), jnp.asarray(0.0), jnp.asarray(0.0))
+    jac = _linearised(robot, probe, jp, trajectory, directional, method, substeps)[1]
+    return np.einsum("nim,nik->mk", jac, jac) / jac.shape[0]
+
+
 def predict_on_robot(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: JointPath, trajectory: MotorTrajectory,
                      directional: bool = False, method: str = "kinematic", draws: int = DRAWS, seed: int = 0,
                      substeps: int = SUBSTEPS) -> RobotPrediction:
@@ -160,14 +187,7 @@ def predict_on_robot(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: Join
     `directional`: the gears with their flanks as states (`jr.simulate`), as `plan_task` evaluates the plant;
     `method`: the linearisation (`METHODS`); `draws` Gaussian draws from the generator seeded by `seed`.
     Raises `ValueError` naming `trajectory`, `uncertainty` or `method` where they do not fit."""
-    if method not in METHODS:
-        raise ValueError(f"method: expected one of {METHODS}, found {method!r}")
-    _check(robot, uncertainty, jp, trajectory)
-    n = jp.t.shape[0]
-    t, padded, p_d = _padded(jp, trajectory)
-    every, columns = _every_entry(uncertainty, robot.n_joints)
-    x0, jac = head(_LINEARISATIONS[method](robot, every, t, padded, substeps, bool(directional)), n)
-    e0, jac = np.asarray(x0) - p_d, np.asarray(jac)[..., columns]
+    e0, jac = _linearised(robot, uncertainty, jp, trajectory, directional, method, substeps)
     unexplained = float(uncertainty.unexplained)
     dev = deviation_draws(uncertainty, draws, seed)
     err = np.concatenate([np.linalg.norm(e0 + np.einsum("nij,dj->dni", jac, d), axis=-1)

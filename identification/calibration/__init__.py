@@ -15,8 +15,13 @@ from ..core._parameters import THESIS_PARAMETERS as THESIS_PARAMETERS
 from ..core._parameters import ParameterMap as ParameterMap
 from ..core._pose_selection import PoseConstraints as PoseConstraints
 from ..core._pose_selection import detmax as detmax
+from ..core._pose_selection import pose_jacobians as pose_jacobians
 from ..core._pose_selection import random_feasible_poses as random_feasible_poses
 from ..core._pose_selection import rest_motor_angles as rest_motor_angles
+from ..core._task_design import TaskDesign as TaskDesign
+from ..core._task_design import pose_covariance as pose_covariance
+from ..core._task_design import task_criterion as task_criterion
+from ..core._task_design import task_poses as task_poses
 from ._calibrate import map_parameters as map_parameters
 from ._demo import DemoCalibration as DemoCalibration
 from ._demo import demo_calibration as demo_calibration

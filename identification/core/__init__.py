@@ -5,8 +5,9 @@ never each other.
   them applied, and the rest-pose + marker forward model of a pose (`predict_pose`, thesis 3.2.3).
 - `_forward`: the same chain with the per-pose constants of an LM solve hoisted, and the identification
   Jacobian of the marker position by the joint parameters (`position_jacobian`, thesis 3.2.2).
-- `_identifiability`, `_observability`, `_pose_selection`: which parameters the poses identify (QR
-  pivoting of the scaled Jacobian), observability indices, random feasible poses and DETMAX.
+- `_identifiability`, `_observability`, `_pose_selection`, `_task_design`: which parameters the poses identify
+  (QR pivoting of the scaled Jacobian), observability indices, random feasible poses and DETMAX, and the poses
+  that minimise a task's predicted error (`task_poses`).
 - `_batched_lm`: Levenberg-Marquardt on a batch of independent problems (fleets, candidate fits).
 - `_noise`, `_robust`, `_pose_checks`: the tracker's noise model and chi-square test, robust losses
   (IRLS weights, outliers), and the unit and consistency checks of pose measurements.

@@ -100,6 +100,12 @@ class ParameterMap(eqx.Module):
     def index(self, name: str) -> int:
         return self.names.index(name)
 
+    @property
+    def entries(self) -> tuple[str, ...]:
+        """The parameters as robot-file entries (`file_entry`: `kinematics.a[2]`, the names of
+        `jaxrobot.ModelUncertainty`), in the order of the flat vector."""
+        return tuple(file_entry(n) for n in self.names)
+
     def get(self, robot: jr.Robot) -> Float[Array, "*b m"]:
         check_joints(self.names, robot)
         used = {parse_name(n)[0] for n in self.names}

@@ -1,8 +1,9 @@
 """The pieces of the planning solver, not part of the planning API (as `optimistix.internal`): the
 transcription of the optimal control problem (defects, bounds, scaling, objective, warm start), the pieces
 of the joint path (pose residual, Taylor and smoothed paths, their derivatives), the block-tridiagonal
-solvers of the Newton systems and the interfaces a new OCP solver (`AbstractOCPSolver`, `OCPSolverResult`) or
-linear solver (`AbstractLinearSolver`) implements. Names here may change between releases without an alias."""
+solvers of the Newton systems, a task's weight for the design of calibration poses (`task_weight`) and the
+interfaces a new OCP solver (`AbstractOCPSolver`, `OCPSolverResult`) or linear solver (`AbstractLinearSolver`)
+implements. Names here may change between releases without an alias."""
 
 from jaxrobot.internal import check_public as _check_public
 
@@ -24,6 +25,7 @@ from .._linear_solvers import AbstractLinearSolver as AbstractLinearSolver
 from .._linear_solvers import default_linear_solver as default_linear_solver
 from .._ocp_solver import AbstractOCPSolver as AbstractOCPSolver
 from .._ocp_solver import OCPSolverResult as OCPSolverResult
+from .._prediction import task_weight as task_weight
 from .._trajectories import path_derivatives as path_derivatives
 from .._trajectories import polynomial7 as polynomial7
 from .._transcription import boundary_states as boundary_states

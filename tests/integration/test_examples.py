@@ -133,6 +133,16 @@ def test_cycle_time(tmp_path):
         assert all(b <= (1 + refine) * a for a, b in zip(durations, durations[1:])), (name, durations)
 
 
+@pytest.mark.extended  # the demo calibration, one line's prediction and a pose design
+def test_error_on_the_robot(tmp_path):
+    """The line's true largest error on the as-built robot lies inside its predicted 95th percentile (the coverage
+    of `benchmarks/results_coverage.md`), and 15 poses designed for the line predict it a smaller error than
+    DETMAX's 15."""
+    s = _run("09_error_on_the_robot.ipynb", tmp_path)
+    assert 0.0 < s["true_max_m"] <= s["predicted_p95_m"], s
+    assert s["designed_p95_m"] < s["detmax_p95_m"], s
+
+
 NOTEBOOKS = ["01_model_tour.ipynb", "02_gear_identification.ipynb", "03_calibration.ipynb",
              "04_nu_study.ipynb", "05_diagnose.ipynb", "06_own_robot.ipynb",
-             "07_closed_loop.ipynb", "08_cycle_time.ipynb"]
+             "07_closed_loop.ipynb", "08_cycle_time.ipynb", "09_error_on_the_robot.ipynb"]
