@@ -237,12 +237,27 @@ def _check_uncertainty(table: dict, n: int) -> None:
     cov = np.asarray(table["covariance"], float)
     if cov.shape != (m, m):
         fail_field("uncertainty.covariance", f"an ({m}, {m}) matrix, one row and column per name", f"shape {cov.shape}")
-    if not np.allclose(cov, cov.T, rtol=1e-9, atol=0) or (m and np.linalg.eigvalsh(cov)[0] < -1e-9 * np.abs(cov).max()):
-        fail_field("uncertainty.covariance", "a symmetric positive semi-definite matrix", cov.tolist())
+    if m:
+        _check_covariance(cov)
     for key in ("residual_rms_m", "explained_rms_m"):
         if not table[key] >= 0:
             fail_field(f"uncertainty.{key}", "an RMS distance >= 0 m", table[key])
 
+
+def _check_covariance(cov: np.ndarray) -> None:
+    """`uncertainty.covariance` symmetric and positive semi-definite to rounding, judged on the correlation scale so
+    that parameters of other units (m, rad, ratios) weigh alike."""
+    variances = np.diag(cov)
+    d = np.sqrt(np.maximum(variances, np.finfo(float).tiny))
+    corr = cov / np.outer(d, d)
+    asymmetry = np.abs(corr - corr.T).max()
+    if variances.min() < 0 or asymmetry > 1e-9:
+        fail_field("uncertainty.covariance", "a symmetric matrix with variances >= 0 (asymmetry <= 1e-9 of the "
+                   "correlations)", f"smallest variance {variances.min():.3g}, asymmetry {asymmetry:.3g}")
+    smallest = np.linalg.eigvalsh(0.5 * (corr + corr.T))[0]
+    if smallest < -1e-9:
+        fail_field("uncertainty.covariance", "a positive semi-definite matrix (correlation eigenvalues >= -1e-9)",
+                   f"smallest eigenvalue {smallest:.3g}")
 
 def stiffness_terms(data: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
     """`(k1, k3)`; no `[stiffness]` section means rigid joints (`k1 = inf`, `k3 = 0`)."""

@@ -60,7 +60,13 @@ def test_apply_moves_the_named_entries():
     (lambda t: t.update(value=t["value"][:-1]), r"uncertainty.value: expected one value per name \(5\)"),
     (lambda t: t.update(covariance=[r[:-1] for r in t["covariance"][:-1]]),
      r"uncertainty.covariance: expected an \(5, 5\)"),
-    (lambda t: t["covariance"][0].__setitem__(0, -1.0), "uncertainty.covariance: expected a symmetric positive"),
+    (lambda t: t["covariance"][0].__setitem__(0, -1.0),
+     "uncertainty.covariance: expected a symmetric matrix with variances >= 0"),
+    (lambda t: t["covariance"][0].__setitem__(1, t["covariance"][0][1] + 1e-3 * t["covariance"][0][0]),
+     "uncertainty.covariance: expected a symmetric matrix .*asymmetry 0.001"),
+    (lambda t: [t["covariance"][i].__setitem__(j, 2 * (t["covariance"][0][0] * t["covariance"][1][1]) ** 0.5)
+                for i, j in ((0, 1), (1, 0))],
+     "uncertainty.covariance: expected a positive semi-definite matrix .*smallest eigenvalue -"),
     (lambda t: t.update(explained_rms_m=-1.0), "uncertainty.explained_rms_m: expected an RMS distance >= 0"),
     (lambda t: t.update(names=[1, 2]), "uncertainty.names: expected a list of strings"),
 ])
@@ -71,3 +77,17 @@ def test_bad_sections_are_named(tmp_path, change, message):
     (tmp_path / "bad.toml").write_text(tomli_w.dumps(data))
     with pytest.raises(jr.RobotFileError, match=message):
         jr.load_robot(tmp_path / "bad.toml")
+
+
+def test_rounding_asymmetry_of_a_nearly_singular_covariance_loads(tmp_path):
+    """A covariance `J⁺ Σ J⁺ᵀ` of strongly correlated parameters is symmetric to rounding only, and its small
+    off-diagonal entries differ in relative terms far beyond 1e-9: it is saved symmetric and loads."""
+    robot = jr.racer7()
+    u = _uncertainty(robot)
+    cov = np.array(u.covariance)
+    cov[0, 1] = cov[0, 1] * (1 + 1e-12) + 1e-8 * abs(cov[0, 1])  # a small entry's rounding, not the matrix's scale
+    u = jr.ModelUncertainty(NAMES, u.value, jnp.asarray(cov), u.residual_rms, u.explained_rms, u.source)
+    jr.save_robot(robot, tmp_path / "r.toml", uncertainty=u)
+    back = np.asarray(jr.io.read_uncertainty(tmp_path / "r.toml").covariance)
+    np.testing.assert_array_equal(back, back.T)
+    np.testing.assert_allclose(back, cov, rtol=1e-8)
