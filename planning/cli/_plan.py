@@ -80,7 +80,8 @@ def task_path(task: str, description: dict):
 
 
 PLANT_HELP = ("robot the plans are simulated on: 'model' (the planning model, cw gear set throughout), 'as-built' "
-              "(the test bench's robot: the model file's [as_built], else the embedded Racer-7's) or a robot FILE "
+              "(the test bench's robot: the model file's [as_built]; for a model of the embedded Racer-7 without one, the "
+              "Racer-7's) or a robot FILE "
               "(TOML/URDF); all but 'model' with their gears' flanks as states")
 
 
@@ -91,7 +92,14 @@ def load_plant(plant: str, desc: dict, robot: jr.Robot) -> jr.Robot:
     if plant == "model":
         return robot
     if plant == "as-built":
-        out = robot_from_description(desc, as_built=True) if "as_built" in desc else jr.racer7(as_built=True)
+        if "as_built" in desc:
+            out = robot_from_description(desc, as_built=True)
+        elif robot.name == jr.racer7().name:  # a model identified from the embedded Racer-7: the bench's robot
+            out = jr.racer7(as_built=True)
+        else:
+            raise ValueError(f"--plant as-built: the model file of {robot.name!r} has no [as_built] section (the "
+                             "as-built robot is its nominal robot with those deviations); give the true robot as "
+                             "--plant FILE")
     elif Path(plant).is_file():
         out = jr.load_robot(plant)
     else:

@@ -3,6 +3,7 @@ reversals, `plan --plant` and saved robot files."""
 
 from __future__ import annotations
 
+import dataclasses
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -181,6 +182,9 @@ def test_saved_robot_files_keep_the_tasks_and_plan_on_any_plant(tmp_path):
     np.testing.assert_array_equal(plant.a, calibrated.a)
     with pytest.raises(ValueError, match="--plant: expected 'model', 'as-built' or an existing robot file"):
         load_plant("as-biult", desc, model)
+    other = dataclasses.replace(model, name="ur5")  # another robot's model never gets the Racer-7's bench
+    with pytest.raises(ValueError, match="--plant as-built: the model file of 'ur5' has no \\[as_built\\] section"):
+        load_plant("as-built", {}, other)
 
 
 @pytest.mark.extended
