@@ -5,8 +5,10 @@ model and on the true robot (`start.toml` plus the effects of `truth.json`, cw g
 on the true robot; and the identification floor: the corrected plan's command simulated on `--draws` robots drawn
 from the fit's uncertainty (`RunDiagnosis.sample`) against the same command simulated on the corrected model,
 the path error the runs' noise leaves in any model fitted from them, beside the same deviation on the true robot
-(a fit consistent with its covariance puts it within the floor's spread). Written as a section of
-`benchmarks/results_runs.md` per case.
+(a fit consistent with its covariance puts it within the floor's spread: its rank among the draws is uniform), and
+the estimates' errors against `truth.json` in units of their stds with the truth's Mahalanobis distance from the
+estimates (the chi-square of the covariance's calibration). Written as a section of `benchmarks/results_runs.md` per
+case.
 
 `--tracker-noise SIGMA_M` measures the runs anew on the true robot (our simulation) with that tracker noise instead:
 how the floor and the re-plan scale with the runs' information.
@@ -26,6 +28,7 @@ from pathlib import Path
 import _timing
 import jax.numpy as jnp
 import numpy as np
+from scipy import stats
 
 import jaxrobot as jr
 import planning as pl
@@ -53,6 +56,31 @@ def true_robot(folder: Path) -> jr.Robot:
                                 viscous_friction=jnp.asarray(effects["link_friction"])
                                 if any(effects["link_friction"]) else None)
     return payload_robot(robot, effects["payload_mass"], jnp.asarray(effects["payload_com"]))
+
+
+def true_value(folder: Path, kind: str, joint: int | None, parameter: str) -> float:
+    """The value of a `RunEstimate`'s parameter (kind, joint, parameter) on the case's true robot (`true_robot`), in
+    its reported unit: an effect `truth.json` lacks at its value of `start.toml` (0, or a factor of 1)."""
+    effects = json.loads((folder / "truth.json").read_text())["effects"]
+    if kind == "payload":
+        return float(effects["payload_mass"] if parameter == "mass" else effects["payload_com"]["xyz".index(parameter)])
+    scale = effects["stiffness_scale"][joint]
+    fields = {"lag": effects["lag"][joint], "damping": effects["damping"][joint], "stiffness": scale,
+              "viscous": effects["link_friction"][joint], "inertia": 1.0,
+              "cubic": float(jr.load_robot(folder / "start.toml").k3[joint]) * scale}
+    return float(fields.get(kind, 0.0))
+
+
+def calibration(folder: Path, diagnosis) -> str:
+    """The estimates against the case's truth in words: each error in units of its std, and the truth's Mahalanobis
+    distance d^2 from the estimates in their covariance with its chi-square p-value (m estimates)."""
+    est = diagnosis.estimates
+    error = np.array([e.value - true_value(folder, e.effect.kind, e.effect.joint, e.parameter) for e in est])
+    d2 = float(error @ np.linalg.solve(diagnosis.covariance, error))
+    sigmas = ", ".join(f"{e.effect.label if e.effect.joint is not None else e.effect.kind + ' ' + e.parameter} "
+                       f"{x / e.std:+.2f}" for e, x in zip(est, error))
+    return (f"the estimates' errors against truth.json in their stds: {sigmas}; the truth's Mahalanobis distance "
+            f"d^2 = {d2:.2f} for {len(est)} estimates (p = {stats.chi2.sf(d2, len(est)):.2g})")
 
 
 def diagnose_case(folder: Path, samples: int, tracker_noise: float | None = None):
@@ -144,7 +172,8 @@ def table_row(case: str, task: str, e: dict) -> str:
     # first goal (the clean case's start model is the true robot: its plan's error is the plan's, not the model's)
     goal_start = "met" if gain >= 5 else ("-" if e["start"][0] <= max(10e-6, 1.5 * e["true"][0]) else "not met")
     deviation = "-" if e["deviation"] is None else (
-        f"{1e6 * e['deviation']:.3g} ({e['deviation'] / np.median(spread):.3g})")
+        f"{1e6 * e['deviation']:.3g} ({e['deviation'] / np.median(spread):.3g}; above "
+        f"{np.sum(spread < e['deviation'])}/{len(spread)})")
     return (f"| {case} | {task} | {um['start']} | {um['corrected']} | {um['true']} | {low} | {deviation} | "
             f"{ratio:.3g} ({goal_true}) | {gain:.3g} ({goal_start}) |")
 
@@ -171,7 +200,8 @@ def main() -> None:
             f"{case}, runs measured anew with {1e6 * args.tracker_noise:g} µm of tracker noise")
         effects = "; ".join(f"{e.effect.label} {e.shown} ± {e.std:.2g} {e.unit}" for e in diagnosis.estimates)
         lines = [f"`diagnose_runs` on {args.samples} samples of each run: {seconds:.0f} s; {diagnosis.verdict}"
-                 + (f" ({effects}; {diagnosis.final_fit.text})" if effects else ""), ""]
+                 + (f" ({effects}; {diagnosis.final_fit.text}); {calibration(root / case, diagnosis)}"
+                    if effects else ""), ""]
         rows = [table_row(case, task, e) for task, e in errors.items()]
         command = (f"python benchmarks/bench_replan.py --cases {case} --tasks {' '.join(args.tasks)} "
                    f"--samples {args.samples} --draws {args.draws}"
@@ -181,8 +211,9 @@ def main() -> None:
                    "Tool path error over the motion on the case's true robot [µm], max / RMS, of the "
                    f"nu = {NU:g} plan made on each model; floor: the largest deviation of the corrected plan's "
                    f"command on robots drawn from the fit's uncertainty ({args.draws} draws), median / 90th "
-                   "percentile; the true robot's deviation: the same for the true robot (and its ratio to the "
-                   "floor's median). Goals: corrected <= 1.5 x true (where missed: whether corrected <= true + the "
+                   "percentile; the true robot's deviation: the same for the true robot (its ratio to the "
+                   "floor's median; how many draws it exceeds: uniform where the covariance is calibrated). "
+                   "Goals: corrected <= 1.5 x true (where missed: whether corrected <= true + the "
                    "floor's 90th percentile), and >= 5 x below start where start > 10 µm and > 1.5 x true.", "",
                    "| case | task | start | corrected | true robot | floor | true robot's deviation | corrected / true "
                    "| start / corrected |", "|---|---|---|---|---|---|---|---|---|", *rows]

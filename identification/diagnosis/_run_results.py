@@ -183,7 +183,11 @@ class RunDiagnosis:
     """The outcome in words."""
     covariance: np.ndarray
     """(m, m) the covariance of the `estimates`' values in their order and units from the final fit (linearised, the
-    noise as stated; the stds are the roots of its diagonal)."""
+    noise as stated; the stds are the roots of its diagonal). Not scaled by the fit's chi-square: where the model
+    explains the runs and the noise is the stated one, independent per sample and axis, the estimates' errors
+    spread as it says (`tests/identification/test_runs.py::test_run_fit_covariance_is_calibrated`); a residual
+    correlated along the run (a filter, unmodelled dynamics) would make it too small. Encoder angles finer than
+    their stated quantisation make it too large for the effects the encoders fix (the motor response)."""
     fit: tuple = dataclasses.field(repr=False, compare=False)
     """`(start, variables, indices, covariance)`: the start robot given the terms it lacked at zero, the final
     fit's scaled effect variables, the indices of the added effects' ones and their covariance (what `sample`
@@ -223,7 +227,9 @@ class RunDiagnosis:
     def sample(self, count: int, seed: int) -> list[jr.Robot]:
         """`count` robots consistent with the runs: the added effects' fit variables drawn (seeded) from a normal
         with their fitted values and covariance, the rest of the model as fitted (the fit's linearised uncertainty,
-        to carry into what the model is used for); `count` copies of `robot` when no effect was added."""
+        to carry into what the model is used for); `count` copies of `robot` when no effect was added. The true
+        robot is one more such draw where the covariance is calibrated (`covariance`): its deviation from `robot`
+        along a plan exceeds the draws' median on half the cases, their 90th percentile on a tenth."""
         start, z, indices, cov = self.fit
         if not indices:
             return [self.robot] * count

@@ -430,6 +430,50 @@ def test_run_fits_return_a_status():
     assert jr.status_name(out.result) == "nonlinear_divergence" and not out.successful and out.covariance is None
 
 
+CALIBRATION_DRAWS = 100
+"""Noise draws of `test_run_fit_covariance_is_calibrated`: the fraction of errors within 1 std is then known to
++-0.047 (binomial), within 2 stds to +-0.021, and the mean Mahalanobis distance per estimate to +-0.1."""
+
+
+def test_run_fit_covariance_is_calibrated():
+    """Over seeded draws of the tracker's noise (50 um, independent per sample and axis, as stated) on the arm's
+    40 ms run with both joints' springs softer or stiffer than the start's, the fit of the two stiffness factors
+    (`_fit` from the truth, the estimates and their covariance as `diagnose_runs` reports them, `_estimate`): each
+    estimate's error in units of its std falls within 1 std as often as a normal's (68.3 %) and within 2 stds as
+    often (95.4 %), each within 3 binomial stds of those; the errors' Mahalanobis distance in the reported
+    covariance, per estimate, averages 1 within 3 of its stds (the off-diagonal too). A covariance 1.5 times too
+    small or too large in std fails every one of these (49.5 % or 86.6 % within 1 std)."""
+    from identification.diagnosis._run_evidence import _evaluate, _Evidence, _prepare
+    from identification.diagnosis._run_fits import _estimate, _fit
+    from identification.diagnosis._run_model import index, run_layout, with_effect_arrays
+    from identification.diagnosis._run_results import RunEffect
+
+    marker, noise, factors = np.array([0.05, 0.0, 0.0]), 5e-5, np.array([1.1, 0.9])
+    start = jr.robot_from_description(arm_description())
+    truth = dataclasses.replace(start, c=start.c / factors)  # k1 and k3 scaled alike
+    t, rng = np.arange(40) * 1e-3, np.random.default_rng(4303)
+    cmd, (_, motors, clean) = run_pair(truth, t, 1.0, marker, 0.0, rng)  # noise-free
+    base, effects = with_effect_arrays(start), [RunEffect("stiffness", 0), RunEffect("stiffness", 1)]
+    variables = [index(e, 2)[0] for e in effects]
+    z = np.zeros(run_layout(2).size)
+    z[variables] = (1.0 / factors - 1.0) / 1e-2  # the truth (`JointStiffness`: c x (1 + 1e-2 z))
+    within, d2 = [], []
+    for _ in range(CALIBRATION_DRAWS):
+        runs, sigma = _prepare([(cmd, (t, motors, clean + noise * rng.standard_normal(clean.shape)))], noise, "run")
+        ev = _Evidence(runs, sigma, None)
+        fit = _fit(base, z, effects, ev, marker, 4, *_evaluate(base, z, ev, marker, 4, variables), chi2_before=math.inf)
+        assert fit.successful
+        estimates, covariance = _estimate(base, fit.z, effects, fit.covariance)
+        error = np.array([e.value for e in estimates]) - factors
+        within.append(np.abs(error) / [e.std for e in estimates])
+        d2.append(float(error @ np.linalg.solve(covariance, error)) / len(effects))
+    within = np.array(within)
+    for k, p in ((1.0, 0.6827), (2.0, 0.9545)):
+        fraction = np.mean(within < k, 0)
+        assert np.all(np.abs(fraction - p) < 3 * np.sqrt(p * (1 - p) / CALIBRATION_DRAWS)), (k, fraction)
+    assert abs(np.mean(d2) - 1.0) < 3 * np.sqrt(2.0 / (len(effects) * CALIBRATION_DRAWS)), np.mean(d2)
+
+
 @pytest.mark.extended  # ~1 min: the run programs compile for the arm
 def test_final_estimate_is_fitted_on_every_run():
     """The arm with a hidden viscous link friction of 0.3 N m s/rad on joint 2, one training and one validation run
