@@ -61,7 +61,8 @@ class ParameterSelection:
         out[np.ix_(kept, kept)] = c[np.ix_(kept, kept)] - gain @ c[np.ix_(aside, kept)]
         change = np.asarray(self.delta_bic, float)
         s = np.sqrt((change + np.log(self.n_residuals) + 1.0) / (1.0 + np.exp(-change / 2.0)))
-        return out + g @ (s[:, None] * c_aa * s[None, :]) @ g.T
+        out = out + g @ (s[:, None] * c_aa * s[None, :]) @ g.T
+        return 0.5 * (out + out.T)  # symmetric to the last bit, as a robot file stores it
 
 
 def select_parameters(names: Sequence[str], delta: np.ndarray, covariance: np.ndarray,
