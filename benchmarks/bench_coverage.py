@@ -247,7 +247,8 @@ def _pinocchio_error(start: jr.Robot, truth: dict) -> Callable:
 
     def error(jp, traj):
         q, _ = jr.simulate(dynamics, jnp.asarray(jp.t), traj.theta, traj.thetad, traj.thetadd)
-        tip = np.array([arm.frames(qk).oMf[arm.tip].translation for qk in np.asarray(q)])
+        # copied: pinocchio overwrites its data at the next call
+        tip = np.array([arm.frames(qk).oMf[arm.tip].translation.copy() for qk in np.asarray(q)])
         p_d = np.asarray(pl.sample_path(jp.path, jp.t)[0])
         return float(np.max(np.linalg.norm(tip - p_d, axis=-1)))
 
