@@ -165,12 +165,14 @@ class CalibrationResult:
     def uncertainty(self, source: str = "calibrate") -> jr.ModelUncertainty | None:
         """What the calibration leaves uncertain in `robot` (`jaxrobot.ModelUncertainty`, the robot file's
         `[uncertainty]`; `model_uncertainty`): `source` names the command. Where the `selection` set parameters
-        aside, those stay uncertain too: at their start values they are off by what the data could not tell
-        from zero, so the uncertainty is that of the whole default set fitted together (its covariance, the
-        values of `robot`); None where no parameter was fitted."""
+        aside, those stay uncertain too: at their start values they are off by their true deviations, which the
+        data could not tell from zero, so the uncertainty is over the whole default set (the values of `robot`),
+        its covariance averaged over the models of each parameter set aside by their BIC weights
+        (`ParameterSelection.averaged_covariance`); None where no parameter was fitted."""
         sel = self.selection
         if sel is not None and sel.set_aside and sel.covariance is not None:
-            names, value, cov = sel.candidates, np.asarray(ParameterMap(sel.candidates).get(self.robot)), sel.covariance
+            names, cov = sel.candidates, sel.averaged_covariance()
+            value = np.asarray(ParameterMap(sel.candidates).get(self.robot))
         elif self.names:
             names, value, cov = self.names, self.value, self.covariance
         else:
@@ -488,7 +490,7 @@ def calibrate(
             fit, params = problem.start(params), None
     sets = [] if params is None else [(params.names, fit.covariance)]
     if selection is not None and selection.set_aside:
-        sets.append((selection.candidates, selection.covariance))
+        sets.append((selection.candidates, selection.averaged_covariance()))
     return problem.result(params, fit, beyond_limits=tuple(beyond), method=method, selection=selection,
                           parameter_check=check_out, validation_spread=problem.spread(sets))
 

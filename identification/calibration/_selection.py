@@ -36,8 +36,33 @@ class ParameterSelection:
     n_residuals: int
     """Residuals `n` of the BIC penalty `m ln n` (those of the poses the robust loss does not reject)."""
     covariance: np.ndarray | None = None
-    """(c, c) the covariance of the `candidates` fitted together (what the result's uncertainty keeps of the
-    parameters set aside: `CalibrationResult.uncertainty`)."""
+    """(c, c) the covariance of the `candidates` fitted together (`averaged_covariance` makes the result's
+    uncertainty of the parameters set aside from it: `CalibrationResult.uncertainty`)."""
+
+    def averaged_covariance(self) -> np.ndarray:
+        """(c, c) the covariance of the errors of the `candidates` in the result (the `kept` fitted, the `set_aside`
+        at their start values), averaged over the models of each parameter set aside by their BIC weights.
+
+        With `C` the `covariance`, `K` the kept and `A` the set-aside parameters, the result's error is
+        `e = n_K - G theta_A`: `n_K` the kept ones' fit error, of covariance `C_KK - C_KA C_AA^-1 C_AK`, and `theta_A`
+        the true deviations of those set aside, carried by `G = [C_KA C_AA^-1; I]` (the kept ones absorb part of
+        them). BIC gives parameter `i` the probability `p_i = 1 / (1 + exp(-dBIC_i / 2))` of a nonzero deviation,
+        which then is what its fit says (mean square `(W_i + 1) C_ii`, `W_i = dBIC_i + ln n` its Wald statistic),
+        else zero: `theta_A` gets the covariance `S C_AA S`, `S = diag(sqrt(p_i (W_i + 1)))`, the fitted
+        parameters' correlations kept. (With every `p_i (W_i + 1) = 1` this is `C` itself.)"""
+        c = np.asarray(self.covariance, float)
+        kept = [self.candidates.index(n) for n in self.kept]
+        aside = [self.candidates.index(n) for n in self.set_aside]
+        c_aa = c[np.ix_(aside, aside)]
+        gain = np.linalg.solve(c_aa, c[np.ix_(aside, kept)]).T  # C_KA C_AA^-1
+        g = np.zeros((len(c), len(aside)))
+        g[kept], g[aside] = gain, np.eye(len(aside))
+        out = np.zeros_like(c)
+        out[np.ix_(kept, kept)] = c[np.ix_(kept, kept)] - gain @ c[np.ix_(aside, kept)]
+        change = np.asarray(self.delta_bic, float)
+        s = np.sqrt((change + np.log(self.n_residuals) + 1.0) / (1.0 + np.exp(-change / 2.0)))
+        out = out + g @ (s[:, None] * c_aa * s[None, :]) @ g.T
+        return 0.5 * (out + out.T)  # symmetric to the last bit, as a robot file stores it
 
 
 def select_parameters(names: Sequence[str], delta: np.ndarray, covariance: np.ndarray,

@@ -31,7 +31,9 @@ def configure(parser) -> None:
     from jaxrobot.cli import add_model_option
 
     add_model_option(parser, "start robot description (default: the embedded Racer-7, nominal)")
-    parser.add_argument("--save-model", type=Path, default=None, help="write the augmented robot (TOML)")
+    parser.add_argument("--save-model", type=Path, default=None,
+                        help="write the augmented robot (TOML), from poses with the [uncertainty] of the entries "
+                             "its added effects move")
     add_tracker_options(parser)
     parser.add_argument("--max-steps", type=int, default=6, help="most effects to add (default 6)")
     parser.add_argument("--run-kinds", nargs="+", default=None, metavar="KIND",
@@ -175,8 +177,9 @@ def run(args, echo) -> dict:
         write_outputs(args.out, res, args.max_order)
         echo(f"wrote tables and plots to {args.out}")
     if args.save_model is not None:
-        jr.save_robot(res.robot, args.save_model)
-        echo(f"wrote {args.save_model}")
+        jr.save_robot(res.robot, args.save_model, uncertainty=res.uncertainty)
+        echo(f"wrote {args.save_model}" + ("" if res.uncertainty is None else
+                                           f" with [uncertainty] of {len(res.uncertainty.names)} entries"))
     if res.drift is not None:
         d = res.drift
         echo(f"drift against t_s: link-length scale {d.rate:+.3g} +- {d.std:.2g} per s "

@@ -34,6 +34,7 @@ import functools
 import time
 from collections.abc import Callable
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
@@ -43,7 +44,16 @@ from jaxrobot.internal import renamed_argument
 from jaxrobot.measurement import Poses
 
 from ..core import _robust as robust
-from ..core._noise import ALPHA, TrackerNoise, chi2_quantile, noise_model, noise_test, tracker_noise
+from ..core._noise import (
+    ALPHA,
+    TrackerNoise,
+    chi2_quantile,
+    model_uncertainty,
+    noise_model,
+    noise_test,
+    tracker_noise,
+)
+from ..core._parameters import ParameterMap, all_parameters
 from ..core._pose_checks import check_pose_units
 from ._diagnose_results import (
     AddedEffect,
@@ -246,7 +256,38 @@ def diagnose(
         residuals_after=np.linalg.norm(ev["validation"][1], axis=-1), spectra=tuple(spectra), noise=sigma,
         validation_bound=validation_bound(sigma, len(validation), len(free), data.n_res), n_train=len(train),
         n_validation=len(validation), loss=loss, drift=drift, outliers=robust.outliers(
-            ev["train"][1], sigma * robust.spread(np.linalg.norm(ev["train"][1], axis=-1) / sigma, 3).item()))
+            ev["train"][1], sigma * robust.spread(np.linalg.norm(ev["train"][1], axis=-1) / sigma, 3).item()),
+        uncertainty=_uncertainty(data, v, ev, free))
+
+
+def _uncertainty(data: _Data, v, ev, free: list[int]) -> jr.ModelUncertainty | None:
+    """What the final model leaves uncertain (`jaxrobot.ModelUncertainty`, as `calibrate`'s:
+    `identification.core._noise.model_uncertainty`): the covariance `s^2 (J^T W J)^+` of the added effects' values
+    (`J` the training positions' Jacobian, `W` the robust weights, `s` the noise estimate) carried to the
+    robot-file entries they move (`kinematics.*`, `gear.u0`, `tool`, `base`) by the entries' derivative in the
+    values, and the validation poses' residual. Effects that move no such entry (backlash, compliance, ripple,
+    payload, the approach's gear set) are marginalised out. None where no effect moves an entry."""
+    if not free:
+        return None
+    fit = data.weights(ev)
+    a = data.jacobian(v, fit)[:, free]
+    chi2, dof = (float(x) for x in noise_test(data.whiten(ev["train"][1]), data.sigma, len(free), fit.keep)[:2])
+    cov = np.linalg.pinv(a.T @ a) * chi2 / dof  # scaled values' covariance, noise as estimated
+    entries = ParameterMap(all_parameters(data.robot0.n_joints))
+    orders, scale, cols = jnp.asarray(data.orders), data.scale[jnp.asarray(free)], jnp.asarray(free)
+    moved = lambda x: entries.get(data.layout.apply(data.robot0, v.at[cols].add(scale * x), orders))  # noqa: E731
+    g = np.asarray(jax.jacfwd(moved)(jnp.zeros(len(free))))
+    rows = np.flatnonzero(np.any(g != 0, axis=1))
+    if not rows.size:
+        return None
+    th_all, ccw_all = data.poses[:2]
+    k = len(data.train)
+    jac_val = np.asarray(data.fns.jacobian(data.robot0, v, orders, th_all[k:], tuple(c[k:] for c in ccw_all),
+                                           jnp.asarray(ev["validation"][0]), data.marker, data.scale))[:, free]
+    spread = float(np.sqrt(np.einsum("im,mn,in->", jac_val, cov, jac_val) / len(data.validation)))
+    return model_uncertainty(tuple(entries.names[i] for i in rows), np.asarray(moved(jnp.zeros(len(free))))[rows],
+                             g[rows] @ cov @ g[rows].T, data.sigma * np.sqrt(chi2 / dof), chi2, int(dof),
+                             np.linalg.norm(ev["validation"][1], axis=-1), spread, "diagnose")
 
 
 @dataclasses.dataclass(frozen=True)

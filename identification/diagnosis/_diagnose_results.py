@@ -186,6 +186,9 @@ class DiagnoseResult:
     """The training poses whose residual at the final model exceeds the outlier bound
     (`_robust.outlier_bound`) in units of the noise, or of the residuals' robust spread where that is
     larger (`_robust.spread`; `Outlier.sigmas` in the same unit), by row."""
+    uncertainty: jr.ModelUncertainty | None = None
+    """What the final model leaves uncertain, named by the robot-file entries the added effects move (the robot
+    file's `[uncertainty]`: `jaxrobot diagnose --save-model`); None where no added effect moves one."""
 
     @property
     def status(self) -> jr.RESULTS:

@@ -424,11 +424,12 @@ def test_save_roundtrip(calibrated, tmp_path):
     for field in ("a", "d", "alpha", "beta", "offset", "u0"):
         np.testing.assert_array_equal(getattr(loaded, field), getattr(calibrated.robot, field), err_msg=field)
     u = jr.io.read_uncertainty(path)
-    # the parameters set aside by the selection stay uncertain: the whole default set's covariance is kept
+    # the parameters set aside by the selection stay uncertain: the whole default set, its covariance averaged
+    # over the set-aside parameters' models
     sel = calibrated.selection
     assert sel.set_aside and set(sel.kept) == set(calibrated.names)
     assert u.names == tuple(file_entry(n) for n in sel.candidates) and "kinematics.a[2]" in u.names
-    np.testing.assert_array_equal(u.covariance, 0.5 * (sel.covariance + sel.covariance.T))  # saved symmetric
+    np.testing.assert_allclose(u.covariance, sel.averaged_covariance(), rtol=1e-15, atol=0)
     kept = [sel.candidates.index(n) for n in calibrated.names]
     np.testing.assert_array_equal(np.asarray(u.value)[kept], calibrated.value)
     # the file's names address the parameters of the loaded robot
@@ -877,3 +878,35 @@ def test_seven_joint_calibration_recovers_the_as_built_arm(arm7):
     floor = position_errors(truth, meas.motor_angles[k:], meas.positions[k:], defl,
                             np.asarray(meas.metadata["marker_offset_m"]))
     assert rep["validation"]["after_m"]["mean"] <= 1.2 * floor.mean()
+
+
+def test_averaged_covariance_of_the_parameters_set_aside():
+    """`ParameterSelection.averaged_covariance` on a linear model: the kept parameters' fit error has the covariance
+    of the exact least-squares refit without those set aside, each set-aside parameter's variance is its fitted
+    one scaled by its BIC weight times its mean square `p (W + 1)`, and where every such factor is 1 the whole
+    set's covariance comes back."""
+    from scipy.optimize import brentq
+
+    from identification.calibration._selection import ParameterSelection
+
+    rng = np.random.default_rng(5)
+    n, sigma = 120, 0.5
+    jac = rng.normal(size=(n, 6)) + 0.5 * rng.normal(size=(n, 1))
+    cov = sigma**2 * np.linalg.inv(jac.T @ jac)
+    names, kept, aside = tuple(f"p{i}" for i in range(6)), ("p0", "p2", "p5"), ("p4", "p1", "p3")
+    unit = brentq(lambda d: (d + np.log(n) + 1) / (1 + np.exp(-d / 2)) - 1, -np.log(n), 0)
+    same = ParameterSelection("", names, kept, aside, (unit,) * 3, n, cov)
+    np.testing.assert_allclose(same.averaged_covariance(), cov, rtol=1e-12, atol=0)
+    changes = (-4.5, -2.0, -0.3)
+    avg = ParameterSelection("", names, kept, aside, changes, n, cov).averaged_covariance()
+    k, a = [0, 2, 5], [4, 1, 3]
+    # the kept block: the refit's covariance plus what the set-aside deviations carry into it (zero where the
+    # columns are uncorrelated; here they are not, so the block exceeds the refit's)
+    refit = sigma**2 * np.linalg.inv(jac[:, k].T @ jac[:, k])
+    assert np.all(np.linalg.eigvalsh(avg[np.ix_(k, k)] - refit) >= -1e-12)
+    factor = (np.asarray(changes) + np.log(n) + 1) / (1 + np.exp(-np.asarray(changes) / 2))
+    np.testing.assert_allclose(np.diag(avg)[a], factor * np.diag(cov)[a], rtol=1e-12)
+    gain = cov[np.ix_(k, a)] @ np.linalg.inv(cov[np.ix_(a, a)])
+    s = np.sqrt(factor)
+    np.testing.assert_allclose(avg[np.ix_(k, k)], refit + gain @ (s[:, None] * cov[np.ix_(a, a)] * s) @ gain.T,
+                               rtol=1e-10, atol=0)

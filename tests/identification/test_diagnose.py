@@ -205,6 +205,13 @@ def test_cli_json_and_saved_model(bench, tmp_path, capsys):
     saved = jr.load_robot(tmp_path / "augmented.toml")
     std = step["parameters"]["offset"]["std"]
     assert abs(float(saved.offset[4] - start.offset[4]) - 5e-4) < 3 * std
+    # [uncertainty]: the offset's covariance, scaled to the noise estimate (chi2/dof of ~450 dof: within 15 %)
+    u = jr.io.read_uncertainty(tmp_path / "augmented.toml")
+    assert u.names == ("kinematics.offset[5]",) and u.source == "diagnose (validation poses)"
+    np.testing.assert_allclose(np.asarray(u.value), saved.offset[4:5], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(np.sqrt(float(u.covariance[0, 0])), std, rtol=0.15)
+    np.testing.assert_allclose(float(u.residual_rms), 1e-6 * out["final_rms_validation_um"], rtol=1e-6)
+    assert float(u.explained_rms) >= 1e-6 * out["noise_floor_um"]
     for f in ("diagnose_tables.txt", "diagnose_residuals.png", "diagnose_candidates.png", "diagnose_spectra.png"):
         assert (tmp_path / "out" / f).stat().st_size > 0
 
