@@ -33,6 +33,16 @@ ACTIVE_SET_STEPS = 16
 
 STALL_WINDOW = 3
 """Outer iterations over which a solve must have stopped changing to end `RESULTS.stalled` (`_stalled`)."""
+STUCK_WINDOW = 2
+"""Outer iterations over which a violation that did not fall by `STUCK_DECREASE` ends a solve as infeasible
+(`_stalled`)."""
+STUCK_DECREASE = 0.5
+"""Factor the violation must fall by, below its smallest value over the `STUCK_WINDOW` outer iterations before,
+for a solve to go on (`_stalled`)."""
+STUCK_FAR = 1e3
+"""Multiple of `ALConfig.tol_violation` above which a violation that stops falling counts as infeasible
+(`_stalled`): closer, a feasible solve's violation may still fluctuate on its way down (the spiral at
+nu = 1e-10 from 3.5e-9 to 1.3e-8 two outer iterations before it converges)."""
 
 
 def _initial_penalty(p: _Parts, config: ALConfig):
@@ -185,7 +195,12 @@ def _stalled(config: ALConfig, hist, it, lam, rho_max) -> Bool[Array, ""]:
     may meet it; bounds at 0 by rounding make a feasible solve's violation fluctuate there) and the
     objective rose at every outer iteration of it (infeasible: the update `lam += rho c` with a violation
     that does not vanish makes the multipliers grow without bound, and the cost the iterates pay for the
-    violation they remove with them). The tests of `_prepare` have already not accepted it as converged."""
+    violation they remove with them); or, at any penalty, the violation stays above `STUCK_FAR` times the
+    tolerance and did not fall by `STUCK_DECREASE` below its smallest value over the `STUCK_WINDOW` outer
+    iterations before (infeasible: every inner solve is done, so the multipliers and the penalty moved and
+    the violation did not follow them; with direction bounds `rho` may stay put for many outer iterations,
+    `_penalty_grows`, so this test does not wait for the largest penalty). The tests of `_prepare` have
+    already not accepted it as converged."""
     window = jax.lax.dynamic_slice_in_dim(hist, jnp.maximum(it - STALL_WINDOW, 0), STALL_WINDOW, axis=1)
     objective, violation, penalty, stationarity = hist[:, jnp.minimum(it, hist.shape[-1] - 1)]
     open_objective = jnp.sum(jnp.abs(lam)) * config.tol_violation * ANGLE_SCALE**2
@@ -196,4 +211,7 @@ def _stalled(config: ALConfig, hist, it, lam, rho_max) -> Bool[Array, ""]:
     beyond = config.tol_violation / config.violation_decrease
     infeasible = ((violation > beyond) & jnp.all(jnp.append(window[2], penalty) >= rho_max)
                   & (violation >= jnp.min(window[1])) & rising)
-    return (it >= STALL_WINDOW) & (at_floor | infeasible)
+    before = jax.lax.dynamic_slice_in_dim(hist[1], jnp.maximum(it - STUCK_WINDOW, 0), STUCK_WINDOW)
+    stuck = ((it >= STUCK_WINDOW) & (violation > STUCK_FAR * config.tol_violation)
+             & (violation > STUCK_DECREASE * jnp.min(before)))
+    return ((it >= STALL_WINDOW) & (at_floor | infeasible)) | stuck
