@@ -109,8 +109,8 @@ def test_a_duration_far_too_short_exits_3_naming_the_limit(tmp_path, monkeypatch
 def test_an_infeasible_duration_ends_in_few_outer_iterations():
     """The whole 0.5 m line in 0.26 s (a tenth of its 2.5 s; the program of the front above): its probe ends
     `stalled`, infeasible, with its violation far above the tolerance, within `STUCK_WINDOW + 3` outer iterations
-    (it stops once the violation did not fall by `STUCK_DECREASE` over `STUCK_WINDOW` of them) of the 30 allowed, and its members
-    hold the probe's status."""
+    (it stops once the violation did not fall by `STUCK_DECREASE` over `STUCK_WINDOW` of them) of the 30 allowed,
+    and its members hold the probe's status."""
     robot = jr.racer7()
     path = pl.reference_path("line", _short_line(0.5))
     jp = pl.joint_path(robot, retimed_path(path, DURATIONS[0]), check=False)
