@@ -197,9 +197,10 @@ def _stalled(config: ALConfig, hist, it, lam, rho_max) -> Bool[Array, ""]:
     objective rose at every outer iteration of it (infeasible: the update `lam += rho c` with a violation
     that does not vanish makes the multipliers grow without bound, and the cost the iterates pay for the
     violation they remove with them); or, at any penalty, the violation stays above `STUCK_FAR` times the
-    tolerance and did not fall by `STUCK_DECREASE` over the last `STUCK_WINDOW` outer iterations (infeasible: every inner solve is done, so the multipliers and the penalty moved and
-    the violation did not follow them; with direction bounds `rho` may stay put for many outer iterations,
-    `_penalty_grows`, so this test does not wait for the largest penalty). The tests of `_prepare` have
+    tolerance and did not fall by `STUCK_DECREASE` over the last `STUCK_WINDOW` outer iterations
+    (infeasible: every inner solve is done, so the multipliers and the penalty moved and the violation did not
+    follow them; with direction bounds `rho` may stay put for many outer iterations, `_penalty_grows`, so this
+    test does not wait for the largest penalty). The tests of `_prepare` have
     already not accepted it as converged."""
     window = jax.lax.dynamic_slice_in_dim(hist, jnp.maximum(it - STALL_WINDOW, 0), STALL_WINDOW, axis=1)
     objective, violation, penalty, stationarity = hist[:, jnp.minimum(it, hist.shape[-1] - 1)]
