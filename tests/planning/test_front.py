@@ -11,7 +11,8 @@ import pytest
 
 import jaxrobot as jr
 import planning as pl
-from planning._front import LIMIT_KINDS
+from planning import _al_outer
+from planning._front import LIMIT_KINDS, solve_front
 from planning.internal import motor_directions, retimed_path
 
 NUS = (1e-14, 1e-12)
@@ -103,6 +104,21 @@ def test_a_duration_far_too_short_exits_3_naming_the_limit(tmp_path, monkeypatch
     assert summary["binding_limit"] in err and "binds" in err
     assert summary["binding_limit"].split(" ", 2)[2] in LIMIT_KINDS  # "joint j <kind>"
     assert all(not r["meets"] and r["path_error_um"] is None and r["limit_use"] > 0.999 for r in summary["rows"])
+
+
+def test_an_infeasible_duration_ends_in_few_outer_iterations():
+    """The whole 0.5 m line in 0.26 s (a tenth of its 2.5 s; the program of the front above): its probe ends
+    `stalled`, infeasible, with its violation far above the tolerance, within `STUCK_WINDOW + 3` outer iterations
+    (it stops once the violation did not fall by `STUCK_DECREASE` over `STUCK_WINDOW` of them) of the 30 allowed,
+    and its members hold the probe's status."""
+    robot = jr.racer7()
+    path = pl.reference_path("line", _short_line(0.5))
+    jp = pl.joint_path(robot, retimed_path(path, DURATIONS[0]), check=False)
+    sols = solve_front(robot, [jp], np.asarray(NUS))
+    assert list(jr.status_name(sols.status)) == ["stalled"] * len(NUS)
+    assert np.all(np.asarray(sols.iterations) <= _al_outer.STUCK_WINDOW + 3), np.asarray(sols.iterations)
+    assert np.all(np.asarray(sols.max_constraint_violation) > _al_outer.STUCK_FAR * pl.ALConfig().tol_violation)
+    assert "infeasible" in jr.status_message(sols.status)[0]
 
 
 @pytest.mark.slow  # the full line at eight durations x four nu on the as-built bench, refined, and four plans: over
