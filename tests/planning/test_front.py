@@ -106,19 +106,35 @@ def test_a_duration_far_too_short_exits_3_naming_the_limit(tmp_path, monkeypatch
     assert all(not r["meets"] and r["path_error_um"] is None and r["limit_use"] > 0.999 for r in summary["rows"])
 
 
-def test_an_infeasible_duration_ends_in_few_outer_iterations():
-    """The whole 0.5 m line in 0.26 s (a tenth of its 2.5 s; the program of the front above): its probe ends
-    `stalled`, infeasible, with its violation far above the tolerance, within `STUCK_WINDOW + 3` outer iterations
-    (it stops once the violation did not fall by `STUCK_DECREASE` over `STUCK_WINDOW` of them) of the 30 allowed,
-    and its members hold the probe's status."""
+@pytest.mark.parametrize("batched", [False, True])
+def test_an_infeasible_duration_ends_in_few_outer_iterations(batched):
+    """The whole 0.5 m line in 0.26 and 0.30 s (about a tenth of its 2.5 s; the program of the front above): each
+    member ends `stalled`, infeasible, with its violation far above the tolerance, in few of the 30 outer
+    iterations allowed (it stops once the violation did not fall by `STUCK_DECREASE` over `STUCK_WINDOW` of them;
+    in 0.26 s within `STUCK_WINDOW + 3`, in 0.30 s, closer to feasible, within a third of the 30): by the chains'
+    probe, whose status the members hold, or (`batched`) each in its own lane."""
     robot = jr.racer7()
     path = pl.reference_path("line", _short_line(0.5))
-    jp = pl.joint_path(robot, retimed_path(path, DURATIONS[0]), check=False)
-    sols = solve_front(robot, [jp], np.asarray(NUS))
-    assert list(jr.status_name(sols.status)) == ["stalled"] * len(NUS)
-    assert np.all(np.asarray(sols.iterations) <= _al_outer.STUCK_WINDOW + 3), np.asarray(sols.iterations)
+    jps = [pl.joint_path(robot, retimed_path(path, d), check=False) for d in DURATIONS]
+    sols = solve_front(robot, jps, np.asarray(NUS), batched=batched)
+    assert list(jr.status_name(sols.status)) == ["stalled"] * len(NUS) * len(DURATIONS)
+    iterations = np.asarray(sols.iterations).reshape(len(DURATIONS), len(NUS))
+    assert np.all(iterations[0] <= _al_outer.STUCK_WINDOW + 3) and np.all(iterations[1] <= 10), iterations
     assert np.all(np.asarray(sols.max_constraint_violation) > _al_outer.STUCK_FAR * pl.ALConfig().tol_violation)
     assert "infeasible" in jr.status_message(sols.status)[0]
+
+
+def test_batched_members_equal_the_chains(short_front):
+    """`solve_front(batched=True)`, the accelerator's form (every member in one vmapped program from its own cold
+    start; here with the CPU's linear solver, one member after the other), gives the members of the CPU's form
+    (the probe and the continuation chains in nu): the same status, the objective to 1e-8 relative (two solves to
+    the solver's tolerance from different starts)."""
+    robot, path, front = short_front
+    jps = [pl.joint_path(robot, retimed_path(path, d)) for d in DURATIONS]
+    sols = solve_front(robot, jps, np.asarray(NUS), batched=True)
+    assert np.array_equal(np.asarray(sols.status).reshape(front.converged.shape), np.asarray(front.status))
+    np.testing.assert_allclose(np.asarray(sols.objective).reshape(front.converged.shape),
+                               np.asarray(front.objective), rtol=1e-8)
 
 
 @pytest.mark.slow  # the full line at eight durations x four nu on the as-built bench, refined, and four plans: over
