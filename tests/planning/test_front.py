@@ -132,7 +132,8 @@ def test_batched_members_equal_the_chains(short_front):
     robot, path, front = short_front
     jps = [pl.joint_path(robot, retimed_path(path, d)) for d in DURATIONS]
     sols = solve_front(robot, jps, np.asarray(NUS), batched=True)
-    assert np.array_equal(np.asarray(sols.status).reshape(front.converged.shape), np.asarray(front.status))
+    assert np.array_equal(np.asarray(jr.status_name(sols.status)).reshape(front.converged.shape),
+                          np.asarray(jr.status_name(front.status)))
     np.testing.assert_allclose(np.asarray(sols.objective).reshape(front.converged.shape),
                                np.asarray(front.objective), rtol=1e-8)
 
