@@ -33,6 +33,17 @@ ACTIVE_SET_STEPS = 16
 
 STALL_WINDOW = 3
 """Outer iterations over which a solve must have stopped changing to end `RESULTS.stalled` (`_stalled`)."""
+STUCK_WINDOW = 2
+"""Outer iterations over which a violation that did not fall by `STUCK_DECREASE` ends a solve as infeasible
+(`_stalled`)."""
+STUCK_DECREASE = 0.9
+"""Factor the violation must fall by over `STUCK_WINDOW` outer iterations for a solve to go on (`_stalled`): at a
+fixed penalty a feasible solve's violation falls at least linearly (the 51-node move at nu = 1e-10 with direction
+bounds by 0.64 per outer iteration), an infeasible one's stays (the 10 cm line in 0.25 s: 5.7e-4, 5.3e-4, 5.4e-4)."""
+STUCK_FAR = 1e3
+"""Multiple of `ALConfig.tol_violation` above which a violation that stops falling counts as infeasible
+(`_stalled`): closer, a feasible solve's violation may still fluctuate on its way down (the spiral at
+nu = 1e-10 from 3.5e-9 to 1.3e-8 two outer iterations before it converges)."""
 
 
 def _initial_penalty(p: _Parts, config: ALConfig):
@@ -185,7 +196,12 @@ def _stalled(config: ALConfig, hist, it, lam, rho_max) -> Bool[Array, ""]:
     may meet it; bounds at 0 by rounding make a feasible solve's violation fluctuate there) and the
     objective rose at every outer iteration of it (infeasible: the update `lam += rho c` with a violation
     that does not vanish makes the multipliers grow without bound, and the cost the iterates pay for the
-    violation they remove with them). The tests of `_prepare` have already not accepted it as converged."""
+    violation they remove with them); or, at any penalty, the violation stays above `STUCK_FAR` times the
+    tolerance and did not fall by `STUCK_DECREASE` over the last `STUCK_WINDOW` outer iterations
+    (infeasible: every inner solve is done, so the multipliers and the penalty moved and the violation did not
+    follow them; with direction bounds `rho` may stay put for many outer iterations, `_penalty_grows`, so this
+    test does not wait for the largest penalty). The tests of `_prepare` have
+    already not accepted it as converged."""
     window = jax.lax.dynamic_slice_in_dim(hist, jnp.maximum(it - STALL_WINDOW, 0), STALL_WINDOW, axis=1)
     objective, violation, penalty, stationarity = hist[:, jnp.minimum(it, hist.shape[-1] - 1)]
     open_objective = jnp.sum(jnp.abs(lam)) * config.tol_violation * ANGLE_SCALE**2
@@ -196,4 +212,6 @@ def _stalled(config: ALConfig, hist, it, lam, rho_max) -> Bool[Array, ""]:
     beyond = config.tol_violation / config.violation_decrease
     infeasible = ((violation > beyond) & jnp.all(jnp.append(window[2], penalty) >= rho_max)
                   & (violation >= jnp.min(window[1])) & rising)
-    return (it >= STALL_WINDOW) & (at_floor | infeasible)
+    stuck = ((it >= STUCK_WINDOW) & (violation > STUCK_FAR * config.tol_violation)
+             & (violation > STUCK_DECREASE * hist[1, jnp.maximum(it - STUCK_WINDOW, 0)]))
+    return ((it >= STALL_WINDOW) & (at_floor | infeasible)) | stuck

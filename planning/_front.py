@@ -3,10 +3,10 @@ the plant within the axis limits (`cycle_time_front`).
 
 The task is re-timed (`retimed_path`: the same geometry run in another duration, at the task's sample time), the
 OCP of eq. 4.3 solved for a grid of durations x `nu` in batched calls (`solve_front`: every member padded to one
-node count, the task's nodes traced, so that all members and every later round share one compiled program; a probe
-at the largest `nu` first finds the durations with a feasible plan, since the constraints do not depend on `nu`;
-the axis limits of the robot file, thesis Tables A.1-A.3, are bounds of the OCP) and every plan simulated on the
-plant.
+node count, the task's nodes traced, so that all members and every later round share one compiled program; on an
+accelerator one vmapped program of all members, on the CPU a probe at the largest `nu` that first finds the
+durations with a feasible plan, since the constraints do not depend on `nu`, then chains in `nu`; the axis limits
+of the robot file, thesis Tables A.1-A.3, are bounds of the OCP) and every plan simulated on the plant.
 A duration too short for the limits leaves its solve unconverged against a limit: the member is infeasible by that
 limit (`CycleTimeFront.limit_name`), not a large error. Batched grids between the longest duration that fails and
 the shortest that meets the tolerance refine the answer to `refine` of its duration.
@@ -40,7 +40,7 @@ from ._evaluation import (
 from ._ik import JointPath, check_inverse_kinematics, joint_path
 from ._ocp import OCPSolution, ocp_solver
 from ._padding import head, pad_edge, padded_nodes
-from ._sweep import _chain, check_nus
+from ._sweep import _chain, _members, check_nus
 from ._trajectories import Path
 from ._transcription import COSTS, State, bounds, motor_directions, ocp_problem
 from ._workflow import flank_start, iterate_flanks
@@ -88,8 +88,8 @@ class CycleTimeFront(eqx.Module):
     nus: Float[Array, " M"]
     """Weighting factors `nu` of eq. 4.3a, as given."""
     status: jr.RESULTS
-    """(D, M) each member's OCP status; the members of a duration whose probe (the largest `nu`, `solve_front`)
-    found no feasible plan all hold the probe's status, objective, limit use and command."""
+    """(D, M) each member's OCP status; on the CPU the members of a duration whose probe (the largest `nu`,
+    `solve_front`) found no feasible plan all hold the probe's status, objective, limit use and command."""
     objective: Float[Array, "D M"]
     """Cost of each member's plan [rad^2]."""
     path_error: Float[Array, "D M"]
@@ -208,17 +208,21 @@ def _limit_use(lower, upper, x, u):
 
 
 def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: str = "thesis",
-                directional: bool = False, size: int | None = None, solver=None) -> OCPSolution:
+                directional: bool = False, size: int | None = None, solver=None, batched: bool | None = None
+                ) -> OCPSolution:
     """The OCP of every joint path of `jps` (D, one task at several durations, one sample time) for every `nu`
     (M), warm-started by each path's flat inverse, each motor turning only in its path's direction, all padded
-    to `size` nodes (default `padded_nodes` of the longest), in batched calls of one compiled program each.
+    to `size` nodes (default `padded_nodes` of the longest), the task's nodes traced: one compiled program.
 
-    The constraints of eq. 4.3 (dynamics, limits, rest at both ends) do not depend on `nu`: a probe, the largest
-    `nu` of every path (one call), finds the durations with a feasible plan; only those are then solved for every
-    `nu`, a continuation chain in `nu` per path (`solve_ocp_sweep`'s); the members of a path whose probe did not
-    converge are its probe (an infeasible duration costs one failed solve, not M). The chains run side by side on
-    the CPU cores (one at a time on an accelerator); `directional`: on the flanks of each plan's motion
-    (`iterate_flanks`). Returns a (D * M) batched `OCPSolution` on `size` nodes, duration-major."""
+    `batched` (default: on an accelerator, not on the CPU): all D x M members in one vmapped program (`_members`),
+    whose lanes advance together with the accelerator's linear solver (`CyclicReduction`), each masked once its
+    solve stops; a duration too short for the limits stops at the solver's stall test (`RESULTS.stalled`).
+    Otherwise the constraints of eq. 4.3 (dynamics, limits, rest at both ends), which do not depend on `nu`, are
+    probed first: the largest `nu` of every path (one call) finds the durations with a feasible plan; only those
+    are then solved for every `nu`, a continuation chain in `nu` per path (`solve_ocp_sweep`'s), the chains side
+    by side on the CPU cores; the members of a path whose probe did not converge are its probe. `directional`: on
+    the flanks of each plan's motion (`iterate_flanks`; batched, each later round warm-started by the member's
+    last plan). Returns a (D * M) batched `OCPSolution` on `size` nodes, duration-major."""
     solver = ocp_solver("solve_front", solver, None)
     history, m = solver.history_length(), nus.size
     size = padded_nodes(max(jp.t.shape[0] for jp in jps)) if size is None else size
@@ -234,6 +238,8 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
         members.append((pad_edge(jnp.asarray(jp.q, float), size), tuple(pad_edge(a, size) for a in warm),
                         pad_edge(motor_directions(flat.thetad), size), jnp.asarray(jp.t.shape[0])))
     settings = jax.tree.map(jnp.asarray, solver)
+    if (backend_kind() != "cpu") if batched is None else batched:
+        return _solve_members(robot, members, plays, ts, nus, cost, settings, history)
     workers = (os.cpu_count() or 1) if backend_kind() == "cpu" else 1
 
     def chains(paths: np.ndarray, weights: np.ndarray, play) -> OCPSolution:
@@ -260,6 +266,29 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
     index = np.concatenate([place[i] * m + np.arange(m) if place[i] >= 0 else np.full(m, feasible.size * m + i)
                             for i in paths])
     return jax.tree.map(lambda a, b: jnp.concatenate([a, b])[index], sols, probe)
+
+
+def _solve_members(robot: jr.Robot, members: list[tuple], plays: list, ts, nus: np.ndarray, cost: str, solver,
+                   history: int) -> OCPSolution:
+    """`solve_front`'s batched form: each path's `members` entry (padded `q_d`, warm start, motor directions, node
+    count) for every `nu` of `nus`, duration-major, in one `_members` call per round of `iterate_flanks` (`plays`
+    given: the paths' first play states), each later round warm-started by every member's last converged plan."""
+    m = nus.size
+    q_d, warm, direction, nodes = jax.tree.map(lambda *a: np.repeat(np.stack([np.asarray(b) for b in a]), m, 0),
+                                               *members)
+    b = nodes.shape[0]
+    per_member = (np.full(b, float(ts)), np.tile(np.asarray(nus, float), len(members)))
+
+    def solve(play, last):
+        ok = np.zeros(b, bool) if last is None else np.asarray(last.converged)
+        start = jax.tree.map(lambda plan, flat: np.where(ok[:, None, None], plan, flat),
+                             warm if last is None else (np.asarray(last.x), np.asarray(last.u)), warm)
+        return _members(robot, q_d, *per_member, start, solver, play, direction, nodes, cost=cost,
+                        history=history), start
+
+    if not plays:
+        return solve(None, None)[0]
+    return iterate_flanks(robot, np.repeat(np.concatenate([np.asarray(p) for p in plays]), m, 0), solve)[0]
 
 
 def _round(robot: jr.Robot, plant: jr.Robot, path: Path, durations: list[float], nus: np.ndarray, cost: str,

@@ -52,6 +52,18 @@ def _chain(robot, q_d, ts, nus, warm_start, u_ref, solver, play, direction, node
                                              None, direction, nodes))(nus, play)
 
 
+@functools.partial(jax.jit, static_argnames=("cost", "history"))
+def _members(robot, q_d, ts, nus, warm_start, solver, play, direction, nodes, *, cost, history) -> OCPSolution:
+    """Independent solves in one vmapped program: `solve_ocp` of member `k` of every batched argument (B members:
+    `q_d`, `ts`, `nus`, `warm_start`, `play` (or None), `direction`, `nodes`, all padded to one node count after
+    each member's `nodes`, which are traced, as is `solver`). With a linear solver whose `batch_in_lanes` is True the
+    members advance together in lanes, each masked once its solve stops (`augmented_lagrangian`); with `Scan`, one
+    after the other."""
+    return jax.vmap(lambda q, t, nu, w, p, d, k: _solve_ocp(robot, q, t, nu, cost, solver, w, None, False, history, p,
+                                                            None, d, k))(q_d, ts, nus, warm_start, play, direction,
+                                                                         nodes)
+
+
 def _padded(positions: np.ndarray, length: int) -> np.ndarray:
     """`positions` repeated at its last entry up to `length`."""
     return np.concatenate([positions, np.full(length - positions.size, positions[-1])])

@@ -50,7 +50,8 @@ def test_stall_with_constraints_met_and_stationarity_at_its_floor():
 def test_stall_with_constraints_not_met_at_the_largest_penalty():
     """The violation not falling below 3.5e-3 in three outer iterations at the largest `rho` while the
     objective rises with the multipliers (a history of an infeasible move): stalled. Below the largest
-    penalty (it can still grow), with the violation still falling, however slowly, or with an objective that
+    penalty (it can still grow), with the violation still falling by `STUCK_DECREASE` over two outer
+    iterations, or with an objective that
     settles (the Racer-7's spiral at nu = 1e-10, which converges two outer iterations later) or a violation
     within one required decrease of the tolerance (the spiral with direction bounds), not."""
     obj = [5.06e-4, 5.07e-4, 8.63e-4, 9.16e-4, 1.05e-3]
@@ -58,7 +59,7 @@ def test_stall_with_constraints_not_met_at_the_largest_penalty():
     stat = [6.1e2, 1.2e3, 9.8e4, 7.1e3, 5.5e4]
     assert _stalled(obj, stuck, [RHO_MAX] * 5, stat)
     assert not _stalled(obj, stuck, [1e5, 1e5, 1e6, 1e6, RHO_MAX], stat)
-    assert not _stalled(obj, [1.1e-3, 1.05e-3, 1.02e-3, 1.01e-3, 1.0e-3], [RHO_MAX] * 5, stat)
+    assert not _stalled(obj, [1.1e-3, 1.0e-3, 0.9e-3, 0.8e-3, 0.7e-3], [RHO_MAX] * 5, stat)
     spiral = ([1.470997734617673e-02, 1.472028646240768e-02, 1.472036918233155e-02, 1.472036851979520e-02,
                1.472036859625503e-02], [1.32e-05, 1.30e-05, 1.84e-06, 3.49e-09, 1.30e-08], [RHO_MAX] * 5,
               [1.5e3, 1.8e2, 3.8e-1, 5.4e-1, 6.8e-1])
@@ -66,6 +67,19 @@ def test_stall_with_constraints_not_met_at_the_largest_penalty():
     bounded = ([1.4776157078544407e-02, 1.4776339574234780e-02, 1.4776342921772672e-02, 1.4776342984013084e-02],
                [4.82e-08, 3.54e-09, 1.96e-09, 2.46e-09], [RHO_MAX] * 4, [1.3e-01, 3.0e-01, 3.4e-01, 8.5e-05])
     assert not _stalled(*bounded)  # the same spiral with direction bounds: converges one outer iteration later
+
+def test_stall_with_a_violation_that_does_not_halve_in_two_outer_iterations():
+    """A violation far above the tolerance that did not fall by `STUCK_DECREASE` over `STUCK_WINDOW` outer
+    iterations ends the solve at any penalty (the 10 cm line in 0.25 s, infeasible by its limits, holds 5.4e-4
+    from its first outer iteration on, at the initial penalty); one that falls by 0.64 per outer iteration (the
+    51-node move at nu = 1e-10 with direction bounds, which converges), one within `STUCK_FAR` times the
+    tolerance, or a history shorter than the window, not."""
+    obj, rho, stat = [1.83e-2, 1.90e-2, 1.91e-2], [7.2e7] * 3, [1.8e-2, 3.0e-2, 4.0e-3]
+    assert _stalled(obj, [5.71e-4, 5.34e-4, 5.40e-4], rho, stat)
+    assert not _stalled(obj, [9.18e-5, 5.80e-5, 3.78e-5], rho, stat)
+    assert not _stalled(obj, [3e-7, 2e-7, 2e-7], rho, stat)
+    assert not _stalled(obj[:2], [5.71e-4, 5.34e-4], rho[:2], stat[:2])
+
 
 def _move(n_nodes=21):
     """A smooth 20 ms move of every Racer-7 joint by 0.2 mrad (eq. 4.4 blend) at a pose with large angles."""

@@ -11,7 +11,8 @@ import pytest
 
 import jaxrobot as jr
 import planning as pl
-from planning._front import LIMIT_KINDS
+from planning import _al_outer
+from planning._front import LIMIT_KINDS, solve_front
 from planning.internal import motor_directions, retimed_path
 
 NUS = (1e-14, 1e-12)
@@ -103,6 +104,38 @@ def test_a_duration_far_too_short_exits_3_naming_the_limit(tmp_path, monkeypatch
     assert summary["binding_limit"] in err and "binds" in err
     assert summary["binding_limit"].split(" ", 2)[2] in LIMIT_KINDS  # "joint j <kind>"
     assert all(not r["meets"] and r["path_error_um"] is None and r["limit_use"] > 0.999 for r in summary["rows"])
+
+
+@pytest.mark.parametrize("batched", [False, True])
+def test_an_infeasible_duration_ends_in_few_outer_iterations(batched):
+    """The whole 0.5 m line in 0.26 and 0.30 s (about a tenth of its 2.5 s; the program of the front above): each
+    member ends `stalled`, infeasible, with its violation far above the tolerance, in few of the 30 outer
+    iterations allowed (it stops once the violation did not fall by `STUCK_DECREASE` over `STUCK_WINDOW` of them;
+    in 0.26 s within `STUCK_WINDOW + 3`, in 0.30 s, closer to feasible, within a third of the 30): by the chains'
+    probe, whose status the members hold, or (`batched`) each in its own lane."""
+    robot = jr.racer7()
+    path = pl.reference_path("line", _short_line(0.5))
+    jps = [pl.joint_path(robot, retimed_path(path, d), check=False) for d in DURATIONS]
+    sols = solve_front(robot, jps, np.asarray(NUS), batched=batched)
+    assert list(jr.status_name(sols.status)) == ["stalled"] * len(NUS) * len(DURATIONS)
+    iterations = np.asarray(sols.iterations).reshape(len(DURATIONS), len(NUS))
+    assert np.all(iterations[0] <= _al_outer.STUCK_WINDOW + 3) and np.all(iterations[1] <= 10), iterations
+    assert np.all(np.asarray(sols.max_constraint_violation) > _al_outer.STUCK_FAR * pl.ALConfig().tol_violation)
+    assert "infeasible" in jr.status_message(sols.status)[0]
+
+
+def test_batched_members_equal_the_chains(short_front):
+    """`solve_front(batched=True)`, the accelerator's form (every member in one vmapped program from its own cold
+    start; here with the CPU's linear solver, one member after the other), gives the members of the CPU's form
+    (the probe and the continuation chains in nu): the same status, the objective to 1e-8 relative (two solves to
+    the solver's tolerance from different starts)."""
+    robot, path, front = short_front
+    jps = [pl.joint_path(robot, retimed_path(path, d)) for d in DURATIONS]
+    sols = solve_front(robot, jps, np.asarray(NUS), batched=True)
+    assert np.array_equal(np.asarray(jr.status_name(sols.status)).reshape(front.converged.shape),
+                          np.asarray(jr.status_name(front.status)))
+    np.testing.assert_allclose(np.asarray(sols.objective).reshape(front.converged.shape),
+                               np.asarray(front.objective), rtol=1e-8)
 
 
 @pytest.mark.slow  # the full line at eight durations x four nu on the as-built bench, refined, and four plans: over
