@@ -32,8 +32,12 @@ from ._transcription import State
 
 METHODS = ("rigid", "quasi_static", "flat_inverse", "ocp")
 """Names of the compared motor trajectories (a)-(d) of the module docstring, in that order."""
-SUBSTEPS = 10
-"""RK4 steps per 1 ms sample of `jr.simulate` (h = 0.1 ms; see its module docstring)."""
+SUBSTEPS = 3
+"""RK4 steps per 1 ms sample of the plant runs (`jr.simulate`, h = 1/3 ms): they put the tool within 1e-4 µm, a
+tenth of the 1e-3 µm that `jaxrobot plan` prints, of the same run with 40 steps per sample (the Racer-7 nominal and
+as-built with its gear flanks, line and spiral, and an elastic 7-joint arm: `benchmarks/results_plant_steps.md`),
+and keep the stiffest mode of the Racer-7 (~430 Hz, `jaxrobot info`) at `h ω ≈ 0.9`, a third of RK4's stability
+bound 2.83 on the imaginary axis. A plant with modes above ~1.3 kHz needs more steps (`substeps=`)."""
 SETTLE_S = 0.5
 """Rest after `t_e` over which the residual error is reported [s]."""
 
