@@ -33,11 +33,15 @@ from ._transcription import State
 METHODS = ("rigid", "quasi_static", "flat_inverse", "ocp")
 """Names of the compared motor trajectories (a)-(d) of the module docstring, in that order."""
 SUBSTEPS = 3
-"""RK4 steps per 1 ms sample of the plant runs (`jr.simulate`, h = 1/3 ms): they put the tool within 1e-4 µm, a
-tenth of the 1e-3 µm that `jaxrobot plan` prints, of the same run with 40 steps per sample (the Racer-7 nominal and
-as-built with its gear flanks, line and spiral, and an elastic 7-joint arm: `benchmarks/results_plant_steps.md`),
-and keep the stiffest mode of the Racer-7 (~430 Hz, `jaxrobot info`) at `h ω ≈ 0.9`, a third of RK4's stability
-bound 2.83 on the imaginary axis. A plant with modes above ~1.3 kHz needs more steps (`substeps=`)."""
+"""RK4 steps per 1 ms sample of the plant runs on an elastic model without link loads or joint torques
+(`jr.simulate`, h = 1/3 ms): they put the tool within 1e-4 µm, a tenth of the 1e-3 µm that `jaxrobot plan` prints,
+of the same runs with 40 steps per sample (the Racer-7 nominal and as-built with its gear flanks, line and spiral,
+and an elastic 7-joint arm: `benchmarks/results_plant_steps.md`), and keep the stiffest mode of the Racer-7
+(~430 Hz, `jaxrobot info`) at `h ω ≈ 0.9`, a third of RK4's stability bound 2.83 on the imaginary axis. A plant
+with modes above ~1.3 kHz needs more steps (`substeps=`)."""
+EFFECT_SUBSTEPS = 10
+"""RK4 steps per 1 ms sample of the plant runs on a plant with link loads or joint torques (`jaxrobot.effects`:
+friction, drag, damping), whose time scales bound the step (docs/model.md (2.23c)): `jr.simulate`'s default."""
 SETTLE_S = 0.5
 """Rest after `t_e` over which the residual error is reported [s]."""
 
@@ -80,6 +84,12 @@ def _along(fn: Callable, q: Float[Array, "N n"], qd: Float[Array, "N n"], qdd: F
         return value, first, jax.jvp(dg, (0.0,), (1.0,))[1]
 
     return MotorTrajectory(*jax.vmap(single)(q, qd, qdd))
+
+
+def plant_substeps(plant: jr.Robot) -> int:
+    """RK4 steps per sample of the plant runs on `plant`: `EFFECT_SUBSTEPS` where it has link loads or joint torques
+    (`jaxrobot.effects`), else `SUBSTEPS`."""
+    return EFFECT_SUBSTEPS if jr.effects.link_loads(plant) or jr.effects.joint_torques(plant) else SUBSTEPS
 
 
 def _padded(program, n: int, *args, axes: tuple[int, ...]) -> MotorTrajectory:
@@ -242,14 +252,15 @@ def simulate_plans(
     plant: jr.Robot,
     jp: JointPath,
     trajectories: dict[str, MotorTrajectory],
-    substeps: int = SUBSTEPS,
+    substeps: int | None = None,
     settle_s: float = SETTLE_S,
     directional: bool = False,
 ) -> tuple[list[str], PlantRun]:
     """Simulate every motor trajectory on `plant` in one program (on the CPU one run after the other, whose small
     sequential steps cost less per run than in a vmapped batch; on an accelerator `jax.vmap` over the runs, in
     chunks of `simulation_capacity`), holding the last command at rest for `settle_s` after `t_e`, and measure
-    the tool-pose error against the task of `jp`.
+    the tool-pose error against the task of `jp`, with `substeps` RK4 steps per sample (default
+    `plant_substeps(plant)`).
 
     `directional=True` gives the gears their flanks as states, as the test bench's as-built robot has them
     (pass it for `jr.racer7(as_built=True)`; `jr.simulate`); the planning model uses the cw set throughout.
@@ -264,6 +275,7 @@ def simulate_plans(
                              f"got {tr.theta.shape}")
     if settle_s < 0:
         raise ValueError(f"settle_s must be >= 0 s, got {settle_s}")
+    substeps = plant_substeps(plant) if substeps is None else substeps
     ts = float(jp.path.sample_time)
     samples = n + int(round(settle_s / ts))
     # simulated on `padded_nodes(samples)` samples (the command held longer) and sliced: one program serves
@@ -304,7 +316,7 @@ def evaluate_on_plant(
     plant: jr.Robot,
     jp: JointPath,
     trajectories: dict[str, MotorTrajectory],
-    substeps: int = SUBSTEPS,
+    substeps: int | None = None,
     settle_s: float = SETTLE_S,
     directional: bool = False,
 ) -> dict[str, PlantError]:

@@ -3,12 +3,14 @@ baselines' order, batched simulation, and bad trajectories refused."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import planning as pl
-from planning._evaluation import SUBSTEPS
+from planning._evaluation import EFFECT_SUBSTEPS, SUBSTEPS, plant_substeps
 
 
 @pytest.fixture(scope="module")
@@ -40,6 +42,15 @@ def test_plant_steps_resolve_the_printed_errors(robot, joint_paths, line_baselin
     _, fine = pl.simulate_plans(robot, joint_paths["line"], rigid, substeps=4 * SUBSTEPS)
     np.testing.assert_allclose(run.position, fine.position, rtol=0, atol=1e-10, err_msg="tool position error [m]")
     assert np.abs(np.asarray(run.position) - np.asarray(fine.position)).max() > 0  # the step count is in effect
+
+
+def test_plants_with_link_loads_or_joint_torques_keep_the_fine_step(robot):
+    """Friction and damping bring time scales of their own (docs/model.md (2.23c)): such a plant runs with
+    `EFFECT_SUBSTEPS`, the elastic model alone with `SUBSTEPS`."""
+    assert plant_substeps(robot) == SUBSTEPS < EFFECT_SUBSTEPS
+    friction = dataclasses.replace(robot, viscous_friction=jnp.full(6, 0.5))
+    damped = dataclasses.replace(robot, damping=jnp.full(6, 5.0))
+    assert plant_substeps(friction) == plant_substeps(damped) == EFFECT_SUBSTEPS
 
 
 @pytest.mark.extended  # compiles the vmapped simulation beside the CPU's; the LAPACK guard runs the CPU's
