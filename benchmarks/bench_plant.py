@@ -14,7 +14,7 @@ direction bounds (`solve_ocp` without `direction`) beside the bounded one.
 `--steps`: instead, the plant's RK4 steps per sample (`planning._evaluation.SUBSTEPS`, `jr.simulate`): the tool
 position and link angles simulated with 2 to 10 steps against 40, for the baselines of the line and the spiral on the
 Racer-7, the line's flat inverse on the as-built Racer-7 with its gear flanks as states, and a joint motion of an
-elastic 7-joint arm (written to benchmarks/results_plant_steps.md).
+elastic 7-joint arm (its section `STEPS_TITLE` of benchmarks/results_plant.md, which the full run keeps).
 
 Run: `python benchmarks/bench_plant.py [--quick | --steps]` (writes benchmarks/results_plant.md; `--quick`: the
 line at nu = 1e-14 only, printed).
@@ -51,7 +51,8 @@ from planning._transcription import State, motor_directions
 from planning._workflow import solve_directional
 
 OUT = Path(__file__).with_name("results_plant.md")
-STEPS_OUT = Path(__file__).with_name("results_plant_steps.md")
+STEPS_TITLE = "## The plant's RK4 steps per sample"
+"""The section of `OUT` that `--steps` writes (the last)."""
 STEPS = (2, 3, 4, 5, 10)
 """RK4 steps per sample compared with `REFERENCE_STEPS`."""
 REFERENCE_STEPS = 40
@@ -204,7 +205,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the line at nu = 1e-14 only, no file written")
     parser.add_argument("--steps", action="store_true", help="the plant's RK4 steps per sample against 40 steps "
-                        f"(writes {STEPS_OUT.name})")
+                        f"(writes its section of {OUT.name})")
     parser.add_argument("--shared", type=Path, default=Path(__file__).resolve().parents[2] / "shared",
                         help="the shared data folder (default: ../shared beside the repository)")
     args = parser.parse_args()
@@ -293,14 +294,23 @@ def main() -> None:
                      f"plan on the cw plant, {cw_row['cw']['ocp'][0]:.3f} µm); plan on the calibrated model "
                      f"{cal['dir']['ocp'][0]:.3f} µm, {cal['dir']['ocp'][0] / cal['cw']['ocp'][0]:.2f}× the same "
                      f"plan on the cw plant ({cal['cw']['ocp'][0]:.3f} µm).")
-    OUT.write_text("\n".join(lines) + "\n")
+    steps = steps_section()
+    OUT.write_text("\n".join(lines) + "\n" + (f"\n{steps}" if steps else ""))
     print(f"wrote {OUT}")
 
 
+def steps_section() -> str:
+    """The section `STEPS_TITLE` of `OUT` as it is ("" if none)."""
+    text = OUT.read_text() if OUT.is_file() else ""
+    return text[text.index(STEPS_TITLE):] if STEPS_TITLE in text else ""
+
+
 def write_steps(table: list[str]) -> None:
-    """`STEPS_OUT`: the step study's table with its header."""
+    """The step study's table with its header as the section `STEPS_TITLE` of `OUT` (replacing it)."""
+    text = OUT.read_text() if OUT.is_file() else ""
+    kept = text[:text.index(STEPS_TITLE)] if STEPS_TITLE in text else text
     lines = [
-        "# The plant's RK4 steps per sample",
+        STEPS_TITLE,
         "",
         _timing.header(_timing.run_info(f"the same runs with {REFERENCE_STEPS} RK4 steps per sample (h = "
                                         f"{1 / REFERENCE_STEPS:g} ms)")),
@@ -310,8 +320,8 @@ def write_steps(table: list[str]) -> None:
         "",
         *table,
     ]
-    STEPS_OUT.write_text("\n".join(lines) + "\n")
-    print(f"wrote {STEPS_OUT}")
+    OUT.write_text(kept.rstrip("\n") + "\n\n" + "\n".join(lines) + "\n")
+    print(f"wrote {OUT}")
 
 
 if __name__ == "__main__":

@@ -36,9 +36,9 @@ SUBSTEPS = 3
 """RK4 steps per 1 ms sample of the plant runs on an elastic model without link loads or joint torques
 (`jr.simulate`, h = 1/3 ms): they put the tool within 1e-4 µm, a tenth of the 1e-3 µm that `jaxrobot plan` prints,
 of the same runs with 40 steps per sample (the Racer-7's baselines of the line and the spiral, the as-built
-Racer-7 with its gear flanks, an elastic 7-joint arm: `benchmarks/results_plant_steps.md`), and keep the stiffest
-mode of the Racer-7 (~430 Hz, `jaxrobot info`) at `h ω ≈ 0.9`, a third of RK4's stability bound 2.83 on the
-imaginary axis. A plant with modes above ~1.3 kHz needs more steps (`substeps=`)."""
+Racer-7 with its gear flanks, an elastic 7-joint arm: the last section of `benchmarks/results_plant.md`), and keep
+the stiffest mode of the Racer-7 (~430 Hz, `jaxrobot info`) at `h ω ≈ 0.9`, a third of RK4's stability bound 2.83
+on the imaginary axis. A plant with modes above ~1.3 kHz needs more steps (`substeps=`)."""
 EFFECT_SUBSTEPS = 10
 """RK4 steps per 1 ms sample of the plant runs on a plant with link loads or joint torques (`jaxrobot.effects`:
 friction, drag, damping), whose time scales bound the step (docs/model.md (2.23c)): `jr.simulate`'s default."""
