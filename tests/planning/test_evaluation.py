@@ -63,10 +63,11 @@ def test_rigid_plants_get_the_least_steps(robot, joint_paths):
     assert plant_substeps(dataclasses.replace(robot, c=robot.c.at[jnp.array([0, 2])].set(0.0)), q) == SUBSTEPS
 
 
-def test_stiff_plants_get_the_steps_their_modes_ask(robot, joint_paths, line_baselines):
+def test_stiff_plants_get_the_steps_their_modes_ask(robot, joint_paths):
     """The Racer-7 with springs 100 times stiffer (modes 10 times higher, ~4.1 kHz: 3 steps per sample would be
-    unstable) gets about ten times the Racer-7's steps, which keep `h ω <= MODE_STEP`, and its tool stays within 1e-4 µm of four times finer
-    steps on the first 0.3 s of the line's rigid baseline (start and acceleration)."""
+    unstable) gets about ten times the Racer-7's steps, which keep `h ω <= MODE_STEP`, and its tool stays within
+    1e-4 µm (`MODE_STEP`'s bound) of four times finer steps on the first 0.3 s of the line's rigid baseline (start
+    and acceleration)."""
     stiff = dataclasses.replace(robot, c=robot.c / 100)
     jp, n = joint_paths["line"], 300
     steps = plant_substeps(stiff, jp.q[:n])
