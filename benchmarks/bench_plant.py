@@ -11,13 +11,19 @@ per joint, against those of the exact inverse, the flat inverse: back-travels be
 `planning.motor_reversals`, docs/model.md (B.6)), and for the truth at nu = 1e-10 the plan without the
 direction bounds (`solve_ocp` without `direction`) beside the bounded one.
 
-Run: `python benchmarks/bench_plant.py [--quick]` (writes benchmarks/results_plant.md; `--quick`: the line at
-nu = 1e-14 only, printed).
+`--steps`: instead, the plant's RK4 steps per sample (`planning._evaluation.SUBSTEPS`, `jr.simulate`): the tool
+position and link angles simulated with 2 to 10 steps against 40, for the baselines of the line and the spiral on the
+Racer-7, the line's flat inverse on the as-built Racer-7 with its gear flanks as states, and a joint motion of an
+elastic 7-joint arm (its section `STEPS_TITLE` of benchmarks/results_plant.md, which the full run keeps).
+
+Run: `python benchmarks/bench_plant.py [--quick | --steps]` (writes benchmarks/results_plant.md; `--quick`: the
+line at nu = 1e-14 only, printed).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -28,19 +34,31 @@ import numpy as np
 import jaxrobot as jr
 from identification.calibration import demo_calibration
 from planning._evaluation import (
+    SUBSTEPS,
+    MotorTrajectory,
     baseline_trajectories,
     motor_reversals,
     ocp_motor_trajectory,
+    rigid_motor_trajectory,
     simulate_plans,
     summarize,
 )
 from planning._ik import joint_path
 from planning._ocp import solve_ocp
+from planning._padding import pad_edge, pad_zeros, padded_nodes
 from planning._trajectories import reference_path
 from planning._transcription import State, motor_directions
 from planning._workflow import solve_directional
 
 OUT = Path(__file__).with_name("results_plant.md")
+STEPS_TITLE = "## The plant's RK4 steps per sample"
+"""The section of `OUT` that `--steps` writes (the last)."""
+STEPS = (2, 3, 4, 5, 10)
+"""RK4 steps per sample compared with `REFERENCE_STEPS`."""
+REFERENCE_STEPS = 40
+"""RK4 steps per sample of the reference run (40 against 80 differ by 6e-14 rad here, `simulator_checks`)."""
+ARM_STIFFNESS = 3e3
+"""[N m/rad] The joint springs given to the 7-joint arm (`elastic_arm`; its file has rigid joints)."""
 ENCODER_COUNT = jr.racer7_instruments().encoder_quantum
 """[rad] One count of the Racer-7's motor encoders, the hysteresis of the reversal count."""
 
@@ -124,10 +142,76 @@ def simulator_checks(truth) -> list[str]:
 HOLD = np.array([0.1, 0.2, -1.3, 0.2, 0.9, 0.1])
 
 
+def elastic_arm(shared: Path) -> tuple[jr.Robot, MotorTrajectory]:
+    """The 7-joint arm of `shared/independent/arm7` with joint springs of `ARM_STIFFNESS`, and the rigid-planned
+    motor trajectory of a quintic joint motion over 2 s (every joint 0.4-0.8 rad)."""
+    arm = jr.load_robot(shared / "independent" / "arm7" / "baxter_left.toml")
+    arm = dataclasses.replace(arm, c=np.full(arm.n_joints, 1.0 / ARM_STIFFNESS))
+    s = np.arange(2001)[:, None] / 2000
+    dq = np.array([0.6, -0.5, 0.4, 0.8, -0.6, 0.5, 0.7])
+    q0 = np.array([0.0, -0.3, 0.0, 0.8, 0.0, 0.5, 0.0])
+    q = q0 + (10 * s**3 - 15 * s**4 + 6 * s**5) * dq
+    qd, qdd = (30 * s**2 - 60 * s**3 + 30 * s**4) * dq / 2, (60 * s - 180 * s**2 + 120 * s**3) * dq / 4
+    return arm, rigid_motor_trajectory(arm, q, qd, qdd)
+
+
+def step_errors(robot: jr.Robot, trajectories: list[MotorTrajectory], directional: bool) -> dict[int, tuple]:
+    """Per step count of `STEPS`: the largest tool position [m] and link angle [rad] difference to
+    `REFERENCE_STEPS` over the runs of `trajectories` (1 ms samples, held at rest for 0.5 s after the last, as
+    `simulate_plans` does), and the wall time of the run (after a compiling call) [s]."""
+    size = padded_nodes(max(tr.theta.shape[0] for tr in trajectories) + 500)
+    t = np.arange(size) * 1e-3
+    cmd = [np.stack([pad(getattr(tr, f), size) for tr in trajectories])
+           for f, pad in (("theta", pad_edge), ("thetad", pad_zeros), ("thetadd", pad_zeros))]
+    runs = {}
+    for steps in (*STEPS, REFERENCE_STEPS):
+        def run(th, thd, thdd, steps=steps):
+            q = jr.simulate(robot, t, th, thd, thdd, substeps=steps, directional=directional)[0]
+            return jr.tool_pose(robot, q)[:, :3, 3], q
+
+        fn = jax.jit(jax.vmap(run))
+        jax.block_until_ready(fn(*cmd))
+        start = time.perf_counter()
+        p, q = jax.block_until_ready(fn(*cmd))
+        runs[steps] = np.asarray(p), np.asarray(q), time.perf_counter() - start
+    p_ref, q_ref, _ = runs[REFERENCE_STEPS]
+    return {s: (np.linalg.norm(runs[s][0] - p_ref, axis=-1).max(), np.abs(runs[s][1] - q_ref).max(), runs[s][2])
+            for s in STEPS}
+
+
+def step_study(shared: Path) -> list[str]:
+    """The table of `step_errors` for the Racer-7's baselines (line, spiral), the line's flat inverse on the
+    as-built Racer-7 with its flanks, and the elastic 7-joint arm (`elastic_arm`)."""
+    nominal, desc = jr.racer7(), jr.read_description(None)
+    arm, arm_run = elastic_arm(shared)
+    base = {task: baseline_trajectories(nominal, joint_path(nominal, reference_path(task, desc)))
+            for task in ("line", "spiral")}
+    cases = [("Racer-7, cw", "line and spiral: rigid, quasi-static, flat inverse", nominal,
+              [tr for b in base.values() for tr in b.values()], False),
+             ("as-built Racer-7, gear flanks", "line: flat inverse of the nominal model", jr.racer7(as_built=True),
+              [base["line"]["flat_inverse"]], True),
+             ("elastic 7-joint arm", "quintic joint motion, rigid planning", arm, [arm_run], False)]
+    lines = ["| plant | runs | steps per sample | tool position [µm] | link angles [rad] | time per run [s] |",
+             "|---|---|---|---|---|---|"]
+    for name, runs, robot, trajectories, directional in cases:
+        for steps, (dp, dq, wall) in step_errors(robot, trajectories, directional).items():
+            lines.append(f"| {name} | {runs} | {steps}{' (SUBSTEPS)' if steps == SUBSTEPS else ''} | {1e6 * dp:.1e} | "
+                         f"{dq:.1e} | {wall / len(trajectories):.2f} |")
+            print(lines[-1], flush=True)
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the line at nu = 1e-14 only, no file written")
+    parser.add_argument("--steps", action="store_true", help="the plant's RK4 steps per sample against 40 steps "
+                        f"(writes its section of {OUT.name})")
+    parser.add_argument("--shared", type=Path, default=Path(__file__).resolve().parents[2] / "shared",
+                        help="the shared data folder (default: ../shared beside the repository)")
     args = parser.parse_args()
+    if args.steps:
+        write_steps(step_study(args.shared))
+        return
     truth = jr.racer7(as_built=True)
     start = time.perf_counter()
     models = {"nominal": jr.racer7(), "calibrated (demo)": demo_calibration().result.robot, "as-built truth": truth}
@@ -210,7 +294,33 @@ def main() -> None:
                      f"plan on the cw plant, {cw_row['cw']['ocp'][0]:.3f} µm); plan on the calibrated model "
                      f"{cal['dir']['ocp'][0]:.3f} µm, {cal['dir']['ocp'][0] / cal['cw']['ocp'][0]:.2f}× the same "
                      f"plan on the cw plant ({cal['cw']['ocp'][0]:.3f} µm).")
-    OUT.write_text("\n".join(lines) + "\n")
+    steps = steps_section()
+    OUT.write_text("\n".join(lines) + "\n" + (f"\n{steps}" if steps else ""))
+    print(f"wrote {OUT}")
+
+
+def steps_section() -> str:
+    """The section `STEPS_TITLE` of `OUT` as it is ("" if none)."""
+    text = OUT.read_text() if OUT.is_file() else ""
+    return text[text.index(STEPS_TITLE):] if STEPS_TITLE in text else ""
+
+
+def write_steps(table: list[str]) -> None:
+    """The step study's table with its header as the section `STEPS_TITLE` of `OUT` (replacing it)."""
+    text = OUT.read_text() if OUT.is_file() else ""
+    kept = text[:text.index(STEPS_TITLE)] if STEPS_TITLE in text else text
+    lines = [
+        STEPS_TITLE,
+        "",
+        _timing.header(_timing.run_info(f"the same runs with {REFERENCE_STEPS} RK4 steps per sample (h = "
+                                        f"{1 / REFERENCE_STEPS:g} ms)")),
+        f"Largest difference to {REFERENCE_STEPS} RK4 steps per 1 ms sample (`jr.simulate`) of the tool position and "
+        "the link angles over the runs named, each held at rest for 0.5 s after its last sample (as `simulate_plans`"
+        " does); `time per run`: the wall time of one run, its program compiled (the runs of a row vmapped).",
+        "",
+        *table,
+    ]
+    OUT.write_text(kept.rstrip("\n") + "\n\n" + "\n".join(lines) + "\n")
     print(f"wrote {OUT}")
 
 

@@ -44,6 +44,7 @@ from ._kinematics import identification_jacobian as identification_jacobian  # n
 from ._kinematics import link_frames as link_frames  # noqa: E402
 from ._kinematics import point_position as point_position  # noqa: E402
 from ._kinematics import tool_pose as tool_pose  # noqa: E402
+from ._modes import elastic_eigenfrequencies as elastic_eigenfrequencies  # noqa: E402
 from ._robot import Ripple as Ripple  # noqa: E402
 from ._robot import Robot as Robot  # noqa: E402
 from ._rotations import homogeneous as homogeneous  # noqa: E402

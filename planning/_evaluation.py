@@ -11,6 +11,7 @@ the path and during a rest after `t_e`.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from functools import partial
 
@@ -32,8 +33,23 @@ from ._transcription import State
 
 METHODS = ("rigid", "quasi_static", "flat_inverse", "ocp")
 """Names of the compared motor trajectories (a)-(d) of the module docstring, in that order."""
-SUBSTEPS = 10
-"""RK4 steps per 1 ms sample of `jr.simulate` (h = 0.1 ms; see its module docstring)."""
+SUBSTEPS = 3
+"""The fewest RK4 steps per sample of the plant runs on an elastic model without link loads or joint torques
+(`plant_substeps`): at 1 ms they put the tool within 1e-4 µm, a tenth of the 1e-3 µm that `jaxrobot plan` prints,
+of the same runs with 40 steps per sample (the Racer-7's baselines of the line and the spiral, the as-built
+Racer-7 with its gear flanks, an elastic 7-joint arm: the last section of `benchmarks/results_plant.md`)."""
+EFFECT_SUBSTEPS = 10
+"""The fewest RK4 steps per 1 ms sample of the plant runs on a plant with link loads or joint torques
+(`jaxrobot.effects`: friction, drag, damping), whose time scales bound the step (docs/model.md (2.23c)):
+`jr.simulate`'s default."""
+MODE_STEP = 0.9
+"""Largest `h ω` of the plant runs' RK4 step `h` on the stiffest elastic mode `ω` [rad/s] of the plant
+(`plant_substeps`): a third of RK4's stability bound 2.83 on the imaginary axis, where the undamped mode loses
+`(h ω)^6 / 144` of its amplitude per step. With it (and at least `SUBSTEPS`) the tool stays within 1e-4 µm of runs
+with four times the steps (tested on the Racer-7 and on it with 100 times stiffer springs)."""
+MODE_POSES = 8
+"""Poses of a link path at which `plant_substeps` takes the plant's elastic modes (a fixed count: one program
+serves every path length)."""
 SETTLE_S = 0.5
 """Rest after `t_e` over which the residual error is reported [s]."""
 
@@ -76,6 +92,24 @@ def _along(fn: Callable, q: Float[Array, "N n"], qd: Float[Array, "N n"], qdd: F
         return value, first, jax.jvp(dg, (0.0,), (1.0,))[1]
 
     return MotorTrajectory(*jax.vmap(single)(q, qd, qdd))
+
+
+def plant_substeps(plant: jr.Robot, q: Float[Array, "N n"] | None = None, sample_time: float = 1e-3) -> int:
+    """RK4 steps per sample of `sample_time` [s] for the plant runs on `plant` along the link path `q` [rad] (default:
+    the home pose `q = 0`): the fewest that keep `h ω <= MODE_STEP` on the stiffest elastic mode of `plant` at
+    `MODE_POSES` poses spread over `q` (`jr.elastic_eigenfrequencies`: the motors held, as the runs prescribe
+    them), and at least `SUBSTEPS`, or `EFFECT_SUBSTEPS` where `plant` has link loads or joint torques
+    (`jaxrobot.effects`). A rigid plant gets the least."""
+    least = EFFECT_SUBSTEPS if jr.effects.link_loads(plant) or jr.effects.joint_torques(plant) else SUBSTEPS
+    q = jnp.zeros((1, plant.n_joints)) if q is None else jnp.asarray(q, float)
+    poses = q[np.round(np.linspace(0, q.shape[0] - 1, MODE_POSES)).astype(int)]
+    omega = 2 * np.pi * float(_stiffest_mode(plant, poses))
+    return max(least, math.ceil(sample_time * omega / MODE_STEP))
+
+
+@cached_program
+def _stiffest_mode(plant, q):
+    return jnp.max(jr.elastic_eigenfrequencies(plant, q))
 
 
 def _padded(program, n: int, *args, axes: tuple[int, ...]) -> MotorTrajectory:
@@ -238,14 +272,15 @@ def simulate_plans(
     plant: jr.Robot,
     jp: JointPath,
     trajectories: dict[str, MotorTrajectory],
-    substeps: int = SUBSTEPS,
+    substeps: int | None = None,
     settle_s: float = SETTLE_S,
     directional: bool = False,
 ) -> tuple[list[str], PlantRun]:
     """Simulate every motor trajectory on `plant` in one program (on the CPU one run after the other, whose small
     sequential steps cost less per run than in a vmapped batch; on an accelerator `jax.vmap` over the runs, in
     chunks of `simulation_capacity`), holding the last command at rest for `settle_s` after `t_e`, and measure
-    the tool-pose error against the task of `jp`.
+    the tool-pose error against the task of `jp`, with `substeps` RK4 steps per sample (default
+    `plant_substeps(plant, jp.q, sample_time)`: from the plant's elastic modes along the path).
 
     `directional=True` gives the gears their flanks as states, as the test bench's as-built robot has them
     (pass it for `jr.racer7(as_built=True)`; `jr.simulate`); the planning model uses the cw set throughout.
@@ -261,6 +296,7 @@ def simulate_plans(
     if settle_s < 0:
         raise ValueError(f"settle_s must be >= 0 s, got {settle_s}")
     ts = float(jp.path.sample_time)
+    substeps = plant_substeps(plant, jp.q, ts) if substeps is None else substeps
     samples = n + int(round(settle_s / ts))
     # simulated on `padded_nodes(samples)` samples (the command held longer) and sliced: one program serves
     # paths of other lengths; the scan is causal, so the samples kept are those of an unpadded run
@@ -300,7 +336,7 @@ def evaluate_on_plant(
     plant: jr.Robot,
     jp: JointPath,
     trajectories: dict[str, MotorTrajectory],
-    substeps: int = SUBSTEPS,
+    substeps: int | None = None,
     settle_s: float = SETTLE_S,
     directional: bool = False,
 ) -> dict[str, PlantError]:

@@ -27,7 +27,7 @@ from jaxtyping import Array, Float
 import jaxrobot as jr
 from jaxrobot.internal import cached_program
 
-from ._evaluation import SUBSTEPS, MotorTrajectory
+from ._evaluation import MotorTrajectory, plant_substeps
 from ._ik import JointPath
 from ._padding import head, pad_edge, pad_grid, pad_zeros, padded_nodes
 from ._trajectories import sample_path
@@ -160,13 +160,14 @@ def _linearised(robot, uncertainty, jp, trajectory, directional, method, substep
     n = jp.t.shape[0]
     t, padded, p_d = _padded(jp, trajectory)
     every, columns = _every_entry(uncertainty, robot.n_joints)
+    substeps = plant_substeps(robot, jp.q, float(jp.path.sample_time)) if substeps is None else substeps
     x0, jac = head(_LINEARISATIONS[method](robot, every, t, padded, substeps, bool(directional)), n)
     return np.asarray(x0) - p_d, np.asarray(jac)[..., columns]
 
 
 def task_weight(robot: jr.Robot, names: Sequence[str], jp: JointPath, trajectory: MotorTrajectory,
                 directional: bool = False, method: str = "kinematic",
-                substeps: int = SUBSTEPS) -> Float[np.ndarray, "m m"]:
+                substeps: int | None = None) -> Float[np.ndarray, "m m"]:
     """The weight `W = mean_k J_k^T J_k` (m, m) of the task `jp` run by the motor `trajectory` on the model `robot`:
     `J_k` (3, m) the tool position error's Jacobian at sample `k` with respect to the parameters `names` (robot-file
     entries, `jaxrobot.ModelUncertainty.names`), linearised as `predict_on_robot` does (`method`, `directional`).
@@ -180,12 +181,13 @@ def task_weight(robot: jr.Robot, names: Sequence[str], jp: JointPath, trajectory
 
 def predict_on_robot(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: JointPath, trajectory: MotorTrajectory,
                      directional: bool = False, method: str = "kinematic", draws: int = DRAWS, seed: int = 0,
-                     substeps: int = SUBSTEPS) -> RobotPrediction:
+                     substeps: int | None = None) -> RobotPrediction:
     """The tool position error that the motor `trajectory` (planned on the model `robot` for the joint path `jp`)
     will show on the robot, as a distribution over what the model's identification left uncertain (the module
     docstring): the median and 95th percentile of the largest error over the path, and the band along it.
     `directional`: the gears with their flanks as states (`jr.simulate`), as `plan_task` evaluates the plant;
-    `method`: the linearisation (`METHODS`); `draws` Gaussian draws from the generator seeded by `seed`.
+    `method`: the linearisation (`METHODS`); `draws` Gaussian draws from the generator seeded by `seed`; `substeps`:
+    RK4 steps per sample of the simulations (default `plant_substeps` of `robot` along `jp`).
     Raises `ValueError` naming `trajectory`, `uncertainty` or `method` where they do not fit."""
     e0, jac = _linearised(robot, uncertainty, jp, trajectory, directional, method, substeps)
     unexplained = float(uncertainty.unexplained)
@@ -199,7 +201,7 @@ def predict_on_robot(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: Join
 
 def sampled_errors(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: JointPath, trajectory: MotorTrajectory,
                    deviations: Float[Array, "D m"], directional: bool = False,
-                   substeps: int = SUBSTEPS) -> Float[np.ndarray, "D N"]:
+                   substeps: int | None = None) -> Float[np.ndarray, "D N"]:
     """[m] The tool position error of `trajectory` along `jp` simulated on each robot of the model moved by
     `deviations` (D, m) (the sampled counterpart of `predict_on_robot`'s linearisation)."""
     _check(robot, uncertainty, jp, trajectory)
@@ -208,5 +210,6 @@ def sampled_errors(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: JointP
     every, columns = _every_entry(uncertainty, robot.n_joints)
     full = np.zeros((len(deviations), len(every.names)))
     full[:, columns] = np.asarray(deviations, float)
+    substeps = plant_substeps(robot, jp.q, float(jp.path.sample_time)) if substeps is None else substeps
     x = _sampled(robot, every, t, padded, jnp.asarray(full), substeps, bool(directional))
     return np.linalg.norm(np.asarray(x)[:, :n] - p_d, axis=-1)

@@ -76,7 +76,9 @@ def _cases():
     yield "feasible poses", lambda r, q: _feasible(r, q, jnp.zeros(3), 0.1, 0.2, 1e-3), (ROBOT, Q)
     yield "observability", singular_values_from_gram, (spd,)
     yield "gear normal equations", normal_solve, (jnp.ones((3, 40, 5)), jnp.ones((3, 40)), jnp.ones((3, 40)))
-    from planning._evaluation import _runs
+    from planning._evaluation import _runs, _stiffest_mode
+
+    yield "plant modes", _stiffest_mode, (ROBOT, Q)
 
     traj = pl.MotorTrajectory(*(jnp.broadcast_to(Q[:1].repeat(6, 0), (2, 6, 6)),) * 3)
     for directional in (False, True):

@@ -10,12 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._dynamics import gravity_torque, mass_matrix
-from .._elasticity import elastic_deflection, elastic_stiffness
 from .._flat import flat_inverse
 from .._gear import motor_angle
 from .._kinematics import forward_kinematics
-from .._linalg import map_matrices
+from .._modes import elastic_eigenfrequencies
 from .._program_cache import cached_program
 from .._robot import Robot
 from .._simulate import simulate
@@ -46,12 +44,7 @@ def _numbers(robot, q, elastic: tuple[int, ...]) -> PoseNumbers:
     home = forward_kinematics(robot, jnp.zeros(robot.n_joints))
     if not elastic:
         return PoseNumbers(sag, None, home, result)
-    e = jnp.asarray(elastic)  # rigid joints held: the eigenproblem of the elastic joints
-    x = elastic_deflection(robot, gravity_torque(robot, q))
-    stiffness = jax.vmap(jnp.diag)(elastic_stiffness(robot, x)[:, e])
-    mass = mass_matrix(robot, q)[:, e][:, :, e]
-    lam = map_matrices(lambda m, k: jnp.linalg.eigvals(jnp.linalg.solve(m, k)).real, mass, stiffness)
-    return PoseNumbers(sag, jnp.sqrt(jnp.sort(lam, -1)) / (2 * jnp.pi), home, result)
+    return PoseNumbers(sag, elastic_eigenfrequencies(robot, q)[:, robot.n_joints - len(elastic):], home, result)
 
 
 def pose_numbers(robot: Robot, q: Float[Array, "P n"]) -> PoseNumbers:
