@@ -80,9 +80,8 @@ def task_path(task: str, description: dict):
 
 
 PLANT_HELP = ("robot the plans are simulated on: 'model' (the planning model, cw gear set throughout), 'as-built' "
-              "(the test bench's robot: the model file's [as_built]; for a model of the embedded Racer-7 without one, the "
-              "Racer-7's) or a robot FILE "
-              "(TOML/URDF); all but 'model' with their gears' flanks as states")
+              "(the test bench's robot: the model file's [as_built]; for a model of the embedded Racer-7 without one, "
+              "the Racer-7's) or a robot FILE (TOML/URDF); all but 'model' with their gears' flanks as states")
 
 
 def load_plant(plant: str, desc: dict, robot: jr.Robot) -> jr.Robot:

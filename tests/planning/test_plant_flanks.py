@@ -4,6 +4,7 @@ reversals, `plan --plant` and saved robot files."""
 from __future__ import annotations
 
 import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
