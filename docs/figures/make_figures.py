@@ -103,6 +103,8 @@ def cli(out: Path, work: Path) -> None:
                                                str(out)))
     _timed("diagnose", lambda: _diagnose(out, work))
     _timed("compare", lambda: _compare(out, work, plans()["calibrated model"]))
+    _timed("front", lambda: _command("front", "line", "--tolerance", "10e-6", "--durations", "0.5", "0.8", "1.2",
+                                     "2.5", "--nu", "1e-14", "--refine", "0.05", "--out", str(out)))
 
 
 def _diagnose(out: Path, work: Path) -> None:
@@ -137,7 +139,8 @@ def _compare(out: Path, work: Path, plan: pl.PlanResult) -> None:
 
 PAGES = {"index.md": home, "cli.md": cli}
 """Page of the site -> the function writing its figures, `function(out, work)` (`work`: a scratch folder); the
-command-line page's are also shown on the pages on `diagnose`, the closed loop and scaling out."""
+command-line page's are also shown on the pages on `diagnose`, the closed loop, scaling out, the cycle time and the
+error on the robot."""
 
 
 def main(argv: list[str] | None = None) -> int:
