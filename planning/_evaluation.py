@@ -46,7 +46,7 @@ MODE_STEP = 0.9
 """Largest `h ω` of the plant runs' RK4 step `h` on the stiffest elastic mode `ω` [rad/s] of the plant
 (`plant_substeps`): a third of RK4's stability bound 2.83 on the imaginary axis, where the undamped mode loses
 `(h ω)^6 / 144` of its amplitude per step. With it (and at least `SUBSTEPS`) the tool stays within 1e-4 µm of runs
-with four times the steps (tested on the Racer-7 and on it with 100 times stiffer springs)."""
+with four times the steps."""
 MODE_POSES = 8
 """Poses of a link path at which `plant_substeps` takes the plant's elastic modes (a fixed count: one program
 serves every path length)."""

@@ -93,7 +93,7 @@ def load_plant(plant: str, desc: dict, robot: jr.Robot) -> jr.Robot:
     if plant == "as-built":
         if "as_built" in desc:
             out = robot_from_description(desc, as_built=True)
-        elif robot.name == jr.racer7().name:  # a model identified from the embedded Racer-7: the bench's robot
+        elif robot.name == jr.read_description(None)["name"]:  # a model of the embedded Racer-7: its bench
             out = jr.racer7(as_built=True)
         else:
             raise ValueError(f"--plant as-built: the model file of {robot.name!r} has no [as_built] section (the "
