@@ -101,7 +101,7 @@ def plant_substeps(plant: jr.Robot, q: Float[Array, "N n"] | None = None, sample
     them), and at least `SUBSTEPS`, or `EFFECT_SUBSTEPS` where `plant` has link loads or joint torques
     (`jaxrobot.effects`). A rigid plant gets the least."""
     least = EFFECT_SUBSTEPS if jr.effects.link_loads(plant) or jr.effects.joint_torques(plant) else SUBSTEPS
-    q = jnp.zeros((1, plant.n_joints)) if q is None else jnp.asarray(q, float)
+    q = np.zeros((1, plant.n_joints)) if q is None else np.asarray(q, float)  # on the host: no program per length
     poses = q[np.round(np.linspace(0, q.shape[0] - 1, MODE_POSES)).astype(int)]
     omega = 2 * np.pi * float(_stiffest_mode(plant, poses))
     return max(least, math.ceil(sample_time * omega / MODE_STEP))
