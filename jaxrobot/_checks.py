@@ -83,7 +83,7 @@ def checked(fn: Callable) -> Callable:
         given = bound.arguments
         n = None
         for name, spec in specs.items():
-            if spec.robot and name in given and given[name] is not None:
+            if spec.robot and name in given and (given[name] is not None or not spec.optional):
                 if not isinstance(given[name], Robot):
                     raise TypeError(f"{name}: expected a jaxrobot.Robot (e.g. jr.racer7()), found "
                                     f"{type(given[name]).__name__}")

@@ -43,11 +43,14 @@ def fleet_measurements(n_robots: int, n_poses: int, rows: range, seed: int = 0, 
     """Tracker measurements of the robots `rows` of `draw_fleet(n_robots, seed, nominal)` (default the
     nominal Racer-7), each at its own `n_poses` random feasible poses (one pool,
     `random_feasible_poses`) held at the nominal robot's static equilibrium, with the marker offset and the
-    isotropic tracker noise of `instruments` (default the bench's, `jaxrobot.racer7_instruments()`), noise of its
-    own seed: a robot's data do not depend on `rows`.
+    isotropic tracker noise of `instruments` (required with a `nominal`; for the Racer-7 default the bench's,
+    `jaxrobot.racer7_instruments()`), noise of its own seed: a robot's data do not depend on `rows`.
     `Poses` with leading axis `len(rows)` (`link_angles` are the nominal robot's held `q`)."""
     if n_robots < 1 or n_poses < 1:
         raise ValueError(f"n_robots, n_poses: expected >= 1 robots and poses, found {n_robots} and {n_poses}")
+    if nominal is not None and instruments is None:
+        raise ValueError(f"instruments: expected the measurement setup (jaxrobot.Instruments) of the fleet of "
+                         f"{nominal.name!r}, found None (the Racer-7 bench's is the default of the Racer-7 only)")
     nominal = jr.racer7() if nominal is None else nominal
     instruments = jr.racer7_instruments() if instruments is None else instruments
     marker, sigma = instruments.require("marker_offset", "tracker_noise", by="fleet_measurements")

@@ -78,7 +78,8 @@ def fleet_files(fleet: Path) -> list[Path]:
 
 def bench_fleet(folder: Path, n_robots: int, n_poses: int, seed: int = 0, nominal=None,
                 instruments=None) -> list[Path]:
-    """Bench data of a fleet (`fleet_measurements`; `instruments` default the bench's), this process's share
+    """Bench data of a fleet (`fleet_measurements`; default the Racer-7's with its bench's `instruments`), this
+    process's share
     (`process_share`): writes
     `robot_{r:05d}.csv` of this share; returns all R paths. The files do not depend on the process count."""
     import jaxrobot as jr

@@ -177,7 +177,8 @@ def run(args, echo) -> dict:
         write_outputs(args.out, res, args.max_order)
         echo(f"wrote tables and plots to {args.out}")
     if args.save_model is not None:
-        jr.save_robot(res.robot, args.save_model, uncertainty=res.uncertainty)
+        jr.save_robot(res.robot, args.save_model, keep=jr.read_description(args.model) if args.model else None,
+                      uncertainty=res.uncertainty)
         echo(f"wrote {args.save_model}" + ("" if res.uncertainty is None else
                                            f" with [uncertainty] of {len(res.uncertainty.names)} entries"))
     if res.drift is not None:

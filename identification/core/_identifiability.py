@@ -189,7 +189,7 @@ def analyse(
 
 
 def identifiability(
-    robot: jr.Robot | None = None,
+    robot: jr.Robot,
     names: Sequence[str] | None = None,
     *,
     orientation: bool = False,
@@ -208,7 +208,6 @@ def identifiability(
     [m] (`Instruments.marker_offset`; zeros = the tool-frame origin, `p_e` of eq. 3.6 without a tool).
     `names`: default `kinematic_parameters(robot)`.
     """
-    robot = jr.racer7() if robot is None else robot
     params = ParameterMap(kinematic_parameters(robot) if names is None else names)
     q = random_feasible_poses(robot, n_poses, seed, marker=marker, constraints=constraints)
     blocks = pose_jacobians(robot, params, q, marker, orientation)

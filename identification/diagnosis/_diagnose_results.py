@@ -81,8 +81,10 @@ class Estimate:
     unit: str
     """Unit of `value` and `std`: the effect's `units` entry ("1" for a pure number), "N m/rad" for `k1`."""
     std: float | None = None
-    """Standard error [`unit`] from the Gauss-Newton covariance `(J^T J)^+` of the training residuals
-    over the noise `sigma` (`J` at the model before this step's fit); None where derived (`k1` from `c`)."""
+    """Standard error [`unit`] of the fit as it was made: from the Gauss-Newton covariance `(J^T W J)^+` of the
+    training residuals over the noise `sigma` (`J` and the robust weights `W` at the model before this step's fit,
+    which the fit used); None where derived (`k1` from `c`). `DiagnoseResult.uncertainty` is the final model's
+    covariance instead, linearised at the final fit with its weights and scaled by `chi2 / dof`."""
     note: str = ""
     """A remark for the report, e.g. why the weight of `approach_dependent_gear_set` cannot go into a
     robot file; usually empty."""

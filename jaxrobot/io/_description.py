@@ -253,25 +253,34 @@ def description_of(robot: Robot) -> dict:
     return validate(data)
 
 
-KEPT_SECTIONS = ("sensors", "poses", "trajectories")
-"""Sections of a description that a `Robot` does not hold and `save_robot` copies from `keep`."""
+CELL_SECTIONS = ("sensors", "calibration", "poses", "trajectories")
+"""Sections of a description about the cell, not the robot, which a `Robot` does not hold: the measurement setup,
+the calibration's priors, the identification poses and the tasks. A written robot carries them over from the
+description it came from (`save_robot`'s `keep`, `jaxrobot.io.save_model`'s `start`), so the stages chain."""
 
 
 def save_robot(robot: Robot, path: str | Path, keep: dict | None = None,
                uncertainty: ModelUncertainty | None = None) -> None:
-    """Write the robot in the format of `racer7.toml` (loadable by `load_robot`), with the `KEPT_SECTIONS` of the
-    description `keep` (the tasks of `jaxrobot plan`, the bench's sensors and poses). Default `keep`: the embedded
-    description for a robot of its name and joint count (one calibrated or diagnosed from it), else none.
-    `uncertainty`: a `jaxrobot.ModelUncertainty` of the identification that made the robot, written as
-    `[uncertainty]` (`jaxrobot.io.read_uncertainty` reads it back); a start file's is never carried over."""
+    """Write the robot in the format of `racer7.toml` (loadable by `load_robot`), with the `CELL_SECTIONS` of the
+    description `keep` (the tasks of `jaxrobot plan`, the bench's sensors and poses, the calibration's priors).
+    Default `keep`: the embedded description for a robot of its name and joint count (one calibrated or diagnosed
+    from it), else none. `uncertainty`: a `jaxrobot.ModelUncertainty` of the identification that made the robot,
+    written as `[uncertainty]` (`jaxrobot.io.read_uncertainty` reads it back); a start file's is never carried
+    over. What is written is validated first (`write_robot_file`)."""
     if keep is None:
         embedded = read_description(None)
         same = robot.name == embedded["name"] and np.shape(robot.a)[-1:] == (len(embedded["kinematics"]["a"]),)
         keep = embedded if same else {}
-    data = description_of(robot)
-    data.update({k: keep[k] for k in KEPT_SECTIONS if k in keep})
+    write_robot_file(description_of(robot), path, keep, uncertainty, "jaxrobot.save_robot")
+
+
+def write_robot_file(data: dict, path: str | Path, keep: dict, uncertainty: ModelUncertainty | None,
+                     writer: str) -> None:
+    """Write the description `data` of a robot (`description_of`) with the `CELL_SECTIONS` of the description
+    `keep` and `uncertainty` as `[uncertainty]`, validated before `path` is touched: a bad description raises
+    `RobotFileError` naming the field and writes nothing. `writer` is named in the file's first line."""
+    data = data | {k: keep[k] for k in CELL_SECTIONS if k in keep}
     if uncertainty is not None:
         data["uncertainty"] = uncertainty_table(uncertainty)
-    text = "# written by jaxrobot.save_robot; format: racer7.toml (SI units, rad unless _deg)\n"
+    text = f"# written by {writer}; format: racer7.toml (SI units, rad unless _deg)\n"
     Path(path).write_text(text + tomli_w.dumps(validate(data)))
-

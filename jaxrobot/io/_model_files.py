@@ -1,29 +1,25 @@
 """Robot files written by the identification commands (`--save-model`), so that each stage's
 output is the next one's `--robot`/`--model`: the identified robot plus the sections of the file it
-started from that describe the cell (`KEPT_SECTIONS`)."""
+started from that describe the cell (`CELL_SECTIONS`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
-import tomli_w
 
 from .._robot import Robot
 from .._uncertainty import ModelUncertainty
-from ._description import description_of, read_description
-from ._uncertainty import uncertainty_table
-
-KEPT_SECTIONS = ("sensors", "calibration", "poses", "trajectories")
-"""Sections of the start file that describe the cell, not the robot: carried over unchanged."""
+from ._description import description_of, read_description, write_robot_file
 
 
 def save_model(robot: Robot, path: str | Path, start: str | Path | None = None, ranges: dict | None = None,
                uncertainty: ModelUncertainty | None = None) -> None:
-    """Write `robot` (format of `racer7.toml`) keeping `KEPT_SECTIONS` of the start file `start`
+    """Write `robot` (format of `racer7.toml`) keeping the `CELL_SECTIONS` of the start file `start`
     (default: the embedded description); `ranges` `{(joint, "cw"/"ccw"): (lo, hi) deg}` become the
     sets' `identified_range_deg`; `uncertainty` (of the identification that made `robot`) becomes
-    `[uncertainty]` (the start file's is not carried over)."""
+    `[uncertainty]` (the start file's is not carried over). Validated before the file is written, as by
+    `jaxrobot.save_robot`: a bad entry raises `RobotFileError` naming it."""
     data = description_of(robot)
     desc = read_description(start)
     ranges = dict(ranges or {})
@@ -37,13 +33,7 @@ def save_model(robot: Robot, path: str | Path, start: str | Path | None = None, 
         rip = data.get("gear", {}).get(f"joint{joint}", {}).get(direction)
         if rip is not None and rip["orders"]:
             rip["identified_range_deg"] = [float(x) for x in rng]
-    for section in KEPT_SECTIONS:
-        if section in desc:
-            data[section] = desc[section]
-    if uncertainty is not None:
-        data["uncertainty"] = uncertainty_table(uncertainty)
-    text = "# written by jaxrobot (identification --save-model); format: racer7.toml (SI units, rad unless _deg)\n"
-    Path(path).write_text(text + tomli_w.dumps(data))
+    write_robot_file(data, path, desc, uncertainty, "jaxrobot (identification --save-model)")
 
 
 def ripple_outside_range(path: str | Path | None, motor_angles, ccw, u0) -> dict:

@@ -166,6 +166,14 @@ def test_clean_robots_as_the_fleet_without_the_faulty_ones(fleet_runs):
         assert float(jr.load_robot(saved).a[1]) == pytest.approx(float(b["a2"]), rel=1e-12)
 
 
+def test_bench_fleet_of_another_robot_needs_its_instruments(tmp_path):
+    """Bench data of a fleet of a nominal robot given without a measurement setup is an error naming
+    `instruments` (the Racer-7 bench's tracker is the default of the Racer-7 only), before any file is written."""
+    with pytest.raises(ValueError, match="instruments: expected the measurement setup .* found None"):
+        bench_fleet(tmp_path / "data", 2, 3, nominal=jr.racer7(as_built=True))
+    assert not any((tmp_path / "data").glob("*.csv"))
+
+
 def test_noise_test_is_chi_square():
     """`noise_test` of pure noise at the stated std: chi2 has mean dof and std sqrt(2 dof) over 2000
     seeded draws (bounds at 5 standard errors of the mean and of the variance), p-values uniform (the

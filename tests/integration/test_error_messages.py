@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import identification.calibration
 import jaxrobot as jr
 import planning as pl
 from jaxrobot.cli._main import main
@@ -117,6 +118,8 @@ API = [  # (id, call, exception, message)
     ("as_built an int", lambda: jr.racer7(as_built=1), TypeError, "as_built: expected True or False, found 1"),
     ("robot a string", lambda: jr.forward_kinematics("racer7", Q6), TypeError,
      "robot: expected a jaxrobot.Robot .*found str"),
+    ("robot None", lambda: identification.calibration.identifiability(None, marker=jnp.zeros(3)), TypeError,
+     "robot: expected a jaxrobot.Robot .*found NoneType"),
     ("batches differ", lambda: jr.inverse_dynamics(ROBOT, jnp.zeros((5, 6)), jnp.zeros((3, 6)), Q6), ValueError,
      r"batch dimensions do not broadcast: q \(5,\), qd \(3,\), qdd \(\)"),
     ("state of 23", lambda: jr.planning_dynamics(ROBOT, jnp.zeros(23), Q6), ValueError,

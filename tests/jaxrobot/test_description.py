@@ -111,6 +111,31 @@ def test_save_and_load_round_trip(tmp_path, as_built):
     assert again.name == robot.name
 
 
+def test_saved_robots_keep_the_cells_sections(tmp_path):
+    """`save_robot` and `jaxrobot.io.save_model` carry the same sections of the file a robot came from over: its
+    `[sensors]`, `[calibration]` priors, `[poses]` and `[trajectories]`, unchanged."""
+    start = _edit(("calibration",), {"prior_std": {"a_m": 2e-4, "offset_rad": 1e-3}})
+    path = _write(tmp_path, start)
+    jr.save_robot(jr.racer7(), tmp_path / "robot.out.toml", keep=jr.read_description(path))
+    jr.io.save_model(jr.racer7(), tmp_path / "model.out.toml", path)
+    for written in ("robot.out.toml", "model.out.toml"):
+        data = jr.read_description(tmp_path / written)
+        for section in ("sensors", "calibration", "poses", "trajectories"):
+            assert data[section] == start[section], (written, section)
+
+
+def test_save_model_validates_before_writing(tmp_path):
+    """A bad entry of what `save_model` writes (an identified range of three angles) is a `RobotFileError` naming
+    it, and no file is written."""
+    path = tmp_path / "model.toml"
+    bad = r"gear\.joint1\.cw\.identified_range_deg: expected shape \(2\), found .shape \(3,\)"
+    with pytest.raises(jr.RobotFileError, match=bad):
+        jr.io.save_model(jr.racer7(), path, ranges={(1, "cw"): (-90.0, 0.0, 90.0)})
+    assert not path.exists()
+    jr.io.save_model(jr.racer7(), path, ranges={(1, "cw"): (-90.0, 90.0)})
+    assert jr.read_description(path)["gear"]["joint1"]["cw"]["identified_range_deg"] == [-90.0, 90.0]
+
+
 SHARED = Path(__file__).resolve().parents[3] / "shared" / "racer7" / "racer7.toml"
 
 
