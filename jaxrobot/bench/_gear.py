@@ -25,7 +25,7 @@ from .._gear import gear_output, gear_ratio
 from .._instruments import Instruments
 from .._program_cache import cached_program
 from .._robot import Robot
-from ..io._instruments import racer7_instruments
+from ..io._instruments import bench_instruments
 from ..measurement._gear_run import GearRun
 from ..measurement._gyroscope import mount_angular_velocity, sensor_rotation
 from ..measurement._model import quasi_static_link_angles
@@ -171,12 +171,12 @@ def gear_runs(
     - `seed`: int or `jax.random` key for noise and bias.
     - `gyro_bias_deg_s`: std of the constant bias per axis and run.
     - `instruments`: the gyroscope's noise and misalignment, the encoders' counts per revolution and the sample
-      time (`gyro_noise`, `gyro_misalignment`, `encoder_counts_per_rev`, `sample_time`); default the bench's,
-      `jaxrobot.racer7_instruments()`.
+      time (`gyro_noise`, `gyro_misalignment`, `encoder_counts_per_rev`, `sample_time`); required for a robot
+      other than the embedded Racer-7, whose default is its bench's (`jaxrobot.racer7_instruments()`).
 
     **Returns:** `GearRun` of the `R` runs (leading axis), with their noise-free truth.
     """
-    instruments = racer7_instruments() if instruments is None else instruments
+    instruments = bench_instruments(robot, instruments, by="gear_runs")
     noise, mis, ts, counts = instruments.require("gyro_noise", "gyro_misalignment", "sample_time",
                                                  "encoder_counts_per_rev", by="gear_runs")
     n_joints = robot.n_joints

@@ -22,7 +22,7 @@ from .._robot import Robot
 from .._rotations import rotation_to_quaternion, rotvec_to_rotation
 from .._status import require_successful
 from ..io._description import racer7, read_as_built
-from ..io._instruments import racer7_instruments
+from ..io._instruments import bench_instruments
 from ..measurement._model import measured_pose
 from ..measurement._poses import Poses
 
@@ -59,8 +59,8 @@ def measure_poses(
     - `motor_angles`: commanded motor angles [rad], (K, n) (shared by the fleet) or (*b, K, n).
     - `seed`: seed of the Gaussian noise.
     - `instruments`: the tracker's marker offset, isotropic position noise and orientation noise
-      (`marker_offset`, `tracker_noise`, `tracker_orientation_noise`); default the bench's,
-      `jaxrobot.racer7_instruments()`.
+      (`marker_offset`, `tracker_noise`, `tracker_orientation_noise`); required for a robot other than the
+      embedded Racer-7, whose default is its bench's (`jaxrobot.racer7_instruments()`).
     - `orientation`: also report the marker orientation as a quaternion, rotated by a random rotation vector with
       the std `tracker_orientation_noise` per axis [rad].
     - `ccw`: gear set of the last approach direction (default `cw`, docs/model.md (B.1)).
@@ -69,7 +69,7 @@ def measure_poses(
     their noise-free truth and metadata. Raises the status message where the rest fixed point failed
     (`jaxrobot.measurement.rest_link_angles`; never for the default robot).
     """
-    instruments = racer7_instruments() if instruments is None else instruments
+    instruments = bench_instruments(truth, instruments, by="measure_poses")
     marker, sigma = instruments.require("marker_offset", "tracker_noise", by="measure_poses")
     orientation_noise = instruments.tracker_orientation_noise
     theta = jnp.asarray(motor_angles, float)

@@ -69,3 +69,16 @@ def racer7_instruments() -> Instruments:
     tracker of 50 um per axis with its marker offset, a 20-bit encoder, a 1 kHz gyroscope and the gear runs'
     filter cut-offs)."""
     return read_instruments(None)
+
+
+def bench_instruments(robot, instruments: Instruments | None, by: str) -> Instruments:
+    """`instruments`, or for a model of the embedded Racer-7 (its name) the bench's (`racer7_instruments`);
+    `ValueError` naming `instruments` for another robot without its own (the Racer-7's tracker and encoders are not
+    a default of other robots; `by`: the function that needs them)."""
+    if instruments is not None:
+        return instruments
+    if robot.name != read_description(None)["name"]:
+        raise ValueError(f"instruments: {by} of {robot.name!r} needs its measurement setup (jaxrobot.Instruments, "
+                         "e.g. jaxrobot.io.read_instruments(ROBOT_FILE)), found None (the bench's is the default of "
+                         "the embedded Racer-7 only)")
+    return racer7_instruments()

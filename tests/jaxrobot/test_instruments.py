@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 import tomli_w
+from helpers import ARM7
 
 import jaxrobot as jr
 import jaxrobot.bench as jb
@@ -92,3 +93,17 @@ def test_the_bench_measures_with_the_given_marker():
     b = jb.measure_poses(robot, theta, instruments=other).true_positions
     step = np.linalg.norm(np.array([0.05, 0.02, 0.06]) - np.array([0.0, 0.0, 0.2]))
     np.testing.assert_allclose(np.linalg.norm(a - b, axis=-1), step, rtol=1e-12)
+
+
+def test_the_bench_of_another_robot_needs_its_instruments():
+    """The bench's tracker and encoders are the embedded Racer-7's default only: `measure_poses` and `gear_runs` of
+    another robot without its instruments fail naming `instruments` before measuring; with them they measure."""
+    arm = jr.load_robot(ARM7)
+    theta = np.zeros((2, arm.n_joints))
+    for call in (lambda i: jb.measure_poses(arm, theta, instruments=i),
+                 lambda i: jb.gear_runs(arm, 1, repetitions=1, directions=("cw",), range_deg=1.0, instruments=i)):
+        with pytest.raises(ValueError, match=r"^instruments: .*found None"):
+            call(None)
+    poses = jb.measure_poses(arm, theta, instruments=jr.io.read_instruments(ARM7))
+    assert poses.positions.shape == (2, 3)
+    assert jb.measure_poses(jr.racer7(), np.zeros((1, 6))).positions.shape == (1, 3)  # the Racer-7's default
