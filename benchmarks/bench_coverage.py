@@ -11,10 +11,11 @@ and the cost of the prediction beside the plan's. With `--methods`, the first ro
 mode through the whole simulation (`method="simulation"`), its p50/p95 and time beside the default's.
 
 With `--independent`, the robots of `../shared/independent` instead (`_independent_cases`: each set with
-calibration poses and a truth, 6 and 7 joints), written as their own section of the results, the bench's kept.
+calibration poses and a truth, 6 and 7 joints), written as their own section of the results, the bench's kept;
+with `--alternatives` also, per robot, the p95 of two other readings of its calibration (`_shrunk`, `_field_p95`).
 
 Run: `python benchmarks/bench_coverage.py [--robots 50] [--ocp-robots 5] [--methods]` (writes
-benchmarks/results_coverage.md), `python benchmarks/bench_coverage.py --independent`.
+benchmarks/results_coverage.md), `python benchmarks/bench_coverage.py --independent [--alternatives]`.
 """
 
 from __future__ import annotations
