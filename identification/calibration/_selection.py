@@ -50,6 +50,19 @@ class ParameterSelection:
         which then is what its fit says (mean square `(W_i + 1) C_ii`, `W_i = dBIC_i + ln n` its Wald statistic),
         else zero: `theta_A` gets the covariance `S C_AA S`, `S = diag(sqrt(p_i (W_i + 1)))`, the fitted
         parameters' correlations kept. (With every `p_i (W_i + 1) = 1` this is `C` itself.)"""
+        change = np.asarray(self.delta_bic, float)
+        s = np.sqrt((change + np.log(self.n_residuals) + 1.0) / (1.0 + np.exp(-change / 2.0)))
+        return self.result_covariance(s[:, None] * self.set_aside_covariance() * s[None, :])
+
+    def set_aside_covariance(self) -> np.ndarray:
+        """(a, a) `C_AA`, the block of the `covariance` of the `set_aside` parameters (in their order)."""
+        aside = [self.candidates.index(n) for n in self.set_aside]
+        return np.asarray(self.covariance, float)[np.ix_(aside, aside)]
+
+    def result_covariance(self, set_aside_moment: np.ndarray) -> np.ndarray:
+        """(c, c) the covariance of the errors of the `candidates` in the result where the true deviations of the
+        `set_aside` parameters have the second moment `set_aside_moment` (a, a) (`averaged_covariance`: the
+        kept ones' fit error `C_KK - C_KA C_AA^-1 C_AK` plus `G M G^T`, `G = [C_KA C_AA^-1; I]`)."""
         c = np.asarray(self.covariance, float)
         kept = [self.candidates.index(n) for n in self.kept]
         aside = [self.candidates.index(n) for n in self.set_aside]
@@ -59,9 +72,7 @@ class ParameterSelection:
         g[kept], g[aside] = gain, np.eye(len(aside))
         out = np.zeros_like(c)
         out[np.ix_(kept, kept)] = c[np.ix_(kept, kept)] - gain @ c[np.ix_(aside, kept)]
-        change = np.asarray(self.delta_bic, float)
-        s = np.sqrt((change + np.log(self.n_residuals) + 1.0) / (1.0 + np.exp(-change / 2.0)))
-        out = out + g @ (s[:, None] * c_aa * s[None, :]) @ g.T
+        out = out + g @ np.asarray(set_aside_moment, float) @ g.T
         return 0.5 * (out + out.T)  # symmetric to the last bit, as a robot file stores it
 
 

@@ -850,6 +850,44 @@ def test_backward_elimination_by_bic_matches_exact_refits():
     assert sel.n_residuals == n and sel.candidates == tuple(names)
 
 
+def test_result_covariance_of_set_aside_deviations_matches_sampled_refits():
+    """`ParameterSelection.result_covariance`: on a linear model whose set-aside parameters' true deviations are
+    drawn with second moment `M` (and fresh noise each draw), the errors of the kept parameters' refit and of the
+    set-aside ones at zero have the covariance it states, within the sampling error of a covariance (5 std per
+    entry over 20000 draws); with `M = C_AA` it is the whole fit's covariance; the sum of the set-aside steps'
+    `dBIC + ln n` is their joint Wald statistic `x_A^T C_AA^-1 x_A`."""
+    from identification.calibration._selection import select_parameters
+
+    rng = np.random.default_rng(7)
+    n, sigma, draws = 120, 0.5, 20000
+    jac = rng.normal(size=(n, 8)) + 0.5 * rng.normal(size=(n, 1))
+    cov = sigma**2 * np.linalg.inv(jac.T @ jac)
+    x_true = np.array([0, 0, 0, 0.5, 8, -10, 12, 15.0]) * np.sqrt(np.diag(cov))
+    y = jac @ x_true + sigma * rng.normal(size=n)
+    x_hat = np.linalg.lstsq(jac, y, rcond=None)[0]
+    sel = select_parameters([f"p{i}" for i in range(8)], x_hat, cov, n)
+    kept = [sel.candidates.index(c) for c in sel.kept]
+    aside = [sel.candidates.index(c) for c in sel.set_aside]
+    assert len(aside) >= 3 and len(kept) >= 4
+    c_aa = sel.set_aside_covariance()
+    np.testing.assert_allclose(c_aa, cov[np.ix_(aside, aside)], rtol=0, atol=0)
+    np.testing.assert_allclose(sel.result_covariance(c_aa), cov, rtol=1e-10, atol=1e-14)
+    wald = float(x_hat[aside] @ np.linalg.solve(c_aa, x_hat[aside]))
+    np.testing.assert_allclose(np.sum(np.asarray(sel.delta_bic) + np.log(n)), wald, rtol=1e-9)
+
+    moment = np.diag(np.linspace(0.5, 2.0, len(aside))) @ c_aa @ np.diag(np.linspace(0.5, 2.0, len(aside)))
+    truth = np.broadcast_to(x_true, (draws, 8)).copy()
+    truth[:, aside] = rng.multivariate_normal(np.zeros(len(aside)), moment, size=draws)
+    data = truth @ jac.T + sigma * rng.normal(size=(draws, n))
+    result = np.zeros((draws, 8))
+    result[:, kept] = data @ np.linalg.pinv(jac[:, kept]).T  # the kept refitted, the set aside at zero
+    err = result - truth
+    sampled = err.T @ err / draws
+    stated = sel.result_covariance(moment)
+    spread = np.sqrt((np.outer(np.diag(stated), np.diag(stated)) + stated**2) / draws)
+    assert np.all(np.abs(sampled - stated) <= 5 * spread), np.max(np.abs(sampled - stated) / spread)
+
+
 @pytest.mark.extended  # the pose bench and LM of a 7-joint arm compile; the suite keeps the 7-joint model
 def test_seven_joint_calibration_recovers_the_as_built_arm(arm7):
     """Bench poses of the as-built arm: the calibrated deviations of the whole default set within 3 reported
