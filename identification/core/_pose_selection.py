@@ -103,8 +103,10 @@ CHUNK = 1000
 """Poses per batch of `pose_jacobians` (one compiled shape for every pose-set size)."""
 
 
-@cached_program(filter=True)
-def _pose_jacobians(robot, params: ParameterMap, q, marker, ccw):
+def marker_jacobians(robot: jr.Robot, params: ParameterMap, q: Float[Array, "N n"], marker: Float[Array, "3"],
+                     ccw: bool = False) -> Float[Array, "N 6 m"]:
+    """Traced `d y_i / d v` (N, 6, m) of `pose_jacobians` (position rows, then rotation angles), differentiable
+    with respect to `q`."""
     theta = jr.static_equilibrium(robot, q, ccw)
     defl = q - jr.gear_output(robot, theta, ccw)
     v0 = params.get(robot)
@@ -115,6 +117,11 @@ def _pose_jacobians(robot, params: ParameterMap, q, marker, ccw):
         return jnp.concatenate([p, jr.rotation_error(r0, r)])
 
     return jax.vmap(jax.jacfwd(model), in_axes=(None, 0, 0))(v0, theta, defl)
+
+
+@cached_program(filter=True)
+def _pose_jacobians(robot, params: ParameterMap, q, marker, ccw):
+    return marker_jacobians(robot, params, q, marker, ccw)
 
 
 def pose_jacobians(

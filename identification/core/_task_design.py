@@ -9,22 +9,30 @@ has `C = sigma^2 (A^T A)^{-1}`, so the design minimises `sigma^2 trace(W (A^T A)
 exchanging poses with a pool of feasible poses: a greedy start (each pose the pool's that lowers the criterion
 most, rank-3 updates of `(A^T A)^{-1}`), then per iteration the best exchange among the `n_try` pool poses that
 lower the criterion most, each with the set's pose whose removal raises it least, until no exchange lowers it.
+The chosen poses need not stay on the pool: a continuous refinement then moves their joint coordinates down the
+criterion's gradient (JAX through the identification Jacobian and the rest pose), inside the joint limits and the
+constraints of the random poses (`PoseConstraints`), the standard exchange-then-local-optimisation of optimal design.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
+from jaxrobot.internal import cached_program
 
 from ._parameters import ParameterMap
 from ._pose_selection import (
     DEFAULT_CONSTRAINTS,
     PoseConstraints,
     column_scale,
+    feasible,
+    marker_jacobians,
     pose_jacobians,
     random_feasible_poses,
     rest_motor_angles,
@@ -42,9 +50,12 @@ class TaskDesign:
     criterion: float
     """`sigma^2 trace(W (A^T A)^{-1})` of the set [m^2]: the task's predicted mean squared error."""
     history: np.ndarray
-    """(iterations + 1,) the criterion after the greedy start and after each exchange [m^2]."""
+    """(iterations + refined + 1,) the criterion after the greedy start, after each exchange and after each step
+    of the continuous refinement [m^2]."""
     iterations: int
     """Exchanges made."""
+    refined: int = 0
+    """Accepted steps of the continuous refinement (0: the poses are the pool's)."""
 
 
 def pose_covariance(blocks: Float[Array, "K d m"], sigma: float) -> np.ndarray:
@@ -121,6 +132,46 @@ def _exchange(pool, weight, n_poses, n_try, max_iter):
     return sel, np.asarray(history)
 
 
+@cached_program(filter=True)
+def _criterion_and_gradient(robot, params, q, marker, weight, scale):
+    """`trace(W (A^T A)^{-1})` of the poses `q` (K, n) (columns of `A` divided by `scale`, `W` scaled alike) and
+    its gradient with respect to `q`."""
+
+    def criterion(q):
+        a = (marker_jacobians(robot, params, q, marker)[:, :3] / scale).reshape(-1, scale.shape[0])
+        return jnp.trace(jnp.linalg.solve(a.T @ a, weight))
+
+    return jax.value_and_grad(criterion)(q)
+
+
+def _refine(robot, params, q, marker, weight, scale, constraints, steps):
+    """Projected gradient descent of the criterion over the joint coordinates `q` (K, n) of the set, inside the
+    joint limits by `constraints.limit_margin`; a pose whose step leaves the feasible set (`feasible`) stays where
+    it is. Barzilai-Borwein step lengths, halved until the criterion falls; stops after `steps` accepted steps or
+    when no step of 1e-6 rad lowers it. Returns the poses and the criterion after each accepted step."""
+    if steps == 0:
+        return q, []
+    lo = np.asarray(robot.q_min) + constraints.limit_margin
+    hi = np.asarray(robot.q_max) - constraints.limit_margin
+    args = (jnp.asarray(marker, float), jnp.asarray(weight), jnp.asarray(scale))
+    value, grad = (np.asarray(x) for x in _criterion_and_gradient(robot, params, jnp.asarray(q), *args))
+    length, history = 0.01 / np.abs(grad).max(), []  # first step: 0.01 rad on the steepest coordinate
+    while len(history) < steps and length * np.abs(grad).max() > 1e-6:
+        trial = np.clip(q - length * grad, lo, hi)
+        stay = ~feasible(robot, trial, marker, constraints)
+        trial[stay] = q[stay]
+        new_value, new_grad = (np.asarray(x) for x in _criterion_and_gradient(robot, params, jnp.asarray(trial),
+                                                                               *args))
+        if not new_value < value:
+            length /= 2
+            continue
+        s, y = (trial - q).ravel(), (new_grad - grad).ravel()
+        length = s @ s / (s @ y) if s @ y > 0 else 2 * length
+        q, value, grad = trial, new_value, new_grad
+        history.append(float(value))
+    return q, history
+
+
 def task_poses(
     robot: jr.Robot,
     params: ParameterMap,
@@ -135,19 +186,23 @@ def task_poses(
     n_try: int = 32,
     max_iter: int = 400,
     pool: tuple[np.ndarray, np.ndarray] | None = None,
+    refine_steps: int = 100,
 ) -> TaskDesign:
     """The `n_poses` calibration poses that minimise `sigma^2 trace(W (A^T A)^{-1})`, the mean squared error of the
     task whose weight is `weight` (m, m, over `params`; `planning.internal.task_weight`), by the exchange algorithm
     of the module docstring (`n_try` candidates per exchange, at most `max_iter` exchanges), on the pool `pool` =
     `(q (P, n), blocks (P, d, m))` or `pool_size` random feasible poses of seed `seed` (`random_feasible_poses`, as
-    `detmax`). `marker` [m]: the tracker marker in the tool frame
+    `detmax`), then at most `refine_steps` steps of the continuous refinement of the chosen poses' joint
+    coordinates (the module docstring; 0: the pool's poses). `marker` [m]: the tracker marker in the tool frame
     (`Instruments.marker_offset`); `sigma` [m]: the tracker noise per axis. Raises `ValueError` naming `weight`,
-    `n_poses`, `sigma` or `pool` where they do not fit."""
+    `n_poses`, `sigma`, `pool` or `refine_steps` where they do not fit."""
     m = len(params)
     w = np.asarray(weight, float)
     if w.shape != (m, m) or not np.all(np.isfinite(w)) or not np.allclose(w, w.T, rtol=1e-9, atol=0.0):
         raise ValueError(f"weight: expected a finite symmetric ({m}, {m}) matrix over the parameters {params.names}, "
                          f"found shape {w.shape}")
+    if isinstance(refine_steps, bool) or not isinstance(refine_steps, int | np.integer) or refine_steps < 0:
+        raise ValueError(f"refine_steps: expected an integer >= 0, found {refine_steps!r}")
     if not sigma > 0:
         raise ValueError(f"sigma: expected a tracker noise > 0 [m], found {sigma}")
     if pool is None:
@@ -162,7 +217,10 @@ def task_poses(
         raise ValueError(f"n_poses: expected at least {-(-m // blocks.shape[1])} poses for {m} parameters and fewer "
                          f"than the pool's {q_pool.shape[0]}, found {n_poses}")
     scale = column_scale(blocks)
-    sel, history = _exchange(blocks / scale, w / np.outer(scale, scale), n_poses, n_try, max_iter)
-    q = q_pool[sel]
-    return TaskDesign(q=q, motor_angles=rest_motor_angles(robot, q), criterion=task_criterion(blocks[sel], w, sigma),
-                      history=sigma**2 * history, iterations=len(history) - 1)
+    w_scaled = w / np.outer(scale, scale)
+    sel, history = _exchange(blocks / scale, w_scaled, n_poses, n_try, max_iter)
+    q, refined = _refine(robot, params, q_pool[sel], marker, w_scaled, scale, constraints, refine_steps)
+    chosen = pose_jacobians(robot, params, q, marker) if refined else blocks[sel]
+    return TaskDesign(q=q, motor_angles=rest_motor_angles(robot, q), criterion=task_criterion(chosen, w, sigma),
+                      history=sigma**2 * np.concatenate([history, refined]), iterations=len(history) - 1,
+                      refined=len(refined))

@@ -34,6 +34,9 @@ def configure(parser) -> None:
                              "embedded Racer-7)")
     parser.add_argument("--pool", type=int, default=4000, help="random feasible candidate poses (default 4000)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the candidate pool and of DETMAX (default 0)")
+    parser.add_argument("--refine-steps", type=int, default=100, metavar="N",
+                        help="steps of the continuous refinement of the designed poses off the pool (default 100; "
+                             "0: keep the pool's poses)")
 
 
 def _prediction(robot, params, blocks, sigma, jp, traj) -> RobotPrediction | None:
@@ -52,10 +55,11 @@ def _prediction(robot, params, blocks, sigma, jp, traj) -> RobotPrediction | Non
 
 def run(args, echo) -> dict:
     """`jaxrobot select-poses`; the `--json` summary is `{"task": str, "count": int, "parameters": [str],
-    "designed", "detmax": {"p50_um", "p95_um": float} or None}`: the predicted largest path error [um] of the task
-    (its motor trajectory the model's flat inverse) after a least-squares calibration of `parameters` on the
-    designed and on DETMAX's poses with the setup's tracker noise (None: the poses do not identify every
-    parameter), and `"out"` (str or None), the pose file written."""
+    "designed", "detmax": {"p50_um", "p95_um": float} or None, "refined": int}`: the predicted largest path error
+    [um] of the task (its motor trajectory the model's flat inverse) after a least-squares calibration of
+    `parameters` on the designed and on DETMAX's poses with the setup's tracker noise (None: the poses do not
+    identify every parameter), the accepted steps of the designed poses' refinement off the pool, and `"out"` (str
+    or None), the pose file written."""
     from identification.calibration import (
         ParameterMap,
         default_parameters,
@@ -67,6 +71,8 @@ def run(args, echo) -> dict:
 
     if args.count < 1 or args.pool <= args.count:
         raise ValueError(f"--count, --pool: expected 1 <= count < pool, found {args.count} and {args.pool}")
+    if args.refine_steps < 0:
+        raise ValueError(f"--refine-steps: expected an integer >= 0, found {args.refine_steps}")
     desc = jr.read_description(args.model)
     robot = jr.robot_from_description(desc)
     marker, sigma = jr.io.read_instruments(args.setup if args.setup is not None else args.model).require(
@@ -80,7 +86,9 @@ def run(args, echo) -> dict:
     echo(f"pool of {args.pool} feasible poses; designing {args.count} poses and DETMAX's {args.count}")
     q_pool = random_feasible_poses(robot, args.pool, args.seed, marker=marker)
     pool = (q_pool, pose_jacobians(robot, params, q_pool, marker))
-    design = task_poses(robot, params, weight, args.count, marker=marker, sigma=float(sigma), pool=pool)
+    design = task_poses(robot, params, weight, args.count, marker=marker, sigma=float(sigma), pool=pool,
+                        refine_steps=args.refine_steps)
+    echo(f"  designed: {design.iterations} exchanges on the pool, {design.refined} refinement steps off it")
     o1 = detmax(robot, params, args.count, args.seed, marker=marker, pool=pool)
     rows = {}
     for name, q in (("designed", design.q), ("detmax", o1.q)):
@@ -92,5 +100,5 @@ def run(args, echo) -> dict:
     if args.out is not None:
         jr.io.write_poses(args.out, design.motor_angles, np.asarray(marker_pose(robot, design.q, marker)[0]))
         echo(f"  wrote {args.out}")
-    return {"task": path.name, "count": args.count, "parameters": list(params.names), **rows,
+    return {"task": path.name, "count": args.count, "parameters": list(params.names), **rows, "refined": design.refined,
             "out": None if args.out is None else str(args.out)}

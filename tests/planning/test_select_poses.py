@@ -30,6 +30,7 @@ def test_select_poses_writes_a_pose_file_and_beats_detmax(main, tmp_path, capsys
     assert main(["select-poses", "--task", "line", "--count", "10", "--pool", "400", "--out", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["count"] == 10 and summary["task"] == "line" and len(summary["parameters"]) == 26
+    assert 0 < summary["refined"] <= 100
     assert summary["designed"]["p95_um"] < summary["detmax"]["p95_um"]
     assert summary["designed"]["p50_um"] < summary["designed"]["p95_um"]
     poses = jr.io.read_poses(out)
@@ -39,7 +40,12 @@ def test_select_poses_writes_a_pose_file_and_beats_detmax(main, tmp_path, capsys
     require_successful(status, "rest pose of a designed pose")
     np.testing.assert_allclose(poses.positions, np.asarray(at_rest), atol=1e-9)
 
-def test_select_poses_rejects_a_count_beyond_the_pool(main, capsys):
-    assert main(["select-poses", "--count", "50", "--pool", "40"]) == 2
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--count", "50", "--pool", "40"], "--count, --pool: expected 1 <= count < pool, found 50 and 40"),
+    (["--refine-steps", "-3"], "--refine-steps: expected an integer >= 0, found -3"),
+])
+def test_select_poses_rejects_bad_options(main, capsys, argv, message):
+    assert main(["select-poses", *argv]) == 2
     err = capsys.readouterr().err
-    assert "--count, --pool: expected 1 <= count < pool, found 50 and 40" in err and "Traceback" not in err
+    assert message in err and "Traceback" not in err
