@@ -5,7 +5,7 @@ The task is re-timed (`retimed_path`: the same geometry run in another duration,
 OCP of eq. 4.3 solved for a grid of durations x `nu` in batched calls (`solve_front`: every member padded to one
 node count, the task's nodes traced, so that all members and every later round share one compiled program; on an
 accelerator one vmapped program of all members, on the CPU a probe at the largest `nu` that first finds the
-durations with a feasible plan, since the constraints do not depend on `nu`, then chains in `nu`; the axis limits
+durations with a feasible plan, since the constraints do not depend on `nu`, then their other members; the axis limits
 of the robot file, thesis Tables A.1-A.3, are bounds of the OCP) and every plan simulated on the plant.
 A duration too short for the limits leaves its solve unconverged against a limit: the member is infeasible by that
 limit (`CycleTimeFront.limit_name`), not a large error. Batched grids between the longest duration that fails and
@@ -245,10 +245,10 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
     each = functools.partial(_solve_each, robot, members, ts, cost, settings, history)
     paths, top = np.arange(len(jps)), int(np.argmax(nus))
     probe = each([(i, nus[top], plays[i] if directional else None, members[i][1]) for i in paths])
-    front = _take(probe, np.repeat(paths, m))  # a path whose probe did not converge: every member is its probe
+    out = _take(probe, np.repeat(paths, m))  # a path whose probe did not converge: every member is its probe
     pairs = np.array([(i, j) for i in paths[np.asarray(probe.converged)] for j in range(m)], int).reshape(-1, 2)
     if pairs.size == 0:
-        return front
+        return out
     seen = []
 
     def solve(play, last):
@@ -270,18 +270,20 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
         sols = iterate_flanks(robot, jnp.stack([plays[i] for i in pairs[:, 0]]), solve)[0]
     else:
         sols = solve(None, None)[0]
-    return _replace(front, pairs[:, 0] * m + pairs[:, 1], sols)
+    return _replace(out, pairs[:, 0] * m + pairs[:, 1], sols)
 
 
 def _solve_each(robot: jr.Robot, members: list[tuple], ts, cost: str, solver, history: int, tasks: list[tuple]
                 ) -> OCPSolution:
     """One solve per task (a path's index in `members`, its `nu`, its play states (P, n) or None, its warm start
     `(x, u)`), all by one compiled program (`_chain` of one `nu`: the unbatched solve), side by side on the CPU
-    cores. Returns the solutions batched in the tasks' order."""
+    cores (one at a time on an accelerator, where they would queue). Returns the solutions batched in the tasks'
+    order."""
+    workers = (os.cpu_count() or 1) if backend_kind() == "cpu" else 1
     args = [(robot, members[i][0], ts, jnp.asarray([nu], float), tuple(jnp.asarray(a) for a in warm), None, solver,
              None if play is None else jnp.asarray(play)[None], *members[i][2:]) for i, nu, play, warm in tasks]
     compiled = _chain.lower(*args[0], cost=cost, history=history).compile()  # cached after the first call
-    with ThreadPoolExecutor(min(os.cpu_count() or 1, len(args))) as pool:
+    with ThreadPoolExecutor(min(workers, len(args))) as pool:
         parts = list(pool.map(lambda a: jax.block_until_ready(compiled(*a)), args))
     return jax.tree.map(lambda *a: jnp.asarray(np.concatenate(a)), *parts)
 

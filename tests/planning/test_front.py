@@ -13,6 +13,7 @@ import jaxrobot as jr
 import planning as pl
 from planning import _al_outer
 from planning._front import LIMIT_KINDS, solve_front
+from planning._workflow import solve_directional
 from planning.internal import motor_directions, retimed_path
 
 NUS = (1e-14, 1e-12)
@@ -111,7 +112,7 @@ def test_an_infeasible_duration_ends_in_few_outer_iterations(batched):
     """The whole 0.5 m line in 0.26 and 0.30 s (about a tenth of its 2.5 s; the program of the front above): each
     member ends `stalled`, infeasible, with its violation far above the tolerance, in few of the 30 outer
     iterations allowed (it stops once the violation did not fall by `STUCK_DECREASE` over `STUCK_WINDOW` of them;
-    in 0.26 s within `STUCK_WINDOW + 3`, in 0.30 s, closer to feasible, within a third of the 30): by the chains'
+    in 0.26 s within `STUCK_WINDOW + 3`, in 0.30 s, closer to feasible, within a third of the 30): by the CPU's
     probe, whose status the members hold, or (`batched`) each in its own lane."""
     robot = jr.racer7()
     path = pl.reference_path("line", _short_line(0.5))
@@ -127,8 +128,8 @@ def test_an_infeasible_duration_ends_in_few_outer_iterations(batched):
 def test_batched_members_equal_the_chains(short_front):
     """`solve_front(batched=True)`, the accelerator's form (every member in one vmapped program from its own cold
     start; here with the CPU's linear solver, one member after the other), gives the members of the CPU's form
-    (the probe and the continuation chains in nu): the same status, the objective to 1e-8 relative (two solves to
-    the solver's tolerance from different starts)."""
+    (the probe at the largest nu, then one solve per member): the same status, the objective to 1e-8 relative
+    (two solves to the solver's tolerance)."""
     robot, path, front = short_front
     jps = [pl.joint_path(robot, retimed_path(path, d)) for d in DURATIONS]
     sols = solve_front(robot, jps, np.asarray(NUS), batched=True)
@@ -136,6 +137,24 @@ def test_batched_members_equal_the_chains(short_front):
                           np.asarray(jr.status_name(front.status)))
     np.testing.assert_allclose(np.asarray(sols.objective).reshape(front.converged.shape),
                                np.asarray(front.objective), rtol=1e-8)
+
+
+def test_directional_members_equal_single_directional_solves():
+    """On the as-built robot (play in its gears) every member of `solve_front(directional=True)` equals the single
+    solve on the flanks of its own motion (`solve_directional`, as `plan_task`: each later round warm-started by the
+    last plan) of its duration and nu: the same status, the objective to 1e-8 relative (the same solves, on
+    another padded node count)."""
+    robot = jr.racer7(as_built=True)
+    path = pl.reference_path("line", _short_line(0.05))
+    jps = [pl.joint_path(robot, retimed_path(path, d)) for d in DURATIONS]
+    sols = solve_front(robot, jps, np.asarray(NUS), directional=True)
+    for i, jp in enumerate(jps):
+        flat = pl.flat_motor_trajectory(robot, jp)
+        for j, nu in enumerate(NUS):
+            sol = solve_directional(robot, jp.q, jp.qd, flat, path.sample_time, nu, "thesis", True)[0]
+            k = i * len(NUS) + j
+            assert bool(sol.converged) and bool(sols.converged[k])
+            np.testing.assert_allclose(float(sols.objective[k]), float(sol.objective), rtol=1e-8)
 
 
 @pytest.mark.slow  # the full line at eight durations x four nu on the as-built bench, refined, and four plans: over
