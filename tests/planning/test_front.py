@@ -139,6 +139,7 @@ def test_batched_members_equal_the_chains(short_front):
                                np.asarray(front.objective), rtol=1e-8)
 
 
+@pytest.mark.extended  # the programs on the flanks (front and single solves) compile for minutes on 2 cores
 def test_directional_members_equal_single_directional_solves():
     """On the as-built robot (play in its gears) every member of `solve_front(directional=True)` equals the single
     solve on the flanks of its own motion (`solve_directional`, as `plan_task`: each later round warm-started by the
