@@ -241,7 +241,7 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
                         pad_edge(motor_directions(flat.thetad), size), jnp.asarray(jp.t.shape[0])))
     settings = jax.tree.map(jnp.asarray, solver)
     if (backend_kind() != "cpu") if batched is None else batched:
-        return _solve_members(robot, members, [p[None] for p in plays], ts, nus, cost, settings, history)
+        return _solve_members(robot, members, plays, ts, nus, cost, settings, history)
     each = functools.partial(_solve_each, robot, members, ts, cost, settings, history)
     paths, top = np.arange(len(jps)), int(np.argmax(nus))
     probe = each([(i, nus[top], plays[i] if directional else None, members[i][1]) for i in paths])
@@ -323,7 +323,7 @@ def _solve_members(robot: jr.Robot, members: list[tuple], plays: list, ts, nus: 
 
     if not plays:
         return solve(None, None)[0]
-    return iterate_flanks(robot, np.repeat(np.concatenate([np.asarray(p) for p in plays]), m, 0), solve)[0]
+    return iterate_flanks(robot, np.repeat(np.stack([np.asarray(p) for p in plays]), m, 0), solve)[0]
 
 
 def _round(robot: jr.Robot, plant: jr.Robot, path: Path, durations: list[float], nus: np.ndarray, cost: str,
