@@ -2,9 +2,9 @@
 the same shortest-duration question answered by CasADi + IPOPT.
 
 1. The front: 8 durations (0.3 ... 1.0 times the task's) x 4 nu in one batched call (`planning._front.solve_front`:
-   one compiled program, a nu continuation chain per duration, the chains on the CPU cores), timed by its second
-   call, against one `solve_ocp` of the task at its own duration (nu = 1e-14, the flat inverse's warm start and
-   motor directions, as the front's members), timed by the best of `REPEAT` calls after the compiling one.
+   one compiled program; on the CPU a probe at the largest nu, then one solve per member on the cores), timed by
+   its second call, against one `solve_ocp` of the task at its own duration (nu = 1e-14, the flat inverse's warm
+   start and motor directions, as the front's members), timed by the best of `REPEAT` calls after the compiling one.
 2. The answer: `cycle_time_front` at `TOLERANCE` on the nominal model (the plant is the planning model), refined to
    1 %, wall time with compilation.
 3. The peer: a bisection of fixed-time IPOPT solves (`bench_ocp.solve_ipopt`, exact Hessian, MUMPS, with the motor

@@ -5,7 +5,7 @@ The task is re-timed (`retimed_path`: the same geometry run in another duration,
 OCP of eq. 4.3 solved for a grid of durations x `nu` in batched calls (`solve_front`: every member padded to one
 node count, the task's nodes traced, so that all members and every later round share one compiled program; on an
 accelerator one vmapped program of all members, on the CPU a probe at the largest `nu` that first finds the
-durations with a feasible plan, since the constraints do not depend on `nu`, then chains in `nu`; the axis limits
+durations with a feasible plan, since the constraints do not depend on `nu`, then their other members; the axis limits
 of the robot file, thesis Tables A.1-A.3, are bounds of the OCP) and every plan simulated on the plant.
 A duration too short for the limits leaves its solve unconverged against a limit: the member is infeasible by that
 limit (`CycleTimeFront.limit_name`), not a large error. Batched grids between the longest duration that fails and
@@ -15,6 +15,7 @@ the shortest that meets the tolerance refine the answer to `refine` of its durat
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import time
 from collections.abc import Callable
@@ -218,11 +219,12 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
     whose lanes advance together with the accelerator's linear solver (`CyclicReduction`), each masked once its
     solve stops; a duration too short for the limits stops at the solver's stall test (`RESULTS.stalled`).
     Otherwise the constraints of eq. 4.3 (dynamics, limits, rest at both ends), which do not depend on `nu`, are
-    probed first: the largest `nu` of every path (one call) finds the durations with a feasible plan; only those
-    are then solved for every `nu`, a continuation chain in `nu` per path (`solve_ocp_sweep`'s), the chains side
-    by side on the CPU cores; the members of a path whose probe did not converge are its probe. `directional`: on
-    the flanks of each plan's motion (`iterate_flanks`; batched, each later round warm-started by the member's
-    last plan). Returns a (D * M) batched `OCPSolution` on `size` nodes, duration-major."""
+    probed first: the largest `nu` of every path finds the durations with a feasible plan; only those are then
+    solved for every other `nu`, each member a solve of its own from the flat inverse (the probe is the member of
+    the largest `nu`), side by side on the CPU cores (`_solve_each`); the members of a path whose probe did not
+    converge are its probe. `directional`: on the flanks of each plan's motion (`iterate_flanks`), each later round
+    solving only the members still iterating, each warm-started by its last plan. Returns a (D * M) batched
+    `OCPSolution` on `size` nodes, duration-major."""
     solver = ocp_solver("solve_front", solver, None)
     history, m = solver.history_length(), nus.size
     size = padded_nodes(max(jp.t.shape[0] for jp in jps)) if size is None else size
@@ -232,7 +234,7 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
         flat = flat_motor_trajectory(robot, jp)
         if directional:
             play, warm = flank_start(robot, jp.q, jp.qd, flat)
-            plays.append(pad_edge(play, size)[None])
+            plays.append(pad_edge(play, size))
         else:
             warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
         members.append((pad_edge(jnp.asarray(jp.q, float), size), tuple(pad_edge(a, size) for a in warm),
@@ -240,32 +242,65 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
     settings = jax.tree.map(jnp.asarray, solver)
     if (backend_kind() != "cpu") if batched is None else batched:
         return _solve_members(robot, members, plays, ts, nus, cost, settings, history)
-    workers = (os.cpu_count() or 1) if backend_kind() == "cpu" else 1
+    each = functools.partial(_solve_each, robot, members, ts, cost, settings, history)
+    paths, top = np.arange(len(jps)), int(np.argmax(nus))
+    probe = each([(i, nus[top], plays[i] if directional else None, members[i][1]) for i in paths])
+    out = _take(probe, np.repeat(paths, m))  # a path whose probe did not converge: every member is its probe
+    pairs = np.array([(i, j) for i in paths[np.asarray(probe.converged)] for j in range(m)], int).reshape(-1, 2)
+    if pairs.size == 0:
+        return out
+    seen = []
 
-    def chains(paths: np.ndarray, weights: np.ndarray, play) -> OCPSolution:
-        k = weights.size
-        args = [(robot, members[i][0], ts, jnp.asarray(weights, float), members[i][1], None, settings,
-                 None if play is None else play[r * k:(r + 1) * k], *members[i][2:]) for r, i in enumerate(paths)]
-        compiled = _chain.lower(*args[0], cost=cost, history=history).compile()  # cached after the first call
-        with ThreadPoolExecutor(min(workers, len(args))) as pool:
-            parts = list(pool.map(lambda a: jax.block_until_ready(compiled(*a)), args))
-        return jax.tree.map(lambda *a: jnp.concatenate(a), *parts)
+    def solve(play, last):
+        """The members `pairs` (path, nu): at first the probe's plan and each other member from its path's start;
+        later each member whose play states changed (one still iterating) from its last plan."""
+        if last is None:
+            base, todo = _take(probe, pairs[:, 0]), np.flatnonzero(pairs[:, 1] != top)
+            starts = [members[i][1] for i in pairs[todo, 0]]
+        else:
+            base = last
+            todo = np.flatnonzero((np.asarray(play) != seen[-1]).any(axis=(1, 2)))
+            starts = [(last.x[k], last.u[k]) for k in todo]
+        seen.append(None if play is None else np.asarray(play))
+        tasks = [(pairs[k, 0], nus[pairs[k, 1]], None if play is None else play[k], start)
+                 for k, start in zip(todo, starts, strict=True)]
+        return (_replace(base, todo, each(tasks)) if tasks else base), None
 
-    paths = np.arange(len(jps))
-    probe = chains(paths, nus.max(keepdims=True), jnp.concatenate(plays) if directional else None)
-    feasible = paths[np.asarray(probe.converged)]
-    if feasible.size == 0:
-        return jax.tree.map(lambda a: jnp.repeat(a, m, axis=0), probe)
     if directional:
-        play = jnp.concatenate([jnp.broadcast_to(plays[i], (m, *plays[i].shape[1:])) for i in feasible])
-        sols = iterate_flanks(robot, play, lambda play, last: (chains(feasible, nus, play), None))[0]
+        sols = iterate_flanks(robot, jnp.stack([plays[i] for i in pairs[:, 0]]), solve)[0]
     else:
-        sols = chains(feasible, nus, None)
-    place = np.full(len(jps), -1)
-    place[feasible] = np.arange(feasible.size)
-    index = np.concatenate([place[i] * m + np.arange(m) if place[i] >= 0 else np.full(m, feasible.size * m + i)
-                            for i in paths])
-    return jax.tree.map(lambda a, b: jnp.concatenate([a, b])[index], sols, probe)
+        sols = solve(None, None)[0]
+    return _replace(out, pairs[:, 0] * m + pairs[:, 1], sols)
+
+
+def _solve_each(robot: jr.Robot, members: list[tuple], ts, cost: str, solver, history: int, tasks: list[tuple]
+                ) -> OCPSolution:
+    """One solve per task (a path's index in `members`, its `nu`, its play states (P, n) or None, its warm start
+    `(x, u)`), all by one compiled program (`_chain` of one `nu`: the unbatched solve), side by side on the CPU
+    cores (one at a time on an accelerator, where they would queue). Returns the solutions batched in the tasks'
+    order."""
+    workers = (os.cpu_count() or 1) if backend_kind() == "cpu" else 1
+    args = [(robot, members[i][0], ts, jnp.asarray([nu], float), tuple(jnp.asarray(a) for a in warm), None, solver,
+             None if play is None else jnp.asarray(play)[None], *members[i][2:]) for i, nu, play, warm in tasks]
+    compiled = _chain.lower(*args[0], cost=cost, history=history).compile()  # cached after the first call
+    with ThreadPoolExecutor(min(workers, len(args))) as pool:
+        parts = list(pool.map(lambda a: jax.block_until_ready(compiled(*a)), args))
+    return jax.tree.map(lambda *a: jnp.asarray(np.concatenate(a)), *parts)
+
+
+def _take(sols: OCPSolution, index: np.ndarray) -> OCPSolution:
+    """The members `index` of the batched `sols` (on the host)."""
+    return jax.tree.map(lambda a: jnp.asarray(np.asarray(a)[index]), sols)
+
+
+def _replace(sols: OCPSolution, index: np.ndarray, new: OCPSolution) -> OCPSolution:
+    """`sols` with its members `index` (distinct) replaced by those of `new` (on the host)."""
+    def put(a, b):
+        a = np.array(a)
+        a[index] = np.asarray(b)
+        return jnp.asarray(a)
+
+    return jax.tree.map(put, sols, new)
 
 
 def _solve_members(robot: jr.Robot, members: list[tuple], plays: list, ts, nus: np.ndarray, cost: str, solver,
@@ -288,7 +323,7 @@ def _solve_members(robot: jr.Robot, members: list[tuple], plays: list, ts, nus: 
 
     if not plays:
         return solve(None, None)[0]
-    return iterate_flanks(robot, np.repeat(np.concatenate([np.asarray(p) for p in plays]), m, 0), solve)[0]
+    return iterate_flanks(robot, np.repeat(np.stack([np.asarray(p) for p in plays]), m, 0), solve)[0]
 
 
 def _round(robot: jr.Robot, plant: jr.Robot, path: Path, durations: list[float], nus: np.ndarray, cost: str,

@@ -13,6 +13,7 @@ import jaxrobot as jr
 import planning as pl
 from planning import _al_outer
 from planning._front import LIMIT_KINDS, solve_front
+from planning._workflow import solve_directional
 from planning.internal import motor_directions, retimed_path
 
 NUS = (1e-14, 1e-12)
@@ -111,7 +112,7 @@ def test_an_infeasible_duration_ends_in_few_outer_iterations(batched):
     """The whole 0.5 m line in 0.26 and 0.30 s (about a tenth of its 2.5 s; the program of the front above): each
     member ends `stalled`, infeasible, with its violation far above the tolerance, in few of the 30 outer
     iterations allowed (it stops once the violation did not fall by `STUCK_DECREASE` over `STUCK_WINDOW` of them;
-    in 0.26 s within `STUCK_WINDOW + 3`, in 0.30 s, closer to feasible, within a third of the 30): by the chains'
+    in 0.26 s within `STUCK_WINDOW + 3`, in 0.30 s, closer to feasible, within a third of the 30): by the CPU's
     probe, whose status the members hold, or (`batched`) each in its own lane."""
     robot = jr.racer7()
     path = pl.reference_path("line", _short_line(0.5))
@@ -127,8 +128,8 @@ def test_an_infeasible_duration_ends_in_few_outer_iterations(batched):
 def test_batched_members_equal_the_chains(short_front):
     """`solve_front(batched=True)`, the accelerator's form (every member in one vmapped program from its own cold
     start; here with the CPU's linear solver, one member after the other), gives the members of the CPU's form
-    (the probe and the continuation chains in nu): the same status, the objective to 1e-8 relative (two solves to
-    the solver's tolerance from different starts)."""
+    (the probe at the largest nu, then one solve per member): the same status, the objective to 1e-8 relative
+    (two solves to the solver's tolerance)."""
     robot, path, front = short_front
     jps = [pl.joint_path(robot, retimed_path(path, d)) for d in DURATIONS]
     sols = solve_front(robot, jps, np.asarray(NUS), batched=True)
@@ -138,13 +139,33 @@ def test_batched_members_equal_the_chains(short_front):
                                np.asarray(front.objective), rtol=1e-8)
 
 
-@pytest.mark.slow  # the full line at eight durations x four nu on the as-built bench, refined, and four plans: over
-# 15 min on 2 cores (pytest-timeout) until infeasible durations stop early, so not in CI's extended step
+@pytest.mark.extended  # the programs on the flanks (front and single solves) compile for minutes on 2 cores
+def test_directional_members_equal_single_directional_solves():
+    """On the as-built robot (play in its gears) every member of `solve_front(directional=True)` equals the single
+    solve on the flanks of its own motion (`solve_directional`, as `plan_task`: each later round warm-started by the
+    last plan) of its duration and nu: the same status, the objective to 1e-8 relative (the same solves, on
+    another padded node count)."""
+    robot = jr.racer7(as_built=True)
+    path = pl.reference_path("line", _short_line(0.05))
+    jps = [pl.joint_path(robot, retimed_path(path, d)) for d in DURATIONS]
+    sols = solve_front(robot, jps, np.asarray(NUS), directional=True)
+    for i, jp in enumerate(jps):
+        flat = pl.flat_motor_trajectory(robot, jp)
+        for j, nu in enumerate(NUS):
+            sol = solve_directional(robot, jp.q, jp.qd, flat, path.sample_time, nu, "thesis", True)[0]
+            k = i * len(NUS) + j
+            assert bool(sol.converged) and bool(sols.converged[k])
+            np.testing.assert_allclose(float(sols.objective[k]), float(sol.objective), rtol=1e-8)
+
+
+@pytest.mark.slow  # the full line at eight durations x four nu on the as-built bench, refined, and five plans: over
+# half an hour on 2 shared cores, so not in CI's extended step
 @pytest.mark.timeout(3600)
 def test_line_at_10um_confirmed_by_single_plans():
     """The line at 10 µm on the as-built bench, planned on its true model (the error left is the gears' flanks' and
     the dynamics'): `plan_task` at the reported duration and nu meets the tolerance; at 0.99 times the duration (on
-    the sample grid) no nu of the front does, or its solve fails against a limit."""
+    the sample grid) the task itself breaks an axis limit (its joint path, thesis Table A.3), or no nu of the front
+    meets the tolerance, or its solve fails against a limit."""
     robot = plant = jr.racer7(as_built=True)
     path = pl.reference_path("line", jr.read_description(None))
     durations = [s * path.duration for s in np.linspace(0.3, 1.0, 8)]
@@ -152,10 +173,15 @@ def test_line_at_10um_confirmed_by_single_plans():
     assert front.answer is not None and front.shortest_duration - front.bracket <= 0.01 * front.shortest_duration
     at = pl.plan_task(robot, plant, retimed_path(path, front.shortest_duration), front.nu, directional=True)
     assert at.converged and float(at.errors.position_max[at.names.index("ocp")]) <= 10e-6
-    shorter = round(0.99 * front.shortest_duration / path.sample_time) * path.sample_time
-    for nu in np.asarray(front.nus):
-        below = pl.plan_task(robot, plant, retimed_path(path, shorter), float(nu), directional=True)
-        assert not below.converged or float(below.errors.position_max[below.names.index("ocp")]) > 10e-6
+    shorter = retimed_path(path, round(0.99 * front.shortest_duration / path.sample_time) * path.sample_time)
+    try:
+        pl.joint_path(robot, shorter)
+    except ValueError as error:  # the task breaks a limit: `plan_task` refuses it, naming the limit
+        assert "outside its limits" in str(error)
+    else:
+        for nu in np.asarray(front.nus):
+            below = pl.plan_task(robot, plant, shorter, float(nu), directional=True)
+            assert not below.converged or float(below.errors.position_max[below.names.index("ocp")]) > 10e-6
 
 
 def test_front_command_writes_the_answer_that_plan_reads(tmp_path, monkeypatch, capsys):
