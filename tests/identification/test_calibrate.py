@@ -896,7 +896,7 @@ def test_seven_joint_calibration_recovers_the_as_built_arm(arm7):
     nominal, truth = arm7
     q = random_feasible_poses(nominal, 80, seed=3, marker=MARKER)
     theta = rest_motor_angles(truth, q)
-    meas = jb.measure_poses(truth, theta, seed=4)
+    meas = jb.measure_poses(truth, theta, seed=4, instruments=INSTRUMENTS)
     k = 60
     res = calibrate(nominal, meas.motor_angles[:k], meas.positions[:k], all_parameters=True,
                     validation=(meas.motor_angles[k:], meas.positions[k:]), instruments=INSTRUMENTS)

@@ -308,7 +308,8 @@ def test_diagnose_names_a_hidden_offset_on_joint_seven(arm7):
 
     def poses(k, seed):
         theta = rest_motor_angles(start, random_feasible_poses(start, k, seed=seed, marker=MARKER))
-        m = jb.measure_poses(truth, theta, seed=seed, ccw=jr.measurement.approach_directions(theta))
+        m = jb.measure_poses(truth, theta, seed=seed, ccw=jr.measurement.approach_directions(theta),
+                            instruments=INSTRUMENTS)
         return Poses.of(theta, m.positions)
 
     res = diagnose(start, poses(150, 21), poses(60, 22), max_steps=2, instruments=INSTRUMENTS)
