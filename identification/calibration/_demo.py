@@ -14,7 +14,7 @@ import numpy as np
 
 import jaxrobot as jr
 from jaxrobot.bench import draw_fleet, measure_poses
-from jaxrobot.internal import require_successful
+from jaxrobot.internal import bench_instruments, require_successful
 from jaxrobot.measurement import Poses, measured_pose
 
 from ..core._parameters import ParameterMap
@@ -43,16 +43,13 @@ def fleet_measurements(n_robots: int, n_poses: int, rows: range, seed: int = 0, 
     """Tracker measurements of the robots `rows` of `draw_fleet(n_robots, seed, nominal)` (default the
     nominal Racer-7), each at its own `n_poses` random feasible poses (one pool,
     `random_feasible_poses`) held at the nominal robot's static equilibrium, with the marker offset and the
-    isotropic tracker noise of `instruments` (required with a `nominal`; for the Racer-7 default the bench's,
-    `jaxrobot.racer7_instruments()`), noise of its own seed: a robot's data do not depend on `rows`.
+    isotropic tracker noise of `instruments` (required for a robot other than the Racer-7, whose default is its
+    bench's, `jaxrobot.racer7_instruments()`), noise of its own seed: a robot's data do not depend on `rows`.
     `Poses` with leading axis `len(rows)` (`link_angles` are the nominal robot's held `q`)."""
     if n_robots < 1 or n_poses < 1:
         raise ValueError(f"n_robots, n_poses: expected >= 1 robots and poses, found {n_robots} and {n_poses}")
-    if nominal is not None and instruments is None:
-        raise ValueError(f"instruments: expected the measurement setup (jaxrobot.Instruments) of the fleet of "
-                         f"{nominal.name!r}, found None (the Racer-7 bench's is the default of the Racer-7 only)")
     nominal = jr.racer7() if nominal is None else nominal
-    instruments = jr.racer7_instruments() if instruments is None else instruments
+    instruments = bench_instruments(nominal, instruments, by="fleet_measurements")
     marker, sigma = instruments.require("marker_offset", "tracker_noise", by="fleet_measurements")
     truth = jax.tree.map(lambda x: x[rows.start:rows.stop], draw_fleet(n_robots, seed=seed, robot=nominal))
     pool = random_feasible_poses(nominal, 20 * n_poses, seed=seed, marker=marker)

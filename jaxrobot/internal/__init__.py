@@ -29,3 +29,4 @@ from .._status import check as check
 from .._status import full as full
 from .._status import require_successful as require_successful
 from .._status import where as where
+from ..io._instruments import bench_instruments as bench_instruments

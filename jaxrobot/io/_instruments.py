@@ -78,7 +78,7 @@ def bench_instruments(robot, instruments: Instruments | None, by: str) -> Instru
     if instruments is not None:
         return instruments
     if robot.name != read_description(None)["name"]:
-        raise ValueError(f"instruments: {by} of {robot.name!r} needs its measurement setup (jaxrobot.Instruments, "
-                         "e.g. jaxrobot.io.read_instruments(ROBOT_FILE)), found None (the bench's is the default of "
-                         "the embedded Racer-7 only)")
+        raise ValueError(f"instruments: expected the measurement setup (jaxrobot.Instruments, e.g. "
+                         f"jaxrobot.io.read_instruments(ROBOT_FILE)) of {robot.name!r} for {by}, found None (the "
+                         "bench's is the default of the embedded Racer-7 only)")
     return racer7_instruments()

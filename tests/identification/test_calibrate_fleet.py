@@ -9,6 +9,7 @@ import json
 
 import numpy as np
 import pytest
+from helpers import ARM7
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
 from identification.cli._calibrate_fleet import REPORT, TABLE, bench_fleet
@@ -167,10 +168,10 @@ def test_clean_robots_as_the_fleet_without_the_faulty_ones(fleet_runs):
 
 
 def test_bench_fleet_of_another_robot_needs_its_instruments(tmp_path):
-    """Bench data of a fleet of a nominal robot given without a measurement setup is an error naming
+    """Bench data of a fleet of another robot (the 7-joint arm) given without a measurement setup is an error naming
     `instruments` (the Racer-7 bench's tracker is the default of the Racer-7 only), before any file is written."""
     with pytest.raises(ValueError, match="instruments: expected the measurement setup .* found None"):
-        bench_fleet(tmp_path / "data", 2, 3, nominal=jr.racer7(as_built=True))
+        bench_fleet(tmp_path / "data", 2, 3, nominal=jr.load_robot(ARM7))
     assert not any((tmp_path / "data").glob("*.csv"))
 
 
