@@ -10,12 +10,14 @@ at or below the predicted 95th percentile (goal 90-98 %), the median p95 over th
 and the cost of the prediction beside the plan's. With `--methods`, the first robot's prediction also by forward
 mode through the whole simulation (`method="simulation"`), its p50/p95 and time beside the default's.
 
-With `--independent`, the robots of `../shared/independent` instead (`_independent_cases`: each set with
-calibration poses and a truth, 6 and 7 joints), written as their own section of the results, the bench's kept;
-with `--alternatives` also, per robot, the p95 of two other readings of its calibration (`_shrunk`, `_field_p95`).
+With `--independent`, also the robots of `../shared/independent` (`_independent_cases`: each set with calibration
+poses and a truth, 6 and 7 joints), in their own section; with the bench's, a pooled summary over the goal's
+population (`_pooled`: each robot once, the bench's with their flat-inverse plan). With `--alternatives` also, per
+independent robot, the p95 of two other readings of its calibration (`_shrunk`, `_field_p95`).
 
-Run: `python benchmarks/bench_coverage.py [--robots 50] [--ocp-robots 5] [--methods]` (writes
-benchmarks/results_coverage.md), `python benchmarks/bench_coverage.py --independent [--alternatives]`.
+Run: `python benchmarks/bench_coverage.py [--robots 50] [--ocp-robots 5] [--methods] [--independent
+[--alternatives]]` (writes benchmarks/results_coverage.md, all of it from this run; `--robots 0 --independent`: the
+independent robots only).
 """
 
 from __future__ import annotations
@@ -42,8 +44,6 @@ from jaxrobot.measurement import measured_pose
 from planning._prediction import DRAWS, METHODS, _linearised, deviation_draws
 
 OUT = Path(__file__).with_name("results_coverage.md")
-INDEPENDENT = "\n## Independent data"
-"""The heading of the independent robots' section, which each kind of run keeps of the other's results."""
 POSES, VALIDATION = 50, 13
 NU = 1e-14
 
@@ -89,18 +89,33 @@ def _methods(model, uncertainty) -> list[str]:
     return rows
 
 
+def _coverage(p95, true) -> tuple[float, float]:
+    """The fraction of robots whose true max error lies at or below their predicted p95, and its 2-binomial-std
+    half-width (the std of a fraction of `1/n` at least, so that an all-covered count still has an interval)."""
+    p95, true = np.asarray(p95), np.asarray(true)
+    covered = float(np.mean(true <= p95))
+    return covered, 2 * float(np.sqrt(max(covered * (1 - covered), 1 / len(true)) / len(true)))
+
+
+def _ratio(p95, true) -> float:
+    """The median predicted p95 over the median true max error."""
+    return float(np.median(p95) / np.median(true))
+
+
+def _covered(p95, true) -> str:
+    """The coverage of `_coverage` as a table cell."""
+    covered, ci = _coverage(p95, true)
+    return f"{100 * covered:.0f} % (+- {100 * ci:.0f} %, 2 binomial std)"
+
+
 def _summary(stats: list[tuple[float, ...]]) -> list[str]:
     """The coverage table's rows of `stats` (per robot: p50, p95, true max error [m], plan and prediction [s])."""
     s = np.asarray(stats)
-    covered = float(np.mean(s[:, 2] <= s[:, 1]))
-    ci = 2 * np.sqrt(max(covered * (1 - covered), 1 / len(s)) / len(s))
-    ratio = float(np.median(s[:, 1]) / np.median(s[:, 2]))
     cost = float(np.median(s[1:, 4] / s[1:, 3])) if len(s) > 1 else float(s[0, 4] / s[0, 3])
     return ["| | value | goal |", "|---|---|---|",
             f"| robots | {len(s)} | >= 50 |",
-            f"| true max error <= predicted p95 | {100 * covered:.0f} % (+- {100 * ci:.0f} %, 2 binomial std) | "
-            "90-98 % |",
-            f"| median p95 / median true max error | {ratio:.2f} | <= 2 |",
+            f"| true max error <= predicted p95 | {_covered(s[:, 1], s[:, 2])} | 90-98 % |",
+            f"| median p95 / median true max error | {_ratio(s[:, 1], s[:, 2]):.2f} | <= 2 |",
             f"| median true max error [um] | {1e6 * np.median(s[:, 2]):.2f} | |",
             f"| median predicted p50, p95 [um] | {1e6 * np.median(s[:, 0]):.2f}, {1e6 * np.median(s[:, 1]):.2f} | |",
             f"| prediction time / plan time (median over the robots after the first) | {cost:.2f} | <= 2 (OCP) |"]
@@ -360,107 +375,147 @@ def _independent_rows(echo: Callable[[str], None], alternatives: bool = False) -
     return rows, left_out
 
 
-def _write(lines: list[str], independent: bool) -> None:
-    """Write `lines` as the bench's part of `OUT` (`independent`: as its independent robots' section), keeping the
-    other part."""
-    old = OUT.read_text() if OUT.exists() else ""
-    bench, _, section = old.partition(INDEPENDENT)
-    text = (bench.rstrip("\n") + "\n" + "\n".join(lines) if independent else
-            "\n".join(lines) + (INDEPENDENT + section if section else ""))
-    OUT.write_text(text.rstrip("\n") + "\n")
-    print(f"wrote {OUT}")
-
-
-def _independent(alternatives: bool) -> list[str]:
-    """The independent robots' section (`_independent_rows`; `alternatives`: with their p95 and a paragraph)."""
-    rows, left_out = _independent_rows(lambda line: print(line, flush=True), alternatives)
-    s = np.asarray([r[4:] for r in rows])
-    covered = int(np.sum(s[:, 2] <= s[:, 1]))
-    info = _timing.run_info("none; the truth of each robot is its generator's (truth.json, checked)")
-    cols, bar = ("| p95 shrunk | p95 field |", "---|---|") if alternatives else ("", "")
-    lines = [INDEPENDENT.strip(), "", _timing.header(info),
-             f"{len(rows)} robots of `../shared/independent` with calibration poses and a truth (6-joint Racer-7 sets, "
-             "the 7-joint arm's sets; `_independent_cases`), each calibrated from its start model "
-             "(default set, the validation poses as given; arm7 anisotropic with its README's laser tracker, "
-             "`_laser_tracker`), the task (the Racer-7's line; the arm's 3 cm line in "
-             "0.25 s) planned on the calibrated model by the flat inverse, the band predicted (`predict_on_robot`, "
-             f"{DRAWS} draws) and the plan simulated on the true robot. True max error <= p95 on {covered} of "
-             f"{len(rows)} robots: with this few robots a check that no band misses by far, not a rate "
-             f"(median p95 / median true {float(np.median(s[:, 1]) / np.median(s[:, 2])):.2f})."
-             + "".join(f" Left out: {line}." for line in left_out)]
-    if alternatives:
-        shrunk, ratio = int(np.sum(s[:, 2] <= s[:, 3])), float(np.median(s[:, 3]) / np.median(s[:, 2]))
-        lines.append(f"\nThe alternatives (`--alternatives`): `shrunk`, the set-aside parameters with an "
-                     "empirical-Bayes g-prior instead of the BIC average (`_shrunk`): true <= p95 on "
-                     f"{shrunk} of {len(rows)}, median p95 / median true {ratio:.2f}; `field`, the unexplained "
-                     "residual regressed over the configurations instead of its RMS (`_field_p95`; rows with an "
-                     "unexplained residual).")
-    return [*lines, "", "| robot | joints | validation rms | unexplained | p50 | p95 | true | covered " + cols,
-            "|---|---|---|---|---|---|---|---|" + bar,
-            *[f"| {r[0]} | {r[1]} | {1e6 * r[2]:.1f} | {1e6 * r[3]:.1f} | {1e6 * r[4]:.2f} | {1e6 * r[5]:.2f} | "
-              f"{1e6 * r[6]:.2f} | {'yes' if r[6] <= r[5] else 'no'} |" + "".join(f" {1e6 * a:.2f} |" for a in r[7:])
-              for r in rows]]
-
-
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--robots", type=int, default=50, help="robots whose flat-inverse plan is predicted")
-    parser.add_argument("--ocp-robots", type=int, default=5, help="of them, the first whose OCP plan is too")
-    parser.add_argument("--methods", action="store_true", help="compare the linearisations on the first robot")
-    parser.add_argument("--independent", action="store_true",
-                        help="the robots of ../shared/independent instead of the bench's (their own section)")
-    parser.add_argument("--alternatives", action="store_true",
-                        help="with --independent: the p95 of the band's alternatives beside it (_shrunk, _field_p95)")
-    args = parser.parse_args()
-    if args.independent:
-        _write(_independent(args.alternatives), independent=True)
-        return
+def _bench(robots: int, ocp_robots: int, methods: bool) -> tuple[dict, dict, list[str], list[str]]:
+    """The bench's robots: per plan kind ("flat", "ocp") the stats (p50, p95, true max error [m], plan and prediction
+    [s]) and table rows per robot, the linearisations' rows (`methods`) and the robots left out, with why."""
     nominal, instruments = jr.racer7(), jr.racer7_instruments()
-    truths = jr.bench.draw_fleet(args.robots, seed=0, robot=nominal)
-    meas = fleet_measurements(args.robots, POSES + VALIDATION, range(args.robots), seed=0)
-    rows, stats, method_rows = {"flat": [], "ocp": []}, {"flat": [], "ocp": []}, []
-    for r in range(args.robots):
+    truths = jr.bench.draw_fleet(robots, seed=0, robot=nominal)
+    meas = fleet_measurements(robots, POSES + VALIDATION, range(robots), seed=0)
+    rows, stats, method_rows, left_out = {"flat": [], "ocp": []}, {"flat": [], "ocp": []}, [], []
+    for r in range(robots):
         truth = jax.tree.map(lambda a, r=r: a[r], truths)
         theta, pos = meas.motor_angles[r], meas.positions[r]
         cal = calibrate(nominal, theta[:POSES], pos[:POSES], validation=(theta[POSES:], pos[POSES:]),
                         instruments=instruments)
         if not cal.converged:
-            print(f"robot {r}: calibration did not converge ({jr.status_name(cal.status)}); left out", flush=True)
+            left_out.append(f"robot {r}: the calibration did not converge ({jr.status_name(cal.status)})")
+            print(left_out[-1], flush=True)
             continue
         u = cal.uncertainty("bench_coverage")
-        if args.methods and not method_rows:
+        if methods and not method_rows:
             method_rows = _methods(cal.robot, u)
-        for kind in ("flat", "ocp")[:1 + (r < args.ocp_robots)]:
+        for kind in ("flat", "ocp")[:1 + (r < ocp_robots)]:
             pred, true, plan_s, pred_s = _plan(cal.robot, truth, u, kind)
             stats[kind].append((pred.max_p50, pred.max_p95, true, plan_s, pred_s))
             rows[kind].append(f"| {r} | {1e6 * float(u.residual_rms):.1f} | {1e6 * pred.unexplained:.1f} | "
                               f"{1e6 * pred.max_p50:.2f} | {1e6 * pred.max_p95:.2f} | {1e6 * true:.2f} | "
                               f"{'yes' if true <= pred.max_p95 else 'no'} | {plan_s:.1f} | {pred_s:.1f} |")
             print(kind, rows[kind][-1], flush=True)
-    info = _timing.run_info("none (no peer predicts a plan's error on the robot); the truth is each robot's own "
-                            "simulation in the same run")
+    return stats, rows, method_rows, left_out
+
+
+def _bench_sections(stats: dict, rows: dict, method_rows: list[str], left_out: list[str]) -> list[str]:
+    """The bench's part of the results: what was measured, a section per plan kind and the linearisations'."""
     lines = [
-        "# Predicted error bands of a plan on the robot: coverage over as-built robots of the bench", "",
-        _timing.header(info),
+        "## The bench", "",
         f"As-built Racer-7s (`draw_fleet(seed=0)`), each calibrated on {POSES} random poses with {VALIDATION} "
         "validation poses (tracker noise 50 um per axis, default parameter set; its `[uncertainty]` keeps the "
         "parameters BIC set aside, their covariance averaged over their models by the BIC weights); the line planned "
-        "on each calibrated "
-        "model and simulated on its true robot with its gears' flanks; the prediction `predict_on_robot` "
-        f"(linearisation `kinematic`, {DRAWS} draws). `flat`: the flat inverse of the model (exact on it); `ocp`: "
-        f"`plan_task` at nu = {NU:g} on the flanks, the first robots only (its time the plan's, compile included "
-        "for the first)."]
+        "on each calibrated model and simulated on its true robot with its gears' flanks; the prediction "
+        f"`predict_on_robot` (linearisation `kinematic`, {DRAWS} draws). `flat`: the flat inverse of the model (exact "
+        f"on it); `ocp`: `plan_task` at nu = {NU:g} on the flanks, the first robots only (its time the plan's, "
+        "compile included for the first)." + "".join(f" Left out: {line}." for line in left_out)]
     head = ["| robot | validation rms | unexplained | p50 | p95 | true | covered | plan [s] | prediction [s] |",
             "|---|---|---|---|---|---|---|---|---|"]
     for kind in ("flat", "ocp"):
         if stats[kind]:
-            lines += ["", f"## `{kind}`", "", *_summary(stats[kind]), "", "Per robot (validation RMS distance, "
+            lines += ["", f"### `{kind}`", "", *_summary(stats[kind]), "", "Per robot (validation RMS distance, "
                       "unexplained residual, p50, p95, true max error [um]; times [s]):", "", *head, *rows[kind]]
     if method_rows:
-        lines += ["", "## The linearisations", "", "The first robot's flat-inverse plan predicted by both (the "
+        lines += ["", "### The linearisations", "", "The first robot's flat-inverse plan predicted by both (the "
                   "parameters' part [um]; time of the first call, compile included, and of a second [s]):", "",
                   "| method | p50 | p95 | first [s] | again [s] |", "|---|---|---|---|---|", *method_rows]
-    _write(lines, independent=False)
+    return lines
+
+
+def _independent_section(rows: list[tuple], left_out: list[str], alternatives: bool) -> list[str]:
+    """The independent robots' section (the rows of `_independent_rows`; `alternatives`: their p95 and a paragraph)."""
+    s = np.asarray([r[4:] for r in rows])
+    covered = int(np.sum(s[:, 2] <= s[:, 1]))
+    cols, bar = (" p95 shrunk | p95 field |", "---|---|") if alternatives else ("", "")
+    lines = ["## Independent data", "",
+             f"{len(rows)} robots of `../shared/independent` with calibration poses and a truth (6-joint Racer-7 sets, "
+             "the 7-joint arm's sets; `_independent_cases`; the truth of each robot is its generator's, checked "
+             "against its truth.json), each calibrated from its start model "
+             "(default set, the validation poses as given; arm7 anisotropic with its README's laser tracker, "
+             "`_laser_tracker`), the task (the Racer-7's line; the arm's 3 cm line in "
+             "0.25 s) planned on the calibrated model by the flat inverse, the band predicted (`predict_on_robot`, "
+             f"{DRAWS} draws) and the plan simulated on the true robot. True max error <= p95 on {covered} of "
+             f"{len(rows)} robots: with this few robots a check that no band misses by far, not a rate "
+             f"(median p95 / median true {_ratio(s[:, 1], s[:, 2]):.2f})."
+             + "".join(f" Left out: {line}." for line in left_out)]
+    if alternatives:
+        shrunk = int(np.sum(s[:, 2] <= s[:, 3]))
+        lines.append(f"\nThe alternatives (`--alternatives`): `shrunk`, the set-aside parameters with an "
+                     "empirical-Bayes g-prior instead of the BIC average (`_shrunk`): true <= p95 on "
+                     f"{shrunk} of {len(rows)}, median p95 / median true {_ratio(s[:, 3], s[:, 2]):.2f}; `field`, the "
+                     "unexplained residual regressed over the configurations instead of its RMS (`_field_p95`; rows "
+                     "with an unexplained residual).")
+    return [*lines, "", "| robot | joints | validation rms | unexplained | p50 | p95 | true | covered |" + cols,
+            "|---|---|---|---|---|---|---|---|" + bar,
+            *[f"| {r[0]} | {r[1]} | {1e6 * r[2]:.1f} | {1e6 * r[3]:.1f} | {1e6 * r[4]:.2f} | {1e6 * r[5]:.2f} | "
+              f"{1e6 * r[6]:.2f} | {'yes' if r[6] <= r[5] else 'no'} |" + "".join(f" {1e6 * a:.2f} |" for a in r[7:])
+              for r in rows]]
+
+
+def _pooled(flat: list[tuple[float, ...]], independent: list[tuple], left_out: list[str]) -> list[str]:
+    """The goal's population in one summary: each robot of the bench once with its flat-inverse plan (`flat`: p50,
+    p95, true, ...) and each independent robot (`_independent_rows`' rows), their coverage and ratio of medians,
+    pooled and per population, and the ratio per joint count."""
+    joints = np.array([jr.racer7().n_joints] * len(flat) + [r[1] for r in independent])
+    p95 = np.array([s[1] for s in flat] + [r[5] for r in independent])
+    true = np.array([s[2] for s in flat] + [r[6] for r in independent])
+    parts = {"pooled": slice(None), "bench (`flat`)": slice(len(flat)), "independent": slice(len(flat), None)}
+    row = lambda name, cell, goal: f"| {name} | {' | '.join(cell(k) for k in parts.values())} | {goal} |"  # noqa: E731
+    per_joints = "; ".join(f"{n} joints ({np.sum(joints == n)} robots): "
+                           f"{_ratio(p95[joints == n], true[joints == n]):.2f}" for n in np.unique(joints))
+    return ["## The goal's population, pooled", "",
+            f"The pool holds each robot measured once with the plan measured on every robot: the bench's {len(flat)} "
+            "as-built robots with their flat-inverse plan (the `flat` rows; the `ocp` rows are the first of the same "
+            f"robots with another plan, not counted again) and the {len(independent)} robots of the independent data "
+            "(its table's rows). The coverage and the ratio are the goal's, computed as in each population's section."
+            + "".join(f" Left out (no calibrated plan to check): {line}." for line in left_out), "",
+            f"| | {' | '.join(parts)} | goal |", "|---|" + "---|" * len(parts) + "---|",
+            row("robots", lambda k: str(len(true[k])), ">= 50"),
+            row("true max error <= predicted p95", lambda k: _covered(p95[k], true[k]), "90-98 %"),
+            row("median p95 / median true max error", lambda k: f"{_ratio(p95[k], true[k]):.2f}", "<= 2"),
+            row("median true max error [um]", lambda k: f"{1e6 * np.median(true[k]):.2f}", ""),
+            "", f"Median p95 / median true max error per joint count: {per_joints}."]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robots", type=int, default=50, help="robots of the bench whose flat-inverse plan is "
+                        "predicted (0: none)")
+    parser.add_argument("--ocp-robots", type=int, default=5, help="of them, the first whose OCP plan is too")
+    parser.add_argument("--methods", action="store_true", help="compare the linearisations on the first robot")
+    parser.add_argument("--independent", action="store_true", help="also the robots of ../shared/independent (their "
+                        "own section, and with the bench's robots the pooled summary)")
+    parser.add_argument("--alternatives", action="store_true",
+                        help="with --independent: the p95 of the band's alternatives beside it (_shrunk, _field_p95)")
+    args = parser.parse_args()
+    if args.robots < 0 or args.ocp_robots < 0:
+        parser.error(f"--robots and --ocp-robots must be >= 0, got {args.robots} and {args.ocp_robots}")
+    if not (args.robots or args.independent):
+        parser.error("nothing to measure: --robots 0 without --independent")
+    if args.alternatives and not args.independent:
+        parser.error("--alternatives needs --independent")
+    bench = _bench(args.robots, args.ocp_robots, args.methods) if args.robots else None
+    independent = (_independent_rows(lambda line: print(line, flush=True), args.alternatives) if args.independent
+                   else None)
+    info = _timing.run_info("none (no peer predicts a plan's error on the robot); the truth is each bench robot's own "
+                            "simulation in the same run, each independent robot's its generator's (truth.json, "
+                            "checked)")
+    lines = ["# Predicted error bands of a plan on the robot: coverage over as-built robots of the bench and the "
+             "independent data", "", _timing.header(info)]
+    if bench and independent and bench[0]["flat"]:
+        lines += [*_pooled(bench[0]["flat"], independent[0], bench[3] + independent[1]), ""]
+    if bench:
+        lines += [*_bench_sections(*bench), ""]
+    if independent:
+        lines += _independent_section(*independent, args.alternatives)
+    OUT.write_text("\n".join(lines).rstrip("\n") + "\n")
+    print(f"wrote {OUT}")
 
 
 if __name__ == "__main__":
