@@ -4,7 +4,9 @@ the same shortest-duration question answered by CasADi + IPOPT.
 1. The front: 8 durations (0.3 ... 1.0 times the task's) x 4 nu in one batched call (`planning._front.solve_front`:
    one compiled program; on the CPU a probe at the largest nu, then one solve per member on the cores), timed by
    its second call, against one `solve_ocp` of the task at its own duration (nu = 1e-14, the flat inverse's warm
-   start and motor directions, as the front's members), timed by the best of `REPEAT` calls after the compiling one.
+   start and motor directions, as the front's members), timed by the best of `REPEAT` calls after the compiling one;
+   with each member's status and outer / inner iterations, and the inner iterations by kind of member (converged,
+   not converged where another nu converged, probes of durations where none did) against the one solve's.
 2. The answer: `cycle_time_front` at `TOLERANCE` on the nominal model (the plant is the planning model), refined to
    1 %, wall time with compilation.
 3. The peer: a bisection of fixed-time IPOPT solves (`bench_ocp.solve_ipopt`, exact Hessian, MUMPS, with the motor
@@ -65,9 +67,35 @@ def time_front(robot, path) -> dict:
     one = lambda: pl.solve_ocp(robot, jp.q, path.sample_time, 1e-14, warm_start=warm,  # noqa: E731
                                direction=motor_directions(flat.thetad))
     sol, single_first, single_s = _timing.timed(one, REPEAT)
+    shape = (len(jps), nus.size)
     return {"front_s": front_s, "front_first_s": first, "single_s": single_s, "single_first_s": single_first,
             "converged": int(np.asarray(sols.converged).sum()), "members": int(np.asarray(sols.converged).size),
-            "single_status": jr.status_name(sol.status), "nodes": [jp.t.shape[0] for jp in jps]}
+            "single_status": jr.status_name(sol.status), "single_inner": int(sol.inner_iterations),
+            "nodes": [jp.t.shape[0] for jp in jps],
+            "status": np.asarray(jr.status_name(sols.status)).reshape(shape),
+            "outer": np.asarray(sols.iterations).reshape(shape),
+            "inner": np.asarray(sols.inner_iterations).reshape(shape)}
+
+
+def work_lines(path, timing: dict) -> list[str]:
+    """The timed front's members (status, outer / inner iterations) and its inner iterations (LM steps, each a
+    linearisation and a solve of the block-tridiagonal system) by kind of member, against the one solve's."""
+    status, outer, inner = timing["status"], timing["outer"], timing["inner"]
+    ok = status == "successful"
+    feasible = ok.any(-1)  # a plan within the constraints, which do not depend on nu, exists at that duration
+    top = int(np.argmax(NUS))  # a duration without one: its members hold the probe's solve (counted once)
+    kinds = [("converged", inner[ok].sum(), ok.sum()),
+             ("not converged at a duration where another nu converged", inner[~ok & feasible[:, None]].sum(),
+              (~ok & feasible[:, None]).sum()),
+             ("probes of durations where no nu converged", inner[~feasible, top].sum(), (~feasible).sum())]
+    total = sum(k[1] for k in kinds)
+    lines = ["| duration [s] | " + " | ".join(f"nu = {v:.0e}" for v in NUS) + " |", "|---" * (len(NUS) + 1) + "|"]
+    lines += [f"| {d:g} | " + " | ".join(f"{status[i, j]} {outer[i, j]} / {inner[i, j]}" for j in range(len(NUS)))
+              + " |" for i, d in enumerate(grid(path))]
+    lines += ["", "| members | solves | inner iterations | share |", "|---|---|---|---|"]
+    lines += [f"| {name} | {count} | {steps} | {steps / total:.0%} |" for name, steps, count in kinds]
+    lines += [f"| the one solve | 1 | {timing['single_inner']} | |"]
+    return lines
 
 
 def ipopt_error(robot, path, duration: float, nu: float, f) -> tuple[bool, float, float]:
@@ -141,6 +169,9 @@ def write_markdown(out: Path, info: dict, path, timing: dict, front, answer_s: f
              f"| one solve, {path.duration:g} s, nu = 1e-14 | {timing['single_s']:.2f} | "
              f"{timing['single_first_s']:.1f} | {timing['single_status']} |",
              f"| front / one solve | {timing['front_s'] / timing['single_s']:.1f}x | | |", "",
+             "The timed front's members (status, outer / inner iterations; a duration where no nu converged: every "
+             "member holds the probe's solve at the largest nu) and its inner iterations by kind:", "",
+             *work_lines(path, timing), "",
              "| answer | shortest duration [s] | nu | bracket below [s] | binding limit | wall [s] |",
              "|---|---|---|---|---|---|",
              f"| ours (`cycle_time_front`, incl. compile) | {front.shortest_duration:g} | {front.nu:.0e} | "
