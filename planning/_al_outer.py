@@ -17,6 +17,7 @@ from ._al_merit import (
     _cost,
     _cost_gradient,
     _gradient,
+    _gradient_from,
     _linearise,
     _outside,
     _Parts,
@@ -134,12 +135,14 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
         # constraints' curvature over the step) exceeds them, else the defects at `y` (`_multiplier_defects`)
         shift = _multiplier_defects(c_y, s.predicted) - c_y
         lam = s.lam + s.rho * (c_y + shift)
-        # the gradient of the Lagrangian at the updated multipliers: `grad` with `rho (c_y + shift)` for `rho c_y`
-        stat = jnp.max(jnp.abs(grad + s.rho * vjp(shift) * p.free))
         gam = s.rho * _outside(p, s.y, s.gam, s.rho)
         # with direction bounds, not while the grown penalty's term would exceed the multipliers (`_penalty_grows`)
         grown = jnp.minimum(s.rho * config.penalty_growth, rho_max)
         rho = jnp.where(_penalty_grows(p, config, viol, s.violation, grown, lam), grown, s.rho)
+        # the two reverse passes of the update, one after the other from one copy in the program
+        pulled_shift, pulled = jax.lax.map(vjp, jnp.stack([shift, lam + rho * c_y]))
+        # the gradient of the Lagrangian at the updated multipliers: `grad` with `rho (c_y + shift)` for `rho c_y`
+        stat = jnp.max(jnp.abs(grad + s.rho * pulled_shift * p.free))
         scale = jnp.maximum(1.0, jnp.maximum(jnp.max(jnp.abs(_cost_gradient(p, s.y))), jnp.max(jnp.abs(gam * p.free))))
         met = viol <= config.tol_violation
         converged = met & (stat <= config.tol_stationarity * scale + roundoff_floor(p, s.y, s.forward, s.rho))
@@ -153,7 +156,7 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
             finite, RESULTS.where(stalled, RESULTS.stalled, RESULTS.nonlinear_max_steps_reached), RESULTS.nonfinite))
         new = eqx.tree_at(changed, s, (lam, gam, rho, it, jnp.array(0), viol, stat, status,
                                        converged | stalled | ~finite | out_of_iterations, hist))
-        return changed(new), _gradient(p, new.y, c_y, vjp, new.lam, new.gam, new.rho)
+        return changed(new), _gradient_from(p, new.y, pulled, new.gam, new.rho)
 
     values, grad = jax.lax.cond(_inner_done(config, s, grad), update, lambda: (changed(s), grad))
     s = eqx.tree_at(changed, s, values)
