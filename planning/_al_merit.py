@@ -86,14 +86,9 @@ def _box_violation(p: _Parts, y):
     return jnp.max(jnp.maximum(p.lower - y, 0.0) + jnp.maximum(y - p.upper, 0.0))
 
 
-def _gradient(p: _Parts, y, c, vjp, lam, gam, rho):
-    """The exact gradient of `Phi` at `y` (`vjp` of `_linearise` at `y`, with defects `c`), zero on
-    fixed variables."""
-    return _gradient_from(p, y, vjp(lam + rho * c), gam, rho)
-
-
-def _gradient_from(p: _Parts, y, pulled, gam, rho):
-    """`_gradient` with `pulled = (dc/dy)^T (lam + rho c)` already made."""
+def _gradient(p: _Parts, y, pulled, gam, rho):
+    """The exact gradient of `Phi` at `y` from `pulled = (dc/dy)^T (lam + rho c)` (the `vjp` of `_linearise` at
+    `y`, with defects `c`), zero on fixed variables."""
     return _cost_gradient(p, y) + (pulled + rho * _outside(p, y, gam, rho)) * p.free
 
 
