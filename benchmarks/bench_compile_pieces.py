@@ -30,6 +30,7 @@ def pieces():
     import jaxrobot as jr
     import planning as pl
     from planning import _al_merit, _al_outer, _al_step, _ocp
+    from planning import _half_step as hs
     from planning import _transcription as tr
     from planning._padding import padded_nodes
 
@@ -52,10 +53,10 @@ def pieces():
         ("Gauss-Newton matrix and its factor (`_refactor`)", _al_step._refactor, (p, config, st)),
         ("Gauss-Newton matrix (`_normal_blocks`)",
          lambda p, s: _al_merit._normal_blocks(p, s.y, s.forward, s.gam, s.rho, s.mu), (p, st)),
-        ("its defect Jacobian blocks (`half_step_jacobian`)", lambda p, s: tr.half_step_jacobian(p.problem, s.forward),
+        ("its defect Jacobian blocks (`half_step_jacobian`)", lambda p, s: hs.half_step_jacobian(p.problem, s.forward),
          (p, st)),
         ("block Cholesky (`block_cholesky`)", pl.Scan().factor, blocks),
-        ("forward pass of the dynamics (`half_step`)", tr.half_step, (problem, y0)),
+        ("forward pass of the dynamics (`half_step`)", hs.half_step, (problem, y0)),
         ("problem data at the start (`_parts`)", _al_merit._parts, (problem, y0)),
         ("violations of the result (`max_violations`)", tr.max_violations, (problem, *tr.warm_start(problem))),
         ("default warm start (`warm_start`)", tr.warm_start, (problem,)),

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrobot as jr
+from planning import _half_step as hs
 from planning import _transcription as tr
 
 
@@ -61,12 +62,12 @@ def quantities(robot: jr.Robot) -> dict[str, np.ndarray]:
     sz = tr.variable_scale(problem)
     y = jnp.concatenate([xw, uw], -1) / sz + jnp.asarray(rng.normal(scale=0.1, size=(q_d.shape[0], 5 * n)))
     xs, us = y[:, :4 * n] * sz[:4 * n], y[:, 4 * n:] * sz[4 * n:]
-    h = tr.half_step(problem, y)
+    h = hs.half_step(problem, y)
     w = jnp.asarray(rng.normal(size=(q_d.shape[0], 4 * n)))
     cost = tr.scaled_cost(problem)
     out.update(warm_x=xw, warm_u=uw, defects=tr.defects(problem, xs, us), objective=tr.objective(problem, xs, us),
-               half_step=h.g, half_step_vjp=tr.half_step_vjp(problem, h)(w),
-               half_step_jacobian=tr.half_step_jacobian(problem, h), node_weight=cost.node_weight,
+               half_step=h.g, half_step_vjp=hs.half_step_vjp(problem, h)(w),
+               half_step_jacobian=hs.half_step_jacobian(problem, h), node_weight=cost.node_weight,
                edge_weight=cost.edge_weight)
     return {k: np.asarray(v) for k, v in out.items()}
 

@@ -14,20 +14,8 @@ import jaxrobot as jr
 from jaxrobot.internal import spd_solve
 
 from ._al_config import ALConfig
-from ._transcription import (
-    HalfStep,
-    OCPProblem,
-    bounds,
-    fixed_mask,
-    half_step,
-    half_step_jacobian,
-    half_step_shift,
-    half_step_vjp,
-    inverse_dynamics_vjp,
-    node_mask,
-    scaled_cost,
-    variable_scale,
-)
+from ._half_step import HalfStep, half_step, half_step_jacobian, half_step_shift, half_step_vjp, inverse_dynamics_vjp
+from ._transcription import OCPProblem, bounds, fixed_mask, node_mask, scaled_cost, variable_scale
 
 
 class _Parts(eqx.Module):
@@ -98,10 +86,10 @@ def _box_violation(p: _Parts, y):
     return jnp.max(jnp.maximum(p.lower - y, 0.0) + jnp.maximum(y - p.upper, 0.0))
 
 
-def _gradient(p: _Parts, y, c, vjp, lam, gam, rho):
-    """The exact gradient of `Phi` at `y` (`vjp` of `_linearise` at `y`, with defects `c`), zero on
-    fixed variables."""
-    return _cost_gradient(p, y) + (vjp(lam + rho * c) + rho * _outside(p, y, gam, rho)) * p.free
+def _gradient(p: _Parts, y, pulled, gam, rho):
+    """The exact gradient of `Phi` at `y` from `pulled = (dc/dy)^T (lam + rho c)` (the `vjp` of `_linearise` at
+    `y`, with defects `c`), zero on fixed variables."""
+    return _cost_gradient(p, y) + (pulled + rho * _outside(p, y, gam, rho)) * p.free
 
 
 def _normal_blocks(

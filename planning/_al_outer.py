@@ -123,23 +123,26 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
     m = s.hist.shape[-1]
     rho_max = config.penalty_max * _initial_penalty(p, config) / config.penalty_init
     c_y, vjp, id_vjp = _linearise(p, s.y, s.forward)
-    grad = _gradient(p, s.y, c_y, vjp, s.lam, s.gam, s.rho)
+    # the update where the inner solve is done (elementwise; its reverse passes only where it is done)
+    viol = jnp.maximum(jnp.max(jnp.abs(c_y)), _box_violation(p, s.y))
+    # the defects the multipliers follow: those the step's linearisation predicted where its remainder (the
+    # constraints' curvature over the step) exceeds them, else the defects at `y` (`_multiplier_defects`)
+    shift = _multiplier_defects(c_y, s.predicted) - c_y
+    lam = s.lam + s.rho * (c_y + shift)
+    gam = s.rho * _outside(p, s.y, s.gam, s.rho)
+    # with direction bounds, not while the grown penalty's term would exceed the multipliers (`_penalty_grows`)
+    grown = jnp.minimum(s.rho * config.penalty_growth, rho_max)
+    rho = jnp.where(_penalty_grows(p, config, viol, s.violation, grown, lam), grown, s.rho)
+    pulled = _reverse_passes(vjp, jnp.stack([s.lam + s.rho * c_y, shift, lam + rho * c_y]),
+                             lambda first: _inner_done(config, s, _gradient(p, s.y, first, s.gam, s.rho)))
+    grad = _gradient(p, s.y, pulled[0], s.gam, s.rho)
     # what the update changes, the only outputs of its `cond` (under `vmap` it selects every leaf it returns)
     changed = lambda t: (t.lam, t.gam, t.rho, t.it, t.inner, t.violation, t.stationarity, t.status, t.stop,  # noqa: E731
                          t.hist)
 
     def update():
-        viol = jnp.maximum(jnp.max(jnp.abs(c_y)), _box_violation(p, s.y))
-        # the defects the multipliers follow: those the step's linearisation predicted where its remainder (the
-        # constraints' curvature over the step) exceeds them, else the defects at `y` (`_multiplier_defects`)
-        shift = _multiplier_defects(c_y, s.predicted) - c_y
-        lam = s.lam + s.rho * (c_y + shift)
         # the gradient of the Lagrangian at the updated multipliers: `grad` with `rho (c_y + shift)` for `rho c_y`
-        stat = jnp.max(jnp.abs(grad + s.rho * vjp(shift) * p.free))
-        gam = s.rho * _outside(p, s.y, s.gam, s.rho)
-        # with direction bounds, not while the grown penalty's term would exceed the multipliers (`_penalty_grows`)
-        grown = jnp.minimum(s.rho * config.penalty_growth, rho_max)
-        rho = jnp.where(_penalty_grows(p, config, viol, s.violation, grown, lam), grown, s.rho)
+        stat = jnp.max(jnp.abs(grad + s.rho * pulled[1] * p.free))
         scale = jnp.maximum(1.0, jnp.maximum(jnp.max(jnp.abs(_cost_gradient(p, s.y))), jnp.max(jnp.abs(gam * p.free))))
         met = viol <= config.tol_violation
         converged = met & (stat <= config.tol_stationarity * scale + roundoff_floor(p, s.y, s.forward, s.rho))
@@ -153,13 +156,25 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
             finite, RESULTS.where(stalled, RESULTS.stalled, RESULTS.nonlinear_max_steps_reached), RESULTS.nonfinite))
         new = eqx.tree_at(changed, s, (lam, gam, rho, it, jnp.array(0), viol, stat, status,
                                        converged | stalled | ~finite | out_of_iterations, hist))
-        return changed(new), _gradient(p, new.y, c_y, vjp, new.lam, new.gam, new.rho)
+        return changed(new), _gradient(p, new.y, pulled[2], new.gam, new.rho)
 
     values, grad = jax.lax.cond(_inner_done(config, s, grad), update, lambda: (changed(s), grad))
     s = eqx.tree_at(changed, s, values)
     step = ~s.stop & ~_inner_done(config, s, grad)
     fresh = jnp.any(jnp.stack([s.rho, s.mu]) != s.factor_key) | (s.factor_age >= config.refresh_every)
     return s, c_y, grad, id_vjp, step, fresh
+
+
+def _reverse_passes(vjp, cotangents: Float[Array, "3 Nm1 4*n"], done) -> Float[Array, "3 N 5*n"]:
+    """`vjp` of the first of `cotangents` (the gradient's), and of the other two (the multiplier update's) where
+    `done` of the first result: one after the other in a loop, from one copy of the reverse pass in the program."""
+    def body(c):
+        i, pulled = c
+        return i + 1, pulled.at[i].set(vjp(cotangents[i]))
+
+    more = lambda c: (c[0] == 0) | ((c[0] < cotangents.shape[0]) & done(c[1][0]))  # noqa: E731
+    shape = jax.eval_shape(vjp, cotangents[0])
+    return jax.lax.while_loop(more, body, (jnp.array(0), jnp.zeros((cotangents.shape[0], *shape.shape))))[1]
 
 
 def _penalty_grows(p: _Parts, config: ALConfig, viol, previous, grown, lam) -> Bool[Array, ""]:

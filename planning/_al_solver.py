@@ -30,8 +30,9 @@ the violation did not fall by
 the multipliers away). `rho` starts in proportion to
 the control weight (`penalty_per_weight`). One forward pass through the dynamics (`half_step`) per
 trial point serves its merit and, once the step is accepted, the multiplier update, the gradient
-and the Gauss-Newton matrix there (reverse passes through Newton-Euler for each set of multipliers); one
-forward-mode pass per step gives the defects its linearisation predicts.
+and the Gauss-Newton matrix there (reverse passes through Newton-Euler for each set of multipliers: the
+gradient's and the update's run one after the other from one copy in the program, `_reverse_passes`); one
+forward-mode pass through Newton-Euler per step (`half_step_jvp`) gives the defects its linearisation predicts.
 Stops when the largest scaled violation is at most `tol_violation` and the largest scaled gradient of
 the Lagrangian (stationarity) at most `tol_stationarity` relative to the gradient's own scale plus the
 floor that roundoff of the defects puts under it (`roundoff_floor`: a defect is exact only to the

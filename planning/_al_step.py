@@ -13,7 +13,7 @@ from jaxrobot import RESULTS
 
 from ._al_config import ALConfig
 from ._al_merit import _defects, _merit_from, _normal_blocks, _Parts, _switched
-from ._transcription import HalfStep, half_step
+from ._half_step import HalfStep, half_step, half_step_jvp
 
 
 class _State(eqx.Module):
@@ -93,7 +93,7 @@ def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -
     switched = accept & _switched(p, config, y_try, s.y, s.gam, s.rho)
     y = jnp.where(accept, y_try, s.y)
     nx = c_y.shape[-1]
-    dg = jax.jvp(lambda v: half_step(p.problem, p.y0 + v).g, (s.y,), (t * dy,))[1]
+    dg = half_step_jvp(p.problem, s.forward, t * dy)
     predicted = jnp.where(accept, c_y + (t * dy[1:, :nx] - t * dy[:-1, :nx]) - dg[1:] - dg[:-1], s.predicted)
     forward = jax.tree.map(lambda new, old: jnp.where(accept, new, old), h_new, s.forward)
     mu_down = jnp.maximum(s.mu / config.damping_down, config.damping_init)

@@ -10,6 +10,7 @@ import pytest
 
 import planning as pl
 from planning import _al_merit, _al_outer
+from planning import _half_step as hs
 from planning import _transcription as tr
 
 CONFIG = pl.ALConfig()
@@ -101,7 +102,7 @@ def test_roundoff_floor_is_the_defects_roundoff_through_their_jacobian():
     floor = float(_al_merit.roundoff_floor(p, y, p.start, 1e6))
     assert float(_al_merit.roundoff_floor(p, y, p.start, 1e7)) == pytest.approx(10 * floor, rel=1e-12)
 
-    pk = np.abs(np.asarray(tr.half_step_jacobian(problem, p.start)))  # (N, n, 3n): qd rows, columns q, qd, theta
+    pk = np.abs(np.asarray(hs.half_step_jacobian(problem, p.start)))  # (N, n, 3n): qd rows, columns q, qd, theta
     j = robot.n_joints
     dg = np.finfo(float).eps * np.einsum("kij,kj->ki", pk, np.abs(np.asarray(y0))[:, :3 * j])
     dc = dg[1:] + dg[:-1]

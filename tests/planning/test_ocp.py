@@ -14,6 +14,7 @@ from helpers import ARM7
 
 import planning as pl
 from planning.internal import motor_directions
+from planning import _half_step as hs
 from planning import _transcription as tr
 from planning._block_tridiagonal import block_cholesky, block_tridiagonal_matvec, block_tridiagonal_solve
 from planning._evaluation import motor_commands
@@ -205,8 +206,8 @@ def test_structured_linearisation_matches_autodiff(robot, q_d):
                               in_axes=(None, 0)))(problem, y)  # f (N, 24), df/dy (N, 24, 30): forward-mode
     half = 0.5 * TS / tr.variable_scale(problem)[:24]  # g = T_s/2 f in the scaled units
     jac = half[:, None] * jac
-    h = jax.jit(tr.half_step)(problem, y)
-    gw = jax.jit(lambda p, h, w: tr.half_step_vjp(p, h)(w))(problem, h, w)
+    h = jax.jit(hs.half_step)(problem, y)
+    gw = jax.jit(lambda p, h, w: hs.half_step_vjp(p, h)(w))(problem, h, w)
     assert close(h.g, half * f) and close(gw, jnp.einsum("kij,ki->kj", jac, w))
 
     p = jax.jit(_parts)(problem, y0)

@@ -26,10 +26,11 @@ def test_planning_state_packs_any_n(n):
 
 
 def transcription_derivatives_match_autodiff(robot: jr.Robot):
-    """The OCP's structured `half_step`, `half_step_vjp` and `half_step_jacobian` on the arm `robot` (6 nodes of a
-    rest-to-rest move, perturbed, seeded) against forward-mode autodiff of the public `jr.planning_dynamics`, to
-    rounding (1e-11 of the largest entry; both are sums of O(1) scaled terms). **Returns** the problem and its
-    scaled variables."""
+    """The OCP's structured `half_step`, `half_step_vjp`, `half_step_jvp` and `half_step_jacobian` on the arm `robot`
+    (6 nodes of a rest-to-rest move, perturbed, seeded) against forward-mode autodiff of the public
+    `jr.planning_dynamics`, to rounding (1e-11 of the largest entry; both are sums of O(1) scaled terms).
+    **Returns** the problem and its scaled variables."""
+    from planning import _half_step as hs
     from planning import _transcription as tr
 
     t = np.arange(6) * 1e-3
@@ -41,12 +42,13 @@ def transcription_derivatives_match_autodiff(robot: jr.Robot):
     node_f = lambda yk: jr.planning_dynamics(robot, yk[:8] * sz[:8], yk[8:] * sz[8:])  # noqa: E731
     f, jac = jax.jit(jax.vmap(lambda yk: (node_f(yk), jax.jacfwd(node_f)(yk))))(y)
     jac = jac * (0.5 * 1e-3 / sz[:8])[:, None]
-    w = jnp.asarray(rng.normal(size=(6, 8)))
-    h, gw, pk = jax.jit(lambda p, y: (lambda h: (h, tr.half_step_vjp(p, h)(w), tr.half_step_jacobian(p, h)))(
-        tr.half_step(p, y)))(problem, y)
+    w, dy = jnp.asarray(rng.normal(size=(6, 8))), jnp.asarray(rng.normal(size=(6, 10)))
+    h, gw, gd, pk = jax.jit(lambda p, y: (lambda h: (h, hs.half_step_vjp(p, h)(w), hs.half_step_jvp(p, h, dy),
+                                                     hs.half_step_jacobian(p, h)))(hs.half_step(p, y)))(problem, y)
     close = lambda a, b: float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))) <= 1e-11  # noqa: E731
     assert close(h.g, f * 0.5 * 1e-3 / sz[:8])
     assert close(gw, jnp.einsum("kij,ki->kj", jac, w))
+    assert close(gd, jnp.einsum("kij,kj->ki", jac, dy))
     columns = 8 if robot.damping is not None else 6  # the motor rates enter through the damping alone
     assert pk.shape == (6, 2, columns) and close(pk, jac[:, 2:4, :columns])
     return problem, y, sz
