@@ -501,8 +501,9 @@ def main() -> None:
     if args.alternatives and not args.independent:
         parser.error("--alternatives needs --independent")
     bench = _bench(args.robots, args.ocp_robots, args.methods) if args.robots else None
-    # the bench's compiled programs freed: with the independent robots' beside them, one process exceeded the
-    # kernel's count of memory maps (XLA's compilation failed, then the process crashed)
+    # the bench's compiled programs freed: each robot's calibration compiles its LM for the parameter set its
+    # selection keeps (~850 memory maps a robot; the prediction compiles nothing per robot), and with the independent
+    # robots' beside them one process exceeded the kernel's count of memory maps (XLA failed, the process crashed)
     jax.clear_caches()
     independent = (_independent_rows(lambda line: print(line, flush=True), args.alternatives) if args.independent
                    else None)

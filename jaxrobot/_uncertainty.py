@@ -72,6 +72,14 @@ class ModelUncertainty(eqx.Module):
         return (tuple(f"{key}[{j}]" for key in JOINT_FIELDS for j in range(1, n_joints + 1))
                 + tuple(f"{frame}.{c}" for frame in ("tool", "base") for c in FRAME_COMPONENTS))
 
+    def columns(self, n_joints: int) -> tuple[int, ...]:
+        """The positions of `names` among `entries(n_joints)` (a deviation over every entry that is zero elsewhere
+        moves a robot as `apply` does); `ValueError` naming a name that is no entry of an `n_joints`-joint robot."""
+        for name in self.names:
+            parameter_entry(name, n_joints)
+        every = self.entries(n_joints)
+        return tuple(every.index(name) for name in self.names)
+
     def apply(self, robot: Robot, deviation: Float[Array, " m"]) -> Robot:
         """`robot` with its parameters `names` moved by `deviation` (`jax.vmap` it for a batch of robots)."""
         deviation = jnp.asarray(deviation, float)

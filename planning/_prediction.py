@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from functools import partial
+from functools import cache, partial
 
 import jax
 import jax.numpy as jnp
@@ -128,20 +128,19 @@ def _check(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: JointPath, tra
     if not isinstance(uncertainty, jr.ModelUncertainty):
         raise ValueError(f"uncertainty: expected a jaxrobot.ModelUncertainty (jaxrobot.io.read_uncertainty), found "
                          f"{type(uncertainty).__name__}")
-    uncertainty.apply(robot, jnp.zeros(len(uncertainty.names)))  # names an entry the robot has
+    uncertainty.columns(robot.n_joints)  # names entries the robot has
     if np.shape(uncertainty.covariance) != (len(uncertainty.names),) * 2:
         raise ValueError(f"uncertainty.covariance: expected shape ({len(uncertainty.names)},) * 2, found "
                          f"{np.shape(uncertainty.covariance)}")
 
 
-def _every_entry(uncertainty: jr.ModelUncertainty, n_joints: int) -> tuple[jr.ModelUncertainty, list[int]]:
-    """`uncertainty` over every entry it may name (`ModelUncertainty.entries`), so that one compiled program serves
-    any parameter set, and the positions of its own names among them."""
-    names = jr.ModelUncertainty.entries(n_joints)
-    m = len(names)
-    every = jr.ModelUncertainty(names, jnp.zeros(m), jnp.zeros((m, m)), uncertainty.residual_rms,
-                                uncertainty.explained_rms)
-    return every, [names.index(name) for name in uncertainty.names]
+@cache
+def _every_entry(n_joints: int) -> jr.ModelUncertainty:
+    """A zero uncertainty over every entry an uncertainty may name (`ModelUncertainty.entries`): the one argument of
+    the compiled programs for any parameter set and calibration (its own names are `ModelUncertainty.columns`)."""
+    m = len(jr.ModelUncertainty.entries(n_joints))
+    return jr.ModelUncertainty(jr.ModelUncertainty.entries(n_joints), jnp.zeros(m), jnp.zeros((m, m)), jnp.zeros(()),
+                               jnp.zeros(()))
 
 
 def deviation_draws(uncertainty: jr.ModelUncertainty, draws: int, seed: int) -> np.ndarray:
@@ -152,6 +151,19 @@ def deviation_draws(uncertainty: jr.ModelUncertainty, draws: int, seed: int) -> 
     return np.random.default_rng(seed).standard_normal((draws, len(w))) @ root.T
 
 
+def _drawn_errors(e0: Float[np.ndarray, "N 3"], jac: Float[np.ndarray, "N 3 m"],
+                  deviations: Float[np.ndarray, "D m"]) -> Float[np.ndarray, "D N"]:
+    """[m] The linearised error's norm `|e0 + J dp|` at each sample for each of the deviations, 250 at a time (one
+    matrix product each)."""
+    n, m = e0.shape[0], jac.shape[-1]
+    columns = jac.reshape(3 * n, m).T
+    err = np.empty((len(deviations), n))
+    for rows in np.array_split(np.arange(len(deviations)), max(1, len(deviations) // 250)):
+        e = (deviations[rows] @ columns).reshape(len(rows), n, 3) + e0
+        err[rows] = np.sqrt(np.einsum("dni,dni->dn", e, e))
+    return err
+
+
 def _linearised(robot, uncertainty, jp, trajectory, directional, method, substeps):
     """The error on the model `e0` (N, 3) and its Jacobian (N, 3, m) with respect to `uncertainty`'s parameters."""
     if method not in METHODS:
@@ -159,10 +171,10 @@ def _linearised(robot, uncertainty, jp, trajectory, directional, method, substep
     _check(robot, uncertainty, jp, trajectory)
     n = jp.t.shape[0]
     t, padded, p_d = _padded(jp, trajectory)
-    every, columns = _every_entry(uncertainty, robot.n_joints)
     substeps = plant_substeps(robot, jp.q, float(jp.path.sample_time)) if substeps is None else substeps
+    every = _every_entry(robot.n_joints)
     x0, jac = head(_LINEARISATIONS[method](robot, every, t, padded, substeps, bool(directional)), n)
-    return np.asarray(x0) - p_d, np.asarray(jac)[..., columns]
+    return np.asarray(x0) - p_d, np.asarray(jac)[..., list(uncertainty.columns(robot.n_joints))]
 
 
 def task_weight(robot: jr.Robot, names: Sequence[str], jp: JointPath, trajectory: MotorTrajectory,
@@ -191,10 +203,8 @@ def predict_on_robot(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: Join
     Raises `ValueError` naming `trajectory`, `uncertainty` or `method` where they do not fit."""
     e0, jac = _linearised(robot, uncertainty, jp, trajectory, directional, method, substeps)
     unexplained = float(uncertainty.unexplained)
-    dev = deviation_draws(uncertainty, draws, seed)
-    err = np.concatenate([np.linalg.norm(e0 + np.einsum("nij,dj->dni", jac, d), axis=-1)
-                          for d in np.array_split(dev, max(1, draws // 250))])  # (draws, N)
-    (p50, p95), band = np.quantile(err.max(-1), QUANTILES), np.quantile(err, QUANTILES, axis=0)
+    err = _drawn_errors(e0, jac, deviation_draws(uncertainty, draws, seed))
+    (p50, p95), band = np.quantile(err.max(-1), QUANTILES), np.quantile(err.T, QUANTILES, axis=1)
     return RobotPrediction(float(p50) + unexplained, float(p95) + unexplained, float(p50), float(p95), unexplained,
                            band + unexplained, np.linalg.norm(e0, axis=-1), method, draws)
 
@@ -207,9 +217,9 @@ def sampled_errors(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: JointP
     _check(robot, uncertainty, jp, trajectory)
     n = jp.t.shape[0]
     t, padded, p_d = _padded(jp, trajectory)
-    every, columns = _every_entry(uncertainty, robot.n_joints)
+    every = _every_entry(robot.n_joints)
     full = np.zeros((len(deviations), len(every.names)))
-    full[:, columns] = np.asarray(deviations, float)
+    full[:, list(uncertainty.columns(robot.n_joints))] = np.asarray(deviations, float)
     substeps = plant_substeps(robot, jp.q, float(jp.path.sample_time)) if substeps is None else substeps
     x = _sampled(robot, every, t, padded, jnp.asarray(full), substeps, bool(directional))
     return np.linalg.norm(np.asarray(x)[:, :n] - p_d, axis=-1)

@@ -1,12 +1,16 @@
 """Shared test helpers: seeded random n-joint chains and states, an independent numpy forward kinematics,
-pinocchio's rigid-body terms, the test robot files and the example-robot-data URDFs."""
+pinocchio's rigid-body terms, the test robot files and the example-robot-data URDFs, and the count of XLA
+compilations in a block."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib.metadata
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -14,6 +18,22 @@ import jaxrobot as jr
 
 ARM7 = Path(__file__).parent / "data" / "arm7.toml"
 """A Racer-like seven-joint arm (an extra wrist joint) with every optional section of a robot file."""
+
+
+@contextlib.contextmanager
+def compilations() -> Iterator[list[tuple[str, float]]]:
+    """The XLA compilations (function name, seconds) made inside the block, from JAX's monitoring events."""
+    made = []
+
+    def listen(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            made.append((kwargs.get("fun_name", "?"), duration))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        yield made
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
 
 
 def random_chain(n: int, seed: int = 0) -> dict:

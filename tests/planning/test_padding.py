@@ -3,14 +3,13 @@ the end's rest state (`pad_problem`). The padded solve is the unpadded one (the 
 objective to roundoff), and a task of another length of the same padded size compiles nothing new."""
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
-import contextlib
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import planning as pl
+from helpers import compilations
 from planning import _ocp
 from planning import _transcription as tr
 from planning._evaluation import flat_motor_trajectory, ocp_motor_trajectory
@@ -42,22 +41,6 @@ def _task(robot, n):
     t = jnp.arange(n) * TS
     flat = jax.jit(lambda t: jr.flat_inverse(robot, lambda x: _move_at(x / t[-1]), t))(t)
     return jax.vmap(_move_at)(jnp.arange(n) / (n - 1)), motor_directions(flat[1])
-
-
-@contextlib.contextmanager
-def compilations():
-    """The XLA compilations (function name, seconds) made inside the block, from JAX's monitoring events."""
-    made = []
-
-    def listen(event, duration, **kwargs):
-        if event == "/jax/core/compile/backend_compile_duration":
-            made.append((kwargs.get("fun_name", "?"), duration))
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
-        yield made
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
 
 
 def test_padded_nodes_ladder():

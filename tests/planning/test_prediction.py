@@ -3,9 +3,11 @@ drawn from the same covariance and simulated in full, on a short line; bad input
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import compilations
 
 import jaxrobot as jr
 import planning as pl
@@ -62,6 +64,30 @@ def test_linearised_error_agrees_with_sampled_robots(robot, short_line, uncertai
         below = float(np.mean(other <= value))
         assert abs(below - q) < 3 * np.sqrt(q * (1 - q) / DRAWS), (q, below)
     np.testing.assert_allclose(pred.band[1].max(), pred.max_p95, rtol=0.2)  # the band's top near the max's p95
+
+
+def test_another_robot_compiles_nothing(robot, short_line, uncertainty):
+    """The prediction's programs are keyed by the joint count, the padded samples and the plant's settings only:
+    a second calibrated robot (other kinematic numbers, another covariance) compiles nothing, and a third with
+    another parameter set (three set aside, the tool's x added) and strongly typed residuals (as a robot file
+    gives them) no program of the prediction (only the eager arithmetic of its residuals' type); each gets its own
+    band."""
+    jp, traj = short_line
+    first = pl.predict_on_robot(robot, uncertainty, jp, traj, draws=DRAWS)
+    other = eqx.tree_at(lambda r: (r.a, r.d), robot, (robot.a + 3e-5, robot.d - 2e-5))
+    wider = jr.ModelUncertainty(NAMES, jnp.ones(9), jnp.asarray(2 * np.asarray(uncertainty.covariance)),
+                                jnp.asarray(2e-5), jnp.asarray(1e-5))
+    with compilations() as made:
+        second = pl.predict_on_robot(other, wider, jp, traj, draws=DRAWS)
+    assert made == [], made
+    std = np.array([*STD[:6], 4e-5])
+    fewer = jr.ModelUncertainty((*NAMES[:6], "tool.x"), jnp.zeros(7), jnp.asarray(np.diag(std**2)),
+                                jnp.asarray(np.float64(4e-5)), jnp.asarray(np.float64(1e-5)))
+    with compilations() as made:
+        third = pl.predict_on_robot(other, fewer, jp, traj, draws=DRAWS)
+    assert not [name for name, _ in made if name in ("jit(_kinematic)", "jit(_stiffest_mode)")], made
+    assert float(np.max(second.model_error)) > 1e-5  # the other robot's own error, not the first's
+    assert second.parameters_p95 != first.parameters_p95 != third.parameters_p95
 
 
 def test_bad_input_is_named(robot, short_line, uncertainty):
