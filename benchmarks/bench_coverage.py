@@ -89,22 +89,18 @@ def _methods(model, uncertainty) -> list[str]:
     return rows
 
 
-def _coverage(p95, true) -> tuple[float, float]:
-    """The fraction of robots whose true max error lies at or below their predicted p95, and its 2-binomial-std
-    half-width (the std of a fraction of `1/n` at least, so that an all-covered count still has an interval)."""
-    p95, true = np.asarray(p95), np.asarray(true)
-    covered = float(np.mean(true <= p95))
-    return covered, 2 * float(np.sqrt(max(covered * (1 - covered), 1 / len(true)) / len(true)))
-
-
 def _ratio(p95, true) -> float:
     """The median predicted p95 over the median true max error."""
     return float(np.median(p95) / np.median(true))
 
 
 def _covered(p95, true) -> str:
-    """The coverage of `_coverage` as a table cell."""
-    covered, ci = _coverage(p95, true)
+    """The fraction of robots whose true max error lies at or below their predicted p95, with its 2-binomial-std
+    half-width (the std of a fraction of `1/n` at least, so that an all-covered count still has an interval), as a
+    table cell."""
+    p95, true = np.asarray(p95), np.asarray(true)
+    covered = float(np.mean(true <= p95))
+    ci = 2 * float(np.sqrt(max(covered * (1 - covered), 1 / len(true)) / len(true)))
     return f"{100 * covered:.0f} % (+- {100 * ci:.0f} %, 2 binomial std)"
 
 

@@ -120,7 +120,10 @@ def _padded(jp: JointPath, traj: MotorTrajectory):
     return t, padded, np.asarray(sample_path(jp.path, jp.t)[0])
 
 
-def _check(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: JointPath, traj: MotorTrajectory) -> None:
+def _check(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: JointPath,
+           traj: MotorTrajectory) -> list[int]:
+    """Check the arguments (`ValueError` naming the one that does not fit); the positions of `uncertainty`'s names
+    among every entry of the robot (`ModelUncertainty.columns`)."""
     n = jp.t.shape[0]
     if np.shape(traj.theta) != (n, robot.n_joints):
         raise ValueError(f"trajectory: expected motor angles of shape ({n}, {robot.n_joints}) [rad] on the joint "
@@ -128,10 +131,11 @@ def _check(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: JointPath, tra
     if not isinstance(uncertainty, jr.ModelUncertainty):
         raise ValueError(f"uncertainty: expected a jaxrobot.ModelUncertainty (jaxrobot.io.read_uncertainty), found "
                          f"{type(uncertainty).__name__}")
-    uncertainty.columns(robot.n_joints)  # names entries the robot has
+    columns = list(uncertainty.columns(robot.n_joints))  # names entries the robot has
     if np.shape(uncertainty.covariance) != (len(uncertainty.names),) * 2:
         raise ValueError(f"uncertainty.covariance: expected shape ({len(uncertainty.names)},) * 2, found "
                          f"{np.shape(uncertainty.covariance)}")
+    return columns
 
 
 @cache
@@ -168,13 +172,13 @@ def _linearised(robot, uncertainty, jp, trajectory, directional, method, substep
     """The error on the model `e0` (N, 3) and its Jacobian (N, 3, m) with respect to `uncertainty`'s parameters."""
     if method not in METHODS:
         raise ValueError(f"method: expected one of {METHODS}, found {method!r}")
-    _check(robot, uncertainty, jp, trajectory)
+    columns = _check(robot, uncertainty, jp, trajectory)
     n = jp.t.shape[0]
     t, padded, p_d = _padded(jp, trajectory)
     substeps = plant_substeps(robot, jp.q, float(jp.path.sample_time)) if substeps is None else substeps
     every = _every_entry(robot.n_joints)
     x0, jac = head(_LINEARISATIONS[method](robot, every, t, padded, substeps, bool(directional)), n)
-    return np.asarray(x0) - p_d, np.asarray(jac)[..., list(uncertainty.columns(robot.n_joints))]
+    return np.asarray(x0) - p_d, np.asarray(jac)[..., columns]
 
 
 def task_weight(robot: jr.Robot, names: Sequence[str], jp: JointPath, trajectory: MotorTrajectory,
@@ -214,12 +218,12 @@ def sampled_errors(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: JointP
                    substeps: int | None = None) -> Float[np.ndarray, "D N"]:
     """[m] The tool position error of `trajectory` along `jp` simulated on each robot of the model moved by
     `deviations` (D, m) (the sampled counterpart of `predict_on_robot`'s linearisation)."""
-    _check(robot, uncertainty, jp, trajectory)
+    columns = _check(robot, uncertainty, jp, trajectory)
     n = jp.t.shape[0]
     t, padded, p_d = _padded(jp, trajectory)
     every = _every_entry(robot.n_joints)
     full = np.zeros((len(deviations), len(every.names)))
-    full[:, list(uncertainty.columns(robot.n_joints))] = np.asarray(deviations, float)
+    full[:, columns] = np.asarray(deviations, float)
     substeps = plant_substeps(robot, jp.q, float(jp.path.sample_time)) if substeps is None else substeps
     x = _sampled(robot, every, t, padded, jnp.asarray(full), substeps, bool(directional))
     return np.linalg.norm(np.asarray(x)[:, :n] - p_d, axis=-1)
