@@ -305,8 +305,9 @@ def test_each_run_kind_moves_its_field_alone_and_reports_it(kind):
     kind names, on that joint alone (every other leaf of the robot stays exactly); `_estimate` reports the value
     read from the moved robot, with the std its derivative in the variable (by autodiff) carries from the
     variable's; all variables zero, the robot is the start's exactly."""
+    from identification.diagnosis._effects._payload import PAYLOAD
     from identification.diagnosis._run_fits import _estimate
-    from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS, index, with_effect_arrays, with_effects
+    from identification.diagnosis._run_model import RUN_KINDS, index, with_effect_arrays, with_effects
     from identification.diagnosis._run_results import RunEffect
 
     read, label = RUN_KIND_READS[kind]
@@ -356,8 +357,9 @@ def test_derivative_columns_by_forward_differences_match_autodiff():
     with encoder rows at a model with every kind and the payload nonzero: each column within 1e-3 of its norm (the
     truncation error of a step of 1e-4 of each variable's scale, where the residual curves over the variable's own
     scale)."""
+    from identification.diagnosis._effects._payload import PAYLOAD
     from identification.diagnosis._run_evidence import BATCH, SINGLE_BELOW, _evaluate, _Evidence, _prepare, _whitened
-    from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS
+    from identification.diagnosis._run_model import RUN_KINDS
 
     base, marker, noise, cmd, run = short_arm_run(3208)
     runs, sigma = _prepare([(cmd, run)], noise, "train")
@@ -384,7 +386,8 @@ def test_a_point_is_simulated_once(monkeypatch):
     returns exactly what a fresh evaluation returns; another marker is another point; the memory keeps `KNOWN`
     points."""
     from identification.diagnosis import _run_evidence as evidence
-    from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS
+    from identification.diagnosis._effects._payload import PAYLOAD
+    from identification.diagnosis._run_model import RUN_KINDS
 
     base, marker, noise, cmd, run = short_arm_run(3209)
     runs, sigma = evidence._prepare([(cmd, run)], noise, "train")
