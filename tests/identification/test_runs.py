@@ -190,6 +190,19 @@ def test_estimate_shows_the_digits_its_std_resolves():
     assert shown(142.2, 0.0) == "142.200" and shown(0.0, 1e-9) == "0.00000"
 
 
+def test_untested_names_what_a_still_motor_cannot_show():
+    """`RunDiagnosis.untested` names the kinds not screened, what a still motor cannot show (the kinds that move the
+    motors, `Effect.moves_motors`: the lag) and the limits per kind, in the words the reports print."""
+    from identification.diagnosis._run_results import RunDiagnosis, RunEffect, RunLimit
+
+    limits = [RunLimit(RunEffect("cubic", 0), "cubic", 3204.45, "N m/rad^3"),
+              RunLimit(RunEffect("payload", None), "mass", 9.7e-4, "kg")]
+    res = RunDiagnosis(jr.racer7(), [], [], "", np.zeros((0, 0)), (), ("drag",), (3,), limits)
+    assert res.untested == ["not screened: drag", "did not move (their lag cannot show): motor 4",
+                            "below the noise under: cubic 3.2e+03 (j1) N m/rad^3",
+                            "below the noise under: payload 0.00097 kg"]
+
+
 def test_diagnose_runs_refuses_unknown_kinds():
     """`kinds` outside the catalogue is refused naming the argument and the catalogue, before any run is read."""
     from identification.diagnosis._runs import diagnose_runs
