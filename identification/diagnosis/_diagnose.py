@@ -538,16 +538,8 @@ def _added_effect(layout: Layout, robot0: jr.Robot, c: Candidate, v, orders, std
     for i, gi in enumerate(local):
         if int(gi) not in c.params:
             continue
-        name = e.names[i]
-        if e.kind in ("gear_ripple", "direction_dependent_ripple"):
-            slot = int(name[-1])
-            col = slot + (RIPPLE_SLOTS if e.kind == "direction_dependent_ripple" else 0)
-            name = f"{name[:-1]}_order{int(orders[c.joint, col])}"
-        params[name] = Estimate(float(v[gi]), e.units[i], float(std.get(int(gi), np.nan)))
-    if e.kind == "approach_dependent_gear_set":
-        params["weight"] = dataclasses.replace(
-            params["weight"], note="the poses' row order gives the gear set at rest; a robot file cannot hold "
-                                   "this: read the poses with --approach order")
+        params[e.reported_name(i, c.joint, orders)] = Estimate(float(v[gi]), e.units[i],
+                                                               float(std.get(int(gi), np.nan)), note=e.note)
     for name, (value, unit) in e.derived(robot0, c.joint, v[local]).items():
         params[name] = Estimate(value, unit)
     return AddedEffect(e.kind, None if c.joint is None else c.joint + 1, c.variant, params,

@@ -86,8 +86,8 @@ class Estimate:
     which the fit used); None where derived (`k1` from `c`). `DiagnoseResult.uncertainty` is the final model's
     covariance instead, linearised at the final fit with its weights and scaled by `chi2 / dof`."""
     note: str = ""
-    """A remark for the report, e.g. why the weight of `approach_dependent_gear_set` cannot go into a
-    robot file; usually empty."""
+    """A remark for the report (`Effect.note`, e.g. why the weight of `approach_dependent_gear_set` cannot go into a
+    robot file); usually empty."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -41,6 +41,8 @@ class Effect:
     command): `diagnose_runs` offers it only for a motor whose encoders depart, and while one does, alone."""
     reported_units: ClassVar[tuple[str, ...] | None] = None
     """(p,) the units of the values a run fit reports (`run_values`) where they are not `units`."""
+    note: ClassVar[str] = ""
+    """What `diagnose` says of its estimates beyond their values (`Estimate.note`; "" for nothing)."""
     always_ranked: ClassVar[bool] = False
     """Whether `diagnose_runs` fits it for ranking at every step beside the best screened candidates: where its
     gain linearised at zero misjudges it (a term of second order in its parameters that vanishes there)."""
@@ -59,6 +61,11 @@ class Effect:
     def variant_name(self, variant: tuple[int, ...]) -> str:
         """The name of the parameter subset `variant` (one of `variants`) in the candidates' labels ("" for one)."""
         return ""
+
+    def reported_name(self, i: int, joint: int | None, orders: Float[Array, "n S"]) -> str:
+        """The name `diagnose` reports its parameter `i` by on `joint` (0-based; None for a global effect), with the
+        ripple `orders` found (default `names[i]`)."""
+        return self.names[i]
 
     def derived(self, robot: jr.Robot, joint: int | None, v: np.ndarray) -> dict[str, tuple[float, str]]:
         """Quantities `diagnose` reports beside the fitted values `v` (p,) on `joint` (0-based; None for a global

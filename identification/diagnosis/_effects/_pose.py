@@ -67,6 +67,12 @@ def _set_ripple(rip: jr.Ripple, start: int, orders, amp_cos, amp_sin) -> jr.Ripp
                      rip.b.at[:, s].add(orders * amp_sin))
 
 
+def _order_name(name: str, orders: Float[Array, "n S"], joint: int, first: int) -> str:
+    """A ripple amplitude's name with the order of its slot instead of the slot (`A0` -> `A_order70`); the effect's
+    orders are the columns `first:` of `orders`."""
+    return f"{name[:-1]}_order{int(orders[joint, first + int(name[-1])])}"
+
+
 class GearRipple(Effect):
     """Gear ripple of a joint, the same in both directions: `RIPPLE_SLOTS` orders found from the
     residual spectrum, amplitudes of the joint-angle error [rad] (eq. 2.10, 2.13)."""
@@ -81,6 +87,9 @@ class GearRipple(Effect):
         a, b = v[:, 0::2], v[:, 1::2]
         return robot_at(robot, ("cw", "ccw"), (_set_ripple(robot.cw, start, n, a, b),
                                                  _set_ripple(robot.ccw, start, n, a, b)))
+
+    def reported_name(self, i, joint, orders):
+        return _order_name(self.names[i], orders, joint, 0)
 
 
 class DirectionDependentRipple(Effect):
@@ -97,6 +106,9 @@ class DirectionDependentRipple(Effect):
         v = v.reshape(v.shape[0], RIPPLE_SLOTS, 4)
         return robot_at(robot, ("cw", "ccw"), (_set_ripple(robot.cw, start, n, v[..., 0], v[..., 1]),
                                                  _set_ripple(robot.ccw, start, n, v[..., 2], v[..., 3])))
+
+    def reported_name(self, i, joint, orders):
+        return _order_name(self.names[i], orders, joint, RIPPLE_SLOTS)
 
 
 GEOMETRY = ("a1", "a2", "a3", "a4", "a5", "a6", "d1", "d2", "d4", "d5", "d6",
@@ -180,6 +192,8 @@ class ApproachDependentGearSet(Effect):
     remedy is to read the poses with the approach taken from the order."""
 
     kind, per_joint, names, scales, units = "approach_dependent_gear_set", False, ("weight",), (1.0,), ("1",)
+    note = ("the poses' row order gives the gear set at rest; a robot file cannot hold this: read the poses with "
+            "--approach order")
 
     def apply(self, robot, v, orders):
         return robot  # a hypothesis on the poses: `rest_angles` reads the weight (`Layout.approach`)
