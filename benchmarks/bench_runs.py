@@ -24,9 +24,10 @@ import jax.numpy as jnp
 from _timing import timed
 
 import jaxrobot as jr
+from identification.diagnosis._effects._payload import PAYLOAD
 from identification.diagnosis._run_comparison import _simulated, compare_run
 from identification.diagnosis._run_evidence import BATCH, _perturbed, _prepare, _residual
-from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS, with_effect_arrays
+from identification.diagnosis._run_model import RUN_KINDS, with_effect_arrays
 from identification.diagnosis._runs import diagnose_runs
 
 CASES = ("p0_clean", "p1_joint1_damping", "p2_motor_lag_j123", "p3_joint3_stiffness", "p4_lag_j2_j4_payload",

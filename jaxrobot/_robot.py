@@ -68,7 +68,7 @@ class Robot(eqx.Module):
     ccw: Ripple
     """Ripple while the joint turns in its negative direction."""
     backlash: Float[Array, "*batch n"]
-    """Lost motion of the gears [rad of link angle]: at rest the link lags the motor by
+    """Lost motion of the gears [rad of link angle]: at rest the link trails the motor by
     `backlash / 2` against the direction of approach (used by the rest poses only)."""
     c: Float[Array, "*batch n"]
     """Joint compliance `c = 1/k1` [rad/(N m)] (eq. 2.18 in compliance form, docs/model.md (2.17));

@@ -202,7 +202,7 @@ def test_field_docstring_check_finds_the_types():
     checked = {c for package in PUBLIC for c in _undocumented_fields(MODULES, package)[0]}
     assert {"jaxrobot._robot.Robot", "jaxrobot.measurement._gear_run.GearRun", "jaxrobot.measurement._poses.Poses",
             "planning._workflow.PlanResult",
-            "planning._transcription.State", "identification.diagnosis._effects.Effect",
+            "planning._transcription.State", "identification.diagnosis._effects._effect.Effect",
             "identification.calibration._calibrate.CalibrationResult"} <= checked
 
 

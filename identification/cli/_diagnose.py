@@ -38,7 +38,7 @@ def configure(parser) -> None:
     parser.add_argument("--max-steps", type=int, default=6, help="most effects to add (default 6)")
     parser.add_argument("--run-kinds", nargs="+", default=None, metavar="KIND",
                         help="the effects --runs screens (default: the run effects of the catalogue screened by "
-                             "default; inertia and drag only on request: docs/closed-loop.md)")
+                             "default; the others only on request: docs/closed-loop.md)")
     add_approach_option(parser)
     add_loss_option(parser)
     parser.add_argument("--max-order", type=int, default=400, help="highest ripple order searched (default 400)")

@@ -134,7 +134,7 @@ def _candidates(layout: Layout, free: set, ripple_orders: dict, varying: np.ndar
     out = []
     for ei, (e, block) in enumerate(zip(layout.effects, layout.blocks)):
         for variant in e.variants():
-            tag = "" if len(e.variants()) == 1 else ("linear" if len(variant) == 1 else "cubic")
+            tag = e.variant_name(variant)
             if not e.per_joint:
                 out.append(Candidate(ei, None, tuple(int(i) for i in block[list(variant)]), tag))
                 continue
@@ -265,8 +265,8 @@ def _uncertainty(data: _Data, v, ev, free: list[int]) -> jr.ModelUncertainty | N
     `identification.core._noise.model_uncertainty`): the covariance `s^2 (J^T W J)^+` of the added effects' values
     (`J` the training positions' Jacobian, `W` the robust weights, `s` the noise estimate) carried to the
     robot-file entries they move (`kinematics.*`, `gear.u0`, `tool`, `base`) by the entries' derivative in the
-    values, and the validation poses' residual. Effects that move no such entry (backlash, compliance, ripple,
-    payload, the approach's gear set) are marginalised out. None where no effect moves an entry."""
+    values, and the validation poses' residual. Effects that move no such entry (those of the joints and gears, the
+    links' loads, the approach's gear set) are marginalised out. None where no effect moves an entry."""
     if not free:
         return None
     fit = data.weights(ev)
@@ -538,18 +538,9 @@ def _added_effect(layout: Layout, robot0: jr.Robot, c: Candidate, v, orders, std
     for i, gi in enumerate(local):
         if int(gi) not in c.params:
             continue
-        name = e.names[i]
-        if e.kind in ("gear_ripple", "direction_dependent_ripple"):
-            slot = int(name[-1])
-            col = slot + (RIPPLE_SLOTS if e.kind == "direction_dependent_ripple" else 0)
-            name = f"{name[:-1]}_order{int(orders[c.joint, col])}"
-        params[name] = Estimate(float(v[gi]), e.units[i], float(std.get(int(gi), np.nan)))
-    if e.kind == "approach_dependent_gear_set":
-        params["weight"] = dataclasses.replace(
-            params["weight"], note="the poses' row order gives the gear set at rest; a robot file cannot hold "
-                                   "this: read the poses with --approach order")
-    if e.kind == "joint_compliance":
-        cj = float(robot0.c[c.joint] + v[local[0]])
-        params["k1"] = Estimate(1.0 / cj if cj > 0 else float("inf"), "N m/rad")
+        params[e.reported_name(i, c.joint, orders)] = Estimate(float(v[gi]), e.units[i],
+                                                               float(std.get(int(gi), np.nan)), note=e.note)
+    for name, (value, unit) in e.derived(robot0, c.joint, v[local]).items():
+        params[name] = Estimate(value, unit)
     return AddedEffect(e.kind, None if c.joint is None else c.joint + 1, c.variant, params,
                        _rms(ev["train"][1]), _rms(ev["validation"][1]))

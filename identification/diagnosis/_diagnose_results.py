@@ -86,8 +86,8 @@ class Estimate:
     which the fit used); None where derived (`k1` from `c`). `DiagnoseResult.uncertainty` is the final model's
     covariance instead, linearised at the final fit with its weights and scaled by `chi2 / dof`."""
     note: str = ""
-    """A remark for the report, e.g. why the weight of `approach_dependent_gear_set` cannot go into a
-    robot file; usually empty."""
+    """A remark for the report (`Effect.note`, e.g. why the weight of `approach_dependent_gear_set` cannot go into a
+    robot file); usually empty."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,10 +99,10 @@ class AddedEffect:
     joint: int | None
     """The joint it acts on (1-based); None for a global effect."""
     variant: str
-    """Which parameter subset was fitted ("linear" or "cubic" for `joint_compliance`), else ""."""
+    """Which parameter subset was fitted (`Effect.variant_name`; "" for an effect of one)."""
     parameters: dict[str, Estimate]
     """Parameter name (`Effect.names`; a ripple amplitude with its order instead of its slot, e.g.
-    `A_order70`) -> fitted value; `joint_compliance` adds the derived `k1`."""
+    `A_order70`) -> fitted value, and the effect's derived quantities (`Effect.derived`)."""
     rms_train: float
     """RMS norm of the training position residuals after adding it [m]."""
     rms_validation: float

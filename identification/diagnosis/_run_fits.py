@@ -22,7 +22,7 @@ LM_STEPS = 30
 """Most Levenberg-Marquardt iterations of a fit."""
 RANKING_STEPS = 10
 """Most iterations of a candidate's fit for ranking (`_fit` without `exact_end`): on updated derivatives a fit of
-several variables (the payload's four) can creep on for all `LM_STEPS`, a simulation each; the chosen fit is
+several variables (a global effect's) can creep on for all `LM_STEPS`, a simulation each; the chosen fit is
 continued on fresh derivatives."""
 EXACT_TOLERANCE = 1e-3
 """Chi-square decrease below which an exact fit (`_fit` with `exact_end`) ends, or `FD_STEP`^2 of the chi-square
@@ -39,7 +39,7 @@ RANKING_REACH = 10.0
 """A candidate's fit for ranking is abandoned where its chi-square, lowered by this many times the decrease its
 Gauss-Newton step predicts, stays above what it needs to come within `MIN_BIC_GAIN` of the best BIC fitted so far at
 that step: it cannot rank among the close ones. The factor covers the linearisation's underestimate over a nonlinear
-fit (a cubic stiffness term went 5.5 times as far as its first step predicted, benchmarks/results_runs.md)."""
+fit (a joint's stiffness term went 5.5 times as far as its first step predicted, benchmarks/results_runs.md)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,16 +82,16 @@ def _identifiable(cols, effects, n: int, at=None) -> bool:
 
 def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_end: bool = True,
          chi2_before: float | None = None, bound: float = math.inf) -> RunFit:
-    """`_fit_variables` of the variables of `effects`; a payload that starts at zero is fitted in two stages: its
-    mass first (at the flange's origin, the centre of mass fixed), then with its centre of mass. From zero mass the
-    linearisation lacks the point's inertia, which grows with the square of its distance: a first step on every
-    variable can throw the centre of mass into a far local minimum (benchmarks/results_runs.md)."""
+    """`_fit_variables` of the variables of `effects`; where one of them that declares a first stage
+    (`Effect.first_stage`) starts at zero, in two stages: with the rest of its variables held at zero first, then
+    all of them."""
     n = robot.n_joints
-    payload = RunEffect("payload", None)
     idx = np.array([i for e in effects for i in index(e, n)])
-    if payload not in effects or np.any(np.asarray(z0)[index(payload, n)]):
+    held = [i for e in effects if _staged(e, z0, n) for k, i in enumerate(index(e, n))
+            if k not in run_effects()[e.kind].first_stage]
+    if not held:
         return _fit_variables(robot, z0, idx, ev, marker, substeps, r0, jac0, exact_end, chi2_before, bound)
-    keep = np.flatnonzero(~np.isin(idx, index(payload, n)[1:]))
+    keep = np.flatnonzero(~np.isin(idx, held))
     first = _fit_variables(robot, z0, idx[keep], ev, marker, substeps, r0, jac0[:, keep], exact_end=False,
                            chi2_before=chi2_before)
     if not first.successful:
@@ -102,12 +102,17 @@ def _fit(robot, z0, effects, ev: _Evidence, marker, substeps, r0, jac0, exact_en
                           bound)
 
 
+def _staged(effect: RunEffect, z0, n: int) -> bool:
+    """Whether `effect` declares a first stage (`Effect.first_stage`) and its variables start at zero in `z0`."""
+    return run_effects()[effect.kind].first_stage is not None and not np.any(np.asarray(z0)[index(effect, n)])
+
+
 def _fit_variables(robot, z0, idx, ev: _Evidence, marker, substeps, r0, jac0, exact_end: bool = True,
                    chi2_before: float | None = None, bound: float = math.inf) -> RunFit:
     """Levenberg-Marquardt on the variables `idx` from `z0`, where the residual is `r0` and its derivatives along
     those variables `jac0` (`_evaluate`): the `RunFit` at the end, refused (`RunFit.result`) where it starts without
     a rest pose (a residual that is not finite), leaves the physical range (`Effect.physical`: a negative value of
-    a nonnegative parameter or payload mass, a compliance or inertia factor at or below 0), ends on dependent
+    a nonnegative parameter, a factor at or below 0), ends on dependent
     derivatives or fails to lower the chi-square below `chi2_before` (default: that at `z0`); a fit for ranking also
     where `RANKING_REACH` times its Gauss-Newton step's decrease would leave its chi-square above `bound`.
 

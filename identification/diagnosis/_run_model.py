@@ -1,7 +1,7 @@
 """The run fits' model: the candidates of `CATALOGUE` that runs can show, and their scaled variables `z`.
 
 `z` holds each run effect's parameters in units of its `scales`, in the order of `run_layout` (the catalogue's
-order: each per-joint kind for every joint, then the payload); `with_effects` moves a robot by them.
+order: a per-joint kind for every joint, a global kind once); `with_effects` moves a robot by them.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import numpy as np
 
 import jaxrobot as jr
 
-from ._effects import CATALOGUE, Effect, Layout, Payload
+from ._effects import CATALOGUE, Effect, Layout
 
 
 def run_effects() -> dict[str, Effect]:
@@ -23,10 +23,10 @@ def run_effects() -> dict[str, Effect]:
 
 def screened_kinds() -> tuple[str, ...]:
     """The kinds `diagnose_runs` screens unless told otherwise (`Effect.screened`): every kind of `run_effects` but
-    those offered on request (the link inertia; a model effect that declares `screened` False). Kinds that can mimic
-    each other over short runs (a payload and a joint's stiffness, a motor response and a joint torque, a link load
-    and a motor response) are fitted against each other on the same footing (BIC), and the one of fewer parameters
-    is kept where the data cannot tell them apart (`RunConfound`)."""
+    those offered on request (an effect that declares `screened` False). Kinds that can mimic each other over short
+    runs (a motor response and a joint torque, a link load and a motor response, a global load and a joint's
+    stiffness) are fitted against each other on the same footing (BIC), and the one of fewer parameters is kept where
+    the data cannot tell them apart (`RunConfound`)."""
     return tuple(k for k, e in run_effects().items() if e.screened)
 
 
@@ -43,9 +43,6 @@ commands kinematically (ideal velocity loops, or their motor response), so it ch
 neither the tracker nor the encoders see (motor currents would show it)."""
 SCREENED_KINDS = screened_kinds()
 """The kinds of the built-in catalogue that `diagnose_runs` screens by default."""
-PAYLOAD = tuple(zip(Payload.reported_names, Payload.scales, Payload.reported_units))
-"""The payload's reported parameters (name, scale of its fit variable, unit): the fit varies the mass and the first
-moment `mass * position` (`Payload`), and reports the mass and the position in the last link's frame."""
 
 
 def run_layout(n: int) -> Layout:

@@ -16,13 +16,12 @@ from ._run_model import run_effects, with_effects, without_absent
 
 @dataclasses.dataclass(frozen=True)
 class RunEffect:
-    """A dynamic effect that runs can show (`run_effects`): a per-joint one on one joint, or a global one (the
-    payload)."""
+    """A dynamic effect that runs can show (`run_effects`): a per-joint one on one joint, or a global one."""
 
     kind: str
     """Its `Effect.kind`."""
     joint: int | None
-    """0-based joint (motor) index; None for the payload."""
+    """0-based joint (motor) index; None for a global effect."""
 
     @property
     def label(self) -> str:
@@ -43,10 +42,11 @@ class RunEstimate:
     effect: RunEffect
     """The effect."""
     parameter: str
-    """The parameter: the effect's kind for the per-joint effects, the payload's `Payload.reported_names`."""
+    """The parameter: the effect's kind for the per-joint effects, a global effect's reported names
+    (`Effect.run_values`)."""
     value: float
-    """The value in `unit` (`stiffness`: the factor on `k1` and `k3`; `cubic`: the joint's `k3`; `inertia`: the
-    factor on the link's inertia tensor; a parameter of the model's effects: its value in the fitted model)."""
+    """The value in `unit`, as the effect reports it (`Effect.run_values`: a factor, a quantity of the fitted model,
+    or a parameter of the model's effects, its value in the fitted model)."""
     std: float
     """Its standard deviation from the fit's covariance (linearised, noise as stated)."""
     unit: str
@@ -96,9 +96,9 @@ class RunLimit:
     effect: RunEffect
     """The candidate (not added)."""
     parameter: str
-    """Its parameter: the kind for a per-joint effect, `mass` for the payload (at the flange's origin)."""
+    """Its parameter: the kind for a per-joint effect, a global effect's first parameter (the others at zero)."""
     value: float
-    """The least departure from the model's value, in `unit` (`stiffness`, `inertia`: of the factor from 1)."""
+    """The least departure from the model's value, in `unit` (of a factor: from 1)."""
     unit: str
     """The unit of `value` (`Effect.run_values`)."""
 
@@ -214,7 +214,8 @@ class RunDiagnosis:
         if self.not_screened:
             out.append("not screened: " + ", ".join(self.not_screened))
         if self.still_motors:
-            out.append("did not move (their lag cannot show): motor "
+            moving = " or ".join(k for k, e in run_effects().items() if e.moves_motors)
+            out.append(f"did not move (their {moving} cannot show): motor "
                        + ", ".join(str(j + 1) for j in self.still_motors))
         for kind in run_effects():
             rows = [lim for lim in self.limits if lim.effect.kind == kind]

@@ -55,15 +55,16 @@ def _still_motors(runs: list[_Run], threshold: float) -> np.ndarray:
 
 
 def _limits(robot, z, effects: list[RunEffect], cols: np.ndarray, ln_n: float) -> list[RunLimit]:
-    """The detection limit of each of `effects` (one column each in `cols`, the payload's mass column) at `z`: the
-    size whose linearised chi-square rise alone is `DETECTION + ln_n`, in its reported unit."""
+    """The detection limit of each of `effects` (one column each in `cols`, a global effect's of its first
+    parameter) at `z`: the size whose linearised chi-square rise alone is `DETECTION + ln_n`, in its reported
+    unit."""
     n, out = robot.n_joints, []
     z = np.asarray(z, float)
     for e, col in zip(effects, cols.T):
         norm = float(np.linalg.norm(col))
         step = math.sqrt(DETECTION + ln_n) / norm if norm > 0 else math.inf
         i = index(e, n)[0]
-        if e.joint is None:  # a global effect: its first parameter (the payload's mass, at the flange's origin)
+        if e.joint is None:  # a global effect: its first parameter, the others at zero
             spec = run_effects()[e.kind]
             out.append(RunLimit(e, spec.names[0], spec.scales[0] * step, reported_unit(e.kind)))
             continue
@@ -110,17 +111,17 @@ def diagnose_runs(
     moves, it screens every effect not yet added by the linearised BIC change of its own variables (an effect that
     moves the motors, `Effect.moves_motors`, only for a motor whose encoders depart, and while one does, those
     alone: no other effect moves the motors, while others can mimic its effect on the tool over a short run; none of a
-    motor whose command does not move), fits the `SCREENED` best,
-    and the payload (its gain linearised at zero mass lacks the point's inertia), with the effects already added by
-    Levenberg-Marquardt through the simulation and the rest poses (derivatives by forward differences, `FD_STEP`, at the
-    start, then Broyden's updates: `_fit`; a fit that cannot come within `MIN_BIC_GAIN` of the best so far is abandoned,
-    `RANKING_REACH`), and ranks the fits by BIC: of those within `MIN_BIC_GAIN` of the best, the one of fewest
+    motor whose command does not move), fits the `SCREENED` best and those always fitted (`Effect.always_ranked`:
+    their linearised gain misjudges them), with the effects already added, by Levenberg-Marquardt through the
+    simulation and the rest poses (derivatives by forward differences, `FD_STEP`, at the start, then Broyden's
+    updates: `_fit`; a fit that cannot come within `MIN_BIC_GAIN` of the best so far is abandoned, `RANKING_REACH`),
+    and ranks the fits by BIC: of those within `MIN_BIC_GAIN` of the best, the one of fewest
     parameters (the data cannot tell them apart: `RunConfound`, with the correlation of their signatures). That one's
     fit is continued on fresh derivatives to convergence (`EXACT_TOLERANCE`) and added if it lowers BIC by more than
     `MIN_BIC_GAIN` and lowers the validation runs' and poses' chi-square. Each effect added before it (but those that
     move the motors, which the encoders fix) is then fitted out again: where the model without it is within
     `MIN_BIC_GAIN` of the BIC with it, it is removed (the new effect explains what it did) and not offered again. The
-    model without an effect is where each fit starts (the model's effects and the payload at 0). Static effects that
+    model without an effect is where each fit starts (every candidate at 0). Static effects that
     runs do not change (geometry, gear ripple, offsets: `diagnose`) are not candidates: diagnose the poses alone for
     them first.
 
@@ -305,13 +306,13 @@ class _Search:
         return res, cols, gain
 
     def best_fit(self, eligible, res, cols, gain):
-        """The `SCREENED` best candidates and the payload fitted for ranking, ranked by BIC (of those within
-        `MIN_BIC_GAIN` of the best, fewest parameters first), the first whose fit continued on fresh derivatives
-        succeeds: `(effect, RunFit, rivals, its ranking fit's residual)`, or None."""
+        """The `SCREENED` best candidates and those always fitted (`Effect.always_ranked`), fitted for ranking and
+        ranked by BIC (of those within `MIN_BIC_GAIN` of the best, fewest parameters first), the first whose fit
+        continued on fresh derivatives succeeds: `(effect, RunFit, rivals, its ranking fit's residual)`, or None."""
         ln_n, fits = self.ln_n, []  # each ranking fit ends on updated derivatives; the chosen one then on fresh ones
         shortlist = list(np.argsort(-np.asarray(gain), kind="stable")[:SCREENED])
-        shortlist += [k for k, c in enumerate(eligible) if c.kind == "payload" and k not in shortlist]
-        for k in shortlist:  # the payload always: its gain linearised at zero mass lacks the point's inertia
+        shortlist += [k for k, c in enumerate(eligible) if run_effects()[c.kind].always_ranked and k not in shortlist]
+        for k in shortlist:
             if gain[k] == -np.inf:
                 continue
             effects = self.added + [eligible[k]]
@@ -387,7 +388,7 @@ class _Search:
         estimates, covariance = _estimate(self.base, np.asarray(z_all), added, cov_all)
         unseen = [c for c in self.candidates if c not in added]
         limits = []
-        if unseen:  # one column each (the payload's mass): the latest screening's, else at the training fit
+        if unseen:  # one column each (a global effect's first): the latest screening's, else at the training fit
             first = [index(c, n)[0] for c in unseen]
             missing = [i for i in first if i not in self.seen]
             if missing:

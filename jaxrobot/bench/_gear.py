@@ -80,7 +80,7 @@ CHUNK = 2048
 
 KNOT_STEP = 16
 """The gravity deflection `kappa^{-1}(g(q))` (smooth in time) is solved exactly every
-`KNOT_STEP` samples, with its rate by `jvp`, and interpolated by cubic Hermite in between; this
+`KNOT_STEP` samples, with its rate by `jvp`, and interpolated by Hermite polynomials (third degree) in between; this
 leaves out the small share that the ripple itself adds to the deflection (against `jvp` through
 the exact fixed point on every sample, the kinematic-error RMS of joints 1-3 moved by < 4e-5 deg/s)."""
 
@@ -133,7 +133,7 @@ def _chunked(fn, t, robot, profile, *args, per_sample=()):
 
 
 def _hermite(t, tk, y, yd):
-    """Cubic Hermite interpolation of knots `(tk, y, yd)` on a uniform grid at times `t`."""
+    """Hermite interpolation (third degree) of knots `(tk, y, yd)` on a uniform grid at times `t`."""
     h = tk[1] - tk[0]
     k = np.clip(np.floor((t - tk[0]) / h).astype(int), 0, len(tk) - 2)
     s = ((t - tk[k]) / h)[:, None]

@@ -190,6 +190,19 @@ def test_estimate_shows_the_digits_its_std_resolves():
     assert shown(142.2, 0.0) == "142.200" and shown(0.0, 1e-9) == "0.00000"
 
 
+def test_untested_names_what_a_still_motor_cannot_show():
+    """`RunDiagnosis.untested` names the kinds not screened, what a still motor cannot show (the kinds that move the
+    motors, `Effect.moves_motors`: the lag) and the limits per kind, in the words the reports print."""
+    from identification.diagnosis._run_results import RunDiagnosis, RunEffect, RunLimit
+
+    limits = [RunLimit(RunEffect("cubic", 0), "cubic", 3204.45, "N m/rad^3"),
+              RunLimit(RunEffect("payload", None), "mass", 9.7e-4, "kg")]
+    res = RunDiagnosis(jr.racer7(), [], [], "", np.zeros((0, 0)), (), ("drag",), (3,), limits)
+    assert res.untested == ["not screened: drag", "did not move (their lag cannot show): motor 4",
+                            "below the noise under: cubic 3.2e+03 (j1) N m/rad^3",
+                            "below the noise under: payload 0.00097 kg"]
+
+
 def test_diagnose_runs_refuses_unknown_kinds():
     """`kinds` outside the catalogue is refused naming the argument and the catalogue, before any run is read."""
     from identification.diagnosis._runs import diagnose_runs
@@ -305,8 +318,9 @@ def test_each_run_kind_moves_its_field_alone_and_reports_it(kind):
     kind names, on that joint alone (every other leaf of the robot stays exactly); `_estimate` reports the value
     read from the moved robot, with the std its derivative in the variable (by autodiff) carries from the
     variable's; all variables zero, the robot is the start's exactly."""
+    from identification.diagnosis._effects._payload import PAYLOAD
     from identification.diagnosis._run_fits import _estimate
-    from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS, index, with_effect_arrays, with_effects
+    from identification.diagnosis._run_model import RUN_KINDS, index, with_effect_arrays, with_effects
     from identification.diagnosis._run_results import RunEffect
 
     read, label = RUN_KIND_READS[kind]
@@ -356,8 +370,9 @@ def test_derivative_columns_by_forward_differences_match_autodiff():
     with encoder rows at a model with every kind and the payload nonzero: each column within 1e-3 of its norm (the
     truncation error of a step of 1e-4 of each variable's scale, where the residual curves over the variable's own
     scale)."""
+    from identification.diagnosis._effects._payload import PAYLOAD
     from identification.diagnosis._run_evidence import BATCH, SINGLE_BELOW, _evaluate, _Evidence, _prepare, _whitened
-    from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS
+    from identification.diagnosis._run_model import RUN_KINDS
 
     base, marker, noise, cmd, run = short_arm_run(3208)
     runs, sigma = _prepare([(cmd, run)], noise, "train")
@@ -384,7 +399,8 @@ def test_a_point_is_simulated_once(monkeypatch):
     returns exactly what a fresh evaluation returns; another marker is another point; the memory keeps `KNOWN`
     points."""
     from identification.diagnosis import _run_evidence as evidence
-    from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS
+    from identification.diagnosis._effects._payload import PAYLOAD
+    from identification.diagnosis._run_model import RUN_KINDS
 
     base, marker, noise, cmd, run = short_arm_run(3209)
     runs, sigma = evidence._prepare([(cmd, run)], noise, "train")

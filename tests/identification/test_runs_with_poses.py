@@ -16,9 +16,10 @@ from test_dynamic_effects import arm_description, command
 import jaxrobot as jr
 import jaxrobot.bench as jb
 from identification.diagnosis import payload_robot
+from identification.diagnosis._effects._payload import PAYLOAD
 from identification.diagnosis._run_comparison import _simulated, compare_run
 from identification.diagnosis._run_evidence import _pose_rows, _prepare_poses
-from identification.diagnosis._run_model import PAYLOAD, RUN_KINDS, with_effect_arrays
+from identification.diagnosis._run_model import RUN_KINDS, with_effect_arrays
 from identification.diagnosis._runs import diagnose_runs
 from jaxrobot.cli._main import main
 from jaxrobot.measurement import Poses
