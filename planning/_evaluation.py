@@ -100,7 +100,8 @@ def plant_substeps(plant: jr.Robot, q: Float[Array, "N n"] | None = None, sample
     `MODE_POSES` poses spread over `q` (`jr.elastic_eigenfrequencies`: the motors held, as the runs prescribe
     them), and at least `SUBSTEPS`, or `EFFECT_SUBSTEPS` where `plant` has link loads or joint torques
     (`jaxrobot.effects`). A rigid plant gets the least."""
-    least = EFFECT_SUBSTEPS if jr.effects.link_loads(plant) or jr.effects.joint_torques(plant) else SUBSTEPS
+    effects = jr.effects.terms(plant)
+    least = EFFECT_SUBSTEPS if effects.link_loads or effects.joint_torques else SUBSTEPS
     q = np.zeros((1, plant.n_joints)) if q is None else np.asarray(q, float)  # on the host: no program per length
     poses = q[np.round(np.linspace(0, q.shape[0] - 1, MODE_POSES)).astype(int)]
     omega = 2 * np.pi * float(_stiffest_mode(plant, poses))
@@ -164,7 +165,7 @@ def motor_commands(robot: jr.Robot, t: Float[Array, " N"], trajectories: dict[st
     """The commands that make the motors of `robot`, after its motor response (`jaxrobot.effects.MotorResponse`,
     its `command`), follow the motor `trajectories` (leading axes allowed); the trajectories themselves for a robot
     without one."""
-    if jr.effects.motor_response(robot) is None:
+    if jr.effects.terms(robot).motor_response is None:
         return trajectories
     return {k: _response_commands(robot, jnp.asarray(t, float), v) for k, v in trajectories.items()}
 
@@ -173,7 +174,7 @@ def motor_commands(robot: jr.Robot, t: Float[Array, " N"], trajectories: dict[st
 def _response_commands(robot: jr.Robot, t, traj: MotorTrajectory) -> MotorTrajectory:
     lead = traj.theta.shape[:-2]
     flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[-2:]), traj)
-    response = jr.effects.motor_response(robot)
+    response = jr.effects.terms(robot).motor_response
     out = jax.vmap(lambda *a: MotorTrajectory(*response.command(robot, t, *a)))(flat.theta, flat.thetad, flat.thetadd)
     return jax.tree.map(lambda a: a.reshape(lead + a.shape[-2:]), out)
 
