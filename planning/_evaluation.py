@@ -37,7 +37,8 @@ SUBSTEPS = 3
 """The fewest RK4 steps per sample of the plant runs on an elastic model without link loads or joint torques
 (`plant_substeps`): at 1 ms they put the tool within 1e-4 µm, a tenth of the 1e-3 µm that `jaxrobot plan` prints,
 of the same runs with 40 steps per sample (the Racer-7's baselines of the line and the spiral, the as-built
-Racer-7 with its gear flanks, an elastic 7-joint arm: the last section of `benchmarks/results_plant.md`)."""
+Racer-7 with its gears' hysteresis (`directional`), an elastic 7-joint arm: the last section of
+`benchmarks/results_plant.md`)."""
 EFFECT_SUBSTEPS = 10
 """The fewest RK4 steps per 1 ms sample of the plant runs on a plant with link loads or joint torques
 (`jaxrobot.effects`: friction, drag, damping), whose time scales bound the step (docs/model.md (2.23c)):
@@ -283,8 +284,9 @@ def simulate_plans(
     the tool-pose error against the task of `jp`, with `substeps` RK4 steps per sample (default
     `plant_substeps(plant, jp.q, sample_time)`: from the plant's elastic modes along the path).
 
-    `directional=True` gives the gears their flanks as states, as the test bench's as-built robot has them
-    (pass it for `jr.racer7(as_built=True)`; `jr.simulate`); the planning model uses the cw set throughout.
+    `directional=True` gives the gears their states between their two sets (`jaxrobot.effects.GearHysteresis`), as
+    the test bench's as-built robot has them (pass it for `jr.racer7(as_built=True)`; `jr.simulate`); the planning
+    model uses the cw set throughout.
     Returns the names in stacking order and the `PlantRun`.
     """
     if not trajectories:
