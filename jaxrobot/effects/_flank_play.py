@@ -20,7 +20,7 @@ from ._effect import Fail, GearHysteresis
 
 def play(p: Float[Array, "*b n"], theta: Float[Array, "*b n"], travel: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
     """One step of the play operator of width `travel`: `p` moved just enough to stay within `travel / 2` of
-    `theta` (it lags the motor by `travel / 2` after a move of at least `travel` in one direction)."""
+    `theta` (it trails the motor by `travel / 2` after a move of at least `travel` in one direction)."""
     return jnp.clip(p, theta - 0.5 * travel, theta + 0.5 * travel)
 
 
