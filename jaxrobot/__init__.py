@@ -27,10 +27,6 @@ from ._elasticity import elastic_deflection as elastic_deflection  # noqa: E402
 from ._elasticity import elastic_stiffness as elastic_stiffness  # noqa: E402
 from ._elasticity import elastic_torque as elastic_torque  # noqa: E402
 from ._flat import flat_inverse as flat_inverse  # noqa: E402
-from ._gear import flank_motor_angle as flank_motor_angle  # noqa: E402
-from ._gear import flank_output as flank_output  # noqa: E402
-from ._gear import flank_ratio as flank_ratio  # noqa: E402
-from ._gear import flank_weight as flank_weight  # noqa: E402
 from ._gear import fourier_ratio as fourier_ratio  # noqa: E402
 from ._gear import fourier_xi_inverse as fourier_xi_inverse  # noqa: E402
 from ._gear import gear_output as gear_output  # noqa: E402
@@ -65,6 +61,10 @@ from ._status import status_message as status_message  # noqa: E402
 from ._status import status_name as status_name  # noqa: E402
 from ._uncertainty import ModelUncertainty as ModelUncertainty  # noqa: E402
 from .effects._flank_play import direction_state as direction_state  # noqa: E402
+from .effects._flank_play import flank_motor_angle as flank_motor_angle  # noqa: E402
+from .effects._flank_play import flank_output as flank_output  # noqa: E402
+from .effects._flank_play import flank_ratio as flank_ratio  # noqa: E402
+from .effects._flank_play import flank_weight as flank_weight  # noqa: E402
 from .effects._flank_play import play_state as play_state  # noqa: E402
 from .effects._flank_play import reversal_travel as reversal_travel  # noqa: E402
 from .effects._lag import lag_command as lag_command  # noqa: E402

@@ -16,7 +16,7 @@ from jaxtyping import Array, Bool, Float
 
 from ._batch import backend_kind, link_unroll, unbatched
 from ._elasticity import elastic_deflection, elastic_torque
-from ._gear import flank_output, gear_output, gear_ratio, motor_angle
+from ._gear import gear_output, gear_ratio, motor_angle
 from ._kinematics import (
     add,
     alpha_beta,
@@ -36,7 +36,7 @@ from ._kinematics import (
 from ._linalg import spd_solve
 from ._robot import Robot
 from ._rotations import rot_z
-from .effects._registry import joint_torques, link_loads
+from .effects._registry import gear_hysteresis, terms
 
 # Batch-last internals: the rigid-body terms below keep the state batch as the LAST axis (the
 # entries of the `_kinematics` 3x3 algebra are (n, N) or (N,) arrays), so XLA's CPU loops run over
@@ -245,14 +245,14 @@ def planning_dynamics(
     robot: Robot, x: Float[Array, "*b 4*n"], u: Float[Array, "*b n"], direction: Float[Array, "*b n"] | None = None
 ) -> Float[Array, "*b 4*n"]:
     """`xd = f(x, u)` of eq. 4.1, `x = [q, qd, theta, thetad]`, `u = thetadd`; cw gear set, or with `direction`
-    the flank weights `sigma` of the gears (`flank_output`, docs/model.md (B.0)). The link receives the robot's joint
-    torques (`jaxrobot.effects.JointTorque`) and spends its link loads (`link_acceleration`); a motor response
-    (`jaxrobot.effects.MotorResponse`) does not enter: `theta` is the motor angle after it, which the response's
-    `command` turns into the command."""
+    the weights `sigma` of the gears' ccw sets (`jaxrobot.effects.GearHysteresis.output`, docs/model.md (B.0)). The
+    link receives the robot's joint torques (`jaxrobot.effects.JointTorque`) and spends its link loads
+    (`link_acceleration`); a motor response (`jaxrobot.effects.MotorResponse`) does not enter: `theta` is the motor
+    angle after it, which the response's `command` turns into the command."""
     q, qd, theta, thetad = jnp.split(x, 4, axis=-1)
     output = (lambda th: gear_output(robot, th)) if direction is None else (  # noqa: E731
-        lambda th: flank_output(robot, th, direction))
-    phi, phid = jax.jvp(output, (theta,), (thetad,)) if joint_torques(robot) else (output(theta), None)
+        lambda th: gear_hysteresis().output(robot, th, direction))
+    phi, phid = jax.jvp(output, (theta,), (thetad,))  # the rate only where a joint torque takes it (else unused)
     qdd = link_acceleration(robot, q, qd, phi, phid)
     return jnp.concatenate([qd, qdd, thetad, jnp.broadcast_to(u, thetad.shape)], -1)
 
@@ -266,9 +266,10 @@ def link_acceleration(
     (`jaxrobot.effects.JointTorque`, functions of the deflection's rate) added, which need the gear output rate
     `phid`."""
     rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
-    for load in link_loads(robot):
+    effects = terms(robot)
+    for load in effects.link_loads:
         rhs = rhs - load.torque(robot, q, qd)
-    for term in joint_torques(robot):
+    for term in effects.joint_torques:
         if phid is None:
             raise ValueError("link_acceleration: phid (the gear output rates, shape (..., n)) is required for a "
                              f"robot with {term.name} (a joint torque of the deflection's rate); found None")
@@ -288,8 +289,16 @@ def motor_torque(
     return robot.motor_inertia * thetadd + elastic_torque(robot, phi - q) / gear_ratio(robot, phi, ccw)
 
 
+def holding_motor_angle(
+    robot: Robot, q: Float[Array, "*b n"], tau: Float[Array, "*b n"], ccw: bool | Bool[Array, "*b n"] = False
+) -> Float[Array, "*b n"]:
+    """Motor angles `theta = Xi(q + kappa^{-1}(tau))` at which the joint springs transmit the link torques `tau` at
+    the link angles `q` (eq. 2.23a; the flat relation, docs/model.md (B.4))."""
+    return motor_angle(robot, q + elastic_deflection(robot, tau), ccw)
+
+
 def static_equilibrium(
     robot: Robot, q: Float[Array, "*b n"], ccw: bool | Bool[Array, "*b n"] = False
 ) -> Float[Array, "*b n"]:
     """Motor angles that hold `q` at rest: `theta = Xi(q + kappa^{-1}(g(q)))` (eq. 4.3f-g)."""
-    return motor_angle(robot, q + elastic_deflection(robot, gravity_torque(robot, q)), ccw)
+    return holding_motor_angle(robot, q, gravity_torque(robot, q), ccw)

@@ -19,11 +19,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._dynamics import inverse_dynamics
-from ._elasticity import elastic_deflection
+from ._dynamics import holding_motor_angle, inverse_dynamics
 from ._gear import motor_angle
 from ._robot import Robot
-from .effects._registry import joint_torques, link_loads
+from .effects._registry import terms
 
 
 def _derivative(fn: Callable) -> Callable:
@@ -41,21 +40,22 @@ def flat_inverse(
     has a joint torque besides the spring, whose deflection is integrated from rest at `t[0]`: module docstring).
     """
     t = jnp.asarray(t, float)
+    effects = terms(robot)
 
     def torque(s):
         q, qd, qdd = q_d(s), _derivative(q_d)(s), _derivative(_derivative(q_d))(s)
         tau = inverse_dynamics(robot, q, qd, qdd)
-        for load in link_loads(robot):
+        for load in effects.link_loads:
             tau = tau + load.torque(robot, q, qd)
         return tau
 
-    joint = joint_torques(robot)
+    joint = effects.joint_torques
     if len(joint) > 1:
         raise ValueError(f"flat_inverse: expected at most one joint torque besides the spring, found "
                          f"{[e.name for e in joint]}")
     if not joint:
         def theta(s):
-            return motor_angle(robot, q_d(s) + elastic_deflection(robot, torque(s)))
+            return holding_motor_angle(robot, q_d(s), torque(s))
 
         def at(s):
             return theta(s), _derivative(theta)(s), _derivative(_derivative(theta))(s)

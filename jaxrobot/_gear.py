@@ -5,11 +5,7 @@
 with `U_C` such that `Xi(0) = 0` (eq. 2.14). `ccw` selects the set of the negative direction;
 it broadcasts against the joint axis (a bool or a bool array of shape (..., n)).
 
-At a reversal (docs/model.md (B.0)) the gear crosses from one flank to the other over a motor travel `w`
-(the gears' flank play, `jaxrobot.effects`): a play operator `p` on the motor angle (`play`) gives the flank weight
-`sigma = S(1/2 - (theta - p) / w)` (0: cw, 1: ccw; `S` the quintic smoothstep), and the transmission is
-`theta = Xi_sigma(phi + b (1/2 - sigma))` with `Xi_sigma = (1 - sigma) Xi_cw + sigma Xi_ccw` and lost motion `b`
-(`flank_output`, `flank_motor_angle`).
+How a gear crosses from one set to the other at a reversal is an effect of the model (`jaxrobot.effects`).
 """
 
 from __future__ import annotations
@@ -166,59 +162,3 @@ def gear_output(
         return plain.at[..., idx].set(fourier_xi_inverse(u0[..., idx], orders, a, b, theta[..., idx]))
     orders, a, b = (jnp.broadcast_to(x, shape + x.shape[-1:]) for x in (rip.orders, rip.a, rip.b))
     return fourier_xi_inverse(u0, orders, a, b, theta)
-
-
-def play(p: Float[Array, "*b n"], theta: Float[Array, "*b n"], travel: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
-    """One step of the play operator of width `travel`: `p` moved just enough to stay within `travel / 2` of
-    `theta` (it trails the motor by `travel / 2` after a move of at least `travel` in one direction)."""
-    return jnp.clip(p, theta - 0.5 * travel, theta + 0.5 * travel)
-
-
-def flank_weight(p: Float[Array, "*b n"], theta: Float[Array, "*b n"], travel: Float[Array, "*b n"]
-                 ) -> Float[Array, "*b n"]:
-    """Weight `sigma` of the ccw flank for play state `p`: `S(1/2 - (theta - p) / travel)` with the quintic
-    smoothstep `S(x) = x^3 (10 - 15 x + 6 x^2)` (0 after a cw move, 1 after a ccw move, C2 in `p`)."""
-    x = jnp.clip(0.5 - (theta - p) / travel, 0.0, 1.0)
-    return jnp.minimum(x**3 * (10.0 + x * (6.0 * x - 15.0)), 1.0)  # S(1) may round to 1 + 2^-52
-
-
-def play_start(theta: Float[Array, "*b n"], travel: Float[Array, "*b n"], ccw: bool | Bool[Array, "*b n"] = False
-               ) -> Float[Array, "*b n"]:
-    """Play state of a gear at rest at `theta` that last moved `ccw` (False: cw)."""
-    return theta - 0.5 * travel * (1.0 - 2.0 * jnp.asarray(ccw, float))
-
-
-def flank_ripple(robot: Robot, sigma: Float[Array, "*b n"]) -> Ripple:
-    """The ripple of `Xi_sigma = (1 - sigma) Xi_cw + sigma Xi_ccw`: both sets' harmonics (2M per joint), weighted."""
-    sigma = jnp.asarray(sigma, float)[..., None]
-    shape = jnp.broadcast_shapes(sigma.shape[:-1] + (1,), robot.cw.orders.shape[:-1] + (1,))[:-1]
-
-    def cat(cw, ccw, weighted):
-        cw, ccw = jnp.broadcast_to(cw, shape + cw.shape[-1:]), jnp.broadcast_to(ccw, shape + ccw.shape[-1:])
-        if weighted:
-            cw, ccw = (1.0 - sigma) * cw, sigma * ccw
-        return jnp.concatenate([cw, ccw], -1)
-
-    return Ripple(orders=cat(robot.cw.orders, robot.ccw.orders, False), a=cat(robot.cw.a, robot.ccw.a, True),
-                  b=cat(robot.cw.b, robot.ccw.b, True))
-
-
-def flank_output(robot: Robot, theta: Float[Array, "*b n"], sigma: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
-    """Gear output `phi = Xi_sigma^{-1}(theta) - b (1/2 - sigma)` at flank weight `sigma` (module docstring)."""
-    rip = flank_ripple(robot, sigma)
-    shape = jnp.broadcast_shapes(jnp.shape(theta), rip.orders.shape[:-1])
-    phi = fourier_xi_inverse(jnp.broadcast_to(robot.u0, shape), rip.orders, rip.a, rip.b,
-                             jnp.broadcast_to(theta, shape))
-    return phi - robot.backlash * (0.5 - sigma)
-
-
-def flank_ratio(robot: Robot, phi: Float[Array, "*b n"], sigma: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
-    """`dtheta/dphi = u_sigma(phi + b (1/2 - sigma))` of `flank_motor_angle` at fixed `sigma`."""
-    rip = flank_ripple(robot, sigma)
-    return fourier_ratio(robot.u0, rip.orders, rip.a, rip.b, phi + robot.backlash * (0.5 - sigma))
-
-
-def flank_motor_angle(robot: Robot, phi: Float[Array, "*b n"], sigma: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
-    """Motor angle `theta = Xi_sigma(phi + b (1/2 - sigma))`, the inverse of `flank_output`."""
-    rip = flank_ripple(robot, sigma)
-    return fourier_xi(robot.u0, rip.orders, rip.a, rip.b, phi + robot.backlash * (0.5 - sigma))

@@ -19,14 +19,15 @@ The robot's effects (`jaxrobot.effects`; an absent one leaves the code above unt
 - A motor response (`MotorResponse`) moves the motors along its exact solution for the interval's command
   (`MotorResponse.motion`; its `command` inverts it).
 - A joint torque (`JointTorque`, a function of the deflection's rate besides `kappa(phi - q)`) takes the gear
-  output's rate `phid` along the motor rate `thetad_m` (at a fixed flank weight where `directional`).
+  output's rate `phid` along the motor rate `thetad_m` (at a fixed weight of the ccw set where `directional`).
 - A link load (`LinkLoad`, smooth in `qd`) enters `link_acceleration`, so the scheme keeps its order through a
   reversal and at rest.
 
-`directional=True` adds the flank of each gear as a state (docs/model.md (B.0)): the play operator runs
-along the motor angle at every stage point of the scheme, and the gear output is `flank_output` at its
-flank weight. The weight moves only with motor travel (never with time or the sign of a rate), and is flat
-(C2) where a transition starts or ends, so a motor at rest keeps its flank and the scheme keeps its order.
+`directional=True` adds the state of each gear's hysteresis (`GearHysteresis`, the gears' transition between their
+sets at a reversal, docs/model.md (B.0)): it runs along the motor angle at every stage point of the scheme, and the
+gear output is the effect's at the weight of the ccw set it gives. The weight moves only with motor travel (never with
+time or the sign of a rate), and is flat (C2) where a transition starts or ends, so a motor at rest keeps its set and
+the scheme keeps its order.
 """
 
 from __future__ import annotations
@@ -38,11 +39,10 @@ from jaxtyping import Array, Bool, Float
 
 from ._dynamics import link_acceleration
 from ._elasticity import require_elastic
-from ._gear import flank_output, flank_weight, gear_output, play, play_start
+from ._gear import gear_output
 from ._hermite import check_command, hermite_weights
 from ._robot import Robot
-from .effects._flank_play import reversal_travel
-from .effects._registry import joint_torques, motor_response
+from .effects._registry import gear_hysteresis, terms
 from .measurement._model import rest_link_angles
 
 
@@ -67,10 +67,11 @@ def simulate(
     their command through a response (`jaxrobot.effects.MotorResponse`) start at `theta[0]`. With `motor_angles=True`
     the motor angles `theta_m` (N, n) at the sample times (what the encoders report; the command where the robot has
     no motor response) come third.
-    `directional=True` gives each gear its flank state (the test bench's as-built robot): it starts at rest
-    on flank `ccw0` (False: cw, per joint), crosses to the other flank over the motor travel `travel`
-    (default `reversal_travel(robot)`) after a reversal and keeps its flank at rest; `q0` defaults to the
-    rest pose on that flank. The default uses the cw set throughout (the planning model, eq. 4.1).
+    `directional=True` gives each gear its state between its two sets (the test bench's as-built robot,
+    `jaxrobot.effects.GearHysteresis`): it starts at rest on the set `ccw0` (False: cw, per joint), crosses to the
+    other over the motor travel `travel` (default the robot's, docs/model.md (B.0)) after a reversal and keeps its
+    set at rest; `q0` defaults to the rest pose on that set. The default uses the cw set throughout (the planning
+    model, eq. 4.1).
     """
     t, theta, thetad, thetadd = check_command(robot, "simulate", t, theta, thetad, thetadd)
     n = robot.n_joints
@@ -78,30 +79,32 @@ def simulate(
     if substeps < 1:
         raise ValueError(f"simulate: substeps must be >= 1, found {substeps}")
     h = t[1] - t[0]
+    hysteresis = gear_hysteresis()
     if directional:
         q0 = rest_link_angles(robot, theta[0], jnp.broadcast_to(ccw0, (n,)), throw=True) if q0 is None else q0
-        wt = reversal_travel(robot) if travel is None else jnp.asarray(travel, float)
-        p0 = play_start(theta[0], wt, ccw0)
+        wt = hysteresis.travel(robot) if travel is None else jnp.asarray(travel, float)
+        p0 = hysteresis.start(theta[0], wt, ccw0)
     else:
         q0 = rest_link_angles(robot, theta[0], throw=True) if q0 is None else q0
         p0 = jnp.zeros(n)
     qd0 = jnp.zeros(n) if qd0 is None else qd0
     stages = np.arange(2 * substeps + 1) / (2 * substeps)
     w = jnp.asarray(hermite_weights(stages))  # (S, 6, 3)
-    response, rate_dependent = motor_response(robot), bool(joint_torques(robot))
+    effects = terms(robot)
+    response, rate_dependent = effects.motor_response, bool(effects.joint_torques)
 
     def outputs(p, th_s):
-        """The gear output as a function of the stage points' motor angles `th_s` (S, n) (at their flank weights
-        where `directional`), and the play state after them."""
+        """The gear output as a function of the stage points' motor angles `th_s` (S, n) (at the weights of the ccw
+        sets that the gears' states give there where `directional`), and the state after them."""
         if not directional:
             return (lambda th: gear_output(robot, th)), p
 
         def advance(p, th):
-            p = play(p, th, wt)
-            return p, flank_weight(p, th, wt)
+            p = hysteresis.step(p, th, wt)
+            return p, hysteresis.weight(p, th, wt)
 
         p, sigma = jax.lax.scan(advance, p, th_s)
-        return (lambda th: flank_output(robot, th, sigma)), p
+        return (lambda th: hysteresis.output(robot, th, sigma)), p
 
     def interval(carry, k):
         state, p, m = carry

@@ -10,7 +10,6 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-import jaxrobot as jr
 from jaxrobot.internal import spd_solve
 
 from ._al_config import ALConfig
@@ -186,7 +185,7 @@ def roundoff_floor(p: _Parts, y, h: HalfStep, rho) -> Float[Array, ""]:
     sz = variable_scale(problem)
     x = (p.y0 + y)[:, :4 * j] * sz[:4 * j]
     q, theta = x[:, :j], x[:, 2 * j:3 * j]
-    stiffness = jr.elastic_stiffness(problem.robot, h.phi - q)
+    stiffness = h.stiffness  # kappa' at `h`
     eps = jnp.finfo(y.dtype).eps
     inverse = jnp.abs(spd_solve(h.mass, jnp.broadcast_to(jnp.eye(j), h.mass.shape)))
     a = (0.5 * problem.ts / sz[j:2 * j])[:, None] * inverse

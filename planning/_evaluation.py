@@ -37,7 +37,8 @@ SUBSTEPS = 3
 """The fewest RK4 steps per sample of the plant runs on an elastic model without link loads or joint torques
 (`plant_substeps`): at 1 ms they put the tool within 1e-4 µm, a tenth of the 1e-3 µm that `jaxrobot plan` prints,
 of the same runs with 40 steps per sample (the Racer-7's baselines of the line and the spiral, the as-built
-Racer-7 with its gear flanks, an elastic 7-joint arm: the last section of `benchmarks/results_plant.md`)."""
+Racer-7 with its gears' hysteresis (`directional`), an elastic 7-joint arm: the last section of
+`benchmarks/results_plant.md`)."""
 EFFECT_SUBSTEPS = 10
 """The fewest RK4 steps per 1 ms sample of the plant runs on a plant with link loads or joint torques
 (`jaxrobot.effects`: friction, drag, damping), whose time scales bound the step (docs/model.md (2.23c)):
@@ -100,7 +101,8 @@ def plant_substeps(plant: jr.Robot, q: Float[Array, "N n"] | None = None, sample
     `MODE_POSES` poses spread over `q` (`jr.elastic_eigenfrequencies`: the motors held, as the runs prescribe
     them), and at least `SUBSTEPS`, or `EFFECT_SUBSTEPS` where `plant` has link loads or joint torques
     (`jaxrobot.effects`). A rigid plant gets the least."""
-    least = EFFECT_SUBSTEPS if jr.effects.link_loads(plant) or jr.effects.joint_torques(plant) else SUBSTEPS
+    effects = jr.effects.terms(plant)
+    least = EFFECT_SUBSTEPS if effects.link_loads or effects.joint_torques else SUBSTEPS
     q = np.zeros((1, plant.n_joints)) if q is None else np.asarray(q, float)  # on the host: no program per length
     poses = q[np.round(np.linspace(0, q.shape[0] - 1, MODE_POSES)).astype(int)]
     omega = 2 * np.pi * float(_stiffest_mode(plant, poses))
@@ -164,7 +166,7 @@ def motor_commands(robot: jr.Robot, t: Float[Array, " N"], trajectories: dict[st
     """The commands that make the motors of `robot`, after its motor response (`jaxrobot.effects.MotorResponse`,
     its `command`), follow the motor `trajectories` (leading axes allowed); the trajectories themselves for a robot
     without one."""
-    if jr.effects.motor_response(robot) is None:
+    if jr.effects.terms(robot).motor_response is None:
         return trajectories
     return {k: _response_commands(robot, jnp.asarray(t, float), v) for k, v in trajectories.items()}
 
@@ -173,7 +175,7 @@ def motor_commands(robot: jr.Robot, t: Float[Array, " N"], trajectories: dict[st
 def _response_commands(robot: jr.Robot, t, traj: MotorTrajectory) -> MotorTrajectory:
     lead = traj.theta.shape[:-2]
     flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[-2:]), traj)
-    response = jr.effects.motor_response(robot)
+    response = jr.effects.terms(robot).motor_response
     out = jax.vmap(lambda *a: MotorTrajectory(*response.command(robot, t, *a)))(flat.theta, flat.thetad, flat.thetadd)
     return jax.tree.map(lambda a: a.reshape(lead + a.shape[-2:]), out)
 
@@ -282,8 +284,9 @@ def simulate_plans(
     the tool-pose error against the task of `jp`, with `substeps` RK4 steps per sample (default
     `plant_substeps(plant, jp.q, sample_time)`: from the plant's elastic modes along the path).
 
-    `directional=True` gives the gears their flanks as states, as the test bench's as-built robot has them
-    (pass it for `jr.racer7(as_built=True)`; `jr.simulate`); the planning model uses the cw set throughout.
+    `directional=True` gives the gears their states between their two sets (`jaxrobot.effects.GearHysteresis`), as
+    the test bench's as-built robot has them (pass it for `jr.racer7(as_built=True)`; `jr.simulate`); the planning
+    model uses the cw set throughout.
     Returns the names in stacking order and the `PlantRun`.
     """
     if not trajectories:

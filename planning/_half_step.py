@@ -17,24 +17,25 @@ from jaxtyping import Array, Float
 import jaxrobot as jr
 from jaxrobot.internal import spd_solve
 
-from ._transcription import OCPProblem, State, _flank_output, variable_scale
+from ._transcription import OCPProblem, State, gear_outputs, variable_scale
 
 
-def _link_acceleration(robot: jr.Robot, q, qd, phi, d, phid=None) -> Float[Array, "N n"]:
+def _link_acceleration(problem: OCPProblem, q, qd, phi, d, phid=None) -> Float[Array, "N n"]:
     """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`), plus the robot's joint
     torques (`jaxrobot.effects.JointTorque`) and minus its link loads (`jaxrobot.effects.LinkLoad`) in the
-    bracket."""
+    bracket (`OCPProblem.terms`)."""
+    robot = problem.robot
     rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
-    for term in jr.effects.joint_torques(robot):
+    for term in problem.terms.joint_torques:
         rhs = rhs + term.torque(robot, qd, phid)
-    for load in jr.effects.link_loads(robot):
+    for load in problem.terms.link_loads:
         rhs = rhs - load.torque(robot, q, qd)
     return spd_solve(d, rhs[..., None])[..., 0]
 
 
-def _with_link_loads(robot: jr.Robot, q, qd) -> Callable:
+def _with_link_loads(problem: OCPProblem, q, qd) -> Callable:
     """`(id_q, id_qd, s, cast)` plus `cast` of the link loads' `(dload/d(q, qd))^T s` (`LinkLoad.torque_vjp`)."""
-    vjps = [load.torque_vjp(robot, q, qd) for load in jr.effects.link_loads(robot)]
+    vjps = [load.torque_vjp(problem.robot, q, qd) for load in problem.terms.link_loads]
 
     def add(id_q, id_qd, s, cast=lambda a: a):
         for vjp in vjps:
@@ -43,17 +44,6 @@ def _with_link_loads(robot: jr.Robot, q, qd) -> Callable:
         return id_q, id_qd
 
     return add
-
-
-def gear(problem: OCPProblem, theta: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
-    """Gear output angles and `dtheta/dphi` at the nodes' motor angles, on the problem's flanks (the flank weight
-    a function of `theta` at the node's play state)."""
-    r = problem.robot
-    if problem.play is None:
-        phi = jr.gear_output(r, theta)
-        return phi, jr.gear_ratio(r, phi)
-    phi, slope = jax.jvp(lambda th: _flank_output(problem, th), (theta,), (jnp.ones_like(theta),))
-    return phi, 1.0 / slope
 
 
 class HalfStep(eqx.Module):
@@ -68,6 +58,8 @@ class HalfStep(eqx.Module):
     """Gear ratios `dtheta/dphi` there."""
     mass: Float[Array, "*b n n"]
     qdd: Float[Array, "*b n"]
+    stiffness: Float[Array, "*b n"]
+    """Slopes `kappa'(phi - q)` of the joint springs [N m/rad]."""
     slope_rate: Float[Array, "*b n"] | None = None
     """With a joint torque (`jaxrobot.effects.JointTorque`): `d(1/ratio)/dtheta`, the change of the
     gear output rate `phid = thetad / ratio` with the motor angle per unit motor rate; None without."""
@@ -81,15 +73,15 @@ def half_step(problem: OCPProblem, y: Float[Array, "*b 5*n"]) -> HalfStep:
     z = y * sz
     nx = 4 * problem.n_joints
     x, u = State.of(z[..., :nx]), z[..., nx:]
-    phi, ratio = gear(problem, x.theta)
+    phi, ratio = gear_outputs(problem, x.theta)
     d = jr.mass_matrix(r, x.q)
     slope_rate = None
-    if jr.effects.joint_torques(r):
-        slope_rate = jax.jvp(lambda th: 1.0 / gear(problem, th)[1], (x.theta,), (jnp.ones_like(x.theta),))[1]
-    qdd = _link_acceleration(r, x.q, x.qd, phi, d, x.thetad / ratio)
+    if problem.terms.joint_torques:
+        slope_rate = jax.jvp(lambda th: 1.0 / gear_outputs(problem, th)[1], (x.theta,), (jnp.ones_like(x.theta),))[1]
+    qdd = _link_acceleration(problem, x.q, x.qd, phi, d, x.thetad / ratio)
     f = State(x.qd, qdd, x.thetad, u).pack()
     return HalfStep(y=y, g=0.5 * problem.ts * f / sz[:nx], phi=phi, ratio=ratio, mass=d, qdd=qdd,
-                    slope_rate=slope_rate)
+                    stiffness=jr.elastic_stiffness(r, phi - x.q), slope_rate=slope_rate)
 
 
 def inverse_dynamics_vjp(problem: OCPProblem, h: HalfStep
@@ -116,14 +108,14 @@ def half_step_vjp(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None = No
     x = State.of((h.y * sz)[:, :nx])
     half = 0.5 * problem.ts / sz[:nx]
     id_vjp = inverse_dynamics_vjp(problem, h) if id_vjp is None else id_vjp
-    loads = _with_link_loads(r, x.q, x.qd)
-    joints = [term.torque_vjp(r, x.thetad, h.ratio, h.slope_rate) for term in jr.effects.joint_torques(r)]
+    loads = _with_link_loads(problem, x.q, x.qd)
+    joints = [term.torque_vjp(r, x.thetad, h.ratio, h.slope_rate) for term in problem.terms.joint_torques]
 
     def vjp(w):
         wf = State.of(half * w)  # cotangent of f = [qd, qdd, thetad, u]
         s = spd_solve(h.mass, wf.qd[..., None])[..., 0]
         id_q, id_qd = loads(*id_vjp(s), s)
-        stiff = jr.elastic_stiffness(r, h.phi - x.q) * s
+        stiff = h.stiffness * s
         on_qd, on_theta, on_thetad = wf.q - id_qd, stiff / h.ratio, wf.theta
         for joint_vjp in joints:
             c_qd, c_theta, c_thetad = joint_vjp(s)
@@ -143,11 +135,11 @@ def half_step_jvp(problem: OCPProblem, h: HalfStep, dy: Float[Array, "N 5*n"]) -
     nx = 4 * problem.n_joints
     x, dx = State.of((h.y * sz)[:, :nx]), State.of((dy * sz)[:, :nx])
     did = jax.jvp(lambda a, b: jr.inverse_dynamics(r, a, b, h.qdd), (x.q, x.qd), (dx.q, dx.qd))[1]
-    rhs = jr.elastic_stiffness(r, h.phi - x.q) * (dx.theta / h.ratio - dx.q) - did
-    for term in jr.effects.joint_torques(r):
+    rhs = h.stiffness * (dx.theta / h.ratio - dx.q) - did
+    for term in problem.terms.joint_torques:
         dphid = dx.thetad / h.ratio + x.thetad * h.slope_rate * dx.theta
         rhs = rhs + jax.jvp(lambda a, b: term.torque(r, a, b), (x.qd, x.thetad / h.ratio), (dx.qd, dphid))[1]
-    for load in jr.effects.link_loads(r):
+    for load in problem.terms.link_loads:
         rhs = rhs - jax.jvp(lambda a, b: load.torque(r, a, b), (x.q, x.qd), (dx.q, dx.qd))[1]
     dqdd = spd_solve(h.mass, rhs[..., None])[..., 0]
     df = State(dx.qd, dqdd, dx.thetad, (dy * sz)[:, nx:]).pack()
@@ -180,14 +172,14 @@ def half_step_jacobian(problem: OCPProblem, h: HalfStep, id_vjp: Callable | None
     j = problem.n_joints
     x = State.of((h.y * sz)[:, :4 * j])
     q = x.q
-    stiff = jr.elastic_stiffness(r, h.phi - q)
+    stiff = h.stiffness
     id_vjp = inverse_dynamics_vjp(problem, h) if id_vjp is None else id_vjp
     rows = jax.vmap(id_vjp)(jnp.broadcast_to(jnp.eye(j)[:, None, :], (j, *q.shape)))  # row i of dID
     id_q, id_qd = (jnp.moveaxis(a, 0, 1) for a in rows)
     diag = jax.vmap(jnp.diag)
-    id_q, id_qd = _with_link_loads(r, q, x.qd)(id_q, id_qd, jnp.ones_like(q), diag)
+    id_q, id_qd = _with_link_loads(problem, q, x.qd)(id_q, id_qd, jnp.ones_like(q), diag)
     on_qd, on_theta, on_thetad = -id_qd, stiff / h.ratio, []
-    for joint_vjp in [t.torque_vjp(r, x.thetad, h.ratio, h.slope_rate) for t in jr.effects.joint_torques(r)]:
+    for joint_vjp in [t.torque_vjp(r, x.thetad, h.ratio, h.slope_rate) for t in problem.terms.joint_torques]:
         c_qd, c_theta, c_thetad = joint_vjp(jnp.ones_like(q))
         on_qd, on_theta = on_qd + diag(c_qd), on_theta + c_theta
         on_thetad = [on_thetad[0] + c_thetad] if on_thetad else [c_thetad]

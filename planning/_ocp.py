@@ -151,10 +151,10 @@ def solve_ocp(
       relation on finite differences of `q_d` (`_transcription.warm_start`). Its end nodes
       are replaced by the boundary values of eq. 4.3e-j.
     - `u_ref`: reference of the `"flat"` cost; default the warm start's `u`.
-    - `play`, `travel`: play states (N, n) [motor rad] of the gears at the nodes (`jr.play_state` of a motor
-      path) and their reversal travels (n,) (default the robot's, docs/model.md (B.0)): the flank weight of each
-      node follows its motor angle, `jr.flank_weight(play, theta, travel)` (docs/model.md (B.0)); default
-      the cw set throughout (eq. 4.1).
+    - `play`, `travel`: the states (N, n) [motor rad] of the gears' hysteresis at the nodes
+      (`jr.effects.GearHysteresis`: the play states of the gears' flank play, `jr.play_state` of a motor path) and
+      their widths (n,) (the reversal travels; default the robot's, docs/model.md (B.0)): the weight of each
+      node's ccw set follows its motor angle (`GearHysteresis.weight`); default the cw set throughout (eq. 4.1).
     - `direction`: (N, n) the direction each motor may turn at each node, +1 (`thetad >= 0`), -1 or 0 (either);
       `motor_directions` of the exact motor rates keeps the plan's reversals to the task's (docs/model.md
       (B.6)). Default: either way throughout (eq. 4.3).

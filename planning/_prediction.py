@@ -201,7 +201,7 @@ def predict_on_robot(robot: jr.Robot, uncertainty: jr.ModelUncertainty, jp: Join
     """The tool position error that the motor `trajectory` (planned on the model `robot` for the joint path `jp`)
     will show on the robot, as a distribution over what the model's identification left uncertain (the module
     docstring): the median and 95th percentile of the largest error over the path, and the band along it.
-    `directional`: the gears with their flanks as states (`jr.simulate`), as `plan_task` evaluates the plant;
+    `directional`: the gears with their states between their sets (`jr.simulate`), as `plan_task` evaluates the plant;
     `method`: the linearisation (`METHODS`); `draws` Gaussian draws from the generator seeded by `seed`; `substeps`:
     RK4 steps per sample of the simulations (default `plant_substeps` of `robot` along `jp`).
     Raises `ValueError` naming `trajectory`, `uncertainty` or `method` where they do not fit."""

@@ -88,14 +88,17 @@ class OCPProblem(eqx.Module):
     """Weighting factor `nu` [rad^2 / (rad/s^2)^2 of the motor]."""
     u_ref: Float[Array, "N n"]
     """Reference motor acceleration of the `"flat"` cost [rad/s^2] (zeros otherwise)."""
+    terms: jr.effects.Terms = eqx.field(static=True)
+    """The terms of the robot's effects (`jr.effects.terms`), resolved once: the dynamics and the cost sum them."""
     cost: str = eqx.field(static=True, default="thesis")
     """One of `COSTS`."""
     play: Float[Array, "N n"] | None = None
-    """Play state of each gear at each node [motor rad] (`jr.play_state`, docs/model.md (B.0)): the flank
-    weights are `jr.flank_weight(play, theta, travel)` of the nodes' motor angles; None: the cw set
-    throughout (eq. 4.1)."""
+    """State of each gear's hysteresis at each node [motor rad] (`jr.effects.GearHysteresis`: the play states of the
+    gears' flank play, `jr.play_state`, docs/model.md (B.0)): the weights of the gears' ccw sets follow the nodes'
+    motor angles (`gear_weights`); None: the cw set throughout (eq. 4.1)."""
     travel: Float[Array, " n"] | None = None
-    """Reversal travel of each gear [motor rad] (docs/model.md (B.0)), with `play`."""
+    """Width of each gear's state [motor rad] (`jr.effects.GearHysteresis.travel`, docs/model.md (B.0)), with
+    `play`."""
     direction: Float[Array, "N n"] | None = None
     """Direction each motor may turn at each node (`motor_directions`): +1 only forward (`thetad >= 0`), -1
     only backward, 0 either way (also where None)."""
@@ -167,7 +170,7 @@ def ocp_problem(
     if play is not None:
         if np.shape(play) != (n, joints):
             raise ValueError(f"play: expected play states of shape ({n}, {joints}) [motor rad], found {np.shape(play)}")
-        travel = jr.reversal_travel(robot) if travel is None else travel
+        travel = jr.effects.gear_hysteresis().travel(robot) if travel is None else travel
         if np.shape(travel) != (joints,):
             raise ValueError(f"travel: expected reversal travels of shape ({joints},) [motor rad], "
                              f"found {np.shape(travel)}")
@@ -182,7 +185,8 @@ def ocp_problem(
         raise ValueError(f"direction: expected values +1 (forward), -1 (backward) or 0 (either), found "
                          f"{np.unique(np.asarray(direction)).tolist()}")
     return OCPProblem(robot=robot, q_d=jnp.asarray(q_d, float), ts=jnp.asarray(ts, float),
-                      nu=jnp.asarray(nu, float), u_ref=jnp.asarray(u_ref, float), cost=cost, play=play, travel=travel,
+                      nu=jnp.asarray(nu, float), u_ref=jnp.asarray(u_ref, float), terms=jr.effects.terms(robot),
+                      cost=cost, play=play, travel=travel,
                       direction=jnp.asarray(direction, float))
 
 
@@ -208,23 +212,24 @@ def _motor_directions(thetad):
 
 # ----------------------------------------------------------------------------- eq. 4.3 as written
 
-REST_NEWTON_STEPS = 6
-"""Newton steps for the end nodes' motor angles on the flanks (`boundary_states`), from the cw rest pose:
-`phi(theta)` is monotone with a slope within a factor 3 of `1/u0` (at the default reversal travel,
-docs/model.md (B.0))."""
-
-
-def flank_weights(problem: OCPProblem, theta: Float[Array, "*b n"], k: int | slice = slice(None)
-                  ) -> Float[Array, "*b n"] | None:
-    """Flank weights of the gears at motor angles `theta` of the nodes `k` (None without `play`)."""
+def gear_weights(problem: OCPProblem, theta: Float[Array, "*b n"]) -> Float[Array, "*b n"] | None:
+    """Weights of the gears' ccw sets at the nodes' motor angles `theta` (None without `play`)."""
     if problem.play is None:
         return None
-    return jr.flank_weight(problem.play[k], theta, problem.travel)
+    return jr.effects.gear_hysteresis().weight(problem.play, theta, problem.travel)
 
 
-def _flank_output(problem: OCPProblem, theta, k: int | slice = slice(None)):
-    return jr.flank_output(problem.robot, theta, flank_weights(problem, theta, k))
-
+def gear_outputs(problem: OCPProblem, theta: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
+    """Gear output angles and `dtheta/dphi` at the nodes' motor angles `theta`: of the cw set, or with `play` at the
+    gears' states there (`jr.effects.GearHysteresis.state_output`, the weights following `theta`)."""
+    r = problem.robot
+    if problem.play is None:
+        phi = jr.gear_output(r, theta)
+        return phi, jr.gear_ratio(r, phi)
+    hysteresis = jr.effects.gear_hysteresis()
+    phi, slope = jax.jvp(lambda th: hysteresis.state_output(r, th, problem.play, problem.travel), (theta,),
+                         (jnp.ones_like(theta),))
+    return phi, 1.0 / slope
 
 
 def boundary_states(problem: OCPProblem) -> tuple[Float[Array, " 4*n"], Float[Array, " 4*n"]]:
@@ -236,14 +241,9 @@ def boundary_states(problem: OCPProblem) -> tuple[Float[Array, " 4*n"], Float[Ar
         q = problem.q_d[k]
         z = jnp.zeros_like(q)
         theta = jr.static_equilibrium(r, q)
-        if problem.play is not None:  # Newton on the gear output, the flank weight following theta
+        if problem.play is not None:  # at the gears' states of the node, from the cw rest pose
             phi = q + jr.elastic_deflection(r, jr.gravity_torque(r, q))
-
-            def newton(_, theta):
-                out, slope = jax.jvp(lambda th: _flank_output(problem, th, k), (theta,), (jnp.ones_like(theta),))
-                return theta - (out - phi) / slope
-
-            theta = jax.lax.fori_loop(0, REST_NEWTON_STEPS, newton, theta)  # a loop, not unrolled: compile time
+            theta = jr.effects.gear_hysteresis().rest_motor_angle(r, phi, problem.play[k], problem.travel, theta)
         return State(q, z, theta, z).pack()
 
     return rest(0), rest(-1 if problem.nodes is None else problem.nodes - 1)
@@ -268,7 +268,7 @@ def bounds(problem: OCPProblem) -> tuple[Float[Array, "N 5*n"], Float[Array, "N 
 def objective(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, ""]:
     """The cost of eq. 4.3a (or its variant `problem.cost`), unscaled [rad^2]."""
     track = jnp.sum((State.of(x).q - problem.q_d) ** 2)
-    response = jr.effects.motor_response(problem.robot)
+    response = problem.terms.motor_response
     if problem.cost == "thesis" and response is not None:  # the command's acceleration (docs/model.md (B.7))
         return track + problem.nu * (jnp.sum(u**2) + response.command_penalty(problem.robot, u, problem.ts))
     if problem.cost == "jerk":
@@ -280,7 +280,7 @@ def objective(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N 
 
 def defects(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, "Nm1 4*n"]:
     """Trapezoidal collocation defects `x_{k+1} - x_k - T_s/2 (f_k + f_{k+1})` (eq. 4.3b), unscaled."""
-    f = jr.planning_dynamics(problem.robot, x, u, flank_weights(problem, State.of(x).theta))
+    f = jr.planning_dynamics(problem.robot, x, u, gear_weights(problem, State.of(x).theta))
     return (x[1:] - x[:-1] - 0.5 * problem.ts * (f[1:] + f[:-1])) * node_mask(problem)[1:, None]
 
 
@@ -356,7 +356,7 @@ def scaled_cost(problem: OCPProblem) -> ScaledQuadratic:
     else:
         node_w = jnp.concatenate([jnp.ones(j), zero3, w_u])
         edge_w = jnp.zeros(5 * j)
-        response = jr.effects.motor_response(problem.robot)
+        response = problem.terms.motor_response
         if problem.cost == "thesis" and response is not None:
             edge_w = jnp.concatenate([zero, zero3, w_u * response.command_edge_weight(problem.robot, problem.ts)])
         if problem.cost == "flat":
@@ -436,7 +436,7 @@ def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 4*n"], Float[Array,
     phi = q + jr.elastic_deflection(r, tau)
     theta = jr.motor_angle(r, phi)
     if problem.play is not None:
-        theta = jr.flank_motor_angle(r, phi, flank_weights(problem, theta))
+        theta = jr.effects.gear_hysteresis().motor_angle(r, phi, gear_weights(problem, theta))
     thetad = _time_derivative(theta, ts, end)
     u = _time_derivative(thetad, ts, end)
     return fix_ends(problem, State(q, qd, theta, thetad).pack(), u)

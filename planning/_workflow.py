@@ -168,15 +168,16 @@ def iterate_flanks(robot: jr.Robot, play: Float[Array, "B N n"], solve: Callable
     (`jr.play_state`), until the gear outputs on both agree within `DIRECTION_TOLERANCE` for every plan (at
     most `DIRECTION_SOLVES` rounds; a plan whose solve does not converge keeps its last converged one, or its
     first, and leaves the iteration). Returns the solutions, the play states and the warm starts of each."""
-    w = jr.reversal_travel(robot)
-    states = jax.vmap(lambda theta: jr.play_state(robot, theta))
+    hysteresis = jr.effects.gear_hysteresis()
+    w = hysteresis.travel(robot)
+    states = jax.vmap(lambda theta: hysteresis.states(robot, theta))
     active, last, kept = np.ones(play.shape[0], bool), None, None
     for _ in range(DIRECTION_SOLVES):
         sols, warm = solve(play, last)
         converged = np.asarray(sols.converged)
         kept = (sols, play, warm) if kept is None else _select(active & converged, (sols, play, warm), kept)
         new = states(sols.theta)
-        out = lambda p: jr.flank_output(robot, sols.theta, jr.flank_weight(p, sols.theta, w))  # noqa: E731
+        out = lambda p: hysteresis.state_output(robot, sols.theta, p, w)  # noqa: E731
         agree = np.asarray(jnp.abs(out(new) - out(play)).max(axis=(-2, -1))) <= DIRECTION_TOLERANCE
         active = active & converged & ~agree
         if not active.any():
@@ -189,8 +190,11 @@ def flank_start(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Array, "N
                 ) -> tuple[Float[Array, "N n"], tuple[Float[Array, "N 4*n"], Float[Array, "N n"]]]:
     """The play states and the warm start of the first solve on the flanks: the flat inverse `flat` of the joint
     path `q_d` (rates `qd_d`) moved onto the flanks its own motion takes (from rest on cw)."""
-    theta = jr.flank_motor_angle(robot, jr.gear_output(robot, flat.theta), jr.direction_state(robot, flat.theta))
-    return jr.play_state(robot, theta), (State(q_d, qd_d, theta, flat.thetad).pack(), flat.thetadd)
+    hysteresis = jr.effects.gear_hysteresis()
+    w = hysteresis.travel(robot)
+    weight = hysteresis.weight(hysteresis.states(robot, flat.theta, travel=w), flat.theta, w)
+    theta = hysteresis.motor_angle(robot, jr.gear_output(robot, flat.theta), weight)
+    return hysteresis.states(robot, theta), (State(q_d, qd_d, theta, flat.thetad).pack(), flat.thetadd)
 
 
 def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Array, "N n"], flat: MotorTrajectory,

@@ -52,6 +52,9 @@ class Effect:
     screened: bool = True
     """Whether `diagnose --runs` screens its parameters unless told which kinds to screen."""
 
+    def __repr__(self) -> str:  # a static value of the programs that carry `Terms` (`jaxrobot.internal.cached_program`)
+        return f"{type(self).__name__}()"
+
     def active(self, robot: Robot) -> bool:
         """Whether `robot` has the effect (one of its fields not None, or one of its parameters stored)."""
         return (any(getattr(robot, f) is not None for f in self.fields)
@@ -172,4 +175,54 @@ class MotorResponse(Effect):
 
     def command_edge_weight(self, robot: Robot, ts: Float[Array, ""]) -> Float[Array, " n"]:
         """The weight of `||u_{k+1} - u_k||^2` of `command_penalty`, relative to the weight of `||u_k||^2`."""
+        raise NotImplementedError
+
+
+class GearHysteresis(Effect):
+    """A gear output that depends on the motor's travel through a state per gear that the travel moves (a hysteresis
+    operator: the flank play), by way of the weight `sigma` of the gear's ccw set. The simulator carries the states
+    along a motion where asked (`simulate(directional=True)`), the OCP one per node (`OCPProblem.play`, with the
+    widths `OCPProblem.travel`); without them a gear uses its cw set (eq. 4.1)."""
+
+    def travel(self, robot: Robot) -> Float[Array, "*b n"]:
+        """The width of each gear's state [motor rad]: the motor travel over which it crosses after a reversal."""
+        raise NotImplementedError
+
+    def start(self, theta: Float[Array, "*b n"], travel: Float[Array, "*b n"], ccw=False) -> Float[Array, "*b n"]:
+        """The state of a gear at rest at the motor angle `theta` that last moved `ccw` (False: cw)."""
+        raise NotImplementedError
+
+    def step(self, p: Float[Array, "*b n"], theta: Float[Array, "*b n"], travel: Float[Array, "*b n"]
+             ) -> Float[Array, "*b n"]:
+        """The state `p` after the motor moved on to `theta`."""
+        raise NotImplementedError
+
+    def states(self, robot: Robot, theta: Float[Array, "N n"], ccw=False, travel: Float[Array, " n"] | None = None
+               ) -> Float[Array, "N n"]:
+        """The states along sampled motor angles `theta`, from rest on `ccw` before `theta[0]` (`travel`: default
+        the robot's, `travel(robot)`)."""
+        raise NotImplementedError
+
+    def weight(self, p: Float[Array, "*b n"], theta: Float[Array, "*b n"], travel: Float[Array, "*b n"]
+               ) -> Float[Array, "*b n"]:
+        """The weight `sigma` of the ccw set at state `p` and motor angle `theta` (0: cw, 1: ccw)."""
+        raise NotImplementedError
+
+    def output(self, robot: Robot, theta: Float[Array, "*b n"], weight: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+        """The gear output at motor angles `theta` and ccw weights `weight`."""
+        raise NotImplementedError
+
+    def motor_angle(self, robot: Robot, phi: Float[Array, "*b n"], weight: Float[Array, "*b n"]
+                    ) -> Float[Array, "*b n"]:
+        """The motor angle of gear output `phi` at ccw weights `weight` (the inverse of `output`)."""
+        raise NotImplementedError
+
+    def state_output(self, robot: Robot, theta: Float[Array, "*b n"], p: Float[Array, "*b n"],
+                     travel: Float[Array, " n"]) -> Float[Array, "*b n"]:
+        """The gear output at motor angles `theta` of gears in states `p`, the weight following `theta`."""
+        return self.output(robot, theta, self.weight(p, theta, travel))
+
+    def rest_motor_angle(self, robot: Robot, phi: Float[Array, " n"], p: Float[Array, " n"],
+                         travel: Float[Array, " n"], theta: Float[Array, " n"]) -> Float[Array, " n"]:
+        """The motor angles whose `state_output` at states `p` is the gear output `phi`, from `theta` (the cw set's)."""
         raise NotImplementedError

@@ -1,8 +1,10 @@
-"""The gears' flank play: the motor travel over which a gear crosses from one flank to the other after a reversal
-(docs/model.md (B.0); the robot file's `[gear] reversal_travel_rad`, `Robot.reversal_travel`; without it
-`reversal_travel` takes its default from the Fourier sets and the lost motion), and the play states and flank
-weights along a motion at that travel. The play operator and the flanks' transmission are the gear model's
-(`jaxrobot._gear`)."""
+"""The gears' flank play (docs/model.md (B.0)): at a reversal a gear crosses from one flank to the other over a
+motor travel `w` (the robot file's `[gear] reversal_travel_rad`, `Robot.reversal_travel`; without it
+`reversal_travel` takes its default from the Fourier sets and the lost motion). A play operator `p` on the motor angle
+(`play`) gives the flank weight `sigma = S(1/2 - (theta - p) / w)` (0: cw, 1: ccw; `S` the quintic smoothstep), and
+the transmission is `theta = Xi_sigma(phi + b (1/2 - sigma))` with `Xi_sigma = (1 - sigma) Xi_cw + sigma Xi_ccw`
+(the gear model's Fourier sets, `jaxrobot._gear`) and lost motion `b` (`flank_output`, `flank_motor_angle`); the play
+states and flank weights along a motion follow (`play_state`, `direction_state`)."""
 
 from __future__ import annotations
 
@@ -11,9 +13,66 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from .._gear import flank_weight, play, play_start
-from .._robot import Robot
-from ._effect import Effect, Fail
+from .._gear import fourier_ratio, fourier_xi, fourier_xi_inverse
+from .._robot import Ripple, Robot
+from ._effect import Fail, GearHysteresis
+
+
+def play(p: Float[Array, "*b n"], theta: Float[Array, "*b n"], travel: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+    """One step of the play operator of width `travel`: `p` moved just enough to stay within `travel / 2` of
+    `theta` (it trails the motor by `travel / 2` after a move of at least `travel` in one direction)."""
+    return jnp.clip(p, theta - 0.5 * travel, theta + 0.5 * travel)
+
+
+def flank_weight(p: Float[Array, "*b n"], theta: Float[Array, "*b n"], travel: Float[Array, "*b n"]
+                 ) -> Float[Array, "*b n"]:
+    """Weight `sigma` of the ccw flank for play state `p`: `S(1/2 - (theta - p) / travel)` with the quintic
+    smoothstep `S(x) = x^3 (10 - 15 x + 6 x^2)` (0 after a cw move, 1 after a ccw move, C2 in `p`)."""
+    x = jnp.clip(0.5 - (theta - p) / travel, 0.0, 1.0)
+    return jnp.minimum(x**3 * (10.0 + x * (6.0 * x - 15.0)), 1.0)  # S(1) may round to 1 + 2^-52
+
+
+def play_start(theta: Float[Array, "*b n"], travel: Float[Array, "*b n"], ccw: bool | Bool[Array, "*b n"] = False
+               ) -> Float[Array, "*b n"]:
+    """Play state of a gear at rest at `theta` that last moved `ccw` (False: cw)."""
+    return theta - 0.5 * travel * (1.0 - 2.0 * jnp.asarray(ccw, float))
+
+
+def flank_ripple(robot: Robot, sigma: Float[Array, "*b n"]) -> Ripple:
+    """The ripple of `Xi_sigma = (1 - sigma) Xi_cw + sigma Xi_ccw`: both sets' harmonics (2M per joint), weighted."""
+    sigma = jnp.asarray(sigma, float)[..., None]
+    shape = jnp.broadcast_shapes(sigma.shape[:-1] + (1,), robot.cw.orders.shape[:-1] + (1,))[:-1]
+
+    def cat(cw, ccw, weighted):
+        cw, ccw = jnp.broadcast_to(cw, shape + cw.shape[-1:]), jnp.broadcast_to(ccw, shape + ccw.shape[-1:])
+        if weighted:
+            cw, ccw = (1.0 - sigma) * cw, sigma * ccw
+        return jnp.concatenate([cw, ccw], -1)
+
+    return Ripple(orders=cat(robot.cw.orders, robot.ccw.orders, False), a=cat(robot.cw.a, robot.ccw.a, True),
+                  b=cat(robot.cw.b, robot.ccw.b, True))
+
+
+def flank_output(robot: Robot, theta: Float[Array, "*b n"], sigma: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+    """Gear output `phi = Xi_sigma^{-1}(theta) - b (1/2 - sigma)` at flank weight `sigma` (module docstring)."""
+    rip = flank_ripple(robot, sigma)
+    shape = jnp.broadcast_shapes(jnp.shape(theta), rip.orders.shape[:-1])
+    phi = fourier_xi_inverse(jnp.broadcast_to(robot.u0, shape), rip.orders, rip.a, rip.b,
+                             jnp.broadcast_to(theta, shape))
+    return phi - robot.backlash * (0.5 - sigma)
+
+
+def flank_ratio(robot: Robot, phi: Float[Array, "*b n"], sigma: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+    """`dtheta/dphi = u_sigma(phi + b (1/2 - sigma))` of `flank_motor_angle` at fixed `sigma`."""
+    rip = flank_ripple(robot, sigma)
+    return fourier_ratio(robot.u0, rip.orders, rip.a, rip.b, phi + robot.backlash * (0.5 - sigma))
+
+
+def flank_motor_angle(robot: Robot, phi: Float[Array, "*b n"], sigma: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+    """Motor angle `theta = Xi_sigma(phi + b (1/2 - sigma))`, the inverse of `flank_output`."""
+    rip = flank_ripple(robot, sigma)
+    return fourier_xi(robot.u0, rip.orders, rip.a, rip.b, phi + robot.backlash * (0.5 - sigma))
+
 
 
 def _flank_gap(robot: Robot) -> Float[Array, "*b n"]:
@@ -63,7 +122,12 @@ def direction_state(robot: Robot, theta: Float[Array, "N n"], ccw: bool | Bool[A
     return flank_weight(play_state(robot, theta, ccw, w), theta, w)
 
 
-class FlankPlay(Effect):
+REST_NEWTON_STEPS = 6
+"""Newton steps of `FlankPlay.rest_motor_angle` from the cw rest pose: `phi(theta)` is monotone with a slope within a
+factor 3 of `1/u0` (at the default reversal travel, docs/model.md (B.0))."""
+
+
+class FlankPlay(GearHysteresis):
     name = "reversal travel of the gears"
     fields = ("reversal_travel",)
 
@@ -98,6 +162,36 @@ class FlankPlay(Effect):
         if robot.reversal_travel is None:
             return {}
         return {"gear": {"reversal_travel_rad": np.asarray(robot.reversal_travel, float).tolist()}}
+
+    def travel(self, robot):
+        return reversal_travel(robot)
+
+    def start(self, theta, travel, ccw=False):
+        return play_start(theta, travel, ccw)
+
+    def step(self, p, theta, travel):
+        return play(p, theta, travel)
+
+    def states(self, robot, theta, ccw=False, travel=None):
+        return play_state(robot, theta, ccw, travel)
+
+    def weight(self, p, theta, travel):
+        return flank_weight(p, theta, travel)
+
+    def output(self, robot, theta, weight):
+        return flank_output(robot, theta, weight)
+
+    def motor_angle(self, robot, phi, weight):
+        return flank_motor_angle(robot, phi, weight)
+
+    def rest_motor_angle(self, robot, phi, p, travel, theta):
+        """`REST_NEWTON_STEPS` Newton steps from `theta`, in a loop, not unrolled (compile time)."""
+
+        def newton(_, th):
+            out, slope = jax.jvp(lambda t: self.state_output(robot, t, p, travel), (th,), (jnp.ones_like(th),))
+            return th - (out - phi) / slope
+
+        return jax.lax.fori_loop(0, REST_NEWTON_STEPS, newton, theta)
 
 
 FLANK_PLAY = FlankPlay()

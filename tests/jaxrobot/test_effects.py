@@ -11,7 +11,7 @@ import pytest
 from test_dynamic_effects import COULOMB, DAMPING, LAG, VISCOUS, arm_description
 
 import jaxrobot as jr
-from jaxrobot.effects import EFFECTS, JointTorque, LinkLoad, MotorResponse
+from jaxrobot.effects import EFFECTS, GearHysteresis, JointTorque, LinkLoad, MotorResponse
 
 EVERY = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING, viscous=VISCOUS, coulomb=COULOMB))
 
@@ -65,4 +65,34 @@ def test_the_registry_sums_the_terms_of_the_robots_effects():
     plain = jr.robot_from_description(arm_description())
     assert not jr.effects.link_loads(plain) and not jr.effects.joint_torques(plain)
     assert jr.effects.motor_response(plain) is None
-    assert all(sum(isinstance(e, kind) for kind in (LinkLoad, JointTorque, MotorResponse)) <= 1 for e in EFFECTS)
+    kinds = (LinkLoad, JointTorque, MotorResponse, GearHysteresis)
+    assert all(sum(isinstance(e, kind) for kind in kinds) <= 1 for e in EFFECTS)
+
+
+def test_a_robots_terms_are_resolved_once_as_a_static_value():
+    """`terms` holds a robot's effects by kind, as the registry's queries give them; it is hashable and equal for
+    robots with the same effects, and its text shows its effects (a static value that keys compiled programs, whose
+    key needs a text without object addresses)."""
+    every, plain = jr.effects.terms(EVERY), jr.effects.terms(jr.robot_from_description(arm_description()))
+    assert every == jr.effects.Terms(link_loads=(jr.effects.LINK_FRICTION,), joint_torques=(jr.effects.JOINT_DAMPING,),
+                                     motor_response=jr.effects.MOTOR_LAG)
+    assert plain == jr.effects.Terms() and hash(every) == hash(jr.effects.terms(EVERY)) and every != plain
+    assert "LinkFriction()" in repr(every) and " at 0x" not in repr(every)
+
+
+def test_the_gear_hysteresis_is_the_flank_play():
+    """The one `GearHysteresis` is the flank play: its state, weight and output are the public flank functions'."""
+    hysteresis = jr.effects.gear_hysteresis()
+    assert hysteresis is jr.effects.FLANK_PLAY
+    robot = jr.racer7(as_built=True)
+    theta = jnp.linspace(0.0, 0.3, 7)[:, None] * jnp.ones(6)
+    w = hysteresis.travel(robot)
+    np.testing.assert_array_equal(w, jr.reversal_travel(robot))
+    p = hysteresis.states(robot, theta)
+    np.testing.assert_array_equal(p, jr.play_state(robot, theta))
+    sigma = hysteresis.weight(p, theta, w)
+    np.testing.assert_array_equal(sigma, jr.direction_state(robot, theta))
+    np.testing.assert_array_equal(hysteresis.output(robot, theta, sigma), jr.flank_output(robot, theta, sigma))
+    phi = hysteresis.state_output(robot, theta[-1], p[-1] + w, w)  # a gear that last moved ccw
+    rest = hysteresis.rest_motor_angle(robot, phi, p[-1] + w, w, jr.motor_angle(robot, phi))
+    np.testing.assert_allclose(rest, theta[-1], rtol=0, atol=1e-12)  # Newton to rounding of a motor angle

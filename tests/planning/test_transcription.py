@@ -25,6 +25,13 @@ def test_planning_state_packs_any_n(n):
         pl.State.of(jnp.zeros(4 * n + 1))
 
 
+def test_problem_carries_the_terms_of_the_robots_effects():
+    """`ocp_problem` resolves the robot's effects once (`jr.effects.terms`), a static field of the problem."""
+    robot = jr.robot_from_description(arm_description(lag=LAG, damping=DAMPING, viscous=VISCOUS, coulomb=COULOMB))
+    problem = pl.ocp_problem(robot, np.zeros((3, 2)), 1e-3)
+    assert problem.terms == jr.effects.terms(robot) and problem.terms.motor_response is jr.effects.MOTOR_LAG
+
+
 def transcription_derivatives_match_autodiff(robot: jr.Robot):
     """The OCP's structured `half_step`, `half_step_vjp`, `half_step_jvp` and `half_step_jacobian` on the arm `robot`
     (6 nodes of a rest-to-rest move, perturbed, seeded) against forward-mode autodiff of the public
