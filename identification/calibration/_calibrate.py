@@ -26,7 +26,6 @@ from jaxrobot.internal import check
 from jaxrobot.measurement import Poses, pose_arrays
 
 from ..core import _robust as robust
-from ..core._forward import rippled_joints
 from ..core._identifiability import (
     ParameterCheck,
     analyse,
@@ -41,7 +40,15 @@ from ..core._pose_checks import check_pose_units
 from ..core._pose_selection import pose_jacobians
 from ..core._robust import Outlier
 from ._selection import ParameterSelection, select_parameters
-from ._solve import RESIDUAL_UNIT, ParameterEstimate, _deflection, _residual_fn, _solve_jit, position_errors
+from ._solve import (
+    RESIDUAL_UNIT,
+    ParameterEstimate,
+    _deflection,
+    _residual_fn,
+    _solve_jit,
+    position_errors,
+    rippled_joints,
+)
 
 DEFAULT_PARAMETERS = THESIS_PARAMETERS + ("offset1", "offset2", "offset4", "offset5", "offset6", "d1",
                                           "d6", "a6", "beta2")

@@ -2,8 +2,8 @@
 
 Every robot has its own poses and measurements; all robots are solved together by one
 batch-first Levenberg-Marquardt loop (`_batched_lm`, in chunks of `CHUNK` robots, on the model of
-`_calibration._residual_fn` with its joint-screw Jacobian evaluated batch-last over robots and
-poses, `_model.position_jacobian`), each robot stopping on its own tolerances. The
+`_solve._residual_fn` with its joint-screw Jacobian evaluated batch-last over robots and
+poses, `_solve.position_jacobian`), each robot stopping on its own tolerances. The
 fleet axis is sharded across all devices with `jax.sharding` (a 1-D mesh named `"fleet"`,
 `shard_map`: each device runs its own LM loop on its own robots, no communication), so that the
 same call uses one CPU, several GPUs, or several processes and hosts under `jax.distributed`
@@ -31,12 +31,20 @@ from jaxrobot.measurement import Poses, pose_arrays, rest_link_angles
 
 from ..core import _robust as robust
 from ..core._batched_lm import LMConfig, batched_lm, covariance, map_chunks
-from ..core._forward import analytic_names, joint_angle_model, position_jacobian, rippled_joints
 from ..core._identifiability import ParameterCheck, default_parameters
 from ..core._noise import ALPHA, model_uncertainty, noise_model, noise_test, tracker_noise
 from ..core._parameters import ParameterMap
 from ._calibrate import _check_array, check_default
-from ._solve import RESIDUAL_UNIT, ParameterEstimate, _deflection, _residual_fn
+from ._solve import (
+    RESIDUAL_UNIT,
+    ParameterEstimate,
+    _deflection,
+    _residual_fn,
+    analytic_names,
+    joint_angle_model,
+    position_jacobian,
+    rippled_joints,
+)
 
 
 @dataclasses.dataclass(frozen=True)
