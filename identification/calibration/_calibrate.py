@@ -27,12 +27,12 @@ from jaxrobot.measurement import Poses, pose_arrays
 
 from ..core import _robust as robust
 from ..core._identifiability import (
+    IdentifiabilityResult,
     ParameterCheck,
     analyse,
     check_parameters,
     default_analysis,
-    default_parameters,
-    kinematic_parameters,
+    default_set,
 )
 from ..core._noise import ALPHA, model_uncertainty, noise_model, noise_test, tracker_noise
 from ..core._parameters import THESIS_PARAMETERS, ParameterMap, parse_name
@@ -371,10 +371,10 @@ class _Problem:
             out[tuple(names)] = float(np.sqrt(np.mean(np.einsum("kim,mn,kin->k", blocks, cov, blocks))))
         return out
 
-    def check(self, names: Sequence[str], prior_std: dict | None) -> ParameterCheck:
-        """`check_default` of the default set `names` on these poses."""
-        return check_default(self.robot, names, self.theta, self.deflection, self.marker, self.rotations is not None,
-                             self.whiten, float(self.weight_r), self.sigma, prior_std, self.ccw)
+    def check(self, analysis: IdentifiabilityResult, prior_std: dict | None) -> ParameterCheck:
+        """`check_default` of the default set of `analysis` on these poses."""
+        return check_default(self.robot, analysis, self.theta, self.deflection, self.marker, self.whiten,
+                             float(self.weight_r), self.sigma, prior_std, self.ccw)
 
 
 def _problem(robot: jr.Robot, theta, positions, quaternions, ccw, validation, instruments: jr.Instruments, noise,
@@ -477,14 +477,15 @@ def calibrate(
     if parameters is None:
         _check_array(motor_angles, (robot.n_joints,), "motor_angles", "rad")
         _check_array(positions, (3,), "positions", "m")
-        parameters = default_parameters(robot, orientation=quaternions is not None, marker=marker)
+        analysis = default_analysis(robot, orientation=quaternions is not None, marker=marker)
+        parameters = default_set(analysis)
     params = ParameterMap(parameters)
     prior = prior_stds(robot, params, prior_std) if method == "map" else None
     theta, pos, quat, beyond = check_inputs(robot, params, motor_angles, positions, quaternions, limits, ccw)
     check_pose_units(robot, theta, pos, marker, "motor_angles/positions")
     problem = _problem(robot, theta, pos, quat, ccw, validation, instruments, noise, marker, loss, prior, max_steps,
                        throw)
-    check_out = problem.check(params.names, prior_std) if checked else None
+    check_out = problem.check(analysis, prior_std) if checked else None
     params = params if check_out is None else ParameterMap(check_out.kept)
     fit, selection = problem.fit(params), None
     if select and fit.estimate.converged:
@@ -503,15 +504,16 @@ def calibrate(
 
 
 def check_default(
-    robot: jr.Robot, names: Sequence[str], theta, deflection, marker, orientation: bool, whiten, weight_r: float,
+    robot: jr.Robot, analysis: IdentifiabilityResult, theta, deflection, marker, whiten, weight_r: float,
     noise: float, prior_std: dict | None = None, ccw=False,
 ) -> ParameterCheck:
-    """`check_parameters` of the default set `names` on a calibration's own poses (motor angles `theta` (K, n),
-    their gravity `deflection`), the Jacobian of every candidate (`kinematic_parameters`) at the start robot with
-    the rows of the fit (position rows times `whiten` (K, 3, 3) where given, orientation rows times `weight_r`),
-    each parameter against its tolerance prior (`prior_stds`); the geometry stage's left-out candidates are
-    reported with it."""
-    candidates = kinematic_parameters(robot)
+    """`check_parameters` of the default set of `analysis` (`default_analysis`, `default_set`) on a calibration's
+    own poses (motor angles `theta` (K, n), their gravity `deflection`; positions, and orientations where
+    `analysis` has them): the Jacobian of every candidate (`analysis.names`) at the start robot with the rows of
+    the fit (position rows times `whiten` (K, 3, 3) where given, orientation rows times `weight_r`), each
+    parameter against its tolerance prior (`prior_stds`); the geometry stage's left-out candidates are reported
+    with it."""
+    candidates, names, orientation = analysis.names, default_set(analysis), analysis.orientation
     q = np.asarray(jr.gear_output(robot, jnp.asarray(theta), ccw) + jnp.asarray(deflection))
     blocks = pose_jacobians(robot, ParameterMap(candidates), q, marker, orientation)
     b = blocks[..., [candidates.index(n) for n in names]]
@@ -519,8 +521,7 @@ def check_default(
     rows = np.concatenate([pos, weight_r * b[:, 3:]], 1) if orientation else pos
     params = ParameterMap(names)
     return check_parameters(rows.reshape(-1, len(names)), names, noise, prior_stds(robot, params, prior_std),
-                            len(q), analysis=default_analysis(robot, orientation=orientation, marker=marker),
-                            candidates=candidates)
+                            len(q), analysis=analysis, candidates=candidates)
 
 
 def map_parameters(parameters: Sequence[str], n_joints: int) -> tuple[str, ...]:

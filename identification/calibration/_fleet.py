@@ -31,7 +31,7 @@ from jaxrobot.measurement import Poses, pose_arrays, rest_link_angles
 
 from ..core import _robust as robust
 from ..core._batched_lm import LMConfig, batched_lm, covariance, map_chunks
-from ..core._identifiability import ParameterCheck, default_parameters
+from ..core._identifiability import ParameterCheck, default_analysis, default_set
 from ..core._noise import ALPHA, model_uncertainty, noise_model, noise_test, tracker_noise
 from ..core._parameters import ParameterMap
 from ._calibrate import _check_array, check_default
@@ -339,13 +339,14 @@ def _fleet_parameters(robots, parameters, poses: _FleetPoses) -> tuple[Parameter
     checked = None
     if parameters is None:
         first = robots if np.ndim(robots.a) == 1 else jax.tree.map(lambda x: x[0], robots)
-        parameters = default_parameters(first, marker=poses.marker)
+        analysis = default_analysis(first, marker=poses.marker)
+        parameters = default_set(analysis)
         keep = np.ones(len(parameters), bool)
         if n_rob:  # a process whose share was all left out has no poses to check the set on
             sigma0, white0 = noise_model(poses.noise, poses.positions[0], "instruments.tracker_noise")
             th0, ccw0 = jnp.asarray(poses.theta[0]), jnp.asarray(poses.ccw[0])
-            checked = check_default(first, parameters, th0, _deflection(first, th0, ccw0), poses.marker,
-                                    False, white0, 1.0, sigma0, None, ccw0)
+            checked = check_default(first, analysis, th0, _deflection(first, th0, ccw0), poses.marker, white0, 1.0,
+                                    sigma0, None, ccw0)
             keep = np.array([p in checked.kept for p in parameters])
         # every process fits one set: the check of the first process that has robots decides
         has_robots, keeps = gather_array((np.array([n_rob > 0]), keep[None]))
