@@ -43,10 +43,10 @@ from ._selection import ParameterSelection, select_parameters
 from ._solve import (
     RESIDUAL_UNIT,
     ParameterEstimate,
-    _deflection,
     _residual_fn,
     _solve_jit,
     position_errors,
+    rest_pose,
     rippled_joints,
 )
 
@@ -265,12 +265,15 @@ class _Fit:
 
 @dataclasses.dataclass(frozen=True)
 class _Problem:
-    """The constants of a calibration's fits: the start robot, its K identification poses (motor angles, gravity
-    deflection, measured positions and rotations, gear sets), the tracker (marker, noise, whitening), and the
-    identification and validation poses together (`*_all`, the validation poses after the K) for the errors."""
+    """The constants of a calibration's fits: the start robot and its rippled joints, its K identification poses
+    (motor angles, link angles at rest and gravity deflection in the start robot, measured positions and
+    rotations, gear sets), the tracker (marker, noise, whitening), and the identification and validation poses
+    together (`*_all`, the validation poses after the K) for the errors."""
 
     robot: jr.Robot
+    rippled: tuple[int, ...]
     theta: jax.Array
+    q: jax.Array
     deflection: jax.Array
     positions: np.ndarray
     rotations: jax.Array | None
@@ -285,6 +288,7 @@ class _Problem:
     throw: bool
     theta_all: jax.Array
     positions_all: np.ndarray
+    q_all: jax.Array
     deflection_all: jax.Array
     ccw_all: bool | np.ndarray
     validated: bool
@@ -301,13 +305,13 @@ class _Problem:
         robot, k, s_p = self.robot, self.theta.shape[0], self.sigma
         weight = None if self.prior is None else jnp.asarray(
             s_p / RESIDUAL_UNIT * np.asarray(params.scales(robot)) / self.prior)
-        rippled = rippled_joints(robot)
 
         def fit(pose_w):
             out = _solve_jit(robot, params, self.theta, jnp.asarray(self.positions), self.deflection, self.marker,
                              self.rotations, self.weight_r, self.ccw, max_steps=self.max_steps,
-                             rippled=rippled, prior_weight=weight,
-                             pose_weight=None if self.loss == "l2" else jnp.asarray(pose_w), whiten=self._whiten())
+                             rippled=self.rippled, prior_weight=weight,
+                             pose_weight=None if self.loss == "l2" else jnp.asarray(pose_w), whiten=self._whiten(),
+                             q0=self.q)
             resid = np.asarray(out.residuals).reshape(k, self.rows)
             return (out, resid), np.linalg.norm(resid, axis=-1) / s_p
 
@@ -327,7 +331,8 @@ class _Problem:
         """The start robot as the result (every parameter of `params` set aside): its residuals and pose weights."""
         k = self.theta.shape[0]
         r = _residual_fn(self.robot, params, self.theta, jnp.asarray(self.positions), self.rotations, self.deflection,
-                         self.marker, self.weight_r, self.ccw, whiten=self._whiten())[0](jnp.zeros(len(params)), None)
+                         self.marker, self.weight_r, self.ccw, self.rippled, self.q,
+                         whiten=self._whiten())[0](jnp.zeros(len(params)), None)
         resid = np.asarray(r).reshape(k, self.rows) * RESIDUAL_UNIT
         z = np.linalg.norm(resid, axis=-1) / self.sigma
         l2 = self.loss == "l2"
@@ -362,9 +367,7 @@ class _Problem:
         poses): `sqrt(mean_k trace(J_k C J_k^T))` over the validation poses' position Jacobians `J_k`."""
         if not self.validated:
             return None
-        k = self.theta.shape[0]
-        ccw = self.ccw_all if np.ndim(self.ccw_all) == 0 else self.ccw_all[k:]
-        q = np.asarray(jr.gear_output(self.robot, self.theta_all[k:], ccw) + self.deflection_all[k:])
+        q = np.asarray(self.q_all[self.theta.shape[0]:])
         out = {}
         for names, cov in sets:
             blocks = pose_jacobians(self.robot, ParameterMap(names), q, self.marker)
@@ -373,26 +376,27 @@ class _Problem:
 
     def check(self, analysis: IdentifiabilityResult, prior_std: dict | None) -> ParameterCheck:
         """`check_default` of the default set of `analysis` on these poses."""
-        return check_default(self.robot, analysis, self.theta, self.deflection, self.marker, self.whiten,
-                             float(self.weight_r), self.sigma, prior_std, self.ccw)
+        return check_default(self.robot, analysis, self.q, self.marker, self.whiten, float(self.weight_r), self.sigma,
+                             prior_std)
 
 
 def _problem(robot: jr.Robot, theta, positions, quaternions, ccw, validation, instruments: jr.Instruments, noise,
              marker, loss: str, prior, max_steps: int, throw: bool) -> _Problem:
-    """The `_Problem` of `calibrate`'s checked poses: the gravity deflection of the identification and validation
-    poses in one evaluation, the noise model of the tracker `noise` at the measured positions."""
+    """The `_Problem` of `calibrate`'s checked poses: the link angles at rest and gravity deflection of the
+    identification and validation poses in one evaluation, the noise model of the tracker `noise` at the measured
+    positions."""
     s_p, white = noise_model(noise, positions, "instruments.tracker_noise")
     vt, vp, vccw = _validation_arrays(robot, validation)
     k = theta.shape[0]
     ccw_all = ccw if np.ndim(ccw) == 0 and not vccw.any() else np.concatenate(
         [np.broadcast_to(ccw, theta.shape), vccw])
     th_all = jnp.asarray(np.concatenate([theta, vt]))
-    defl_all = _deflection(robot, th_all, ccw_all)  # one evaluation for both sets
+    q_all, defl_all = rest_pose(robot, th_all, ccw_all)  # one evaluation for both sets
     rotations = None if quaternions is None else jr.quaternion_to_rotation(jnp.asarray(quaternions))
-    return _Problem(robot, th_all[:k], defl_all[:k], positions, rotations, ccw if np.ndim(ccw) == 0 else ccw_all[:k],
-                    marker, s_p, white, jnp.asarray(s_p / instruments.tracker_orientation_noise), loss, prior,
-                    max_steps, throw, th_all, np.concatenate([positions, vp]), defl_all, ccw_all,
-                    validation is not None)
+    return _Problem(robot, rippled_joints(robot), th_all[:k], q_all[:k], defl_all[:k], positions, rotations,
+                    ccw if np.ndim(ccw) == 0 else ccw_all[:k], marker, s_p, white,
+                    jnp.asarray(s_p / instruments.tracker_orientation_noise), loss, prior, max_steps, throw, th_all,
+                    np.concatenate([positions, vp]), q_all, defl_all, ccw_all, validation is not None)
 
 
 def _validation_arrays(robot: jr.Robot, validation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -504,17 +508,16 @@ def calibrate(
 
 
 def check_default(
-    robot: jr.Robot, analysis: IdentifiabilityResult, theta, deflection, marker, whiten, weight_r: float,
-    noise: float, prior_std: dict | None = None, ccw=False,
+    robot: jr.Robot, analysis: IdentifiabilityResult, q: Float[Array, "K n"], marker, whiten, weight_r: float,
+    noise: float, prior_std: dict | None = None,
 ) -> ParameterCheck:
     """`check_parameters` of the default set of `analysis` (`default_analysis`, `default_set`) on a calibration's
-    own poses (motor angles `theta` (K, n), their gravity `deflection`; positions, and orientations where
-    `analysis` has them): the Jacobian of every candidate (`analysis.names`) at the start robot with the rows of
-    the fit (position rows times `whiten` (K, 3, 3) where given, orientation rows times `weight_r`), each
-    parameter against its tolerance prior (`prior_stds`); the geometry stage's left-out candidates are reported
-    with it."""
+    own poses (the link angles at rest `q` of `rest_pose`; positions, and orientations where `analysis` has
+    them): the Jacobian of every candidate (`analysis.names`) at the start robot with the rows of the fit
+    (position rows times `whiten` (K, 3, 3) where given, orientation rows times `weight_r`), each parameter
+    against its tolerance prior (`prior_stds`); the geometry stage's left-out candidates are reported with it."""
     candidates, names, orientation = analysis.names, default_set(analysis), analysis.orientation
-    q = np.asarray(jr.gear_output(robot, jnp.asarray(theta), ccw) + jnp.asarray(deflection))
+    q = np.asarray(q)
     blocks = pose_jacobians(robot, ParameterMap(candidates), q, marker, orientation)
     b = blocks[..., [candidates.index(n) for n in names]]
     pos = b[:, :3] if whiten is None else np.einsum("kij,kjm->kim", np.asarray(whiten), b[:, :3])

@@ -38,11 +38,11 @@ from ._calibrate import _check_array, check_default
 from ._solve import (
     RESIDUAL_UNIT,
     ParameterEstimate,
-    _deflection,
     _residual_fn,
     analytic_names,
     joint_angle_model,
     position_jacobian,
+    rest_pose,
     rippled_joints,
 )
 
@@ -163,7 +163,7 @@ last chunk the batched LM pads anyway."""
 
 def _constants(robots, theta, rippled, ccw=False):
     """Per-pose constants of the solve, from the initial robots (thesis 3.2.3): the joint angles at
-    rest `q0` (R, K, n) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, n) (`rest_deflection`;
+    rest `q0` (R, K, n) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, n) (`rest_pose`;
     XLA evaluates the gear inversion once for both). `robots`: a fleet (R, ...) or one robot for all
     (then its fields are not broadcast over the poses); the gear inversion runs on the
     `rippled` joints only (the others are `theta / u0`); `ccw` (R, K, n) the direction of approach
@@ -345,8 +345,8 @@ def _fleet_parameters(robots, parameters, poses: _FleetPoses) -> tuple[Parameter
         if n_rob:  # a process whose share was all left out has no poses to check the set on
             sigma0, white0 = noise_model(poses.noise, poses.positions[0], "instruments.tracker_noise")
             th0, ccw0 = jnp.asarray(poses.theta[0]), jnp.asarray(poses.ccw[0])
-            checked = check_default(first, analysis, th0, _deflection(first, th0, ccw0), poses.marker, white0, 1.0,
-                                    sigma0, None, ccw0)
+            checked = check_default(first, analysis, rest_pose(first, th0, ccw0)[0], poses.marker, white0, 1.0,
+                                    sigma0)
             keep = np.array([p in checked.kept for p in parameters])
         # every process fits one set: the check of the first process that has robots decides
         has_robots, keeps = gather_array((np.array([n_rob > 0]), keep[None]))

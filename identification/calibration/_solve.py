@@ -32,9 +32,9 @@ from jaxtyping import Array, Bool, Float, Int
 import jaxrobot as jr
 from jaxrobot import RESULTS
 from jaxrobot.internal import cached_program, check
-from jaxrobot.measurement import marker_pose
+from jaxrobot.measurement import marker_pose, rest_link_angles
 
-from ..core._parameters import ParameterMap, parse_name, predict_pose, rest_deflection
+from ..core._parameters import ParameterMap, parse_name, predict_pose
 
 RESIDUAL_UNIT = 1e-3
 """Residuals are solved in mm (and orientation in units of the position/orientation noise ratio)."""
@@ -127,8 +127,21 @@ def _predict(robot, theta, deflection, marker, ccw):
 
 
 @eqx.filter_jit
-def _deflection(robot, theta, ccw):
-    return rest_deflection(robot, theta, ccw)
+def rest_pose(
+    robot: jr.Robot, theta: Float[Array, "K n"], ccw: bool | Bool[Array, "K n"] = False
+) -> tuple[Float[Array, "K n"], Float[Array, "K n"]]:
+    """The per-pose constants of a calibration at motor angles `theta` in the start `robot` (thesis 3.2.3): the link
+    angles at rest `q = Xi^{-1}(theta) + deflection` (`joint_angle_model`'s `q0`) and the gravity deflection
+    `Delta phi_g`, the rest angles of `jaxrobot.measurement.rest_link_angles` (NaN where their fixed point did not
+    converge) less `Xi^{-1}(theta)`.
+
+    The calibration keeps the deflection of the start robot fixed: it depends on the kinematic deviations only
+    through `g(q)`, a relative effect of ~1e-4 on a deflection of ~1e-4 rad (~1e-8 rad, far below the tracker
+    noise).
+    """
+    phi = jr.gear_output(robot, theta, ccw)
+    deflection = rest_link_angles(robot, theta, ccw, throw=False) - phi
+    return phi + deflection, deflection
 
 
 def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflection, marker, weight_r, ccw,
@@ -137,8 +150,8 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
     pose's position rows times its `whiten` (K, 3, 3) and all its rows times `sqrt(pose_weight)` (K,)
     where given.
 
-    The model is `predict_pose` with its per-pose constants hoisted (`_model`; `q0`,
-    the initial joint angles, may be given). Its Jacobian is supplied per pose: for position rows
+    The model is `predict_pose` with its per-pose constants hoisted (`joint_angle_model`; `q0`,
+    the initial joint angles of `rest_pose`, may be given). Its Jacobian is supplied per pose: for position rows
     and joint parameters from the joint screws (`position_jacobian`), else by reverse mode
     (3 or 6 outputs against the robot fields that `params` touches) chained with
     `d fields / d x`; either costs a few model evaluations instead of m forward passes.
@@ -252,6 +265,7 @@ def solve(
     pose_weight: Float[Array, " K"] | None = None,
     whiten: Float[Array, "K 3 3"] | None = None,
     throw: bool = False,
+    q0: Float[Array, "K n"] | None = None,
 ) -> ParameterEstimate:
     """LM solve for one robot; pure and jit/vmap-safe.
 
@@ -266,13 +280,14 @@ def solve(
 
     `rippled`: the joints whose gears have ripple (`rippled_joints`; static), needed when `robot0`
     is traced (e.g. under `vmap`), else found from `robot0`; a free `u0` of a ripple-free gear then
-    skips the Newton inversion.
+    skips the Newton inversion. `q0`: the poses' link angles at rest in `robot0` (`rest_pose`), computed here
+    unless given.
 
     **Returns:** `ParameterEstimate` with its `jacobian`. `throw`: raise the message of its status
     when it is not `successful` (also under `jit`).
     """
     fn_data, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r,
-                                      ccw, rippled, pose_weight=pose_weight, whiten=whiten)
+                                      ccw, rippled, q0, pose_weight=pose_weight, whiten=whiten)
     fn = fn_data if prior_weight is None else (lambda x, a: jnp.concatenate([fn_data(x, a), prior_weight * x]))
     x0 = jnp.zeros(len(params))
     sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=rtol, atol=atol), x0, max_steps=max_steps,
@@ -294,7 +309,7 @@ def solve(
                                          RESULTS.nonfinite), result)
     if pose_weight is not None:
         r = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r, ccw, rippled,
-                         whiten=whiten)[0](x, None)
+                         q0, whiten=whiten)[0](x, None)
     out = ParameterEstimate(value=v0 + scale * x, std=jnp.sqrt(jnp.diag(cov)), covariance=cov, status=result,
                             steps=sol.stats["num_steps"], rank=rank, residuals=r * RESIDUAL_UNIT,
                             noise_variance=sigma2 * RESIDUAL_UNIT**2, jacobian=jx / scale)

@@ -273,9 +273,9 @@ def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
 
 
 def calibrated_deflection(robot, theta):
-    from identification.core._parameters import rest_deflection
+    from identification.calibration._solve import rest_pose
 
-    return rest_deflection(robot, jnp.asarray(theta))
+    return rest_pose(robot, jnp.asarray(theta))[1]
 
 
 @pytest.fixture(scope="module")
