@@ -478,6 +478,7 @@ def calibrate(
         raise ValueError(f"method: expected 'lm' or 'map', found {method!r}")
     checked = parameters is None and method == "lm"
     select = checked and not all_parameters
+    analysis = None
     if parameters is None:
         _check_array(motor_angles, (robot.n_joints,), "motor_angles", "rad")
         _check_array(positions, (3,), "positions", "m")
