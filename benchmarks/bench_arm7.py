@@ -38,7 +38,8 @@ import numpy as np
 
 import jaxrobot as jr
 from identification import calibrate, diagnose
-from identification.core._parameters import ParameterMap, predict_pose, rest_deflection
+from identification.calibration._solve import rest_pose
+from identification.core._parameters import ParameterMap, predict_pose
 from jaxrobot.io import read_csv_columns, read_poses
 from jaxrobot.measurement import Poses
 
@@ -122,7 +123,7 @@ def expected_um(res, val, marker, floor: float) -> float:
     if not res.names:
         return floor
     params, th = ParameterMap(res.names), jnp.asarray(val.motor_angles)
-    deflection = rest_deflection(res.robot, th)
+    deflection = rest_pose(res.robot, th)[1]
     jac = np.asarray(jax.jacfwd(lambda x: predict_pose(params.set(res.robot, x), th, deflection,
                                                        jnp.asarray(marker))[0].ravel())(params.get(res.robot)))
     return float(np.sqrt(floor**2 + 1e12 * np.trace(jac @ res.covariance @ jac.T) / len(th)))

@@ -27,8 +27,8 @@ import scipy.optimize
 import jaxrobot as jr  # noqa: I001  (x64 first)
 from identification.calibration._calibrate import DEFAULT_PARAMETERS, _residual_fn
 from identification.calibration._fleet import _constants, _fleet_constants, _fleet_solve, calibrate_fleet, fleet_mesh
+from identification.calibration._solve import rippled_joints
 from identification.core._batched_lm import LMConfig
-from identification.core._forward import rippled_joints
 from identification.core._parameters import ParameterMap
 from identification.core._pose_selection import random_feasible_poses
 from jaxrobot.bench import draw_fleet, measure_poses

@@ -218,13 +218,16 @@ def point_position(
     return stack_vec(add(pos, mv(rot, vec(point))))
 
 
-def marker_frame(
-    robot: Robot, q: Float[Array, "*b n"], point: Float[Array, "*b 3"]
+def marker_pose(
+    robot: Robot, q: Float[Array, "*b n"], marker: Float[Array, "*b 3"]
 ) -> tuple[Float[Array, "*b 3"], Float[Array, "*b 3 3"]]:
-    """World position of `point` (fixed in the tool frame) and the tool rotation."""
+    """World position and rotation of a marker body at `marker` in the tool frame (eq. 2.4).
+
+    With the identity tool this is `jr.point_position(robot, q, marker)` and the flange rotation.
+    """
     (rot, pos), _ = _chain(robot, q)
     rot, pos = _tool_frame(robot, rot, pos)
-    return stack_vec(add(pos, mv(rot, vec(point)))), stack_mat(rot)
+    return stack_vec(add(pos, mv(rot, vec(marker)))), stack_mat(rot)
 
 
 def identification_jacobian(

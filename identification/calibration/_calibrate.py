@@ -26,14 +26,13 @@ from jaxrobot.internal import check
 from jaxrobot.measurement import Poses, pose_arrays
 
 from ..core import _robust as robust
-from ..core._forward import rippled_joints
 from ..core._identifiability import (
+    IdentifiabilityResult,
     ParameterCheck,
     analyse,
     check_parameters,
     default_analysis,
-    default_parameters,
-    kinematic_parameters,
+    default_set,
 )
 from ..core._noise import ALPHA, model_uncertainty, noise_model, noise_test, tracker_noise
 from ..core._parameters import THESIS_PARAMETERS, ParameterMap, parse_name
@@ -41,7 +40,15 @@ from ..core._pose_checks import check_pose_units
 from ..core._pose_selection import pose_jacobians
 from ..core._robust import Outlier
 from ._selection import ParameterSelection, select_parameters
-from ._solve import RESIDUAL_UNIT, ParameterEstimate, _deflection, _residual_fn, _solve_jit, position_errors
+from ._solve import (
+    RESIDUAL_UNIT,
+    ParameterEstimate,
+    _residual_fn,
+    _solve_jit,
+    position_errors,
+    rest_pose,
+    rippled_joints,
+)
 
 DEFAULT_PARAMETERS = THESIS_PARAMETERS + ("offset1", "offset2", "offset4", "offset5", "offset6", "d1",
                                           "d6", "a6", "beta2")
@@ -258,12 +265,15 @@ class _Fit:
 
 @dataclasses.dataclass(frozen=True)
 class _Problem:
-    """The constants of a calibration's fits: the start robot, its K identification poses (motor angles, gravity
-    deflection, measured positions and rotations, gear sets), the tracker (marker, noise, whitening), and the
-    identification and validation poses together (`*_all`, the validation poses after the K) for the errors."""
+    """The constants of a calibration's fits: the start robot and its rippled joints, its K identification poses
+    (motor angles, link angles at rest and gravity deflection in the start robot, measured positions and
+    rotations, gear sets), the tracker (marker, noise, whitening), and the identification and validation poses
+    together (`*_all`, the validation poses after the K) for the errors."""
 
     robot: jr.Robot
+    rippled: tuple[int, ...]
     theta: jax.Array
+    q: jax.Array
     deflection: jax.Array
     positions: np.ndarray
     rotations: jax.Array | None
@@ -278,6 +288,7 @@ class _Problem:
     throw: bool
     theta_all: jax.Array
     positions_all: np.ndarray
+    q_all: jax.Array
     deflection_all: jax.Array
     ccw_all: bool | np.ndarray
     validated: bool
@@ -294,13 +305,13 @@ class _Problem:
         robot, k, s_p = self.robot, self.theta.shape[0], self.sigma
         weight = None if self.prior is None else jnp.asarray(
             s_p / RESIDUAL_UNIT * np.asarray(params.scales(robot)) / self.prior)
-        rippled = rippled_joints(robot)
 
         def fit(pose_w):
             out = _solve_jit(robot, params, self.theta, jnp.asarray(self.positions), self.deflection, self.marker,
                              self.rotations, self.weight_r, self.ccw, max_steps=self.max_steps,
-                             rippled=rippled, prior_weight=weight,
-                             pose_weight=None if self.loss == "l2" else jnp.asarray(pose_w), whiten=self._whiten())
+                             rippled=self.rippled, prior_weight=weight,
+                             pose_weight=None if self.loss == "l2" else jnp.asarray(pose_w), whiten=self._whiten(),
+                             q0=self.q)
             resid = np.asarray(out.residuals).reshape(k, self.rows)
             return (out, resid), np.linalg.norm(resid, axis=-1) / s_p
 
@@ -320,7 +331,8 @@ class _Problem:
         """The start robot as the result (every parameter of `params` set aside): its residuals and pose weights."""
         k = self.theta.shape[0]
         r = _residual_fn(self.robot, params, self.theta, jnp.asarray(self.positions), self.rotations, self.deflection,
-                         self.marker, self.weight_r, self.ccw, whiten=self._whiten())[0](jnp.zeros(len(params)), None)
+                         self.marker, self.weight_r, self.ccw, self.rippled, self.q,
+                         whiten=self._whiten())[0](jnp.zeros(len(params)), None)
         resid = np.asarray(r).reshape(k, self.rows) * RESIDUAL_UNIT
         z = np.linalg.norm(resid, axis=-1) / self.sigma
         l2 = self.loss == "l2"
@@ -355,37 +367,36 @@ class _Problem:
         poses): `sqrt(mean_k trace(J_k C J_k^T))` over the validation poses' position Jacobians `J_k`."""
         if not self.validated:
             return None
-        k = self.theta.shape[0]
-        ccw = self.ccw_all if np.ndim(self.ccw_all) == 0 else self.ccw_all[k:]
-        q = np.asarray(jr.gear_output(self.robot, self.theta_all[k:], ccw) + self.deflection_all[k:])
+        q = np.asarray(self.q_all[self.theta.shape[0]:])
         out = {}
         for names, cov in sets:
             blocks = pose_jacobians(self.robot, ParameterMap(names), q, self.marker)
             out[tuple(names)] = float(np.sqrt(np.mean(np.einsum("kim,mn,kin->k", blocks, cov, blocks))))
         return out
 
-    def check(self, names: Sequence[str], prior_std: dict | None) -> ParameterCheck:
-        """`check_default` of the default set `names` on these poses."""
-        return check_default(self.robot, names, self.theta, self.deflection, self.marker, self.rotations is not None,
-                             self.whiten, float(self.weight_r), self.sigma, prior_std, self.ccw)
+    def check(self, analysis: IdentifiabilityResult, prior_std: dict | None) -> ParameterCheck:
+        """`check_default` of the default set of `analysis` on these poses."""
+        return check_default(self.robot, analysis, self.q, self.marker, self.whiten, float(self.weight_r), self.sigma,
+                             prior_std)
 
 
 def _problem(robot: jr.Robot, theta, positions, quaternions, ccw, validation, instruments: jr.Instruments, noise,
              marker, loss: str, prior, max_steps: int, throw: bool) -> _Problem:
-    """The `_Problem` of `calibrate`'s checked poses: the gravity deflection of the identification and validation
-    poses in one evaluation, the noise model of the tracker `noise` at the measured positions."""
+    """The `_Problem` of `calibrate`'s checked poses: the link angles at rest and gravity deflection of the
+    identification and validation poses in one evaluation, the noise model of the tracker `noise` at the measured
+    positions."""
     s_p, white = noise_model(noise, positions, "instruments.tracker_noise")
     vt, vp, vccw = _validation_arrays(robot, validation)
     k = theta.shape[0]
     ccw_all = ccw if np.ndim(ccw) == 0 and not vccw.any() else np.concatenate(
         [np.broadcast_to(ccw, theta.shape), vccw])
     th_all = jnp.asarray(np.concatenate([theta, vt]))
-    defl_all = _deflection(robot, th_all, ccw_all)  # one evaluation for both sets
+    q_all, defl_all = rest_pose(robot, th_all, ccw_all)  # one evaluation for both sets
     rotations = None if quaternions is None else jr.quaternion_to_rotation(jnp.asarray(quaternions))
-    return _Problem(robot, th_all[:k], defl_all[:k], positions, rotations, ccw if np.ndim(ccw) == 0 else ccw_all[:k],
-                    marker, s_p, white, jnp.asarray(s_p / instruments.tracker_orientation_noise), loss, prior,
-                    max_steps, throw, th_all, np.concatenate([positions, vp]), defl_all, ccw_all,
-                    validation is not None)
+    return _Problem(robot, rippled_joints(robot), th_all[:k], q_all[:k], defl_all[:k], positions, rotations,
+                    ccw if np.ndim(ccw) == 0 else ccw_all[:k], marker, s_p, white,
+                    jnp.asarray(s_p / instruments.tracker_orientation_noise), loss, prior, max_steps, throw, th_all,
+                    np.concatenate([positions, vp]), q_all, defl_all, ccw_all, validation is not None)
 
 
 def _validation_arrays(robot: jr.Robot, validation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -467,17 +478,19 @@ def calibrate(
         raise ValueError(f"method: expected 'lm' or 'map', found {method!r}")
     checked = parameters is None and method == "lm"
     select = checked and not all_parameters
+    analysis = None
     if parameters is None:
         _check_array(motor_angles, (robot.n_joints,), "motor_angles", "rad")
         _check_array(positions, (3,), "positions", "m")
-        parameters = default_parameters(robot, orientation=quaternions is not None, marker=marker)
+        analysis = default_analysis(robot, orientation=quaternions is not None, marker=marker)
+        parameters = default_set(analysis)
     params = ParameterMap(parameters)
     prior = prior_stds(robot, params, prior_std) if method == "map" else None
     theta, pos, quat, beyond = check_inputs(robot, params, motor_angles, positions, quaternions, limits, ccw)
     check_pose_units(robot, theta, pos, marker, "motor_angles/positions")
     problem = _problem(robot, theta, pos, quat, ccw, validation, instruments, noise, marker, loss, prior, max_steps,
                        throw)
-    check_out = problem.check(params.names, prior_std) if checked else None
+    check_out = problem.check(analysis, prior_std) if checked else None
     params = params if check_out is None else ParameterMap(check_out.kept)
     fit, selection = problem.fit(params), None
     if select and fit.estimate.converged:
@@ -496,24 +509,23 @@ def calibrate(
 
 
 def check_default(
-    robot: jr.Robot, names: Sequence[str], theta, deflection, marker, orientation: bool, whiten, weight_r: float,
-    noise: float, prior_std: dict | None = None, ccw=False,
+    robot: jr.Robot, analysis: IdentifiabilityResult, q: Float[Array, "K n"], marker, whiten, weight_r: float,
+    noise: float, prior_std: dict | None = None,
 ) -> ParameterCheck:
-    """`check_parameters` of the default set `names` on a calibration's own poses (motor angles `theta` (K, n),
-    their gravity `deflection`), the Jacobian of every candidate (`kinematic_parameters`) at the start robot with
-    the rows of the fit (position rows times `whiten` (K, 3, 3) where given, orientation rows times `weight_r`),
-    each parameter against its tolerance prior (`prior_stds`); the geometry stage's left-out candidates are
-    reported with it."""
-    candidates = kinematic_parameters(robot)
-    q = np.asarray(jr.gear_output(robot, jnp.asarray(theta), ccw) + jnp.asarray(deflection))
+    """`check_parameters` of the default set of `analysis` (`default_analysis`, `default_set`) on a calibration's
+    own poses (the link angles at rest `q` of `rest_pose`; positions, and orientations where `analysis` has
+    them): the Jacobian of every candidate (`analysis.names`) at the start robot with the rows of the fit
+    (position rows times `whiten` (K, 3, 3) where given, orientation rows times `weight_r`), each parameter
+    against its tolerance prior (`prior_stds`); the geometry stage's left-out candidates are reported with it."""
+    candidates, names, orientation = analysis.names, default_set(analysis), analysis.orientation
+    q = np.asarray(q)
     blocks = pose_jacobians(robot, ParameterMap(candidates), q, marker, orientation)
     b = blocks[..., [candidates.index(n) for n in names]]
     pos = b[:, :3] if whiten is None else np.einsum("kij,kjm->kim", np.asarray(whiten), b[:, :3])
     rows = np.concatenate([pos, weight_r * b[:, 3:]], 1) if orientation else pos
     params = ParameterMap(names)
     return check_parameters(rows.reshape(-1, len(names)), names, noise, prior_stds(robot, params, prior_std),
-                            len(q), analysis=default_analysis(robot, orientation=orientation, marker=marker),
-                            candidates=candidates)
+                            len(q), analysis=analysis, candidates=candidates)
 
 
 def map_parameters(parameters: Sequence[str], n_joints: int) -> tuple[str, ...]:

@@ -2,8 +2,8 @@
 
 Every robot has its own poses and measurements; all robots are solved together by one
 batch-first Levenberg-Marquardt loop (`_batched_lm`, in chunks of `CHUNK` robots, on the model of
-`_calibration._residual_fn` with its joint-screw Jacobian evaluated batch-last over robots and
-poses, `_model.position_jacobian`), each robot stopping on its own tolerances. The
+`_solve._residual_fn` with its joint-screw Jacobian evaluated batch-last over robots and
+poses, `_solve.position_jacobian`), each robot stopping on its own tolerances. The
 fleet axis is sharded across all devices with `jax.sharding` (a 1-D mesh named `"fleet"`,
 `shard_map`: each device runs its own LM loop on its own robots, no communication), so that the
 same call uses one CPU, several GPUs, or several processes and hosts under `jax.distributed`
@@ -31,12 +31,20 @@ from jaxrobot.measurement import Poses, pose_arrays, rest_link_angles
 
 from ..core import _robust as robust
 from ..core._batched_lm import LMConfig, batched_lm, covariance, map_chunks
-from ..core._forward import analytic_names, joint_angle_model, position_jacobian, rippled_joints
-from ..core._identifiability import ParameterCheck, default_parameters
+from ..core._identifiability import ParameterCheck, default_analysis, default_set
 from ..core._noise import ALPHA, model_uncertainty, noise_model, noise_test, tracker_noise
 from ..core._parameters import ParameterMap
 from ._calibrate import _check_array, check_default
-from ._solve import RESIDUAL_UNIT, ParameterEstimate, _deflection, _residual_fn
+from ._solve import (
+    RESIDUAL_UNIT,
+    ParameterEstimate,
+    _residual_fn,
+    analytic_names,
+    joint_angle_model,
+    position_jacobian,
+    rest_pose,
+    rippled_joints,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,7 +163,7 @@ last chunk the batched LM pads anyway."""
 
 def _constants(robots, theta, rippled, ccw=False):
     """Per-pose constants of the solve, from the initial robots (thesis 3.2.3): the joint angles at
-    rest `q0` (R, K, n) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, n) (`rest_deflection`;
+    rest `q0` (R, K, n) and the gravity deflection `q0 - Xi^{-1}(theta)` (R, K, n) (`rest_pose`;
     XLA evaluates the gear inversion once for both). `robots`: a fleet (R, ...) or one robot for all
     (then its fields are not broadcast over the poses); the gear inversion runs on the
     `rippled` joints only (the others are `theta / u0`); `ccw` (R, K, n) the direction of approach
@@ -331,13 +339,14 @@ def _fleet_parameters(robots, parameters, poses: _FleetPoses) -> tuple[Parameter
     checked = None
     if parameters is None:
         first = robots if np.ndim(robots.a) == 1 else jax.tree.map(lambda x: x[0], robots)
-        parameters = default_parameters(first, marker=poses.marker)
+        analysis = default_analysis(first, marker=poses.marker)
+        parameters = default_set(analysis)
         keep = np.ones(len(parameters), bool)
         if n_rob:  # a process whose share was all left out has no poses to check the set on
             sigma0, white0 = noise_model(poses.noise, poses.positions[0], "instruments.tracker_noise")
             th0, ccw0 = jnp.asarray(poses.theta[0]), jnp.asarray(poses.ccw[0])
-            checked = check_default(first, parameters, th0, _deflection(first, th0, ccw0), poses.marker,
-                                    False, white0, 1.0, sigma0, None, ccw0)
+            checked = check_default(first, analysis, rest_pose(first, th0, ccw0)[0], poses.marker, white0, 1.0,
+                                    sigma0)
             keep = np.array([p in checked.kept for p in parameters])
         # every process fits one set: the check of the first process that has robots decides
         has_robots, keeps = gather_array((np.array([n_rob > 0]), keep[None]))

@@ -7,9 +7,20 @@ of a gear ratio), optionally with pose weights (the robust losses' reweighting),
 laser tracker's noise model) and Gaussian priors (MAP). The parameter covariance is
 `s^2 (J^T W J)^{-1}` (`W` the pose weights) with the noise estimate `s^2 = ||r||^2 / (n - m)` over the `n`
 residuals, `m` parameters.
+
+The model is `predict_pose` with the per-pose constants of the solve hoisted (the fleets' batched LM,
+`_fleet`, runs the same model): only the free parameters change, so
+- `phi_j = Xi^{-1}(theta_j)` (Newton on up to 12 ripple harmonics per joint, eq. 2.13) is computed once, with
+  the initial robot, for every joint whose `u0_j` is not free; a free `u0_j` of a ripple-free gear gives
+  `phi_j = theta_j / u0_j` exactly; a free `u0_j` of a rippled gear keeps the full inversion (`jr.gear_output`)
+  (`joint_angle_model`);
+- the Jacobian of the marker position by the joint parameters comes from the joint screws
+  (`position_jacobian`: the columns of the free parameters of `jaxrobot.identification_jacobian`, thesis 3.2.2).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
@@ -21,13 +32,85 @@ from jaxtyping import Array, Bool, Float, Int
 import jaxrobot as jr
 from jaxrobot import RESULTS
 from jaxrobot.internal import cached_program, check
-from jaxrobot.measurement import marker_pose
+from jaxrobot.measurement import marker_pose, rest_link_angles
 
-from ..core._forward import analytic_names, joint_angle_model, position_jacobian, rippled_joints
-from ..core._parameters import ParameterMap, parse_name, predict_pose, rest_deflection
+from ..core._parameters import ParameterMap, parse_name, predict_pose
 
 RESIDUAL_UNIT = 1e-3
 """Residuals are solved in mm (and orientation in units of the position/orientation noise ratio)."""
+
+
+def rippled_joints(robot: jr.Robot) -> tuple[int, ...]:
+    """Joints (0-based) whose gear has ripple in either set, for any robot of a (fleet) pytree;
+    all of them when the robot is traced (then nothing can be skipped)."""
+    orders = (robot.cw.orders, robot.ccw.orders)
+    n = robot.n_joints
+    if any(isinstance(o, jax.core.Tracer) for o in orders):
+        return tuple(range(n))
+    used = np.concatenate([np.asarray(o).reshape(-1, n, np.shape(o)[-1]) for o in orders], -1) > 0
+    return tuple(int(j) for j in np.nonzero(used.any((0, 2)))[0])
+
+
+def joint_angle_model(
+    robot0: jr.Robot,
+    params: ParameterMap,
+    theta: Float[Array, "K n"],
+    deflection: Float[Array, "K n"],
+    ccw: bool | Bool[Array, "K n"] = False,
+    rippled: tuple[int, ...] | None = None,
+    q0: Float[Array, "K n"] | None = None,
+) -> tuple[Float[Array, "K n"], Callable]:
+    """Joint angles `q = Xi^{-1}(theta) + deflection` of robots that differ from `robot0` only in
+    `params`: `q0` (K, n) of `robot0` (the gear inversion of joints with fixed `u0` is done here,
+    once, unless given) and `q_pose(robot, theta_k, q0_k, deflection_k, ccw_k)` for one pose."""
+    rippled = rippled_joints(robot0) if rippled is None else rippled
+    joints = range(robot0.n_joints)
+    free_u0 = {j for j in joints if f"u0_{j + 1}" in params.names}
+    q0 = jr.gear_output(robot0, theta, ccw) + deflection if q0 is None else q0
+    full = bool(free_u0 & set(rippled))
+
+    def q_pose(robot, th, q0k, dek, ccwk):
+        if not free_u0:
+            return q0k
+        phi = jr.gear_output(robot, th, ccwk) if full else None
+        cols = [q0k[j] if j not in free_u0 else (phi[j] if j in rippled else th[j] / robot.u0[j]) + dek[j]
+                for j in joints]
+        return jnp.stack(cols)
+
+    return q0, q_pose
+
+
+def analytic_names(names: tuple[str, ...]) -> bool:
+    """Whether `position_jacobian` covers these parameters (joint fields a, d, alpha, beta,
+    offset, u0; not the tool/base frames)."""
+    return not any(n.startswith(("tool_", "base_")) for n in names)
+
+
+_COLUMN = {"alpha": 0, "beta": 1, "a": 2, "d": 3, "offset": 4}
+"""Fields of `jaxrobot.identification_jacobian`, in its order."""
+
+
+def position_jacobian(
+    robot: jr.Robot, params: ParameterMap, q: Float[Array, "*b n"], theta: Float[Array, "*b n"],
+    ratio: Float[Array, "*b n"], marker: Float[Array, " 3"],
+) -> tuple[Float[Array, "*b 3"], Float[Array, "*b 3 m"]]:
+    """Marker position and its derivative by the free joint parameters (`analytic_names`), from the
+    joint screws (`jaxrobot.identification_jacobian`, thesis 3.2.2); the robot's fields broadcast
+    against the batch `*b` of `q` (a fleet as fields (R, 1, ...) against poses (R, K, n)).
+
+    `dp/du0_i = dp/d offset_i * dq_i/du0_i`, `dq_i/du0_i = -theta_i / (u0_i u_i(phi_i))` (`ratio` =
+    `u_i(phi_i)`, implicit function of eq. 2.13).
+    """
+    p, jac = jr.identification_jacobian(robot, q, marker)
+    cols = []
+    for name in params.names:
+        field, j = parse_name(name)
+        if field == "u0":
+            dq = -theta[..., j] / (robot.u0[..., j] * ratio[..., j])
+            cols.append(jac[..., _COLUMN["offset"], j] * dq[..., None])
+        else:
+            cols.append(jac[..., _COLUMN[field], j])
+    return p, jnp.stack(cols, -1)
 
 
 def position_errors(
@@ -44,8 +127,21 @@ def _predict(robot, theta, deflection, marker, ccw):
 
 
 @eqx.filter_jit
-def _deflection(robot, theta, ccw):
-    return rest_deflection(robot, theta, ccw)
+def rest_pose(
+    robot: jr.Robot, theta: Float[Array, "K n"], ccw: bool | Bool[Array, "K n"] = False
+) -> tuple[Float[Array, "K n"], Float[Array, "K n"]]:
+    """The per-pose constants of a calibration at motor angles `theta` in the start `robot` (thesis 3.2.3): the link
+    angles at rest `q = Xi^{-1}(theta) + deflection` (`joint_angle_model`'s `q0`) and the gravity deflection
+    `Delta phi_g`, the rest angles of `jaxrobot.measurement.rest_link_angles` (NaN where their fixed point did not
+    converge) less `Xi^{-1}(theta)`.
+
+    The calibration keeps the deflection of the start robot fixed: it depends on the kinematic deviations only
+    through `g(q)`, a relative effect of ~1e-4 on a deflection of ~1e-4 rad (~1e-8 rad, far below the tracker
+    noise).
+    """
+    phi = jr.gear_output(robot, theta, ccw)
+    deflection = rest_link_angles(robot, theta, ccw, throw=False) - phi
+    return phi + deflection, deflection
 
 
 def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflection, marker, weight_r, ccw,
@@ -54,8 +150,8 @@ def _residual_fn(robot0, params: ParameterMap, theta, target_p, target_r, deflec
     pose's position rows times its `whiten` (K, 3, 3) and all its rows times `sqrt(pose_weight)` (K,)
     where given.
 
-    The model is `predict_pose` with its per-pose constants hoisted (`_model`; `q0`,
-    the initial joint angles, may be given). Its Jacobian is supplied per pose: for position rows
+    The model is `predict_pose` with its per-pose constants hoisted (`joint_angle_model`; `q0`,
+    the initial joint angles of `rest_pose`, may be given). Its Jacobian is supplied per pose: for position rows
     and joint parameters from the joint screws (`position_jacobian`), else by reverse mode
     (3 or 6 outputs against the robot fields that `params` touches) chained with
     `d fields / d x`; either costs a few model evaluations instead of m forward passes.
@@ -169,6 +265,7 @@ def solve(
     pose_weight: Float[Array, " K"] | None = None,
     whiten: Float[Array, "K 3 3"] | None = None,
     throw: bool = False,
+    q0: Float[Array, "K n"] | None = None,
 ) -> ParameterEstimate:
     """LM solve for one robot; pure and jit/vmap-safe.
 
@@ -183,13 +280,14 @@ def solve(
 
     `rippled`: the joints whose gears have ripple (`rippled_joints`; static), needed when `robot0`
     is traced (e.g. under `vmap`), else found from `robot0`; a free `u0` of a ripple-free gear then
-    skips the Newton inversion.
+    skips the Newton inversion. `q0`: the poses' link angles at rest in `robot0` (`rest_pose`), computed here
+    unless given.
 
     **Returns:** `ParameterEstimate` with its `jacobian`. `throw`: raise the message of its status
     when it is not `successful` (also under `jit`).
     """
     fn_data, v0, scale = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r,
-                                      ccw, rippled, pose_weight=pose_weight, whiten=whiten)
+                                      ccw, rippled, q0, pose_weight=pose_weight, whiten=whiten)
     fn = fn_data if prior_weight is None else (lambda x, a: jnp.concatenate([fn_data(x, a), prior_weight * x]))
     x0 = jnp.zeros(len(params))
     sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=rtol, atol=atol), x0, max_steps=max_steps,
@@ -211,7 +309,7 @@ def solve(
                                          RESULTS.nonfinite), result)
     if pose_weight is not None:
         r = _residual_fn(robot0, params, theta, positions, rotations, deflection, marker, weight_r, ccw, rippled,
-                         whiten=whiten)[0](x, None)
+                         q0, whiten=whiten)[0](x, None)
     out = ParameterEstimate(value=v0 + scale * x, std=jnp.sqrt(jnp.diag(cov)), covariance=cov, status=result,
                             steps=sol.stats["num_steps"], rank=rank, residuals=r * RESIDUAL_UNIT,
                             noise_variance=sigma2 * RESIDUAL_UNIT**2, jacobian=jx / scale)

@@ -84,10 +84,11 @@ def run(args, echo) -> dict:
     echo(f"compare: {len(run_data[0])} tracker samples of {args.run} against {robot.name} running {args.command_file}")
     c = compare_run(robot, command, run_data, marker, noise)
     echo(f"verdict: {c.verdict}")
-    lagging = c.encoder_deviation > 1e-6
-    if np.any(lagging):
-        echo(f"encoders: motors {(np.flatnonzero(lagging) + 1).tolist()} depart from the model's motor angles by up "
-             f"to {np.max(c.encoder_deviation):.3g} rad (a velocity-loop lag the model lacks, or too much of one?)")
+    departing = c.encoder_deviation > 1e-6
+    if np.any(departing):
+        echo(f"encoders: motors {(np.flatnonzero(departing) + 1).tolist()} depart from the model's motor angles by up "
+             f"to {np.max(c.encoder_deviation):.3g} rad (a response of the motors to their command that the model "
+             "lacks or overstates?)")
     files = []
     if args.out is not None:
         files = [str(p) for p in write_plots(args.out, c, args.run.stem)]

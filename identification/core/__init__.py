@@ -2,9 +2,7 @@
 never each other.
 
 - `_parameters`: parameter maps (`ParameterMap`, names such as `a3`, `u0_5`, `tool_x`), the robot with
-  them applied, and the rest-pose + marker forward model of a pose (`predict_pose`, thesis 3.2.3).
-- `_forward`: the same chain with the per-pose constants of an LM solve hoisted, and the identification
-  Jacobian of the marker position by the joint parameters (`position_jacobian`, thesis 3.2.2).
+  them applied, and the marker model of a pose at its gravity deflection (`predict_pose`, thesis 3.2.3).
 - `_identifiability`, `_observability`, `_pose_selection`, `_task_design`: which parameters the poses identify
   (QR pivoting of the scaled Jacobian), observability indices, random feasible poses and DETMAX, and the poses
   that minimise a task's predicted error (`task_poses`).

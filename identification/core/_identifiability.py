@@ -18,7 +18,7 @@ from jaxtyping import Array, Float
 
 import jaxrobot as jr
 
-from ._parameters import THESIS_PARAMETERS, ParameterMap
+from ._parameters import THESIS_PARAMETERS, ParameterMap, parse_name
 from ._pose_selection import DEFAULT_CONSTRAINTS, PoseConstraints, pose_jacobians, random_feasible_poses
 
 PARALLEL_TOL = 1e-2
@@ -224,12 +224,17 @@ def default_parameters(
     order of `THESIS_PREFERENCE` followed by every joint offset and then the candidates' order (for the Racer-7
     from positions with its bench's marker: `DEFAULT_PARAMETERS`). `default_analysis` says why the others are
     left out."""
-    res = default_analysis(robot, orientation=orientation, marker=marker, n_poses=n_poses, seed=seed)
-    prefer = THESIS_PREFERENCE + tuple(f"offset{j}" for j in range(1, robot.n_joints + 1))
+    return default_set(default_analysis(robot, orientation=orientation, marker=marker, n_poses=n_poses, seed=seed))
+
+
+def default_set(analysis: IdentifiabilityResult) -> tuple[str, ...]:
+    """The default free parameters of a `default_analysis` (`default_parameters`): its identifiable candidates in
+    the pivot order of `THESIS_PREFERENCE` followed by every joint offset and then the candidates' order."""
+    offsets = tuple(n for n in analysis.names if parse_name(n)[0] == "offset")
     rank: dict[str, int] = {}
-    for k, name in enumerate(prefer + res.names):
+    for k, name in enumerate(THESIS_PREFERENCE + offsets + analysis.names):
         rank.setdefault(name, k)
-    return tuple(sorted(res.identifiable, key=rank.__getitem__))
+    return tuple(sorted(analysis.identifiable, key=rank.__getitem__))
 
 
 def default_analysis(

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
-from jaxrobot.measurement import marker_pose, rest_link_angles
+from jaxrobot.measurement import marker_pose
 
 JOINT_FIELDS = ("a", "d", "alpha", "beta", "offset")
 FRAME_FIELDS = ("x", "y", "z", "rx", "ry", "rz")
@@ -148,18 +148,6 @@ class ParameterMap(eqx.Module):
 
 
 # --- forward model of a pose measurement (thesis 3.2.3) ---------------------------------------
-
-
-def rest_deflection(
-    robot: jr.Robot, theta: Float[Array, "*b n"], ccw: bool | Array = False
-) -> Float[Array, "*b n"]:
-    """Gravity deflection `q - Xi^{-1}(theta)` of the robot at rest (thesis 3.2.3, `Delta phi_g`).
-
-    The calibration evaluates it once with the initial robot and keeps it fixed: it depends on
-    the kinematic deviations only through `g(q)`, a relative effect of ~1e-4 on a deflection of
-    ~1e-4 rad (~1e-8 rad, far below the tracker noise).
-    """
-    return rest_link_angles(robot, theta, ccw, throw=False) - jr.gear_output(robot, theta, ccw)
 
 
 def predict_pose(

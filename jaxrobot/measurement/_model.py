@@ -1,7 +1,7 @@
 """The measurement model (thesis 3.2.3, docs/model.md (B.2), (3.6)): the robot at rest at commanded
 motor angles (link angles held under gravity by the elastic gears, with lost motion against the
-direction of approach), and the pose of a marker fixed in the tool frame. The bench, calibration and
-`diagnose` all call it."""
+direction of approach), and the pose of a marker fixed in the tool frame (`marker_pose`, a function of the
+kinematics that `jaxrobot.measurement` exports with the rest). The bench, calibration and `diagnose` all call it."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from jaxtyping import Array, Bool, Float
 from .._dynamics import gravity_torque
 from .._elasticity import elastic_deflection
 from .._gear import gear_output
-from .._kinematics import marker_frame
+from .._kinematics import marker_pose
 from .._robot import Robot
 from .._status import RESULTS, check
 
@@ -47,7 +47,7 @@ def approach_directions(theta: Float[Array, "*b K n"]) -> Bool[Array, "*b K n"]:
 
 
 def lost_motion(robot: Robot, ccw: bool | Bool[Array, "*b n"]) -> Float[Array, "*b n"]:
-    """Lag of the link behind the gear output against the direction of approach: half the backlash,
+    """Offset of the link from the gear output against the direction of approach: half the backlash,
     `backlash/2` after a positive move (`cw`), `-backlash/2` after a negative one."""
     return 0.5 * robot.backlash * approach_sign(ccw)
 
@@ -91,7 +91,7 @@ def rest_solution(
 
     Solved as the fixed point `q = phi - kappa^{-1}(g(q))` with optimistix (implicit
     derivatives). `ccw` gives the last direction of approach per joint: it selects the gear set,
-    and the link lags by half the backlash against it (`phi -= backlash/2` after a positive move).
+    and the link trails by half the backlash against it (`phi -= backlash/2` after a positive move).
     `rippled`: as in `gear_output`.
     """
     phi = gear_output(robot, theta, ccw, rippled) - lost_motion(robot, ccw)
@@ -121,16 +121,6 @@ def rest_link_angles(
     q, result = rest_solution(robot, theta, ccw, rippled)
     ok = result == RESULTS.successful
     return check(result, q, True) if throw else jnp.where(ok, q, jnp.nan)
-
-
-def marker_pose(
-    robot: Robot, q: Float[Array, "*b n"], marker: Float[Array, "*b 3"]
-) -> tuple[Float[Array, "*b 3"], Float[Array, "*b 3 3"]]:
-    """World position and rotation of a marker body at `marker` in the tool frame (eq. 2.4).
-
-    With the identity tool this is `jr.point_position(robot, q, marker)` and the flange rotation.
-    """
-    return marker_frame(robot, q, marker)
 
 
 def measured_pose(

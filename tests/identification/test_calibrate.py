@@ -273,9 +273,9 @@ def test_fast_residual_matches_predict_pose(robots, bench, names, orient):
 
 
 def calibrated_deflection(robot, theta):
-    from identification.core._parameters import rest_deflection
+    from identification.calibration._solve import rest_pose
 
-    return rest_deflection(robot, jnp.asarray(theta))
+    return rest_pose(robot, jnp.asarray(theta))[1]
 
 
 @pytest.fixture(scope="module")
@@ -631,7 +631,7 @@ def test_fleet_constants_one_robot_and_fleet_agree_and_hold_statics(robots, flee
     import jax
 
     from identification.calibration._fleet import _constants
-    from identification.core._forward import rippled_joints
+    from identification.calibration._solve import rippled_joints
 
     nominal, _ = robots
     theta = jnp.asarray(fleet_problem[0])
@@ -652,8 +652,8 @@ def test_batched_lm_reports_failures(robots, fleet_problem):
     import jax
 
     from identification.calibration._fleet import _fleet_constants, _fleet_solve, fleet_mesh
+    from identification.calibration._solve import rippled_joints
     from identification.core._batched_lm import LMConfig
-    from identification.core._forward import rippled_joints
 
     nominal, _ = robots
     theta, meas, _ = fleet_problem
@@ -778,7 +778,7 @@ def test_fleet_screw_jacobian_matches_residual_fn(robots, bench):
     import jax
 
     from identification.calibration._fleet import _robot_residual_jacobian, _screw_residual_jacobian
-    from identification.core._forward import rippled_joints
+    from identification.calibration._solve import rippled_joints
 
     nominal, truth = robots
     ident, _ = bench
