@@ -274,10 +274,10 @@ def link_acceleration(
     robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"], phi: Float[Array, "*b n"],
     phid: Float[Array, "*b n"] | None = None, terms: Terms | None = None,
 ) -> Float[Array, "*b n"]:
-    """`qdd = D(q)^{-1} (kappa(phi - q) - g(q) - C(q, qd) qd)` (eq. 2.23a); the robot's link loads
-    (`jaxrobot.effects.LinkLoad`, functions of `q`, `qd`) are subtracted from the bracket and its joint torques
-    (`jaxrobot.effects.JointTorque`, functions of the deflection's rate) added, which need the gear output rate
-    `phid`. `terms`: the robot's effects (`jaxrobot.effects.terms`) where already resolved."""
+    """`qdd = D(q)^{-1} (kappa(phi - q) - g(q) - C(q, qd) qd)` (eq. 2.23a); the robot's joint torques
+    (`jaxrobot.effects.JointTorque`, functions of the deflection's rate, which need the gear output rate `phid`) are
+    added to the bracket and its link loads (`jaxrobot.effects.LinkLoad`, functions of `q`, `qd`) subtracted.
+    `terms`: the robot's effects (`jaxrobot.effects.terms`) where already resolved."""
     return _acceleration(robot, q, qd, phi, phid, terms, mass_matrix(robot, q))
 
 
@@ -307,13 +307,13 @@ def _acceleration(robot, q, qd, phi, phid, terms, mass):
     """`link_acceleration` with the mass matrix `mass` at `q`."""
     rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
     effects = robot_terms(robot) if terms is None else terms
-    for load in effects.link_loads:
-        rhs = rhs - load.torque(robot, q, qd)
     for term in effects.joint_torques:
         if phid is None:
             raise ValueError("link_acceleration: phid (the gear output rates, shape (..., n)) is required for a "
                              f"robot with {term.name} (a joint torque of the deflection's rate); found None")
         rhs = rhs + term.torque(robot, qd, phid)
+    for load in effects.link_loads:
+        rhs = rhs - load.torque(robot, q, qd)
     return spd_solve(mass, rhs[..., None])[..., 0]
 
 
