@@ -13,11 +13,14 @@ from . import io as io  # noqa: E402
 from . import measurement as measurement  # noqa: E402
 from ._checks import check_public as _check_public  # noqa: E402
 from ._deprecation import deprecated_aliases as _deprecated_aliases  # noqa: E402
+from ._dynamics import LinkDynamics as LinkDynamics  # noqa: E402
 from ._dynamics import coriolis_matrix as coriolis_matrix  # noqa: E402
 from ._dynamics import coriolis_vector as coriolis_vector  # noqa: E402
+from ._dynamics import flat_inverse as flat_inverse  # noqa: E402
 from ._dynamics import gravity_torque as gravity_torque  # noqa: E402
 from ._dynamics import inverse_dynamics as inverse_dynamics  # noqa: E402
 from ._dynamics import link_acceleration as link_acceleration  # noqa: E402
+from ._dynamics import link_dynamics as link_dynamics  # noqa: E402
 from ._dynamics import mass_matrix as mass_matrix  # noqa: E402
 from ._dynamics import motor_torque as motor_torque  # noqa: E402
 from ._dynamics import planning_dynamics as planning_dynamics  # noqa: E402
@@ -26,7 +29,6 @@ from ._elasticity import compliance_deflection as compliance_deflection  # noqa:
 from ._elasticity import elastic_deflection as elastic_deflection  # noqa: E402
 from ._elasticity import elastic_stiffness as elastic_stiffness  # noqa: E402
 from ._elasticity import elastic_torque as elastic_torque  # noqa: E402
-from ._flat import flat_inverse as flat_inverse  # noqa: E402
 from ._gear import fourier_ratio as fourier_ratio  # noqa: E402
 from ._gear import fourier_xi_inverse as fourier_xi_inverse  # noqa: E402
 from ._gear import gear_output as gear_output  # noqa: E402

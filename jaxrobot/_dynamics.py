@@ -1,21 +1,31 @@
-"""Rigid-body and elastic-joint dynamics, eq. 2.15-2.23 and 4.1 (docs/model.md, section 4).
+"""Rigid-body and elastic-joint dynamics, eq. 2.15-2.23 and 4.1 (docs/model.md, section 4), and their flat
+inverse (docs/model.md (B.4)).
 
 Link side: `D(q) qdd + C(q, qd) qd + g(q) = kappa(phi - q)` (eq. 2.23a), plus the terms of the robot's effects
 (`jaxrobot.effects`: the link loads on the left, the joint torques on the right);
 motor side: `J_m thetadd = tau_motor - kappa(phi - q) / u(phi)`.
 All functions broadcast over leading batch axes of `robot` and the states.
+
+The link angle is a flat output of eq. 4.1: for a smooth `q_d(t)`,
+`phi = q_d + kappa^{-1}(D q̈_d + C q̇_d + g)`, `theta = Xi(phi)`, `u = θ̈` (`flat_inverse`); the robot's link loads
+add to the bracket. It tracks exactly in continuous time, ignores limits and the boundary conditions on `u`; it is
+the baseline and the warm start of the optimal control problem. With a joint torque besides the spring
+(`jaxrobot.effects.JointTorque`, a function of the deflection's rate, docs/model.md (2.23c)) the deflection
+`x = phi - q_d` is no longer algebraic: the effect integrates it (`JointTorque.flat_deflection`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ._batch import backend_kind, link_unroll, unbatched
-from ._elasticity import elastic_deflection, elastic_torque
+from ._elasticity import elastic_deflection, elastic_stiffness, elastic_torque
 from ._gear import gear_output, gear_ratio, motor_angle
 from ._kinematics import (
     add,
@@ -36,7 +46,8 @@ from ._kinematics import (
 from ._linalg import spd_solve
 from ._robot import Robot
 from ._rotations import rot_z
-from .effects._registry import gear_hysteresis, terms
+from .effects._registry import Terms, gear_hysteresis
+from .effects._registry import terms as robot_terms
 
 # Batch-last internals: the rigid-body terms below keep the state batch as the LAST axis (the
 # entries of the `_kinematics` 3x3 algebra are (n, N) or (N,) arrays), so XLA's CPU loops run over
@@ -242,39 +253,68 @@ def inverse_dynamics(
 
 
 def planning_dynamics(
-    robot: Robot, x: Float[Array, "*b 4*n"], u: Float[Array, "*b n"], direction: Float[Array, "*b n"] | None = None
+    robot: Robot, x: Float[Array, "*b 4*n"], u: Float[Array, "*b n"], direction: Float[Array, "*b n"] | None = None,
+    terms: Terms | None = None,
 ) -> Float[Array, "*b 4*n"]:
     """`xd = f(x, u)` of eq. 4.1, `x = [q, qd, theta, thetad]`, `u = thetadd`; cw gear set, or with `direction`
     the weights `sigma` of the gears' ccw sets (`jaxrobot.effects.GearHysteresis.output`, docs/model.md (B.0)). The
     link receives the robot's joint torques (`jaxrobot.effects.JointTorque`) and spends its link loads
-    (`link_acceleration`); a motor response (`jaxrobot.effects.MotorResponse`) does not enter: `theta` is the motor
-    angle after it, which the response's `command` turns into the command."""
+    (`link_acceleration`; `terms`: the robot's, `jaxrobot.effects.terms`, if already resolved); a motor response
+    (`jaxrobot.effects.MotorResponse`) does not enter: `theta` is the motor angle after it, which the response's
+    `command` turns into the command."""
     q, qd, theta, thetad = jnp.split(x, 4, axis=-1)
     output = (lambda th: gear_output(robot, th)) if direction is None else (  # noqa: E731
         lambda th: gear_hysteresis().output(robot, th, direction))
     phi, phid = jax.jvp(output, (theta,), (thetad,))  # the rate only where a joint torque takes it (else unused)
-    qdd = link_acceleration(robot, q, qd, phi, phid)
+    qdd = link_acceleration(robot, q, qd, phi, phid, terms)
     return jnp.concatenate([qd, qdd, thetad, jnp.broadcast_to(u, thetad.shape)], -1)
 
 
 def link_acceleration(
     robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"], phi: Float[Array, "*b n"],
-    phid: Float[Array, "*b n"] | None = None,
+    phid: Float[Array, "*b n"] | None = None, terms: Terms | None = None,
 ) -> Float[Array, "*b n"]:
-    """`qdd = D(q)^{-1} (kappa(phi - q) - g(q) - C(q, qd) qd)` (eq. 2.23a); the robot's link loads
-    (`jaxrobot.effects.LinkLoad`, functions of `q`, `qd`) are subtracted from the bracket and its joint torques
-    (`jaxrobot.effects.JointTorque`, functions of the deflection's rate) added, which need the gear output rate
-    `phid`."""
+    """`qdd = D(q)^{-1} (kappa(phi - q) - g(q) - C(q, qd) qd)` (eq. 2.23a); the robot's joint torques
+    (`jaxrobot.effects.JointTorque`, functions of the deflection's rate, which need the gear output rate `phid`) are
+    added to the bracket and its link loads (`jaxrobot.effects.LinkLoad`, functions of `q`, `qd`) subtracted.
+    `terms`: the robot's effects (`jaxrobot.effects.terms`) where already resolved."""
+    return _acceleration(robot, q, qd, phi, phid, terms, mass_matrix(robot, q))
+
+
+class LinkDynamics(eqx.Module):
+    """The link side of eq. 2.23a at link angles `q`, rates `qd` and gear outputs `phi` (`link_dynamics`)."""
+
+    mass: Float[Array, "*b n n"]
+    """Mass matrix `D(q)` [kg m^2]."""
+    acceleration: Float[Array, "*b n"]
+    """Link accelerations `qdd` [rad/s^2] (`link_acceleration`)."""
+    stiffness: Float[Array, "*b n"]
+    """Slopes `kappa'(phi - q)` of the joint springs [N m/rad] (`jaxrobot.elastic_stiffness`)."""
+
+
+def link_dynamics(
+    robot: Robot, q: Float[Array, "*b n"], qd: Float[Array, "*b n"], phi: Float[Array, "*b n"],
+    phid: Float[Array, "*b n"] | None = None, terms: Terms | None = None,
+) -> LinkDynamics:
+    """`link_acceleration` with the mass matrix it solves with and the springs' slopes: what the derivatives of the
+    link accelerations take (the OCP's half step)."""
+    mass = mass_matrix(robot, q)
+    return LinkDynamics(mass=mass, acceleration=_acceleration(robot, q, qd, phi, phid, terms, mass),
+                        stiffness=elastic_stiffness(robot, phi - q))
+
+
+def _acceleration(robot, q, qd, phi, phid, terms, mass):
+    """`link_acceleration` with the mass matrix `mass` at `q`."""
     rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
-    effects = terms(robot)
-    for load in effects.link_loads:
-        rhs = rhs - load.torque(robot, q, qd)
+    effects = robot_terms(robot) if terms is None else terms
     for term in effects.joint_torques:
         if phid is None:
             raise ValueError("link_acceleration: phid (the gear output rates, shape (..., n)) is required for a "
                              f"robot with {term.name} (a joint torque of the deflection's rate); found None")
         rhs = rhs + term.torque(robot, qd, phid)
-    return spd_solve(mass_matrix(robot, q), rhs[..., None])[..., 0]
+    for load in effects.link_loads:
+        rhs = rhs - load.torque(robot, q, qd)
+    return spd_solve(mass, rhs[..., None])[..., 0]
 
 
 def motor_torque(
@@ -302,3 +342,51 @@ def static_equilibrium(
 ) -> Float[Array, "*b n"]:
     """Motor angles that hold `q` at rest: `theta = Xi(q + kappa^{-1}(g(q)))` (eq. 4.3f-g)."""
     return holding_motor_angle(robot, q, gravity_torque(robot, q), ccw)
+
+
+def _derivative(fn: Callable) -> Callable:
+    return lambda t: jax.jvp(fn, (t,), (jnp.ones_like(t),))[1]
+
+
+def flat_inverse(
+    robot: Robot, q_d: Callable[[Float[Array, ""]], Float[Array, " n"]], t: Float[Array, " N"]
+) -> tuple[Float[Array, "N n"], Float[Array, "N n"], Float[Array, "N n"]]:
+    """Motor angles, rates and accelerations `(theta, thetad, thetadd)` at times `t` that make
+    the elastic model follow `q_d` exactly (cw gear set, as the planning model).
+
+    **Arguments:** `q_d` maps a scalar time [s] to link angles (n,) and must be four times
+    differentiable (derivatives are taken by nested `jax.jvp`); `t` (N,) sample times [s] (uniform where the robot
+    has a joint torque besides the spring, whose deflection is integrated from rest at `t[0]`: module docstring).
+    """
+    t = jnp.asarray(t, float)
+    effects = robot_terms(robot)
+
+    def torque(s):
+        q, qd, qdd = q_d(s), _derivative(q_d)(s), _derivative(_derivative(q_d))(s)
+        tau = inverse_dynamics(robot, q, qd, qdd)
+        for load in effects.link_loads:
+            tau = tau + load.torque(robot, q, qd)
+        return tau
+
+    joint = effects.joint_torques
+    if len(joint) > 1:
+        raise ValueError(f"flat_inverse: expected at most one joint torque besides the spring, found "
+                         f"{[e.name for e in joint]}")
+    if not joint:
+        def theta(s):
+            return holding_motor_angle(robot, q_d(s), torque(s))
+
+        def at(s):
+            return theta(s), _derivative(theta)(s), _derivative(_derivative(theta))(s)
+
+        return jax.vmap(at)(t)
+    x, xd, xdd = joint[0].flat_deflection(robot, torque, t)
+    phi = jax.vmap(lambda s: jnp.stack([q_d(s), _derivative(q_d)(s), _derivative(_derivative(q_d))(s)]))(t)
+    phi = phi + jnp.stack([x, xd, xdd], 1)  # (N, 3, n): phi and its two rates
+
+    def along(p):
+        g = lambda s: motor_angle(robot, p[0] + s * p[1] + 0.5 * s**2 * p[2])  # noqa: E731
+        value, first = jax.jvp(g, (0.0,), (1.0,))
+        return value, first, jax.jvp(_derivative(g), (0.0,), (1.0,))[1]
+
+    return jax.vmap(along)(phi)

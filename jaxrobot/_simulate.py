@@ -122,7 +122,7 @@ def simulate(
             q, qd = state
             i = 2 * j
             f = lambda q, qd, m: (qd, link_acceleration(  # noqa: E731
-                robot, q, qd, phi_s[i + m], None if phid_s is None else phid_s[i + m]))
+                robot, q, qd, phi_s[i + m], None if phid_s is None else phid_s[i + m], effects))
             k1 = f(q, qd, 0)
             k2 = f(q + 0.5 * dt * k1[0], qd + 0.5 * dt * k1[1], 1)
             k3 = f(q + 0.5 * dt * k2[0], qd + 0.5 * dt * k2[1], 1)

@@ -20,19 +20,6 @@ from jaxrobot.internal import spd_solve
 from ._transcription import OCPProblem, State, gear_outputs, variable_scale
 
 
-def _link_acceleration(problem: OCPProblem, q, qd, phi, d, phid=None) -> Float[Array, "N n"]:
-    """`qdd = D^{-1} (kappa(phi - q) - C qd - g)` (eq. 2.23a, as `jr.link_acceleration`), plus the robot's joint
-    torques (`jaxrobot.effects.JointTorque`) and minus its link loads (`jaxrobot.effects.LinkLoad`) in the
-    bracket (`OCPProblem.terms`)."""
-    robot = problem.robot
-    rhs = jr.elastic_torque(robot, phi - q) - jr.inverse_dynamics(robot, q, qd, jnp.zeros_like(q))
-    for term in problem.terms.joint_torques:
-        rhs = rhs + term.torque(robot, qd, phid)
-    for load in problem.terms.link_loads:
-        rhs = rhs - load.torque(robot, q, qd)
-    return spd_solve(d, rhs[..., None])[..., 0]
-
-
 def _with_link_loads(problem: OCPProblem, q, qd) -> Callable:
     """`(id_q, id_qd, s, cast)` plus `cast` of the link loads' `(dload/d(q, qd))^T s` (`LinkLoad.torque_vjp`)."""
     vjps = [load.torque_vjp(problem.robot, q, qd) for load in problem.terms.link_loads]
@@ -67,21 +54,20 @@ class HalfStep(eqx.Module):
 
 def half_step(problem: OCPProblem, y: Float[Array, "*b 5*n"]) -> HalfStep:
     """`T_s/2 f(x, u)` in scaled units, so that a scaled defect is
-    `[I 0](y_{k+1} - y_k) - g_k - g_{k+1}` (`f` of `jr.planning_dynamics`, LAPACK-free)."""
-    r = problem.robot
+    `[I 0](y_{k+1} - y_k) - g_k - g_{k+1}` (`f` of `jr.planning_dynamics`, LAPACK-free; the link side of
+    `jr.link_dynamics` with the problem's `terms`)."""
     sz = variable_scale(problem)
     z = y * sz
     nx = 4 * problem.n_joints
     x, u = State.of(z[..., :nx]), z[..., nx:]
     phi, ratio = gear_outputs(problem, x.theta)
-    d = jr.mass_matrix(r, x.q)
     slope_rate = None
     if problem.terms.joint_torques:
         slope_rate = jax.jvp(lambda th: 1.0 / gear_outputs(problem, th)[1], (x.theta,), (jnp.ones_like(x.theta),))[1]
-    qdd = _link_acceleration(problem, x.q, x.qd, phi, d, x.thetad / ratio)
-    f = State(x.qd, qdd, x.thetad, u).pack()
-    return HalfStep(y=y, g=0.5 * problem.ts * f / sz[:nx], phi=phi, ratio=ratio, mass=d, qdd=qdd,
-                    stiffness=jr.elastic_stiffness(r, phi - x.q), slope_rate=slope_rate)
+    link = jr.link_dynamics(problem.robot, x.q, x.qd, phi, x.thetad / ratio, problem.terms)
+    f = State(x.qd, link.acceleration, x.thetad, u).pack()
+    return HalfStep(y=y, g=0.5 * problem.ts * f / sz[:nx], phi=phi, ratio=ratio, mass=link.mass,
+                    qdd=link.acceleration, stiffness=link.stiffness, slope_rate=slope_rate)
 
 
 def inverse_dynamics_vjp(problem: OCPProblem, h: HalfStep

@@ -280,7 +280,7 @@ def objective(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N 
 
 def defects(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n"]) -> Float[Array, "Nm1 4*n"]:
     """Trapezoidal collocation defects `x_{k+1} - x_k - T_s/2 (f_k + f_{k+1})` (eq. 4.3b), unscaled."""
-    f = jr.planning_dynamics(problem.robot, x, u, gear_weights(problem, State.of(x).theta))
+    f = jr.planning_dynamics(problem.robot, x, u, gear_weights(problem, State.of(x).theta), problem.terms)
     return (x[1:] - x[:-1] - 0.5 * problem.ts * (f[1:] + f[:-1])) * node_mask(problem)[1:, None]
 
 

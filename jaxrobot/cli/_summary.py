@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._flat import flat_inverse
+from .._dynamics import flat_inverse
 from .._gear import motor_angle
 from .._kinematics import forward_kinematics
 from .._modes import elastic_eigenfrequencies

@@ -156,6 +156,29 @@ def test_link_friction_enters_the_link_bracket_and_the_urdf(tmp_path):
     assert "<dynamics" not in jr.to_urdf(plain)
 
 
+def test_link_dynamics_of_a_damped_arm_with_friction():
+    """`link_dynamics` of the arm with joint damping and link friction: its mass matrix is the hand-written arm's
+    (rounding ~1e-13), its accelerations balance `D qdd + C qd + g = kappa(phi - q) + d (phid - qd) - friction` (eq.
+    2.23a, 2.23c) and are `link_acceleration`'s, its slopes `elastic_stiffness`'s; the robot's terms given or
+    resolved, under jit and vmap, alike."""
+    robot = jr.robot_from_description(arm_description(damping=DAMPING, viscous=VISCOUS, coulomb=COULOMB))
+    rng = np.random.default_rng(11)
+    q, qd = rng.normal(size=(3, 2)), rng.normal(size=(3, 2))
+    phi, phid = q + 1e-3 * rng.normal(size=(3, 2)), qd + 0.1 * rng.normal(size=(3, 2))
+    link = jr.link_dynamics(robot, q, qd, phi, phid)
+    spring = (phi - q) * K1 + K3 * (phi - q) ** 3
+    for k in range(3):
+        torque, mass = arm_link_torque(q[k], qd[k], np.asarray(link.acceleration[k]))
+        np.testing.assert_allclose(link.mass[k], mass, rtol=0, atol=1e-13)
+        friction = VISCOUS * qd[k] + COULOMB * np.tanh(qd[k] / jr.COULOMB_VELOCITY)
+        np.testing.assert_allclose(torque, spring[k] + DAMPING * (phid[k] - qd[k]) - friction, rtol=1e-12)
+    np.testing.assert_array_equal(link.acceleration, jr.link_acceleration(robot, q, qd, phi, phid))
+    np.testing.assert_array_equal(link.stiffness, jr.elastic_stiffness(robot, phi - q))
+    given = jax.jit(jax.vmap(lambda *a: jr.link_dynamics(robot, *a, jr.effects.terms(robot))))(q, qd, phi, phid)
+    for a, b in zip(jax.tree.leaves(given), jax.tree.leaves(link)):
+        np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-14)
+
+
 @pytest.mark.parametrize("n", [1, 7])
 def test_link_friction_on_any_chain(n):
     """On a random `n`-joint chain with link-side friction and per-joint smoothing velocities `v_s` (seeded):
