@@ -84,6 +84,7 @@ def test_the_gear_hysteresis_is_the_flank_play():
     """The one `GearHysteresis` is the flank play: its state, weight and output are the public flank functions'."""
     hysteresis = jr.effects.gear_hysteresis()
     assert hysteresis is jr.effects.FLANK_PLAY
+    assert hysteresis.description == "gear flanks"  # the help texts of `plan`, `sweep` and `front` read it
     robot = jr.racer7(as_built=True)
     theta = jnp.linspace(0.0, 0.3, 7)[:, None] * jnp.ones(6)
     w = hysteresis.travel(robot)
