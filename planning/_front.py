@@ -44,7 +44,7 @@ from ._padding import head, pad_edge, padded_nodes
 from ._sweep import _chain, _members, check_nus
 from ._trajectories import Path
 from ._transcription import COSTS, State, bounds, motor_directions, ocp_problem
-from ._workflow import flank_start, iterate_flanks
+from ._workflow import gear_state_start, iterate_gear_states
 
 LIMIT_KINDS = ("link position", "link rate", "motor position", "motor rate", "motor acceleration")
 """The axis limits of every joint, in the order of the OCP's node variables `[q, qd, theta, thetad, u]`
@@ -222,52 +222,52 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
     probed first: the largest `nu` of every path finds the durations with a feasible plan; only those are then
     solved for every other `nu`, each member a solve of its own from the flat inverse (the probe is the member of
     the largest `nu`), side by side on the CPU cores (`_solve_each`); the members of a path whose probe did not
-    converge are its probe. `directional`: on the flanks of each plan's motion (`iterate_flanks`), each later round
-    solving only the members still iterating, each warm-started by its last plan. Returns a (D * M) batched
-    `OCPSolution` on `size` nodes, duration-major."""
+    converge are its probe. `directional`: on the gear states of each plan's motion (`iterate_gear_states`), each
+    later round solving only the members still iterating, each warm-started by its last plan. Returns a (D * M)
+    batched `OCPSolution` on `size` nodes, duration-major."""
     solver = ocp_solver("solve_front", solver, None)
     history, m = solver.history_length(), nus.size
     size = padded_nodes(max(jp.t.shape[0] for jp in jps)) if size is None else size
     ts = jnp.asarray(jps[0].path.sample_time, float)
-    members, plays = [], []
+    members, gear_states = [], []
     for jp in jps:
         flat = flat_motor_trajectory(robot, jp)
         if directional:
-            play, warm = flank_start(robot, jp.q, jp.qd, flat)
-            plays.append(pad_edge(play, size))
+            gear_state, warm = gear_state_start(robot, jp.q, jp.qd, flat)
+            gear_states.append(pad_edge(gear_state, size))
         else:
             warm = (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
         members.append((pad_edge(jnp.asarray(jp.q, float), size), tuple(pad_edge(a, size) for a in warm),
                         pad_edge(motor_directions(flat.thetad), size), jnp.asarray(jp.t.shape[0])))
     settings = jax.tree.map(jnp.asarray, solver)
     if (backend_kind() != "cpu") if batched is None else batched:
-        return _solve_members(robot, members, plays, ts, nus, cost, settings, history)
+        return _solve_members(robot, members, gear_states, ts, nus, cost, settings, history)
     each = functools.partial(_solve_each, robot, members, ts, cost, settings, history)
     paths, top = np.arange(len(jps)), int(np.argmax(nus))
-    probe = each([(i, nus[top], plays[i] if directional else None, members[i][1]) for i in paths])
+    probe = each([(i, nus[top], gear_states[i] if directional else None, members[i][1]) for i in paths])
     out = _take(probe, np.repeat(paths, m))  # a path whose probe did not converge: every member is its probe
     pairs = np.array([(i, j) for i in paths[np.asarray(probe.converged)] for j in range(m)], int).reshape(-1, 2)
     if pairs.size == 0:
         return out
     seen = []
 
-    def solve(play, last):
+    def solve(gear_state, last):
         """The members `pairs` (path, nu): at first the probe's plan and each other member from its path's start;
-        later each member whose play states changed (one still iterating) from its last plan."""
+        later each member whose gear states changed (one still iterating) from its last plan."""
         if last is None:
             base, todo = _take(probe, pairs[:, 0]), np.flatnonzero(pairs[:, 1] != top)
             starts = [members[i][1] for i in pairs[todo, 0]]
         else:
             base = last
-            todo = np.flatnonzero((np.asarray(play) != seen[-1]).any(axis=(1, 2)))
+            todo = np.flatnonzero((np.asarray(gear_state) != seen[-1]).any(axis=(1, 2)))
             starts = [(last.x[k], last.u[k]) for k in todo]
-        seen.append(None if play is None else np.asarray(play))
-        tasks = [(pairs[k, 0], nus[pairs[k, 1]], None if play is None else play[k], start)
+        seen.append(None if gear_state is None else np.asarray(gear_state))
+        tasks = [(pairs[k, 0], nus[pairs[k, 1]], None if gear_state is None else gear_state[k], start)
                  for k, start in zip(todo, starts, strict=True)]
         return (_replace(base, todo, each(tasks)) if tasks else base), None
 
     if directional:
-        sols = iterate_flanks(robot, jnp.stack([plays[i] for i in pairs[:, 0]]), solve)[0]
+        sols = iterate_gear_states(robot, jnp.stack([gear_states[i] for i in pairs[:, 0]]), solve)[0]
     else:
         sols = solve(None, None)[0]
     return _replace(out, pairs[:, 0] * m + pairs[:, 1], sols)
@@ -275,13 +275,13 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
 
 def _solve_each(robot: jr.Robot, members: list[tuple], ts, cost: str, solver, history: int, tasks: list[tuple]
                 ) -> OCPSolution:
-    """One solve per task (a path's index in `members`, its `nu`, its play states (P, n) or None, its warm start
+    """One solve per task (a path's index in `members`, its `nu`, its gear states (P, n) or None, its warm start
     `(x, u)`), all by one compiled program (`_chain` of one `nu`: the unbatched solve), side by side on the CPU
     cores (one at a time on an accelerator, where they would queue). Returns the solutions batched in the tasks'
     order."""
     workers = (os.cpu_count() or 1) if backend_kind() == "cpu" else 1
     args = [(robot, members[i][0], ts, jnp.asarray([nu], float), tuple(jnp.asarray(a) for a in warm), None, solver,
-             None if play is None else jnp.asarray(play)[None], *members[i][2:]) for i, nu, play, warm in tasks]
+             None if state is None else jnp.asarray(state)[None], *members[i][2:]) for i, nu, state, warm in tasks]
     compiled = _chain.lower(*args[0], cost=cost, history=history).compile()  # cached after the first call
     with ThreadPoolExecutor(min(workers, len(args))) as pool:
         parts = list(pool.map(lambda a: jax.block_until_ready(compiled(*a)), args))
@@ -303,27 +303,28 @@ def _replace(sols: OCPSolution, index: np.ndarray, new: OCPSolution) -> OCPSolut
     return jax.tree.map(put, sols, new)
 
 
-def _solve_members(robot: jr.Robot, members: list[tuple], plays: list, ts, nus: np.ndarray, cost: str, solver,
-                   history: int) -> OCPSolution:
+def _solve_members(robot: jr.Robot, members: list[tuple], gear_states: list, ts, nus: np.ndarray, cost: str,
+                   solver, history: int) -> OCPSolution:
     """`solve_front`'s batched form: each path's `members` entry (padded `q_d`, warm start, motor directions, node
-    count) for every `nu` of `nus`, duration-major, in one `_members` call per round of `iterate_flanks` (`plays`
-    given: the paths' first play states), each later round warm-started by every member's last converged plan."""
+    count) for every `nu` of `nus`, duration-major, in one `_members` call per round of `iterate_gear_states`
+    (`gear_states` given: the paths' first gear states), each later round warm-started by every member's last
+    converged plan."""
     m = nus.size
     q_d, warm, direction, nodes = jax.tree.map(lambda *a: np.repeat(np.stack([np.asarray(b) for b in a]), m, 0),
                                                *members)
     b = nodes.shape[0]
     per_member = (np.full(b, float(ts)), np.tile(np.asarray(nus, float), len(members)))
 
-    def solve(play, last):
+    def solve(gear_state, last):
         ok = np.zeros(b, bool) if last is None else np.asarray(last.converged)
         start = jax.tree.map(lambda plan, flat: np.where(ok[:, None, None], plan, flat),
                              warm if last is None else (np.asarray(last.x), np.asarray(last.u)), warm)
-        return _members(robot, q_d, *per_member, start, solver, play, direction, nodes, cost=cost,
+        return _members(robot, q_d, *per_member, start, solver, gear_state, direction, nodes, cost=cost,
                         history=history), start
 
-    if not plays:
+    if not gear_states:
         return solve(None, None)[0]
-    return iterate_flanks(robot, np.repeat(np.stack([np.asarray(p) for p in plays]), m, 0), solve)[0]
+    return iterate_gear_states(robot, np.repeat(np.stack([np.asarray(s) for s in gear_states]), m, 0), solve)[0]
 
 
 def _round(robot: jr.Robot, plant: jr.Robot, path: Path, durations: list[float], nus: np.ndarray, cost: str,
@@ -373,8 +374,8 @@ def cycle_time_front(robot: jr.Robot, plant: jr.Robot, path: Path, tolerance: fl
 
     Every duration of `durations` [s] (rounded to the task's sample time) x every weighting factor of `nus` is
     planned in one batched round (`solve_front`: the durations whose probe at the largest `nu` finds no feasible
-    plan are not solved for the others; `directional`: on the flanks of each plan's motion, as `plan_task`)
-    from the IK from `q_init`, and simulated on `plant` (`directional`: its gears' flanks as states). Then, while
+    plan are not solved for the others; `directional`: on the gear states of each plan's motion, as `plan_task`)
+    from the IK from `q_init`, and simulated on `plant` (`directional`: its gears' hysteresis as states). Then, while
     the shortest duration meeting the tolerance is more than `refine` (relative) above the longest one below it that
     does not, a round of `REFINE_POINTS` durations between the two (all on the grid's padded node count: the same
     compiled program). A member meets the tolerance where its solve converged (the limits are bounds of the OCP)

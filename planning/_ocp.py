@@ -130,8 +130,7 @@ def solve_ocp(
     warm_start: tuple[Float[Array, "N 4*n"], Float[Array, "N n"]] | None = None,
     u_ref: Float[Array, "N n"] | None = None,
     throw: bool = False,
-    play: Float[Array, "N n"] | None = None,
-    travel: Float[Array, " n"] | None = None,
+    gear_state: Float[Array, "N n"] | None = None,
     direction: Float[Array, "N n"] | None = None,
     config: ALConfig | None = None,
 ) -> OCPSolution:
@@ -151,10 +150,9 @@ def solve_ocp(
       relation on finite differences of `q_d` (`_transcription.warm_start`). Its end nodes
       are replaced by the boundary values of eq. 4.3e-j.
     - `u_ref`: reference of the `"flat"` cost; default the warm start's `u`.
-    - `play`, `travel`: the states (N, n) [motor rad] of the gears' hysteresis at the nodes
-      (`jr.effects.GearHysteresis`: the play states of the gears' flank play, `jr.play_state` of a motor path) and
-      their widths (n,) (the reversal travels; default the robot's, docs/model.md (B.0)): the weight of each
-      node's ccw set follows its motor angle (`GearHysteresis.weight`); default the cw set throughout (eq. 4.1).
+    - `gear_state`: the states (N, n) [motor rad] of the gears' hysteresis at the nodes (`jr.effects.GearHysteresis`,
+      `states` of a motor path; their width the robot's, docs/model.md (B.0)): the weight of each node's ccw set
+      follows its motor angle (`GearHysteresis.state_weight`); default the cw set throughout (eq. 4.1).
     - `direction`: (N, n) the direction each motor may turn at each node, +1 (`thetad >= 0`), -1 or 0 (either);
       `motor_directions` of the exact motor rates keeps the plan's reversals to the task's (docs/model.md
       (B.6)). Default: either way throughout (eq. 4.3).
@@ -173,8 +171,8 @@ def solve_ocp(
     is no `AbstractOCPSolver`).
     """
     solver = ocp_solver("solve_ocp", solver, config)
-    return _solve_ocp(robot, q_d, ts, nu, cost, solver, warm_start, u_ref, throw, solver.history_length(), play,
-                      travel, direction)
+    return _solve_ocp(robot, q_d, ts, nu, cost, solver, warm_start, u_ref, throw, solver.history_length(), gear_state,
+                      direction)
 
 
 def ocp_solver(function: str, solver: AbstractOCPSolver | None, config: ALConfig | None) -> AbstractOCPSolver:
@@ -196,11 +194,11 @@ def ocp_solver(function: str, solver: AbstractOCPSolver | None, config: ALConfig
 
 
 def _solve_ocp(robot, q_d, ts, nu, cost: Cost, solver: AbstractOCPSolver, warm_start, u_ref, throw: bool,
-               history: int, play=None, travel=None, direction=None, nodes=None) -> OCPSolution:
+               history: int, gear_state=None, direction=None, nodes=None) -> OCPSolution:
     """`solve_ocp` with the static history length given (`solver.history_length()`), so that `solver` may be
     traced; `nodes`: the inputs are already padded after the task's `nodes` nodes (`pad_problem`), and the
     solution is returned padded."""
-    problem = ocp_problem(robot, q_d, ts, nu, cost, u_ref, play, travel, direction)
+    problem = ocp_problem(robot, q_d, ts, nu, cost, u_ref, gear_state, direction)
     require_elastic(robot, "solve_ocp")
     n, j = problem.n_nodes, problem.n_joints
     start = None

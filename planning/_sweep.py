@@ -42,26 +42,27 @@ from ._transcription import Cost, ocp_problem
 
 
 @functools.partial(jax.jit, static_argnames=("cost", "history"))
-def _chain(robot, q_d, ts, nus, warm_start, u_ref, solver, play, direction, nodes=None, *, cost, history
+def _chain(robot, q_d, ts, nus, warm_start, u_ref, solver, gear_state, direction, nodes=None, *, cost, history
            ) -> OCPSolution:
-    """One continuation chain: `solve_ocp` vmapped over `nus` (and the members' `play`, if any) on inputs
+    """One continuation chain: `solve_ocp` vmapped over `nus` (and the members' `gear_state`, if any) on inputs
     padded after the task's `nodes` nodes (traced; None: unpadded, each member padded by `solve_ocp`); `solver`
     is traced, so chains that differ only in their settings or their task's length (of one padded size) share
     one compiled program (`history`: `solver.history_length()`)."""
-    return jax.vmap(lambda nu, p: _solve_ocp(robot, q_d, ts, nu, cost, solver, warm_start, u_ref, False, history, p,
-                                             None, direction, nodes))(nus, play)
+    return jax.vmap(lambda nu, s: _solve_ocp(robot, q_d, ts, nu, cost, solver, warm_start, u_ref, False, history, s,
+                                             direction, nodes))(nus, gear_state)
 
 
 @functools.partial(jax.jit, static_argnames=("cost", "history"))
-def _members(robot, q_d, ts, nus, warm_start, solver, play, direction, nodes, *, cost, history) -> OCPSolution:
+def _members(robot, q_d, ts, nus, warm_start, solver, gear_state, direction, nodes, *, cost, history
+             ) -> OCPSolution:
     """Independent solves in one vmapped program: `solve_ocp` of member `k` of every batched argument (B members:
-    `q_d`, `ts`, `nus`, `warm_start`, `play` (or None), `direction`, `nodes`, all padded to one node count after
+    `q_d`, `ts`, `nus`, `warm_start`, `gear_state` (or None), `direction`, `nodes`, all padded to one node count after
     each member's `nodes`, which are traced, as is `solver`). With a linear solver whose `batch_in_lanes` is True the
     members advance together in lanes, each masked once its solve stops (`augmented_lagrangian`); with `Scan`, one
     after the other."""
-    return jax.vmap(lambda q, t, nu, w, p, d, k: _solve_ocp(robot, q, t, nu, cost, solver, w, None, False, history, p,
-                                                            None, d, k))(q_d, ts, nus, warm_start, play, direction,
-                                                                         nodes)
+    return jax.vmap(lambda q, t, nu, w, s, d, k: _solve_ocp(robot, q, t, nu, cost, solver, w, None, False, history, s,
+                                                            d, k))(q_d, ts, nus, warm_start, gear_state, direction,
+                                                                   nodes)
 
 
 def _padded(positions: np.ndarray, length: int) -> np.ndarray:
@@ -90,14 +91,14 @@ def _first_places(index: np.ndarray) -> np.ndarray:
 
 
 @functools.partial(jax.jit, static_argnames=("cost", "history", "mesh"))
-def _sharded_chains(robot, q_d, ts, nus, warm_start, u_ref, solver, play, direction, nodes, cost, history, mesh
+def _sharded_chains(robot, q_d, ts, nus, warm_start, u_ref, solver, gear_state, direction, nodes, cost, history, mesh
                     ) -> OCPSolution:
     """`_chain` on every device of `mesh` for its own members (`shard_map`, no communication); the
-    other arguments (but the members' `play`) are replicated."""
+    other arguments (but the members' `gear_state`) are replicated."""
     one, rep = PartitionSpec("sweep"), PartitionSpec()
     return jax.shard_map(functools.partial(_chain, cost=cost, history=history), mesh=mesh,
                          in_specs=(rep, rep, rep, one, rep, rep, rep, one, rep, rep), out_specs=one, check_vma=False)(
-        robot, q_d, ts, nus, warm_start, u_ref, solver, play, direction, nodes)
+        robot, q_d, ts, nus, warm_start, u_ref, solver, gear_state, direction, nodes)
 
 
 def check_nus(nus, name: str = "nus", distinct: bool = False) -> np.ndarray:
@@ -123,7 +124,7 @@ def solve_ocp_sweep(
     u_ref: Float[Array, "N n"] | None = None,
     workers: int | None = None,
     throw: bool = False,
-    play: Float[Array, "B N n"] | None = None,
+    gear_state: Float[Array, "B N n"] | None = None,
     direction: Float[Array, "N n"] | None = None,
     config: ALConfig | None = None,
 ) -> OCPSolution:
@@ -139,11 +140,10 @@ def solve_ocp_sweep(
     arguments and receives all members; the chains are one per device of all processes (`workers`
     is not used). `solver` (as `solve_ocp`'s, `config` deprecated likewise) is traced: sweeps that
     differ only in its settings (of the same `history_length()`) share one compiled program. `throw`: raise the
-    message of the first member that did not converge (default False: each member carries its status). `play`:
-    the play states of each member's gears (B, N, n) and `direction` the motor directions, shared (as
-    `solve_ocp`).
+    message of the first member that did not converge (default False: each member carries its status). `gear_state`:
+    the states of each member's gears (B, N, n) and `direction` the motor directions, shared (as `solve_ocp`).
 
-    **Raises:** `ValueError` naming the field for bad values, before any compute (`nus`, `workers`, `play`;
+    **Raises:** `ValueError` naming the field for bad values, before any compute (`nus`, `workers`, `gear_state`;
     the others as `solve_ocp`).
     """
     nus = check_nus(nus)
@@ -153,10 +153,11 @@ def solve_ocp_sweep(
         workers = (os.cpu_count() or 1) if backend_kind() == "cpu" else 1
     if not isinstance(workers, int | np.integer) or workers < 1:
         raise ValueError(f"workers: expected an integer >= 1, found {workers!r}")
-    if play is not None and np.shape(play) != (nus.size, *np.shape(q_d)):
-        raise ValueError(f"play: expected play states of shape ({nus.size}, {', '.join(map(str, np.shape(q_d)))}) "
-                         f"[motor rad], one set per nu, found {np.shape(play)}")
-    ocp_problem(robot, q_d, ts, float(nus[0]), cost, u_ref, None if play is None else play[0], None,
+    if gear_state is not None and np.shape(gear_state) != (nus.size, *np.shape(q_d)):
+        raise ValueError(f"gear_state: expected the states of the gears' hysteresis of shape ({nus.size}, "
+                         f"{', '.join(map(str, np.shape(q_d)))}) [motor rad], one set per nu, found "
+                         f"{np.shape(gear_state)}")
+    ocp_problem(robot, q_d, ts, float(nus[0]), cost, u_ref, None if gear_state is None else gear_state[0],
                 direction)  # range checks on the concrete inputs
     order = np.argsort(nus)
     # the node axis padded (`planning._padding`): sweeps of tasks of other lengths share the compiled chain
@@ -166,22 +167,22 @@ def solve_ocp_sweep(
     q_d, direction = (None if a is None else pad_edge(jnp.asarray(a, float), size) for a in (q_d, direction))
     warm_start = None if warm_start is None else tuple(pad_edge(jnp.asarray(a, float), size) for a in warm_start)
     u_ref = None if u_ref is None else pad_zeros(jnp.asarray(u_ref, float), size)
-    play = None if play is None else pad_edge(jnp.asarray(play, float), size, 1)
+    gear_state = None if gear_state is None else pad_edge(jnp.asarray(gear_state, float), size, 1)
     if jax.process_count() > 1:
         mesh = Mesh(np.asarray(jax.devices()), ("sweep",))
         index = _chain_index(order, mesh.size).reshape(-1)
         spread = lambda a: jax.make_array_from_callback(  # noqa: E731
             a[index].shape, NamedSharding(mesh, PartitionSpec("sweep")), lambda idx: a[index][idx])
         out = _sharded_chains(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), spread(nus), warm_start, u_ref,
-                              solver, None if play is None else spread(np.asarray(play, float)), direction, nodes,
-                              cost, history, mesh)
+                              solver, None if gear_state is None else spread(np.asarray(gear_state, float)), direction,
+                              nodes, cost, history, mesh)
         out = _cut(jax.tree.map(lambda leaf: jnp.asarray(leaf[_first_places(index)]), gather_array(out)), n)
         return check(out.status, out, throw)
     chains = max(1, min(int(workers), nus.size // 2))
     index = _chain_index(order, chains)
     solver = jax.tree.map(jnp.asarray, solver)
     args = [(robot, jnp.asarray(q_d, float), jnp.asarray(ts, float), jnp.asarray(nus[idx]), warm_start, u_ref, solver,
-             None if play is None else jnp.asarray(play, float)[idx], direction, nodes) for idx in index]
+             None if gear_state is None else jnp.asarray(gear_state, float)[idx], direction, nodes) for idx in index]
     compiled = _chain.lower(*args[0], cost=cost, history=history).compile()  # cached after the first call
     with ThreadPoolExecutor(chains) as pool:
         parts = list(pool.map(lambda a: jax.block_until_ready(compiled(*a)), args))

@@ -92,13 +92,10 @@ class OCPProblem(eqx.Module):
     """The terms of the robot's effects (`jr.effects.terms`), resolved once: the dynamics and the cost sum them."""
     cost: str = eqx.field(static=True, default="thesis")
     """One of `COSTS`."""
-    play: Float[Array, "N n"] | None = None
-    """State of each gear's hysteresis at each node [motor rad] (`jr.effects.GearHysteresis`: the play states of the
-    gears' flank play, `jr.play_state`, docs/model.md (B.0)): the weights of the gears' ccw sets follow the nodes'
-    motor angles (`gear_weights`); None: the cw set throughout (eq. 4.1)."""
-    travel: Float[Array, " n"] | None = None
-    """Width of each gear's state [motor rad] (`jr.effects.GearHysteresis.travel`, docs/model.md (B.0)), with
-    `play`."""
+    gear_state: Float[Array, "N n"] | None = None
+    """State of each gear's hysteresis at each node [motor rad] (`jr.effects.GearHysteresis`, of the width the robot
+    gives, docs/model.md (B.0)): the weights of the gears' ccw sets follow the nodes' motor angles (`gear_weights`);
+    None: the cw set throughout (eq. 4.1)."""
     direction: Float[Array, "N n"] | None = None
     """Direction each motor may turn at each node (`motor_directions`): +1 only forward (`thetad >= 0`), -1
     only backward, 0 either way (also where None)."""
@@ -127,17 +124,16 @@ def ocp_problem(
     nu: float | Float[Array, ""] = 1e-14,
     cost: Cost = "thesis",
     u_ref: Float[Array, "N n"] | None = None,
-    play: Float[Array, "N n"] | None = None,
-    travel: Float[Array, " n"] | None = None,
+    gear_state: Float[Array, "N n"] | None = None,
     direction: Float[Array, "N n"] | None = None,
 ) -> OCPProblem:
     """Validate the inputs of eq. 4.3 and bundle them (before any compute).
 
     **Arguments:** `q_d` (N, n) desired link angles [rad] sampled every `ts` [s] (N >= 3);
     `nu > 0`; `cost` in `COSTS`; `u_ref` (N, n) [motor rad/s^2] for `cost="flat"`
-    (default: the quasi-static/flat warm start's `u`, see `warm_start`); `play` (N, n) the play states of
-    the gears at the nodes [motor rad] and `travel` (n,) their reversal travel (default
-    the robot's, docs/model.md (B.0)): the flanks follow the motor angles (default: cw throughout); `direction`
+    (default: the quasi-static/flat warm start's `u`, see `warm_start`); `gear_state` (N, n) the states of the
+    gears' hysteresis at the nodes [motor rad] (`jr.effects.GearHysteresis`): the weights of the gears' ccw sets
+    follow the motor angles (default: cw throughout); `direction`
     (N, n) the direction each motor may turn at each node, +1, -1 or 0 (`motor_directions`; default: either).
 
     **Raises:** `ValueError` naming the field for wrong shapes, non-finite values, `ts <= 0`,
@@ -167,16 +163,11 @@ def ocp_problem(
                          f"found {np.shape(u_ref)}")
     elif _concrete(u_ref) and not np.all(np.isfinite(np.asarray(u_ref))):
         raise ValueError("u_ref: expected finite motor accelerations [rad/s^2], found NaN or inf")
-    if play is not None:
-        if np.shape(play) != (n, joints):
-            raise ValueError(f"play: expected play states of shape ({n}, {joints}) [motor rad], found {np.shape(play)}")
-        travel = jr.effects.gear_hysteresis().travel(robot) if travel is None else travel
-        if np.shape(travel) != (joints,):
-            raise ValueError(f"travel: expected reversal travels of shape ({joints},) [motor rad], "
-                             f"found {np.shape(travel)}")
-        if _concrete(travel) and not np.all(np.asarray(travel) > 0):
-            raise ValueError(f"travel: expected reversal travels > 0 [motor rad], found {np.asarray(travel)}")
-        play, travel = jnp.asarray(play, float), jnp.asarray(travel, float)
+    if gear_state is not None:
+        if np.shape(gear_state) != (n, joints):
+            raise ValueError(f"gear_state: expected the states of the gears' hysteresis of shape ({n}, {joints}) "
+                             f"[motor rad], found {np.shape(gear_state)}")
+        gear_state = jnp.asarray(gear_state, float)
     if direction is None:
         direction = np.zeros((n, joints))
     elif np.shape(direction) != (n, joints):
@@ -186,7 +177,7 @@ def ocp_problem(
                          f"{np.unique(np.asarray(direction)).tolist()}")
     return OCPProblem(robot=robot, q_d=jnp.asarray(q_d, float), ts=jnp.asarray(ts, float),
                       nu=jnp.asarray(nu, float), u_ref=jnp.asarray(u_ref, float), terms=jr.effects.terms(robot),
-                      cost=cost, play=play, travel=travel,
+                      cost=cost, gear_state=gear_state,
                       direction=jnp.asarray(direction, float))
 
 
@@ -213,21 +204,21 @@ def _motor_directions(thetad):
 # ----------------------------------------------------------------------------- eq. 4.3 as written
 
 def gear_weights(problem: OCPProblem, theta: Float[Array, "*b n"]) -> Float[Array, "*b n"] | None:
-    """Weights of the gears' ccw sets at the nodes' motor angles `theta` (None without `play`)."""
-    if problem.play is None:
+    """Weights of the gears' ccw sets at the nodes' motor angles `theta` (None without `gear_state`)."""
+    if problem.gear_state is None:
         return None
-    return jr.effects.gear_hysteresis().weight(problem.play, theta, problem.travel)
+    return jr.effects.gear_hysteresis().state_weight(problem.robot, problem.gear_state, theta)
 
 
 def gear_outputs(problem: OCPProblem, theta: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
-    """Gear output angles and `dtheta/dphi` at the nodes' motor angles `theta`: of the cw set, or with `play` at the
-    gears' states there (`jr.effects.GearHysteresis.state_output`, the weights following `theta`)."""
+    """Gear output angles and `dtheta/dphi` at the nodes' motor angles `theta`: of the cw set, or at the gears' states
+    there (`gear_state`, `jr.effects.GearHysteresis.state_output`: the weights following `theta`)."""
     r = problem.robot
-    if problem.play is None:
+    if problem.gear_state is None:
         phi = jr.gear_output(r, theta)
         return phi, jr.gear_ratio(r, phi)
     hysteresis = jr.effects.gear_hysteresis()
-    phi, slope = jax.jvp(lambda th: hysteresis.state_output(r, th, problem.play, problem.travel), (theta,),
+    phi, slope = jax.jvp(lambda th: hysteresis.state_output(r, th, problem.gear_state), (theta,),
                          (jnp.ones_like(theta),))
     return phi, 1.0 / slope
 
@@ -241,9 +232,9 @@ def boundary_states(problem: OCPProblem) -> tuple[Float[Array, " 4*n"], Float[Ar
         q = problem.q_d[k]
         z = jnp.zeros_like(q)
         theta = jr.static_equilibrium(r, q)
-        if problem.play is not None:  # at the gears' states of the node, from the cw rest pose
+        if problem.gear_state is not None:  # at the gears' states of the node, from the cw rest pose
             phi = q + jr.elastic_deflection(r, jr.gravity_torque(r, q))
-            theta = jr.effects.gear_hysteresis().rest_motor_angle(r, phi, problem.play[k], problem.travel, theta)
+            theta = jr.effects.gear_hysteresis().rest_motor_angle(r, phi, problem.gear_state[k], theta)
         return State(q, z, theta, z).pack()
 
     return rest(0), rest(-1 if problem.nodes is None else problem.nodes - 1)
@@ -394,15 +385,15 @@ def fix_ends(problem: OCPProblem, x: Float[Array, "N 4*n"], u: Float[Array, "N n
 
 
 def pad_problem(problem: OCPProblem, size: int) -> OCPProblem:
-    """`problem` with `size - n_nodes` nodes appended (`OCPProblem.nodes`): `q_d`, `play` and `direction` repeat
+    """`problem` with `size - n_nodes` nodes appended (`OCPProblem.nodes`): `q_d`, `gear_state` and `direction` repeat
     the last node's, `u_ref` is 0 there. The padded problem's cost, defects, violations and optimum over
     the task's nodes are those of `problem`."""
     n = problem.n_nodes
     if problem.nodes is not None or size < n:
         raise ValueError(f"size: expected an unpadded problem and size >= {n}, found size {size}")
     edge = lambda a: None if a is None else pad_edge(a, size)  # noqa: E731
-    return eqx.tree_at(lambda p: (p.q_d, p.u_ref, p.play, p.direction, p.nodes), problem,
-                       (edge(problem.q_d), pad_zeros(problem.u_ref, size), edge(problem.play),
+    return eqx.tree_at(lambda p: (p.q_d, p.u_ref, p.gear_state, p.direction, p.nodes), problem,
+                       (edge(problem.q_d), pad_zeros(problem.u_ref, size), edge(problem.gear_state),
                         edge(problem.direction), jnp.asarray(n)), is_leaf=lambda x: x is None)
 
 
@@ -435,7 +426,7 @@ def warm_start(problem: OCPProblem) -> tuple[Float[Array, "N 4*n"], Float[Array,
     tau = jr.inverse_dynamics(r, q, qd, qdd)
     phi = q + jr.elastic_deflection(r, tau)
     theta = jr.motor_angle(r, phi)
-    if problem.play is not None:
+    if problem.gear_state is not None:
         theta = jr.effects.gear_hysteresis().motor_angle(r, phi, gear_weights(problem, theta))
     thetad = _time_derivative(theta, ts, end)
     u = _time_derivative(thetad, ts, end)

@@ -119,9 +119,9 @@ class PlanResult:
     """[m] task positions on the grid."""
     r_d: Float[Array, "N 3 3"] | None = None
     """Task orientations on the grid."""
-    play: Float[Array, "N n"] | None = None
-    """Play states of the gears the OCP planned with (`jr.play_state`; the flank weights follow its motor
-    angles); None: the cw set throughout."""
+    gear_state: Float[Array, "N n"] | None = None
+    """States of the gears' hysteresis the OCP planned with (`jr.effects.GearHysteresis`: the weights of the gears'
+    ccw sets follow its motor angles); None: the cw set throughout."""
     prediction: RobotPrediction | None = None
     """The predicted error of the OCP plan on the robot (`predict_on_robot`); None without an `uncertainty`."""
 
@@ -149,10 +149,10 @@ def _tool_positions(robot, q):
 
 
 DIRECTION_TOLERANCE = 1e-10
-"""[rad] Largest change of a gear output between the play states planned with and those of the plan's motion
-at which `iterate_flanks` stops."""
+"""[rad] Largest change of a gear output between the gear states planned with and those of the plan's motion
+at which `iterate_gear_states` stops."""
 DIRECTION_SOLVES = 4
-"""Most OCP solves of `iterate_flanks`."""
+"""Most OCP solves of `iterate_gear_states`."""
 
 
 def _select(take: np.ndarray, new, old):
@@ -160,41 +160,39 @@ def _select(take: np.ndarray, new, old):
     return jax.tree.map(lambda a, b: jnp.where(take.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
 
 
-def iterate_flanks(robot: jr.Robot, play: Float[Array, "B N n"], solve: Callable) -> tuple[OCPSolution,
-                                                                                          Float[Array, "B N n"], tuple]:
-    """B plans on the flanks their gears take along each plan's own motion: `solve(play, last)` solves with the
-    play states `play` (B, N, n) (`last`: the previous round's solutions, None at first) and returns the B
-    solutions and their warm starts; then each plan's play states become those of its motion
-    (`jr.play_state`), until the gear outputs on both agree within `DIRECTION_TOLERANCE` for every plan (at
-    most `DIRECTION_SOLVES` rounds; a plan whose solve does not converge keeps its last converged one, or its
-    first, and leaves the iteration). Returns the solutions, the play states and the warm starts of each."""
+def iterate_gear_states(robot: jr.Robot, gear_state: Float[Array, "B N n"], solve: Callable
+                        ) -> tuple[OCPSolution, Float[Array, "B N n"], tuple]:
+    """B plans on the states their gears' hysteresis takes along each plan's own motion (`jr.effects.GearHysteresis`),
+    a fixed point: `solve(gear_state, last)` solves with the gear states `gear_state` (B, N, n) (`last`: the previous
+    round's solutions, None at first) and returns the B solutions and their warm starts; then each plan's gear
+    states become those of its motion (`GearHysteresis.states`), until the gear outputs on both agree within
+    `DIRECTION_TOLERANCE` for every plan (at most `DIRECTION_SOLVES` rounds; a plan whose solve does not converge
+    keeps its last converged one, or its first, and leaves the iteration). Returns the solutions, the gear states
+    and the warm starts of each."""
     hysteresis = jr.effects.gear_hysteresis()
-    w = hysteresis.travel(robot)
     states = jax.vmap(lambda theta: hysteresis.states(robot, theta))
-    active, last, kept = np.ones(play.shape[0], bool), None, None
+    active, last, kept = np.ones(gear_state.shape[0], bool), None, None
     for _ in range(DIRECTION_SOLVES):
-        sols, warm = solve(play, last)
+        sols, warm = solve(gear_state, last)
         converged = np.asarray(sols.converged)
-        kept = (sols, play, warm) if kept is None else _select(active & converged, (sols, play, warm), kept)
+        kept = ((sols, gear_state, warm) if kept is None
+                else _select(active & converged, (sols, gear_state, warm), kept))
         new = states(sols.theta)
-        out = lambda p: hysteresis.state_output(robot, sols.theta, p, w)  # noqa: E731
-        agree = np.asarray(jnp.abs(out(new) - out(play)).max(axis=(-2, -1))) <= DIRECTION_TOLERANCE
+        out = lambda s: hysteresis.state_output(robot, sols.theta, s)  # noqa: E731
+        agree = np.asarray(jnp.abs(out(new) - out(gear_state)).max(axis=(-2, -1))) <= DIRECTION_TOLERANCE
         active = active & converged & ~agree
         if not active.any():
             break
-        play, last = jnp.where(active[:, None, None], new, play), sols
+        gear_state, last = jnp.where(active[:, None, None], new, gear_state), sols
     return kept
 
 
-def flank_start(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Array, "N n"], flat: MotorTrajectory
-                ) -> tuple[Float[Array, "N n"], tuple[Float[Array, "N 4*n"], Float[Array, "N n"]]]:
-    """The play states and the warm start of the first solve on the flanks: the flat inverse `flat` of the joint
-    path `q_d` (rates `qd_d`) moved onto the flanks its own motion takes (from rest on cw)."""
-    hysteresis = jr.effects.gear_hysteresis()
-    w = hysteresis.travel(robot)
-    weight = hysteresis.weight(hysteresis.states(robot, flat.theta, travel=w), flat.theta, w)
-    theta = hysteresis.motor_angle(robot, jr.gear_output(robot, flat.theta), weight)
-    return hysteresis.states(robot, theta), (State(q_d, qd_d, theta, flat.thetad).pack(), flat.thetadd)
+def gear_state_start(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Array, "N n"], flat: MotorTrajectory
+                     ) -> tuple[Float[Array, "N n"], tuple[Float[Array, "N 4*n"], Float[Array, "N n"]]]:
+    """The gear states and the warm start of the first solve of `iterate_gear_states`: the flat inverse `flat` of the
+    joint path `q_d` (rates `qd_d`) moved onto the states its own motion takes (`GearHysteresis.follow`)."""
+    gear_state, theta = jr.effects.gear_hysteresis().follow(robot, flat.theta)
+    return gear_state, (State(q_d, qd_d, theta, flat.thetad).pack(), flat.thetadd)
 
 
 def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Array, "N n"], flat: MotorTrajectory,
@@ -202,24 +200,25 @@ def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Arr
                       ) -> tuple[OCPSolution, Float[Array, "N n"] | None, tuple]:
     """The OCP of the joint path `q_d` (rates `qd_d`) warm-started by its flat inverse `flat`, each motor
     turning only in the direction of the flat inverse's (`motor_directions`: it reverses where the task
-    does); with `directional`, on the flanks the gears take along the planned motion (`iterate_flanks`, from
-    `flank_start`; each later solve warm-started by the previous plan). Returns the solution, the play
-    states it was planned with (None: cw) and its warm start."""
+    does); with `directional`, on the states the gears' hysteresis takes along the planned motion
+    (`iterate_gear_states`, from `gear_state_start`; each later solve warm-started by the previous plan). Returns the
+    solution, the gear states it was planned with (None: cw) and its warm start."""
     from ._ocp import solve_ocp
 
     direction = motor_directions(flat.thetad)
     if not directional:
         warm = (State(q_d, qd_d, flat.theta, flat.thetad).pack(), flat.thetadd)
         return solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm, direction=direction), None, warm
-    play, start = flank_start(robot, q_d, qd_d, flat)
+    gear_state, start = gear_state_start(robot, q_d, qd_d, flat)
 
-    def solve(play, last):
+    def solve(gear_state, last):
         warm = start if last is None else (last.x[0], last.u[0])
-        sol = solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm, play=play[0], direction=direction)
+        sol = solve_ocp(robot, q_d, ts, nu=nu, cost=cost, warm_start=warm, gear_state=gear_state[0],
+                        direction=direction)
         return jax.tree.map(lambda a: a[None], (sol, warm))
 
-    sol, play, warm = jax.tree.map(lambda a: a[0], iterate_flanks(robot, play[None], solve))
-    return sol, play, warm
+    sol, gear_state, warm = jax.tree.map(lambda a: a[0], iterate_gear_states(robot, gear_state[None], solve))
+    return sol, gear_state, warm
 
 
 def _plant_runs(plant: jr.Robot, jp: JointPath, trajectories: dict[str, MotorTrajectory], directional: bool
@@ -240,12 +239,12 @@ def _timed_ocp(robot: jr.Robot, jp: JointPath, flat: MotorTrajectory, ts: float,
                ) -> tuple[OCPSolution, Float[Array, "N n"] | None, float, float | None]:
     """The OCP step of `plan_task`: `solve_directional` on the joint path `jp` from the flat inverse `flat`, timed
     (with `timing`, the compile time apart from the solve time, `jaxrobot.internal.compile_timer`; else None and
-    the two together), its "solving", "ocp" and "solved" events emitted. Returns the solution, its play states,
+    the two together), its "solving", "ocp" and "solved" events emitted. Returns the solution, its gear states,
     the solve time and the compile time [s]."""
     emit(PlanEvent("solving", samples=jp.t.shape[0], nu=nu, cost=cost))
     start = time.perf_counter()
     with compile_timer() as compiling:
-        sol, play, _ = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
+        sol, gear_state, _ = solve_directional(robot, jp.q, jp.qd, flat, ts, nu, cost, directional)
         jax.block_until_ready(sol.u)
     first = time.perf_counter() - start
     emit(PlanEvent("ocp", first))
@@ -259,7 +258,7 @@ def _timed_ocp(robot: jr.Robot, jp: JointPath, flat: MotorTrajectory, ts: float,
                    max_violation=float(sol.max_constraint_violation),
                    history=tuple(tuple(map(float, h)) for h in hist[:min(it, hist.shape[0])]),
                    solve_time=solve_s, compile_time=compile_s))
-    return sol, play, solve_s, compile_s
+    return sol, gear_state, solve_s, compile_s
 
 
 def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str = "thesis",
@@ -269,10 +268,10 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     """Plan `path` on `robot` and evaluate the four motor trajectories on `plant`.
 
     IK from `q_init` (default as `joint_path`: the path's `ik_start`, else `task_start`), the flat inverse as
-    warm start, the OCP at weighting `nu` with `cost` (`directional`: on the gear flanks along the planned motion,
+    warm start, the OCP at weighting `nu` with `cost` (`directional`: on the gears' states along the planned motion,
     `solve_directional`), solved once (with `timing`, its compile time measured apart from its solve time,
-    `jaxrobot.internal.compile_timer`), then a fine simulation on `plant` (`directional`: with its gear flanks as
-    states, `jr.simulate`). The rigid and quasi-static trajectories, and on the CPU (which simulates one run at a
+    `jaxrobot.internal.compile_timer`), then a fine simulation on `plant` (`directional`: with its gears' hysteresis
+    as states, `jr.simulate`). The rigid and quasi-static trajectories, and on the CPU (which simulates one run at a
     time) the plant runs of the three baselines, are computed in a thread beside the flat inverse and the OCP; the
     "plant_simulation" stage is what is left after the OCP (the OCP's run beside the baselines' left). A solve that
     did not converge is returned without plant evaluation (`converged` False). `on_event` receives a `PlanEvent` per
@@ -305,11 +304,11 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
             return base, _plant_runs(plant, jp, base, directional) if one_by_one else None
 
         pending = pool.submit(baselines)
-        sol, play, solve_s, compile_s = _timed_ocp(robot, jp, flat, float(path.sample_time), nu, cost, directional,
-                                                   timing, emit)
+        sol, gear_state, solve_s, compile_s = _timed_ocp(robot, jp, flat, float(path.sample_time), nu, cost,
+                                                         directional, timing, emit)
         ocp = motor_commands(robot, jp.t, {"ocp": ocp_motor_trajectory(sol.x, sol.u)})
         if not bool(sol.converged):
-            return PlanResult(path, jp, sol, ocp, nu, cost, solve_s, compile_s, play=play)
+            return PlanResult(path, jp, sol, ocp, nu, cost, solve_s, compile_s, gear_state=gear_state)
         p_d, r_d = sample_path(path, jp.t)
         plan_err = np.linalg.norm(np.asarray(_tool_position(robot, sol.q)) - np.asarray(p_d), axis=-1)
         start = time.perf_counter()
@@ -331,7 +330,7 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
         prediction = predict_on_robot(robot, uncertainty, jp, ocp["ocp"], directional)
         emit(PlanEvent("prediction", time.perf_counter() - start))
     return PlanResult(path, jp, sol, trajectories, nu, cost, solve_s, compile_s, plant, tuple(names), run, errors,
-                      plan_err, p_d, r_d, play, prediction)
+                      plan_err, p_d, r_d, gear_state, prediction)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -340,7 +339,7 @@ class SweepEvent:
     `nus`."""
 
     stage: str
-    """Either "solved" (the OCPs of all `nus` of `cost`, batched: one call, one per round on the flanks) or
+    """Either "solved" (the OCPs of all `nus` of `cost`, batched: one call, one per round of the gear states) or
     "evaluated" (bandwidths and plant errors of every member)."""
     cost: str
     """The cost variant (one of `COSTS`)."""
@@ -418,11 +417,11 @@ def sweep_task(robot: jr.Robot, plant: jr.Robot, path: Path, nus, costs: tuple[s
     (one `solve_ocp_sweep` call per cost: continuation chains in increasing nu, each member warm-started
     from the previous ones, one chain per CPU core, all from the flat inverse of the IK from `q_init`; each
     motor turning only in the task's direction, `motor_directions`; with `directional`, every member on the
-    flanks its gears take along its own motion, `iterate_flanks` from `flank_start`, a call per round), then
-    the control bandwidths and the tool-pose errors on `plant` (`directional`: with its gear flanks as
-    states) of every solution, all members in one batched simulation (`simulate_plans`). A cost variant with
-    a member that did not converge ends the sweep there, without plant evaluation, unless `keep_failed`;
-    check `converged`. `on_event` receives a `SweepEvent` per stage."""
+    states its gears' hysteresis takes along its own motion, `iterate_gear_states` from `gear_state_start`, a call
+    per round), then the control bandwidths and the tool-pose errors on `plant` (`directional`: with its gears'
+    hysteresis as states) of every solution, all members in one batched simulation (`simulate_plans`). A cost
+    variant with a member that did not converge ends the sweep there, without plant evaluation, unless
+    `keep_failed`; check `converged`. `on_event` receives a `SweepEvent` per stage."""
     nus = check_nus(nus, distinct=True)
     names = tuple(f"{nu:.6g}" for nu in nus)
     emit = on_event or (lambda event: None)
@@ -430,21 +429,21 @@ def sweep_task(robot: jr.Robot, plant: jr.Robot, path: Path, nus, costs: tuple[s
     flat = baseline_trajectories(robot, jp)["flat_inverse"]
     direction = motor_directions(flat.thetad)
     if directional:
-        play, warm = flank_start(robot, jp.q, jp.qd, flat)
+        gear_state, warm = gear_state_start(robot, jp.q, jp.qd, flat)
     else:
-        play, warm = None, (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
+        gear_state, warm = None, (State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
     ts = float(path.sample_time)
     out: dict[str, SweepCost] = {}
     for cost in costs:
         start = time.perf_counter()
 
-        def solve(members_play, last, cost=cost):
-            sols = solve_ocp_sweep(robot, jp.q, ts, nus, cost=cost, warm_start=warm, play=members_play,
+        def solve(members_state, last, cost=cost):
+            sols = solve_ocp_sweep(robot, jp.q, ts, nus, cost=cost, warm_start=warm, gear_state=members_state,
                                    direction=direction)
             return sols, jax.tree.map(lambda a: jnp.broadcast_to(a, (nus.size, *a.shape)), warm)
 
         if directional:
-            sols = iterate_flanks(robot, jnp.broadcast_to(play, (nus.size, *play.shape)), solve)[0]
+            sols = iterate_gear_states(robot, jnp.broadcast_to(gear_state, (nus.size, *gear_state.shape)), solve)[0]
         else:
             sols = solve(None, None)[0]
         sols = jax.block_until_ready(sols)

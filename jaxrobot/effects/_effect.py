@@ -9,6 +9,7 @@ from typing import Any, NoReturn
 
 from jaxtyping import Array, Float
 
+from .._gear import gear_output
 from .._robot import Robot
 
 Fail = Callable[[str, str, Any], NoReturn]
@@ -181,8 +182,12 @@ class MotorResponse(Effect):
 class GearHysteresis(Effect):
     """A gear output that depends on the motor's travel through a state per gear that the travel moves (a hysteresis
     operator: the flank play), by way of the weight `sigma` of the gear's ccw set. The simulator carries the states
-    along a motion where asked (`simulate(directional=True)`), the OCP one per node (`OCPProblem.play`, with the
-    widths `OCPProblem.travel`); without them a gear uses its cw set (eq. 4.1)."""
+    along a motion where asked (`simulate(directional=True)`), the OCP one per node (`OCPProblem.gear_state`), the
+    planning workflows those of the planned motion; without them a gear uses its cw set (eq. 4.1). The width of the
+    states is the robot's (`travel`)."""
+
+    description: str = ""
+    """What the gears' states are, in words, as a plural noun ("the model's gear flanks"), for help texts."""
 
     def travel(self, robot: Robot) -> Float[Array, "*b n"]:
         """The width of each gear's state [motor rad]: the motor travel over which it crosses after a reversal."""
@@ -217,12 +222,24 @@ class GearHysteresis(Effect):
         """The motor angle of gear output `phi` at ccw weights `weight` (the inverse of `output`)."""
         raise NotImplementedError
 
-    def state_output(self, robot: Robot, theta: Float[Array, "*b n"], p: Float[Array, "*b n"],
-                     travel: Float[Array, " n"]) -> Float[Array, "*b n"]:
+    def state_weight(self, robot: Robot, p: Float[Array, "*b n"], theta: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
+        """`weight` at the robot's width `travel(robot)`."""
+        return self.weight(p, theta, self.travel(robot))
+
+    def state_output(self, robot: Robot, theta: Float[Array, "*b n"], p: Float[Array, "*b n"]) -> Float[Array, "*b n"]:
         """The gear output at motor angles `theta` of gears in states `p`, the weight following `theta`."""
-        return self.output(robot, theta, self.weight(p, theta, travel))
+        return self.output(robot, theta, self.state_weight(robot, p, theta))
+
+    def follow(self, robot: Robot, theta: Float[Array, "N n"]) -> tuple[Float[Array, "N n"], Float[Array, "N n"]]:
+        """A motor path `theta` of the cw set (eq. 4.1) moved onto the states its own motion takes, from rest on cw:
+        the motor angles whose gear outputs at the weights of the states along `theta` are the cw set's, and the
+        states along them. Returns `(states, motor angles)`."""
+        w = self.travel(robot)
+        weight = self.weight(self.states(robot, theta, travel=w), theta, w)
+        moved = self.motor_angle(robot, gear_output(robot, theta), weight)
+        return self.states(robot, moved), moved
 
     def rest_motor_angle(self, robot: Robot, phi: Float[Array, " n"], p: Float[Array, " n"],
-                         travel: Float[Array, " n"], theta: Float[Array, " n"]) -> Float[Array, " n"]:
+                         theta: Float[Array, " n"]) -> Float[Array, " n"]:
         """The motor angles whose `state_output` at states `p` is the gear output `phi`, from `theta` (the cw set's)."""
         raise NotImplementedError

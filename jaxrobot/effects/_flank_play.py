@@ -129,6 +129,7 @@ factor 3 of `1/u0` (at the default reversal travel, docs/model.md (B.0))."""
 
 class FlankPlay(GearHysteresis):
     name = "reversal travel of the gears"
+    description = "gear flanks"
     fields = ("reversal_travel",)
 
     def schema(self, n):
@@ -184,11 +185,12 @@ class FlankPlay(GearHysteresis):
     def motor_angle(self, robot, phi, weight):
         return flank_motor_angle(robot, phi, weight)
 
-    def rest_motor_angle(self, robot, phi, p, travel, theta):
+    def rest_motor_angle(self, robot, phi, p, theta):
         """`REST_NEWTON_STEPS` Newton steps from `theta`, in a loop, not unrolled (compile time)."""
+        w = self.travel(robot)
 
         def newton(_, th):
-            out, slope = jax.jvp(lambda t: self.state_output(robot, t, p, travel), (th,), (jnp.ones_like(th),))
+            out, slope = jax.jvp(lambda t: self.output(robot, t, self.weight(p, t, w)), (th,), (jnp.ones_like(th),))
             return th - (out - phi) / slope
 
         return jax.lax.fori_loop(0, REST_NEWTON_STEPS, newton, theta)

@@ -13,7 +13,7 @@ from jaxrobot.io import write_command_csv
 
 from .._front import REFINE_POINTS, CycleTimeFront, FrontEvent, cycle_time_front
 from .._sweep import check_nus
-from ._plan import PLANT_HELP, load_task, task_title
+from ._plan import GEAR_STATES, PLANT_HELP, load_task, task_title
 
 HELP = "shortest duration of a task meeting a path-error tolerance on the plant within the axis limits"
 EXAMPLE = "jaxrobot front line --tolerance 10e-6 --plant as-built --out front-line --save-trajectory line.csv"
@@ -36,7 +36,8 @@ def configure(parser) -> None:
                         help="relative precision of the answer (refined by batched grids of "
                         f"{REFINE_POINTS} durations)")
     parser.add_argument("--plant", default="model", metavar="{model,as-built,FILE}",
-                        help=PLANT_HELP + ", and then every member plans on the model's flanks along its motion")
+                        help=PLANT_HELP + f", and then every member plans on the model's {GEAR_STATES} along its "
+                        "motion")
     add_model_option(parser, "planning model TOML (default: the embedded Racer-7)")
     parser.add_argument("--save-trajectory", type=Path, default=None, metavar="OUT.csv",
                         help="write the motor trajectory at the answer (columns as `jaxrobot plan`)")

@@ -36,7 +36,7 @@ def configure(parser) -> None:
                         help="thesis: nu||u||^2; jerk: nu||u_k+1 - u_k||^2; flat: nu||u - u_flat||^2")
     add_model_option(parser, "planning model TOML (default: the embedded Racer-7)")
     parser.add_argument("--plant", default="model", metavar="{model,as-built,FILE}",
-                        help=PLANT_HELP + ", and then the OCP plans on the model's flanks along the motion")
+                        help=PLANT_HELP + f", and then the OCP plans on the model's {GEAR_STATES} along the motion")
     parser.add_argument("--save-trajectory", type=Path, default=None, metavar="OUT.csv",
                         help="write t_s, theta1_deg..thetan_deg, motor rates [deg/s] and accelerations [deg/s^2]")
     parser.add_argument("--save-failed", action="store_true",
@@ -79,9 +79,11 @@ def task_path(task: str, description: dict):
     return path
 
 
+GEAR_STATES = jr.effects.gear_hysteresis().description
+"""The states of the gears' hysteresis in words (`jr.effects.GearHysteresis.description`), for the help texts."""
 PLANT_HELP = ("robot the plans are simulated on: 'model' (the planning model, cw gear set throughout), 'as-built' "
               "(the test bench's robot: the model file's [as_built]; for a model of the embedded Racer-7 without one, "
-              "the Racer-7's) or a robot FILE (TOML/URDF); all but 'model' with their gears' flanks as states")
+              f"the Racer-7's) or a robot FILE (TOML/URDF); all but 'model' with their {GEAR_STATES} as states")
 
 
 def load_plant(plant: str, desc: dict, robot: jr.Robot) -> jr.Robot:
@@ -297,8 +299,8 @@ def run(args, echo) -> dict:
 def demo_stage(out: Path, echo) -> dict:
     """Planning stage of `jaxrobot demo`: the line at nu = 1e-14 planned on the nominal model and evaluated on
     it (the model's own error), then planned on the model the demo calibrates (`demo_calibration`, as the
-    calibration stage) and evaluated on the test bench's as-built robot with its gears' flanks (the error on
-    the robot). **Returns:** `summary` of the first plan, with `on_the_robot` the `summary` of the second."""
+    calibration stage) and evaluated on the test bench's as-built robot with its gears' hysteresis as states (the
+    error on the robot). **Returns:** `summary` of the first plan, with `on_the_robot` the `summary` of the second."""
     from identification.calibration import demo_calibration
 
     robot, line = jr.racer7(), reference_path("line", jr.read_description(None))
@@ -308,7 +310,8 @@ def demo_stage(out: Path, echo) -> dict:
     tr = result.trajectories["ocp"]
     write_command_csv(out / "planning_line_motor.csv", result.joint_path.t, tr.theta, tr.thetad, tr.thetadd)
     calibrated = demo_calibration().result.robot
-    echo("line, nu = 1e-14, planned on the calibrated model, evaluated on the as-built robot (gear flanks as states)")
+    echo(f"line, nu = 1e-14, planned on the calibrated model, evaluated on the as-built robot ({GEAR_STATES} as "
+         "states)")
     bench = plan(calibrated, jr.racer7(as_built=True), line, 1e-14, "thesis", echo, timing=False,
                  directional=True)
     own, robot_err = summary(result), summary(bench)

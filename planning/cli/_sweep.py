@@ -15,7 +15,7 @@ from .._bandwidth import control_spectrum
 from .._sweep import check_nus
 from .._transcription import COSTS
 from .._workflow import SweepEvent, SweepResult, sweep_task
-from ._plan import PLANT_HELP, load_task, task_title
+from ._plan import GEAR_STATES, PLANT_HELP, load_task, task_title
 
 HELP = "sweep the weighting factor nu (one OCP sweep call per cost variant): table, plots, Pareto front"
 DEFAULT_NUS = tuple(float(v) for v in np.logspace(-16, -9, 8))
@@ -28,7 +28,8 @@ def configure(parser) -> None:
                         help="weighting factors (default 1e-16 ... 1e-9, one per decade)")
     parser.add_argument("--costs", nargs="+", choices=COSTS, default=list(COSTS), help="cost variants to compare")
     parser.add_argument("--plant", default="model", metavar="{model,as-built,FILE}",
-                        help=PLANT_HELP + ", and then every member plans on the model's flanks along its motion")
+                        help=PLANT_HELP + f", and then every member plans on the model's {GEAR_STATES} along its "
+                        "motion")
     add_model_option(parser, "planning model TOML (default: the embedded Racer-7)")
     parser.add_argument("--save-failed", action="store_true",
                         help="also write the outputs when a solve did not converge (the table's first line then "

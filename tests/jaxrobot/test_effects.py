@@ -84,6 +84,7 @@ def test_the_gear_hysteresis_is_the_flank_play():
     """The one `GearHysteresis` is the flank play: its state, weight and output are the public flank functions'."""
     hysteresis = jr.effects.gear_hysteresis()
     assert hysteresis is jr.effects.FLANK_PLAY
+    assert hysteresis.description == "gear flanks"  # the help texts of `plan`, `sweep` and `front` read it
     robot = jr.racer7(as_built=True)
     theta = jnp.linspace(0.0, 0.3, 7)[:, None] * jnp.ones(6)
     w = hysteresis.travel(robot)
@@ -92,7 +93,26 @@ def test_the_gear_hysteresis_is_the_flank_play():
     np.testing.assert_array_equal(p, jr.play_state(robot, theta))
     sigma = hysteresis.weight(p, theta, w)
     np.testing.assert_array_equal(sigma, jr.direction_state(robot, theta))
+    np.testing.assert_array_equal(hysteresis.state_weight(robot, p, theta), sigma)
     np.testing.assert_array_equal(hysteresis.output(robot, theta, sigma), jr.flank_output(robot, theta, sigma))
-    phi = hysteresis.state_output(robot, theta[-1], p[-1] + w, w)  # a gear that last moved ccw
-    rest = hysteresis.rest_motor_angle(robot, phi, p[-1] + w, w, jr.motor_angle(robot, phi))
+    phi = hysteresis.state_output(robot, theta[-1], p[-1] + w)  # a gear that last moved ccw
+    rest = hysteresis.rest_motor_angle(robot, phi, p[-1] + w, jr.motor_angle(robot, phi))
     np.testing.assert_allclose(rest, theta[-1], rtol=0, atol=1e-12)  # Newton to rounding of a motor angle
+
+
+def test_gear_hysteresis_follows_a_motion_out_and_back():
+    """`GearHysteresis.follow` moves a cw motor path out and back (a swing of 40 reversal travels) onto the flanks
+    its own motion takes: the moved motor angles give the cw set's gear outputs at the flank weights of the path's
+    play states (to rounding of a motor angle), and the states it returns are the moved path's play states."""
+    robot = jr.racer7(as_built=True)
+    hysteresis = jr.effects.gear_hysteresis()
+    swing = 40 * jr.reversal_travel(robot)
+    theta = jnp.sin(jnp.linspace(0.0, jnp.pi, 41))[:, None] * swing
+    states, moved = hysteresis.follow(robot, theta)
+    sigma = jr.direction_state(robot, theta)
+    assert float(sigma[0].max()) < 1e-12 and float(sigma[-1].min()) > 1.0 - 1e-12  # from cw, back on ccw
+    np.testing.assert_allclose(jr.flank_output(robot, moved, sigma), jr.gear_output(robot, theta), rtol=0,
+                               atol=1e-12)
+    np.testing.assert_array_equal(states, jr.play_state(robot, moved))
+    # on the way back the motors of joints 1-3 (the wrist's sets coincide) differ by the gap between the flanks
+    assert float(jnp.abs(moved - theta)[30, :3].min()) > 1e-3

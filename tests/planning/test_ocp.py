@@ -349,7 +349,7 @@ def test_sweep_configs_differing_in_numbers_share_one_program(robot, q_d, monkey
     (dict(workers=0), "workers"),
     (dict(workers=1.5), "workers"),
     (dict(ts=0.0), "ts"),
-    (dict(play=np.zeros((1, N, 6))), "play"),
+    (dict(gear_state=np.zeros((1, N, 6))), "gear_state"),
     (dict(direction=np.full((N, 6), 2.0)), "direction"),
 ])
 def test_sweep_bad_input_names_the_field(robot, q_d, kwargs, field):

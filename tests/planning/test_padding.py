@@ -81,6 +81,22 @@ def test_padding_leaves_the_problem_unchanged(robot):
         assert float(a) == float(b)
 
 
+def test_padding_repeats_the_last_gear_state(robot):
+    """With gear states (`OCPProblem.gear_state`) the padded nodes repeat the task's last state, and the padded
+    problem's defects on the task's nodes are those of the unpadded problem bit for bit."""
+    n = 21
+    q_d, direction = _task(robot, n)
+    x, u = tr.warm_start(tr.ocp_problem(robot, q_d, TS, NU))
+    state = x[:, 2 * 6:3 * 6] + 0.25 * jr.effects.gear_hysteresis().travel(robot)  # a quarter into the ccw flank
+    problem = tr.ocp_problem(robot, q_d, TS, NU, gear_state=state, direction=direction)
+    padded = tr.pad_problem(problem, padded_nodes(n))
+    np.testing.assert_array_equal(np.asarray(padded.gear_state[:n]), np.asarray(state))
+    np.testing.assert_array_equal(np.asarray(padded.gear_state[n:]),
+                                  np.broadcast_to(np.asarray(state[-1]), (padded_nodes(n) - n, 6)))
+    xp, up = (jnp.concatenate([a, jnp.broadcast_to(a[-1], (padded_nodes(n) - n, a.shape[1]))]) for a in (x, u))
+    np.testing.assert_array_equal(np.asarray(tr.defects(padded, xp, up)[:n - 1]), np.asarray(tr.defects(problem, x, u)))
+
+
 def test_padded_solve_is_the_unpadded_solve(robot):
     """`solve_ocp` (padded, 51 -> 64 nodes) and the program on the unpadded problem: the same outer and inner
     iterations, the same optimum to roundoff (`OBJECTIVE_RTOL`), on a bounded solve at nu = 1e-10 (active
@@ -135,7 +151,7 @@ def _line(duration: float, sample_time: float):
 
 
 def _warm_start_as_solution(robot, q_d, ts, nu=1e-14, cost="thesis", solver=None, warm_start=None, u_ref=None,
-                            throw=False, play=None, travel=None, direction=None):
+                            throw=False, gear_state=None, direction=None):
     """Stand-in for `solve_ocp`: its warm start as a converged solution."""
     x, u = warm_start
     z, h = jnp.zeros(()), jnp.zeros(4)

@@ -80,11 +80,11 @@ def test_transcription_uses_the_flanks_it_is_given():
     w, theta = jr.reversal_travel(TRUTH), x[:, 12:18]
     on_cw, on_ccw = theta - 0.5 * w, theta + 0.5 * w  # play states of a gear that last moved cw / ccw
     cw = defects(pl.ocp_problem(TRUTH, q, 1e-3), x, u)
-    np.testing.assert_array_equal(defects(pl.ocp_problem(TRUTH, q, 1e-3, play=on_cw), x, u), cw)
-    ccw = defects(pl.ocp_problem(TRUTH, q, 1e-3, play=on_ccw), x, u)
+    np.testing.assert_array_equal(defects(pl.ocp_problem(TRUTH, q, 1e-3, gear_state=on_cw), x, u), cw)
+    ccw = defects(pl.ocp_problem(TRUTH, q, 1e-3, gear_state=on_ccw), x, u)
     np.testing.assert_allclose(ccw, defects(pl.ocp_problem(swapped, q, 1e-3), x, u), rtol=1e-12, atol=1e-15)
     assert float(jnp.abs(ccw - cw).max()) > 1e-3  # joint 3's link acceleration: k1 (phi_ccw - phi_cw) / D
-    start, _ = boundary_states(pl.ocp_problem(TRUTH, q, 1e-3, play=jr.static_equilibrium(TRUTH, q) + w))
+    start, _ = boundary_states(pl.ocp_problem(TRUTH, q, 1e-3, gear_state=jr.static_equilibrium(TRUTH, q) + w))
     rest = jr.measurement.rest_link_angles(TRUTH, start[12:18], jnp.ones(6, bool))
     np.testing.assert_allclose(rest, q[0], atol=1e-12)
 
@@ -113,11 +113,11 @@ def test_flank_plan_meets_the_task_on_the_flank_plant(reversal_task):
             q_sim, _ = jax.jit(jr.simulate, static_argnames=("directional",))(
                 TRUTH, T, traj.theta, traj.thetad, traj.thetadd, directional=plant)
             errors[d, plant] = float(jnp.abs(q_sim - q).max())
-    sol, play, _ = plans[True]
+    sol, gear_state, _ = plans[True]
     w = jr.reversal_travel(TRUTH)
     out = lambda p: jr.flank_output(TRUTH, sol.theta, jr.flank_weight(p, sol.theta, w))  # noqa: E731
-    assert float(jnp.abs(out(jr.play_state(TRUTH, sol.theta)) - out(play)).max()) <= 1e-10
-    assert float(jr.flank_weight(play, sol.theta, w)[:, 2].max()) == 1.0  # joint 3 crossed to ccw on the way back
+    assert float(jnp.abs(out(jr.play_state(TRUTH, sol.theta)) - out(gear_state)).max()) <= 1e-10
+    assert float(jr.flank_weight(gear_state, sol.theta, w)[:, 2].max()) == 1.0  # joint 3 crossed to ccw on the way back
     # measured: 3.4e-7 (cw on cw), 6.7e-7 (flanks on flanks: the trapezoidal rule across joint 3's reversal,
     # where the flank weight turns within 0.1 s), 1.04e-3 (cw plan on the flank plant)
     assert errors[False, False] < 1e-6 and errors[True, True] < 1e-6, errors

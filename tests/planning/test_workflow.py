@@ -20,7 +20,7 @@ def line_samples(step: int):
 
 
 def _failed_solve(robot, q_d, ts, nu=1e-14, cost="thesis", solver=None, warm_start=None, u_ref=None, throw=False,
-                  play=None, travel=None, direction=None):
+                  gear_state=None, direction=None):
     """Stand-in for `solve_ocp` that returns its warm start as an `inner_failed` solution."""
     from planning._ocp import RESULTS, OCPSolution
 
@@ -96,7 +96,7 @@ def jax_stack(trees):
 
 def _sweep_stand_in(solve):
     """Stand-in for `solve_ocp_sweep`: `solve` (`_failed_solve`, `_converged_solve`) for every nu."""
-    return lambda robot, q_d, ts, nus, cost="thesis", warm_start=None, play=None, direction=None: jax_stack(
+    return lambda robot, q_d, ts, nus, cost="thesis", warm_start=None, gear_state=None, direction=None: jax_stack(
         [solve(robot, q_d, ts, warm_start=warm_start) for _ in nus])
 
 
