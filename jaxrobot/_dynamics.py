@@ -344,8 +344,14 @@ def static_equilibrium(
     return holding_motor_angle(robot, q, gravity_torque(robot, q), ccw)
 
 
-def _derivative(fn: Callable) -> Callable:
-    return lambda t: jax.jvp(fn, (t,), (jnp.ones_like(t),))[1]
+def _with_rates(fn: Callable, s: Float[Array, ""]) -> tuple[Float[Array, "..."], ...]:
+    """`(fn(s), fn'(s), fn''(s))` of a function of time, by nested `jax.jvp` from one trace of `fn`."""
+
+    def rate(s):
+        return jax.jvp(fn, (s,), (jnp.ones_like(s),))
+
+    (value, first), (_, second) = jax.jvp(rate, (s,), (jnp.ones_like(s),))
+    return value, first, second
 
 
 def flat_inverse(
@@ -362,7 +368,7 @@ def flat_inverse(
     effects = robot_terms(robot)
 
     def torque(s):
-        q, qd, qdd = q_d(s), _derivative(q_d)(s), _derivative(_derivative(q_d))(s)
+        q, qd, qdd = _with_rates(q_d, s)
         tau = inverse_dynamics(robot, q, qd, qdd)
         for load in effects.link_loads:
             tau = tau + load.torque(robot, q, qd)
@@ -376,17 +382,12 @@ def flat_inverse(
         def theta(s):
             return holding_motor_angle(robot, q_d(s), torque(s))
 
-        def at(s):
-            return theta(s), _derivative(theta)(s), _derivative(_derivative(theta))(s)
-
-        return jax.vmap(at)(t)
+        return jax.vmap(lambda s: _with_rates(theta, s))(t)
     x, xd, xdd = joint[0].flat_deflection(robot, torque, t)
-    phi = jax.vmap(lambda s: jnp.stack([q_d(s), _derivative(q_d)(s), _derivative(_derivative(q_d))(s)]))(t)
+    phi = jax.vmap(lambda s: jnp.stack(_with_rates(q_d, s)))(t)
     phi = phi + jnp.stack([x, xd, xdd], 1)  # (N, 3, n): phi and its two rates
 
     def along(p):
-        g = lambda s: motor_angle(robot, p[0] + s * p[1] + 0.5 * s**2 * p[2])  # noqa: E731
-        value, first = jax.jvp(g, (0.0,), (1.0,))
-        return value, first, jax.jvp(_derivative(g), (0.0,), (1.0,))[1]
+        return _with_rates(lambda s: motor_angle(robot, p[0] + s * p[1] + 0.5 * s**2 * p[2]), 0.0)
 
     return jax.vmap(along)(phi)
