@@ -26,7 +26,7 @@ from jaxtyping import Array, Bool, Float
 
 from ._batch import backend_kind, link_unroll, unbatched
 from ._elasticity import elastic_deflection, elastic_stiffness, elastic_torque
-from ._gear import gear_output, gear_ratio, motor_angle
+from ._gear import gear_output, gear_output_and_ratio, motor_angle
 from ._kinematics import (
     add,
     alpha_beta,
@@ -325,8 +325,8 @@ def motor_torque(
     ccw: bool | Bool[Array, "*b n"] = False,
 ) -> Float[Array, "*b n"]:
     """Motor torques `tau_m = J_m thetadd + kappa(phi - q) / u(phi)` (eq. 2.23b, reflected)."""
-    phi = gear_output(robot, theta, ccw)
-    return robot.motor_inertia * thetadd + elastic_torque(robot, phi - q) / gear_ratio(robot, phi, ccw)
+    phi, ratio = gear_output_and_ratio(robot, theta, ccw)
+    return robot.motor_inertia * thetadd + elastic_torque(robot, phi - q) / ratio
 
 
 def holding_motor_angle(
