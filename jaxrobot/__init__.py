@@ -32,7 +32,6 @@ from ._elasticity import elastic_torque as elastic_torque  # noqa: E402
 from ._gear import fourier_ratio as fourier_ratio  # noqa: E402
 from ._gear import fourier_xi_inverse as fourier_xi_inverse  # noqa: E402
 from ._gear import gear_output as gear_output  # noqa: E402
-from ._gear import gear_output_and_ratio as gear_output_and_ratio  # noqa: E402
 from ._gear import gear_ratio as gear_ratio  # noqa: E402
 from ._gear import motor_angle as motor_angle  # noqa: E402
 from ._instruments import Instruments as Instruments  # noqa: E402

@@ -25,8 +25,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ._batch import backend_kind, link_unroll, unbatched
-from ._elasticity import elastic_deflection, elastic_stiffness, elastic_torque
-from ._gear import gear_output, gear_output_and_ratio, motor_angle
+from ._elasticity import elastic_deflection, elastic_torque, elastic_torque_and_stiffness
+from ._gear import gear_output, gear_ratio, motor_angle
 from ._kinematics import (
     add,
     alpha_beta,
@@ -278,7 +278,7 @@ def link_acceleration(
     (`jaxrobot.effects.JointTorque`, functions of the deflection's rate, which need the gear output rate `phid`) are
     added to the bracket and its link loads (`jaxrobot.effects.LinkLoad`, functions of `q`, `qd`) subtracted.
     `terms`: the robot's effects (`jaxrobot.effects.terms`) where already resolved."""
-    return _acceleration(robot, q, qd, phi, phid, terms, mass_matrix(robot, q))
+    return _acceleration(robot, q, qd, elastic_torque(robot, phi - q), phid, terms, mass_matrix(robot, q))
 
 
 class LinkDynamics(eqx.Module):
@@ -299,13 +299,14 @@ def link_dynamics(
     """`link_acceleration` with the mass matrix it solves with and the springs' slopes: what the derivatives of the
     link accelerations take (the OCP's half step)."""
     mass = mass_matrix(robot, q)
-    return LinkDynamics(mass=mass, acceleration=_acceleration(robot, q, qd, phi, phid, terms, mass),
-                        stiffness=elastic_stiffness(robot, phi - q))
+    spring, stiffness = elastic_torque_and_stiffness(robot, phi - q)
+    return LinkDynamics(mass=mass, acceleration=_acceleration(robot, q, qd, spring, phid, terms, mass),
+                        stiffness=stiffness)
 
 
-def _acceleration(robot, q, qd, phi, phid, terms, mass):
-    """`link_acceleration` with the mass matrix `mass` at `q`."""
-    rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
+def _acceleration(robot, q, qd, spring, phid, terms, mass):
+    """`link_acceleration` with the springs' torques `spring = kappa(phi - q)` and the mass matrix `mass` at `q`."""
+    rhs = spring - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
     effects = robot_terms(robot) if terms is None else terms
     for term in effects.joint_torques:
         if phid is None:
@@ -325,8 +326,8 @@ def motor_torque(
     ccw: bool | Bool[Array, "*b n"] = False,
 ) -> Float[Array, "*b n"]:
     """Motor torques `tau_m = J_m thetadd + kappa(phi - q) / u(phi)` (eq. 2.23b, reflected)."""
-    phi, ratio = gear_output_and_ratio(robot, theta, ccw)
-    return robot.motor_inertia * thetadd + elastic_torque(robot, phi - q) / ratio
+    phi = gear_output(robot, theta, ccw)
+    return robot.motor_inertia * thetadd + elastic_torque(robot, phi - q) / gear_ratio(robot, phi, ccw)
 
 
 def holding_motor_angle(

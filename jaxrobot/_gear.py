@@ -162,12 +162,3 @@ def gear_output(
         return plain.at[..., idx].set(fourier_xi_inverse(u0[..., idx], orders, a, b, theta[..., idx]))
     orders, a, b = (jnp.broadcast_to(x, shape + x.shape[-1:]) for x in (rip.orders, rip.a, rip.b))
     return fourier_xi_inverse(u0, orders, a, b, theta)
-
-
-def gear_output_and_ratio(
-    robot: Robot, theta: Float[Array, "*b n"], ccw: bool | Bool[Array, "*b n"] = False
-) -> tuple[Float[Array, "*b n"], Float[Array, "*b n"]]:
-    """The gears at the motor angles `theta`: their output angles `phi = Xi^{-1}(theta)` (`gear_output`) and their
-    ratios `u(phi) = dtheta/dphi` there (`gear_ratio`)."""
-    phi = gear_output(robot, theta, ccw)
-    return phi, gear_ratio(robot, phi, ccw)

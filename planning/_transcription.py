@@ -224,7 +224,8 @@ def gear_outputs(problem: OCPProblem, theta: Float[Array, "N n"]) -> tuple[Float
     gears' states there (`jr.effects.GearHysteresis.state_output`, the weights following `theta`)."""
     r = problem.robot
     if problem.play is None:
-        return jr.gear_output_and_ratio(r, theta)
+        phi = jr.gear_output(r, theta)
+        return phi, jr.gear_ratio(r, phi)
     hysteresis = jr.effects.gear_hysteresis()
     phi, slope = jax.jvp(lambda th: hysteresis.state_output(r, th, problem.play, problem.travel), (theta,),
                          (jnp.ones_like(theta),))

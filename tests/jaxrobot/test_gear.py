@@ -66,19 +66,6 @@ def test_gear_inverse_derivatives_follow_the_implicit_function():
     np.testing.assert_allclose(d2, -du / u**3, rtol=1e-9, atol=1e-20)
 
 
-@pytest.mark.parametrize("ccw", [False, True], ids=["cw", "ccw"])
-def test_gear_output_and_ratio_is_the_inverse_and_its_slope(ccw):
-    """`gear_output_and_ratio` of the as-built Racer-7 (cw and ccw sets differ) over a batch of motor angles: `Xi` of
-    the output is `theta` to 1e-12 rad and the ratio is the slope of `Xi` there by autodiff (to 1e-13 relative, as
-    `gear_ratio`); the output is `gear_output`'s."""
-    theta = jnp.asarray(np.random.default_rng(5).uniform(TRUTH.q_min, TRUTH.q_max, (3, 4, 6)) * np.asarray(TRUTH.u0))
-    phi, u = jr.gear_output_and_ratio(TRUTH, theta, ccw)
-    assert float(jnp.max(jnp.abs(jr.motor_angle(TRUTH, phi, ccw) - theta))) < 1e-12
-    slope = jax.jvp(lambda x: jr.motor_angle(TRUTH, x, ccw), (phi,), (jnp.ones_like(phi),))[1]
-    np.testing.assert_allclose(u, slope, rtol=1e-13)
-    np.testing.assert_array_equal(phi, jr.gear_output(TRUTH, theta, ccw))
-
-
 def test_gear_sincos_matches_numpy_and_differentiates_exactly():
     # the shared-reduction sin/cos of the gear harmonics (jaxrobot._gear._sincos) over |n phi| <= 2e3,
     # including the quadrant boundaries k pi/4; numpy's libm is correctly rounded to ~0.5 ulp
