@@ -104,13 +104,22 @@ def planning_call():
     return lambda: pl.plan_task(robot, robot, path, 1e-14, timing=False)
 
 
+def module_pairs(events: dict) -> dict[str, tuple[int, int]]:
+    """Per pair of modules `callee -> caller`: its distinct hand-offs and its returns, from the returns per pair of
+    functions `events` (`walk`)."""
+    pairs = collections.defaultdict(lambda: (0, 0))
+    for key, returns in events.items():
+        inner, outer = key.split(" -> ")
+        pair = f"{inner.rsplit('.', 1)[0]} -> {outer.rsplit('.', 1)[0]}"
+        pairs[pair] = (pairs[pair][0] + 1, pairs[pair][1] + returns)
+    return dict(sorted(pairs.items()))
+
+
 def tallies(events: dict) -> dict:
     """Distinct hand-offs (pairs of functions) and returns, in all and per pair of modules."""
-    pairs = collections.Counter()
-    for key in events:
-        inner, outer = key.split(" -> ")
-        pairs[f"{inner.rsplit('.', 1)[0]} -> {outer.rsplit('.', 1)[0]}"] += 1
-    return {"handoffs": len(events), "returns": sum(events.values()), "modules": dict(sorted(pairs.items())),
+    pairs = module_pairs(events)
+    return {"handoffs": len(events), "returns": sum(events.values()),
+            "modules": {k: v[0] for k, v in pairs.items()}, "module_returns": {k: v[1] for k, v in pairs.items()},
             "events": events}
 
 
@@ -120,12 +129,13 @@ def table(name: str, now: dict, before: dict | None, label: str) -> list[str]:
             f"**{now['handoffs']}**" + (f" ({label}: {before['handoffs']})" if before else "")
             + f"; returns (every such return during the call, tracing included): {now['returns']}"
             + (f" ({label}: {before['returns']})" if before else "") + ".", "",
-            "| callee module -> caller module | hand-offs | " + (f"{label} |" if before else ""),
-            "|---|---|" + ("---|" if before else "")]
-    keys = sorted(set(now["modules"]) | set(before["modules"] if before else ()))
-    for k in keys:
-        rows.append(f"| `{k}` | {now['modules'].get(k, 0)} |"
-                    + (f" {before['modules'].get(k, 0)} |" if before else ""))
+            "| callee module -> caller module | hand-offs | returns | "
+            + (f"{label}: hand-offs | returns |" if before else ""),
+            "|---|---|---|" + ("---|---|" if before else "")]
+    pairs, old = module_pairs(now["events"]), module_pairs(before["events"]) if before else {}
+    for k in sorted(set(pairs) | set(old)):
+        rows.append(f"| `{k}` | {' | '.join(map(str, pairs.get(k, (0, 0))))} |"
+                    + (f" {' | '.join(map(str, old.get(k, (0, 0))))} |" if before else ""))
     return rows + [""]
 
 
@@ -140,8 +150,8 @@ def main():
     Path(args.out).write_text(json.dumps(data, indent=1))
     for name, d in data.items():
         print(f"{name}: {d['handoffs']} hand-offs, {d['returns']} returns between rooms")
-        for k, v in d["modules"].items():
-            print(f"  {k}: {v}")
+        for k, (handoffs, returns) in module_pairs(d["events"]).items():
+            print(f"  {k}: {handoffs} hand-offs, {returns} returns")
     if args.compare:
         old = json.loads(Path(args.compare).read_text())
         text = "\n".join(["# The walks of the robot through the workflows", "",

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ._batch import backend_kind, link_unroll, unbatched
-from ._elasticity import elastic_deflection, elastic_stiffness, elastic_torque
+from ._elasticity import elastic_deflection, elastic_torque, elastic_torque_and_stiffness
 from ._gear import gear_output, gear_ratio, motor_angle
 from ._kinematics import (
     add,
@@ -278,7 +278,7 @@ def link_acceleration(
     (`jaxrobot.effects.JointTorque`, functions of the deflection's rate, which need the gear output rate `phid`) are
     added to the bracket and its link loads (`jaxrobot.effects.LinkLoad`, functions of `q`, `qd`) subtracted.
     `terms`: the robot's effects (`jaxrobot.effects.terms`) where already resolved."""
-    return _acceleration(robot, q, qd, phi, phid, terms, mass_matrix(robot, q))
+    return _acceleration(robot, q, qd, elastic_torque(robot, phi - q), phid, terms, mass_matrix(robot, q))
 
 
 class LinkDynamics(eqx.Module):
@@ -299,13 +299,14 @@ def link_dynamics(
     """`link_acceleration` with the mass matrix it solves with and the springs' slopes: what the derivatives of the
     link accelerations take (the OCP's half step)."""
     mass = mass_matrix(robot, q)
-    return LinkDynamics(mass=mass, acceleration=_acceleration(robot, q, qd, phi, phid, terms, mass),
-                        stiffness=elastic_stiffness(robot, phi - q))
+    spring, stiffness = elastic_torque_and_stiffness(robot, phi - q)
+    return LinkDynamics(mass=mass, acceleration=_acceleration(robot, q, qd, spring, phid, terms, mass),
+                        stiffness=stiffness)
 
 
-def _acceleration(robot, q, qd, phi, phid, terms, mass):
-    """`link_acceleration` with the mass matrix `mass` at `q`."""
-    rhs = elastic_torque(robot, phi - q) - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
+def _acceleration(robot, q, qd, spring, phid, terms, mass):
+    """`link_acceleration` with the springs' torques `spring = kappa(phi - q)` and the mass matrix `mass` at `q`."""
+    rhs = spring - _rnea(robot, q, qd, jnp.zeros_like(qd), True)
     effects = robot_terms(robot) if terms is None else terms
     for term in effects.joint_torques:
         if phid is None:
@@ -344,8 +345,14 @@ def static_equilibrium(
     return holding_motor_angle(robot, q, gravity_torque(robot, q), ccw)
 
 
-def _derivative(fn: Callable) -> Callable:
-    return lambda t: jax.jvp(fn, (t,), (jnp.ones_like(t),))[1]
+def _with_rates(fn: Callable, s: Float[Array, ""]) -> tuple[Float[Array, "..."], ...]:
+    """`(fn(s), fn'(s), fn''(s))` of a function of time, by nested `jax.jvp` from one trace of `fn`."""
+
+    def rate(s):
+        return jax.jvp(fn, (s,), (jnp.ones_like(s),))
+
+    (value, first), (_, second) = jax.jvp(rate, (s,), (jnp.ones_like(s),))
+    return value, first, second
 
 
 def flat_inverse(
@@ -362,7 +369,7 @@ def flat_inverse(
     effects = robot_terms(robot)
 
     def torque(s):
-        q, qd, qdd = q_d(s), _derivative(q_d)(s), _derivative(_derivative(q_d))(s)
+        q, qd, qdd = _with_rates(q_d, s)
         tau = inverse_dynamics(robot, q, qd, qdd)
         for load in effects.link_loads:
             tau = tau + load.torque(robot, q, qd)
@@ -376,17 +383,12 @@ def flat_inverse(
         def theta(s):
             return holding_motor_angle(robot, q_d(s), torque(s))
 
-        def at(s):
-            return theta(s), _derivative(theta)(s), _derivative(_derivative(theta))(s)
-
-        return jax.vmap(at)(t)
+        return jax.vmap(lambda s: _with_rates(theta, s))(t)
     x, xd, xdd = joint[0].flat_deflection(robot, torque, t)
-    phi = jax.vmap(lambda s: jnp.stack([q_d(s), _derivative(q_d)(s), _derivative(_derivative(q_d))(s)]))(t)
+    phi = jax.vmap(lambda s: jnp.stack(_with_rates(q_d, s)))(t)
     phi = phi + jnp.stack([x, xd, xdd], 1)  # (N, 3, n): phi and its two rates
 
     def along(p):
-        g = lambda s: motor_angle(robot, p[0] + s * p[1] + 0.5 * s**2 * p[2])  # noqa: E731
-        value, first = jax.jvp(g, (0.0,), (1.0,))
-        return value, first, jax.jvp(_derivative(g), (0.0,), (1.0,))[1]
+        return _with_rates(lambda s: motor_angle(robot, p[0] + s * p[1] + 0.5 * s**2 * p[2]), 0.0)
 
     return jax.vmap(along)(phi)

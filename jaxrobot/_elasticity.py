@@ -73,6 +73,14 @@ def elastic_stiffness(robot: Robot, x: Float[Array, "*b n"]) -> Float[Array, "*b
     return jnp.where(rigid, jnp.inf, (1.0 + 3.0 * robot.e * x**2) / jnp.where(rigid, 1.0, robot.c))
 
 
+def elastic_torque_and_stiffness(
+    robot: Robot, x: Float[Array, "*b n"]
+) -> tuple[Float[Array, "*b n"], Float[Array, "*b n"]]:
+    """The joint springs at the deflections `x = phi - q` [rad]: their torques `kappa(x)` [N m] (`elastic_torque`) and
+    slopes `kappa'(x)` [N m/rad] (`elastic_stiffness`), as the link side's dynamics and its derivatives take them."""
+    return elastic_torque(robot, x), elastic_stiffness(robot, x)
+
+
 def require_elastic(robot: Robot, user: str) -> None:
     """Raise if a concrete `robot` has rigid joints (`c = 0`): `user` integrates the elastic model."""
     c = robot.c

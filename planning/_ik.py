@@ -110,13 +110,13 @@ def _newton(robot, p_d, r_d, q0, redundancy):
     return sol.value, jr.RESULTS.promote(sol.result)
 
 
-def _first_sample(robot, p_d, r_d, q_init):
-    """Reach the first sample from `q_init` robustly (Levenberg-Marquardt), then polish by Newton."""
+def _approach(robot, p_d, r_d, q_init):
+    """Approach the first sample from `q_init` robustly (Levenberg-Marquardt), for Newton to polish: the joint
+    coordinates reached and the null-space equations held from there."""
     fn = lambda q, args: pose_residual(robot, q, *args)  # noqa: E731
     sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=1e-10, atol=1e-10), q_init,
                              args=(p_d, r_d), max_steps=256, throw=False)
-    redundancy = redundancy_at(robot, sol.value, p_d, r_d)
-    return (*_newton(robot, p_d, r_d, sol.value, redundancy), redundancy)
+    return sol.value, redundancy_at(robot, sol.value, p_d, r_d)
 
 
 def inverse_kinematics(
@@ -140,15 +140,13 @@ def inverse_kinematics(
 
 @cached_program
 def _inverse_kinematics(robot, p_d, r_d, q_init) -> IKResult:
-    q_first, ok_first, redundancy = _first_sample(robot, p_d[0], r_d[0], q_init)
+    q_start, redundancy = _approach(robot, p_d[0], r_d[0], q_init)
 
-    def step(q_prev, pose):
+    def step(q_prev, pose):  # Newton at each sample from the last one's solution (the first: from the approach)
         q, ok = _newton(robot, pose[0], pose[1], q_prev, redundancy)
         return q, (q, ok)
 
-    _, (q_rest, ok_rest) = jax.lax.scan(step, q_first, (p_d[1:], r_d[1:]))
-    q = jnp.concatenate([q_first[None], q_rest])
-    ok = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), ok_first, ok_rest)
+    _, (q, ok) = jax.lax.scan(step, q_start, (p_d, r_d))
     res = jax.vmap(pose_residual, (None, 0, 0, 0))(robot, q, p_d, r_d)
     return IKResult(q, jnp.linalg.norm(res[:, :3], axis=-1),
                     jnp.arcsin(jnp.minimum(jnp.linalg.norm(res[:, 3:], axis=-1), 1.0)), ok, redundancy)
@@ -171,7 +169,7 @@ START_SEEDS = 16
 @jax.jit
 def _starts(robot, p_d, r_d, seeds):
     def one(q0):
-        q, ok, _ = _first_sample(robot, p_d, r_d, q0)
+        q, ok = _newton(robot, p_d, r_d, *_approach(robot, p_d, r_d, q0))
         res = pose_residual(robot, q, p_d, r_d)
         margin = jnp.min(jnp.minimum(q - robot.q_min, robot.q_max - q) / (robot.q_max - robot.q_min))
         sigma = jnp.linalg.svd(jr.geometric_jacobian(robot, q), compute_uv=False)[-1]

@@ -224,7 +224,8 @@ def gear_outputs(problem: OCPProblem, theta: Float[Array, "N n"]) -> tuple[Float
 
 
 def boundary_states(problem: OCPProblem) -> tuple[Float[Array, " 4*n"], Float[Array, " 4*n"]]:
-    """Fixed states of the first and last node (eq. 4.3e-i); `u` is 0 there (eq. 4.3j)."""
+    """Fixed states of the first and last node (eq. 4.3e-i), the rest poses of both from one static equilibrium;
+    `u` is 0 there (eq. 4.3j)."""
 
     r = problem.robot
 
@@ -237,7 +238,7 @@ def boundary_states(problem: OCPProblem) -> tuple[Float[Array, " 4*n"], Float[Ar
             theta = jr.effects.gear_hysteresis().rest_motor_angle(r, phi, problem.gear_state[k], theta)
         return State(q, z, theta, z).pack()
 
-    return rest(0), rest(-1 if problem.nodes is None else problem.nodes - 1)
+    return tuple(rest(jnp.stack([0, -1 if problem.nodes is None else problem.nodes - 1])))
 
 
 def bounds(problem: OCPProblem) -> tuple[Float[Array, "N 5*n"], Float[Array, "N 5*n"]]:
