@@ -92,11 +92,12 @@ def _gradient(p: _Parts, y, pulled, gam, rho):
 
 
 def _normal_blocks(
-    p: _Parts, y, h: HalfStep, gam, rho, mu, id_vjp=None
+    p: _Parts, y, h: HalfStep, gam, rho, mu, id_vjp=None, active=None
 ) -> tuple[Float[Array, "N 5*n 5*n"], Float[Array, "Nm1 5*n 5*n"]]:
     """Diagonal and sub-diagonal blocks of the Gauss-Newton matrix of `Phi` plus `mu I` at `y` (`h`:
     `half_step` there; `id_vjp`: `inverse_dynamics_vjp` there, if made), fixed variables replaced by
-    identity rows. The exact defect Jacobian is
+    identity rows; `rho` on the diagonal of the bounds `active` (default: those active at `y`, `_active`). The
+    exact defect Jacobian is
     needed: dropping the gravity/Coriolis/inertia derivatives (~1e-3 of the stiffness terms) turns
     the fast contraction of the steps into a slow one at small nu (the conditioning amplifies the error).
 
@@ -124,7 +125,7 @@ def _normal_blocks(
     lower = rho * lower - jnp.eye(nz) * 2 * p.edge
     hdiag = jnp.broadcast_to(2 * p.weight, (n, nz))
     hdiag = hdiag.at[:-1].add(2 * p.edge).at[1:].add(2 * p.edge)
-    hdiag = hdiag + rho * _active(p, y, gam, rho) + mu
+    hdiag = hdiag + rho * (_active(p, y, gam, rho) if active is None else active) + mu
     eye = jnp.eye(nz)
     f = p.free
     diag = f[:, :, None] * (rho * diag + hdiag[:, :, None] * eye) * f[:, None, :] + (1.0 - f)[:, :, None] * eye

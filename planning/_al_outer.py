@@ -23,13 +23,13 @@ from ._al_merit import (
     _parts,
     roundoff_floor,
 )
-from ._al_step import _lm_step, _refactor, _State
+from ._al_step import _ActiveFactor, _lm_step, _refactor, _reused, _State
 from ._ocp_solver import OCPSolverResult
 from ._transcription import ANGLE_SCALE, OCPProblem
 
 ACTIVE_SET_STEPS = 16
-"""Most steps of one inner solve that continue because the last step changed the active bounds
-(`ALConfig.max_inner_iterations`)."""
+"""Most steps of one inner solve that continue because the bounds active after the last step are not those its
+model held (`ALConfig.max_inner_iterations`)."""
 
 STALL_WINDOW = 3
 """Outer iterations over which a solve must have stopped changing to end `RESULTS.stalled` (`_stalled`)."""
@@ -66,8 +66,9 @@ def _start(problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig, m: 
         status=RESULTS.nonlinear_max_steps_reached, stop=jnp.array(False), hist=jnp.full((4, m), jnp.nan),
         # placeholder factor; the NaN key makes the first step factorise (one copy of the
         # Jacobian code in the program: compile time)
-        factor=jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
-                            jax.eval_shape(factorise, jnp.zeros((n, nz, nz)), jnp.zeros((n - 1, nz, nz)))),
+        factor=jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), _ActiveFactor(
+            jax.eval_shape(factorise, jnp.zeros((n, nz, nz)), jnp.zeros((n - 1, nz, nz))),
+            jnp.zeros((n, nz), bool), y0, y0)),
         factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), switched=jnp.array(False),
         forward=p.start, predicted=p.c0,
     )
@@ -99,7 +100,7 @@ def _pass(p: _Parts, config: ALConfig, s: _State) -> _State:
     s, c_y, grad, id_vjp, step, fresh = _prepare(p, config, s)
 
     def lm(s):
-        factor = jax.lax.cond(fresh, lambda: _refactor(p, config, s, id_vjp), lambda: s.factor)
+        factor = jax.lax.cond(fresh, lambda: _refactor(p, config, s, grad, id_vjp), lambda: s.factor)
         return _lm_step(p, config, s, c_y, grad, factor, fresh)
 
     return jax.lax.cond(step, lm, lambda s: s, s)
@@ -119,7 +120,8 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
     and the LM step that follows it), update the multipliers and the penalty where the inner solve is done.
     Returns the state, the defects and the gradient of `Phi` at `y` (for the multipliers now), the
     linearisation of Newton-Euler, whether to take an LM step and whether it needs a fresh factor (`rho` or
-    `mu` changed since the factor was made, or it is `refresh_every` steps old)."""
+    `mu` changed since the factor was made, it is `refresh_every` steps old, or its model's step at `y` leaves
+    the bounds it holds active: `_reused`, which also gives the step of a carried factor)."""
     m = s.hist.shape[-1]
     rho_max = config.penalty_max * _initial_penalty(p, config) / config.penalty_init
     c_y, vjp, id_vjp = _linearise(p, s.y, s.forward)
@@ -162,7 +164,9 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
     s = eqx.tree_at(changed, s, values)
     step = ~s.stop & ~_inner_done(config, s, grad)
     fresh = jnp.any(jnp.stack([s.rho, s.mu]) != s.factor_key) | (s.factor_age >= config.refresh_every)
-    return s, c_y, grad, id_vjp, step, fresh
+    factor, stale = jax.lax.cond(step & ~fresh, lambda: _reused(p, config, s, grad),
+                                 lambda: (s.factor, jnp.array(False)))
+    return eqx.tree_at(lambda t: t.factor, s, factor), c_y, grad, id_vjp, step, fresh | stale
 
 
 def _reverse_passes(vjp, cotangents: Float[Array, "3 Nm1 4*n"], done) -> Float[Array, "3 N 5*n"]:
