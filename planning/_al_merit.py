@@ -153,6 +153,13 @@ def _switched(p: _Parts, config: ALConfig, y_new, y_old, gam, rho, where=True) -
     return jnp.any(((new > 0) != (old > 0)) & (rho * jnp.maximum(new, old) > config.tol_stationarity) & where)
 
 
+def _curved(c, predicted) -> Bool[Array, ""]:
+    """The defects `c` at the end of a step differ from those its linearisation predicted (`predicted`) by more
+    than the predicted ones: the constraints' curvature over the step dominates the defects it leaves, and the
+    linearisation at its start no longer holds at its end (`_multiplier_defects`, `_lm_step`)."""
+    return jnp.max(jnp.abs(c - predicted)) > jnp.max(jnp.abs(predicted))
+
+
 def _merit_from(p: _Parts, y, c, lam, gam, rho):
     """`Phi` at `y` with its defects `c` already known."""
     out = _outside(p, y, gam, rho)

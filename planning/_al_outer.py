@@ -16,6 +16,7 @@ from ._al_merit import (
     _box_violation,
     _cost,
     _cost_gradient,
+    _curved,
     _gradient,
     _linearise,
     _outside,
@@ -200,8 +201,7 @@ def _multiplier_defects(c_y, predicted):
     next step removes anyway; added to `lam` it reappears there with the opposite sign and costs an outer
     iteration. The predicted defects give the multipliers of the step's penalised quadratic model (those of an
     SQP step). Near the solution the remainder is second order and the update is the classical one."""
-    remainder = jnp.max(jnp.abs(c_y - predicted))
-    return jnp.where(remainder > jnp.max(jnp.abs(predicted)), predicted, c_y)
+    return jnp.where(_curved(c_y, predicted), predicted, c_y)
 
 
 def _stalled(config: ALConfig, hist, it, lam, rho_max) -> Bool[Array, ""]:

@@ -13,7 +13,7 @@ from jaxtyping import Array, Bool, Float, Int
 from jaxrobot import RESULTS
 
 from ._al_config import ALConfig
-from ._al_merit import _defects, _merit_from, _normal_blocks, _outside, _Parts, _switched
+from ._al_merit import _curved, _defects, _merit_from, _normal_blocks, _outside, _Parts, _switched
 from ._half_step import HalfStep, half_step, half_step_jvp
 
 
@@ -182,7 +182,9 @@ def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -
     mu = jnp.where(good, mu_down, jnp.where((accept & (t == 1.0)) | retry, s.mu, s.mu * config.damping_up))
     failed = mu > config.damping_max
     status = RESULTS.where(failed, RESULTS.inner_failed, s.status)
-    age = jnp.where(retry | switched, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))
+    # a step whose end the linearisation at its start does not describe leaves the factor made there stale
+    curved = accept & _curved(_defects(p, y_try, h_new.g), predicted)
+    age = jnp.where(retry | switched | curved, config.refresh_every, jnp.where(fresh, 1, s.factor_age + 1))
     key = jnp.stack([s.rho, s.mu])  # equal to the factor's own where it is not fresh
     return eqx.tree_at(
         lambda t: (t.y, t.mu, t.inner, t.steps, t.status, t.stop, t.factor, t.factor_key, t.factor_age, t.accepted,
