@@ -61,7 +61,7 @@ class _ActiveFactor(eqx.Module):
 
 
 ACTIVE_SET_FACTORS = 6
-"""Most factors of one step's model while its active bounds settle (`_refactor`)."""
+"""Most factors of one step's model while its active bounds settle (`_refactor`), the last of them the fallback."""
 
 
 def _refactor(p: _Parts, config: ALConfig, s: _State, grad, id_vjp=None) -> _ActiveFactor:
@@ -69,8 +69,10 @@ def _refactor(p: _Parts, config: ALConfig, s: _State, grad, id_vjp=None) -> _Act
     Newton-Euler there, if made) with the bounds active at the minimum of the step's model, and that minimum.
     The model is the Gauss-Newton one of the cost and defects with the exact bound terms of `Phi` (on single
     variables, they change only diagonal entries): from the bounds active at `y`, a primal-dual active-set loop
-    factorises with the active set of the last model step until it holds at that step's end (`_departs`), up to
-    `ACTIVE_SET_FACTORS` factors. Without bounds crossed, one factor as before."""
+    factorises with the active set of the last model step until it holds at that step's end (`_departs`). A set
+    that has not settled when `ACTIVE_SET_FACTORS` factors are made (far from the solution, where hundreds of
+    bounds change sides at each factor) gives way to the model of the bounds active at `y`, the plain Gauss-Newton
+    step, whose line search and inner steps handle the kinks (`_lm_step`). Without bounds crossed, one factor."""
     solver = config.resolved_linear_solver()
     none = jnp.zeros(s.y.shape, bool)
     diag, lower = _normal_blocks(p, s.y, s.forward, s.gam, s.rho, s.mu, id_vjp, active=none)
@@ -82,17 +84,21 @@ def _refactor(p: _Parts, config: ALConfig, s: _State, grad, id_vjp=None) -> _Act
         factor = solver.factor(diag + (s.rho * active * p.free)[:, :, None] * eye, lower)
         return _ActiveFactor(factor, active, bound, -solver.solve(factor, _model_gradient(s, smooth, active, bound)))
 
+    at_y = jnp.clip(v, p.lower, p.upper)
+    plain = (v != at_y, at_y)
+
     def settle(c):
         k, m, _ = c
         z = v + m.step
         bound = jnp.clip(z, p.lower, p.upper)
         settled = ~_departs(config, m, z, bound, s.rho)
-        m = jax.lax.cond(settled, lambda: m, lambda: model(z != bound, bound))
-        return k + 1, m, settled
+        last = k + 1 >= ACTIVE_SET_FACTORS
+        m = jax.lax.cond(settled, lambda: m, lambda: model(*jax.tree.map(
+            lambda a, b: jnp.where(last, a, b), plain, (z != bound, bound))))
+        return k + 1, m, settled | last
 
-    bound = jnp.clip(v, p.lower, p.upper)
-    start = (jnp.array(1), model(v != bound, bound), jnp.array(False))
-    return jax.lax.while_loop(lambda c: ~c[2] & (c[0] < ACTIVE_SET_FACTORS), settle, start)[1]
+    start = (jnp.array(1), model(*plain), jnp.array(False))
+    return jax.lax.while_loop(lambda c: ~c[2], settle, start)[1]
 
 
 def _reused(p: _Parts, config: ALConfig, s: _State, grad) -> tuple[_ActiveFactor, Bool[Array, ""]]:
