@@ -56,7 +56,8 @@ class ALConfig(eqx.Module):
     """Smallest ratio of actual to predicted merit decrease that accepts a step."""
     refresh_every: int = 4
     """Steps after which the Gauss-Newton matrix is re-linearised and re-factorised (also when
-    `rho` or `mu` changed, and after a step from a reused factor was rejected)."""
+    `rho` or `mu` changed, after a step from a reused factor was rejected, and after a step that left the
+    bounds or the linearisation of its model: `_departs`, `_curved`)."""
     linear_solver: AbstractLinearSolver | None = eqx.field(static=True, default=None)
     """Static. Factor and solve of the block-tridiagonal Gauss-Newton matrix: `Scan()` (sequential block
     Cholesky, a `lax.scan` over the nodes), `CyclicReduction()` (`ceil(log2 N)` levels of batched dense

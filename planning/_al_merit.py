@@ -176,6 +176,14 @@ def _cost_gradient(p: _Parts, y) -> Float[Array, "N 5*n"]:
     return grad * p.free
 
 
+def stationarity_tolerance(p: _Parts, config: ALConfig, y, h: HalfStep, gam, rho) -> Float[Array, ""]:
+    """The largest scaled gradient of the Lagrangian that the stopping test accepts at `y` (`h`: `half_step`
+    there) with the bound multipliers `gam` and penalty `rho`: `tol_stationarity` times its scale plus the
+    `roundoff_floor` (`ALConfig.tol_stationarity`)."""
+    scale = jnp.maximum(1.0, jnp.maximum(jnp.max(jnp.abs(_cost_gradient(p, y))), jnp.max(jnp.abs(gam * p.free))))
+    return config.tol_stationarity * scale + roundoff_floor(p, y, h, rho)
+
+
 def roundoff_floor(p: _Parts, y, h: HalfStep, rho) -> Float[Array, ""]:
     """The largest scaled gradient of the Lagrangian that roundoff of the defects explains at `y` (`h`:
     `half_step` there) and penalty `rho`, to first order in the machine epsilon `eps`.

@@ -15,14 +15,13 @@ from ._al_config import ALConfig
 from ._al_merit import (
     _box_violation,
     _cost,
-    _cost_gradient,
     _curved,
     _gradient,
     _linearise,
     _outside,
     _Parts,
     _parts,
-    roundoff_floor,
+    stationarity_tolerance,
 )
 from ._al_step import _ActiveFactor, _lm_step, _refactor, _reused, _State
 from ._ocp_solver import OCPSolverResult
@@ -146,9 +145,8 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
     def update():
         # the gradient of the Lagrangian at the updated multipliers: `grad` with `rho (c_y + shift)` for `rho c_y`
         stat = jnp.max(jnp.abs(grad + s.rho * pulled[1] * p.free))
-        scale = jnp.maximum(1.0, jnp.maximum(jnp.max(jnp.abs(_cost_gradient(p, s.y))), jnp.max(jnp.abs(gam * p.free))))
         met = viol <= config.tol_violation
-        converged = met & (stat <= config.tol_stationarity * scale + roundoff_floor(p, s.y, s.forward, s.rho))
+        converged = met & (stat <= stationarity_tolerance(p, config, s.y, s.forward, gam, s.rho))
         finite = jnp.isfinite(viol) & jnp.isfinite(stat)
         it = s.it + 1
         out_of_iterations = it >= config.max_outer_iterations

@@ -14,12 +14,15 @@ variables and `mu I`, assembled from the one dense 6x18 block per node of the de
 (`_normal_blocks`). It is block-tridiagonal with 5n x 5n blocks, factorised by the linear solver
 `ALConfig.linear_solver` (`Scan`: block Cholesky, a `lax.scan` over the nodes; `CyclicReduction`:
 `ceil(log2 N)` levels of batched dense operations), and reused for `refresh_every` steps while `rho` and `mu`
-stay put (the iterates move by micro-radians, so a factor from a few steps back is as good).
+stay put and the steps stay within the linearisation it was made at (the iterates move by micro-radians, so a
+factor from a few steps back is as good; a step whose defects depart from those its linearisation predicted by
+more than these, `_curved`, as the first from a far start, leaves it stale).
 The bound terms are on single variables and exact in the step's model, so the bounds active in the matrix are
 those active at the model's minimum: a primal-dual active-set loop refactorises the same blocks with the bounds
-the last model step violates until they hold at its end (`_refactor`, up to `ACTIVE_SET_FACTORS` factors), and
-a carried factor whose model's step leaves its bounds is refreshed (`_reused`). Without bounds crossed this is the
-one factor of the plain Gauss-Newton step. Steps are accepted by the gain ratio of the merit against the decrease
+the last model step violates until they hold at its end (`_refactor`; a set not settled within
+`ACTIVE_SET_FACTORS` factors, far from the solution, gives way to the bounds active at `y`), and a carried factor
+whose model's step leaves its bounds is refreshed (`_reused`). Without bounds crossed this is the one factor of
+the plain Gauss-Newton step. Steps are accepted by the gain ratio of the merit against the decrease
 the model predicts; a step that changes the active direction bounds (motor rates at 0) is halved while the ratio
 is too low (a full step across the kinks of many bounds is often poor, a shorter one costs one evaluation of the
 dynamics, a larger `mu` a new factor). `mu` grows after a shortened step, when no step length is accepted or

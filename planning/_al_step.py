@@ -13,7 +13,16 @@ from jaxtyping import Array, Bool, Float, Int
 from jaxrobot import RESULTS
 
 from ._al_config import ALConfig
-from ._al_merit import _curved, _defects, _merit_from, _normal_blocks, _outside, _Parts, _switched
+from ._al_merit import (
+    _curved,
+    _defects,
+    _merit_from,
+    _normal_blocks,
+    _outside,
+    _Parts,
+    _switched,
+    stationarity_tolerance,
+)
 from ._half_step import HalfStep, half_step, half_step_jvp
 
 
@@ -61,7 +70,7 @@ class _ActiveFactor(eqx.Module):
 
 
 ACTIVE_SET_FACTORS = 6
-"""Most factors of one step's model while its active bounds settle (`_refactor`), the last of them the fallback."""
+"""Most factors of one step's model while its active bounds settle (`_refactor`)."""
 
 
 def _refactor(p: _Parts, config: ALConfig, s: _State, grad, id_vjp=None) -> _ActiveFactor:
@@ -69,16 +78,19 @@ def _refactor(p: _Parts, config: ALConfig, s: _State, grad, id_vjp=None) -> _Act
     Newton-Euler there, if made) with the bounds active at the minimum of the step's model, and that minimum.
     The model is the Gauss-Newton one of the cost and defects with the exact bound terms of `Phi` (on single
     variables, they change only diagonal entries): from the bounds active at `y`, a primal-dual active-set loop
-    factorises with the active set of the last model step until it holds at that step's end (`_departs`). A set
-    that has not settled when `ACTIVE_SET_FACTORS` factors are made (far from the solution, where hundreds of
-    bounds change sides at each factor) gives way to the model of the bounds active at `y`, the plain Gauss-Newton
-    step, whose line search and inner steps handle the kinks (`_lm_step`). Without bounds crossed, one factor."""
+    factorises with the active set of the last model step until it holds at that step's end (`_departs`), up to
+    `ACTIVE_SET_FACTORS` factors. A loop that has not at least halved the bounds its first model's step leaves
+    by then does not converge (far from the solution, hundreds of bounds change sides at each factor): the step
+    is then that of the first model, the bounds active at `y` (the plain Gauss-Newton step, whose line search
+    and further inner steps handle the kinks, `_lm_step`; its factor made again). Without bounds crossed, one
+    factor."""
     solver = config.resolved_linear_solver()
     none = jnp.zeros(s.y.shape, bool)
     diag, lower = _normal_blocks(p, s.y, s.forward, s.gam, s.rho, s.mu, id_vjp, active=none)
     eye = jnp.eye(s.y.shape[-1])
     v = s.y + s.gam / s.rho
     smooth = _smooth_gradient(p, s, grad)
+    tolerance = stationarity_tolerance(p, config, s.y, s.forward, s.gam, s.rho)
 
     def model(active, bound):
         factor = solver.factor(diag + (s.rho * active * p.free)[:, :, None] * eye, lower)
@@ -88,16 +100,18 @@ def _refactor(p: _Parts, config: ALConfig, s: _State, grad, id_vjp=None) -> _Act
     plain = (v != at_y, at_y)
 
     def settle(c):
-        k, m, _ = c
+        k, m, _, first = c
         z = v + m.step
         bound = jnp.clip(z, p.lower, p.upper)
-        settled = ~_departs(config, m, z, bound, s.rho)
-        last = k + 1 >= ACTIVE_SET_FACTORS
-        m = jax.lax.cond(settled, lambda: m, lambda: model(*jax.tree.map(
-            lambda a, b: jnp.where(last, a, b), plain, (z != bound, bound))))
-        return k + 1, m, settled | last
+        left = _departing(tolerance, m, z, bound, s.rho)
+        first = jnp.where(k == 1, left, first)
+        last = k >= ACTIVE_SET_FACTORS
+        plain_again = last & (2 * left > first)
+        m = jax.lax.cond((left == 0) | (last & ~plain_again), lambda: m, lambda: model(*jax.tree.map(
+            lambda a, b: jnp.where(plain_again, a, b), plain, (z != bound, bound))))
+        return k + 1, m, (left == 0) | last, first
 
-    start = (jnp.array(1), model(*plain), jnp.array(False))
+    start = (jnp.array(1), model(*plain), jnp.array(False), jnp.array(0))
     return jax.lax.while_loop(lambda c: ~c[2], settle, start)[1]
 
 
@@ -109,7 +123,8 @@ def _reused(p: _Parts, config: ALConfig, s: _State, grad) -> tuple[_ActiveFactor
     m = eqx.tree_at(lambda m: m.step, m, -config.resolved_linear_solver().solve(
         m.factor, _model_gradient(s, smooth, m.active, m.bound)))
     z = s.y + s.gam / s.rho + m.step
-    return m, _departs(config, m, z, jnp.clip(z, p.lower, p.upper), s.rho)
+    return m, _departs(stationarity_tolerance(p, config, s.y, s.forward, s.gam, s.rho), m, z,
+                       jnp.clip(z, p.lower, p.upper), s.rho)
 
 
 def _smooth_gradient(p: _Parts, s: _State, grad) -> Float[Array, "N 5*n"]:
@@ -123,13 +138,32 @@ def _model_gradient(s: _State, smooth, active, bound) -> Float[Array, "N 5*n"]:
     return smooth + s.rho * jnp.where(active, s.y + s.gam / s.rho - bound, 0.0)
 
 
-def _departs(config: ALConfig, m: _ActiveFactor, z, clipped, rho) -> Bool[Array, ""]:
-    """The bounds violated at `z` (`v` after a step; `clipped`: its projection on the bounds) are not those of
-    the model `m`, by a bound whose term in the gradient, `rho |v - P(v)|` for one it adds or `rho |v - bound|`
-    for one it drops, exceeds `tol_stationarity` (bounds at 0 by rounding change sides at every step)."""
+def _predicted(p: _Parts, s: _State, smooth, m: _ActiveFactor, t) -> Float[Array, ""]:
+    """The decrease of `Phi` from `s` to `y + t dy` (`dy`: the step of the model `m`; `smooth`: the gradient of
+    `Phi` at `s` without its bound terms) that the model predicts: Gauss-Newton in the cost and defects, the bound
+    terms exact."""
+    dy = m.step
+    # dy^T H dy, H the Gauss-Newton matrix of the cost and defect terms: the factor's matrix is H + mu I + rho D
+    curvature = (-jnp.sum(_model_gradient(s, smooth, m.active, m.bound) * dy) - s.mu * jnp.sum(dy**2)
+                 - s.rho * jnp.sum(m.active * p.free * dy**2))
+    bounds = jnp.sum(_outside(p, s.y + t * dy, s.gam, s.rho) ** 2) - jnp.sum(_outside(p, s.y, s.gam, s.rho) ** 2)
+    return -t * jnp.sum(smooth * dy) - 0.5 * t**2 * curvature - 0.5 * s.rho * bounds
+
+
+def _departing(tolerance, m: _ActiveFactor, z, clipped, rho) -> Int[Array, ""]:
+    """How many of the bounds violated at `z` (`v` after a step; `clipped`: its projection on the bounds) differ
+    from those of the model `m`, counting a bound only where its term in the gradient, `rho |v - P(v)|` for one it
+    adds or `rho |v - bound|` for one it drops, exceeds `tolerance`, the stationarity the stopping test accepts
+    (`stationarity_tolerance`: bounds at 0 by rounding change sides at every step, and a bound whose term is below
+    it does not decide the solution)."""
     active = z != clipped
     term = jnp.maximum(jnp.abs(z - clipped), jnp.where(m.active, jnp.abs(z - m.bound), 0.0))
-    return jnp.any((active != m.active) & (rho * term > config.tol_stationarity))
+    return jnp.sum((active != m.active) & (rho * term > tolerance))
+
+
+def _departs(tolerance, m: _ActiveFactor, z, clipped, rho) -> Bool[Array, ""]:
+    """Some bound departs from the model `m` at `z` (`_departing`)."""
+    return _departing(tolerance, m, z, clipped, rho) > 0
 
 
 def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -> _State:
@@ -143,15 +177,11 @@ def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -
     a new factor). The damping falls after a good full step and grows after a shortened one or when no trial
     point is accepted. An accepted step records the defects its linearisation predicts at the new point
     (`_State.predicted`, `_multiplier_defects`), and whether the bounds active there are not those of the model
-    (`_State.switched`, `_departs`)."""
+    (`_State.switched`, `_departs`); either that or defects there that its linearisation did not describe
+    (`_curved`) make the next step's factor fresh."""
     smooth = _smooth_gradient(p, s, grad)
-    model_gradient = _model_gradient(s, smooth, factor.active, factor.bound)
     dy = factor.step  # made at `s` (`_refactor`, `_reused`)
     phi = _merit_from(p, s.y, c_y, s.lam, s.gam, s.rho)
-    # dy^T H dy, H the Gauss-Newton matrix of the cost and defect terms: the factor's matrix is H + mu I + rho D
-    curvature = -jnp.sum(model_gradient * dy) - s.mu * jnp.sum(dy**2) - s.rho * jnp.sum(factor.active * p.free * dy**2)
-    slope = -jnp.sum(smooth * dy)
-    bounds_before = jnp.sum(_outside(p, s.y, s.gam, s.rho) ** 2)
     noise = 1e-13 * (jnp.abs(phi) + 1.0)  # merit differences at roundoff: take the GN step
     ok = factor.factor.positive_definite & jnp.all(jnp.isfinite(dy))
 
@@ -160,8 +190,7 @@ def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -
         y_try = s.y + t * dy
         h_new = half_step(p.problem, p.y0 + y_try)
         phi_new = _merit_from(p, y_try, _defects(p, y_try, h_new.g), s.lam, s.gam, s.rho)
-        predicted = t * slope - 0.5 * t**2 * curvature - 0.5 * s.rho * (jnp.sum(_outside(p, y_try, s.gam, s.rho) ** 2)
-                                                                       - bounds_before)
+        predicted = _predicted(p, s, smooth, factor, t)
         actual = phi - phi_new
         at_noise = jnp.abs(actual) <= noise
         accept = jnp.isfinite(phi_new) & ((actual >= config.accept_ratio * predicted) | at_noise)
@@ -176,7 +205,8 @@ def _lm_step(p: _Parts, config: ALConfig, s: _State, c_y, grad, factor, fresh) -
     # a rejected step from a reused factor is retried with a fresh one at the same damping
     retry = ~accept & ~fresh
     v_try = y_try + s.gam / s.rho
-    switched = accept & _departs(config, factor, v_try, jnp.clip(v_try, p.lower, p.upper), s.rho)
+    tolerance = stationarity_tolerance(p, config, s.y, s.forward, s.gam, s.rho)
+    switched = accept & _departs(tolerance, factor, v_try, jnp.clip(v_try, p.lower, p.upper), s.rho)
     y = jnp.where(accept, y_try, s.y)
     nx = c_y.shape[-1]
     dg = half_step_jvp(p.problem, s.forward, t * dy)
