@@ -19,10 +19,11 @@ factor from a few steps back is as good; a step whose defects depart from those 
 more than these, `_curved`, as the first from a far start, leaves it stale).
 The bound terms are on single variables and exact in the step's model, so the bounds active in the matrix are
 those active at the model's minimum: a primal-dual active-set loop refactorises the same blocks with the bounds
-the last model step violates until they hold at its end (`_refactor`; a set not settled within
-`ACTIVE_SET_FACTORS` factors, far from the solution, gives way to the bounds active at `y`), and a carried factor
-whose model's step leaves its bounds is refreshed (`_reused`). Without bounds crossed this is the one factor of
-the plain Gauss-Newton step. Steps are accepted by the gain ratio of the merit against the decrease
+the last model step violates until they hold at its end (`_refactor`; bounds whose terms in the gradient are
+below the stationarity the stopping test accepts do not count; a loop that has not halved the bounds changing
+sides within `ACTIVE_SET_FACTORS` factors, far from the solution, gives way to the bounds active at `y`), and a
+carried factor whose model's step leaves its bounds is refreshed (`_reused`). Without bounds crossed this is the
+one factor of the plain Gauss-Newton step. Steps are accepted by the gain ratio of the merit against the decrease
 the model predicts; a step that changes the active direction bounds (motor rates at 0) is halved while the ratio
 is too low (a full step across the kinks of many bounds is often poor, a shorter one costs one evaluation of the
 dynamics, a larger `mu` a new factor). `mu` grows after a shortened step, when no step length is accepted or

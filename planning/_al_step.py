@@ -78,7 +78,7 @@ def _refactor(p: _Parts, config: ALConfig, s: _State, grad, id_vjp=None) -> _Act
     Newton-Euler there, if made) with the bounds active at the minimum of the step's model, and that minimum.
     The model is the Gauss-Newton one of the cost and defects with the exact bound terms of `Phi` (on single
     variables, they change only diagonal entries): from the bounds active at `y`, a primal-dual active-set loop
-    factorises with the active set of the last model step until it holds at that step's end (`_departs`), up to
+    factorises with the active set of the last model step until it holds at that step's end (`_departing`), up to
     `ACTIVE_SET_FACTORS` factors. A loop that has not at least halved the bounds its first model's step leaves
     by then does not converge (far from the solution, hundreds of bounds change sides at each factor): the step
     is then that of the first model, the bounds active at `y` (the plain Gauss-Newton step, whose line search
