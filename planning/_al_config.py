@@ -18,7 +18,8 @@ class ALConfig(eqx.Module):
     max_inner_iterations: int = 1
     """Gauss-Newton/LM steps per outer iteration; more follow while steps are rejected (the
     multipliers move only from an accepted iterate), until the damping exceeds `damping_max`, and while
-    the bounds active after the last step are not those its model held (up to `ACTIVE_SET_STEPS`; `_departs`)."""
+    the bounds active after the last step are not those its model held (`_departs`) or the gradient of `Phi`
+    is above the inner target (`INNER_DECREASE`), up to `ACTIVE_SET_STEPS`."""
     penalty_init: float = 1e6
     """Initial penalty `rho` (at least; see `penalty_per_weight`)."""
     penalty_per_weight: float = 100.0

@@ -29,7 +29,12 @@ from ._transcription import ANGLE_SCALE, OCPProblem
 
 ACTIVE_SET_STEPS = 16
 """Most steps of one inner solve that continue because the bounds active after the last step are not those its
-model held (`ALConfig.max_inner_iterations`)."""
+model held or its gradient of `Phi` is above the inner target (`ALConfig.max_inner_iterations`, `_inner_done`)."""
+
+INNER_DECREASE = 0.1
+"""Factor on the stationarity at a multiplier update whose violation fell by `violation_decrease` (on the
+gradient of `Phi` at the warm start for the first inner solve) that gives the next inner solve's target
+(`_State.inner_target`, `_inner_done`)."""
 
 STALL_WINDOW = 3
 """Outer iterations over which a solve must have stopped changing to end `RESULTS.stalled` (`_stalled`)."""
@@ -70,7 +75,7 @@ def _start(problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig, m: 
             jax.eval_shape(factorise, jnp.zeros((n, nz, nz)), jnp.zeros((n - 1, nz, nz))),
             jnp.zeros((n, nz), bool), y0, y0)),
         factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), switched=jnp.array(False),
-        forward=p.start, predicted=p.c0,
+        forward=p.start, predicted=p.c0, inner_target=jnp.array(jnp.inf), continued=jnp.array(False),
     )
     return p, state
 
@@ -106,13 +111,30 @@ def _pass(p: _Parts, config: ALConfig, s: _State) -> _State:
     return jax.lax.cond(step, lm, lambda s: s, s)
 
 
-def _inner_done(config: ALConfig, s: _State, grad) -> Bool[Array, ""]:
+def _inner_done(p: _Parts, config: ALConfig, s: _State, grad) -> Bool[Array, ""]:
     """The inner solve at `s` (gradient of `Phi` `grad`) is done. The multipliers move only from an iterate
-    it accepted (never after a rejection), once the active bounds settled: updated from a step that switched
-    them, they cycle between two active sets."""
-    settled = ~s.switched | (s.inner >= ACTIVE_SET_STEPS)
-    return (jnp.max(jnp.abs(grad)) <= config.inner_tol) | ((s.inner >= config.max_inner_iterations) & s.accepted
-                                                           & settled)
+    it accepted (never after a rejection), once the active bounds settled (updated from a step that switched
+    them, they cycle between two active sets) and the gradient of `Phi` is at most the inner target
+    (`_State.inner_target`) or the stationarity the stopping test accepts, whichever is larger; a step toward
+    the target that is rejected ends the inner solve at its accepted iterate. This is the classical inexact rule
+    (Conn, Gould and Toint): the target tightens, by `INNER_DECREASE` on the stationarity at the update, only
+    after an update whose violation fell by `violation_decrease`; after one that did not, the penalty or the
+    multipliers limit the progress and one settled step suffices (the target is infinite). The update
+    `lam += rho c` assumes an iterate that minimises `Phi`: after a single Gauss-Newton step where `rho c`
+    dominates the multipliers (the spiral bounded to its motor directions at nu = 1e-11: a gradient of `Phi`
+    of 97), it starts the next inner solve as far from its solution and the outer iterations double. Up to
+    `ACTIVE_SET_STEPS` steps."""
+    g = jnp.max(jnp.abs(grad))
+    target = jnp.maximum(s.inner_target, stationarity_tolerance(p, config, s.y, s.forward, s.gam, s.rho))
+    last = s.inner >= ACTIVE_SET_STEPS
+    reached = (g <= target) | last
+    return (g <= config.inner_tol) | (_settled(config, s) & reached) | (s.continued & ~s.accepted)
+
+
+def _settled(config: ALConfig, s: _State) -> Bool[Array, ""]:
+    """The inner solve at `s` took its `max_inner_iterations` steps, the last accepted, and the active bounds
+    settled (or `ACTIVE_SET_STEPS` steps)."""
+    return (s.inner >= config.max_inner_iterations) & s.accepted & (~s.switched | (s.inner >= ACTIVE_SET_STEPS))
 
 
 def _prepare(p: _Parts, config: ALConfig, s: _State):
@@ -136,11 +158,14 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
     grown = jnp.minimum(s.rho * config.penalty_growth, rho_max)
     rho = jnp.where(_penalty_grows(p, config, viol, s.violation, grown, lam), grown, s.rho)
     pulled = _reverse_passes(vjp, jnp.stack([s.lam + s.rho * c_y, shift, lam + rho * c_y]),
-                             lambda first: _inner_done(config, s, _gradient(p, s.y, first, s.gam, s.rho)))
+                             lambda first: _inner_done(p, config, s, _gradient(p, s.y, first, s.gam, s.rho)))
     grad = _gradient(p, s.y, pulled[0], s.gam, s.rho)
+    # the first inner solve's target, from the gradient at the warm start (the later ones: `update`)
+    s = eqx.tree_at(lambda t: t.inner_target, s, jnp.where((s.it == 0) & (s.inner == 0),
+                                                           INNER_DECREASE * jnp.max(jnp.abs(grad)), s.inner_target))
     # what the update changes, the only outputs of its `cond` (under `vmap` it selects every leaf it returns)
     changed = lambda t: (t.lam, t.gam, t.rho, t.it, t.inner, t.violation, t.stationarity, t.status, t.stop,  # noqa: E731
-                         t.hist)
+                         t.hist, t.inner_target)
 
     def update():
         # the gradient of the Lagrangian at the updated multipliers: `grad` with `rho (c_y + shift)` for `rho c_y`
@@ -156,13 +181,16 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
         status = RESULTS.where(converged, RESULTS.successful, RESULTS.where(
             finite, RESULTS.where(stalled, RESULTS.stalled, RESULTS.nonlinear_max_steps_reached), RESULTS.nonfinite))
         new = eqx.tree_at(changed, s, (lam, gam, rho, it, jnp.array(0), viol, stat, status,
-                                       converged | stalled | ~finite | out_of_iterations, hist))
+                                       converged | stalled | ~finite | out_of_iterations, hist,
+                                       jnp.where(viol <= config.violation_decrease * s.violation,
+                                                 INNER_DECREASE * stat, jnp.inf)))
         return changed(new), _gradient(p, new.y, pulled[2], new.gam, new.rho)
 
-    values, grad = jax.lax.cond(_inner_done(config, s, grad), update, lambda: (changed(s), grad))
+    values, grad = jax.lax.cond(_inner_done(p, config, s, grad), update, lambda: (changed(s), grad))
     s = eqx.tree_at(changed, s, values)
-    step = ~s.stop & ~_inner_done(config, s, grad)
+    step = ~s.stop & ~_inner_done(p, config, s, grad)
     fresh = jnp.any(jnp.stack([s.rho, s.mu]) != s.factor_key) | (s.factor_age >= config.refresh_every)
+    s = eqx.tree_at(lambda t: t.continued, s, step & _settled(config, s))
     factor, stale = jax.lax.cond(step & ~fresh, lambda: _reused(p, config, s, grad),
                                  lambda: (s.factor, jnp.array(False)))
     return eqx.tree_at(lambda t: t.factor, s, factor), c_y, grad, id_vjp, step, fresh | stale

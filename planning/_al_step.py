@@ -51,6 +51,11 @@ class _State(eqx.Module):
     """`half_step` at `y0 + y`."""
     predicted: Float[Array, "Nm1 4*n"]
     """The defects at `y` as the linearisation of the step that led there predicted them."""
+    inner_target: Float[Array, ""]
+    """The largest gradient of `Phi` at which the inner solve ends (`_inner_done`, `INNER_DECREASE`)."""
+    continued: Bool[Array, ""]
+    """The last step was taken from a settled iterate toward the inner target (`_inner_done`): rejected, the
+    inner solve ends there."""
 
 
 LINE_SEARCH_STEPS = 5
