@@ -123,11 +123,11 @@ def _inner_done(p: _Parts, config: ALConfig, s: _State, grad) -> Bool[Array, ""]
     `lam += rho c` assumes an iterate that minimises `Phi`: after a single Gauss-Newton step where `rho c`
     dominates the multipliers (the spiral bounded to its motor directions at nu = 1e-11: a gradient of `Phi`
     of 97), it starts the next inner solve as far from its solution and the outer iterations double. Up to
-    `ACTIVE_SET_STEPS` steps."""
+    `ACTIVE_SET_STEPS` steps. Only with direction bounds (`_Parts.directed`): without them one step is done."""
     g = jnp.max(jnp.abs(grad))
     target = jnp.maximum(s.inner_target, stationarity_tolerance(p, config, s.y, s.forward, s.gam, s.rho))
-    last = s.inner >= ACTIVE_SET_STEPS
-    reached = (g <= target) | last
+    # without direction bounds one settled step is what converges (`_penalty_grows`)
+    reached = (g <= target) | (s.inner >= ACTIVE_SET_STEPS) | ~jnp.any(p.directed)
     return (g <= config.inner_tol) | (_settled(config, s) & reached) | (s.continued & ~s.accepted)
 
 
