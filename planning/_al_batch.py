@@ -261,7 +261,8 @@ def _pool(begin, size: int, nu: Float[Array, " B"], lanes: int, shape: tuple[int
         served = need[idx]
 
         def refactor():
-            return jax.vmap(_refactor)(take(t["p"], idx), take(t["config"], idx), take(s, idx), take(id_vjp, idx))
+            return jax.vmap(_refactor)(take(t["p"], idx), take(t["config"], idx), take(s, idx), take(grad, idx),
+                                   take(id_vjp, idx))
 
         # the lanes' new factors are put in outside the `cond`, where the scatter can update the loop's buffers
         new = jax.lax.cond(jnp.any(need), refactor, lambda: jax.tree.map(lambda a: jnp.zeros_like(a[idx]), s.factor))

@@ -18,7 +18,8 @@ class ALConfig(eqx.Module):
     max_inner_iterations: int = 1
     """Gauss-Newton/LM steps per outer iteration; more follow while steps are rejected (the
     multipliers move only from an accepted iterate), until the damping exceeds `damping_max`, and while
-    the last step changed which bounds are active (up to `ACTIVE_SET_STEPS`; `_switched`)."""
+    the bounds active after the last step are not those its model held (`_departs`) or the gradient of `Phi`
+    is above the inner target (`INNER_DECREASE`), up to `ACTIVE_SET_STEPS`."""
     penalty_init: float = 1e6
     """Initial penalty `rho` (at least; see `penalty_per_weight`)."""
     penalty_per_weight: float = 100.0
@@ -56,7 +57,8 @@ class ALConfig(eqx.Module):
     """Smallest ratio of actual to predicted merit decrease that accepts a step."""
     refresh_every: int = 4
     """Steps after which the Gauss-Newton matrix is re-linearised and re-factorised (also when
-    `rho` or `mu` changed, and after a step from a reused factor was rejected)."""
+    `rho` or `mu` changed, after a step from a reused factor was rejected, and after a step that left the
+    bounds or the linearisation of its model: `_departs`, `_curved`)."""
     linear_solver: AbstractLinearSolver | None = eqx.field(static=True, default=None)
     """Static. Factor and solve of the block-tridiagonal Gauss-Newton matrix: `Scan()` (sequential block
     Cholesky, a `lax.scan` over the nodes), `CyclicReduction()` (`ceil(log2 N)` levels of batched dense

@@ -92,11 +92,12 @@ def _gradient(p: _Parts, y, pulled, gam, rho):
 
 
 def _normal_blocks(
-    p: _Parts, y, h: HalfStep, gam, rho, mu, id_vjp=None
+    p: _Parts, y, h: HalfStep, gam, rho, mu, id_vjp=None, active=None
 ) -> tuple[Float[Array, "N 5*n 5*n"], Float[Array, "Nm1 5*n 5*n"]]:
     """Diagonal and sub-diagonal blocks of the Gauss-Newton matrix of `Phi` plus `mu I` at `y` (`h`:
     `half_step` there; `id_vjp`: `inverse_dynamics_vjp` there, if made), fixed variables replaced by
-    identity rows. The exact defect Jacobian is
+    identity rows; `rho` on the diagonal of the bounds `active` (default: those active at `y`, `_active`). The
+    exact defect Jacobian is
     needed: dropping the gravity/Coriolis/inertia derivatives (~1e-3 of the stiffness terms) turns
     the fast contraction of the steps into a slow one at small nu (the conditioning amplifies the error).
 
@@ -124,7 +125,7 @@ def _normal_blocks(
     lower = rho * lower - jnp.eye(nz) * 2 * p.edge
     hdiag = jnp.broadcast_to(2 * p.weight, (n, nz))
     hdiag = hdiag.at[:-1].add(2 * p.edge).at[1:].add(2 * p.edge)
-    hdiag = hdiag + rho * _active(p, y, gam, rho) + mu
+    hdiag = hdiag + rho * (_active(p, y, gam, rho) if active is None else active) + mu
     eye = jnp.eye(nz)
     f = p.free
     diag = f[:, :, None] * (rho * diag + hdiag[:, :, None] * eye) * f[:, None, :] + (1.0 - f)[:, :, None] * eye
@@ -152,6 +153,13 @@ def _switched(p: _Parts, config: ALConfig, y_new, y_old, gam, rho, where=True) -
     return jnp.any(((new > 0) != (old > 0)) & (rho * jnp.maximum(new, old) > config.tol_stationarity) & where)
 
 
+def _curved(c, predicted) -> Bool[Array, ""]:
+    """The defects `c` at the end of a step differ from those its linearisation predicted (`predicted`) by more
+    than the predicted ones: the constraints' curvature over the step dominates the defects it leaves, and the
+    linearisation at its start no longer holds at its end (`_multiplier_defects`, `_lm_step`)."""
+    return jnp.max(jnp.abs(c - predicted)) > jnp.max(jnp.abs(predicted))
+
+
 def _merit_from(p: _Parts, y, c, lam, gam, rho):
     """`Phi` at `y` with its defects `c` already known."""
     out = _outside(p, y, gam, rho)
@@ -166,6 +174,14 @@ def _cost_gradient(p: _Parts, y) -> Float[Array, "N 5*n"]:
     grad = 2 * p.weight * (y - p.target)
     grad = grad + jnp.concatenate([-2 * p.edge * d, zero]) + jnp.concatenate([zero, 2 * p.edge * d])
     return grad * p.free
+
+
+def stationarity_tolerance(p: _Parts, config: ALConfig, y, h: HalfStep, gam, rho) -> Float[Array, ""]:
+    """The largest scaled gradient of the Lagrangian that the stopping test accepts at `y` (`h`: `half_step`
+    there) with the bound multipliers `gam` and penalty `rho`: `tol_stationarity` times its scale plus the
+    `roundoff_floor` (`ALConfig.tol_stationarity`)."""
+    scale = jnp.maximum(1.0, jnp.maximum(jnp.max(jnp.abs(_cost_gradient(p, y))), jnp.max(jnp.abs(gam * p.free))))
+    return config.tol_stationarity * scale + roundoff_floor(p, y, h, rho)
 
 
 def roundoff_floor(p: _Parts, y, h: HalfStep, rho) -> Float[Array, ""]:

@@ -15,21 +15,26 @@ from ._al_config import ALConfig
 from ._al_merit import (
     _box_violation,
     _cost,
-    _cost_gradient,
+    _curved,
     _gradient,
     _linearise,
     _outside,
     _Parts,
     _parts,
-    roundoff_floor,
+    stationarity_tolerance,
 )
-from ._al_step import _lm_step, _refactor, _State
+from ._al_step import _ActiveFactor, _lm_step, _refactor, _reused, _State
 from ._ocp_solver import OCPSolverResult
 from ._transcription import ANGLE_SCALE, OCPProblem
 
 ACTIVE_SET_STEPS = 16
-"""Most steps of one inner solve that continue because the last step changed the active bounds
-(`ALConfig.max_inner_iterations`)."""
+"""Most steps of one inner solve that continue because the bounds active after the last step are not those its
+model held or its gradient of `Phi` is above the inner target (`ALConfig.max_inner_iterations`, `_inner_done`)."""
+
+INNER_DECREASE = 0.1
+"""Factor on the stationarity at a multiplier update whose violation fell by `violation_decrease` (on the
+gradient of `Phi` at the warm start for the first inner solve) that gives the next inner solve's target
+(`_State.inner_target`, `_inner_done`)."""
 
 STALL_WINDOW = 3
 """Outer iterations over which a solve must have stopped changing to end `RESULTS.stalled` (`_stalled`)."""
@@ -66,10 +71,11 @@ def _start(problem: OCPProblem, y0: Float[Array, "N 5*n"], config: ALConfig, m: 
         status=RESULTS.nonlinear_max_steps_reached, stop=jnp.array(False), hist=jnp.full((4, m), jnp.nan),
         # placeholder factor; the NaN key makes the first step factorise (one copy of the
         # Jacobian code in the program: compile time)
-        factor=jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
-                            jax.eval_shape(factorise, jnp.zeros((n, nz, nz)), jnp.zeros((n - 1, nz, nz)))),
+        factor=jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), _ActiveFactor(
+            jax.eval_shape(factorise, jnp.zeros((n, nz, nz)), jnp.zeros((n - 1, nz, nz))),
+            jnp.zeros((n, nz), bool), y0, y0)),
         factor_key=jnp.full(2, jnp.nan), factor_age=jnp.array(0), accepted=jnp.array(True), switched=jnp.array(False),
-        forward=p.start, predicted=p.c0,
+        forward=p.start, predicted=p.c0, inner_target=jnp.array(jnp.inf), continued=jnp.array(False),
     )
     return p, state
 
@@ -99,19 +105,36 @@ def _pass(p: _Parts, config: ALConfig, s: _State) -> _State:
     s, c_y, grad, id_vjp, step, fresh = _prepare(p, config, s)
 
     def lm(s):
-        factor = jax.lax.cond(fresh, lambda: _refactor(p, config, s, id_vjp), lambda: s.factor)
+        factor = jax.lax.cond(fresh, lambda: _refactor(p, config, s, grad, id_vjp), lambda: s.factor)
         return _lm_step(p, config, s, c_y, grad, factor, fresh)
 
     return jax.lax.cond(step, lm, lambda s: s, s)
 
 
-def _inner_done(config: ALConfig, s: _State, grad) -> Bool[Array, ""]:
+def _inner_done(p: _Parts, config: ALConfig, s: _State, grad) -> Bool[Array, ""]:
     """The inner solve at `s` (gradient of `Phi` `grad`) is done. The multipliers move only from an iterate
-    it accepted (never after a rejection), once the active bounds settled: updated from a step that switched
-    them, they cycle between two active sets."""
-    settled = ~s.switched | (s.inner >= ACTIVE_SET_STEPS)
-    return (jnp.max(jnp.abs(grad)) <= config.inner_tol) | ((s.inner >= config.max_inner_iterations) & s.accepted
-                                                           & settled)
+    it accepted (never after a rejection), once the active bounds settled (updated from a step that switched
+    them, they cycle between two active sets) and the gradient of `Phi` is at most the inner target
+    (`_State.inner_target`) or the stationarity the stopping test accepts, whichever is larger; a step toward
+    the target that is rejected ends the inner solve at its accepted iterate. This is the classical inexact rule
+    (Conn, Gould and Toint): the target tightens, by `INNER_DECREASE` on the stationarity at the update, only
+    after an update whose violation fell by `violation_decrease`; after one that did not, the penalty or the
+    multipliers limit the progress and one settled step suffices (the target is infinite). The update
+    `lam += rho c` assumes an iterate that minimises `Phi`: after a single Gauss-Newton step where `rho c`
+    dominates the multipliers (the spiral bounded to its motor directions at nu = 1e-11: a gradient of `Phi`
+    of 97), it starts the next inner solve as far from its solution and the outer iterations double. Up to
+    `ACTIVE_SET_STEPS` steps. Only with direction bounds (`_Parts.directed`): without them one step is done."""
+    g = jnp.max(jnp.abs(grad))
+    target = jnp.maximum(s.inner_target, stationarity_tolerance(p, config, s.y, s.forward, s.gam, s.rho))
+    # without direction bounds one settled step is what converges (`_penalty_grows`)
+    reached = (g <= target) | (s.inner >= ACTIVE_SET_STEPS) | ~jnp.any(p.directed)
+    return (g <= config.inner_tol) | (_settled(config, s) & reached) | (s.continued & ~s.accepted)
+
+
+def _settled(config: ALConfig, s: _State) -> Bool[Array, ""]:
+    """The inner solve at `s` took its `max_inner_iterations` steps, the last accepted, and the active bounds
+    settled (or `ACTIVE_SET_STEPS` steps)."""
+    return (s.inner >= config.max_inner_iterations) & s.accepted & (~s.switched | (s.inner >= ACTIVE_SET_STEPS))
 
 
 def _prepare(p: _Parts, config: ALConfig, s: _State):
@@ -119,7 +142,8 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
     and the LM step that follows it), update the multipliers and the penalty where the inner solve is done.
     Returns the state, the defects and the gradient of `Phi` at `y` (for the multipliers now), the
     linearisation of Newton-Euler, whether to take an LM step and whether it needs a fresh factor (`rho` or
-    `mu` changed since the factor was made, or it is `refresh_every` steps old)."""
+    `mu` changed since the factor was made, it is `refresh_every` steps old, or its model's step at `y` leaves
+    the bounds it holds active: `_reused`, which also gives the step of a carried factor)."""
     m = s.hist.shape[-1]
     rho_max = config.penalty_max * _initial_penalty(p, config) / config.penalty_init
     c_y, vjp, id_vjp = _linearise(p, s.y, s.forward)
@@ -134,18 +158,20 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
     grown = jnp.minimum(s.rho * config.penalty_growth, rho_max)
     rho = jnp.where(_penalty_grows(p, config, viol, s.violation, grown, lam), grown, s.rho)
     pulled = _reverse_passes(vjp, jnp.stack([s.lam + s.rho * c_y, shift, lam + rho * c_y]),
-                             lambda first: _inner_done(config, s, _gradient(p, s.y, first, s.gam, s.rho)))
+                             lambda first: _inner_done(p, config, s, _gradient(p, s.y, first, s.gam, s.rho)))
     grad = _gradient(p, s.y, pulled[0], s.gam, s.rho)
+    # the first inner solve's target, from the gradient at the warm start (the later ones: `update`)
+    s = eqx.tree_at(lambda t: t.inner_target, s, jnp.where((s.it == 0) & (s.inner == 0),
+                                                           INNER_DECREASE * jnp.max(jnp.abs(grad)), s.inner_target))
     # what the update changes, the only outputs of its `cond` (under `vmap` it selects every leaf it returns)
     changed = lambda t: (t.lam, t.gam, t.rho, t.it, t.inner, t.violation, t.stationarity, t.status, t.stop,  # noqa: E731
-                         t.hist)
+                         t.hist, t.inner_target)
 
     def update():
         # the gradient of the Lagrangian at the updated multipliers: `grad` with `rho (c_y + shift)` for `rho c_y`
         stat = jnp.max(jnp.abs(grad + s.rho * pulled[1] * p.free))
-        scale = jnp.maximum(1.0, jnp.maximum(jnp.max(jnp.abs(_cost_gradient(p, s.y))), jnp.max(jnp.abs(gam * p.free))))
         met = viol <= config.tol_violation
-        converged = met & (stat <= config.tol_stationarity * scale + roundoff_floor(p, s.y, s.forward, s.rho))
+        converged = met & (stat <= stationarity_tolerance(p, config, s.y, s.forward, gam, s.rho))
         finite = jnp.isfinite(viol) & jnp.isfinite(stat)
         it = s.it + 1
         out_of_iterations = it >= config.max_outer_iterations
@@ -155,14 +181,19 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
         status = RESULTS.where(converged, RESULTS.successful, RESULTS.where(
             finite, RESULTS.where(stalled, RESULTS.stalled, RESULTS.nonlinear_max_steps_reached), RESULTS.nonfinite))
         new = eqx.tree_at(changed, s, (lam, gam, rho, it, jnp.array(0), viol, stat, status,
-                                       converged | stalled | ~finite | out_of_iterations, hist))
+                                       converged | stalled | ~finite | out_of_iterations, hist,
+                                       jnp.where(viol <= config.violation_decrease * s.violation,
+                                                 INNER_DECREASE * stat, jnp.inf)))
         return changed(new), _gradient(p, new.y, pulled[2], new.gam, new.rho)
 
-    values, grad = jax.lax.cond(_inner_done(config, s, grad), update, lambda: (changed(s), grad))
+    values, grad = jax.lax.cond(_inner_done(p, config, s, grad), update, lambda: (changed(s), grad))
     s = eqx.tree_at(changed, s, values)
-    step = ~s.stop & ~_inner_done(config, s, grad)
+    step = ~s.stop & ~_inner_done(p, config, s, grad)
     fresh = jnp.any(jnp.stack([s.rho, s.mu]) != s.factor_key) | (s.factor_age >= config.refresh_every)
-    return s, c_y, grad, id_vjp, step, fresh
+    s = eqx.tree_at(lambda t: t.continued, s, step & _settled(config, s))
+    factor, stale = jax.lax.cond(step & ~fresh, lambda: _reused(p, config, s, grad),
+                                 lambda: (s.factor, jnp.array(False)))
+    return eqx.tree_at(lambda t: t.factor, s, factor), c_y, grad, id_vjp, step, fresh | stale
 
 
 def _reverse_passes(vjp, cotangents: Float[Array, "3 Nm1 4*n"], done) -> Float[Array, "3 N 5*n"]:
@@ -196,8 +227,7 @@ def _multiplier_defects(c_y, predicted):
     next step removes anyway; added to `lam` it reappears there with the opposite sign and costs an outer
     iteration. The predicted defects give the multipliers of the step's penalised quadratic model (those of an
     SQP step). Near the solution the remainder is second order and the update is the classical one."""
-    remainder = jnp.max(jnp.abs(c_y - predicted))
-    return jnp.where(remainder > jnp.max(jnp.abs(predicted)), predicted, c_y)
+    return jnp.where(_curved(c_y, predicted), predicted, c_y)
 
 
 def _stalled(config: ALConfig, hist, it, lam, rho_max) -> Bool[Array, ""]:

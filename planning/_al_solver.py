@@ -14,13 +14,20 @@ variables and `mu I`, assembled from the one dense 6x18 block per node of the de
 (`_normal_blocks`). It is block-tridiagonal with 5n x 5n blocks, factorised by the linear solver
 `ALConfig.linear_solver` (`Scan`: block Cholesky, a `lax.scan` over the nodes; `CyclicReduction`:
 `ceil(log2 N)` levels of batched dense operations), and reused for `refresh_every` steps while `rho` and `mu`
-stay put (the iterates move by micro-radians, so a factor from a few steps back is as good).
-Steps are accepted by the gain ratio of the merit; a step that changes the active direction bounds
-(motor rates at 0) is halved while the ratio is too low (the bound terms make `Phi` piecewise quadratic:
-a full step across the kinks of many bounds is often poor, a shorter one costs one evaluation of the
-dynamics, a larger `mu` a new
-factor). `mu` grows after a shortened step, when no step length is accepted or on a matrix that is not
-positive definite, and falls back towards `damping_init` after good full steps. After
+stay put and the steps stay within the linearisation it was made at (the iterates move by micro-radians, so a
+factor from a few steps back is as good; a step whose defects depart from those its linearisation predicted by
+more than these, `_curved`, as the first from a far start, leaves it stale).
+The bound terms are on single variables and exact in the step's model, so the bounds active in the matrix are
+those active at the model's minimum: a primal-dual active-set loop refactorises the same blocks with the bounds
+the last model step violates until they hold at its end (`_refactor`; bounds whose terms in the gradient are
+below the stationarity the stopping test accepts do not count; a loop that has not halved the bounds changing
+sides within `ACTIVE_SET_FACTORS` factors, far from the solution, gives way to the bounds active at `y`), and a
+carried factor whose model's step leaves its bounds is refreshed (`_reused`). Without bounds crossed this is the
+one factor of the plain Gauss-Newton step. Steps are accepted by the gain ratio of the merit against the decrease
+the model predicts; a step that changes the active direction bounds (motor rates at 0) is halved while the ratio
+is too low (a full step across the kinks of many bounds is often poor, a shorter one costs one evaluation of the
+dynamics, a larger `mu` a new factor). `mu` grows after a shortened step, when no step length is accepted or
+on a matrix that is not positive definite, and falls back towards `damping_init` after good full steps. After
 each inner solve, which ends only at an accepted step, the multipliers are updated
 (`lam += rho c`, `c` the defects at the iterate or, where the curvature remainder of the last step exceeds
 them, those its linearisation predicted: `_multiplier_defects`; `gam = rho (v - P(v))`) and `rho` grows when
