@@ -121,8 +121,7 @@ def _inner_done(p: _Parts, config: ALConfig, s: _State, grad) -> Bool[Array, ""]
     after an update whose violation fell by `violation_decrease`; after one that did not, the penalty or the
     multipliers limit the progress and one settled step suffices (the target is infinite). The update
     `lam += rho c` assumes an iterate that minimises `Phi`: after a single Gauss-Newton step where `rho c`
-    dominates the multipliers (the spiral bounded to its motor directions at nu = 1e-11: a gradient of `Phi`
-    of 97), it starts the next inner solve as far from its solution and the outer iterations double. Up to
+    dominates the multipliers, it starts the next inner solve as far from its solution. Up to
     `ACTIVE_SET_STEPS` steps. Only with direction bounds (`_Parts.directed`): without them one step is done."""
     g = jnp.max(jnp.abs(grad))
     target = jnp.maximum(s.inner_target, stationarity_tolerance(p, config, s.y, s.forward, s.gam, s.rho))
