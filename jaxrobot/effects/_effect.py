@@ -234,8 +234,7 @@ class GearHysteresis(Effect):
         """A motor path `theta` of the cw set (eq. 4.1) moved onto the states its own motion takes, from rest on cw:
         the motor angles whose gear outputs at the weights of the states along `theta` are the cw set's, and the
         states along them. Returns `(states, motor angles)`."""
-        w = self.travel(robot)
-        weight = self.weight(self.states(robot, theta, travel=w), theta, w)
+        weight = self.state_weight(robot, self.states(robot, theta), theta)
         moved = self.motor_angle(robot, gear_output(robot, theta), weight)
         return self.states(robot, moved), moved
 
