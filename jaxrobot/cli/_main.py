@@ -21,23 +21,33 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+from importlib import import_module
 from importlib.metadata import entry_points
 from pathlib import Path
 from types import ModuleType
 
 from ._common import EXIT_CODES, HelpFormatter, SolveFailed, jsonable, suggestion, use_file_backend
 
+_BUILTIN = {"info": "._info", "demo": "._demo", "import-urdf": "._import_urdf"}
+"""`jaxrobot`'s own commands and their modules."""
 
-def _commands() -> dict[str, ModuleType]:
-    from . import _demo, _import_urdf, _info
 
-    found = {"info": _info, "demo": _demo, "import-urdf": _import_urdf}
-    for ep in entry_points(group="jaxrobot.commands"):
+def _commands(name: str | None = None) -> dict[str, ModuleType]:
+    """The commands by name, their modules imported; where `name` is one of them, that one alone (a command's run
+    imports no other's modules)."""
+    plugins = {ep.name: ep for ep in entry_points(group="jaxrobot.commands")}
+    names = [name] if name in _BUILTIN or name in plugins else [*_BUILTIN, *plugins]
+    found = {}
+    for key in names:
+        if key in _BUILTIN:
+            found[key] = import_module(_BUILTIN[key], __package__)
+            continue
         try:
-            found[ep.name] = ep.load()
+            found[key] = plugins[key].load()
         except ImportError as err:  # a broken plugin must not take the other commands down
-            print(f"jaxrobot: command '{ep.name}' unavailable ({err})", file=sys.stderr)
+            print(f"jaxrobot: command '{key}' unavailable ({err})", file=sys.stderr)
     return found
 
 
@@ -59,8 +69,8 @@ def parser(commands: dict[str, ModuleType]) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    commands = _commands()
     argv = sys.argv[1:] if argv is None else list(argv)
+    commands = _commands(argv[0] if argv else None)
     if argv and not argv[0].startswith("-") and argv[0] not in commands:
         print(f"jaxrobot: error: unknown command {argv[0]!r} (commands: {', '.join(commands)})"
               f"{suggestion(argv[0], commands)}", file=sys.stderr)
@@ -95,3 +105,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(jsonable(summary), indent=2))
     return 0
+
+
+def console() -> None:
+    """The `jaxrobot` script: `main`, then the process ends at once, its output flushed, without the interpreter's
+    teardown (JAX's release of its backend and of every loaded program), which a finished command does not need."""
+    code = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
