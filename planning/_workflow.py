@@ -227,7 +227,7 @@ def _prepare_ocp(robot: jr.Robot, path: Path, nu: float, cost: str, directional:
     """Make the programs of `solve_directional` for `path` ready (`jaxrobot.internal.preparing`), on zeros of the
     shapes of its inputs: a step ahead, beside the inverse kinematics. A failure here leaves the solve to make its
     programs itself (and to report the error)."""
-    z = jnp.zeros((time_grid(path).shape[0], robot.n_joints))
+    z = np.zeros((time_grid(path).shape[0], robot.n_joints))  # on the host: no program per length
     try:
         with preparing():
             solve_directional(robot, z, z, MotorTrajectory(z, z, z), float(path.sample_time), nu, cost, directional)
