@@ -65,7 +65,7 @@ except ImportError:  # a JAX without it: the exported programs alone
     serialize_executable = None
 
 from ._compilation_cache import cache_dir
-from ._jax_internals import weakly_typed
+from ._jax_internals import initialize_lapack, weakly_typed
 
 _PACKAGES = ("jaxrobot", "planning", "identification")
 _UNSHOWN = (" at 0x", "...", "object>")
@@ -271,13 +271,6 @@ def _skeleton(out_tree):
     return jax.tree_util.tree_unflatten(out_tree, list(range(out_tree.num_leaves)))
 
 
-@functools.cache
-def _prepare_lapack() -> None:
-    """Make the CPU's LAPACK kernels callable: JAX binds them when it lowers a call of one, which a loaded
-    executable does not (its first LAPACK call would jump to nothing)."""
-    jax.jit(jax.numpy.linalg.cholesky).lower(jax.ShapeDtypeStruct((2, 2), jax.numpy.float64))
-
-
 def _load_executable(folder: Path, key: str) -> tuple[Callable, object] | None:
     if serialize_executable is None:
         return None
@@ -286,7 +279,7 @@ def _load_executable(folder: Path, key: str) -> tuple[Callable, object] | None:
     except OSError:
         return None
     if jax.default_backend() == "cpu":
-        _prepare_lapack()
+        initialize_lapack()
     try:
         (payload, in_tree, out_tree), skeleton = pickle.loads(zlib.decompress(stored))
         compiled = serialize_executable.deserialize_and_load(payload, in_tree, out_tree)
