@@ -10,8 +10,9 @@ compilation cache.
 
 Where one device runs the programs, an executable that this process compiled (not one fetched from the
 compilation cache, whose serialization lacks its kernels) is stored beside the exported program
-(`jax.experimental.serialize_executable`), and a later process loads it directly, without lowering the exported
-program and looking it up in the compilation cache; the exported program remains the fallback.
+(`jax.experimental.serialize_executable`, named also by the device and the host's processor), and a later
+process on the same kind of machine loads it directly, without lowering the exported program and looking it
+up in the compilation cache; the exported program remains the fallback.
 
 A program is found again only under the same key: the hash of the sources and data of the
 packages `jaxrobot`, `planning` and `identification` as the process first reads them (a code
@@ -45,6 +46,7 @@ import hashlib
 import inspect
 import os
 import pickle
+import platform
 import threading
 import time
 import zlib
@@ -259,11 +261,25 @@ def _ready(folder: Path, key: str, fn, sig, tree, static, leaves, traced, dynami
     if single and serialize_executable is not None and _cache_hits() == hits:  # compiled here: store it
         try:
             stored = pickle.dumps((serialize_executable.serialize(compiled), _skeleton(out_tree)))
-        except (ValueError, NotImplementedError, TypeError, pickle.PicklingError):  # not serializable: none stored
+        except (ValueError, NotImplementedError, TypeError, RuntimeError, pickle.PicklingError):  # none stored
             pass
         else:
-            _write(folder, f"{key}.executable", zlib.compress(stored, 1))
+            _write(folder, f"{key}-{_machine()}.executable", zlib.compress(stored, 1))
     return compiled, out_tree
+
+
+@functools.cache
+def _machine() -> str:
+    """A digest of the device and, on the CPU, of the host's processor and its features (where the system lists
+    them): an executable is compiled for these, and a cache folder may be shared between machines."""
+    parts = [platform.machine(), jax.devices()[0].device_kind]
+    if jax.default_backend() == "cpu":
+        try:
+            info = Path("/proc/cpuinfo").read_text().splitlines()
+        except OSError:
+            info = [platform.processor()]
+        parts += [next((line for line in info if line.startswith(field)), "") for field in ("model name", "flags")]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:12]
 
 
 def _skeleton(out_tree):
@@ -275,7 +291,7 @@ def _load_executable(folder: Path, key: str) -> tuple[Callable, object] | None:
     if serialize_executable is None:
         return None
     try:
-        stored = (folder / f"{key}.executable").read_bytes()
+        stored = (folder / f"{key}-{_machine()}.executable").read_bytes()
     except OSError:
         return None
     if jax.default_backend() == "cpu":
