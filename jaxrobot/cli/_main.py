@@ -34,21 +34,27 @@ _BUILTIN = {"info": "._info", "demo": "._demo", "import-urdf": "._import_urdf"}
 """`jaxrobot`'s own commands and their modules."""
 
 
-def _commands(name: str | None = None) -> dict[str, ModuleType]:
-    """The commands by name, their modules imported; where `name` is one of them, that one alone (a command's run
-    imports no other's modules)."""
-    plugins = {ep.name: ep for ep in entry_points(group="jaxrobot.commands")}
-    names = [name] if name in _BUILTIN or name in plugins else [*_BUILTIN, *plugins]
-    found = {}
-    for key in names:
-        if key in _BUILTIN:
-            found[key] = import_module(_BUILTIN[key], __package__)
-            continue
+def _commands() -> dict[str, ModuleType]:
+    """Every command by name, its module imported."""
+    found = {name: import_module(module, __package__) for name, module in _BUILTIN.items()}
+    for ep in entry_points(group="jaxrobot.commands"):
         try:
-            found[key] = plugins[key].load()
+            found[ep.name] = ep.load()
         except ImportError as err:  # a broken plugin must not take the other commands down
-            print(f"jaxrobot: command '{key}' unavailable ({err})", file=sys.stderr)
+            print(f"jaxrobot: command '{ep.name}' unavailable ({err})", file=sys.stderr)
     return found
+
+
+def _command(name: str) -> dict[str, ModuleType] | None:
+    """`{name: module}` of the command `name` alone, its module imported (a command's run imports no other's);
+    None where `name` is no command or its module does not import (`_commands` then names the cause)."""
+    if name in _BUILTIN:
+        return {name: import_module(_BUILTIN[name], __package__)}
+    found = entry_points(group="jaxrobot.commands", name=name)
+    try:
+        return {name: next(iter(found)).load()} if found else None
+    except ImportError:
+        return None
 
 
 def parser(commands: dict[str, ModuleType]) -> argparse.ArgumentParser:
@@ -70,7 +76,7 @@ def parser(commands: dict[str, ModuleType]) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    commands = _commands(argv[0] if argv else None)
+    commands = (_command(argv[0]) if argv else None) or _commands()
     if argv and not argv[0].startswith("-") and argv[0] not in commands:
         print(f"jaxrobot: error: unknown command {argv[0]!r} (commands: {', '.join(commands)})"
               f"{suggestion(argv[0], commands)}", file=sys.stderr)
