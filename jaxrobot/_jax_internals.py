@@ -8,18 +8,11 @@ the internal costs the documented loss and nothing else.
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
-import numpy as np
 
 try:  # public `jax.lax.convert_element_type` makes strongly typed arrays only
     from jax._src.lax.lax import _convert_element_type
 except ImportError:  # a later JAX moved it: see `weakly_typed`
     _convert_element_type = None
-
-try:  # jaxlib binds its LAPACK kernels to scipy's LAPACK when JAX lowers a call of one
-    from jaxlib.lapack import prepare_lapack_call as _prepare_lapack_call
-except ImportError:  # a later jaxlib moved it: see `initialize_lapack`
-    _prepare_lapack_call = None
 
 JAX_VERSIONS_WRITTEN_FOR = ("0.10.2", "0.12.0.1")
 """The oldest and newest jax release this module was checked against."""
@@ -33,13 +26,3 @@ def weakly_typed(x: jax.Array) -> jax.Array:
     if _convert_element_type is None:
         return x
     return _convert_element_type(x, weak_type=True)
-
-
-def initialize_lapack() -> None:
-    """Bind jaxlib's CPU LAPACK kernels to their LAPACK routines, as JAX does when it lowers a call of one: a
-    deserialized executable lowers nothing, and its first LAPACK call would jump to an unbound routine. Without the
-    internal (a jaxlib that moved it), a small LAPACK call is lowered to the same end, in a tenth of a second more."""
-    if _prepare_lapack_call is not None:
-        _prepare_lapack_call("potrf_ffi", np.dtype(np.float64))
-    else:
-        jax.jit(jnp.linalg.cholesky).lower(jax.ShapeDtypeStruct((2, 2), jnp.float64))

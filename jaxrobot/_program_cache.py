@@ -8,12 +8,6 @@ concrete arguments, stores its `jax.export` serialization in `cache_dir() / "pro
 process deserializes it and calls it through `jax.jit`, whose executable then comes from the
 compilation cache.
 
-Where one device runs the programs, an executable that this process compiled (not one fetched from the
-compilation cache, whose serialization lacks its kernels) is stored beside the exported program
-(`jax.experimental.serialize_executable`, named also by the device and the host's processor), and a later
-process on the same kind of machine loads it directly, without lowering the exported program and looking it
-up in the compilation cache; the exported program remains the fallback.
-
 A program is found again only under the same key: the hash of the sources and data of the
 packages `jaxrobot`, `planning` and `identification` as the process first reads them (a code
 change invalidates every program; each version of the sources has its own subfolder), the jax
@@ -46,10 +40,8 @@ import hashlib
 import inspect
 import os
 import pickle
-import platform
 import threading
 import time
-import zlib
 from collections.abc import Callable, Iterator
 from importlib.util import find_spec
 from pathlib import Path
@@ -61,13 +53,8 @@ import jax.monitoring
 import jaxlib
 import numpy as np
 
-try:
-    from jax.experimental import serialize_executable
-except ImportError:  # a JAX without it: the exported programs alone
-    serialize_executable = None
-
 from ._compilation_cache import cache_dir
-from ._jax_internals import initialize_lapack, weakly_typed
+from ._jax_internals import weakly_typed
 
 _PACKAGES = ("jaxrobot", "planning", "identification")
 _UNSHOWN = (" at 0x", "...", "object>")
@@ -81,7 +68,6 @@ _COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/
 persistent compilation cache)."""
 
 
-_CACHE_HIT = "/jax/compilation_cache/cache_hits"
 _LOCAL = threading.local()
 _KEY_LOCKS: dict[str, threading.Lock] = {}
 _KEY_LOCKS_LOCK = threading.Lock()
@@ -99,19 +85,6 @@ def preparing() -> Iterator[None]:
         yield
     finally:
         _LOCAL.preparing = before
-
-
-def _count_cache_hit(event: str, **_) -> None:
-    if event == _CACHE_HIT:
-        _LOCAL.cache_hits = getattr(_LOCAL, "cache_hits", 0) + 1
-
-
-jax.monitoring.register_event_listener(_count_cache_hit)
-
-
-def _cache_hits() -> int:
-    """The programs the calling thread has fetched from the compilation cache so far."""
-    return getattr(_LOCAL, "cache_hits", 0)
 
 
 def _is_preparing() -> bool:
@@ -246,62 +219,19 @@ def cached_program(fn: Callable | None = None, *, static_argnames: tuple[str, ..
 
 
 def _ready(folder: Path, key: str, fn, sig, tree, static, leaves, traced, dynamic) -> tuple[Callable, object] | object:
-    """The compiled program of `key` and its output structure: its stored executable, else its exported program
-    (loaded, or exported now) compiled and its executable stored; `_NOT_EXPORTABLE` for a function that cannot
-    be exported."""
-    single = jax.device_count() == 1  # an executable is stored for one device only
-    if single and (found := _load_executable(folder, key)) is not None:
-        return found
+    """The compiled program of `key` and its output structure: its exported program (loaded, or exported now)
+    compiled (its executable from the compilation cache where it holds one); `_NOT_EXPORTABLE` for a function that
+    cannot be exported."""
     program = _load(folder, key, fn.__name__) or _export(folder, key, fn, sig, tree, static, leaves, traced, dynamic)
     if program is _NOT_EXPORTABLE:
         return program
     call, out_tree = program
-    hits = _cache_hits()
-    compiled = call.lower(*dynamic).compile()
-    if single and serialize_executable is not None and _cache_hits() == hits:  # compiled here: store it
-        try:
-            stored = pickle.dumps((serialize_executable.serialize(compiled), _skeleton(out_tree)))
-        except (ValueError, NotImplementedError, TypeError, RuntimeError, pickle.PicklingError):  # none stored
-            pass
-        else:
-            _write(folder, f"{key}-{_machine()}.executable", zlib.compress(stored, 1))
-    return compiled, out_tree
-
-
-@functools.cache
-def _machine() -> str:
-    """A digest of the device and, on the CPU, of the host's processor and its features (where the system lists
-    them): an executable is compiled for these, and a cache folder may be shared between machines."""
-    parts = [platform.machine(), jax.devices()[0].device_kind]
-    if jax.default_backend() == "cpu":
-        try:
-            info = Path("/proc/cpuinfo").read_text().splitlines()
-        except OSError:
-            info = [platform.processor()]
-        parts += [next((line for line in info if line.startswith(field)), "") for field in ("model name", "flags")]
-    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:12]
+    return call.lower(*dynamic).compile(), out_tree
 
 
 def _skeleton(out_tree):
     """A tree structure as a tree of integers (a pickled PyTreeDef does not compare equal)."""
     return jax.tree_util.tree_unflatten(out_tree, list(range(out_tree.num_leaves)))
-
-
-def _load_executable(folder: Path, key: str) -> tuple[Callable, object] | None:
-    if serialize_executable is None:
-        return None
-    try:
-        stored = (folder / f"{key}-{_machine()}.executable").read_bytes()
-    except OSError:
-        return None
-    if jax.default_backend() == "cpu":
-        initialize_lapack()
-    try:
-        (payload, in_tree, out_tree), skeleton = pickle.loads(zlib.decompress(stored))
-        compiled = serialize_executable.deserialize_and_load(payload, in_tree, out_tree)
-    except Exception:  # noqa: BLE001 - truncated, or from another device or runtime: the exported program instead
-        return None
-    return compiled, jax.tree_util.tree_structure(skeleton)
 
 
 def _key(fn, tree, static: dict, static_leaves: list, dynamic: list) -> str:

@@ -181,48 +181,6 @@ def test_compile_timer_counts_compilation_not_the_run(tmp_path, monkeypatch):
     assert elapsed - first.seconds >= 0.5 * run  # the first call's run is not counted as compilation
 
 
-_EXECUTABLE_PROBE = """
-import sys, jax, jax.numpy as jnp, numpy as np, jaxrobot as jr
-from jaxrobot._program_cache import cached_program
-if sys.argv[1] == "load":  # the executable alone: no exported program may be read or made
-    jax.export.export = jax.export.deserialize = None
-
-
-def qr_pose(robot, q):
-    return jr.tool_pose(robot, q), jnp.linalg.qr(jr.geometric_jacobian(robot, q))[1], jnp.sum(q) * 0.5
-
-
-out = cached_program(qr_pose)(jr.racer7(), jnp.linspace(-0.5, 0.7, 6))
-print(repr([np.asarray(a).tolist() for a in out]), out[2].weak_type)
-"""
-
-
-def _executables(folder):
-    return sorted(p.name for p in (folder / "programs").glob("*/*.executable"))
-
-
-def test_executable_compiled_here_is_stored_and_loaded_by_a_new_process(tmp_path):
-    """A program compiled in a process is stored as its executable too; a new process runs it from there alone
-    (LAPACK included, with the same bits and weak types), and an executable fetched from the compilation cache,
-    whose serialization lacks its kernels, is not stored."""
-    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
-    env.update({"JAXROBOT_CACHE_DIR": str(tmp_path), "JAX_PLATFORMS": "cpu"})
-
-    def run(mode):
-        done = subprocess.run([sys.executable, "-c", _EXECUTABLE_PROBE, mode], env=env, capture_output=True,
-                              text=True, timeout=120)
-        assert done.returncode == 0, done.stderr
-        return done.stdout.strip()
-
-    compiled = run("compile")
-    assert len(_programs(tmp_path)) == 1 and len(_executables(tmp_path)) == 1
-    assert run("load") == compiled
-    for path in (tmp_path / "programs").glob("*/*.executable"):
-        path.unlink()
-    assert run("compile") == compiled  # the exported program, its executable from the compilation cache
-    assert _executables(tmp_path) == []
-
-
 def test_preparing_makes_the_program_ready_without_running_it(tmp_path, monkeypatch):
     """Under `preparing` a call returns zeros of its result's shapes without running, and a later call runs the
     prepared program without making it ready again; a thread that needs a program another thread is preparing

@@ -16,18 +16,6 @@ def test_the_internal_exists_on_this_jax():
         f"{' to '.join(_jax_internals.JAX_VERSIONS_WRITTEN_FOR)}); find its public successor")
 
 
-def test_the_lapack_binding_exists_on_this_jaxlib():
-    assert _jax_internals._prepare_lapack_call is not None, (
-        f"jaxlib {jax.__version__}: jaxlib.lapack.prepare_lapack_call is gone; find what binds the CPU LAPACK kernels "
-        "(a loaded executable's first LAPACK call needs them bound)")
-    _jax_internals.initialize_lapack()
-
-
-def test_initialize_lapack_falls_back_to_a_lowering(monkeypatch):
-    monkeypatch.setattr(_jax_internals, "_prepare_lapack_call", None)
-    _jax_internals.initialize_lapack()
-
-
 def test_weakly_typed_restores_the_weak_type_and_keeps_the_values():
     x = jnp.array([1.5, -2.0])  # strongly typed float64
     out = jax.jit(_jax_internals.weakly_typed)(x)
