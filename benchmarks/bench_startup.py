@@ -4,15 +4,20 @@ another duration (2.8 s: N = 2801 samples instead of 2501, the same padded size 
 that `plan line` left, then warm.
 
     python benchmarks/bench_startup.py [--commands demo "plan line" ...] [--source DIR --commit SHA]
+                                       [--peer DIR --peer-commit SHA] [--warm N]
                                        [--json RUNS.json] [--out results_startup.md]
 
 Each run records wall time, the CPU time of the process (user + sys, from `os.wait4`: less
 sensitive than wall time to other load on the machine), the 1-minute load average before it and the XLA
 compilations it made (`compilations`: JAX's compile log, less the programs fetched from the persistent cache).
-`--source DIR` runs the packages in DIR (e.g. `git archive` of an older commit, named by `--commit`).
+`--source DIR` runs the packages in DIR (e.g. `git archive` of an older commit, named by `--commit`); `--peer DIR`
+measures the packages in DIR beside them in the same run, each on its own caches, the two alternating run by run (per
+command: this code's cold run, the peer's, then their warm runs in turn); `--warm N` makes N warm runs of each, of
+which the table gives the one with the least CPU time.
 Bench data: the independent implementation's files (`shared/independent`). Writes the table to
 benchmarks/results_startup.md (or `--out`); `--json` also saves the runs (`{"runs": {command: {"cold": run,
-"warm": run}}}`, each run `wall_s`, `cpu_s`, `load`, `rc`, `error`, `compilations`) and the header fields (`"info"`).
+"warm": [run, ...]}}, "peer": the same of the peer}`, each run `wall_s`, `cpu_s`, `load`, `rc`, `error`,
+`compilations`) and the header fields (`"info"`).
 """
 
 from __future__ import annotations
@@ -98,9 +103,10 @@ def compilations(log: str) -> int:
     return log.count("Finished XLA compilation of") - log.count("Persistent compilation cache hit for")
 
 
-def measure(data: Path, names: list[str] | None, source: Path | None) -> dict[str, dict]:
-    """`{command: {"cold": run, "warm": run}}` of `run_once` for the commands `names` (default all)."""
-    runs = {}
+def measure(data: Path, names: list[str] | None, sources: list[Path | None], warm: int = 1) -> list[dict[str, dict]]:
+    """Per source of `sources`, `{command: {"cold": run, "warm": [run, ...]}}` of `run_once` for the commands
+    `names` (default all): each command's runs of the sources alternating, `warm` warm runs each."""
+    runs: list[dict[str, dict]] = [{} for _ in sources]
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         cmds = commands(data, tmp)
@@ -109,35 +115,50 @@ def measure(data: Path, names: list[str] | None, source: Path | None) -> dict[st
             raise SystemExit(f"--commands: unknown {unknown}; expected some of {list(cmds)}")
         write_line_28(tmp)
         for name in names or list(cmds):
-            cache = tmp / f"cache-{AFTER.get(name, name).replace(' ', '-')}"
-            row = {}
-            for kind in ("cold", "warm"):  # cold: an empty cache; warm: a second process on it
-                row[kind] = run_once(cmds[name], cache, source, tmp)
-                r = row[kind]
-                print(f"[{time.strftime('%H:%M:%S')}] {name} {kind}: rc {r['rc']}, wall {r['wall_s']:.1f} s, "
-                      f"cpu {r['cpu_s']:.1f} s, load {r['load']:.1f}, {r['compilations']} XLA compilations "
-                      f"{r['error']}", file=sys.stderr, flush=True)
-            runs[name] = row
+            rows = [{"cold": None, "warm": []} for _ in sources]
+            for kind in ["cold"] + ["warm"] * warm:  # cold: an empty cache; warm: another process on it
+                for i, source in enumerate(sources):
+                    cache = tmp / f"cache{i}-{AFTER.get(name, name).replace(' ', '-')}"
+                    r = run_once(cmds[name], cache, source, tmp)
+                    if kind == "cold":
+                        rows[i]["cold"] = r
+                    else:
+                        rows[i]["warm"].append(r)
+                    print(f"[{time.strftime('%H:%M:%S')}] {name} {'peer ' if i else ''}{kind}: rc {r['rc']}, wall "
+                          f"{r['wall_s']:.1f} s, cpu {r['cpu_s']:.1f} s, load {r['load']:.1f}, {r['compilations']} XLA "
+                          f"compilations {r['error']}", file=sys.stderr, flush=True)
+            for i, row in enumerate(rows):
+                runs[i][name] = row
     return runs
 
 
-def table(data: Path, runs: dict[str, dict], info: dict[str, str]) -> str:
-    """The results file: header, one row per command, the command lines."""
+def _cells(run: dict) -> str:
+    return (f"{run['wall_s']:.1f}" + ("" if run["rc"] == 0 else f" (exit {run['rc']})") + f" | {run['cpu_s']:.1f} | "
+            f"{run['load']:.1f} | {run.get('compilations', '')}")
+
+
+def table(data: Path, runs: dict[str, dict], info: dict[str, str], peer: dict[str, dict] | None = None,
+          peer_name: str = "") -> str:
+    """The results file: header, one row per command (and per code, with a `peer`), the command lines."""
+    warm = max(len(row["warm"]) for row in runs.values())
     lines = ["# Start-up times", "", _timing.header(info),
              "Each command in a new process: **cold** = an empty persistent compilation cache "
-             "(`JAXROBOT_CACHE_DIR` a fresh folder), **warm** = a second process on the same cache. "
-             "Wall time and the process's CPU time (user + sys, every thread) in seconds; `load` = the 1-minute "
+             "(`JAXROBOT_CACHE_DIR` a fresh folder), **warm** = a second process on the same cache"
+             + ("" if warm == 1 else f" (the one with the least CPU time of {warm}, run one after the other)")
+             + ". Wall time and the process's CPU time (user + sys, every thread) in seconds; `load` = the 1-minute "
              "load average just before the run (other work on the same cores slows the wall time); `compiles` = the "
              "XLA compilations the process made (JAX's compile log, less the programs fetched from the cache). "
              "`plan line 2.8 s` (a task of another length): its cold run is on the cache that `plan line` left. "
-             f"Goals: {GOALS}.", "",
-             "| command | cold wall [s] | cold CPU [s] | cold load | cold compiles | warm wall [s] | warm CPU [s] "
-             "| warm load | warm compiles |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             + ("The peer's runs alternate with this code's, run by run. " if peer else "")
+             + f"Goals: {GOALS}.", "",
+             "| command |" + (" code |" if peer else "") + " cold wall [s] | cold CPU [s] | cold load | cold compiles "
+             "| warm wall [s] | warm CPU [s] | warm load | warm compiles |",
+             "|---|" + ("---|" if peer else "") + "---|---|---|---|---|---|---|---|"]
     for name, row in runs.items():
-        cells = [f"{r['wall_s']:.1f}" + ("" if r["rc"] == 0 else f" (exit {r['rc']})") + f" | {r['cpu_s']:.1f} | "
-                 f"{r['load']:.1f} | {r.get('compilations', '')}" for r in (row["cold"], row["warm"])]
-        lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
+        for label, r in [("this change", row)] + ([(peer_name, peer[name])] if peer else []):
+            best = min(r["warm"], key=lambda w: w["cpu_s"])
+            lines.append(f"| `{name}` | " + (f"{label} | " if peer else "") + _cells(r["cold"]) + " | " + _cells(best)
+                         + " |")
     cmds = commands(data, Path("TMP"))
     lines += ["", "Command lines (`DATA` = `shared/independent`, `TMP` a temporary folder):", ""]
     lines += [f"- `{name}`: `jaxrobot {' '.join(a.replace(str(data), 'DATA') for a in argv)}`"
@@ -154,19 +175,30 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "independent")
     ap.add_argument("--source", type=Path, default=None, help="run the packages in this folder instead")
     ap.add_argument("--commit", default=None, help="the commit of --source (default: its git HEAD, if any)")
+    ap.add_argument("--peer", type=Path, default=None, help="also run the packages in this folder, alternating")
+    ap.add_argument("--peer-commit", default=None, help="the commit of --peer (default: its git HEAD, if any)")
+    ap.add_argument("--warm", type=int, default=1, help="warm runs per command and code")
     ap.add_argument("--json", type=Path, default=None, help="also save the runs as JSON to this path")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results_startup.md")
     args = ap.parse_args()
+    if args.warm < 1:
+        raise SystemExit(f"--warm: expected at least 1 warm run, found {args.warm}")
     if not args.data.is_dir():
         args.data = Path("/work/shared/independent")
     args.data = args.data.resolve()  # the commands run in a temporary folder
-    runs = measure(args.data, args.commands, args.source)
-    info = _timing.run_info("none (start-up of this package's own commands)", source=args.source)
+    sources = [args.source] + ([args.peer] if args.peer else [])
+    runs = measure(args.data, args.commands, sources, args.warm)
+    peer_name = ""
+    if args.peer:
+        peer_name = f"before ({args.peer_commit or _timing.commit(args.peer)})"
+    info = _timing.run_info(f"the same commands on the code {peer_name}, alternating with this code's runs" if args.peer
+                            else "none (start-up of this package's own commands)", source=args.source)
     if args.commit:
         info["Commit"] = args.commit
-    args.out.write_text(table(args.data, runs, info))
+    args.out.write_text(table(args.data, runs[0], info, runs[1] if args.peer else None, peer_name))
     if args.json:
-        args.json.write_text(json.dumps({"info": info, "runs": runs}, indent=1))
+        args.json.write_text(json.dumps({"info": info, "runs": runs[0], **({"peer": runs[1]} if args.peer else {})},
+                                        indent=1))
     print(args.out.read_text())
 
 

@@ -22,6 +22,11 @@ function.
 
 The switch is the compilation cache's: `JAXROBOT_CACHE_DIR=off` turns both off.
 
+`preparing` makes programs ready ahead of their use: within its block, in the calling thread, a call of a
+`cached_program` loads (or exports and compiles) its program and returns zeros of its result's shapes without
+running it, so that a second thread can make the programs of a later step ready while the first computes. Threads
+that need the same program wait for the one making it ready.
+
 `compile_timer` measures the time a block spends making programs ready (tracing, lowering, XLA compilation
 or its fetch from the compilation cache, and the loading and storing of exported programs here), so that
 one call gives both its compile and its run time.
@@ -46,6 +51,7 @@ import jax
 import jax.export
 import jax.monitoring
 import jaxlib
+import numpy as np
 
 from ._compilation_cache import cache_dir
 from ._jax_internals import weakly_typed
@@ -60,6 +66,39 @@ _COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/
                    "/jax/core/compile/backend_compile_duration", _PROGRAM_EVENT)
 """The JAX monitoring events whose time spans `compile_timer` counts (the backend compile's includes a fetch from the
 persistent compilation cache)."""
+
+
+_LOCAL = threading.local()
+_KEY_LOCKS: dict[str, threading.Lock] = {}
+_KEY_LOCKS_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def preparing() -> Iterator[None]:
+    """Within the block, in the calling thread, a call of a `cached_program` makes its program ready for the calls
+    of the same key (module docstring) and returns zeros of its result's shapes instead of running it; other
+    computations in the block run as usual. For making the programs of a later step ready beside other work, from
+    arguments of the shapes (and static values) that step will pass."""
+    before = getattr(_LOCAL, "preparing", False)
+    _LOCAL.preparing = True
+    try:
+        yield
+    finally:
+        _LOCAL.preparing = before
+
+
+def _is_preparing() -> bool:
+    return getattr(_LOCAL, "preparing", False)
+
+
+def _zeros(shapes):
+    """Zeros (numpy) of the `jax.ShapeDtypeStruct` leaves of `shapes`, other leaves kept."""
+    return jax.tree.map(lambda s: np.zeros(s.shape, s.dtype) if isinstance(s, jax.ShapeDtypeStruct) else s, shapes)
+
+
+def _key_lock(key: str) -> threading.Lock:
+    with _KEY_LOCKS_LOCK:
+        return _KEY_LOCKS.setdefault(key, threading.Lock())
 
 
 class CompileTime:
@@ -138,13 +177,13 @@ def cached_program(fn: Callable | None = None, *, static_argnames: tuple[str, ..
         return functools.partial(cached_program, static_argnames=static_argnames, filter=filter)
     jitted = eqx.filter_jit(fn) if filter else jax.jit(fn, static_argnames=static_argnames)
     sig = inspect.signature(fn)
-    loaded: dict[str, tuple[Callable, object]] = {}  # key -> (jitted exported call, output tree)
+    loaded: dict[str, tuple[Callable, object]] = {}  # key -> (compiled program, output tree)
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         folder = program_dir()
         if folder is None:
-            return jitted(*args, **kwargs)
+            return uncached(*args, **kwargs)
         bound = sig.bind(*args, **kwargs)
         bound.apply_defaults()
         static = {k: v for k, v in bound.arguments.items() if k in static_argnames}
@@ -152,23 +191,47 @@ def cached_program(fn: Callable | None = None, *, static_argnames: tuple[str, ..
         traced = [eqx.is_array(x) or not filter for x in leaves]
         dynamic = [x for x, t in zip(leaves, traced, strict=True) if t]
         if fn.__closure__ or any(isinstance(x, jax.core.Tracer) for x in dynamic):
-            return jitted(*args, **kwargs)
+            return uncached(*args, **kwargs)
         try:
             key = _key(fn, tree, static, [None if t else x for x, t in zip(leaves, traced, strict=True)], dynamic)
         except _Uncacheable:
-            return jitted(*args, **kwargs)
+            return uncached(*args, **kwargs)
         if key not in loaded:
             start = time.time()  # the clock of JAX's own time spans
-            loaded[key] = (_load(folder, key, fn.__name__)
-                           or _export(folder, key, fn, sig, tree, static, leaves, traced, dynamic))
+            with _key_lock(key):  # one thread makes the program ready, another one waits for it
+                if key not in loaded:
+                    loaded[key] = _ready(folder, key, fn, sig, tree, static, leaves, traced, dynamic)
             jax.monitoring.record_event_time_span(_PROGRAM_EVENT, start, time.time(), fun_name=fn.__name__)
         if loaded[key] is _NOT_EXPORTABLE:
-            return jitted(*args, **kwargs)
+            return uncached(*args, **kwargs)
         call, out_tree = loaded[key]
+        if _is_preparing():
+            return jax.tree_util.tree_unflatten(out_tree, _zeros(call.out_info))
         return jax.tree_util.tree_unflatten(out_tree, call(*dynamic))
+
+    def uncached(*args, **kwargs):
+        if _is_preparing():
+            return _zeros(eqx.filter_eval_shape(jitted, *args, **kwargs))
+        return jitted(*args, **kwargs)
 
     wrapper.jitted = jitted
     return wrapper
+
+
+def _ready(folder: Path, key: str, fn, sig, tree, static, leaves, traced, dynamic) -> tuple[Callable, object] | object:
+    """The compiled program of `key` and its output structure: its exported program (loaded, or exported now)
+    compiled (its executable from the compilation cache where it holds one); `_NOT_EXPORTABLE` for a function that
+    cannot be exported."""
+    program = _load(folder, key, fn.__name__) or _export(folder, key, fn, sig, tree, static, leaves, traced, dynamic)
+    if program is _NOT_EXPORTABLE:
+        return program
+    call, out_tree = program
+    return call.lower(*dynamic).compile(), out_tree
+
+
+def _skeleton(out_tree):
+    """A tree structure as a tree of integers (a pickled PyTreeDef does not compare equal)."""
+    return jax.tree_util.tree_unflatten(out_tree, list(range(out_tree.num_leaves)))
 
 
 def _key(fn, tree, static: dict, static_leaves: list, dynamic: list) -> str:
@@ -219,9 +282,7 @@ def _export(folder: Path, key: str, fn, sig, tree, static, leaves, traced, dynam
         _write(folder, f"{key}.program", pickle.dumps(None))
         return _NOT_EXPORTABLE
     out_tree = out_trees[0]
-    # the output structure is stored as a tree of integers (a pickled PyTreeDef does not compare equal)
-    skeleton = jax.tree_util.tree_unflatten(out_tree, list(range(out_tree.num_leaves)))
-    _write(folder, f"{key}.program", pickle.dumps((blob, skeleton, weak)))
+    _write(folder, f"{key}.program", pickle.dumps((blob, _skeleton(out_tree), weak)))
     # the program as a later process reads it, so that every process runs the same
     return _callable(jax.export.deserialize(bytearray(blob)), weak, fn.__name__), out_tree
 

@@ -6,6 +6,7 @@ events; text, tables, JSON and figures are made by the `plan` and `sweep` comman
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -17,7 +18,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxrobot as jr
-from jaxrobot.internal import backend_kind, cached_program, compile_timer
+from jaxrobot.internal import backend_kind, cached_program, compile_timer, preparing
 
 from ._bandwidth import bandwidth
 from ._evaluation import (
@@ -37,7 +38,7 @@ from ._ik import JointPath, joint_path
 from ._padding import concatenate, head, pad_edge, padded_nodes
 from ._prediction import RobotPrediction, predict_on_robot
 from ._sweep import check_nus, solve_ocp_sweep
-from ._trajectories import Path, sample_path
+from ._trajectories import Path, sample_path, time_grid
 from ._transcription import COSTS, State, motor_directions
 
 if TYPE_CHECKING:
@@ -76,8 +77,8 @@ class PlanEvent:
     solve_time: float = 0.0
     """At "solved": time of the solve without its compilation [s] (with `timing`, else including it)."""
     compile_time: float | None = None
-    """At "solved": time of the solve's compilation [s] (`jaxrobot.internal.compile_timer`; None without
-    `timing`)."""
+    """At "solved": time the solve spent making its programs ready, or waiting for the thread that makes them ready
+    beside the IK [s] (`jaxrobot.internal.compile_timer`; None without `timing`)."""
     errors: tuple[tuple[str, float, float, float], ...] = ()
     """At "plant_simulation": per trajectory, (name, max, rms over `[0, t_e]`, max after `t_e`) of the tool
     position error on the plant [m]."""
@@ -104,7 +105,8 @@ class PlanResult:
     solve_time: float
     """[s] of the solve without its compilation (with `timing`, else including it)."""
     compile_time: float | None
-    """[s] of the solve's compilation (None without `timing`)."""
+    """[s] the solve spent making its programs ready or waiting for them (`PlanEvent.compile_time`; None without
+    `timing`)."""
     plant: jr.Robot | None = None
     """The robot the trajectories were simulated on."""
     names: tuple[str, ...] | None = None
@@ -221,11 +223,38 @@ def solve_directional(robot: jr.Robot, q_d: Float[Array, "N n"], qd_d: Float[Arr
     return sol, gear_state, warm
 
 
+def _prepare_ocp(robot: jr.Robot, path: Path, nu: float, cost: str, directional: bool) -> None:
+    """Make the programs of `solve_directional` for `path` ready (`jaxrobot.internal.preparing`), on zeros of the
+    shapes of its inputs: a step ahead, beside the inverse kinematics. A failure here leaves the solve to make its
+    programs itself (and to report the error)."""
+    z = np.zeros((time_grid(path).shape[0], robot.n_joints))  # on the host: no program per length
+    try:
+        with preparing():
+            solve_directional(robot, z, z, MotorTrajectory(z, z, z), float(path.sample_time), nu, cost, directional)
+    except Exception:  # noqa: BLE001, S110 - only a head start: the solve itself raises what is wrong
+        pass
+
+
 def _plant_runs(plant: jr.Robot, jp: JointPath, trajectories: dict[str, MotorTrajectory], directional: bool
                 ) -> list[PlantRun]:
     """`simulate_plans` of each of `trajectories` on its own (one program of one run serves them all), in their
     order."""
     return [simulate_plans(plant, jp, {k: v}, directional=directional)[1] for k, v in trajectories.items()]
+
+
+class _Task:
+    """A call submitted to a one-thread pool that the submitting thread runs itself when it needs the result before
+    the pool has started it (`results`)."""
+
+    def __init__(self, pool: ThreadPoolExecutor, fn: Callable):
+        self.fn, self.future = fn, pool.submit(fn)
+
+    @staticmethod
+    def results(tasks: list[_Task]) -> list:
+        """The results of `tasks` in their order: those the pool has not started (from the last, the pool taking
+        them from the first) run here, then the others are waited for."""
+        own = {i: tasks[i].fn() for i in reversed(range(len(tasks))) if tasks[i].future.cancel()}
+        return [own[i] if i in own else task.future.result() for i, task in enumerate(tasks)]
 
 
 def _stacked(runs: list[PlantRun]) -> PlantRun:
@@ -271,12 +300,14 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
     warm start, the OCP at weighting `nu` with `cost` (`directional`: on the gears' states along the planned motion,
     `solve_directional`), solved once (with `timing`, its compile time measured apart from its solve time,
     `jaxrobot.internal.compile_timer`), then a fine simulation on `plant` (`directional`: with its gears' hysteresis
-    as states, `jr.simulate`). The rigid and quasi-static trajectories, and on the CPU (which simulates one run at a
-    time) the plant runs of the three baselines, are computed in a thread beside the flat inverse and the OCP; the
-    "plant_simulation" stage is what is left after the OCP (the OCP's run beside the baselines' left). A solve that
-    did not converge is returned without plant evaluation (`converged` False). `on_event` receives a `PlanEvent` per
-    stage. `uncertainty` (what the identification of `robot` left uncertain, `jaxrobot.io.read_uncertainty`): the
-    OCP plan's error on the robot is predicted too (`predict_on_robot`, the result's `prediction`).
+    as states, `jr.simulate`). The OCP's programs are made ready in a thread beside the IK (`_prepare_ocp`); the rigid
+    and quasi-static trajectories, and on the CPU (which simulates one run at a time) the plant runs of the three
+    baselines, are computed in another beside the flat inverse and the OCP, and the baselines' runs it has not
+    started when the OCP's own run ends run in the calling thread; the "plant_simulation" stage is what is left
+    after the OCP (the OCP's run beside the baselines' left). A solve that did not converge is returned without
+    plant evaluation (`converged` False). `on_event` receives a `PlanEvent` per stage. `uncertainty` (what the
+    identification of `robot` left uncertain, `jaxrobot.io.read_uncertainty`): the OCP plan's error on the robot is
+    predicted too (`predict_on_robot`, the result's `prediction`).
     """
     if not (np.isfinite(nu) and nu > 0):
         raise ValueError(f"nu must be a finite number > 0 (typically 1e-16 ... 1e-9), got {nu}")
@@ -286,6 +317,8 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
             raise ValueError(f"{name}: planning needs elastic joints ([stiffness] k1 finite), found rigid joints "
                              f"{rigid} (k1 = inf); identify the stiffness first (e.g. jaxrobot diagnose)")
     emit = on_event or (lambda event: None)
+    # the solve's programs made ready beside the IK (not joined: an IK that fails raises without waiting for them)
+    threading.Thread(target=_prepare_ocp, args=(robot, path, nu, cost, directional), daemon=True).start()
     start = time.perf_counter()
     jp = joint_path(robot, path, q_init)
     emit(PlanEvent("inverse_kinematics", time.perf_counter() - start, samples=jp.t.shape[0],
@@ -298,22 +331,21 @@ def plan_task(robot: jr.Robot, plant: jr.Robot, path: Path, nu: float, cost: str
         flat = flat_motor_trajectory(robot, jp)
         jax.block_until_ready(flat)
         emit(PlanEvent("flat_inverse", time.perf_counter() - start))
-
-        def baselines():
-            base = motor_commands(robot, jp.t, {**others.result(), "flat_inverse": flat})
-            return base, _plant_runs(plant, jp, base, directional) if one_by_one else None
-
-        pending = pool.submit(baselines)
+        pending = pool.submit(lambda: motor_commands(robot, jp.t, {**others.result(), "flat_inverse": flat}))
+        runs = [_Task(pool, lambda k=k: _plant_runs(plant, jp, {k: pending.result()[k]}, directional)[0])
+                for k in ("rigid", "quasi_static", "flat_inverse")] if one_by_one else []
         sol, gear_state, solve_s, compile_s = _timed_ocp(robot, jp, flat, float(path.sample_time), nu, cost,
                                                          directional, timing, emit)
         ocp = motor_commands(robot, jp.t, {"ocp": ocp_motor_trajectory(sol.x, sol.u)})
         if not bool(sol.converged):
+            for task in runs:
+                task.future.cancel()
             return PlanResult(path, jp, sol, ocp, nu, cost, solve_s, compile_s, gear_state=gear_state)
         p_d, r_d = sample_path(path, jp.t)
         plan_err = np.linalg.norm(np.asarray(_tool_position(robot, sol.q)) - np.asarray(p_d), axis=-1)
         start = time.perf_counter()
         ocp_run = _plant_runs(plant, jp, ocp, directional) if one_by_one else None  # beside the baselines' left
-        base, base_run = pending.result()
+        base, base_run = pending.result(), _Task.results(runs)
     trajectories = {**base, **ocp}
     if one_by_one:
         names, run = list(trajectories), _stacked(base_run + ocp_run)

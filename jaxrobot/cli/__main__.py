@@ -1,7 +1,5 @@
 """`python -m jaxrobot.cli`: the `jaxrobot` command."""
 
-import sys
+from ._main import console
 
-from ._main import main
-
-sys.exit(main())
+console()

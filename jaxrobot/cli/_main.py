@@ -21,24 +21,40 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+from importlib import import_module
 from importlib.metadata import entry_points
 from pathlib import Path
 from types import ModuleType
 
 from ._common import EXIT_CODES, HelpFormatter, SolveFailed, jsonable, suggestion, use_file_backend
 
+_BUILTIN = {"info": "._info", "demo": "._demo", "import-urdf": "._import_urdf"}
+"""`jaxrobot`'s own commands and their modules."""
+
 
 def _commands() -> dict[str, ModuleType]:
-    from . import _demo, _import_urdf, _info
-
-    found = {"info": _info, "demo": _demo, "import-urdf": _import_urdf}
+    """Every command by name, its module imported."""
+    found = {name: import_module(module, __package__) for name, module in _BUILTIN.items()}
     for ep in entry_points(group="jaxrobot.commands"):
         try:
             found[ep.name] = ep.load()
         except ImportError as err:  # a broken plugin must not take the other commands down
             print(f"jaxrobot: command '{ep.name}' unavailable ({err})", file=sys.stderr)
     return found
+
+
+def _command(name: str) -> dict[str, ModuleType] | None:
+    """`{name: module}` of the command `name` alone, its module imported (a command's run imports no other's);
+    None where `name` is no command or its module does not import (`_commands` then names the cause)."""
+    if name in _BUILTIN:
+        return {name: import_module(_BUILTIN[name], __package__)}
+    found = entry_points(group="jaxrobot.commands", name=name)
+    try:
+        return {name: next(iter(found)).load()} if found else None
+    except ImportError:
+        return None
 
 
 def parser(commands: dict[str, ModuleType]) -> argparse.ArgumentParser:
@@ -59,8 +75,8 @@ def parser(commands: dict[str, ModuleType]) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    commands = _commands()
     argv = sys.argv[1:] if argv is None else list(argv)
+    commands = (_command(argv[0]) if argv else None) or _commands()
     if argv and not argv[0].startswith("-") and argv[0] not in commands:
         print(f"jaxrobot: error: unknown command {argv[0]!r} (commands: {', '.join(commands)})"
               f"{suggestion(argv[0], commands)}", file=sys.stderr)
@@ -95,3 +111,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(jsonable(summary), indent=2))
     return 0
+
+
+def console() -> None:
+    """The `jaxrobot` script: `main`, then the process ends at once, its output flushed, without the interpreter's
+    teardown (JAX's release of its backend and of every loaded program), which a finished command does not need."""
+    code = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

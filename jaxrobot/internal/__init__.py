@@ -25,6 +25,7 @@ from .._linalg import solve as solve
 from .._linalg import spd_solve as spd_solve
 from .._program_cache import cached_program as cached_program
 from .._program_cache import compile_timer as compile_timer
+from .._program_cache import preparing as preparing
 from .._status import check as check
 from .._status import full as full
 from .._status import require_successful as require_successful

@@ -179,3 +179,52 @@ def test_compile_timer_counts_compilation_not_the_run(tmp_path, monkeypatch):
     assert second.seconds == 0.0 and len(_programs(tmp_path)) == 1
     assert 0.0 < first.seconds < elapsed
     assert elapsed - first.seconds >= 0.5 * run  # the first call's run is not counted as compilation
+
+
+def test_preparing_makes_the_program_ready_without_running_it(tmp_path, monkeypatch):
+    """Under `preparing` a call returns zeros of its result's shapes without running, and a later call runs the
+    prepared program without making it ready again; a thread that needs a program another thread is preparing
+    waits for it rather than making it twice."""
+    import threading
+    import time
+
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxrobot._program_cache import cached_program, compile_timer, preparing
+
+    monkeypatch.setenv("JAXROBOT_CACHE_DIR", str(tmp_path))
+    program = cached_program(_sine_loop)
+    x = jnp.ones(4)
+    with preparing():
+        zeros = program(x)
+    assert isinstance(zeros, np.ndarray) and zeros.shape == (4,) and not zeros.any()  # not run
+    assert len(_programs(tmp_path)) == 1
+    with compile_timer() as timer:
+        out = jax.block_until_ready(program(x))
+    assert timer.seconds == 0.0  # ready before the call
+    np.testing.assert_array_equal(np.asarray(out), np.asarray(jax.jit(_sine_loop)(x)))
+
+    # two threads that need one new program: it is exported once, the second thread waits for the first
+    other, y = cached_program(_sine_loop), jnp.ones(5)
+    export, exports, exporting = jax.export.export, [], threading.Event()
+
+    def slow_export(*args, **kwargs):
+        exports.append(threading.get_ident())
+        exporting.set()
+        time.sleep(0.5)  # the other thread arrives meanwhile
+        return export(*args, **kwargs)
+
+    def prepare():
+        with preparing():
+            other(y)
+
+    monkeypatch.setattr(jax.export, "export", slow_export)
+    thread = threading.Thread(target=prepare)
+    thread.start()
+    assert exporting.wait(120)
+    out = other(y)
+    thread.join()
+    assert len(exports) == 1 and exports[0] != threading.get_ident()
+    np.testing.assert_array_equal(np.asarray(out), np.asarray(jax.jit(_sine_loop)(y)))

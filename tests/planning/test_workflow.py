@@ -88,6 +88,25 @@ def test_plan_task_events_in_order_and_si_results_behind_the_summary(monkeypatch
     assert res.solve_time + res.compile_time == pytest.approx(events[3].elapsed, rel=1e-12)
 
 
+def test_tasks_the_pool_has_not_started_run_in_the_caller():
+    """`_Task.results` (the plant runs of `plan_task`): with the pool's thread busy, the caller runs the tasks not
+    yet started itself, from the last, and waits for the one started; the results keep the tasks' order."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from planning._workflow import _Task
+
+    gate = threading.Event()
+    with ThreadPoolExecutor(1) as pool:
+        busy = _Task(pool, lambda: gate.wait(60) and ("pool", threading.get_ident()))
+        opens = _Task(pool, lambda: gate.set() or ("opens", threading.get_ident()))  # stolen last: frees the pool
+        plain = _Task(pool, lambda: ("plain", threading.get_ident()))
+        out = _Task.results([busy, opens, plain])
+    me = threading.get_ident()
+    assert [name for name, _ in out] == ["pool", "opens", "plain"]
+    assert out[0][1] != me and out[1][1] == me and out[2][1] == me
+
+
 def jax_stack(trees):
     import jax
 
