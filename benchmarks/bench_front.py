@@ -2,13 +2,15 @@
 the same shortest-duration question answered by CasADi + IPOPT.
 
 1. The front: 8 durations (0.3 ... 1.0 times the task's) x 4 nu in one batched call (`planning._front.solve_front`:
-   on the CPU a probe at the largest nu, then one solve per member on the cores, each duration on its own padded
-   node count), timed by its second call, against one `solve_ocp` of the task at its own duration (nu = 1e-14, the
+   the durations that the motor limits prove infeasible not solved, on the CPU a probe at the largest nu of the
+   others, then one solve per member on the cores, every member on the longest duration's padded node count: one
+   program), timed by its second call, against one `solve_ocp` of the task at its own duration (nu = 1e-14, the
    flat inverse's warm start and motor directions, as the front's members), timed by the best of `REPEAT` calls
    after the compiling one; each in wall time and in the process's CPU time (all threads: on a loaded machine the
    wall time of the front's threads depends on the other processes, its CPU time does not);
    with each member's status and outer / inner iterations, and the inner iterations by kind of member (converged,
-   not converged where another nu converged, probes of durations where none did) against the one solve's.
+   not converged where another nu converged, probes of durations where none did, durations proven infeasible by
+   the motor limits before any solve) against the one solve's.
 2. The answer: `cycle_time_front` at `TOLERANCE` on the nominal model (the plant is the planning model), refined to
    1 %, wall time with compilation.
 3. The peer: a bisection of fixed-time IPOPT solves (`bench_ocp.solve_ipopt`, exact Hessian, MUMPS, with the motor
@@ -92,10 +94,13 @@ def work_lines(path, timing: dict) -> list[str]:
     ok = status == "successful"
     feasible = ok.any(-1)  # a plan within the constraints, which do not depend on nu, exists at that duration
     top = int(np.argmax(NUS))  # a duration without one: its members hold the probe's solve (counted once)
+    proven = (status == "limits_infeasible").all(-1)  # infeasible by the motor limits' bound: not solved
+    probed = ~feasible & ~proven
     kinds = [("converged", inner[ok].sum(), ok.sum()),
              ("not converged at a duration where another nu converged", inner[~ok & feasible[:, None]].sum(),
               (~ok & feasible[:, None]).sum()),
-             ("probes of durations where no nu converged", inner[~feasible, top].sum(), (~feasible).sum())]
+             ("probes of durations where no nu converged", inner[probed, top].sum(), probed.sum()),
+             (f"{proven.sum()} durations proven infeasible by the motor limits, not solved", 0, 0)]
     total = sum(k[1] for k in kinds)
     lines = ["| duration [s] | " + " | ".join(f"nu = {v:.0e}" for v in NUS) + " |", "|---" * (len(NUS) + 1) + "|"]
     lines += [f"| {d:g} | " + " | ".join(f"{status[i, j]} {outer[i, j]} / {inner[i, j]}" for j in range(len(NUS)))
@@ -180,7 +185,8 @@ def write_markdown(out: Path, info: dict, path, timing: dict, front, answer_s: f
              f"| front / one solve | {timing['front_s'] / timing['single_s']:.1f}x | "
              f"{timing['front_cpu_s'] / timing['single_cpu_s']:.1f}x | | |", "",
              "The timed front's members (status, outer / inner iterations; a duration where no nu converged: every "
-             "member holds the probe's solve at the largest nu) and its inner iterations by kind:", "",
+             "member holds the probe's solve at the largest nu, or none where the motor limits prove it "
+             "infeasible, `limits_infeasible`) and its inner iterations by kind:", "",
              *work_lines(path, timing), "",
              "| answer | shortest duration [s] | nu | bracket below [s] | binding limit | wall [s] |",
              "|---|---|---|---|---|---|",
