@@ -2,11 +2,15 @@
 the same shortest-duration question answered by CasADi + IPOPT.
 
 1. The front: 8 durations (0.3 ... 1.0 times the task's) x 4 nu in one batched call (`planning._front.solve_front`:
-   one compiled program; on the CPU a probe at the largest nu, then one solve per member on the cores), timed by
-   its second call, against one `solve_ocp` of the task at its own duration (nu = 1e-14, the flat inverse's warm
-   start and motor directions, as the front's members), timed by the best of `REPEAT` calls after the compiling one;
+   the durations that the motor limits prove infeasible not solved, on the CPU a probe at the largest nu of the
+   others, then one solve per member on the cores, every member on the longest duration's padded node count: one
+   program), timed by its second call, against one `solve_ocp` of the task at its own duration (nu = 1e-14, the
+   flat inverse's warm start and motor directions, as the front's members), timed by the best of `REPEAT` calls
+   after the compiling one; each in wall time and in the process's CPU time (all threads: on a loaded machine the
+   wall time of the front's threads depends on the other processes, its CPU time does not);
    with each member's status and outer / inner iterations, and the inner iterations by kind of member (converged,
-   not converged where another nu converged, probes of durations where none did) against the one solve's.
+   not converged where another nu converged, probes of durations where none did, durations proven infeasible by
+   the motor limits before any solve) against the one solve's.
 2. The answer: `cycle_time_front` at `TOLERANCE` on the nominal model (the plant is the planning model), refined to
    1 %, wall time with compilation.
 3. The peer: a bisection of fixed-time IPOPT solves (`bench_ocp.solve_ipopt`, exact Hessian, MUMPS, with the motor
@@ -58,17 +62,23 @@ def time_front(robot, path) -> dict:
     start = time.perf_counter()
     jax.block_until_ready(solve_front(robot, jps, nus))
     first = time.perf_counter() - start
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     sols = jax.block_until_ready(solve_front(robot, jps, nus))
-    front_s = time.perf_counter() - start
+    front_s, front_cpu = time.perf_counter() - start, time.process_time() - cpu
     jp = jps[-1]
     flat = pl.flat_motor_trajectory(robot, jp)
     warm = (pl.State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
     one = lambda: pl.solve_ocp(robot, jp.q, path.sample_time, 1e-14, warm_start=warm,  # noqa: E731
                                direction=motor_directions(flat.thetad))
     sol, single_first, single_s = _timing.timed(one, REPEAT)
+    single_cpu = np.inf
+    for _ in range(REPEAT):
+        cpu = time.process_time()
+        jax.block_until_ready(one())
+        single_cpu = min(single_cpu, time.process_time() - cpu)
     shape = (len(jps), nus.size)
     return {"front_s": front_s, "front_first_s": first, "single_s": single_s, "single_first_s": single_first,
+            "front_cpu_s": front_cpu, "single_cpu_s": single_cpu,
             "converged": int(np.asarray(sols.converged).sum()), "members": int(np.asarray(sols.converged).size),
             "single_status": jr.status_name(sol.status), "single_inner": int(sol.inner_iterations),
             "nodes": [jp.t.shape[0] for jp in jps],
@@ -84,10 +94,13 @@ def work_lines(path, timing: dict) -> list[str]:
     ok = status == "successful"
     feasible = ok.any(-1)  # a plan within the constraints, which do not depend on nu, exists at that duration
     top = int(np.argmax(NUS))  # a duration without one: its members hold the probe's solve (counted once)
+    proven = (status == "limits_infeasible").all(-1)  # infeasible by the motor limits' bound: not solved
+    probed = ~feasible & ~proven
     kinds = [("converged", inner[ok].sum(), ok.sum()),
              ("not converged at a duration where another nu converged", inner[~ok & feasible[:, None]].sum(),
               (~ok & feasible[:, None]).sum()),
-             ("probes of durations where no nu converged", inner[~feasible, top].sum(), (~feasible).sum())]
+             ("probes of durations where no nu converged", inner[probed, top].sum(), probed.sum()),
+             (f"{proven.sum()} durations proven infeasible by the motor limits, not solved", 0, 0)]
     total = sum(k[1] for k in kinds)
     lines = ["| duration [s] | " + " | ".join(f"nu = {v:.0e}" for v in NUS) + " |", "|---" * (len(NUS) + 1) + "|"]
     lines += [f"| {d:g} | " + " | ".join(f"{status[i, j]} {outer[i, j]} / {inner[i, j]}" for j in range(len(NUS)))
@@ -163,14 +176,17 @@ def write_markdown(out: Path, info: dict, path, timing: dict, front, answer_s: f
              f"Racer-7, plant = the model, tolerance {1e6 * TOLERANCE:g} µm on the largest tool position error over "
              f"[0, t_e]. Grid: {len(SHARES)} durations {', '.join(f'{d:g}' for d in grid(path))} s x nu "
              f"{', '.join(f'{v:.0e}' for v in NUS)}.", "",
-             "| what | wall [s] | first call (compile) [s] | members converged |", "|---|---|---|---|",
+             "| what | wall [s] | CPU [s] | first call (compile) [s] | members converged |", "|---|---|---|---|---|",
              f"| front, {timing['members']} members, one batched call | {timing['front_s']:.2f} | "
-             f"{timing['front_first_s']:.1f} | {timing['converged']} / {timing['members']} |",
+             f"{timing['front_cpu_s']:.2f} | {timing['front_first_s']:.1f} | {timing['converged']} / "
+             f"{timing['members']} |",
              f"| one solve, {path.duration:g} s, nu = 1e-14 | {timing['single_s']:.2f} | "
-             f"{timing['single_first_s']:.1f} | {timing['single_status']} |",
-             f"| front / one solve | {timing['front_s'] / timing['single_s']:.1f}x | | |", "",
+             f"{timing['single_cpu_s']:.2f} | {timing['single_first_s']:.1f} | {timing['single_status']} |",
+             f"| front / one solve | {timing['front_s'] / timing['single_s']:.1f}x | "
+             f"{timing['front_cpu_s'] / timing['single_cpu_s']:.1f}x | | |", "",
              "The timed front's members (status, outer / inner iterations; a duration where no nu converged: every "
-             "member holds the probe's solve at the largest nu) and its inner iterations by kind:", "",
+             "member holds the probe's solve at the largest nu, or none where the motor limits prove it "
+             "infeasible, `limits_infeasible`) and its inner iterations by kind:", "",
              *work_lines(path, timing), "",
              "| answer | shortest duration [s] | nu | bracket below [s] | binding limit | wall [s] |",
              "|---|---|---|---|---|---|",

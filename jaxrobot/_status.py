@@ -44,12 +44,17 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "infeasible: check the limits, the task and its boundary conditions) or with the gradient of the "
         "Lagrangian above its roundoff floor."
     )
+    limits_infeasible = (
+        "Not solved: the axis limits make this duration infeasible. A motor cannot move from rest at its start "
+        "to rest at its end within its rate and acceleration limits in this time (a bound checked before any "
+        "solve). Choose a longer duration."
+    )
 
 
 NAMES: tuple[str, ...] = (
     "successful", "max_steps_reached", "singular", "breakdown", "stagnation", "conlim", "nonfinite_input",
     "nonlinear_max_steps_reached", "nonlinear_divergence", "nonfinite", "inner_failed", "rank_deficient",
-    "inconsistent", "rejected_input", "stalled",
+    "inconsistent", "rejected_input", "stalled", "limits_infeasible",
 )
 """The names of `RESULTS` in the order of their codes (`tests/jaxrobot/test_status.py` checks it against the
 enumeration); a status is written under its name in JSON and tables."""

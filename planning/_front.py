@@ -7,9 +7,12 @@ node count, the task's nodes traced, so that all members and every later round s
 accelerator one vmapped program of all members, on the CPU a probe at the largest `nu` that first finds the
 durations with a feasible plan, since the constraints do not depend on `nu`, then their other members; the axis limits
 of the robot file, thesis Tables A.1-A.3, are bounds of the OCP) and every plan simulated on the plant.
-A duration too short for the limits leaves its solve unconverged against a limit: the member is infeasible by that
-limit (`CycleTimeFront.limit_name`), not a large error. Batched grids between the longest duration that fails and
-the shortest that meets the tolerance refine the answer to `refine` of its duration.
+A duration in which some motor cannot move from rest at the task's first node to rest at its last within its rate
+and acceleration limits (`rest_to_rest_use`, `shortest_rest_to_rest`: a bound on the transcription, before any solve)
+is not solved (`RESULTS.limits_infeasible`); another duration too short for the limits leaves its solve unconverged
+against a limit. Either way the member is infeasible by that limit (`CycleTimeFront.limit_name`), not a large error.
+Batched grids between the longest duration that fails and the shortest that meets the tolerance refine the answer to
+`refine` of its duration.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import numpy as np
 from jaxtyping import Array, Float, Real
 
 import jaxrobot as jr
-from jaxrobot.internal import backend_kind
+from jaxrobot.internal import backend_kind, full
 
 from ._evaluation import (
     MotorTrajectory,
@@ -89,20 +92,23 @@ class CycleTimeFront(eqx.Module):
     nus: Float[Array, " M"]
     """Weighting factors `nu` of eq. 4.3a, as given."""
     status: jr.RESULTS
-    """(D, M) each member's OCP status; on the CPU the members of a duration whose probe (the largest `nu`,
-    `solve_front`) found no feasible plan all hold the probe's status, objective, limit use and command."""
+    """(D, M) each member's OCP status; `RESULTS.limits_infeasible` for the members of a duration that the motor
+    limits prove infeasible (`solve_front`: not solved); on the CPU the members of a duration whose probe (the largest
+    `nu`) found no feasible plan all hold the probe's status, objective, limit use and command."""
     objective: Float[Array, "D M"]
-    """Cost of each member's plan [rad^2]."""
+    """Cost of each member's plan [rad^2]; NaN where not solved."""
     path_error: Float[Array, "D M"]
     """Largest tool position error of each member's plan on the plant over `[0, t_e]` [m]; NaN where the solve did
     not converge."""
     limit_use: Float[Array, "D M 5*n"]
     """Largest use of each limit over the plan's nodes, in the order of `LIMIT_KINDS` x joints: `|z| / limit` of a
     rate or an acceleration, the distance from the middle of the range over its half width of a position (1: at
-    the limit)."""
+    the limit). Where not solved (`RESULTS.limits_infeasible`): the uses of the motors' rates and accelerations that
+    every plan of that duration needs at least (`rest_to_rest_use`; the other limits 0), one of them above 1."""
     commands: MotorTrajectory
     """(D, M, P, n) each member's motor command (`PlanResult.trajectories["ocp"]`), on the padded count P of
-    samples (held at rest after its duration's `samples`)."""
+    samples (held at rest after its duration's `samples`); where not solved, the flat inverse of its joint path
+    (the solve's warm start), which breaks a limit."""
     tolerance: float = eqx.field(static=True)
     """Path-error tolerance [m]."""
     sample_time: float = eqx.field(static=True)
@@ -191,6 +197,9 @@ class FrontEvent:
     """Members of the round whose solve converged."""
     meeting: int
     """Members of the round that meet the tolerance within the limits."""
+    infeasible: int
+    """Members of the round not solved: the motor limits prove their duration infeasible
+    (`RESULTS.limits_infeasible`)."""
     shortest: float
     """The answer so far [s] (NaN: none)."""
 
@@ -208,12 +217,102 @@ def _limit_use(lower, upper, x, u):
     return jnp.maximum((z - middle) / (upper - middle), (middle - z) / (middle - lower)).max(-2)
 
 
+def _reach(accel: np.ndarray, rate: np.ndarray, intervals: int, ts: float) -> np.ndarray:
+    """The largest motor distance [rad] of a rest-to-rest motion over `intervals` samples of the trapezoidal
+    transcription (`thetad_{k+1} = thetad_k + ts/2 (u_k + u_{k+1})`, `theta` likewise from `thetad`; `thetad = u = 0`
+    at both end nodes) with `|u_k| <= accel`, `|thetad_k| <= rate`, or more: the distance is `ts` times the sum of
+    the inner nodes' rates, each at most `rate` and what `accel` reaches from either end node, `ts accel (k - 1/2)`
+    at node `k` from the first, `ts accel (intervals - k - 1/2)` from the last. Joints along the last axis."""
+    k = np.arange(1, intervals, dtype=float)[:, None]
+    ramp = ts * accel * np.minimum(k - 0.5, intervals - k - 0.5)
+    return ts * np.minimum(rate, ramp).sum(0)
+
+
+def _needed_rate(accel: float, distance: float, intervals: int, ts: float) -> float:
+    """The least rate bound with which `_reach` of `accel` over `intervals` samples is `distance` (inf: none)."""
+    k = np.arange(1, intervals, dtype=float)
+    ramp = np.sort(ts * accel * np.minimum(k - 0.5, intervals - k - 0.5))
+    before = np.concatenate([[0.0], np.cumsum(ramp)])  # sum of the ramps below the i-th
+    at = before[:-1] + (ramp.size - np.arange(ramp.size)) * ramp  # the reach / ts at the rate ramp[i]
+    i = int(np.searchsorted(at, distance / ts))
+    return np.inf if i == ramp.size else (distance / ts - before[i]) / (ramp.size - i)
+
+
+def _motor_limits(robot: jr.Robot) -> tuple[np.ndarray, np.ndarray]:
+    """Each motor's acceleration and rate limit, `u0 qdd_max` and `u0 qd_max` (n,) [rad/s^2, rad/s]."""
+    return np.asarray(robot.u0 * robot.qdd_max, float), np.asarray(robot.u0 * robot.qd_max, float)
+
+
+def shortest_rest_to_rest(robot: jr.Robot, q_start: Float[Array, " n"], q_end: Float[Array, " n"],
+                          sample_time: float) -> np.ndarray:
+    """Each joint's shortest duration [s] (a multiple of `sample_time`) in which its motor can move from rest at the
+    static equilibrium of link angles `q_start` (`jr.static_equilibrium`, the OCP's first node) to rest at that of
+    `q_end` (its last node) within its motor acceleration limit at the nodes and its rate limit at the nodes, on the
+    trapezoidal transcription of the OCP (eq. 4.3b-d): a lower bound of any feasible duration of a task between
+    these poses (`_reach`). The piecewise-linear acceleration through the nodes moves the motor exactly as the
+    transcription does, so the bound is at least the continuous bang-bang time `2 sqrt(D / A)` of the distance D.
+
+    **Raises:** `ValueError` naming the argument for link angles of another shape than (n,) or not finite, or a
+    sample time not > 0."""
+    for name, q in (("q_start", q_start), ("q_end", q_end)):
+        if np.shape(q) != (robot.n_joints,) or not np.all(np.isfinite(np.asarray(q))):
+            raise ValueError(f"{name}: expected {robot.n_joints} finite link angles [rad], found {np.asarray(q)}")
+    if not (np.isfinite(sample_time) and sample_time > 0):
+        raise ValueError(f"sample_time: expected a sample time > 0 [s], found {sample_time}")
+    distance = np.abs(np.asarray(jr.static_equilibrium(robot, jnp.asarray(q_end, float))
+                                 - jr.static_equilibrium(robot, jnp.asarray(q_start, float))))
+    accel, rate = _motor_limits(robot)
+    out = np.zeros(distance.size)
+    for j, d in enumerate(distance):
+        reach = lambda m: float(_reach(accel[j:j + 1], rate[j:j + 1], m, sample_time)[0])  # noqa: E731  (increasing in m)
+        high = 1
+        while reach(high) < d:
+            high *= 2
+        low = high // 2  # reach(low) < d where d > 0
+        while high - low > 1:
+            mid = (low + high) // 2
+            low, high = (mid, high) if reach(mid) < d else (low, mid)
+        out[j] = 0.0 if d == 0 else high * sample_time
+    return out
+
+
+INFEASIBLE_USE = 1 + 1e-6
+"""Use of a limit above which `rest_to_rest_use` proves a duration infeasible before any solve: 1 and a margin for
+roundoff."""
+
+
+def rest_to_rest_use(robot: jr.Robot, jp: JointPath) -> np.ndarray:
+    """Lower bounds of the use of each motor's acceleration and rate limit (as `CycleTimeFront.limit_use`, in the
+    order of `LIMIT_KINDS` x joints, the other kinds 0) that every plan of the OCP of `jp` needs, moving from rest at
+    its first node's motor angle to rest at its last's in its samples (`shortest_rest_to_rest`'s bound): the
+    acceleration's is the distance over the largest reach at the limit (the reach is proportional to it); the
+    rate's is the least rate with which the acceleration limit reaches the distance over the limit, or where none
+    does, the distance over the reach of the rate alone, `(N - 2)` samples at it. The duration is infeasible where
+    one exceeds `INFEASIBLE_USE`."""
+    n, ts, intervals = robot.n_joints, float(jp.path.sample_time), jp.t.shape[0] - 1
+    distance = np.abs(np.asarray(jr.static_equilibrium(robot, jnp.asarray(jp.q[-1]))
+                                 - jr.static_equilibrium(robot, jnp.asarray(jp.q[0]))))
+    accel, rate = _motor_limits(robot)
+    accel_use = distance / np.maximum(_reach(accel, np.inf, intervals, ts), np.finfo(float).tiny)
+    needed = np.array([_needed_rate(a, d, intervals, ts) for a, d in zip(accel, distance, strict=True)])
+    rate_alone = distance / (ts * max(intervals - 1, 1))
+    use = np.zeros(5 * n)
+    use[4 * n:] = accel_use
+    use[3 * n:4 * n] = np.where(np.isfinite(needed), needed, rate_alone) / rate
+    return use
+
+
 def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: str = "thesis",
                 directional: bool = False, size: int | None = None, solver=None, batched: bool | None = None
                 ) -> OCPSolution:
     """The OCP of every joint path of `jps` (D, one task at several durations, one sample time) for every `nu`
     (M), warm-started by each path's flat inverse, each motor turning only in its path's direction, all padded
     to `size` nodes (default `padded_nodes` of the longest), the task's nodes traced: one compiled program.
+
+    A path whose duration the motor limits prove infeasible (`rest_to_rest_use` above `INFEASIBLE_USE`; not with
+    `directional`, where the end nodes' motor angles follow the gear states the solves settle) is not solved: its
+    members are `RESULTS.limits_infeasible`, their plan the flat inverse, no iterations, a NaN objective (`_unsolved`).
+    The other paths:
 
     `batched` (default: on an accelerator, not on the CPU): all D x M members in one vmapped program (`_members`),
     whose lanes advance together with the accelerator's linear solver (`CyclicReduction`), each masked once its
@@ -240,10 +339,48 @@ def solve_front(robot: jr.Robot, jps: list[JointPath], nus: np.ndarray, cost: st
         members.append((pad_edge(jnp.asarray(jp.q, float), size), tuple(pad_edge(a, size) for a in warm),
                         pad_edge(motor_directions(flat.thetad), size), jnp.asarray(jp.t.shape[0])))
     settings = jax.tree.map(jnp.asarray, solver)
+    feasible = np.flatnonzero(~_proven_infeasible(robot, jps, directional))
+    out = _unsolved(members, m, history)
+    if feasible.size:
+        pick = lambda items: [items[i] for i in feasible] if items else items  # noqa: E731
+        solved = _solve_paths(robot, pick(members), pick(gear_states), ts, nus, cost, settings, history, directional,
+                              batched)
+        out = _replace(out, (feasible[:, None] * m + np.arange(m)).ravel(), solved)
+    return out
+
+
+def _proven_infeasible(robot: jr.Robot, jps: list[JointPath], directional: bool) -> np.ndarray:
+    """(D,) True for the joint paths whose duration `rest_to_rest_use` proves infeasible (never with `directional`:
+    the end nodes' motor angles there follow the gear states that the solves settle)."""
+    if directional:
+        return np.zeros(len(jps), bool)
+    return np.array([rest_to_rest_use(robot, jp).max() > INFEASIBLE_USE for jp in jps])
+
+
+def _unsolved(members: list[tuple], m: int, history: int) -> OCPSolution:
+    """Every member of `members` x `m` nu, duration-major, not solved (`RESULTS.limits_infeasible`): its plan the warm
+    start (the flat inverse), no iterations, NaN objective, violations and stationarity, zero multipliers."""
+    x, u = (np.repeat(np.stack([np.asarray(member[1][k]) for member in members]), m, 0) for k in (0, 1))
+    b, nan = x.shape[0], jnp.full(x.shape[0], np.nan)
+    history = jnp.full((b, history), np.nan)
+    return OCPSolution(x=jnp.asarray(x), u=jnp.asarray(u), status=full((b,), jr.RESULTS.limits_infeasible),
+                       iterations=jnp.zeros(b, jnp.int32), inner_iterations=jnp.zeros(b, jnp.int32), objective=nan,
+                       max_constraint_violation=nan, max_constraint_violation_unscaled=nan, stationarity=nan,
+                       multipliers=jnp.zeros((b, x.shape[1] - 1, x.shape[2])),
+                       history_objective=history, history_violation=history, history_penalty=history,
+                       history_stationarity=history)
+
+
+def _solve_paths(robot: jr.Robot, members: list[tuple], gear_states: list, ts, nus: np.ndarray, cost: str, settings,
+                 history: int, directional: bool, batched: bool | None) -> OCPSolution:
+    """`solve_front` of the joint paths of `members` (each `(q_d, warm start, motor directions, node count)`, padded),
+    with their first gear states `gear_states` where `directional`: batched (`_solve_members`) or the CPU's probe and
+    single solves."""
+    m = nus.size
     if (backend_kind() != "cpu") if batched is None else batched:
         return _solve_members(robot, members, gear_states, ts, nus, cost, settings, history)
     each = functools.partial(_solve_each, robot, members, ts, cost, settings, history)
-    paths, top = np.arange(len(jps)), int(np.argmax(nus))
+    paths, top = np.arange(len(members)), int(np.argmax(nus))
     probe = each([(i, nus[top], gear_states[i] if directional else None, members[i][1]) for i in paths])
     out = _take(probe, np.repeat(paths, m))  # a path whose probe did not converge: every member is its probe
     pairs = np.array([(i, j) for i in paths[np.asarray(probe.converged)] for j in range(m)], int).reshape(-1, 2)
@@ -339,7 +476,10 @@ def _round(robot: jr.Robot, plant: jr.Robot, path: Path, durations: list[float],
         jps.append(jp)
     sols = solve_front(robot, jps, nus, cost, directional, size)
     d, m = len(durations), nus.size
-    use = _limit_use(*_limits(robot), sols.x, sols.u)
+    use = np.array(_limit_use(*_limits(robot), sols.x, sols.u))
+    proven = np.asarray(sols.status == jr.RESULTS.limits_infeasible)
+    if proven.any():  # not solved: the bound's uses, the proof (the flat inverse's would name another limit)
+        use[proven] = np.stack([rest_to_rest_use(robot, jp) for jp in jps]).repeat(m, 0)[proven]
     errors, commands = [], []
     for i, jp in enumerate(jps):
         n = jp.t.shape[0]
@@ -373,14 +513,15 @@ def cycle_time_front(robot: jr.Robot, plant: jr.Robot, path: Path, tolerance: fl
     `plant` within the axis limits, and the front it is read from.
 
     Every duration of `durations` [s] (rounded to the task's sample time) x every weighting factor of `nus` is
-    planned in one batched round (`solve_front`: the durations whose probe at the largest `nu` finds no feasible
-    plan are not solved for the others; `directional`: on the gear states of each plan's motion, as `plan_task`)
+    planned in one batched round (`solve_front`: the durations that the motor limits prove infeasible are not solved,
+    `RESULTS.limits_infeasible`; the durations whose probe at the largest `nu` finds no feasible plan are not solved
+    for the others; `directional`: on the gear states of each plan's motion, as `plan_task`)
     from the IK from `q_init`, and simulated on `plant` (`directional`: its gears' hysteresis as states). Then, while
     the shortest duration meeting the tolerance is more than `refine` (relative) above the longest one below it that
     does not, a round of `REFINE_POINTS` durations between the two (all on the grid's padded node count: the same
     compiled program). A member meets the tolerance where its solve converged (the limits are bounds of the OCP)
     and its largest path error over `[0, t_e]` is at most `tolerance`; a duration too short for the limits leaves
-    its members unconverged, pressed against the limit that `binding_limit` names. `on_event` receives a
+    its members unconverged or not solved, infeasible by the limit that `binding_limit` names. `on_event` receives a
     `FrontEvent` per round.
 
     **Raises:** `ValueError` naming the argument for bad values, before any compute.
@@ -402,8 +543,9 @@ def cycle_time_front(robot: jr.Robot, plant: jr.Robot, path: Path, tolerance: fl
         tried += grid
         front = _front(tried, nus, parts, tolerance, path.sample_time)
         new = np.isin(np.asarray(front.durations), grid)
+        proven = np.asarray(front.status == jr.RESULTS.limits_infeasible)
         emit(FrontEvent(stage, tuple(grid), time.perf_counter() - start, int(front.converged[new].sum()),
-                        int(front.meets[new].sum()), front.shortest_duration))
+                        int(front.meets[new].sum()), int(proven[new].sum()), front.shortest_duration))
         low, high = front.bracket, front.shortest_duration
         if not (high - low > refine * high):  # also: no answer, or none below it
             break

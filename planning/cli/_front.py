@@ -44,13 +44,14 @@ def configure(parser) -> None:
 
 
 def rows(front: CycleTimeFront) -> list[dict]:
-    """One row per member: `{"duration_s", "nu": float, "status": str, "objective": float [rad^2], "path_error_um":
-    float or None (None: not converged), "meets": bool, "limit": str (the most used limit), "limit_use": float
+    """One row per member: `{"duration_s", "nu": float, "status": str, "objective": float [rad^2] or None (None: not
+    solved), "path_error_um": float or None (None: not converged), "meets": bool, "limit": str (the most used limit;
+    status `limits_infeasible`: the limit that proves the duration infeasible before any solve), "limit_use": float
     (1: at the limit)}`."""
     status, use, error = jr.status_name(front.status), np.asarray(front.limit_use).max(-1), np.asarray(front.path_error)
     meets, binding = front.meets, front.binding
     return [{"duration_s": float(d), "nu": float(nu), "status": str(status[i, j]),
-             "objective": float(front.objective[i, j]),
+             "objective": None if np.isnan(front.objective[i, j]) else float(front.objective[i, j]),
              "path_error_um": None if np.isnan(error[i, j]) else 1e6 * float(error[i, j]), "meets": bool(meets[i, j]),
              "limit": front.limit_name(int(binding[i, j])), "limit_use": float(use[i, j])}
             for i, d in enumerate(np.asarray(front.durations)) for j, nu in enumerate(np.asarray(front.nus))]
@@ -76,8 +77,8 @@ def progress_line(event: FrontEvent) -> str:
     members = len(event.durations)
     best = "none yet" if np.isnan(event.shortest) else f"{event.shortest:.4g} s"
     return (f"  {event.stage}: {members} durations {min(event.durations):.4g} ... {max(event.durations):.4g} s, "
-            f"{event.converged} converged, {event.meeting} meet the tolerance ({event.elapsed:.1f} s incl. "
-            f"compile); shortest so far {best}")
+            f"{event.converged} converged, {event.meeting} meet the tolerance, {event.infeasible} infeasible by the "
+            f"motor limits, not solved ({event.elapsed:.1f} s incl. compile); shortest so far {best}")
 
 
 def write_outputs(front: CycleTimeFront, table: list[dict], out: Path, label: str, desc: dict | None,
@@ -87,10 +88,10 @@ def write_outputs(front: CycleTimeFront, table: list[dict], out: Path, label: st
     from . import _plots
 
     files = [out / f"{label}_front.csv"]
+    cell = lambda value, spec: "" if value is None else format(value, spec)  # noqa: E731  (None: empty)
     lines = ["duration_s,nu,status,objective,path_error_um,meets,limit,limit_use"] + [
-        f"{r['duration_s']:.6g},{r['nu']:.3e},{r['status']},{r['objective']:.10e},"
-        f"{'' if r['path_error_um'] is None else format(r['path_error_um'], '.6f')},{r['meets']},{r['limit']},"
-        f"{r['limit_use']:.6f}" for r in table]
+        f"{r['duration_s']:.6g},{r['nu']:.3e},{r['status']},{cell(r['objective'], '.10e')},"
+        f"{cell(r['path_error_um'], '.6f')},{r['meets']},{r['limit']},{r['limit_use']:.6f}" for r in table]
     files[0].write_text("\n".join(lines) + "\n")
     d, error = np.asarray(front.durations), 1e6 * np.asarray(front.path_error)
     curves = {f"ν = {nu:.0e}": error[:, j] for j, nu in enumerate(np.asarray(front.nus))}
@@ -138,11 +139,16 @@ def run(args, echo) -> dict:
         for f in write_outputs(front, table, args.out, path.name, desc if "trajectories" in desc else None, robot):
             echo(f"  wrote {f}")
     if front.answer is None:
-        use = f"{front.binding_limit} ({float(np.asarray(front.limit_use[-1]).max()):.0%} at the longest duration)"
+        longest, most = float(front.durations[-1]), float(np.asarray(front.limit_use[-1]).max())
+        use = f"{front.binding_limit} ({most:.0%} at the longest duration)"
+        if np.asarray(front.status == jr.RESULTS.limits_infeasible)[-1].all():
+            raise SolveFailed(f"no duration up to {longest:g} s meets {1e6 * args.tolerance:g} µm within the limits: "
+                              f"{front.binding_limit} binds, proven before any solve (a rest-to-rest motion of its "
+                              f"motor in {longest:g} s needs {most:.0%} of it); try longer durations", summary)
         if not front.converged[-1].any():
-            raise SolveFailed(f"no duration up to {float(front.durations[-1]):g} s meets {1e6 * args.tolerance:g} µm "
+            raise SolveFailed(f"no duration up to {longest:g} s meets {1e6 * args.tolerance:g} µm "
                               f"within the limits: {use} binds; try longer durations", summary)
-        raise SolveFailed(f"no duration up to {float(front.durations[-1]):g} s meets {1e6 * args.tolerance:g} µm: the "
+        raise SolveFailed(f"no duration up to {longest:g} s meets {1e6 * args.tolerance:g} µm: the "
                           f"least path error is {1e6 * np.nanmin(np.asarray(front.path_error)):.3g} µm, the most used "
                           f"limit {use}; try longer durations or another nu", summary)
     echo(f"shortest duration {front.shortest_duration:.4g} s at nu {front.nu:.0e}: path error "

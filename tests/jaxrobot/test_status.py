@@ -30,6 +30,7 @@ def test_batched_status_names_and_messages():
     messages = jr.status_message(status)
     assert messages[0] == "converged" and "rank deficient" in messages[1]
     assert jr.status_message(jr.RESULTS.inner_failed).startswith("The inner Gauss-Newton")
+    assert jr.status_message(jr.RESULTS.limits_infeasible).startswith("Not solved: the axis limits make this duration")
 
 
 def test_throw_raises_the_message_under_jit_and_vmap():

@@ -12,7 +12,7 @@ import pytest
 import jaxrobot as jr
 import planning as pl
 from planning import _al_outer
-from planning._front import LIMIT_KINDS, solve_front
+from planning._front import LIMIT_KINDS, shortest_rest_to_rest, solve_front
 from planning._workflow import solve_directional
 from planning.internal import motor_directions, retimed_path
 
@@ -105,15 +105,103 @@ def test_a_duration_far_too_short_exits_3_naming_the_limit(tmp_path, monkeypatch
     assert summary["binding_limit"] in err and "binds" in err
     assert summary["binding_limit"].split(" ", 2)[2] in LIMIT_KINDS  # "joint j <kind>"
     assert all(not r["meets"] and r["path_error_um"] is None and r["limit_use"] > 0.999 for r in summary["rows"])
+    # proven infeasible before any solve: joint 1's motor needs 0.558 s within its acceleration limit
+    assert summary["binding_limit"] == "joint 1 motor acceleration" and "before any solve" in err
+    assert all(r["status"] == "limits_infeasible" and r["objective"] is None and r["limit"] == "joint 1 motor "
+               "acceleration" for r in summary["rows"])
+
+
+def _lp_reachable(distance: float, accel: float, rate: float, intervals: int, ts: float) -> bool:
+    """Whether the trapezoidal transcription of one motor (`theta`, `thetad`, `u` at `intervals + 1` nodes; defects
+    `x_{k+1} - x_k - ts/2 (xd_k + xd_{k+1})`; `thetad = u = 0` at both ends) moves `distance` within `|u| <= accel`
+    and `|thetad| <= rate` at the nodes: a feasibility LP (scipy's HiGHS), in units of `ts` and `accel`."""
+    from scipy.optimize import linprog
+
+    n = intervals + 1
+    th, w, u = (np.arange(n) + k * n for k in range(3))
+    rows = []
+    for k in range(intervals):  # theta' = thetad, thetad' = u in units ts = accel = 1
+        for x, xd in ((th, w), (w, u)):
+            row = np.zeros(3 * n)
+            row[[x[k + 1], x[k], xd[k], xd[k + 1]]] = (1.0, -1.0, -0.5, -0.5)
+            rows.append(row)
+    ends = {th[0]: 0.0, th[-1]: distance / (accel * ts**2), w[0]: 0.0, w[-1]: 0.0, u[0]: 0.0, u[-1]: 0.0}
+    rows += [np.eye(3 * n)[index] for index in ends]
+    rhs = np.concatenate([np.zeros(2 * intervals), list(ends.values())])
+    v = rate / (accel * ts)
+    limits = [(None, None)] * n + [(-v, v)] * n + [(-1.0, 1.0)] * n
+    return linprog(np.zeros(3 * n), A_eq=np.array(rows), b_eq=rhs, bounds=limits, method="highs").status == 0
+
+
+@pytest.mark.parametrize("y_end", [0.05, 0.5])
+def test_shortest_rest_to_rest_against_the_transcriptions_lp(y_end):
+    """Each moving motor's shortest duration of a line from rest to rest (`shortest_rest_to_rest`, at a 4 ms
+    sample time to keep the LPs small): one sample shorter, the LP of that motor's transcription within its rate and
+    acceleration limits is infeasible (the bound is valid); one sample longer it is feasible (tight); it is at least
+    the continuous bang-bang time `2 sqrt(D / A)` and the rate-limited `D / V` (the nodes' mean)."""
+    robot, ts = jr.racer7(), 4e-3
+    path = pl.reference_path("line", _short_line(y_end))
+    jp = pl.joint_path(robot, path, check=False)
+    shortest = shortest_rest_to_rest(robot, jp.q[0], jp.q[-1], ts)
+    distance = np.abs(np.asarray(jr.static_equilibrium(robot, jp.q[-1]) - jr.static_equilibrium(robot, jp.q[0])))
+    accel, rate = np.asarray(robot.u0 * robot.qdd_max), np.asarray(robot.u0 * robot.qd_max)
+    assert (distance > 1e-3).sum() >= 3
+    for j in np.flatnonzero(distance > 1e-6):  # the others move by roundoff, below the LP's feasibility tolerance
+        m = round(shortest[j] / ts)
+        np.testing.assert_allclose(shortest[j], m * ts, rtol=1e-12)
+        assert m >= 2  # a move needs an inner node
+        assert m * ts >= 2 * np.sqrt(distance[j] / accel[j]) - 1e-12 and m * ts >= distance[j] / rate[j], j
+        assert not _lp_reachable(distance[j], accel[j], rate[j], m - 1, ts), j
+        assert _lp_reachable(distance[j], accel[j], rate[j], m + 1, ts), j
+
+
+def test_the_bound_uses_the_rate_limit_where_it_binds():
+    """A motor move long enough that the rate limit binds (joint 1, 300 motor rad, at 10 ms): the bound is the
+    LP's to within one sample, and longer than the acceleration-only bang-bang time `2 sqrt(D / A)` by more than two
+    samples."""
+    robot, ts = jr.racer7(), 1e-2
+    q0 = np.zeros(robot.n_joints)
+    q1 = np.r_[300.0 / float(robot.u0[0]), q0[1:]]
+    m = round(shortest_rest_to_rest(robot, q0, q1, ts)[0] / ts)
+    distance = abs(float(jr.static_equilibrium(robot, q1)[0] - jr.static_equilibrium(robot, q0)[0]))
+    accel, rate = float(robot.u0[0] * robot.qdd_max[0]), float(robot.u0[0] * robot.qd_max[0])
+    assert distance > rate**2 / accel  # the continuous profile reaches the rate limit
+    assert m * ts > 2 * np.sqrt(distance / accel) + 2 * ts
+    assert not _lp_reachable(distance, accel, rate, m - 1, ts) and _lp_reachable(distance, accel, rate, m + 1, ts)
 
 
 @pytest.mark.parametrize("batched", [False, True])
-def test_an_infeasible_duration_ends_in_few_outer_iterations(batched):
-    """The whole 0.5 m line in 0.26 and 0.30 s (about a tenth of its 2.5 s; the program of the front above): each
-    member ends `stalled`, infeasible, with its violation far above the tolerance, in few of the 30 outer
-    iterations allowed (it stops once the violation did not fall by `STUCK_DECREASE` over `STUCK_WINDOW` of them;
-    in 0.26 s within `STUCK_WINDOW + 3`, in 0.30 s, closer to feasible, within a third of the 30): by the CPU's
-    probe, whose status the members hold, or (`batched`) each in its own lane."""
+def test_a_duration_too_short_for_the_motor_limits_is_not_solved(batched):
+    """The whole 0.5 m line in 0.26 and 0.30 s (about a tenth of its 2.5 s): joint 1's motor needs 0.558 s from
+    rest to rest within its limits, so no member is solved, on the CPU's path or (`batched`) the accelerator's: each
+    is `limits_infeasible`, without iterations, its plan the flat inverse (the warm start), its objective NaN."""
+    robot = jr.racer7()
+    path = pl.reference_path("line", _short_line(0.5))
+    jps = [pl.joint_path(robot, retimed_path(path, d), check=False) for d in DURATIONS]
+    assert shortest_rest_to_rest(robot, jps[0].q[0], jps[0].q[-1], path.sample_time).max() > DURATIONS[-1]
+    sols = solve_front(robot, jps, np.asarray(NUS), batched=batched)
+    assert list(jr.status_name(sols.status)) == ["limits_infeasible"] * len(NUS) * len(DURATIONS)
+    assert "infeasible" in jr.status_message(sols.status)[0]
+    assert not np.asarray(sols.iterations).any() and np.isnan(np.asarray(sols.objective)).all()
+    for i, jp in enumerate(jps):
+        flat = pl.flat_motor_trajectory(robot, jp)
+        n = jp.t.shape[0]
+        for k in (i * len(NUS), i * len(NUS) + 1):
+            np.testing.assert_array_equal(np.asarray(sols.theta[k, :n]), np.asarray(flat.theta))
+            np.testing.assert_array_equal(np.asarray(sols.u[k, :n]), np.asarray(flat.thetadd))
+
+
+@pytest.mark.parametrize("batched", [False, True])
+def test_an_infeasible_duration_ends_in_few_outer_iterations(batched, monkeypatch):
+    """The solver's own verdict on the durations of the test above, with the bound switched off (as on the gears'
+    states, `directional`, where it is not applied): each member ends `stalled`, infeasible, with its violation far
+    above the tolerance, in few of the 30 outer iterations allowed (it stops once the violation did not fall by
+    `STUCK_DECREASE` over `STUCK_WINDOW` of them; in 0.26 s within `STUCK_WINDOW + 3`, in 0.30 s, closer to
+    feasible, within a third of the 30): by the CPU's probe, whose status the members hold, or (`batched`) each in
+    its own lane."""
+    from planning import _front
+
+    monkeypatch.setattr(_front, "_proven_infeasible", lambda robot, jps, directional: np.zeros(len(jps), bool))
     robot = jr.racer7()
     path = pl.reference_path("line", _short_line(0.5))
     jps = [pl.joint_path(robot, retimed_path(path, d), check=False) for d in DURATIONS]
