@@ -466,9 +466,10 @@ def _solve_members(robot: jr.Robot, members: list[tuple], gear_states: list, ts,
 
 def _round(robot: jr.Robot, plant: jr.Robot, path: Path, durations: list[float], nus: np.ndarray, cost: str,
            q_init, directional: bool, size: int) -> tuple:
-    """One batched round: the joint paths of `path` re-timed to `durations`, `solve_front` on `size` nodes, every
-    plan simulated on `plant`. Returns (status, objective, path error [m], limit use, motor commands on `size`
-    samples), each (D, M, ...)."""
+    """One batched round: the joint paths of `path` re-timed to `durations`, `solve_front` on `size` nodes, the
+    plans of every duration with a converged member simulated on `plant` (the path error is NaN where the solve
+    did not converge). Returns (status, objective, path error [m], limit use, motor commands on `size` samples),
+    each (D, M, ...)."""
     jps = []
     for duration in durations:
         jp = joint_path(robot, retimed_path(path, duration), q_init, check=False)  # limits: the OCP's bounds
@@ -480,15 +481,17 @@ def _round(robot: jr.Robot, plant: jr.Robot, path: Path, durations: list[float],
     proven = np.asarray(sols.status == jr.RESULTS.limits_infeasible)
     if proven.any():  # not solved: the bound's uses, the proof (the flat inverse's would name another limit)
         use[proven] = np.stack([rest_to_rest_use(robot, jp) for jp in jps]).repeat(m, 0)[proven]
+    converged = np.asarray(sols.converged).reshape(d, m)
     errors, commands = [], []
     for i, jp in enumerate(jps):
         n = jp.t.shape[0]
         x, u = head((sols.x[i * m:(i + 1) * m], sols.u[i * m:(i + 1) * m]), n, 1)
         plans = motor_commands(robot, jp.t, {str(j): ocp_motor_trajectory(x[j], u[j]) for j in range(m)})
-        errors.append(np.asarray(summarize(simulate_plans(plant, jp, plans, directional=directional)[1]).position_max))
+        errors.append(np.asarray(summarize(simulate_plans(plant, jp, plans, directional=directional)[1]).position_max)
+                      if converged[i].any() else np.full(m, np.nan))
         commands.append(jax.tree.map(lambda *a: np.stack([pad_edge(np.asarray(b), size) for b in a]), *plans.values()))
     shape = lambda a: np.asarray(a).reshape((d, m) + np.shape(a)[1:])  # noqa: E731
-    error = np.where(shape(sols.converged), np.stack(errors), np.nan)
+    error = np.where(converged, np.stack(errors), np.nan)
     return (jax.tree.map(shape, sols.status), shape(sols.objective), error, shape(use),
             jax.tree.map(lambda *a: np.stack(a), *commands))
 
