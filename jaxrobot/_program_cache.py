@@ -50,6 +50,7 @@ import equinox as eqx
 import jax
 import jax.export
 import jax.monitoring
+import jax.numpy as jnp
 import jaxlib
 import numpy as np
 
@@ -74,21 +75,24 @@ _KEY_LOCKS_LOCK = threading.Lock()
 
 
 @contextlib.contextmanager
-def preparing() -> Iterator[None]:
+def preparing() -> Iterator[bool]:
     """Within the block, in the calling thread, a call of a `cached_program` makes its program ready for the calls
     of the same key (module docstring) and returns zeros of its result's shapes instead of running it; other
-    computations in the block run as usual. For making the programs of a later step ready beside other work, from
-    arguments of the shapes (and static values) that step will pass."""
+    computations in the block run as usual, and so does a call inside a traced function (its zeros would enter the
+    traced program). For making the programs of a later step ready beside other work, from arguments of the shapes
+    (and static values) that step will pass. Yields whether programs are kept (False where the cache is off: there
+    is nothing to make ready, and the block may be skipped)."""
     before = getattr(_LOCAL, "preparing", False)
     _LOCAL.preparing = True
     try:
-        yield
+        yield program_dir() is not None
     finally:
         _LOCAL.preparing = before
 
 
 def _is_preparing() -> bool:
-    return getattr(_LOCAL, "preparing", False)
+    """In a `preparing` block of this thread, outside any trace (where `jnp` makes tracers, not values)."""
+    return getattr(_LOCAL, "preparing", False) and not isinstance(jnp.zeros(()), jax.core.Tracer)
 
 
 def _zeros(shapes):
@@ -229,11 +233,6 @@ def _ready(folder: Path, key: str, fn, sig, tree, static, leaves, traced, dynami
     return call.lower(*dynamic).compile(), out_tree
 
 
-def _skeleton(out_tree):
-    """A tree structure as a tree of integers (a pickled PyTreeDef does not compare equal)."""
-    return jax.tree_util.tree_unflatten(out_tree, list(range(out_tree.num_leaves)))
-
-
 def _key(fn, tree, static: dict, static_leaves: list, dynamic: list) -> str:
     avals = [str(jax.typeof(x)) for x in dynamic]
     parts = [_source_hash(), jax.__version__, jaxlib.__version__, jax.default_backend(),
@@ -282,7 +281,9 @@ def _export(folder: Path, key: str, fn, sig, tree, static, leaves, traced, dynam
         _write(folder, f"{key}.program", pickle.dumps(None))
         return _NOT_EXPORTABLE
     out_tree = out_trees[0]
-    _write(folder, f"{key}.program", pickle.dumps((blob, _skeleton(out_tree), weak)))
+    # the output structure is stored as a tree of integers (a pickled PyTreeDef does not compare equal)
+    skeleton = jax.tree_util.tree_unflatten(out_tree, list(range(out_tree.num_leaves)))
+    _write(folder, f"{key}.program", pickle.dumps((blob, skeleton, weak)))
     # the program as a later process reads it, so that every process runs the same
     return _callable(jax.export.deserialize(bytearray(blob)), weak, fn.__name__), out_tree
 

@@ -229,8 +229,10 @@ def _prepare_ocp(robot: jr.Robot, path: Path, nu: float, cost: str, directional:
     programs itself (and to report the error)."""
     z = np.zeros((time_grid(path).shape[0], robot.n_joints))  # on the host: no program per length
     try:
-        with preparing():
-            solve_directional(robot, z, z, MotorTrajectory(z, z, z), float(path.sample_time), nu, cost, directional)
+        with preparing() as kept:
+            if kept:
+                solve_directional(robot, z, z, MotorTrajectory(z, z, z), float(path.sample_time), nu, cost,
+                                  directional)
     except Exception:  # noqa: BLE001, S110 - only a head start: the solve itself raises what is wrong
         pass
 

@@ -228,3 +228,26 @@ def test_preparing_makes_the_program_ready_without_running_it(tmp_path, monkeypa
     thread.join()
     assert len(exports) == 1 and exports[0] != threading.get_ident()
     np.testing.assert_array_equal(np.asarray(out), np.asarray(jax.jit(_sine_loop)(y)))
+
+
+def test_preparing_leaves_a_call_inside_a_traced_function_to_run(tmp_path, monkeypatch):
+    """A `cached_program` called inside a function that `jit` traces under `preparing` is traced as usual: the traced
+    program (which `jit` keeps for later calls) holds the computation, not zeros; and with the cache off, `preparing`
+    says there is nothing to make ready."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxrobot._program_cache import cached_program, preparing
+
+    monkeypatch.setenv("JAXROBOT_CACHE_DIR", str(tmp_path))
+    program = cached_program(_sine_loop)
+    outer = jax.jit(lambda x: program(x) + 1.0)
+    x = jnp.linspace(0.1, 0.4, 4)
+    with preparing() as kept:
+        assert kept
+        np.testing.assert_array_equal(np.asarray(outer(x)), np.asarray(jax.jit(_sine_loop)(x) + 1.0))
+    np.testing.assert_array_equal(np.asarray(outer(x)), np.asarray(jax.jit(_sine_loop)(x) + 1.0))
+    monkeypatch.setenv("JAXROBOT_CACHE_DIR", "off")
+    with preparing() as kept:
+        assert not kept
