@@ -238,6 +238,13 @@ def _needed_rate(accel: float, distance: float, intervals: int, ts: float) -> fl
     return np.inf if i == ramp.size else (distance / ts - before[i]) / (ramp.size - i)
 
 
+def _motor_distance(robot: jr.Robot, q_start, q_end) -> np.ndarray:
+    """Each motor's distance [rad] between its rest angles at the link angles `q_start` and `q_end`
+    (`jr.static_equilibrium`, as `boundary_states` fixes the OCP's first and last node) (n,)."""
+    return np.abs(np.asarray(jr.static_equilibrium(robot, jnp.asarray(q_end, float))
+                             - jr.static_equilibrium(robot, jnp.asarray(q_start, float))))
+
+
 def _motor_limits(robot: jr.Robot) -> tuple[np.ndarray, np.ndarray]:
     """Each motor's acceleration and rate limit, `u0 qdd_max` and `u0 qd_max` (n,) [rad/s^2, rad/s]."""
     return np.asarray(robot.u0 * robot.qdd_max, float), np.asarray(robot.u0 * robot.qd_max, float)
@@ -259,8 +266,7 @@ def shortest_rest_to_rest(robot: jr.Robot, q_start: Float[Array, " n"], q_end: F
             raise ValueError(f"{name}: expected {robot.n_joints} finite link angles [rad], found {np.asarray(q)}")
     if not (np.isfinite(sample_time) and sample_time > 0):
         raise ValueError(f"sample_time: expected a sample time > 0 [s], found {sample_time}")
-    distance = np.abs(np.asarray(jr.static_equilibrium(robot, jnp.asarray(q_end, float))
-                                 - jr.static_equilibrium(robot, jnp.asarray(q_start, float))))
+    distance = _motor_distance(robot, q_start, q_end)
     accel, rate = _motor_limits(robot)
     out = np.zeros(distance.size)
     for j, d in enumerate(distance):
@@ -290,8 +296,7 @@ def rest_to_rest_use(robot: jr.Robot, jp: JointPath) -> np.ndarray:
     does, the distance over the reach of the rate alone, `(N - 2)` samples at it. The duration is infeasible where
     one exceeds `INFEASIBLE_USE`."""
     n, ts, intervals = robot.n_joints, float(jp.path.sample_time), jp.t.shape[0] - 1
-    distance = np.abs(np.asarray(jr.static_equilibrium(robot, jnp.asarray(jp.q[-1]))
-                                 - jr.static_equilibrium(robot, jnp.asarray(jp.q[0]))))
+    distance = _motor_distance(robot, jp.q[0], jp.q[-1])
     accel, rate = _motor_limits(robot)
     accel_use = distance / np.maximum(_reach(accel, np.inf, intervals, ts), np.finfo(float).tiny)
     needed = np.array([_needed_rate(a, d, intervals, ts) for a, d in zip(accel, distance, strict=True)])
