@@ -67,7 +67,27 @@ def pytest_configure(config):
     config.addinivalue_line("markers", "slow: a long check (full-size OCP, sweeps); run with --runslow")
 
 
+# pytest-xdist hands out whole files (`--dist loadfile`) in collection order (`--no-loadscope-reorder`, pyproject's
+# addopts), each to the first worker free. These files take longest from a cold compilation cache (most of it XLA
+# compiling their programs; 100-320 s each on 2 loaded cores), longest first: started first, they leave the short
+# files to fill both workers up to the end, instead of one worker running a long file alone at the end.
+LONGEST_FIRST = tuple(TESTS / name for name in (
+    "planning/test_padding.py", "planning/test_front.py", "identification/test_calibrate.py",
+    "planning/test_evaluation.py", "jaxrobot/test_dynamic_effects.py", "jaxrobot/test_simulate.py",
+    "planning/test_al_solver.py", "identification/test_diagnose.py", "identification/test_runs.py",
+    "planning/test_prediction.py", "identification/test_identify_gear.py", "jaxrobot/test_dynamics.py",
+    "planning/test_ocp.py", "planning/test_select_poses.py", "jaxrobot/test_urdf.py",
+))
+
+
+def _start_rank(item) -> int:
+    """The place of an item's file in `LONGEST_FIRST`; the other files after them, in collection order."""
+    path = Path(item.path)
+    return LONGEST_FIRST.index(path) if path in LONGEST_FIRST else len(LONGEST_FIRST)
+
+
 def pytest_collection_modifyitems(config, items):
+    items.sort(key=_start_rank)  # stable: each file's tests keep their order
     runslow = config.getoption("--runslow")
     extended = runslow or config.getoption("--extended")
     for item in items:
