@@ -68,15 +68,16 @@ def pytest_configure(config):
 
 
 # pytest-xdist hands out whole files (`--dist loadfile`) in collection order (`--no-loadscope-reorder`, pyproject's
-# addopts), each to the first worker free. These files take longest from a cold compilation cache (most of it XLA
-# compiling their programs; 100-320 s each on 2 loaded cores), longest first: started first, they leave the short
-# files to fill both workers up to the end, instead of one worker running a long file alone at the end.
+# addopts), each to the first worker free. These files take longest from a cold compilation cache (minutes each,
+# most of it XLA compiling their programs), longest first: started first, they leave the short files to fill both
+# workers up to the end, instead of one worker running a long file alone at the end.
 LONGEST_FIRST = tuple(TESTS / name for name in (
     "planning/test_padding.py", "planning/test_front.py", "identification/test_calibrate.py",
-    "planning/test_evaluation.py", "jaxrobot/test_dynamic_effects.py", "jaxrobot/test_simulate.py",
-    "planning/test_al_solver.py", "identification/test_diagnose.py", "identification/test_runs.py",
-    "planning/test_prediction.py", "identification/test_identify_gear.py", "jaxrobot/test_dynamics.py",
-    "planning/test_ocp.py", "planning/test_select_poses.py", "jaxrobot/test_urdf.py",
+    "jaxrobot/test_dynamic_effects.py", "jaxrobot/test_simulate.py", "planning/test_al_solver.py",
+    "identification/test_diagnose.py", "planning/test_prediction.py", "identification/test_identify_gear.py",
+    "planning/test_ocp.py", "planning/test_evaluation.py", "jaxrobot/test_urdf.py",
+    "identification/test_calibrate_parallel.py", "identification/test_runs_link_drag.py", "planning/test_ik.py",
+    "planning/test_transcription.py",
 ))
 
 
