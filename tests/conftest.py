@@ -72,12 +72,12 @@ def pytest_configure(config):
 # most of it XLA compiling their programs), longest first: started first, they leave the short files to fill both
 # workers up to the end, instead of one worker running a long file alone at the end.
 LONGEST_FIRST = tuple(TESTS / name for name in (
-    "planning/test_padding.py", "planning/test_front.py", "identification/test_calibrate.py",
-    "jaxrobot/test_dynamic_effects.py", "jaxrobot/test_simulate.py", "planning/test_al_solver.py",
-    "identification/test_diagnose.py", "planning/test_prediction.py", "identification/test_identify_gear.py",
-    "planning/test_ocp.py", "planning/test_evaluation.py", "jaxrobot/test_urdf.py",
-    "identification/test_calibrate_parallel.py", "identification/test_runs_link_drag.py", "planning/test_ik.py",
-    "planning/test_transcription.py",
+    "identification/test_calibrate.py", "identification/test_diagnose.py", "planning/test_padding.py",
+    "planning/test_front.py", "jaxrobot/test_dynamic_effects.py", "jaxrobot/test_transforms.py",
+    "identification/test_identify_gear.py", "jaxrobot/test_simulate.py", "planning/test_al_solver.py",
+    "planning/test_cyclic_reduction.py", "planning/test_evaluation.py", "identification/test_calibrate_parallel.py",
+    "jaxrobot/test_dynamics.py", "planning/test_prediction.py", "identification/test_runs.py",
+    "identification/test_runs_link_drag.py",
 ))
 
 
