@@ -67,7 +67,28 @@ def pytest_configure(config):
     config.addinivalue_line("markers", "slow: a long check (full-size OCP, sweeps); run with --runslow")
 
 
+# pytest-xdist hands out whole files (`--dist loadfile`) in collection order (`--no-loadscope-reorder`, pyproject's
+# addopts), each to the first worker free. These files take longest from a cold compilation cache (minutes each,
+# most of it XLA compiling their programs), longest first: started first, they leave the short files to fill both
+# workers up to the end, instead of one worker running a long file alone at the end.
+LONGEST_FIRST = tuple(TESTS / name for name in (
+    "identification/test_calibrate.py", "identification/test_diagnose.py", "planning/test_padding.py",
+    "planning/test_front.py", "jaxrobot/test_dynamic_effects.py", "jaxrobot/test_transforms.py",
+    "identification/test_identify_gear.py", "jaxrobot/test_simulate.py", "planning/test_al_solver.py",
+    "planning/test_cyclic_reduction.py", "planning/test_evaluation.py", "identification/test_calibrate_parallel.py",
+    "jaxrobot/test_dynamics.py", "planning/test_prediction.py", "identification/test_runs.py",
+    "identification/test_runs_link_drag.py",
+))
+
+
+def _start_rank(item) -> int:
+    """The place of an item's file in `LONGEST_FIRST`; the other files after them, in collection order."""
+    path = Path(item.path)
+    return LONGEST_FIRST.index(path) if path in LONGEST_FIRST else len(LONGEST_FIRST)
+
+
 def pytest_collection_modifyitems(config, items):
+    items.sort(key=_start_rank)  # stable: each file's tests keep their order
     runslow = config.getoption("--runslow")
     extended = runslow or config.getoption("--extended")
     for item in items:

@@ -364,6 +364,7 @@ def short_arm_run(seed: int):
     return base, marker, noise, cmd, run
 
 
+@pytest.mark.extended  # its reference, forward-mode autodiff through the simulator, is a large program of its own
 def test_derivative_columns_by_forward_differences_match_autodiff():
     """`_evaluate`'s derivative columns (forward differences of `FD_STEP`, in batches of `BATCH` perturbed models and
     single simulations for a remainder) against forward-mode autodiff of the same residual, on the arm's short run

@@ -86,6 +86,7 @@ def test_planning_dynamics_shapes_and_batching_of_robots():
     assert jr.planning_dynamics(fleet, x, jnp.ones((2, 6))).shape == (2, 24)
 
 
+@pytest.mark.extended  # compiles frames, inverse dynamics and its gradient twice, looped and unrolled
 def test_unrolled_link_loops_equal_the_loops(monkeypatch):
     """`UNROLL_LINKS` (the benchmark's variant) removes the loops over the links from the program and changes no
     number: frames, inverse dynamics and its reverse pass as with the loops, to round-off."""

@@ -116,19 +116,44 @@ REAL = [  # file, tip passed to load_robot (None: default), the tip link pinocch
 ]
 
 
+def _errors(robots: dict, refs: dict) -> dict:
+    """Per key of `robots`, the worst relative error (`_worst`) of our terms against pinocchio's `refs` (states,
+    terms); the robots of one n go through one jitted call as a fleet (robot batch (k, 1), states (k, S, n))."""
+    errors = {}
+    for n in sorted({r.n_joints for r in robots.values()}):
+        keys = [k for k, r in robots.items() if r.n_joints == n]
+        fleet = jax.tree.map(lambda *x: np.stack(x)[:, None], *(robots[k] for k in keys))
+        q, qd, qdd = (jnp.asarray(np.stack([refs[k][0][i] for k in keys])) for i in range(3))
+        ours = _ours(fleet, q, qd, qdd)
+        for i, k in enumerate(keys):
+            errors[k] = _worst({term: v[i] for term, v in ours.items()}, refs[k][1])
+    return errors
+
+
+def _chain_states(rng: np.random.Generator) -> list:
+    """The states of the generated chains, `CHAINS`' order, drawn first from the rng of both fixtures."""
+    return [_states(rng, (N_STATES, n)) for _, n in CHAINS]
+
+
 @pytest.fixture(scope="module")
-def terms():
-    """Our terms and pinocchio's, per robot: the generated chains (key: seed) on our URDF export, the
-    example-robot-data URDFs (key: file name) on pinocchio's model of the file reduced to the chain.
-    The robots of one n go through one jitted call as a fleet (robot batch (k, 1), states (k, S, n))."""
-    robots, refs, rng = {}, {}, np.random.default_rng(14)
-    for seed, n in CHAINS:
+def chain_terms():
+    """Our terms and pinocchio's for the generated chains (key: seed) on our URDF export."""
+    robots, refs = {}, {}
+    for (seed, n), (q, qd, qdd) in zip(CHAINS, _chain_states(np.random.default_rng(14)), strict=True):
         robots[seed] = _random_chain(seed, n, "robot")  # one static name for the fleet
-        q, qd, qdd = _states(rng, (N_STATES, n))
         model = pin.buildModelFromXML(jr.to_urdf(robots[seed]))
         model.gravity.linear = np.asarray(robots[seed].gravity)
         assert model.nq == n
         refs[seed] = (q, qd, qdd), _pinocchio(model, "tool", q, qd, qdd)
+    return _errors(robots, refs)
+
+
+@pytest.fixture(scope="module")
+def terms():
+    """Our terms and pinocchio's for the example-robot-data URDFs (key: file name), on pinocchio's model of the
+    file reduced to the chain."""
+    robots, refs, rng = {}, {}, np.random.default_rng(14)
+    _chain_states(rng)
     for name, tip, tip_link, n in REAL:
         path = example_urdf(name)
         robots[name] = dataclasses.replace(jr.load_robot(path, tip=tip), name="robot", viscous_friction=None,
@@ -146,22 +171,14 @@ def terms():
 
         q, qd, qdd = _states(rng, (N_STATES, n))
         refs[name] = (q, qd, qdd), _pinocchio(model, tip_link, q, qd, qdd, config)
-    errors = {}
-    for n in range(1, 10):
-        keys = [k for k, r in robots.items() if r.n_joints == n]
-        fleet = jax.tree.map(lambda *x: np.stack(x)[:, None], *(robots[k] for k in keys))
-        q, qd, qdd = (jnp.asarray(np.stack([refs[k][0][i] for k in keys])) for i in range(3))
-        ours = _ours(fleet, q, qd, qdd)
-        for i, k in enumerate(keys):
-            errors[k] = _worst({term: v[i] for term, v in ours.items()}, refs[k][1])
-    return errors
+    return _errors(robots, refs)
 
 
 @pytest.mark.extended  # ~40 s: 36 chains against pinocchio; the suite keeps the robots of example-robot-data
-def test_generated_chains_match_pinocchio(terms):
+def test_generated_chains_match_pinocchio(chain_terms):
     """>= 30 random chains, n = 1..9: every term within 1e-12 of pinocchio on our URDF export."""
     assert len(CHAINS) >= 30 and {n for _, n in CHAINS} == set(range(1, 10))
-    failures = [(seed, n, term, e) for seed, n in CHAINS for term, e in terms[seed].items()
+    failures = [(seed, n, term, e) for seed, n in CHAINS for term, e in chain_terms[seed].items()
                 if not e <= RTOL_GENERATED]
     assert not failures, f"terms off pinocchio by more than {RTOL_GENERATED:g} (seed, n, term, error): {failures}"
 

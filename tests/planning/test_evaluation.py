@@ -1,5 +1,6 @@
 """Motor trajectories evaluated on the plant: the flat inverse is exact on the model (SPEC.md "Facts"), the
-baselines' order, batched simulation, and bad trajectories refused."""
+baselines' order, batched simulation, the plant's step counts, bad trajectories refused, and (extended: programs of
+their own at four times the steps) the errors at those step counts against four times finer steps."""
 
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ def test_baselines_order_on_the_model(line_model_errors):
     assert float(qs.settle_position_max) < 0.05 * float(rigid.settle_position_max)
 
 
+@pytest.mark.extended  # the plant's program at four times the steps, on the whole line
 def test_plant_steps_resolve_the_printed_errors(robot, joint_paths, line_baselines):
     """`SUBSTEPS` RK4 steps per sample put the tool within 1e-4 µm (a tenth of the 1e-3 µm that `jaxrobot plan`
     prints) of four times as many steps, on the rigid baseline of the line (which excites the elastic modes most)
@@ -63,6 +65,7 @@ def test_rigid_plants_get_the_least_steps(robot, joint_paths):
     assert plant_substeps(dataclasses.replace(robot, c=robot.c.at[jnp.array([0, 2])].set(0.0)), q) == SUBSTEPS
 
 
+@pytest.mark.extended  # the stiff plant's programs at its steps and four times them
 def test_stiff_plants_get_the_steps_their_modes_ask(robot, joint_paths):
     """The Racer-7 with springs 100 times stiffer (modes 10 times higher, ~4.1 kHz: 3 steps per sample would be
     unstable) gets about ten times the Racer-7's steps, which keep `h ω <= MODE_STEP`, and its tool stays within

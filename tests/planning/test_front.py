@@ -1,6 +1,8 @@
-"""The cycle-time front (`planning.cycle_time_front`, `jaxrobot front`): its members against single solves of the
-same duration and nu, a task far too fast for the limits reported as infeasible by its limit (exit 3), and
-(extended) the line at 10 µm on the as-built bench confirmed by single plans at the answer and 0.99 times it."""
+"""The cycle-time front (`planning.cycle_time_front`, `jaxrobot front`): the command's answer on 5 cm of the line,
+a task far too fast for the limits reported as infeasible by its limit (exit 3), the motor-limit bound against the
+transcription's LP, and (extended: each compiles programs of its own for minutes on 2 cores) the members against
+single solves of the same duration and nu, the batched form against the CPU's, and the line at 10 µm on the as-built
+bench confirmed by single plans at the answer and 0.99 times it."""
 
 from __future__ import annotations
 
@@ -36,6 +38,7 @@ def short_front():
     return robot, path, pl.cycle_time_front(robot, robot, path, 1e-12, DURATIONS, NUS)
 
 
+@pytest.mark.extended  # compiles the single solve on the front's node count besides the front's own program
 def test_members_equal_single_solves(short_front):
     """Each member's objective equals `solve_ocp` of its duration and nu from the same warm start and motor
     directions (1e-8 relative: two solves to the solver's tolerance, the front's batched by continuation in nu)."""
@@ -74,8 +77,9 @@ def test_retimed_line_equals_the_line_of_that_duration():
         retimed_path(fast, 0.2605)
 
 
-def test_bad_arguments_are_named_before_any_compute(short_front):
-    robot, path, _ = short_front
+def test_bad_arguments_are_named_before_any_compute():
+    robot = jr.racer7()
+    path = pl.reference_path("line", _short_line(0.05))
     for kwargs, field in (({"tolerance": -1.0}, "tolerance"), ({"durations": [0.0]}, "durations"),
                           ({"nus": [1e-14, 1e-14]}, "nus"), ({"refine": 2.0}, "refine")):
         args = {"tolerance": 1e-6, "durations": DURATIONS, "nus": NUS, **kwargs}
@@ -191,7 +195,8 @@ def test_a_duration_too_short_for_the_motor_limits_is_not_solved(batched):
             np.testing.assert_array_equal(np.asarray(sols.u[k, :n]), np.asarray(flat.thetadd))
 
 
-@pytest.mark.parametrize("batched", [False, True])
+@pytest.mark.parametrize("batched", [False, pytest.param(True, marks=pytest.mark.extended)])  # True: compiles and
+# runs the vmapped program of 4 members (as `test_batched_members_equal_the_chains`)
 def test_an_infeasible_duration_ends_in_few_outer_iterations(batched, monkeypatch):
     """The solver's own verdict on the durations of the test above, with the bound switched off (as on the gears'
     states, `directional`, where it is not applied): each member ends `stalled`, infeasible, with its violation far
@@ -213,6 +218,7 @@ def test_an_infeasible_duration_ends_in_few_outer_iterations(batched, monkeypatc
     assert "infeasible" in jr.status_message(sols.status)[0]
 
 
+@pytest.mark.extended  # compiles the vmapped program of 4 members (and the front's, for the chains)
 def test_batched_members_equal_the_chains(short_front):
     """`solve_front(batched=True)`, the accelerator's form (every member in one vmapped program from its own cold
     start; here with the CPU's linear solver, one member after the other), gives the members of the CPU's form

@@ -1,6 +1,7 @@
 """Programs keyed by padded sizes: an OCP of N nodes is solved padded to `padded_nodes(N)` nodes fixed at
-the end's rest state (`pad_problem`). The padded solve is the unpadded one (the same iterations, the
-objective to roundoff), and a task of another length of the same padded size compiles nothing new."""
+the end's rest state (`pad_problem`). The padded problem is the unpadded one on the task's nodes, a task of
+another length of the same padded size compiles nothing new, and (extended) the padded solve is the unpadded one
+(the same iterations, the objective to roundoff)."""
 
 import jaxrobot as jr  # noqa: I001  (x64 first)
 import jax
@@ -97,6 +98,7 @@ def test_padding_repeats_the_last_gear_state(robot):
     np.testing.assert_array_equal(np.asarray(tr.defects(padded, xp, up)[:n - 1]), np.asarray(tr.defects(problem, x, u)))
 
 
+@pytest.mark.extended  # compiles the solve on the unpadded problem beside the padded one
 def test_padded_solve_is_the_unpadded_solve(robot):
     """`solve_ocp` (padded, 51 -> 64 nodes) and the program on the unpadded problem: the same outer and inner
     iterations, the same optimum to roundoff (`OBJECTIVE_RTOL`), on a bounded solve at nu = 1e-10 (active

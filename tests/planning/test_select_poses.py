@@ -1,5 +1,6 @@
 """`jaxrobot select-poses`: poses designed for a task, a pose file `jaxrobot calibrate` reads, and the predicted
-path error beside DETMAX's. The CLI runs in-process (`jaxrobot.cli._main.main`)."""
+path error beside DETMAX's (extended: the command end to end), and bad options refused. The CLI runs in-process
+(`jaxrobot.cli._main.main`)."""
 
 from __future__ import annotations
 
@@ -23,6 +24,8 @@ def main(monkeypatch):
     return _main.main
 
 
+@pytest.mark.extended  # the command end to end (IK, pool, design, DETMAX, prediction); `task_poses` itself:
+# tests/identification/test_task_design.py
 def test_select_poses_writes_a_pose_file_and_beats_detmax(main, tmp_path, capsys):
     """The line, 10 poses from a pool of 400: a pose file of the designed poses (motor angles, the marker where the
     model puts it) that the pose reader of `calibrate` reads, and a predicted p95 below DETMAX's at 10 poses."""
