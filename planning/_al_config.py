@@ -32,6 +32,11 @@ class ALConfig(eqx.Module):
     penalty_max: float = 1e7
     """Upper limit of `rho` (keeps the normal matrix factorisable), scaled by the same factor as
     the initial penalty."""
+    penalty_max_falling: float = 1e9
+    """Upper limit of `rho` beyond the scaled `penalty_max`, reached by whole factors `penalty_growth` while the
+    violation falls by `FALLING` per outer iteration (`_grown_penalty`): at a small `nu` the initial penalty is
+    `penalty_init`, and the scaled `penalty_max` can be below the constraints' curvature through the tracking cost,
+    where the violation falls only linearly."""
     violation_decrease: float = 0.1
     """Required ratio of new to previous violation; above it `rho` grows."""
     tol_violation: float = 1e-9

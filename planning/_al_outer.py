@@ -45,6 +45,12 @@ STUCK_DECREASE = 0.9
 """Factor the violation must fall by over `STUCK_WINDOW` outer iterations for a solve to go on (`_stalled`): at a
 fixed penalty a feasible solve's violation falls at least linearly (the 51-node move at nu = 1e-10 with direction
 bounds by 0.64 per outer iteration), an infeasible one's stays (the 10 cm line in 0.25 s: 5.7e-4, 5.3e-4, 5.4e-4)."""
+FALLING = 0.8
+"""Ratio of the violation to the previous outer iteration's at or below which `rho` may grow beyond its scaled
+`penalty_max` (`_grown_penalty`): a feasible solve whose penalty is below the constraints' curvature falls linearly
+(the 10 cm line in 0.3 s at nu = 1e-12 and `rho` = 1e7: ratios 0.51 to 0.77 per outer iteration); an infeasible
+one's falls less once the penalty is near its scaled limit (the slowed 50 ms move of `test_al_solver` from `rho` = 1e7:
+ratios 0.79, then 0.99, 0.89, 1.03), and the stall test ends it (`_stalled`)."""
 STUCK_FAR = 1e3
 """Multiple of `ALConfig.tol_violation` above which a violation that stops falling counts as infeasible
 (`_stalled`): closer, a feasible solve's violation may still fluctuate on its way down (the spiral at
@@ -154,7 +160,7 @@ def _prepare(p: _Parts, config: ALConfig, s: _State):
     lam = s.lam + s.rho * (c_y + shift)
     gam = s.rho * _outside(p, s.y, s.gam, s.rho)
     # with direction bounds, not while the grown penalty's term would exceed the multipliers (`_penalty_grows`)
-    grown = jnp.minimum(s.rho * config.penalty_growth, rho_max)
+    grown = _grown_penalty(config, s.rho, rho_max, viol, s.violation)
     rho = jnp.where(_penalty_grows(p, config, viol, s.violation, grown, lam), grown, s.rho)
     pulled = _reverse_passes(vjp, jnp.stack([s.lam + s.rho * c_y, shift, lam + rho * c_y]),
                              lambda first: _inner_done(p, config, s, _gradient(p, s.y, first, s.gam, s.rho)))
@@ -205,6 +211,17 @@ def _reverse_passes(vjp, cotangents: Float[Array, "3 Nm1 4*n"], done) -> Float[A
     more = lambda c: (c[0] == 0) | ((c[0] < cotangents.shape[0]) & done(c[1][0]))  # noqa: E731
     shape = jax.eval_shape(vjp, cotangents[0])
     return jax.lax.while_loop(more, body, (jnp.array(0), jnp.zeros((cotangents.shape[0], *shape.shape))))[1]
+
+
+def _grown_penalty(config: ALConfig, rho, rho_max, viol, previous) -> Float[Array, ""]:
+    """`rho` times `penalty_growth` up to `rho_max` (`penalty_max` scaled as the initial penalty), never below `rho`;
+    beyond `rho_max` only where the violation `viol` fell to `FALLING` of the `previous` one or below, and by the
+    whole factor up to `ALConfig.penalty_max_falling`. A violation that stays put at `rho_max` is the stall test's
+    (`_stalled`: infeasible); one that falls linearly there is a penalty below the constraints' curvature (through
+    the tracking cost, which does not scale with `nu`), which a larger one contracts faster."""
+    full = rho * config.penalty_growth
+    beyond = (viol <= FALLING * previous) & (full <= config.penalty_max_falling)
+    return jnp.maximum(jnp.where(beyond, full, jnp.minimum(full, rho_max)), rho)
 
 
 def _penalty_grows(p: _Parts, config: ALConfig, viol, previous, grown, lam) -> Bool[Array, ""]:

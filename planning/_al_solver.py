@@ -32,7 +32,9 @@ each inner solve, which ends only at an accepted step, the multipliers are updat
 (`lam += rho c`, `c` the defects at the iterate or, where the curvature remainder of the last step exceeds
 them, those its linearisation predicted: `_multiplier_defects`; `gam = rho (v - P(v))`) and `rho` grows when
 the violation did not fall by
-`violation_decrease` (with direction bounds only while `rho c` stays within the multipliers: `_penalty_grows`)
+`violation_decrease` (with direction bounds only while `rho c` stays within the multipliers: `_penalty_grows`;
+up to `penalty_max` scaled as the initial penalty, beyond it by whole factors up to `penalty_max_falling` where the
+violation fell by `FALLING`: `_grown_penalty`)
 (updating them from a rejected iterate would repeat the same `rho c` and drive
 the multipliers away). `rho` starts in proportion to
 the control weight (`penalty_per_weight`). One forward pass through the dynamics (`half_step`) per

@@ -127,3 +127,38 @@ def test_infeasible_move_ends_stalled():
     assert int(sol.iterations) < pl.ALConfig().max_outer_iterations
     assert float(sol.max_constraint_violation) > 1e3 * pl.ALConfig().tol_violation
     assert "infeasible" in jr.status_message(sol.status)
+
+
+def test_penalty_grows_past_its_scaled_limit_only_while_the_violation_falls():
+    """`rho` grows by `penalty_growth` up to the scaled `penalty_max`; beyond it only where the violation fell to
+    `FALLING` of the previous one or below, by the whole factor up to `penalty_max_falling`; it never shrinks."""
+    grown = lambda rho, ratio: float(_al_outer._grown_penalty(CONFIG, jnp.asarray(rho), RHO_MAX,  # noqa: E731
+                                                              jnp.asarray(ratio * 1e-4), jnp.asarray(1e-4)))
+    assert grown(1e6, 0.95) == 1e7
+    assert grown(1e7, 0.95) == 1e7
+    assert grown(1e7, _al_outer.FALLING) == pytest.approx(1e8, rel=1e-15)
+    assert grown(1e8, 0.5) == CONFIG.penalty_max_falling
+    assert grown(CONFIG.penalty_max_falling, 0.5) == CONFIG.penalty_max_falling
+    assert grown(1e8, 0.95) == 1e8
+    assert grown(2e8, 0.5) == 2e8
+
+
+def test_short_feasible_duration_converges_at_small_nu():
+    """The first 10 cm of the line in 0.3 s (`bench_front.py --quick`'s shortest feasible duration) at nu = 1e-12
+    with the axis limits and the motor-direction bounds: feasible (nu = 1e-10 converges there), its violation falls
+    linearly at the scaled `penalty_max` and converges only with the penalty beyond it (`_grown_penalty`), well
+    within the outer iterations allowed, with the multiplier estimates settled."""
+    robot = jr.racer7()
+    desc = jr.read_description(None)
+    desc["trajectories"]["duration_s"] = 0.3
+    desc["trajectories"]["line"]["y_end_m"] = 0.1
+    jp = pl.joint_path(robot, pl.reference_path("line", desc), check=False)
+    flat = pl.flat_motor_trajectory(robot, jp)
+    warm = (pl.State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
+    sol = pl.solve_ocp(robot, jp.q, jp.path.sample_time, 1e-12, warm_start=warm,
+                       direction=tr.motor_directions(flat.thetad))
+    assert jr.status_name(sol.status) == "successful", jr.status_name(sol.status)
+    assert int(sol.iterations) <= 20
+    assert float(sol.max_constraint_violation) <= CONFIG.tol_violation
+    penalty = np.asarray(sol.history_penalty)[:int(sol.iterations)]
+    assert penalty.max() > CONFIG.penalty_max
