@@ -130,17 +130,13 @@ def _errors(robots: dict, refs: dict) -> dict:
     return errors
 
 
-def _chain_states(rng: np.random.Generator) -> list:
-    """The states of the generated chains, `CHAINS`' order, drawn first from the rng of both fixtures."""
-    return [_states(rng, (N_STATES, n)) for _, n in CHAINS]
-
-
 @pytest.fixture(scope="module")
 def chain_terms():
     """Our terms and pinocchio's for the generated chains (key: seed) on our URDF export."""
-    robots, refs = {}, {}
-    for (seed, n), (q, qd, qdd) in zip(CHAINS, _chain_states(np.random.default_rng(14)), strict=True):
+    robots, refs, rng = {}, {}, np.random.default_rng(14)
+    for seed, n in CHAINS:
         robots[seed] = _random_chain(seed, n, "robot")  # one static name for the fleet
+        q, qd, qdd = _states(rng, (N_STATES, n))
         model = pin.buildModelFromXML(jr.to_urdf(robots[seed]))
         model.gravity.linear = np.asarray(robots[seed].gravity)
         assert model.nq == n
@@ -152,8 +148,7 @@ def chain_terms():
 def terms():
     """Our terms and pinocchio's for the example-robot-data URDFs (key: file name), on pinocchio's model of the
     file reduced to the chain."""
-    robots, refs, rng = {}, {}, np.random.default_rng(14)
-    _chain_states(rng)
+    robots, refs, rng = {}, {}, np.random.default_rng(15)
     for name, tip, tip_link, n in REAL:
         path = example_urdf(name)
         robots[name] = dataclasses.replace(jr.load_robot(path, tip=tip), name="robot", viscous_friction=None,
