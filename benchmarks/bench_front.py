@@ -174,7 +174,7 @@ def worker_single(robot, path) -> dict:
     _, first, _ = _call(one)
     calls = [_call(one) for _ in range(REPEAT)]
     member = lambda i, nu: solve_front(robot, [jps[i]], np.asarray([nu]), size=size)  # noqa: E731
-    _call(lambda: member(0, NUS[0]))  # loads the front's program
+    _call(lambda: member(len(jps) - 1, NUS[0]))  # loads the front's program (a member that is solved)
     members = [_call(lambda: member(i, nu)) for i in range(len(jps)) for nu in NUS]
     return {"one_first_s": first, "one_wall_s": min(c[1] for c in calls), "one_cpu_s": min(c[2] for c in calls),
             "one_inner": int(calls[0][0].inner_iterations), "one_status": jr.status_name(calls[0][0].status),
@@ -322,7 +322,16 @@ def lanes_study(quick: bool, out: Path) -> None:
     passes = run_worker("passes", quick, folder)
     info = _timing.run_info("the front by threads (`Scan`, the CPU's default) against the front by lanes "
                             "(`batched=True`, `CyclicReduction`), alternating, each call in a process of its own")
-    out.write_text("\n".join(lanes_lines(info, task(quick), fronts, single, passes)) + "\n")
+    measured = folder / "measured.json"
+    measured.write_text(json.dumps({"info": info, "fronts": fronts, "single": single, "passes": passes}))
+    print(f"measurements: {measured}")
+    write_lanes(measured, quick, out)
+
+
+def write_lanes(measured: Path, quick: bool, out: Path) -> None:
+    """The `--lanes` section from the measurements of a run (`lanes_study`'s file) to `out`."""
+    m = json.loads(measured.read_text())
+    out.write_text("\n".join(lanes_lines(m["info"], task(quick), m["fronts"], m["single"], m["passes"])) + "\n")
 
 
 def _ms(seconds: float) -> str:
@@ -375,17 +384,19 @@ def lanes_lines(info: dict, path, fronts: list, single: dict, passes: dict) -> l
                   f"either linear solver, and in lanes (copies of them, and the front's own members); a pass "
                   "advances every lane by at most one inner iteration (counted: a host callback per pass).", "",
                   "| solve | lanes | members' inner iterations (sum, longest) | passes | wall [s] | CPU [s] | "
-                  "CPU per pass [ms] | CPU per member iteration [ms] | throughput against `Scan` alone |",
-                  "|---|---|---|---|---|---|---|---|---|",
+                  "CPU per pass [ms] | CPU per pass and lane [ms] | CPU per member iteration [ms] | throughput "
+                  "against `Scan` alone |", "|---|---|---|---|---|---|---|---|---|---|",
                   f"| `Scan`, each alone | 1 | {scan_inner}, {max(single['inner'][k])} | | "
-                  f"{sum(single['wall_s'][k]):.2f} | {scan_cpu:.2f} | | {_ms(scan_cpu / scan_inner)} | 1 |"]
+                  f"{sum(single['wall_s'][k]):.2f} | {scan_cpu:.2f} | | | {_ms(scan_cpu / scan_inner)} | 1 |"]
         for row in rows:
             name = ("`CyclicReduction`, each alone" if row["passes"] is None else
                     "lanes, the front's members" if row.get("label") == "front" else "lanes, copies")
             total = sum(row["inner"])
             per_pass = "" if not row["passes"] else _ms(row["cpu_s"] / row["passes"])
+            per_lane = "" if not row["passes"] else _ms(row["cpu_s"] / row["passes"] / row["lanes"])
             lines.append(f"| {name} | {row['lanes']} | {total}, {max(row['inner'])} | {row['passes'] or ''} | "
-                         f"{row['wall_s']:.2f} | {row['cpu_s']:.2f} | {per_pass} | {_ms(row['cpu_s'] / total)} | "
+                         f"{row['wall_s']:.2f} | {row['cpu_s']:.2f} | {per_pass} | {per_lane} | "
+                         f"{_ms(row['cpu_s'] / total)} | "
                          f"{(scan_cpu / scan_inner) / (row['cpu_s'] / total):.2f} |")
         b = bounds(path, single, passes, cores)
         lines += ["", f"The least front time on {cores} cores (every core busy with useful work, no overhead between "
@@ -487,6 +498,9 @@ def main() -> None:
     parser.add_argument("--lanes", action="store_true",
                         help="instead: the front by lanes against threads on the CPU, the cost per inner iteration "
                              "and per pass, and the least front / one-solve ratio (each in a process of its own)")
+    parser.add_argument("--measured", type=Path,
+                        help="with --lanes: write the section from the measurements a --lanes run kept in this file "
+                             "(it prints `measurements: FILE`) instead of measuring")
     parser.add_argument("--worker", choices=sorted(WORKERS), help=argparse.SUPPRESS)
     parser.add_argument("--worker-out", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results_front.md")
@@ -498,7 +512,10 @@ def main() -> None:
         save(WORKERS[args.worker](robot, path, save))
         return
     if args.lanes:
-        lanes_study(args.quick, args.out)
+        if args.measured:
+            write_lanes(args.measured, args.quick, args.out)
+        else:
+            lanes_study(args.quick, args.out)
         print(f"wrote {args.out}")
         return
     timing = time_front(robot, path)
