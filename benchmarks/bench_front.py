@@ -267,7 +267,8 @@ def bounds(path, single: dict, passes: dict, cores: int) -> dict:
     longest)` of the members' CPU times, in any order or as `solve_front` orders them (the probes at the largest nu
     first, then the others); by lanes, the members' inner iterations in `B` lanes that each take the next member,
     `max(longest chain, sum / B)` passes at the measured CPU per pass of `B` lanes, over the cores (if one pass
-    used them all). Also the fit `CPU = overhead + per_inner * inner` of the single `Scan` solves."""
+    used them all); by threads of `CyclicReduction` solves, the inner iterations at its CPU per inner iteration
+    alone."""
     one = single["one_cpu_s"]
     cpu, inner = np.asarray(single["cpu_s"]), np.asarray(single["inner"])
     status = np.asarray(single["status"]).reshape(-1, len(NUS))
@@ -285,12 +286,9 @@ def bounds(path, single: dict, passes: dict, cores: int) -> dict:
     at = [round(d, 9) for d in grid(path)].index(LANE_DURATION) * len(NUS)
     paths_setup = setup * status.shape[0] / cores
     out = {"one_cpu_s": one, "setup_cpu_s": setup, "members_cpu_s": float(work.sum()), "longest_cpu_s":
-           float(work.max()), "longest_inner": int(inner[np.argmax(work)]), "answer_cpu_s": float(cpu[at]),
-           "answer_inner": int(inner[at]),
-           "threads_any_s": paths_setup + phase(np.ones(cpu.size, bool)),
-           "threads_probe_s": paths_setup + phase(probe) + phase(rest),
-           "scan_per_inner_s": float(work.sum() / inner[solved].sum()),
-           "inner_sum": int(inner[solved].sum()), "inner_longest": int(inner.max())}
+           float(work.max()), "longest_inner": int(inner[np.argmax(work)]), "answer_cpu_s": float(work[at]),
+           "answer_inner": int(inner[at]), "threads_any_s": paths_setup + phase(np.ones(cpu.size, bool)),
+           "threads_probe_s": paths_setup + phase(probe) + phase(rest)}
     front = next(r for r in passes["rows"] if r.get("label") == "front")
     total, longest = sum(front["inner"]), max(front["inner"])
     lanes = {}
@@ -300,9 +298,7 @@ def bounds(path, single: dict, passes: dict, cores: int) -> dict:
             lanes[row["lanes"]] = max(longest, -(-total // row["lanes"])) * per_pass / cores
     alone = passes["rows"][0]
     by_inner = lambda per_inner: max(total * per_inner / cores, longest * per_inner)  # noqa: E731
-    k = slice(at, at + len(NUS))
-    out.update(lanes_s=lanes, cr_alone_s=by_inner(alone["cpu_s"] / sum(alone["inner"])),
-               scan_alone_s=by_inner(work[k].sum() / inner[k].sum()), lanes_inner_sum=total,
+    out.update(lanes_s=lanes, cr_alone_s=by_inner(alone["cpu_s"] / sum(alone["inner"])), lanes_inner_sum=total,
                lanes_inner_longest=longest)
     return out
 
@@ -399,32 +395,35 @@ def lanes_lines(info: dict, path, fronts: list, single: dict, passes: dict) -> l
                          f"{_ms(row['cpu_s'] / total)} | "
                          f"{(scan_cpu / scan_inner) / (row['cpu_s'] / total):.2f} |")
         b = bounds(path, single, passes, cores)
-        lines += ["", f"The least front time on {cores} cores (every core busy with useful work, no overhead between "
-                  f"solves) over the one solve's CPU time {b['one_cpu_s']:.3f} s:", "",
-                  "| schedule | what it rests on | least front [s] | / one solve |", "|---|---|---|---|",
-                  f"| any, the answer's member alone ({LANE_DURATION:g} s, nu = {NUS[0]:.0e}) | its "
-                  f"{b['answer_inner']} inner iterations, one after the other (`Scan`, alone) | "
-                  f"{b['answer_cpu_s']:.2f} | {b['answer_cpu_s'] / b['one_cpu_s']:.1f}x |",
-                  f"| any, the front's longest member alone | its {b['longest_inner']} inner iterations (`Scan`, "
-                  f"alone, less its path's set-up) | {b['longest_cpu_s']:.2f} | "
-                  f"{b['longest_cpu_s'] / b['one_cpu_s']:.1f}x |",
-                  f"| threads (`Scan`), any order | the solved members' CPU alone less their path's set-up "
-                  f"({_ms(b['setup_cpu_s'])} ms, once per path), sum {b['members_cpu_s']:.2f} s / {cores}, longest "
-                  f"{b['longest_cpu_s']:.2f} s | "
-                  f"{b['threads_any_s']:.2f} | {b['threads_any_s'] / b['one_cpu_s']:.1f}x |",
-                  f"| threads (`Scan`), probes first (`solve_front`) | the same, in its two phases | "
-                  f"{b['threads_probe_s']:.2f} | {b['threads_probe_s'] / b['one_cpu_s']:.1f}x |",
-                  f"| threads (`Scan`), any order, by iterations | {b['lanes_inner_sum']} inner iterations (longest "
-                  f"{b['lanes_inner_longest']}) at its CPU per member iteration alone (above) | "
-                  f"{b['scan_alone_s']:.2f} | {b['scan_alone_s'] / b['one_cpu_s']:.1f}x |",
-                  f"| threads (`CyclicReduction`), any order, by iterations | the same at its CPU per member "
-                  f"iteration alone | {b['cr_alone_s']:.2f} | {b['cr_alone_s'] / b['one_cpu_s']:.1f}x |"]
-        lines += [f"| lanes, {n} | max({b['lanes_inner_longest']}, {b['lanes_inner_sum']} / {n}) passes at its CPU "
-                  f"per pass / {cores} | {t:.2f} | {t / b['one_cpu_s']:.1f}x |"
+        one, per_one = b["one_cpu_s"], b["one_cpu_s"] / single["one_inner"]
+        by_count = b["lanes_inner_sum"] * per_one / cores
+        row = lambda what, rests, t: f"| {what} | {rests} | {t:.2f} | {t / one:.1f}x |"  # noqa: E731
+        lines += ["", f"The least front time (every core busy with useful work, no overhead between solves) over the "
+                  f"one solve's CPU time, {one:.3f} s for its {single['one_inner']} inner iterations "
+                  f"({_ms(per_one)} ms each, its set-up included):", "",
+                  "| schedule, cores | what it rests on | least front [s] | / one solve |", "|---|---|---|---|",
+                  row(f"any, any number: the answer's member ({LANE_DURATION:g} s, nu = {NUS[0]:.0e})",
+                      f"its {b['answer_inner']} inner iterations one after the other, at the one solve's cost each",
+                      b["answer_inner"] * per_one),
+                  row("the same", "the member alone (`Scan`, less its path's set-up), measured", b["answer_cpu_s"]),
+                  row("any, any number: the front's longest member", f"its {b['longest_inner']} inner iterations "
+                      "alone (`Scan`, less its path's set-up), measured", b["longest_cpu_s"]),
+                  row(f"threads (`Scan`), {cores}", f"the front's {b['lanes_inner_sum']} inner iterations over the "
+                      "cores, at the one solve's cost each", by_count)]
+        if threads is not None:
+            lines.append(row(f"threads (`Scan`), {cores}", "the threads front's CPU time (the first round) over the "
+                             "cores", threads["cpu_s"] / cores))
+        lines += [row(f"threads (`Scan`), {cores}, any order", "the solved members alone (`Scan`, measured, less "
+                      f"their path's set-up, {_ms(b['setup_cpu_s'])} ms, once per path): sum "
+                      f"{b['members_cpu_s']:.2f} s over the cores, longest {b['longest_cpu_s']:.2f} s",
+                      b["threads_any_s"]),
+                  row(f"threads (`Scan`), {cores}, probes first (`solve_front`)", "the same, in its two phases",
+                      b["threads_probe_s"]),
+                  row(f"threads (`CyclicReduction`), {cores}", f"the front's inner iterations (longest "
+                      f"{b['lanes_inner_longest']}) at its CPU per member iteration alone (above)", b["cr_alone_s"])]
+        lines += [row(f"lanes, {n}, over {cores} cores", f"max({b['lanes_inner_longest']}, {b['lanes_inner_sum']} / "
+                      f"{n}) passes at the CPU per pass of {n} lanes (above)", t)
                   for n, t in sorted(b["lanes_s"].items())]
-        lines += ["", f"`Scan` alone: {_ms(b['scan_per_inner_s'])} ms CPU per inner iteration over the front's "
-                  f"solved members ({b['inner_sum']} inner iterations), {_ms(b['one_cpu_s'] / single['one_inner'])} "
-                  "ms in the one solve."]
     if "hang" in passes or "failed" in passes:
         lines += ["", f"The passes' process: {passes.get('hang') or passes.get('failed')}"]
     return lines
