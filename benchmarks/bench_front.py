@@ -30,7 +30,8 @@ the front by threads (the CPU's default: one `Scan` solve per member on a thread
 front alone (`Scan`, one after the other: each member's CPU time and inner iterations); the lanes' cost per pass
 (counted) for `LANES` lanes (copies of the 0.35 s members) and the front's own, against the unbatched solve with
 either linear solver; and from these the least front / one-solve ratio that perfect use of the cores allows
-(`bounds`). It writes that section to `--out`.
+(`bounds`). It writes that section to `--out` and keeps the measurements in a file it names (`measurements: FILE`),
+from which `--lanes --measured FILE` writes the section again without measuring.
 """
 
 from __future__ import annotations
