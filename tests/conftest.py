@@ -76,7 +76,7 @@ LONGEST_FIRST = tuple(TESTS / name for name in (
     "planning/test_front.py", "jaxrobot/test_dynamic_effects.py", "jaxrobot/test_transforms.py",
     "identification/test_identify_gear.py", "jaxrobot/test_simulate.py", "planning/test_al_solver.py",
     "planning/test_cyclic_reduction.py", "planning/test_evaluation.py", "identification/test_calibrate_parallel.py",
-    "jaxrobot/test_dynamics.py", "planning/test_prediction.py", "identification/test_runs.py",
+    "jaxrobot/test_dynamics.py", "identification/test_runs.py",
     "identification/test_runs_link_drag.py",
 ))
 

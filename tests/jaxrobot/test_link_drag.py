@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import tomli_w
-from test_dynamic_effects import arm_description, arm_link_torque
+from test_dynamic_effects import COULOMB, VISCOUS, arm_description, arm_link_torque
 from test_transcription import transcription_derivatives_match_autodiff
 
 import jaxrobot as jr
@@ -52,5 +52,8 @@ def test_link_drag_enters_the_link_bracket():
 
 def test_transcription_derivatives_with_link_drag_match_autodiff():
     """The OCP's structured `half_step`, `half_step_vjp` and `half_step_jacobian` with link drag (its analytic
-    slope `2 f_d |qd|`) match autodiff of `jr.planning_dynamics` to rounding."""
-    transcription_derivatives_match_autodiff(jr.robot_from_description(drag_description()))
+    slope `2 f_d |qd|`) beside link-side friction (both link loads, no damping: the undamped branch, where their
+    slopes join the link rates' column) match autodiff of `jr.planning_dynamics` to rounding."""
+    data = drag_description()
+    data["friction"].update(viscous=list(VISCOUS), coulomb=list(COULOMB))
+    transcription_derivatives_match_autodiff(jr.robot_from_description(data))

@@ -59,13 +59,13 @@ def test_flat_inverse_tracks_on_the_simulated_model_at_fourth_order(flat):
 
 
 def test_simulator_holds_rest_and_rejects_bad_shapes():
-    theta = jnp.broadcast_to(jr.static_equilibrium(ROBOT, QA), (200, 6))
+    theta = jnp.broadcast_to(jr.static_equilibrium(ROBOT, QA), (T.size, 6))  # the fourth-order test's program
     zeros = jnp.zeros_like(theta)
-    q, qd = SIMULATE(ROBOT, T[:200], theta, zeros, zeros, substeps=2)
+    q, qd = SIMULATE(ROBOT, T, theta, zeros, zeros, substeps=2)
     assert float(jnp.max(jnp.abs(q - QA))) < 1e-12 and float(jnp.max(jnp.abs(qd))) < 1e-10
     with pytest.raises(ValueError, match=r"theta: expected shape \(N, n\) with n = 6 joints of this robot, "
                        r"found \(200, 5\)"):
-        jr.simulate(ROBOT, T[:200], theta[:, :5], zeros, zeros)
+        jr.simulate(ROBOT, T[:200], theta[:200, :5], zeros[:200], zeros[:200])
 
 
 def test_trajectory_run_and_csv_round_trip(tmp_path, flat):

@@ -143,6 +143,7 @@ def test_penalty_grows_past_its_scaled_limit_only_while_the_violation_falls():
     assert grown(2e8, 0.5) == 2e8
 
 
+@pytest.mark.extended  # compiles a bounded solve of 301 nodes no other test shares; the suite keeps the rule's values
 def test_short_feasible_duration_converges_at_small_nu():
     """The first 10 cm of the line in 0.3 s (`bench_front.py --quick`'s shortest feasible duration) at nu = 1e-12
     with the axis limits and the motor-direction bounds: feasible (nu = 1e-10 converges there), its violation falls

@@ -25,11 +25,12 @@ not the fine one)."""
 
 @pytest.fixture(scope="module")
 def short_line(robot):
-    """A 20 mm line in 0.2 s (201 samples) and its flat inverse on the Racer-7: exact on the model, so the error
-    on a robot is what its parameters' deviations make."""
+    """A 7.2 mm line in 0.12 s (121 samples, padded as test_padding's lines, whose IK programs it shares; the
+    accelerations of 20 mm in 0.2 s) and its flat inverse on the Racer-7: exact on the model, so the error on a
+    robot is what its parameters' deviations make."""
     desc = jr.read_description(None)
-    desc["trajectories"]["duration_s"] = 0.2
-    desc["trajectories"]["line"]["y_end_m"] = desc["trajectories"]["line"]["y_start_m"] + 0.02
+    desc["trajectories"]["duration_s"] = 0.12
+    desc["trajectories"]["line"]["y_end_m"] = desc["trajectories"]["line"]["y_start_m"] + 0.0072
     jp = pl.joint_path(robot, pl.reference_path("line", desc))
     return jp, pl.flat_motor_trajectory(robot, jp)
 
@@ -94,7 +95,7 @@ def test_bad_input_is_named(robot, short_line, uncertainty):
     jp, traj = short_line
     with pytest.raises(ValueError, match="method: expected one of"):
         pl.predict_on_robot(robot, uncertainty, jp, traj, method="mc")
-    with pytest.raises(ValueError, match=r"trajectory: expected motor angles of shape \(201, 6\)"):
+    with pytest.raises(ValueError, match=r"trajectory: expected motor angles of shape \(121, 6\)"):
         pl.predict_on_robot(robot, uncertainty, jp, pl.MotorTrajectory(*(a[:10] for a in (traj.theta,) * 3)))
     wrong = jr.ModelUncertainty(("kinematics.a[9]",), jnp.zeros(1), jnp.eye(1), jnp.asarray(0.0), jnp.asarray(0.0))
     with pytest.raises(ValueError, match=r"uncertainty.names: .*kinematics.a\[9\]"):

@@ -61,6 +61,7 @@ def transcription_derivatives_match_autodiff(robot: jr.Robot):
     return problem, y, sz
 
 
+@pytest.mark.extended  # its own program; the suite checks friction's derivatives beside link drag (test_link_drag)
 def test_transcription_derivatives_with_friction_match_autodiff():
     """With link-side friction alone (no damping: the undamped branch, where the friction's slope joins the link
     rates' column), the OCP's structured derivatives match autodiff of `jr.planning_dynamics` to rounding."""
