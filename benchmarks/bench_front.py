@@ -85,7 +85,7 @@ def grid(path: pl.Path) -> list[float]:
 
 def time_front(robot, path) -> dict:
     """The 32-point front (one batched call, second call timed) and one solve of the task (best of `REPEAT`)."""
-    jps = [pl.joint_path(robot, retimed_path(path, d), check=False) for d in grid(path)]
+    jps, _ = _paths(robot, path)
     nus = np.asarray(NUS)
     start = time.perf_counter()
     jax.block_until_ready(solve_front(robot, jps, nus))
@@ -93,11 +93,7 @@ def time_front(robot, path) -> dict:
     start, cpu = time.perf_counter(), time.process_time()
     sols = jax.block_until_ready(solve_front(robot, jps, nus))
     front_s, front_cpu = time.perf_counter() - start, time.process_time() - cpu
-    jp = jps[-1]
-    flat = pl.flat_motor_trajectory(robot, jp)
-    warm = (pl.State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
-    one = lambda: pl.solve_ocp(robot, jp.q, path.sample_time, 1e-14, warm_start=warm,  # noqa: E731
-                               direction=motor_directions(flat.thetad))
+    one = _one_solve(robot, jps[-1])
     sol, single_first, single_s = _timing.timed(one, REPEAT)
     single_cpu = np.inf
     for _ in range(REPEAT):
@@ -133,8 +129,18 @@ def _summary(sols) -> dict:
 
 
 def _paths(robot, path) -> tuple[list, int]:
+    """The joint paths of the front's durations (`grid`) and their padded node count."""
     jps = [pl.joint_path(robot, retimed_path(path, d), check=False) for d in grid(path)]
     return jps, padded_nodes(max(jp.t.shape[0] for jp in jps))
+
+
+def _one_solve(robot, jp):
+    """The one solve of the task (its joint path `jp`, the front's longest duration) at nu = 1e-14, from its flat
+    inverse, with the motor-direction bounds of `plan_task`: a callable."""
+    flat = pl.flat_motor_trajectory(robot, jp)
+    warm = (pl.State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
+    return lambda: pl.solve_ocp(robot, jp.q, jp.path.sample_time, 1e-14, warm_start=warm,
+                                direction=motor_directions(flat.thetad))
 
 
 def _count_passes() -> list[int]:
@@ -167,11 +173,7 @@ def worker_single(robot, path) -> dict:
     """The one solve (as `time_front`, best of `REPEAT` after the first call), then every member of the front alone
     (`solve_front` of its path and nu on the front's node count: the front's program), one after the other."""
     jps, size = _paths(robot, path)
-    jp = jps[-1]
-    flat = pl.flat_motor_trajectory(robot, jp)
-    warm = (pl.State(jp.q, jp.qd, flat.theta, flat.thetad).pack(), flat.thetadd)
-    one = lambda: pl.solve_ocp(robot, jp.q, path.sample_time, 1e-14, warm_start=warm,  # noqa: E731
-                               direction=motor_directions(flat.thetad))
+    one = _one_solve(robot, jps[-1])
     _, first, _ = _call(one)
     calls = [_call(one) for _ in range(REPEAT)]
     member = lambda i, nu: solve_front(robot, [jps[i]], np.asarray([nu]), size=size)  # noqa: E731
